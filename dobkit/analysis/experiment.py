@@ -1,0 +1,164 @@
+"""The paper's experiment end to end: simulate with and without the observer, write results.
+
+:func:`run_experiment` is what ``dobkit simulate`` does; the output folder gets
+
+* ``metrics.json``: per-joint metrics of both runs (Table 3 and more), with units;
+* ``timeseries.csv``: every signal of both runs on the uniform output grid;
+* ``scenario.toml``: the complete scenario used (re-running it reproduces the numbers);
+* ``fig4..fig8`` as PNG and SVG.
+
+Results are first written to a staging folder beside the target and moved
+into place only when everything succeeded, so a failed run leaves no partial
+output behind.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+import tempfile
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from .. import __version__
+from ..blocks import Scenario, load_scenario, simulate
+from .figures import paper_figures
+from .metrics import DISTURBANCE_UNITS, JOINT_UNITS, tracking_metrics
+
+__all__ = ["ExperimentResult", "run_experiment", "format_rms_table", "default_out_dir", "staged_output"]
+
+
+@dataclass
+class ExperimentResult:
+    """What :func:`run_experiment` produced."""
+
+    scenario: Scenario
+    with_dob: object
+    without_dob: object
+    metrics: dict
+    out_dir: Path | None
+    files: list
+
+
+def default_out_dir(prefix: str = "dobkit-run") -> Path:
+    """A new folder name under the current one, ``prefix-YYYYmmdd-HHMMSS`` (suffixed if taken)."""
+    base = Path.cwd() / f"{prefix}-{datetime.now():%Y%m%d-%H%M%S}"
+    path, k = base, 1
+    while path.exists():
+        path, k = Path(f"{base}-{k}"), k + 1
+    return path
+
+
+class staged_output:
+    """Context manager: a staging folder that replaces ``target``'s files only on success.
+
+    ``target`` may not exist or be an empty folder; a non-empty folder is refused
+    so that earlier results are never mixed with new ones.
+    """
+
+    def __init__(self, target: Path) -> None:
+        self.target = Path(target)
+        if self.target.exists() and (not self.target.is_dir() or any(self.target.iterdir())):
+            raise FileExistsError(f"output folder '{self.target}' exists and is not empty; choose a new --out")
+
+    def __enter__(self) -> Path:
+        self.target.parent.mkdir(parents=True, exist_ok=True)
+        self.stage = Path(tempfile.mkdtemp(prefix=f".{self.target.name}.partial-", dir=self.target.parent))
+        return self.stage
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is not None:
+            shutil.rmtree(self.stage, ignore_errors=True)
+            return
+        if self.target.exists():
+            self.target.rmdir()
+        self.stage.rename(self.target)
+
+
+def run_experiment(scenario: Scenario | str = "paper", out_dir: Path | str | None = None,
+                   progress: Callable[[str, float], None] | None = None, figures: bool = True) -> ExperimentResult:
+    """Simulate a scenario with and without the observer and write the results.
+
+    Parameters
+    ----------
+    scenario : Scenario or str
+        The scenario or its name/path (default: the built-in ``paper``).
+    out_dir : path, optional
+        Output folder (must not exist or be empty).  None: compute only, write nothing.
+    progress : callable, optional
+        ``progress(stage, fraction)`` as the simulations advance.
+    figures : bool
+        Write Figures 4-8.
+
+    Returns
+    -------
+    ExperimentResult
+    """
+    s = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    runs = {}
+    for key, with_observer in (("with_dob", True), ("without_dob", False)):
+        stage = f"simulating {'with' if with_observer else 'without'} observer"
+        runs[key] = simulate(s, observer=with_observer,
+                             progress=(lambda f, st=stage: progress(st, f)) if progress else None)
+    metrics = {
+        "scenario": s.name,
+        "dobkit_version": __version__,
+        "units": {"position": list(JOINT_UNITS), "disturbance": list(DISTURBANCE_UNITS)},
+        "definitions": {
+            "rms_position_error": "Eq. 13: sqrt(mean((q_ref - q)^2)) over the uniform output grid, per joint",
+            "rms_disturbance_error": "Eq. 14: sqrt(mean((d - d_hat)^2)), d = lumped disturbance on the nominal model",
+        },
+        "with_dob": tracking_metrics(runs["with_dob"]),
+        "without_dob": tracking_metrics(runs["without_dob"]),
+    }
+    files: list[Path] = []
+    if out_dir is not None:
+        target = Path(out_dir)
+        with staged_output(target) as stage:
+            (stage / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+            (stage / "scenario.toml").write_text(s.to_toml())
+            _write_timeseries(stage / "timeseries.csv", runs)
+            if figures:
+                if progress:
+                    progress("writing figures", 0.0)
+                paper_figures(runs["with_dob"], runs["without_dob"], stage)
+        files = sorted(target.iterdir())
+    return ExperimentResult(s, runs["with_dob"], runs["without_dob"], metrics, Path(out_dir) if out_dir else None,
+                            files)
+
+
+def _write_timeseries(path: Path, runs: dict) -> None:
+    first = next(iter(runs.values()))
+    columns, header = [np.asarray(first.time)], ["time_s"]
+    for key, resp in runs.items():
+        for k, label in enumerate(resp.output_labels):
+            header.append(f"{key}.{label}")
+            columns.append(np.asarray(resp.outputs)[k])
+    with path.open("w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(header)
+        writer.writerows(np.column_stack(columns).tolist())
+
+
+def format_rms_table(metrics: dict) -> str:
+    """The paper's Table 3 layout (both runs, all joints, with units) as plain text."""
+    units = metrics["units"]
+    head = f"{'RMS error':<34}" + "".join(f"{f'Joint {i + 1}':>14}" for i in range(4))
+    unit_row = f"{'':<34}" + "".join(f"{'(' + u + ')':>14}" for u in units["position"])
+    rows = [head, "-" * len(head)]
+    for key, label in (("with_dob", "with observer"), ("without_dob", "without observer")):
+        m = metrics[key]
+        rows.append(f"{'Position tracking, ' + label:<34}" + "".join(f"{v:>14.4e}" for v in m["rms_position_error"]))
+    rows.append(unit_row)
+    if "rms_disturbance_error" in metrics["with_dob"]:
+        rows.append(f"{'Disturbance tracking, with observer':<34}"
+                    + "".join(f"{v:>14.4e}" for v in metrics["with_dob"]["rms_disturbance_error"]))
+        rows.append(f"{'':<34}" + "".join(f"{'(' + u + ')':>14}" for u in units["disturbance"]))
+    for key, label in (("with_dob", "with observer"), ("without_dob", "without observer")):
+        if "max_tool_position_error_mm" in metrics[key]:
+            rows.append(f"Worst tool-tip error, {label}: {metrics[key]['max_tool_position_error_mm']:.3f} mm")
+    return "\n".join(rows)

@@ -1,0 +1,160 @@
+"""External disturbance models acting on the joints (paper Eq. 2 and 4, and realistic ones beside it).
+
+Each model is a pure function of time and the true joint state returning the
+generalised disturbance force ``tau_dis`` (N m for revolute joints, N for the
+prismatic joint 3).  A :class:`DisturbanceSpec` names the models that act and
+their parameters; the total is their sum.
+
+Models
+------
+``paper``
+    Eq. 4, ``f_r * sgn(2 t + 1)``.  For every ``t >= 0`` this is the constant
+    step ``+f_r`` (paper-notes); it is implemented as printed.
+``friction``
+    Coulomb plus viscous joint friction opposing the joint velocity,
+    ``-(F_c tanh(q'/v_s) + F_v q')``.  The sign function is smoothed by
+    ``tanh`` with velocity scale ``v_s`` so the right-hand side stays smooth
+    for an adaptive ODE solver; below ``|q'| ~ v_s`` friction acts like a
+    stiff viscous damper ``F_c / v_s`` instead of sticking.
+``tissue``
+    Contact with the patient's skin, a horizontal plane at height
+    ``skin_height`` (m, base frame).  When the tool tip is below the plane by
+    ``p > 0`` the tissue pushes it up with ``F_z = max(0, k p - c z')`` (a
+    spring-damper that cannot pull) and drags it in the plane with
+    ``F_xy = -c_lat v_xy``.  The task-space force maps to the joints through
+    the kinematic Jacobian, ``tau = J^T F``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .kinematics import forward_kinematics, jacobian
+from .parameters import RobotParameters
+
+__all__ = ["DisturbanceSpec", "DISTURBANCE_KINDS", "external_disturbance",
+           "paper_disturbance", "friction_disturbance", "tissue_disturbance"]
+
+DISTURBANCE_KINDS = ("paper", "friction", "tissue")
+
+_Vec4 = tuple[float, float, float, float]
+
+
+@dataclass(frozen=True)
+class DisturbanceSpec:
+    """Which external disturbances act on the plant, and their parameters.
+
+    Parameters
+    ----------
+    kinds : tuple of str
+        Any of ``"paper"``, ``"friction"``, ``"tissue"``; an empty tuple means no
+        external disturbance.  Their torques add up.
+    f_r : 4 floats
+        Eq. 4 amplitudes (N m, N m, N, N m); paper: ``[1.43, 1.6, 1.4, 1.2]``.
+    coulomb : 4 floats
+        Coulomb friction levels ``F_c`` (N m, N m, N, N m).
+    viscous : 4 floats
+        Viscous coefficients ``F_v`` (N m s/rad, N m s/rad, N s/m, N m s/rad).
+    friction_velocity : float
+        Smoothing velocity ``v_s`` of the Coulomb term (rad/s or m/s), > 0.
+    skin_height : float
+        Height of the skin plane in the base frame (m).  The default is the
+        tool height at ``d3 = 0.24 m`` (Table 1's link-3 offset).
+    tissue_stiffness : float
+        Normal stiffness of the tissue ``k`` (N/m), >= 0.
+    tissue_damping : float
+        Normal damping ``c`` (N s/m), >= 0.
+    tissue_drag : float
+        In-plane viscous drag ``c_lat`` while below the skin (N s/m), >= 0.
+    """
+
+    kinds: tuple[str, ...] = ("paper",)
+    f_r: _Vec4 = (1.43, 1.6, 1.4, 1.2)
+    coulomb: _Vec4 = (0.8, 0.6, 0.5, 0.1)
+    viscous: _Vec4 = (0.4, 0.3, 2.0, 0.05)
+    friction_velocity: float = 0.01
+    skin_height: float = 0.12 - 0.24 - 0.271
+    tissue_stiffness: float = 800.0
+    tissue_damping: float = 10.0
+    tissue_drag: float = 20.0
+
+    def __post_init__(self) -> None:
+        kinds = tuple(self.kinds)
+        for kind in kinds:
+            if kind not in DISTURBANCE_KINDS:
+                raise ValueError(f"disturbance kind {kind!r} is unknown; choose from {list(DISTURBANCE_KINDS)}")
+        if len(set(kinds)) != len(kinds):
+            raise ValueError(f"disturbance kinds {list(kinds)} name a model twice")
+        object.__setattr__(self, "kinds", kinds)
+        for name in ("f_r", "coulomb", "viscous"):
+            value = tuple(float(v) for v in np.asarray(getattr(self, name), dtype=float).ravel())
+            if len(value) != 4 or not all(math.isfinite(v) for v in value):
+                raise ValueError(f"disturbance.{name} must be 4 finite numbers, got {getattr(self, name)!r}")
+            if name != "f_r" and any(v < 0 for v in value):
+                raise ValueError(f"disturbance.{name} must be >= 0, got {list(value)}")
+            object.__setattr__(self, name, value)
+        for name, lower, strict in (("friction_velocity", 0.0, True), ("tissue_stiffness", 0.0, False),
+                                    ("tissue_damping", 0.0, False), ("tissue_drag", 0.0, False),
+                                    ("skin_height", -math.inf, False)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ValueError(f"disturbance.{name} must be a finite number, got {value!r}")
+            if (strict and value <= lower) or (not strict and value < lower):
+                raise ValueError(f"disturbance.{name} must be {'>' if strict else '>='} {lower}, got {value!r}")
+            object.__setattr__(self, name, float(value))
+
+
+def paper_disturbance(t, f_r) -> np.ndarray:
+    """Eq. 4: ``f_r * sgn(2 t + 1)``, shape ``broadcast(t[..., None], f_r)``."""
+    t = np.asarray(t, dtype=float)
+    return np.asarray(f_r, dtype=float) * np.sign(2.0 * t + 1.0)[..., None]
+
+
+def friction_disturbance(dq, coulomb, viscous, friction_velocity: float) -> np.ndarray:
+    """Smoothed Coulomb plus viscous friction ``-(F_c tanh(q'/v_s) + F_v q')``, shape (..., 4)."""
+    dq = np.asarray(dq, dtype=float)
+    return -(np.asarray(coulomb) * np.tanh(dq / friction_velocity) + np.asarray(viscous) * dq)
+
+
+def tissue_disturbance(q, dq, spec: DisturbanceSpec, params: RobotParameters) -> np.ndarray:
+    """Joint forces from the skin spring-damper contact, ``J(q)^T F``, shape (..., 4)."""
+    q = np.asarray(q, dtype=float)
+    dq = np.asarray(dq, dtype=float)
+    J = jacobian(q, params)
+    pose = forward_kinematics(q, params)
+    v = (J @ dq[..., None])[..., 0]
+    depth = spec.skin_height - pose[..., 2]
+    inside = depth > 0.0
+    F = np.zeros(np.broadcast_shapes(q.shape, dq.shape))
+    F[..., 2] = np.where(inside, np.maximum(0.0, spec.tissue_stiffness * depth - spec.tissue_damping * v[..., 2]), 0.0)
+    F[..., 0] = np.where(inside, -spec.tissue_drag * v[..., 0], 0.0)
+    F[..., 1] = np.where(inside, -spec.tissue_drag * v[..., 1], 0.0)
+    return (np.swapaxes(J, -1, -2) @ F[..., None])[..., 0]
+
+
+def external_disturbance(t, q, dq, spec: DisturbanceSpec, params: RobotParameters) -> np.ndarray:
+    """Total external disturbance ``tau_dis`` of the selected models, shape (..., 4).
+
+    Parameters
+    ----------
+    t : float or array_like
+        Time (s); broadcasts against the leading shape of ``q``.
+    q, dq : array_like, shape (..., 4)
+        True joint positions and velocities.
+    spec : DisturbanceSpec
+        Selected models and their parameters.
+    params : RobotParameters
+        True arm parameters (for the tissue contact kinematics).
+    """
+    q = np.asarray(q, dtype=float)
+    dq = np.asarray(dq, dtype=float)
+    total = np.zeros(np.broadcast_shapes(q.shape, dq.shape))
+    if "paper" in spec.kinds:
+        total = total + paper_disturbance(t, spec.f_r)
+    if "friction" in spec.kinds:
+        total = total + friction_disturbance(dq, spec.coulomb, spec.viscous, spec.friction_velocity)
+    if "tissue" in spec.kinds:
+        total = total + tissue_disturbance(q, dq, spec, params)
+    return total

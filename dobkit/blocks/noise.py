@@ -1,0 +1,72 @@
+"""Reproducible measurement noise on the joint positions and velocities.
+
+White Gaussian samples are drawn once, from a seed, on a uniform grid of
+period ``sample_period`` and interpolated linearly in between.  The noise is
+therefore a fixed, continuous function of time: an adaptive ODE solver that
+evaluates the right-hand side at any time, in any order and any number of
+times sees the same signal, and the same seed always gives the same run.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["MeasurementNoise"]
+
+
+@dataclass(frozen=True)
+class MeasurementNoise:
+    """Band-limited measurement noise ``(n_q(t), n_dq(t))``.
+
+    Parameters
+    ----------
+    q_std : 4 floats
+        Standard deviation of the position noise per joint (rad, rad, m, rad).
+    dq_std : 4 floats
+        Standard deviation of the velocity noise per joint (rad/s, rad/s, m/s, rad/s).
+    seed : int
+        Seed of the random generator.
+    sample_period : float
+        Spacing of the independent samples (s), > 0; the noise bandwidth is
+        about ``1 / (2 sample_period)`` Hz.
+    t_final : float
+        Last time the noise is needed (s); later times hold the last sample.
+    """
+
+    q_std: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
+    dq_std: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
+    seed: int = 0
+    sample_period: float = 0.001
+    t_final: float = 10.0
+
+    def __post_init__(self) -> None:
+        for name in ("q_std", "dq_std"):
+            value = np.asarray(getattr(self, name), dtype=float)
+            if value.shape != (4,) or not np.all(np.isfinite(value)) or np.any(value < 0):
+                raise ValueError(f"noise.{name} must be 4 finite numbers >= 0, got {getattr(self, name)!r}")
+            object.__setattr__(self, name, tuple(float(v) for v in value))
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
+            raise ValueError(f"noise.seed must be a whole number >= 0, got {self.seed!r}")
+        for name in ("sample_period", "t_final"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+                raise ValueError(f"noise.{name} must be a finite number > 0 s, got {value!r}")
+        n = int(math.ceil(self.t_final / self.sample_period)) + 2
+        rng = np.random.default_rng(self.seed)
+        samples = rng.standard_normal((n, 8)) * np.array(self.q_std + self.dq_std)
+        object.__setattr__(self, "_samples", samples)
+
+    @property
+    def enabled(self) -> bool:
+        """True when any standard deviation is non-zero."""
+        return any(v > 0 for v in self.q_std + self.dq_std)
+
+    def sample(self, t):
+        """Noise at time(s) ``t`` (s): ``(n_q, n_dq)``, each of shape ``(4,)`` or ``(len(t), 4)``."""
+        x = np.clip(np.asarray(t, dtype=float) / self.sample_period, 0.0, len(self._samples) - 1.0)
+        i = np.minimum(np.floor(x).astype(int), len(self._samples) - 2)
+        w = (x - i)[..., None]
+        value = (1 - w) * self._samples[i] + w * self._samples[i + 1]
+        return value[..., :4], value[..., 4:]

@@ -1,0 +1,108 @@
+"""The ``dobkit`` command line: a thin layer over the Python API.
+
+Subcommands: ``simulate`` (the paper's experiment), and, where installed,
+``analyze``/``report`` (dobkit.analysis), ``sweep`` and ``fmu ...``.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+import time
+
+from . import __version__
+
+__all__ = ["main"]
+
+# (module, function adding subcommands) -- each optional part registers its own commands.
+_EXTENSIONS = (
+    ("dobkit.analysis.cli", "add_analysis_subcommands"),
+    ("dobkit.analysis.sweep_cli", "add_sweep_subcommand"),
+    ("dobkit.fmu.cli", "add_fmu_subcommands"),
+)
+
+
+class ProgressBar:
+    """A one-line progress display on stderr for long runs."""
+
+    def __init__(self, stream=sys.stderr) -> None:
+        self.stream = stream
+        self.stage = None
+        self.start = time.monotonic()
+
+    def __call__(self, stage: str, fraction: float) -> None:
+        if not self.stream.isatty():
+            # A log file gets one line per stage, not a redrawn bar.
+            if stage != self.stage:
+                self.stream.write(f"{stage} ... ({time.monotonic() - self.start:.1f} s)\n")
+                self.stream.flush()
+            self.stage = stage
+            return
+        if stage != self.stage and self.stage is not None:
+            self.stream.write("\n")
+        self.stage = stage
+        filled = int(30 * fraction)
+        self.stream.write(f"\r{stage:<34} [{'#' * filled}{'.' * (30 - filled)}] {100 * fraction:5.1f}% "
+                          f"{time.monotonic() - self.start:6.1f} s")
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.stage is not None and self.stream.isatty():
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+def _cmd_simulate(args) -> int:
+    from .analysis.experiment import default_out_dir, format_rms_table, run_experiment
+    from .blocks import load_scenario
+
+    scenario = load_scenario(args.scenario)
+    out = args.out if args.out is not None else default_out_dir()
+    bar = ProgressBar()
+    try:
+        result = run_experiment(scenario, out, progress=bar)
+    finally:
+        bar.close()
+    print(f"scenario: {scenario.name} ({scenario.source})")
+    print(format_rms_table(result.metrics))
+    print(f"results written to {result.out_dir}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser with every available subcommand."""
+    parser = argparse.ArgumentParser(prog="dobkit", description="Disturbance-observer-based tracking control "
+                                     "of a surgical robot arm, on python-control.")
+    parser.add_argument("--version", action="version", version=f"dobkit {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+    sim = sub.add_parser("simulate", help="run a scenario with and without the observer; write metrics, "
+                         "time series and Figures 4-8")
+    sim.add_argument("--scenario", default="paper", help="built-in scenario name or path to a TOML file "
+                     "(default: paper)")
+    sim.add_argument("--out", default=None, help="output folder (default: a new folder under the current one)")
+    sim.set_defaults(func=_cmd_simulate)
+    for module, function in _EXTENSIONS:
+        try:
+            mod = importlib.import_module(module)
+        except ModuleNotFoundError as err:
+            if err.name != module:     # a real missing dependency inside the module must not be hidden
+                raise
+            continue
+        getattr(mod, function)(sub)
+    return parser
+
+
+def main(argv=None) -> int:
+    """Entry point of the ``dobkit`` console script; returns the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except (ValueError, FileExistsError, FileNotFoundError, RuntimeError) as err:
+        # Expected failures (bad scenario, unreachable path, diverging run, bad FMU): one clear line.
+        print(f"dobkit {args.command}: error: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,502 @@
+/*
+ * dobkit plant FMU: the FMI 2.0 interface (Model Exchange and Co-Simulation
+ * in one binary).  Every function the standard header declares is defined;
+ * those the FMU does not support log why and return fmi2Error.
+ *
+ * Co-Simulation integrates internally with classical fourth-order Runge-Kutta,
+ * n_substeps equal steps per communication step, inputs held constant over
+ * the step (see plant_model.c, plant_rk4).
+ */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "fmi2Functions.h"
+#include "plant_instance.h"
+
+typedef struct {
+    PlantInstance core;           /* first member: a PlantInstance* is a Fmi2Plant* */
+    fmi2CallbackFunctions cb;
+} Fmi2Plant;
+
+/* A saved FMU state: the model data and the mode it was in. */
+typedef struct {
+    char magic[8];
+    PlantData d;
+    PlantMode mode;
+} SavedState;
+
+static const char STATE_MAGIC[8] = "dobkit2";
+
+static void emit2(PlantInstance *inst, int status, const char *category, const char *message)
+{
+    Fmi2Plant *c = (Fmi2Plant *)inst;
+    char safe[2048];
+    size_t i, j = 0;
+
+    if (!c->cb.logger) return;
+    /* the logger treats the message as a printf format: escape '%' */
+    for (i = 0; message[i] && j + 2 < sizeof safe; i++) {
+        if (message[i] == '%') safe[j++] = '%';
+        safe[j++] = message[i];
+    }
+    safe[j] = '\0';
+    c->cb.logger(c->cb.componentEnvironment, inst->name, (fmi2Status)status, category, safe);
+}
+
+#define INST(c) ((PlantInstance *)(c))
+#define CHECK(c) do { if (!(c)) return fmi2Error; } while (0)
+
+static fmi2Status unsupported(fmi2Component c, const char *function)
+{
+    if (c) plant_log(INST(c), ST_ERROR, "logStatusError", "%s is not supported by this FMU", function);
+    return fmi2Error;
+}
+
+/* ---- common functions ---------------------------------------------------- */
+
+const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
+
+const char *fmi2GetVersion(void) { return fmi2Version; }
+
+fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t nCategories,
+                               const fmi2String categories[])
+{
+    (void)nCategories;
+    (void)categories;
+    CHECK(c);
+    INST(c)->logging_on = loggingOn ? 1 : 0;
+    return fmi2OK;
+}
+
+/* Log through the importer's callbacks before an instance exists. */
+static void early_log(const fmi2CallbackFunctions *functions, fmi2String instanceName, const char *message)
+{
+    char safe[2048];
+    size_t i, j = 0;
+
+    if (!functions->logger) return;
+    for (i = 0; message[i] && j + 2 < sizeof safe; i++) {
+        if (message[i] == '%') safe[j++] = '%';
+        safe[j++] = message[i];
+    }
+    safe[j] = '\0';
+    functions->logger(functions->componentEnvironment, instanceName, fmi2Error, "logStatusError", safe);
+}
+
+fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
+                              fmi2String fmuResourceLocation, const fmi2CallbackFunctions *functions,
+                              fmi2Boolean visible, fmi2Boolean loggingOn)
+{
+    Fmi2Plant *c;
+    char message[1024];
+    (void)fmuResourceLocation;
+    (void)visible;
+
+    if (!functions) return NULL;
+    if (!fmuGUID || strcmp(fmuGUID, PLANT_TOKEN) != 0) {
+        snprintf(message, sizeof message,
+                 "GUID mismatch: the importer passed '%s' (from modelDescription.xml) but this binary was built "
+                 "for '%s'; the model description and the binary do not belong to the same export",
+                 fmuGUID ? fmuGUID : "(null)", PLANT_TOKEN);
+        early_log(functions, instanceName, message);
+        return NULL;
+    }
+    if (fmuType != fmi2ModelExchange && fmuType != fmi2CoSimulation) {
+        snprintf(message, sizeof message, "unknown fmuType %d", (int)fmuType);
+        early_log(functions, instanceName, message);
+        return NULL;
+    }
+    c = (Fmi2Plant *)calloc(1, sizeof *c);
+    if (!c) return NULL;
+    c->cb = *functions;
+    plant_instance_init(&c->core, instanceName, fmuType == fmi2CoSimulation, loggingOn ? 1 : 0, emit2, c);
+    return c;
+}
+
+void fmi2FreeInstance(fmi2Component c)
+{
+    free(c);
+}
+
+fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fmi2Real tolerance,
+                               fmi2Real startTime, fmi2Boolean stopTimeDefined, fmi2Real stopTime)
+{
+    (void)toleranceDefined;
+    (void)tolerance;
+    (void)stopTimeDefined;
+    (void)stopTime;
+    CHECK(c);
+    if (plant_allowed(INST(c), "fmi2SetupExperiment", IN(MODE_INSTANTIATED)) != ST_OK) return fmi2Error;
+    INST(c)->d.time = startTime;
+    return fmi2OK;
+}
+
+fmi2Status fmi2EnterInitializationMode(fmi2Component c)
+{
+    CHECK(c);
+    return (fmi2Status)plant_enter_initialization(INST(c), INST(c)->d.time);
+}
+
+fmi2Status fmi2ExitInitializationMode(fmi2Component c)
+{
+    CHECK(c);
+    return (fmi2Status)plant_exit_initialization(INST(c));
+}
+
+fmi2Status fmi2Terminate(fmi2Component c)
+{
+    CHECK(c);
+    INST(c)->mode = MODE_TERMINATED;
+    return fmi2OK;
+}
+
+fmi2Status fmi2Reset(fmi2Component c)
+{
+    CHECK(c);
+    plant_instance_reset(INST(c));
+    return fmi2OK;
+}
+
+/* ---- getting and setting values ----------------------------------------- */
+
+fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[])
+{
+    size_t i;
+    CHECK(c);
+    for (i = 0; i < nvr; i++)
+        if (plant_get_real(INST(c), vr[i], &value[i]) != ST_OK) return fmi2Error;
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Integer value[])
+{
+    size_t i;
+    CHECK(c);
+    for (i = 0; i < nvr; i++)
+        if (plant_get_integer(INST(c), vr[i], &value[i]) != ST_OK) return fmi2Error;
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Boolean value[])
+{
+    size_t i;
+    int v;
+    CHECK(c);
+    for (i = 0; i < nvr; i++) {
+        if (plant_get_boolean(INST(c), vr[i], &v) != ST_OK) return fmi2Error;
+        value[i] = v ? fmi2True : fmi2False;
+    }
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2String value[])
+{
+    (void)vr;
+    (void)value;
+    CHECK(c);
+    return nvr == 0 ? fmi2OK : unsupported(c, "fmi2GetString (the model has no string variables)");
+}
+
+fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[])
+{
+    size_t i;
+    CHECK(c);
+    for (i = 0; i < nvr; i++)
+        if (plant_set_real(INST(c), vr[i], value[i]) != ST_OK) return fmi2Error;
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Integer value[])
+{
+    size_t i;
+    CHECK(c);
+    for (i = 0; i < nvr; i++)
+        if (plant_set_integer(INST(c), vr[i], value[i]) != ST_OK) return fmi2Error;
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Boolean value[])
+{
+    size_t i;
+    CHECK(c);
+    for (i = 0; i < nvr; i++)
+        if (plant_set_boolean(INST(c), vr[i], value[i] != fmi2False) != ST_OK) return fmi2Error;
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2String value[])
+{
+    (void)vr;
+    (void)value;
+    CHECK(c);
+    return nvr == 0 ? fmi2OK : unsupported(c, "fmi2SetString (the model has no string variables)");
+}
+
+/* ---- FMU state ----------------------------------------------------------- */
+
+fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate)
+{
+    SavedState *s;
+    CHECK(c);
+    if (!FMUstate) return fmi2Error;
+    s = *FMUstate ? (SavedState *)*FMUstate : (SavedState *)calloc(1, sizeof *s);
+    if (!s) return fmi2Error;
+    memcpy(s->magic, STATE_MAGIC, sizeof s->magic);
+    s->d = INST(c)->d;
+    s->mode = INST(c)->mode;
+    *FMUstate = s;
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate)
+{
+    const SavedState *s = (const SavedState *)FMUstate;
+    CHECK(c);
+    if (!s || memcmp(s->magic, STATE_MAGIC, sizeof s->magic) != 0) {
+        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi2SetFMUstate: not a state of this FMU");
+        return fmi2Error;
+    }
+    INST(c)->d = s->d;
+    INST(c)->mode = s->mode;
+    return fmi2OK;
+}
+
+fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate)
+{
+    CHECK(c);
+    if (FMUstate) {
+        free(*FMUstate);
+        *FMUstate = NULL;
+    }
+    return fmi2OK;
+}
+
+fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate FMUstate, size_t *size)
+{
+    (void)FMUstate;
+    CHECK(c);
+    *size = sizeof(SavedState);
+    return fmi2OK;
+}
+
+fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byte serializedState[],
+                                 size_t size)
+{
+    CHECK(c);
+    if (!FMUstate || size != sizeof(SavedState)) {
+        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi2SerializeFMUstate: buffer of %lu bytes, need %lu",
+                  (unsigned long)size, (unsigned long)sizeof(SavedState));
+        return fmi2Error;
+    }
+    memcpy(serializedState, FMUstate, sizeof(SavedState));
+    return fmi2OK;
+}
+
+fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedState[], size_t size,
+                                   fmi2FMUstate *FMUstate)
+{
+    SavedState *s;
+    CHECK(c);
+    if (size != sizeof(SavedState) || memcmp(serializedState, STATE_MAGIC, sizeof STATE_MAGIC) != 0) {
+        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi2DeSerializeFMUstate: not a serialized state of "
+                  "this FMU (%lu bytes)", (unsigned long)size);
+        return fmi2Error;
+    }
+    s = *FMUstate ? (SavedState *)*FMUstate : (SavedState *)calloc(1, sizeof *s);
+    if (!s) return fmi2Error;
+    memcpy(s, serializedState, sizeof *s);
+    *FMUstate = s;
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference vUnknown_ref[],
+                                        size_t nUnknown, const fmi2ValueReference vKnown_ref[], size_t nKnown,
+                                        const fmi2Real dvKnown[], fmi2Real dvUnknown[])
+{
+    (void)vUnknown_ref;
+    (void)nUnknown;
+    (void)vKnown_ref;
+    (void)nKnown;
+    (void)dvKnown;
+    (void)dvUnknown;
+    return unsupported(c, "fmi2GetDirectionalDerivative");
+}
+
+/* ---- Model Exchange ------------------------------------------------------ */
+
+static fmi2Status require_me(fmi2Component c, const char *function)
+{
+    CHECK(c);
+    if (INST(c)->cosim) {
+        plant_log(INST(c), ST_ERROR, "logStatusError", "%s is a Model Exchange function; this instance is "
+                  "Co-Simulation", function);
+        return fmi2Error;
+    }
+    return fmi2OK;
+}
+
+fmi2Status fmi2EnterEventMode(fmi2Component c)
+{
+    if (require_me(c, "fmi2EnterEventMode") != fmi2OK) return fmi2Error;
+    if (plant_allowed(INST(c), "fmi2EnterEventMode", IN(MODE_EVENT) | IN(MODE_CONTINUOUS)) != ST_OK)
+        return fmi2Error;
+    INST(c)->mode = MODE_EVENT;
+    return fmi2OK;
+}
+
+fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *eventInfo)
+{
+    if (require_me(c, "fmi2NewDiscreteStates") != fmi2OK) return fmi2Error;
+    if (plant_allowed(INST(c), "fmi2NewDiscreteStates", IN(MODE_EVENT)) != ST_OK) return fmi2Error;
+    /* the model has no discrete states and no events */
+    eventInfo->newDiscreteStatesNeeded = fmi2False;
+    eventInfo->terminateSimulation = fmi2False;
+    eventInfo->nominalsOfContinuousStatesChanged = fmi2False;
+    eventInfo->valuesOfContinuousStatesChanged = fmi2False;
+    eventInfo->nextEventTimeDefined = fmi2False;
+    eventInfo->nextEventTime = 0.0;
+    return fmi2OK;
+}
+
+fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c)
+{
+    if (require_me(c, "fmi2EnterContinuousTimeMode") != fmi2OK) return fmi2Error;
+    if (plant_allowed(INST(c), "fmi2EnterContinuousTimeMode", IN(MODE_EVENT)) != ST_OK) return fmi2Error;
+    INST(c)->mode = MODE_CONTINUOUS;
+    return fmi2OK;
+}
+
+fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSetFMUStatePriorToCurrentPoint,
+                                       fmi2Boolean *enterEventMode, fmi2Boolean *terminateSimulation)
+{
+    (void)noSetFMUStatePriorToCurrentPoint;
+    if (require_me(c, "fmi2CompletedIntegratorStep") != fmi2OK) return fmi2Error;
+    if (plant_allowed(INST(c), "fmi2CompletedIntegratorStep", IN(MODE_CONTINUOUS)) != ST_OK) return fmi2Error;
+    *enterEventMode = fmi2False;
+    *terminateSimulation = fmi2False;
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetTime(fmi2Component c, fmi2Real time)
+{
+    if (require_me(c, "fmi2SetTime") != fmi2OK) return fmi2Error;
+    return (fmi2Status)plant_set_time(INST(c), time);
+}
+
+fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t nx)
+{
+    if (require_me(c, "fmi2SetContinuousStates") != fmi2OK) return fmi2Error;
+    return (fmi2Status)plant_set_states(INST(c), x, nx);
+}
+
+fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real derivatives[], size_t nx)
+{
+    if (require_me(c, "fmi2GetDerivatives") != fmi2OK) return fmi2Error;
+    return (fmi2Status)plant_get_derivatives(INST(c), derivatives, nx);
+}
+
+fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real eventIndicators[], size_t ni)
+{
+    (void)eventIndicators;
+    if (require_me(c, "fmi2GetEventIndicators") != fmi2OK) return fmi2Error;
+    if (ni == 0) return fmi2OK;
+    plant_log(INST(c), ST_ERROR, "logStatusError", "the model has no event indicators, %lu requested",
+              (unsigned long)ni);
+    return fmi2Error;
+}
+
+fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t nx)
+{
+    if (require_me(c, "fmi2GetContinuousStates") != fmi2OK) return fmi2Error;
+    return (fmi2Status)plant_get_states(INST(c), x, nx);
+}
+
+fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x_nominal[], size_t nx)
+{
+    if (require_me(c, "fmi2GetNominalsOfContinuousStates") != fmi2OK) return fmi2Error;
+    return (fmi2Status)plant_get_nominals(INST(c), x_nominal, nx);
+}
+
+/* ---- Co-Simulation ------------------------------------------------------- */
+
+fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                                       const fmi2Integer order[], const fmi2Real value[])
+{
+    (void)vr;
+    (void)nvr;
+    (void)order;
+    (void)value;
+    return unsupported(c, "fmi2SetRealInputDerivatives (inputs are held constant over a step)");
+}
+
+fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                                        const fmi2Integer order[], fmi2Real value[])
+{
+    (void)vr;
+    (void)nvr;
+    (void)order;
+    (void)value;
+    return unsupported(c, "fmi2GetRealOutputDerivatives");
+}
+
+fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2Real communicationStepSize,
+                      fmi2Boolean noSetFMUStatePriorToCurrentPoint)
+{
+    (void)noSetFMUStatePriorToCurrentPoint;
+    CHECK(c);
+    if (!INST(c)->cosim) {
+        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi2DoStep: this instance is Model Exchange");
+        return fmi2Error;
+    }
+    return (fmi2Status)plant_do_step(INST(c), currentCommunicationPoint, communicationStepSize);
+}
+
+fmi2Status fmi2CancelStep(fmi2Component c)
+{
+    return unsupported(c, "fmi2CancelStep (doStep never returns fmi2Pending)");
+}
+
+fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value)
+{
+    CHECK(c);
+    if (s == fmi2DoStepStatus) {
+        *value = INST(c)->mode == MODE_FAILED ? fmi2Error : fmi2OK;
+        return fmi2OK;
+    }
+    return unsupported(c, "fmi2GetStatus for this status kind");
+}
+
+fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value)
+{
+    CHECK(c);
+    if (s == fmi2LastSuccessfulTime) {
+        *value = INST(c)->d.time;
+        return fmi2OK;
+    }
+    return unsupported(c, "fmi2GetRealStatus for this status kind");
+}
+
+fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value)
+{
+    (void)s;
+    (void)value;
+    return unsupported(c, "fmi2GetIntegerStatus");
+}
+
+fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value)
+{
+    CHECK(c);
+    if (s == fmi2Terminated) {
+        *value = fmi2False;
+        return fmi2OK;
+    }
+    return unsupported(c, "fmi2GetBooleanStatus for this status kind");
+}
+
+fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value)
+{
+    (void)s;
+    (void)value;
+    return unsupported(c, "fmi2GetStringStatus");
+}

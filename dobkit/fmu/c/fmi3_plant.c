@@ -1,0 +1,669 @@
+/*
+ * dobkit plant FMU: the FMI 3.0 interface (Model Exchange and Co-Simulation
+ * in one binary; Scheduled Execution is not offered).  Every function the
+ * standard header declares is defined; those the FMU does not support log
+ * why and return fmi3Error.
+ *
+ * Co-Simulation integrates internally with classical fourth-order Runge-Kutta,
+ * n_substeps equal steps per communication step, inputs held constant over
+ * the step (see plant_model.c, plant_rk4).
+ */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "fmi3Functions.h"
+#include "plant_instance.h"
+
+typedef struct {
+    PlantInstance core;           /* first member: a PlantInstance* is a Fmi3Plant* */
+    fmi3InstanceEnvironment env;
+    fmi3LogMessageCallback log;
+} Fmi3Plant;
+
+typedef struct {
+    char magic[8];
+    PlantData d;
+    PlantMode mode;
+} SavedState;
+
+static const char STATE_MAGIC[8] = "dobkit3";
+
+static void emit3(PlantInstance *inst, int status, const char *category, const char *message)
+{
+    Fmi3Plant *c = (Fmi3Plant *)inst;
+    if (c->log) c->log(c->env, (fmi3Status)status, category, message);
+}
+
+#define INST(c) ((PlantInstance *)(c))
+#define CHECK(c) do { if (!(c)) return fmi3Error; } while (0)
+
+static fmi3Status unsupported(fmi3Instance c, const char *function)
+{
+    if (c) plant_log(INST(c), ST_ERROR, "logStatusError", "%s is not supported by this FMU", function);
+    return fmi3Error;
+}
+
+/* ---- common functions ---------------------------------------------------- */
+
+const char *fmi3GetVersion(void) { return fmi3Version; }
+
+fmi3Status fmi3SetDebugLogging(fmi3Instance c, fmi3Boolean loggingOn, size_t nCategories,
+                               const fmi3String categories[])
+{
+    (void)nCategories;
+    (void)categories;
+    CHECK(c);
+    INST(c)->logging_on = loggingOn ? 1 : 0;
+    return fmi3OK;
+}
+
+static fmi3Instance instantiate(fmi3String instanceName, fmi3String instantiationToken, fmi3Boolean loggingOn,
+                                fmi3InstanceEnvironment env, fmi3LogMessageCallback log, int cosim)
+{
+    Fmi3Plant *c;
+    char message[1024];
+
+    if (!instantiationToken || strcmp(instantiationToken, PLANT_TOKEN) != 0) {
+        snprintf(message, sizeof message,
+                 "instantiationToken mismatch: the importer passed '%s' (from modelDescription.xml) but this "
+                 "binary was built for '%s'; the model description and the binary do not belong to the same "
+                 "export", instantiationToken ? instantiationToken : "(null)", PLANT_TOKEN);
+        if (log) log(env, fmi3Error, "logStatusError", message);
+        return NULL;
+    }
+    c = (Fmi3Plant *)calloc(1, sizeof *c);
+    if (!c) return NULL;
+    c->env = env;
+    c->log = log;
+    plant_instance_init(&c->core, instanceName, cosim, loggingOn ? 1 : 0, emit3, c);
+    return c;
+}
+
+fmi3Instance fmi3InstantiateModelExchange(fmi3String instanceName, fmi3String instantiationToken,
+                                          fmi3String resourcePath, fmi3Boolean visible, fmi3Boolean loggingOn,
+                                          fmi3InstanceEnvironment instanceEnvironment,
+                                          fmi3LogMessageCallback logMessage)
+{
+    (void)resourcePath;
+    (void)visible;
+    return instantiate(instanceName, instantiationToken, loggingOn, instanceEnvironment, logMessage, 0);
+}
+
+fmi3Instance fmi3InstantiateCoSimulation(fmi3String instanceName, fmi3String instantiationToken,
+                                         fmi3String resourcePath, fmi3Boolean visible, fmi3Boolean loggingOn,
+                                         fmi3Boolean eventModeUsed, fmi3Boolean earlyReturnAllowed,
+                                         const fmi3ValueReference requiredIntermediateVariables[],
+                                         size_t nRequiredIntermediateVariables,
+                                         fmi3InstanceEnvironment instanceEnvironment,
+                                         fmi3LogMessageCallback logMessage,
+                                         fmi3IntermediateUpdateCallback intermediateUpdate)
+{
+    (void)resourcePath;
+    (void)visible;
+    (void)eventModeUsed;       /* the model has no events: step mode is never left */
+    (void)earlyReturnAllowed;
+    (void)requiredIntermediateVariables;
+    (void)nRequiredIntermediateVariables;
+    (void)intermediateUpdate;
+    return instantiate(instanceName, instantiationToken, loggingOn, instanceEnvironment, logMessage, 1);
+}
+
+fmi3Instance fmi3InstantiateScheduledExecution(fmi3String instanceName, fmi3String instantiationToken,
+                                               fmi3String resourcePath, fmi3Boolean visible,
+                                               fmi3Boolean loggingOn, fmi3InstanceEnvironment instanceEnvironment,
+                                               fmi3LogMessageCallback logMessage,
+                                               fmi3ClockUpdateCallback clockUpdate,
+                                               fmi3LockPreemptionCallback lockPreemption,
+                                               fmi3UnlockPreemptionCallback unlockPreemption)
+{
+    (void)instanceName;
+    (void)instantiationToken;
+    (void)resourcePath;
+    (void)visible;
+    (void)loggingOn;
+    (void)clockUpdate;
+    (void)lockPreemption;
+    (void)unlockPreemption;
+    if (logMessage)
+        logMessage(instanceEnvironment, fmi3Error, "logStatusError",
+                   "Scheduled Execution is not supported by this FMU");
+    return NULL;
+}
+
+void fmi3FreeInstance(fmi3Instance c)
+{
+    free(c);
+}
+
+fmi3Status fmi3EnterInitializationMode(fmi3Instance c, fmi3Boolean toleranceDefined, fmi3Float64 tolerance,
+                                       fmi3Float64 startTime, fmi3Boolean stopTimeDefined, fmi3Float64 stopTime)
+{
+    (void)toleranceDefined;
+    (void)tolerance;
+    (void)stopTimeDefined;
+    (void)stopTime;
+    CHECK(c);
+    return (fmi3Status)plant_enter_initialization(INST(c), startTime);
+}
+
+fmi3Status fmi3ExitInitializationMode(fmi3Instance c)
+{
+    CHECK(c);
+    return (fmi3Status)plant_exit_initialization(INST(c));
+}
+
+fmi3Status fmi3EnterEventMode(fmi3Instance c)
+{
+    CHECK(c);
+    if (plant_allowed(INST(c), "fmi3EnterEventMode", IN(MODE_EVENT) | IN(MODE_CONTINUOUS) | IN(MODE_STEP))
+        != ST_OK)
+        return fmi3Error;
+    INST(c)->mode = MODE_EVENT;
+    return fmi3OK;
+}
+
+fmi3Status fmi3Terminate(fmi3Instance c)
+{
+    CHECK(c);
+    INST(c)->mode = MODE_TERMINATED;
+    return fmi3OK;
+}
+
+fmi3Status fmi3Reset(fmi3Instance c)
+{
+    CHECK(c);
+    plant_instance_reset(INST(c));
+    return fmi3OK;
+}
+
+/* ---- getting and setting values ----------------------------------------- */
+
+static fmi3Status check_scalar(fmi3Instance c, size_t nvr, size_t nValues, const char *function)
+{
+    if (nvr == nValues) return fmi3OK;
+    plant_log(INST(c), ST_ERROR, "logStatusError", "%s: all variables are scalars, so nValues (%lu) must equal "
+              "nValueReferences (%lu)", function, (unsigned long)nValues, (unsigned long)nvr);
+    return fmi3Error;
+}
+
+fmi3Status fmi3GetFloat64(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, fmi3Float64 values[],
+                          size_t nValues)
+{
+    size_t i;
+    CHECK(c);
+    if (check_scalar(c, nvr, nValues, "fmi3GetFloat64") != fmi3OK) return fmi3Error;
+    for (i = 0; i < nvr; i++)
+        if (plant_get_real(INST(c), vr[i], &values[i]) != ST_OK) return fmi3Error;
+    return fmi3OK;
+}
+
+fmi3Status fmi3SetFloat64(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, const fmi3Float64 values[],
+                          size_t nValues)
+{
+    size_t i;
+    CHECK(c);
+    if (check_scalar(c, nvr, nValues, "fmi3SetFloat64") != fmi3OK) return fmi3Error;
+    for (i = 0; i < nvr; i++)
+        if (plant_set_real(INST(c), vr[i], values[i]) != ST_OK) return fmi3Error;
+    return fmi3OK;
+}
+
+fmi3Status fmi3GetInt32(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, fmi3Int32 values[],
+                        size_t nValues)
+{
+    size_t i;
+    int v;
+    CHECK(c);
+    if (check_scalar(c, nvr, nValues, "fmi3GetInt32") != fmi3OK) return fmi3Error;
+    for (i = 0; i < nvr; i++) {
+        if (plant_get_integer(INST(c), vr[i], &v) != ST_OK) return fmi3Error;
+        values[i] = (fmi3Int32)v;
+    }
+    return fmi3OK;
+}
+
+fmi3Status fmi3SetInt32(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, const fmi3Int32 values[],
+                        size_t nValues)
+{
+    size_t i;
+    CHECK(c);
+    if (check_scalar(c, nvr, nValues, "fmi3SetInt32") != fmi3OK) return fmi3Error;
+    for (i = 0; i < nvr; i++)
+        if (plant_set_integer(INST(c), vr[i], (int)values[i]) != ST_OK) return fmi3Error;
+    return fmi3OK;
+}
+
+fmi3Status fmi3GetBoolean(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, fmi3Boolean values[],
+                          size_t nValues)
+{
+    size_t i;
+    int v;
+    CHECK(c);
+    if (check_scalar(c, nvr, nValues, "fmi3GetBoolean") != fmi3OK) return fmi3Error;
+    for (i = 0; i < nvr; i++) {
+        if (plant_get_boolean(INST(c), vr[i], &v) != ST_OK) return fmi3Error;
+        values[i] = v ? fmi3True : fmi3False;
+    }
+    return fmi3OK;
+}
+
+fmi3Status fmi3SetBoolean(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, const fmi3Boolean values[],
+                          size_t nValues)
+{
+    size_t i;
+    CHECK(c);
+    if (check_scalar(c, nvr, nValues, "fmi3SetBoolean") != fmi3OK) return fmi3Error;
+    for (i = 0; i < nvr; i++)
+        if (plant_set_boolean(INST(c), vr[i], values[i] ? 1 : 0) != ST_OK) return fmi3Error;
+    return fmi3OK;
+}
+
+/* The model has no variables of these types: an empty request succeeds, any other is an error. */
+#define NO_SUCH_TYPE(name, ctype, constness)                                                          \
+    fmi3Status name(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, constness ctype values[], \
+                    size_t nValues)                                                                    \
+    {                                                                                                  \
+        (void)vr;                                                                                      \
+        (void)values;                                                                                  \
+        (void)nValues;                                                                                 \
+        CHECK(c);                                                                                      \
+        return nvr == 0 ? fmi3OK : unsupported(c, #name " (the model has no variables of this type)"); \
+    }
+
+#define NOCONST
+NO_SUCH_TYPE(fmi3GetFloat32, fmi3Float32, NOCONST)
+NO_SUCH_TYPE(fmi3GetInt8, fmi3Int8, NOCONST)
+NO_SUCH_TYPE(fmi3GetUInt8, fmi3UInt8, NOCONST)
+NO_SUCH_TYPE(fmi3GetInt16, fmi3Int16, NOCONST)
+NO_SUCH_TYPE(fmi3GetUInt16, fmi3UInt16, NOCONST)
+NO_SUCH_TYPE(fmi3GetUInt32, fmi3UInt32, NOCONST)
+NO_SUCH_TYPE(fmi3GetInt64, fmi3Int64, NOCONST)
+NO_SUCH_TYPE(fmi3GetUInt64, fmi3UInt64, NOCONST)
+NO_SUCH_TYPE(fmi3GetString, fmi3String, NOCONST)
+NO_SUCH_TYPE(fmi3SetFloat32, fmi3Float32, const)
+NO_SUCH_TYPE(fmi3SetInt8, fmi3Int8, const)
+NO_SUCH_TYPE(fmi3SetUInt8, fmi3UInt8, const)
+NO_SUCH_TYPE(fmi3SetInt16, fmi3Int16, const)
+NO_SUCH_TYPE(fmi3SetUInt16, fmi3UInt16, const)
+NO_SUCH_TYPE(fmi3SetUInt32, fmi3UInt32, const)
+NO_SUCH_TYPE(fmi3SetInt64, fmi3Int64, const)
+NO_SUCH_TYPE(fmi3SetUInt64, fmi3UInt64, const)
+NO_SUCH_TYPE(fmi3SetString, fmi3String, const)
+
+fmi3Status fmi3GetBinary(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, size_t valueSizes[],
+                         fmi3Binary values[], size_t nValues)
+{
+    (void)vr;
+    (void)valueSizes;
+    (void)values;
+    (void)nValues;
+    CHECK(c);
+    return nvr == 0 ? fmi3OK : unsupported(c, "fmi3GetBinary (the model has no binary variables)");
+}
+
+fmi3Status fmi3SetBinary(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, const size_t valueSizes[],
+                         const fmi3Binary values[], size_t nValues)
+{
+    (void)vr;
+    (void)valueSizes;
+    (void)values;
+    (void)nValues;
+    CHECK(c);
+    return nvr == 0 ? fmi3OK : unsupported(c, "fmi3SetBinary (the model has no binary variables)");
+}
+
+fmi3Status fmi3GetClock(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, fmi3Clock values[])
+{
+    (void)vr;
+    (void)values;
+    CHECK(c);
+    return nvr == 0 ? fmi3OK : unsupported(c, "fmi3GetClock (the model has no clocks)");
+}
+
+fmi3Status fmi3SetClock(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, const fmi3Clock values[])
+{
+    (void)vr;
+    (void)values;
+    CHECK(c);
+    return nvr == 0 ? fmi3OK : unsupported(c, "fmi3SetClock (the model has no clocks)");
+}
+
+/* ---- variable dependencies (given in modelDescription.xml only) --------- */
+
+fmi3Status fmi3GetNumberOfVariableDependencies(fmi3Instance c, fmi3ValueReference valueReference,
+                                               size_t *nDependencies)
+{
+    (void)valueReference;
+    (void)nDependencies;
+    return unsupported(c, "fmi3GetNumberOfVariableDependencies (see ModelStructure in modelDescription.xml)");
+}
+
+fmi3Status fmi3GetVariableDependencies(fmi3Instance c, fmi3ValueReference dependent,
+                                       size_t elementIndicesOfDependent[], fmi3ValueReference independents[],
+                                       size_t elementIndicesOfIndependents[],
+                                       fmi3DependencyKind dependencyKinds[], size_t nDependencies)
+{
+    (void)dependent;
+    (void)elementIndicesOfDependent;
+    (void)independents;
+    (void)elementIndicesOfIndependents;
+    (void)dependencyKinds;
+    (void)nDependencies;
+    return unsupported(c, "fmi3GetVariableDependencies (see ModelStructure in modelDescription.xml)");
+}
+
+/* ---- FMU state ----------------------------------------------------------- */
+
+fmi3Status fmi3GetFMUState(fmi3Instance c, fmi3FMUState *FMUState)
+{
+    SavedState *s;
+    CHECK(c);
+    if (!FMUState) return fmi3Error;
+    s = *FMUState ? (SavedState *)*FMUState : (SavedState *)calloc(1, sizeof *s);
+    if (!s) return fmi3Error;
+    memcpy(s->magic, STATE_MAGIC, sizeof s->magic);
+    s->d = INST(c)->d;
+    s->mode = INST(c)->mode;
+    *FMUState = s;
+    return fmi3OK;
+}
+
+fmi3Status fmi3SetFMUState(fmi3Instance c, fmi3FMUState FMUState)
+{
+    const SavedState *s = (const SavedState *)FMUState;
+    CHECK(c);
+    if (!s || memcmp(s->magic, STATE_MAGIC, sizeof s->magic) != 0) {
+        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi3SetFMUState: not a state of this FMU");
+        return fmi3Error;
+    }
+    INST(c)->d = s->d;
+    INST(c)->mode = s->mode;
+    return fmi3OK;
+}
+
+fmi3Status fmi3FreeFMUState(fmi3Instance c, fmi3FMUState *FMUState)
+{
+    CHECK(c);
+    if (FMUState) {
+        free(*FMUState);
+        *FMUState = NULL;
+    }
+    return fmi3OK;
+}
+
+fmi3Status fmi3SerializedFMUStateSize(fmi3Instance c, fmi3FMUState FMUState, size_t *size)
+{
+    (void)FMUState;
+    CHECK(c);
+    *size = sizeof(SavedState);
+    return fmi3OK;
+}
+
+fmi3Status fmi3SerializeFMUState(fmi3Instance c, fmi3FMUState FMUState, fmi3Byte serializedState[], size_t size)
+{
+    CHECK(c);
+    if (!FMUState || size != sizeof(SavedState)) {
+        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi3SerializeFMUState: buffer of %lu bytes, need %lu",
+                  (unsigned long)size, (unsigned long)sizeof(SavedState));
+        return fmi3Error;
+    }
+    memcpy(serializedState, FMUState, sizeof(SavedState));
+    return fmi3OK;
+}
+
+fmi3Status fmi3DeserializeFMUState(fmi3Instance c, const fmi3Byte serializedState[], size_t size,
+                                   fmi3FMUState *FMUState)
+{
+    SavedState *s;
+    CHECK(c);
+    if (size != sizeof(SavedState) || memcmp(serializedState, STATE_MAGIC, sizeof STATE_MAGIC) != 0) {
+        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi3DeserializeFMUState: not a serialized state of "
+                  "this FMU (%lu bytes)", (unsigned long)size);
+        return fmi3Error;
+    }
+    s = *FMUState ? (SavedState *)*FMUState : (SavedState *)calloc(1, sizeof *s);
+    if (!s) return fmi3Error;
+    memcpy(s, serializedState, sizeof *s);
+    *FMUState = s;
+    return fmi3OK;
+}
+
+/* ---- partial derivatives, configuration, clocks: not provided ----------- */
+
+fmi3Status fmi3GetDirectionalDerivative(fmi3Instance c, const fmi3ValueReference unknowns[], size_t nUnknowns,
+                                        const fmi3ValueReference knowns[], size_t nKnowns,
+                                        const fmi3Float64 seed[], size_t nSeed, fmi3Float64 sensitivity[],
+                                        size_t nSensitivity)
+{
+    (void)unknowns; (void)nUnknowns; (void)knowns; (void)nKnowns;
+    (void)seed; (void)nSeed; (void)sensitivity; (void)nSensitivity;
+    return unsupported(c, "fmi3GetDirectionalDerivative");
+}
+
+fmi3Status fmi3GetAdjointDerivative(fmi3Instance c, const fmi3ValueReference unknowns[], size_t nUnknowns,
+                                    const fmi3ValueReference knowns[], size_t nKnowns, const fmi3Float64 seed[],
+                                    size_t nSeed, fmi3Float64 sensitivity[], size_t nSensitivity)
+{
+    (void)unknowns; (void)nUnknowns; (void)knowns; (void)nKnowns;
+    (void)seed; (void)nSeed; (void)sensitivity; (void)nSensitivity;
+    return unsupported(c, "fmi3GetAdjointDerivative");
+}
+
+fmi3Status fmi3EnterConfigurationMode(fmi3Instance c)
+{
+    return unsupported(c, "fmi3EnterConfigurationMode (the model has no structural parameters)");
+}
+
+fmi3Status fmi3ExitConfigurationMode(fmi3Instance c)
+{
+    return unsupported(c, "fmi3ExitConfigurationMode (the model has no structural parameters)");
+}
+
+fmi3Status fmi3GetIntervalDecimal(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr,
+                                  fmi3Float64 intervals[], fmi3IntervalQualifier qualifiers[])
+{
+    (void)vr; (void)nvr; (void)intervals; (void)qualifiers;
+    return unsupported(c, "fmi3GetIntervalDecimal (the model has no clocks)");
+}
+
+fmi3Status fmi3GetIntervalFraction(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr,
+                                   fmi3UInt64 counters[], fmi3UInt64 resolutions[],
+                                   fmi3IntervalQualifier qualifiers[])
+{
+    (void)vr; (void)nvr; (void)counters; (void)resolutions; (void)qualifiers;
+    return unsupported(c, "fmi3GetIntervalFraction (the model has no clocks)");
+}
+
+fmi3Status fmi3GetShiftDecimal(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, fmi3Float64 shifts[])
+{
+    (void)vr; (void)nvr; (void)shifts;
+    return unsupported(c, "fmi3GetShiftDecimal (the model has no clocks)");
+}
+
+fmi3Status fmi3GetShiftFraction(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr,
+                                fmi3UInt64 counters[], fmi3UInt64 resolutions[])
+{
+    (void)vr; (void)nvr; (void)counters; (void)resolutions;
+    return unsupported(c, "fmi3GetShiftFraction (the model has no clocks)");
+}
+
+fmi3Status fmi3SetIntervalDecimal(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr,
+                                  const fmi3Float64 intervals[])
+{
+    (void)vr; (void)nvr; (void)intervals;
+    return unsupported(c, "fmi3SetIntervalDecimal (the model has no clocks)");
+}
+
+fmi3Status fmi3SetIntervalFraction(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr,
+                                   const fmi3UInt64 counters[], const fmi3UInt64 resolutions[])
+{
+    (void)vr; (void)nvr; (void)counters; (void)resolutions;
+    return unsupported(c, "fmi3SetIntervalFraction (the model has no clocks)");
+}
+
+fmi3Status fmi3SetShiftDecimal(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr,
+                               const fmi3Float64 shifts[])
+{
+    (void)vr; (void)nvr; (void)shifts;
+    return unsupported(c, "fmi3SetShiftDecimal (the model has no clocks)");
+}
+
+fmi3Status fmi3SetShiftFraction(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr,
+                                const fmi3UInt64 counters[], const fmi3UInt64 resolutions[])
+{
+    (void)vr; (void)nvr; (void)counters; (void)resolutions;
+    return unsupported(c, "fmi3SetShiftFraction (the model has no clocks)");
+}
+
+fmi3Status fmi3EvaluateDiscreteStates(fmi3Instance c)
+{
+    CHECK(c);
+    return fmi3OK; /* no discrete states */
+}
+
+fmi3Status fmi3UpdateDiscreteStates(fmi3Instance c, fmi3Boolean *discreteStatesNeedUpdate,
+                                    fmi3Boolean *terminateSimulation,
+                                    fmi3Boolean *nominalsOfContinuousStatesChanged,
+                                    fmi3Boolean *valuesOfContinuousStatesChanged, fmi3Boolean *nextEventTimeDefined,
+                                    fmi3Float64 *nextEventTime)
+{
+    CHECK(c);
+    if (plant_allowed(INST(c), "fmi3UpdateDiscreteStates", IN(MODE_EVENT)) != ST_OK) return fmi3Error;
+    if (discreteStatesNeedUpdate) *discreteStatesNeedUpdate = fmi3False;
+    if (terminateSimulation) *terminateSimulation = fmi3False;
+    if (nominalsOfContinuousStatesChanged) *nominalsOfContinuousStatesChanged = fmi3False;
+    if (valuesOfContinuousStatesChanged) *valuesOfContinuousStatesChanged = fmi3False;
+    if (nextEventTimeDefined) *nextEventTimeDefined = fmi3False;
+    if (nextEventTime) *nextEventTime = 0.0;
+    return fmi3OK;
+}
+
+/* ---- Model Exchange ------------------------------------------------------ */
+
+static fmi3Status require_me(fmi3Instance c, const char *function)
+{
+    CHECK(c);
+    if (INST(c)->cosim) {
+        plant_log(INST(c), ST_ERROR, "logStatusError", "%s is a Model Exchange function; this instance is "
+                  "Co-Simulation", function);
+        return fmi3Error;
+    }
+    return fmi3OK;
+}
+
+fmi3Status fmi3EnterContinuousTimeMode(fmi3Instance c)
+{
+    if (require_me(c, "fmi3EnterContinuousTimeMode") != fmi3OK) return fmi3Error;
+    if (plant_allowed(INST(c), "fmi3EnterContinuousTimeMode", IN(MODE_EVENT)) != ST_OK) return fmi3Error;
+    INST(c)->mode = MODE_CONTINUOUS;
+    return fmi3OK;
+}
+
+fmi3Status fmi3CompletedIntegratorStep(fmi3Instance c, fmi3Boolean noSetFMUStatePriorToCurrentPoint,
+                                       fmi3Boolean *enterEventMode, fmi3Boolean *terminateSimulation)
+{
+    (void)noSetFMUStatePriorToCurrentPoint;
+    if (require_me(c, "fmi3CompletedIntegratorStep") != fmi3OK) return fmi3Error;
+    if (plant_allowed(INST(c), "fmi3CompletedIntegratorStep", IN(MODE_CONTINUOUS)) != ST_OK) return fmi3Error;
+    *enterEventMode = fmi3False;
+    *terminateSimulation = fmi3False;
+    return fmi3OK;
+}
+
+fmi3Status fmi3SetTime(fmi3Instance c, fmi3Float64 time)
+{
+    if (require_me(c, "fmi3SetTime") != fmi3OK) return fmi3Error;
+    return (fmi3Status)plant_set_time(INST(c), time);
+}
+
+fmi3Status fmi3SetContinuousStates(fmi3Instance c, const fmi3Float64 continuousStates[],
+                                   size_t nContinuousStates)
+{
+    if (require_me(c, "fmi3SetContinuousStates") != fmi3OK) return fmi3Error;
+    return (fmi3Status)plant_set_states(INST(c), continuousStates, nContinuousStates);
+}
+
+fmi3Status fmi3GetContinuousStateDerivatives(fmi3Instance c, fmi3Float64 derivatives[], size_t nContinuousStates)
+{
+    if (require_me(c, "fmi3GetContinuousStateDerivatives") != fmi3OK) return fmi3Error;
+    return (fmi3Status)plant_get_derivatives(INST(c), derivatives, nContinuousStates);
+}
+
+fmi3Status fmi3GetEventIndicators(fmi3Instance c, fmi3Float64 eventIndicators[], size_t nEventIndicators)
+{
+    (void)eventIndicators;
+    if (require_me(c, "fmi3GetEventIndicators") != fmi3OK) return fmi3Error;
+    if (nEventIndicators == 0) return fmi3OK;
+    plant_log(INST(c), ST_ERROR, "logStatusError", "the model has no event indicators, %lu requested",
+              (unsigned long)nEventIndicators);
+    return fmi3Error;
+}
+
+fmi3Status fmi3GetContinuousStates(fmi3Instance c, fmi3Float64 continuousStates[], size_t nContinuousStates)
+{
+    if (require_me(c, "fmi3GetContinuousStates") != fmi3OK) return fmi3Error;
+    return (fmi3Status)plant_get_states(INST(c), continuousStates, nContinuousStates);
+}
+
+fmi3Status fmi3GetNominalsOfContinuousStates(fmi3Instance c, fmi3Float64 nominals[], size_t nContinuousStates)
+{
+    if (require_me(c, "fmi3GetNominalsOfContinuousStates") != fmi3OK) return fmi3Error;
+    return (fmi3Status)plant_get_nominals(INST(c), nominals, nContinuousStates);
+}
+
+fmi3Status fmi3GetNumberOfEventIndicators(fmi3Instance c, size_t *nEventIndicators)
+{
+    CHECK(c);
+    *nEventIndicators = 0;
+    return fmi3OK;
+}
+
+fmi3Status fmi3GetNumberOfContinuousStates(fmi3Instance c, size_t *nContinuousStates)
+{
+    CHECK(c);
+    *nContinuousStates = NX;
+    return fmi3OK;
+}
+
+/* ---- Co-Simulation ------------------------------------------------------- */
+
+fmi3Status fmi3EnterStepMode(fmi3Instance c)
+{
+    CHECK(c);
+    if (!INST(c)->cosim) return unsupported(c, "fmi3EnterStepMode on a Model Exchange instance");
+    if (plant_allowed(INST(c), "fmi3EnterStepMode", IN(MODE_EVENT) | IN(MODE_STEP)) != ST_OK) return fmi3Error;
+    INST(c)->mode = MODE_STEP;
+    return fmi3OK;
+}
+
+fmi3Status fmi3GetOutputDerivatives(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr,
+                                    const fmi3Int32 orders[], fmi3Float64 values[], size_t nValues)
+{
+    (void)vr; (void)nvr; (void)orders; (void)values; (void)nValues;
+    return unsupported(c, "fmi3GetOutputDerivatives");
+}
+
+fmi3Status fmi3DoStep(fmi3Instance c, fmi3Float64 currentCommunicationPoint, fmi3Float64 communicationStepSize,
+                      fmi3Boolean noSetFMUStatePriorToCurrentPoint, fmi3Boolean *eventHandlingNeeded,
+                      fmi3Boolean *terminateSimulation, fmi3Boolean *earlyReturn, fmi3Float64 *lastSuccessfulTime)
+{
+    fmi3Status status;
+    (void)noSetFMUStatePriorToCurrentPoint;
+    CHECK(c);
+    if (!INST(c)->cosim) return unsupported(c, "fmi3DoStep on a Model Exchange instance");
+    status = (fmi3Status)plant_do_step(INST(c), currentCommunicationPoint, communicationStepSize);
+    if (eventHandlingNeeded) *eventHandlingNeeded = fmi3False;
+    if (terminateSimulation) *terminateSimulation = fmi3False;
+    if (earlyReturn) *earlyReturn = fmi3False;
+    if (lastSuccessfulTime) *lastSuccessfulTime = INST(c)->d.time;
+    return status;
+}
+
+fmi3Status fmi3ActivateModelPartition(fmi3Instance c, fmi3ValueReference clockReference,
+                                      fmi3Float64 activationTime)
+{
+    (void)clockReference;
+    (void)activationTime;
+    return unsupported(c, "fmi3ActivateModelPartition (Scheduled Execution)");
+}
