@@ -383,7 +383,9 @@ def _as_value(value, key: str, source: str):
         raise ScenarioError(f"{source}: '{key}' must not be a boolean, got {value!r}")
     if isinstance(value, str):
         return value
-    if isinstance(value, (int, float)):
+    if isinstance(value, int):
+        return value                      # whole numbers (seed, stitches) stay whole
+    if isinstance(value, float):
         return _number(value, key, source)
     if isinstance(value, list):
         return tuple(_number(v, f"{key}[{i}]", source) for i, v in enumerate(value))

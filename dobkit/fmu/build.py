@@ -1,0 +1,107 @@
+"""Compile FMU sources into a shared library with the system C compiler.
+
+The compiler is ``$CC`` when set (it may carry flags, e.g. ``"ccache gcc"``),
+otherwise the first of ``cc``, ``gcc``, ``clang`` found on ``PATH``.  The
+standard FMI headers come from fmpy's package folder ``c-code/`` (2-clause
+BSD, Modelica Association).
+"""
+from __future__ import annotations
+
+import os
+import shlex
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+from .errors import FMUBuildError
+
+__all__ = ["find_compiler", "fmi_header_dir", "compile_shared_library", "platform_folder", "FMI_HEADERS",
+           "COMPILE_FLAGS"]
+
+FMI_HEADERS = {
+    2: ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"),
+    3: ("fmi3Functions.h", "fmi3FunctionTypes.h", "fmi3PlatformTypes.h"),
+}
+
+# -fvisibility=hidden keeps internal symbols private; the FMI headers mark the API visible.
+COMPILE_FLAGS = ("-shared", "-fPIC", "-O2", "-std=c99", "-D_POSIX_C_SOURCE=200809L", "-fvisibility=hidden",
+                 "-Wall", "-Wextra")
+
+_CANDIDATES = ("cc", "gcc", "clang")
+
+
+def find_compiler(cc: str | None = None) -> list[str]:
+    """The compiler command as an argument list.
+
+    Parameters
+    ----------
+    cc : str, optional
+        Compiler command; default ``$CC``, else ``cc``, ``gcc`` or ``clang``.
+
+    Raises
+    ------
+    FMUBuildError
+        If no compiler is found; the message says what was tried.
+    """
+    spec = cc if cc is not None else os.environ.get("CC")
+    if spec:
+        argv = shlex.split(spec)
+        if not argv or shutil.which(argv[0]) is None:
+            source = "cc argument" if cc is not None else "CC environment variable"
+            raise FMUBuildError(f"C compiler {spec!r} (from the {source}) was not found on PATH; "
+                                "install a C compiler or point CC at one")
+        return argv
+    for name in _CANDIDATES:
+        if shutil.which(name):
+            return [name]
+    raise FMUBuildError(f"no C compiler found (tried the CC environment variable and {', '.join(_CANDIDATES)} on "
+                        "PATH); exporting an FMU compiles its C sources: install gcc or clang, or set CC")
+
+
+def fmi_header_dir() -> Path:
+    """Folder holding the standard FMI 2.0 and 3.0 headers shipped with fmpy."""
+    import fmpy
+    folder = Path(fmpy.__file__).parent / "c-code"
+    if not (folder / "fmi2Functions.h").is_file():
+        raise FMUBuildError(f"the FMI headers were not found in {folder} (fmpy installation incomplete?)")
+    return folder
+
+
+def platform_folder(fmi_version: int) -> str:
+    """The ``binaries/`` sub-folder for this machine: ``linux64`` (FMI 2), ``x86_64-linux`` (FMI 3), ..."""
+    import fmpy
+    return fmpy.platform if fmi_version == 2 else fmpy.platform_tuple
+
+
+def shared_library_suffix() -> str:
+    return {"win32": ".dll", "darwin": ".dylib"}.get(sys.platform, ".so")
+
+
+def compile_shared_library(sources: list[Path], include_dirs: list[Path], output: Path,
+                           cc: str | None = None, timeout: float = 120.0) -> list[str]:
+    """Compile and link C sources into ``output``.
+
+    Returns
+    -------
+    list of str
+        The command that was run (recorded in the FMU's ``sources/``).
+
+    Raises
+    ------
+    FMUBuildError
+        If the compiler is missing, fails or times out; the message holds its output.
+    """
+    argv = find_compiler(cc)
+    cmd = argv + list(COMPILE_FLAGS) + [f"-I{d}" for d in include_dirs] + [str(s) for s in sources] \
+        + ["-o", str(output), "-lm"]
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, check=False)
+    except OSError as err:
+        raise FMUBuildError(f"could not run the C compiler {argv[0]!r}: {err}") from None
+    except subprocess.TimeoutExpired:
+        raise FMUBuildError(f"the C compiler did not finish within {timeout:g} s: {shlex.join(cmd)}") from None
+    if proc.returncode != 0 or not output.is_file():
+        raise FMUBuildError(f"compiling the FMU failed (exit code {proc.returncode}):\n$ {shlex.join(cmd)}\n"
+                            f"{proc.stderr.strip()}")
+    return cmd
