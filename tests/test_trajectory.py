@@ -79,7 +79,7 @@ def test_fk_of_reference_stays_on_documented_path(path):
     q, _, _ = path.evaluate(t)
     p = reference_fk(q)
     # height between the stitch bottom and the hover height, reaching both
-    assert p[:, 2].min() == pytest.approx(path.skin_height - path.depth, abs=1e-9)
+    assert p[:, 2].min() == pytest.approx(path.skin_height - path.depth, abs=1e-6)   # sampled near the bottom
     assert p[:, 2].max() == pytest.approx(path.skin_height + path.hover, abs=1e-12)
     assert np.all(p[:, 2] >= path.skin_height - path.depth - 1e-12)
     assert np.all(p[:, 2] <= path.skin_height + path.hover + 1e-12)
@@ -91,7 +91,8 @@ def test_fk_of_reference_stays_on_documented_path(path):
     assert np.all(np.diff(s) >= -1e-12)
     # roll between the rest angle and rest + needle_roll
     phi = np.angle(np.exp(1j * (p[:, 3] - path.roll_offset)))
-    assert phi.min() >= -1e-12 and phi.max() == pytest.approx(path.needle_roll, abs=1e-6)
+    assert phi.min() >= -1e-12 and phi.max() <= path.needle_roll + 1e-12
+    assert phi.max() == pytest.approx(path.needle_roll, abs=1e-4)        # sampled near the peak
     # elbow branch kept
     assert np.all(np.sign(q[:, 1]) == (1 if path.elbow == "positive" else -1))
 
@@ -129,9 +130,9 @@ def test_default_skin_height_is_table1_d3():
 @pytest.mark.parametrize("kwargs, fragment", [
     ({"start": (0.8, 0.0), "end": (0.6, 0.0)}, "x=0.8 m"),
     # a cut through the inner hole of the annulus: the middle point is unreachable
-    ({"start": (0.35, 0.2), "end": (-0.35, 0.2)}, "radius 0.2"),
+    ({"start": (0.35, 0.2), "end": (-0.35, 0.2)}, "y=0.2 m"),
     # reachable everywhere, but passes almost stretched (sin theta2 < sin 0.2)
-    ({"start": (0.69, -0.05), "end": (0.69, 0.05)}, "singularity"),
+    ({"start": (0.698, -0.02), "end": (0.698, 0.02)}, "singularity"),
 ])
 def test_unreachable_laceration_raises_naming_the_point(kwargs, fragment):
     with pytest.raises(UnreachableError) as info:

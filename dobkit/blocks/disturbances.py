@@ -127,7 +127,7 @@ def tissue_disturbance(q, dq, spec: DisturbanceSpec, params: RobotParameters) ->
     v = (J @ dq[..., None])[..., 0]
     depth = spec.skin_height - pose[..., 2]
     inside = depth > 0.0
-    F = np.zeros(np.broadcast_shapes(q.shape, dq.shape))
+    F = np.zeros(np.broadcast(q, dq).shape)
     F[..., 2] = np.where(inside, np.maximum(0.0, spec.tissue_stiffness * depth - spec.tissue_damping * v[..., 2]), 0.0)
     F[..., 0] = np.where(inside, -spec.tissue_drag * v[..., 0], 0.0)
     F[..., 1] = np.where(inside, -spec.tissue_drag * v[..., 1], 0.0)
@@ -150,7 +150,7 @@ def external_disturbance(t, q, dq, spec: DisturbanceSpec, params: RobotParameter
     """
     q = np.asarray(q, dtype=float)
     dq = np.asarray(dq, dtype=float)
-    total = np.zeros(np.broadcast_shapes(q.shape, dq.shape))
+    total = np.zeros(np.broadcast(q, dq).shape)
     if "paper" in spec.kinds:
         total = total + paper_disturbance(t, spec.f_r)
     if "friction" in spec.kinds:

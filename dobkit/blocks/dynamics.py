@@ -69,7 +69,7 @@ def coriolis_vector(q, dq, params: RobotParameters) -> np.ndarray:
     dq = _as_joint_array(dq, "dq")
     k = params.constants
     s2 = np.sin(q[..., 1])
-    out = np.zeros(np.broadcast_shapes(q.shape, dq.shape))
+    out = np.zeros(np.broadcast(q, dq).shape)
     out[..., 0] = -k.k2 * s2 * dq[..., 1] * (dq[..., 0] + 0.5 * dq[..., 1])
     out[..., 1] = 0.5 * k.k2 * s2 * dq[..., 0] ** 2
     return out
@@ -84,7 +84,7 @@ def coriolis_matrix(q, dq, params: RobotParameters) -> np.ndarray:
     q = _as_joint_array(q, "q")
     dq = _as_joint_array(dq, "dq")
     h = 0.5 * params.constants.k2 * np.sin(q[..., 1])
-    C = np.zeros(np.broadcast_shapes(q.shape, dq.shape)[:-1] + (4, 4))
+    C = np.zeros(np.broadcast(q, dq).shape[:-1] + (4, 4))
     C[..., 0, 0] = -h * dq[..., 1]
     C[..., 0, 1] = -h * (dq[..., 0] + dq[..., 1])
     C[..., 1, 0] = h * dq[..., 0]

@@ -70,7 +70,7 @@ def jacobian_derivative_times_dq(q, dq, params: RobotParameters) -> np.ndarray:
     dq = np.asarray(dq, dtype=float)
     t1, t12 = q[..., 0], q[..., 0] + q[..., 1]
     w1, w12 = dq[..., 0], dq[..., 0] + dq[..., 1]
-    out = np.zeros(np.broadcast_shapes(q.shape, dq.shape))
+    out = np.zeros(np.broadcast(q, dq).shape)
     out[..., 0] = -params.a1 * np.cos(t1) * w1 ** 2 - params.a2 * np.cos(t12) * w12 ** 2
     out[..., 1] = -params.a1 * np.sin(t1) * w1 ** 2 - params.a2 * np.sin(t12) * w12 ** 2
     return out

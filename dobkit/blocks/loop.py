@@ -108,11 +108,12 @@ def closed_loop(scenario: Scenario | str = "paper", observer: bool = True, plant
     if "sensor" in blocks:
         signals += ["q_meas", "dq_meas"]
     outputs = [name for sig in signals for name in _names(sig)]
-    missing = [n for n in _names("q") + _names("dq") + _names("tau_dis") if n not in blocks["plant"].output_labels]
-    if missing or _names("tau") != [n for n in blocks["plant"].input_labels if n.startswith("tau[")]:
-        raise ValueError(f"plant block '{blocks['plant'].name}' must take tau[0..3] and give q, dq, tau_dis[0..3]; "
-                         f"missing outputs {missing}" if missing else
-                         f"plant block '{blocks['plant'].name}' must take inputs tau[0..3]")
+    plant_sys = blocks["plant"]
+    missing = [n for n in _names("q") + _names("dq") + _names("tau_dis") if n not in plant_sys.output_labels]
+    missing += [n for n in _names("tau") if n not in plant_sys.input_labels]
+    if missing:
+        raise ValueError(f"plant block '{plant_sys.name}' lacks signals the loop needs: {missing} "
+                         "(it must take tau[0..3] and give q, dq and tau_dis[0..3])")
     loop = ct.interconnect(list(blocks.values()), inplist=[], outlist=outputs, outputs=outputs,
                            name="dob_loop" if observer else "ctc_loop", check_unused=False)
     loop.scenario = s

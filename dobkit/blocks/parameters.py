@@ -10,6 +10,7 @@ whose defaults keep the paper's numbers.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass, fields
 
@@ -114,7 +115,7 @@ class RobotParameters:
                 "k1 > k3 > k5 and (k1-k3)(k3-k5) > k2^2/4)"
             )
 
-    @property
+    @functools.cached_property
     def constants(self) -> InertiaConstants:
         """The paper's k1..k5 (Eq. 5-7) from Table 1."""
         m34 = self.m3 + self.m4

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from ..blocks.disturbances import DisturbanceSpec
 from ..blocks.parameters import RobotParameters
 
-__all__ = ["Variable", "UNITS", "plant_variables", "config_header", "JOINT_UNITS"]
+__all__ = ["Variable", "UNITS", "plant_variables", "plant_parameter_values", "config_header", "JOINT_UNITS"]
 
 JOINTS = 4
 _PRISMATIC = 2  # joint 3 (index 2) is the prismatic stage
@@ -193,6 +193,26 @@ def plant_variables(params: RobotParameters, disturbance: DisturbanceSpec, subst
             initial="exact", start=kind in d.kinds, unit=None,
             description=f"switch on the '{kind}' disturbance model")
     return rows
+
+
+def plant_parameter_values(params: RobotParameters, disturbance: DisturbanceSpec) -> dict:
+    """FMU parameter name -> value for a Python parameter set (the plant FMU's naming).
+
+    Examples
+    --------
+    >>> values = plant_parameter_values(RobotParameters(), DisturbanceSpec(kinds=("friction",)))
+    >>> values["m1"], values["coulomb[2]"], values["disturbance_friction"], values["disturbance_paper"]
+    (5.58, 0.5, True, False)
+    """
+    values: dict = {name: float(getattr(params, name)) for name in RobotParameters.names()}
+    for base in ("f_r", "coulomb", "viscous"):
+        for i, v in enumerate(getattr(disturbance, base)):
+            values[f"{base}[{i}]"] = float(v)
+    for name in ("friction_velocity", "skin_height", "tissue_stiffness", "tissue_damping", "tissue_drag"):
+        values[name] = float(getattr(disturbance, name))
+    for kind in ("paper", "friction", "tissue"):
+        values[f"disturbance_{kind}"] = kind in disturbance.kinds
+    return values
 
 
 def _c_double(value: float) -> str:
