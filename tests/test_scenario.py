@@ -38,9 +38,11 @@ def test_default_scenario_is_paper():
 
 
 def _with(**sections):
+    """The paper file's dict with sections updated key by key (a new trajectory kind replaces the section)."""
     data = copy.deepcopy(paper_toml_dict())
     for key, value in sections.items():
-        if isinstance(value, dict) and isinstance(data.get(key), dict):
+        replace = key == "trajectory" and isinstance(value, dict) and value.get("kind", "laceration") != "laceration"
+        if isinstance(value, dict) and isinstance(data.get(key), dict) and not replace:
             data[key].update(value)
         else:
             data[key] = value
@@ -151,3 +153,14 @@ def test_replace_documented_example(paper):
     s = paper.replace(gains={"kp": 100})
     assert float(s.kp[0, 0]) == 100.0
     assert s.kd[0, 0] == PAPER_KD
+
+
+def test_to_toml_escapes_control_characters(tmp_path):
+    """TOML basic strings may not hold raw control characters (other than tab): they must be escaped."""
+    path = tmp_path / "ctrl.toml"
+    path.write_text('description = "first line\\r\\nsecond\\u0007 bell\\tand tab"\n', encoding="utf-8")
+    s = load_scenario(path)
+    assert s.data["description"] == "first line\r\nsecond\x07 bell\tand tab"
+    out = tmp_path / "ctrl_copy.toml"
+    out.write_text(s.to_toml(), encoding="utf-8")
+    assert load_scenario(out).data == s.data

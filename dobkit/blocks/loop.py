@@ -214,6 +214,10 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
             raise SimulationError(f"scenario '{s.name}': solver failed: {resp.message}")
         states, outputs = np.atleast_2d(resp.states), np.atleast_2d(resp.outputs)
         _check_finite(t_grid, states, s)
+        beyond = np.max(np.abs(states), axis=0) > DIVERGENCE_BOUND
+        if beyond.any():
+            raise SimulationError(f"scenario '{s.name}': the loop diverged at t = {t_grid[np.argmax(beyond)]:.6g} s "
+                                  f"(a state exceeded {DIVERGENCE_BOUND:g}); no result is returned")
     else:
         raise ValueError(f"engine must be 'fast' or 'python-control', got {engine!r}")
     labels = list(loop.output_labels)

@@ -409,11 +409,15 @@ def to_toml(data: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+_TOML_ESCAPES = {"\\": "\\\\", '"': '\\"', "\b": "\\b", "\t": "\\t", "\n": "\\n", "\f": "\\f", "\r": "\\r"}
+
+
 def _toml_value(value) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, str):
-        return '"' + value.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") + '"'
+        return '"' + "".join(_TOML_ESCAPES.get(ch, ch if 0x20 <= ord(ch) != 0x7F else f"\\u{ord(ch):04X}")
+                             for ch in value) + '"'
     if isinstance(value, (int, float, np.floating, np.integer)):
         return repr(float(value)) if isinstance(value, (float, np.floating)) else str(int(value))
     if isinstance(value, (list, tuple, np.ndarray)):

@@ -142,9 +142,9 @@ class LacerationPath:
             raise ValueError("trajectory.start and trajectory.end must differ")
         # The branch reference for theta1/theta4 continuity is the rest pose at the start.
         object.__setattr__(self, "_q_near", None)
+        self._check_reachable()
         q0 = inverse_kinematics(self.pose(0.0)[0][0], self.params, self.elbow)
         object.__setattr__(self, "_q_near", q0)
-        self._check_reachable()
 
     # -- task space -------------------------------------------------------------------------
     @property

@@ -21,20 +21,16 @@ constant over the step; its global error falls as ``(h / n_substeps)^4``.
 from __future__ import annotations
 
 import hashlib
-import os
 import shlex
-import tempfile
 import uuid
-import zipfile
 from importlib import resources
 from pathlib import Path
 
 from ..blocks.disturbances import DisturbanceSpec
 from ..blocks.parameters import RobotParameters
-from .build import FMI_HEADERS, COMPILE_FLAGS, compile_shared_library, fmi_header_dir, platform_folder, \
-    shared_library_suffix
-from .errors import FMUBuildError  # noqa: F401  (raised by compile_shared_library)
+from .build import COMPILE_FLAGS, platform_folder, shared_library_suffix
 from .modeldescription import build_description_xml, model_description_xml
+from .package import package_fmu
 from .variables import config_header, plant_variables
 
 __all__ = ["export_plant", "MODEL_IDENTIFIER", "plant_source_files"]
@@ -42,7 +38,6 @@ __all__ = ["export_plant", "MODEL_IDENTIFIER", "plant_source_files"]
 MODEL_IDENTIFIER = "dobkit_plant"
 _MODEL_SOURCES = ("plant_model.c", "plant_instance.c")
 _MODEL_HEADERS = ("plant_model.h", "plant_instance.h")
-_ZIP_DATE = (1980, 1, 1, 0, 0, 0)  # fixed timestamps: the same export gives the same archive
 _TOKEN_PLACEHOLDER = "{00000000-0000-0000-0000-000000000000}"
 
 
@@ -78,23 +73,6 @@ def _build_txt(fmi_version: int, sources: list[str]) -> str:
             f"and place {lib} in binaries/{platform_folder(fmi_version)}/ of the FMU.\n"
             "plant_config.h holds this export's value references, start values and instantiation token.\n"
             "The fmi*.h headers are the standard FMI headers (2-clause BSD, Modelica Association Project FMI).\n")
-
-
-def _write_zip(path: Path, files: dict[str, bytes | Path]) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
-            for name, content in files.items():
-                info = zipfile.ZipInfo(name, date_time=_ZIP_DATE)
-                info.compress_type = zipfile.ZIP_DEFLATED
-                data = content.read_bytes() if isinstance(content, Path) else content
-                is_binary = name.startswith("binaries/")
-                info.external_attr = (0o755 if is_binary else 0o644) << 16
-                zf.writestr(info, data)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
 
 
 def export_plant(path, params: RobotParameters | None = None, disturbance: DisturbanceSpec | None = None,
@@ -145,8 +123,6 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
     params = RobotParameters() if params is None else params
     disturbance = DisturbanceSpec() if disturbance is None else disturbance
     path = Path(path)
-    if not path.parent.is_dir():
-        raise FileNotFoundError(f"folder {path.parent} for the FMU does not exist")
 
     variables = plant_variables(params, disturbance, substeps, q0=q0, dq0=dq0)
     sources = plant_source_files(fmi_version)
@@ -163,26 +139,10 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
     header = config_header(variables, token)
     xml = xml_for(token)
 
-    platform = platform_folder(fmi_version)
-    library = MODEL_IDENTIFIER + shared_library_suffix()
-    with tempfile.TemporaryDirectory(prefix="dobkit-export-") as tmp:
-        build = Path(tmp)
-        for name, text in c_texts.items():
-            (build / name).write_text(text, encoding="utf-8")
-        (build / "plant_config.h").write_text(header, encoding="utf-8")
-        headers = fmi_header_dir()
-        compile_shared_library([build / s for s in sources], [build, headers], build / library, cc=cc)
-        files: dict[str, bytes | Path] = {
-            "modelDescription.xml": xml.encode("utf-8"),
-            f"binaries/{platform}/{library}": build / library,
-        }
-        for name in sorted(c_texts) + ["plant_config.h"]:
-            files[f"sources/{name}"] = build / name
-        for name in FMI_HEADERS[fmi_version]:
-            files[f"sources/{name}"] = headers / name
-        files["sources/BUILD.txt"] = _build_txt(fmi_version, sources).encode("utf-8")
-        if fmi_version == 3:
-            files["sources/buildDescription.xml"] = build_description_xml(MODEL_IDENTIFIER, sources).encode()
-        _write_zip(path, files)
+    texts = dict(c_texts, **{"plant_config.h": header})
+    extra = {"sources/BUILD.txt": _build_txt(fmi_version, sources)}
+    if fmi_version == 3:
+        extra["sources/buildDescription.xml"] = build_description_xml(MODEL_IDENTIFIER, sources)
+    package_fmu(path, xml, texts, sources, MODEL_IDENTIFIER, fmi_version, extra_files=extra, cc=cc)
     return path
 
