@@ -29,7 +29,7 @@ from .errors import FMUError
 from .instance import FMUInstance
 from .load import load
 
-__all__ = ["check_fmu", "test_torque", "plant_from_description", "CHECK_INITIAL_STATE"]
+__all__ = ["check_fmu", "check_torque", "plant_from_description", "CHECK_INITIAL_STATE"]
 
 JOINTS = 4
 # A generic configuration away from the singular theta2 = 0, pi, already moving (rad, m; rad/s, m/s).
@@ -37,13 +37,10 @@ CHECK_INITIAL_STATE = np.array([0.3, 1.2, 0.05, 0.2, 0.4, -0.3, 0.0, 0.2])
 _STATES = [f"q[{i}]" for i in range(JOINTS)] + [f"dq[{i}]" for i in range(JOINTS)]
 
 
-def test_torque(t, params: RobotParameters) -> np.ndarray:
+def check_torque(t, params: RobotParameters) -> np.ndarray:
     """The deterministic test input (N m, N m, N, N m): sines plus gravity compensation on joint 3."""
     return np.array([2.0 * np.sin(3.0 * t), 1.5 * np.cos(2.0 * t),
                      -(params.m3 + params.m4) * params.g + 0.5 * np.sin(5.0 * t), 0.3 * np.sin(t)])
-
-
-test_torque.__test__ = False  # not a pytest test despite its name
 
 
 def plant_from_description(model_description) -> tuple[RobotParameters, DisturbanceSpec]:
@@ -64,8 +61,8 @@ def plant_from_description(model_description) -> tuple[RobotParameters, Disturba
     spec = DisturbanceSpec(
         kinds=kinds,
         **{base: tuple(num(f"{base}[{i}]") for i in range(JOINTS)) for base in ("f_r", "coulomb", "viscous")},
-        **{name: num(name) for name in ("friction_velocity", "skin_height", "tissue_stiffness", "tissue_damping",
-                                         "tissue_drag")})
+        **{name: num(name)
+           for name in ("friction_velocity", "skin_height", "tissue_stiffness", "tissue_damping", "tissue_drag")})
     return robot, spec
 
 
@@ -77,11 +74,11 @@ def _compare_model_exchange(path, robot, spec, t_final, tolerance, limits) -> di
         t_eval = np.linspace(0.0, t_final, 101)
         runs = {}
         for key, sys in (("fmu", fmu), ("python", py)):
-            sol = solve_ivp(lambda t, x, s=sys: s._rhs(t, x, test_torque(t, robot)), (0.0, t_final), x0,
+            sol = solve_ivp(lambda t, x, s=sys: s._rhs(t, x, check_torque(t, robot)), (0.0, t_final), x0,
                             method="DOP853", t_eval=t_eval, rtol=1e-11, atol=1e-12)
             if not sol.success:
                 raise FMUError(f"{key} plant: the reference integration failed: {sol.message}")
-            outs = np.column_stack([sys._out(t, sol.y[:, k], test_torque(t, robot)) for k, t in enumerate(t_eval)])
+            outs = np.column_stack([sys._out(t, sol.y[:, k], check_torque(t, robot)) for k, t in enumerate(t_eval)])
             runs[key] = (sol.y, outs)
         labels = list(fmu.output_labels)
         dis = [labels.index(f"tau_dis[{i}]") for i in range(JOINTS)]
@@ -104,10 +101,9 @@ def _compare_co_simulation(path, robot, spec, t_final, step, tolerance, limits) 
     with FMUInstance(path, kind="CoSimulation", start_values=dict(zip(_STATES, x0)), limits=limits) as fmu:
         in_vr = fmu.value_references([f"tau[{i}]" for i in range(JOINTS)])
         out_vr = fmu.value_references(_STATES)
-        substeps = int(fmu._fmu.getInteger([fmu.variables["n_substeps"].valueReference])[0]) \
-            if fmu.fmi_version == 2 else int(fmu._fmu.getInt32([fmu.variables["n_substeps"].valueReference])[0])
+        substeps = fmu.get_integer("n_substeps")
         for k in range(n):
-            t, u = k * step, test_torque(k * step, robot)
+            t, u = k * step, check_torque(k * step, robot)
             fmu.set_real(in_vr, u)
             fmu.do_step(t, step)
             sol = solve_ivp(lambda tt, x: py._rhs(tt, x, u), (t, t + step), x_ref, method="DOP853",

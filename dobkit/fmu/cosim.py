@@ -75,12 +75,16 @@ def _plant_start_values(s: Scenario, fmu_variables: set[str] | None, parameters:
     return values
 
 
-def _fmu_variable_names(fmu_path, limits) -> set[str]:
+def _plant_variables(fmu_path, limits, extract_to) -> set[str]:
+    """Names of the FMU's variables, after checking it has the plant's signals (before instantiating it)."""
     from .archive import extract_fmu
-    from .description import read_description
-    with extract_fmu(fmu_path, limits=limits) as extracted:
+    from .description import read_description, require_variables
+    with extract_fmu(fmu_path, limits=limits, parent=extract_to) as extracted:
         md = read_description(extracted.root, str(fmu_path))
-        return {v.name for v in md.modelVariables}
+    source = f"{fmu_path} (as the plant of the loop)"
+    require_variables(md, _names("q") + _names("dq") + _names("tau_dis"), causality="output", source=source)
+    require_variables(md, _names("tau"), causality="input", source=source)
+    return {v.name for v in md.modelVariables}
 
 
 def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3, observer: bool = True,
@@ -131,7 +135,7 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
     t_end = s.simulation.t_final if t_final is None else float(t_final)
     side = controller_side(s, observer=observer)
     side_x0 = initial_state(side, s)
-    names = _fmu_variable_names(fmu_path, limits) if parameters == "scenario" else None
+    names = _plant_variables(fmu_path, limits, extract_to)
     start = _plant_start_values(s, names, parameters)
     ratio = s.simulation.output_step / step
     record_every = int(round(ratio)) if abs(ratio - round(ratio)) < 1e-9 * max(1.0, ratio) and ratio >= 1 else 1

@@ -145,4 +145,3 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
         extra["sources/buildDescription.xml"] = build_description_xml(MODEL_IDENTIFIER, sources)
     package_fmu(path, xml, texts, sources, MODEL_IDENTIFIER, fmi_version, extra_files=extra, cc=cc)
     return path
-

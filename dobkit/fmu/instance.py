@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import os
 import threading
 import weakref
 from pathlib import Path
@@ -137,12 +138,16 @@ class FMUInstance:
         kwargs = dict(guid=md.guid, unzipDirectory=str(self.extracted.root), modelIdentifier=self.model_identifier,
                       instanceName=name or self.model_identifier)
         with _LOAD_LOCK:
+            # fmpy changes into the library folder and does not change back if loading fails
+            cwd = os.getcwd()
             try:
                 return cls(**kwargs)
             except AttributeError as err:  # a missing FMI function in the library
                 raise FMUError(f"{self.source}: the binary lacks an FMI {self.fmi_version} function: {err}") from None
             except Exception as err:
                 raise FMUError(f"{self.source}: cannot load the binary: {err}") from None
+            finally:
+                os.chdir(cwd)
 
     def _instantiate(self) -> None:
         messages = self.messages  # the callbacks must not hold self (finalizer)
@@ -159,7 +164,8 @@ class FMUInstance:
                                        fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
                 from fmpy import calloc, free
                 callbacks = fmi2CallbackFunctions()
-                callbacks.logger = fmi2CallbackLoggerTYPE(lambda env, inst, status, cat, msg: remember(status, cat, msg))
+                callbacks.logger = fmi2CallbackLoggerTYPE(
+                    lambda env, instance, status, cat, msg: remember(status, cat, msg))
                 callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
                 callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
                 with contextlib.suppress(Exception):  # formats printf-style messages natively
@@ -171,8 +177,9 @@ class FMUInstance:
         except Exception as err:
             detail = " ".join(self.messages[-3:]) or str(err)
             token = "GUID" if self.fmi_version == 2 else "instantiationToken"
-            hint = (f"; the {token} in modelDescription.xml ({self.model_description.guid}) must match the binary"
-                    if "mismatch" in detail.lower() or not self.messages else "")
+            hint = (f" (no message from the FMU; a {token} in modelDescription.xml "
+                    f"({self.model_description.guid}) that does not match the binary is a common cause)"
+                    if not self.messages else "")
             raise FMUInstantiationError(f"{self.source}: the FMU refused to instantiate as {self.kind}: {detail}"
                                         f"{hint}") from None
         self._state["instantiated"] = True
@@ -236,6 +243,13 @@ class FMUInstance:
             with self._calling("setting inputs", self.time):
                 self._set_real(vrs, n, arr.ctypes.data_as(ctypes.POINTER(ctypes.c_double)))
 
+    def get_integer(self, name: str) -> int:
+        """Value of one integer variable (FMI 2 Integer, FMI 3 Int32) by name."""
+        vr = [self.variables[name].valueReference]
+        with self._calling(f"reading {name}", self.time):
+            values = self._fmu.getInteger(vr) if self.fmi_version == 2 else self._fmu.getInt32(vr)
+        return int(values[0])
+
     def _apply_start_values(self, start_values: dict) -> None:
         for name, value in start_values.items():
             v = self.variables[name]
@@ -282,22 +296,26 @@ class FMUInstance:
     # ---- Model Exchange ---------------------------------------------------------------------------------------
 
     def set_time(self, t: float) -> None:
+        """Set the Model Exchange time ``t`` (s)."""
         with self._calling("setting the time", t):
             self._set_time(self._fmu.component, t)
         self.time = t
 
     def set_states(self, x) -> None:
+        """Set the continuous states (in the order of ``ModelStructure/Derivatives``)."""
         arr = np.ascontiguousarray(x, dtype=float)
         with self._calling("setting the states", self.time):
             self._set_states(self._fmu.component, arr.ctypes.data_as(ctypes.POINTER(ctypes.c_double)), arr.size)
 
     def get_states(self) -> np.ndarray:
+        """The continuous states."""
         out = np.empty(self.n_states)
         with self._calling("reading the states", self.time):
             self._get_states(self._fmu.component, out.ctypes.data_as(ctypes.POINTER(ctypes.c_double)), out.size)
         return out
 
     def derivatives(self) -> np.ndarray:
+        """The state derivatives at the time, states and inputs last set."""
         out = np.empty(self.n_states)
         with self._calling("evaluating the state derivatives", self.time):
             self._get_der(self._fmu.component, out.ctypes.data_as(ctypes.POINTER(ctypes.c_double)), out.size)
@@ -323,6 +341,7 @@ class FMUInstance:
 
     @property
     def closed(self) -> bool:
+        """True once :meth:`close` has run."""
         return not self._finalizer.alive
 
     def __enter__(self) -> "FMUInstance":

@@ -81,6 +81,15 @@ def load(path, name: str = "plant", start_values: dict | None = None, start_time
         the instantiation is bad; :class:`~dobkit.fmu.errors.FMUStepError` later if the
         FMU returns an error status while being evaluated.
 
+    Notes
+    -----
+    The FMU's native code runs in this process: a crashing FMU ends Python.
+    Each call sets time, states and inputs before evaluating, so the block
+    may be evaluated at any time and state, in any order (as solvers do).
+    Loading is serialised by a lock (fmpy changes the working directory
+    while it loads a library); evaluating one instance from several threads
+    at once is not supported.
+
     Examples
     --------
     >>> from dobkit import blocks, fmu

@@ -7,8 +7,12 @@ output of the same name.  With communication step ``h`` and ``t_k = k h``:
 1. read the FMU outputs ``y_k`` at ``t_k``;
 2. evaluate the Python side's outputs at ``(t_k, x_k, y_k)`` (its direct
    feedthrough is allowed: the FMU outputs are already known);
-3. hand the Python outputs to the FMU and let it advance over ``[t_k, t_k + h]``
-   -- its inputs are held constant over the step (zero-order hold);
+3. hand the Python outputs to the FMU (outputs that depend directly on FMU
+   inputs are read again for the record, so recorded signals are consistent
+   at ``t_k``; the Python side used ``y_k``, which breaks a possible
+   algebraic loop through both sides by one step) and let the FMU advance
+   over ``[t_k, t_k + h]`` -- its inputs are held constant over the step
+   (zero-order hold);
 4. advance the Python side over the same interval with ``y_k`` held constant,
    by ``side_substeps`` classical RK4 steps.
 
@@ -33,6 +37,7 @@ from .archive import ExtractionLimits
 from .description import real_variables, require_variables
 from .errors import FMUError
 from .instance import FMUInstance
+from .load import output_feedthrough
 
 __all__ = ["cosimulate_system", "CoSimulationError"]
 
@@ -153,6 +158,9 @@ def cosimulate_system(fmu_path, side: ct.NonlinearIOSystem, t_final: float, step
         outputs = np.empty((len(fmu_outputs) + len(extra), n_rec))
         states = np.empty((side.nstates, n_rec))
         y_f = np.empty(len(fmu_outputs))
+        y_rec = np.empty(len(fmu_outputs))
+        # outputs that depend on the FMU inputs are read again after the new inputs are set
+        feedthrough = bool(output_feedthrough(md, fmu_inputs))
         every = max(1, n_steps // 50)
         for k in range(n_steps + 1):
             t = k * step
@@ -160,15 +168,15 @@ def cosimulate_system(fmu_path, side: ct.NonlinearIOSystem, t_final: float, step
             fmu.get_real(out_vr, out=y_f)
             u_side = y_f[side_from_fmu]
             y_side = np.asarray(out(t, x, u_side), dtype=float)
+            fmu.set_real(in_vr, y_side[fmu_from_side])
             if k % record_every == 0:
                 j = k // record_every
                 times[j] = t
-                outputs[:len(fmu_outputs), j] = y_f
+                outputs[:len(fmu_outputs), j] = fmu.get_real(out_vr, out=y_rec) if feedthrough else y_f
                 outputs[len(fmu_outputs):, j] = y_side[extra_idx]
                 states[:, j] = x
             if k == n_steps:
                 break
-            fmu.set_real(in_vr, y_side[fmu_from_side])
             fmu.do_step(t, step)
             x = _rk4(rhs, t, x, u_side, step, side_substeps)
             if not np.all(np.isfinite(x)):

@@ -1,0 +1,252 @@
+"""Bad FMUs: every case gives a clear FMUError, and nothing is written outside the extraction folder.
+
+Each test extracts under its own ``sandbox`` folder (``extract_to``) and checks
+afterwards that the sandbox is empty again (the private extraction folder was
+removed) and that nothing appeared beside it.
+"""
+from __future__ import annotations
+
+import stat
+import tempfile
+import zipfile
+from pathlib import Path
+
+import control as ct
+import numpy as np
+import pytest
+
+from conftest import make_scenario
+from dobkit.fmu import (ExtractionLimits, FMUArchiveError, FMUError, FMUInstance, FMUInstantiationError,
+                        FMUMissingVariablesError, FMUModelDescriptionError, FMUPlatformError, FMUStepError,
+                        FMUVersionError, cosimulate, cosimulate_system, export_plant, extract_fmu, load,
+                        require_variables)
+from dobkit.fmu.package import package_fmu
+
+LAG_DIR = Path(__file__).parent / "fmu_lag"
+
+
+@pytest.fixture(scope="module")
+def good(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("good")
+    lag_xml = (LAG_DIR / "modelDescription.xml").read_text()
+    return {
+        2: export_plant(folder / "plant2.fmu", fmi_version=2),
+        3: export_plant(folder / "plant3.fmu", fmi_version=3),
+        "lag": package_fmu(folder / "lag.fmu", lag_xml, {"lag.c": LAG_DIR / "lag.c"}, ["lag.c"], "lag", 2),
+    }
+
+
+@pytest.fixture
+def sandbox(tmp_path):
+    """An extraction parent inside a watched folder; asserts both are clean after the test."""
+    watched = tmp_path / "watched"
+    box = watched / "sandbox"
+    box.mkdir(parents=True)
+    before_tmp = set(Path(tempfile.gettempdir()).glob("dobkit-fmu-*"))
+    yield box
+    assert list(box.iterdir()) == [], "the private extraction folder was not removed"
+    assert [p.name for p in watched.iterdir()] == ["sandbox"], "something was written beside the sandbox"
+    assert set(Path(tempfile.gettempdir()).glob("dobkit-fmu-*")) <= before_tmp
+
+
+def rewrite(src: Path, dst: Path, replace: dict | None = None, drop=(), add: dict | None = None) -> Path:
+    """Copy an FMU, replacing, dropping or adding entries (content as bytes or str)."""
+    replace = replace or {}
+    with zipfile.ZipFile(src) as zin, zipfile.ZipFile(dst, "w", zipfile.ZIP_DEFLATED) as zout:
+        for info in zin.infolist():
+            if info.filename in drop:
+                continue
+            data = replace.get(info.filename, zin.read(info.filename))
+            zout.writestr(info.filename, data.encode() if isinstance(data, str) else data)
+        for name, data in (add or {}).items():
+            zout.writestr(name, data.encode() if isinstance(data, str) else data)
+    return dst
+
+
+def model_xml(path: Path) -> str:
+    return zipfile.ZipFile(path).read("modelDescription.xml").decode()
+
+
+# --- the archive ------------------------------------------------------------------------------------------
+
+def test_not_a_zip(tmp_path, sandbox):
+    bad = tmp_path / "plant.fmu"
+    bad.write_text("this is not a zip file")
+    with pytest.raises(FMUArchiveError, match="not a zip archive"):
+        load(bad, extract_to=sandbox)
+
+
+def test_missing_file(tmp_path, sandbox):
+    with pytest.raises(FMUArchiveError, match="no such file"):
+        load(tmp_path / "absent.fmu", extract_to=sandbox)
+
+
+@pytest.mark.parametrize("entry, words", [
+    ("../escaped.txt", "parent folder"),
+    ("resources/../../escaped.txt", "parent folder"),
+    ("ABSOLUTE", "absolute path"),
+    ("..\\escaped.txt", "backslash"),
+    ("C:/escaped.txt", "drive letter"),
+    ("resources/a:stream", "colon"),
+])
+def test_entries_escaping_the_folder_are_refused(good, tmp_path, sandbox, entry, words):
+    target = tmp_path / "watched" / "escaped.txt"
+    if entry == "ABSOLUTE":
+        entry = str(target)
+    bad = rewrite(good[2], tmp_path / "bad.fmu", add={entry: "escape attempt"})
+    with pytest.raises(FMUArchiveError, match=words) as err:
+        load(bad, extract_to=sandbox)
+    assert repr(entry)[1:-1] in str(err.value) or entry in str(err.value)
+    assert not target.exists() and not (tmp_path / "escaped.txt").exists()
+
+
+def test_symbolic_link_entry_is_refused(good, tmp_path, sandbox):
+    bad = tmp_path / "bad.fmu"
+    rewrite(good[2], bad)
+    with zipfile.ZipFile(bad, "a") as zf:
+        info = zipfile.ZipInfo("resources/link")
+        info.external_attr = (stat.S_IFLNK | 0o777) << 16
+        zf.writestr(info, "/etc/passwd")
+    with pytest.raises(FMUArchiveError, match="symbolic link"):
+        load(bad, extract_to=sandbox)
+
+
+def test_total_size_limit(good, sandbox):
+    with pytest.raises(FMUArchiveError, match="uncompressed size exceeds the limit of 20000 bytes"):
+        load(good[2], extract_to=sandbox, limits=ExtractionLimits(max_total_size=20_000))
+
+
+def test_compression_ratio_limit(good, tmp_path, sandbox):
+    bomb = rewrite(good[2], tmp_path / "bomb.fmu", add={"resources/zeros.bin": bytes(4 * 2 ** 20)})
+    with pytest.raises(FMUArchiveError, match=r"resources/zeros.bin.*expands \d+-fold.*zip bomb"):
+        load(bomb, extract_to=sandbox)
+
+
+def test_too_many_entries(good, tmp_path, sandbox):
+    many = rewrite(good[2], tmp_path / "many.fmu", add={f"resources/f{i}.txt": "x" for i in range(30)})
+    with pytest.raises(FMUArchiveError, match="entries, more than the limit of 20"):
+        extract_fmu(many, limits=ExtractionLimits(max_entries=20), parent=sandbox)
+
+
+# --- the model description --------------------------------------------------------------------------------
+
+def test_missing_model_description(good, tmp_path, sandbox):
+    bad = rewrite(good[2], tmp_path / "bad.fmu", drop=("modelDescription.xml",))
+    with pytest.raises(FMUModelDescriptionError, match="no modelDescription.xml"):
+        load(bad, extract_to=sandbox)
+
+
+def test_malformed_model_description(good, tmp_path, sandbox):
+    xml = model_xml(good[2])
+    bad = rewrite(good[2], tmp_path / "bad.fmu", replace={"modelDescription.xml": xml[: len(xml) // 2]})
+    with pytest.raises(FMUModelDescriptionError, match="not well-formed XML"):
+        load(bad, extract_to=sandbox)
+
+
+def test_schema_invalid_model_description(good, tmp_path, sandbox):
+    xml = model_xml(good[2]).replace('causality="input"', 'causality="sideways"', 1)
+    bad = rewrite(good[2], tmp_path / "bad.fmu", replace={"modelDescription.xml": xml})
+    with pytest.raises(FMUModelDescriptionError, match="invalid|cannot be read"):
+        load(bad, extract_to=sandbox)
+
+
+@pytest.mark.parametrize("version", ["1.0", "4.0"])
+def test_unsupported_fmi_version(good, tmp_path, sandbox, version):
+    xml = model_xml(good[2]).replace('fmiVersion="2.0"', f'fmiVersion="{version}"')
+    bad = rewrite(good[2], tmp_path / "bad.fmu", replace={"modelDescription.xml": xml})
+    with pytest.raises(FMUVersionError, match=f"FMI version '{version}' is not supported"):
+        load(bad, extract_to=sandbox)
+
+
+def test_missing_interface(good, tmp_path, sandbox):
+    xml = model_xml(good["lag"])
+    start = xml.index("<CoSimulation")
+    xml = xml[:start] + xml[xml.index("/>", start) + 2:]
+    me_only = rewrite(good["lag"], tmp_path / "me_only.fmu", replace={"modelDescription.xml": xml})
+    p_ctrl = ct.nlsys(None, lambda t, x, u, p: [-u[0]], inputs=["x"], outputs=["u"])
+    with pytest.raises(FMUVersionError, match="does not offer CoSimulation"):
+        cosimulate_system(me_only, p_ctrl, 0.1, 0.01, extract_to=sandbox)
+
+
+def test_no_binary_for_this_platform(good, tmp_path, sandbox):
+    with zipfile.ZipFile(good[2]) as zf:
+        so = zf.read("binaries/linux64/dobkit_plant.so")
+    bad = rewrite(good[2], tmp_path / "bad.fmu", drop=("binaries/linux64/dobkit_plant.so",),
+                  add={"binaries/win64/dobkit_plant.dll": so})
+    with pytest.raises(FMUPlatformError, match=r"binaries/linux64/dobkit_plant.so.*\['win64'\].*sources"):
+        load(bad, extract_to=sandbox)
+
+
+def test_corrupt_binary(good, tmp_path, sandbox):
+    bad = rewrite(good[2], tmp_path / "bad.fmu", replace={"binaries/linux64/dobkit_plant.so": b"\x7fELF junk"})
+    with pytest.raises(FMUError, match="cannot load the binary"):
+        load(bad, extract_to=sandbox)
+
+
+@pytest.mark.parametrize("version, word", [(2, "GUID"), (3, "instantiationToken")])
+def test_token_mismatch_is_detected_at_instantiation(good, tmp_path, sandbox, version, word):
+    xml = model_xml(good[version])
+    attr = "guid" if version == 2 else "instantiationToken"
+    start = xml.index(f'{attr}="') + len(attr) + 2
+    xml = xml[:start] + "{11111111-2222-3333-4444-555555555555}" + xml[xml.index('"', start):]
+    bad = rewrite(good[version], tmp_path / "bad.fmu", replace={"modelDescription.xml": xml})
+    with pytest.raises(FMUInstantiationError, match=f"{word} mismatch.*11111111-2222") as err:
+        load(bad, extract_to=sandbox)
+    assert "do not belong to the same export" in str(err.value)
+
+
+# --- variables and run-time errors ------------------------------------------------------------------------
+
+def test_cosimulating_an_fmu_without_the_loop_variables(good, sandbox):
+    scenario = make_scenario(simulation={"t_final": 0.1, "output_step": 0.01})
+    with pytest.raises(FMUMissingVariablesError,
+                       match=r"as the plant of the loop.*missing variable\(s\): q\[0\]") as err:
+        cosimulate(good["lag"], scenario, step=0.01, extract_to=sandbox)
+    assert "q[0]" in err.value.missing
+
+
+def test_require_variables_suggests_close_names(good, sandbox):
+    with FMUInstance(good[2], extract_to=sandbox) as fmu:
+        require_variables(fmu.model_description, ["q[0]", "tau[3]"], source="plant")
+        with pytest.raises(FMUMissingVariablesError, match=r"tau_dist\[1\] \(did you mean tau_dis\[1\]"):
+            require_variables(fmu.model_description, ["tau_dist[1]"], source="plant")
+        with pytest.raises(FMUMissingVariablesError, match="not of causality 'input'"):
+            require_variables(fmu.model_description, ["q[0]"], causality="input", source="plant")
+
+
+def test_unknown_start_value(good, sandbox):
+    with pytest.raises(FMUModelDescriptionError, match=r"unknown variable\(s\) \['mass1'\]"):
+        load(good[2], start_values={"mass1": 1.0}, extract_to=sandbox)
+
+
+def test_error_status_during_a_cosimulation_step(good, sandbox):
+    """The lag reports an error once |x| > x_max: the master stops, names time and status, returns nothing."""
+    T, h, x_max = 0.5, 0.01, 0.5
+    push = ct.nlsys(None, lambda t, x, u, p: [1.0], inputs=["x"], outputs=["u"])
+    with pytest.raises(FMUStepError, match=r"fmi2DoStep returned status 'error' at t = .*exceeds x_max") as err:
+        cosimulate_system(good["lag"], push, 2.0, h, start_values={"T": T, "x_max": x_max}, extract_to=sandbox)
+    t_cross = -T * np.log(1 - x_max)                # x(t) = 1 - exp(-t/T) reaches x_max here
+    assert err.value.status == "error" and err.value.function == "fmi2DoStep"
+    assert t_cross - h - 1e-9 <= err.value.time <= t_cross + 1e-9
+
+
+def test_non_finite_torque_fails_the_plant_step(good, sandbox):
+    """The plant FMU refuses to continue with a non-finite state (FMI 3, co-simulation)."""
+    scenario = make_scenario(simulation={"t_final": 0.1, "output_step": 0.01})
+    from dobkit.fmu.cosim import controller_side
+    side = controller_side(scenario)
+    names = list(side.output_labels)
+    bad_side = ct.nlsys(None, lambda t, x, u, p: np.where(np.array([n.startswith("tau[2") for n in names]) &
+                                                          (t >= 0.05), np.nan, 0.0),
+                        inputs=list(side.input_labels), outputs=names)
+    with pytest.raises(FMUStepError, match=r"fmi3DoStep returned status 'error' at t = 0.05 s.*non-finite") as err:
+        cosimulate_system(good[3], bad_side, 0.1, 0.01, extract_to=sandbox)
+    assert err.value.time == pytest.approx(0.05)
+
+
+def test_error_status_in_model_exchange(good, sandbox):
+    """A Model Exchange evaluation with a non-finite input raises with the time of the call."""
+    sys = load(good[2], extract_to=sandbox)
+    with pytest.raises(FMUStepError, match=r"fmi2GetDerivatives returned status 'error' at t = 0.3 s"):
+        sys._rhs(0.3, np.zeros(8), np.array([0.0, np.inf, 0.0, 0.0]))
+    sys.fmu.close()
