@@ -30,7 +30,7 @@ import numpy as np
 import scipy.linalg
 from scipy.optimize import linear_sum_assignment
 
-from ..blocks import closed_loop, inertia, scenario_from_dict
+from ..blocks import closed_loop, external_disturbance, gravity, inertia, scenario_from_dict
 from ..blocks.scenario import Scenario
 
 __all__ = [
@@ -130,9 +130,6 @@ def equilibrium(loop, t: float = 0.0, inputs=None) -> np.ndarray:
     RuntimeError
         If no equilibrium is found near the guess.
     """
-    from ..blocks.disturbances import external_disturbance
-    from ..blocks.dynamics import gravity
-
     s = loop.scenario
     u0 = np.zeros(loop.ninputs) if inputs is None else np.asarray(inputs, dtype=float)
     q_ref, _, _ = s.trajectory.evaluate(t)
@@ -212,7 +209,7 @@ def loop_modes(lin: ct.StateSpace, loop) -> list[Mode]:
     A = np.asarray(lin.A)
     slices = _block_slices(loop)
     T = np.eye(A.shape[0])
-    if "observer" in slices and loop.syslist[[b.name for b in loop.syslist].index("observer")].nstates:
+    if "observer" in slices and slices["observer"].stop > slices["observer"].start:
         rows = [list(lin.output_labels).index(f"d_hat[{i}]") for i in range(4)]
         T[slices["observer"], :] = np.asarray(lin.C)[rows, :]
     A_t = T @ A @ np.linalg.inv(T)

@@ -1,0 +1,113 @@
+"""``dobkit analyze`` and ``dobkit report``: the analyses of :mod:`dobkit.analysis.report` from the command line.
+
+Registered on the main ``dobkit`` parser by :func:`add_analysis_subcommands`;
+``python -m dobkit.analysis.cli`` runs the two commands on their own.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from dataclasses import replace
+
+__all__ = ["add_analysis_subcommands", "main"]
+
+
+def _add_common(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--scenario", default="paper", help="built-in scenario name or path to a TOML file "
+                        "(default: paper)")
+    parser.add_argument("--out", default=None, help="output folder, must not exist or be empty (default: a new "
+                        "folder dobkit-analysis-YYYYmmdd-HHMMSS under the current one)")
+    parser.add_argument("--observer-target", type=float, default=None, metavar="RAD_S",
+                        help="target slowest observer mode of the gain design in rad/s (default: 10)")
+    parser.add_argument("--quick", action="store_true", help="small grids and short runs (a preview in under a minute)")
+    parser.add_argument("--jobs", type=int, default=None, help="worker processes for the studies "
+                        "(default: the number of CPUs; results do not depend on it)")
+
+
+def _settings(args):
+    from .report import QUICK_SETTINGS, AnalysisSettings
+
+    settings = QUICK_SETTINGS if args.quick else AnalysisSettings()
+    jobs = args.jobs if args.jobs is not None else (os.cpu_count() or 1)
+    if jobs < 1:
+        raise ValueError(f"--jobs must be >= 1, got {jobs}")
+    changes = {"workers": jobs}
+    if args.observer_target is not None:
+        if not args.observer_target > 0:
+            raise ValueError(f"--observer-target must be > 0 rad/s, got {args.observer_target}")
+        changes["observer_target_rad_s"] = args.observer_target
+    return replace(settings, **changes)
+
+
+def _progress():
+    from ..cli import ProgressBar
+
+    return ProgressBar()
+
+
+def _cmd_analyze(args) -> int:
+    from ..blocks import load_scenario
+    from .experiment import default_out_dir
+    from .report import analyze
+
+    scenario = load_scenario(args.scenario)
+    out = args.out if args.out is not None else default_out_dir("dobkit-analysis")
+    bar = _progress()
+    try:
+        result, files = analyze(scenario, out, _settings(args), progress=bar)
+    finally:
+        bar.close()
+    slow = result["observer_bandwidth"]["slowest_rad_s"]
+    print(f"scenario: {scenario.name} ({scenario.source})")
+    print(f"slowest observer mode over the workspace: {slow['min']:.4g} to {slow['max']:.4g} rad/s")
+    for key, label in (("with_dob", "with observer"), ("without_dob", "without observer")):
+        b = result["mismatch"][key]["boundaries"]["boundaries"]
+        print(f"inertia-mismatch stability boundary {label}: "
+              + (", ".join(f"a = {x['factor']:.6g}" for x in b) if b else "none in the searched range"))
+    print(f"analysis written to {out} ({len(files)} files)")
+    return 0
+
+
+def _cmd_report(args) -> int:
+    from ..blocks import load_scenario
+    from .experiment import default_out_dir
+    from .report import write_report
+
+    scenario = load_scenario(args.scenario)
+    out = args.out if args.out is not None else default_out_dir("dobkit-analysis")
+    bar = _progress()
+    try:
+        path = write_report(scenario, out, _settings(args), progress=bar)
+    finally:
+        bar.close()
+    print(f"report written to {path}")
+    return 0
+
+
+def add_analysis_subcommands(subparsers) -> None:
+    """Register ``analyze`` and ``report`` on the ``dobkit`` sub-parsers."""
+    p = subparsers.add_parser("analyze", help="linearized poles, observer bandwidth, gain design, frequency "
+                              "responses and gain studies; writes analysis.json and figures")
+    _add_common(p)
+    p.set_defaults(func=_cmd_analyze)
+    p = subparsers.add_parser("report", help="simulate and analyze a scenario; writes one self-contained "
+                              "report.html (plus analysis.json and the figures)")
+    _add_common(p)
+    p.set_defaults(func=_cmd_report)
+
+
+def main(argv=None) -> int:
+    """Run ``analyze`` or ``report`` without the rest of the ``dobkit`` command line."""
+    parser = argparse.ArgumentParser(prog="python -m dobkit.analysis.cli")
+    add_analysis_subcommands(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except (ValueError, FileExistsError, FileNotFoundError, RuntimeError) as err:
+        print(f"dobkit {args.command}: error: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
