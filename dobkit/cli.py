@@ -98,9 +98,13 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except (ValueError, FileExistsError, FileNotFoundError, RuntimeError) as err:
-        # Expected failures (bad scenario, unreachable path, diverging run, bad FMU): one clear line.
+    except (ValueError, OSError, RuntimeError) as err:
+        # Expected failures (bad scenario, unreachable path, diverging run, bad FMU, unwritable folder): one line.
         print(f"dobkit {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    except MemoryError:
+        print(f"dobkit {args.command}: error: out of memory; use a coarser output_step or a shorter t_final",
+              file=sys.stderr)
         return 2
 
 

@@ -15,10 +15,7 @@ from __future__ import annotations
 
 import csv
 import json
-import shutil
-import tempfile
 from dataclasses import dataclass
-from datetime import datetime
 from pathlib import Path
 from typing import Callable
 
@@ -28,6 +25,7 @@ from .. import __version__
 from ..blocks import Scenario, load_scenario, simulate
 from .figures import paper_figures
 from .metrics import DISTURBANCE_UNITS, JOINT_UNITS, tracking_metrics
+from .outputs import default_out_dir, staged_output
 
 __all__ = ["ExperimentResult", "run_experiment", "format_rms_table", "default_out_dir", "staged_output"]
 
@@ -42,41 +40,6 @@ class ExperimentResult:
     metrics: dict
     out_dir: Path | None
     files: list
-
-
-def default_out_dir(prefix: str = "dobkit-run") -> Path:
-    """A new folder name under the current one, ``prefix-YYYYmmdd-HHMMSS`` (suffixed if taken)."""
-    base = Path.cwd() / f"{prefix}-{datetime.now():%Y%m%d-%H%M%S}"
-    path, k = base, 1
-    while path.exists():
-        path, k = Path(f"{base}-{k}"), k + 1
-    return path
-
-
-class staged_output:
-    """Context manager: a staging folder that replaces ``target``'s files only on success.
-
-    ``target`` may not exist or be an empty folder; a non-empty folder is refused
-    so that earlier results are never mixed with new ones.
-    """
-
-    def __init__(self, target: Path) -> None:
-        self.target = Path(target)
-        if self.target.exists() and (not self.target.is_dir() or any(self.target.iterdir())):
-            raise FileExistsError(f"output folder '{self.target}' exists and is not empty; choose a new --out")
-
-    def __enter__(self) -> Path:
-        self.target.parent.mkdir(parents=True, exist_ok=True)
-        self.stage = Path(tempfile.mkdtemp(prefix=f".{self.target.name}.partial-", dir=self.target.parent))
-        return self.stage
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is not None:
-            shutil.rmtree(self.stage, ignore_errors=True)
-            return
-        if self.target.exists():
-            self.target.rmdir()
-        self.stage.rename(self.target)
 
 
 def run_experiment(scenario: Scenario | str = "paper", out_dir: Path | str | None = None,
@@ -99,6 +62,7 @@ def run_experiment(scenario: Scenario | str = "paper", out_dir: Path | str | Non
     ExperimentResult
     """
     s = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    staging = staged_output(Path(out_dir)) if out_dir is not None else None   # refuse a bad folder before any work
     runs = {}
     for key, with_observer in (("with_dob", True), ("without_dob", False)):
         stage = f"simulating {'with' if with_observer else 'without'} observer"
@@ -118,7 +82,7 @@ def run_experiment(scenario: Scenario | str = "paper", out_dir: Path | str | Non
     files: list[Path] = []
     if out_dir is not None:
         target = Path(out_dir)
-        with staged_output(target) as stage:
+        with staging as stage:
             (stage / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
             (stage / "scenario.toml").write_text(s.to_toml())
             _write_timeseries(stage / "timeseries.csv", runs)

@@ -28,11 +28,14 @@ _COLORS = {"ref": "black", "with": "tab:blue", "without": "tab:red", "d": "black
 
 
 def save_figure(fig, out_dir: Path, stem: str) -> list[Path]:
-    """Write ``fig`` as ``stem.png`` and ``stem.svg`` in ``out_dir`` and close it."""
+    """Write ``fig`` as ``stem.png`` (120 dpi) and ``stem.svg`` in ``out_dir`` without metadata (dates), close it."""
+    out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = [out_dir / f"{stem}.png", out_dir / f"{stem}.svg"]
-    fig.savefig(paths[0], dpi=120)
-    fig.savefig(paths[1])
+    # No dates, no tool stamps and fixed SVG ids: the same run gives byte-identical files.
+    with plt.rc_context({"svg.hashsalt": "dobkit"}):
+        fig.savefig(paths[0], dpi=120, metadata={"Software": None})
+        fig.savefig(paths[1], metadata={"Date": None, "Creator": None})
     plt.close(fig)
     return paths
 

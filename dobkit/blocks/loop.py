@@ -26,7 +26,7 @@ from scipy.integrate import solve_ivp
 from .dynamics import coriolis_vector, forward_dynamics, gravity, inertia
 from .fastsim import CompiledLoop
 from .scenario import Scenario, load_scenario
-from .systems import JOINTS, controller, plant, sensor, trajectory_block
+from .systems import JOINTS, controller, plant, sensor, signal_names, trajectory_block
 from .systems import observer as observer_block
 
 __all__ = ["build_blocks", "closed_loop", "initial_state", "simulate", "SimulationError", "lumped_disturbance",
@@ -40,10 +40,6 @@ DIVERGENCE_BOUND = 1e6
 
 class SimulationError(RuntimeError):
     """The simulation failed or diverged; the message gives the time and the reason."""
-
-
-def _names(prefix: str) -> list[str]:
-    return [f"{prefix}[{i}]" for i in range(JOINTS)]
 
 
 def _as_scenario(scenario) -> Scenario:
@@ -107,10 +103,11 @@ def closed_loop(scenario: Scenario | str = "paper", observer: bool = True, plant
     signals = [sig for sig in LOOP_SIGNALS if observer or sig != "d_hat"]
     if "sensor" in blocks:
         signals += ["q_meas", "dq_meas"]
-    outputs = [name for sig in signals for name in _names(sig)]
+    outputs = [name for sig in signals for name in signal_names(sig)]
     plant_sys = blocks["plant"]
-    missing = [n for n in _names("q") + _names("dq") + _names("tau_dis") if n not in plant_sys.output_labels]
-    missing += [n for n in _names("tau") if n not in plant_sys.input_labels]
+    needed_outputs = signal_names("q") + signal_names("dq") + signal_names("tau_dis")
+    missing = [n for n in needed_outputs if n not in plant_sys.output_labels]
+    missing += [n for n in signal_names("tau") if n not in plant_sys.input_labels]
     if missing:
         raise ValueError(f"plant block '{plant_sys.name}' lacks signals the loop needs: {missing} "
                          "(it must take tau[0..3] and give q, dq and tau_dis[0..3])")
@@ -157,7 +154,9 @@ def lumped_disturbance(q, dq, tau, tau_dis, scenario: Scenario) -> np.ndarray:
 
     ``M^ q'' + N^ q' + G^ = tau + d`` with ``d = tau_dis + (M^ - M) q'' + (N^ - N) q' + (G^ - G)``,
     where ``q''`` is the true acceleration.  With a perfect model ``d = tau_dis``.
-    Arrays of shape (..., 4).
+    Arrays of shape (..., 4).  The true model is the scenario's ``robot``: with a
+    substituted plant (an FMU) whose parameters differ from the scenario's, ``d``
+    is relative to the scenario's robot, not to that plant.
     """
     s = scenario
     ddq = forward_dynamics(q, dq, np.asarray(tau) + np.asarray(tau_dis), s.robot)
@@ -222,11 +221,11 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
         raise ValueError(f"engine must be 'fast' or 'python-control', got {engine!r}")
     labels = list(loop.output_labels)
     idx = {name: labels.index(name) for name in labels}
-    pick = lambda sig: outputs[[idx[n] for n in _names(sig)]].T  # noqa: E731
+    pick = lambda sig: outputs[[idx[n] for n in signal_names(sig)]].T  # noqa: E731
     d = lumped_disturbance(pick("q"), pick("dq"), pick("tau"), pick("tau_dis"), s).T
     all_outputs = np.vstack([outputs, d])
     title = f"{s.name}: {'with' if observer else 'without'} disturbance observer"
-    resp = ct.TimeResponseData(t_grid, all_outputs, states, output_labels=labels + _names("d"),
+    resp = ct.TimeResponseData(t_grid, all_outputs, states, output_labels=labels + signal_names("d"),
                                state_labels=list(loop.state_labels), title=title, sysname=loop.name, issiso=False,
                                plot_inputs=False)
     resp.scenario = s

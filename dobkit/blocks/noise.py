@@ -1,7 +1,10 @@
 """Reproducible measurement noise on the joint positions and velocities.
 
 White Gaussian samples are drawn once, from a seed, on a uniform grid of
-period ``sample_period`` and interpolated linearly in between.  The noise is
+period ``sample_period`` and interpolated linearly in between.  The given
+standard deviations hold at the sample instants; between them the linear
+interpolation lowers the spread, so the signal's RMS over time is
+``sqrt(2/3) = 0.816`` times the stated value (0.707 times at mid-interval).  The noise is
 therefore a fixed, continuous function of time: an adaptive ODE solver that
 evaluates the right-hand side at any time, in any order and any number of
 times sees the same signal, and the same seed always gives the same run.
@@ -23,9 +26,9 @@ class MeasurementNoise:
     Parameters
     ----------
     q_std : 4 floats
-        Standard deviation of the position noise per joint (rad, rad, m, rad).
+        Standard deviation of the position noise at the sample instants, per joint (rad, rad, m, rad).
     dq_std : 4 floats
-        Standard deviation of the velocity noise per joint (rad/s, rad/s, m/s, rad/s).
+        Standard deviation of the velocity noise at the sample instants (rad/s, rad/s, m/s, rad/s).
     seed : int
         Seed of the random generator.
     sample_period : float
@@ -53,9 +56,11 @@ class MeasurementNoise:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
                 raise ValueError(f"noise.{name} must be a finite number > 0 s, got {value!r}")
-        n = int(math.ceil(self.t_final / self.sample_period)) + 2
-        rng = np.random.default_rng(self.seed)
-        samples = rng.standard_normal((n, 8)) * np.array(self.q_std + self.dq_std)
+        samples = None
+        if self.enabled:        # no noise, no samples: long noise-free runs must not pay for them
+            n = int(math.ceil(self.t_final / self.sample_period)) + 2
+            rng = np.random.default_rng(self.seed)
+            samples = rng.standard_normal((n, 8)) * np.array(self.q_std + self.dq_std)
         object.__setattr__(self, "_samples", samples)
 
     @property
@@ -65,6 +70,9 @@ class MeasurementNoise:
 
     def sample(self, t):
         """Noise at time(s) ``t`` (s): ``(n_q, n_dq)``, each of shape ``(4,)`` or ``(len(t), 4)``."""
+        if self._samples is None:
+            zeros = np.zeros(np.shape(t) + (4,))
+            return zeros, zeros.copy()
         x = np.clip(np.asarray(t, dtype=float) / self.sample_period, 0.0, len(self._samples) - 1.0)
         i = np.minimum(np.floor(x).astype(int), len(self._samples) - 2)
         w = (x - i)[..., None]

@@ -27,7 +27,7 @@ import copy
 import dataclasses
 import math
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -83,7 +83,7 @@ class SimulationSettings:
         return np.linspace(0.0, n * self.output_step, n + 1)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Scenario:
     """A validated scenario (see the module docstring for the keys).
 
@@ -109,6 +109,11 @@ class Scenario:
     simulation : SimulationSettings
     source : str
         Where the scenario came from (built-in name or file path).
+    user_data : dict
+        The settings as given, before defaults were filled in; :meth:`replace`
+        starts from these so that derived defaults (the path duration follows
+        ``simulation.t_final``, the path's skin height follows the tissue
+        model's) are derived again.
     """
 
     name: str
@@ -125,22 +130,37 @@ class Scenario:
     initial: dict
     simulation: SimulationSettings
     source: str = "<dict>"
+    user_data: dict = field(default_factory=dict)
 
-    def replace(self, **changes: dict) -> "Scenario":
-        """A new scenario with some sections' keys changed, re-validated.
+    def __eq__(self, other) -> bool:
+        return isinstance(other, Scenario) and self.data == other.data
+
+    __hash__ = None
+
+    def replace(self, **changes) -> "Scenario":
+        """A new scenario with some keys changed, validated like a file.
+
+        Each keyword is a section name with a dict of keys to change (merged
+        into the keys given so far), or a top-level key with its value.  A
+        ``trajectory`` change with a different ``kind`` starts that section
+        afresh, since each kind has its own keys.
 
         Examples
         --------
         >>> s = load_scenario("paper").replace(gains={"kp": 100})
         >>> float(s.kp[0, 0])
         100.0
+        >>> load_scenario("paper").replace(simulation={"t_final": 2.0}).trajectory.duration
+        2.0
         """
-        data = copy.deepcopy(self.data)
+        data = copy.deepcopy(self.user_data)
         for section, values in changes.items():
-            if isinstance(values, dict) and isinstance(data.get(section), dict):
-                data[section].update(values)
+            old = data.get(section)
+            if isinstance(values, dict) and isinstance(old, dict):
+                fresh = section == "trajectory" and values.get("kind", old.get("kind")) != old.get("kind")
+                data[section] = dict(values) if fresh else {**old, **values}
             else:
-                data[section] = values
+                data[section] = copy.deepcopy(values)
         return scenario_from_dict(data, source=self.source)
 
     def to_toml(self) -> str:
@@ -154,6 +174,15 @@ _TOP_KEYS = ("name", "description") + _SECTIONS
 _LACERATION_KEYS = tuple(f.name for f in dataclasses.fields(LacerationPath) if f.name != "params")
 _JOINT_SINE_KEYS = tuple(f.name for f in dataclasses.fields(JointSine))
 _DISTURBANCE_KEYS = tuple(f.name for f in dataclasses.fields(DisturbanceSpec) if f.name != "kinds")
+_DEFAULTS = {
+    "disturbance": {f.name: f.default for f in dataclasses.fields(DisturbanceSpec)},
+    "laceration": {f.name: f.default for f in dataclasses.fields(LacerationPath) if f.name != "params"},
+    "joint_sine": {f.name: f.default for f in dataclasses.fields(JointSine)},
+    "noise": {f.name: f.default for f in dataclasses.fields(MeasurementNoise)},
+}
+# Largest grids a scenario may ask for: beyond these a run would exhaust memory rather than finish.
+MAX_OUTPUT_POINTS = 2_000_000
+MAX_NOISE_SAMPLES = 20_000_000
 
 
 def builtin_scenarios() -> list[str]:
@@ -188,7 +217,10 @@ def _read_source(name_or_path) -> tuple[str, str]:
     if path.suffix == ".toml" or path.exists() or "/" in str(name_or_path):
         if not path.is_file():
             raise ScenarioError(f"scenario file '{path}' does not exist")
-        return path.read_text(encoding="utf-8"), str(path)
+        try:
+            return path.read_text(encoding="utf-8"), str(path)
+        except UnicodeDecodeError as err:
+            raise ScenarioError(f"scenario file '{path}' is not UTF-8 text (byte {err.start})") from None
     names = builtin_scenarios()
     if str(name_or_path) not in names:
         raise ScenarioError(f"no built-in scenario named '{name_or_path}'; built-in: {names} (or give a .toml path)")
@@ -203,11 +235,12 @@ def _table(data: dict, key: str, source: str) -> dict:
     return dict(value)
 
 
-def _check_keys(table: dict, allowed, section: str, source: str) -> None:
+def _check_keys(table: dict, allowed, section: str, source: str, note: str = "") -> None:
     unknown = sorted(set(table) - set(allowed))
     if unknown:
-        raise ScenarioError(f"{source}: unknown key(s) {', '.join(f'{section}.{k}' for k in unknown)}; "
-                            f"allowed in [{section}]: {', '.join(allowed)}")
+        where = "at the top level" if section == "top level" else f"in [{section}]{note}"
+        names = unknown if section == "top level" else [f"{section}.{k}" for k in unknown]
+        raise ScenarioError(f"{source}: unknown key(s) {', '.join(names)}; allowed {where}: {', '.join(allowed)}")
 
 
 def _number(value, key: str, source: str, lower=None, strict=False) -> float:
@@ -292,6 +325,9 @@ def scenario_from_dict(data: dict, source: str = "<dict>") -> Scenario:
         raise ScenarioError(f"{source}: 'simulation.output_step' ({simulation.output_step} s) must not exceed "
                             f"'simulation.t_final' ({simulation.t_final} s)")
     steps = simulation.t_final / simulation.output_step
+    if steps > MAX_OUTPUT_POINTS:
+        raise ScenarioError(f"{source}: 'simulation.t_final' / 'simulation.output_step' asks for {steps:.3g} output "
+                            f"points; at most {MAX_OUTPUT_POINTS:,} are allowed (raise output_step)")
     if abs(steps - round(steps)) > 1e-9 * max(1.0, steps):
         raise ScenarioError(f"{source}: 'simulation.t_final' ({simulation.t_final} s) must be a whole multiple of "
                             f"'simulation.output_step' ({simulation.output_step} s)")
@@ -310,8 +346,10 @@ def scenario_from_dict(data: dict, source: str = "<dict>") -> Scenario:
         raise ScenarioError(f"{source}: 'disturbance.kind' has unknown kind(s) {bad}; "
                             f"choose from {list(DISTURBANCE_KINDS)} or 'none'")
     try:
-        disturbance = DisturbanceSpec(kinds=tuple(kinds), **{k: _as_value(v, f"disturbance.{k}", source)
-                                                             for k, v in dist_t.items()})
+        disturbance = DisturbanceSpec(kinds=tuple(kinds), **{
+            k: _as_value(v, f"disturbance.{k}", source, _DEFAULTS["disturbance"][k]) for k, v in dist_t.items()})
+    except ScenarioError:
+        raise
     except ValueError as err:
         raise ScenarioError(f"{source}: [disturbance] {err}") from None
     dist_data = dataclasses.asdict(disturbance)
@@ -324,8 +362,8 @@ def scenario_from_dict(data: dict, source: str = "<dict>") -> Scenario:
     if kind not in TRAJECTORY_KINDS:
         raise ScenarioError(f"{source}: 'trajectory.kind' must be one of {list(TRAJECTORY_KINDS)}, got {kind!r}")
     keys = _LACERATION_KEYS if kind == "laceration" else _JOINT_SINE_KEYS
-    _check_keys(traj_t, keys, f"trajectory (kind = {kind})", source)
-    kw = {k: _as_value(v, f"trajectory.{k}", source) for k, v in traj_t.items()}
+    _check_keys(traj_t, keys, "trajectory", source, note=f" for kind = {kind!r}")
+    kw = {k: _as_value(v, f"trajectory.{k}", source, _DEFAULTS[kind][k]) for k, v in traj_t.items()}
     try:
         if kind == "laceration":
             kw.setdefault("duration", simulation.t_final)
@@ -343,9 +381,14 @@ def scenario_from_dict(data: dict, source: str = "<dict>") -> Scenario:
     # noise
     noise_t = t["noise"]
     _check_keys(noise_t, ("q_std", "dq_std", "seed", "sample_period"), "noise", source)
+    noise_kw = {k: _as_value(v, f"noise.{k}", source, _DEFAULTS["noise"][k]) for k, v in noise_t.items()}
+    period = noise_kw.get("sample_period", _DEFAULTS["noise"]["sample_period"])
+    if isinstance(period, float) and period > 0 and simulation.t_final / period > MAX_NOISE_SAMPLES:
+        raise ScenarioError(f"{source}: 'noise.sample_period' ({period} s) asks for "
+                            f"{simulation.t_final / period:.3g} noise samples over {simulation.t_final} s; "
+                            f"at most {MAX_NOISE_SAMPLES:,} are allowed")
     try:
-        noise = MeasurementNoise(t_final=simulation.t_final,
-                                 **{k: _as_value(v, f"noise.{k}", source) for k, v in noise_t.items()})
+        noise = MeasurementNoise(t_final=simulation.t_final, **noise_kw)
     except ValueError as err:
         raise ScenarioError(f"{source}: [noise] {err}") from None
     out["noise"] = {k: _plain(getattr(noise, k)) for k in ("q_std", "dq_std", "seed", "sample_period")}
@@ -360,7 +403,7 @@ def scenario_from_dict(data: dict, source: str = "<dict>") -> Scenario:
     return Scenario(name=name, data=out, robot=robot, nominal=nominal, kp=mats["kp"], kd=mats["kd"],
                     observer_gain=mats["observer"], observer_variant=variant, trajectory=trajectory,
                     disturbance=disturbance, noise=noise if noise.enabled else None, initial=initial,
-                    simulation=simulation, source=source)
+                    simulation=simulation, source=source, user_data=copy.deepcopy(data))
 
 
 def _as_array(value, key: str, source: str):
@@ -377,19 +420,28 @@ def _as_array(value, key: str, source: str):
     return arr
 
 
-def _as_value(value, key: str, source: str):
-    """Scenario values are numbers, strings or lists of numbers; reject anything else by name."""
+def _as_value(value, key: str, source: str, default):
+    """Check a value against the type of the key's default: text, a whole number, a number or a list of numbers."""
     if isinstance(value, bool):
-        raise ScenarioError(f"{source}: '{key}' must not be a boolean, got {value!r}")
-    if isinstance(value, str):
+        raise ScenarioError(f"{source}: '{key}' must not be true/false, got {value!r}")
+    if isinstance(default, str):
+        if not isinstance(value, str):
+            raise ScenarioError(f"{source}: '{key}' must be text, got {value!r}")
         return value
-    if isinstance(value, int):
-        return value                      # whole numbers (seed, stitches) stay whole
-    if isinstance(value, float):
+    whole = isinstance(default, int) and not isinstance(default, bool)
+    expected = "a whole number" if whole else "a number or a list of numbers" if isinstance(default, tuple) \
+        else "a number"
+    if isinstance(value, str):
+        raise ScenarioError(f"{source}: '{key}' must be {expected}, got the text {value!r}")
+    if whole:
+        if not isinstance(value, int):
+            raise ScenarioError(f"{source}: '{key}' must be a whole number, got {value!r}")
+        return value
+    if isinstance(value, (int, float)):
         return _number(value, key, source)
-    if isinstance(value, list):
+    if isinstance(value, list) and isinstance(default, tuple):
         return tuple(_number(v, f"{key}[{i}]", source) for i, v in enumerate(value))
-    raise ScenarioError(f"{source}: '{key}' has an unsupported value {value!r}")
+    raise ScenarioError(f"{source}: '{key}' must be {expected}, got {value!r}")
 
 
 def _plain(value):

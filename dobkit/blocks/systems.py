@@ -20,14 +20,15 @@ from .disturbances import DisturbanceSpec, external_disturbance
 from .dynamics import coriolis_vector, gravity, inertia
 from .parameters import RobotParameters
 
-__all__ = ["plant", "controller", "observer", "trajectory_block", "sensor", "gain_matrix",
+__all__ = ["plant", "controller", "observer", "trajectory_block", "sensor", "gain_matrix", "signal_names",
            "OBSERVER_VARIANTS", "JOINTS"]
 
 JOINTS = 4
 OBSERVER_VARIANTS = ("correct", "paper-eq16")
 
 
-def _names(prefix: str) -> list[str]:
+def signal_names(prefix: str) -> list[str]:
+    """The four per-joint signal names ``prefix[0]`` .. ``prefix[3]``."""
     return [f"{prefix}[{i}]" for i in range(JOINTS)]
 
 
@@ -85,8 +86,9 @@ def plant(params: RobotParameters, disturbance: DisturbanceSpec | None = None,
         q, dq = split(x)
         return np.concatenate([q, dq, external_disturbance(t, q, dq, spec, params)])
 
-    sys = ct.nlsys(update, output, name=name, inputs=_names("tau"),
-                   states=_names("q") + _names("dq"), outputs=_names("q") + _names("dq") + _names("tau_dis"))
+    sys = ct.nlsys(update, output, name=name, inputs=signal_names("tau"),
+                   states=signal_names("q") + signal_names("dq"),
+                   outputs=signal_names("q") + signal_names("dq") + signal_names("tau_dis"))
     sys.robot_parameters = params
     sys.disturbance_spec = spec
     return _declare_feedthrough(sys, ())
@@ -118,9 +120,10 @@ def controller(nominal: RobotParameters, kp, kd, use_observer: bool = True,
         if np.any(np.diag(gain) <= 0):
             raise ValueError(f"gain '{label}' must be > 0 on every joint, got {np.diag(gain).tolist()}")
     n = JOINTS
-    inputs = _names("q_ref") + _names("dq_ref") + _names("ddq_ref") + _names("q" + measured) + _names("dq" + measured)
+    inputs = [name for prefix in ("q_ref", "dq_ref", "ddq_ref", "q" + measured, "dq" + measured)
+              for name in signal_names(prefix)]
     if use_observer:
-        inputs += _names("d_hat")
+        inputs += signal_names("d_hat")
 
     def output(t, x, u, _params):
         q_ref, dq_ref, ddq_ref = u[:n], u[n:2 * n], u[2 * n:3 * n]
@@ -129,7 +132,7 @@ def controller(nominal: RobotParameters, kp, kd, use_observer: bool = True,
         v = ddq_ref + Kd @ (dq_ref - dq) + Kp @ (q_ref - q)
         return inertia(q, nominal) @ v + coriolis_vector(q, dq, nominal) + gravity(q, nominal) - d_hat
 
-    sys = ct.nlsys(None, output, name=name, inputs=inputs, outputs=_names("tau"))
+    sys = ct.nlsys(None, output, name=name, inputs=inputs, outputs=signal_names("tau"))
     sys.gains = {"kp": Kp, "kd": Kd}
     return _declare_feedthrough(sys, inputs)
 
@@ -160,7 +163,7 @@ def observer(nominal: RobotParameters, gain, variant: str = "correct", measured:
     Y = gain_matrix(gain, "observer", allow_matrix=True)
     n = JOINTS
     extra = 1.0 if variant == "paper-eq16" else 0.0
-    q_in, dq_in = _names("q" + measured), _names("dq" + measured)
+    q_in, dq_in = signal_names("q" + measured), signal_names("dq" + measured)
 
     def update(t, z, u, _params):
         tau, q, dq = u[:n], u[n:2 * n], u[2 * n:3 * n]
@@ -171,8 +174,8 @@ def observer(nominal: RobotParameters, gain, variant: str = "correct", measured:
     def output(t, z, u, _params):
         return Y @ u[2 * n:3 * n] + z
 
-    sys = ct.nlsys(update, output, name=name, inputs=_names("tau") + q_in + dq_in,
-                   states=_names("z"), outputs=_names("d_hat"))
+    sys = ct.nlsys(update, output, name=name, inputs=signal_names("tau") + q_in + dq_in,
+                   states=signal_names("z"), outputs=signal_names("d_hat"))
     sys.gain = Y
     sys.variant = variant
     return _declare_feedthrough(sys, dq_in)
@@ -191,7 +194,7 @@ def trajectory_block(trajectory, name: str = "trajectory") -> ct.NonlinearIOSyst
         return np.concatenate(trajectory.evaluate(t))
 
     sys = ct.nlsys(None, output, name=name, inputs=0,
-                   outputs=_names("q_ref") + _names("dq_ref") + _names("ddq_ref"))
+                   outputs=signal_names("q_ref") + signal_names("dq_ref") + signal_names("ddq_ref"))
     sys.trajectory = trajectory
     return _declare_feedthrough(sys, ())
 
@@ -211,6 +214,6 @@ def sensor(noise, name: str = "sensor") -> ct.NonlinearIOSystem:
         n_q, n_dq = noise.sample(t)
         return np.concatenate([u[:n] + n_q, u[n:] + n_dq])
 
-    inputs = _names("q") + _names("dq")
-    sys = ct.nlsys(None, output, name=name, inputs=inputs, outputs=_names("q_meas") + _names("dq_meas"))
+    inputs = signal_names("q") + signal_names("dq")
+    sys = ct.nlsys(None, output, name=name, inputs=inputs, outputs=signal_names("q_meas") + signal_names("dq_meas"))
     return _declare_feedthrough(sys, inputs)

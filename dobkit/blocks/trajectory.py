@@ -42,31 +42,33 @@ __all__ = ["LacerationPath", "JointSine", "TRAJECTORY_KINDS", "smoothstep5", "bu
 TRAJECTORY_KINDS = ("laceration", "joint_sine")
 
 
-def smoothstep5(tau):
+def smoothstep5(tau: float):
     """Quintic smoothstep ``10 tau^3 - 15 tau^4 + 6 tau^5`` on [0, 1] and its two derivatives (per unit tau)."""
-    tau = np.clip(tau, 0.0, 1.0)
-    s = tau ** 3 * (10 - 15 * tau + 6 * tau ** 2)
-    ds = 30 * tau ** 2 * (1 - tau) ** 2
-    dds = 60 * tau * (1 - tau) * (1 - 2 * tau)
-    return s, ds, dds
+    return (tau ** 3 * (10 - 15 * tau + 6 * tau ** 2), 30 * tau ** 2 * (1 - tau) ** 2,
+            60 * tau * (1 - tau) * (1 - 2 * tau))
 
 
-def bump6(tau):
+def bump6(tau: float):
     """Bump ``64 tau^3 (1 - tau)^3`` (peak 1 at tau = 1/2, C2 at both ends) and its two derivatives."""
-    tau = np.clip(tau, 0.0, 1.0)
-    u = tau * (1 - tau)
-    du = 1 - 2 * tau
-    b = 64 * u ** 3
-    db = 192 * u ** 2 * du
-    ddb = 384 * u * du ** 2 - 384 * u ** 2
-    return b, db, ddb
+    u, du = tau * (1 - tau), 1 - 2 * tau
+    return 64 * u ** 3, 192 * u ** 2 * du, 384 * u * du ** 2 - 384 * u ** 2
 
 
 def _finite(value, name: str):
-    arr = np.asarray(value, dtype=float)
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"trajectory.{name} must be a number or a list of numbers, got {value!r}") from None
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"trajectory.{name} must be finite, got {value!r}")
     return arr
+
+
+def _scalar(value, name: str, unit: str) -> float:
+    arr = _finite(value, name)
+    if arr.ndim != 0:
+        raise ValueError(f"trajectory.{name} must be one number in {unit}, got {value!r}")
+    return float(arr)
 
 
 @dataclass(frozen=True)
@@ -122,10 +124,11 @@ class LacerationPath:
             if value.shape != (2,):
                 raise ValueError(f"trajectory.{name} must be 2 numbers (x, y) in m, got {getattr(self, name)!r}")
             object.__setattr__(self, name, tuple(float(v) for v in value))
-        for name in ("bulge", "skin_height", "hover", "depth", "needle_roll", "roll_offset", "duration",
-                     "singularity_margin"):
-            object.__setattr__(self, name, float(_finite(getattr(self, name), name)))
-        if isinstance(self.stitches, bool) or int(self.stitches) != self.stitches or self.stitches < 2:
+        for name, unit in (("bulge", "m"), ("skin_height", "m"), ("hover", "m"), ("depth", "m"),
+                           ("needle_roll", "rad"), ("roll_offset", "rad"), ("duration", "s"),
+                           ("singularity_margin", "rad")):
+            object.__setattr__(self, name, _scalar(getattr(self, name), name, unit))
+        if not isinstance(self.stitches, (int, np.integer)) or isinstance(self.stitches, bool) or self.stitches < 2:
             raise ValueError(f"trajectory.stitches must be a whole number >= 2, got {self.stitches!r}")
         object.__setattr__(self, "stitches", int(self.stitches))
         if self.hover < 0:
@@ -152,74 +155,40 @@ class LacerationPath:
         """Length of one stitch or travel phase (s)."""
         return self.duration / (2 * self.stitches - 1)
 
-    def _curve(self, s):
-        """Point on the laceration at arc parameter s in [0, 1], with d/ds and d2/ds2."""
-        p0, p1 = np.array(self.start), np.array(self.end)
-        d = p1 - p0
-        normal = np.array([-d[1], d[0]]) / np.linalg.norm(d)
-        s = np.asarray(s, dtype=float)[..., None]
-        point = p0 + s * d + 4 * self.bulge * s * (1 - s) * normal
-        tangent = d + 4 * self.bulge * (1 - 2 * s) * normal
-        curvature_term = np.broadcast_to(-8 * self.bulge * normal, point.shape)
-        return point, tangent, curvature_term
-
     def pose(self, t):
         """Task-space reference ``[x, y, z, phi]`` and its first two time derivatives.
 
         Returns three arrays of shape ``(len(t), 4)`` (m, m, m, rad and their rates).
         """
-        t = np.atleast_1d(np.asarray(t, dtype=float))
-        T = self.phase_duration
-        phase = np.clip(np.floor(t / T), 0, 2 * self.stitches - 2).astype(int)
-        tau = np.clip(t / T - phase, 0.0, 1.0)
-        tau = np.where(t >= self.duration, 1.0, tau)
-        travelling = phase % 2 == 1
-        stitch_index = phase // 2            # stitch just done (or being done)
-        # Arc parameter s along the laceration (advances during travel phases only)
-        step = 1.0 / (self.stitches - 1)
-        sig, dsig, ddsig = smoothstep5(tau)
-        s = step * (stitch_index + np.where(travelling, sig, 0.0))
-        ds = np.where(travelling, step * dsig / T, 0.0)
-        dds = np.where(travelling, step * ddsig / T ** 2, 0.0)
-        # Dip and needle roll (during stitch phases only)
-        b, db, ddb = bump6(tau)
-        stitching = ~travelling
-        b, db, ddb = (np.where(stitching, v, 0.0) for v in (b, db / T, ddb / T ** 2))
-        point, tangent, curv = self._curve(s)
-        reach = self.hover + self.depth
-        pos = np.column_stack([point, self.skin_height + self.hover - reach * b,
-                               self.roll_offset + self.needle_roll * b])
-        vel = np.column_stack([tangent * ds[:, None], -reach * db, self.needle_roll * db])
-        acc = np.column_stack([curv * ds[:, None] ** 2 + tangent * dds[:, None], -reach * ddb,
-                               self.needle_roll * ddb])
-        return pos, vel, acc
+        rows = [self._pose_scalar(float(ti)) for ti in np.atleast_1d(np.asarray(t, dtype=float))]
+        return tuple(np.array([row[k] for row in rows], dtype=float).reshape(-1, 4) for k in range(3))
 
     def _pose_scalar(self, t: float):
-        """:meth:`pose` for one time, in plain floats: the simulator calls it thousands of times per run."""
+        """The pose and its rates at one time, in plain floats (the simulator calls this thousands of times)."""
         T = self.phase_duration
         phase = min(max(math.floor(t / T), 0), 2 * self.stitches - 2)
         tau = 1.0 if t >= self.duration else min(max(t / T - phase, 0.0), 1.0)
         step = 1.0 / (self.stitches - 1)
+        # arc parameter s along the laceration advances in travel phases; the dip b acts in stitch phases
         s, ds, dds, b, db, ddb = step * (phase // 2), 0.0, 0.0, 0.0, 0.0, 0.0
-        if phase % 2 == 1:      # travel
-            s += step * tau ** 3 * (10 - 15 * tau + 6 * tau ** 2)
-            ds = step * 30 * tau ** 2 * (1 - tau) ** 2 / T
-            dds = step * 60 * tau * (1 - tau) * (1 - 2 * tau) / T ** 2
-        else:                   # stitch
-            u, du = tau * (1 - tau), 1 - 2 * tau
-            b, db, ddb = 64 * u ** 3, 192 * u ** 2 * du / T, (384 * u * du ** 2 - 384 * u ** 2) / T ** 2
+        if phase % 2 == 1:
+            sig, dsig, ddsig = smoothstep5(tau)
+            s, ds, dds = s + step * sig, step * dsig / T, step * ddsig / T ** 2
+        else:
+            b, db, ddb = bump6(tau)
+            db, ddb = db / T, ddb / T ** 2
+        # the laceration: start + s (end - start) + a parabolic sideways offset of 'bulge' at its middle
         (x0, y0), (x1, y1) = self.start, self.end
         dx, dy = x1 - x0, y1 - y0
         length = math.hypot(dx, dy)
         nx, ny = -dy / length, dx / length
-        w, dw = 4 * self.bulge * s * (1 - s), 4 * self.bulge * (1 - 2 * s)
+        w, dw, ddw = 4 * self.bulge * s * (1 - s), 4 * self.bulge * (1 - 2 * s), -8 * self.bulge
         tx, ty = dx + dw * nx, dy + dw * ny
         reach = self.hover + self.depth
         pos = (x0 + s * dx + w * nx, y0 + s * dy + w * ny, self.skin_height + self.hover - reach * b,
                self.roll_offset + self.needle_roll * b)
         vel = (tx * ds, ty * ds, -reach * db, self.needle_roll * db)
-        acc = (-8 * self.bulge * nx * ds ** 2 + tx * dds, -8 * self.bulge * ny * ds ** 2 + ty * dds, -reach * ddb,
-               self.needle_roll * ddb)
+        acc = (ddw * nx * ds ** 2 + tx * dds, ddw * ny * ds ** 2 + ty * dds, -reach * ddb, self.needle_roll * ddb)
         return pos, vel, acc
 
     def _evaluate_scalar(self, t: float):
