@@ -7,6 +7,7 @@ removed) and that nothing appeared beside it.
 from __future__ import annotations
 
 import stat
+import sys
 import tempfile
 import zipfile
 from pathlib import Path
@@ -16,10 +17,10 @@ import numpy as np
 import pytest
 
 from conftest import make_scenario
-from dobkit.fmu import (ExtractionLimits, FMUArchiveError, FMUError, FMUInstance, FMUInstantiationError,
-                        FMUMissingVariablesError, FMUModelDescriptionError, FMUPlatformError, FMUStepError,
-                        FMUVersionError, cosimulate, cosimulate_system, export_plant, extract_fmu, load,
-                        require_variables)
+from dobkit.fmu import (CoSimulationError, ExtractionLimits, FMUArchiveError, FMUError, FMUInstance,
+                        FMUInstantiationError, FMUMissingVariablesError, FMUModelDescriptionError, FMUPlatformError,
+                        FMUStepError, FMUUnsupportedError, FMUVersionError, check_fmu, cosimulate, cosimulate_system,
+                        export_plant, extract_fmu, load, require_variables)
 from dobkit.fmu.package import package_fmu
 
 LAG_DIR = Path(__file__).parent / "fmu_lag"
@@ -122,6 +123,33 @@ def test_compression_ratio_limit(good, tmp_path, sandbox):
         load(bomb, extract_to=sandbox)
 
 
+def test_many_small_entries_adding_up_to_a_bomb_are_refused_before_extraction(good, tmp_path, sandbox):
+    """Each entry (256 KiB of zeros) is below the per-entry ratio threshold; together they expand ~1000-fold."""
+    bomb = rewrite(good[2], tmp_path / "bomb.fmu", add={f"resources/z{i}.bin": bytes(2 ** 18) for i in range(40)})
+    with zipfile.ZipFile(bomb) as zf:
+        infos = zf.infolist()
+        assert all(i.file_size <= ExtractionLimits().ratio_min_size for i in infos)
+        total, packed = sum(i.file_size for i in infos), sum(i.compress_size for i in infos)
+    assert total / packed > 100                        # the aggregate ratio, computed here from the archive
+    with pytest.raises(FMUArchiveError, match=r"expands \d+-fold as a whole .* more than the limit of 100"):
+        extract_fmu(bomb, parent=sandbox)
+    assert list(sandbox.iterdir()) == []               # refused before any folder was made
+
+
+def test_a_normal_fmu_is_well_below_the_aggregate_ratio(good):
+    for key in (2, 3, "lag"):
+        with zipfile.ZipFile(good[key]) as zf:
+            infos = zf.infolist()
+        assert sum(i.file_size for i in infos) / sum(i.compress_size for i in infos) < 10
+
+
+def test_a_directory_is_not_an_fmu(tmp_path, sandbox):
+    folder = tmp_path / "plant.fmu"
+    folder.mkdir()
+    with pytest.raises(FMUArchiveError, match="plant.fmu: is a directory, not an FMU file"):
+        load(folder, extract_to=sandbox)
+
+
 def test_too_many_entries(good, tmp_path, sandbox):
     many = rewrite(good[2], tmp_path / "many.fmu", add={f"resources/f{i}.txt": "x" for i in range(30)})
     with pytest.raises(FMUArchiveError, match="entries, more than the limit of 20"):
@@ -150,12 +178,66 @@ def test_schema_invalid_model_description(good, tmp_path, sandbox):
         load(bad, extract_to=sandbox)
 
 
-@pytest.mark.parametrize("version", ["1.0", "4.0"])
+@pytest.mark.parametrize("version", ["1.0", "3.5", "4.0"])
 def test_unsupported_fmi_version(good, tmp_path, sandbox, version):
     xml = model_xml(good[2]).replace('fmiVersion="2.0"', f'fmiVersion="{version}"')
     bad = rewrite(good[2], tmp_path / "bad.fmu", replace={"modelDescription.xml": xml})
-    with pytest.raises(FMUVersionError, match=f"FMI version '{version}' is not supported"):
+    with pytest.raises(FMUVersionError, match=rf"unsupported FMI version '{version}' \(supported: 2.0, 3.0\)"):
         load(bad, extract_to=sandbox)
+
+
+def test_check_fmu_names_an_unsupported_fmi_version(good, tmp_path):
+    xml = model_xml(good[3]).replace('fmiVersion="3.0"', 'fmiVersion="3.5"')
+    bad = rewrite(good[3], tmp_path / "bad.fmu", replace={"modelDescription.xml": xml})
+    with pytest.raises(FMUVersionError, match=r"unsupported FMI version '3.5'"):
+        check_fmu(bad)
+
+
+def test_check_fmu_reports_schema_problems_instead_of_raising(good, tmp_path):
+    xml = model_xml(good[2]).replace('causality="input"', 'causality="sideways"', 1)
+    bad = rewrite(good[2], tmp_path / "bad.fmu", replace={"modelDescription.xml": xml})
+    report = check_fmu(bad)
+    assert report["passed"] is False and report["validation"]["passed"] is False
+    assert any("sideways" in p for p in report["validation"]["problems"])
+    assert "model description is invalid" in report["model_exchange"]["skipped"]
+
+
+# --- outside the supported subset -------------------------------------------------------------------------
+
+_E_REAL = 'causality="output" variability="continuous" initial="calculated">\n      <Real/>'
+_E_INTEGER = 'causality="output" variability="discrete" initial="calculated">\n      <Integer/>'
+
+
+@pytest.mark.parametrize("old, new, words", [
+    ('numberOfEventIndicators="0"', 'numberOfEventIndicators="3"',
+     r"as ModelExchange: state events \(numberOfEventIndicators = 3\)"),
+    (_E_REAL, _E_INTEGER, r"inputs/outputs that are not Real/Float64: e \(Integer\)"),
+])
+def test_fmi2_features_outside_the_subset_are_refused_at_load(good, tmp_path, sandbox, old, new, words):
+    xml = model_xml(good["lag"])
+    assert old in xml
+    bad = rewrite(good["lag"], tmp_path / "bad.fmu", replace={"modelDescription.xml": xml.replace(old, new, 1)})
+    with pytest.raises(FMUUnsupportedError, match=words):
+        load(bad, extract_to=sandbox)
+
+
+def test_fmi3_array_input_is_refused_at_load(good, tmp_path, sandbox):
+    xml = model_xml(good[3])
+    start = xml.index('<Float64 name="tau[0]"')
+    end = xml.index("/>", start)
+    xml = xml[:start] + xml[start:end] + '><Dimension start="2"/></Float64>' + xml[end + 2:]
+    bad = rewrite(good[3], tmp_path / "bad.fmu", replace={"modelDescription.xml": xml})
+    with pytest.raises(FMUUnsupportedError, match=r"array variables \(FMI 3 'dimensions'\): tau\[0\]"):
+        load(bad, extract_to=sandbox)
+
+
+def test_time_event_is_refused_at_load(tmp_path, sandbox):
+    """The lag compiled with LAG_TIME_EVENT announces a time event at t = 1 s during initialization."""
+    variant = package_fmu(tmp_path / "lag_te.fmu", (LAG_DIR / "modelDescription.xml").read_text(),
+                          {"lag.c": LAG_DIR / "lag.c", "lag_te.c": '#define LAG_TIME_EVENT\n#include "lag.c"\n'},
+                          ["lag_te.c"], "lag", 2)
+    with pytest.raises(FMUUnsupportedError, match="announces a time event at t = 1 s; time events are not"):
+        load(variant, extract_to=sandbox)
 
 
 def test_missing_interface(good, tmp_path, sandbox):
@@ -214,6 +296,22 @@ def test_require_variables_suggests_close_names(good, sandbox):
             require_variables(fmu.model_description, ["q[0]"], causality="input", source="plant")
 
 
+def test_cosimulation_refuses_an_output_step_that_is_not_a_multiple_of_h(good, sandbox):
+    scenario = make_scenario(simulation={"t_final": 0.1, "output_step": 0.005})
+    with pytest.raises(CoSimulationError, match=r"output step \(0.005 s\) is not a whole multiple of the "
+                                                r"communication step h = 0.002 s"):
+        cosimulate(good[2], scenario, step=0.002, extract_to=sandbox)
+
+
+@pytest.mark.parametrize("kw, words", [({"q0": [0.1, 0.2, 0.3]}, "q0 must be 4 finite numbers"),
+                                       ({"dq0": [0.0, float("nan"), 0.0, 0.0]}, "dq0 must be 4 finite numbers"),
+                                       ({"q0": "abcd"}, "q0 must be 4 finite numbers")])
+def test_export_checks_the_start_state(tmp_path, kw, words):
+    with pytest.raises(ValueError, match=words):
+        export_plant(tmp_path / "p.fmu", **kw)
+    assert not (tmp_path / "p.fmu").exists()
+
+
 def test_unknown_start_value(good, sandbox):
     with pytest.raises(FMUModelDescriptionError, match=r"unknown variable\(s\) \['mass1'\]"):
         load(good[2], start_values={"mass1": 1.0}, extract_to=sandbox)
@@ -250,3 +348,39 @@ def test_error_status_in_model_exchange(good, sandbox):
     with pytest.raises(FMUStepError, match=r"fmi2GetDerivatives returned status 'error' at t = 0.3 s"):
         sys._rhs(0.3, np.zeros(8), np.array([0.0, np.inf, 0.0, 0.0]))
     sys.fmu.close()
+
+
+# --- one extraction per command ---------------------------------------------------------------------------
+
+_EXTRACTIONS: list[str] | None = None
+
+
+def _watch_extractions(event: str, args) -> None:
+    # an audit hook (it cannot be removed): records extraction folders while a test switches it on
+    if _EXTRACTIONS is not None and event == "tempfile.mkdtemp" and Path(args[0]).name.startswith("dobkit-fmu-"):
+        _EXTRACTIONS.append(str(args[0]))
+
+
+sys.addaudithook(_watch_extractions)
+
+
+def count_extractions(run) -> int:
+    global _EXTRACTIONS
+    _EXTRACTIONS = []
+    try:
+        run()
+        return len(_EXTRACTIONS)
+    finally:
+        _EXTRACTIONS = None
+
+
+def test_each_command_extracts_the_fmu_once(good, tmp_path):
+    from dobkit.cli import main as dobkit_main
+    scenario = make_scenario(simulation={"t_final": 0.02, "output_step": 0.01})
+    scenario_file = tmp_path / "s.toml"
+    scenario_file.write_text(scenario.to_toml())
+    assert count_extractions(lambda: check_fmu(good[2], t_final=0.05)) == 1
+    assert count_extractions(lambda: cosimulate(good[2], scenario, step=0.01)) == 1
+    assert count_extractions(lambda: dobkit_main(["fmu", "cosim", str(good[3]), "--scenario", str(scenario_file),
+                                                  "--step", "0.01", "--out", str(tmp_path / "run"),
+                                                  "--no-figures"])) == 1

@@ -17,7 +17,8 @@ from conftest import make_scenario
 from dobkit import blocks
 from dobkit.analysis.metrics import tracking_metrics
 from dobkit.cli import main as dobkit_main
-from dobkit.fmu import cosimulate, cosimulate_system, export_plant
+from dobkit.fmu import cosim_convergence, cosimulate, cosimulate_system, export_plant
+from dobkit.fmu.convergence import fit_order
 from dobkit.fmu.package import package_fmu
 
 LAG_DIR = Path(__file__).parent / "fmu_lag"
@@ -55,17 +56,29 @@ def q_error(resp, ref) -> float:
     return float(np.max(np.abs(np.asarray(resp.outputs)[rows] - np.asarray(ref.outputs)[rows])))
 
 
-def test_cosimulation_converges_to_the_monolithic_loop_at_first_order(fmus, scenario, monolithic):
+def test_convergence_study_finds_first_order(fmus, scenario, monolithic):
     steps = (4e-3, 2e-3, 1e-3)
-    errors = []
-    for h in steps:
-        resp = cosimulate(fmus[2], scenario, step=h)
-        assert list(resp.output_labels) == list(monolithic.output_labels)
-        np.testing.assert_allclose(resp.time, monolithic.time, atol=1e-12)
-        errors.append(q_error(resp, monolithic))
-    order = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
-    assert errors[-1] < 5e-3
-    assert np.all((order > 0.8) & (order < 1.2)), (errors, order)   # zero-order hold: first order in h
+    study = cosim_convergence(fmus[2], scenario, steps=steps)
+    assert study["steps"] == sorted(steps) and study["output_step"] == 4e-3 and study["t_final"] == T_FINAL
+    errors = np.array([study["errors"][f"q[{i}]"] for i in range(4)])      # (joint, step ascending)
+    assert np.all(np.diff(errors, axis=1) > 0)                              # smaller h, smaller error
+    assert abs(study["order"] - 1.0) < 0.15                                 # zero-order hold: first order
+    assert all(abs(p - 1.0) < 0.15 for p in study["order_per_joint"].values())
+    assert errors[:, 0].max() < 5e-3
+    # the h = 4 ms error, measured independently on the fixture's coarser 8 ms grid (a subset of 4 ms)
+    resp = cosimulate(fmus[2], scenario, step=4e-3)
+    assert list(resp.output_labels) == list(monolithic.output_labels)
+    np.testing.assert_allclose(resp.time, monolithic.time, atol=1e-12)
+    assert q_error(resp, monolithic) <= errors[:, -1].max() * (1 + 1e-6)
+    assert q_error(resp, monolithic) > 0.8 * errors[:, -1].max()
+
+
+def test_fit_order_recovers_a_known_slope():
+    h = np.array([0.004, 0.002, 0.001, 0.0005])
+    errors = np.column_stack([3.0 * h ** 1.5, 0.01 * h ** 1.5, 2e-3 * h ** 1.5 * (1 + 0.01 * np.arange(4))])
+    order, per = fit_order(h, errors)
+    assert order == pytest.approx(1.5, abs=0.01) and per[0] == pytest.approx(1.5, abs=1e-12)
+    assert np.isnan(fit_order(h, np.column_stack([h, np.zeros(4)]))[1][1])   # zero errors: no slope
 
 
 def test_fmi3_plant_cosimulates_like_fmi2(fmus, scenario):
@@ -147,8 +160,34 @@ def test_cli_export_check_and_cosim(tmp_path, capsys):
     out = tmp_path / "run"
     assert dobkit_main(["fmu", "cosim", str(fmu), "--scenario", str(scenario_file), "--step", "0.005",
                         "--out", str(out), "--no-figures"]) == 0
+    assert "figures: skipped (--no-figures)" in capsys.readouterr().out
     metrics = json.loads((out / "metrics.json").read_text())
     ref = blocks.simulate(make_scenario(trajectory=SINE, simulation={"t_final": 0.1, "output_step": 0.01}))
     assert metrics["with_dob"].keys() == tracking_metrics(ref).keys()
     assert {"scenario", "units", "definitions", "with_dob", "without_dob"} <= metrics.keys()
     assert metrics["cosimulation"]["step"] == 0.005 and metrics["cosimulation"]["fmi_version"] == 3
+
+
+def test_cli_convergence_writes_json_and_a_labelled_figure(fmus, tmp_path, capsys):
+    scenario_file = tmp_path / "s.toml"
+    scenario_file.write_text(make_scenario(trajectory=SINE, simulation={"t_final": 0.1, "output_step": 0.01})
+                             .to_toml())
+    out = tmp_path / "conv"
+    assert dobkit_main(["fmu", "convergence", str(fmus[3]), "--scenario", str(scenario_file),
+                        "--steps", "0.004,0.002", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "fitted order" in printed and "figure: convergence.png, convergence.svg" in printed
+    assert sorted(p.name for p in out.iterdir()) == ["convergence.json", "convergence.png", "convergence.svg",
+                                                     "scenario.toml"]
+    study = json.loads((out / "convergence.json").read_text())
+    assert study["steps"] == [0.002, 0.004] and study["fmi_version"] == 3 and study["t_final"] == 0.1
+    assert study["units"] == {"q[0]": "rad", "q[1]": "rad", "q[2]": "m", "q[3]": "rad"}
+    ratio = np.array(study["errors"]["q[3]"][1]) / np.array(study["errors"]["q[3]"][0])
+    assert 1.7 < ratio < 2.3                                          # halving h halves the error
+    svg = (out / "convergence.svg").read_text()
+    for text in ("communication step h (ms)", "max |q_cosim - q_monolithic| (rad; joint 3 in m)",
+                 f"fitted slope p = {study['order']:.3f}"):
+        assert text in svg
+    with pytest.raises(SystemExit):
+        dobkit_main(["fmu", "convergence", str(fmus[3]), "--steps", "0.004"])   # one step: no order
+    assert "at least two different steps" in capsys.readouterr().err

@@ -17,7 +17,7 @@ from dobkit import blocks
 from dobkit.blocks.disturbances import DisturbanceSpec
 from dobkit.blocks.parameters import RobotParameters
 from dobkit.blocks.systems import plant as python_plant
-from dobkit.fmu import check_fmu, export_plant, load
+from dobkit.fmu import FMUMissingVariablesError, check_fmu, export_plant, load
 from dobkit.fmu.package import package_fmu
 
 LAG_DIR = Path(__file__).parent / "fmu_lag"
@@ -80,6 +80,34 @@ def test_closed_loop_with_the_fmu_block_matches_the_python_loop(plant_fmu, tmp_p
     got = blocks.simulate(s, plant=fmu_plant)
     assert list(got.output_labels) == list(ref.output_labels)
     assert np.max(np.abs(np.asarray(got.outputs) - np.asarray(ref.outputs))) < 1e-6
+
+
+def test_scenario_makes_the_fmu_the_scenarios_true_plant(plant_fmu):
+    """The FMU was exported with Table 1 and the paper disturbance; the scenario has a heavier tool and friction."""
+    s = make_scenario(trajectory=SINE, robot={"m4": 0.4}, disturbance={"kind": ["paper", "friction"]},
+                      simulation={"t_final": 0.3, "output_step": 0.01, "rtol": 1e-10, "atol": 1e-12})
+    ref = np.asarray(blocks.simulate(s).outputs)
+    got = np.asarray(blocks.simulate(s, plant=load(plant_fmu, scenario=s)).outputs)
+    assert np.max(np.abs(got - ref)) < 1e-6
+    # without it the FMU keeps its export's parameters: a different plant
+    own = np.asarray(blocks.simulate(s, plant=load(plant_fmu)).outputs)
+    assert np.max(np.abs(own - ref)) > 1e-3
+
+
+def test_explicit_start_values_override_the_scenario(plant_fmu):
+    s = make_scenario(robot={"m4": 0.4})
+    sys = load(plant_fmu, scenario=s, start_values={"m4": 0.3})
+    ref = python_plant(RobotParameters(m4=0.3), DisturbanceSpec())
+    x, u = np.array([0.1, 0.9, 0.2, -0.3, 0.5, 0.1, -0.2, 0.3]), np.array([1.0, -2.0, 0.5, 0.1])
+    np.testing.assert_allclose(sys._rhs(0.0, x, u), ref._rhs(0.0, x, u), rtol=1e-13, atol=1e-13)
+    q_ref0 = s.trajectory.evaluate(0.0)[0]
+    np.testing.assert_allclose(sys.initial_state[:4], q_ref0, atol=1e-15)   # starts on the reference
+    sys.fmu.close()
+
+
+def test_scenario_for_an_fmu_without_the_plant_signals(lag_fmu):
+    with pytest.raises(FMUMissingVariablesError, match=r"as the true plant of scenario 'paper'.*q\[0\]"):
+        load(lag_fmu, scenario="paper")
 
 
 def test_python_control_response_with_the_fmu_block(plant_fmu):

@@ -8,9 +8,12 @@ every entry is checked:
   components, backslashes, drive letters or other colons, NUL characters,
   symbolic links and other special files are refused;
 * no duplicate (after normalisation) or encrypted entries;
-* size limits: the number of entries, the total uncompressed size and the
-  compression ratio of each entry (zip bombs); the byte count is enforced
-  again while extracting, so a lying header does not help.
+* size limits: the number of entries, the total uncompressed size, the
+  compression ratio of each large entry and the ratio of the whole archive
+  (total uncompressed / total compressed size), so that a bomb made of many
+  small entries is refused as well as one made of a single large entry; the
+  byte count is enforced again while extracting, so a lying header does not
+  help.
 
 Extraction goes into a fresh folder from :func:`tempfile.mkdtemp` that the
 returned :class:`ExtractedFMU` owns and removes (``cleanup``, ``with``, or
@@ -32,7 +35,7 @@ from pathlib import Path
 
 from .errors import FMUArchiveError
 
-__all__ = ["ExtractionLimits", "ExtractedFMU", "extract_fmu", "check_entries"]
+__all__ = ["ExtractionLimits", "ExtractedFMU", "extract_fmu", "check_entries", "open_extracted"]
 
 _CHUNK = 1 << 16
 
@@ -49,8 +52,13 @@ class ExtractionLimits:
         Largest uncompressed / compressed size of one entry, checked for
         entries larger than ``ratio_min_size`` (default 200).
     ratio_min_size : int
-        Entries up to this many bytes are exempt from the ratio check (small
-        text files compress well and cannot hurt); default 1 MiB.
+        Entries up to this many bytes are exempt from the per-entry ratio
+        check, and archives up to this many uncompressed bytes from the
+        aggregate one (small text files compress well and cannot hurt);
+        default 1 MiB.
+    max_total_ratio : float
+        Largest total uncompressed size / total compressed size of the
+        archive (default 100; a typical FMU is below 10).
     max_entries : int
         Largest number of entries (default 10000).
     """
@@ -59,9 +67,10 @@ class ExtractionLimits:
     max_ratio: float = 200.0
     ratio_min_size: int = 2 ** 20
     max_entries: int = 10_000
+    max_total_ratio: float = 100.0
 
     def __post_init__(self) -> None:
-        for name in ("max_total_size", "max_ratio", "max_entries"):
+        for name in ("max_total_size", "max_ratio", "max_entries", "max_total_ratio"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
                 raise ValueError(f"ExtractionLimits.{name} must be a number > 0, got {value!r}")
@@ -115,7 +124,7 @@ def check_entries(zf: zipfile.ZipFile, source: str, limits: ExtractionLimits) ->
     if len(infos) > limits.max_entries:
         raise FMUArchiveError(f"{source}: {len(infos)} entries, more than the limit of {limits.max_entries}")
     seen: dict[str, str] = {}
-    total = 0
+    total = compressed = 0
     for info in infos:
         problem = _entry_problem(info)
         if problem:
@@ -127,6 +136,7 @@ def check_entries(zf: zipfile.ZipFile, source: str, limits: ExtractionLimits) ->
             raise FMUArchiveError(f"{source}: entries {seen[key]!r} and {info.orig_filename!r} name the same file")
         seen[key] = info.orig_filename
         total += info.file_size
+        compressed += info.compress_size
         if total > limits.max_total_size:
             raise FMUArchiveError(f"{source}: uncompressed size exceeds the limit of {limits.max_total_size} bytes "
                                   f"(reached at entry {info.orig_filename!r})")
@@ -136,6 +146,12 @@ def check_entries(zf: zipfile.ZipFile, source: str, limits: ExtractionLimits) ->
                 raise FMUArchiveError(f"{source}: entry {info.orig_filename!r} expands {ratio:.0f}-fold "
                                       f"({info.compress_size} -> {info.file_size} bytes), more than the limit of "
                                       f"{limits.max_ratio:g} (a zip bomb?)")
+    # many small entries, each exempt above, can still add up to a bomb
+    total_ratio = total / max(compressed, 1)
+    if total > limits.ratio_min_size and total_ratio > limits.max_total_ratio:
+        raise FMUArchiveError(f"{source}: the archive expands {total_ratio:.0f}-fold as a whole ({compressed} -> "
+                              f"{total} bytes in {len(infos)} entries), more than the limit of "
+                              f"{limits.max_total_ratio:g} (a zip bomb?); refusing to extract")
     return infos
 
 
@@ -153,6 +169,7 @@ class ExtractedFMU:
     def __init__(self, root: Path, source: str):
         self.root = root
         self.source = source
+        self.model_description = None  # filled once by dobkit.fmu.description.described
         self._finalizer = weakref.finalize(self, shutil.rmtree, str(root), True)
 
     def cleanup(self) -> None:
@@ -223,6 +240,8 @@ def extract_fmu(path, limits: ExtractionLimits | None = None, parent=None) -> Ex
     """
     limits = ExtractionLimits() if limits is None else limits
     source = str(path)
+    if Path(path).is_dir():
+        raise FMUArchiveError(f"{source}: is a directory, not an FMU file (an FMU is a zip archive)")
     if not Path(path).is_file():
         raise FMUArchiveError(f"{source}: no such file")
     if not zipfile.is_zipfile(path):
@@ -248,3 +267,25 @@ def extract_fmu(path, limits: ExtractionLimits | None = None, parent=None) -> Ex
             extracted.cleanup()
             raise FMUArchiveError(f"{source}: extraction failed: {err}") from None
     return extracted
+
+
+def open_extracted(fmu, limits: ExtractionLimits | None = None, parent=None) -> tuple[ExtractedFMU, bool]:
+    """An extracted FMU for a path or an existing extraction, and whether the caller owns it.
+
+    Parameters
+    ----------
+    fmu : str, pathlib.Path or ExtractedFMU
+        A ``.fmu`` file (checked and extracted now) or an extraction to reuse.
+    limits, parent :
+        As for :func:`extract_fmu` (ignored when ``fmu`` is already extracted).
+
+    Returns
+    -------
+    (ExtractedFMU, bool)
+        The extraction, and True if it was made here (the caller must clean it up).
+    """
+    if isinstance(fmu, ExtractedFMU):
+        if fmu.removed:
+            raise FMUArchiveError(f"{fmu.source}: its extraction folder was already removed")
+        return fmu, False
+    return extract_fmu(fmu, limits=limits, parent=parent), True

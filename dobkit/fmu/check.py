@@ -13,7 +13,10 @@
   plant integrated exactly under the same piecewise-constant torque.
 
 The comparisons need the plant's variable names (``m1``, ``f_r[0]``, ...);
-for another FMU they are reported as skipped.
+for another FMU they are reported as skipped.  A model description that
+fails the schema validation is reported (its problems listed, comparisons
+skipped) rather than raised; a missing or malformed one, or an unsupported
+FMI version, raises.  The archive is checked and extracted once.
 """
 from __future__ import annotations
 
@@ -24,10 +27,10 @@ from ..blocks.disturbances import DISTURBANCE_KINDS, DisturbanceSpec
 from ..blocks.parameters import RobotParameters
 from ..blocks.systems import plant as python_plant
 from .archive import ExtractionLimits, extract_fmu
-from .description import read_description
-from .errors import FMUError
+from .description import described, read_description
+from .errors import FMUError, FMUModelDescriptionError
 from .instance import FMUInstance
-from .load import load
+from .block import load
 
 __all__ = ["check_fmu", "check_torque", "plant_from_description", "CHECK_INITIAL_STATE"]
 
@@ -66,9 +69,9 @@ def plant_from_description(model_description) -> tuple[RobotParameters, Disturba
     return robot, spec
 
 
-def _compare_model_exchange(path, robot, spec, t_final, tolerance, limits) -> dict:
+def _compare_model_exchange(extracted, robot, spec, t_final, tolerance) -> dict:
     x0 = CHECK_INITIAL_STATE
-    fmu = load(path, name="fmu_plant", start_values=dict(zip(_STATES, x0)), limits=limits)
+    fmu = load(extracted, name="fmu_plant", start_values=dict(zip(_STATES, x0)))
     try:
         py = python_plant(robot, spec)
         t_eval = np.linspace(0.0, t_final, 101)
@@ -93,12 +96,12 @@ def _compare_model_exchange(path, robot, spec, t_final, tolerance, limits) -> di
             "method": "SciPy DOP853, rtol 1e-11, atol 1e-12, on both; same torque input and initial state"}
 
 
-def _compare_co_simulation(path, robot, spec, t_final, step, tolerance, limits) -> dict:
+def _compare_co_simulation(extracted, robot, spec, t_final, step, tolerance) -> dict:
     x0 = CHECK_INITIAL_STATE
     py = python_plant(robot, spec)
     n = int(round(t_final / step))
     x_ref = x0.copy()
-    with FMUInstance(path, kind="CoSimulation", start_values=dict(zip(_STATES, x0)), limits=limits) as fmu:
+    with FMUInstance(extracted, kind="CoSimulation", start_values=dict(zip(_STATES, x0))) as fmu:
         in_vr = fmu.value_references([f"tau[{i}]" for i in range(JOINTS)])
         out_vr = fmu.value_references(_STATES)
         substeps = fmu.get_integer("n_substeps")
@@ -141,29 +144,54 @@ def check_fmu(path, t_final: float = 1.0, tolerance: float = 1e-6, cs_step: floa
         ``path``, ``fmi_version``, ``model``, ``validation`` (``problems``,
         ``passed``), ``model_exchange`` and ``co_simulation`` (errors,
         tolerances, ``passed``, or ``skipped`` with the reason), and ``passed``.
+
+    Raises
+    ------
+    FMUError
+        (a subclass) for an unsafe archive, a missing or malformed model
+        description, an unsupported FMI version, or a failure while comparing.
     """
     from fmpy.validation import validate_fmu
 
     report: dict = {"path": str(path)}
     with extract_fmu(path, limits=limits) as extracted:
-        md = read_description(extracted.root, str(path))
-    report["fmi_version"] = md.fmiVersion
-    report["model"] = md.modelName
-    problems = validate_fmu(str(path))
-    report["validation"] = {"problems": problems, "passed": not problems}
-    try:
-        robot, spec = plant_from_description(md)
-    except (KeyError, ValueError, TypeError) as err:
-        reason = f"not a dobkit plant FMU (no usable parameter {err})"
-        report["model_exchange"] = report["co_simulation"] = {"skipped": reason}
-    else:
-        for key, kind, run in (
-                ("model_exchange", md.modelExchange,
-                 lambda: _compare_model_exchange(path, robot, spec, t_final, tolerance, limits)),
-                ("co_simulation", md.coSimulation,
-                 lambda: _compare_co_simulation(path, robot, spec, t_final, cs_step, cs_tolerance, limits))):
-            report[key] = run() if kind is not None else {"skipped": "the FMU does not offer this interface"}
+        try:
+            md = described(extracted)
+        except FMUModelDescriptionError as err:
+            if not err.problems:  # missing, malformed, unsupported version: nothing to validate
+                raise
+            return _invalid_report(report, extracted, err.problems)
+        report["fmi_version"] = md.fmiVersion
+        report["model"] = md.modelName
+        problems = validate_fmu(str(extracted.root))
+        report["validation"] = {"problems": problems, "passed": not problems}
+        try:
+            robot, spec = plant_from_description(md)
+        except (KeyError, ValueError, TypeError) as err:
+            reason = f"not a dobkit plant FMU (no usable parameter {err})"
+            report["model_exchange"] = report["co_simulation"] = {"skipped": reason}
+        else:
+            for key, kind, run in (
+                    ("model_exchange", md.modelExchange,
+                     lambda: _compare_model_exchange(extracted, robot, spec, t_final, tolerance)),
+                    ("co_simulation", md.coSimulation,
+                     lambda: _compare_co_simulation(extracted, robot, spec, t_final, cs_step, cs_tolerance))):
+                report[key] = run() if kind is not None else {"skipped": "the FMU does not offer this interface"}
     parts = [report["validation"]] + [report[k] for k in ("model_exchange", "co_simulation")
                                       if "skipped" not in report[k]]
     report["passed"] = all(p["passed"] for p in parts)
+    return report
+
+
+def _invalid_report(report: dict, extracted, problems: list[str]) -> dict:
+    """The report for a model description that fails the schema validation: its problems, nothing compared."""
+    try:
+        md = read_description(extracted.root, extracted.source, validate=False)
+        report["fmi_version"], report["model"] = md.fmiVersion, md.modelName
+    except FMUError:
+        report["fmi_version"] = report["model"] = None
+    report["validation"] = {"problems": problems, "passed": False}
+    report["model_exchange"] = report["co_simulation"] = {
+        "skipped": "the model description is invalid (see validation); the FMU was not loaded"}
+    report["passed"] = False
     return report

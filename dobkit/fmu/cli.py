@@ -4,10 +4,12 @@
 
     dobkit fmu export [--scenario S] [--fmi-version 2|3] [--substeps N] --out plant.fmu
     dobkit fmu cosim PLANT.fmu [--scenario S] [--step H] [--out DIR] [--no-figures]
+    dobkit fmu convergence PLANT.fmu [--scenario S] [--steps 0.004,0.002,0.001,0.0005] [--out DIR]
     dobkit fmu check PLANT.fmu [--json]
 
 Each is a thin layer over :func:`dobkit.fmu.export_plant`,
-:func:`dobkit.fmu.cosimulate` and :func:`dobkit.fmu.check_fmu`.
+:func:`dobkit.fmu.cosimulate`, :func:`dobkit.fmu.cosim_convergence` and
+:func:`dobkit.fmu.check_fmu`.  Each command extracts the FMU once.
 """
 from __future__ import annotations
 
@@ -26,6 +28,22 @@ def _positive_float(text: str) -> float:
     if not value > 0:
         raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
     return value
+
+
+def _step_list(text: str) -> tuple[float, ...]:
+    steps = tuple(_positive_float(part.strip()) for part in text.split(",") if part.strip())
+    if len(set(steps)) < 2:
+        raise argparse.ArgumentTypeError(f"expected at least two different steps separated by commas, got {text!r}")
+    return steps
+
+
+def _figures_module():
+    """dobkit.analysis.figures, or None with the reason when matplotlib is missing."""
+    try:
+        from ..analysis import figures
+    except ImportError as err:
+        return None, str(err)
+    return figures, ""
 
 
 def _cmd_export(args) -> int:
@@ -48,14 +66,17 @@ def _cmd_cosim(args) -> int:
     from ..analysis.experiment import default_out_dir, format_rms_table, staged_output
     from ..analysis.metrics import DISTURBANCE_UNITS, JOINT_UNITS, tracking_metrics
     from ..blocks import load_scenario
+    from .archive import extract_fmu
     from .cosim import cosimulate
 
     s = load_scenario(args.scenario)
     out = Path(args.out) if args.out is not None else default_out_dir("dobkit-cosim")
+    staging = staged_output(out)  # refuses a non-empty folder before any work
     runs = {}
-    for key, observer in (("with_dob", True), ("without_dob", False)):
-        runs[key] = cosimulate(args.fmu, s, step=args.step, observer=observer, side_substeps=args.side_substeps,
-                               parameters=args.parameters)
+    with extract_fmu(args.fmu) as extracted:  # once for both runs
+        for key, observer in (("with_dob", True), ("without_dob", False)):
+            runs[key] = cosimulate(extracted, s, step=args.step, observer=observer,
+                                   side_substeps=args.side_substeps, parameters=args.parameters)
     info = runs["with_dob"].cosim
     metrics = {
         "scenario": s.name,
@@ -70,18 +91,53 @@ def _cmd_cosim(args) -> int:
         "cosimulation": {k: info[k] for k in ("fmu", "fmi_version", "model", "step", "side_substeps", "method",
                                               "parameters")},
     }
-    with staged_output(out) as stage:
+    figures_note = "figures: skipped (--no-figures)"
+    with staging as stage:
         (stage / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
         (stage / "scenario.toml").write_text(s.to_toml())
         if not args.no_figures:
-            try:
-                from ..analysis.figures import paper_figures
-            except ImportError:
-                paper_figures = None
-            if paper_figures is not None:
-                paper_figures(runs["with_dob"], runs["without_dob"], stage)
+            figures, why = _figures_module()
+            if figures is None:
+                figures_note = f"figures: skipped, plotting is unavailable ({why})"
+            else:
+                written = figures.paper_figures(runs["with_dob"], runs["without_dob"], stage)
+                figures_note = f"figures: {len(written)} files (PNG and SVG)"
     print(f"co-simulated {args.fmu} (FMI {info['fmi_version']}) with scenario {s.name}, h = {args.step:g} s")
     print(format_rms_table(metrics))
+    print(figures_note)
+    print(f"results written to {out}")
+    return 0
+
+
+def _cmd_convergence(args) -> int:
+    from ..analysis.experiment import default_out_dir, staged_output
+    from ..blocks import load_scenario
+    from .convergence import convergence_figure, cosim_convergence
+
+    s = load_scenario(args.scenario)
+    out = Path(args.out) if args.out is not None else default_out_dir("dobkit-convergence")
+    staging = staged_output(out)  # refuses a non-empty folder before the (long) study
+    study = cosim_convergence(args.fmu, s, steps=args.steps, t_final=args.t_final,
+                              side_substeps=args.side_substeps)
+    figures_note = "figure: skipped (--no-figures)"
+    with staging as stage:
+        (stage / "convergence.json").write_text(json.dumps(study, indent=2) + "\n")
+        (stage / "scenario.toml").write_text(s.to_toml())
+        if not args.no_figures:
+            figures, why = _figures_module()
+            if figures is None:
+                figures_note = f"figure: skipped, plotting is unavailable ({why})"
+            else:
+                convergence_figure(study, stage)
+                figures_note = "figure: convergence.png, convergence.svg"
+    print(f"co-simulation of {args.fmu} (FMI {study['fmi_version']}) against the monolithic loop, scenario "
+          f"{s.name}, t_final = {study['t_final']:g} s")
+    print("  h (s)      " + "  ".join(f"{n} ({u})".rjust(14) for n, u in study["units"].items()))
+    for k, h in enumerate(study["steps"]):
+        print(f"  {h:<10g} " + "  ".join(f"{study['errors'][n][k]:14.4e}" for n in study["units"]))
+    print(f"fitted order {study['order']:.3f} (per joint: "
+          + ", ".join(f"{v:.3f}" for v in study["order_per_joint"].values()) + ")")
+    print(figures_note)
     print(f"results written to {out}")
     return 0
 
@@ -111,7 +167,7 @@ def _cmd_check(args) -> int:
 
 
 def add_fmu_subcommands(subparsers) -> None:
-    """Add ``fmu export``, ``fmu cosim`` and ``fmu check`` to a ``dobkit`` subparsers object."""
+    """Add ``fmu export``, ``fmu cosim``, ``fmu convergence`` and ``fmu check`` to a ``dobkit`` subparsers object."""
     fmu = subparsers.add_parser("fmu", help="export the plant as an FMU, co-simulate against it, check it")
     sub = fmu.add_subparsers(dest="fmu_command", required=True)
 
@@ -135,6 +191,21 @@ def add_fmu_subcommands(subparsers) -> None:
     cos.add_argument("--out", default=None, help="output folder (default: a new folder under the current one)")
     cos.add_argument("--no-figures", action="store_true", help="write metrics only")
     cos.set_defaults(func=_cmd_cosim)
+
+    con = sub.add_parser("convergence", help="co-simulate at several steps h against the monolithic loop; "
+                         "write convergence.json (errors per h, fitted order) and a log-log figure")
+    con.add_argument("fmu", help="plant FMU (Co-Simulation)")
+    con.add_argument("--scenario", default="paper", help="scenario name or TOML path (default: paper)")
+    con.add_argument("--steps", type=_step_list, default=(0.004, 0.002, 0.001, 0.0005),
+                     help="communication steps in s, comma separated; each must divide the largest "
+                          "(default: 0.004,0.002,0.001,0.0005)")
+    con.add_argument("--t-final", type=_positive_float, default=None,
+                     help="simulated time in s (default: the scenario's)")
+    con.add_argument("--side-substeps", type=int, default=1,
+                     help="RK4 steps of the Python side per communication step (default: 1)")
+    con.add_argument("--out", default=None, help="output folder (default: a new folder under the current one)")
+    con.add_argument("--no-figures", action="store_true", help="write convergence.json only")
+    con.set_defaults(func=_cmd_convergence)
 
     chk = sub.add_parser("check", help="validate an FMU and compare the plant FMU with the Python plant")
     chk.add_argument("fmu", help="the .fmu file")

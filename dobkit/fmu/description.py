@@ -6,7 +6,10 @@ Checks, each with its own error naming what is wrong:
   XML whose root is ``fmiModelDescription`` (:class:`FMUModelDescriptionError`);
 * the FMI version is 2.0 or 3.0 and the FMU offers the interface asked for
   (:class:`FMUVersionError`);
-* it passes fmpy's schema validation (:class:`FMUModelDescriptionError`);
+* it passes fmpy's schema validation (:class:`FMUModelDescriptionError`,
+  with fmpy's list of problems as ``problems``);
+* it stays within the subset of FMI that dobkit's importer handles
+  (:func:`unsupported_features`);
 * it has a binary for this platform (:class:`FMUPlatformError`);
 * it declares the variables a caller needs (:func:`require_variables`,
   :class:`FMUMissingVariablesError`).
@@ -20,11 +23,12 @@ from pathlib import Path
 from .build import platform_folder, shared_library_suffix
 from .errors import FMUMissingVariablesError, FMUModelDescriptionError, FMUPlatformError, FMUVersionError
 
-__all__ = ["read_description", "fmi_major", "interface", "binary_path", "require_variables",
-           "INTERFACES", "real_variables"]
+__all__ = ["read_description", "described", "fmi_major", "interface", "binary_path", "require_variables",
+           "INTERFACES", "real_variables", "unsupported_features", "SUPPORTED_FMI_VERSIONS"]
 
 INTERFACES = ("ModelExchange", "CoSimulation")
 _REAL_TYPES = ("Real", "Float64")
+SUPPORTED_FMI_VERSIONS = ("2.0", "3.0")
 
 
 def fmi_major(model_description) -> int:
@@ -32,7 +36,7 @@ def fmi_major(model_description) -> int:
     return 2 if model_description.fmiVersion == "2.0" else 3
 
 
-def read_description(root: Path, source: str):
+def read_description(root: Path, source: str, validate: bool = True):
     """Parse and validate ``modelDescription.xml`` of an extracted FMU.
 
     Parameters
@@ -41,12 +45,23 @@ def read_description(root: Path, source: str):
         The extraction folder.
     source : str
         Name of the archive, for messages.
+    validate : bool
+        Check against the FMI schema (fmpy); a failure raises with the list of problems.
 
     Returns
     -------
     fmpy.model_description.ModelDescription
+
+    Raises
+    ------
+    FMUModelDescriptionError
+        Missing, malformed or schema-invalid (attribute ``problems``: fmpy's findings).
+    FMUVersionError
+        An FMI version other than 2.0 or 3.0.
     """
     xml = Path(root) / "modelDescription.xml"
+    if xml.is_dir():
+        raise FMUModelDescriptionError(f"{source}: modelDescription.xml is a directory, not a file")
     if not xml.is_file():
         found = sorted(p.name for p in Path(root).iterdir())[:10]
         raise FMUModelDescriptionError(f"{source}: no modelDescription.xml at the top of the archive "
@@ -59,18 +74,34 @@ def read_description(root: Path, source: str):
         raise FMUModelDescriptionError(f"{source}: modelDescription.xml has root element <{element.tag}>, "
                                        "expected <fmiModelDescription>")
     version = element.get("fmiVersion")
-    if version != "2.0" and not (version or "").startswith("3."):
-        raise FMUVersionError(f"{source}: FMI version {version!r} is not supported (supported: 2.0, 3.0)")
+    if version not in SUPPORTED_FMI_VERSIONS:
+        raise FMUVersionError(f"{source}: unsupported FMI version {version!r} (supported: "
+                              f"{', '.join(SUPPORTED_FMI_VERSIONS)})")
     from fmpy import read_model_description
     from fmpy.model_description import ValidationError
     try:
-        return read_model_description(str(root), validate=True)
+        return read_model_description(str(root), validate=validate)
     except ValidationError as err:
-        problems = "; ".join(err.problems[:5]) + (f" (and {len(err.problems) - 5} more)"
-                                                  if len(err.problems) > 5 else "")
-        raise FMUModelDescriptionError(f"{source}: modelDescription.xml is invalid: {problems}") from None
+        problems = [str(p) for p in err.problems]
+        listed = "; ".join(problems[:5]) + (f" (and {len(problems) - 5} more)" if len(problems) > 5 else "")
+        raise FMUModelDescriptionError(f"{source}: modelDescription.xml is invalid: {listed}",
+                                       problems=problems) from None
     except Exception as err:  # fmpy raises bare Exceptions for unsupported content
-        raise FMUModelDescriptionError(f"{source}: modelDescription.xml cannot be read: {err}") from None
+        raise FMUModelDescriptionError(f"{source}: modelDescription.xml cannot be read: {err}",
+                                       problems=[str(err)]) from None
+
+
+def described(extracted):
+    """The (validated) model description of an :class:`~dobkit.fmu.archive.ExtractedFMU`, parsed once.
+
+    The result is cached on the object, so that one extraction serves every
+    step of a command without parsing the XML again.
+    """
+    md = getattr(extracted, "model_description", None)
+    if md is None:
+        md = read_description(extracted.root, extracted.source)
+        extracted.model_description = md
+    return md
 
 
 def interface(model_description, kind: str, source: str):
@@ -98,6 +129,61 @@ def binary_path(root: Path, model_description, kind: str, source: str) -> Path:
             f"{source}: no binary for this platform: expected binaries/{folder}/{lib.name}; the FMU has binaries "
             f"for {present or 'no platform'}" + (" (it ships sources/, so it could be rebuilt)" if has_sources else ""))
     return lib
+
+
+def _is_array(variable) -> bool:
+    return bool(getattr(variable, "dimensions", None))
+
+
+def unsupported_features(model_description, kind: str) -> list[str]:
+    """What an FMU uses that dobkit's importer does not handle (empty: supported).
+
+    dobkit couples FMUs through scalar real signals in continuous time.  It
+    does not handle, and so refuses rather than silently ignores:
+
+    * for Model Exchange: state events (``numberOfEventIndicators`` > 0 in FMI 2,
+      ``EventIndicator`` elements in FMI 3) -- time events are detected at
+      initialization by :class:`~dobkit.fmu.instance.FMUInstance`;
+    * for both interfaces: array variables (FMI 3 ``Dimension``) among the
+      inputs, outputs or continuous states; inputs or outputs of any type
+      other than Real / Float64; clocks (FMI 3).
+
+    Parameters
+    ----------
+    model_description : fmpy.model_description.ModelDescription
+    kind : {"ModelExchange", "CoSimulation"}
+
+    Returns
+    -------
+    list of str
+        One phrase per unsupported feature, naming the variables concerned.
+    """
+    md = model_description
+    found: list[str] = []
+
+    def names(variables, limit: int = 5) -> str:
+        listed = [v.name for v in variables]
+        return ", ".join(listed[:limit]) + (f" and {len(listed) - limit} more" if len(listed) > limit else "")
+
+    if kind == "ModelExchange":
+        n_events = int(getattr(md, "numberOfEventIndicators", 0) or 0)
+        if n_events > 0 or getattr(md, "eventIndicators", None):
+            found.append(f"state events (numberOfEventIndicators = {n_events}): event indicators are not "
+                         "monitored")
+    signals = [v for v in md.modelVariables if v.causality in ("input", "output")]
+    states = [d.variable.derivative for d in md.derivatives if d.variable.derivative is not None]
+    arrays = [v for v in signals + states if _is_array(v)]
+    if arrays:
+        found.append(f"array variables (FMI 3 'dimensions'): {names(arrays)}")
+    clocks = [v for v in md.modelVariables if v.type == "Clock"]
+    if clocks:
+        found.append(f"clocks: {names(clocks)}")
+    other = [v for v in signals if v.type not in _REAL_TYPES and v.type != "Clock"]
+    if other:
+        found.append("inputs/outputs that are not Real/Float64: "
+                     + ", ".join(f"{v.name} ({v.type})" for v in other[:5])
+                     + (f" and {len(other) - 5} more" if len(other) > 5 else ""))
+    return found
 
 
 def real_variables(model_description, causality: str) -> list:

@@ -7,8 +7,8 @@ a debugger.
 from __future__ import annotations
 
 __all__ = [
-    "FMUError", "FMUArchiveError", "FMUModelDescriptionError", "FMUVersionError", "FMUPlatformError",
-    "FMUMissingVariablesError", "FMUInstantiationError", "FMUStepError", "FMUBuildError",
+    "FMUError", "FMUArchiveError", "FMUModelDescriptionError", "FMUVersionError", "FMUUnsupportedError",
+    "FMUPlatformError", "FMUMissingVariablesError", "FMUInstantiationError", "FMUStepError", "FMUBuildError",
 ]
 
 
@@ -21,11 +21,25 @@ class FMUArchiveError(FMUError):
 
 
 class FMUModelDescriptionError(FMUError):
-    """``modelDescription.xml`` is missing, malformed or lacks what is needed."""
+    """``modelDescription.xml`` is missing, malformed or lacks what is needed.
+
+    Attributes
+    ----------
+    problems : list of str
+        The individual findings of the schema validation (empty for other errors).
+    """
+
+    def __init__(self, message: str, problems=()):
+        super().__init__(message)
+        self.problems = list(problems)
 
 
 class FMUVersionError(FMUModelDescriptionError):
     """The FMI version (or the interface type) is not supported."""
+
+
+class FMUUnsupportedError(FMUModelDescriptionError):
+    """The FMU uses an FMI feature that dobkit does not handle (events, arrays, non-real signals, clocks)."""
 
 
 class FMUPlatformError(FMUError):

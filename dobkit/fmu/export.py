@@ -21,6 +21,7 @@ constant over the step; its global error falls as ``(h / n_substeps)^4``.
 from __future__ import annotations
 
 import hashlib
+import math
 import shlex
 import uuid
 from importlib import resources
@@ -56,6 +57,19 @@ def _check_args(fmi_version, substeps) -> None:
     if isinstance(substeps, bool) or not isinstance(substeps, int) or not 1 <= substeps <= 1_000_000:
         raise ValueError(f"substeps must be an integer from 1 to 1000000 (RK4 steps per co-simulation step), "
                          f"got {substeps!r}")
+
+
+def _joint_vector(value, name: str):
+    """None, or 4 finite floats; raises ValueError naming the argument otherwise."""
+    if value is None:
+        return None
+    try:
+        items = [float(v) for v in value]
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be 4 finite numbers (one per joint), got {value!r}") from None
+    if len(items) != 4 or not all(math.isfinite(v) for v in items):
+        raise ValueError(f"{name} must be 4 finite numbers (one per joint), got {value!r}")
+    return items
 
 
 def _token(fmi_version: int, texts: list[str]) -> str:
@@ -111,7 +125,7 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
     FMUBuildError
         If no C compiler is available or compilation fails.
     ValueError
-        On an invalid ``fmi_version`` or ``substeps``.
+        On an invalid ``fmi_version``, ``substeps``, ``q0`` or ``dq0``.
 
     Examples
     --------
@@ -120,6 +134,7 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
     >>> sys = load(fmu)                                        # doctest: +SKIP
     """
     _check_args(fmi_version, substeps)
+    q0, dq0 = _joint_vector(q0, "q0"), _joint_vector(dq0, "dq0")
     params = RobotParameters() if params is None else params
     disturbance = DisturbanceSpec() if disturbance is None else disturbance
     path = Path(path)

@@ -9,6 +9,11 @@ turns every error status into an :class:`~dobkit.fmu.errors.FMUStepError`
 that names the FMI function, the simulation time, the status and the FMU's
 own log messages.
 
+Log messages reach the instance that logged them (:mod:`dobkit.fmu.logger`);
+an error names only the messages logged during the failing call.  Every
+call on a closed instance raises :class:`~dobkit.fmu.errors.FMUError` instead
+of reaching freed native memory.
+
 Loading runs the FMU's native code in this process, and fmpy changes the
 working directory while it loads a library; loading is serialised by a lock.
 """
@@ -23,26 +28,25 @@ from pathlib import Path
 
 import numpy as np
 
-from .archive import ExtractionLimits, extract_fmu
-from .description import binary_path, fmi_major, interface, read_description
-from .errors import FMUError, FMUInstantiationError, FMUModelDescriptionError, FMUStepError
+from . import logger
+from .archive import ExtractedFMU, ExtractionLimits, open_extracted
+from .description import binary_path, described, fmi_major, interface, unsupported_features
+from .errors import FMUError, FMUInstantiationError, FMUModelDescriptionError, FMUStepError, FMUUnsupportedError
+from .logger import STATUS_NAMES, status_name
 
 __all__ = ["FMUInstance", "STATUS_NAMES"]
 
-STATUS_NAMES = ("ok", "warning", "discard", "error", "fatal", "pending")
 _LOAD_LOCK = threading.Lock()
 _MAX_MESSAGES = 200
 
 
-def _status_name(status: int) -> str:
-    return STATUS_NAMES[status] if 0 <= status < len(STATUS_NAMES) else f"illegal status {status}"
-
-
-def _release(fmu, extracted, state: dict) -> None:
-    """Free the instance and its library, then delete the extraction folder (finalizer: no self)."""
+def _release(fmu, extracted, owned: bool, state: dict) -> None:
+    """Free the instance and its library, then delete an owned extraction folder (finalizer: no self)."""
+    state["closed"] = True
     try:
         if fmu is not None and state.get("instantiated"):
-            if state.get("initialized") and not state.get("terminated"):
+            # after an error or fatal status the standard allows only freeing (no terminate)
+            if state.get("initialized") and not state.get("terminated") and not state.get("failed"):
                 with contextlib.suppress(Exception):
                     fmu.terminate()
             with contextlib.suppress(Exception):
@@ -51,7 +55,10 @@ def _release(fmu, extracted, state: dict) -> None:
             with contextlib.suppress(Exception):
                 fmu.freeLibrary()
     finally:
-        extracted.cleanup()
+        if state.get("log_key") is not None:
+            logger.unregister(state["log_key"])
+        if owned:
+            extracted.cleanup()
 
 
 class FMUInstance:
@@ -59,8 +66,10 @@ class FMUInstance:
 
     Parameters
     ----------
-    path : str or pathlib.Path
-        The ``.fmu`` file.
+    path : str, pathlib.Path or ExtractedFMU
+        The ``.fmu`` file, or an extraction to reuse (from
+        :func:`~dobkit.fmu.archive.extract_fmu`; it is then left in place at
+        :meth:`close`, its owner removes it).
     kind : {"ModelExchange", "CoSimulation"}
         Interface to instantiate.
     start_values : dict, optional
@@ -74,6 +83,19 @@ class FMUInstance:
         Archive size limits.
     extract_to : str or pathlib.Path, optional
         Parent folder for the private extraction folder (default: system temp).
+    adopt : bool
+        With an ``ExtractedFMU`` as ``path``: take it over and remove it at
+        :meth:`close` as if it had been extracted here.
+
+    Raises
+    ------
+    FMUUnsupportedError
+        If the FMU uses a feature outside the supported subset
+        (:func:`~dobkit.fmu.description.unsupported_features`; for Model
+        Exchange also a time event announced at initialization).
+    FMUError
+        (other subclasses) for a bad archive, model description, binary or
+        instantiation, and from any call after :meth:`close`.
 
     Attributes
     ----------
@@ -89,15 +111,19 @@ class FMUInstance:
     """
 
     def __init__(self, path, kind: str = "ModelExchange", start_values: dict | None = None, name: str | None = None,
-                 start_time: float = 0.0, limits: ExtractionLimits | None = None, extract_to=None):
-        self.path = Path(path)
+                 start_time: float = 0.0, limits: ExtractionLimits | None = None, extract_to=None,
+                 adopt: bool = False):
+        self.path = Path(path.source) if isinstance(path, ExtractedFMU) else Path(path)
         self.source = self.path.name
         self.kind = kind
-        self.messages: list[str] = []
-        self._state = {"instantiated": False, "initialized": False, "terminated": False}
+        self._log = logger.MessageLog(_MAX_MESSAGES)
+        self.messages: list[str] = self._log.entries
+        self._state = {"instantiated": False, "initialized": False, "terminated": False, "failed": False,
+                       "closed": False, "log_key": None}
         self._fmu = None
-        self.extracted = extract_fmu(path, limits=limits, parent=extract_to)
-        self._finalizer = weakref.finalize(self, _release, None, self.extracted, self._state)
+        self.extracted, owned = open_extracted(path, limits=limits, parent=extract_to)
+        self._owned = owned or adopt
+        self._finalizer = weakref.finalize(self, _release, None, self.extracted, self._owned, self._state)
         try:
             self._open(name, start_values or {}, float(start_time))
         except BaseException:
@@ -108,10 +134,14 @@ class FMUInstance:
 
     def _open(self, name, start_values, start_time) -> None:
         root = self.extracted.root
-        md = read_description(root, self.source)
+        md = described(self.extracted)
         self.model_description = md
         self.fmi_version = fmi_major(md)
         element = interface(md, self.kind, self.source)
+        unsupported = unsupported_features(md, self.kind)
+        if unsupported:
+            raise FMUUnsupportedError(f"{self.source}: uses FMI features that dobkit does not support as "
+                                      f"{self.kind}: " + "; ".join(unsupported))
         binary_path(root, md, self.kind, self.source)
         self.model_identifier = element.modelIdentifier
         self.variables = {v.name: v for v in md.modelVariables}
@@ -123,7 +153,7 @@ class FMUInstance:
 
         self._fmu = self._load_library(md, name)
         self._finalizer.detach()
-        self._finalizer = weakref.finalize(self, _release, self._fmu, self.extracted, self._state)
+        self._finalizer = weakref.finalize(self, _release, self._fmu, self.extracted, self._owned, self._state)
         self._instantiate()
         self._bind_low_level()
         self._apply_start_values(start_values)
@@ -150,30 +180,14 @@ class FMUInstance:
                 os.chdir(cwd)
 
     def _instantiate(self) -> None:
-        messages = self.messages  # the callbacks must not hold self (finalizer)
-
-        def remember(status: int, category, message) -> None:
-            text = message.decode("utf-8", "replace") if isinstance(message, bytes) else str(message)
-            messages.append(f"[{_status_name(status)}] {text}")
-            del messages[:-_MAX_MESSAGES]
-
         fmu = self._fmu
         try:
             if self.fmi_version == 2:
-                from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
-                                       fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
-                from fmpy import calloc, free
-                callbacks = fmi2CallbackFunctions()
-                callbacks.logger = fmi2CallbackLoggerTYPE(
-                    lambda env, instance, status, cat, msg: remember(status, cat, msg))
-                callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-                callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-                with contextlib.suppress(Exception):  # formats printf-style messages natively
-                    from fmpy.logging import addLoggerProxy
-                    addLoggerProxy(ctypes.byref(callbacks))
-                fmu.instantiate(callbacks=callbacks)
+                # one process-wide logger; this instance's key comes back as componentEnvironment
+                self._state["log_key"] = logger.register(self._log, fmu.instanceName)
+                fmu.instantiate(callbacks=logger.fmi2_callbacks(self._state["log_key"]))
             else:
-                fmu.instantiate(logMessage=lambda env, status, cat, msg: remember(status, cat, msg))
+                fmu.instantiate(logMessage=logger.fmi3_log_function(self._log))
         except Exception as err:
             detail = " ".join(self.messages[-3:]) or str(err)
             token = "GUID" if self.fmi_version == 2 else "instantiationToken"
@@ -204,15 +218,22 @@ class FMUInstance:
 
     # ---- error translation ------------------------------------------------------------------------------------
 
+    def _check_open(self) -> None:
+        if self._state["closed"]:
+            raise FMUError(f"{self.source}: the FMU instance is closed; load the FMU again to use it")
+
     @contextlib.contextmanager
     def _calling(self, what: str, t: float):
         from fmpy.fmi1 import FMICallException
-        before = len(self.messages)
+        self._check_open()
+        mark = self._log.count
         try:
             yield
         except FMICallException as err:
-            status = _status_name(err.status)
-            new = self.messages[before:] or self.messages[-2:]
+            status = status_name(err.status)
+            if status in ("error", "fatal"):
+                self._state["failed"] = True
+            new = self._log.since(mark)  # only what this call logged, never older messages
             detail = (": " + " ".join(new)) if new else ""
             raise FMUStepError(f"{self.source}: {err.function} returned status '{status}' at t = {t:.9g} s "
                                f"during {what}{detail}", time=t, status=status, function=err.function) from None
@@ -221,6 +242,7 @@ class FMUInstance:
 
     def value_references(self, names) -> ctypes.Array:
         """A ctypes array of value references for variable names (raises on unknown names)."""
+        self._check_open()
         unknown = [n for n in names if n not in self.variables]
         if unknown:
             raise FMUModelDescriptionError(f"{self.source}: unknown variable(s) {unknown}")
@@ -228,6 +250,7 @@ class FMUInstance:
 
     def get_real(self, vrs: ctypes.Array, out: np.ndarray | None = None) -> np.ndarray:
         """Values of real variables (value references from :meth:`value_references`)."""
+        self._check_open()
         n = len(vrs)
         out = np.empty(n) if out is None else out
         if n:
@@ -237,6 +260,7 @@ class FMUInstance:
 
     def set_real(self, vrs: ctypes.Array, values) -> None:
         """Set real variables (value references from :meth:`value_references`)."""
+        self._check_open()
         n = len(vrs)
         if n:
             arr = np.ascontiguousarray(values, dtype=float)
@@ -254,6 +278,8 @@ class FMUInstance:
         for name, value in start_values.items():
             v = self.variables[name]
             vr = [v.valueReference]
+            if getattr(v, "dimensions", None):
+                raise FMUUnsupportedError(f"{self.source}: cannot set a start value for the array variable {name}")
             with self._calling(f"setting the start value of {name}", self.time):
                 if v.type in ("Real", "Float64"):
                     self.set_real(self.value_references([name]), [float(value)])
@@ -284,6 +310,7 @@ class FMUInstance:
     def _leave_event_mode(self) -> None:
         f = self._fmu
         for _ in range(1000):
+            # (discrete states need update, terminate, nominals changed, values changed, time event?, its time)
             info = f.newDiscreteStates() if self.fmi_version == 2 else f.updateDiscreteStates()
             if not info[0]:
                 break
@@ -291,6 +318,10 @@ class FMUInstance:
             raise FMUError(f"{self.source}: event iteration did not converge at initialization")
         if info[1]:
             raise FMUError(f"{self.source}: the FMU asked to terminate during initialization")
+        if info[4]:
+            raise FMUUnsupportedError(f"{self.source}: the FMU announces a time event at t = {info[5]:.9g} s; "
+                                      "time events are not supported (dobkit integrates Model Exchange FMUs as "
+                                      "continuous blocks without event handling)")
         f.enterContinuousTimeMode()
 
     # ---- Model Exchange ---------------------------------------------------------------------------------------
@@ -336,7 +367,10 @@ class FMUInstance:
     # ---- life cycle -------------------------------------------------------------------------------------------
 
     def close(self) -> None:
-        """Terminate and free the instance, unload the library and delete the extraction folder."""
+        """Terminate and free the instance, unload the library and delete an owned extraction folder.
+
+        Idempotent.  Any later call on this instance raises :class:`~dobkit.fmu.errors.FMUError`.
+        """
         self._finalizer()
 
     @property

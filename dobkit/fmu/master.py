@@ -37,7 +37,7 @@ from .archive import ExtractionLimits
 from .description import real_variables, require_variables
 from .errors import FMUError
 from .instance import FMUInstance
-from .load import output_feedthrough
+from .block import output_feedthrough
 
 __all__ = ["cosimulate_system", "CoSimulationError"]
 
@@ -86,8 +86,8 @@ def cosimulate_system(fmu_path, side: ct.NonlinearIOSystem, t_final: float, step
 
     Parameters
     ----------
-    fmu_path : str or pathlib.Path
-        A Co-Simulation FMU (FMI 2.0 or 3.0).
+    fmu_path : str, pathlib.Path or ExtractedFMU
+        A Co-Simulation FMU (FMI 2.0 or 3.0), or an extraction of one to reuse.
     side : control.NonlinearIOSystem
         The Python side.  Its inputs must all be FMU outputs (by name); every
         real FMU input must be one of its outputs.
@@ -184,7 +184,7 @@ def cosimulate_system(fmu_path, side: ct.NonlinearIOSystem, t_final: float, step
                                         "no result is returned")
             if progress is not None and k % every == 0:
                 progress(k / n_steps)
-        info = {"fmu": str(fmu_path), "fmi_version": fmu.fmi_version, "model": fmu.model_identifier,
+        info = {"fmu": str(fmu.path), "fmi_version": fmu.fmi_version, "model": fmu.model_identifier,
                 "step": step, "side_substeps": side_substeps, "record_every": record_every,
                 "method": "fixed-step Jacobi coupling, zero-order hold on exchanged signals; Python side RK4"}
     if progress is not None:

@@ -161,6 +161,11 @@ fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *info)
 {
     (void)c;
     memset(info, 0, sizeof *info);
+#ifdef LAG_TIME_EVENT
+    /* test variant (compiled via a file that defines LAG_TIME_EVENT): announce a time event at t = 1 s */
+    info->nextEventTimeDefined = fmi2True;
+    info->nextEventTime = 1.0;
+#endif
     return fmi2OK;
 }
 

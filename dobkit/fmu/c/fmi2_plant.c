@@ -19,11 +19,12 @@ typedef struct {
     fmi2CallbackFunctions cb;
 } Fmi2Plant;
 
-/* A saved FMU state: the model data and the mode it was in. */
+/* A saved FMU state: the model data and the mode it was in.  The same bytes are its serialized form,
+ * so a deserialized state is checked field by field before use (plant_state_valid). */
 typedef struct {
     char magic[8];
     PlantData d;
-    PlantMode mode;
+    int mode;             /* a PlantMode; stored as int so that any stored value can be range-checked */
 } SavedState;
 
 static const char STATE_MAGIC[8] = "dobkit2";
@@ -147,6 +148,8 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component c)
 fmi2Status fmi2Terminate(fmi2Component c)
 {
     CHECK(c);
+    /* after an error the standard allows only reading, reset and free: terminate is refused */
+    if (plant_allowed(INST(c), "fmi2Terminate", ANY_LIVE_MODE) != ST_OK) return fmi2Error;
     INST(c)->mode = MODE_TERMINATED;
     return fmi2OK;
 }
@@ -235,16 +238,27 @@ fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
 
 /* ---- FMU state ----------------------------------------------------------- */
 
+static int is_saved_state(const void *p)
+{
+    return p != NULL && memcmp(((const SavedState *)p)->magic, STATE_MAGIC, sizeof STATE_MAGIC) == 0;
+}
+
 fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate)
 {
     SavedState *s;
     CHECK(c);
     if (!FMUstate) return fmi2Error;
+    /* a non-NULL *FMUstate must be one of ours to be overwritten in place */
+    if (*FMUstate && !is_saved_state(*FMUstate)) {
+        plant_log(INST(c), ST_ERROR, "logStatusError",
+                  "fmi2GetFMUstate: *FMUstate is neither NULL nor a state of this FMU");
+        return fmi2Error;
+    }
     s = *FMUstate ? (SavedState *)*FMUstate : (SavedState *)calloc(1, sizeof *s);
     if (!s) return fmi2Error;
     memcpy(s->magic, STATE_MAGIC, sizeof s->magic);
     s->d = INST(c)->d;
-    s->mode = INST(c)->mode;
+    s->mode = (int)INST(c)->mode;
     *FMUstate = s;
     return fmi2OK;
 }
@@ -253,13 +267,11 @@ fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate)
 {
     const SavedState *s = (const SavedState *)FMUstate;
     CHECK(c);
-    if (!s || memcmp(s->magic, STATE_MAGIC, sizeof s->magic) != 0) {
+    if (!is_saved_state(s)) {
         plant_log(INST(c), ST_ERROR, "logStatusError", "fmi2SetFMUstate: not a state of this FMU");
         return fmi2Error;
     }
-    INST(c)->d = s->d;
-    INST(c)->mode = s->mode;
-    return fmi2OK;
+    return (fmi2Status)plant_restore(INST(c), &s->d, s->mode, "fmi2SetFMUstate");
 }
 
 fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate)
@@ -274,17 +286,23 @@ fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate)
 
 fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate FMUstate, size_t *size)
 {
-    (void)FMUstate;
     CHECK(c);
+    if (!size || !is_saved_state(FMUstate)) {
+        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi2SerializedFMUstateSize: not a state of this FMU");
+        return fmi2Error;
+    }
     *size = sizeof(SavedState);
     return fmi2OK;
 }
 
-fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byte serializedState[],
-                                 size_t size)
+fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byte serializedState[], size_t size)
 {
     CHECK(c);
-    if (!FMUstate || size != sizeof(SavedState)) {
+    if (!is_saved_state(FMUstate)) {
+        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi2SerializeFMUstate: not a state of this FMU");
+        return fmi2Error;
+    }
+    if (!serializedState || size != sizeof(SavedState)) {
         plant_log(INST(c), ST_ERROR, "logStatusError", "fmi2SerializeFMUstate: buffer of %lu bytes, need %lu",
                   (unsigned long)size, (unsigned long)sizeof(SavedState));
         return fmi2Error;
@@ -293,19 +311,28 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byt
     return fmi2OK;
 }
 
+/* *FMUstate is output only: always a new allocation (a caller's old value is neither read nor freed). */
 fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedState[], size_t size,
                                    fmi2FMUstate *FMUstate)
 {
-    SavedState *s;
+    SavedState tmp, *s;
+    char msg[512];
     CHECK(c);
-    if (size != sizeof(SavedState) || memcmp(serializedState, STATE_MAGIC, sizeof STATE_MAGIC) != 0) {
+    if (!FMUstate) return fmi2Error;
+    if (!serializedState || size != sizeof(SavedState) ||
+        memcmp(serializedState, STATE_MAGIC, sizeof STATE_MAGIC) != 0) {
         plant_log(INST(c), ST_ERROR, "logStatusError", "fmi2DeSerializeFMUstate: not a serialized state of "
                   "this FMU (%lu bytes)", (unsigned long)size);
         return fmi2Error;
     }
-    s = *FMUstate ? (SavedState *)*FMUstate : (SavedState *)calloc(1, sizeof *s);
+    memcpy(&tmp, serializedState, sizeof tmp);   /* the byte buffer may be unaligned */
+    if (!plant_state_valid(INST(c), &tmp.d, tmp.mode, msg, sizeof msg)) {
+        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi2DeSerializeFMUstate: invalid FMU state: %s", msg);
+        return fmi2Error;
+    }
+    s = (SavedState *)calloc(1, sizeof *s);
     if (!s) return fmi2Error;
-    memcpy(s, serializedState, sizeof *s);
+    *s = tmp;
     *FMUstate = s;
     return fmi2OK;
 }

@@ -21,10 +21,12 @@ typedef struct {
     fmi3LogMessageCallback log;
 } Fmi3Plant;
 
+/* A saved FMU state: the model data and the mode it was in.  The same bytes are its serialized form,
+ * so a deserialized state is checked field by field before use (plant_state_valid). */
 typedef struct {
     char magic[8];
     PlantData d;
-    PlantMode mode;
+    int mode;             /* a PlantMode; stored as int so that any stored value can be range-checked */
 } SavedState;
 
 static const char STATE_MAGIC[8] = "dobkit3";
@@ -166,6 +168,8 @@ fmi3Status fmi3EnterEventMode(fmi3Instance c)
 fmi3Status fmi3Terminate(fmi3Instance c)
 {
     CHECK(c);
+    /* after an error the standard allows only reading, reset and free: terminate is refused */
+    if (plant_allowed(INST(c), "fmi3Terminate", ANY_LIVE_MODE) != ST_OK) return fmi3Error;
     INST(c)->mode = MODE_TERMINATED;
     return fmi3OK;
 }
@@ -355,16 +359,27 @@ fmi3Status fmi3GetVariableDependencies(fmi3Instance c, fmi3ValueReference depend
 
 /* ---- FMU state ----------------------------------------------------------- */
 
+static int is_saved_state(const void *p)
+{
+    return p != NULL && memcmp(((const SavedState *)p)->magic, STATE_MAGIC, sizeof STATE_MAGIC) == 0;
+}
+
 fmi3Status fmi3GetFMUState(fmi3Instance c, fmi3FMUState *FMUState)
 {
     SavedState *s;
     CHECK(c);
     if (!FMUState) return fmi3Error;
+    /* a non-NULL *FMUState must be one of ours to be overwritten in place */
+    if (*FMUState && !is_saved_state(*FMUState)) {
+        plant_log(INST(c), ST_ERROR, "logStatusError",
+                  "fmi3GetFMUState: *FMUState is neither NULL nor a state of this FMU");
+        return fmi3Error;
+    }
     s = *FMUState ? (SavedState *)*FMUState : (SavedState *)calloc(1, sizeof *s);
     if (!s) return fmi3Error;
     memcpy(s->magic, STATE_MAGIC, sizeof s->magic);
     s->d = INST(c)->d;
-    s->mode = INST(c)->mode;
+    s->mode = (int)INST(c)->mode;
     *FMUState = s;
     return fmi3OK;
 }
@@ -373,13 +388,11 @@ fmi3Status fmi3SetFMUState(fmi3Instance c, fmi3FMUState FMUState)
 {
     const SavedState *s = (const SavedState *)FMUState;
     CHECK(c);
-    if (!s || memcmp(s->magic, STATE_MAGIC, sizeof s->magic) != 0) {
+    if (!is_saved_state(s)) {
         plant_log(INST(c), ST_ERROR, "logStatusError", "fmi3SetFMUState: not a state of this FMU");
         return fmi3Error;
     }
-    INST(c)->d = s->d;
-    INST(c)->mode = s->mode;
-    return fmi3OK;
+    return (fmi3Status)plant_restore(INST(c), &s->d, s->mode, "fmi3SetFMUState");
 }
 
 fmi3Status fmi3FreeFMUState(fmi3Instance c, fmi3FMUState *FMUState)
@@ -394,8 +407,11 @@ fmi3Status fmi3FreeFMUState(fmi3Instance c, fmi3FMUState *FMUState)
 
 fmi3Status fmi3SerializedFMUStateSize(fmi3Instance c, fmi3FMUState FMUState, size_t *size)
 {
-    (void)FMUState;
     CHECK(c);
+    if (!size || !is_saved_state(FMUState)) {
+        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi3SerializedFMUStateSize: not a state of this FMU");
+        return fmi3Error;
+    }
     *size = sizeof(SavedState);
     return fmi3OK;
 }
@@ -403,7 +419,11 @@ fmi3Status fmi3SerializedFMUStateSize(fmi3Instance c, fmi3FMUState FMUState, siz
 fmi3Status fmi3SerializeFMUState(fmi3Instance c, fmi3FMUState FMUState, fmi3Byte serializedState[], size_t size)
 {
     CHECK(c);
-    if (!FMUState || size != sizeof(SavedState)) {
+    if (!is_saved_state(FMUState)) {
+        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi3SerializeFMUState: not a state of this FMU");
+        return fmi3Error;
+    }
+    if (!serializedState || size != sizeof(SavedState)) {
         plant_log(INST(c), ST_ERROR, "logStatusError", "fmi3SerializeFMUState: buffer of %lu bytes, need %lu",
                   (unsigned long)size, (unsigned long)sizeof(SavedState));
         return fmi3Error;
@@ -412,19 +432,28 @@ fmi3Status fmi3SerializeFMUState(fmi3Instance c, fmi3FMUState FMUState, fmi3Byte
     return fmi3OK;
 }
 
+/* *FMUState is output only: always a new allocation (a caller's old value is neither read nor freed). */
 fmi3Status fmi3DeserializeFMUState(fmi3Instance c, const fmi3Byte serializedState[], size_t size,
                                    fmi3FMUState *FMUState)
 {
-    SavedState *s;
+    SavedState tmp, *s;
+    char msg[512];
     CHECK(c);
-    if (size != sizeof(SavedState) || memcmp(serializedState, STATE_MAGIC, sizeof STATE_MAGIC) != 0) {
+    if (!FMUState) return fmi3Error;
+    if (!serializedState || size != sizeof(SavedState) ||
+        memcmp(serializedState, STATE_MAGIC, sizeof STATE_MAGIC) != 0) {
         plant_log(INST(c), ST_ERROR, "logStatusError", "fmi3DeserializeFMUState: not a serialized state of "
                   "this FMU (%lu bytes)", (unsigned long)size);
         return fmi3Error;
     }
-    s = *FMUState ? (SavedState *)*FMUState : (SavedState *)calloc(1, sizeof *s);
+    memcpy(&tmp, serializedState, sizeof tmp);   /* the byte buffer may be unaligned */
+    if (!plant_state_valid(INST(c), &tmp.d, tmp.mode, msg, sizeof msg)) {
+        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi3DeserializeFMUState: invalid FMU state: %s", msg);
+        return fmi3Error;
+    }
+    s = (SavedState *)calloc(1, sizeof *s);
     if (!s) return fmi3Error;
-    memcpy(s, serializedState, sizeof *s);
+    *s = tmp;
     *FMUState = s;
     return fmi3OK;
 }

@@ -10,9 +10,14 @@
 #include "plant_instance.h"
 
 static const char *const var_names[N_VARIABLES] = VAR_NAMES;
-static const char *const mode_names[] = {
+static const char *const mode_names[MODE_COUNT] = {
     "instantiated", "initialization", "event", "continuous-time", "step", "terminated", "failed"
 };
+
+static const char *mode_name(int mode)
+{
+    return mode >= 0 && mode < MODE_COUNT ? mode_names[mode] : "invalid";
+}
 
 static const char *var_name(unsigned vr)
 {
@@ -61,8 +66,14 @@ void plant_log(PlantInstance *inst, int status, const char *category, const char
 int plant_allowed(PlantInstance *inst, const char *what, unsigned modes)
 {
     if (!inst) return ST_ERROR;
+    /* never shift by an out-of-range mode (undefined behaviour) */
+    if ((unsigned)inst->mode >= (unsigned)MODE_COUNT) {
+        plant_log(inst, ST_ERROR, "logStatusError", "%s: the instance is in an invalid mode (%d)", what,
+                  (int)inst->mode);
+        return ST_ERROR;
+    }
     if (modes & IN(inst->mode)) return ST_OK;
-    plant_log(inst, ST_ERROR, "logStatusError", "%s is not allowed in %s mode", what, mode_names[inst->mode]);
+    plant_log(inst, ST_ERROR, "logStatusError", "%s is not allowed in %s mode", what, mode_name((int)inst->mode));
     return ST_ERROR;
 }
 
@@ -88,7 +99,7 @@ static int check_fixed(PlantInstance *inst, unsigned vr)
     if (inst->mode == MODE_INSTANTIATED || inst->mode == MODE_INITIALIZATION) return ST_OK;
     plant_log(inst, ST_ERROR, "logStatusError",
               "%s is a fixed parameter: set it before leaving initialization mode (now in %s mode)",
-              var_name(vr), mode_names[inst->mode]);
+              var_name(vr), mode_name((int)inst->mode));
     return ST_ERROR;
 }
 
@@ -262,7 +273,7 @@ int plant_get_derivatives(PlantInstance *inst, double *dx, size_t nx)
     if (rc != PLANT_OK) {
         for (i = 0; i < NX && isfinite(dx[i]); i++) {}
         plant_log(inst, ST_ERROR, "logStatusError", "non-finite derivative der(%s) at t = %.17g s",
-                  var_name(VR_Q + (i < NX ? i : 0)), inst->d.time);
+                  var_name(VR_Q + (unsigned)(i < NX ? i : 0)), inst->d.time);
         return ST_ERROR;
     }
     return ST_OK;
@@ -300,8 +311,54 @@ int plant_do_step(PlantInstance *inst, double t, double h)
                       "definite", t);
         else
             plant_log(inst, ST_ERROR, "logStatusError", "step from t = %.17g s (h = %g s): the state %s "
-                      "became non-finite", t, h, bad >= 0 ? var_name(VR_Q + bad) : "derivative");
+                      "became non-finite", t, h, bad >= 0 && bad < NX ? var_name(VR_Q + (unsigned)bad) : "derivative");
         return ST_ERROR;
     }
+    return ST_OK;
+}
+
+/* ---- restoring a saved state -------------------------------------------- */
+
+int plant_state_valid(const PlantInstance *inst, const PlantData *d, int mode, char *msg, size_t msg_size)
+{
+    int i;
+
+    if (mode < 0 || mode >= MODE_COUNT) {
+        snprintf(msg, msg_size, "mode %d is not a valid instance mode (0 to %d)", mode, MODE_COUNT - 1);
+        return 0;
+    }
+    if (inst->cosim ? (mode == MODE_EVENT || mode == MODE_CONTINUOUS) : mode == MODE_STEP) {
+        snprintf(msg, msg_size, "a state in %s mode belongs to a %s instance, this one is %s", mode_name(mode),
+                 inst->cosim ? "Model Exchange" : "Co-Simulation",
+                 inst->cosim ? "Co-Simulation" : "Model Exchange");
+        return 0;
+    }
+    if (!isfinite(d->time)) {
+        snprintf(msg, msg_size, "time %g is not finite", d->time);
+        return 0;
+    }
+    for (i = 0; i < N_SWITCHES; i++) {
+        if (d->sw[i] != 0 && d->sw[i] != 1) {
+            snprintf(msg, msg_size, "disturbance switch %d is %d, expected 0 or 1", i, d->sw[i]);
+            return 0;
+        }
+    }
+    /* past initialization the parameters were checked once; a restored state must pass the same checks */
+    if (mode == MODE_EVENT || mode == MODE_CONTINUOUS || mode == MODE_STEP || mode == MODE_TERMINATED) {
+        if (!plant_parameters_valid(d, msg, (unsigned long)msg_size)) return 0;
+    }
+    return 1;
+}
+
+int plant_restore(PlantInstance *inst, const PlantData *d, int mode, const char *what)
+{
+    char msg[512];
+
+    if (!plant_state_valid(inst, d, mode, msg, sizeof msg)) {
+        plant_log(inst, ST_ERROR, "logStatusError", "%s: invalid FMU state: %s", what, msg);
+        return ST_ERROR;
+    }
+    inst->d = *d;
+    inst->mode = (PlantMode)mode;
     return ST_OK;
 }

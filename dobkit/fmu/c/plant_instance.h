@@ -21,7 +21,8 @@ typedef enum {
     MODE_CONTINUOUS,      /* Model Exchange continuous-time mode */
     MODE_STEP,            /* Co-Simulation step mode */
     MODE_TERMINATED,
-    MODE_FAILED           /* after an error: only reading, reset and free are allowed */
+    MODE_FAILED,          /* after an error: only reading, reset and free are allowed */
+    MODE_COUNT            /* number of modes: a valid mode m has 0 <= m < MODE_COUNT */
 } PlantMode;
 
 typedef struct PlantInstance PlantInstance;
@@ -51,7 +52,17 @@ void plant_log(PlantInstance *inst, int status, const char *category, const char
 
 /* Guard: is the call `what` allowed in the current mode?  Logs and returns ST_ERROR if not. */
 int plant_allowed(PlantInstance *inst, const char *what, unsigned modes);
-#define IN(mode) (1u << (mode))
+#define IN(mode) (1u << (unsigned)(mode))   /* only for the MODE_* constants (all < 32) */
+
+/*
+ * A saved or deserialized FMU state comes from outside (a file, another
+ * process): check it fully before it becomes the instance's state.  Returns
+ * ST_OK and copies it in, or logs what is wrong (prefixed by `what`) and
+ * returns ST_ERROR leaving the instance unchanged.
+ */
+int plant_restore(PlantInstance *inst, const PlantData *d, int mode, const char *what);
+/* The same checks without logging or copying: 1 if valid, else 0 and the reason in msg. */
+int plant_state_valid(const PlantInstance *inst, const PlantData *d, int mode, char *msg, size_t msg_size);
 #define ANY_LIVE_MODE (IN(MODE_INSTANTIATED) | IN(MODE_INITIALIZATION) | IN(MODE_EVENT) | \
                        IN(MODE_CONTINUOUS) | IN(MODE_STEP))
 

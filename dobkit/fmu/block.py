@@ -21,8 +21,8 @@ from __future__ import annotations
 import control as ct
 import numpy as np
 
-from .archive import ExtractionLimits
-from .description import real_variables
+from .archive import ExtractionLimits, open_extracted
+from .description import described, real_variables, require_variables
 from .errors import FMUModelDescriptionError
 from .instance import FMUInstance
 
@@ -50,24 +50,35 @@ def output_feedthrough(model_description, input_names: list[str]) -> frozenset[s
 
 
 def load(path, name: str = "plant", start_values: dict | None = None, start_time: float = 0.0,
-         limits: ExtractionLimits | None = None, extract_to=None) -> ct.NonlinearIOSystem:
+         limits: ExtractionLimits | None = None, extract_to=None, scenario=None) -> ct.NonlinearIOSystem:
     """A Model Exchange FMU as a :class:`control.NonlinearIOSystem`.
 
     Parameters
     ----------
-    path : str or pathlib.Path
-        The ``.fmu`` file (FMI 2.0 or 3.0, Model Exchange).
+    path : str, pathlib.Path or ExtractedFMU
+        The ``.fmu`` file (FMI 2.0 or 3.0, Model Exchange), or an extraction
+        to reuse (:func:`~dobkit.fmu.archive.extract_fmu`; left in place).
     name : str
         Name of the system (the block name in an interconnection).
     start_values : dict, optional
         Variable name -> start value applied before initialization: parameters
-        (e.g. ``{"m1": 6.0, "disturbance_friction": True}``) and state start values.
+        (e.g. ``{"m1": 6.0, "disturbance_friction": True}``) and state start
+        values.  They take precedence over the values from ``scenario``.
     start_time : float
         Time (s) at which the FMU is initialized.
     limits : ExtractionLimits, optional
         Archive size limits.
     extract_to : str or pathlib.Path, optional
         Parent folder of the private extraction folder (default: system temp).
+    scenario : Scenario or str, optional
+        Make the FMU the scenario's *true* plant: set its robot parameters
+        (``m1`` ... ``d4``), disturbance switches and disturbance parameters
+        to the scenario's values, and its start state to the scenario's
+        (as :func:`~dobkit.fmu.cosimulate` does with ``parameters="scenario"``).
+        Without it the FMU keeps its own start values -- those of its
+        export -- so ``blocks.simulate(s, plant=load(path))`` simulates the
+        exported plant, whatever scenario ``s`` says.  Parameters the FMU does
+        not declare are listed in a warning.
 
     Returns
     -------
@@ -76,13 +87,32 @@ def load(path, name: str = "plant", start_values: dict | None = None, start_time
 
     Raises
     ------
+    FMUUnsupportedError
+        If the FMU is outside the supported subset (see Notes); the message names the feature.
+    FMUMissingVariablesError
+        With ``scenario``, if the FMU lacks the plant's states ``q[i]``, ``dq[i]`` or inputs ``tau[i]``.
     FMUError
-        (a subclass) if the archive, the model description, the platform binary or
-        the instantiation is bad; :class:`~dobkit.fmu.errors.FMUStepError` later if the
-        FMU returns an error status while being evaluated.
+        (other subclasses) if the archive, the model description, the platform
+        binary or the instantiation is bad; :class:`~dobkit.fmu.errors.FMUStepError`
+        later if the FMU returns an error status while being evaluated, and
+        :class:`~dobkit.fmu.errors.FMUError` for any evaluation after ``sys.fmu.close()``.
 
     Notes
     -----
+    Supported subset: Model Exchange FMUs (FMI 2.0 or 3.0) that are
+    continuous-time systems with scalar Real / Float64 inputs and outputs.
+    Refused at load, with the feature named:
+
+    * state events -- ``numberOfEventIndicators`` > 0 (FMI 2) or
+      ``EventIndicator`` elements (FMI 3);
+    * time events -- a next event time announced at initialization;
+    * FMI 3 array variables (``Dimension``) among inputs, outputs or states;
+    * inputs or outputs of another type (Integer, Boolean, String, Float32, ...);
+    * FMI 3 clocks.
+
+    Not detected, so do not use them: FMUs that need ``completedIntegratorStep``
+    to request step events, or whose discrete variables change in continuous time.
+
     The FMU's native code runs in this process: a crashing FMU ends Python.
     Each call sets time, states and inputs before evaluating, so the block
     may be evaluated at any time and state, in any order (as solvers do).
@@ -93,11 +123,20 @@ def load(path, name: str = "plant", start_values: dict | None = None, start_time
     Examples
     --------
     >>> from dobkit import blocks, fmu
-    >>> plant = fmu.load("plant.fmu")                                    # doctest: +SKIP
+    >>> plant = fmu.load("plant.fmu", scenario="paper")                  # doctest: +SKIP
     >>> loop = blocks.closed_loop("paper", plant=plant)                  # doctest: +SKIP
     """
-    inst = FMUInstance(path, kind="ModelExchange", start_values=start_values, name=name, start_time=start_time,
-                       limits=limits, extract_to=extract_to)
+    extracted, owned = open_extracted(path, limits=limits, parent=extract_to)
+    try:
+        start = dict(start_values or {})
+        if scenario is not None:
+            start = _scenario_start_values(extracted, scenario) | start
+    except BaseException:
+        if owned:
+            extracted.cleanup()
+        raise
+    inst = FMUInstance(extracted, kind="ModelExchange", start_values=start, name=name, start_time=start_time,
+                       adopt=owned)
     try:
         md = inst.model_description
         state_names = [d.variable.derivative.name for d in md.derivatives]
@@ -134,3 +173,15 @@ def load(path, name: str = "plant", start_values: dict | None = None, start_time
     sys.fmu = inst
     sys.model_description = md
     return sys
+
+
+def _scenario_start_values(extracted, scenario) -> dict:
+    """The scenario's true-plant parameters and start state, for an FMU with the plant's signals."""
+    from ..blocks.scenario import Scenario, load_scenario  # the scenario machinery only when asked for
+    from .scenario_values import JOINTS, plant_start_values
+    s = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    md = described(extracted)
+    joints = range(JOINTS)
+    require_variables(md, [f"q[{i}]" for i in joints] + [f"dq[{i}]" for i in joints] + [f"tau[{i}]" for i in joints],
+                      source=f"{extracted.source} (as the true plant of scenario {s.name!r})")
+    return plant_start_values(s, {v.name for v in md.modelVariables}, "scenario", stacklevel=4)
