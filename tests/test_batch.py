@@ -1,0 +1,200 @@
+"""Batched simulation: every member agrees with its own single run (the reference path) to the stated tolerance."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dobkit import blocks
+from dobkit.analysis.metrics import signal, tracking_metrics
+from dobkit.blocks import batch
+from dobkit.blocks.batch import BatchArm, Variants, batched_constants, simulate_batch, step_schedule
+from dobkit.blocks.dynamics import coriolis_vector, forward_dynamics, gravity, inertia
+from dobkit.blocks.parameters import RobotParameters
+from dobkit.blocks.scenario import ScenarioError
+
+# The paper scenario cut at 2 s: the first fifth of the paper's 10 s path, at its speed.
+T_FINAL = 2.0
+
+
+@pytest.fixture(scope="module")
+def short():
+    return blocks.load_scenario("paper").replace(simulation={"t_final": T_FINAL}, trajectory={"duration": 10.0})
+
+
+def _assert_member_matches(result, i, observer=True, state_atol=batch.STATE_ATOL, metric_atol=batch.METRIC_ATOL):
+    single = blocks.simulate(result.variants.scenario(i), observer=observer)
+    np.testing.assert_allclose(result.signals["q"][i], signal(single, "q").T, rtol=0, atol=state_atol)
+    want = tracking_metrics(single)
+    got = result.member_metrics(i)
+    assert set(got) == set(want)
+    for name in want:
+        np.testing.assert_allclose(got[name], want[name], rtol=batch.METRIC_RTOL, atol=metric_atol,
+                                   err_msg=f"member {i}, metric {name}")
+
+
+def test_batched_arm_matches_dynamics_member_by_member():
+    members = [RobotParameters(), RobotParameters().scaled(m1=1.3, I2=0.7, l2=1.1), RobotParameters(m3=0.4, g=0.0)]
+    arm = BatchArm(batched_constants(members))
+    arm.check_against(members)
+    rng = np.random.default_rng(7)
+    q, dq, tau = rng.uniform(-2, 2, (3, len(members), 4))
+    ddq = arm.mass_solve(np.cos(q[:, 1]), tau.T - arm.bias(np.sin(q[:, 1]), dq.T)).T
+    for i, p in enumerate(members):
+        np.testing.assert_allclose(ddq[i], forward_dynamics(q[i], dq[i], tau[i], p), rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(arm.mass_times(np.cos(q[:, 1]), tau.T)[:, i], inertia(q[i], p) @ tau[i], rtol=1e-12)
+        np.testing.assert_allclose(arm.bias(np.sin(q[:, 1]), dq.T)[:, i],
+                                   coriolis_vector(q[i], dq[i], p) + gravity(q[i], p), rtol=1e-12, atol=1e-12)
+
+
+def test_batched_constants_are_the_single_constants():
+    members = [RobotParameters(), RobotParameters().scaled(m2=2.0)]
+    c = batched_constants(members)
+    for i, p in enumerate(members):
+        assert c.k1[i] == p.constants.k1 and c.k2[i] == p.constants.k2 and c.k5[i] == p.constants.k5
+
+
+CASES = {
+    "gains and model mismatch": ([{}, {"gains.kp": 250, "gains.kd": [30, 36, 40, 36]},
+                                  {"nominal_scale.m1": 0.8, "nominal_scale.I2": 1.2, "robot.m3": 0.3}], True),
+    "disturbance and observer": ([{"disturbance.f_r": [2.0, -1.0, 0.5, 3.0]}, {"gains.observer": [5, 10, 20, 8]},
+                                  {"observer.variant": "paper-eq16"}], True),
+    "without observer": ([{"gains.kp": 120}, {"nominal_scale.m4": 1.5}], False),
+    "full observer gain and initial state": (
+        [{"gains.observer": [[10, 1, 0, 0], [1, 10, 0, 0], [0, 0, 10, 0], [0, 0, 0, 10]]},
+         {"initial.dq": [0.01, 0.0, 0.0, 0.0], "initial.d_hat": [1.0, 1.0, 1.0, 1.0]}], True),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_members_match_their_single_runs(short, case):
+    records, observer = CASES[case]
+    result = simulate_batch(short, records, observer=observer, signals=("q",))
+    assert result.ok.all()
+    for i in range(len(records)):
+        _assert_member_matches(result, i, observer)
+
+
+def test_noise_members_match_their_single_runs(short):
+    s = short.replace(simulation={"t_final": 0.25})
+    records = [{"noise.q_std": [1e-4] * 4, "noise.dq_std": [1e-3] * 4, "noise.seed": 3},
+               {"noise.q_std": [2e-4, 0, 0, 1e-4], "noise.seed": 5}, {}]
+    result = simulate_batch(s, records, signals=("q", "q_meas"))
+    for i in range(len(records)):
+        _assert_member_matches(result, i)
+    single = blocks.simulate(result.variants.scenario(0))
+    np.testing.assert_allclose(result.signals["q_meas"][0], signal(single, "q_meas").T, atol=batch.STATE_ATOL)
+
+
+def test_friction_members_match_their_single_runs(short):
+    s = short.replace(disturbance={"kind": ["paper", "friction"]})
+    records = [{"disturbance.coulomb": [0.5, 0.5, 0.5, 0.1]}, {"disturbance.friction_velocity": 0.05}]
+    result = simulate_batch(s, records, signals=("q",))
+    assert result.substeps > 1          # friction near zero speed is fast; the automatic step follows it
+    for i in range(len(records)):
+        _assert_member_matches(result, i)
+
+
+def test_tissue_contact_members_match_to_the_contact_tolerance(short):
+    s = short.replace(disturbance={"kind": ["paper", "tissue"]})
+    result = simulate_batch(s, [{}, {"disturbance.f_r": [1.0, 1.0, 1.0, 1.0]}], signals=("q",),
+                            metrics=("rms_position_error", "max_tool_position_error_mm"))
+    for i in range(2):
+        single = blocks.simulate(result.variants.scenario(i))
+        np.testing.assert_allclose(result.signals["q"][i], signal(single, "q").T, atol=batch.STATE_ATOL_CONTACT)
+
+
+def test_all_signals_match_the_single_run(short):
+    result = simulate_batch(short, [{"nominal_scale.m2": 1.2}], signals=batch.SIGNALS)
+    single = blocks.simulate(result.variants.scenario(0))
+    scale = {"q": 1, "q_ref": 1, "dq_ref": 1, "ddq_ref": 1, "q_meas": 1}
+    for name in (n for n in batch.SIGNALS if n not in ("q_meas", "dq_meas")):     # no sensor without noise
+        want = signal(single, name).T
+        # velocities and forces carry the solver error times the loop's gains
+        atol = batch.STATE_ATOL * (1 if name in scale else 1e3)
+        np.testing.assert_allclose(result.signals[name][0], want, rtol=0, atol=atol, err_msg=name)
+
+
+def test_columns_and_records_give_the_same_batch(short):
+    cols = {"gains.kp": [100.0, 200.0], "disturbance.f_r": [[1, 1, 1, 1], [2, 2, 2, 2]]}
+    recs = [{"gains.kp": 100.0, "disturbance.f_r": [1, 1, 1, 1]}, {"gains.kp": 200.0, "disturbance.f_r": [2, 2, 2, 2]}]
+    s = short.replace(simulation={"t_final": 0.5})
+    a, b = simulate_batch(s, cols), simulate_batch(s, recs)
+    for name in a.metrics:
+        np.testing.assert_array_equal(a.metrics[name], b.metrics[name])
+
+
+def test_a_member_result_does_not_depend_on_its_batch(short):
+    s = short.replace(simulation={"t_final": 0.5})
+    alone = simulate_batch(s, [{"gains.kp": 150.0}])
+    crowd = simulate_batch(s, [{"gains.kp": 90.0}, {"gains.kp": 150.0}, {"nominal_scale.m1": 0.9}])
+    for name in alone.metrics:
+        np.testing.assert_allclose(crowd.metrics[name][1], alone.metrics[name][0], rtol=1e-13, atol=1e-15)
+
+
+def test_a_diverging_member_is_marked_and_the_others_finish(short):
+    s = short.replace(simulation={"t_final": 0.5})
+    # Kd = 5000 puts a pole near -5000 1/s: RK4 at a forced 5 ms step is unstable there.
+    result = simulate_batch(s, [{}, {"gains.kd": 5000.0}], substeps=1)
+    assert result.ok.tolist() == [True, False]
+    assert 0 < result.failed_at[1] <= 0.5
+    assert np.all(np.isnan(result.metrics["rms_position_error"][1]))
+    alone = simulate_batch(s, [{}], substeps=1)
+    np.testing.assert_allclose(result.metrics["rms_position_error"][0], alone.metrics["rms_position_error"][0],
+                               rtol=1e-13)
+
+
+def test_automatic_step(short):
+    assert batch.auto_substeps(Variants(short, [{}])) == 1
+    fast_path = short.replace(trajectory={"duration": 3.0})
+    assert batch.auto_substeps(Variants(fast_path, [{}])) == 3
+    assert batch.auto_substeps(Variants(short, [{"gains.kd": 100.0}])) > 1
+
+
+def test_step_schedule_lands_on_grid_and_breakpoints():
+    times, grid_index = step_schedule(1.0, 0.1, substeps=2, breakpoints=[0.33, 0.5 + 1e-12, 2.0, -1.0])
+    grid = np.linspace(0, 1, 11)
+    np.testing.assert_array_equal(times[grid_index >= 0], grid)
+    assert 0.33 in times and times.size == 22      # 21 fine points + 0.33; 0.5+1e-12 merged, others outside
+    assert np.all(np.diff(times) > 0)
+    with pytest.raises(ValueError, match="substeps"):
+        step_schedule(1.0, 0.1, substeps=0)
+
+
+@pytest.mark.parametrize("records, words", [
+    ([{"gains.kq": 1.0}], ["variant 0", "gains.kq"]),
+    ([{}, {"trajectory.stitches": 3}], ["variant 1", "trajectory.stitches", "cannot vary"]),
+    ([{"gains.kp": -1.0}], ["variant 0", "gains.kp", "> 0"]),
+    ([{"robot.m1": 0.0}], ["variant 0", "m1"]),
+    ([{"nominal_scale.m1": 0.0}], ["variant 0", "m1", "> 0"]),
+    ([{"disturbance.f_r": [1.0, 2.0, 3.0]}], ["variant 0", "f_r"]),
+    ([{"observer.variant": "eq99"}], ["variant 0", "observer.variant"]),
+    ([{"noise.seed": -2}], ["variant 0", "seed"]),
+    ([{"initial.q": [0.0, 1.0]}], ["variant 0", "initial.q"]),
+    ([{"gains.observer": [[-10, 0, 0, 0], [0, 10, 0, 0], [0, 0, 10, 0], [0, 0, 0, 10]]}], ["variant 0", "observer"]),
+    ([], ["at least one variant"]),
+])
+def test_bad_variants_fail_before_running_naming_the_key(short, records, words):
+    with pytest.raises(ScenarioError) as err:
+        Variants(short, records)
+    for word in words:
+        assert word in str(err.value)
+
+
+def test_bad_metric_or_signal_names(short):
+    with pytest.raises(ValueError, match="unknown metric"):
+        simulate_batch(short, [{}], metrics=("rms",))
+    with pytest.raises(ValueError, match="unknown signal"):
+        simulate_batch(short, [{}], signals=("x",))
+    with pytest.raises(ValueError, match="needs the observer"):
+        simulate_batch(short, [{}], observer=False, metrics=("rms_disturbance_error",))
+
+
+def test_processes_give_the_single_process_result(short):
+    s = short.replace(simulation={"t_final": 0.5})
+    records = [{"gains.kp": kp} for kp in (100.0, 140.0, 180.0)] + [{"noise.q_std": [1e-4] * 4, "noise.seed": 2}]
+    one = simulate_batch(s, records, signals=("q",))
+    two = simulate_batch(s, records, signals=("q",), workers=2)
+    for name in one.metrics:
+        np.testing.assert_allclose(two.metrics[name], one.metrics[name], rtol=1e-13, atol=1e-15)
+    np.testing.assert_allclose(two.signals["q"], one.signals["q"], rtol=1e-13, atol=1e-15)
+    assert two.steps == one.steps and len(two) == 4
