@@ -11,6 +11,12 @@ evaluates each block's output exactly once per right-hand-side call.  Nothing
 about the loop is written a second time: the blocks' own update and output
 functions are called.
 
+When every connection selects one signal with gain 1 and the outputs only
+select signals (true of every loop :func:`dobkit.blocks.closed_loop` builds),
+the order becomes a plan of direct calls to the blocks' ``outfcn``/``updfcn``
+with index gathers, skipping python-control's per-call wrappers; other
+interconnections take the general path with the connection matrices.
+
 Which inputs of a block reach its outputs directly is read from the block's
 ``feedthrough`` attribute (a set of input names) when it has one; a block
 without it is assumed to feed every input through, which is always safe but
@@ -60,6 +66,28 @@ class CompiledLoop:
         self.order = [blocks[k].name for k in self._order]
         self._stateful = [k for k in range(len(blocks)) if blocks[k].nstates > 0]
         self.nstates = int(x_off[-1])
+        self._plan = self._direct_plan(C, B, np.asarray(system.output_map, dtype=float))
+
+    def _direct_plan(self, C, B, O):
+        """Direct-call plan, or None when some connection is more than a selection of one signal."""
+        n_y = self._n_out_total
+        selects = (np.all(np.count_nonzero(C, axis=1) == 1) and np.all(C[C != 0] == 1) and not B.any()
+                   and np.all(np.count_nonzero(O, axis=1) == 1) and np.all(O[O != 0] == 1) and not O[:, n_y:].any())
+        if not selects:
+            return None
+        source = np.argmax(C != 0, axis=1)      # the block output feeding each block input
+        blocks = self._blocks
+        outputs = [(blocks[k].outfcn, blocks[k]._current_params, self._slices[k][0], source[self._slices[k][1]],
+                    self._slices[k][2]) for k in self._order]
+        updates = [(blocks[k].updfcn, blocks[k]._current_params, self._slices[k][0], source[self._slices[k][1]])
+                   for k in self._stateful]     # in block order, so their results concatenate into dx
+        return outputs, updates, np.argmax(O != 0, axis=1)
+
+    def _planned_signals(self, t, x) -> np.ndarray:
+        y = np.empty(self._n_out_total)
+        for fn, params, xs, idx, ys in self._plan[0]:
+            y[ys] = fn(t, x[xs], y[idx], params)
+        return y
 
     @staticmethod
     def _make_gather(C_rows: np.ndarray, B_rows: np.ndarray):
@@ -118,6 +146,11 @@ class CompiledLoop:
 
     def rhs(self, t: float, x: np.ndarray, u_ext: np.ndarray | None = None) -> np.ndarray:
         """State derivative of the whole loop, each block output evaluated once."""
+        if self._plan is not None and u_ext is None:
+            y = self._planned_signals(t, x)
+            # every output is current now, so each update gathers its inputs once
+            parts = [np.ravel(fn(t, x[xs], y[idx], params)) for fn, params, xs, idx in self._plan[1]]
+            return np.concatenate(parts) if parts else np.zeros(0)
         u_all, _ = self.signals(t, x, u_ext)
         dx = np.empty(self.nstates)
         for k in self._stateful:
@@ -127,6 +160,8 @@ class CompiledLoop:
 
     def output(self, t: float, x: np.ndarray, u_ext: np.ndarray | None = None) -> np.ndarray:
         """The interconnection's outputs (its ``outlist``) at ``(t, x)``."""
+        if self._plan is not None and u_ext is None:
+            return self._planned_signals(t, x)[self._plan[2]]
         u_all, y = self.signals(t, x, u_ext)
         u_flat = np.concatenate([u for u in u_all]) if u_all else np.zeros(0)
         return self._output_map @ np.concatenate([y, u_flat])
