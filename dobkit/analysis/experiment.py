@@ -27,7 +27,8 @@ from .figures import paper_figures
 from .metrics import DISTURBANCE_UNITS, JOINT_UNITS, tracking_metrics
 from .outputs import default_out_dir, staged_output
 
-__all__ = ["ExperimentResult", "run_experiment", "format_rms_table", "default_out_dir", "staged_output"]
+__all__ = ["ExperimentResult", "run_experiment", "comparison_metrics", "format_rms_table", "default_out_dir",
+           "staged_output"]
 
 
 @dataclass
@@ -68,17 +69,7 @@ def run_experiment(scenario: Scenario | str = "paper", out_dir: Path | str | Non
         stage = f"simulating {'with' if with_observer else 'without'} observer"
         runs[key] = simulate(s, observer=with_observer,
                              progress=(lambda f, st=stage: progress(st, f)) if progress else None)
-    metrics = {
-        "scenario": s.name,
-        "dobkit_version": __version__,
-        "units": {"position": list(JOINT_UNITS), "disturbance": list(DISTURBANCE_UNITS)},
-        "definitions": {
-            "rms_position_error": "Eq. 13: sqrt(mean((q_ref - q)^2)) over the uniform output grid, per joint",
-            "rms_disturbance_error": "Eq. 14: sqrt(mean((d - d_hat)^2)), d = lumped disturbance on the nominal model",
-        },
-        "with_dob": tracking_metrics(runs["with_dob"]),
-        "without_dob": tracking_metrics(runs["without_dob"]),
-    }
+    metrics = comparison_metrics(s, runs["with_dob"], runs["without_dob"])
     files: list[Path] = []
     if out_dir is not None:
         target = Path(out_dir)
@@ -93,6 +84,29 @@ def run_experiment(scenario: Scenario | str = "paper", out_dir: Path | str | Non
         files = sorted(target.iterdir())
     return ExperimentResult(s, runs["with_dob"], runs["without_dob"], metrics, Path(out_dir) if out_dir else None,
                             files)
+
+
+def comparison_metrics(scenario: Scenario, with_dob, without_dob) -> dict:
+    """The ``metrics.json`` content for a run with and a run without the observer (Table 3 and more).
+
+    Returns
+    -------
+    dict
+        ``scenario``, ``dobkit_version``, ``units``, ``definitions`` and the
+        :func:`~dobkit.analysis.metrics.tracking_metrics` of each run under
+        ``with_dob`` and ``without_dob``.
+    """
+    return {
+        "scenario": scenario.name,
+        "dobkit_version": __version__,
+        "units": {"position": list(JOINT_UNITS), "disturbance": list(DISTURBANCE_UNITS)},
+        "definitions": {
+            "rms_position_error": "Eq. 13: sqrt(mean((q_ref - q)^2)) over the output grid, per joint",
+            "rms_disturbance_error": "Eq. 14: sqrt(mean((d - d_hat)^2)), d = lumped disturbance on the nominal model",
+        },
+        "with_dob": tracking_metrics(with_dob),
+        "without_dob": tracking_metrics(without_dob),
+    }
 
 
 def _write_timeseries(path: Path, runs: dict) -> None:

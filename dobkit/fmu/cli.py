@@ -62,9 +62,7 @@ def _cmd_export(args) -> int:
 
 
 def _cmd_cosim(args) -> int:
-    from .. import __version__
-    from ..analysis.experiment import default_out_dir, format_rms_table, staged_output
-    from ..analysis.metrics import DISTURBANCE_UNITS, JOINT_UNITS, tracking_metrics
+    from ..analysis.experiment import comparison_metrics, default_out_dir, format_rms_table, staged_output
     from ..blocks import load_scenario
     from .archive import extract_fmu
     from .cosim import cosimulate
@@ -78,16 +76,7 @@ def _cmd_cosim(args) -> int:
             runs[key] = cosimulate(extracted, s, step=args.step, observer=observer,
                                    side_substeps=args.side_substeps, parameters=args.parameters)
     info = runs["with_dob"].cosim
-    metrics = {
-        "scenario": s.name,
-        "dobkit_version": __version__,
-        "units": {"position": list(JOINT_UNITS), "disturbance": list(DISTURBANCE_UNITS)},
-        "definitions": {
-            "rms_position_error": "Eq. 13: sqrt(mean((q_ref - q)^2)) over the output grid, per joint",
-            "rms_disturbance_error": "Eq. 14: sqrt(mean((d - d_hat)^2)), d = lumped disturbance on the nominal model",
-        },
-        "with_dob": tracking_metrics(runs["with_dob"]),
-        "without_dob": tracking_metrics(runs["without_dob"]),
+    metrics = comparison_metrics(s, runs["with_dob"], runs["without_dob"]) | {
         "cosimulation": {k: info[k] for k in ("fmu", "fmi_version", "model", "step", "side_substeps", "method",
                                               "parameters")},
     }
