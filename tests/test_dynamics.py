@@ -1,7 +1,6 @@
 """Parameters, rigid-body dynamics, energy and the disturbance models, against independent values."""
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest
