@@ -132,6 +132,20 @@ def test_stability_boundary_search_finds_constructed_boundary():
     assert linear.stability_boundaries(s, Q0, observer=False, low=0.1, high=10.0, points=7)["boundaries"] == []
 
 
+def test_equilibrium_is_accepted_on_its_residual():
+    # surgical scenario (friction, tissue, 20 % inertia mismatch), nominal inertia scaled to 0.02x, no observer:
+    # the root finder ends "not making good progress" on an equilibrium that is exact to rounding
+    from dobkit.blocks import closed_loop, load_scenario
+
+    s = load_scenario("surgical")
+    q0 = s.trajectory.evaluate(0.0)[0]
+    loop = closed_loop(linear.hold_scenario(linear.scale_nominal_inertia(s, 0.02), q0), observer=False)
+    x = linear.equilibrium(loop)
+    assert np.max(np.abs(loop.dynamics(0.0, x, np.zeros(0)))) <= linear.EQUILIBRIUM_RTOL * (1 + np.max(np.abs(x)))
+    assert np.all(np.abs(x[4:8]) < 1e-9)                      # at rest
+    assert linear.spectral_abscissa(linear.scale_nominal_inertia(s, 0.02), q0, observer=False)[0] < 0
+
+
 def test_bad_inputs_name_the_problem():
     s = make_scenario()
     with pytest.raises(ValueError, match="q0 must be 4 finite numbers"):

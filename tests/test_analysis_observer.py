@@ -93,6 +93,19 @@ def test_certificate_for_paper_gain_matches_paper_notes(paper, grid):
         gain_design.convergence_certificate(paper.nominal, Y, grid, [1.0, 1.0, -1.0, 1.0])
 
 
+def test_inertia_partials_equal_hand_derivative(paper):
+    q = np.array([[0.3, 2.0, 0.24, 0.1], [-1.0, -0.7, 0.15, 2.0], [0.0, math.pi / 2, 0.3, 0.0]])
+    parts = gain_design.inertia_partials(paper.nominal, q)
+    assert parts.shape == (3, 4, 4, 4)
+    for n, qn in enumerate(q):
+        s2 = math.sin(qn[1])
+        dM = np.zeros((4, 4))                       # d/dtheta2 of Eq. 5: only the k2 cos(theta2) entries move
+        dM[0, 0], dM[0, 1], dM[1, 0] = -PAPER_K["k2"] * s2, -0.5 * PAPER_K["k2"] * s2, -0.5 * PAPER_K["k2"] * s2
+        assert np.allclose(parts[n, 1], dM, rtol=0, atol=1e-15)
+        for j in (0, 2, 3):                         # M does not depend on theta1, d3, theta4
+            assert np.all(parts[n, j] == 0.0)
+
+
 def test_simulation_confirms_faster_estimate(paper, grid):
     design = gain_design.design_observer_gain(paper.nominal, 10.0, grid, base=10.0 * np.eye(4))
     runs = gain_design.confirm_by_simulation(paper, [("paper", 10.0 * np.eye(4)), ("designed", design["Y"])],

@@ -1,9 +1,13 @@
-"""Gain and noise studies: metric definitions on known signals, steady-state offsets and torque noise.
+"""Gain and noise studies: metric definitions on known signals, steady-state offsets, settling and torque noise.
 
 References: ``exp(-t)`` stays within 2 % of its peak after ``ln 50`` s; without the
 observer the held prismatic joint rests ``1.4 / 0.25 / Kp`` m off (paper-notes);
-velocity noise ``n`` on joint 3 reaches its force directly as
-``-(m34 Kd + Y) n`` (controller ``M Kd e'`` and observer ``d_hat = Y q' + z``).
+the prismatic joint is decoupled (M has only ``k4 = 0.25`` kg in its row), so after
+the step ``f`` its error is the step response of ``-(f / k4) / (s^2 + Kd s + Kp)``
+without the observer and of ``-(f / k4) / ((s + Y / k4)(s^2 + Kd s + Kp))`` with it,
+computed here with :func:`scipy.signal.step`; velocity noise ``n`` on joint 3
+reaches its force directly as ``-(m34 Kd + Y) n`` (controller ``M Kd e'`` and
+observer ``d_hat = Y q' + z``).
 """
 from __future__ import annotations
 
@@ -11,8 +15,9 @@ import math
 
 import numpy as np
 import pytest
+import scipy.signal
 
-from conftest import hold_trajectory, make_scenario
+from conftest import PAPER_FR, PAPER_K, hold_trajectory, make_scenario
 from dobkit.analysis import studies
 from dobkit.blocks import MeasurementNoise
 
@@ -45,6 +50,40 @@ def test_gain_grid_steady_state_offset_scales_with_one_over_kp():
         assert run["tool_mm"]["peak_error"] > 10 * with_dob["runs"][i][0]["tool_mm"]["steady_state_error"]
     with pytest.raises(ValueError, match="gain grids"):
         studies.gain_grid_study(s, [], [36.0])
+
+
+def _settling_reference(t, x, final, fraction=0.02):
+    """Last time the dense reference signal is outside the band around its final value."""
+    dev = np.abs(x - final)
+    return float(t[np.nonzero(dev > fraction * dev.max())[0][-1]])
+
+
+def test_settling_is_measured_on_a_held_arm_after_a_step():
+    # the paper's path scenario: the study holds the arm at q_ref(0) and applies the step f_r
+    s = make_scenario(simulation={"t_final": 2.0, "output_step": 0.005})
+    kp, kd, y, m, f = 180.0, 36.0, 10.0, PAPER_K["k4"], PAPER_FR[2]
+    without = studies.gain_grid_study(s, [kp], [kd], observer=False)
+    with_dob = studies.gain_grid_study(s, [kp], [kd], observer=True)
+    assert without["q_hold"] == pytest.approx(s.trajectory.evaluate(0.0)[0].tolist())
+    assert without["f_r"] == pytest.approx(PAPER_FR.tolist()) and without["t_final_s"] == 2.0
+    t = np.linspace(0.0, 2.0, 200001)
+    # e = q_ref - q of joint 3 as the step response of E(s) s: -(f/m) / (s^2 + Kd s + Kp) without the observer;
+    # with it the estimation error f exp(-(Y/m) t) drives e, so E(s) s = -(f/m) s / ((s + Y/m)(s^2 + Kd s + Kp))
+    for study, system in ((without, ([-f / m], [1.0, kd, kp])),
+                          (with_dob, ([-f / m, 0.0], np.polymul([1.0, y / m], [1.0, kd, kp])))):
+        run = study["runs"][0][0]["joints"][2]
+        _, x = scipy.signal.step(system, T=t)
+        final = float(np.polyval(system[0], 0) / np.polyval(system[1], 0))      # final value theorem
+        assert run["final_value"] == pytest.approx(final, abs=1e-12)
+        assert run["steady_state_error"] == pytest.approx(abs(final), abs=1e-12)
+        assert run["peak_error"] == pytest.approx(np.max(np.abs(x)), rel=1e-3)
+        reference = _settling_reference(t, x, final)
+        assert run["settled"] and reference <= run["settling_time_s"] <= reference + 0.005 + 1e-9
+    assert without["runs"][0][0]["joints"][2]["settling_time_s"] == pytest.approx(np.log(62.5) / 6, abs=0.006)
+    # a run that ends before the error has settled says so instead of quoting a time
+    short = studies.gain_grid_study(s, [kp], [kd], observer=False, t_final=0.5)
+    assert short["runs"][0][0]["joints"][2]["settling_time_s"] is None
+    assert not short["runs"][0][0]["joints"][2]["settled"]
 
 
 def test_torque_noise_grows_with_the_observer_gain_as_predicted():

@@ -1,9 +1,9 @@
 """Figures of the analyses (headless matplotlib; PNG and SVG; labelled axes with units).
 
 Each function takes the JSON-ready result of one analysis and writes
-``stem.png`` and ``stem.svg`` into a folder, returning the paths.  SVG files
-carry no date and use a fixed id salt so that regenerating them from the same
-numbers gives the same bytes.
+``stem.png`` and ``stem.svg`` into a folder with
+:func:`dobkit.analysis.figures.save_figure` (no dates or tool stamps, fixed SVG
+ids: the same numbers give the same bytes), returning the paths.
 """
 from __future__ import annotations
 
@@ -15,38 +15,17 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from .figures import save_figure  # noqa: E402
 from .metrics import JOINT_LABELS  # noqa: E402
 
-__all__ = ["FORMATS", "save", "pole_figure", "mismatch_figure", "bandwidth_figure", "design_figure", "bode_figure",
+__all__ = ["pole_figure", "mismatch_figure", "bandwidth_figure", "design_figure", "bode_figure",
            "gain_study_figure", "observer_study_figure"]
 
 _JOINT_TITLES = ("Joint 1 (theta1)", "Joint 2 (theta2)", "Joint 3 (d3, prismatic)", "Joint 4 (theta4)")
 _BLOCK_COLORS = {"plant": "tab:blue", "observer": "tab:orange"}
 
 
-FORMATS = ("png", "svg")
-
-
-def save(fig, out_dir, stem: str, formats=FORMATS) -> list[Path]:
-    """Write ``fig`` as PNG (120 dpi) and/or SVG without a date stamp, close it, return the paths."""
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    unknown = sorted(set(formats) - set(FORMATS))
-    if unknown:
-        raise ValueError(f"figure formats must be among {list(FORMATS)}, got {unknown}")
-    paths = []
-    with plt.rc_context({"svg.hashsalt": "dobkit"}):
-        if "png" in formats:
-            paths.append(out_dir / f"{stem}.png")
-            fig.savefig(paths[-1], dpi=120, metadata={"Software": None})
-        if "svg" in formats:
-            paths.append(out_dir / f"{stem}.svg")
-            fig.savefig(paths[-1], metadata={"Date": None, "Creator": None})
-    plt.close(fig)
-    return paths
-
-
-def pole_figure(operating_points: list, out_dir, formats=FORMATS) -> list[Path]:
+def pole_figure(operating_points: list, out_dir) -> list[Path]:
     """Closed-loop poles: complex plane of the first operating point, decay rates of all of them."""
     fig, axes = plt.subplots(1, 2, figsize=(13, 4.8), constrained_layout=True,
                              gridspec_kw={"width_ratios": [1, 1.3]})
@@ -86,10 +65,10 @@ def pole_figure(operating_points: list, out_dir, formats=FORMATS) -> list[Path]:
     ax.set_title("Decay rates at every operating point", fontsize=10)
     ax.grid(True, alpha=0.3, which="both", axis="x")
     ax.legend(fontsize=8, loc="lower right")
-    return save(fig, out_dir, "linear_poles", formats)
+    return save_figure(fig, out_dir, "linear_poles")
 
 
-def mismatch_figure(mismatch: dict, out_dir, formats=FORMATS) -> list[Path]:
+def mismatch_figure(mismatch: dict, out_dir) -> list[Path]:
     """Spectral abscissa and pole decay rates against the nominal/true inertia ratio."""
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.6), constrained_layout=True)
     ax = axes[0]
@@ -101,9 +80,10 @@ def mismatch_figure(mismatch: dict, out_dir, formats=FORMATS) -> list[Path]:
             ax.annotate(f"boundary a = {b['factor']:.4g}", (b["factor"], 0), textcoords="offset points",
                         xytext=(5, 10), fontsize=8, color=color)
     ax.axhline(0, color="black", lw=0.8)
-    ax.axvspan(0.5, 2.0, color="green", alpha=0.08, label="studied range 0.5x-2x")
+    lo, hi = min(mismatch["with_dob"]["sweep"]["factors"]), max(mismatch["with_dob"]["sweep"]["factors"])
+    ax.axvspan(lo, hi, color="green", alpha=0.08, label=f"pole sweep {lo:g}x-{hi:g}x")
     ax.set_xscale("log")
-    ax.set_xlabel("nominal / true inertia  a  (M^ = a M)")
+    ax.set_xlabel("scale a of the scenario's nominal inertia (a = 1: the scenario's model)")
     ax.set_ylabel("largest pole real part (rad/s)")
     ax.set_title("Stability against inertia mismatch (> 0: unstable)", fontsize=10)
     ax.grid(True, alpha=0.3, which="both")
@@ -118,15 +98,15 @@ def mismatch_figure(mismatch: dict, out_dir, formats=FORMATS) -> list[Path]:
                     label=label if a == sweep["factors"][0] else None)
     ax.set_xscale("log")
     ax.set_yscale("log")
-    ax.set_xlabel("nominal / true inertia  a")
+    ax.set_xlabel("scale a of the scenario's nominal inertia")
     ax.set_ylabel("decay rate -Re(pole) (rad/s)")
-    ax.set_title("How every pole moves over 0.5x-2x", fontsize=10)
+    ax.set_title(f"How every pole moves over {lo:g}x-{hi:g}x", fontsize=10)
     ax.grid(True, alpha=0.3, which="both")
     ax.legend(fontsize=8)
-    return save(fig, out_dir, "linear_mismatch", formats)
+    return save_figure(fig, out_dir, "linear_mismatch")
 
 
-def bandwidth_figure(survey: dict, designed: dict | None, pd_slowest: float, out_dir, formats=FORMATS) -> list[Path]:
+def bandwidth_figure(survey: dict, designed: dict | None, pd_slowest: float, out_dir) -> list[Path]:
     """Eigenvalues of ``Y M^-1`` along theta2 (log scale) and the slowest mode's direction."""
     theta2 = np.array(survey["theta2"])
     eig = np.array(survey["eigenvalues"])
@@ -156,26 +136,29 @@ def bandwidth_figure(survey: dict, designed: dict | None, pd_slowest: float, out
     ax.set_title("Direction of the slowest observer mode (disturbance space)", fontsize=10)
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
-    return save(fig, out_dir, "observer_bandwidth", formats)
+    return save_figure(fig, out_dir, "observer_bandwidth")
 
 
-def design_figure(confirm: dict, out_dir, formats=FORMATS) -> list[Path]:
+def design_figure(confirm: dict, out_dir) -> list[Path]:
     """Simulated estimation error and the Lyapunov certificate, paper gain against the designed gain."""
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.6), constrained_layout=True)
     colors = ["tab:red", "tab:blue", "tab:green", "tab:purple"]
     for (label, run), color in zip(confirm.items(), colors):
         t = np.array(run["time"])
         conv = run["convergence_time_s"]
-        axes[0].semilogy(t, run["error_norm"], color=color,
+        axes[0].semilogy(t, np.maximum(run["error_norm"], 1e-300), color=color,
                          label=f"{label}: within {100 * run['threshold']:g}% after "
                                + (f"{conv:.3g} s" if conv is not None else "- (not within the run)"))
-        axes[1].semilogy(t, run["lyapunov_ratio"], color=color, label=f"{label}: V/V(0)")
-        axes[1].semilogy(t, np.exp(-2 * run["beta_run_rad_s"] * t), color=color, ls="--",
-                         label=f"{label}: bound exp(-2 beta t), beta = {run['beta_run_rad_s']:.3g} rad/s")
+        if run["lyapunov_ratio"] is not None:         # None: no error at the start (V(0) = 0), nothing to bound
+            axes[1].semilogy(t, run["lyapunov_ratio"], color=color, label=f"{label}: V/V(0)")
+            axes[1].semilogy(t, np.exp(-2 * run["beta_run_rad_s"] * t), color=color, ls="--",
+                             label=f"{label}: bound exp(-2 beta t), beta = {run['beta_run_rad_s']:.3g} rad/s")
     axes[0].set_xlabel("time (s)")
     axes[0].set_ylabel("|d - d_hat| (N m, N)")
     # below these levels the ODE solver's own error (rtol, atol) dominates the curves
-    axes[0].set_ylim(1e-6 * max(max(r["error_norm"]) for r in confirm.values()), None)
+    top = max(max(r["error_norm"]) for r in confirm.values())
+    if top > 0:
+        axes[0].set_ylim(1e-6 * top, None)
     axes[0].set_title("Estimation error in the nonlinear simulation", fontsize=10)
     axes[1].set_xlabel("time (s)")
     axes[1].set_ylabel("V(t) / V(0) (1)")
@@ -184,10 +167,10 @@ def design_figure(confirm: dict, out_dir, formats=FORMATS) -> list[Path]:
     for ax in axes:
         ax.grid(True, alpha=0.3, which="both")
         ax.legend(fontsize=8)
-    return save(fig, out_dir, "observer_design", formats)
+    return save_figure(fig, out_dir, "observer_design")
 
 
-def bode_figure(freq: dict, out_dir, kind: str = "tracking", formats=FORMATS) -> list[Path]:
+def bode_figure(freq: dict, out_dir, kind: str = "tracking") -> list[Path]:
     """Bode magnitude per joint of ``w[i] -> e[i]`` (``kind="tracking"``) or ``w[i] -> e_d[i]`` (``"estimation"``)."""
     omega = np.array(freq["omega_rad_s"])
     fig, axes = plt.subplots(2, 2, figsize=(12, 7), constrained_layout=True, sharex=True)
@@ -216,20 +199,28 @@ def bode_figure(freq: dict, out_dir, kind: str = "tracking", formats=FORMATS) ->
     axes.flat[0].legend(fontsize=8)
     what = "tracking error e = q_ref - q" if kind == "tracking" else "estimation error d - d_hat"
     fig.suptitle(f"Disturbance w[i] on joint i to {what} on joint i (frozen at q0; dotted: -3 dB edges)")
-    return save(fig, out_dir, f"frequency_{kind}", formats)
+    return save_figure(fig, out_dir, f"frequency_{kind}")
 
 
-def _grid_values(study: dict, metric: str, target: str = "tool_mm") -> np.ndarray:
+def _grid_values(study: dict, metric: str, target: str = "tool_mm") -> tuple[np.ndarray, list]:
+    """Values of one metric over the grid (NaN where there is none) and the text of each cell."""
     out = np.full((len(study["kp"]), len(study["kd"])), np.nan)
+    text = [["" for _ in study["kd"]] for _ in study["kp"]]
     for i, row in enumerate(study["runs"]):
         for j, run in enumerate(row):
-            if run.get("ok"):
-                value = run[target][metric]
-                out[i, j] = np.nan if value is None else value
-    return out
+            if not run.get("ok"):
+                text[i][j] = "failed"
+                continue
+            value = run[target][metric]
+            if value is None:
+                text[i][j] = "not\nsettled"
+            else:
+                out[i, j] = value
+                text[i][j] = f"{value:.3g}"
+    return out, text
 
 
-def gain_study_figure(with_dob: dict, without_dob: dict, out_dir, formats=FORMATS) -> list[Path]:
+def gain_study_figure(with_dob: dict, without_dob: dict, out_dir) -> list[Path]:
     """Heat maps of the tool-tip error metrics over the Kp x Kd grid, with and without the observer."""
     metrics = (("settling_time_s", "settling time (s)"), ("steady_state_error", "steady-state error (mm)"),
                ("peak_error", "peak error (mm)"), ("rms_error", "RMS error (mm)"))
@@ -237,23 +228,27 @@ def gain_study_figure(with_dob: dict, without_dob: dict, out_dir, formats=FORMAT
     for r, (study, title) in enumerate(((with_dob, "with observer"), (without_dob, "without observer"))):
         for c, (metric, label) in enumerate(metrics):
             ax = axes[r, c]
-            values = _grid_values(study, metric)
+            values, text = _grid_values(study, metric)
             im = ax.imshow(values, origin="lower", cmap="viridis", aspect="auto")
             for i in range(values.shape[0]):
                 for j in range(values.shape[1]):
-                    text = "n/s" if np.isnan(values[i, j]) else f"{values[i, j]:.3g}"
-                    ax.text(j, i, text, ha="center", va="center", fontsize=7, color="white")
+                    # dark text on the light (high) end of the colour map and on empty cells
+                    light = not np.isfinite(values[i, j]) or im.norm(values[i, j]) > 0.6
+                    ax.text(j, i, text[i][j], ha="center", va="center", fontsize=8,
+                            color="black" if light else "white")
             ax.set_xticks(range(len(study["kd"])), [f"{v:g}" for v in study["kd"]])
             ax.set_yticks(range(len(study["kp"])), [f"{v:g}" for v in study["kp"]])
             ax.set_xlabel("Kd (1/s)")
             ax.set_ylabel("Kp (1/s^2)")
             ax.set_title(f"tool tip {label}\n{title}", fontsize=9)
             fig.colorbar(im, ax=ax, shrink=0.8)
-    fig.suptitle("Gain study: tool-tip position error over Kp x Kd (n/s: not settled within the run)")
-    return save(fig, out_dir, "study_gains", formats)
+    fig.suptitle(f"Gain study: tool-tip error after a disturbance step on the held arm, over Kp x Kd "
+                 f"({with_dob['t_final_s']:g} s runs; settling: within {100 * with_dob['settle_fraction']:g}% band "
+                 "of the final value)")
+    return save_figure(fig, out_dir, "study_gains")
 
 
-def observer_study_figure(study: dict, out_dir, formats=FORMATS) -> list[Path]:
+def observer_study_figure(study: dict, out_dir) -> list[Path]:
     """Trade-off of the observer gain: tool-tip error and torque noise against the slowest observer mode."""
     labels, runs = study["labels"], study["runs"]
     ok = [k for k, r in enumerate(runs) if r.get("ok") and study["slowest_mode_rad_s"][k] is not None]
@@ -274,7 +269,7 @@ def observer_study_figure(study: dict, out_dir, formats=FORMATS) -> list[Path]:
     ax.set_yscale("log")
     ax.set_xlabel("slowest observer mode over the workspace (rad/s)")
     ax.set_ylabel("tool-tip error (mm)")
-    ax.set_title(f"What a faster observer buys ({study['t_final_s']:g} s runs)", fontsize=10)
+    ax.set_title(f"What a faster observer buys (disturbance step, {study['t_final_s']:g} s runs)", fontsize=10)
     ax.grid(True, alpha=0.3, which="both")
     ax.legend(fontsize=7)
     ax = axes[1]
@@ -301,4 +296,4 @@ def observer_study_figure(study: dict, out_dir, formats=FORMATS) -> list[Path]:
     ax.set_title("Torque noise per joint", fontsize=10)
     ax.grid(True, alpha=0.3, axis="y", which="both")
     ax.legend(fontsize=7, ncol=2)
-    return save(fig, out_dir, "study_observer", formats)
+    return save_figure(fig, out_dir, "study_observer")

@@ -20,7 +20,8 @@ from ..blocks.scenario import Scenario
 
 __all__ = ["DEFAULT_RANGES", "workspace_grid", "observer_modes", "bandwidth_survey", "along_trajectory"]
 
-# Joint ranges of the default survey grid (rad, rad, m, rad).  The prismatic range spans the
+# Joint ranges and point counts of the default survey grid (rad, rad, m, rad); also the default workspace
+# grid of the analyses (dobkit.analysis.report.AnalysisSettings.workspace_points).  The prismatic range spans the
 # laceration path's depths (about 0.24 m) with a wide margin; revolute joints cover a full turn.
 DEFAULT_RANGES = ((-np.pi, np.pi), (-np.pi, np.pi), (0.10, 0.35), (-np.pi, np.pi))
 DEFAULT_POINTS = (5, 73, 3, 5)
@@ -109,8 +110,11 @@ def bandwidth_survey(scenario: Scenario, Y=None, points=DEFAULT_POINTS, ranges=D
 
         * ``theta2`` (rad), ``eigenvalues`` (rad/s, 4 per theta2, slowest first)
           and ``slowest_direction`` (unit eigenvector per theta2) on the slice;
-        * ``slowest_rad_s``: ``{"min", "max", "q_at_min", "q_at_max"}`` of the
-          slowest mode over the whole grid;
+        * ``slowest_rad_s``: ``{"min", "max", "q_at_min", "q_at_max",
+          "direction_at_min"}`` of the slowest mode over the whole grid (the
+          direction: its unit eigenvector where it is slowest);
+        * ``fastest_rad_s``: ``{"min", "max", "q_at_max", "direction_at_max"}``
+          of the fastest mode;
         * ``ranges_rad_s``: ``[min, max]`` of each mode over the grid;
         * ``sensitivity_rad_s``: per joint, the largest change of any eigenvalue
           along that joint's axis of the grid (zero: ``M`` does not depend on it);
@@ -118,10 +122,11 @@ def bandwidth_survey(scenario: Scenario, Y=None, points=DEFAULT_POINTS, ranges=D
     """
     Y = scenario.observer_gain if Y is None else np.asarray(Y, dtype=float)
     q, axes = workspace_grid(points, ranges)
-    rates, _ = observer_modes(scenario.nominal, Y, q)
+    rates, dirs = observer_modes(scenario.nominal, Y, q)
     rates_r = np.real(rates)
-    slow = rates_r[:, 0]
+    slow, fast = rates_r[:, 0], rates_r[:, -1]
     k_min, k_max = int(np.argmin(slow)), int(np.argmax(slow))
+    k_fast = int(np.argmax(fast))
     shaped = rates_r.reshape(tuple(len(a) for a in axes) + (4,))
     sensitivity = [float(np.max(np.ptp(shaped, axis=j))) for j in range(4)]
 
@@ -138,7 +143,10 @@ def bandwidth_survey(scenario: Scenario, Y=None, points=DEFAULT_POINTS, ranges=D
         "eigenvalues": np.real(line_rates).tolist(),
         "slowest_direction": np.real(line_dirs[:, :, 0]).tolist(),
         "slowest_rad_s": {"min": float(slow[k_min]), "max": float(slow[k_max]),
-                          "q_at_min": q[k_min].tolist(), "q_at_max": q[k_max].tolist()},
+                          "q_at_min": q[k_min].tolist(), "q_at_max": q[k_max].tolist(),
+                          "direction_at_min": np.real(dirs[k_min, :, 0]).tolist()},
+        "fastest_rad_s": {"min": float(fast.min()), "max": float(fast[k_fast]), "q_at_max": q[k_fast].tolist(),
+                          "direction_at_max": np.real(dirs[k_fast, :, -1]).tolist()},
         "ranges_rad_s": [[float(rates_r[:, k].min()), float(rates_r[:, k].max())] for k in range(4)],
         "complex": bool(np.iscomplexobj(rates)),
         "sensitivity_rad_s": dict(zip(("theta1", "theta2", "d3", "theta4"), sensitivity)),
