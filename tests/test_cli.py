@@ -103,3 +103,10 @@ def test_diverging_run_leaves_no_output(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "diverged at t =" in err
     assert not out.exists() and not list(tmp_path.glob(".out.partial-*"))
+
+
+def test_report_refuses_a_missing_sweep_summary_before_any_work(tmp_path, capsys):
+    out = tmp_path / "report"
+    assert main(["report", "--quick", "--sweep", str(tmp_path / "no-such-summary"), "--out", str(out)]) == 2
+    assert "has no summary.json" in capsys.readouterr().err
+    assert not out.exists()

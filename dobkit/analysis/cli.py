@@ -101,7 +101,7 @@ def _cmd_report(args) -> int:
     out = args.out if args.out is not None else default_out_dir(REPORT_PREFIX)
     bar = _progress()
     try:
-        path = write_report(scenario, out, _settings(args), progress=bar)
+        path = write_report(scenario, out, _settings(args), progress=bar, sweep_summaries=args.sweep)
     finally:
         bar.close()
     print(f"report written to {path}")
@@ -117,6 +117,8 @@ def add_analysis_subcommands(subparsers) -> None:
     p = subparsers.add_parser("report", help="simulate and analyze a scenario; writes one self-contained "
                               "report.html (plus analysis.json and the figures)")
     _add_common(p, REPORT_PREFIX)
+    p.add_argument("--sweep", action="append", default=[], metavar="SUMMARY_DIR",
+                   help="include the summary of a 'dobkit sweep' run (its summary folder); may be repeated")
     p.set_defaults(func=_cmd_report)
 
 

@@ -311,8 +311,11 @@ def experiment_metrics(experiment) -> dict:
 
 
 def write_report(scenario: Scenario | str = "paper", out_dir=None, settings: AnalysisSettings = AnalysisSettings(),
-                 progress: Progress | None = None) -> Path:
+                 progress: Progress | None = None, sweep_summaries=()) -> Path:
     """Simulate, analyze and write ``out_dir/report.html`` (plus ``analysis.json``, ``metrics.json`` and figures).
+
+    ``sweep_summaries`` are folders written by ``dobkit sweep`` (``summary.json`` and its figures); each
+    becomes a section of the report.
 
     Returns
     -------
@@ -322,7 +325,12 @@ def write_report(scenario: Scenario | str = "paper", out_dir=None, settings: Ana
     from .experiment import run_experiment
     from .figures import paper_figures
 
+    from .sweep_report import html_section
+
     s = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    for folder in sweep_summaries:           # a missing sweep summary is an error before any work is done
+        if not (Path(folder) / "summary.json").is_file():
+            raise FileNotFoundError(f"sweep summary folder '{folder}' has no summary.json (run 'dobkit sweep' first)")
     target = Path(out_dir)
     staging = staged_output(target)          # refuses a non-empty folder before any work is done
     experiment = run_experiment(s, None, progress=progress, figures=False)
@@ -336,5 +344,6 @@ def write_report(scenario: Scenario | str = "paper", out_dir=None, settings: Ana
         (stage / "analysis.json").write_text(json_text(result))
         (stage / "metrics.json").write_text(json_text(metrics))
         pngs = {p.stem: p for p in files if p.suffix == ".png"}
-        (stage / "report.html").write_text(render_html(result, metrics, s, pngs), encoding="utf-8")
+        sweeps = tuple(html_section(folder) for folder in sweep_summaries)
+        (stage / "report.html").write_text(render_html(result, metrics, s, pngs, sweeps), encoding="utf-8")
     return target / "report.html"

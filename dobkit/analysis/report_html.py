@@ -880,7 +880,8 @@ def _gain_reading(st: dict) -> str:
                   f"Kd = {_f(best_rms[1])})."
 
 
-def render_html(result: dict, experiment: dict, scenario: Scenario, figure_files: dict) -> str:
+def render_html(result: dict, experiment: dict, scenario: Scenario, figure_files: dict,
+                extra_sections: tuple[str, ...] = ()) -> str:
     """The report as one HTML string (figures embedded from the PNG files named in ``figure_files``).
 
     Parameters
@@ -894,6 +895,8 @@ def render_html(result: dict, experiment: dict, scenario: Scenario, figure_files
     scenario : Scenario
     figure_files : dict
         Figure stem -> PNG path; missing figures are left out.
+    extra_sections : tuple of str
+        Ready-made HTML sections appended at the end (for example a sweep summary).
     """
     summary = "".join(f"<li>{esc(line)}</li>" for line in plain_summary(result, experiment, scenario))
     body = (_h(1, f"dobkit analysis report: scenario '{scenario.name}'")
@@ -906,7 +909,7 @@ def render_html(result: dict, experiment: dict, scenario: Scenario, figure_files
             + _section_scenario(scenario, result) + _section_simulation(result, experiment, scenario, figure_files)
             + _section_linear(result, scenario, figure_files) + _section_bandwidth(result, figure_files)
             + _section_design(result, scenario, figure_files) + _section_frequency(result, scenario, figure_files)
-            + _section_studies(result, scenario, figure_files))
+            + _section_studies(result, scenario, figure_files) + "".join(extra_sections))
     title = esc("dobkit report: " + scenario.name)
     return (f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>{title}"
             f"</title><style>{_CSS}</style></head><body>{body}</body></html>\n")

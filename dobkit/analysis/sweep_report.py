@@ -170,12 +170,15 @@ def write_summary(results, out_dir, formats=("png", "svg")) -> dict:
     for name in cols:
         groups.setdefault(name.split("[")[0], []).append(name)
     for metric, names in groups.items():
-        fig, axes = plt.subplots(1, len(names), figsize=(3.2 * len(names), 2.8), squeeze=False)
+        # wide enough for the title of a one-panel figure; few ticks so long numbers do not collide
+        fig, axes = plt.subplots(1, len(names), figsize=(max(3.4 * len(names), 6.0), 2.9), squeeze=False)
         for ax, name in zip(axes[0], names):
             v = cols[name][np.isfinite(cols[name])]
             ax.hist(v, bins=max(5, min(40, int(np.sqrt(max(v.size, 1))) * 2)), color="tab:blue", alpha=0.8)
             ax.set_xlabel(f"{_label(name)} [{column_unit(name)}]")
             ax.set_ylabel("runs")
+            ax.xaxis.set_major_locator(plt.MaxNLocator(4))
+            ax.ticklabel_format(axis="x", style="sci", scilimits=(-3, 4), useOffset=False)
         fig.suptitle(f"Distribution of {metric} over {len(ok)} runs")
         fig.tight_layout()
         files["figures"] += _save(fig, out / f"hist_{metric}", formats)
