@@ -37,15 +37,6 @@ def _step_list(text: str) -> tuple[float, ...]:
     return steps
 
 
-def _figures_module():
-    """dobkit.analysis.figures, or None with the reason when matplotlib is missing."""
-    try:
-        from ..analysis import figures
-    except ImportError as err:
-        return None, str(err)
-    return figures, ""
-
-
 def _cmd_export(args) -> int:
     from ..blocks import load_scenario
     from .export import export_plant
@@ -85,12 +76,9 @@ def _cmd_cosim(args) -> int:
         (stage / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
         (stage / "scenario.toml").write_text(s.to_toml())
         if not args.no_figures:
-            figures, why = _figures_module()
-            if figures is None:
-                figures_note = f"figures: skipped, plotting is unavailable ({why})"
-            else:
-                written = figures.paper_figures(runs["with_dob"], runs["without_dob"], stage)
-                figures_note = f"figures: {len(written)} files (PNG and SVG)"
+            from ..analysis.figures import paper_figures
+            written = paper_figures(runs["with_dob"], runs["without_dob"], stage)
+            figures_note = f"figures: {len(written)} files (PNG and SVG)"
     print(f"co-simulated {args.fmu} (FMI {info['fmi_version']}) with scenario {s.name}, h = {args.step:g} s")
     print(format_rms_table(metrics))
     print(figures_note)
@@ -113,12 +101,8 @@ def _cmd_convergence(args) -> int:
         (stage / "convergence.json").write_text(json.dumps(study, indent=2) + "\n")
         (stage / "scenario.toml").write_text(s.to_toml())
         if not args.no_figures:
-            figures, why = _figures_module()
-            if figures is None:
-                figures_note = f"figure: skipped, plotting is unavailable ({why})"
-            else:
-                convergence_figure(study, stage)
-                figures_note = "figure: convergence.png, convergence.svg"
+            convergence_figure(study, stage)
+            figures_note = "figure: convergence.png, convergence.svg"
     print(f"co-simulation of {args.fmu} (FMI {study['fmi_version']}) against the monolithic loop, scenario "
           f"{s.name}, t_final = {study['t_final']:g} s")
     print("  h (s)      " + "  ".join(f"{n} ({u})".rjust(14) for n, u in study["units"].items()))
