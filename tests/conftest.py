@@ -99,3 +99,20 @@ def paper_params():
     from dobkit.blocks import RobotParameters
 
     return RobotParameters()
+
+
+# A one-second run holding the arm near a fixed pose under the paper disturbance: end-to-end CLI and report
+# tests need a real scenario file but not the 10 s path.
+SHORT_SCENARIO_TOML = """
+name = "short"
+[trajectory]
+kind = "joint_sine"
+amplitude = [0.05, 0.05, 0.005, 0.05]
+omega = 2.0
+offset = [0.0, 2.0, 0.24, 0.0]
+[disturbance]
+kind = "paper"
+[simulation]
+t_final = 1.0
+output_step = 0.01
+"""

@@ -16,7 +16,7 @@ from html.parser import HTMLParser
 import numpy as np
 import pytest
 
-from conftest import PAPER_FR, reference_inertia
+from conftest import PAPER_FR, SHORT_SCENARIO_TOML as SHORT, reference_inertia
 from dobkit.analysis import cli as analysis_cli
 from dobkit.analysis.experiment import run_experiment
 from dobkit.analysis.report import (AnalysisSettings, experiment_metrics, json_text, render_html, run_analysis,
@@ -24,19 +24,6 @@ from dobkit.analysis.report import (AnalysisSettings, experiment_metrics, json_t
 from dobkit.blocks import builtin_scenarios, load_scenario
 from dobkit.cli import main
 
-SHORT = """
-name = "short"
-[trajectory]
-kind = "joint_sine"
-amplitude = [0.05, 0.05, 0.005, 0.05]
-omega = 2.0
-offset = [0.0, 2.0, 0.24, 0.0]
-[disturbance]
-kind = "paper"
-[simulation]
-t_final = 1.0
-output_step = 0.01
-"""
 
 # Small grids and short runs: every analysis, in seconds.
 TINY = AnalysisSettings(mismatch_factors=(0.5, 2.0), boundary_points=5, workspace_points=(2, 13, 1, 2),

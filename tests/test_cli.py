@@ -5,22 +5,9 @@ import json
 import numpy as np
 import pytest
 
+from conftest import SHORT_SCENARIO_TOML as SHORT
 from dobkit.blocks import load_scenario
 from dobkit.cli import main
-
-SHORT = """
-name = "short"
-[trajectory]
-kind = "joint_sine"
-amplitude = [0.05, 0.05, 0.005, 0.05]
-omega = 2.0
-offset = [0.0, 2.0, 0.24, 0.0]
-[disturbance]
-kind = "paper"
-[simulation]
-t_final = 1.0
-output_step = 0.01
-"""
 
 
 @pytest.fixture(scope="module")
