@@ -1,6 +1,6 @@
 """Fast path vs a hand-fused numpy closed loop vs python-control, on one scenario (default: the paper's 10 s run).
 
-    PYTHONPATH=. python benchmarks/bench_fastpath.py [--scenario paper] [--repeats 5] [--proposed] [--json out.json]
+    PYTHONPATH=. python benchmarks/bench_fastpath.py [--scenario paper] [--repeats 9] [--json out.json]
 
 Three ways to get the same response (states and the loop's signals on the output
 grid), all with the scenario's solver settings (paper: RK45, rtol 1e-6, atol 1e-8):
@@ -15,11 +15,6 @@ grid), all with the scenario's solver settings (paper: RK45, rtol 1e-6, atol 1e-
 * ``python-control``: the same call with ``engine="python-control"``
   (:func:`control.input_output_response` on the interconnected system).
 
-With ``--proposed`` it also times the changes proposed in ``benchmarks/proposed/``
-(a plan of direct block calls; outputs evaluated over the whole grid in one
-pass per block) and, as a lower bound, the fast path's integration without its
-output pass.
-
 The paths are timed in turn, ``--repeats`` times.  The machine is shared, so
 each run's CPU time (:func:`time.process_time`) is recorded beside its wall
 time, and the ratio that decides the target is the fastest CPU time of each
@@ -30,7 +25,6 @@ Peak memory is measured separately with :mod:`tracemalloc`.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import os
 import statistics
@@ -43,7 +37,7 @@ from dobkit import blocks
 from dobkit.blocks.disturbances import external_disturbance
 from dobkit.blocks.dynamics import coriolis_vector, gravity, inertia
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))     # _timing and proposed/, run from anywhere
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))     # _timing, run from anywhere
 from _timing import machine, max_rss_mb, peak_memory, summary, table, time_interleaved  # noqa: E402
 
 #: The fast path's target, as a multiple of the hand-fused time (issue "Speed and scale").
@@ -104,60 +98,14 @@ def _signal(resp, name):
     return np.asarray(resp.outputs)[[labels.index(f"{name}[{i}]") for i in range(4)]].T
 
 
-@contextlib.contextmanager
-def _compiled_loop_class(cls):
-    """Run the fast path with another CompiledLoop class (to time a proposed replacement)."""
-    from dobkit.blocks import loop
-    old = loop.CompiledLoop
-    loop.CompiledLoop = cls
-    try:
-        yield
-    finally:
-        loop.CompiledLoop = old
-
-
-def _proposed_fast(s):
-    from proposed.fastsim import PlannedLoop
-    with _compiled_loop_class(PlannedLoop):
-        return blocks.simulate(s, engine="fast")
-
-
-def _proposed_grid_outputs(s):
-    """The fast path with the proposed plan and the vectorised grid-output pass (benchmarks/proposed/)."""
-    from dobkit.blocks import loop
-    from proposed.grid_outputs import integrate_with_grid_outputs
-    old = loop._integrate_compiled
-    loop._integrate_compiled = integrate_with_grid_outputs
-    try:
-        return blocks.simulate(s, engine="fast")
-    finally:
-        loop._integrate_compiled = old
-
-
-def _fast_without_output_pass(s):
-    """The fast path's integration alone: the loop built and integrated on the grid, no outputs evaluated.
-
-    A lower bound for the fast path with a vectorised output pass (see benchmarks/README.md)."""
-    loop = blocks.closed_loop(s)
-    compiled = blocks.CompiledLoop(loop)
-    sim = s.simulation
-    t_grid = sim.time_grid
-    return solve_ivp(compiled.rhs, (0.0, t_grid[-1]), blocks.initial_state(loop, s), method=sim.method,
-                     t_eval=t_grid, rtol=sim.rtol, atol=sim.atol, max_step=sim.max_step)
-
-
-def run(scenario: str = "paper", repeats: int = 5, pc_repeats: int = 3, proposed: bool = False) -> dict:
-    """Time the three paths (and the proposed CompiledLoop) and return the figures (seconds, ratios, MB, agreement)."""
+def run(scenario: str = "paper", repeats: int = 9, pc_repeats: int = 3) -> dict:
+    """Time the three paths and return the figures (seconds, ratios, MB, agreement)."""
     s = blocks.load_scenario(scenario)
     cases = {
         "hand-fused": lambda: hand_fused(s),
         "fast": lambda: blocks.simulate(s, engine="fast"),
         "python-control": lambda: blocks.simulate(s, engine="python-control"),
     }
-    if proposed:
-        cases["fast, proposed CompiledLoop"] = lambda: _proposed_fast(s)
-        cases["fast, proposed plan + grid outputs"] = lambda: _proposed_grid_outputs(s)
-        cases["fast, integration only (no output pass)"] = lambda: _fast_without_output_pass(s)
     # Warm up (imports, caches) and check that all three give the same answer.
     base, fast, pc = (cases[name]() for name in ("hand-fused", "fast", "python-control"))
     agreement = {
@@ -165,11 +113,6 @@ def run(scenario: str = "paper", repeats: int = 5, pc_repeats: int = 3, proposed
         "fast vs python-control, q": float(np.abs(_signal(fast, "q") - _signal(pc, "q")).max()),
         "fast vs python-control, tau": float(np.abs(_signal(fast, "tau") - _signal(pc, "tau")).max()),
     }
-    if proposed:
-        agreement["proposed vs fast, all outputs"] = float(np.abs(np.asarray(_proposed_fast(s).outputs)
-                                                                  - np.asarray(fast.outputs)).max())
-        agreement["grid outputs vs fast, all outputs"] = float(np.abs(
-            np.asarray(_proposed_grid_outputs(s).outputs) - np.asarray(fast.outputs)).max())
     times = time_interleaved(cases, repeats, {"python-control": pc_repeats}, clock="both")
     memory = {name: peak_memory(fn) for name, fn in cases.items()}
     out = {"scenario": scenario, "machine": machine(), "repeats": repeats, "rhs_calls_hand_fused": int(base["nfev"]),
@@ -207,14 +150,11 @@ def report(r: dict) -> str:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--scenario", default="paper")
-    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--repeats", type=int, default=9)
     parser.add_argument("--pc-repeats", type=int, default=3, help="repeats of the (slow) python-control path")
-    parser.add_argument("--proposed", action="store_true",
-                        help="also time benchmarks/proposed/fastsim.py's CompiledLoop in the fast path, and the fast "
-                             "path's integration without its per-point output pass")
     parser.add_argument("--json", help="also write the figures to this JSON file")
     args = parser.parse_args(argv)
-    r = run(args.scenario, args.repeats, args.pc_repeats, args.proposed)
+    r = run(args.scenario, args.repeats, args.pc_repeats)
     print(report(r))
     if args.json:
         with open(args.json, "w", encoding="utf-8") as fh:

@@ -87,26 +87,64 @@ def test_fast_path_equals_a_hand_fused_loop():
         np.testing.assert_allclose(got, fused[name], rtol=1e-9, atol=1e-9, err_msg=name)
 
 
-def test_proposed_loop_plan_and_grid_outputs_reproduce_the_fast_path():
-    """benchmarks/proposed/ (a candidate CompiledLoop) gives the current class's numbers."""
-    import sys
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    try:
-        from proposed.fastsim import PlannedLoop
-        from proposed.grid_outputs import GridLoop, attach_column_outputs
-    finally:
-        sys.path.pop(0)
+def test_outputs_on_grid_equal_the_point_by_point_outputs():
+    """One pass per block over a grid gives each point's outputs (every built-in block, every variant)."""
+    rng = np.random.default_rng(5)
     for scenario, observer in _scenarios().values():
         loop = blocks.closed_loop(scenario, observer=observer)
+        compiled = CompiledLoop(loop)
+        assert compiled.columnwise
         x0 = blocks.initial_state(loop, scenario)
-        current, planned = CompiledLoop(loop), PlannedLoop(loop)
-        attach_column_outputs(loop)
-        grid = GridLoop(loop)
-        rng = np.random.default_rng(5)
-        t = np.array([0.0, 0.05, 0.1])
+        t = np.array([0.0, 0.013, 0.05, 0.1])
         X = x0[:, None] + 0.01 * rng.standard_normal((x0.size, t.size))
-        for k, tk in enumerate(t):
-            np.testing.assert_array_equal(planned.rhs(tk, X[:, k]), current.rhs(tk, X[:, k]))
-            np.testing.assert_array_equal(planned.output(tk, X[:, k]), current.output(tk, X[:, k]))
-        want = np.column_stack([current.output(tk, X[:, k]) for k, tk in enumerate(t)])
-        np.testing.assert_allclose(grid.outputs_on_grid(t, X), want, rtol=1e-12, atol=1e-12)
+        want = np.column_stack([loop.output(tk, X[:, k], []) for k, tk in enumerate(t)])
+        np.testing.assert_allclose(compiled.outputs_on_grid(t, X), want, rtol=1e-12, atol=1e-12)
+
+
+def test_outputs_on_grid_falls_back_to_points_for_a_block_without_columns():
+    s = blocks.load_scenario("paper")
+    loop = blocks.closed_loop(s)
+    for block in loop.syslist:
+        if block.name == "observer":
+            del block.columnwise
+    compiled = CompiledLoop(loop)
+    assert not compiled.columnwise
+    x0 = blocks.initial_state(loop, s)
+    t = np.array([0.0, 0.2])
+    X = np.column_stack([x0, x0 + 0.01])
+    want = np.column_stack([loop.output(tk, X[:, k], []) for k, tk in enumerate(t)])
+    np.testing.assert_allclose(compiled.outputs_on_grid(t, X), want, rtol=1e-12, atol=1e-12)
+    with pytest.raises(ValueError, match="shape"):
+        compiled.outputs_on_grid(t, X[:, :1])
+
+
+def test_right_hand_side_reads_the_plant_states_instead_of_calling_its_output():
+    """The plant's q, dq are declared copies of its states, so a right-hand side never calls its output."""
+    s = blocks.load_scenario("paper").replace(disturbance={"kind": ["paper", "friction", "tissue"]})
+    loop = blocks.closed_loop(s)
+    plant = next(b for b in loop.syslist if b.name == "plant")
+    original, calls = plant.outfcn, []
+    plant.outfcn = lambda *args: calls.append(args) or original(*args)
+    compiled = CompiledLoop(loop)
+    assert "plant" not in compiled.rhs_order and "plant" in compiled.order
+    calls.clear()                                   # the declaration was checked once at construction
+    rng = np.random.default_rng(8)
+    x0 = blocks.initial_state(loop, s)
+    xs = [x0 + 0.01 * rng.standard_normal(x0.size) for _ in range(2)]
+    fast = [compiled.rhs(t, x) for t, x in zip((0.0, 1.7), xs)]
+    assert not calls
+    for t, x, got in zip((0.0, 1.7), xs, fast):
+        np.testing.assert_allclose(got, loop.dynamics(t, x, []), rtol=1e-12, atol=1e-12)
+    assert calls, "python-control evaluates the plant output"
+
+
+def test_a_wrong_state_output_declaration_is_refused():
+    s = blocks.load_scenario("paper")
+    loop = blocks.closed_loop(s)
+    plant = next(b for b in loop.syslist if b.name == "plant")
+    plant.state_outputs = {"q[0]": "q[1]"}
+    with pytest.raises(ValueError, match="plant.*does not return the states"):
+        CompiledLoop(loop)
+    plant.state_outputs = {"q[0]": "theta"}
+    with pytest.raises(ValueError, match="plant.*'theta'|names a signal it does not have"):
+        CompiledLoop(loop)

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from conftest import SKIN_DEFAULT, reference_fk
+from dobkit import blocks
 from dobkit.blocks import JointSine, LacerationPath, RobotParameters, UnreachableError
 
 PAPER = RobotParameters()
@@ -183,3 +184,13 @@ def test_joint_sine_scalar_omega_and_bad_shapes():
         JointSine(amplitude=(0.1, 0.2))
     with pytest.raises(ValueError, match="trajectory.offset"):
         JointSine(offset=(0.0, np.inf, 0.0, 0.0))
+
+
+def test_stacked_references_equal_the_three_parts():
+    path = blocks.load_scenario("paper").trajectory
+    for t in (0.0, 1.234, 9.99):
+        np.testing.assert_array_equal(path.evaluate_stacked(t), np.concatenate(path.evaluate(t)))
+    t = np.linspace(0.0, 10.0, 7)
+    stacked = path.evaluate_stacked(t)
+    assert stacked.shape == (7, 12)
+    np.testing.assert_array_equal(stacked, np.concatenate(path.evaluate(t), axis=-1))

@@ -21,8 +21,25 @@ Which inputs of a block reach its outputs directly is read from the block's
 ``feedthrough`` attribute (a set of input names) when it has one; a block
 without it is assumed to feed every input through, which is always safe but
 may report an algebraic loop that is not there.
+
+A block may declare in ``state_outputs`` (output name -> state name) outputs
+that are copies of its states, as the plant does for ``q[i]``, ``dq[i]``.
+A right-hand side needs only the signals that feed some block input; when all
+of a block's fed signals are such copies, the right-hand side reads them from
+the state and does not call the block's output function at all (the plant's
+``tau_dis`` output feeds nothing, so the disturbance is evaluated once, in the
+plant's update).  The declaration is checked against the output function at a
+test point when the plan is made.
+
+After the solver, the loop's outputs on the time grid are needed.  When every
+block declares ``columnwise = True`` (its output function accepts
+column-stacked signals, see :mod:`dobkit.blocks.systems`),
+:meth:`CompiledLoop.outputs_on_grid` runs the same plan once with (n, T)
+arrays; otherwise it evaluates one grid point at a time.
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -31,6 +48,25 @@ __all__ = ["CompiledLoop", "AlgebraicLoopError"]
 
 class AlgebraicLoopError(RuntimeError):
     """The interconnection has a cycle of direct feedthrough and cannot be ordered."""
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """Direct calls in evaluation order: each step ``(fn, params, state slice, input gather, output slice)``."""
+
+    outputs: list            # every block's output, for the loop's outputs
+    rhs_outputs: list        # only the blocks a right-hand side needs (see CompiledLoop._direct_plan)
+    copy_y: object           # signals read straight from the state in a right-hand side ...
+    copy_x: object           # ... and the states they copy (index arrays or slices)
+    updates: list            # (fn, params, state slice, input gather) of the blocks with states
+    out_index: np.ndarray    # the interconnection's outputs among the signals
+
+
+def _index_or_slice(idx: np.ndarray):
+    """A slice when ``idx`` is a run of consecutive indices (a view instead of a copy), else ``idx``."""
+    if idx.size and np.array_equal(idx, np.arange(idx[0], idx[0] + idx.size)):
+        return slice(int(idx[0]), int(idx[0]) + idx.size)
+    return idx
 
 
 class CompiledLoop:
@@ -45,6 +81,9 @@ class CompiledLoop:
     ----------
     order : list of str
         Names of the blocks in evaluation order.
+    rhs_order : list of str
+        The blocks whose output functions a right-hand side calls, in order
+        (the others' fed signals are copies of states, read from ``x``).
     """
 
     def __init__(self, system) -> None:
@@ -67,6 +106,9 @@ class CompiledLoop:
         self._stateful = [k for k in range(len(blocks)) if blocks[k].nstates > 0]
         self.nstates = int(x_off[-1])
         self._plan = self._direct_plan(C, B, np.asarray(system.output_map, dtype=float))
+        names = {id(b.outfcn): b.name for b in blocks}
+        self.rhs_order = ([names[id(step[0])] for step in self._plan.rhs_outputs] if self._plan is not None
+                          else list(self.order))
 
     def _direct_plan(self, C, B, O):
         """Direct-call plan, or None when some connection is more than a selection of one signal."""
@@ -77,15 +119,54 @@ class CompiledLoop:
             return None
         source = np.argmax(C != 0, axis=1)      # the block output feeding each block input
         blocks = self._blocks
-        outputs = [(blocks[k].outfcn, blocks[k]._current_params, self._slices[k][0], source[self._slices[k][1]],
-                    self._slices[k][2]) for k in self._order]
-        updates = [(blocks[k].updfcn, blocks[k]._current_params, self._slices[k][0], source[self._slices[k][1]])
-                   for k in self._stateful]     # in block order, so their results concatenate into dx
-        return outputs, updates, np.argmax(O != 0, axis=1)
+        gather = [_index_or_slice(source[self._slices[k][1]]) for k in range(len(blocks))]
+        outputs = [(blocks[k].outfcn, blocks[k]._current_params, self._slices[k][0], gather[k], self._slices[k][2])
+                   for k in self._order]
+        # In a right-hand side only the outputs that feed some block input matter.  A block whose fed
+        # outputs are all copies of its states is not called there: those signals are read from x.
+        fed = set(source.tolist())
+        rhs_outputs, copy_y, copy_x = [], [], []
+        for k, step in zip(self._order, outputs):
+            pairs = self._state_output_pairs(k)
+            fed_here = [j for j in range(self._slices[k][2].start, self._slices[k][2].stop) if j in fed]
+            if all(j in pairs for j in fed_here):
+                copy_y += fed_here
+                copy_x += [pairs[j] for j in fed_here]
+            else:
+                rhs_outputs.append(step)
+        updates = [(blocks[k].updfcn, blocks[k]._current_params, self._slices[k][0], gather[k])
+                   for k in self._stateful]
+        return _Plan(outputs, rhs_outputs, _index_or_slice(np.array(copy_y, dtype=int)),
+                     _index_or_slice(np.array(copy_x, dtype=int)), updates, np.argmax(O != 0, axis=1))
 
-    def _planned_signals(self, t, x) -> np.ndarray:
-        y = np.empty(self._n_out_total)
-        for fn, params, xs, idx, ys in self._plan[0]:
+    def _state_output_pairs(self, k: int) -> dict[int, int]:
+        """``{signal index: state index}`` for the outputs block ``k`` declares equal to its states.
+
+        Read from the block's ``state_outputs`` attribute (output name -> state
+        name) and checked once against its output function at a test point.
+        """
+        block = self._blocks[k]
+        declared = getattr(block, "state_outputs", None)
+        if not declared:
+            return {}
+        xs, _, ys = self._slices[k]
+        outs, states = list(block.output_labels), list(block.state_labels)
+        try:
+            rel = {outs.index(o): states.index(x) for o, x in declared.items()}
+        except ValueError:
+            raise ValueError(f"block '{block.name}': state_outputs {dict(declared)} names a signal it does not "
+                             f"have (outputs {outs}, states {states})") from None
+        x_test = 0.1 * np.arange(1, block.nstates + 1)
+        y_test = np.asarray(block.outfcn(0.0, x_test, np.zeros(block.ninputs), block._current_params), dtype=float)
+        if any(y_test[o] != x_test[x] for o, x in rel.items()):
+            raise ValueError(f"block '{block.name}': its output function does not return the states its "
+                             f"state_outputs {dict(declared)} declare")
+        return {ys.start + o: xs.start + x for o, x in rel.items()}
+
+    def _planned_signals(self, t, x, steps=None) -> np.ndarray:
+        # x is (nstates,) with a scalar t, or (nstates, T) with t of shape (T,) for a grid pass
+        y = np.empty((self._n_out_total,) + x.shape[1:])
+        for fn, params, xs, idx, ys in self._plan.outputs if steps is None else steps:
             y[ys] = fn(t, x[xs], y[idx], params)
         return y
 
@@ -146,11 +227,17 @@ class CompiledLoop:
 
     def rhs(self, t: float, x: np.ndarray, u_ext: np.ndarray | None = None) -> np.ndarray:
         """State derivative of the whole loop, each block output evaluated once."""
-        if self._plan is not None and u_ext is None:
-            y = self._planned_signals(t, x)
-            # every output is current now, so each update gathers its inputs once
-            parts = [np.ravel(fn(t, x[xs], y[idx], params)) for fn, params, xs, idx in self._plan[1]]
-            return np.concatenate(parts) if parts else np.zeros(0)
+        plan = self._plan
+        if plan is not None and u_ext is None:
+            y = np.empty(self._n_out_total)
+            y[plan.copy_y] = x[plan.copy_x]
+            for fn, params, xs, idx, ys in plan.rhs_outputs:
+                y[ys] = fn(t, x[xs], y[idx], params)
+            # every fed signal is current now, so each update gathers its inputs once
+            dx = np.empty(self.nstates)
+            for fn, params, xs, idx in plan.updates:
+                dx[xs] = fn(t, x[xs], y[idx], params)
+            return dx
         u_all, _ = self.signals(t, x, u_ext)
         dx = np.empty(self.nstates)
         for k in self._stateful:
@@ -161,7 +248,29 @@ class CompiledLoop:
     def output(self, t: float, x: np.ndarray, u_ext: np.ndarray | None = None) -> np.ndarray:
         """The interconnection's outputs (its ``outlist``) at ``(t, x)``."""
         if self._plan is not None and u_ext is None:
-            return self._planned_signals(t, x)[self._plan[2]]
+            return self._planned_signals(t, x)[self._plan.out_index]
         u_all, y = self.signals(t, x, u_ext)
         u_flat = np.concatenate([u for u in u_all]) if u_all else np.zeros(0)
         return self._output_map @ np.concatenate([y, u_flat])
+
+    @property
+    def columnwise(self) -> bool:
+        """Whether :meth:`outputs_on_grid` evaluates the grid in one pass per block."""
+        return self._plan is not None and all(getattr(b, "columnwise", False) for b in self._blocks)
+
+    def outputs_on_grid(self, t: np.ndarray, X: np.ndarray) -> np.ndarray:
+        """The interconnection's outputs at many times: ``t`` (T,) s, states ``X`` (nstates, T) -> (noutputs, T).
+
+        One pass per block over the whole grid when :attr:`columnwise`, else one
+        :meth:`output` call per time point; the values agree to rounding.
+        """
+        t = np.asarray(t, dtype=float)
+        X = np.asarray(X, dtype=float)
+        if X.shape != (self.nstates, t.size):
+            raise ValueError(f"states must have shape ({self.nstates}, {t.size}) for {t.size} times, got {X.shape}")
+        if self.columnwise:
+            return self._planned_signals(t, X)[self._plan.out_index]
+        out = np.empty((self.system.noutputs, t.size))
+        for k, tk in enumerate(t):
+            out[:, k] = self.output(tk, X[:, k])
+        return out

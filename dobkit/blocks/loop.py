@@ -16,15 +16,14 @@ tolerance.
 """
 from __future__ import annotations
 
-import time as _time
 from typing import Callable
 
 import control as ct
 import numpy as np
-from scipy.integrate import solve_ivp
 
 from .dynamics import coriolis_vector, forward_dynamics, gravity, inertia
 from .fastsim import CompiledLoop
+from .integrate import DivergenceError, SolverFailure, integrate_on_grid
 from .scenario import Scenario, load_scenario
 from .systems import JOINTS, controller, plant, sensor, signal_names, trajectory_block
 from .systems import observer as observer_block
@@ -235,35 +234,22 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
 
 def _integrate_compiled(loop, x0, t_grid, sim, progress):
     compiled = CompiledLoop(loop)
-    t_end = t_grid[-1]
-    last = [0.0, _time.monotonic()]
-
-    def rhs(t, x):
-        if progress is not None and t > last[0] and _time.monotonic() - last[1] > 0.2:
-            last[0], last[1] = t, _time.monotonic()
-            progress(min(1.0, t / t_end))
-        return compiled.rhs(t, x)
-
-    def diverged(t, x):
-        return DIVERGENCE_BOUND - np.max(np.abs(x))
-    diverged.terminal = True
-
-    sol = solve_ivp(rhs, (0.0, t_end), x0, method=sim.method, t_eval=t_grid, rtol=sim.rtol, atol=sim.atol,
-                    max_step=sim.max_step, events=diverged)
     name = loop.scenario.name
-    if sol.status == 1:
-        t_bad = float(sol.t_events[0][0])
-        raise SimulationError(f"scenario '{name}': the loop diverged at t = {t_bad:.6g} s "
-                              f"(a state exceeded {DIVERGENCE_BOUND:g}); no result is returned")
-    if sol.status != 0:
-        t_bad = float(sol.t[-1]) if sol.t.size else 0.0
-        raise SimulationError(f"scenario '{name}': the solver stopped at t = {t_bad:.6g} s of {t_end:g} s: "
-                              f"{sol.message}")
-    _check_finite(t_grid, sol.y, loop.scenario)
-    outputs = np.column_stack([compiled.output(t, sol.y[:, k]) for k, t in enumerate(t_grid)])
+    try:
+        states, _ = integrate_on_grid(compiled.rhs, x0, t_grid, sim.method, rtol=sim.rtol, atol=sim.atol,
+                                      max_step=sim.max_step, bound=DIVERGENCE_BOUND, progress=progress)
+    except DivergenceError as err:
+        raise SimulationError(f"scenario '{name}': the loop diverged at t = {err.time:.6g} s "
+                              f"(a state exceeded {DIVERGENCE_BOUND:g} or became non-finite); "
+                              f"no result is returned") from None
+    except SolverFailure as err:
+        raise SimulationError(f"scenario '{name}': the solver stopped at t = {err.time:.6g} s of "
+                              f"{t_grid[-1]:g} s: {err.reason}") from None
+    _check_finite(t_grid, states, loop.scenario)
+    outputs = compiled.outputs_on_grid(t_grid, states)
     if progress is not None:
         progress(1.0)
-    return sol.y, outputs
+    return states, outputs
 
 
 def _check_finite(t_grid, states, s):

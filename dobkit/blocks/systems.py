@@ -10,6 +10,18 @@ names of different blocks (the true plant and the nominal model would collide).
 Each block also records which of its inputs reach its outputs directly in the
 attribute ``feedthrough`` (a frozenset of input names).  The fast simulation
 path uses it to order the blocks without iterating to a fixed point.
+
+Every output function here also accepts column-stacked signals: ``t`` of
+shape (T,), ``x`` of shape (nstates, T) and ``u`` of shape (ninputs, T) give
+outputs of shape (noutputs, T).  Such blocks carry ``columnwise = True``, and
+the fast path then evaluates a whole time grid in one pass per block instead
+of one pass per grid point.
+
+The controller and the observer share one evaluation of the nominal model per
+right-hand-side call through :mod:`dobkit.blocks.model_cache` (values
+remembered at their last arguments).  The plant declares in ``state_outputs``
+that its outputs ``q[i]``, ``dq[i]`` are its states, so the fast path reads
+them from the state and evaluates the disturbance once, in the plant's update.
 """
 from __future__ import annotations
 
@@ -18,6 +30,7 @@ import numpy as np
 
 from .disturbances import DisturbanceSpec, external_disturbance
 from .dynamics import coriolis_vector, gravity, inertia
+from .model_cache import nominal_terms
 from .parameters import RobotParameters
 
 __all__ = ["plant", "controller", "observer", "trajectory_block", "sensor", "gain_matrix", "signal_names",
@@ -34,6 +47,7 @@ def signal_names(prefix: str) -> list[str]:
 
 def _declare_feedthrough(sys: ct.NonlinearIOSystem, inputs) -> ct.NonlinearIOSystem:
     sys.feedthrough = frozenset(inputs)
+    sys.columnwise = True       # every block of this module; see the module docstring
     return sys
 
 
@@ -73,24 +87,22 @@ def plant(params: RobotParameters, disturbance: DisturbanceSpec | None = None,
         External disturbance models (default: the paper's Eq. 4).
     """
     spec = DisturbanceSpec() if disturbance is None else disturbance
-    def split(x):
-        return x[:JOINTS], x[JOINTS:]
 
     def update(t, x, u, _params):
-        q, dq = split(x)
-        tau_total = u + external_disturbance(t, q, dq, spec, params)
-        rhs = tau_total - coriolis_vector(q, dq, params) - gravity(q, params)
+        q, dq = x[:JOINTS], x[JOINTS:]
+        rhs = u + external_disturbance(t, q, dq, spec, params) - coriolis_vector(q, dq, params) - gravity(q, params)
         return np.concatenate([dq, np.linalg.solve(inertia(q, params), rhs)])
 
     def output(t, x, u, _params):
-        q, dq = split(x)
-        return np.concatenate([q, dq, external_disturbance(t, q, dq, spec, params)])
+        return np.concatenate([x, external_disturbance(t, x[:JOINTS].T, x[JOINTS:].T, spec, params).T])
 
     sys = ct.nlsys(update, output, name=name, inputs=signal_names("tau"),
                    states=signal_names("q") + signal_names("dq"),
                    outputs=signal_names("q") + signal_names("dq") + signal_names("tau_dis"))
     sys.robot_parameters = params
     sys.disturbance_spec = spec
+    # q and dq are the states themselves: the fast path reads them from x instead of calling output
+    sys.state_outputs = {name: name for name in signal_names("q") + signal_names("dq")}
     return _declare_feedthrough(sys, ())
 
 
@@ -124,13 +136,15 @@ def controller(nominal: RobotParameters, kp, kd, use_observer: bool = True,
               for name in signal_names(prefix)]
     if use_observer:
         inputs += signal_names("d_hat")
+    model = nominal_terms(nominal)      # shared with an observer on the same nominal model
 
     def output(t, x, u, _params):
         q_ref, dq_ref, ddq_ref = u[:n], u[n:2 * n], u[2 * n:3 * n]
         q, dq = u[3 * n:4 * n], u[4 * n:5 * n]
-        d_hat = u[5 * n:6 * n] if use_observer else 0.0
         v = ddq_ref + Kd @ (dq_ref - dq) + Kp @ (q_ref - q)
-        return inertia(q, nominal) @ v + coriolis_vector(q, dq, nominal) + gravity(q, nominal) - d_hat
+        M, h = model(q.T, dq.T)
+        tau = M @ v + h if v.ndim == 1 else np.einsum("kij,jk->ik", M, v) + h.T
+        return tau - u[5 * n:6 * n] if use_observer else tau
 
     sys = ct.nlsys(None, output, name=name, inputs=inputs, outputs=signal_names("tau"))
     sys.gains = {"kp": Kp, "kd": Kd}
@@ -162,14 +176,16 @@ def observer(nominal: RobotParameters, gain, variant: str = "correct", measured:
         raise ValueError(f"observer variant {variant!r} is unknown; choose from {list(OBSERVER_VARIANTS)}")
     Y = gain_matrix(gain, "observer", allow_matrix=True)
     n = JOINTS
-    extra = 1.0 if variant == "paper-eq16" else 0.0
+    printed_eq16 = variant == "paper-eq16"
     q_in, dq_in = signal_names("q" + measured), signal_names("dq" + measured)
+    model = nominal_terms(nominal)      # shared with a controller on the same nominal model
 
     def update(t, z, u, _params):
         tau, q, dq = u[:n], u[n:2 * n], u[2 * n:3 * n]
-        d_hat = Y @ dq + z
-        rhs = tau + d_hat - coriolis_vector(q, dq, nominal) - gravity(q, nominal)
-        return -Y @ np.linalg.solve(inertia(q, nominal), rhs) - extra * (Y @ dq)
+        M, h = model(q, dq)
+        Y_dq = Y @ dq
+        dz = -Y @ np.linalg.solve(M, tau + (Y_dq + z) - h)
+        return dz - Y_dq if printed_eq16 else dz
 
     def output(t, z, u, _params):
         return Y @ u[2 * n:3 * n] + z
@@ -188,10 +204,18 @@ def trajectory_block(trajectory, name: str = "trajectory") -> ct.NonlinearIOSyst
     ----------
     trajectory : object
         Anything with ``evaluate(t) -> (q, dq, ddq)`` returning three 4-vectors
-        (see :mod:`dobkit.blocks.trajectory`).
+        for a scalar ``t`` (s) and three (T, 4) arrays for a (T,) array ``t``
+        (see :mod:`dobkit.blocks.trajectory`).  An ``evaluate_stacked(t)``
+        method returning the three side by side, shape ``np.shape(t) + (12,)``,
+        is used instead when present.
     """
+    stacked = getattr(trajectory, "evaluate_stacked", None)
+
     def output(t, x, u, _params):
-        return np.concatenate(trajectory.evaluate(t))
+        if stacked is not None:
+            refs = stacked(t)
+            return refs if refs.ndim == 1 else refs.T
+        return np.concatenate([part.T for part in trajectory.evaluate(t)])
 
     sys = ct.nlsys(None, output, name=name, inputs=0,
                    outputs=signal_names("q_ref") + signal_names("dq_ref") + signal_names("ddq_ref"))
@@ -212,7 +236,7 @@ def sensor(noise, name: str = "sensor") -> ct.NonlinearIOSystem:
 
     def output(t, x, u, _params):
         n_q, n_dq = noise.sample(t)
-        return np.concatenate([u[:n] + n_q, u[n:] + n_dq])
+        return np.concatenate([u[:n] + n_q.T, u[n:] + n_dq.T])
 
     inputs = signal_names("q") + signal_names("dq")
     sys = ct.nlsys(None, output, name=name, inputs=inputs, outputs=signal_names("q_meas") + signal_names("dq_meas"))

@@ -191,8 +191,8 @@ class LacerationPath:
         acc = (ddw * nx * ds ** 2 + tx * dds, ddw * ny * ds ** 2 + ty * dds, -reach * ddb, self.needle_roll * ddb)
         return pos, vel, acc
 
-    def _evaluate_scalar(self, t: float):
-        """Closed-form inverse kinematics and its derivatives for one time, using the arm's structure:
+    def _evaluate_scalar(self, t: float) -> np.ndarray:
+        """``[q_ref, dq_ref, ddq_ref]`` (12,) at one time by closed-form inverse kinematics, using the arm's structure:
         the planar 2x2 block of J has determinant ``a1 a2 sin(theta2)``, ``d3' = -z'`` and
         ``theta4' = theta1' + theta2' - phi'``."""
         (x, y, z, phi), (vx, vy, vz, vphi), (ax, ay, az, aphi) = self._pose_scalar(float(t))
@@ -217,17 +217,15 @@ class LacerationPath:
         bx = ax + a1 * c1 * w1 ** 2 + a2 * c12 * w12 ** 2      # p'' - J' q'
         by = ay + a1 * s1 * w1 ** 2 + a2 * s12 * w12 ** 2
         e1, e2 = planar_solve(bx, by)
-        q = np.array([t1, t2, prm.d1 - prm.d4 - z, t4])
-        dq = np.array([w1, w2, -vz, w12 - vphi])
-        ddq = np.array([e1, e2, -az, e1 + e2 - aphi])
-        return q, dq, ddq
+        return np.array([t1, t2, prm.d1 - prm.d4 - z, t4, w1, w2, -vz, w12 - vphi, e1, e2, -az, e1 + e2 - aphi])
 
     # -- joint space ------------------------------------------------------------------------
     def evaluate(self, t):
         """Joint references ``(q_ref, dq_ref, ddq_ref)`` at time(s) ``t`` (s)."""
         scalar = np.ndim(t) == 0
         if scalar and self._q_near is not None:
-            return self._evaluate_scalar(t)
+            refs = self._evaluate_scalar(t)
+            return refs[:4], refs[4:8], refs[8:]
         pos, vel, acc = self.pose(t)
         q = inverse_kinematics(pos, self.params, self.elbow, q_near=self._q_near)
         J = jacobian(q, self.params)
@@ -236,6 +234,12 @@ class LacerationPath:
         if scalar:
             return q[0], dq[0], ddq[0]
         return q, dq, ddq
+
+    def evaluate_stacked(self, t) -> np.ndarray:
+        """``[q_ref, dq_ref, ddq_ref]`` at time(s) ``t`` (s) in one array, shape ``np.shape(t) + (12,)``."""
+        if np.ndim(t) == 0 and self._q_near is not None:
+            return self._evaluate_scalar(t)
+        return np.concatenate(self.evaluate(t), axis=-1)
 
     def _check_reachable(self, samples: int = 4001) -> None:
         t = np.linspace(0.0, self.duration, samples)
