@@ -210,22 +210,26 @@ class _Accumulator:
         if self.want_tool:
             self.tool_ref = forward_kinematics(self.ref_grid[0], loop.kinematics)[:, :3]      # (n_grid, 3)
         self.kept = {name: np.empty((n_grid, JOINTS, n)) for name in self.signals}
-        vectors = {"q"} | {name for name in self.signals if name not in ("q_ref", "dq_ref", "ddq_ref", "d")}
-        scalars = set()
+        vectors = {"q"} | {name for name in self.signals if name not in ("q_ref", "dq_ref", "ddq_ref")}
         if self.want_d:
-            vectors |= {"ddq", "tau"} | ({"dq"} if loop.has_noise else {"bias_nom"})
-            scalars |= {"c2"} | ({"s2"} if loop.has_noise else set())
-            if loop.observer:
-                vectors.add("d_hat")
+            vectors |= {"d"} | ({"d_hat"} if loop.observer else set())
         self.block = block
         # Grid points first: the reductions over time then run over contiguous memory.
         self.buf = {name: np.empty((block, JOINTS, n)) for name in vectors}
-        self.buf.update({name: np.empty((block, n)) for name in scalars})
         self.index: list[int] = []
+
+    def lumped_disturbance(self, sig: dict) -> np.ndarray:
+        """``d = M^(q) q'' + N^(q, q') q' + G^(q) - tau`` at the true state of one grid point, (4, N)."""
+        nominal = self.loop.nominal
+        bias = nominal.bias(sig["s2"], sig["dq"]) if self.loop.has_noise else sig["bias_nom"]
+        return nominal.mass_times(sig["c2"], sig["ddq"]) + bias - sig["tau"]
 
     def add(self, k: int, sig: dict) -> None:
         """Buffer the signals of grid point ``k``."""
         j = len(self.index)
+        if self.want_d:
+            # over (4, N) here rather than (4, block, N) in flush: contiguous rows, and fewer buffers
+            sig["d"] = self.lumped_disturbance(sig)
         for name, store in self.buf.items():
             store[j] = sig[name]
         self.index.append(k)
@@ -237,7 +241,6 @@ class _Accumulator:
             return
         ks, m = np.array(self.index), len(self.index)
         b = {name: store[:m] for name, store in self.buf.items()}
-        rows = lambda a: np.moveaxis(a, 1, 0)      # noqa: E731  (m, 4, N) -> (4, m, N) for BatchArm
         q = b["q"]                                                                          # (m, 4, N)
         e = self.ref_grid[0][ks][:, :, None] - q
         self.sum_sq_e += np.einsum("mjn,mjn->jn", e, e)
@@ -250,20 +253,15 @@ class _Accumulator:
             dist = np.sqrt(np.einsum("mnk,mnk->mn", diff, diff))                             # (m, N)
             self.sum_sq_tool += np.einsum("mn,mn->n", dist, dist)
             np.maximum(self.max_tool, np.max(dist, axis=0), out=self.max_tool)
-        d = None
-        if self.want_d:
-            nominal = self.loop.nominal
-            bias = rows(nominal.bias(b["s2"], rows(b["dq"]))) if self.loop.has_noise else b["bias_nom"]
-            d = rows(nominal.mass_times(b["c2"], rows(b["ddq"]))) + bias - b["tau"]         # lumped, at the true state
-            if self.loop.observer:
-                ed = d - b["d_hat"]
-                self.sum_sq_ed += np.einsum("mjn,mjn->jn", ed, ed)
-                np.maximum(self.max_ed, np.max(np.abs(ed), axis=0), out=self.max_ed)
+        if self.want_d and self.loop.observer:
+            ed = b["d"] - b["d_hat"]
+            self.sum_sq_ed += np.einsum("mjn,mjn->jn", ed, ed)
+            np.maximum(self.max_ed, np.max(np.abs(ed), axis=0), out=self.max_ed)
         for name, store in self.kept.items():
             if name in ("q_ref", "dq_ref", "ddq_ref"):
                 store[ks] = self.ref_grid[("q_ref", "dq_ref", "ddq_ref").index(name)][ks][:, :, None]
             else:
-                store[ks] = d if name == "d" else b[name]
+                store[ks] = b[name]
         self.index = []
 
     def result(self, failed: np.ndarray) -> tuple[dict, dict]:
