@@ -148,3 +148,48 @@ def test_a_wrong_state_output_declaration_is_refused():
     plant.state_outputs = {"q[0]": "theta"}
     with pytest.raises(ValueError, match="plant.*'theta'|names a signal it does not have"):
         CompiledLoop(loop)
+
+
+def test_a_block_update_returning_a_column_is_accepted_like_python_control_does():
+    lag = ct.nlsys(lambda t, x, u, p: (u - x).reshape(-1, 1), lambda t, x, u, p: x, inputs=["u"], outputs=["y"],
+                   states=["x"], name="lag")
+    src = ct.nlsys(None, lambda t, x, u, p: np.array([np.sin(t)]), inputs=0, outputs=["u"], name="src")
+    loop = ct.interconnect([src, lag], inplist=[], outlist=["y"])
+    compiled = CompiledLoop(loop)
+    np.testing.assert_array_equal(compiled.rhs(0.7, np.array([0.2])), loop.dynamics(0.7, np.array([0.2]), []))
+
+
+def test_rhs_order_names_each_block_even_when_blocks_share_a_function():
+    def same(t, x, u, p):
+        return u
+    a = ct.nlsys(None, same, inputs=["x"], outputs=["y"], name="a")
+    b = ct.nlsys(None, same, inputs=["y"], outputs=["w"], name="b")
+    integ = ct.nlsys(lambda t, x, u, p: u, lambda t, x, u, p: x, inputs=["w"], outputs=["x"], states=1, name="integ")
+    integ.feedthrough = frozenset()                 # its output is its state
+    compiled = CompiledLoop(ct.interconnect([a, b, integ], inplist=[], outlist=["x"]))
+    assert compiled.rhs_order == ["integ", "a", "b"]
+
+
+def test_a_trajectory_without_stacked_evaluation_is_simulated_point_by_point():
+    """A user trajectory that only knows scalar times: the grid pass falls back to one point at a time."""
+    class Hold:
+        def __init__(self, q):
+            self.q = np.asarray(q, dtype=float)
+
+        def evaluate(self, t):
+            if np.ndim(t):
+                raise TypeError("one time at a time")
+            return self.q.copy(), np.zeros(4), np.zeros(4)
+    s = blocks.load_scenario("paper").replace(simulation={"t_final": 0.2})
+    start = s.trajectory.evaluate(0.0)[0]
+    block = blocks.trajectory_block(Hold(start))
+    assert not block.columnwise
+    pcl = blocks.closed_loop(s)
+    parts = [block if b.name == "trajectory" else b for b in pcl.syslist]
+    loop = ct.interconnect(parts, inplist=[], outlist=list(pcl.output_labels))
+    compiled = CompiledLoop(loop)
+    assert not compiled.columnwise
+    t = np.array([0.0, 0.1])
+    X = np.column_stack([blocks.initial_state(pcl, s)] * 2)
+    want = np.column_stack([loop.output(tk, X[:, k], []) for k, tk in enumerate(t)])
+    np.testing.assert_array_equal(compiled.outputs_on_grid(t, X), want)

@@ -46,3 +46,18 @@ def test_blocks_on_equal_parameters_share_one_instance():
     assert nominal_terms(s.nominal) is nominal_terms(s.replace(gains={"kp": 100.0}).nominal)
     other = s.replace(nominal_scale={"m1": 1.1}).nominal
     assert nominal_terms(other) is not nominal_terms(s.nominal)
+
+
+def test_arguments_with_equal_bytes_but_other_meaning_are_not_confused():
+    params = blocks.load_scenario("paper").nominal
+    terms = NominalTerms(params)
+    q = np.array([0.0, 1.0, 0.25, 0.0])
+    dq = np.array([0.1, 0.2, 0.3, 0.4])
+    terms(q, dq)
+    joined = np.concatenate([q, dq])
+    with pytest.raises(ValueError, match="last axis of length 4"):
+        terms(joined[:3], joined[3:])       # the same 64 bytes split 3 + 5: evaluated (and refused), not recalled
+    # integers with the bytes of remembered floats are evaluated as the integers they are
+    as_int = q.view(np.int64)
+    M_int, _ = terms(as_int, np.zeros(4, dtype=np.int64))
+    np.testing.assert_array_equal(M_int, inertia(as_int.astype(float), params))

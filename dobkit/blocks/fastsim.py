@@ -56,6 +56,7 @@ class _Plan:
 
     outputs: list            # every block's output, for the loop's outputs
     rhs_outputs: list        # only the blocks a right-hand side needs (see CompiledLoop._direct_plan)
+    rhs_order: tuple         # their names
     copy_y: object           # signals read straight from the state in a right-hand side ...
     copy_x: object           # ... and the states they copy (index arrays or slices)
     updates: list            # (fn, params, state slice, input gather) of the blocks with states
@@ -106,9 +107,7 @@ class CompiledLoop:
         self._stateful = [k for k in range(len(blocks)) if blocks[k].nstates > 0]
         self.nstates = int(x_off[-1])
         self._plan = self._direct_plan(C, B, np.asarray(system.output_map, dtype=float))
-        names = {id(b.outfcn): b.name for b in blocks}
-        self.rhs_order = ([names[id(step[0])] for step in self._plan.rhs_outputs] if self._plan is not None
-                          else list(self.order))
+        self.rhs_order = list(self._plan.rhs_order) if self._plan is not None else list(self.order)
 
     def _direct_plan(self, C, B, O):
         """Direct-call plan, or None when some connection is more than a selection of one signal."""
@@ -125,7 +124,7 @@ class CompiledLoop:
         # In a right-hand side only the outputs that feed some block input matter.  A block whose fed
         # outputs are all copies of its states is not called there: those signals are read from x.
         fed = set(source.tolist())
-        rhs_outputs, copy_y, copy_x = [], [], []
+        rhs_outputs, rhs_order, copy_y, copy_x = [], [], [], []
         for k, step in zip(self._order, outputs):
             pairs = self._state_output_pairs(k)
             fed_here = [j for j in range(self._slices[k][2].start, self._slices[k][2].stop) if j in fed]
@@ -134,9 +133,10 @@ class CompiledLoop:
                 copy_x += [pairs[j] for j in fed_here]
             else:
                 rhs_outputs.append(step)
+                rhs_order.append(blocks[k].name)
         updates = [(blocks[k].updfcn, blocks[k]._current_params, self._slices[k][0], gather[k])
                    for k in self._stateful]
-        return _Plan(outputs, rhs_outputs, _index_or_slice(np.array(copy_y, dtype=int)),
+        return _Plan(outputs, rhs_outputs, tuple(rhs_order), _index_or_slice(np.array(copy_y, dtype=int)),
                      _index_or_slice(np.array(copy_x, dtype=int)), updates, np.argmax(O != 0, axis=1))
 
     def _state_output_pairs(self, k: int) -> dict[int, int]:
@@ -233,10 +233,13 @@ class CompiledLoop:
             y[plan.copy_y] = x[plan.copy_x]
             for fn, params, xs, idx, ys in plan.rhs_outputs:
                 y[ys] = fn(t, x[xs], y[idx], params)
-            # every fed signal is current now, so each update gathers its inputs once
+            # every fed signal is current now, so each update gathers its inputs once (signals that
+            # feed no block, like the plant's tau_dis, are left unset in this buffer and never read)
             dx = np.empty(self.nstates)
             for fn, params, xs, idx in plan.updates:
-                dx[xs] = fn(t, x[xs], y[idx], params)
+                dx_block = fn(t, x[xs], y[idx], params)
+                # (n, 1) arrays and lists are accepted, as python-control accepts them
+                dx[xs] = dx_block if getattr(dx_block, "ndim", 0) == 1 else np.ravel(dx_block)
             return dx
         u_all, _ = self.signals(t, x, u_ext)
         dx = np.empty(self.nstates)

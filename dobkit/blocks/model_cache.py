@@ -9,8 +9,9 @@ evaluation would give; the blocks stay independent systems that can be used,
 wired and tested on their own.
 
 The remembered arrays are returned read-only: a caller cannot change what the
-next caller receives.  Only one-point calls (1-D arguments) are remembered;
-a grid of columns is evaluated directly.  A remembered value is stored as one
+next caller receives by accident.  Only one-point calls (1-D float64
+arguments) are remembered; a grid of columns, or other dtypes, are evaluated
+directly.  A remembered value is stored as one
 tuple, so threads sharing an instance see either a matching pair or recompute.
 """
 from __future__ import annotations
@@ -23,6 +24,9 @@ from .dynamics import coriolis_vector, gravity, inertia
 from .parameters import RobotParameters
 
 __all__ = ["NominalTerms", "nominal_terms"]
+
+
+_FLOAT64 = np.dtype(np.float64)      # numpy's one float64 dtype object: an identity test is enough
 
 
 def _frozen(value: np.ndarray) -> np.ndarray:
@@ -41,7 +45,7 @@ class NominalTerms:
 
     def __init__(self, params: RobotParameters) -> None:
         self.params = params
-        self._last: tuple[bytes, tuple[np.ndarray, np.ndarray] | None] = (b"", None)
+        self._last: tuple[tuple[bytes, bytes] | None, tuple[np.ndarray, np.ndarray] | None] = (None, None)
 
     def __call__(self, q: np.ndarray, dq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Inertia matrix (kg m^2, kg) and bias forces (N m, N) at joint positions ``q`` and velocities ``dq``.
@@ -58,9 +62,9 @@ class NominalTerms:
             ``N(q, q') q' + G(q)``.
         """
         p = self.params
-        if q.ndim != 1:
+        if q.ndim != 1 or dq.ndim != 1 or q.dtype is not _FLOAT64 or dq.dtype is not _FLOAT64:
             return inertia(q, p), coriolis_vector(q, dq, p) + gravity(q, p)
-        key = q.tobytes() + dq.tobytes()
+        key = (q.tobytes(), dq.tobytes())       # equal bytes of two float64 vectors: equal arguments
         last = self._last
         if last[0] == key:
             return last[1]

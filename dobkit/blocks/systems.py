@@ -11,11 +11,12 @@ Each block also records which of its inputs reach its outputs directly in the
 attribute ``feedthrough`` (a frozenset of input names).  The fast simulation
 path uses it to order the blocks without iterating to a fixed point.
 
-Every output function here also accepts column-stacked signals: ``t`` of
+The output functions here also accept column-stacked signals: ``t`` of
 shape (T,), ``x`` of shape (nstates, T) and ``u`` of shape (ninputs, T) give
-outputs of shape (noutputs, T).  Such blocks carry ``columnwise = True``, and
-the fast path then evaluates a whole time grid in one pass per block instead
-of one pass per grid point.
+outputs of shape (noutputs, T).  Such blocks carry ``columnwise = True`` (the
+trajectory and sensor blocks when the object they wrap evaluates many times
+at once), and the fast path then evaluates a whole time grid in one pass per
+block instead of one pass per grid point.
 
 The controller and the observer share one evaluation of the nominal model per
 right-hand-side call through :mod:`dobkit.blocks.model_cache` (values
@@ -31,6 +32,7 @@ import numpy as np
 from .disturbances import DisturbanceSpec, external_disturbance
 from .dynamics import coriolis_vector, gravity, inertia
 from .model_cache import nominal_terms
+from .noise import MeasurementNoise
 from .parameters import RobotParameters
 
 __all__ = ["plant", "controller", "observer", "trajectory_block", "sensor", "gain_matrix", "signal_names",
@@ -45,9 +47,9 @@ def signal_names(prefix: str) -> list[str]:
     return [f"{prefix}[{i}]" for i in range(JOINTS)]
 
 
-def _declare_feedthrough(sys: ct.NonlinearIOSystem, inputs) -> ct.NonlinearIOSystem:
+def _declare_feedthrough(sys: ct.NonlinearIOSystem, inputs, columnwise: bool = True) -> ct.NonlinearIOSystem:
     sys.feedthrough = frozenset(inputs)
-    sys.columnwise = True       # every block of this module; see the module docstring
+    sys.columnwise = columnwise     # see the module docstring
     return sys
 
 
@@ -204,10 +206,10 @@ def trajectory_block(trajectory, name: str = "trajectory") -> ct.NonlinearIOSyst
     ----------
     trajectory : object
         Anything with ``evaluate(t) -> (q, dq, ddq)`` returning three 4-vectors
-        for a scalar ``t`` (s) and three (T, 4) arrays for a (T,) array ``t``
-        (see :mod:`dobkit.blocks.trajectory`).  An ``evaluate_stacked(t)``
-        method returning the three side by side, shape ``np.shape(t) + (12,)``,
-        is used instead when present.
+        for a scalar time ``t`` (s) (see :mod:`dobkit.blocks.trajectory`).
+        When it also has ``evaluate_stacked(t)``, returning the three side by
+        side with shape ``np.shape(t) + (12,)`` for a scalar or a (T,) array of
+        times, that is used instead and the block is ``columnwise``.
     """
     stacked = getattr(trajectory, "evaluate_stacked", None)
 
@@ -215,12 +217,12 @@ def trajectory_block(trajectory, name: str = "trajectory") -> ct.NonlinearIOSyst
         if stacked is not None:
             refs = stacked(t)
             return refs if refs.ndim == 1 else refs.T
-        return np.concatenate([part.T for part in trajectory.evaluate(t)])
+        return np.concatenate(trajectory.evaluate(t))
 
     sys = ct.nlsys(None, output, name=name, inputs=0,
                    outputs=signal_names("q_ref") + signal_names("dq_ref") + signal_names("ddq_ref"))
     sys.trajectory = trajectory
-    return _declare_feedthrough(sys, ())
+    return _declare_feedthrough(sys, (), columnwise=stacked is not None)
 
 
 def sensor(noise, name: str = "sensor") -> ct.NonlinearIOSystem:
@@ -230,7 +232,8 @@ def sensor(noise, name: str = "sensor") -> ct.NonlinearIOSystem:
     ----------
     noise : object
         Anything with ``sample(t) -> (n_q, n_dq)`` returning two 4-vectors
-        (see :class:`dobkit.blocks.noise.MeasurementNoise`).
+        (see :class:`dobkit.blocks.noise.MeasurementNoise`, which also takes a
+        (T,) array of times and makes the block ``columnwise``).
     """
     n = JOINTS
 
@@ -240,4 +243,5 @@ def sensor(noise, name: str = "sensor") -> ct.NonlinearIOSystem:
 
     inputs = signal_names("q") + signal_names("dq")
     sys = ct.nlsys(None, output, name=name, inputs=inputs, outputs=signal_names("q_meas") + signal_names("dq_meas"))
-    return _declare_feedthrough(sys, inputs)
+    # a grid of times at once is part of MeasurementNoise's contract, not of any object with sample(t)
+    return _declare_feedthrough(sys, inputs, columnwise=isinstance(noise, MeasurementNoise))

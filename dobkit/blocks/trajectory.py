@@ -284,3 +284,7 @@ class JointSine:
         a, w, c = (np.array(v) for v in (self.amplitude, self.omega, self.offset))
         phase = t[..., None] * w
         return c + a * np.sin(phase), a * w * np.cos(phase), -a * w ** 2 * np.sin(phase)
+
+    def evaluate_stacked(self, t) -> np.ndarray:
+        """``[q_ref, dq_ref, ddq_ref]`` at time(s) ``t`` (s) in one array, shape ``np.shape(t) + (12,)``."""
+        return np.concatenate(self.evaluate(t), axis=-1)
