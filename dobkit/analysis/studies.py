@@ -35,12 +35,11 @@ noise through ``Y``.
 """
 from __future__ import annotations
 
-from concurrent.futures import ProcessPoolExecutor
-
 import numpy as np
 
 from ..blocks import SimulationError, closed_loop, forward_kinematics, simulate
 from ..blocks.scenario import Scenario
+from ..blocks.workers import worker_pool
 from .linear import equilibrium, hold_scenario
 from .metrics import signal
 
@@ -181,7 +180,7 @@ def _run(job) -> dict:
 def _map(jobs, workers: int) -> list:
     if workers <= 1 or len(jobs) <= 1:
         return [_run(j) for j in jobs]
-    with ProcessPoolExecutor(max_workers=min(workers, len(jobs))) as pool:
+    with worker_pool(min(workers, len(jobs))) as pool:
         return list(pool.map(_run, jobs))
 
 

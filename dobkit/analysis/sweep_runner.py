@@ -22,13 +22,14 @@ import math
 import os
 import sys
 import time
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable
 
 from ..blocks.batch import Variants, noise_breakpoints, simulate_batch
 from ..blocks.scenario import Scenario, scenario_from_dict
+from ..blocks.workers import worker_pool
 from .sweep import (Run, SweepError, SweepSpec, apply_changes, json_default, load_sweep, scenario_changes,
                     split_changes)
 
@@ -273,7 +274,7 @@ def run_sweep(spec: SweepSpec | str | Path, results: str | Path, scheduler: str 
 
 
 def _run_processes(payloads: list[dict], workers: int, take) -> None:
-    with ProcessPoolExecutor(max_workers=min(workers, len(payloads))) as pool:
+    with worker_pool(min(workers, len(payloads))) as pool:
         todo = iter(payloads)
         running = {pool.submit(simulate_chunk, p) for p in itertools.islice(todo, workers)}
         while running:            # keep at most one batch per worker in flight: memory stays bounded
