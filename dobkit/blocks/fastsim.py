@@ -7,7 +7,7 @@ the loop up to ``len(syslist) + 1`` times per call).  For a loop without an
 algebraic cycle one pass in dependency order suffices.  :class:`CompiledLoop`
 derives that order once from the interconnected system itself -- its
 ``syslist``, ``connect_map``, ``input_map`` and ``output_map`` -- and then
-evaluates each block's output exactly once per right-hand-side call.  Nothing
+evaluates each block's output at most once per right-hand-side call.  Nothing
 about the loop is written a second time: the blocks' own update and output
 functions are called.
 
@@ -20,7 +20,11 @@ interconnections take the general path with the connection matrices.
 Which inputs of a block reach its outputs directly is read from the block's
 ``feedthrough`` attribute (a set of input names) when it has one; a block
 without it is assumed to feed every input through, which is always safe but
-may report an algebraic loop that is not there.
+may report an algebraic loop that is not there.  The declaration is trusted,
+not checked: a block that declares too little would be evaluated before an
+input it reads is current (the blocks of :mod:`dobkit.blocks.systems` are
+tested against python-control's own evaluation, an FMU's come from its model
+description).
 
 A block may declare in ``state_outputs`` (output name -> state name) outputs
 that are copies of its states, as the plant does for ``q[i]``, ``dq[i]``.
