@@ -144,8 +144,12 @@ def controller(nominal: RobotParameters, kp, kd, use_observer: bool = True,
         q_ref, dq_ref, ddq_ref = u[:n], u[n:2 * n], u[2 * n:3 * n]
         q, dq = u[3 * n:4 * n], u[4 * n:5 * n]
         v = ddq_ref + Kd @ (dq_ref - dq) + Kp @ (q_ref - q)
-        M, h = model(q.T, dq.T)
-        tau = M @ v + h if v.ndim == 1 else np.einsum("kij,jk->ik", M, v) + h.T
+        if u.ndim == 1:
+            M, h = model(q, dq)
+            tau = M @ v + h
+        else:                                   # columns (T on the last axis) for a grid pass
+            M, h = model(q.T, dq.T)
+            tau = np.einsum("kij,jk->ik", M, v) + h.T
         return tau - u[5 * n:6 * n] if use_observer else tau
 
     sys = ct.nlsys(None, output, name=name, inputs=inputs, outputs=signal_names("tau"))
