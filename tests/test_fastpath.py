@@ -193,3 +193,16 @@ def test_a_trajectory_without_stacked_evaluation_is_simulated_point_by_point():
     X = np.column_stack([blocks.initial_state(pcl, s)] * 2)
     want = np.column_stack([loop.output(tk, X[:, k], []) for k, tk in enumerate(t)])
     np.testing.assert_array_equal(compiled.outputs_on_grid(t, X), want)
+
+
+def test_a_block_output_returning_a_column_is_accepted_like_python_control_does():
+    src = ct.nlsys(None, lambda t, x, u, p: np.array([[np.sin(t)], [np.cos(t)]]), inputs=0, outputs=["a", "b"],
+                   name="src")
+    integ = ct.nlsys(lambda t, x, u, p: u - x, lambda t, x, u, p: x.reshape(-1, 1), inputs=["a", "b"],
+                     outputs=["ya", "yb"], states=2, name="integ")
+    integ.feedthrough = frozenset()
+    loop = ct.interconnect([src, integ], inplist=[], outlist=["ya", "yb", "a"])
+    compiled = CompiledLoop(loop)
+    x = np.array([0.2, 0.3])
+    np.testing.assert_array_equal(compiled.rhs(0.4, x), loop.dynamics(0.4, x, []))
+    np.testing.assert_array_equal(compiled.output(0.4, x), loop.output(0.4, x, []))

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from dobkit.blocks.integrate import SOLVERS, DivergenceError, SolverFailure, integrate_on_grid
+from dobkit.blocks.integrate import SOLVERS, DivergenceError, SolverFailure, _crossing_time, integrate_on_grid
 
 
 def _oscillator(t, x):
@@ -81,3 +81,15 @@ def test_progress_reaches_one_or_is_not_called_for_a_short_run():
 def test_solver_names_are_scipy_solvers():
     from scipy.integrate import OdeSolver
     assert all(issubclass(cls, OdeSolver) for cls in SOLVERS.values())
+
+
+def test_the_first_crossing_in_a_step_is_reported():
+    """A step whose interpolant leaves the bound at 0.1 s, comes back at 0.3 s and leaves again at 0.8 s."""
+    class Step:                         # the three things _crossing_time reads of a solver after a step
+        t_old, t = 0.0, 1.0
+        y = np.array([1.0 + 10 * 0.9 * 0.7 * 0.2])
+
+        @staticmethod
+        def dense_output():
+            return lambda t: np.array([1.0 + 10 * (t - 0.1) * (t - 0.3) * (t - 0.8)])
+    assert _crossing_time(Step, 1.0) == pytest.approx(0.1, abs=1e-9)

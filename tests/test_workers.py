@@ -1,6 +1,7 @@
 """Worker processes end with the process that started them, even when it is killed outright."""
 from __future__ import annotations
 
+import multiprocessing
 import os
 import signal
 import subprocess
@@ -24,9 +25,16 @@ def _alive(pid: int) -> bool:
         return False
 
 
-def test_pool_runs_work():
-    with worker_pool(2) as pool:
+@pytest.mark.parametrize("method", multiprocessing.get_all_start_methods())
+def test_pool_runs_work_with_every_start_method(method):
+    # with "forkserver" a worker's parent is the fork server, not this process: it must not take that for an exit
+    with worker_pool(2, multiprocessing.get_context(method)) as pool:
         assert list(pool.map(abs, [-1, -2, 3])) == [1, 2, 3]
+        time.sleep(1.5)                             # three parent checks
+        assert list(pool.map(abs, [-4])) == [4]
+
+
+def test_bad_pool_size():
     with pytest.raises(ValueError, match="max_workers"):
         worker_pool(0)
 

@@ -167,11 +167,13 @@ class CompiledLoop:
                              f"state_outputs {dict(declared)} declare")
         return {ys.start + o: xs.start + x for o, x in rel.items()}
 
-    def _planned_signals(self, t, x, steps=None) -> np.ndarray:
+    def _planned_signals(self, t, x) -> np.ndarray:
         # x is (nstates,) with a scalar t, or (nstates, T) with t of shape (T,) for a grid pass
         y = np.empty((self._n_out_total,) + x.shape[1:])
-        for fn, params, xs, idx, ys in self._plan.outputs if steps is None else steps:
-            y[ys] = fn(t, x[xs], y[idx], params)
+        one_point = x.ndim == 1
+        for fn, params, xs, idx, ys in self._plan.outputs:
+            out = fn(t, x[xs], y[idx], params)
+            y[ys] = out if not one_point or getattr(out, "ndim", 0) == 1 else np.ravel(out)
         return y
 
     @staticmethod
@@ -236,7 +238,8 @@ class CompiledLoop:
             y = np.empty(self._n_out_total)
             y[plan.copy_y] = x[plan.copy_x]
             for fn, params, xs, idx, ys in plan.rhs_outputs:
-                y[ys] = fn(t, x[xs], y[idx], params)
+                out = fn(t, x[xs], y[idx], params)
+                y[ys] = out if getattr(out, "ndim", 0) == 1 else np.ravel(out)
             # every fed signal is current now, so each update gathers its inputs once (signals that
             # feed no block, like the plant's tau_dis, are left unset in this buffer and never read)
             dx = np.empty(self.nstates)

@@ -26,6 +26,10 @@ __all__ = ["SOLVERS", "integrate_on_grid", "DivergenceError", "SolverFailure"]
 SOLVERS = {name: getattr(scipy.integrate, name) for name in ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA")}
 
 
+# Points of a step's dense output searched for the first crossing of the bound (only when a step crossed it).
+_CROSSING_SAMPLES = 33
+
+
 class DivergenceError(RuntimeError):
     """A state left the bound (or became non-finite) at time :attr:`time` (s)."""
 
@@ -83,9 +87,10 @@ def integrate_on_grid(fun: Callable[[float, np.ndarray], np.ndarray], x0, t_grid
     if t_grid.ndim != 1 or t_grid.size < 2 or not np.all(np.isfinite(t_grid)) or np.any(np.diff(t_grid) <= 0):
         raise ValueError("t_grid must be at least two finite, increasing times")
     t0, t_end = float(t_grid[0]), float(t_grid[-1])
-    if not np.abs(np.asarray(x0, dtype=float)).max(initial=0.0) <= bound:
+    x0 = np.asarray(x0, dtype=float)
+    if not np.all(np.isfinite(x0)) or not np.abs(x0).max(initial=0.0) <= bound:
         raise DivergenceError(t0, bound)
-    solver = SOLVERS[method](fun, t0, np.asarray(x0, dtype=float), t_end, vectorized=False, rtol=rtol, atol=atol,
+    solver = SOLVERS[method](fun, t0, x0, t_end, vectorized=False, rtol=rtol, atol=atol,
                              max_step=max_step)
     states = np.empty((solver.n, t_grid.size))
     done = 0                                    # grid points filled (the first one too from the first step)
@@ -119,8 +124,12 @@ def _crossing_time(solver, bound: float) -> float:
         return t_new
     dense = solver.dense_output()
     margin = lambda t: bound - np.abs(dense(t)).max()     # noqa: E731  > 0 inside the bound
-    if not margin(t_old) > 0.0:
+    # the first sample of the step at or beyond the bound brackets the first crossing
+    samples = np.linspace(t_old, t_new, _CROSSING_SAMPLES)
+    inside = np.array([margin(t) > 0.0 for t in samples])
+    if not inside[0]:
         return t_old
-    if not margin(t_new) < 0.0:        # the interpolant ends a rounding error inside: no bracket
+    if inside.all():                   # the interpolant ends a rounding error inside: no bracket
         return t_new
-    return float(scipy.optimize.brentq(margin, t_old, t_new, xtol=1e-12 * max(1.0, abs(t_new))))
+    k = int(np.argmin(inside))
+    return float(scipy.optimize.brentq(margin, samples[k - 1], samples[k], xtol=1e-12 * max(1.0, abs(t_new))))

@@ -247,5 +247,5 @@ def sensor(noise, name: str = "sensor") -> ct.NonlinearIOSystem:
 
     inputs = signal_names("q") + signal_names("dq")
     sys = ct.nlsys(None, output, name=name, inputs=inputs, outputs=signal_names("q_meas") + signal_names("dq_meas"))
-    # a grid of times at once is part of MeasurementNoise's contract, not of any object with sample(t)
-    return _declare_feedthrough(sys, inputs, columnwise=isinstance(noise, MeasurementNoise))
+    # a grid of times at once is part of MeasurementNoise.sample's contract, not of any object with sample(t)
+    return _declare_feedthrough(sys, inputs, columnwise=getattr(type(noise), "sample", None) is MeasurementNoise.sample)

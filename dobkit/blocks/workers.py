@@ -27,12 +27,23 @@ def _exit_with_parent(parent_pid: int) -> None:
     os._exit(1)
 
 
-def _watch_parent(parent_pid: int) -> None:
-    threading.Thread(target=_exit_with_parent, args=(parent_pid,), name="dobkit-parent-watch", daemon=True).start()
+def _watch_parent() -> None:
+    # The parent is whoever started this worker: the pool's process with "fork" and "spawn", the
+    # multiprocessing fork server with "forkserver" (which itself ends when the pool's process does).
+    threading.Thread(target=_exit_with_parent, args=(os.getppid(),), name="dobkit-parent-watch",
+                     daemon=True).start()
 
 
-def worker_pool(max_workers: int) -> ProcessPoolExecutor:
-    """A :class:`~concurrent.futures.ProcessPoolExecutor` of ``max_workers`` (>= 1) processes that end with this one."""
+def worker_pool(max_workers: int, mp_context=None) -> ProcessPoolExecutor:
+    """A :class:`~concurrent.futures.ProcessPoolExecutor` of ``max_workers`` (>= 1) processes that end with this one.
+
+    Parameters
+    ----------
+    max_workers : int
+        Number of worker processes.
+    mp_context : multiprocessing context, optional
+        Start method (``multiprocessing.get_context("spawn")``, ...); default: Python's.
+    """
     if max_workers < 1:
         raise ValueError(f"max_workers must be >= 1, got {max_workers}")
-    return ProcessPoolExecutor(max_workers=max_workers, initializer=_watch_parent, initargs=(os.getpid(),))
+    return ProcessPoolExecutor(max_workers=max_workers, mp_context=mp_context, initializer=_watch_parent)

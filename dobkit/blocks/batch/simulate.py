@@ -17,8 +17,8 @@ from .arm import BatchArm, batched_constants
 from .schedule import auto_substeps, batch_schedule
 from .variants import Variants
 
-__all__ = ["METRICS", "SIGNALS", "STATE_ATOL", "STATE_ATOL_CONTACT", "STATE_ERROR", "METRIC_RTOL", "METRIC_ATOL", "BatchResult",
-           "simulate_batch"]
+__all__ = ["METRICS", "SIGNALS", "STATE_ATOL", "STATE_ATOL_CONTACT", "STATE_ERROR", "METRIC_RTOL", "METRIC_ATOL",
+           "BatchResult", "simulate_batch"]
 
 #: Metrics :func:`simulate_batch` can accumulate; the names and definitions of
 #: :func:`dobkit.analysis.metrics.tracking_metrics` (per joint: rad, rad, m, rad;
@@ -197,9 +197,10 @@ class _BatchLoop:
 class _Accumulator:
     """Running metrics and kept signals at the output grid points.
 
-    The loop's signals at grid points are buffered and reduced every
-    ``block`` points, so that kinematics and the lumped disturbance are
-    evaluated over (4, block, N) arrays rather than once per grid point.
+    The lumped disturbance is computed at each grid point over contiguous
+    (4, N) rows; the signals are buffered and reduced every ``block`` points,
+    so that the forward kinematics run over (block, N) arrays rather than
+    once per grid point.
     """
 
     def __init__(self, loop: _BatchLoop, metrics, signals, n_grid: int, ref_grid, block: int = 64) -> None:
