@@ -7,8 +7,11 @@ the package against numbers it did not produce.
 from __future__ import annotations
 
 import copy
+import importlib.util
+import sys
 import tomllib
 from importlib import resources
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -116,3 +119,16 @@ kind = "paper"
 t_final = 1.0
 output_step = 0.01
 """
+
+
+def load_benchmark(name: str):
+    """A script of benchmarks/ imported as a module (its own folder on the path while it loads, for _timing)."""
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.path.insert(0, str(path.parent))
+    try:
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(str(path.parent))
+    return module

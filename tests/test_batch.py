@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import load_benchmark
 
 from dobkit import blocks
 from dobkit.analysis.metrics import signal, tracking_metrics
@@ -203,29 +204,13 @@ def test_processes_give_the_single_process_result(short):
     assert two.steps == one.steps and len(two) == 4
 
 
-def _benchmark_draws(n: int) -> dict:
-    """The Monte Carlo columns of benchmarks/bench_batch.py (``paper_variants``)."""
-    import importlib.util
-    import sys
-    from pathlib import Path
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_batch.py"
-    spec = importlib.util.spec_from_file_location("bench_batch", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.path.insert(0, str(path.parent))
-    try:
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(str(path.parent))
-    return module.paper_variants(n)
-
-
 def test_full_paper_runs_match_single_runs_and_a_tight_reference():
     """Over the paper's 10 s: within STATE_ATOL of the single run, and within STATE_ERROR of DOP853 at rtol 1e-11.
 
     Besides the paper scenario itself, the members are the two of the benchmark's first 20 Monte Carlo draws whose
     single runs erred most against the tight reference (1.2e-6 and 1.45e-6; draws 4 and 9)."""
     s = blocks.load_scenario("paper")
-    cols = _benchmark_draws(20)
+    cols = load_benchmark("bench_batch").paper_variants(20)
     records = [{}] + [{key: value[i] for key, value in cols.items()} for i in (4, 9)]
     result = simulate_batch(s, records, signals=("q",))
     for i in range(len(records)):

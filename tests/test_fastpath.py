@@ -1,12 +1,10 @@
 """The fast simulation path gives the numbers of control.input_output_response on the same interconnected system."""
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import control as ct
 import numpy as np
 import pytest
+from conftest import load_benchmark
 
 from dobkit import blocks
 from dobkit.blocks.fastsim import AlgebraicLoopError, CompiledLoop
@@ -69,15 +67,7 @@ def test_a_feedthrough_cycle_is_reported():
 
 
 def test_fast_path_equals_a_hand_fused_loop():
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_fastpath.py"
-    spec = importlib.util.spec_from_file_location("bench_fastpath", path)
-    module = importlib.util.module_from_spec(spec)
-    import sys
-    sys.path.insert(0, str(path.parent))
-    try:
-        spec.loader.exec_module(module)
-    finally:
-        sys.path.remove(str(path.parent))
+    module = load_benchmark("bench_fastpath")
     s = blocks.load_scenario("paper").replace(simulation=SHORT, trajectory={"duration": 10.0})
     fused = module.hand_fused(s)
     fast = blocks.simulate(s)
