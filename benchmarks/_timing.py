@@ -67,3 +67,13 @@ def table(header: list[str], rows: list[list[str]]) -> str:
     widths = [max(len(str(x)) for x in col) for col in zip(header, *rows)]
     fmt = lambda row: "| " + " | ".join(str(x).ljust(w) for x, w in zip(row, widths)) + " |"  # noqa: E731
     return "\n".join([fmt(header), "|" + "|".join("-" * (w + 2) for w in widths) + "|"] + [fmt(r) for r in rows])
+
+
+def print_and_save(text: str, figures: dict, json_path: str | None) -> int:
+    """Print a benchmark's report and, when asked, write its figures as JSON; the scripts' exit status (0)."""
+    import json
+    print(text)
+    if json_path:
+        with open(json_path, "w", encoding="utf-8") as fh:
+            json.dump(figures, fh, indent=2)
+    return 0

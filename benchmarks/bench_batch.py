@@ -14,7 +14,6 @@ shows N times one single run of the fast path (timed once).
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -25,7 +24,7 @@ from dobkit import blocks
 from dobkit.blocks.batch import Variants, simulate_batch
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))     # _timing, run from anywhere
-from _timing import machine, max_rss_mb, peak_memory, summary, table, time_interleaved  # noqa: E402
+from _timing import print_and_save, machine, max_rss_mb, peak_memory, summary, table, time_interleaved  # noqa: E402
 
 #: Target (s) for 1000 variants on the 2-core machine (issue "Speed and scale").
 TARGET_SECONDS = 3.0
@@ -101,11 +100,7 @@ def main(argv=None) -> int:
     parser.add_argument("--json", help="also write the figures to this JSON file")
     args = parser.parse_args(argv)
     r = run(args.members, args.repeats, args.scenario)
-    print(report(r))
-    if args.json:
-        with open(args.json, "w", encoding="utf-8") as fh:
-            json.dump(r, fh, indent=2)
-    return 0
+    return print_and_save(report(r), r, args.json)
 
 
 if __name__ == "__main__":

@@ -25,7 +25,6 @@ Peak memory is measured separately with :mod:`tracemalloc`.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import statistics
 import sys
@@ -38,7 +37,7 @@ from dobkit.blocks.disturbances import external_disturbance
 from dobkit.blocks.dynamics import coriolis_vector, gravity, inertia
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))     # _timing, run from anywhere
-from _timing import machine, max_rss_mb, peak_memory, summary, table, time_interleaved  # noqa: E402
+from _timing import print_and_save, machine, max_rss_mb, peak_memory, summary, table, time_interleaved  # noqa: E402
 
 #: The fast path's target, as a multiple of the hand-fused time (issue "Speed and scale").
 TARGET_RATIO = 1.3
@@ -155,11 +154,7 @@ def main(argv=None) -> int:
     parser.add_argument("--json", help="also write the figures to this JSON file")
     args = parser.parse_args(argv)
     r = run(args.scenario, args.repeats, args.pc_repeats)
-    print(report(r))
-    if args.json:
-        with open(args.json, "w", encoding="utf-8") as fh:
-            json.dump(r, fh, indent=2)
-    return 0
+    return print_and_save(report(r), r, args.json)
 
 
 if __name__ == "__main__":

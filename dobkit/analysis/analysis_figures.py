@@ -25,6 +25,13 @@ _JOINT_TITLES = ("Joint 1 (theta1)", "Joint 2 (theta2)", "Joint 3 (d3, prismatic
 _BLOCK_COLORS = {"plant": "tab:blue", "observer": "tab:orange"}
 
 
+def _finish(ax, title: str, which: str = "both", axis: str = "both", **legend) -> None:
+    """The title, light grid and small legend every analysis panel carries."""
+    ax.set_title(title, fontsize=10)
+    ax.grid(True, alpha=0.3, which=which, axis=axis)
+    ax.legend(**{"fontsize": 8, **legend})
+
+
 def pole_figure(operating_points: list, out_dir) -> list[Path]:
     """Closed-loop poles: complex plane of the first operating point, decay rates of all of them."""
     fig, axes = plt.subplots(1, 2, figsize=(13, 4.8), constrained_layout=True,
@@ -43,9 +50,7 @@ def pole_figure(operating_points: list, out_dir) -> list[Path]:
     ax.axvline(0, color="gray", lw=0.8)
     ax.set_xlabel("real part (rad/s, symlog scale)")
     ax.set_ylabel("imaginary part (rad/s)")
-    ax.set_title(f"Poles at {first.get('label', 'the first operating point')}", fontsize=10)
-    ax.grid(True, alpha=0.3, which="both")
-    ax.legend(fontsize=8)
+    _finish(ax, f"Poles at {first.get('label', 'the first operating point')}")
     ax = axes[1]
     rows = []
     for op in operating_points:
@@ -62,9 +67,7 @@ def pole_figure(operating_points: list, out_dir) -> list[Path]:
     ax.invert_yaxis()
     ax.set_xscale("log")
     ax.set_xlabel("decay rate -Re(pole) (rad/s, log scale)")
-    ax.set_title("Decay rates at every operating point", fontsize=10)
-    ax.grid(True, alpha=0.3, which="both", axis="x")
-    ax.legend(fontsize=8, loc="lower right")
+    _finish(ax, "Decay rates at every operating point", axis="x", loc="lower right")
     return save_figure(fig, out_dir, "linear_poles")
 
 
@@ -85,9 +88,7 @@ def mismatch_figure(mismatch: dict, out_dir) -> list[Path]:
     ax.set_xscale("log")
     ax.set_xlabel("scale a of the scenario's nominal inertia (a = 1: the scenario's model)")
     ax.set_ylabel("largest pole real part (rad/s)")
-    ax.set_title("Stability against inertia mismatch (> 0: unstable)", fontsize=10)
-    ax.grid(True, alpha=0.3, which="both")
-    ax.legend(fontsize=8)
+    _finish(ax, "Stability against inertia mismatch (> 0: unstable)")
     ax = axes[1]
     for key, marker, label in (("with_dob", "o", "with observer"), ("without_dob", "s", "without")):
         sweep = mismatch[key]["sweep"]
@@ -100,9 +101,7 @@ def mismatch_figure(mismatch: dict, out_dir) -> list[Path]:
     ax.set_yscale("log")
     ax.set_xlabel("scale a of the scenario's nominal inertia")
     ax.set_ylabel("decay rate -Re(pole) (rad/s)")
-    ax.set_title(f"How every pole moves over {lo:g}x-{hi:g}x", fontsize=10)
-    ax.grid(True, alpha=0.3, which="both")
-    ax.legend(fontsize=8)
+    _finish(ax, f"How every pole moves over {lo:g}x-{hi:g}x")
     return save_figure(fig, out_dir, "linear_mismatch")
 
 
@@ -124,18 +123,14 @@ def bandwidth_figure(survey: dict, designed: dict | None, pd_slowest: float, out
     ax.set_yscale("log")
     ax.set_xlabel("theta2 (rad)")
     ax.set_ylabel("observer mode decay rate (rad/s)")
-    ax.set_title("Eigenvalues of Y M^-1(q) along theta2 (solid: scenario gain Y)", fontsize=10)
-    ax.grid(True, alpha=0.3, which="both")
-    ax.legend(fontsize=8)
+    _finish(ax, "Eigenvalues of Y M^-1(q) along theta2 (solid: scenario gain Y)")
     ax = axes[1]
     direction = np.array(survey["slowest_direction"])
     for j in range(4):
         ax.plot(theta2, direction[:, j], label=f"{JOINT_LABELS[j]} component")
     ax.set_xlabel("theta2 (rad)")
     ax.set_ylabel("component of unit eigenvector (1)")
-    ax.set_title("Direction of the slowest observer mode (disturbance space)", fontsize=10)
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8)
+    _finish(ax, "Direction of the slowest observer mode (disturbance space)", which="major")
     return save_figure(fig, out_dir, "observer_bandwidth")
 
 
@@ -269,9 +264,7 @@ def observer_study_figure(study: dict, out_dir) -> list[Path]:
     ax.set_yscale("log")
     ax.set_xlabel("slowest observer mode over the workspace (rad/s)")
     ax.set_ylabel("tool-tip error (mm)")
-    ax.set_title(f"What a faster observer buys (disturbance step, {study['t_final_s']:g} s runs)", fontsize=10)
-    ax.grid(True, alpha=0.3, which="both")
-    ax.legend(fontsize=7)
+    _finish(ax, f"What a faster observer buys (disturbance step, {study['t_final_s']:g} s runs)", fontsize=7)
     ax = axes[1]
     noise = np.array([runs[k]["torque_noise_rms"] for k in ok])
     units = ("N m", "N m", "N", "N m")
@@ -282,9 +275,7 @@ def observer_study_figure(study: dict, out_dir) -> list[Path]:
     ax.set_xscale("log")
     ax.set_xlabel("slowest observer mode over the workspace (rad/s)")
     ax.set_ylabel("torque noise / torque noise without observer (1)" if base is not None else "torque noise")
-    ax.set_title("What it costs: torque noise from measurement noise", fontsize=10)
-    ax.grid(True, alpha=0.3, which="both")
-    ax.legend(fontsize=8)
+    _finish(ax, "What it costs: torque noise from measurement noise")
     ax = axes[2]
     shown = [0] + ok if runs[0].get("ok") else ok
     width = 0.8 / len(shown)
@@ -293,7 +284,5 @@ def observer_study_figure(study: dict, out_dir) -> list[Path]:
     ax.set_xticks(np.arange(4) + 0.4 - width / 2, [f"joint {j + 1} ({u})" for j, u in enumerate(units)])
     ax.set_yscale("log")
     ax.set_ylabel("torque noise rms (N m, N)")
-    ax.set_title("Torque noise per joint", fontsize=10)
-    ax.grid(True, alpha=0.3, axis="y", which="both")
-    ax.legend(fontsize=7, ncol=2)
+    _finish(ax, "Torque noise per joint", axis="y", fontsize=7, ncol=2)
     return save_figure(fig, out_dir, "study_observer")

@@ -112,6 +112,11 @@ def _img(path: Path, alt: str) -> str:
             "</figcaption></figure>")
 
 
+def _figures(files: dict, *items: tuple[str, str]) -> str:
+    """The figures among ``(stem, caption)`` items that were written (``files``: stem -> PNG path), in order."""
+    return "".join(_img(files[stem], caption) for stem, caption in items if stem in files)
+
+
 def _joints(indices) -> str:
     """'joint 3', 'joints 1 and 2', 'joints 1, 2 and 4' (0-based indices in)."""
     names = [str(i + 1) for i in indices]
@@ -459,13 +464,11 @@ def _section_simulation(result: dict, experiment: dict, scenario: Scenario, file
                          _f(wo["max_tool_position_error_mm"])],
                         ["RMS position error (mm)", _f(w["rms_tool_position_error_mm"]),
                          _f(wo["rms_tool_position_error_mm"])]])
-    for stem, caption in (("fig4_joint_tracking", "Figure 4: joint tracking, with and without the observer"),
-                          ("fig5_tracking_error", "Figure 5: tracking error q_ref - q"),
-                          ("fig6_disturbance_estimate", "Figure 6: lumped disturbance d and its estimate d_hat"),
-                          ("fig7_estimation_error", "Figure 7: estimation error d - d_hat"),
-                          ("fig8_task_space", "Figure 8: tool-tip path in task space")):
-        if stem in files:
-            text += _img(files[stem], caption)
+    text += _figures(files, ("fig4_joint_tracking", "Figure 4: joint tracking, with and without the observer"),
+                            ("fig5_tracking_error", "Figure 5: tracking error q_ref - q"),
+                            ("fig6_disturbance_estimate", "Figure 6: lumped disturbance d and its estimate d_hat"),
+                            ("fig7_estimation_error", "Figure 7: estimation error d - d_hat"),
+                            ("fig8_task_space", "Figure 8: tool-tip path in task space"))
     return text
 
 
@@ -559,8 +562,7 @@ def _section_linear(result: dict, scenario: Scenario, files: dict) -> str:
     if complex_ops:
         text += _p(f"Complex poles occur at: {', '.join(sorted(set(complex_ops)))} (see the figure).")
     text += _p(_linear_reading(ops[0], split_caveats(result, scenario, observer=True)), "Reading.")
-    if "linear_poles" in files:
-        text += _img(files["linear_poles"], "Closed-loop poles (o: linearized, x: analytic split)")
+    text += _figures(files, ("linear_poles", "Closed-loop poles (o: linearized, x: analytic split)"))
     mm = result["mismatch"]
     perfect = scenario.nominal == scenario.robot
     text += (_h(3, "Inertia mismatch (nominal inertia scaled by a)")
@@ -579,8 +581,7 @@ def _section_linear(result: dict, scenario: Scenario, files: dict) -> str:
     text += _table(["loop", "a", "largest real part (rad/s)", "slowest decay (rad/s)", "fastest decay (rad/s)",
                     "smallest damping ratio"], rows, "Poles against inertia mismatch")
     text += _p(_mismatch_reading(mm, perfect), "Reading.")
-    if "linear_mismatch" in files:
-        text += _img(files["linear_mismatch"], "Stability and pole movement against inertia mismatch")
+    text += _figures(files, ("linear_mismatch", "Stability and pole movement against inertia mismatch"))
     return text
 
 
@@ -613,8 +614,7 @@ def _section_bandwidth(result: dict, files: dict) -> str:
                  f"{_f(fast['max'], 4)} rad/s (fastest mode, moving {_mode_text(fast['direction_at_max'])}). A "
                  f"disturbance that acts along the slowest direction is learnt with a time constant of up to "
                  f"{_f(1 / s['min'], 3)} s.", "Reading.")
-    if "observer_bandwidth" in files:
-        text += _img(files["observer_bandwidth"], "Observer modes along theta2 and the slowest mode's direction")
+    text += _figures(files, ("observer_bandwidth", "Observer modes along theta2 and the slowest mode's direction"))
     return text
 
 
@@ -682,8 +682,7 @@ def _section_design(result: dict, scenario: Scenario, files: dict) -> str:
     text += _table(["gain", "beta over the visited states (rad/s)", "time to 2% (s)",
                     "RMS d - d_hat (N m, N m, N, N m)", "V(t) <= V(0) exp(-2 beta t)"], rows,
                    "Nonlinear simulation with each gain")
-    if "observer_design" in files:
-        text += _img(files["observer_design"], "Estimation error and Lyapunov certificate in simulation")
+    text += _figures(files, ("observer_design", "Estimation error and Lyapunov certificate in simulation"))
     return text
 
 
@@ -745,10 +744,8 @@ def _section_frequency(result: dict, scenario: Scenario, files: dict) -> str:
             text += _p(f"{name.capitalize()} the observer the linearized responses equal the closed forms (largest "
                        f"relative difference {err}).")
     text += _p(_frequency_reading(fr, stable), "Reading.")
-    for stem, caption in (("frequency_tracking", "Disturbance to tracking error, per joint"),
-                          ("frequency_estimation", "Disturbance to estimation error, per joint")):
-        if stem in files:
-            text += _img(files[stem], caption)
+    text += _figures(files, ("frequency_tracking", "Disturbance to tracking error, per joint"),
+                            ("frequency_estimation", "Disturbance to estimation error, per joint"))
     return text
 
 
@@ -783,8 +780,7 @@ def _section_studies(result: dict, scenario: Scenario, files: dict) -> str:
                 m = r["tool_mm"]
                 rows.append([title, _f(kp), _f(kd), _settling(m["settling_time_s"]), _f(m["steady_state_error"], 3),
                              _f(m["peak_error"], 3), _f(m["rms_error"], 3)])
-    if "study_gains" in files:
-        text += _img(files["study_gains"], "Gain study heat maps (the numbers are in the table below)")
+    text += _figures(files, ("study_gains", "Gain study heat maps (the numbers are in the table below)"))
     text += _details("Kp x Kd study as a table",
                      _table(["observer", "Kp (1/s^2)", "Kd (1/s)", "settling time (s)", "steady-state (mm)",
                              "peak (mm)", "RMS (mm)"], rows, "Kp x Kd study (tool tip)"))
@@ -815,8 +811,7 @@ def _section_studies(result: dict, scenario: Scenario, files: dict) -> str:
     reading = _observer_reading(obs, scenario)
     if reading:
         text += _p(reading, "Reading.")
-    if "study_observer" in files:
-        text += _img(files["study_observer"], "Error against torque noise for each observer gain")
+    text += _figures(files, ("study_observer", "Error against torque noise for each observer gain"))
     return text
 
 
