@@ -5,7 +5,7 @@
 The variants are a Monte Carlo draw (fixed seed) of the kind a robustness study
 uses: every nominal-model mass and inertia scaled by U(0.9, 1.1), Kp ~ U(120, 250),
 Kd ~ U(30, 45) and the Eq. 4 amplitudes scaled by U(0.5, 2).  Timed: validating
-the variants plus :func:`dobkit.blocks.batch.simulate_batch` keeping the default
+the variants plus :func:`blocks.batch.simulate_batch` keeping the default
 metrics (all seven, no signals), in one process and in two (``workers=2``, both
 cores; what ``dobkit sweep`` does by default).  Peak memory is measured in a
 separate one-process run with :mod:`tracemalloc`.  For scale, the table also
@@ -20,8 +20,8 @@ import time
 
 import numpy as np
 
-from dobkit import blocks
-from dobkit.blocks.batch import Variants, simulate_batch
+import blocks
+from blocks.batch import Variants, simulate_batch
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))     # _timing, run from anywhere
 from _timing import print_and_save, machine, max_rss_mb, peak_memory, summary, table, time_interleaved  # noqa: E402

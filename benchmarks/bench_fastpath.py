@@ -8,9 +8,9 @@ grid), all with the scenario's solver settings (paper: RK45, rtol 1e-6, atol 1e-
 * ``hand-fused``: the closed loop written once by hand, below: one right-hand
   side with every quantity computed once (the nominal model shared by
   controller and observer, the disturbance evaluated once), built from the same
-  model functions of :mod:`dobkit.blocks.dynamics`; signals on the grid
+  model functions of :mod:`blocks.dynamics`; signals on the grid
   computed vectorised afterwards.  This is the baseline of the ratios.
-* ``fast``: :func:`dobkit.blocks.simulate` with ``engine="fast"`` (the
+* ``fast``: :func:`blocks.simulate` with ``engine="fast"`` (the
   interconnected system evaluated in its precomputed block order).
 * ``python-control``: the same call with ``engine="python-control"``
   (:func:`control.input_output_response` on the interconnected system).
@@ -32,9 +32,9 @@ import sys
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from dobkit import blocks
-from dobkit.blocks.disturbances import external_disturbance
-from dobkit.blocks.dynamics import coriolis_vector, gravity, inertia
+import blocks
+from blocks.disturbances import external_disturbance
+from blocks.dynamics import coriolis_vector, gravity, inertia
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))     # _timing, run from anywhere
 from _timing import print_and_save, machine, max_rss_mb, peak_memory, summary, table, time_interleaved  # noqa: E402

@@ -9,7 +9,7 @@ This shows where the fast path's time goes (see README.md).  Every call is
 made at another point, as a solver makes them.  The blocks' functions are
 timed on their own, so the observer's update pays for the nominal-model terms
 that, in a right-hand side, it finds remembered from the controller
-(:mod:`dobkit.blocks.model_cache`), and the plant's output, which a
+(:mod:`blocks.model_cache`), and the plant's output, which a
 right-hand side does not call, is listed too.
 """
 from __future__ import annotations
@@ -25,7 +25,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from bench_fastpath import hand_fused_rhs  # noqa: E402
 from _timing import table  # noqa: E402
 
-from dobkit import blocks  # noqa: E402
+import blocks  # noqa: E402
 
 
 def run(rounds: int = 40, calls: int = 300) -> dict[str, float]:

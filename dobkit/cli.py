@@ -1,25 +1,21 @@
 """The ``dobkit`` command line: a thin layer over the Python API.
 
-Subcommands: ``simulate`` (the paper's experiment), and, where installed,
-``analyze``/``report`` (dobkit.analysis), ``sweep`` and ``fmu ...``.
+Subcommands: ``simulate`` (the paper's experiment), ``analyze`` and ``report``
+(:mod:`analysis`), ``sweep`` and ``fmu ...`` (:mod:`fmu`).
 """
 from __future__ import annotations
 
 import argparse
-import importlib
 import sys
 import time
 
 from . import __version__
+from .analysis_commands import add_analysis_subcommands
+from .fmu_commands import add_fmu_subcommands
+from .sweep_commands import add_sweep_subcommand
 
 __all__ = ["main"]
 
-# (module, function adding subcommands) -- each optional part registers its own commands.
-_EXTENSIONS = (
-    ("dobkit.analysis.cli", "add_analysis_subcommands"),
-    ("dobkit.analysis.sweep_cli", "add_sweep_subcommand"),
-    ("dobkit.fmu.cli", "add_fmu_subcommands"),
-)
 
 
 class ProgressBar:
@@ -53,8 +49,8 @@ class ProgressBar:
 
 
 def _cmd_simulate(args) -> int:
-    from .analysis.experiment import default_out_dir, format_rms_table, run_experiment
-    from .blocks import load_scenario
+    from analysis.experiment import default_out_dir, format_rms_table, run_experiment
+    from blocks import load_scenario
 
     scenario = load_scenario(args.scenario)
     out = args.out if args.out is not None else default_out_dir()
@@ -81,14 +77,9 @@ def build_parser() -> argparse.ArgumentParser:
                      "(default: paper)")
     sim.add_argument("--out", default=None, help="output folder (default: a new folder under the current one)")
     sim.set_defaults(func=_cmd_simulate)
-    for module, function in _EXTENSIONS:
-        try:
-            mod = importlib.import_module(module)
-        except ModuleNotFoundError as err:
-            if err.name != module:     # a real missing dependency inside the module must not be hidden
-                raise
-            continue
-        getattr(mod, function)(sub)
+    add_analysis_subcommands(sub)
+    add_sweep_subcommand(sub)
+    add_fmu_subcommands(sub)
     return parser
 
 

@@ -65,7 +65,7 @@ def fd_jacobian(f, q, h=1e-6) -> np.ndarray:
 # --- scenarios -------------------------------------------------------------------------------
 def paper_toml_dict() -> dict:
     """The built-in paper scenario file, parsed with tomllib (the raw file, not the package's data)."""
-    text = (resources.files("dobkit") / "scenarios" / "paper.toml").read_text(encoding="utf-8")
+    text = (resources.files("blocks") / "scenarios" / "paper.toml").read_text(encoding="utf-8")
     return tomllib.loads(text)
 
 
@@ -75,7 +75,7 @@ def make_scenario(**sections):
     A ``trajectory`` section replaces the file's one entirely (the keys depend on
     the kind); other tables are updated key by key.
     """
-    from dobkit.blocks import scenario_from_dict
+    from blocks import scenario_from_dict
 
     data = copy.deepcopy(paper_toml_dict())
     for key, value in sections.items():
@@ -99,7 +99,7 @@ def joint_signal(response, prefix: str) -> np.ndarray:
 
 @pytest.fixture(scope="session")
 def paper_params():
-    from dobkit.blocks import RobotParameters
+    from blocks import RobotParameters
 
     return RobotParameters()
 

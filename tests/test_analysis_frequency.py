@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from conftest import make_scenario, reference_inertia
-from dobkit.analysis import frequency
+from analysis import frequency
 
 Q0 = np.array([0.3, 2.0, 0.24, 0.1])
 OMEGA = np.logspace(-2, 3, 41)

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from conftest import PAPER_FR, PAPER_K, hold_trajectory, make_scenario, reference_inertia
-from dobkit.analysis import linear
+from analysis import linear
 
 Q0 = np.array([0.3, 2.0, 0.24, 0.1])
 
@@ -135,7 +135,7 @@ def test_stability_boundary_search_finds_constructed_boundary():
 def test_equilibrium_is_accepted_on_its_residual():
     # surgical scenario (friction, tissue, 20 % inertia mismatch), nominal inertia scaled to 0.02x, no observer:
     # the root finder ends "not making good progress" on an equilibrium that is exact to rounding
-    from dobkit.blocks import closed_loop, load_scenario
+    from blocks import closed_loop, load_scenario
 
     s = load_scenario("surgical")
     q0 = s.trajectory.evaluate(0.0)[0]

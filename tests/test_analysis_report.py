@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 
 from conftest import PAPER_FR, SHORT_SCENARIO_TOML as SHORT, reference_inertia
-from dobkit.analysis import cli as analysis_cli
-from dobkit.analysis.experiment import run_experiment
-from dobkit.analysis.report import (AnalysisSettings, experiment_metrics, json_text, render_html, run_analysis,
+from dobkit import analysis_commands as analysis_cli
+from analysis.experiment import run_experiment
+from analysis.report import (AnalysisSettings, experiment_metrics, json_text, render_html, run_analysis,
                                     write_report)
-from dobkit.blocks import builtin_scenarios, load_scenario
+from blocks import builtin_scenarios, load_scenario
 from dobkit.cli import main
 
 

@@ -18,8 +18,8 @@ import pytest
 import scipy.signal
 
 from conftest import PAPER_FR, PAPER_K, hold_trajectory, make_scenario
-from dobkit.analysis import studies
-from dobkit.blocks import MeasurementNoise
+from analysis import studies
+from blocks import MeasurementNoise
 
 
 def test_signal_metrics_on_known_signals():

@@ -5,13 +5,13 @@ import numpy as np
 import pytest
 from conftest import load_benchmark
 
-from dobkit import blocks
-from dobkit.analysis.metrics import signal, tracking_metrics
-from dobkit.blocks import batch
-from dobkit.blocks.batch import BatchArm, Variants, batched_constants, simulate_batch, step_schedule
-from dobkit.blocks.dynamics import coriolis_vector, forward_dynamics, gravity, inertia
-from dobkit.blocks.parameters import RobotParameters
-from dobkit.blocks.scenario import ScenarioError
+import blocks
+from blocks.metrics import signal, tracking_metrics
+from blocks import batch
+from blocks.batch import BatchArm, Variants, batched_constants, simulate_batch, step_schedule
+from blocks.dynamics import coriolis_vector, forward_dynamics, gravity, inertia
+from blocks.parameters import RobotParameters
+from blocks.scenario import ScenarioError
 
 # The paper scenario cut at 2 s: the first fifth of the paper's 10 s path, at its speed.
 T_FINAL = 2.0

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from conftest import SHORT_SCENARIO_TOML as SHORT
-from dobkit.blocks import load_scenario
+from blocks import load_scenario
 from dobkit.cli import main
 
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from conftest import load_benchmark
 
-from dobkit import blocks
-from dobkit.blocks.fastsim import AlgebraicLoopError, CompiledLoop
+import blocks
+from blocks.fastsim import AlgebraicLoopError, CompiledLoop
 
 SHORT = {"t_final": 1.0}
 

@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 
 from conftest import make_scenario
-from dobkit.fmu import (CoSimulationError, ExtractionLimits, FMUArchiveError, FMUError, FMUInstance,
+from fmu import (CoSimulationError, ExtractionLimits, FMUArchiveError, FMUError, FMUInstance,
                         FMUInstantiationError, FMUMissingVariablesError, FMUModelDescriptionError, FMUPlatformError,
                         FMUStepError, FMUUnsupportedError, FMUVersionError, check_fmu, cosimulate, cosimulate_system,
                         export_plant, extract_fmu, load, require_variables)
-from dobkit.fmu.package import package_fmu
+from fmu.package import package_fmu
 
 LAG_DIR = Path(__file__).parent / "fmu_lag"
 
@@ -331,7 +331,7 @@ def test_error_status_during_a_cosimulation_step(good, sandbox):
 def test_non_finite_torque_fails_the_plant_step(good, sandbox):
     """The plant FMU refuses to continue with a non-finite state (FMI 3, co-simulation)."""
     scenario = make_scenario(simulation={"t_final": 0.1, "output_step": 0.01})
-    from dobkit.fmu.cosim import controller_side
+    from fmu.cosim import controller_side
     side = controller_side(scenario)
     names = list(side.output_labels)
     bad_side = ct.nlsys(None, lambda t, x, u, p: np.where(np.array([n.startswith("tau[2") for n in names]) &

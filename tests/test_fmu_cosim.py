@@ -1,6 +1,6 @@
 """Co-simulation against Co-Simulation FMUs: convergence to the monolithic loop, and an exact linear case.
 
-References: the all-Python loop of dobkit.blocks integrated at tight
+References: the all-Python loop of blocks integrated at tight
 tolerance, and for the hand-written lag FMU the exact discrete recursion of a
 zero-order-hold coupling (computed here, not by the master).
 """
@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 
 from conftest import make_scenario
-from dobkit import blocks
-from dobkit.analysis.metrics import tracking_metrics
+import blocks
+from blocks.metrics import tracking_metrics
 from dobkit.cli import main as dobkit_main
-from dobkit.fmu import cosim_convergence, cosimulate, cosimulate_system, export_plant
-from dobkit.fmu.convergence import fit_order
-from dobkit.fmu.package import package_fmu
+from fmu import cosim_convergence, cosimulate, cosimulate_system, export_plant
+from fmu.convergence import fit_order
+from fmu.package import package_fmu
 
 LAG_DIR = Path(__file__).parent / "fmu_lag"
 SINE = {"kind": "joint_sine", "amplitude": [0.3, 0.25, 0.03, 0.4], "omega": 3.0, "offset": [0.3, 1.2, 0.2, 0.1]}

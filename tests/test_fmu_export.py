@@ -1,7 +1,7 @@
 """The exported plant FMU: archive, model description, binary, and its numbers.
 
 References are independent of the FMU code: the paper-notes constants, the
-Python plant of dobkit.blocks integrated with SciPy, closed-form solutions,
+Python plant of blocks integrated with SciPy, closed-form solutions,
 and the standard FMI headers shipped with fmpy.
 """
 from __future__ import annotations
@@ -19,10 +19,10 @@ from fmpy.validation import validate_fmu
 from scipy.integrate import solve_ivp
 
 from conftest import PAPER_FR, PAPER_G, PAPER_K
-from dobkit.blocks.disturbances import DisturbanceSpec
-from dobkit.blocks.parameters import RobotParameters
-from dobkit.blocks.systems import plant as python_plant
-from dobkit.fmu import FMUBuildError, FMUInstance, FMUStepError, check_fmu, export_plant, load
+from blocks.disturbances import DisturbanceSpec
+from blocks.parameters import RobotParameters
+from blocks.systems import plant as python_plant
+from fmu import FMUBuildError, FMUInstance, FMUStepError, check_fmu, export_plant, load
 
 STATES = [f"q[{i}]" for i in range(4)] + [f"dq[{i}]" for i in range(4)]
 X0 = np.array([0.3, 1.1, 0.05, 0.2, 0.5, -0.4, 0.1, 0.3])

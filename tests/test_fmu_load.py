@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 
 from conftest import make_scenario
-from dobkit import blocks
-from dobkit.blocks.disturbances import DisturbanceSpec
-from dobkit.blocks.parameters import RobotParameters
-from dobkit.blocks.systems import plant as python_plant
-from dobkit.fmu import FMUMissingVariablesError, check_fmu, export_plant, load
-from dobkit.fmu.package import package_fmu
+import blocks
+from blocks.disturbances import DisturbanceSpec
+from blocks.parameters import RobotParameters
+from blocks.systems import plant as python_plant
+from fmu import FMUMissingVariablesError, check_fmu, export_plant, load
+from fmu.package import package_fmu
 
 LAG_DIR = Path(__file__).parent / "fmu_lag"
 SINE = {"kind": "joint_sine", "amplitude": [0.3, 0.25, 0.03, 0.4], "omega": 3.0, "offset": [0.3, 1.2, 0.2, 0.1]}

@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dobkit.fmu import FMUInstance, FMUStepError, export_plant
-from dobkit.fmu.package import package_fmu
+from fmu import FMUInstance, FMUStepError, export_plant
+from fmu.package import package_fmu
 
 LAG_DIR = Path(__file__).parent / "fmu_lag"
 
@@ -36,7 +36,7 @@ def fmus(tmp_path_factory):
 LOGGER_SCRIPT = """
 import gc, sys
 import numpy as np
-from dobkit.fmu import FMUInstance, FMUStepError
+from fmu import FMUInstance, FMUStepError
 
 def fail(inst, t, u):
     inst.set_time(t)
@@ -64,7 +64,7 @@ print("done: yes")
 CLOSED_SCRIPT = """
 import sys
 import numpy as np
-from dobkit.fmu import FMUError, FMUInstance, load
+from fmu import FMUError, FMUInstance, load
 x, u = np.zeros(8), np.zeros(4)
 for version, path in (("2", sys.argv[1]), ("3", sys.argv[2])):
     s = load(path)
@@ -90,7 +90,7 @@ print("done: yes")
 STATES_SCRIPT = """
 import sys
 from fmpy.fmi1 import FMICallException
-from dobkit.fmu import FMUInstance
+from fmu import FMUInstance
 
 def blob(f):
     fm = f._fmu

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from dobkit.blocks.integrate import SOLVERS, DivergenceError, SolverFailure, _crossing_time, integrate_on_grid
+from blocks.integrate import SOLVERS, DivergenceError, SolverFailure, _crossing_time, integrate_on_grid
 
 
 def _oscillator(t, x):

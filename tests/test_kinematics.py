@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from conftest import fd_jacobian, reference_fk
-from dobkit.blocks import RobotParameters, UnreachableError
-from dobkit.blocks.kinematics import (forward_kinematics, inverse_kinematics, jacobian, jacobian_derivative_times_dq,
+from blocks import RobotParameters, UnreachableError
+from blocks.kinematics import (forward_kinematics, inverse_kinematics, jacobian, jacobian_derivative_times_dq,
                                       planar_reach)
 
 # Unequal, non-paper kinematic lengths catch a swapped a1/a2 or l/a mix-up.

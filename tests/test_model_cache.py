@@ -4,9 +4,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dobkit import blocks
-from dobkit.blocks.dynamics import coriolis_vector, gravity, inertia
-from dobkit.blocks.model_cache import NominalTerms, nominal_terms
+import blocks
+from blocks.dynamics import coriolis_vector, gravity, inertia
+from blocks.model_cache import NominalTerms, nominal_terms
 
 
 def test_terms_equal_the_model_functions_and_change_with_the_arguments():

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from conftest import PAPER_FR, PAPER_KD, PAPER_KP, PAPER_Y, paper_toml_dict
-from dobkit.blocks import (JointSine, LacerationPath, ScenarioError, builtin_scenarios, load_scenario,
+from blocks import (JointSine, LacerationPath, ScenarioError, builtin_scenarios, load_scenario,
                            scenario_from_dict)
 
 

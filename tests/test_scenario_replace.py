@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from dobkit.analysis.experiment import run_experiment
-from dobkit.blocks import ScenarioError, load_scenario, scenario_from_dict
-from dobkit.blocks.noise import MeasurementNoise
+from analysis.experiment import run_experiment
+from blocks import ScenarioError, load_scenario, scenario_from_dict
+from blocks.noise import MeasurementNoise
 
 
 def test_derived_defaults_follow_a_replaced_key():

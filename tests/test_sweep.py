@@ -13,13 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dobkit import blocks
-from dobkit.analysis import sweep
-from dobkit.analysis.sweep import SweepError, load_sweep, sweep_from_dict
-from dobkit.analysis.sweep_runner import Progress, read_results, run_sweep
-from dobkit.analysis.sweep_cli import add_sweep_subcommand
-from dobkit.analysis.sweep_report import html_section, summarize, write_summary
-from dobkit.blocks.batch import METRIC_ATOL, METRIC_RTOL, simulate_batch
+import blocks
+from analysis import sweep
+from analysis.sweep import SweepError, load_sweep, sweep_from_dict
+from analysis.sweep_runner import Progress, read_results, run_sweep
+from dobkit.sweep_commands import add_sweep_subcommand
+from analysis.sweep_report import html_section, summarize, write_summary
+from blocks.batch import METRIC_ATOL, METRIC_RTOL, simulate_batch
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -110,7 +110,7 @@ def test_a_killed_sweep_resumes_without_redoing_or_losing_runs(tmp_path, scenari
 size = 1
 """)
     results = tmp_path / "r.jsonl"
-    code = ("from dobkit.analysis.sweep_runner import run_sweep; "
+    code = ("from analysis.sweep_runner import run_sweep; "
             f"run_sweep({str(path)!r}, {str(results)!r}, workers=1, progress=False)")
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     proc = subprocess.Popen([sys.executable, "-c", code], env=env)

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from conftest import SKIN_DEFAULT, reference_fk
-from dobkit import blocks
-from dobkit.blocks import JointSine, LacerationPath, RobotParameters, UnreachableError
+import blocks
+from blocks import JointSine, LacerationPath, RobotParameters, UnreachableError
 
 PAPER = RobotParameters()
 # The paper scenario's path (scenarios/paper.toml), with a bulge so the curve term is exercised.

@@ -1,0 +1,142 @@
+"""The paper's experiment end to end: simulate with and without the observer, write results.
+
+:func:`run_experiment` is what ``dobkit simulate`` does; the output folder gets
+
+* ``metrics.json``: per-joint metrics of both runs (Table 3 and more), with units;
+* ``timeseries.csv``: every signal of both runs on the uniform output grid;
+* ``scenario.toml``: the complete scenario used (re-running it reproduces the numbers);
+* ``fig4..fig8`` as PNG and SVG.
+
+Results are first written to a staging folder beside the target and moved
+into place only when everything succeeded, so a failed run leaves no partial
+output behind.
+"""
+from __future__ import annotations
+
+import csv
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from blocks import __version__
+from blocks import Scenario, load_scenario, simulate
+from .figures import paper_figures
+from blocks.metrics import DISTURBANCE_UNITS, JOINT_UNITS, tracking_metrics
+from blocks.outputs import default_out_dir, staged_output
+
+__all__ = ["ExperimentResult", "run_experiment", "comparison_metrics", "format_rms_table", "default_out_dir",
+           "staged_output"]
+
+
+@dataclass
+class ExperimentResult:
+    """What :func:`run_experiment` produced."""
+
+    scenario: Scenario
+    with_dob: object
+    without_dob: object
+    metrics: dict
+    out_dir: Path | None
+    files: list
+
+
+def run_experiment(scenario: Scenario | str = "paper", out_dir: Path | str | None = None,
+                   progress: Callable[[str, float], None] | None = None, figures: bool = True) -> ExperimentResult:
+    """Simulate a scenario with and without the observer and write the results.
+
+    Parameters
+    ----------
+    scenario : Scenario or str
+        The scenario or its name/path (default: the built-in ``paper``).
+    out_dir : path, optional
+        Output folder (must not exist or be empty).  None: compute only, write nothing.
+    progress : callable, optional
+        ``progress(stage, fraction)`` as the simulations advance.
+    figures : bool
+        Write Figures 4-8.
+
+    Returns
+    -------
+    ExperimentResult
+    """
+    s = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    staging = staged_output(Path(out_dir)) if out_dir is not None else None   # refuse a bad folder before any work
+    runs = {}
+    for key, with_observer in (("with_dob", True), ("without_dob", False)):
+        stage = f"simulating {'with' if with_observer else 'without'} observer"
+        runs[key] = simulate(s, observer=with_observer,
+                             progress=(lambda f, st=stage: progress(st, f)) if progress else None)
+    metrics = comparison_metrics(s, runs["with_dob"], runs["without_dob"])
+    files: list[Path] = []
+    if out_dir is not None:
+        target = Path(out_dir)
+        with staging as stage:
+            (stage / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+            (stage / "scenario.toml").write_text(s.to_toml())
+            _write_timeseries(stage / "timeseries.csv", runs)
+            if figures:
+                if progress:
+                    progress("writing figures", 0.0)
+                paper_figures(runs["with_dob"], runs["without_dob"], stage)
+        files = sorted(target.iterdir())
+    return ExperimentResult(s, runs["with_dob"], runs["without_dob"], metrics, Path(out_dir) if out_dir else None,
+                            files)
+
+
+def comparison_metrics(scenario: Scenario, with_dob, without_dob) -> dict:
+    """The ``metrics.json`` content for a run with and a run without the observer (Table 3 and more).
+
+    Returns
+    -------
+    dict
+        ``scenario``, ``dobkit_version``, ``units``, ``definitions`` and the
+        :func:`~blocks.metrics.tracking_metrics` of each run under
+        ``with_dob`` and ``without_dob``.
+    """
+    return {
+        "scenario": scenario.name,
+        "dobkit_version": __version__,
+        "units": {"position": list(JOINT_UNITS), "disturbance": list(DISTURBANCE_UNITS)},
+        "definitions": {
+            "rms_position_error": "Eq. 13: sqrt(mean((q_ref - q)^2)) over the output grid, per joint",
+            "rms_disturbance_error": "Eq. 14: sqrt(mean((d - d_hat)^2)), d = lumped disturbance on the nominal model",
+        },
+        "with_dob": tracking_metrics(with_dob),
+        "without_dob": tracking_metrics(without_dob),
+    }
+
+
+def _write_timeseries(path: Path, runs: dict) -> None:
+    first = next(iter(runs.values()))
+    columns, header = [np.asarray(first.time)], ["time_s"]
+    for key, resp in runs.items():
+        for k, label in enumerate(resp.output_labels):
+            header.append(f"{key}.{label}")
+            columns.append(np.asarray(resp.outputs)[k])
+    with path.open("w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(header)
+        writer.writerows(np.column_stack(columns).tolist())
+
+
+def format_rms_table(metrics: dict) -> str:
+    """The paper's Table 3 layout (both runs, all joints, with units) as plain text."""
+    units = metrics["units"]
+    head = f"{'RMS error':<34}" + "".join(f"{f'Joint {i + 1}':>14}" for i in range(4))
+    unit_row = f"{'':<34}" + "".join(f"{'(' + u + ')':>14}" for u in units["position"])
+    rows = [head, "-" * len(head)]
+    for key, label in (("with_dob", "with observer"), ("without_dob", "without observer")):
+        m = metrics[key]
+        rows.append(f"{'Position tracking, ' + label:<34}" + "".join(f"{v:>14.4e}" for v in m["rms_position_error"]))
+    rows.append(unit_row)
+    if "rms_disturbance_error" in metrics["with_dob"]:
+        rows.append(f"{'Disturbance tracking, with observer':<34}"
+                    + "".join(f"{v:>14.4e}" for v in metrics["with_dob"]["rms_disturbance_error"]))
+        rows.append(f"{'':<34}" + "".join(f"{'(' + u + ')':>14}" for u in units["disturbance"]))
+    for key, label in (("with_dob", "with observer"), ("without_dob", "without observer")):
+        if "max_tool_position_error_mm" in metrics[key]:
+            rows.append(f"Worst tool-tip error, {label}: {metrics[key]['max_tool_position_error_mm']:.3f} mm")
+    return "\n".join(rows)

@@ -1,0 +1,183 @@
+"""The paper's Figures 4-8 from a run with and a run without the disturbance observer.
+
+Each figure is written as PNG and SVG, with labelled axes and units:
+
+* ``fig4_joint_tracking``: reference and actual joint positions;
+* ``fig5_tracking_error``: ``q_ref - q`` per joint;
+* ``fig6_disturbance_estimate``: the lumped disturbance ``d`` and its estimate ``d_hat``;
+* ``fig7_estimation_error``: ``d - d_hat``;
+* ``fig8_task_space``: the tool-tip path in task space (x, y, z) and its error.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from blocks.kinematics import forward_kinematics  # noqa: E402
+from blocks.metrics import DISTURBANCE_UNITS, JOINT_LABELS, JOINT_UNITS, signal  # noqa: E402
+
+__all__ = ["paper_figures", "save_figure", "convergence_figure"]
+
+_JOINT_TITLES = ("Joint 1 (theta1)", "Joint 2 (theta2)", "Joint 3 (d3, prismatic)", "Joint 4 (theta4)")
+_COLORS = {"ref": "black", "with": "tab:blue", "without": "tab:red", "d": "black", "d_hat": "tab:blue"}
+
+
+def save_figure(fig, out_dir: Path, stem: str) -> list[Path]:
+    """Write ``fig`` as ``stem.png`` (120 dpi) and ``stem.svg`` in ``out_dir`` without metadata (dates), close it."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = [out_dir / f"{stem}.png", out_dir / f"{stem}.svg"]
+    # No dates, no tool stamps and fixed SVG ids: the same run gives byte-identical files.
+    with plt.rc_context({"svg.hashsalt": "dobkit"}):
+        fig.savefig(paths[0], dpi=120, metadata={"Software": None})
+        fig.savefig(paths[1], metadata={"Date": None, "Creator": None})
+    plt.close(fig)
+    return paths
+
+
+def _joint_grid(title: str):
+    fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True, constrained_layout=True)
+    fig.suptitle(title)
+    for i, ax in enumerate(axes.flat):
+        ax.set_title(_JOINT_TITLES[i], fontsize=10)
+        ax.grid(True, alpha=0.3)
+        if i >= 2:
+            ax.set_xlabel("time (s)")
+    return fig, axes.flat
+
+
+def _scale(i: int) -> tuple[float, str]:
+    """Show the prismatic joint in mm, revolute joints in rad."""
+    return (1e3, "mm") if JOINT_UNITS[i] == "m" else (1.0, "rad")
+
+
+def paper_figures(with_dob, without_dob, out_dir) -> list[Path]:
+    """Write Figures 4-8 comparing a run with and a run without the observer.
+
+    Parameters
+    ----------
+    with_dob, without_dob : control.TimeResponseData
+        Responses of :func:`blocks.simulate` with ``observer=True`` and ``False``.
+    out_dir : str or pathlib.Path
+        Folder for the PNG and SVG files (created if needed).
+
+    Returns
+    -------
+    list of pathlib.Path
+        The files written.
+    """
+    out_dir = Path(out_dir)
+    t = np.asarray(with_dob.time)
+    q_ref, q_w, q_wo = signal(with_dob, "q_ref"), signal(with_dob, "q"), signal(without_dob, "q")
+    written = []
+
+    fig, axes = _joint_grid("Figure 4: joint tracking of the laceration path")
+    for i, ax in enumerate(axes):
+        k, unit = _scale(i)
+        ax.plot(t, k * q_ref[i], color=_COLORS["ref"], lw=2.2, label="reference")
+        ax.plot(t, k * q_w[i], color=_COLORS["with"], lw=1.2, label="with observer")
+        ax.plot(t, k * q_wo[i], color=_COLORS["without"], lw=1.2, ls="--", label="without observer")
+        ax.set_ylabel(f"{JOINT_LABELS[i]} ({unit})")
+    axes[0].legend(fontsize=8)
+    written += save_figure(fig, out_dir, "fig4_joint_tracking")
+
+    fig, axes = _joint_grid("Figure 5: position tracking error q_ref - q")
+    for i, ax in enumerate(axes):
+        k, unit = _scale(i)
+        ax.plot(t, k * (q_ref[i] - q_w[i]), color=_COLORS["with"], label="with observer")
+        ax.plot(t, k * (q_ref[i] - q_wo[i]), color=_COLORS["without"], ls="--", label="without observer")
+        ax.set_ylabel(f"error ({unit})")
+    axes[0].legend(fontsize=8)
+    written += save_figure(fig, out_dir, "fig5_tracking_error")
+
+    d, d_hat = signal(with_dob, "d"), signal(with_dob, "d_hat")
+    tau_dis = signal(with_dob, "tau_dis")
+    fig, axes = _joint_grid("Figure 6: disturbance and its estimate (with observer)")
+    for i, ax in enumerate(axes):
+        ax.plot(t, d[i], color=_COLORS["d"], lw=2.2, label="disturbance d (lumped)")
+        if not np.allclose(d[i], tau_dis[i]):
+            ax.plot(t, tau_dis[i], color="gray", lw=1, ls=":", label="external part tau_dis")
+        ax.plot(t, d_hat[i], color=_COLORS["d_hat"], lw=1.2, label="estimate d_hat")
+        ax.set_ylabel(f"disturbance ({DISTURBANCE_UNITS[i]})")
+    axes[0].legend(fontsize=8)
+    written += save_figure(fig, out_dir, "fig6_disturbance_estimate")
+
+    fig, axes = _joint_grid("Figure 7: disturbance estimation error d - d_hat")
+    for i, ax in enumerate(axes):
+        ax.plot(t, d[i] - d_hat[i], color=_COLORS["with"])
+        ax.set_ylabel(f"error ({DISTURBANCE_UNITS[i]})")
+    written += save_figure(fig, out_dir, "fig7_estimation_error")
+
+    written += _task_space_figure(with_dob, without_dob, out_dir)
+    return written
+
+
+def _task_space_figure(with_dob, without_dob, out_dir: Path) -> list[Path]:
+    robot = with_dob.scenario.robot
+    t = np.asarray(with_dob.time)
+    p_ref = 1e3 * forward_kinematics(signal(with_dob, "q_ref").T, robot)[:, :3]
+    p_w = 1e3 * forward_kinematics(signal(with_dob, "q").T, robot)[:, :3]
+    p_wo = 1e3 * forward_kinematics(signal(without_dob, "q").T, robot)[:, :3]
+    fig = plt.figure(figsize=(13, 7), constrained_layout=True)
+    fig.suptitle("Figure 8: tool-tip path in task space")
+    grid = fig.add_gridspec(3, 2, width_ratios=[1.2, 1])
+    ax3 = fig.add_subplot(grid[:, 0], projection="3d")
+    ax3.plot(*p_ref.T, color=_COLORS["ref"], lw=2.2, label="reference")
+    ax3.plot(*p_w.T, color=_COLORS["with"], lw=1.2, label="with observer")
+    ax3.plot(*p_wo.T, color=_COLORS["without"], lw=1.2, ls="--", label="without observer")
+    ax3.set_xlabel("x (mm)")
+    ax3.set_ylabel("y (mm)")
+    ax3.set_zlabel("z (mm)")
+    ax3.legend(fontsize=8, loc="upper left")
+    for k, name in enumerate("xyz"):
+        ax = fig.add_subplot(grid[k, 1])
+        ax.plot(t, p_ref[:, k], color=_COLORS["ref"], lw=2.2, label="reference")
+        ax.plot(t, p_w[:, k], color=_COLORS["with"], lw=1.2, label="with observer")
+        ax.plot(t, p_wo[:, k], color=_COLORS["without"], lw=1.2, ls="--", label="without observer")
+        ax.set_ylabel(f"{name} (mm)")
+        ax.grid(True, alpha=0.3)
+        if k == 2:
+            ax.set_xlabel("time (s)")
+    return save_figure(fig, out_dir, "fig8_task_space")
+
+
+def convergence_figure(study: dict, out_dir, stem: str = "convergence") -> list[Path]:
+    """Log-log plot of the errors per joint against ``h`` with the fitted slope; PNG and SVG.
+
+    Parameters
+    ----------
+    study : dict
+        The result of :func:`cosim_convergence`.
+    out_dir : str or pathlib.Path
+        Folder to write ``<stem>.png`` and ``<stem>.svg`` in.
+
+    Returns
+    -------
+    list of pathlib.Path
+    """
+    h = np.asarray(study["steps"])
+    fig, ax = plt.subplots(figsize=(7, 5), constrained_layout=True)
+    for name, errs in study["errors"].items():
+        errs = np.asarray(errs)
+        ok = errs > 0
+        unit = study["units"][name]
+        ax.loglog(h[ok] * 1e3, errs[ok], "o-", label=f"{name} ({unit})")
+        if ok.sum() >= 2 and np.isfinite(study["order"]):
+            # the common fitted slope through this joint's points (its own intercept)
+            c = np.mean(np.log(errs[ok]) - study["order"] * np.log(h[ok]))
+            ax.loglog(h * 1e3, np.exp(c) * h ** study["order"], ":", color=ax.lines[-1].get_color(), lw=1)
+    ax.plot([], [], "k:", label=f"fitted slope p = {study['order']:.3f} (common to all joints)")
+    ax.set_xticks(h * 1e3, [f"{v:g}" for v in h * 1e3])
+    ax.minorticks_off()
+    ax.set_xlabel("communication step h (ms)")
+    ax.set_ylabel("max |q_cosim - q_monolithic| (rad; joint 3 in m)")
+    ax.set_title(f"{study['scenario']}: co-simulation error vs step, FMI {study['fmi_version']}, "
+                 f"t_final = {study['t_final']:g} s")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=9)
+    return save_figure(fig, Path(out_dir), stem)

@@ -1,0 +1,201 @@
+"""Disturbance rejection in frequency: frozen-configuration transfer functions of the linearized loop.
+
+The Figure-2 blocks are reconnected with one change: an external input
+``w[i]`` adds to the plant's input torque (``plant.tau = controller.tau + w``),
+a disturbance the observer does not see directly.  Outputs are the tracking
+error ``e[i] = q_ref[i] - q[i]`` and, with the observer, the estimation error
+``e_d[i] = tau_dis[i] + w[i] - d_hat[i]`` (on a perfect model this is the
+lumped disturbance minus its estimate).  The loop is linearized at its
+equilibrium with the arm held at ``q0`` (see :mod:`analysis.linear`).
+
+Closed forms on a perfect model (paper-notes), for ``W`` the disturbance:
+
+* without observer ``E = -(s^2 + Kd s + Kp)^-1 M^-1 W``;
+* with observer ``E = -s (s^2 + Kd s + Kp)^-1 (s M + Y)^-1 W`` (zero DC gain);
+* with observer ``E_d = s M (s M + Y)^-1 W``.
+"""
+from __future__ import annotations
+
+import math
+
+import control as ct
+import numpy as np
+from scipy.optimize import brentq, minimize_scalar
+
+from blocks import build_blocks, inertia
+from blocks.scenario import Scenario
+from .linear import equilibrium, hold_scenario, linearize_loop
+
+__all__ = ["DEFAULT_OMEGA", "disturbance_loop", "frozen_response", "closed_form", "siso_metrics",
+           "frequency_analysis"]
+
+DEFAULT_OMEGA = np.logspace(-2, 3, 501)     # rad/s
+
+
+def _names(prefix: str) -> list[str]:
+    return [f"{prefix}[{i}]" for i in range(4)]
+
+
+def disturbance_loop(scenario: Scenario, observer: bool = True) -> ct.InterconnectedSystem:
+    """The Figure-2 loop with disturbance inputs ``w[i]`` at the plant and error outputs.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        Typically a held scenario (:func:`~analysis.linear.hold_scenario`).
+    observer : bool
+        With or without the disturbance observer.
+
+    Returns
+    -------
+    control.InterconnectedSystem
+        Inputs ``w[i]`` (N m, N); outputs ``e[i]`` (rad, m) and, with the
+        observer, ``e_d[i]`` (N m, N).
+    """
+    blocks = build_blocks(scenario, observer=observer)
+    if "sensor" in blocks:
+        raise ValueError(f"scenario '{scenario.name}' has measurement noise; remove it (hold_scenario does) "
+                         "before building the frequency-response loop")
+    outlist = [[f"trajectory.q_ref[{i}]", f"-plant.q[{i}]"] for i in range(4)]
+    outputs = _names("e")
+    if observer:
+        # plant.tau - controller.tau is w; plus the plant's own tau_dis gives the disturbance the observer sees
+        outlist += [[f"plant.tau_dis[{i}]", f"plant.tau[{i}]", f"-controller.tau[{i}]", f"-observer.d_hat[{i}]"]
+                    for i in range(4)]
+        outputs += _names("e_d")
+    loop = ct.interconnect(list(blocks.values()), inplist=[[f"plant.tau[{i}]"] for i in range(4)],
+                           inputs=_names("w"), outlist=outlist, outputs=outputs,
+                           name="dob_disturbance_loop" if observer else "ctc_disturbance_loop", check_unused=False)
+    loop.scenario = scenario
+    loop.with_observer = observer
+    return loop
+
+
+def frozen_response(scenario: Scenario, q0, observer: bool = True, t: float = 0.0) -> ct.StateSpace:
+    """The loop linearized with the arm held at ``q0``: inputs ``w[i]``, outputs ``e[i]`` (and ``e_d[i]``)."""
+    loop = disturbance_loop(hold_scenario(scenario, q0), observer)
+    x_eq = equilibrium(loop, t)
+    return linearize_loop(loop, x_eq, t)
+
+
+def closed_form(scenario: Scenario, q0, omega, observer: bool = True, output: str = "e") -> np.ndarray:
+    """The paper-notes closed forms at ``s = j omega``, shape (len(omega), 4, 4), perfect model.
+
+    Parameters
+    ----------
+    output : {"e", "e_d"}
+        Tracking error (rad/(N m), m/N) or estimation error (dimensionless).
+    """
+    M = inertia(np.asarray(q0, dtype=float), scenario.nominal)
+    Kp, Kd, Y = scenario.kp, scenario.kd, scenario.observer_gain
+    out = []
+    for w in np.atleast_1d(np.asarray(omega, dtype=float)):
+        s = 1j * w
+        pd_inv = np.linalg.inv(s * s * np.eye(4) + s * Kd + Kp)
+        if output == "e":
+            out.append(-pd_inv @ np.linalg.inv(M) if not observer else -s * pd_inv @ np.linalg.inv(s * M + Y))
+        elif output == "e_d":
+            out.append(s * M @ np.linalg.inv(s * M + Y) if observer else np.eye(4, dtype=complex))
+        else:
+            raise ValueError(f"output must be 'e' or 'e_d', got {output!r}")
+    return np.array(out)
+
+
+def _gain(sys: ct.StateSpace, out: int, inp: int, omega) -> np.ndarray:
+    """``|G_out,inp(j omega)|`` evaluated from the state-space matrices."""
+    A, B, C, D = (np.asarray(m) for m in (sys.A, sys.B, sys.C, sys.D))
+    w = np.atleast_1d(np.asarray(omega, dtype=float))
+    resolvent = 1j * w[:, None, None] * np.eye(A.shape[0]) - A
+    x = np.linalg.solve(resolvent, np.broadcast_to(B[:, inp], (len(w), A.shape[0]))[..., None])[..., 0]
+    return np.abs(x @ C[out] + D[out, inp])
+
+
+def siso_metrics(sys: ct.StateSpace, out: int, inp: int, omega=DEFAULT_OMEGA) -> dict:
+    """DC gain, peak gain and its frequency, and the -3 dB band of one channel.
+
+    The channel is classed by where its gain is largest: *low-pass* if the DC
+    gain is within 3 dB of the peak (band ``[0, omega_c]`` below the DC level
+    minus 3 dB), *high-pass* if the high-frequency gain ``|D|`` is (band
+    ``[omega_c, None]``), otherwise *band-pass* (band ``[omega_lo, omega_hi]``
+    around the peak).  ``None`` stands for an edge at infinity.
+
+    Returns
+    -------
+    dict
+        ``dc_gain`` (signed), ``hf_gain``, ``peak_gain``, ``peak_rad_s`` (0 for a
+        low-pass channel without resonance, None when the peak is at infinity),
+        ``band_3db_rad_s`` and ``kind``; gains in the channel's units
+        (rad/(N m), m/N or dimensionless).
+    """
+    omega = np.asarray(omega, dtype=float)
+    A, B, C, D = (np.asarray(m) for m in (sys.A, sys.B, sys.C, sys.D))
+    dc = float(np.real(D[out, inp] - C[out] @ np.linalg.solve(A, B[:, inp])))
+    hf = float(abs(D[out, inp]))
+    mag = _gain(sys, out, inp, omega)
+    k = int(np.argmax(mag))
+    peak_w, peak = float(omega[k]), float(mag[k])
+    if 0 < k < len(omega) - 1:
+        res = minimize_scalar(lambda lw: -_gain(sys, out, inp, 10.0 ** lw)[0],
+                              bounds=(math.log10(omega[k - 1]), math.log10(omega[k + 1])), method="bounded",
+                              options={"xatol": 1e-10})
+        if -res.fun > peak:
+            peak_w, peak = float(10.0 ** res.x), float(-res.fun)
+    if abs(dc) >= peak:
+        peak_w, peak = 0.0, abs(dc)
+    if hf >= peak:
+        peak_w, peak = None, hf
+    if abs(dc) >= peak / math.sqrt(2.0):
+        kind, level = "low-pass", abs(dc) / math.sqrt(2.0)
+    elif hf >= peak / math.sqrt(2.0):
+        kind, level = "high-pass", hf / math.sqrt(2.0)
+    else:
+        kind, level = "band-pass", peak / math.sqrt(2.0)
+
+    def crossing(i):
+        """The level crossing between grid points i and i + 1."""
+        return float(10.0 ** brentq(lambda lw: _gain(sys, out, inp, 10.0 ** lw)[0] - level,
+                                    math.log10(omega[i]), math.log10(omega[i + 1]), xtol=1e-13))
+
+    above = mag >= level
+    change = np.nonzero(above[1:] != above[:-1])[0]
+    if kind == "low-pass":
+        band = [0.0, crossing(change[0]) if change.size else None]
+    elif kind == "high-pass":
+        band = [crossing(change[-1]) if change.size else 0.0, None]
+    else:
+        left, right = change[change < k], change[change >= k]
+        band = [crossing(left[-1]) if left.size else 0.0, crossing(right[0]) if right.size else None]
+    return {"dc_gain": dc, "hf_gain": hf, "peak_gain": peak, "peak_rad_s": peak_w, "band_3db_rad_s": band,
+            "kind": kind}
+
+
+def frequency_analysis(scenario: Scenario, q0, omega=DEFAULT_OMEGA, t: float = 0.0) -> dict:
+    """Bode magnitudes and per-joint metrics of ``w[i] -> e[i]`` (with/without) and ``w[i] -> e_d[i]``.
+
+    Returns
+    -------
+    dict
+        JSON-ready: ``omega_rad_s``; for ``tracking_with_dob``,
+        ``tracking_without_dob`` and ``estimation_with_dob``: ``magnitude``
+        (4 lists, diagonal channels), ``metrics`` (4 dicts of
+        :func:`siso_metrics`), ``closed_form_max_rel_error`` (largest relative
+        distance from the closed form over the grid, all 16 channels).
+    """
+    q0 = np.asarray(q0, dtype=float)
+    omega = np.asarray(omega, dtype=float)
+    out = {"q0": q0.tolist(), "omega_rad_s": omega.tolist(),
+           "units": {"tracking": ["rad/(N m)", "rad/(N m)", "m/N", "rad/(N m)"], "estimation": ["1"] * 4}}
+    held = hold_scenario(scenario, q0)
+    for observer, key in ((True, "with_dob"), (False, "without_dob")):
+        lin = frozen_response(scenario, q0, observer, t)
+        channels = [("tracking", "e", 0)] + ([("estimation", "e_d", 4)] if observer else [])
+        for name, output, offset in channels:
+            full = np.moveaxis(np.asarray(lin(1j * omega))[offset:offset + 4, :, :], -1, 0)  # (n_omega, 4, 4)
+            exact = closed_form(held, q0, omega, observer, output)
+            scale = np.maximum(np.abs(exact), np.abs(exact).max(axis=(1, 2), keepdims=True) * 1e-9)
+            out[f"{name}_{key}"] = {
+                "magnitude": [np.abs(full[:, i, i]).tolist() for i in range(4)],
+                "metrics": [siso_metrics(lin, offset + i, i, omega) for i in range(4)],
+                "closed_form_max_rel_error": float(np.max(np.abs(full - exact) / scale)),
+            }
+    return out

@@ -1,0 +1,139 @@
+"""The step schedule of a batch: where RK4 steps end, and how fine they are."""
+from __future__ import annotations
+
+import math
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from ..scenario import Scenario
+from ..systems import JOINTS
+from .variants import Variants
+
+__all__ = ["step_schedule", "auto_substeps", "fastest_rate", "noise_breakpoints", "batch_schedule",
+           "STEP_LAMBDA", "STEPS_PER_PHASE", "TISSUE_STEP"]
+
+
+def _trajectory_breakpoints(trajectory, t_final: float) -> list[float]:
+    """Times (s) where the reference's derivatives jump: a laceration path's phase boundaries."""
+    explicit = getattr(trajectory, "breakpoints", None)
+    if callable(explicit):
+        return [float(t) for t in explicit()]
+    if hasattr(trajectory, "phase_duration") and hasattr(trajectory, "stitches"):
+        T = trajectory.phase_duration
+        return [k * T for k in range(1, 2 * trajectory.stitches - 1)] + [trajectory.duration]
+    return []
+
+
+#: Largest ``h * lambda`` the automatic step allows (RK4 global error then stays below the
+#: paper RK45 run's own error, see :mod:`blocks.batch`).
+STEP_LAMBDA = 0.3
+#: Steps per phase of the reference (laceration phase or sine period) the automatic step allows.
+STEPS_PER_PHASE = 200
+#: Step cap (s) with tissue contact, whose kinks no smoothness estimate covers.
+TISSUE_STEP = 1e-3
+
+
+def fastest_rate(variants: "Variants", observer: bool = True) -> float:
+    """An upper estimate (1/s) of the fastest closed-loop rate over all members.
+
+    The largest of: the PD poles ``s^2 + kd s + kp`` scaled by the model
+    mismatch ``lambda_max(M^-1 M^)``; the observer's ``Y M^-1`` on the true and
+    nominal inertia; the friction's ``M^-1 (F_c / v_s + F_v)``.  Inertia is
+    taken at ``cos(theta2) = -1, 0, 1``.
+    """
+    from ..dynamics import inertia
+    c2 = np.array([-1.0, 0.0, 1.0])
+    q = np.zeros((3, JOINTS))
+    q[:, 1] = np.arccos(c2)
+    M = np.array([inertia(q, p) for p in variants.robots])          # (N, 3, 4, 4)
+    M_hat = np.array([inertia(q, p) for p in variants.nominals])
+    M_inv, M_hat_inv = np.linalg.inv(M), np.linalg.inv(M_hat)
+    mismatch = np.abs(np.linalg.eigvals(M_inv @ M_hat)).max(axis=(1, 2))                  # (N,)
+    kp, kd = variants.kp.T, variants.kd.T                                                   # (N, 4)
+    disc = kd ** 2 - 4 * kp
+    pd = np.where(disc >= 0, 0.5 * (kd + np.sqrt(np.abs(disc))), np.sqrt(kp)).max(axis=1)
+    rates = [pd * np.maximum(mismatch, 1.0)]
+    if observer:
+        Y = variants.y_full.transpose(2, 0, 1) if variants.y_full is not None else \
+            np.apply_along_axis(np.diag, 1, variants.y_diag.T)                             # (N, 4, 4)
+        for inv in (M_inv, M_hat_inv):
+            rates.append(np.abs(np.linalg.eigvals(Y[:, None] @ inv)).max(axis=(1, 2)))
+    if "friction" in variants.base.disturbance.kinds:
+        dist = variants.disturbance
+        damping = dist.coulomb / dist.friction_velocity + dist.viscous                      # (N, 4)
+        D = np.apply_along_axis(np.diag, 1, damping)
+        rates.append(np.abs(np.linalg.eigvals(M_inv @ D[:, None])).max(axis=(1, 2)))
+    return float(np.max(rates))
+
+
+def auto_substeps(variants: "Variants", observer: bool = True) -> int:
+    """RK4 steps per output interval so that ``h * fastest_rate <= STEP_LAMBDA``, the reference
+    gets at least :data:`STEPS_PER_PHASE` steps per phase, and tissue contact ``h <= TISSUE_STEP``."""
+    s = variants.base
+    h = STEP_LAMBDA / fastest_rate(variants, observer)
+    phase = getattr(s.trajectory, "phase_duration", None)
+    if phase is None and hasattr(s.trajectory, "omega"):
+        phase = 2 * math.pi / max(max(s.trajectory.omega), 1e-12)
+    if phase is not None:
+        h = min(h, phase / STEPS_PER_PHASE)
+    if "tissue" in s.disturbance.kinds:
+        h = min(h, TISSUE_STEP)
+    return max(1, int(math.ceil(s.simulation.output_step / h - 1e-9)))
+
+
+def step_schedule(t_final: float, output_step: float, substeps: int = 1, breakpoints: Iterable[float] = (),
+                  merge: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
+    """Step end points (s) for fixed-step integration, and which of them lie on the output grid.
+
+    Parameters
+    ----------
+    t_final, output_step : float
+        End time and output grid spacing (s).
+    substeps : int
+        Steps per output interval, >= 1.
+    breakpoints : iterable of float
+        Extra times (s) the steps must land on; those outside (0, t_final) are ignored.
+    merge : float
+        Points closer than this (s) to a grid point are merged into it.
+
+    Returns
+    -------
+    times : numpy.ndarray
+        Increasing, from 0 to ``t_final``.
+    grid_index : numpy.ndarray of int
+        For each time, its index on the output grid, or -1 if it is not a grid point.
+    """
+    if isinstance(substeps, bool) or int(substeps) != substeps or substeps < 1:
+        raise ValueError(f"substeps must be a whole number >= 1, got {substeps!r}")
+    n_grid = int(round(t_final / output_step))
+    grid = np.linspace(0.0, n_grid * output_step, n_grid + 1)
+    # Subdivide each grid interval so that the grid points themselves are in the schedule exactly.
+    frac = np.arange(int(substeps)) / int(substeps)
+    fine = np.append((grid[:-1, None] + np.diff(grid)[:, None] * frac).ravel(), grid[-1])
+    extra = np.array([b for b in breakpoints if merge < b < grid[-1] - merge], dtype=float)
+    if extra.size:
+        near = np.min(np.abs(extra[:, None] - fine[None, :]), axis=1) <= merge
+        extra = extra[~near]
+    times = np.union1d(fine, extra)
+    grid_index = np.full(times.size, -1)
+    pos = np.searchsorted(times, grid)
+    grid_index[pos] = np.arange(grid.size)
+    return times, grid_index
+
+
+def noise_breakpoints(scenario: Scenario, sample_period: float | None = None) -> list[float]:
+    """The noise sample times (s) of a scenario's run, where measurement noise changes slope."""
+    period = sample_period if sample_period is not None else scenario.data["noise"]["sample_period"]
+    return list(np.arange(1, int(math.ceil(scenario.simulation.t_final / period))) * period)
+
+
+def batch_schedule(v: Variants, substeps: int, extra: Sequence[float] = ()) -> tuple[np.ndarray, np.ndarray]:
+    """The batch's step schedule: the output grid, divided by ``substeps``, plus the breakpoints of the
+    reference, ``extra`` and, when any member has noise, the noise sample times."""
+    sim = v.base.simulation
+    breaks = _trajectory_breakpoints(v.base.trajectory, sim.t_final) + [float(b) for b in extra]
+    noises = [nz for nz in v.noises if nz is not None]
+    if noises:
+        breaks += noise_breakpoints(v.base, noises[0].sample_period)
+    return step_schedule(sim.t_final, sim.output_step, substeps, breaks)

@@ -1,0 +1,258 @@
+"""The Figure-2 loop: blocks from a scenario, their interconnection, and its simulation.
+
+::
+
+    trajectory --(q_ref, dq_ref, ddq_ref)--> controller --(tau)--> plant --(q, dq)--+--> outputs
+                                               ^      ^               ^             |
+                                               |      +--(d_hat)-- observer <-------+ (tau, q, dq)
+                                               +----------------------(q, dq)-------+
+
+The interconnected system returned by :func:`closed_loop` is the single
+description of the loop.  :func:`simulate` integrates it; by default through
+:class:`~blocks.fastsim.CompiledLoop` (each block evaluated once per
+step, in dependency order), or with ``engine="python-control"`` through
+:func:`control.input_output_response`.  Both give the same numbers to solver
+tolerance.
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+import control as ct
+import numpy as np
+
+from .dynamics import coriolis_vector, forward_dynamics, gravity, inertia
+from .fastsim import CompiledLoop
+from .integrate import DivergenceError, SolverFailure, integrate_on_grid
+from .scenario import Scenario, load_scenario
+from .systems import JOINTS, controller, plant, sensor, signal_names, trajectory_block
+from .systems import observer as observer_block
+
+__all__ = ["build_blocks", "closed_loop", "initial_state", "simulate", "SimulationError", "lumped_disturbance",
+           "LOOP_SIGNALS"]
+
+LOOP_SIGNALS = ("q", "dq", "q_ref", "dq_ref", "ddq_ref", "tau", "d_hat", "tau_dis")
+
+# A state this large (rad, m, rad/s, N m) means the loop has diverged: stop with an error.
+DIVERGENCE_BOUND = 1e6
+
+
+class SimulationError(RuntimeError):
+    """The simulation failed or diverged; the message gives the time and the reason."""
+
+
+def _as_scenario(scenario) -> Scenario:
+    return scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+
+
+def build_blocks(scenario: Scenario | str = "paper", observer: bool = True, plant_system=None) -> dict:
+    """The blocks of Figure 2 for a scenario, as python-control systems.
+
+    Parameters
+    ----------
+    scenario : Scenario or str
+        A scenario or the name/path of one.
+    observer : bool
+        Include the disturbance observer (otherwise the controller uses ``d_hat = 0``).
+    plant_system : control.NonlinearIOSystem, optional
+        A replacement for the Python plant (for example an FMU loaded with
+        :func:`fmu.load`); it must take ``tau[i]`` and give ``q[i]``,
+        ``dq[i]`` and ``tau_dis[i]``.
+
+    Returns
+    -------
+    dict
+        ``trajectory``, ``controller``, ``plant``, and ``observer`` and ``sensor``
+        when present, keyed by block name.
+    """
+    s = _as_scenario(scenario)
+    measured = "_meas" if s.noise is not None else ""
+    blocks = {
+        "trajectory": trajectory_block(s.trajectory),
+        "controller": controller(s.nominal, s.kp, s.kd, use_observer=observer, measured=measured),
+        "plant": plant(s.robot, s.disturbance) if plant_system is None else plant_system,
+    }
+    if observer:
+        blocks["observer"] = observer_block(s.nominal, s.observer_gain, s.observer_variant, measured=measured)
+    if s.noise is not None:
+        blocks["sensor"] = sensor(s.noise)
+    return blocks
+
+
+def closed_loop(scenario: Scenario | str = "paper", observer: bool = True, plant=None) -> ct.InterconnectedSystem:
+    """The Figure-2 interconnection, wired by signal name with :func:`control.interconnect`.
+
+    Parameters
+    ----------
+    scenario : Scenario or str
+    observer : bool
+        With or without the disturbance observer.
+    plant : control.NonlinearIOSystem, optional
+        A replacement for the Python plant (see :func:`build_blocks`).
+
+    Returns
+    -------
+    control.InterconnectedSystem
+        No external inputs; outputs ``q, dq, q_ref, dq_ref, ddq_ref, tau, tau_dis``
+        (``[i]`` per joint), ``d_hat`` with the observer, and ``q_meas``, ``dq_meas``
+        with measurement noise.
+    """
+    s = _as_scenario(scenario)
+    blocks = build_blocks(s, observer=observer, plant_system=plant)
+    signals = [sig for sig in LOOP_SIGNALS if observer or sig != "d_hat"]
+    if "sensor" in blocks:
+        signals += ["q_meas", "dq_meas"]
+    outputs = [name for sig in signals for name in signal_names(sig)]
+    plant_sys = blocks["plant"]
+    needed_outputs = signal_names("q") + signal_names("dq") + signal_names("tau_dis")
+    missing = [n for n in needed_outputs if n not in plant_sys.output_labels]
+    missing += [n for n in signal_names("tau") if n not in plant_sys.input_labels]
+    if missing:
+        raise ValueError(f"plant block '{plant_sys.name}' lacks signals the loop needs: {missing} "
+                         "(it must take tau[0..3] and give q, dq and tau_dis[0..3])")
+    loop = ct.interconnect(list(blocks.values()), inplist=[], outlist=outputs, outputs=outputs,
+                           name="dob_loop" if observer else "ctc_loop", check_unused=False)
+    loop.scenario = s
+    loop.with_observer = observer
+    return loop
+
+
+def initial_state(loop: ct.InterconnectedSystem, scenario: Scenario | None = None) -> np.ndarray:
+    """Start state: the arm on its reference and ``d_hat(0) = 0``, unless the scenario sets other values.
+
+    Plant states are found by name (``q[i]``, ``dq[i]``), so a substituted plant
+    (an FMU) with those state names starts in the same place; its other states
+    keep their own start values (attribute ``initial_state`` when present).
+    """
+    s = scenario if scenario is not None else loop.scenario
+    q_ref0, dq_ref0, _ = s.trajectory.evaluate(0.0)
+    q0 = s.initial["q"] if s.initial["q"] is not None else q_ref0
+    dq0 = s.initial["dq"] if s.initial["dq"] is not None else dq_ref0
+    d_hat0 = s.initial["d_hat"] if s.initial["d_hat"] is not None else np.zeros(JOINTS)
+    x0, offset = np.zeros(loop.nstates), 0
+    for block in loop.syslist:
+        xs = slice(offset, offset + block.nstates)
+        if block.name == "observer":
+            dq_meas0 = dq0 + (s.noise.sample(0.0)[1] if s.noise is not None else 0.0)
+            x0[xs] = d_hat0 - block.gain @ dq_meas0          # d_hat = Y dq + z
+        elif block.name == "plant":
+            x0[xs] = np.asarray(getattr(block, "initial_state", np.zeros(block.nstates)), dtype=float)
+            labels = list(block.state_labels)
+            for name, values in (("q", q0), ("dq", dq0)):
+                for i in range(JOINTS):
+                    label = f"{name}[{i}]"
+                    if label not in labels:
+                        raise ValueError(f"plant block has no state '{label}' to start the arm on its reference")
+                    x0[offset + labels.index(label)] = values[i]
+        offset += block.nstates
+    return x0
+
+
+def lumped_disturbance(q, dq, tau, tau_dis, scenario: Scenario) -> np.ndarray:
+    """The total disturbance ``d`` the observer estimates, relative to the nominal model (Eq. 2-3).
+
+    ``M^ q'' + N^ q' + G^ = tau + d`` with ``d = tau_dis + (M^ - M) q'' + (N^ - N) q' + (G^ - G)``,
+    where ``q''`` is the true acceleration.  With a perfect model ``d = tau_dis``.
+    Arrays of shape (..., 4).  The true model is the scenario's ``robot``: with a
+    substituted plant (an FMU) whose parameters differ from the scenario's, ``d``
+    is relative to the scenario's robot, not to that plant.
+    """
+    s = scenario
+    ddq = forward_dynamics(q, dq, np.asarray(tau) + np.asarray(tau_dis), s.robot)
+    nominal_side = (inertia(q, s.nominal) @ ddq[..., None])[..., 0] + coriolis_vector(q, dq, s.nominal) \
+        + gravity(q, s.nominal)
+    return nominal_side - np.asarray(tau)
+
+
+def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=None, engine: str = "fast",
+             progress: Callable[[float], None] | None = None) -> ct.TimeResponseData:
+    """Simulate the Figure-2 loop of a scenario on its uniform output grid.
+
+    Parameters
+    ----------
+    scenario : Scenario or str
+        A scenario or the name/path of one (default: the built-in ``paper``).
+    observer : bool
+        With or without the disturbance observer.
+    plant : control.NonlinearIOSystem, optional
+        A replacement plant (for example an FMU loaded with :func:`fmu.load`).
+    engine : {"fast", "python-control"}
+        ``fast`` integrates the compiled loop (each block output evaluated once
+        per call); ``python-control`` calls :func:`control.input_output_response`
+        on the same interconnected system.
+    progress : callable, optional
+        Called with the fraction of simulated time done (0..1) as the solver advances.
+
+    Returns
+    -------
+    control.TimeResponseData
+        Outputs by name: ``q[i]``, ``dq[i]``, ``q_ref[i]``, ``dq_ref[i]``,
+        ``ddq_ref[i]``, ``tau[i]``, ``tau_dis[i]``, ``d_hat[i]`` (with the
+        observer), ``d[i]`` (the lumped disturbance the observer estimates, see
+        :func:`lumped_disturbance`) and ``q_meas[i]``, ``dq_meas[i]`` with noise.
+        States are the loop's states.  Time in s.
+
+    Raises
+    ------
+    SimulationError
+        If the solver fails or the state diverges; the message says when and why.
+    """
+    s = _as_scenario(scenario)
+    loop = closed_loop(s, observer=observer, plant=plant)
+    x0 = initial_state(loop, s)
+    sim = s.simulation
+    t_grid = sim.time_grid
+    if engine == "fast":
+        states, outputs = _integrate_compiled(loop, x0, t_grid, sim, progress)
+    elif engine == "python-control":
+        resp = ct.input_output_response(loop, t_grid, 0, x0, solve_ivp_method=sim.method,
+                                        solve_ivp_kwargs=dict(rtol=sim.rtol, atol=sim.atol, max_step=sim.max_step),
+                                        return_states=True)
+        if not resp.success:
+            raise SimulationError(f"scenario '{s.name}': solver failed: {resp.message}")
+        states, outputs = np.atleast_2d(resp.states), np.atleast_2d(resp.outputs)
+        _check_finite(t_grid, states, s)
+        beyond = np.max(np.abs(states), axis=0) > DIVERGENCE_BOUND
+        if beyond.any():
+            raise SimulationError(f"scenario '{s.name}': the loop diverged at t = {t_grid[np.argmax(beyond)]:.6g} s "
+                                  f"(a state exceeded {DIVERGENCE_BOUND:g}); no result is returned")
+    else:
+        raise ValueError(f"engine must be 'fast' or 'python-control', got {engine!r}")
+    labels = list(loop.output_labels)
+    idx = {name: labels.index(name) for name in labels}
+    pick = lambda sig: outputs[[idx[n] for n in signal_names(sig)]].T  # noqa: E731
+    d = lumped_disturbance(pick("q"), pick("dq"), pick("tau"), pick("tau_dis"), s).T
+    all_outputs = np.vstack([outputs, d])
+    title = f"{s.name}: {'with' if observer else 'without'} disturbance observer"
+    resp = ct.TimeResponseData(t_grid, all_outputs, states, output_labels=labels + signal_names("d"),
+                               state_labels=list(loop.state_labels), title=title, sysname=loop.name, issiso=False,
+                               plot_inputs=False)
+    resp.scenario = s
+    resp.with_observer = observer
+    return resp
+
+
+def _integrate_compiled(loop, x0, t_grid, sim, progress):
+    compiled = CompiledLoop(loop)
+    name = loop.scenario.name
+    try:
+        states, _ = integrate_on_grid(compiled.rhs, x0, t_grid, sim.method, rtol=sim.rtol, atol=sim.atol,
+                                      max_step=sim.max_step, bound=DIVERGENCE_BOUND, progress=progress)
+    except DivergenceError as err:
+        raise SimulationError(f"scenario '{name}': the loop diverged at t = {err.time:.6g} s "
+                              f"(a state exceeded {DIVERGENCE_BOUND:g} or became non-finite); "
+                              f"no result is returned") from None
+    except SolverFailure as err:
+        raise SimulationError(f"scenario '{name}': the solver stopped at t = {err.time:.6g} s of "
+                              f"{t_grid[-1]:g} s: {err.reason}") from None
+    # integrate_on_grid has checked every step's state: finite and within the bound
+    outputs = compiled.outputs_on_grid(t_grid, states)
+    if progress is not None:
+        progress(1.0)
+    return states, outputs
+
+
+def _check_finite(t_grid, states, s):
+    bad = ~np.all(np.isfinite(states), axis=0)
+    if bad.any():
+        raise SimulationError(f"scenario '{s.name}': the state became non-finite at t = {t_grid[np.argmax(bad)]:.6g} s")

@@ -1,0 +1,290 @@
+"""Reference trajectories: a suturing path on the skin (task space, via inverse kinematics) and joint sines.
+
+Both kinds expose ``evaluate(t) -> (q_ref, dq_ref, ddq_ref)`` for a scalar or
+an array of times (s); the arrays have shape ``(4,)`` or ``(len(t), 4)``.
+
+The laceration path
+-------------------
+A laceration is a line (or a gently curved arc, ``bulge``) on the skin, a
+horizontal plane at ``skin_height``.  The tool places ``stitches`` stitches at
+equal spacing along it, first to last.  The motion alternates between two
+kinds of phase of equal length ``duration / (2 * stitches - 1)``:
+
+* a *stitch*: the tool, resting above the skin at ``hover`` height, dips to
+  ``depth`` below the skin and back while it rolls the needle by
+  ``needle_roll`` and back;
+* a *travel*: the tool moves along the laceration to the next stitch point.
+
+Every phase starts and ends at rest with zero acceleration (a quintic
+"smoothstep" for travel, a ``64 tau^3 (1 - tau)^3`` bump for the dip and
+roll), so the task-space path is C2 and the joint references have exact,
+continuous first and second derivatives.  They come from inverse kinematics:
+``q = IK(p)``, ``q' = J^-1 p'``, ``q'' = J^-1 (p'' - J' q')`` -- no finite
+differences.  After ``duration`` the reference holds the last pose.
+
+Construction samples the whole path and raises
+:class:`~blocks.kinematics.UnreachableError` if any point is outside
+the workspace or closer to the singular ``theta2 = 0, pi`` than
+``singularity_margin``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .kinematics import ELBOWS, UnreachableError, inverse_kinematics, jacobian, jacobian_derivative_times_dq
+from .parameters import RobotParameters
+
+__all__ = ["LacerationPath", "JointSine", "TRAJECTORY_KINDS", "smoothstep5", "bump6"]
+
+TRAJECTORY_KINDS = ("laceration", "joint_sine")
+
+
+def smoothstep5(tau: float):
+    """Quintic smoothstep ``10 tau^3 - 15 tau^4 + 6 tau^5`` on [0, 1] and its two derivatives (per unit tau)."""
+    return (tau ** 3 * (10 - 15 * tau + 6 * tau ** 2), 30 * tau ** 2 * (1 - tau) ** 2,
+            60 * tau * (1 - tau) * (1 - 2 * tau))
+
+
+def bump6(tau: float):
+    """Bump ``64 tau^3 (1 - tau)^3`` (peak 1 at tau = 1/2, C2 at both ends) and its two derivatives."""
+    u, du = tau * (1 - tau), 1 - 2 * tau
+    return 64 * u ** 3, 192 * u ** 2 * du, 384 * u * du ** 2 - 384 * u ** 2
+
+
+def _finite(value, name: str):
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"trajectory.{name} must be a number or a list of numbers, got {value!r}") from None
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"trajectory.{name} must be finite, got {value!r}")
+    return arr
+
+
+def _scalar(value, name: str, unit: str) -> float:
+    arr = _finite(value, name)
+    if arr.ndim != 0:
+        raise ValueError(f"trajectory.{name} must be one number in {unit}, got {value!r}")
+    return float(arr)
+
+
+@dataclass(frozen=True)
+class LacerationPath:
+    """A suturing path along a laceration, turned into joint references by inverse kinematics.
+
+    Parameters
+    ----------
+    params : RobotParameters
+        Arm parameters (its kinematic lengths and offsets).
+    start, end : 2 floats
+        End points of the laceration in the base x-y plane (m).
+    bulge : float
+        Sideways offset of the laceration's midpoint from the straight line
+        (m, positive to the left of start->end); 0 is a straight cut.
+    stitches : int
+        Number of stitches, >= 2, the first at ``start`` and the last at ``end``.
+    skin_height : float
+        Height of the skin plane in the base frame (m).
+    hover : float
+        Tool height above the skin while travelling (m), >= 0.
+    depth : float
+        Depth of each stitch below the skin (m), > 0.
+    needle_roll : float
+        Tool roll used to drive the needle at each stitch (rad).
+    roll_offset : float
+        Tool roll angle ``phi`` at rest (rad).
+    duration : float
+        Time to complete all stitches (s), > 0.
+    elbow : {"positive", "negative"}
+        Inverse-kinematics branch (sign of theta2).
+    singularity_margin : float
+        Smallest allowed distance of ``theta2`` from 0 and pi along the path (rad).
+    """
+
+    params: RobotParameters = field(default_factory=RobotParameters)
+    start: tuple[float, float] = (0.42, -0.04)
+    end: tuple[float, float] = (0.42, 0.04)
+    bulge: float = 0.0
+    stitches: int = 5
+    skin_height: float = 0.12 - 0.24 - 0.271
+    hover: float = 0.003
+    depth: float = 0.004
+    needle_roll: float = 1.0
+    roll_offset: float = 0.0
+    duration: float = 10.0
+    elbow: str = "positive"
+    singularity_margin: float = 0.2
+
+    def __post_init__(self) -> None:
+        for name in ("start", "end"):
+            value = _finite(getattr(self, name), name)
+            if value.shape != (2,):
+                raise ValueError(f"trajectory.{name} must be 2 numbers (x, y) in m, got {getattr(self, name)!r}")
+            object.__setattr__(self, name, tuple(float(v) for v in value))
+        for name, unit in (("bulge", "m"), ("skin_height", "m"), ("hover", "m"), ("depth", "m"),
+                           ("needle_roll", "rad"), ("roll_offset", "rad"), ("duration", "s"),
+                           ("singularity_margin", "rad")):
+            object.__setattr__(self, name, _scalar(getattr(self, name), name, unit))
+        if not isinstance(self.stitches, (int, np.integer)) or isinstance(self.stitches, bool) or self.stitches < 2:
+            raise ValueError(f"trajectory.stitches must be a whole number >= 2, got {self.stitches!r}")
+        object.__setattr__(self, "stitches", int(self.stitches))
+        if self.hover < 0:
+            raise ValueError(f"trajectory.hover must be >= 0 m, got {self.hover}")
+        if self.depth <= 0:
+            raise ValueError(f"trajectory.depth must be > 0 m, got {self.depth}")
+        if self.duration <= 0:
+            raise ValueError(f"trajectory.duration must be > 0 s, got {self.duration}")
+        if not 0 <= self.singularity_margin < math.pi / 2:
+            raise ValueError(f"trajectory.singularity_margin must be in [0, pi/2) rad, got {self.singularity_margin}")
+        if self.elbow not in ELBOWS:
+            raise ValueError(f"trajectory.elbow must be one of {sorted(ELBOWS)}, got {self.elbow!r}")
+        if np.allclose(self.start, self.end):
+            raise ValueError("trajectory.start and trajectory.end must differ")
+        # The branch reference for theta1/theta4 continuity is the rest pose at the start.
+        object.__setattr__(self, "_q_near", None)
+        self._check_reachable()
+        q0 = inverse_kinematics(self.pose(0.0)[0][0], self.params, self.elbow)
+        object.__setattr__(self, "_q_near", q0)
+
+    # -- task space -------------------------------------------------------------------------
+    @property
+    def phase_duration(self) -> float:
+        """Length of one stitch or travel phase (s)."""
+        return self.duration / (2 * self.stitches - 1)
+
+    def pose(self, t):
+        """Task-space reference ``[x, y, z, phi]`` and its first two time derivatives.
+
+        Returns three arrays of shape ``(len(t), 4)`` (m, m, m, rad and their rates).
+        """
+        rows = [self._pose_scalar(float(ti)) for ti in np.atleast_1d(np.asarray(t, dtype=float))]
+        return tuple(np.array([row[k] for row in rows], dtype=float).reshape(-1, 4) for k in range(3))
+
+    def _pose_scalar(self, t: float):
+        """The pose and its rates at one time, in plain floats (the simulator calls this thousands of times)."""
+        T = self.phase_duration
+        phase = min(max(math.floor(t / T), 0), 2 * self.stitches - 2)
+        tau = 1.0 if t >= self.duration else min(max(t / T - phase, 0.0), 1.0)
+        step = 1.0 / (self.stitches - 1)
+        # arc parameter s along the laceration advances in travel phases; the dip b acts in stitch phases
+        s, ds, dds, b, db, ddb = step * (phase // 2), 0.0, 0.0, 0.0, 0.0, 0.0
+        if phase % 2 == 1:
+            sig, dsig, ddsig = smoothstep5(tau)
+            s, ds, dds = s + step * sig, step * dsig / T, step * ddsig / T ** 2
+        else:
+            b, db, ddb = bump6(tau)
+            db, ddb = db / T, ddb / T ** 2
+        # the laceration: start + s (end - start) + a parabolic sideways offset of 'bulge' at its middle
+        (x0, y0), (x1, y1) = self.start, self.end
+        dx, dy = x1 - x0, y1 - y0
+        length = math.hypot(dx, dy)
+        nx, ny = -dy / length, dx / length
+        w, dw, ddw = 4 * self.bulge * s * (1 - s), 4 * self.bulge * (1 - 2 * s), -8 * self.bulge
+        tx, ty = dx + dw * nx, dy + dw * ny
+        reach = self.hover + self.depth
+        pos = (x0 + s * dx + w * nx, y0 + s * dy + w * ny, self.skin_height + self.hover - reach * b,
+               self.roll_offset + self.needle_roll * b)
+        vel = (tx * ds, ty * ds, -reach * db, self.needle_roll * db)
+        acc = (ddw * nx * ds ** 2 + tx * dds, ddw * ny * ds ** 2 + ty * dds, -reach * ddb, self.needle_roll * ddb)
+        return pos, vel, acc
+
+    def _evaluate_scalar(self, t: float) -> np.ndarray:
+        """``[q_ref, dq_ref, ddq_ref]`` (12,) at one time by closed-form inverse kinematics, using the arm's structure:
+        the planar 2x2 block of J has determinant ``a1 a2 sin(theta2)``, ``d3' = -z'`` and
+        ``theta4' = theta1' + theta2' - phi'``."""
+        (x, y, z, phi), (vx, vy, vz, vphi), (ax, ay, az, aphi) = self._pose_scalar(float(t))
+        a1, a2, prm = self.params.a1, self.params.a2, self.params
+        c2 = (x * x + y * y - a1 * a1 - a2 * a2) / (2 * a1 * a2)
+        if abs(c2) > 1:
+            raise UnreachableError(f"laceration path leaves the workspace at t = {t} s")
+        s2 = ELBOWS[self.elbow] * math.sqrt(max(0.0, 1 - c2 * c2))
+        t2 = math.atan2(s2, c2)
+        t1 = math.atan2(y, x) - math.atan2(a2 * s2, a1 + a2 * c2)
+        t1 = self._q_near[0] + (t1 - self._q_near[0] + math.pi) % (2 * math.pi) - math.pi
+        t4 = t1 + t2 - phi
+        t4 = self._q_near[3] + (t4 - self._q_near[3] + math.pi) % (2 * math.pi) - math.pi
+        c1, s1, c12, s12 = math.cos(t1), math.sin(t1), math.cos(t1 + t2), math.sin(t1 + t2)
+        det = a1 * a2 * s2
+
+        def planar_solve(bx, by):
+            return (a2 * c12 * bx + a2 * s12 * by) / det, (-(a1 * c1 + a2 * c12) * bx - (a1 * s1 + a2 * s12) * by) / det
+
+        w1, w2 = planar_solve(vx, vy)
+        w12 = w1 + w2
+        bx = ax + a1 * c1 * w1 ** 2 + a2 * c12 * w12 ** 2      # p'' - J' q'
+        by = ay + a1 * s1 * w1 ** 2 + a2 * s12 * w12 ** 2
+        e1, e2 = planar_solve(bx, by)
+        return np.array([t1, t2, prm.d1 - prm.d4 - z, t4, w1, w2, -vz, w12 - vphi, e1, e2, -az, e1 + e2 - aphi])
+
+    # -- joint space ------------------------------------------------------------------------
+    def evaluate(self, t):
+        """Joint references ``(q_ref, dq_ref, ddq_ref)`` at time(s) ``t`` (s)."""
+        scalar = np.ndim(t) == 0
+        if scalar and self._q_near is not None:
+            refs = self._evaluate_scalar(t)
+            return refs[:4], refs[4:8], refs[8:]
+        pos, vel, acc = self.pose(t)
+        q = inverse_kinematics(pos, self.params, self.elbow, q_near=self._q_near)
+        J = jacobian(q, self.params)
+        dq = np.linalg.solve(J, vel[..., None])[..., 0]
+        ddq = np.linalg.solve(J, (acc - jacobian_derivative_times_dq(q, dq, self.params))[..., None])[..., 0]
+        if scalar:
+            return q[0], dq[0], ddq[0]
+        return q, dq, ddq
+
+    def evaluate_stacked(self, t) -> np.ndarray:
+        """``[q_ref, dq_ref, ddq_ref]`` at time(s) ``t`` (s) in one array, shape ``np.shape(t) + (12,)``."""
+        if np.ndim(t) == 0 and self._q_near is not None:
+            return self._evaluate_scalar(t)
+        return np.concatenate(self.evaluate(t), axis=-1)
+
+    def _check_reachable(self, samples: int = 4001) -> None:
+        t = np.linspace(0.0, self.duration, samples)
+        pos, _, _ = self.pose(t)
+        try:
+            inverse_kinematics(pos, self.params, self.elbow, min_sin_theta2=math.sin(self.singularity_margin))
+        except UnreachableError as err:
+            raise UnreachableError(f"laceration path: {err}") from None
+
+
+@dataclass(frozen=True)
+class JointSine:
+    """``q_ref = offset + amplitude * sin(omega * t)`` per joint, for checks.
+
+    Parameters
+    ----------
+    amplitude : 4 floats
+        Amplitudes (rad, rad, m, rad).
+    omega : float or 4 floats
+        Angular frequencies (rad/s).
+    offset : 4 floats
+        Offsets (rad, rad, m, rad).
+    """
+
+    amplitude: tuple[float, ...] = (0.1, 0.1, 0.01, 0.1)
+    omega: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0)
+    offset: tuple[float, ...] = (0.0, 2.0, 0.24, 0.0)
+
+    def __post_init__(self) -> None:
+        for name in ("amplitude", "omega", "offset"):
+            value = _finite(getattr(self, name), name)
+            if name == "omega" and value.ndim == 0:
+                value = np.full(4, float(value))
+            if value.shape != (4,):
+                raise ValueError(f"trajectory.{name} must be 4 numbers" + (" or one" if name == "omega" else "")
+                                 + f", got {getattr(self, name)!r}")
+            object.__setattr__(self, name, tuple(float(v) for v in value))
+
+    def evaluate(self, t):
+        """Joint references ``(q_ref, dq_ref, ddq_ref)`` at time(s) ``t`` (s)."""
+        t = np.asarray(t, dtype=float)
+        a, w, c = (np.array(v) for v in (self.amplitude, self.omega, self.offset))
+        phase = t[..., None] * w
+        return c + a * np.sin(phase), a * w * np.cos(phase), -a * w ** 2 * np.sin(phase)
+
+    def evaluate_stacked(self, t) -> np.ndarray:
+        """``[q_ref, dq_ref, ddq_ref]`` at time(s) ``t`` (s) in one array, shape ``np.shape(t) + (12,)``."""
+        return np.concatenate(self.evaluate(t), axis=-1)

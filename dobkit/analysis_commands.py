@@ -1,0 +1,121 @@
+"""``dobkit analyze`` and ``dobkit report``: the analyses of :mod:`analysis.report` from the command line.
+
+Registered on the main ``dobkit`` parser by :func:`add_analysis_subcommands`.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+from dataclasses import replace
+
+__all__ = ["add_analysis_subcommands", "ANALYSIS_PREFIX", "REPORT_PREFIX"]
+
+# Default output folders: PREFIX-YYYYmmdd-HHMMSS under the current folder.
+ANALYSIS_PREFIX = "dobkit-analysis"
+REPORT_PREFIX = "dobkit-report"
+
+
+def _positive_rate(text: str) -> float:
+    """``--observer-target``: a finite number > 0 (rad/s), checked while the arguments are parsed."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number in rad/s, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0 rad/s, got {text!r}")
+    return value
+
+
+def _positive_int(text: str) -> int:
+    """``--jobs``: a whole number >= 1, checked while the arguments are parsed."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a whole number >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a whole number >= 1, got {text!r}")
+    return value
+
+
+def _add_common(parser: argparse.ArgumentParser, prefix: str) -> None:
+    parser.add_argument("--scenario", default="paper", help="built-in scenario name or path to a TOML file "
+                        "(default: paper)")
+    parser.add_argument("--out", default=None, help="output folder, must not exist or be empty (default: a new "
+                        f"folder {prefix}-YYYYmmdd-HHMMSS under the current one)")
+    parser.add_argument("--observer-target", type=_positive_rate, default=None, metavar="RAD_S",
+                        help="target slowest observer mode of the gain design in rad/s, finite and > 0 (default: 10)")
+    parser.add_argument("--quick", action="store_true", help="small grids and short runs (a preview in under a minute)")
+    parser.add_argument("--jobs", type=_positive_int, default=None, help="worker processes for the studies "
+                        "(default: the number of CPUs; results do not depend on it)")
+
+
+def _settings(args):
+    from analysis.report import QUICK_SETTINGS, AnalysisSettings
+
+    settings = QUICK_SETTINGS if args.quick else AnalysisSettings()
+    jobs = args.jobs if args.jobs is not None else (os.cpu_count() or 1)
+    changes = {"workers": jobs}
+    if args.observer_target is not None:
+        changes["observer_target_rad_s"] = args.observer_target
+    return replace(settings, **changes)
+
+
+def _progress():
+    from dobkit.cli import ProgressBar
+
+    return ProgressBar()
+
+
+def _cmd_analyze(args) -> int:
+    from blocks import load_scenario
+    from blocks.outputs import default_out_dir
+    from analysis.report import analyze
+
+    scenario = load_scenario(args.scenario)
+    out = args.out if args.out is not None else default_out_dir(ANALYSIS_PREFIX)
+    bar = _progress()
+    try:
+        result, files = analyze(scenario, out, _settings(args), progress=bar)
+    finally:
+        bar.close()
+    slow = result["observer_bandwidth"]["slowest_rad_s"]
+    print(f"scenario: {scenario.name} ({scenario.source})")
+    print(f"slowest observer mode over the workspace: {slow['min']:.4g} to {slow['max']:.4g} rad/s")
+    for key, label in (("with_dob", "with observer"), ("without_dob", "without observer")):
+        b = result["mismatch"][key]["boundaries"]["boundaries"]
+        print(f"inertia-mismatch stability boundary {label}: "
+              + (", ".join(f"a = {x['factor']:.6g}" for x in b) if b else "none in the searched range"))
+    print(f"analysis written to {out} ({len(files)} files)")
+    return 0
+
+
+def _cmd_report(args) -> int:
+    from blocks import load_scenario
+    from blocks.outputs import default_out_dir
+    from analysis.report import write_report
+
+    scenario = load_scenario(args.scenario)
+    out = args.out if args.out is not None else default_out_dir(REPORT_PREFIX)
+    bar = _progress()
+    try:
+        path = write_report(scenario, out, _settings(args), progress=bar, sweep_summaries=args.sweep)
+    finally:
+        bar.close()
+    print(f"report written to {path}")
+    return 0
+
+
+def add_analysis_subcommands(subparsers) -> None:
+    """Register ``analyze`` and ``report`` on the ``dobkit`` sub-parsers."""
+    p = subparsers.add_parser("analyze", help="linearized poles, observer bandwidth, gain design, frequency "
+                              "responses and gain studies; writes analysis.json and figures")
+    _add_common(p, ANALYSIS_PREFIX)
+    p.set_defaults(func=_cmd_analyze)
+    p = subparsers.add_parser("report", help="simulate and analyze a scenario; writes one self-contained "
+                              "report.html (plus analysis.json and the figures)")
+    _add_common(p, REPORT_PREFIX)
+    p.add_argument("--sweep", action="append", default=[], metavar="SUMMARY_DIR",
+                   help="include the summary of a 'dobkit sweep' run (its summary folder); may be repeated")
+    p.set_defaults(func=_cmd_report)
+

@@ -1,0 +1,188 @@
+"""Load a Model Exchange FMU (FMI 2 or 3) as a python-control nonlinear I/O system.
+
+The returned system is a drop-in block for :func:`control.interconnect`:
+
+* states: the FMU's continuous states, named after their state variables
+  (for the dobkit plant ``q[i]``, ``dq[i]``);
+* inputs: its real input variables; outputs: its real output variables,
+  in model-description order, with their FMU names;
+* ``updfcn(t, x, u)`` sets time, states and inputs and returns the state
+  derivatives; ``outfcn(t, x, u)`` does the same and returns the outputs.
+
+Attributes set on the system: ``feedthrough`` (the inputs on which some
+output depends according to ``ModelStructure``; all inputs if it does not
+say), ``initial_state`` (the states after initialization), ``fmu`` (the
+:class:`~fmu.instance.FMUInstance`, which owns the native instance
+and the extraction folder; ``sys.fmu.close()`` releases them early) and
+``model_description``.
+"""
+from __future__ import annotations
+
+import control as ct
+import numpy as np
+
+from .archive import ExtractionLimits, open_extracted
+from .description import described, real_variables, require_variables
+from .errors import FMUModelDescriptionError
+from .instance import FMUInstance
+
+__all__ = ["load", "output_feedthrough"]
+
+
+def output_feedthrough(model_description, input_names: list[str]) -> frozenset[str]:
+    """Inputs that reach some output directly, from ``ModelStructure`` (all inputs if unknown).
+
+    Parameters
+    ----------
+    model_description : fmpy.model_description.ModelDescription
+    input_names : list of str
+        Names of the input variables of interest.
+    """
+    outputs = model_description.outputs
+    if not outputs and any(v.causality == "output" for v in model_description.modelVariables):
+        return frozenset(input_names)
+    through: set[str] = set()
+    for unknown in outputs:
+        if unknown.dependencies is None:  # no dependency information: assume every input
+            return frozenset(input_names)
+        through.update(v.name for v in unknown.dependencies if v.name in input_names)
+    return frozenset(through)
+
+
+def load(path, name: str = "plant", start_values: dict | None = None, start_time: float = 0.0,
+         limits: ExtractionLimits | None = None, extract_to=None, scenario=None) -> ct.NonlinearIOSystem:
+    """A Model Exchange FMU as a :class:`control.NonlinearIOSystem`.
+
+    Parameters
+    ----------
+    path : str, pathlib.Path or ExtractedFMU
+        The ``.fmu`` file (FMI 2.0 or 3.0, Model Exchange), or an extraction
+        to reuse (:func:`~fmu.archive.extract_fmu`; left in place).
+    name : str
+        Name of the system (the block name in an interconnection).
+    start_values : dict, optional
+        Variable name -> start value applied before initialization: parameters
+        (e.g. ``{"m1": 6.0, "disturbance_friction": True}``) and state start
+        values.  They take precedence over the values from ``scenario``.
+    start_time : float
+        Time (s) at which the FMU is initialized.
+    limits : ExtractionLimits, optional
+        Archive size limits.
+    extract_to : str or pathlib.Path, optional
+        Parent folder of the private extraction folder (default: system temp).
+    scenario : Scenario or str, optional
+        Make the FMU the scenario's *true* plant: set its robot parameters
+        (``m1`` ... ``d4``), disturbance switches and disturbance parameters
+        to the scenario's values, and its start state to the scenario's
+        (as :func:`~fmu.cosimulate` does with ``parameters="scenario"``).
+        Without it the FMU keeps its own start values -- those of its
+        export -- so ``blocks.simulate(s, plant=load(path))`` simulates the
+        exported plant, whatever scenario ``s`` says.  Parameters the FMU does
+        not declare are listed in a warning.
+
+    Returns
+    -------
+    control.NonlinearIOSystem
+        With attributes ``feedthrough``, ``initial_state``, ``fmu``, ``model_description``.
+
+    Raises
+    ------
+    FMUUnsupportedError
+        If the FMU is outside the supported subset (see Notes); the message names the feature.
+    FMUMissingVariablesError
+        With ``scenario``, if the FMU lacks the plant's states ``q[i]``, ``dq[i]`` or inputs ``tau[i]``.
+    FMUError
+        (other subclasses) if the archive, the model description, the platform
+        binary or the instantiation is bad; :class:`~fmu.errors.FMUStepError`
+        later if the FMU returns an error status while being evaluated, and
+        :class:`~fmu.errors.FMUError` for any evaluation after ``sys.fmu.close()``.
+
+    Notes
+    -----
+    Supported subset: Model Exchange FMUs (FMI 2.0 or 3.0) that are
+    continuous-time systems with scalar Real / Float64 inputs and outputs.
+    Refused at load, with the feature named:
+
+    * state events -- ``numberOfEventIndicators`` > 0 (FMI 2) or
+      ``EventIndicator`` elements (FMI 3);
+    * time events -- a next event time announced at initialization;
+    * FMI 3 array variables (``Dimension``) among inputs, outputs or states;
+    * inputs or outputs of another type (Integer, Boolean, String, Float32, ...);
+    * FMI 3 clocks.
+
+    Not detected, so do not use them: FMUs that need ``completedIntegratorStep``
+    to request step events, or whose discrete variables change in continuous time.
+
+    The FMU's native code runs in this process: a crashing FMU ends Python.
+    Each call sets time, states and inputs before evaluating, so the block
+    may be evaluated at any time and state, in any order (as solvers do).
+    Loading is serialised by a lock (fmpy changes the working directory
+    while it loads a library); evaluating one instance from several threads
+    at once is not supported.
+
+    Examples
+    --------
+    >>> import blocks
+import fmu
+    >>> plant = fmu.load("plant.fmu", scenario="paper")                  # doctest: +SKIP
+    >>> loop = blocks.closed_loop("paper", plant=plant)                  # doctest: +SKIP
+    """
+    extracted, owned = open_extracted(path, limits=limits, parent=extract_to)
+    try:
+        start = dict(start_values or {})
+        if scenario is not None:
+            start = _scenario_start_values(extracted, scenario) | start
+    except BaseException:
+        if owned:
+            extracted.cleanup()
+        raise
+    inst = FMUInstance(extracted, kind="ModelExchange", start_values=start, name=name, start_time=start_time,
+                       adopt=owned)
+    try:
+        md = inst.model_description
+        state_names = [d.variable.derivative.name for d in md.derivatives]
+        inputs = [v.name for v in real_variables(md, "input")]
+        outputs = [v.name for v in real_variables(md, "output")]
+        if not outputs:
+            raise FMUModelDescriptionError(f"{inst.source}: the FMU has no real output variables to connect")
+        in_vr = inst.value_references(inputs)
+        out_vr = inst.value_references(outputs)
+        initial_state = inst.get_states() if state_names else np.zeros(0)
+    except BaseException:
+        inst.close()
+        raise
+
+    def prepare(t, x, u) -> None:
+        inst.set_time(float(t))
+        if state_names:
+            inst.set_states(x)
+        if inputs:
+            inst.set_real(in_vr, u)
+
+    def update(t, x, u, params):
+        prepare(t, x, u)
+        return inst.derivatives()
+
+    def output(t, x, u, params):
+        prepare(t, x, u)
+        return inst.get_real(out_vr)
+
+    sys = ct.nlsys(update if state_names else None, output, name=name, inputs=inputs, outputs=outputs,
+                   states=state_names or 0)
+    sys.feedthrough = output_feedthrough(md, inputs)
+    sys.initial_state = initial_state
+    sys.fmu = inst
+    sys.model_description = md
+    return sys
+
+
+def _scenario_start_values(extracted, scenario) -> dict:
+    """The scenario's true-plant parameters and start state, for an FMU with the plant's signals."""
+    from blocks.scenario import Scenario, load_scenario  # the scenario machinery only when asked for
+    from .scenario_values import JOINTS, plant_start_values
+    s = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+    md = described(extracted)
+    joints = range(JOINTS)
+    require_variables(md, [f"q[{i}]" for i in joints] + [f"dq[{i}]" for i in joints] + [f"tau[{i}]" for i in joints],
+                      source=f"{extracted.source} (as the true plant of scenario {s.name!r})")
+    return plant_start_values(s, {v.name for v in md.modelVariables}, "scenario", stacklevel=4)

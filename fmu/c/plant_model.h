@@ -1,0 +1,52 @@
+/*
+ * dobkit plant model: the 4-DOF RRPR arm of Verma, Chauhan & Gupta (2019)
+ *
+ *     M(q) q'' + N(q, q') q' + G(q) = tau + tau_dis
+ *
+ * with q = [theta1 (rad), theta2 (rad), d3 (m, positive downwards), theta4 (rad)]
+ * and the external disturbance tau_dis the sum of the selected models
+ * (paper Eq. 4 step, smoothed Coulomb + viscous friction, skin contact).
+ * The same maths as blocks/dynamics.py and disturbances.py.
+ *
+ * This file knows nothing about FMI.  The variable layout (value references,
+ * parameter indices, start values) comes from plant_config.h, which dobkit
+ * writes at export time.
+ */
+#ifndef DOBKIT_PLANT_MODEL_H
+#define DOBKIT_PLANT_MODEL_H
+
+#include "plant_config.h"
+
+/* Everything that defines the model's behaviour: saved and restored as the FMU state. */
+typedef struct {
+    double time;              /* s */
+    double x[NX];             /* q[0..3], dq[0..3] */
+    double u[NU];             /* tau[0..3]: N m, N m, N, N m */
+    double p[N_PARAMS];       /* real parameters, indexed by P_* */
+    int n_substeps;           /* RK4 sub-steps per co-simulation step */
+    int sw[N_SWITCHES];       /* disturbance model switches, indexed by SW_* */
+} PlantData;
+
+/* The lumped inertia constants of the paper's Eq. 5-7. */
+typedef struct {
+    double k1, k2, k3, k4, k5;
+} PlantConstants;
+
+/* Model-level result codes (the FMI layer maps them to statuses). */
+enum { PLANT_OK = 0, PLANT_NOT_PD = 1, PLANT_NONFINITE = 2 };
+
+void plant_constants(const double *p, PlantConstants *k);
+
+/* External disturbance tau_dis at time t and state x. */
+void plant_disturbance(const PlantData *d, double t, const double *x, double *tau_dis);
+
+/* State derivative dx = [dq, M^-1 (u + tau_dis - N q' - G)]; returns a PLANT_* code. */
+int plant_derivatives(const PlantData *d, double t, const double *x, const double *u, double *dx);
+
+/* Advance d->x from d->time by h with n classical RK4 steps, input d->u held constant. */
+int plant_rk4(PlantData *d, double h, int n, int *bad_index);
+
+/* Non-zero if the parameters describe a physical arm; fills msg with the first problem. */
+int plant_parameters_valid(const PlantData *d, char *msg, unsigned long msg_size);
+
+#endif

@@ -1,0 +1,88 @@
+"""The exceptions of :mod:`fmu`: one hierarchy under :class:`FMUError`.
+
+Every message names what is wrong (the archive entry, the variable, the
+platform, the simulation time and status) so that it can be acted on without
+a debugger.
+"""
+from __future__ import annotations
+
+__all__ = [
+    "FMUError", "FMUArchiveError", "FMUModelDescriptionError", "FMUVersionError", "FMUUnsupportedError",
+    "FMUPlatformError", "FMUMissingVariablesError", "FMUInstantiationError", "FMUStepError", "FMUBuildError",
+]
+
+
+class FMUError(ValueError):
+    """Something is wrong with an FMU or with a call into one."""
+
+
+class FMUArchiveError(FMUError):
+    """The file is not a zip archive, or an entry is unsafe or too large to extract."""
+
+
+class FMUModelDescriptionError(FMUError):
+    """``modelDescription.xml`` is missing, malformed or lacks what is needed.
+
+    Attributes
+    ----------
+    problems : list of str
+        The individual findings of the schema validation (empty for other errors).
+    """
+
+    def __init__(self, message: str, problems=()):
+        super().__init__(message)
+        self.problems = list(problems)
+
+
+class FMUVersionError(FMUModelDescriptionError):
+    """The FMI version (or the interface type) is not supported."""
+
+
+class FMUUnsupportedError(FMUModelDescriptionError):
+    """The FMU uses an FMI feature that dobkit does not handle (events, arrays, non-real signals, clocks)."""
+
+
+class FMUPlatformError(FMUError):
+    """The FMU has no binary for this platform."""
+
+
+class FMUMissingVariablesError(FMUModelDescriptionError):
+    """Variables that the caller needs are not in the model description.
+
+    Attributes
+    ----------
+    missing : list of str
+        Names of the missing variables.
+    """
+
+    def __init__(self, message: str, missing=()):
+        super().__init__(message)
+        self.missing = list(missing)
+
+
+class FMUInstantiationError(FMUError):
+    """The FMU refused to instantiate (for example a GUID / instantiationToken mismatch)."""
+
+
+class FMUStepError(FMUError):
+    """The FMU returned an error status while simulating.
+
+    Attributes
+    ----------
+    time : float
+        Simulation time (s) at which the failing call was made.
+    status : str
+        The FMI status returned (``"error"``, ``"fatal"``, ...).
+    function : str
+        The FMI function that failed.
+    """
+
+    def __init__(self, message: str, time: float, status: str, function: str):
+        super().__init__(message)
+        self.time = time
+        self.status = status
+        self.function = function
+
+
+class FMUBuildError(FMUError):
+    """Exporting an FMU failed: no C compiler, or the compiler rejected the sources."""

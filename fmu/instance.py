@@ -1,0 +1,395 @@
+"""One running FMU instance (FMI 2 or 3, Model Exchange or Co-Simulation).
+
+:class:`FMUInstance` extracts the archive safely, checks the model
+description and the platform binary, instantiates, applies start values and
+initializes, so that it is ready to simulate.  It hides the differences
+between FMI 2 and FMI 3 behind a few numpy-level calls (``get_real``,
+``set_real``, ``set_time``, ``set_states``, ``derivatives``, ``do_step``) and
+turns every error status into an :class:`~fmu.errors.FMUStepError`
+that names the FMI function, the simulation time, the status and the FMU's
+own log messages.
+
+Log messages reach the instance that logged them (:mod:`fmu.logger`);
+an error names only the messages logged during the failing call.  Every
+call on a closed instance raises :class:`~fmu.errors.FMUError` instead
+of reaching freed native memory.
+
+Loading runs the FMU's native code in this process, and fmpy changes the
+working directory while it loads a library; loading is serialised by a lock.
+"""
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import os
+import threading
+import weakref
+from pathlib import Path
+
+import numpy as np
+
+from . import logger
+from .archive import ExtractedFMU, ExtractionLimits, open_extracted
+from .description import binary_path, described, fmi_major, interface, unsupported_features
+from .errors import FMUError, FMUInstantiationError, FMUModelDescriptionError, FMUStepError, FMUUnsupportedError
+from .logger import STATUS_NAMES, status_name
+
+__all__ = ["FMUInstance", "STATUS_NAMES"]
+
+_LOAD_LOCK = threading.Lock()
+_MAX_MESSAGES = 200
+
+
+def _release(fmu, extracted, owned: bool, state: dict) -> None:
+    """Free the instance and its library, then delete an owned extraction folder (finalizer: no self)."""
+    state["closed"] = True
+    try:
+        if fmu is not None and state.get("instantiated"):
+            # after an error or fatal status the standard allows only freeing (no terminate)
+            if state.get("initialized") and not state.get("terminated") and not state.get("failed"):
+                with contextlib.suppress(Exception):
+                    fmu.terminate()
+            with contextlib.suppress(Exception):
+                fmu.freeInstance()  # also unloads the library
+        elif fmu is not None:
+            with contextlib.suppress(Exception):
+                fmu.freeLibrary()
+    finally:
+        if state.get("log_key") is not None:
+            logger.unregister(state["log_key"])
+        if owned:
+            extracted.cleanup()
+
+
+class FMUInstance:
+    """An instantiated and initialized FMU, ready to simulate.
+
+    Parameters
+    ----------
+    path : str, pathlib.Path or ExtractedFMU
+        The ``.fmu`` file, or an extraction to reuse (from
+        :func:`~fmu.archive.extract_fmu`; it is then left in place at
+        :meth:`close`, its owner removes it).
+    kind : {"ModelExchange", "CoSimulation"}
+        Interface to instantiate.
+    start_values : dict, optional
+        Variable name -> start value, applied before initialization
+        (parameters, state start values, inputs).
+    name : str, optional
+        Instance name (default: the model identifier).
+    start_time : float
+        Simulation start time (s).
+    limits : ExtractionLimits, optional
+        Archive size limits.
+    extract_to : str or pathlib.Path, optional
+        Parent folder for the private extraction folder (default: system temp).
+    adopt : bool
+        With an ``ExtractedFMU`` as ``path``: take it over and remove it at
+        :meth:`close` as if it had been extracted here.
+
+    Raises
+    ------
+    FMUUnsupportedError
+        If the FMU uses a feature outside the supported subset
+        (:func:`~fmu.description.unsupported_features`; for Model
+        Exchange also a time event announced at initialization).
+    FMUError
+        (other subclasses) for a bad archive, model description, binary or
+        instantiation, and from any call after :meth:`close`.
+
+    Attributes
+    ----------
+    model_description : fmpy.model_description.ModelDescription
+    fmi_version : int
+        2 or 3.
+    variables : dict
+        Variable name -> fmpy ``ModelVariable``.
+    messages : list of str
+        Log messages received from the FMU (most recent last).
+    time : float
+        Current simulation time (s) as known to this wrapper.
+    """
+
+    def __init__(self, path, kind: str = "ModelExchange", start_values: dict | None = None, name: str | None = None,
+                 start_time: float = 0.0, limits: ExtractionLimits | None = None, extract_to=None,
+                 adopt: bool = False):
+        self.path = Path(path.source) if isinstance(path, ExtractedFMU) else Path(path)
+        self.source = self.path.name
+        self.kind = kind
+        self._log = logger.MessageLog(_MAX_MESSAGES)
+        self.messages: list[str] = self._log.entries
+        self._state = {"instantiated": False, "initialized": False, "terminated": False, "failed": False,
+                       "closed": False, "log_key": None}
+        self._fmu = None
+        self.extracted, owned = open_extracted(path, limits=limits, parent=extract_to)
+        self._owned = owned or adopt
+        self._finalizer = weakref.finalize(self, _release, None, self.extracted, self._owned, self._state)
+        try:
+            self._open(name, start_values or {}, float(start_time))
+        except BaseException:
+            self.close()
+            raise
+
+    # ---- construction -----------------------------------------------------------------------------------------
+
+    def _open(self, name, start_values, start_time) -> None:
+        root = self.extracted.root
+        md = described(self.extracted)
+        self.model_description = md
+        self.fmi_version = fmi_major(md)
+        element = interface(md, self.kind, self.source)
+        unsupported = unsupported_features(md, self.kind)
+        if unsupported:
+            raise FMUUnsupportedError(f"{self.source}: uses FMI features that dobkit does not support as "
+                                      f"{self.kind}: " + "; ".join(unsupported))
+        binary_path(root, md, self.kind, self.source)
+        self.model_identifier = element.modelIdentifier
+        self.variables = {v.name: v for v in md.modelVariables}
+        self.n_states = len(md.derivatives)
+        self.time = start_time
+        unknown = sorted(set(start_values) - set(self.variables))
+        if unknown:
+            raise FMUModelDescriptionError(f"{self.source}: start values given for unknown variable(s) {unknown}")
+
+        self._fmu = self._load_library(md, name)
+        self._finalizer.detach()
+        self._finalizer = weakref.finalize(self, _release, self._fmu, self.extracted, self._owned, self._state)
+        self._instantiate()
+        self._bind_low_level()
+        self._apply_start_values(start_values)
+        self._initialize(start_time)
+
+    def _load_library(self, md, name):
+        from fmpy.fmi2 import FMU2Model, FMU2Slave
+        from fmpy.fmi3 import FMU3Model, FMU3Slave
+        classes = {(2, "ModelExchange"): FMU2Model, (2, "CoSimulation"): FMU2Slave,
+                   (3, "ModelExchange"): FMU3Model, (3, "CoSimulation"): FMU3Slave}
+        cls = classes[(self.fmi_version, self.kind)]
+        kwargs = dict(guid=md.guid, unzipDirectory=str(self.extracted.root), modelIdentifier=self.model_identifier,
+                      instanceName=name or self.model_identifier)
+        with _LOAD_LOCK:
+            # fmpy changes into the library folder and does not change back if loading fails
+            cwd = os.getcwd()
+            try:
+                return cls(**kwargs)
+            except AttributeError as err:  # a missing FMI function in the library
+                raise FMUError(f"{self.source}: the binary lacks an FMI {self.fmi_version} function: {err}") from None
+            except Exception as err:
+                raise FMUError(f"{self.source}: cannot load the binary: {err}") from None
+            finally:
+                os.chdir(cwd)
+
+    def _instantiate(self) -> None:
+        fmu = self._fmu
+        try:
+            if self.fmi_version == 2:
+                # one process-wide logger; this instance's key comes back as componentEnvironment
+                self._state["log_key"] = logger.register(self._log, fmu.instanceName)
+                fmu.instantiate(callbacks=logger.fmi2_callbacks(self._state["log_key"]))
+            else:
+                fmu.instantiate(logMessage=logger.fmi3_log_function(self._log))
+        except Exception as err:
+            detail = " ".join(self.messages[-3:]) or str(err)
+            token = "GUID" if self.fmi_version == 2 else "instantiationToken"
+            hint = (f" (no message from the FMU; a {token} in modelDescription.xml "
+                    f"({self.model_description.guid}) that does not match the binary is a common cause)"
+                    if not self.messages else "")
+            raise FMUInstantiationError(f"{self.source}: the FMU refused to instantiate as {self.kind}: {detail}"
+                                        f"{hint}") from None
+        self._state["instantiated"] = True
+
+    def _bind_low_level(self) -> None:
+        f, c = self._fmu, self._fmu.component
+        if self.fmi_version == 2:
+            self._get_real = lambda vr, n, out: f.fmi2GetReal(c, vr, n, out)
+            self._set_real = lambda vr, n, val: f.fmi2SetReal(c, vr, n, val)
+            self._vr_type = ctypes.c_uint
+        else:
+            self._get_real = lambda vr, n, out: f.fmi3GetFloat64(c, vr, n, out, n)
+            self._set_real = lambda vr, n, val: f.fmi3SetFloat64(c, vr, n, val, n)
+            self._vr_type = ctypes.c_uint32
+        if self.kind == "ModelExchange":
+            get_der = "fmi2GetDerivatives" if self.fmi_version == 2 else "fmi3GetContinuousStateDerivatives"
+            prefix = f"fmi{self.fmi_version}"
+            self._set_time = getattr(f, f"{prefix}SetTime")
+            self._set_states = getattr(f, f"{prefix}SetContinuousStates")
+            self._get_states = getattr(f, f"{prefix}GetContinuousStates")
+            self._get_der = getattr(f, get_der)
+
+    # ---- error translation ------------------------------------------------------------------------------------
+
+    def _check_open(self) -> None:
+        if self._state["closed"]:
+            raise FMUError(f"{self.source}: the FMU instance is closed; load the FMU again to use it")
+
+    @contextlib.contextmanager
+    def _calling(self, what: str, t: float):
+        from fmpy.fmi1 import FMICallException
+        self._check_open()
+        mark = self._log.count
+        try:
+            yield
+        except FMICallException as err:
+            status = status_name(err.status)
+            if status in ("error", "fatal"):
+                self._state["failed"] = True
+            new = self._log.since(mark)  # only what this call logged, never older messages
+            detail = (": " + " ".join(new)) if new else ""
+            raise FMUStepError(f"{self.source}: {err.function} returned status '{status}' at t = {t:.9g} s "
+                               f"during {what}{detail}", time=t, status=status, function=err.function) from None
+
+    # ---- values -----------------------------------------------------------------------------------------------
+
+    def value_references(self, names) -> ctypes.Array:
+        """A ctypes array of value references for variable names (raises on unknown names)."""
+        self._check_open()
+        unknown = [n for n in names if n not in self.variables]
+        if unknown:
+            raise FMUModelDescriptionError(f"{self.source}: unknown variable(s) {unknown}")
+        return (self._vr_type * len(names))(*[self.variables[n].valueReference for n in names])
+
+    def get_real(self, vrs: ctypes.Array, out: np.ndarray | None = None) -> np.ndarray:
+        """Values of real variables (value references from :meth:`value_references`)."""
+        self._check_open()
+        n = len(vrs)
+        out = np.empty(n) if out is None else out
+        if n:
+            with self._calling("reading outputs", self.time):
+                self._get_real(vrs, n, out.ctypes.data_as(ctypes.POINTER(ctypes.c_double)))
+        return out
+
+    def set_real(self, vrs: ctypes.Array, values) -> None:
+        """Set real variables (value references from :meth:`value_references`)."""
+        self._check_open()
+        n = len(vrs)
+        if n:
+            arr = np.ascontiguousarray(values, dtype=float)
+            with self._calling("setting inputs", self.time):
+                self._set_real(vrs, n, arr.ctypes.data_as(ctypes.POINTER(ctypes.c_double)))
+
+    def get_integer(self, name: str) -> int:
+        """Value of one integer variable (FMI 2 Integer, FMI 3 Int32) by name."""
+        vr = [self.variables[name].valueReference]
+        with self._calling(f"reading {name}", self.time):
+            values = self._fmu.getInteger(vr) if self.fmi_version == 2 else self._fmu.getInt32(vr)
+        return int(values[0])
+
+    def _apply_start_values(self, start_values: dict) -> None:
+        for name, value in start_values.items():
+            v = self.variables[name]
+            vr = [v.valueReference]
+            if getattr(v, "dimensions", None):
+                raise FMUUnsupportedError(f"{self.source}: cannot set a start value for the array variable {name}")
+            with self._calling(f"setting the start value of {name}", self.time):
+                if v.type in ("Real", "Float64"):
+                    self.set_real(self.value_references([name]), [float(value)])
+                elif v.type == "Boolean":
+                    self._fmu.setBoolean(vr, [bool(value)])
+                elif v.type in ("Integer", "Int32", "Enumeration") and self.fmi_version == 2:
+                    self._fmu.setInteger(vr, [int(value)])
+                elif v.type in ("Int32", "Enumeration"):
+                    self._fmu.setInt32(vr, [int(value)])
+                else:
+                    raise FMUModelDescriptionError(f"{self.source}: cannot set a start value for {name} of type "
+                                                   f"{v.type}")
+
+    def _initialize(self, start_time: float) -> None:
+        f = self._fmu
+        with self._calling("initialization", start_time):
+            if self.fmi_version == 2:
+                f.setupExperiment(startTime=start_time)
+                f.enterInitializationMode()
+                f.exitInitializationMode()
+            else:
+                f.enterInitializationMode(startTime=start_time)
+                f.exitInitializationMode()
+            self._state["initialized"] = True
+            if self.kind == "ModelExchange":
+                self._leave_event_mode()
+
+    def _leave_event_mode(self) -> None:
+        f = self._fmu
+        for _ in range(1000):
+            # (discrete states need update, terminate, nominals changed, values changed, time event?, its time)
+            info = f.newDiscreteStates() if self.fmi_version == 2 else f.updateDiscreteStates()
+            if not info[0]:
+                break
+        else:
+            raise FMUError(f"{self.source}: event iteration did not converge at initialization")
+        if info[1]:
+            raise FMUError(f"{self.source}: the FMU asked to terminate during initialization")
+        if info[4]:
+            raise FMUUnsupportedError(f"{self.source}: the FMU announces a time event at t = {info[5]:.9g} s; "
+                                      "time events are not supported (dobkit integrates Model Exchange FMUs as "
+                                      "continuous blocks without event handling)")
+        f.enterContinuousTimeMode()
+
+    # ---- Model Exchange ---------------------------------------------------------------------------------------
+
+    def set_time(self, t: float) -> None:
+        """Set the Model Exchange time ``t`` (s)."""
+        with self._calling("setting the time", t):
+            self._set_time(self._fmu.component, t)
+        self.time = t
+
+    def set_states(self, x) -> None:
+        """Set the continuous states (in the order of ``ModelStructure/Derivatives``)."""
+        arr = np.ascontiguousarray(x, dtype=float)
+        with self._calling("setting the states", self.time):
+            self._set_states(self._fmu.component, arr.ctypes.data_as(ctypes.POINTER(ctypes.c_double)), arr.size)
+
+    def get_states(self) -> np.ndarray:
+        """The continuous states."""
+        out = np.empty(self.n_states)
+        with self._calling("reading the states", self.time):
+            self._get_states(self._fmu.component, out.ctypes.data_as(ctypes.POINTER(ctypes.c_double)), out.size)
+        return out
+
+    def derivatives(self) -> np.ndarray:
+        """The state derivatives at the time, states and inputs last set."""
+        out = np.empty(self.n_states)
+        with self._calling("evaluating the state derivatives", self.time):
+            self._get_der(self._fmu.component, out.ctypes.data_as(ctypes.POINTER(ctypes.c_double)), out.size)
+        return out
+
+    # ---- Co-Simulation ----------------------------------------------------------------------------------------
+
+    def do_step(self, t: float, h: float) -> None:
+        """Advance a Co-Simulation FMU from ``t`` by ``h`` (s)."""
+        with self._calling(f"the communication step from t = {t:.9g} s by h = {h:.9g} s", t):
+            result = self._fmu.doStep(t, h)
+        if self.fmi_version == 3 and result and (result[1] or result[2]):
+            raise FMUStepError(f"{self.source}: doStep from t = {t:.9g} s stopped early (terminate="
+                               f"{result[1]}, earlyReturn={result[2]}) at t = {result[3]:.9g} s",
+                               time=t, status="ok", function="fmi3DoStep")
+        self.time = t + h
+
+    # ---- life cycle -------------------------------------------------------------------------------------------
+
+    def close(self) -> None:
+        """Terminate and free the instance, unload the library and delete an owned extraction folder.
+
+        Idempotent.  Any later call on this instance raises :class:`~fmu.errors.FMUError`.
+        """
+        self._finalizer()
+
+    @property
+    def closed(self) -> bool:
+        """True once :meth:`close` has run."""
+        return not self._finalizer.alive
+
+    def __enter__(self) -> "FMUInstance":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __deepcopy__(self, memo):
+        # an instance of native code cannot be copied; copies of a system share it
+        return self
+
+    def __copy__(self):
+        return self
+
+    def __repr__(self) -> str:
+        return f"FMUInstance({self.source!r}, {self.kind}, FMI {getattr(self, 'fmi_version', '?')})"
