@@ -8,13 +8,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from .joints import RRPR_JOINTS
 from .kinematics import forward_kinematics
 
 __all__ = ["signal", "tracking_metrics", "rms", "JOINT_UNITS", "DISTURBANCE_UNITS", "JOINT_LABELS"]
 
-JOINT_LABELS = ("theta1", "theta2", "d3", "theta4")
-JOINT_UNITS = ("rad", "rad", "m", "rad")
-DISTURBANCE_UNITS = ("N m", "N m", "N", "N m")
+JOINT_LABELS = RRPR_JOINTS.names
+JOINT_UNITS = RRPR_JOINTS.position_units
+DISTURBANCE_UNITS = RRPR_JOINTS.force_units
 
 
 def signal(response, prefix: str) -> np.ndarray:

@@ -13,8 +13,11 @@ import dataclasses
 import functools
 import math
 from dataclasses import dataclass, fields
+from typing import ClassVar
 
 import numpy as np
+
+from .joints import RRPR_JOINTS, JointSpace
 
 __all__ = ["RobotParameters", "InertiaConstants", "PAPER_PARAMETERS", "ParameterError"]
 
@@ -75,7 +78,14 @@ class RobotParameters:
         Height of joint 2's plane above the base in m (Table 2 offset of joint 1).
     d4 : float
         Tool length below the prismatic stage in m.
+
+    Attributes
+    ----------
+    joints : JointSpace
+        The arm's joints (count, names, kinds, units): the paper's RRPR arm.
     """
+
+    joints: ClassVar[JointSpace] = RRPR_JOINTS
 
     m1: float = 5.58
     m2: float = 0.689

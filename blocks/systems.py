@@ -33,12 +33,13 @@ from .disturbances import DisturbanceSpec, external_disturbance
 from .dynamics import coriolis_vector, gravity, inertia
 from .model_cache import nominal_terms
 from .noise import MeasurementNoise
+from .joints import RRPR_JOINTS
 from .parameters import RobotParameters
 
 __all__ = ["plant", "controller", "observer", "trajectory_block", "sensor", "gain_matrix", "signal_names",
            "OBSERVER_VARIANTS", "JOINTS"]
 
-JOINTS = 4
+JOINTS = RRPR_JOINTS.count
 OBSERVER_VARIANTS = ("correct", "paper-eq16")
 
 

@@ -31,10 +31,11 @@ from .description import described, read_description
 from .errors import FMUError, FMUModelDescriptionError
 from .instance import FMUInstance
 from .block import load
+from blocks.joints import RRPR_JOINTS
 
 __all__ = ["check_fmu", "check_torque", "plant_from_description", "CHECK_INITIAL_STATE"]
 
-JOINTS = 4
+JOINTS = RRPR_JOINTS.count
 # A generic configuration away from the singular theta2 = 0, pi, already moving (rad, m; rad/s, m/s).
 CHECK_INITIAL_STATE = np.array([0.3, 1.2, 0.05, 0.2, 0.4, -0.3, 0.0, 0.2])
 _STATES = [f"q[{i}]" for i in range(JOINTS)] + [f"dq[{i}]" for i in range(JOINTS)]

@@ -25,13 +25,14 @@ import numpy as np
 from blocks.scenario import Scenario, load_scenario
 from .archive import ExtractionLimits, open_extracted
 from .master import CoSimulationError
+from blocks.joints import RRPR_JOINTS
 
 __all__ = ["cosim_convergence", "fit_order", "DEFAULT_STEPS", "REFERENCE"]
 
 DEFAULT_STEPS = (0.004, 0.002, 0.001, 0.0005)
 # the monolithic reference: tight enough that its error is negligible next to h = 0.5 ms coupling errors
 REFERENCE = {"method": "DOP853", "rtol": 1e-10, "atol": 1e-12}
-JOINTS = 4
+JOINTS = RRPR_JOINTS.count
 _UNITS = ("rad", "rad", "m", "rad")
 
 

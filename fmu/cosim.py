@@ -52,10 +52,11 @@ from .archive import ExtractionLimits, open_extracted
 from .description import described, require_variables
 from .master import CoSimulationError, cosimulate_system
 from .scenario_values import plant_start_values
+from blocks.joints import RRPR_JOINTS
 
 __all__ = ["cosimulate", "controller_side", "CoSimulationError"]
 
-JOINTS = 4
+JOINTS = RRPR_JOINTS.count
 
 
 def _names(prefix: str) -> list[str]:

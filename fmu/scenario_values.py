@@ -10,10 +10,11 @@ import warnings
 
 from blocks.scenario import Scenario
 from .variables import plant_parameter_values
+from blocks.joints import RRPR_JOINTS
 
 __all__ = ["plant_start_values", "JOINTS"]
 
-JOINTS = 4
+JOINTS = RRPR_JOINTS.count
 
 
 def plant_start_values(scenario: Scenario, fmu_variables: set[str] | None, parameters: str = "scenario",

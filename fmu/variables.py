@@ -24,10 +24,11 @@ from dataclasses import dataclass
 
 from blocks.disturbances import DisturbanceSpec
 from blocks.parameters import RobotParameters
+from blocks.joints import RRPR_JOINTS
 
 __all__ = ["Variable", "UNITS", "plant_variables", "plant_parameter_values", "config_header", "JOINT_UNITS"]
 
-JOINTS = 4
+JOINTS = RRPR_JOINTS.count
 _PRISMATIC = 2  # joint 3 (index 2) is the prismatic stage
 
 # FMI unit name -> exponents of the SI base units (and rad)
