@@ -28,7 +28,7 @@ import numpy as np
 from blocks import __version__
 from blocks import load_scenario
 from blocks.scenario import Scenario
-from blocks.systems import gain_matrix
+from blocks.gains import validated_gain
 from . import analysis_figures as figs
 from .bandwidth import DEFAULT_POINTS, along_trajectory, bandwidth_survey, observer_modes, workspace_grid
 from .frequency import frequency_analysis
@@ -222,7 +222,7 @@ def run_analysis(scenario: Scenario | str = "paper", settings: AnalysisSettings 
     obs = observer_gain_study(s, gains, t_final=settings.study_t_final, noise_t_final=settings.noise_t_final,
                               workers=settings.workers)
     obs["slowest_mode_rad_s"] = [None] + [
-        float(np.real(observer_modes(s.nominal, gain_matrix(g, "observer", allow_matrix=True), q_grid)[0][:, 0]).min())
+        float(np.real(observer_modes(s.nominal, validated_gain(g, "observer"), q_grid)[0][:, 0]).min())
         for _, g in gains]
     studies["observer"] = obs
     out["studies"] = studies

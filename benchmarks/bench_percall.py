@@ -26,12 +26,13 @@ from bench_fastpath import hand_fused_rhs  # noqa: E402
 from _timing import table  # noqa: E402
 
 import blocks  # noqa: E402
+from blocks.fastsim import CompiledLoop  # noqa: E402
 
 
 def run(rounds: int = 40, calls: int = 300) -> dict[str, float]:
     s = blocks.load_scenario("paper")
     loop = blocks.closed_loop(s)
-    compiled = blocks.CompiledLoop(loop)
+    compiled = CompiledLoop(loop)
     x = blocks.initial_state(loop, s) + 0.01
     t = 0.3
     t_grid = s.simulation.time_grid

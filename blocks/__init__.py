@@ -1,22 +1,30 @@
-"""Model maths and the block library of the Figure-2 loop.
+"""Model maths, blocks, scenarios and simulation of the Figure-2 loop.
 
 The public API in a few names::
 
     import blocks
-    scenario = blocks.load_scenario("paper")          # or a path to a TOML file
-    loop = blocks.closed_loop(scenario, observer=True) # a control.InterconnectedSystem
-    response = blocks.simulate(scenario)               # a control.TimeResponseData
+    scenario = blocks.load_scenario("paper")           # or a path to a TOML file
+    loop = blocks.closed_loop(scenario, observer=True)  # a control.InterconnectedSystem
+    response = blocks.simulate(scenario)                # a control.TimeResponseData
+
+Subpackages and modules a user may also want: :mod:`blocks.kernels` (the
+maths as array functions), :mod:`blocks.batch` (many variants at once),
+:mod:`blocks.metrics` (tracking metrics), :mod:`blocks.contract` (what a
+block promises the engines).
 """
 from importlib.metadata import PackageNotFoundError, version
 
+from .contract import Block, BlockContract, ContractError, Kernels, contract_of, kernel_block
 from .disturbances import DisturbanceSpec, external_disturbance
 from .dynamics import (coriolis_matrix, coriolis_vector, forward_dynamics, gravity, inertia, inverse_dynamics,
                        kinetic_energy)
-from .fastsim import AlgebraicLoopError, CompiledLoop
+from .gains import GainError, validated_gain
+from .joints import RRPR_JOINTS, JointSpace
 from .kinematics import UnreachableError, forward_kinematics, inverse_kinematics, jacobian
 from .loop import SimulationError, build_blocks, closed_loop, initial_state, lumped_disturbance, simulate
 from .noise import MeasurementNoise
 from .parameters import PAPER_PARAMETERS, ParameterError, RobotParameters
+from .plan import AlgebraicLoopError
 from .scenario import Scenario, ScenarioError, builtin_scenarios, load_scenario, scenario_from_dict
 from .systems import controller, observer, plant, sensor, trajectory_block
 from .trajectory import JointSine, LacerationPath
@@ -26,11 +34,18 @@ try:
 except PackageNotFoundError:       # a source tree that was never installed
     __version__ = "0+unknown"
 
-__all__ = ["__version__",
-    "DisturbanceSpec", "external_disturbance", "coriolis_matrix", "coriolis_vector", "forward_dynamics", "gravity",
-    "inertia", "inverse_dynamics", "kinetic_energy", "AlgebraicLoopError", "CompiledLoop", "UnreachableError",
-    "forward_kinematics", "inverse_kinematics", "jacobian", "SimulationError", "build_blocks", "closed_loop",
-    "initial_state", "lumped_disturbance", "simulate", "MeasurementNoise", "PAPER_PARAMETERS", "ParameterError",
-    "RobotParameters", "Scenario", "ScenarioError", "builtin_scenarios", "load_scenario", "scenario_from_dict",
-    "controller", "observer", "plant", "sensor", "trajectory_block", "JointSine", "LacerationPath",
+__all__ = [
+    "__version__",
+    # the loop
+    "load_scenario", "builtin_scenarios", "scenario_from_dict", "Scenario", "ScenarioError", "closed_loop",
+    "build_blocks", "initial_state", "simulate", "SimulationError", "lumped_disturbance", "AlgebraicLoopError",
+    # blocks and their contract
+    "plant", "controller", "observer", "trajectory_block", "sensor", "Block", "BlockContract", "Kernels",
+    "ContractError", "contract_of", "kernel_block", "GainError", "validated_gain",
+    # the arm
+    "RobotParameters", "PAPER_PARAMETERS", "ParameterError", "JointSpace", "RRPR_JOINTS", "inertia",
+    "coriolis_vector", "coriolis_matrix", "gravity", "forward_dynamics", "inverse_dynamics", "kinetic_energy",
+    "forward_kinematics", "inverse_kinematics", "jacobian", "UnreachableError",
+    # disturbances, noise, paths
+    "DisturbanceSpec", "external_disturbance", "MeasurementNoise", "LacerationPath", "JointSine",
 ]

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .kinematics import forward_kinematics, jacobian
+from . import kernels
 from .parameters import RobotParameters
 
 __all__ = ["DisturbanceSpec", "DISTURBANCE_KINDS", "external_disturbance",
@@ -106,32 +106,29 @@ class DisturbanceSpec:
             object.__setattr__(self, name, float(value))
 
 
+def _rows(x) -> np.ndarray:
+    return np.moveaxis(np.asarray(x, dtype=float), -1, 0)
+
+
 def paper_disturbance(t, f_r) -> np.ndarray:
     """Eq. 4: ``f_r * sgn(2 t + 1)``, shape ``broadcast(t[..., None], f_r)``."""
     t = np.asarray(t, dtype=float)
-    return np.asarray(f_r, dtype=float) * np.sign(2.0 * t + 1.0)[..., None]
+    return np.moveaxis(kernels.paper_disturbance(t, np.asarray(f_r, dtype=float).reshape((-1,) + (1,) * t.ndim)), 0, -1)
 
 
 def friction_disturbance(dq, coulomb, viscous, friction_velocity: float) -> np.ndarray:
     """Smoothed Coulomb plus viscous friction ``-(F_c tanh(q'/v_s) + F_v q')``, shape (..., 4)."""
     dq = np.asarray(dq, dtype=float)
-    return -(np.asarray(coulomb) * np.tanh(dq / friction_velocity) + np.asarray(viscous) * dq)
+    return kernels.friction_disturbance(dq, np.asarray(coulomb, dtype=float), np.asarray(viscous, dtype=float),
+                                        friction_velocity)
 
 
 def tissue_disturbance(q, dq, spec: DisturbanceSpec, params: RobotParameters) -> np.ndarray:
     """Joint forces from the skin spring-damper contact, ``J(q)^T F``, shape (..., 4)."""
-    q = np.asarray(q, dtype=float)
-    dq = np.asarray(dq, dtype=float)
-    J = jacobian(q, params)
-    pose = forward_kinematics(q, params)
-    v = (J @ dq[..., None])[..., 0]
-    depth = spec.skin_height - pose[..., 2]
-    inside = depth > 0.0
-    F = np.zeros(np.broadcast(q, dq).shape)
-    F[..., 2] = np.where(inside, np.maximum(0.0, spec.tissue_stiffness * depth - spec.tissue_damping * v[..., 2]), 0.0)
-    F[..., 0] = np.where(inside, -spec.tissue_drag * v[..., 0], 0.0)
-    F[..., 1] = np.where(inside, -spec.tissue_drag * v[..., 1], 0.0)
-    return (np.swapaxes(J, -1, -2) @ F[..., None])[..., 0]
+    q, dq = np.broadcast_arrays(np.asarray(q, dtype=float), np.asarray(dq, dtype=float))
+    rows = kernels.tissue_disturbance(kernels.kinematic_lengths(params), _rows(q), _rows(dq), spec.skin_height,
+                                      spec.tissue_stiffness, spec.tissue_damping, spec.tissue_drag)
+    return np.moveaxis(rows, 0, -1)
 
 
 def external_disturbance(t, q, dq, spec: DisturbanceSpec, params: RobotParameters) -> np.ndarray:
@@ -148,13 +145,13 @@ def external_disturbance(t, q, dq, spec: DisturbanceSpec, params: RobotParameter
     params : RobotParameters
         True arm parameters (for the tissue contact kinematics).
     """
-    q = np.asarray(q, dtype=float)
-    dq = np.asarray(dq, dtype=float)
-    total = np.zeros(np.broadcast(q, dq).shape)
-    if "paper" in spec.kinds:
-        total = total + paper_disturbance(t, spec.f_r)
-    if "friction" in spec.kinds:
-        total = total + friction_disturbance(dq, spec.coulomb, spec.viscous, spec.friction_velocity)
-    if "tissue" in spec.kinds:
-        total = total + tissue_disturbance(q, dq, spec, params)
-    return total
+    q, dq = np.broadcast_arrays(np.asarray(q, dtype=float), np.asarray(dq, dtype=float))
+    t = np.asarray(t, dtype=float)
+    lead = np.broadcast_shapes(t.shape, q.shape[:-1])
+    q, dq = (np.broadcast_to(a, lead + (4,)) for a in (q, dq))
+    p = kernels.disturbance_params(spec, params)
+    # per-joint parameters carry one axis per leading axis of the signals (see blocks.kernels)
+    extra = (1,) * len(lead)
+    p = p._replace(f_r=p.f_r.reshape((4,) + extra), coulomb=p.coulomb.reshape((4,) + extra),
+                   viscous=p.viscous.reshape((4,) + extra), kin=p.kin.reshape((4,) + extra))
+    return np.moveaxis(kernels.external_disturbance(np.broadcast_to(t, lead), _rows(q), _rows(dq), p), 0, -1)

@@ -3,11 +3,16 @@
 All functions are vectorised: ``q`` and ``dq`` may carry any leading batch
 shape ``(..., 4)``; matrices come back as ``(..., 4, 4)``.  Joint order is
 ``[theta1 (rad), theta2 (rad), d3 (m, positive downwards), theta4 (rad)]``.
+
+The formulas are those of :mod:`blocks.kernels` (joint rows first); these
+functions present them in the joint-last layout that analysis code and users
+expect.
 """
 from __future__ import annotations
 
 import numpy as np
 
+from .kernels import arm_constants, bias_forces, coriolis_forces, inertia_entries, mass_solve, mass_times
 from .parameters import RobotParameters
 
 __all__ = [
@@ -21,6 +26,15 @@ def _as_joint_array(x, name: str) -> np.ndarray:
     if arr.shape[-1:] != (4,):
         raise ValueError(f"{name} must have a last axis of length 4 (joints), got shape {arr.shape}")
     return arr
+
+
+def _rows(x, name: str) -> np.ndarray:
+    """A joint-last array as rows (joint first), for the kernels."""
+    return np.moveaxis(_as_joint_array(x, name), -1, 0)
+
+
+def _joint_last(rows: np.ndarray) -> np.ndarray:
+    return np.moveaxis(rows, 0, -1)
 
 
 def inertia(q, params: RobotParameters) -> np.ndarray:
@@ -39,47 +53,41 @@ def inertia(q, params: RobotParameters) -> np.ndarray:
         Symmetric positive definite inertia matrix.
     """
     q = _as_joint_array(q, "q")
-    k = params.constants
-    c2 = np.cos(q[..., 1])
+    m00, m01, m11, m22, m33 = inertia_entries(arm_constants(params), np.cos(q[..., 1]))
     M = np.zeros(q.shape[:-1] + (4, 4))
-    M[..., 0, 0] = k.k1 + k.k2 * c2
-    M[..., 0, 1] = M[..., 1, 0] = k.k3 + 0.5 * k.k2 * c2
-    M[..., 1, 1] = k.k3
-    M[..., 2, 2] = k.k4
-    M[..., 0, 3] = M[..., 3, 0] = -k.k5
-    M[..., 1, 3] = M[..., 3, 1] = -k.k5
-    M[..., 3, 3] = k.k5
+    M[..., 0, 0] = m00
+    M[..., 0, 1] = M[..., 1, 0] = m01
+    M[..., 1, 1] = m11
+    M[..., 2, 2] = m22
+    M[..., 0, 3] = M[..., 3, 0] = M[..., 1, 3] = M[..., 3, 1] = -m33
+    M[..., 3, 3] = m33
     return M
 
 
 def inertia_derivative_theta2(q, params: RobotParameters) -> np.ndarray:
-    """Partial derivative ``dM/dtheta2`` (the only configuration dependence), shape (..., 4, 4)."""
+    """Partial derivative ``dM/dtheta2`` (the only configuration dependence), shape (..., 4, 4).
+
+    ``M`` depends on ``theta2`` through ``k2 cos(theta2)`` in ``m00`` and half of it in ``m01``.
+    """
     q = _as_joint_array(q, "q")
-    k = params.constants
-    s2 = np.sin(q[..., 1])
+    k2s2 = params.constants.k2 * np.sin(q[..., 1])
     dM = np.zeros(q.shape[:-1] + (4, 4))
-    dM[..., 0, 0] = -k.k2 * s2
-    dM[..., 0, 1] = dM[..., 1, 0] = -0.5 * k.k2 * s2
+    dM[..., 0, 0] = -k2s2
+    dM[..., 0, 1] = dM[..., 1, 0] = -0.5 * k2s2
     return dM
 
 
 def coriolis_vector(q, dq, params: RobotParameters) -> np.ndarray:
     """Coriolis and centrifugal torques ``N(q, q') q'`` of Eq. 6, shape (..., 4), in N m / N."""
-    q = _as_joint_array(q, "q")
-    dq = _as_joint_array(dq, "dq")
-    k = params.constants
-    s2 = np.sin(q[..., 1])
-    out = np.zeros(np.broadcast(q, dq).shape)
-    out[..., 0] = -k.k2 * s2 * dq[..., 1] * (dq[..., 0] + 0.5 * dq[..., 1])
-    out[..., 1] = 0.5 * k.k2 * s2 * dq[..., 0] ** 2
-    return out
+    q, dq = np.broadcast_arrays(_as_joint_array(q, "q"), _as_joint_array(dq, "dq"))
+    return _joint_last(coriolis_forces(arm_constants(params), np.sin(q[..., 1]), _rows(dq, "dq")))
 
 
 def coriolis_matrix(q, dq, params: RobotParameters) -> np.ndarray:
     """Christoffel factorisation ``C(q, q')`` with ``C q' = N q'`` and ``M' - 2C`` skew-symmetric.
 
     This is not the paper's printed matrix N (which gives the same vector but
-    not the skew property); see paper-notes.  Shape (..., 4, 4).
+    not the skew property); see ``docs/model.md``.  Shape (..., 4, 4).
     """
     q = _as_joint_array(q, "q")
     dq = _as_joint_array(dq, "dq")
@@ -94,9 +102,8 @@ def coriolis_matrix(q, dq, params: RobotParameters) -> np.ndarray:
 def gravity(q, params: RobotParameters) -> np.ndarray:
     """Gravity vector ``G(q)`` of Eq. 7 (``d3`` positive downwards), shape (..., 4)."""
     q = _as_joint_array(q, "q")
-    G = np.zeros(q.shape)
-    G[..., 2] = -params.constants.k4 * params.g
-    return G
+    # N q' vanishes at q' = 0, leaving G
+    return _joint_last(bias_forces(arm_constants(params), np.sin(q[..., 1]), np.zeros((4,) + q.shape[:-1])))
 
 
 def forward_dynamics(q, dq, tau, params: RobotParameters) -> np.ndarray:
@@ -109,20 +116,26 @@ def forward_dynamics(q, dq, tau, params: RobotParameters) -> np.ndarray:
     tau : array_like, shape (..., 4)
         Total generalised force on each joint (N m, N for joint 3).
     """
-    rhs = np.asarray(tau, dtype=float) - coriolis_vector(q, dq, params) - gravity(q, params)
-    return np.linalg.solve(inertia(q, params), rhs[..., None])[..., 0]
+    q, dq, tau = np.broadcast_arrays(_as_joint_array(q, "q"), _as_joint_array(dq, "dq"), _as_joint_array(tau, "tau"))
+    k = arm_constants(params)
+    force = _rows(tau, "tau") - bias_forces(k, np.sin(q[..., 1]), _rows(dq, "dq"))
+    return _joint_last(mass_solve(k, np.cos(q[..., 1]), force))
 
 
 def inverse_dynamics(q, dq, ddq, params: RobotParameters) -> np.ndarray:
     """Generalised forces ``M q'' + N q' + G`` that produce ``ddq``, shape (..., 4)."""
-    M = inertia(q, params)
-    return (M @ np.asarray(ddq, dtype=float)[..., None])[..., 0] + coriolis_vector(q, dq, params) + gravity(q, params)
+    q, dq, ddq = np.broadcast_arrays(_as_joint_array(q, "q"), _as_joint_array(dq, "dq"), _as_joint_array(ddq, "ddq"))
+    k = arm_constants(params)
+    rows = mass_times(k, np.cos(q[..., 1]), _rows(ddq, "ddq")) + bias_forces(k, np.sin(q[..., 1]),
+                                                                                   _rows(dq, "dq"))
+    return _joint_last(rows)
 
 
 def kinetic_energy(q, dq, params: RobotParameters) -> np.ndarray:
     """Kinetic energy ``0.5 q'^T M(q) q'`` in J, shape (...)."""
-    dq = _as_joint_array(dq, "dq")
-    return 0.5 * np.einsum("...i,...ij,...j->...", dq, inertia(q, params), dq)
+    q, dq = np.broadcast_arrays(_as_joint_array(q, "q"), _as_joint_array(dq, "dq"))
+    rows = _rows(dq, "dq")
+    return 0.5 * np.sum(rows * mass_times(arm_constants(params), np.cos(q[..., 1]), rows), axis=0)
 
 
 def potential_energy(q, params: RobotParameters) -> np.ndarray:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .kernels.kinematics import jacobian_entries, kinematic_lengths, tool_pose
 from .parameters import RobotParameters
 
 __all__ = [
@@ -34,14 +35,7 @@ class UnreachableError(ValueError):
 def forward_kinematics(q, params: RobotParameters) -> np.ndarray:
     """Tool pose ``[x (m), y (m), z (m), phi (rad)]`` for joint positions ``q``, shape (..., 4)."""
     q = np.asarray(q, dtype=float)
-    t1, t2, d3, t4 = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    t12 = t1 + t2
-    return np.stack([
-        params.a1 * np.cos(t1) + params.a2 * np.cos(t12),
-        params.a1 * np.sin(t1) + params.a2 * np.sin(t12),
-        params.d1 - d3 - params.d4,
-        t12 - t4,
-    ], axis=-1)
+    return np.moveaxis(tool_pose(kinematic_lengths(params), np.moveaxis(q, -1, 0)), 0, -1)
 
 
 def jacobian(q, params: RobotParameters) -> np.ndarray:
@@ -51,12 +45,9 @@ def jacobian(q, params: RobotParameters) -> np.ndarray:
     ``sin(theta2) = 0`` (arm stretched or folded).
     """
     q = np.asarray(q, dtype=float)
-    t1, t12 = q[..., 0], q[..., 0] + q[..., 1]
+    j00, j01, j10, j11 = jacobian_entries(kinematic_lengths(params), np.moveaxis(q, -1, 0))
     J = np.zeros(q.shape[:-1] + (4, 4))
-    J[..., 0, 0] = -params.a1 * np.sin(t1) - params.a2 * np.sin(t12)
-    J[..., 0, 1] = -params.a2 * np.sin(t12)
-    J[..., 1, 0] = params.a1 * np.cos(t1) + params.a2 * np.cos(t12)
-    J[..., 1, 1] = params.a2 * np.cos(t12)
+    J[..., 0, 0], J[..., 0, 1], J[..., 1, 0], J[..., 1, 1] = j00, j01, j10, j11
     J[..., 2, 2] = -1.0
     J[..., 3, 0] = 1.0
     J[..., 3, 1] = 1.0

@@ -21,11 +21,12 @@ from typing import Callable
 import control as ct
 import numpy as np
 
-from .dynamics import coriolis_vector, forward_dynamics, gravity, inertia
+from .kernels import arm_constants
+from .kernels import lumped_disturbance as lumped_disturbance_rows
 from .fastsim import CompiledLoop
 from .integrate import DivergenceError, SolverFailure, integrate_on_grid
 from .scenario import Scenario, load_scenario
-from .systems import JOINTS, controller, plant, sensor, signal_names, trajectory_block
+from .systems import controller, plant, sensor, signal_names, trajectory_block
 from .systems import observer as observer_block
 
 __all__ = ["build_blocks", "closed_loop", "initial_state", "simulate", "SimulationError", "lumped_disturbance",
@@ -128,18 +129,19 @@ def initial_state(loop: ct.InterconnectedSystem, scenario: Scenario | None = Non
     q_ref0, dq_ref0, _ = s.trajectory.evaluate(0.0)
     q0 = s.initial["q"] if s.initial["q"] is not None else q_ref0
     dq0 = s.initial["dq"] if s.initial["dq"] is not None else dq_ref0
-    d_hat0 = s.initial["d_hat"] if s.initial["d_hat"] is not None else np.zeros(JOINTS)
+    n = s.robot.joints.count
+    d_hat0 = s.initial["d_hat"] if s.initial["d_hat"] is not None else np.zeros(n)
     x0, offset = np.zeros(loop.nstates), 0
     for block in loop.syslist:
         xs = slice(offset, offset + block.nstates)
         if block.name == "observer":
             dq_meas0 = dq0 + (s.noise.sample(0.0)[1] if s.noise is not None else 0.0)
-            x0[xs] = d_hat0 - block.gain @ dq_meas0          # d_hat = Y dq + z
+            x0[xs] = d_hat0 - s.observer_gain @ dq_meas0          # d_hat = Y dq + z
         elif block.name == "plant":
             x0[xs] = np.asarray(getattr(block, "initial_state", np.zeros(block.nstates)), dtype=float)
             labels = list(block.state_labels)
             for name, values in (("q", q0), ("dq", dq0)):
-                for i in range(JOINTS):
+                for i in range(n):
                     label = f"{name}[{i}]"
                     if label not in labels:
                         raise ValueError(f"plant block has no state '{label}' to start the arm on its reference")
@@ -157,11 +159,9 @@ def lumped_disturbance(q, dq, tau, tau_dis, scenario: Scenario) -> np.ndarray:
     substituted plant (an FMU) whose parameters differ from the scenario's, ``d``
     is relative to the scenario's robot, not to that plant.
     """
-    s = scenario
-    ddq = forward_dynamics(q, dq, np.asarray(tau) + np.asarray(tau_dis), s.robot)
-    nominal_side = (inertia(q, s.nominal) @ ddq[..., None])[..., 0] + coriolis_vector(q, dq, s.nominal) \
-        + gravity(q, s.nominal)
-    return nominal_side - np.asarray(tau)
+    rows = [np.moveaxis(np.asarray(a, dtype=float), -1, 0) for a in (q, dq, tau, tau_dis)]
+    d = lumped_disturbance_rows(arm_constants(scenario.robot), arm_constants(scenario.nominal), *rows)
+    return np.moveaxis(d, 0, -1)
 
 
 def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=None, engine: str = "fast",
@@ -220,8 +220,9 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
         raise ValueError(f"engine must be 'fast' or 'python-control', got {engine!r}")
     labels = list(loop.output_labels)
     idx = {name: labels.index(name) for name in labels}
-    pick = lambda sig: outputs[[idx[n] for n in signal_names(sig)]].T  # noqa: E731
-    d = lumped_disturbance(pick("q"), pick("dq"), pick("tau"), pick("tau_dis"), s).T
+    pick = lambda sig: outputs[[idx[n] for n in signal_names(sig)]]  # noqa: E731
+    d = lumped_disturbance_rows(arm_constants(s.robot), arm_constants(s.nominal), pick("q"), pick("dq"),
+                                pick("tau"), pick("tau_dis"))
     all_outputs = np.vstack([outputs, d])
     title = f"{s.name}: {'with' if observer else 'without'} disturbance observer"
     resp = ct.TimeResponseData(t_grid, all_outputs, states, output_labels=labels + signal_names("d"),

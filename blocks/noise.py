@@ -16,7 +16,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .kernels.noise import sampled_noise
+
 __all__ = ["MeasurementNoise"]
+
+_ZERO_TABLE = np.zeros((8, 2))
+_ZERO_TABLE.setflags(write=False)
 
 
 @dataclass(frozen=True)
@@ -60,7 +65,8 @@ class MeasurementNoise:
         if self.enabled:        # no noise, no samples: long noise-free runs must not pay for them
             n = int(math.ceil(self.t_final / self.sample_period)) + 2
             rng = np.random.default_rng(self.seed)
-            samples = rng.standard_normal((n, 8)) * np.array(self.q_std + self.dq_std)
+            samples = (rng.standard_normal((n, 8)) * np.array(self.q_std + self.dq_std)).T.copy()
+            samples.setflags(write=False)
         object.__setattr__(self, "_samples", samples)
 
     @property
@@ -68,13 +74,14 @@ class MeasurementNoise:
         """True when any standard deviation is non-zero."""
         return any(v > 0 for v in self.q_std + self.dq_std)
 
+    @property
+    def table(self) -> np.ndarray:
+        """The samples as rows ``[n_q; n_dq]``, shape (8, n_samples), read-only; zeros when disabled."""
+        if self._samples is None:
+            return _ZERO_TABLE
+        return self._samples
+
     def sample(self, t):
         """Noise at time(s) ``t`` (s): ``(n_q, n_dq)``, each of shape ``(4,)`` or ``(len(t), 4)``."""
-        if self._samples is None:
-            zeros = np.zeros(np.shape(t) + (4,))
-            return zeros, zeros.copy()
-        x = np.clip(np.asarray(t, dtype=float) / self.sample_period, 0.0, len(self._samples) - 1.0)
-        i = np.minimum(np.floor(x).astype(int), len(self._samples) - 2)
-        w = (x - i)[..., None]
-        value = (1 - w) * self._samples[i] + w * self._samples[i + 1]
+        value = sampled_noise(np.asarray(t, dtype=float), self.table, self.sample_period).T
         return value[..., :4], value[..., 4:]

@@ -38,7 +38,7 @@ from .disturbances import DISTURBANCE_KINDS, DisturbanceSpec
 from .kinematics import UnreachableError
 from .noise import MeasurementNoise
 from .parameters import ParameterError, RobotParameters
-from .systems import OBSERVER_VARIANTS, gain_matrix
+from .gains import OBSERVER_VARIANTS, GainError, validated_gain
 from .trajectory import TRAJECTORY_KINDS, JointSine, LacerationPath
 
 __all__ = ["Scenario", "ScenarioError", "SimulationSettings", "load_scenario", "builtin_scenarios",
@@ -292,14 +292,9 @@ def scenario_from_dict(data: dict, source: str = "<dict>") -> Scenario:
     mats = {}
     for key, value in gains.items():
         try:
-            mats[key] = gain_matrix(_as_array(value, f"gains.{key}", source), key, allow_matrix=(key == "observer"))
-        except ValueError as err:
-            raise ScenarioError(f"{source}: [gains] {err}") from None
-        if key != "observer" and np.any(np.diag(mats[key]) <= 0):
-            raise ScenarioError(f"{source}: 'gains.{key}' must be > 0 on every joint, got {value!r}")
-    if np.any(np.linalg.eigvals(mats["observer"] + mats["observer"].T).real <= 0):
-        raise ScenarioError(f"{source}: 'gains.observer' must have a positive definite symmetric part "
-                            f"(Y + Y^T > 0) for the observer to converge, got {gains['observer']!r}")
+            mats[key] = validated_gain(_as_array(value, f"gains.{key}", source), key)
+        except GainError as err:
+            raise ScenarioError(f"{source}: {err}") from None
     out["gains"] = gains
     _check_keys(t["observer"], ("variant",), "observer", source)
     variant = t["observer"].get("variant", "correct")

@@ -1,86 +1,98 @@
 """The blocks of the paper's Figure 2 as python-control nonlinear I/O systems.
 
-Every factory returns a :class:`control.NonlinearIOSystem` whose signals use
-the names of the design (``q[i]``, ``dq[i]``, ``q_ref[i]``, ``tau[i]``,
-``d_hat[i]``, ``tau_dis[i]``, ...), so that :func:`control.interconnect` wires
-them by name.  Parameters are bound in closures rather than passed through
-python-control's ``params`` because ``interconnect`` merges equal parameter
-names of different blocks (the true plant and the nominal model would collide).
+Every factory returns a :class:`~blocks.contract.Block` (a
+:class:`control.NonlinearIOSystem`) whose signals use the names of the design
+(``q[i]``, ``dq[i]``, ``q_ref[i]``, ``tau[i]``, ``d_hat[i]``, ``tau_dis[i]``,
+...), so that :func:`control.interconnect` wires them by name.  Parameters
+are bound when the block is made rather than passed through python-control's
+``params``, because ``interconnect`` merges equal parameter names of
+different blocks (the true plant and the nominal model would collide).
 
-Each block also records which of its inputs reach its outputs directly in the
-attribute ``feedthrough`` (a frozenset of input names).  The fast simulation
-path uses it to order the blocks without iterating to a fixed point.
-
-The output functions here also accept column-stacked signals: ``t`` of
-shape (T,), ``x`` of shape (nstates, T) and ``u`` of shape (ninputs, T) give
-outputs of shape (noutputs, T).  Such blocks carry ``columnwise = True`` (the
-trajectory and sensor blocks when the object they wrap evaluates many times
-at once), and the fast path then evaluates a whole time grid in one pass per
-block instead of one pass per grid point.
-
-The controller and the observer share one evaluation of the nominal model per
-right-hand-side call through :mod:`blocks.model_cache` (values
-remembered at their last arguments).  The plant declares in ``state_outputs``
-that its outputs ``q[i]``, ``dq[i]`` are its states, so the fast path reads
-them from the state and evaluates the disturbance once, in the plant's update.
+The plant, controller, observer and sensor are *kernel blocks*: their update
+and output functions are the block kernels below, which slice the stacked
+input and call the laws of :mod:`blocks.kernels`, and their contract carries
+those kernels with their parameters so that an engine can call them
+directly, over a time grid or over a batch.  The trajectory block wraps a
+path object.
 """
 from __future__ import annotations
 
-import control as ct
 import numpy as np
 
-from .disturbances import DisturbanceSpec, external_disturbance
-from .dynamics import coriolis_vector, gravity, inertia
-from .model_cache import nominal_terms
+from .contract import Block, BlockContract, Kernels, kernel_block
+from .disturbances import DisturbanceSpec
+from .gains import OBSERVER_VARIANTS, validated_gain
+from .kernels import (arm_constants, computed_torque, disturbance_params, external_disturbance, observer_estimate,
+                      observer_rate, plant_acceleration)
+from .kernels.noise import sampled_noise
 from .noise import MeasurementNoise
-from .joints import RRPR_JOINTS
 from .parameters import RobotParameters
 
-__all__ = ["plant", "controller", "observer", "trajectory_block", "sensor", "gain_matrix", "signal_names",
-           "OBSERVER_VARIANTS", "JOINTS"]
-
-JOINTS = RRPR_JOINTS.count
-OBSERVER_VARIANTS = ("correct", "paper-eq16")
+__all__ = ["plant", "controller", "observer", "trajectory_block", "sensor", "signal_names", "OBSERVER_VARIANTS",
+           "plant_update", "plant_output", "controller_output", "controller_output_with_estimate",
+           "observer_update", "observer_output", "sensor_output"]
 
 
-def signal_names(prefix: str) -> list[str]:
-    """The four per-joint signal names ``prefix[0]`` .. ``prefix[3]``."""
-    return [f"{prefix}[{i}]" for i in range(JOINTS)]
+def signal_names(prefix: str, params: RobotParameters | None = None) -> list[str]:
+    """The per-joint signal names ``prefix[0]`` .. ``prefix[n-1]`` of an arm (default: the paper's)."""
+    return (params or RobotParameters).joints.signal_names(prefix)
 
 
-def _declare_feedthrough(sys: ct.NonlinearIOSystem, inputs, columnwise: bool = True) -> ct.NonlinearIOSystem:
-    sys.feedthrough = frozenset(inputs)
-    sys.columnwise = columnwise     # see the module docstring
-    return sys
+# --------------------------------------------------------------------------------------------------------------
+# Block kernels: (t, x, u, *params) -> rows, in the layout of blocks.kernels
+# --------------------------------------------------------------------------------------------------------------
+def plant_update(t, x, u, k, disturbance):
+    """Plant states ``[q; dq]`` -> ``[dq; q'']`` under torque ``u`` plus the external disturbance (Eq. 1)."""
+    n = x.shape[0] // 2
+    q, dq = x[:n], x[n:]
+    return np.concatenate((dq, plant_acceleration(k, q, dq, u + external_disturbance(t, q, dq, disturbance))))
 
 
-def gain_matrix(value, name: str, allow_matrix: bool = False) -> np.ndarray:
-    """A 4x4 gain from a scalar, a 4-vector (diagonal) or, if allowed, a 4x4 matrix.
-
-    Raises
-    ------
-    ValueError
-        On a wrong shape or a non-finite entry, naming ``name``.
-    """
-    arr = np.asarray(value, dtype=float)
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"gain '{name}' must be finite, got {value!r}")
-    if arr.ndim == 0:
-        return float(arr) * np.eye(JOINTS)
-    if arr.shape == (JOINTS,):
-        return np.diag(arr)
-    if arr.shape == (JOINTS, JOINTS) and (allow_matrix or np.count_nonzero(arr - np.diag(np.diag(arr))) == 0):
-        return arr.copy()
-    allowed = "a scalar, 4 numbers" + (" or a 4x4 matrix" if allow_matrix else " or a diagonal 4x4 matrix")
-    raise ValueError(f"gain '{name}' must be {allowed}, got shape {arr.shape}")
+def plant_output(t, x, u, k, disturbance):
+    """Plant outputs ``[q; dq; tau_dis]``: the states and the external disturbance acting now."""
+    n = x.shape[0] // 2
+    return np.concatenate((x, external_disturbance(t, x[:n], x[n:], disturbance)))
 
 
-def plant(params: RobotParameters, disturbance: DisturbanceSpec | None = None,
-          name: str = "plant") -> ct.NonlinearIOSystem:
+def controller_output(t, x, u, k, kp, kd):
+    """Eq. 11 without an estimate: inputs ``[q_ref; dq_ref; ddq_ref; q; dq]``."""
+    n = kp.shape[0]
+    return computed_torque(k, kp, kd, u[3 * n:4 * n], u[4 * n:5 * n], u[:n], u[n:2 * n], u[2 * n:3 * n], 0.0)
+
+
+def controller_output_with_estimate(t, x, u, k, kp, kd):
+    """Eq. 11: inputs ``[q_ref; dq_ref; ddq_ref; q; dq; d_hat]``."""
+    n = kp.shape[0]
+    return computed_torque(k, kp, kd, u[3 * n:4 * n], u[4 * n:5 * n], u[:n], u[n:2 * n], u[2 * n:3 * n],
+                           u[5 * n:6 * n])
+
+
+def observer_update(t, z, u, k, gain, eq16_weight):
+    """Observer state derivative: inputs ``[tau; q; dq]``, state ``z``."""
+    n = z.shape[0]
+    return observer_rate(k, gain, eq16_weight, u[n:2 * n], u[2 * n:3 * n], u[:n], z)
+
+
+def observer_output(t, z, u, k, gain, eq16_weight):
+    """The estimate ``d_hat = Y dq + z``."""
+    n = z.shape[0]
+    return observer_estimate(gain, u[2 * n:3 * n], z)
+
+
+def sensor_output(t, x, u, table, period):
+    """Measured ``[q; dq]``: the true signals plus the sampled noise at ``t``."""
+    return u + sampled_noise(t, table, period)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Factories
+# --------------------------------------------------------------------------------------------------------------
+def plant(params: RobotParameters, disturbance: DisturbanceSpec | None = None, name: str = "plant") -> Block:
     """The true arm, Eq. 1, with the external disturbance models acting inside it.
 
     States ``q[i]``, ``dq[i]``; input ``tau[i]`` (N m, N); outputs ``q[i]``,
     ``dq[i]`` and the external disturbance ``tau_dis[i]`` acting at that instant.
+    The outputs ``q[i]``, ``dq[i]`` are declared copies of the states.
 
     Parameters
     ----------
@@ -90,27 +102,17 @@ def plant(params: RobotParameters, disturbance: DisturbanceSpec | None = None,
         External disturbance models (default: the paper's Eq. 4).
     """
     spec = DisturbanceSpec() if disturbance is None else disturbance
-
-    def update(t, x, u, _params):
-        q, dq = x[:JOINTS], x[JOINTS:]
-        rhs = u + external_disturbance(t, q, dq, spec, params) - coriolis_vector(q, dq, params) - gravity(q, params)
-        return np.concatenate([dq, np.linalg.solve(inertia(q, params), rhs)])
-
-    def output(t, x, u, _params):
-        return np.concatenate([x, external_disturbance(t, x[:JOINTS].T, x[JOINTS:].T, spec, params).T])
-
-    sys = ct.nlsys(update, output, name=name, inputs=signal_names("tau"),
-                   states=signal_names("q") + signal_names("dq"),
-                   outputs=signal_names("q") + signal_names("dq") + signal_names("tau_dis"))
-    sys.robot_parameters = params
-    sys.disturbance_spec = spec
-    # q and dq are the states themselves: the fast path reads them from x instead of calling output
-    sys.state_outputs = {name: name for name in signal_names("q") + signal_names("dq")}
-    return _declare_feedthrough(sys, ())
+    states = signal_names("q", params) + signal_names("dq", params)
+    block = kernel_block(Kernels((arm_constants(params), disturbance_params(spec, params)), plant_output, plant_update),
+                         name=name, inputs=signal_names("tau", params), states=states,
+                         outputs=states + signal_names("tau_dis", params), state_outputs=zip(states, states))
+    block.robot_parameters = params
+    block.disturbance_spec = spec
+    return block
 
 
-def controller(nominal: RobotParameters, kp, kd, use_observer: bool = True,
-               measured: str = "", name: str = "controller") -> ct.NonlinearIOSystem:
+def controller(nominal: RobotParameters, kp, kd, use_observer: bool = True, measured: str = "",
+               name: str = "controller") -> Block:
     """Computed-torque control, Eq. 11, on the nominal model.
 
     ``tau = M^(q)(q_ref'' + Kd e' + Kp e) + N^(q, q') q' + G^(q) - d_hat``,
@@ -121,45 +123,33 @@ def controller(nominal: RobotParameters, kp, kd, use_observer: bool = True,
     ----------
     nominal : RobotParameters
         The model the controller believes in.
-    kp, kd : float, 4 floats
-        Proportional (1/s^2) and derivative (1/s) gains, scalar or per joint.
+    kp, kd : float, 4 floats or diagonal 4x4
+        Proportional (1/s^2) and derivative (1/s) gains, each > 0, scalar or per joint.
     use_observer : bool
         Whether the block takes ``d_hat[i]`` from the observer.
     measured : str
         Suffix of the measured signals it reads, ``""`` for ``q[i]``/``dq[i]``
         or ``"_meas"`` for ``q_meas[i]``/``dq_meas[i]`` from a sensor block.
+
+    Raises
+    ------
+    blocks.gains.GainError
+        If a gain is not positive, not diagonal or of the wrong shape.
     """
-    Kp = gain_matrix(kp, "kp")
-    Kd = gain_matrix(kd, "kd")
-    for gain, label in ((Kp, "kp"), (Kd, "kd")):
-        if np.any(np.diag(gain) <= 0):
-            raise ValueError(f"gain '{label}' must be > 0 on every joint, got {np.diag(gain).tolist()}")
-    n = JOINTS
-    inputs = [name for prefix in ("q_ref", "dq_ref", "ddq_ref", "q" + measured, "dq" + measured)
-              for name in signal_names(prefix)]
+    Kp, Kd = validated_gain(kp, "kp"), validated_gain(kd, "kd")
+    inputs = [s for prefix in ("q_ref", "dq_ref", "ddq_ref", "q" + measured, "dq" + measured)
+              for s in signal_names(prefix, nominal)]
     if use_observer:
-        inputs += signal_names("d_hat")
-    model = nominal_terms(nominal)      # shared with an observer on the same nominal model
-
-    def output(t, x, u, _params):
-        q_ref, dq_ref, ddq_ref = u[:n], u[n:2 * n], u[2 * n:3 * n]
-        q, dq = u[3 * n:4 * n], u[4 * n:5 * n]
-        v = ddq_ref + Kd @ (dq_ref - dq) + Kp @ (q_ref - q)
-        if u.ndim == 1:
-            M, h = model(q, dq)
-            tau = M @ v + h
-        else:                                   # columns (T on the last axis) for a grid pass
-            M, h = model(q.T, dq.T)
-            tau = np.einsum("kij,jk->ik", M, v) + h.T
-        return tau - u[5 * n:6 * n] if use_observer else tau
-
-    sys = ct.nlsys(None, output, name=name, inputs=inputs, outputs=signal_names("tau"))
-    sys.gains = {"kp": Kp, "kd": Kd}
-    return _declare_feedthrough(sys, inputs)
+        inputs += signal_names("d_hat", nominal)
+    law = controller_output_with_estimate if use_observer else controller_output
+    block = kernel_block(Kernels((arm_constants(nominal), np.diag(Kp).copy(), np.diag(Kd).copy()), law),
+                         name=name, inputs=inputs, outputs=signal_names("tau", nominal), feedthrough=inputs)
+    block.gains = {"kp": Kp, "kd": Kd}
+    return block
 
 
 def observer(nominal: RobotParameters, gain, variant: str = "correct", measured: str = "",
-             name: str = "observer") -> ct.NonlinearIOSystem:
+             name: str = "observer") -> Block:
     """Nonlinear disturbance observer (Chen et al. 2000; Mohammadi et al. 2013).
 
     ``d_hat = Y q' + z``, ``z' = -Y M^-1(q)(tau + d_hat - N(q, q') q' - G(q))``,
@@ -175,36 +165,35 @@ def observer(nominal: RobotParameters, gain, variant: str = "correct", measured:
         The model the observer believes in.
     gain : float, 4 floats or 4x4
         Observer gain ``Y`` (kg m^2/s and kg/s entries); the paper's "K3 = 10 I".
+        ``Y + Y^T`` must be positive definite.
     variant : {"correct", "paper-eq16"}
     measured : str
         Suffix of the measured signals it reads (see :func:`controller`).
+
+    Raises
+    ------
+    blocks.gains.GainError
+        If the gain is of the wrong shape or ``Y + Y^T`` is not positive definite.
+    ValueError
+        If the variant is unknown.
     """
     if variant not in OBSERVER_VARIANTS:
         raise ValueError(f"observer variant {variant!r} is unknown; choose from {list(OBSERVER_VARIANTS)}")
-    Y = gain_matrix(gain, "observer", allow_matrix=True)
-    n = JOINTS
-    printed_eq16 = variant == "paper-eq16"
-    q_in, dq_in = signal_names("q" + measured), signal_names("dq" + measured)
-    model = nominal_terms(nominal)      # shared with a controller on the same nominal model
-
-    def update(t, z, u, _params):
-        tau, q, dq = u[:n], u[n:2 * n], u[2 * n:3 * n]
-        M, h = model(q, dq)
-        Y_dq = Y @ dq
-        dz = -Y @ np.linalg.solve(M, tau + (Y_dq + z) - h)
-        return dz - Y_dq if printed_eq16 else dz
-
-    def output(t, z, u, _params):
-        return Y @ u[2 * n:3 * n] + z
-
-    sys = ct.nlsys(update, output, name=name, inputs=signal_names("tau") + q_in + dq_in,
-                   states=signal_names("z"), outputs=signal_names("d_hat"))
-    sys.gain = Y
-    sys.variant = variant
-    return _declare_feedthrough(sys, dq_in)
+    Y = validated_gain(gain, "observer")
+    # a diagonal gain multiplies elementwise (see blocks.kernels.laws.gain_times)
+    y_param = np.diag(Y).copy() if np.count_nonzero(Y - np.diag(np.diag(Y))) == 0 else np.array(Y)
+    dq_in = signal_names("dq" + measured, nominal)
+    inputs = signal_names("tau", nominal) + signal_names("q" + measured, nominal) + dq_in
+    kernels = Kernels((arm_constants(nominal), y_param, 1.0 if variant == "paper-eq16" else 0.0),
+                      observer_output, observer_update)
+    block = kernel_block(kernels, name=name, inputs=inputs, states=signal_names("z", nominal),
+                         outputs=signal_names("d_hat", nominal), feedthrough=dq_in)
+    block.gain = Y
+    block.variant = variant
+    return block
 
 
-def trajectory_block(trajectory, name: str = "trajectory") -> ct.NonlinearIOSystem:
+def trajectory_block(trajectory, name: str = "trajectory") -> Block:
     """A source block with outputs ``q_ref[i]``, ``dq_ref[i]``, ``ddq_ref[i]``.
 
     Parameters
@@ -214,7 +203,7 @@ def trajectory_block(trajectory, name: str = "trajectory") -> ct.NonlinearIOSyst
         for a scalar time ``t`` (s) (see :mod:`blocks.trajectory`).
         When it also has ``evaluate_stacked(t)``, returning the three side by
         side with shape ``np.shape(t) + (12,)`` for a scalar or a (T,) array of
-        times, that is used instead and the block is ``columnwise``.
+        times, that is used instead and the block takes columns.
     """
     stacked = getattr(trajectory, "evaluate_stacked", None)
 
@@ -224,29 +213,33 @@ def trajectory_block(trajectory, name: str = "trajectory") -> ct.NonlinearIOSyst
             return refs if refs.ndim == 1 else refs.T
         return np.concatenate(trajectory.evaluate(t))
 
-    sys = ct.nlsys(None, output, name=name, inputs=0,
-                   outputs=signal_names("q_ref") + signal_names("dq_ref") + signal_names("ddq_ref"))
-    sys.trajectory = trajectory
-    return _declare_feedthrough(sys, (), columnwise=stacked is not None)
+    outputs = signal_names("q_ref") + signal_names("dq_ref") + signal_names("ddq_ref")
+    block = Block(None, output, name=name, inputs=0, outputs=outputs,
+                  contract=BlockContract(feedthrough=frozenset(), columnwise=stacked is not None))
+    block.trajectory = trajectory
+    return block
 
 
-def sensor(noise, name: str = "sensor") -> ct.NonlinearIOSystem:
+def sensor(noise, name: str = "sensor") -> Block:
     """Measurement of ``q``, ``dq`` with additive noise: outputs ``q_meas[i]``, ``dq_meas[i]``.
 
     Parameters
     ----------
     noise : object
-        Anything with ``sample(t) -> (n_q, n_dq)`` returning two 4-vectors
-        (see :class:`blocks.noise.MeasurementNoise`, which also takes a
-        (T,) array of times and makes the block ``columnwise``).
+        A :class:`~blocks.noise.MeasurementNoise` (the block is then a kernel
+        block), or anything with ``sample(t) -> (n_q, n_dq)`` returning two
+        4-vectors for a scalar time.
     """
-    n = JOINTS
+    inputs = signal_names("q") + signal_names("dq")
+    outputs = signal_names("q_meas") + signal_names("dq_meas")
+    if isinstance(noise, MeasurementNoise):
+        params = (noise.table, noise.sample_period)      # the table is indexed by time, not broadcast
+        return kernel_block(Kernels(params, sensor_output, column_params=params), name=name, inputs=inputs,
+                            outputs=outputs, feedthrough=inputs)
 
     def output(t, x, u, _params):
         n_q, n_dq = noise.sample(t)
-        return np.concatenate([u[:n] + n_q.T, u[n:] + n_dq.T])
+        return u + np.concatenate([n_q, n_dq])
 
-    inputs = signal_names("q") + signal_names("dq")
-    sys = ct.nlsys(None, output, name=name, inputs=inputs, outputs=signal_names("q_meas") + signal_names("dq_meas"))
-    # a grid of times at once is part of MeasurementNoise.sample's contract, not of any object with sample(t)
-    return _declare_feedthrough(sys, inputs, columnwise=getattr(type(noise), "sample", None) is MeasurementNoise.sample)
+    return Block(None, output, name=name, inputs=inputs, outputs=outputs,
+                 contract=BlockContract(feedthrough=frozenset(inputs)))

@@ -9,24 +9,36 @@ The returned system is a drop-in block for :func:`control.interconnect`:
 * ``updfcn(t, x, u)`` sets time, states and inputs and returns the state
   derivatives; ``outfcn(t, x, u)`` does the same and returns the outputs.
 
-Attributes set on the system: ``feedthrough`` (the inputs on which some
-output depends according to ``ModelStructure``; all inputs if it does not
-say), ``initial_state`` (the states after initialization), ``fmu`` (the
+The system is a :class:`blocks.contract.Block`: its contract declares the
+inputs on which some output depends according to ``ModelStructure`` (all
+inputs if it does not say) as its feedthrough, and ``close()`` (or a
+``with`` statement) releases the FMU.  Attributes: ``initial_state`` (the states after initialization), ``fmu`` (the
 :class:`~fmu.instance.FMUInstance`, which owns the native instance
 and the extraction folder; ``sys.fmu.close()`` releases them early) and
 ``model_description``.
 """
 from __future__ import annotations
 
-import control as ct
 import numpy as np
+
+from blocks.contract import Block, BlockContract
 
 from .archive import ExtractionLimits, open_extracted
 from .description import described, real_variables, require_variables
 from .errors import FMUModelDescriptionError
 from .instance import FMUInstance
 
-__all__ = ["load", "output_feedthrough"]
+__all__ = ["load", "output_feedthrough", "FMUBlock"]
+
+
+class FMUBlock(Block):
+    """A Model Exchange FMU as a block; :meth:`close` (or leaving a ``with`` block) releases the FMU."""
+
+    def close(self) -> None:
+        """Free the FMU's native instance and its extraction folder (further calls raise)."""
+        fmu = getattr(self, "fmu", None)
+        if fmu is not None:
+            fmu.close()
 
 
 def output_feedthrough(model_description, input_names: list[str]) -> frozenset[str]:
@@ -50,8 +62,8 @@ def output_feedthrough(model_description, input_names: list[str]) -> frozenset[s
 
 
 def load(path, name: str = "plant", start_values: dict | None = None, start_time: float = 0.0,
-         limits: ExtractionLimits | None = None, extract_to=None, scenario=None) -> ct.NonlinearIOSystem:
-    """A Model Exchange FMU as a :class:`control.NonlinearIOSystem`.
+         limits: ExtractionLimits | None = None, extract_to=None, scenario=None) -> FMUBlock:
+    """A Model Exchange FMU as a :class:`control.NonlinearIOSystem` (an :class:`FMUBlock`).
 
     Parameters
     ----------
@@ -123,7 +135,7 @@ def load(path, name: str = "plant", start_values: dict | None = None, start_time
     Examples
     --------
     >>> import blocks
-import fmu
+    >>> import fmu
     >>> plant = fmu.load("plant.fmu", scenario="paper")                  # doctest: +SKIP
     >>> loop = blocks.closed_loop("paper", plant=plant)                  # doctest: +SKIP
     """
@@ -167,9 +179,11 @@ import fmu
         prepare(t, x, u)
         return inst.get_real(out_vr)
 
-    sys = ct.nlsys(update if state_names else None, output, name=name, inputs=inputs, outputs=outputs,
-                   states=state_names or 0)
-    sys.feedthrough = output_feedthrough(md, inputs)
+    signals = dict(name=name, inputs=inputs, outputs=outputs)
+    if state_names:     # python-control refuses a state count of 0 without an update function
+        signals["states"] = state_names
+    sys = FMUBlock(update if state_names else None, output, contract=BlockContract(
+        feedthrough=output_feedthrough(md, inputs)), **signals)
     sys.initial_state = initial_state
     sys.fmu = inst
     sys.model_description = md

@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.integrate import solve_ivp
 
+from blocks.control_compat import fast_dynamics, fast_output
 from blocks.disturbances import DISTURBANCE_KINDS, DisturbanceSpec
 from blocks.parameters import RobotParameters
 from blocks.systems import plant as python_plant
@@ -78,11 +79,12 @@ def _compare_model_exchange(extracted, robot, spec, t_final, tolerance) -> dict:
         t_eval = np.linspace(0.0, t_final, 101)
         runs = {}
         for key, sys in (("fmu", fmu), ("python", py)):
-            sol = solve_ivp(lambda t, x, s=sys: s._rhs(t, x, check_torque(t, robot)), (0.0, t_final), x0,
+            sol = solve_ivp(lambda t, x, f=fast_dynamics(sys): f(t, x, check_torque(t, robot)), (0.0, t_final), x0,
                             method="DOP853", t_eval=t_eval, rtol=1e-11, atol=1e-12)
             if not sol.success:
                 raise FMUError(f"{key} plant: the reference integration failed: {sol.message}")
-            outs = np.column_stack([sys._out(t, sol.y[:, k], check_torque(t, robot)) for k, t in enumerate(t_eval)])
+            out = fast_output(sys)
+            outs = np.column_stack([out(t, sol.y[:, k], check_torque(t, robot)) for k, t in enumerate(t_eval)])
             runs[key] = (sol.y, outs)
         labels = list(fmu.output_labels)
         dis = [labels.index(f"tau_dis[{i}]") for i in range(JOINTS)]
@@ -110,7 +112,7 @@ def _compare_co_simulation(extracted, robot, spec, t_final, step, tolerance) -> 
             t, u = k * step, check_torque(k * step, robot)
             fmu.set_real(in_vr, u)
             fmu.do_step(t, step)
-            sol = solve_ivp(lambda tt, x: py._rhs(tt, x, u), (t, t + step), x_ref, method="DOP853",
+            sol = solve_ivp(lambda tt, x: fast_dynamics(py)(tt, x, u), (t, t + step), x_ref, method="DOP853",
                             rtol=1e-12, atol=1e-13)
             x_ref = sol.y[:, -1]
         x_fmu = fmu.get_real(out_vr)

@@ -32,6 +32,7 @@ from typing import Callable
 import control as ct
 import numpy as np
 
+from blocks.control_compat import fast_dynamics, fast_output
 from blocks.fastsim import CompiledLoop
 from .archive import ExtractionLimits
 from .description import real_variables, require_variables
@@ -51,7 +52,7 @@ def _evaluator(side: ct.NonlinearIOSystem):
     if isinstance(side, ct.InterconnectedSystem):
         compiled = CompiledLoop(side)
         return compiled.rhs, compiled.output
-    return side._rhs, side._out
+    return fast_dynamics(side), fast_output(side)
 
 
 def _grid(t_final: float, step: float) -> int:

@@ -1,12 +1,12 @@
-"""The fast simulation path gives the numbers of control.input_output_response on the same interconnected system."""
+"""The numpy engine (CompiledLoop over the loop's plan) gives the numbers of control.input_output_response."""
 from __future__ import annotations
 
 import control as ct
 import numpy as np
 import pytest
-from conftest import load_benchmark
 
 import blocks
+from blocks.contract import Block, BlockContract, ContractError, contract_of
 from blocks.fastsim import AlgebraicLoopError, CompiledLoop
 
 SHORT = {"t_final": 1.0}
@@ -66,24 +66,13 @@ def test_a_feedthrough_cycle_is_reported():
         CompiledLoop(ct.interconnect([a, b], inplist=[], outlist=["y"], check_unused=False))
 
 
-def test_fast_path_equals_a_hand_fused_loop():
-    module = load_benchmark("bench_fastpath")
-    s = blocks.load_scenario("paper").replace(simulation=SHORT, trajectory={"duration": 10.0})
-    fused = module.hand_fused(s)
-    fast = blocks.simulate(s)
-    labels = list(fast.output_labels)
-    for name in ("q", "dq", "tau", "d_hat", "tau_dis", "d"):
-        got = np.asarray(fast.outputs)[[labels.index(f"{name}[{i}]") for i in range(4)]].T
-        np.testing.assert_allclose(got, fused[name], rtol=1e-9, atol=1e-9, err_msg=name)
-
-
 def test_outputs_on_grid_equal_the_point_by_point_outputs():
     """One pass per block over a grid gives each point's outputs (every built-in block, every variant)."""
     rng = np.random.default_rng(5)
     for scenario, observer in _scenarios().values():
         loop = blocks.closed_loop(scenario, observer=observer)
         compiled = CompiledLoop(loop)
-        assert compiled.columnwise
+        assert all(compiled.plan.takes_columns)
         x0 = blocks.initial_state(loop, scenario)
         t = np.array([0.0, 0.013, 0.05, 0.1])
         X = x0[:, None] + 0.01 * rng.standard_normal((x0.size, t.size))
@@ -93,12 +82,14 @@ def test_outputs_on_grid_equal_the_point_by_point_outputs():
 
 def test_outputs_on_grid_falls_back_to_points_for_a_block_without_columns():
     s = blocks.load_scenario("paper")
-    loop = blocks.closed_loop(s)
-    for block in loop.syslist:
-        if block.name == "observer":
-            del block.columnwise
+    pcl = blocks.closed_loop(s)
+    # the same observer without kernels: its python-control functions take one point at a time
+    parts = [Block(b.updfcn, b.outfcn, inputs=b.input_labels, outputs=b.output_labels, states=b.state_labels,
+                   name=b.name, contract=BlockContract(feedthrough=contract_of(b).feedthrough))
+             if b.name == "observer" else b for b in pcl.syslist]
+    loop = ct.interconnect(parts, inplist=[], outlist=list(pcl.output_labels))
     compiled = CompiledLoop(loop)
-    assert not compiled.columnwise
+    assert compiled.plan.takes_columns == [name != "observer" for name in compiled.order]
     x0 = blocks.initial_state(loop, s)
     t = np.array([0.0, 0.2])
     X = np.column_stack([x0, x0 + 0.01])
@@ -111,10 +102,16 @@ def test_outputs_on_grid_falls_back_to_points_for_a_block_without_columns():
 def test_right_hand_side_reads_the_plant_states_instead_of_calling_its_output():
     """The plant's q, dq are declared copies of its states, so a right-hand side never calls its output."""
     s = blocks.load_scenario("paper").replace(disturbance={"kind": ["paper", "friction", "tissue"]})
-    loop = blocks.closed_loop(s)
-    plant = next(b for b in loop.syslist if b.name == "plant")
-    original, calls = plant.outfcn, []
-    plant.outfcn = lambda *args: calls.append(args) or original(*args)
+    pcl = blocks.closed_loop(s)
+    plant = next(b for b in pcl.syslist if b.name == "plant")
+    kernels, calls = contract_of(plant).kernels, []
+    counted = type(kernels)(kernels.params, lambda *args: calls.append(args) or kernels.output(*args), kernels.update)
+    plant = Block(plant.updfcn, lambda t, x, u, p: counted.output(t, x, u, *counted.params), name="plant",
+                  inputs=plant.input_labels, outputs=plant.output_labels, states=plant.state_labels,
+                  contract=BlockContract(feedthrough=frozenset(), kernels=counted,
+                                         state_outputs=contract_of(pcl.syslist[2]).state_outputs))
+    loop = ct.interconnect([plant if b.name == "plant" else b for b in pcl.syslist], inplist=[],
+                           outlist=list(pcl.output_labels))
     compiled = CompiledLoop(loop)
     assert "plant" not in compiled.rhs_order and "plant" in compiled.order
     calls.clear()                                   # the declaration was checked once at construction
@@ -130,14 +127,47 @@ def test_right_hand_side_reads_the_plant_states_instead_of_calling_its_output():
 
 def test_a_wrong_state_output_declaration_is_refused():
     s = blocks.load_scenario("paper")
-    loop = blocks.closed_loop(s)
-    plant = next(b for b in loop.syslist if b.name == "plant")
-    plant.state_outputs = {"q[0]": "q[1]"}
+    pcl = blocks.closed_loop(s)
+    plant = next(b for b in pcl.syslist if b.name == "plant")
+    k = contract_of(plant).kernels
+
+    def remade(pairs):
+        return Block(plant.updfcn, plant.outfcn, name="plant", inputs=plant.input_labels, outputs=plant.output_labels,
+                     states=plant.state_labels, contract=BlockContract(feedthrough=frozenset(), kernels=k,
+                                                                       state_outputs=pairs))
+    wrong = remade({"q[0]": "q[1]"})          # names real signals, but q[0] is not the state q[1]
+    loop = ct.interconnect([wrong if b.name == "plant" else b for b in pcl.syslist], inplist=[],
+                           outlist=list(pcl.output_labels))
     with pytest.raises(ValueError, match="plant.*does not return the states"):
         CompiledLoop(loop)
-    plant.state_outputs = {"q[0]": "theta"}
-    with pytest.raises(ValueError, match="plant.*'theta'|names a signal it does not have"):
-        CompiledLoop(loop)
+    with pytest.raises(ContractError, match="plant.*'theta'.*does not have"):
+        remade({"q[0]": "theta"})
+    with pytest.raises(ContractError, match="feedthrough names \\['v'\\]"):
+        Block(None, lambda t, x, u, p: u, inputs=["u"], outputs=["y"], name="g",
+              contract=BlockContract(feedthrough={"v"}))
+
+
+def test_call_time_params_are_honoured_as_python_control_honours_them():
+    gain = ct.nlsys(None, lambda t, x, u, p: -p["a"] * u, inputs="e", outputs="v", name="gain", params={"a": 1.0})
+    integ = Block(lambda t, x, u, p: u, lambda t, x, u, p: x, inputs="v", outputs="e", states="x", name="integ",
+                  contract=BlockContract(feedthrough=frozenset(), state_outputs={"e": "x"}))
+    loop = ct.interconnect([gain, integ], inplist=[], outlist=["e"])
+    x = np.array([1.0])
+    for params in (None, {"a": 5.0}, {"a": -2.0}, None):
+        want = loop.dynamics(0.0, x, [], params)
+        assert CompiledLoop(loop).rhs(0.0, x, params=params) == pytest.approx(want)
+        assert CompiledLoop(loop, params=params).rhs(0.0, x) == pytest.approx(want)
+    assert CompiledLoop(loop).rhs(0.0, x, params={"a": 5.0})[0] == -5.0
+
+
+def test_every_built_in_block_declares_a_contract_and_kernels():
+    s = blocks.load_scenario("paper").replace(noise={"q_std": [1e-4] * 4, "seed": 1})
+    for block in blocks.closed_loop(s).syslist:
+        contract = contract_of(block)
+        assert contract is block.contract and isinstance(block, Block)
+        assert contract.takes_columns
+        if block.name != "trajectory":
+            assert contract.kernels is not None, block.name
 
 
 def test_a_block_update_returning_a_column_is_accepted_like_python_control_does():
@@ -154,8 +184,8 @@ def test_rhs_order_names_each_block_even_when_blocks_share_a_function():
         return u
     a = ct.nlsys(None, same, inputs=["x"], outputs=["y"], name="a")
     b = ct.nlsys(None, same, inputs=["y"], outputs=["w"], name="b")
-    integ = ct.nlsys(lambda t, x, u, p: u, lambda t, x, u, p: x, inputs=["w"], outputs=["x"], states=1, name="integ")
-    integ.feedthrough = frozenset()                 # its output is its state
+    integ = Block(lambda t, x, u, p: u, lambda t, x, u, p: x, inputs=["w"], outputs=["x"], states=1, name="integ",
+                  contract=BlockContract(feedthrough=frozenset()))       # its output is its state
     compiled = CompiledLoop(ct.interconnect([a, b, integ], inplist=[], outlist=["x"]))
     assert compiled.rhs_order == ["integ", "a", "b"]
 
@@ -173,12 +203,12 @@ def test_a_trajectory_without_stacked_evaluation_is_simulated_point_by_point():
     s = blocks.load_scenario("paper").replace(simulation={"t_final": 0.2})
     start = s.trajectory.evaluate(0.0)[0]
     block = blocks.trajectory_block(Hold(start))
-    assert not block.columnwise
+    assert not contract_of(block).takes_columns
     pcl = blocks.closed_loop(s)
     parts = [block if b.name == "trajectory" else b for b in pcl.syslist]
     loop = ct.interconnect(parts, inplist=[], outlist=list(pcl.output_labels))
     compiled = CompiledLoop(loop)
-    assert not compiled.columnwise
+    assert compiled.plan.takes_columns == [name != "trajectory" for name in compiled.order]
     t = np.array([0.0, 0.1])
     X = np.column_stack([blocks.initial_state(pcl, s)] * 2)
     want = np.column_stack([loop.output(tk, X[:, k], []) for k, tk in enumerate(t)])
@@ -188,9 +218,8 @@ def test_a_trajectory_without_stacked_evaluation_is_simulated_point_by_point():
 def test_a_block_output_returning_a_column_is_accepted_like_python_control_does():
     src = ct.nlsys(None, lambda t, x, u, p: np.array([[np.sin(t)], [np.cos(t)]]), inputs=0, outputs=["a", "b"],
                    name="src")
-    integ = ct.nlsys(lambda t, x, u, p: u - x, lambda t, x, u, p: x.reshape(-1, 1), inputs=["a", "b"],
-                     outputs=["ya", "yb"], states=2, name="integ")
-    integ.feedthrough = frozenset()
+    integ = Block(lambda t, x, u, p: u - x, lambda t, x, u, p: x.reshape(-1, 1), inputs=["a", "b"],
+                  outputs=["ya", "yb"], states=2, name="integ", contract=BlockContract(feedthrough=frozenset()))
     loop = ct.interconnect([src, integ], inplist=[], outlist=["ya", "yb", "a"])
     compiled = CompiledLoop(loop)
     x = np.array([0.2, 0.3])

@@ -14,6 +14,7 @@ import pytest
 
 from conftest import make_scenario
 import blocks
+from blocks.contract import contract_of
 from blocks.disturbances import DisturbanceSpec
 from blocks.parameters import RobotParameters
 from blocks.systems import plant as python_plant
@@ -46,7 +47,7 @@ def test_plant_block_has_the_python_plants_signals(plant_fmu, tmp_path):
     assert list(sys.input_labels) == list(ref.input_labels)
     assert list(sys.output_labels) == list(ref.output_labels)
     assert list(sys.state_labels) == list(ref.state_labels)
-    assert sys.feedthrough == frozenset()            # from ModelStructure: no output depends on tau
+    assert contract_of(sys).feedthrough == frozenset()   # from ModelStructure: no output depends on tau
     np.testing.assert_array_equal(sys.initial_state, np.zeros(8))
     x, u = np.array([0.1, 0.9, 0.2, -0.3, 0.5, 0.1, -0.2, 0.3]), np.array([1.0, -2.0, 0.5, 0.1])
     np.testing.assert_allclose(sys._rhs(0.2, x, u), ref._rhs(0.2, x, u), rtol=1e-13, atol=1e-13)
@@ -137,7 +138,7 @@ def test_copies_of_the_block_share_the_fmu(plant_fmu):
 def test_lag_fmu_loads_with_its_own_names_and_feedthrough(lag_fmu):
     sys = load(lag_fmu, name="lag")
     assert (list(sys.input_labels), list(sys.output_labels), list(sys.state_labels)) == (["u"], ["x", "e"], ["x"])
-    assert sys.feedthrough == frozenset({"u"})       # e = u - x depends on u (ModelStructure)
+    assert contract_of(sys).feedthrough == frozenset({"u"})   # e = u - x depends on u (ModelStructure)
     assert sys.initial_state.tolist() == [0.0]
 
 

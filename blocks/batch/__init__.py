@@ -65,7 +65,6 @@ about ``16 * 8 * t_final / sample_period`` bytes per member (1.3 MB for 10 s at
 """
 from __future__ import annotations
 
-from .arm import BatchArm, batched_constants
 from .schedule import auto_substeps, fastest_rate, noise_breakpoints, step_schedule
 from .simulate import (METRIC_ATOL, METRIC_RTOL, METRICS, SIGNALS, STATE_ATOL, STATE_ATOL_CONTACT, STATE_ERROR,
                        BatchResult, simulate_batch)
@@ -73,5 +72,5 @@ from .variants import BATCH_KEYS, Variants
 
 __all__ = ["BATCH_KEYS", "METRICS", "SIGNALS", "STATE_ATOL", "STATE_ATOL_CONTACT", "STATE_ERROR", "METRIC_RTOL",
            "METRIC_ATOL",
-           "Variants", "BatchArm", "BatchResult", "simulate_batch", "batched_constants", "step_schedule",
+           "Variants", "BatchResult", "simulate_batch", "step_schedule",
            "auto_substeps", "noise_breakpoints", "fastest_rate"]

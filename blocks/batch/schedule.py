@@ -7,7 +7,6 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from ..scenario import Scenario
-from ..systems import JOINTS
 from .variants import Variants
 
 __all__ = ["step_schedule", "auto_substeps", "fastest_rate", "noise_breakpoints", "batch_schedule",
@@ -44,7 +43,7 @@ def fastest_rate(variants: "Variants", observer: bool = True) -> float:
     """
     from ..dynamics import inertia
     c2 = np.array([-1.0, 0.0, 1.0])
-    q = np.zeros((3, JOINTS))
+    q = np.zeros((3, variants.base.robot.joints.count))
     q[:, 1] = np.arccos(c2)
     M = np.array([inertia(q, p) for p in variants.robots])          # (N, 3, 4, 4)
     M_hat = np.array([inertia(q, p) for p in variants.nominals])

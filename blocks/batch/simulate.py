@@ -1,32 +1,22 @@
 """Integrating a batch: the Figure-2 loop over a member axis, fixed-step RK4, metrics on the fly."""
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
-from ..disturbances import external_disturbance
-from ..kinematics import forward_kinematics
-from ..parameters import InertiaConstants
+from ..kernels import (DisturbanceParams, arm_constants, computed_torque, external_disturbance, gain_times,
+                       kinematic_lengths, lumped_disturbance, observer_estimate, observer_rate, plant_acceleration)
+from ..metrics import METRICS, OBSERVER_METRICS, TrackingAccumulator
 from ..scenario import Scenario, load_scenario
-from ..systems import JOINTS
 from ..workers import worker_pool
-from .arm import BatchArm, batched_constants
 from .schedule import auto_substeps, batch_schedule
 from .variants import Variants
 
 __all__ = ["METRICS", "SIGNALS", "STATE_ATOL", "STATE_ATOL_CONTACT", "STATE_ERROR", "METRIC_RTOL", "METRIC_ATOL",
            "BatchResult", "simulate_batch"]
 
-#: Metrics :func:`simulate_batch` can accumulate; the names and definitions of
-#: :func:`blocks.metrics.tracking_metrics` (per joint: rad, rad, m, rad;
-#: tool errors in mm; disturbance errors in N m or N).
-METRICS = ("rms_position_error", "max_abs_position_error", "final_abs_position_error",
-           "max_tool_position_error_mm", "rms_tool_position_error_mm",
-           "rms_disturbance_error", "max_abs_disturbance_error")
-_OBSERVER_METRICS = ("rms_disturbance_error", "max_abs_disturbance_error")
 
 #: Signals that can be kept on the output grid, each (members, times, 4).
 SIGNALS = ("q", "dq", "q_ref", "dq_ref", "ddq_ref", "tau", "d_hat", "tau_dis", "d", "q_meas", "dq_meas")
@@ -96,56 +86,58 @@ class BatchResult:
 # The batched loop
 # --------------------------------------------------------------------------------------------
 class _BatchLoop:
-    """The Figure-2 loop over a member axis: states (nx, N), rows q, dq and z (observer)."""
+    """The Figure-2 loop over a member axis: states (nx, N), rows q, dq and z (observer).
+
+    The right-hand side calls the kernels of :mod:`blocks.kernels` with
+    per-member parameters as rows ``(..., N)``; the shared reference is a
+    column ``(4, 1)`` that broadcasts over the members.
+    """
 
     def __init__(self, variants: Variants, observer: bool) -> None:
         v = variants
         self.v, self.observer, self.n = v, observer, len(v)
-        k_true, k_nominal = batched_constants(v.robots), batched_constants(v.nominals)
-        self.true, self.nominal = BatchArm(k_true), BatchArm(k_nominal)
-        # True and nominal arm side by side (2N members): one numpy call serves both, which
-        # halves the per-call overhead that dominates at N ~ 1000.
-        self.both = BatchArm(InertiaConstants(**{f.name: np.concatenate([getattr(k_true, f.name),
-                                                                          getattr(k_nominal, f.name)])
-                                                 for f in dataclasses.fields(InertiaConstants)}))
-        ends = sorted({0, self.n - 1})      # a cheap guard that the formulas still match dynamics.py
-        self.true.check_against(v.robots, ends)
-        self.nominal.check_against(v.nominals, ends)
-        self.both.check_against(v.robots + v.nominals, sorted({0, 2 * self.n - 1}))
-        self.kinematics = v.base.robot           # a1, a2, d1, d4 are shared by the batch
+        self.joints = v.base.robot.joints.count
+        self.k_true = np.stack([arm_constants(p) for p in v.robots], axis=1)          # (6, N)
+        self.k_nominal = np.stack([arm_constants(p) for p in v.nominals], axis=1)
+        self.kp, self.kd = v.kp, v.kd                                                   # (4, N)
+        self.gain = v.y_diag if v.y_diag is not None else v.y_full                      # (4, N) or (4, 4, N)
+        self.eq16_weight = v.extra                                                      # (N,)
+        d, base = v.disturbance, v.base.disturbance
+        self.disturbance = DisturbanceParams(
+            paper="paper" in base.kinds, friction="friction" in base.kinds, tissue="tissue" in base.kinds,
+            f_r=d.f_r.T.copy(), coulomb=d.coulomb.T.copy(), viscous=d.viscous.T.copy(),
+            friction_velocity=d.friction_velocity[:, 0].copy(), skin_height=base.skin_height,
+            tissue_stiffness=base.tissue_stiffness, tissue_damping=base.tissue_damping,
+            tissue_drag=base.tissue_drag, kin=kinematic_lengths(v.base.robot)[:, None])
+        self.kin = kinematic_lengths(v.base.robot)          # a1, a2, d1, d4 are shared by the batch
         self.has_noise = any(nz is not None for nz in v.noises)
-        self.nx = 3 * JOINTS if observer else 2 * JOINTS
-        self.has_extra = bool(v.extra.any())
-
-    def y_times(self, vec: np.ndarray) -> np.ndarray:
-        """Observer gain times a joint vector, ``Y v`` for v (4, N)."""
-        if self.v.y_diag is not None:
-            return self.v.y_diag * vec
-        return np.einsum("ijn,jn->in", self.v.y_full, vec)
+        self.nx = (3 if observer else 2) * self.joints
 
     def noise_table(self, times: np.ndarray) -> np.ndarray | None:
         """Noise ``[n_q; n_dq]`` of every member at ``times``: shape (len(times), 8, N), or None."""
         if not self.has_noise:
             return None
-        table = np.zeros((times.size, 2 * JOINTS, self.n))
+        n = self.joints
+        table = np.zeros((times.size, 2 * n, self.n))
         for i, noise in enumerate(self.v.noises):
             if noise is not None:
                 n_q, n_dq = noise.sample(times)
-                table[:, :JOINTS, i], table[:, JOINTS:, i] = n_q, n_dq
+                table[:, :n, i], table[:, n:, i] = n_q, n_dq
         return table
 
     def initial_state(self, ref0, noise0) -> np.ndarray:
+        n = self.joints
         q_ref0, dq_ref0 = ref0[0][:, 0], ref0[1][:, 0]
         x0 = np.zeros((self.nx, self.n))
-        d_hat0 = np.zeros((JOINTS, self.n))
+        d_hat0 = np.zeros((n, self.n))
         for i, init in enumerate(self.v.initial):
-            x0[:JOINTS, i] = init["q"] if init["q"] is not None else q_ref0
-            x0[JOINTS:2 * JOINTS, i] = init["dq"] if init["dq"] is not None else dq_ref0
+            x0[:n, i] = init["q"] if init["q"] is not None else q_ref0
+            x0[n:2 * n, i] = init["dq"] if init["dq"] is not None else dq_ref0
             if init["d_hat"] is not None:
                 d_hat0[:, i] = init["d_hat"]
         if self.observer:
-            dq_meas0 = x0[JOINTS:2 * JOINTS] + (noise0[JOINTS:] if noise0 is not None else 0.0)
-            x0[2 * JOINTS:] = d_hat0 - self.y_times(dq_meas0)    # d_hat = Y dq + z
+            dq_meas0 = x0[n:2 * n] + (noise0[n:] if noise0 is not None else 0.0)
+            x0[2 * n:] = d_hat0 - gain_times(self.gain, dq_meas0)     # d_hat = Y dq + z
         return x0
 
     def rhs(self, t: float, x: np.ndarray, ref, noise, record: dict | None = None) -> np.ndarray:
@@ -153,88 +145,52 @@ class _BatchLoop:
 
         With ``record`` (a dict) the loop's signals at this point are stored in it.
         """
-        J, n = JOINTS, self.n
-        q, dq = x[:J], x[J:2 * J]
-        q_ref, dq_ref, ddq_ref = ref
-        if noise is not None:
-            q_m, dq_m = q + noise[:J], dq + noise[J:]
-            angle = np.concatenate((q[1], q_m[1]))
-            c2_both, s2_both = np.cos(angle), np.sin(angle)
-            c2, s2, c2_m = c2_both[:n], s2_both[:n], c2_both[n:]
-            dq_both = np.concatenate((dq, dq_m), axis=1)
-        else:
-            q_m, dq_m = q, dq
-            c2, s2 = np.cos(q[1]), np.sin(q[1])
-            c2_m = c2
-            c2_both, s2_both = np.concatenate((c2, c2)), np.concatenate((s2, s2))
-            dq_both = np.concatenate((dq, dq), axis=1)
-        bias_both = self.both.bias(s2_both, dq_both)            # true arm at q, nominal model at q_meas
-        bias_true, bias_nom = bias_both[:, :n], bias_both[:, n:]
-        d_hat = self.y_times(dq_m) + x[2 * J:] if self.observer else 0.0
-        v = ddq_ref + self.v.kd * (dq_ref - dq_m) + self.v.kp * (q_ref - q_m)
-        tau = self.nominal.mass_times(c2_m, v) + bias_nom - d_hat                           # Eq. 11
-        tau_dis = external_disturbance(t, q.T, dq.T, self.v.disturbance, self.kinematics).T
+        n = self.joints
+        q, dq = x[:n], x[n:2 * n]
+        q_m, dq_m = (q, dq) if noise is None else (q + noise[:n], dq + noise[n:])
+        d_hat = observer_estimate(self.gain, dq_m, x[2 * n:]) if self.observer else 0.0
+        tau = computed_torque(self.k_nominal, self.kp, self.kd, q_m, dq_m, ref[0], ref[1], ref[2], d_hat)
+        tau_dis = external_disturbance(t, q, dq, self.disturbance)
         dx = np.empty_like(x)
-        dx[:J] = dq
+        dx[:n] = dq
+        dx[n:2 * n] = plant_acceleration(self.k_true, q, dq, tau + tau_dis)
         if self.observer:
-            rhs_both = np.empty((J, 2 * n))
-            np.subtract(tau + tau_dis, bias_true, out=rhs_both[:, :n])                       # Eq. 1
-            np.subtract(tau + d_hat, bias_nom, out=rhs_both[:, n:])                          # Eq. 12-16
-            solved = self.both.mass_solve(c2_both, rhs_both)
-            ddq = solved[:, :n]
-            np.negative(self.y_times(solved[:, n:]), out=dx[2 * J:])
-            if self.has_extra:                    # the printed Eq. 16's extra - Y q' term
-                dx[2 * J:] -= self.v.extra * self.y_times(dq_m)
-        else:
-            ddq = self.true.mass_solve(c2, tau + tau_dis - bias_true)
-        dx[J:2 * J] = ddq
+            dx[2 * n:] = observer_rate(self.k_nominal, self.gain, self.eq16_weight, q_m, dq_m, tau, x[2 * n:])
         if record is not None:
-            record.update(q=q, dq=dq, tau=tau, tau_dis=tau_dis, q_meas=q_m, dq_meas=dq_m, ddq=ddq,
-                          c2=c2, s2=s2, d_hat=d_hat, bias_nom=bias_nom)
+            record.update(q=q, dq=dq, tau=tau, tau_dis=tau_dis, q_meas=q_m, dq_meas=dq_m, d_hat=d_hat)
         return dx
 
 
 class _Accumulator:
-    """Running metrics and kept signals at the output grid points.
+    """Running metrics (:class:`blocks.metrics.TrackingAccumulator`) and kept signals at the output grid points.
 
-    The lumped disturbance is computed at each grid point over contiguous
-    (4, N) rows; the signals are buffered and reduced every ``block`` points,
-    so that the forward kinematics run over (block, N) arrays rather than
-    once per grid point.
+    The signals are buffered and handed over every ``block`` points, so that
+    the reductions and the forward kinematics run over (4, block, N) arrays
+    rather than once per grid point.
     """
 
     def __init__(self, loop: _BatchLoop, metrics, signals, n_grid: int, ref_grid, block: int = 64) -> None:
-        self.loop, self.metrics, self.signals, self.n_grid = loop, tuple(metrics), tuple(signals), n_grid
+        self.loop, self.signals, self.n_grid = loop, tuple(signals), n_grid
         self.ref_grid = [np.asarray(a) for a in ref_grid]                                  # each (n_grid, 4)
-        n = loop.n
-        self.sum_sq_e, self.max_e, self.final_e = (np.zeros((JOINTS, n)) for _ in range(3))
-        self.want_tool = any("tool" in m for m in self.metrics)
-        self.want_d = any(m in _OBSERVER_METRICS for m in self.metrics) or "d" in self.signals
-        self.sum_sq_tool, self.max_tool = np.zeros(n), np.zeros(n)
-        self.sum_sq_ed, self.max_ed = np.zeros((JOINTS, n)), np.zeros((JOINTS, n))
-        if self.want_tool:
-            self.tool_ref = forward_kinematics(self.ref_grid[0], loop.kinematics)[:, :3]      # (n_grid, 3)
-        self.kept = {name: np.empty((n_grid, JOINTS, n)) for name in self.signals}
+        n, J = loop.n, loop.joints
+        self.tracking = TrackingAccumulator(loop.kin, n_grid, metrics, members=(n,))
+        self.want_d = self.tracking.wants_disturbance or "d" in self.signals
+        self.kept = {name: np.empty((n_grid, J, n)) for name in self.signals}
         vectors = {"q"} | {name for name in self.signals if name not in ("q_ref", "dq_ref", "ddq_ref")}
-        if self.want_d:
-            vectors |= {"d"} | ({"d_hat"} if loop.observer else set())
+        if self.want_d and loop.observer:
+            vectors |= {"d", "d_hat"}
         self.block = block
-        # Grid points first: the reductions over time then run over contiguous memory.
-        self.buf = {name: np.empty((block, JOINTS, n)) for name in vectors}
+        # Grid points first: each point's rows are one contiguous copy.
+        self.buf = {name: np.empty((block, J, n)) for name in vectors}
         self.index: list[int] = []
-
-    def lumped_disturbance(self, sig: dict) -> np.ndarray:
-        """``d = M^(q) q'' + N^(q, q') q' + G^(q) - tau`` at the true state of one grid point, (4, N)."""
-        nominal = self.loop.nominal
-        bias = nominal.bias(sig["s2"], sig["dq"]) if self.loop.has_noise else sig["bias_nom"]
-        return nominal.mass_times(sig["c2"], sig["ddq"]) + bias - sig["tau"]
 
     def add(self, k: int, sig: dict) -> None:
         """Buffer the signals of grid point ``k``."""
         j = len(self.index)
-        if self.want_d:
-            # over (4, N) here rather than (4, block, N) in flush: contiguous rows, and fewer buffers
-            sig["d"] = self.lumped_disturbance(sig)
+        if "d" in self.buf:
+            loop = self.loop
+            sig["d"] = lumped_disturbance(loop.k_true, loop.k_nominal, sig["q"], sig["dq"], sig["tau"],
+                                          sig["tau_dis"])
         for name, store in self.buf.items():
             store[j] = sig[name]
         self.index.append(k)
@@ -245,45 +201,21 @@ class _Accumulator:
         if not self.index:
             return
         ks, m = np.array(self.index), len(self.index)
-        b = {name: store[:m] for name, store in self.buf.items()}
-        q = b["q"]                                                                          # (m, 4, N)
-        e = self.ref_grid[0][ks][:, :, None] - q
-        self.sum_sq_e += np.einsum("mjn,mjn->jn", e, e)
-        np.maximum(self.max_e, np.max(np.abs(e), axis=0), out=self.max_e)
-        if ks[-1] == self.n_grid - 1:
-            self.final_e[:] = np.abs(e[-1])
-        if self.want_tool:
-            p = forward_kinematics(np.moveaxis(q, 1, -1), self.loop.kinematics)[..., :3]       # (m, N, 3)
-            diff = p - self.tool_ref[ks][:, None, :]
-            dist = np.sqrt(np.einsum("mnk,mnk->mn", diff, diff))                             # (m, N)
-            self.sum_sq_tool += np.einsum("mn,mn->n", dist, dist)
-            np.maximum(self.max_tool, np.max(dist, axis=0), out=self.max_tool)
-        if self.want_d and self.loop.observer:
-            ed = b["d"] - b["d_hat"]
-            self.sum_sq_ed += np.einsum("mjn,mjn->jn", ed, ed)
-            np.maximum(self.max_ed, np.max(np.abs(ed), axis=0), out=self.max_ed)
+        rows = {name: np.moveaxis(store[:m], 0, 1) for name, store in self.buf.items()}      # (4, m, N)
+        q_ref = self.ref_grid[0][ks].T[:, :, None]                                           # (4, m, 1)
+        self.tracking.add(q_ref, rows["q"], rows.get("d"), rows.get("d_hat"), last=ks[-1] == self.n_grid - 1)
         for name, store in self.kept.items():
             if name in ("q_ref", "dq_ref", "ddq_ref"):
                 store[ks] = self.ref_grid[("q_ref", "dq_ref", "ddq_ref").index(name)][ks][:, :, None]
             else:
-                store[ks] = b[name]
+                store[ks] = self.buf[name][:m]
         self.index = []
 
     def result(self, failed: np.ndarray) -> tuple[dict, dict]:
         self.flush()
-        n = self.n_grid
-        values = {
-            "rms_position_error": np.sqrt(self.sum_sq_e / n).T,
-            "max_abs_position_error": self.max_e.T,
-            "final_abs_position_error": self.final_e.T,
-            "max_tool_position_error_mm": 1e3 * self.max_tool,
-            "rms_tool_position_error_mm": 1e3 * np.sqrt(self.sum_sq_tool / n),
-            "rms_disturbance_error": np.sqrt(self.sum_sq_ed / n).T,
-            "max_abs_disturbance_error": self.max_ed.T,
-        }
         out = {}
-        for name in self.metrics:
-            value = values[name].copy()
+        for name, value in self.tracking.result().items():
+            value = value.T.copy()                      # members first: (N, 4) or (N,)
             value[failed] = np.nan
             out[name] = value
         kept = {name: np.moveaxis(store, 2, 0) for name, store in self.kept.items()}   # (N, T, 4)
@@ -342,11 +274,11 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
             raise ValueError("simulate_batch: the Variants were made for a different base scenario")
     else:
         v = Variants(scenario, variants)
-    metrics = tuple(m for m in METRICS if observer or m not in _OBSERVER_METRICS) if metrics is None else tuple(metrics)
+    metrics = tuple(m for m in METRICS if observer or m not in OBSERVER_METRICS) if metrics is None else tuple(metrics)
     for name in metrics:
         if name not in METRICS:
             raise ValueError(f"unknown metric {name!r}; choose from {list(METRICS)}")
-        if name in _OBSERVER_METRICS and not observer:
+        if name in OBSERVER_METRICS and not observer:
             raise ValueError(f"metric {name!r} needs the observer (observer=True)")
     for name in signals:
         if name not in SIGNALS:

@@ -11,7 +11,10 @@ from ..disturbances import DisturbanceSpec
 from ..noise import MeasurementNoise
 from ..parameters import ParameterError, RobotParameters
 from ..scenario import Scenario, ScenarioError, load_scenario
-from ..systems import JOINTS, OBSERVER_VARIANTS, gain_matrix
+from ..gains import OBSERVER_VARIANTS, GainError, validated_gain
+from ..joints import RRPR_JOINTS
+
+JOINTS = RRPR_JOINTS.count
 
 __all__ = ["BATCH_KEYS", "Variants"]
 
@@ -225,12 +228,6 @@ def _gain(value, default: np.ndarray, name: str, i: int) -> np.ndarray:
     if isinstance(value, (bool, str)):
         raise ScenarioError(f"variant {i}: 'gains.{name}' must be a number or a list of numbers, got {value!r}")
     try:
-        mat = gain_matrix(_plain(value), name, allow_matrix=(name == "observer"))
-    except (ValueError, TypeError) as err:
+        return validated_gain(_plain(value), name)
+    except GainError as err:
         raise ScenarioError(f"variant {i}: {err}") from None
-    if name != "observer" and np.any(np.diag(mat) <= 0):
-        raise ScenarioError(f"variant {i}: 'gains.{name}' must be > 0 on every joint, got {_plain(value)!r}")
-    if name == "observer" and np.any(np.linalg.eigvals(mat + mat.T).real <= 0):
-        raise ScenarioError(f"variant {i}: 'gains.observer' must have a positive definite symmetric part "
-                            f"(Y + Y^T > 0) for the observer to converge, got {_plain(value)!r}")
-    return mat

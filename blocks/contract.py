@@ -1,0 +1,189 @@
+"""What a block promises the engines: one typed declaration, made with the block and checked.
+
+An engine that evaluates an interconnection faster than python-control's own
+fixed-point iteration relies on facts about each block that python-control
+does not record:
+
+* which inputs reach its outputs directly (feedthrough), so that the blocks
+  can be ordered once instead of iterated;
+* which outputs are copies of its states, so that a right-hand side can read
+  them from the state without calling the output function;
+* whether its output function takes column-stacked signals (a whole time
+  grid in one call);
+* its maths as kernel functions (:mod:`blocks.kernels`) with their
+  parameters, which an engine can call directly, vectorise over a batch or
+  compile.
+
+:class:`BlockContract` holds these facts; :class:`Block` is a
+:class:`control.NonlinearIOSystem` made with one.  :func:`contract_of` gives
+the contract of any system: a system made elsewhere (a user's own
+python-control block) gets the safe default, every input feeding through and
+nothing else promised.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Mapping
+
+import control as ct
+
+from .kernels import column_params
+
+__all__ = ["Kernels", "BlockContract", "Block", "ContractError", "contract_of", "kernel_block"]
+
+
+class ContractError(ValueError):
+    """A block's contract names signals it does not have, or promises what its functions do not keep."""
+
+
+@dataclass(frozen=True)
+class Kernels:
+    """A block's maths as kernel functions with bound parameters.
+
+    Parameters
+    ----------
+    params : tuple
+        Extra arguments of both functions, in the one-point layout of
+        :mod:`blocks.kernels` (arrays, numbers, named tuples of them).
+    output : callable, optional
+        ``output(t, x, u, *params) -> y``: outputs as rows.
+    update : callable, optional
+        ``update(t, x, u, *params) -> dx``: state derivative as rows.
+    column_params : tuple, optional
+        The parameters for column signals, when :func:`blocks.kernels.column_params`
+        (a trailing axis of length 1 on every array) is not right for them
+        (a lookup table, say, indexed by time rather than broadcast).
+
+    Both take one point (``x`` of shape (nstates,), ``u`` (ninputs,), ``t``
+    a float) or columns (``(nstates, K)``, ``(ninputs, K)``, ``t`` a float or
+    ``(K,)``) with the parameters of :meth:`columns`.
+    """
+
+    params: tuple
+    output: Callable | None = None
+    update: Callable | None = None
+    column_params: tuple | None = None
+
+    def columns(self) -> tuple:
+        """The parameters ready for column signals (shared by every column)."""
+        return column_params(self.params) if self.column_params is None else self.column_params
+
+
+@dataclass(frozen=True)
+class BlockContract:
+    """The facts an engine may rely on about one block.
+
+    Parameters
+    ----------
+    feedthrough : frozenset of str, optional
+        Names of the inputs that reach the outputs directly.  None (the
+        default) means every input does, which is always safe.
+    state_outputs : tuple of (str, str)
+        ``(output, state)`` pairs: outputs that equal a state at every instant.
+    columnwise : bool
+        The output function also takes column-stacked signals (see
+        :class:`Kernels`).  Blocks with kernels take columns through them.
+    kernels : Kernels, optional
+        The block's maths as kernels; None for a block written otherwise.
+    """
+
+    feedthrough: frozenset | None = None
+    state_outputs: tuple = ()
+    columnwise: bool = False
+    kernels: Kernels | None = None
+
+    def __post_init__(self) -> None:
+        if self.feedthrough is not None:
+            object.__setattr__(self, "feedthrough", frozenset(self.feedthrough))
+        pairs = self.state_outputs.items() if isinstance(self.state_outputs, Mapping) else self.state_outputs
+        object.__setattr__(self, "state_outputs", tuple((str(o), str(x)) for o, x in pairs))
+
+    @property
+    def takes_columns(self) -> bool:
+        """Whether the block's outputs can be evaluated for many columns in one call."""
+        return self.columnwise or (self.kernels is not None and self.kernels.output is not None)
+
+    def check(self, system) -> "BlockContract":
+        """Raise :class:`ContractError` unless every name refers to a signal of ``system``; return self."""
+        inputs, outputs = list(system.input_labels), list(system.output_labels)
+        states = list(system.state_labels)
+        if self.feedthrough is not None:
+            unknown = sorted(self.feedthrough - set(inputs))
+            if unknown:
+                raise ContractError(f"block '{system.name}': feedthrough names {unknown}, which are not its "
+                                    f"inputs {inputs}")
+        for out, state in self.state_outputs:
+            if out not in outputs or state not in states:
+                raise ContractError(f"block '{system.name}': state_outputs pair ({out!r}, {state!r}) names a "
+                                    f"signal it does not have (outputs {outputs}, states {states})")
+        k = self.kernels
+        if k is not None and ((system.noutputs and k.output is None) or (system.nstates and k.update is None)):
+            raise ContractError(f"block '{system.name}': its kernels lack an "
+                                f"{'output' if k.output is None else 'update'} function")
+        return self
+
+
+class Block(ct.NonlinearIOSystem):
+    """A :class:`control.NonlinearIOSystem` made with a :class:`BlockContract`.
+
+    It behaves as any python-control system (interconnect, simulate,
+    linearize); engines read :attr:`contract`.
+
+    Parameters
+    ----------
+    updfcn, outfcn : callable or None
+        As for :class:`control.NonlinearIOSystem`.
+    contract : BlockContract
+        Checked against the block's signal names here.
+    **kwargs
+        Passed to :class:`control.NonlinearIOSystem` (``inputs``, ``outputs``,
+        ``states``, ``name``, ``params``, ``dt``).
+    """
+
+    def __init__(self, updfcn, outfcn, *, contract: BlockContract = BlockContract(), **kwargs) -> None:
+        super().__init__(updfcn, outfcn, **kwargs)
+        self.contract = contract.check(self)
+
+    def __enter__(self) -> "Block":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Release what the block holds (nothing for a Python block; an FMU block frees its instance)."""
+
+
+def contract_of(system) -> BlockContract:
+    """The contract of a block, or the safe default for a system made without one."""
+    contract = getattr(system, "contract", None)
+    return contract if isinstance(contract, BlockContract) else BlockContract()
+
+
+def kernel_block(kernels: Kernels, *, name: str, inputs, outputs, states=(), feedthrough=(),
+                 state_outputs=()) -> Block:
+    """A :class:`Block` whose python-control functions are its kernels bound to their parameters.
+
+    Parameters
+    ----------
+    kernels : Kernels
+        The maths; the block's update and output call them with ``kernels.params``.
+    name : str
+        Block name.
+    inputs, outputs, states : list of str
+        Signal names (python-control's).
+    feedthrough : iterable of str
+        Inputs that reach the outputs directly.
+    state_outputs : iterable of (str, str)
+        Outputs that are copies of states.
+    """
+    params = kernels.params
+    output, update = kernels.output, kernels.update
+    outfcn = None if output is None else (lambda t, x, u, _p: output(t, x, u, *params))
+    updfcn = None if update is None else (lambda t, x, u, _p: update(t, x, u, *params))
+    contract = BlockContract(feedthrough=frozenset(feedthrough), state_outputs=tuple(state_outputs),
+                             columnwise=True, kernels=kernels)
+    signals = dict(name=name, inputs=list(inputs), outputs=list(outputs))
+    if states:      # python-control refuses a state count of 0 without an update function
+        signals["states"] = list(states)
+    return Block(updfcn, outfcn, contract=contract, **signals)

@@ -1,0 +1,62 @@
+"""The loop's maths, written once: model terms, disturbances and control laws as plain array functions.
+
+Every formula of the Figure-2 loop lives here and nowhere else in Python: the
+python-control blocks (:mod:`blocks.systems`), the public model functions
+(:mod:`blocks.dynamics`, :mod:`blocks.kinematics`, :mod:`blocks.disturbances`),
+the batch engine (:mod:`blocks.batch`) and any later engine call these
+functions.  The exported C plant (:mod:`fmu`) is the one other implementation,
+and the tests check it against an independent reference, as they check these.
+
+Layout
+------
+Signals are *rows*: a joint vector is an array whose first axis is the joint,
+shape ``(4,)`` for one point or ``(4, K)`` for ``K`` columns (grid times or
+batch members).  A row ``q[1]`` is then a scalar or a ``(K,)`` array and the
+same formula serves both.
+
+Parameters follow the signals: an array parameter is indexed by its first
+axes (``k[1]``, ``kp[i]``, ``Y[i, j]``) and, for column signals, carries a
+trailing axis of length 1 (shared by every column) or ``K`` (one value per
+column, as in a batch).  :func:`column_params` adds the shared trailing axis.
+Arm constants are the vector ``k = [k1, k2, k3, k4, k5, g]`` of
+:func:`arm_constants`; kinematic lengths are ``kin = [a1, a2, d1, d4]``.
+
+The functions use only the part of numpy that numba compiles: no ``einsum``,
+no ellipsis indexing, no keyword-heavy calls.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .arm import (arm_constants, bias_forces, coriolis_forces, inertia_entries, mass_solve, mass_times,
+                  plant_acceleration)
+from .disturbance import (DisturbanceParams, disturbance_params, external_disturbance, friction_disturbance,
+                          paper_disturbance, tissue_disturbance)
+from .kinematics import jacobian_entries, kinematic_lengths, tool_pose, tool_velocity
+from .laws import computed_torque, gain_times, lumped_disturbance, observer_estimate, observer_rate
+
+__all__ = [
+    "arm_constants", "inertia_entries", "mass_times", "mass_solve", "coriolis_forces", "bias_forces",
+    "plant_acceleration", "kinematic_lengths", "tool_pose", "tool_velocity", "jacobian_entries",
+    "DisturbanceParams", "disturbance_params", "paper_disturbance", "friction_disturbance", "tissue_disturbance",
+    "external_disturbance", "computed_torque", "observer_estimate", "observer_rate", "gain_times",
+    "lumped_disturbance", "column_params",
+]
+
+
+def column_params(params: tuple) -> tuple:
+    """Parameters of the one-point layout made ready for column signals.
+
+    Every numpy array gets a trailing axis of length 1, so that it is shared
+    by all columns; scalars and other values pass unchanged; named tuples are
+    converted field by field.
+    """
+    out = []
+    for value in params:
+        if isinstance(value, np.ndarray):
+            out.append(value[..., None])
+        elif isinstance(value, tuple) and hasattr(value, "_fields"):
+            out.append(type(value)(*column_params(tuple(value))))
+        else:
+            out.append(value)
+    return tuple(out)

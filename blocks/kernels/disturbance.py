@@ -1,0 +1,95 @@
+"""External disturbance models, Eq. 4 and beside it: their forces on the joints (N m, N for joint 3).
+
+``paper``: Eq. 4, ``f_r sgn(2t + 1)``, a constant step for ``t >= 0``.
+``friction``: ``-(F_c tanh(q'/v_s) + F_v q')``, Coulomb smoothed by ``tanh``.
+``tissue``: below the skin plane ``z = skin_height`` the tissue pushes the
+tool up with ``F_z = max(0, k p - c z')`` (``p`` the depth) and drags it in
+the plane with ``-c_lat v_xy``; the joints feel ``J(q)^T F``.
+The models are described for users in :mod:`blocks.disturbances`.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from .kinematics import jacobian_entries, kinematic_lengths
+
+__all__ = ["DisturbanceParams", "disturbance_params", "paper_disturbance", "friction_disturbance",
+           "tissue_disturbance", "external_disturbance"]
+
+
+class DisturbanceParams(NamedTuple):
+    """Arrays and numbers of the selected disturbance models, in the kernels' layout.
+
+    ``paper``, ``friction`` and ``tissue`` say which models act; ``f_r``,
+    ``coulomb`` and ``viscous`` are per-joint rows (N m, N; N m s/rad, N s/m),
+    ``friction_velocity`` is ``v_s`` (rad/s, m/s), the tissue numbers are in
+    m, N/m, N s/m and N s/m, and ``kin`` are the kinematic lengths
+    ``[a1, a2, d1, d4]`` (m).
+    """
+
+    paper: bool
+    friction: bool
+    tissue: bool
+    f_r: np.ndarray
+    coulomb: np.ndarray
+    viscous: np.ndarray
+    friction_velocity: float
+    skin_height: float
+    tissue_stiffness: float
+    tissue_damping: float
+    tissue_drag: float
+    kin: np.ndarray
+
+
+def disturbance_params(spec, params) -> DisturbanceParams:
+    """The :class:`DisturbanceParams` of a :class:`~blocks.disturbances.DisturbanceSpec` on an arm."""
+    return DisturbanceParams(
+        paper="paper" in spec.kinds, friction="friction" in spec.kinds, tissue="tissue" in spec.kinds,
+        f_r=np.array(spec.f_r, dtype=float), coulomb=np.array(spec.coulomb, dtype=float),
+        viscous=np.array(spec.viscous, dtype=float), friction_velocity=float(spec.friction_velocity),
+        skin_height=float(spec.skin_height), tissue_stiffness=float(spec.tissue_stiffness),
+        tissue_damping=float(spec.tissue_damping), tissue_drag=float(spec.tissue_drag),
+        kin=kinematic_lengths(params))
+
+
+def paper_disturbance(t, f_r):
+    """Eq. 4, ``f_r sgn(2t + 1)``, at time(s) ``t`` (s); broadcasts ``f_r`` against ``t``."""
+    return f_r * np.sign(2.0 * t + 1.0)
+
+
+def friction_disturbance(dq, coulomb, viscous, friction_velocity):
+    """Smoothed Coulomb plus viscous friction ``-(F_c tanh(q'/v_s) + F_v q')``; ``dq``'s shape."""
+    return -(coulomb * np.tanh(dq / friction_velocity) + viscous * dq)
+
+
+def tissue_disturbance(kin, q, dq, skin_height, stiffness, damping, drag):
+    """Joint forces ``J(q)^T F`` of the skin contact (see the module docstring); ``dq``'s shape."""
+    j00, j01, j10, j11 = jacobian_entries(kin, q)
+    depth = skin_height - (kin[2] - q[2] - kin[3])
+    inside = depth > 0.0
+    vx = j00 * dq[0] + j01 * dq[1]
+    vy = j10 * dq[0] + j11 * dq[1]
+    fz = np.maximum(0.0, stiffness * depth + damping * dq[2]) * inside      # tool velocity z' = -d3'
+    fx = -drag * vx * inside
+    fy = -drag * vy * inside
+    out = np.empty_like(dq)
+    out[0] = j00 * fx + j10 * fy
+    out[1] = j01 * fx + j11 * fy
+    out[2] = -fz
+    out[3] = 0.0
+    return out
+
+
+def external_disturbance(t, q, dq, p: DisturbanceParams):
+    """Sum of the selected models' joint forces ``tau_dis`` (N m, N) at time ``t`` (s) and state ``q, dq``."""
+    out = np.zeros_like(dq)
+    if p.paper:
+        out = out + paper_disturbance(t, p.f_r)
+    if p.friction:
+        out = out + friction_disturbance(dq, p.coulomb, p.viscous, p.friction_velocity)
+    if p.tissue:
+        out = out + tissue_disturbance(p.kin, q, dq, p.skin_height, p.tissue_stiffness, p.tissue_damping,
+                                       p.tissue_drag)
+    return out

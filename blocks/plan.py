@@ -1,0 +1,271 @@
+"""The evaluation plan of an interconnection: which block to evaluate when, with which signals.
+
+:func:`control.input_output_response` evaluates an
+:class:`~control.InterconnectedSystem` by iterating every block's output
+function until the internal signals stop changing.  For a loop without an
+algebraic cycle one pass in dependency order suffices.  :func:`make_plan`
+derives that order once, from the interconnection's connection maps (read
+through :mod:`blocks.control_compat`) and each block's
+:class:`~blocks.contract.BlockContract`, and records for every block the
+functions to call, their arguments, the state slice and the input gather.
+
+Engines execute a plan (:class:`blocks.fastsim.CompiledLoop` with numpy);
+nothing about the loop is written a second time: blocks with kernels are
+called through them, other blocks through their python-control functions
+with the parameters python-control would pass them.
+
+A plan is *direct* when every block input is one signal with gain 1 and the
+interconnection's outputs only select signals (true of every loop
+:func:`blocks.closed_loop` builds); then a block's inputs are an index
+gather from the signal vector.  Other interconnections keep their
+connection matrices.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .contract import contract_of
+from .control_compat import connection_maps, merged_params, output_function, subsystems, update_function
+
+__all__ = ["AlgebraicLoopError", "BlockStep", "LoopPlan", "make_plan"]
+
+
+class AlgebraicLoopError(RuntimeError):
+    """The interconnection has a cycle of direct feedthrough and cannot be ordered."""
+
+
+@dataclass(frozen=True)
+class BlockStep:
+    """One block of a plan.
+
+    Attributes
+    ----------
+    name : str
+        Block name.
+    x, y : slice
+        The block's states in the loop state, and its outputs among all block outputs.
+    gather : slice or numpy.ndarray
+        Where its inputs are among all block outputs (direct plans only).
+    output, output_args : callable, tuple
+        ``output(t, x, u, *output_args)`` gives the block's outputs at one point.
+    update, update_args : callable or None, tuple
+        ``update(t, x, u, *update_args)`` gives its state derivative.
+    column_output, column_args : callable or None, tuple
+        The same for column-stacked signals, or None when the block takes one point at a time.
+    kernel : bool
+        Whether the functions are the block's kernels (else its python-control functions).
+    """
+
+    name: str
+    x: slice
+    y: slice
+    gather: object
+    output: object
+    output_args: tuple
+    update: object
+    update_args: tuple
+    column_output: object
+    column_args: tuple
+    kernel: bool
+
+
+@dataclass(frozen=True)
+class LoopPlan:
+    """Blocks in evaluation order and what a right-hand side needs of them.
+
+    Attributes
+    ----------
+    steps : tuple of BlockStep
+        Every block, sources before the blocks they feed directly.
+    rhs_steps : tuple of BlockStep
+        The blocks whose outputs a right-hand side must evaluate (the
+        others' fed signals are copies of states, read from the state).
+    updates : tuple of BlockStep
+        The blocks with states.
+    copy_y, copy_x : slice or numpy.ndarray
+        Signals read straight from the state in a right-hand side, and the states they copy.
+    out_index : numpy.ndarray
+        The interconnection's outputs among the signals (direct plans).
+    direct : bool
+        Whether every connection selects one signal with gain 1.
+    nstates, nsignals : int
+        Loop states and block outputs.
+    connect_map, input_map, output_map : numpy.ndarray
+        The interconnection's matrices (used by plans that are not direct).
+    input_rows : tuple of slice
+        Each block's rows of ``connect_map``, in ``steps`` order.
+    """
+
+    steps: tuple
+    rhs_steps: tuple
+    updates: tuple
+    copy_y: object
+    copy_x: object
+    out_index: np.ndarray
+    direct: bool
+    nstates: int
+    nsignals: int
+    connect_map: np.ndarray
+    input_map: np.ndarray
+    output_map: np.ndarray
+    input_rows: tuple
+
+    @property
+    def order(self) -> list[str]:
+        """Block names in evaluation order."""
+        return [s.name for s in self.steps]
+
+    @property
+    def rhs_order(self) -> list[str]:
+        """Names of the blocks a right-hand side evaluates."""
+        return [s.name for s in self.rhs_steps]
+
+    @property
+    def takes_columns(self) -> list[bool]:
+        """For each step, whether it evaluates a grid of columns in one call."""
+        return [s.column_output is not None for s in self.steps]
+
+
+def _index_or_slice(idx: np.ndarray):
+    """A slice when ``idx`` is a run of consecutive indices (a view instead of a copy), else ``idx``."""
+    idx = np.asarray(idx, dtype=int)
+    if idx.size and np.array_equal(idx, np.arange(idx[0], idx[0] + idx.size)):
+        return slice(int(idx[0]), int(idx[0]) + idx.size)
+    return idx
+
+
+def _offsets(blocks, attr: str) -> np.ndarray:
+    return np.cumsum([0] + [getattr(b, attr) for b in blocks])
+
+
+def _topological_order(blocks, C, u_off, y_off) -> list[int]:
+    deps = []
+    for k, block in enumerate(blocks):
+        through = contract_of(block).feedthrough
+        rows = [u_off[k] + j for j, label in enumerate(block.input_labels) if through is None or label in through]
+        sources = {m for row in rows for m in range(len(blocks)) if np.any(C[row, y_off[m]:y_off[m + 1]] != 0)}
+        deps.append(sources)
+    order, done, visiting = [], set(), set()
+
+    def visit(k, path):
+        if k in done:
+            return
+        if k in visiting:
+            cycle = " -> ".join(blocks[m].name for m in path[path.index(k):] + [k])
+            raise AlgebraicLoopError(f"algebraic loop through blocks {cycle}: no evaluation order exists")
+        visiting.add(k)
+        for m in sorted(deps[k]):
+            visit(m, path + [k])
+        visiting.discard(k)
+        done.add(k)
+        order.append(k)
+
+    for k in range(len(blocks)):
+        visit(k, [])
+    return order
+
+
+def _step(system, block, xs, ys, gather, params) -> BlockStep:
+    contract = contract_of(block)
+    kernels = contract.kernels
+    if kernels is not None:
+        columns = kernels.columns()
+        return BlockStep(block.name, xs, ys, gather, kernels.output, kernels.params, kernels.update, kernels.params,
+                         kernels.output, columns, True)
+    local = (merged_params(system, block, params),)
+    out_fn, upd_fn = output_function(block), update_function(block)
+    if out_fn is None:          # python-control's default output is the state
+        out_fn = _state_as_output
+    return BlockStep(block.name, xs, ys, gather, out_fn, local, upd_fn, local,
+                     out_fn if contract.columnwise else None, local, False)
+
+
+def _state_as_output(t, x, u, params):
+    return x
+
+
+def _checked_state_copies(block, step: BlockStep) -> dict[int, int]:
+    """``{signal index: state index}`` of the outputs the block's contract declares equal to its states.
+
+    The declaration is checked once against the block's output function at a test point.
+    """
+    pairs = contract_of(block).state_outputs
+    if not pairs:
+        return {}
+    outs, states = list(block.output_labels), list(block.state_labels)
+    rel = {outs.index(o): states.index(x) for o, x in pairs}
+    x_test = 0.1 * np.arange(1, block.nstates + 1)
+    y_test = np.ravel(np.asarray(step.output(0.0, x_test, np.zeros(block.ninputs), *step.output_args), dtype=float))
+    if any(y_test[o] != x_test[x] for o, x in rel.items()):
+        raise ValueError(f"block '{block.name}': its output function does not return the states its "
+                         f"contract's state_outputs {dict(pairs)} declare")
+    return {step.y.start + o: step.x.start + x for o, x in rel.items()}
+
+
+def make_plan(system, params: dict | None = None) -> LoopPlan:
+    """The evaluation plan of ``system`` (a :class:`control.InterconnectedSystem`).
+
+    Parameters
+    ----------
+    system : control.InterconnectedSystem
+        The interconnection.
+    params : dict, optional
+        Parameters given at call time; blocks without kernels receive them
+        merged as python-control merges them (see
+        :func:`blocks.control_compat.merged_params`).
+
+    Raises
+    ------
+    AlgebraicLoopError
+        If the blocks' declared feedthrough forms a cycle.
+    ValueError
+        If a block's declared state outputs are not its states.
+    """
+    blocks = subsystems(system)
+    C, B, O = connection_maps(system)
+    x_off, u_off, y_off = (_offsets(blocks, a) for a in ("nstates", "ninputs", "noutputs"))
+    n_y = int(y_off[-1])
+    direct = bool(np.all(np.count_nonzero(C, axis=1) == 1) and np.all(C[C != 0] == 1) and not B.any()
+                  and np.all(np.count_nonzero(O, axis=1) == 1) and np.all(O[O != 0] == 1) and not O[:, n_y:].any())
+    source = np.argmax(C != 0, axis=1)
+    order = _topological_order(blocks, C, u_off, y_off)
+    steps, input_rows = [], []
+    for k in order:
+        us = slice(int(u_off[k]), int(u_off[k + 1]))
+        gather = _index_or_slice(source[us]) if direct else None
+        steps.append(_step(system, blocks[k], slice(int(x_off[k]), int(x_off[k + 1])),
+                           slice(int(y_off[k]), int(y_off[k + 1])), gather, params))
+        input_rows.append(us)
+    # A right-hand side needs only the signals that feed some block input.  A block whose fed outputs
+    # are all copies of its states is not called there: those signals are read from x.
+    fed = set(source.tolist()) if direct else set(range(n_y))
+    rhs_steps, copy_y, copy_x = [], [], []
+    for k, step in zip(order, steps):
+        pairs = _checked_state_copies(blocks[k], step)
+        fed_here = [j for j in range(step.y.start, step.y.stop) if j in fed]
+        if direct and all(j in pairs for j in fed_here):
+            copy_y += fed_here
+            copy_x += [pairs[j] for j in fed_here]
+        else:
+            rhs_steps.append(step)
+    updates = tuple(s for s in steps if s.x.stop > s.x.start)
+    out_index = np.argmax(O != 0, axis=1) if direct else np.zeros(0, dtype=int)
+    return LoopPlan(tuple(steps), tuple(rhs_steps), updates, _index_or_slice(np.array(copy_y, dtype=int)),
+                    _index_or_slice(np.array(copy_x, dtype=int)), out_index, direct, int(x_off[-1]), n_y,
+                    C, B, O, tuple(input_rows))
+
+
+def with_params(plan: LoopPlan, system, params: dict) -> LoopPlan:
+    """The same plan with call-time ``params`` merged into the arguments of the blocks without kernels."""
+    blocks = {b.name: b for b in subsystems(system)}
+
+    def renew(step: BlockStep) -> BlockStep:
+        if step.kernel:
+            return step
+        local = (merged_params(system, blocks[step.name], params),)
+        return replace(step, output_args=local, update_args=local, column_args=local)
+
+    return replace(plan, steps=tuple(map(renew, plan.steps)), rhs_steps=tuple(map(renew, plan.rhs_steps)),
+                   updates=tuple(map(renew, plan.updates)))
