@@ -3,7 +3,8 @@
 ::
 
     import blocks
-import fmu
+    import fmu
+
     path = fmu.export_plant("plant.fmu", fmi_version=2)     # C model compiled with the system compiler
     plant = fmu.load(path)                                   # Model Exchange FMU -> NonlinearIOSystem
     loop = blocks.closed_loop("paper", plant=plant)          # drop-in for the Python plant
@@ -22,48 +23,25 @@ block), ``master`` (fixed-step co-simulation), ``scenario_values`` (scenario
 -> FMU start values), ``cosim`` (a scenario against a plant FMU),
 ``convergence`` (co-simulation error versus step size), ``check``,
 ``export`` / ``variables`` / ``modeldescription`` / ``build`` / ``package``
-(the plant FMU), ``cli`` (``dobkit fmu ...``), ``c/`` (the plant's C code).
+(the plant FMU), ``c/`` (the plant's C code).
+The command line (``dobkit fmu ...``) lives in :mod:`dobkit.fmu_commands`.
 """
-from __future__ import annotations
-
-import importlib
-
-# Public name -> defining module.  Imported on first use (PEP 562), so that
-# ``import fmu`` stays cheap: the heavy parts (python-control, SciPy)
-# load only when a function that needs them is used.
-_EXPORTS = {
-    "ExtractedFMU": "archive", "ExtractionLimits": "archive", "extract_fmu": "archive",
-    "check_fmu": "check",
-    "controller_side": "cosim", "cosimulate": "cosim",
-    "cosim_convergence": "convergence",
-    "require_variables": "description",
-    "FMUArchiveError": "errors", "FMUBuildError": "errors", "FMUError": "errors",
-    "FMUInstantiationError": "errors", "FMUMissingVariablesError": "errors", "FMUModelDescriptionError": "errors",
-    "FMUPlatformError": "errors", "FMUStepError": "errors", "FMUUnsupportedError": "errors",
-    "FMUVersionError": "errors",
-    "MODEL_IDENTIFIER": "export", "export_plant": "export",
-    "FMUInstance": "instance",
-    "load": "block",
-    "CoSimulationError": "master", "cosimulate_system": "master",
-}
+from .archive import ExtractedFMU, ExtractionLimits, extract_fmu
+from .block import FMUBlock, load
+from .check import check_fmu
+from .convergence import cosim_convergence
+from .cosim import controller_side, cosimulate
+from .description import require_variables
+from .errors import (FMUArchiveError, FMUBuildError, FMUError, FMUInstantiationError, FMUMissingVariablesError,
+                     FMUModelDescriptionError, FMUPlatformError, FMUStepError, FMUUnsupportedError, FMUVersionError)
+from .export import MODEL_IDENTIFIER, export_plant
+from .instance import FMUInstance
+from .master import CoSimulationError, cosimulate_system
 
 __all__ = [
-    "export_plant", "load", "cosimulate", "cosimulate_system", "controller_side", "check_fmu", "extract_fmu",
-    "cosim_convergence", "require_variables", "FMUInstance", "ExtractedFMU", "ExtractionLimits", "MODEL_IDENTIFIER",
-    "FMUError", "FMUArchiveError", "FMUModelDescriptionError", "FMUVersionError", "FMUUnsupportedError",
-    "FMUPlatformError", "FMUMissingVariablesError", "FMUInstantiationError", "FMUStepError", "FMUBuildError",
-    "CoSimulationError",
+    "export_plant", "load", "FMUBlock", "cosimulate", "cosimulate_system", "controller_side", "check_fmu",
+    "extract_fmu", "cosim_convergence", "require_variables", "FMUInstance", "ExtractedFMU", "ExtractionLimits",
+    "MODEL_IDENTIFIER", "FMUError", "FMUArchiveError", "FMUModelDescriptionError", "FMUVersionError",
+    "FMUUnsupportedError", "FMUPlatformError", "FMUMissingVariablesError", "FMUInstantiationError", "FMUStepError",
+    "FMUBuildError", "CoSimulationError",
 ]
-
-
-def __getattr__(name: str):
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
