@@ -46,6 +46,7 @@ import json
 import math
 import re
 import tomllib
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -53,13 +54,12 @@ from typing import Any
 import numpy as np
 
 from blocks.batch import BATCH_KEYS, METRICS, Variants, auto_substeps
-from blocks.scenario import Scenario, ScenarioError, load_scenario
+from blocks.scenario import Scenario, ScenarioError, load_scenario, parse_key
 
-__all__ = ["SweepError", "Distribution", "Run", "SweepSpec", "load_sweep", "sweep_from_dict", "scenario_changes",
-           "split_changes", "apply_changes", "json_default", "DISTRIBUTIONS", "ENGINES"]
+__all__ = ["SweepError", "Distribution", "Run", "SweepSpec", "load_sweep", "sweep_from_dict", "split_changes",
+           "json_default", "DISTRIBUTIONS", "ENGINES"]
 
 ENGINES = ("batch", "fast")
-_TOP_KEYS = ("name", "description", "scenario", "observer", "engine", "grid", "monte_carlo", "outputs", "batch")
 #: Distribution kinds and their parameters (required, optional).
 DISTRIBUTIONS = {"uniform": (("low", "high"), ()), "normal": (("mean", "std"), ()),
                  "lognormal": (("mean", "sigma"), ()), "choice": (("values",), ("weights",))}
@@ -143,6 +143,10 @@ class SweepSpec:
     #: any of its runs needs -- so that a run's numbers do not depend on how runs are batched.
     schedules: dict = field(default_factory=dict)
 
+    def scenario(self, run: Run) -> Scenario:
+        """The complete scenario of one run: the base with the run's values (:meth:`Scenario.with_changes`)."""
+        return self.base.with_changes(run.values)
+
     def header(self) -> dict:
         """What the results file records about the sweep (first line)."""
         return {"sweep": {"name": self.name, "source": self.source, "scenario": self.base.name,
@@ -175,114 +179,134 @@ def load_sweep(path: str | Path) -> SweepSpec:
     return sweep_from_dict(data, source=str(path), folder=path.parent)
 
 
+@dataclass(frozen=True)
+class _Key:
+    """One key of a sweep file: whether a value is allowed, what is (for the message), and its default."""
+
+    allows: Callable[[Any], bool]
+    expected: str
+    default: Any = None
+
+
+def _whole(minimum: int) -> Callable[[Any], bool]:
+    return lambda v: not isinstance(v, bool) and isinstance(v, int) and v >= minimum
+
+
+def _text(v) -> bool:
+    return isinstance(v, str)
+
+
+def _a_table(v) -> bool:
+    return isinstance(v, dict)
+
+
+#: The keys of a sweep file by table (None: the top level), with their checks and defaults.  Defaults
+#: of None are derived from other keys (name from the file name, metrics from ``observer``, ...).
+_KEYS: dict[str | None, dict[str, _Key]] = {
+    None: {"name": _Key(_text, "a string"), "description": _Key(_text, "a string", ""),
+           "scenario": _Key(_text, "a built-in scenario name or a file path", "paper"),
+           "observer": _Key(lambda v: isinstance(v, bool), "true or false", True),
+           "engine": _Key(lambda v: v in ENGINES, f"one of {list(ENGINES)}", "batch"),
+           "grid": _Key(_a_table, "a table ([grid])", {}), "monte_carlo": _Key(_a_table, "a table ([monte_carlo])", {}),
+           "outputs": _Key(_a_table, "a table ([outputs])", {}), "batch": _Key(_a_table, "a table ([batch])", {})},
+    "monte_carlo": {"runs": _Key(_whole(1), "a whole number >= 1"), "seed": _Key(_whole(0), "a whole number >= 0", 0),
+                    "distributions": _Key(_a_table, "a table of distributions by scenario key", {})},
+    "outputs": {"metrics": _Key(lambda v: isinstance(v, list) and bool(v) and all(map(_text, v)),
+                                "a non-empty list of metric names"),
+                "worst_metric": _Key(_text, "one of the kept metric columns"),
+                "worst_count": _Key(_whole(1), "a whole number >= 1", 5)},
+    "batch": {"size": _Key(_whole(1), "a whole number >= 1", 250),
+              "substeps": _Key(lambda v: v == "auto" or _whole(1)(v), '"auto" or a whole number >= 1', "auto")},
+}
+
+
+def _read(table: dict, section: str | None, fail) -> dict:
+    """The keys of one table checked against :data:`_KEYS`, defaults filled in."""
+    keys = _KEYS[section]
+    unknown = sorted(set(table) - set(keys))
+    if unknown:
+        fail(f"unknown key(s) {[k if section is None else f'{section}.{k}' for k in unknown]}; allowed "
+             f"{'at the top level' if section is None else f'in [{section}]'}: {', '.join(keys)}")
+    out = {}
+    for key, spec in keys.items():
+        value = table.get(key, copy.deepcopy(spec.default))
+        if key in table and not spec.allows(value):
+            fail(f"'{key if section is None else f'{section}.{key}'}' must be {spec.expected}, got {value!r}")
+        out[key] = value
+    return out
+
+
 def sweep_from_dict(data: dict, source: str = "<dict>", folder: Path | None = None) -> SweepSpec:
     """Validate a sweep given as a dictionary (the parsed TOML); see :func:`load_sweep`."""
-    where = source
 
     def fail(msg: str):
-        raise SweepError(f"{where}: {msg}")
+        raise SweepError(f"{source}: {msg}")
 
     if not isinstance(data, dict):
         fail(f"a sweep must be a table, got {type(data).__name__}")
-    unknown = sorted(set(data) - set(_TOP_KEYS))
-    if unknown:
-        fail(f"unknown key(s) {unknown}; allowed at the top level: {list(_TOP_KEYS)}")
-    base = _base_scenario(data.get("scenario", "paper"), folder, fail)
-    observer = data.get("observer", True)
-    if not isinstance(observer, bool):
-        fail(f"'observer' must be true or false, got {observer!r}")
-    engine = data.get("engine", "batch")
-    if engine not in ENGINES:
-        fail(f"'engine' must be one of {list(ENGINES)}, got {engine!r}")
-    name = data.get("name", Path(source).stem if source.endswith(".toml") else "sweep")
-    description = data.get("description", "")
-    for key, value in (("name", name), ("description", description)):
-        if not isinstance(value, str):
-            fail(f"'{key}' must be a string, got {value!r}")
+    top = _read(data, None, fail)
+    base = _base_scenario(top["scenario"], folder, fail)
+    grid = _grid(top["grid"], base, fail)
+    mc = _read(top["monte_carlo"], "monte_carlo", fail)
+    if top["monte_carlo"] and mc["runs"] is None:
+        fail(f"'monte_carlo.runs' must be a whole number >= 1, got {mc['runs']!r}")
+    if top["monte_carlo"] and not mc["distributions"]:
+        fail("'monte_carlo.distributions' is empty: name at least one uncertain value")
+    distributions = {}
+    for key, spec in mc["distributions"].items():
+        label = f"monte_carlo.distributions.\"{key}\""
+        _check_key(key, base, label, fail)
+        if key in grid:
+            fail(f"'{key}' is both in [grid] and in {label}; vary it in one place")
+        distributions[key] = _distribution(spec, label, fail)
+    outputs = _read(top["outputs"], "outputs", fail)
+    metrics, worst_metric = _outputs(outputs, top["observer"], fail)
+    batch = _read(top["batch"], "batch", fail)
+    if not grid and not distributions:
+        fail("the sweep varies nothing: give a [grid] or [monte_carlo.distributions]")
+    name = top["name"] if top["name"] is not None else Path(source).stem if source.endswith(".toml") else "sweep"
+    spec = SweepSpec(name=name, source=source, base=base, observer=top["observer"], engine=top["engine"], grid=grid,
+                     runs_per_point=mc["runs"] or 0, seed=mc["seed"], distributions=distributions,
+                     metrics=tuple(metrics), worst_metric=worst_metric, worst_count=outputs["worst_count"],
+                     batch_size=batch["size"], substeps=None if batch["substeps"] == "auto" else batch["substeps"],
+                     description=top["description"])
+    spec.runs = _make_runs(spec)
+    _validate_runs(spec, fail)
+    return spec
 
-    grid = _table(data, "grid", fail)
+
+def _grid(grid: dict, base: Scenario, fail) -> dict:
     for key, values in grid.items():
         _check_key(key, base, f"grid.\"{key}\"", fail)
         if not isinstance(values, list):
             fail(f"grid.\"{key}\" must be a list of values, got {values!r}")
         if not values:
             fail(f"grid.\"{key}\" is empty: give at least one value")
-        seen = []
-        for v in values:
-            if v in seen:
+        for i, v in enumerate(values):
+            if v in values[:i]:
                 fail(f"grid.\"{key}\" repeats the value {v!r}")
-            seen.append(v)
+    return grid
 
-    mc = _table(data, "monte_carlo", fail)
-    unknown = sorted(set(mc) - {"runs", "seed", "distributions"})
-    if unknown:
-        fail(f"unknown key(s) {['monte_carlo.' + k for k in unknown]}; allowed: runs, seed, distributions")
-    runs = mc.get("runs", 0 if not mc else None)
-    if mc and ("runs" not in mc or isinstance(runs, bool) or not isinstance(runs, int) or runs < 1):
-        fail(f"'monte_carlo.runs' must be a whole number >= 1, got {mc.get('runs')!r}")
-    seed = mc.get("seed", 0)
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        fail(f"'monte_carlo.seed' must be a whole number >= 0, got {seed!r}")
-    dist_table = mc.get("distributions", {})
-    if not isinstance(dist_table, dict):
-        fail(f"'monte_carlo.distributions' must be a table, got {dist_table!r}")
-    if mc and not dist_table:
-        fail("'monte_carlo.distributions' is empty: name at least one uncertain value")
-    distributions = {}
-    for key, spec in dist_table.items():
-        label = f"monte_carlo.distributions.\"{key}\""
-        _check_key(key, base, label, fail)
-        if key in grid:
-            fail(f"'{key}' is both in [grid] and in {label}; vary it in one place")
-        distributions[key] = _distribution(spec, label, fail)
 
-    outputs = _table(data, "outputs", fail)
-    unknown = sorted(set(outputs) - {"metrics", "worst_metric", "worst_count"})
-    if unknown:
-        fail(f"unknown key(s) {['outputs.' + k for k in unknown]}; allowed: metrics, worst_metric, worst_count")
+def _outputs(outputs: dict, observer: bool, fail) -> tuple[list, str]:
+    """The kept metrics (default: all that apply) and the column that ranks the worst runs."""
     applicable = tuple(m for m in METRICS if observer or m not in _OBSERVER_METRICS)
-    metrics = outputs.get("metrics", list(applicable))
-    if not isinstance(metrics, list) or not metrics or not all(isinstance(m, str) for m in metrics):
-        fail(f"'outputs.metrics' must be a non-empty list of metric names, got {metrics!r}")
+    metrics = outputs["metrics"] if outputs["metrics"] is not None else list(applicable)
     for m in metrics:
         if m not in METRICS:
             fail(f"'outputs.metrics' names an unknown metric {m!r}; choose from {list(METRICS)}")
         if m not in applicable:
             fail(f"'outputs.metrics' asks for {m!r}, which needs the observer (observer = true)")
     columns = [f"{m}[{j}]" if m in _PER_JOINT else m for m in metrics for j in range(4 if m in _PER_JOINT else 1)]
-    default_worst = "max_tool_position_error_mm" if "max_tool_position_error_mm" in metrics else columns[0]
-    worst_metric = outputs.get("worst_metric", default_worst)
-    if worst_metric not in columns:
-        fail(f"'outputs.worst_metric' must be one of the kept metric columns {columns}, got {worst_metric!r}")
-    worst_count = outputs.get("worst_count", 5)
-    if isinstance(worst_count, bool) or not isinstance(worst_count, int) or worst_count < 1:
-        fail(f"'outputs.worst_count' must be a whole number >= 1, got {worst_count!r}")
-
-    batch = _table(data, "batch", fail)
-    unknown = sorted(set(batch) - {"size", "substeps"})
-    if unknown:
-        fail(f"unknown key(s) {['batch.' + k for k in unknown]}; allowed: size, substeps")
-    size = batch.get("size", 250)
-    if isinstance(size, bool) or not isinstance(size, int) or size < 1:
-        fail(f"'batch.size' must be a whole number >= 1, got {size!r}")
-    substeps = batch.get("substeps", "auto")
-    if substeps != "auto" and (isinstance(substeps, bool) or not isinstance(substeps, int) or substeps < 1):
-        fail(f"'batch.substeps' must be \"auto\" or a whole number >= 1, got {substeps!r}")
-
-    if not grid and not distributions:
-        fail("the sweep varies nothing: give a [grid] or [monte_carlo.distributions]")
-    spec = SweepSpec(name=name, source=source, base=base, observer=observer, engine=engine, grid=grid,
-                     runs_per_point=runs or 0, seed=seed, distributions=distributions, metrics=tuple(metrics),
-                     worst_metric=worst_metric, worst_count=worst_count, batch_size=size,
-                     substeps=None if substeps == "auto" else substeps, description=description)
-    spec.runs = _make_runs(spec)
-    _validate_runs(spec, fail)
-    return spec
+    worst = outputs["worst_metric"]
+    if worst is None:
+        worst = "max_tool_position_error_mm" if "max_tool_position_error_mm" in metrics else columns[0]
+    if worst not in columns:
+        fail(f"'outputs.worst_metric' must be one of the kept metric columns {columns}, got {worst!r}")
+    return metrics, worst
 
 
-def _base_scenario(value, folder: Path | None, fail) -> Scenario:
-    if not isinstance(value, str):
-        fail(f"'scenario' must be a built-in scenario name or a file path, got {value!r}")
+def _base_scenario(value: str, folder: Path | None, fail) -> Scenario:
     target = value
     if folder is not None and (value.endswith(".toml") or "/" in value) and not Path(value).is_absolute():
         target = str(folder / value)
@@ -292,38 +316,12 @@ def _base_scenario(value, folder: Path | None, fail) -> Scenario:
         fail(f"'scenario': {err}")
 
 
-def _table(data: dict, key: str, fail) -> dict:
-    value = data.get(key, {})
-    if not isinstance(value, dict):
-        fail(f"'{key}' must be a table ([{key}]), got {value!r}")
-    return value
-
-
-def _split_key(key: str) -> tuple[str, str, int | None]:
-    """``"disturbance.f_r[2]"`` -> ("disturbance", "f_r", 2)."""
-    index = None
-    if key.endswith("]") and "[" in key:
-        key, _, rest = key.partition("[")
-        index = int(rest[:-1]) if rest[:-1].isdigit() else -1
-    section, _, name = key.partition(".")
-    return section, name, index
-
-
 def _check_key(key: str, base: Scenario, label: str, fail) -> None:
-    """A sweep key must name an existing scenario value (and a valid element of a vector)."""
-    section, name, index = _split_key(key)
-    if not name or section not in base.data or not isinstance(base.data[section], dict):
-        sections = [k for k, v in base.data.items() if isinstance(v, dict)]
-        fail(f"{label}: '{key}' is not a scenario key 'section.key' (sections: {sections})")
-    table = base.data[section]
-    known = ("q", "dq", "d_hat") if section == "initial" else tuple(sorted(table))
-    if name not in known:
-        fail(f"{label}: '{key}' is not a scenario key; keys of [{section}]: {list(known)}")
-    if index is not None:
-        current = table.get(name)
-        if index < 0 or not isinstance(current, list) or index >= len(current):
-            fail(f"{label}: '{key}' indexes element {index} of '{section}.{name}', which is "
-                 f"{'not a list' if not isinstance(current, list) else f'a list of {len(current)}'}")
+    """A sweep key must name an existing scenario value (and a valid element of a list)."""
+    try:
+        base.check_key(key)
+    except ScenarioError as err:
+        fail(f"{label}: {err}")
 
 
 def _distribution(spec, label: str, fail) -> Distribution:
@@ -400,35 +398,16 @@ def json_default(value):
     raise TypeError(f"cannot write {value!r} as JSON")
 
 
-def scenario_changes(base: Scenario, values: dict) -> dict[str, Any]:
-    """A run's sweep values as full dotted scenario keys: ``"disturbance.f_r[2]"`` becomes the whole 4-vector."""
-    out: dict[str, Any] = {}
-    for key, value in values.items():
-        section, name, index = _split_key(key)
-        full = f"{section}.{name}"
-        if index is None:
-            out[full] = value
-        else:
-            vec = list(out.get(full, base.data[section][name]))
-            vec[index] = value
-            out[full] = vec
-    return out
+def split_changes(values: Mapping[str, Any]) -> tuple[dict, dict]:
+    """Split a run's values into the part its batch shares and the per-member part: keys in
+    :data:`~blocks.batch.BATCH_KEYS` and their elements (``"disturbance.f_r[2]"``) vary within a batch."""
+    member = {k: v for k, v in values.items() if _list_key(k) in BATCH_KEYS}
+    return {k: v for k, v in values.items() if k not in member}, member
 
 
-def split_changes(base: Scenario, changes: dict) -> tuple[dict, dict]:
-    """Split a run's full dotted changes into the part its batch shares (keys outside
-    :data:`~blocks.batch.BATCH_KEYS`) and the per-member part."""
-    structural = {k: v for k, v in changes.items() if k not in BATCH_KEYS}
-    return structural, {k: v for k, v in changes.items() if k in BATCH_KEYS}
-
-
-def apply_changes(base: Scenario, changes: dict) -> Scenario:
-    """``base`` with full dotted changes (``{"gains.kp": 100}``) applied, validated."""
-    sections: dict[str, dict] = {}
-    for key, value in changes.items():
-        section, name = key.split(".", 1)
-        sections.setdefault(section, {})[name] = value
-    return base.replace(**sections)
+def _list_key(key: str) -> str:
+    section, name, _ = parse_key(key)
+    return f"{section}.{name}"
 
 
 def _validate_runs(spec: SweepSpec, fail) -> None:
@@ -436,11 +415,11 @@ def _validate_runs(spec: SweepSpec, fail) -> None:
     groups: dict[str, list[tuple[Run, dict]]] = {}
     bases: dict[str, Scenario] = {}
     for run in spec.runs:
-        structural, member = split_changes(spec.base, scenario_changes(spec.base, run.values))
-        gkey = json.dumps(structural, sort_keys=True, default=json_default)
+        shared, member = split_changes(run.values)
+        gkey = json.dumps(shared, sort_keys=True, default=json_default)
         if gkey not in bases:
             try:
-                bases[gkey] = apply_changes(spec.base, structural) if structural else spec.base
+                bases[gkey] = spec.base.with_changes(shared)
             except ScenarioError as err:
                 fail(f"run {run.index} ({_describe(run.values)}): {err}")
         groups.setdefault(gkey, []).append((run, member))
@@ -448,7 +427,7 @@ def _validate_runs(spec: SweepSpec, fail) -> None:
         if spec.engine == "fast":
             for run, member in members:
                 try:
-                    apply_changes(bases[gkey], member)
+                    bases[gkey].with_changes(member)
                 except ScenarioError as err:
                     fail(f"run {run.index} ({_describe(run.values)}): {err}")
             continue

@@ -30,8 +30,7 @@ from typing import Callable, Iterable
 from blocks.batch import Variants, noise_breakpoints, simulate_batch
 from blocks.scenario import Scenario, scenario_from_dict
 from blocks.workers import worker_pool
-from .sweep import (Run, SweepError, SweepSpec, apply_changes, json_default, load_sweep, scenario_changes,
-                    split_changes)
+from .sweep import Run, SweepError, SweepSpec, json_default, load_sweep, split_changes
 
 __all__ = ["run_sweep", "read_results", "SweepOutcome", "Progress", "simulate_chunk"]
 
@@ -125,7 +124,7 @@ def simulate_chunk(payload: dict) -> list[dict]:
     for r in runs:
         t1 = time.perf_counter()
         try:
-            response = simulate(apply_changes(base, r["member"]), observer=payload["observer"])
+            response = simulate(base.with_changes(r["member"]), observer=payload["observer"])
         except SimulationError as err:
             rows.append(_row(r, "diverged", {}, None, time.perf_counter() - t1, "fast", str(err)))
             continue
@@ -150,10 +149,10 @@ def _chunks(spec: SweepSpec, pending: list[Run], workers: int) -> list[dict]:
     """Payloads: runs grouped by their shared scenario, cut into batches (smaller when that keeps all workers busy)."""
     groups: dict[str, tuple[Scenario, list]] = {}
     for run in pending:
-        structural, member = split_changes(spec.base, scenario_changes(spec.base, run.values))
+        structural, member = split_changes(run.values)
         gkey = json.dumps(structural, sort_keys=True, default=json_default)
         if gkey not in groups:
-            groups[gkey] = (apply_changes(spec.base, structural) if structural else spec.base, [])
+            groups[gkey] = (spec.base.with_changes(structural), [])
         groups[gkey][1].append({"run_id": run.run_id, "index": run.index, "values": run.values, "draw": run.draw,
                                 "member": member})
     size = spec.batch_size if spec.engine == "batch" else max(1, min(spec.batch_size, 8))

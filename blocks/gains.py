@@ -1,41 +1,118 @@
-"""Controller and observer gains, validated by one function wherever they are given."""
+"""Controller and observer gains: the one check of a gain, wherever it is given.
+
+A scenario file, a batch variant and a block factory all give a gain the same
+way -- a number, one number per joint, or (the observer only) a full matrix --
+and all of them turn it into a matrix here, so that a gain one of them accepts
+none of the others refuses.
+
+Examples
+--------
+>>> from blocks.gains import validated_gain
+>>> float(validated_gain(180, "kp")[1, 1])
+180.0
+>>> validated_gain([1.0, 2.0], "kd")
+Traceback (most recent call last):
+    ...
+blocks.gains.GainError: 'gains.kd' must be a number, 4 numbers or a diagonal 4x4 matrix, got [1.0, 2.0] (shape (2,))
+"""
 from __future__ import annotations
 
 import numpy as np
 
-from .joints import RRPR_JOINTS
+from .joints import RRPR_JOINTS, JointSpace
 
-__all__ = ["GainError", "validated_gain", "OBSERVER_VARIANTS"]
+__all__ = ["GainError", "GAIN_KEYS", "OBSERVER_VARIANTS", "validated_gain"]
 
+#: The gains a scenario gives, with their units: proportional (1/s^2), derivative (1/s), observer ``Y``.
+GAIN_KEYS = {"kp": "1/s^2", "kd": "1/s", "observer": "kg m^2/s (kg/s on the prismatic joint)"}
+
+#: The observer laws: the correct one and the paper's Eq. 16 as printed (an extra ``- Y q'`` term).
 OBSERVER_VARIANTS = ("correct", "paper-eq16")
 
 
 class GainError(ValueError):
-    """A gain has the wrong shape, a non-finite entry, or a value that makes the loop unusable."""
+    """A gain is invalid; the message names ``gains.<key>``, the value and what is allowed."""
 
 
-def validated_gain(value, key: str) -> np.ndarray:
-    """The 4x4 gain ``gains.<key>`` from a scalar, 4 numbers or (observer only) a 4x4 matrix; read-only."""
-    n = RRPR_JOINTS.count
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise GainError(f"'gains.{key}' must be a number or a list of numbers, got {value!r}") from None
-    if not np.all(np.isfinite(arr)):
-        raise GainError(f"'gains.{key}' must be finite, got {value!r}")
-    if arr.ndim == 0:
-        mat = float(arr) * np.eye(n)
-    elif arr.shape == (n,):
-        mat = np.diag(arr)
-    elif arr.shape == (n, n) and (key == "observer" or np.count_nonzero(arr - np.diag(np.diag(arr))) == 0):
-        mat = arr.copy()
+def validated_gain(value, key: str, joints: JointSpace = RRPR_JOINTS) -> np.ndarray:
+    """A gain as the loop uses it: an n x n matrix (n joints), checked and read-only.
+
+    Parameters
+    ----------
+    value : float, sequence of n floats, or n x n nested sequence / array
+        A number (the same gain on every joint), one number per joint (a
+        diagonal matrix) or a full matrix.  ``kp`` and ``kd`` must be diagonal;
+        ``observer`` may be any matrix ``Y``.
+    key : {"kp", "kd", "observer"}
+        Which gain: ``kp`` (1/s^2) and ``kd`` (1/s) of the computed-torque law,
+        ``observer`` the observer gain ``Y`` (kg m^2/s, kg/s on a prismatic joint).
+    joints : JointSpace
+        The arm's joints (default: the paper's four).
+
+    Returns
+    -------
+    numpy.ndarray
+        A new (n, n) float array with ``writeable`` off.
+
+    Raises
+    ------
+    GainError
+        On text or true/false, a non-finite entry, a wrong shape, a
+        non-diagonal ``kp`` or ``kd``, a ``kp`` or ``kd`` entry <= 0, or an
+        observer gain whose symmetric part ``Y + Y^T`` is not positive
+        definite (then the estimate need not converge).
+    """
+    if key not in GAIN_KEYS:
+        raise GainError(f"'gains.{key}' is not a gain; gains are {list(GAIN_KEYS)}")
+    n = joints.count
+    full = key == "observer"
+    allowed = f"a number, {n} numbers or {'a' if full else 'a diagonal'} {n}x{n} matrix"
+    matrix = _as_matrix(value, key, n, allowed)
+    if full:
+        # d_hat' = Y M^-1 (d - d_hat): with M > 0 the error decays when Y + Y^T > 0
+        if np.linalg.eigvalsh(matrix + matrix.T).min() <= 0:
+            raise GainError(f"'gains.{key}' must have a positive definite symmetric part (Y + Y^T > 0) "
+                            f"for the observer to converge, got {_shown(value)}")
     else:
-        allowed = "a scalar, 4 numbers" + (" or a 4x4 matrix" if key == "observer" else " or a diagonal 4x4 matrix")
-        raise GainError(f"'gains.{key}' must be {allowed}, got shape {arr.shape}")
-    if key != "observer" and np.any(np.diag(mat) <= 0):
-        raise GainError(f"'gains.{key}' must be > 0 on every joint, got {value!r}")
-    if key == "observer" and np.any(np.linalg.eigvalsh(mat + mat.T) <= 0):
-        raise GainError(f"'gains.observer' must have a positive definite symmetric part (Y + Y^T > 0) for the "
-                        f"observer to converge, got {value!r}")
-    mat.setflags(write=False)
-    return mat
+        if np.count_nonzero(matrix - np.diag(np.diag(matrix))):
+            raise GainError(f"'gains.{key}' must be {allowed} (one gain per joint, no coupling), "
+                            f"got {_shown(value)}")
+        if np.any(np.diag(matrix) <= 0):
+            raise GainError(f"'gains.{key}' must be > 0 on every joint, got {_shown(value)}")
+    matrix.flags.writeable = False
+    return matrix
+
+
+def _as_matrix(value, key: str, n: int, allowed: str) -> np.ndarray:
+    """A number, an n-vector or an n x n array of finite numbers as a new n x n float array."""
+    if _holds_non_numbers(value):
+        raise GainError(f"'gains.{key}' must be {allowed}, got {_shown(value)!r}")
+    try:
+        arr = np.array(value, dtype=float)      # a copy: the caller's array stays the caller's
+    except (TypeError, ValueError):
+        raise GainError(f"'gains.{key}' must be {allowed}, got {_shown(value)}") from None
+    if not np.all(np.isfinite(arr)):
+        raise GainError(f"'gains.{key}' must be finite, got {_shown(value)}")
+    if arr.ndim == 0:
+        return float(arr) * np.eye(n)
+    if arr.shape == (n,):
+        return np.diag(arr)
+    if arr.shape == (n, n):
+        return arr
+    raise GainError(f"'gains.{key}' must be {allowed}, got {_shown(value)} (shape {arr.shape})")
+
+
+def _holds_non_numbers(value) -> bool:
+    """Text, true/false or nothing anywhere in a (nested) value: numpy would read them as numbers (or nan)."""
+    if value is None or isinstance(value, (bool, np.bool_, str, bytes)):
+        return True
+    if isinstance(value, np.ndarray):
+        return value.dtype.kind in "bUSO" and (value.dtype.kind != "O" or any(map(_holds_non_numbers, value.flat)))
+    if isinstance(value, (list, tuple)):
+        return any(_holds_non_numbers(v) for v in value)
+    return False
+
+
+def _shown(value):
+    """The value as the user wrote it (arrays as lists) for messages."""
+    return value.tolist() if isinstance(value, np.ndarray) else value

@@ -20,13 +20,22 @@ Sections and keys (units in brackets)::
     [noise]          q_std [rad, m], dq_std [rad/s, m/s] (4 each), seed, sample_period [s]
     [initial]        q, dq (4 each; default: on the reference), d_hat (4; default 0)
     [simulation]     t_final [s], output_step [s], rtol, atol, method, max_step [s]
+
+Each section is read by one entry of the table ``_SECTIONS``: the keys it
+allows with the check of each value, and how its object is built from them.
+A scenario is varied by dotted keys, validated like a file::
+
+    s = load_scenario("paper").with_changes({"gains.kp": 100, "disturbance.f_r[2]": 1.5})
 """
 from __future__ import annotations
 
-import copy
 import dataclasses
+import functools
+import json
 import math
+import re
 import tomllib
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -35,16 +44,19 @@ from typing import Any
 import numpy as np
 
 from .disturbances import DISTURBANCE_KINDS, DisturbanceSpec
-from .kinematics import UnreachableError
+from .gains import GAIN_KEYS, OBSERVER_VARIANTS, GainError, validated_gain
+from .joints import RRPR_JOINTS
 from .noise import MeasurementNoise
 from .parameters import ParameterError, RobotParameters
-from .gains import OBSERVER_VARIANTS, GainError, validated_gain
 from .trajectory import TRAJECTORY_KINDS, JointSine, LacerationPath
 
 __all__ = ["Scenario", "ScenarioError", "SimulationSettings", "load_scenario", "builtin_scenarios",
-           "scenario_from_dict", "to_toml"]
+           "scenario_from_dict", "to_toml", "parse_key", "check_value"]
 
 SOLVER_METHODS = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA")
+# Largest grids a scenario may ask for: beyond these a run would exhaust memory rather than finish.
+MAX_OUTPUT_POINTS = 2_000_000
+MAX_NOISE_SAMPLES = 20_000_000
 
 
 class ScenarioError(ValueError):
@@ -83,9 +95,83 @@ class SimulationSettings:
         return np.linspace(0.0, n * self.output_step, n + 1)
 
 
+# --------------------------------------------------------------------------------------------
+# Read-only values: what a scenario holds cannot be changed through it
+# --------------------------------------------------------------------------------------------
+class _ReadOnlyDict(dict):
+    """A dict that refuses changes.  It is a dict for every reader (``json``, ``==``, ``|``, ``dict(...)``);
+    a copy (``copy.deepcopy``, pickling) is a plain, changeable dict."""
+
+    def _refuse(self, *args, **kwargs):
+        raise TypeError("a scenario's settings are read-only; vary a scenario with Scenario.with_changes")
+
+    __setitem__ = __delitem__ = __ior__ = clear = pop = popitem = setdefault = update = _refuse
+
+    def __reduce__(self):
+        return dict, (dict(self),)
+
+
+class _ReadOnlyList(list):
+    """A list that refuses changes (see :class:`_ReadOnlyDict`)."""
+
+    _refuse = _ReadOnlyDict._refuse
+    __setitem__ = __delitem__ = __iadd__ = __imul__ = append = extend = insert = pop = remove = clear = sort = \
+        reverse = _refuse
+
+    def __reduce__(self):
+        return list, (list(self),)
+
+
+def _read_only(value):
+    """A read-only deep copy of plain settings (dicts, lists, numbers, text)."""
+    if isinstance(value, Mapping):
+        return _ReadOnlyDict({k: _read_only(v) for k, v in value.items()})
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return _ReadOnlyList(_read_only(v) for v in value)
+    if isinstance(value, (np.floating, np.integer, np.bool_)):
+        return value.item()
+    return value
+
+
+def _read_only_array(value) -> np.ndarray:
+    arr = np.array(value, dtype=float)      # a copy: an array the caller keeps cannot change the scenario
+    arr.flags.writeable = False
+    return arr
+
+
+def _plain(value):
+    """Plain, changeable settings: dicts, lists, Python numbers (numpy values and tuples converted)."""
+    if isinstance(value, Mapping):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return [_plain(v) for v in value]
+    if isinstance(value, (np.floating, np.integer, np.bool_)):
+        return value.item()
+    return value
+
+
+def _same(a, b) -> bool:
+    """Equality of field values, arrays by value (``==`` on arrays is elementwise)."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.shape == b.shape \
+            and bool(np.array_equal(a, b))
+    if isinstance(a, Mapping) or isinstance(b, Mapping):
+        return isinstance(a, Mapping) and isinstance(b, Mapping) and a.keys() == b.keys() \
+            and all(_same(a[k], b[k]) for k in a)
+    return bool(a == b)
+
+
 @dataclass(frozen=True, eq=False)
 class Scenario:
     """A validated scenario (see the module docstring for the keys).
+
+    A scenario cannot be changed: its arrays are read-only and its settings
+    (``data``, ``user_data``, ``initial``) refuse writes.  A new scenario is
+    made with :meth:`with_changes`.  Two scenarios are equal when every field
+    is equal (arrays by value), including ``source`` and ``user_data``, which
+    decide how :meth:`with_changes` derives defaults; ``a.data == b.data``
+    asks whether two scenarios describe the same run.  Scenarios are hashable
+    (the hash follows ``name``, ``source`` and ``data``), so they can be keys.
 
     Attributes
     ----------
@@ -96,9 +182,9 @@ class Scenario:
     robot, nominal : RobotParameters
         True plant and nominal model.
     kp, kd : numpy.ndarray
-        4x4 diagonal controller gains.
+        4x4 diagonal controller gains (1/s^2, 1/s).
     observer_gain : numpy.ndarray
-        4x4 observer gain ``Y``.
+        4x4 observer gain ``Y`` (kg m^2/s).
     observer_variant : str
     trajectory : LacerationPath or JointSine
     disturbance : DisturbanceSpec
@@ -110,7 +196,7 @@ class Scenario:
     source : str
         Where the scenario came from (built-in name or file path).
     user_data : dict
-        The settings as given, before defaults were filled in; :meth:`replace`
+        The settings as given, before defaults were filled in; :meth:`with_changes`
         starts from these so that derived defaults (the path duration follows
         ``simulation.t_final``, the path's skin height follows the tissue
         model's) are derived again.
@@ -132,57 +218,413 @@ class Scenario:
     source: str = "<dict>"
     user_data: dict = field(default_factory=dict)
 
+    def __post_init__(self) -> None:
+        for name in ("kp", "kd", "observer_gain"):
+            object.__setattr__(self, name, _read_only_array(getattr(self, name)))
+        object.__setattr__(self, "initial", _ReadOnlyDict(
+            {k: None if v is None else _read_only_array(v) for k, v in self.initial.items()}))
+        object.__setattr__(self, "data", _read_only(self.data))
+        object.__setattr__(self, "user_data", _read_only(self.user_data))
+
     def __eq__(self, other) -> bool:
-        return isinstance(other, Scenario) and self.data == other.data
+        if not isinstance(other, Scenario):
+            return NotImplemented
+        return all(_same(getattr(self, f.name), getattr(other, f.name)) for f in dataclasses.fields(self))
 
-    __hash__ = None
+    def __hash__(self) -> int:
+        # equal scenarios have equal data, name and source, so equal hashes
+        return hash((self.name, self.source, json.dumps(self.data, sort_keys=True)))
 
-    def replace(self, **changes) -> "Scenario":
-        """A new scenario with some keys changed, validated like a file.
+    def __reduce__(self):
+        # through the constructor, so that a copy or an unpickled scenario is read-only too
+        return Scenario, tuple(getattr(self, f.name) for f in dataclasses.fields(self))
 
-        Each keyword is a section name with a dict of keys to change (merged
-        into the keys given so far), or a top-level key with its value.  A
-        ``trajectory`` change with a different ``kind`` starts that section
-        afresh, since each kind has its own keys.
+    def with_changes(self, changes: Mapping[str, Any]) -> "Scenario":
+        """A new scenario with some values changed by dotted key, validated like a file.
+
+        Parameters
+        ----------
+        changes : mapping
+            ``"section.key"`` -> value as the file takes it (``"gains.kp": 100``,
+            ``"nominal_scale.m1": 1.2``), ``"section.key[i]"`` -> one element of
+            a list (``"disturbance.f_r[2]": 1.5``), or ``"name"`` /
+            ``"description"`` -> text.  Applied in order.  Defaults that
+            follow other keys are derived again (the laceration path's duration
+            follows ``simulation.t_final`` and its skin height the tissue
+            model's, unless they were given); a new ``trajectory.kind`` starts
+            that section afresh, since each kind has its own keys.
+
+        Raises
+        ------
+        ScenarioError
+            Naming the dotted key, on an unknown key or an invalid value.
 
         Examples
         --------
-        >>> s = load_scenario("paper").replace(gains={"kp": 100})
+        >>> s = load_scenario("paper").with_changes({"gains.kp": 100})
         >>> float(s.kp[0, 0])
         100.0
-        >>> load_scenario("paper").replace(simulation={"t_final": 2.0}).trajectory.duration
+        >>> load_scenario("paper").with_changes({"simulation.t_final": 2.0}).trajectory.duration
         2.0
+        >>> load_scenario("paper").with_changes({"disturbance.f_r[2]": 1.5}).disturbance.f_r
+        (1.43, 1.6, 1.5, 1.2)
         """
-        data = copy.deepcopy(self.user_data)
-        for section, values in changes.items():
-            old = data.get(section)
-            if isinstance(values, dict) and isinstance(old, dict):
-                fresh = section == "trajectory" and values.get("kind", old.get("kind")) != old.get("kind")
-                data[section] = dict(values) if fresh else {**old, **values}
+        if not isinstance(changes, Mapping):
+            raise ScenarioError(f"{self.source}: changes must be a mapping of dotted keys to values "
+                                f"({{'gains.kp': 100}}), got {changes!r}")
+        if not changes:
+            return self
+        try:
+            whole = self.expand(changes)
+        except ScenarioError as err:
+            raise ScenarioError(f"{self.source}: {err}") from None
+        data = _plain(self.user_data)
+        if "trajectory.kind" in whole and whole["trajectory.kind"] != self.data["trajectory"]["kind"]:
+            data["trajectory"] = {}         # each kind has its own keys
+        for key, value in whole.items():
+            section, name, _ = parse_key(key)
+            if name:
+                data.setdefault(section, {})[name] = _plain(value)
             else:
-                data[section] = copy.deepcopy(values)
+                data[section] = _plain(value)
         return scenario_from_dict(data, source=self.source)
+
+    def replace(self, **sections) -> "Scenario":
+        """:meth:`with_changes` written by section: ``replace(gains={"kp": 100})`` is
+        ``with_changes({"gains.kp": 100})``; ``name=`` and ``description=`` set those."""
+        changes: dict[str, Any] = {}
+        for section, values in sections.items():
+            if isinstance(values, Mapping):
+                changes.update({f"{section}.{key}": value for key, value in values.items()})
+            else:
+                changes[section] = values
+        return self.with_changes(changes)
+
+    def expand(self, changes: Mapping[str, Any]) -> dict[str, Any]:
+        """``changes`` with each element key (``"disturbance.f_r[2]"``) replaced by its whole list,
+        taken from this scenario (or from an earlier change of the same list).
+
+        Raises
+        ------
+        ScenarioError
+            On a malformed key, an unknown section, or an element key whose
+            value is not a list that long.  Keys within a section are checked
+            when the changes are validated.
+        """
+        out: dict[str, Any] = {}
+        for key, value in changes.items():
+            section, name, index = parse_key(key)
+            full = f"{section}.{name}" if name else section
+            if index is None:
+                out[full] = value
+                continue
+            current = _plain(out[full] if full in out else self.data.get(section, {}).get(name))
+            if not isinstance(current, list) or index >= len(current):
+                what = f"a list of {len(current)}" if isinstance(current, list) else \
+                    "not given in this scenario" if current is None else f"{current!r}, not a list"
+                raise ScenarioError(f"'{key}' indexes element {index} of '{full}', which is {what}")
+            current[index] = value
+            out[full] = current
+        return out
+
+    def check_key(self, key: str) -> None:
+        """Check that a dotted key (``"gains.kp"``, ``"disturbance.f_r[2]"``) names a value of this scenario.
+
+        Raises
+        ------
+        ScenarioError
+            Naming the key and the keys its section has.
+        """
+        section, name, index = parse_key(key)
+        if name:
+            known = tuple(_SECTIONS[section].checks_for(self.data["trajectory"]["kind"]))
+            if name not in known:
+                raise ScenarioError(f"'{key}' is not a scenario key; keys of [{section}]: {list(known)}")
+        if index is not None:
+            self.expand({key: 0.0})
 
     def to_toml(self) -> str:
         """The complete scenario as TOML text."""
         return to_toml(self.data)
 
 
-_SECTIONS = ("robot", "nominal_scale", "gains", "observer", "trajectory", "disturbance", "noise", "initial",
-             "simulation")
-_TOP_KEYS = ("name", "description") + _SECTIONS
-_LACERATION_KEYS = tuple(f.name for f in dataclasses.fields(LacerationPath) if f.name != "params")
-_JOINT_SINE_KEYS = tuple(f.name for f in dataclasses.fields(JointSine))
-_DISTURBANCE_KEYS = tuple(f.name for f in dataclasses.fields(DisturbanceSpec) if f.name != "kinds")
-_DEFAULTS = {
-    "disturbance": {f.name: f.default for f in dataclasses.fields(DisturbanceSpec)},
-    "laceration": {f.name: f.default for f in dataclasses.fields(LacerationPath) if f.name != "params"},
-    "joint_sine": {f.name: f.default for f in dataclasses.fields(JointSine)},
-    "noise": {f.name: f.default for f in dataclasses.fields(MeasurementNoise)},
+# --------------------------------------------------------------------------------------------
+# Checks of single values: (value, dotted key) -> the value as the model takes it
+# --------------------------------------------------------------------------------------------
+Check = Callable[[Any, str], Any]
+
+
+def _finite(lower: float | None = None, strict: bool = False) -> Check:
+    def check(value, key: str) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise ScenarioError(f"'{key}' must be a finite number, got {value!r}")
+        if lower is not None and (value <= lower if strict else value < lower):
+            raise ScenarioError(f"'{key}' must be {'>' if strict else '>='} {lower}, got {value!r}")
+        return float(value)
+    return check
+
+
+def _positive_or_inf(value, key: str) -> float:
+    return math.inf if value == math.inf and not isinstance(value, bool) else _finite(0.0, strict=True)(value, key)
+
+
+def _one_of(options) -> Check:
+    def check(value, key: str):
+        if not isinstance(value, str) or value not in options:
+            raise ScenarioError(f"'{key}' must be one of {list(options)}, got {value!r}")
+        return value
+    return check
+
+
+def _vector(length: int) -> Check:
+    def check(value, key: str) -> tuple[float, ...]:
+        if not isinstance(value, (list, tuple)) or len(value) != length:
+            raise ScenarioError(f"'{key}' must be a list of {length} numbers, got {value!r}")
+        return tuple(_finite()(v, f"{key}[{i}]") for i, v in enumerate(value))
+    return check
+
+
+def _like(default) -> Check:
+    """The type of the key's default: text, a whole number, a number, or a number or a list of numbers."""
+    whole = isinstance(default, int) and not isinstance(default, bool)
+    expected = "a whole number" if whole else "a number or a list of numbers" if isinstance(default, tuple) \
+        else "a number"
+
+    def check(value, key: str):
+        if isinstance(value, bool):
+            raise ScenarioError(f"'{key}' must not be true/false, got {value!r}")
+        if isinstance(default, str):
+            if not isinstance(value, str):
+                raise ScenarioError(f"'{key}' must be text, got {value!r}")
+            return value
+        if isinstance(value, str):
+            raise ScenarioError(f"'{key}' must be {expected}, got the text {value!r}")
+        if whole:
+            if not isinstance(value, int):
+                raise ScenarioError(f"'{key}' must be a whole number, got {value!r}")
+            return value
+        if isinstance(value, (int, float)):
+            return _finite()(value, key)
+        if isinstance(value, (list, tuple)) and isinstance(default, tuple):
+            return tuple(_finite()(v, f"{key}[{i}]") for i, v in enumerate(value))
+        raise ScenarioError(f"'{key}' must be {expected}, got {value!r}")
+    return check
+
+
+def _gain(value, key: str):
+    """A gain checked by :func:`~blocks.gains.validated_gain`; kept as given (the file's form) for the settings."""
+    try:
+        validated_gain(value, key.split(".", 1)[1])
+    except GainError as err:
+        raise ScenarioError(str(err)) from None
+    return _plain(value)
+
+
+def _disturbance_kinds(value, key: str) -> tuple[str, ...]:
+    kinds = [value] if isinstance(value, str) else value
+    if not isinstance(kinds, (list, tuple)) or not all(isinstance(k, str) for k in kinds):
+        raise ScenarioError(f"'{key}' must be a string or a list of strings, got {value!r}")
+    kinds = [k for k in kinds if k != "none"]
+    bad = [k for k in kinds if k not in DISTURBANCE_KINDS]
+    if bad:
+        raise ScenarioError(f"'{key}' has unknown kind(s) {bad}; choose from {list(DISTURBANCE_KINDS)} or 'none'")
+    return tuple(kinds)
+
+
+def _defaults(cls, skip=()) -> dict[str, Any]:
+    return {f.name: f.default for f in dataclasses.fields(cls) if f.name not in skip}
+
+
+# --------------------------------------------------------------------------------------------
+# Sections: keys with their checks, and how the section's object and its complete settings are made
+# --------------------------------------------------------------------------------------------
+GAIN_DEFAULTS = {"kp": 180.0, "kd": 36.0, "observer": 10.0}     # the paper's Kp, Kd and Y = "K3"
+
+
+def _build_robot(given: dict, built: dict):
+    try:
+        robot = RobotParameters(**given)
+    except ParameterError as err:
+        raise ScenarioError(f"[robot] {err}") from None
+    return robot, robot.as_dict()
+
+
+def _build_nominal(given: dict, built: dict):
+    try:
+        nominal = built["robot"].scaled(**given)
+    except ParameterError as err:
+        raise ScenarioError(f"[nominal_scale] gives an impossible nominal model: {err}") from None
+    return nominal, {k: given.get(k, 1.0) for k in RobotParameters.names()}
+
+
+def _build_gains(given: dict, built: dict):
+    gains = GAIN_DEFAULTS | given
+    return {k: validated_gain(v, k) for k, v in gains.items()}, gains
+
+
+def _build_observer(given: dict, built: dict):
+    variant = given.get("variant", "correct")
+    return variant, {"variant": variant}
+
+
+def _build_simulation(given: dict, built: dict):
+    sim = SimulationSettings(**given)
+    if sim.output_step > sim.t_final:
+        raise ScenarioError(f"'simulation.output_step' ({sim.output_step} s) must not exceed "
+                            f"'simulation.t_final' ({sim.t_final} s)")
+    steps = sim.t_final / sim.output_step
+    if steps > MAX_OUTPUT_POINTS:
+        raise ScenarioError(f"'simulation.t_final' / 'simulation.output_step' asks for {steps:.3g} output "
+                            f"points; at most {MAX_OUTPUT_POINTS:,} are allowed (raise output_step)")
+    if abs(steps - round(steps)) > 1e-9 * max(1.0, steps):
+        raise ScenarioError(f"'simulation.t_final' ({sim.t_final} s) must be a whole multiple of "
+                            f"'simulation.output_step' ({sim.output_step} s)")
+    return sim, {k: v for k, v in dataclasses.asdict(sim).items() if v != math.inf}
+
+
+def _build_disturbance(given: dict, built: dict):
+    kinds = given.get("kind", ("paper",))
+    try:
+        spec = DisturbanceSpec(kinds=kinds, **{k: v for k, v in given.items() if k != "kind"})
+    except ValueError as err:
+        raise ScenarioError(f"[disturbance] {err}") from None
+    values = {f: _plain(getattr(spec, f)) for f in _defaults(DisturbanceSpec, skip=("kinds",))}
+    return spec, {"kind": list(kinds) if kinds else "none"} | values
+
+
+def _build_trajectory(given: dict, built: dict):
+    kind = given.get("kind", _SECTIONS["trajectory"].default_kind)
+    kw = {k: v for k, v in given.items() if k != "kind"}
+    try:
+        if kind == "laceration":
+            kw.setdefault("duration", built["simulation"].t_final)          # the path completes within the run
+            kw.setdefault("skin_height", built["disturbance"].skin_height)  # the path stitches the tissue's skin
+            trajectory = LacerationPath(params=built["robot"], **kw)
+        else:
+            trajectory = JointSine(**kw)
+    except (ValueError, TypeError) as err:          # UnreachableError is a ValueError
+        raise ScenarioError(f"[trajectory] {err}") from None
+    keys = [k for k in _SECTIONS["trajectory"].checks_for(kind) if k != "kind"]
+    return trajectory, {"kind": kind} | {k: _plain(getattr(trajectory, k)) for k in keys}
+
+
+def _build_noise(given: dict, built: dict):
+    t_final = built["simulation"].t_final
+    period = given.get("sample_period", MeasurementNoise.sample_period)
+    if period > 0 and t_final / period > MAX_NOISE_SAMPLES:
+        raise ScenarioError(f"'noise.sample_period' ({period} s) asks for {t_final / period:.3g} noise samples "
+                            f"over {t_final} s; at most {MAX_NOISE_SAMPLES:,} are allowed")
+    try:
+        noise = MeasurementNoise(t_final=t_final, **given)
+    except ValueError as err:
+        raise ScenarioError(f"[noise] {err}") from None
+    return (noise if noise.enabled else None), {k: _plain(getattr(noise, k)) for k in _NOISE_KEYS}
+
+
+def _build_initial(given: dict, built: dict):
+    return {k: (np.array(given[k]) if k in given else None) for k in _INITIAL_KEYS}, \
+        {k: list(v) for k, v in given.items()}
+
+
+@dataclass(frozen=True)
+class _Section:
+    """How one ``[section]`` is read: its keys and the check of each value, and how it is built.
+
+    ``build(given, built)`` takes the checked values given (defaults are the
+    builder's) and the objects of the sections before it, and returns the
+    section's object and its complete settings.  A section with ``by_kind``
+    has a ``kind`` key (``default_kind`` when not given) that decides its other keys.
+    """
+
+    checks: Mapping[str, Check]
+    build: Callable[[dict, dict], tuple[Any, dict]]
+    by_kind: Mapping[str, Mapping[str, Check]] = field(default_factory=dict)
+    default_kind: str = ""
+
+    def checks_for(self, kind: str | None = None) -> Mapping[str, Check]:
+        """The keys allowed (with their checks) for a section of this ``kind``."""
+        return dict(self.checks) | dict(self.by_kind.get(kind, {})) if self.by_kind else self.checks
+
+
+_ROBOT_KEYS = RobotParameters.names()
+_NOISE_KEYS = ("q_std", "dq_std", "seed", "sample_period")
+_INITIAL_KEYS = ("q", "dq", "d_hat")
+
+#: The sections in the order they are built (later ones use earlier ones' objects).
+_SECTIONS: dict[str, _Section] = {
+    "robot": _Section({k: _finite() for k in _ROBOT_KEYS}, _build_robot),
+    "nominal_scale": _Section({k: _finite(0.0, strict=True) for k in _ROBOT_KEYS}, _build_nominal),
+    "gains": _Section({k: _gain for k in GAIN_KEYS}, _build_gains),
+    "observer": _Section({"variant": _one_of(OBSERVER_VARIANTS)}, _build_observer),
+    "simulation": _Section({"t_final": _finite(0.0, True), "output_step": _finite(0.0, True),
+                            "rtol": _finite(0.0, True), "atol": _finite(0.0, True),
+                            "method": _one_of(SOLVER_METHODS), "max_step": _positive_or_inf}, _build_simulation),
+    "disturbance": _Section({"kind": _disturbance_kinds} | {k: _like(d) for k, d in
+                                                            _defaults(DisturbanceSpec, skip=("kinds",)).items()},
+                            _build_disturbance),
+    "trajectory": _Section({"kind": _one_of(TRAJECTORY_KINDS)}, _build_trajectory, by_kind={
+        "laceration": {k: _like(d) for k, d in _defaults(LacerationPath, skip=("params",)).items()},
+        "joint_sine": {k: _like(d) for k, d in _defaults(JointSine).items()}}, default_kind="laceration"),
+    "noise": _Section({k: _like(d) for k, d in _defaults(MeasurementNoise).items() if k in _NOISE_KEYS},
+                      _build_noise),
+    "initial": _Section({k: _vector(RRPR_JOINTS.count) for k in _INITIAL_KEYS}, _build_initial),
 }
-# Largest grids a scenario may ask for: beyond these a run would exhaust memory rather than finish.
-MAX_OUTPUT_POINTS = 2_000_000
-MAX_NOISE_SAMPLES = 20_000_000
+_TOP_KEYS = ("name", "description") + tuple(_SECTIONS)
+_KEY = re.compile(r"(?P<section>[A-Za-z_]\w*)(?:\.(?P<name>\w+))?(?:\[(?P<index>\d+)\])?")
+
+
+@functools.lru_cache(maxsize=4096)       # a batch parses the same few keys for every member
+def parse_key(key: str) -> tuple[str, str, int | None]:
+    """Split a dotted scenario key: ``"disturbance.f_r[2]"`` -> ``("disturbance", "f_r", 2)``,
+    ``"gains.kp"`` -> ``("gains", "kp", None)``, ``"name"`` -> ``("name", "", None)``.
+
+    Raises
+    ------
+    ScenarioError
+        On a key that is not ``section.key``, ``section.key[i]``, ``name`` or
+        ``description``, or names an unknown section.
+    """
+    found = _KEY.fullmatch(key) if isinstance(key, str) else None
+    if found is None or (found["name"] is None and (found["section"] not in ("name", "description")
+                                                      or found["index"] is not None)):
+        raise ScenarioError(f"{key!r} is not a scenario key: write 'section.key' or 'section.key[i]' "
+                            f"(sections: {list(_SECTIONS)}), or 'name' / 'description'")
+    if found["name"] is not None and found["section"] not in _SECTIONS:
+        raise ScenarioError(f"'{key}' is not a scenario key: there is no section [{found['section']}] "
+                            f"(sections: {list(_SECTIONS)})")
+    index = found["index"]
+    return found["section"], found["name"] or "", None if index is None else int(index)
+
+
+def check_value(key: str, value, trajectory_kind: str = "laceration"):
+    """One value checked as a scenario file checks it (type, shape, sign), without the checks across keys.
+
+    Parameters
+    ----------
+    key : str
+        A dotted key ``"section.key"`` (``"gains.kp"``, ``"noise.seed"``).
+    value
+        The value as a file gives it.
+    trajectory_kind : str
+        Whose keys ``trajectory.*`` are.
+
+    Returns
+    -------
+    The value as the model takes it: a float, a tuple of floats, text, a whole
+    number; a gain as given (its matrix is :func:`~blocks.gains.validated_gain`'s).
+
+    Raises
+    ------
+    ScenarioError
+        Naming the key, without a source.
+    """
+    section, name, index = parse_key(key)
+    if not name or index is not None:
+        raise ScenarioError(f"'{key}' is not a 'section.key' with a value of its own")
+    checks = _SECTIONS[section].checks_for(trajectory_kind)
+    if name not in checks:
+        raise ScenarioError(f"'{key}' is not a scenario key; keys of [{section}]: {list(checks)}")
+    return checks[name](value, key)
 
 
 def builtin_scenarios() -> list[str]:
@@ -228,230 +670,67 @@ def _read_source(name_or_path) -> tuple[str, str]:
         str(name_or_path)
 
 
-def _table(data: dict, key: str, source: str) -> dict:
-    value = data.get(key, {})
-    if not isinstance(value, dict):
-        raise ScenarioError(f"{source}: '{key}' must be a table ([{key}]), got {value!r}")
-    return dict(value)
+def scenario_from_dict(data: Mapping, source: str = "<dict>") -> Scenario:
+    """Validate a scenario given as a nested dictionary (the parsed TOML) and fill in defaults.
+
+    Raises
+    ------
+    ScenarioError
+        On the first invalid key or value; the message starts with ``source``
+        and names the key.
+    """
+    try:
+        return _validated(data, source)
+    except ScenarioError as err:
+        raise ScenarioError(f"{source}: {err}") from None
 
 
-def _check_keys(table: dict, allowed, section: str, source: str, note: str = "") -> None:
-    unknown = sorted(set(table) - set(allowed))
-    if unknown:
-        where = "at the top level" if section == "top level" else f"in [{section}]{note}"
-        names = unknown if section == "top level" else [f"{section}.{k}" for k in unknown]
-        raise ScenarioError(f"{source}: unknown key(s) {', '.join(names)}; allowed {where}: {', '.join(allowed)}")
-
-
-def _number(value, key: str, source: str, lower=None, strict=False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ScenarioError(f"{source}: '{key}' must be a finite number, got {value!r}")
-    if lower is not None and (value <= lower if strict else value < lower):
-        raise ScenarioError(f"{source}: '{key}' must be {'>' if strict else '>='} {lower}, got {value!r}")
-    return float(value)
-
-
-def _vector(value, key: str, source: str, length: int = 4) -> list[float]:
-    if not isinstance(value, list) or len(value) != length:
-        raise ScenarioError(f"{source}: '{key}' must be a list of {length} numbers, got {value!r}")
-    return [_number(v, f"{key}[{i}]", source) for i, v in enumerate(value)]
-
-
-def scenario_from_dict(data: dict, source: str = "<dict>") -> Scenario:
-    """Validate a scenario given as a nested dictionary (the parsed TOML) and fill in defaults."""
-    if not isinstance(data, dict):
-        raise ScenarioError(f"{source}: a scenario must be a table, got {type(data).__name__}")
-    _check_keys(data, _TOP_KEYS, "top level", source)
+def _validated(data: Mapping, source: str) -> Scenario:
+    if not isinstance(data, Mapping):
+        raise ScenarioError(f"a scenario must be a table, got {type(data).__name__}")
+    _check_keys(data, _TOP_KEYS, "top level")
     name = data.get("name", Path(source).stem if source.endswith(".toml") else source)
     description = data.get("description", "")
     for key, value in (("name", name), ("description", description)):
         if not isinstance(value, str):
-            raise ScenarioError(f"{source}: '{key}' must be a string, got {value!r}")
-    t = {key: _table(data, key, source) for key in _SECTIONS}
+            raise ScenarioError(f"'{key}' must be a string, got {value!r}")
+    tables = {section: _table(data, section) for section in _SECTIONS}
+    built: dict[str, Any] = {}
     out: dict[str, Any] = {"name": name, "description": description}
-
-    # robot and nominal model
-    names = RobotParameters.names()
-    _check_keys(t["robot"], names, "robot", source)
-    _check_keys(t["nominal_scale"], names, "nominal_scale", source)
-    try:
-        robot = RobotParameters(**{k: _number(v, f"robot.{k}", source) for k, v in t["robot"].items()})
-    except ParameterError as err:
-        raise ScenarioError(f"{source}: [robot] {err}") from None
-    scales = {k: _number(v, f"nominal_scale.{k}", source, 0.0, strict=True) for k, v in t["nominal_scale"].items()}
-    try:
-        nominal = robot.scaled(**scales)
-    except ParameterError as err:
-        raise ScenarioError(f"{source}: [nominal_scale] gives an impossible nominal model: {err}") from None
-    out["robot"] = robot.as_dict()
-    out["nominal_scale"] = {k: scales.get(k, 1.0) for k in names}
-
-    # gains and observer
-    _check_keys(t["gains"], ("kp", "kd", "observer"), "gains", source)
-    gains = {"kp": 180.0, "kd": 36.0, "observer": 10.0} | t["gains"]
-    mats = {}
-    for key, value in gains.items():
-        try:
-            mats[key] = validated_gain(_as_array(value, f"gains.{key}", source), key)
-        except GainError as err:
-            raise ScenarioError(f"{source}: {err}") from None
-    out["gains"] = gains
-    _check_keys(t["observer"], ("variant",), "observer", source)
-    variant = t["observer"].get("variant", "correct")
-    if variant not in OBSERVER_VARIANTS:
-        raise ScenarioError(f"{source}: 'observer.variant' must be one of {list(OBSERVER_VARIANTS)}, got {variant!r}")
-    out["observer"] = {"variant": variant}
-
-    # simulation
-    sim_t = t["simulation"]
-    _check_keys(sim_t, [f.name for f in dataclasses.fields(SimulationSettings)], "simulation", source)
-    sim_kw = {}
-    for key in ("t_final", "output_step", "rtol", "atol", "max_step"):
-        if key in sim_t:
-            sim_kw[key] = _number(sim_t[key], f"simulation.{key}", source, 0.0, strict=True) \
-                if not (key == "max_step" and sim_t[key] == math.inf) else math.inf
-    if "method" in sim_t:
-        if sim_t["method"] not in SOLVER_METHODS:
-            raise ScenarioError(f"{source}: 'simulation.method' must be one of {list(SOLVER_METHODS)}, "
-                                f"got {sim_t['method']!r}")
-        sim_kw["method"] = sim_t["method"]
-    simulation = SimulationSettings(**sim_kw)
-    if simulation.output_step > simulation.t_final:
-        raise ScenarioError(f"{source}: 'simulation.output_step' ({simulation.output_step} s) must not exceed "
-                            f"'simulation.t_final' ({simulation.t_final} s)")
-    steps = simulation.t_final / simulation.output_step
-    if steps > MAX_OUTPUT_POINTS:
-        raise ScenarioError(f"{source}: 'simulation.t_final' / 'simulation.output_step' asks for {steps:.3g} output "
-                            f"points; at most {MAX_OUTPUT_POINTS:,} are allowed (raise output_step)")
-    if abs(steps - round(steps)) > 1e-9 * max(1.0, steps):
-        raise ScenarioError(f"{source}: 'simulation.t_final' ({simulation.t_final} s) must be a whole multiple of "
-                            f"'simulation.output_step' ({simulation.output_step} s)")
-    out["simulation"] = {k: v for k, v in dataclasses.asdict(simulation).items() if v != math.inf}
-
-    # disturbance
-    dist_t = t["disturbance"]
-    _check_keys(dist_t, ("kind",) + _DISTURBANCE_KEYS, "disturbance", source)
-    kind = dist_t.pop("kind", "paper")
-    kinds = [kind] if isinstance(kind, str) else kind
-    if not isinstance(kinds, list) or not all(isinstance(k, str) for k in kinds):
-        raise ScenarioError(f"{source}: 'disturbance.kind' must be a string or a list of strings, got {kind!r}")
-    kinds = [k for k in kinds if k != "none"]
-    bad = [k for k in kinds if k not in DISTURBANCE_KINDS]
-    if bad:
-        raise ScenarioError(f"{source}: 'disturbance.kind' has unknown kind(s) {bad}; "
-                            f"choose from {list(DISTURBANCE_KINDS)} or 'none'")
-    try:
-        disturbance = DisturbanceSpec(kinds=tuple(kinds), **{
-            k: _as_value(v, f"disturbance.{k}", source, _DEFAULTS["disturbance"][k]) for k, v in dist_t.items()})
-    except ScenarioError:
-        raise
-    except ValueError as err:
-        raise ScenarioError(f"{source}: [disturbance] {err}") from None
-    dist_data = dataclasses.asdict(disturbance)
-    dist_data.pop("kinds")
-    out["disturbance"] = {"kind": list(kinds) if kinds else "none"} | {k: _plain(v) for k, v in dist_data.items()}
-
-    # trajectory
-    traj_t = t["trajectory"]
-    kind = traj_t.pop("kind", "laceration")
-    if kind not in TRAJECTORY_KINDS:
-        raise ScenarioError(f"{source}: 'trajectory.kind' must be one of {list(TRAJECTORY_KINDS)}, got {kind!r}")
-    keys = _LACERATION_KEYS if kind == "laceration" else _JOINT_SINE_KEYS
-    _check_keys(traj_t, keys, "trajectory", source, note=f" for kind = {kind!r}")
-    kw = {k: _as_value(v, f"trajectory.{k}", source, _DEFAULTS[kind][k]) for k, v in traj_t.items()}
-    try:
-        if kind == "laceration":
-            kw.setdefault("duration", simulation.t_final)
-            kw.setdefault("skin_height", disturbance.skin_height)
-            trajectory = LacerationPath(params=robot, **kw)
-        else:
-            trajectory = JointSine(**kw)
-    except UnreachableError as err:
-        raise ScenarioError(f"{source}: [trajectory] {err}") from None
-    except (ValueError, TypeError) as err:
-        raise ScenarioError(f"{source}: [trajectory] {err}") from None
-    traj_data = {k: _plain(getattr(trajectory, k)) for k in keys}
-    out["trajectory"] = {"kind": kind} | traj_data
-
-    # noise
-    noise_t = t["noise"]
-    _check_keys(noise_t, ("q_std", "dq_std", "seed", "sample_period"), "noise", source)
-    noise_kw = {k: _as_value(v, f"noise.{k}", source, _DEFAULTS["noise"][k]) for k, v in noise_t.items()}
-    period = noise_kw.get("sample_period", _DEFAULTS["noise"]["sample_period"])
-    if isinstance(period, float) and period > 0 and simulation.t_final / period > MAX_NOISE_SAMPLES:
-        raise ScenarioError(f"{source}: 'noise.sample_period' ({period} s) asks for "
-                            f"{simulation.t_final / period:.3g} noise samples over {simulation.t_final} s; "
-                            f"at most {MAX_NOISE_SAMPLES:,} are allowed")
-    try:
-        noise = MeasurementNoise(t_final=simulation.t_final, **noise_kw)
-    except ValueError as err:
-        raise ScenarioError(f"{source}: [noise] {err}") from None
-    out["noise"] = {k: _plain(getattr(noise, k)) for k in ("q_std", "dq_std", "seed", "sample_period")}
-
-    # initial state
-    init_t = t["initial"]
-    _check_keys(init_t, ("q", "dq", "d_hat"), "initial", source)
-    initial = {k: (np.array(_vector(init_t[k], f"initial.{k}", source)) if k in init_t else None)
-               for k in ("q", "dq", "d_hat")}
-    out["initial"] = {k: v.tolist() for k, v in initial.items() if v is not None}
-
-    return Scenario(name=name, data=out, robot=robot, nominal=nominal, kp=mats["kp"], kd=mats["kd"],
-                    observer_gain=mats["observer"], observer_variant=variant, trajectory=trajectory,
-                    disturbance=disturbance, noise=noise if noise.enabled else None, initial=initial,
-                    simulation=simulation, source=source, user_data=copy.deepcopy(data))
+    for section, spec in _SECTIONS.items():
+        table = tables[section]
+        kind = spec.checks["kind"](table.get("kind", spec.default_kind), f"{section}.kind") if spec.by_kind else None
+        checks = spec.checks_for(kind)
+        _check_keys(table, checks, section, note=f" for kind = {kind!r}" if kind else "")
+        given = {k: checks[k](v, f"{section}.{k}") for k, v in table.items()}
+        built[section], out[section] = spec.build(given, built)
+    return Scenario(name=name, data=out, robot=built["robot"], nominal=built["nominal_scale"],
+                    kp=built["gains"]["kp"], kd=built["gains"]["kd"], observer_gain=built["gains"]["observer"],
+                    observer_variant=built["observer"], trajectory=built["trajectory"],
+                    disturbance=built["disturbance"], noise=built["noise"], initial=built["initial"],
+                    simulation=built["simulation"], source=source, user_data=_plain(data))
 
 
-def _as_array(value, key: str, source: str):
-    if isinstance(value, bool) or isinstance(value, str):
-        raise ScenarioError(f"{source}: '{key}' must be a number or a list of numbers, got {value!r}")
-    if isinstance(value, (int, float)):
-        return _number(value, key, source)
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise ScenarioError(f"{source}: '{key}' must be a number or a (nested) list of numbers, got {value!r}") from None
-    if not np.all(np.isfinite(arr)):
-        raise ScenarioError(f"{source}: '{key}' must be finite, got {value!r}")
-    return arr
-
-
-def _as_value(value, key: str, source: str, default):
-    """Check a value against the type of the key's default: text, a whole number, a number or a list of numbers."""
-    if isinstance(value, bool):
-        raise ScenarioError(f"{source}: '{key}' must not be true/false, got {value!r}")
-    if isinstance(default, str):
-        if not isinstance(value, str):
-            raise ScenarioError(f"{source}: '{key}' must be text, got {value!r}")
-        return value
-    whole = isinstance(default, int) and not isinstance(default, bool)
-    expected = "a whole number" if whole else "a number or a list of numbers" if isinstance(default, tuple) \
-        else "a number"
-    if isinstance(value, str):
-        raise ScenarioError(f"{source}: '{key}' must be {expected}, got the text {value!r}")
-    if whole:
-        if not isinstance(value, int):
-            raise ScenarioError(f"{source}: '{key}' must be a whole number, got {value!r}")
-        return value
-    if isinstance(value, (int, float)):
-        return _number(value, key, source)
-    if isinstance(value, list) and isinstance(default, tuple):
-        return tuple(_number(v, f"{key}[{i}]", source) for i, v in enumerate(value))
-    raise ScenarioError(f"{source}: '{key}' must be {expected}, got {value!r}")
-
-
-def _plain(value):
-    if isinstance(value, (tuple, list, np.ndarray)):
-        return [_plain(v) for v in value]
-    if isinstance(value, (np.floating, np.integer)):
-        return value.item()
+def _table(data: Mapping, key: str) -> Mapping:
+    value = data.get(key, {})
+    if not isinstance(value, Mapping):
+        raise ScenarioError(f"'{key}' must be a table ([{key}]), got {value!r}")
     return value
 
 
-def to_toml(data: dict) -> str:
+def _check_keys(table: Mapping, allowed, section: str, note: str = "") -> None:
+    unknown = sorted(set(table) - set(allowed))
+    if unknown:
+        where = "at the top level" if section == "top level" else f"in [{section}]{note}"
+        names = unknown if section == "top level" else [f"{section}.{k}" for k in unknown]
+        raise ScenarioError(f"unknown key(s) {', '.join(map(str, names))}; allowed {where}: {', '.join(allowed)}")
+
+
+def to_toml(data: Mapping) -> str:
     """Write a scenario dictionary (top-level scalars plus one level of tables) as TOML text."""
-    lines = [f"{k} = {_toml_value(v)}" for k, v in data.items() if not isinstance(v, dict)]
+    lines = [f"{k} = {_toml_value(v)}" for k, v in data.items() if not isinstance(v, Mapping)]
     for key, table in data.items():
-        if isinstance(table, dict):
+        if isinstance(table, Mapping):
             lines += ["", f"[{key}]"] + [f"{k} = {_toml_value(v)}" for k, v in table.items()]
     return "\n".join(lines) + "\n"
 

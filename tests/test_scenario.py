@@ -2,13 +2,14 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 
 import numpy as np
 import pytest
 
 from conftest import PAPER_FR, PAPER_KD, PAPER_KP, PAPER_Y, paper_toml_dict
-from blocks import (JointSine, LacerationPath, ScenarioError, builtin_scenarios, load_scenario,
-                           scenario_from_dict)
+from blocks import (JointSine, LacerationPath, Scenario, ScenarioError, builtin_scenarios, load_scenario,
+                    scenario_from_dict)
 
 
 @pytest.fixture(scope="module")
@@ -164,3 +165,103 @@ def test_to_toml_escapes_control_characters(tmp_path):
     out = tmp_path / "ctrl_copy.toml"
     out.write_text(s.to_toml(), encoding="utf-8")
     assert load_scenario(out).data == s.data
+
+
+# --- immutability, equality, hashing ----------------------------------------------------------
+def _given_everywhere():
+    """A scenario with an initial state and noise given, so that every field holds something to change."""
+    return scenario_from_dict(_with(initial={"q": [0.1, 1.0, 0.2, 0.0], "dq": [0.0] * 4, "d_hat": [0.5] * 4},
+                                    noise={"q_std": [1e-4, 1e-4, 1e-5, 1e-4], "seed": 3}), source="full.toml")
+
+
+WRITES = {
+    "kp entry": lambda s: s.kp.__setitem__((0, 0), 1.0),
+    "kd entry": lambda s: s.kd.__setitem__((1, 1), 1.0),
+    "observer gain entry": lambda s: s.observer_gain.__setitem__((2, 2), 1.0),
+    "kp in place": lambda s: s.kp.__imul__(2.0),
+    "initial q entry": lambda s: s.initial["q"].__setitem__(0, 9.0),
+    "initial d_hat entry": lambda s: s.initial["d_hat"].__setitem__(3, 9.0),
+    "initial key": lambda s: s.initial.__setitem__("q", np.zeros(4)),
+    "data section": lambda s: s.data.__setitem__("gains", {}),
+    "data key": lambda s: s.data["gains"].__setitem__("kp", 1.0),
+    "data list entry": lambda s: s.data["disturbance"]["f_r"].__setitem__(0, 0.0),
+    "data list append": lambda s: s.data["initial"]["q"].append(0.0),
+    "data update": lambda s: s.data["simulation"].update(t_final=1.0),
+    "data pop": lambda s: s.data.pop("robot"),
+    "user_data key": lambda s: s.user_data["gains"].__setitem__("kp", 1.0),
+    "user_data delete": lambda s: s.user_data.__delitem__("gains"),
+    "field": lambda s: setattr(s, "kp", np.eye(4)),
+}
+
+
+@pytest.mark.parametrize("case", list(WRITES))
+def test_a_scenario_cannot_be_changed_through_its_fields(case):
+    s = _given_everywhere()
+    before = s.to_toml(), s.kp.copy(), s.initial["q"].copy()
+    with pytest.raises((ValueError, TypeError, AttributeError)):
+        WRITES[case](s)
+    assert (s.to_toml(), s.kp.tolist(), s.initial["q"].tolist()) == (before[0], before[1].tolist(),
+                                                                     before[2].tolist())
+    assert s == _given_everywhere()
+
+
+def test_the_issue_example_write_raises_and_equality_holds(paper):
+    s = load_scenario("paper")
+    with pytest.raises(ValueError, match="read-only"):
+        s.kp[0, 0] = 1
+    assert s == paper and s.kp[0, 0] == PAPER_KP
+
+
+def test_settings_read_as_plain_dicts_and_copies_are_changeable(paper):
+    import json
+    import pickle
+    assert json.loads(json.dumps(paper.data)) == paper.data
+    assert isinstance(paper.data, dict) and isinstance(paper.data["disturbance"]["f_r"], list)
+    assert paper.data["gains"] | {"kp": 1.0} == {"kp": 1.0, "kd": PAPER_KD, "observer": PAPER_Y}
+    mine = copy.deepcopy(paper.data)
+    mine["gains"]["kp"] = 1.0                                 # a copy is the caller's to change
+    mine["disturbance"]["f_r"][0] = 0.0
+    assert paper.data["gains"]["kp"] == PAPER_KP and paper.data["disturbance"]["f_r"][0] == PAPER_FR[0]
+    shipped = pickle.loads(pickle.dumps(paper.data))          # as a sweep sends it to a worker process
+    assert scenario_from_dict(shipped, source="paper").data == paper.data
+    shipped["gains"]["kp"] = 2.0
+    assert scenario_from_dict(shipped).kp[0, 0] == 2.0 and paper.kp[0, 0] == PAPER_KP
+
+
+@pytest.mark.parametrize("how", ["pickle", "deepcopy"])
+def test_copies_of_a_scenario_are_equal_and_read_only(how):
+    import pickle
+    s = _given_everywhere()
+    other = pickle.loads(pickle.dumps(s)) if how == "pickle" else copy.deepcopy(s)
+    assert other == s and hash(other) == hash(s) and other is not s
+    for arr in (other.kp, other.kd, other.observer_gain, other.initial["q"]):
+        assert not arr.flags.writeable
+    with pytest.raises(TypeError):
+        other.data["gains"]["kp"] = 1.0
+
+
+def _changed(s, name: str):
+    """``s`` with one field set to a different, still meaningful value (built through the constructor)."""
+    other = {"name": "other", "data": {**s.data, "description": "changed"}, "robot": s.robot.scaled(m1=1.1),
+             "nominal": s.nominal.scaled(I2=0.9), "kp": s.kp * 2.0, "kd": s.kd + np.diag([0.0, 0.0, 1.0, 0.0]),
+             "observer_gain": s.observer_gain + np.diag([0.0, 0.0, 0.0, 1e-9]),
+             "observer_variant": "paper-eq16", "trajectory": JointSine(),
+             "disturbance": type(s.disturbance)(kinds=("friction",)),
+             "noise": None, "initial": {**s.initial, "dq": np.array([0.0, 0.0, 0.0, 1e-12])},
+             "simulation": type(s.simulation)(t_final=5.0), "source": "elsewhere.toml",
+             "user_data": {**s.user_data, "name": "other"}}
+    return dataclasses.replace(s, **{name: other[name]})
+
+
+@pytest.mark.parametrize("name", [f.name for f in dataclasses.fields(Scenario)])
+def test_equality_sees_a_difference_in_any_field(name):
+    s = _given_everywhere()
+    assert dataclasses.replace(s) == s
+    assert _changed(s, name) != s and s != _changed(s, name)
+
+
+def test_scenarios_are_hashable_consistently_with_equality(paper):
+    same = load_scenario("paper")
+    assert hash(same) == hash(paper) and len({paper, same}) == 1
+    assert len({paper, paper.with_changes({"gains.kp": 100.0})}) == 2
+    assert paper != "paper" and paper != paper.data

@@ -20,6 +20,7 @@ from analysis.sweep_runner import Progress, read_results, run_sweep
 from dobkit.sweep_commands import add_sweep_subcommand
 from analysis.sweep_report import html_section, summarize, write_summary
 from blocks.batch import METRIC_ATOL, METRIC_RTOL, simulate_batch
+from conftest import PAPER_FR
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -69,8 +70,10 @@ def test_rows_equal_a_direct_batch_and_the_single_runs(tmp_path, scenario_file):
     assert (outcome.total, outcome.skipped, outcome.ran, outcome.diverged) == (6, 0, 6, 0)
     _, rows = read_results(tmp_path / "r.jsonl")
     rows = sorted(rows, key=lambda r: r["index"])
-    direct = simulate_batch(spec.base, [sweep.scenario_changes(spec.base, r.values) for r in spec.runs],
-                            metrics=spec.metrics)
+    # the element key written out by hand: the whole Eq. 4 vector with its third entry drawn
+    records = [{"gains.kp": r.values["gains.kp"], "nominal_scale.m1": r.values["nominal_scale.m1"],
+                "disturbance.f_r": [*PAPER_FR[:2], r.values["disturbance.f_r[2]"], PAPER_FR[3]]} for r in spec.runs]
+    direct = simulate_batch(spec.base, records, metrics=spec.metrics)
     for i, row in enumerate(rows):
         assert row["status"] == "ok" and set(row["metrics"]) == set(spec.metrics)
         for name, value in row["metrics"].items():
@@ -185,6 +188,22 @@ BAD = {
     "an invalid shared value": ('[grid]\n"trajectory.stitches" = [1]\n', ["run 0", "stitches"]),
     "unknown metric": ('[grid]\n"gains.kp" = [1]\n[outputs]\nmetrics = ["rms"]\n', ["outputs.metrics", "rms"]),
     "bad batch size": ('[grid]\n"gains.kp" = [1]\n[batch]\nsize = 0\n', ["batch.size"]),
+    "bad substeps": ('[grid]\n"gains.kp" = [1]\n[batch]\nsubsteps = "fine"\n', ["batch.substeps", "auto"]),
+    "unknown batch key": ('[grid]\n"gains.kp" = [1]\n[batch]\nsizes = 2\n', ["batch.sizes", "size, substeps"]),
+    "observer not true/false": ('observer = "yes"\n[grid]\n"gains.kp" = [1]\n', ["'observer'", "true or false"]),
+    "bad engine": ('engine = "gpu"\n[grid]\n"gains.kp" = [1]\n', ["'engine'", "gpu"]),
+    "grid not a table": ('grid = 3\n', ["'grid'", "table"]),
+    "runs missing": ('[monte_carlo]\nseed = 1\n[monte_carlo.distributions]\n'
+                     '"robot.m1" = {kind = "uniform", low = 1, high = 2}\n', ["monte_carlo.runs"]),
+    "no distributions": ('[monte_carlo]\nruns = 2\n', ["monte_carlo.distributions", "empty"]),
+    "negative seed": ('[monte_carlo]\nruns = 2\nseed = -1\n[monte_carlo.distributions]\n'
+                      '"robot.m1" = {kind = "uniform", low = 1, high = 2}\n', ["monte_carlo.seed", ">= 0"]),
+    "bad worst count": ('[grid]\n"gains.kp" = [1]\n[outputs]\nworst_count = 0\n', ["outputs.worst_count"]),
+    "worst metric not kept": ('[grid]\n"gains.kp" = [1]\n[outputs]\nmetrics = ["rms_position_error"]\n'
+                              'worst_metric = "rms_tau"\n', ["outputs.worst_metric", "rms_position_error[0]"]),
+    "metric needs the observer": ('observer = false\n[grid]\n"gains.kp" = [1]\n[outputs]\n'
+                                  'metrics = ["rms_disturbance_error"]\n', ["outputs.metrics", "needs the observer"]),
+    "key of another trajectory kind": ('[grid]\n"trajectory.omega" = [1.0]\n', ["trajectory.omega", "stitches"]),
 }
 
 
@@ -292,3 +311,36 @@ metrics = ["rms_position_error"]
     run_sweep(load_sweep(_sweep(tmp_path, grid + "[batch]\nsize = 4\n", name="s")), tmp_path / "large.jsonl",
               workers=1, progress=False)
     _assert_same_rows(tmp_path / "small.jsonl", tmp_path / "large.jsonl")
+
+
+def _paper_file(**sections) -> blocks.Scenario:
+    """The paper scenario file with some keys set by hand, as a person edits the TOML."""
+    from conftest import paper_toml_dict
+    data = paper_toml_dict()
+    for section, values in sections.items():
+        data.setdefault(section, {}).update(values)
+    return blocks.scenario_from_dict(data, source="paper")
+
+
+@pytest.mark.parametrize("engine", ["batch", "fast"])
+def test_each_run_is_the_base_file_edited_by_hand(engine):
+    from blocks.batch import Variants
+    spec = sweep_from_dict({"scenario": "paper", "engine": engine,
+                            "grid": {"disturbance.f_r[2]": [1.0, 2.0], "trajectory.stitches": [3],
+                                     "gains.kp": [150]}})
+    assert [r.values for r in spec.runs] == [{"disturbance.f_r[2]": 1.0, "trajectory.stitches": 3, "gains.kp": 150},
+                                             {"disturbance.f_r[2]": 2.0, "trajectory.stitches": 3, "gains.kp": 150}]
+    for run, third in zip(spec.runs, (1.0, 2.0)):
+        by_hand = _paper_file(disturbance={"f_r": [PAPER_FR[0], PAPER_FR[1], third, PAPER_FR[3]]},
+                              trajectory={"stitches": 3}, gains={"kp": 150})
+        assert spec.scenario(run) == by_hand
+        # the way the runner builds it: the batch's shared scenario, then the member's values
+        shared, member = sweep.split_changes(run.values)
+        assert shared == {"trajectory.stitches": 3}
+        assert member == {"disturbance.f_r[2]": third, "gains.kp": 150}
+        group = spec.base.with_changes(shared)
+        assert group == _paper_file(trajectory={"stitches": 3})
+        variants = Variants(group, [member])
+        assert variants.scenario(0) == by_hand
+        np.testing.assert_array_equal(variants.disturbance.f_r[0], by_hand.disturbance.f_r)
+        np.testing.assert_array_equal(variants.kp[:, 0], np.diag(by_hand.kp))

@@ -1,26 +1,33 @@
-"""Variants of a batch: per-member scenario values by dotted key, validated before anything runs."""
+"""Variants of a batch: per-member scenario values by dotted key, validated before anything runs.
+
+A member's values are checked one by one with the scenario's own checks
+(:func:`~blocks.scenario.check_value`, :func:`~blocks.gains.validated_gain`)
+and then combined into the member's model objects, without building a whole
+scenario per member; :meth:`Variants.scenario` builds that scenario, through
+:meth:`Scenario.with_changes <blocks.scenario.Scenario.with_changes>`, when one
+member is to be run alone.
+"""
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
 from collections.abc import Mapping
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..disturbances import DisturbanceSpec
+from ..gains import GainError, validated_gain
+from ..joints import RRPR_JOINTS
 from ..noise import MeasurementNoise
 from ..parameters import ParameterError, RobotParameters
-from ..scenario import Scenario, ScenarioError, load_scenario
-from ..gains import OBSERVER_VARIANTS, GainError, validated_gain
-from ..joints import RRPR_JOINTS
-
-JOINTS = RRPR_JOINTS.count
+from ..scenario import Scenario, ScenarioError, check_value, load_scenario, parse_key
 
 __all__ = ["BATCH_KEYS", "Variants"]
 
 _DYNAMIC = ("m1", "m2", "m3", "m4", "l1", "l2", "I1", "I2", "I3", "I4", "g")
 
-#: Dotted scenario keys that may differ between the members of one batch.  The kinematic
+#: Dotted scenario keys that may differ between the members of one batch (an element
+#: key such as ``"disturbance.f_r[2]"`` may too, when its list's key is here).  The kinematic
 #: lengths (a1, a2, d1, d4), the trajectory, the disturbance kinds, tissue contact, the
 #: noise sample period and the solver settings shape the shared part and may not.
 BATCH_KEYS = frozenset(
@@ -56,8 +63,9 @@ class Variants:
         Either one mapping per member, ``{"gains.kp": 100, "robot.m1": 6.0}``
         (a key left out keeps the base value), or one mapping of columns,
         ``{"gains.kp": [100, 180, 250]}`` (all the same length).  Keys are in
-        :data:`BATCH_KEYS`; values are what the scenario file takes there
-        (``"gains.kp"``: a number or 4; ``"disturbance.f_r"``: 4 numbers; ...).
+        :data:`BATCH_KEYS`, or elements of those lists (``"disturbance.f_r[2]"``);
+        values are what the scenario file takes there (``"gains.kp"``: a number
+        or 4; ``"disturbance.f_r"``: 4 numbers; ...).
 
     Raises
     ------
@@ -71,55 +79,64 @@ class Variants:
         self.records = _as_records(records)
         if not self.records:
             raise ScenarioError("a batch needs at least one variant, got none")
-        for i, rec in enumerate(self.records):
-            bad = sorted(set(rec) - BATCH_KEYS)
-            if bad:
-                raise ScenarioError(f"variant {i}: key(s) {bad} cannot vary within a batch; "
-                                    f"batchable keys: {sorted(BATCH_KEYS)}")
-        self._build()
+        self._build([self._checked(i, rec) for i, rec in enumerate(self.records)])
 
     def __len__(self) -> int:
         return len(self.records)
 
     def scenario(self, i: int) -> Scenario:
         """Member ``i`` as a complete scenario, for a single run with :func:`~blocks.loop.simulate`."""
-        changes: dict[str, dict] = {}
-        for key, value in self.records[i].items():
-            section, name = key.split(".", 1)
-            changes.setdefault(section, {})[name] = _plain(value)
-        return self.base.replace(**changes)
+        return self.base.with_changes(self.records[i])
 
     # -- validation and stacking ----------------------------------------------------------------
-    def _build(self) -> None:
+    def _checked(self, i: int, record: dict) -> dict[str, dict]:
+        """A member's values by section and key, each checked as the scenario file checks it."""
+        try:
+            whole = self.base.expand(record)
+        except ScenarioError as err:
+            raise ScenarioError(f"variant {i}: {err}") from None
+        bad = sorted(set(whole) - BATCH_KEYS)
+        if bad:
+            raise ScenarioError(f"variant {i}: key(s) {bad} cannot vary within a batch; "
+                                f"batchable keys: {sorted(BATCH_KEYS)}")
+        sections: dict[str, dict] = {}
+        for key, value in whole.items():
+            section, name, _ = parse_key(key)
+            try:
+                sections.setdefault(section, {})[name] = \
+                    validated_gain(value, name) if section == "gains" else check_value(key, value)
+            except (ScenarioError, GainError) as err:
+                raise ScenarioError(f"variant {i}: {err}") from None
+        return sections
+
+    def _build(self, members: list[dict[str, dict]]) -> None:
         s = self.base
+        base_robot, base_scale, base_noise = dict(s.data["robot"]), dict(s.data["nominal_scale"]), dict(s.data["noise"])
         robots, nominals, kp, kd, ys, extra, specs, noises, initial = [], [], [], [], [], [], [], [], []
         memo: dict = {}
-        for i, rec in enumerate(self.records):
-            sec = _sections(rec)
-            try:
-                key = ("robot", _freeze(sec.get("robot")), _freeze(sec.get("nominal_scale")))
-                if key not in memo:
-                    robot = s.robot if "robot" not in sec else RobotParameters(**(s.data["robot"] | sec["robot"]))
+        for i, sec in enumerate(members):
+            key = ("robot", _freeze(sec.get("robot")), _freeze(sec.get("nominal_scale")))
+            if key not in memo:
+                try:
+                    robot = s.robot if "robot" not in sec else RobotParameters(**(base_robot | sec["robot"]))
                     nominal = s.nominal if not (set(sec) & {"robot", "nominal_scale"}) else \
-                        robot.scaled(**(s.data["nominal_scale"] | sec.get("nominal_scale", {})))
-                    memo[key] = (robot, nominal)
-                robot, nominal = memo[key]
-            except (ParameterError, TypeError) as err:
-                raise ScenarioError(f"variant {i}: {err} (values {_show(rec, ('robot.', 'nominal_scale.'))})") from None
+                        robot.scaled(**(base_scale | sec.get("nominal_scale", {})))
+                except ParameterError as err:
+                    raise ScenarioError(f"variant {i}: {err} "
+                                        f"(values {_show(self.records[i], ('robot.', 'nominal_scale.'))})") from None
+                memo[key] = (robot, nominal)
+            robot, nominal = memo[key]
             robots.append(robot)
             nominals.append(nominal)
             gains = sec.get("gains", {})
-            kp.append(np.diag(_gain(gains.get("kp"), s.kp, "kp", i)))
-            kd.append(np.diag(_gain(gains.get("kd"), s.kd, "kd", i)))
-            ys.append(_gain(gains.get("observer"), s.observer_gain, "observer", i))
+            kp.append(np.diag(gains.get("kp", s.kp)))
+            kd.append(np.diag(gains.get("kd", s.kd)))
+            ys.append(gains.get("observer", s.observer_gain))
             variant = sec.get("observer", {}).get("variant", s.observer_variant)
-            if variant not in OBSERVER_VARIANTS:
-                raise ScenarioError(f"variant {i}: 'observer.variant' must be one of {list(OBSERVER_VARIANTS)}, "
-                                    f"got {variant!r}")
             extra.append(1.0 if variant == "paper-eq16" else 0.0)
             specs.append(self._spec(sec.get("disturbance"), i, memo))
-            noises.append(self._noise(sec.get("noise"), i))
-            initial.append(self._initial(sec.get("initial", {}), i))
+            noises.append(self._noise(sec.get("noise"), base_noise, i))
+            initial.append(dict(s.initial) | {k: np.array(v) for k, v in sec.get("initial", {}).items()})
         self.robots, self.nominals = robots, nominals
         self.kp, self.kd = np.array(kp).T, np.array(kd).T                    # (4, N), 1/s^2 and 1/s
         Y = np.array(ys)                                                     # (N, 4, 4)
@@ -141,34 +158,23 @@ class Variants:
             return base
         key = ("dist", _freeze(overrides))
         if key not in memo:
-            fields = {f.name: getattr(base, f.name) for f in dataclasses.fields(DisturbanceSpec)}
             try:
-                memo[key] = DisturbanceSpec(**(fields | {k: _plain(v) for k, v in overrides.items()}))
-            except (ValueError, TypeError) as err:
+                memo[key] = dataclasses.replace(base, **overrides)
+            except ValueError as err:
                 raise ScenarioError(f"variant {i}: {err}") from None
         return memo[key]
 
-    def _noise(self, overrides, i: int) -> MeasurementNoise | None:
-        base = self.base
+    def _noise(self, overrides, base_noise: dict, i: int) -> MeasurementNoise | None:
         if not overrides:
-            return base.noise
-        settings = dict(base.data["noise"]) | {k: _plain(v) for k, v in overrides.items()}
+            return self.base.noise
+        settings = base_noise | overrides
         try:
             noise = MeasurementNoise(q_std=tuple(settings["q_std"]), dq_std=tuple(settings["dq_std"]),
                                      seed=settings["seed"], sample_period=settings["sample_period"],
-                                     t_final=base.simulation.t_final)
-        except (ValueError, TypeError) as err:
+                                     t_final=self.base.simulation.t_final)
+        except ValueError as err:
             raise ScenarioError(f"variant {i}: {err}") from None
         return noise if noise.enabled else None
-
-    def _initial(self, overrides: dict, i: int) -> dict:
-        out = dict(self.base.initial)
-        for key, value in overrides.items():
-            arr = np.asarray(value, dtype=float) if not isinstance(value, (str, bool)) else np.array([])
-            if arr.shape != (JOINTS,) or not np.all(np.isfinite(arr)):
-                raise ScenarioError(f"variant {i}: 'initial.{key}' must be a list of 4 finite numbers, got {value!r}")
-            out[key] = arr
-        return out
 
 
 def _as_records(records) -> list[dict]:
@@ -186,14 +192,6 @@ def _as_records(records) -> list[dict]:
     return out
 
 
-def _sections(record: Mapping) -> dict[str, dict]:
-    out: dict[str, dict] = {}
-    for key, value in record.items():
-        section, name = key.split(".", 1)
-        out.setdefault(section, {})[name] = value
-    return out
-
-
 def _plain(value):
     if isinstance(value, np.ndarray):
         return value.tolist()
@@ -205,7 +203,7 @@ def _plain(value):
 
 
 def _freeze(value):
-    """A hashable copy of plain values (for memoising equal settings)."""
+    """A hashable copy of checked values (for memoising equal settings)."""
     if isinstance(value, Mapping):
         return tuple(sorted((k, _freeze(v)) for k, v in value.items()))
     if isinstance(value, (list, tuple)):
@@ -218,16 +216,4 @@ def _show(record: Mapping, prefixes) -> dict:
 
 
 def _diag_part(Y: np.ndarray) -> np.ndarray:
-    return Y * np.eye(JOINTS)
-
-
-def _gain(value, default: np.ndarray, name: str, i: int) -> np.ndarray:
-    """A member's gain matrix, validated as the scenario validates ``gains.<name>``."""
-    if value is None:
-        return default
-    if isinstance(value, (bool, str)):
-        raise ScenarioError(f"variant {i}: 'gains.{name}' must be a number or a list of numbers, got {value!r}")
-    try:
-        return validated_gain(_plain(value), name)
-    except GainError as err:
-        raise ScenarioError(f"variant {i}: {err}") from None
+    return Y * np.eye(RRPR_JOINTS.count)
