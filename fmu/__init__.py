@@ -3,7 +3,7 @@
 ::
 
     import blocks
-import fmu
+    import fmu
     path = fmu.export_plant("plant.fmu", fmi_version=2)     # C model compiled with the system compiler
     plant = fmu.load(path)                                   # Model Exchange FMU -> NonlinearIOSystem
     loop = blocks.closed_loop("paper", plant=plant)          # drop-in for the Python plant
