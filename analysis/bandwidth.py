@@ -1,8 +1,8 @@
 """Observer bandwidth across the workspace: eigenvalues and modal directions of ``Y M^-1(q)``.
 
 On a perfect model the estimation error obeys ``e_d' = -Y M^-1(q) e_d``
-(paper-notes), so at a frozen configuration the observer's modes decay at the
-eigenvalues of ``Y M^-1(q)`` (rad/s) along its eigenvectors (directions in
+(docs/model.md, "Observer"), so at a frozen configuration the observer's modes
+decay at the eigenvalues of ``Y M^-1(q)`` (rad/s) along its eigenvectors (directions in
 disturbance space, N m / N).  The paper's gain ``Y = 10 I`` does not give
 "10 rad/s": for this arm one whole-arm mode is below 1 rad/s.
 

@@ -8,7 +8,8 @@ error ``e[i] = q_ref[i] - q[i]`` and, with the observer, the estimation error
 lumped disturbance minus its estimate).  The loop is linearized at its
 equilibrium with the arm held at ``q0`` (see :mod:`analysis.linear`).
 
-Closed forms on a perfect model (paper-notes), for ``W`` the disturbance:
+Closed forms on a perfect model (docs/model.md, "Frozen-configuration transfer
+functions"), for ``W`` the disturbance:
 
 * without observer ``E = -(s^2 + Kd s + Kp)^-1 M^-1 W``;
 * with observer ``E = -s (s^2 + Kd s + Kp)^-1 (s M + Y)^-1 W`` (zero DC gain);
@@ -79,7 +80,7 @@ def frozen_response(scenario: Scenario, q0, observer: bool = True, t: float = 0.
 
 
 def closed_form(scenario: Scenario, q0, omega, observer: bool = True, output: str = "e") -> np.ndarray:
-    """The paper-notes closed forms at ``s = j omega``, shape (len(omega), 4, 4), perfect model.
+    """The closed forms of docs/model.md at ``s = j omega``, shape (len(omega), 4, 4), perfect model.
 
     Parameters
     ----------

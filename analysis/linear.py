@@ -4,12 +4,12 @@ The operating point is the arm held at a configuration ``q0`` (a constant
 reference), the scenario's disturbance acting at time ``t`` and every block at
 equilibrium.  With the observer the arm rests exactly at ``q0`` and
 ``d_hat = d`` (the lumped disturbance); without it the arm rests at
-``q0 + Kp^-1 M^-1 d`` (paper-notes).  The equilibrium is solved for with
+``q0 + Kp^-1 M^-1 d`` (docs/model.md).  The equilibrium is solved for with
 :func:`control.find_operating_point` on the interconnected system itself, and
 the loop is linearized with :func:`control.linearize` -- nothing about the
 loop is written twice.
 
-Analytic split (perfect model, paper-notes): the closed-loop poles are the
+Analytic split (perfect model, docs/model.md): the closed-loop poles are the
 roots of ``s^2 + Kd_i s + Kp_i`` for every joint (the PD error dynamics) and,
 with the observer, the eigenvalues of ``-Y M^-1(q0)`` (the observer error
 dynamics ``e_d' = -Y M^-1 e_d``).
@@ -166,7 +166,7 @@ def equilibrium(loop, t: float = 0.0, inputs=None) -> np.ndarray:
     xeq, _, result = ct.find_operating_point(loop, x, u0, t=t, return_result=True)
     xeq = np.asarray(xeq, dtype=float)
     # Decided on the residual alone: the root finder's own flag is False when it stops for lack of progress,
-    # which it also does once the residual is at rounding level (seen: 6.9e-14 with "not making good progress").
+    # which it also does once the residual is at rounding level (reported as "not making good progress").
     residual = float(np.max(np.abs(loop.dynamics(t, xeq, u0))))
     tolerance = EQUILIBRIUM_RTOL * (1.0 + float(np.max(np.abs(xeq))))
     if not np.all(np.isfinite(xeq)) or not residual <= tolerance:
@@ -253,7 +253,7 @@ def loop_modes(lin: ct.StateSpace, loop) -> list[Mode]:
 
 
 def analytic_poles(scenario: Scenario, q0, observer: bool = True) -> dict:
-    """The analytic closed-loop poles on a perfect model (paper-notes).
+    """The analytic closed-loop poles on a perfect model (docs/model.md).
 
     Returns
     -------

@@ -162,7 +162,7 @@ def _run(job) -> dict:
         result = {"ok": True, **run_metrics(clean, final_q=_rest(variant, observer))}
         if noise is not None:
             # The noise is linear between samples; steps no longer than a sample keep the solver from rejecting
-            # steps at every kink (measured: 6x faster, same torques to 1e-4).  Both runs use the same settings.
+            # steps at every kink (the torques come out the same).  Both runs use the same settings.
             sim = {"t_final": noise_t_final, "max_step": float(noise["sample_period"])}
             short = variant.replace(simulation=sim)
             clean_short = simulate(short, observer=observer)

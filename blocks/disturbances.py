@@ -9,7 +9,8 @@ Models
 ------
 ``paper``
     Eq. 4, ``f_r * sgn(2 t + 1)``.  For every ``t >= 0`` this is the constant
-    step ``+f_r`` (paper-notes); it is implemented as printed.
+    step ``+f_r`` (docs/model.md, "Eq. 4 is a constant step"); it is
+    implemented as printed.
 ``friction``
     Coulomb plus viscous joint friction opposing the joint velocity,
     ``-(F_c tanh(q'/v_s) + F_v q')``.  The sign function is smoothed by

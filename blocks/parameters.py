@@ -115,7 +115,8 @@ class RobotParameters:
                 raise ParameterError(f"robot parameter '{f.name}' must be > 0 {unit}, got {value!r}")
             object.__setattr__(self, f.name, float(value))
         c = self.constants
-        # det M > 0 for every theta2 (paper-notes): (k1-k3)(k3-k5) - k2^2/4 > 0 at cos(theta2) = +-1
+        # det M > 0 for every theta2 (docs/model.md, "Inertia matrix"):
+        # (k1-k3)(k3-k5) - k2^2/4 > 0 at cos(theta2) = +-1
         # together with k4 > 0 and k5 > 0; equivalently M is positive definite everywhere.
         margin = (c.k1 - c.k3) * (c.k3 - c.k5) - c.k2 ** 2 / 4.0
         if c.k3 <= c.k5 or c.k1 <= c.k3 or margin <= 0:

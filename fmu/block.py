@@ -134,10 +134,15 @@ def load(path, name: str = "plant", start_values: dict | None = None, start_time
 
     Examples
     --------
-    >>> import blocks
-    >>> import fmu
-    >>> plant = fmu.load("plant.fmu", scenario="paper")                  # doctest: +SKIP
-    >>> loop = blocks.closed_loop("paper", plant=plant)                  # doctest: +SKIP
+    The plant FMU as the true plant of the paper scenario (exporting it
+    needs a C compiler):
+
+    >>> import blocks, fmu
+    >>> plant = fmu.load(fmu.export_plant("plant.fmu"), scenario="paper")
+    >>> plant.input_labels[:2], plant.state_labels[2]
+    (['tau[0]', 'tau[1]'], 'q[2]')
+    >>> loop = blocks.closed_loop("paper", plant=plant)
+    >>> plant.close()
     """
     extracted, owned = open_extracted(path, limits=limits, parent=extract_to)
     try:

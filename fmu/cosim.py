@@ -13,16 +13,12 @@ Accuracy.  The zero-order-hold coupling is *first order* in ``h``: the
 plant sees the torque of ``t_k`` over the whole step and the controller the
 state of ``t_k``, a delay of up to one step in each direction, so the
 difference to the monolithic loop (:func:`blocks.simulate`) falls
-like ``h``, not like the RK4 integration inside each side.  Measured on the
-``paper`` scenario (10 s, with observer; ``dobkit fmu convergence``), the
-largest joint-4 position difference to the monolithic run is 5.9e-3, 2.9e-3,
-1.46e-3 and 7.3e-4 rad at h = 4, 2, 1 and 0.5 ms (fitted order 1.007; joint 1:
-1.4e-4 rad at 1 ms).  So h = 1 ms gives visibly different joint-4 numbers:
-the Eq. 13 RMS position error of joint 4 is 7.4e-4 rad against 3.5e-4 rad
-monolithic (4.5e-4 rad at h = 0.5 ms), and the Eq. 14 RMS disturbance-estimate
-error of joint 4 is 0.193 N m against 0.096 N m (0.126 N m at 0.5 ms); on
-joints 1-3 these metrics differ by at most 12 %.  Choose h from such a study
-(or compare with the monolithic run) before trusting co-simulated numbers.
+like ``h``, not like the RK4 integration inside each side: halving ``h``
+halves the difference.  The RMS metrics of Eq. 13-14 move with ``h`` as
+well; the README (section on the FMU) lists the differences measured on the
+``paper`` scenario.  Choose h from a convergence study (``dobkit fmu
+convergence``, :func:`fmu.cosim_convergence`) or a comparison with the
+monolithic run before trusting co-simulated numbers.
 
 Because the plant has no direct feedthrough (its outputs ``q``, ``dq``,
 ``tau_dis`` do not depend on ``tau``), a second-order scheme is possible:

@@ -130,8 +130,13 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
     Examples
     --------
     >>> from fmu import export_plant, load
-    >>> fmu = export_plant("plant.fmu")                      # doctest: +SKIP
-    >>> sys = load(fmu)                                        # doctest: +SKIP
+    >>> path = export_plant("plant.fmu", fmi_version=3)
+    >>> path.name
+    'plant.fmu'
+    >>> plant = load(path)                      # Model Exchange, as a python-control block
+    >>> plant.nstates
+    8
+    >>> plant.fmu.close()
     """
     _check_args(fmi_version, substeps)
     q0, dq0 = _joint_vector(q0, "q0"), _joint_vector(dq0, "dq0")

@@ -1,6 +1,6 @@
 """Linearized Figure-2 loop: poles against the analytic split, mode attribution, inertia mismatch.
 
-Reference values come from paper-notes and hand derivations written out here
+Reference values come from docs/model.md ("Numbers to test against") and hand derivations written out here
 with ``conftest.reference_inertia`` (Eq. 5), never from the package's maths:
 
 * perfect model: poles = roots of ``s^2 + Kd_i s + Kp_i`` and eig(-Y M^-1(q0));
@@ -83,7 +83,7 @@ def test_without_observer_rests_off_target_and_poles_follow_hand_linearization()
     for _ in range(50):                               # q* = q0 + Kp^-1 M(q*)^-1 f
         q = Q0 + np.linalg.solve(reference_inertia(q[1]), PAPER_FR) / kp
     assert result["q_equilibrium_without_dob"] == pytest.approx(q.tolist(), abs=1e-10)
-    assert (q - Q0)[2] == pytest.approx(1.4 / 0.25 / 180)          # paper-notes: 31.1 mm on the prismatic joint
+    assert (q - Q0)[2] == pytest.approx(1.4 / 0.25 / 180)          # docs/model.md: 31.1 mm on the prismatic joint
     M = reference_inertia(q[1])
     s2 = math.sin(q[1])
     dM = np.zeros((4, 4))

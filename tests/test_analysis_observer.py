@@ -1,6 +1,6 @@
 """Observer bandwidth over the workspace, gain design and the Mohammadi convergence certificate.
 
-References: paper-notes ("Numbers to test against": eigenvalues of 10 M^-1(q) are
+References: docs/model.md ("Observer eigenvalues" and "Convergence condition": eigenvalues of 10 M^-1(q) are
 40, 12.09-12.99, 5.95-6.08 and 0.848-0.930 rad/s; ||M'|| <= 0.574 |theta2'| so the
 condition holds for |theta2'| < 34.8 rad/s), ``conftest.reference_inertia`` (Eq. 5)
 and the Lyapunov bound V(t) <= V(0) exp(-2 beta t).
@@ -27,7 +27,7 @@ def grid():
     return q
 
 
-def test_observer_eigenvalues_match_paper_notes(paper):
+def test_observer_eigenvalues_match_the_model_facts(paper):
     survey = bandwidth.bandwidth_survey(paper, points=(3, 181, 2, 3))
     ranges = survey["ranges_rad_s"]
     assert ranges[3] == pytest.approx([40.0, 40.0], rel=1e-12)               # prismatic: 10 / 0.25
@@ -75,7 +75,7 @@ def test_designed_gain_meets_target_on_a_finer_grid(paper, grid, base):
         assert np.all(np.sort(rates, axis=1) >= old - 1e-9)
 
 
-def test_certificate_for_paper_gain_matches_paper_notes(paper, grid):
+def test_certificate_for_paper_gain_matches_the_model_facts(paper, grid):
     Y = 10.0 * np.eye(4)
     critical = gain_design.critical_speed(paper.nominal, Y, grid, [0.0, 1.0, 0.0, 0.0])
     norm_dM = PAPER_K["k2"] * (1 + math.sqrt(2)) / 2            # largest |eig| of dM/dtheta2 at sin(theta2) = 1

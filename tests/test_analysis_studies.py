@@ -1,7 +1,8 @@
 """Gain and noise studies: metric definitions on known signals, steady-state offsets, settling and torque noise.
 
 References: ``exp(-t)`` stays within 2 % of its peak after ``ln 50`` s; without the
-observer the held prismatic joint rests ``1.4 / 0.25 / Kp`` m off (paper-notes);
+observer the held prismatic joint rests ``1.4 / 0.25 / Kp`` m off (docs/model.md,
+"Steady error without the observer");
 the prismatic joint is decoupled (M has only ``k4 = 0.25`` kg in its row), so after
 the step ``f`` its error is the step response of ``-(f / k4) / (s^2 + Kd s + Kp)``
 without the observer and of ``-(f / k4) / ((s + Y / k4)(s^2 + Kd s + Kp))`` with it,

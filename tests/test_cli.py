@@ -52,6 +52,7 @@ def test_metrics_schema_and_values(short_run):
     assert m["without_dob"]["max_abs_position_error"][2] == pytest.approx(1.4 / 0.25 / 180, rel=0.05)
 
 
+@pytest.mark.slow
 def test_written_scenario_reproduces_the_run(short_run, tmp_path):
     _, out, source = short_run
     assert load_scenario(out / "scenario.toml").data == load_scenario(source).data

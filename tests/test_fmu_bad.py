@@ -6,6 +6,7 @@ removed) and that nothing appeared beside it.
 """
 from __future__ import annotations
 
+import re
 import stat
 import sys
 import tempfile
@@ -13,6 +14,7 @@ import zipfile
 from pathlib import Path
 
 import control as ct
+import fmpy
 import numpy as np
 import pytest
 
@@ -38,16 +40,21 @@ def good(tmp_path_factory):
 
 
 @pytest.fixture
-def sandbox(tmp_path):
-    """An extraction parent inside a watched folder; asserts both are clean after the test."""
+def sandbox(tmp_path, private_temp_folder):
+    """An extraction parent inside a watched folder; asserts both are clean after the test.
+
+    The test's own temporary folder (conftest) must stay clean too: an extraction that
+    ignored ``extract_to`` would land there.  Only this test writes to it, so other
+    processes loading FMUs at the same time cannot disturb the check.
+    """
     watched = tmp_path / "watched"
     box = watched / "sandbox"
     box.mkdir(parents=True)
-    before_tmp = set(Path(tempfile.gettempdir()).glob("dobkit-fmu-*"))
+    assert tempfile.gettempdir() == str(private_temp_folder)
     yield box
     assert list(box.iterdir()) == [], "the private extraction folder was not removed"
     assert [p.name for p in watched.iterdir()] == ["sandbox"], "something was written beside the sandbox"
-    assert set(Path(tempfile.gettempdir()).glob("dobkit-fmu-*")) <= before_tmp
+    assert list(private_temp_folder.glob("dobkit-fmu-*")) == [], "an extraction went to the temporary folder"
 
 
 def rewrite(src: Path, dst: Path, replace: dict | None = None, drop=(), add: dict | None = None) -> Path:
@@ -90,6 +97,7 @@ def test_missing_file(tmp_path, sandbox):
     ("C:/escaped.txt", "drive letter"),
     ("resources/a:stream", "colon"),
 ])
+@pytest.mark.needs_cc
 def test_entries_escaping_the_folder_are_refused(good, tmp_path, sandbox, entry, words):
     target = tmp_path / "watched" / "escaped.txt"
     if entry == "ABSOLUTE":
@@ -101,6 +109,7 @@ def test_entries_escaping_the_folder_are_refused(good, tmp_path, sandbox, entry,
     assert not target.exists() and not (tmp_path / "escaped.txt").exists()
 
 
+@pytest.mark.needs_cc
 def test_symbolic_link_entry_is_refused(good, tmp_path, sandbox):
     bad = tmp_path / "bad.fmu"
     rewrite(good[2], bad)
@@ -112,17 +121,20 @@ def test_symbolic_link_entry_is_refused(good, tmp_path, sandbox):
         load(bad, extract_to=sandbox)
 
 
+@pytest.mark.needs_cc
 def test_total_size_limit(good, sandbox):
     with pytest.raises(FMUArchiveError, match="uncompressed size exceeds the limit of 20000 bytes"):
         load(good[2], extract_to=sandbox, limits=ExtractionLimits(max_total_size=20_000))
 
 
+@pytest.mark.needs_cc
 def test_compression_ratio_limit(good, tmp_path, sandbox):
     bomb = rewrite(good[2], tmp_path / "bomb.fmu", add={"resources/zeros.bin": bytes(4 * 2 ** 20)})
     with pytest.raises(FMUArchiveError, match=r"resources/zeros.bin.*expands \d+-fold.*zip bomb"):
         load(bomb, extract_to=sandbox)
 
 
+@pytest.mark.needs_cc
 def test_many_small_entries_adding_up_to_a_bomb_are_refused_before_extraction(good, tmp_path, sandbox):
     """Each entry (256 KiB of zeros) is below the per-entry ratio threshold; together they expand ~1000-fold."""
     bomb = rewrite(good[2], tmp_path / "bomb.fmu", add={f"resources/z{i}.bin": bytes(2 ** 18) for i in range(40)})
@@ -136,6 +148,7 @@ def test_many_small_entries_adding_up_to_a_bomb_are_refused_before_extraction(go
     assert list(sandbox.iterdir()) == []               # refused before any folder was made
 
 
+@pytest.mark.needs_cc
 def test_a_normal_fmu_is_well_below_the_aggregate_ratio(good):
     for key in (2, 3, "lag"):
         with zipfile.ZipFile(good[key]) as zf:
@@ -150,6 +163,7 @@ def test_a_directory_is_not_an_fmu(tmp_path, sandbox):
         load(folder, extract_to=sandbox)
 
 
+@pytest.mark.needs_cc
 def test_too_many_entries(good, tmp_path, sandbox):
     many = rewrite(good[2], tmp_path / "many.fmu", add={f"resources/f{i}.txt": "x" for i in range(30)})
     with pytest.raises(FMUArchiveError, match="entries, more than the limit of 20"):
@@ -158,12 +172,14 @@ def test_too_many_entries(good, tmp_path, sandbox):
 
 # --- the model description --------------------------------------------------------------------------------
 
+@pytest.mark.needs_cc
 def test_missing_model_description(good, tmp_path, sandbox):
     bad = rewrite(good[2], tmp_path / "bad.fmu", drop=("modelDescription.xml",))
     with pytest.raises(FMUModelDescriptionError, match="no modelDescription.xml"):
         load(bad, extract_to=sandbox)
 
 
+@pytest.mark.needs_cc
 def test_malformed_model_description(good, tmp_path, sandbox):
     xml = model_xml(good[2])
     bad = rewrite(good[2], tmp_path / "bad.fmu", replace={"modelDescription.xml": xml[: len(xml) // 2]})
@@ -171,6 +187,7 @@ def test_malformed_model_description(good, tmp_path, sandbox):
         load(bad, extract_to=sandbox)
 
 
+@pytest.mark.needs_cc
 def test_schema_invalid_model_description(good, tmp_path, sandbox):
     xml = model_xml(good[2]).replace('causality="input"', 'causality="sideways"', 1)
     bad = rewrite(good[2], tmp_path / "bad.fmu", replace={"modelDescription.xml": xml})
@@ -179,6 +196,7 @@ def test_schema_invalid_model_description(good, tmp_path, sandbox):
 
 
 @pytest.mark.parametrize("version", ["1.0", "3.5", "4.0"])
+@pytest.mark.needs_cc
 def test_unsupported_fmi_version(good, tmp_path, sandbox, version):
     xml = model_xml(good[2]).replace('fmiVersion="2.0"', f'fmiVersion="{version}"')
     bad = rewrite(good[2], tmp_path / "bad.fmu", replace={"modelDescription.xml": xml})
@@ -186,6 +204,7 @@ def test_unsupported_fmi_version(good, tmp_path, sandbox, version):
         load(bad, extract_to=sandbox)
 
 
+@pytest.mark.needs_cc
 def test_check_fmu_names_an_unsupported_fmi_version(good, tmp_path):
     xml = model_xml(good[3]).replace('fmiVersion="3.0"', 'fmiVersion="3.5"')
     bad = rewrite(good[3], tmp_path / "bad.fmu", replace={"modelDescription.xml": xml})
@@ -193,6 +212,7 @@ def test_check_fmu_names_an_unsupported_fmi_version(good, tmp_path):
         check_fmu(bad)
 
 
+@pytest.mark.needs_cc
 def test_check_fmu_reports_schema_problems_instead_of_raising(good, tmp_path):
     xml = model_xml(good[2]).replace('causality="input"', 'causality="sideways"', 1)
     bad = rewrite(good[2], tmp_path / "bad.fmu", replace={"modelDescription.xml": xml})
@@ -213,6 +233,7 @@ _E_INTEGER = 'causality="output" variability="discrete" initial="calculated">\n 
      r"as ModelExchange: state events \(numberOfEventIndicators = 3\)"),
     (_E_REAL, _E_INTEGER, r"inputs/outputs that are not Real/Float64: e \(Integer\)"),
 ])
+@pytest.mark.needs_cc
 def test_fmi2_features_outside_the_subset_are_refused_at_load(good, tmp_path, sandbox, old, new, words):
     xml = model_xml(good["lag"])
     assert old in xml
@@ -221,6 +242,7 @@ def test_fmi2_features_outside_the_subset_are_refused_at_load(good, tmp_path, sa
         load(bad, extract_to=sandbox)
 
 
+@pytest.mark.needs_cc
 def test_fmi3_array_input_is_refused_at_load(good, tmp_path, sandbox):
     xml = model_xml(good[3])
     start = xml.index('<Float64 name="tau[0]"')
@@ -231,6 +253,7 @@ def test_fmi3_array_input_is_refused_at_load(good, tmp_path, sandbox):
         load(bad, extract_to=sandbox)
 
 
+@pytest.mark.needs_cc
 def test_time_event_is_refused_at_load(tmp_path, sandbox):
     """The lag compiled with LAG_TIME_EVENT announces a time event at t = 1 s during initialization."""
     variant = package_fmu(tmp_path / "lag_te.fmu", (LAG_DIR / "modelDescription.xml").read_text(),
@@ -240,6 +263,7 @@ def test_time_event_is_refused_at_load(tmp_path, sandbox):
         load(variant, extract_to=sandbox)
 
 
+@pytest.mark.needs_cc
 def test_missing_interface(good, tmp_path, sandbox):
     xml = model_xml(good["lag"])
     start = xml.index("<CoSimulation")
@@ -250,22 +274,31 @@ def test_missing_interface(good, tmp_path, sandbox):
         cosimulate_system(me_only, p_ctrl, 0.1, 0.01, extract_to=sandbox)
 
 
+# the plant's FMI 2 binary for this machine, named as fmpy looks for it
+BINARY = f"binaries/{fmpy.platform}/dobkit_plant{fmpy.sharedLibraryExtension}"
+OTHER_PLATFORM, OTHER_BINARY = (("win64", "binaries/win64/dobkit_plant.dll") if fmpy.platform != "win64"
+                                else ("linux64", "binaries/linux64/dobkit_plant.so"))
+
+
+@pytest.mark.needs_cc
 def test_no_binary_for_this_platform(good, tmp_path, sandbox):
     with zipfile.ZipFile(good[2]) as zf:
-        so = zf.read("binaries/linux64/dobkit_plant.so")
-    bad = rewrite(good[2], tmp_path / "bad.fmu", drop=("binaries/linux64/dobkit_plant.so",),
-                  add={"binaries/win64/dobkit_plant.dll": so})
-    with pytest.raises(FMUPlatformError, match=r"binaries/linux64/dobkit_plant.so.*\['win64'\].*sources"):
+        so = zf.read(BINARY)
+    bad = rewrite(good[2], tmp_path / "bad.fmu", drop=(BINARY,),
+                  add={OTHER_BINARY: so})
+    with pytest.raises(FMUPlatformError, match=rf"{re.escape(BINARY)}.*\['{OTHER_PLATFORM}'\].*sources"):
         load(bad, extract_to=sandbox)
 
 
+@pytest.mark.needs_cc
 def test_corrupt_binary(good, tmp_path, sandbox):
-    bad = rewrite(good[2], tmp_path / "bad.fmu", replace={"binaries/linux64/dobkit_plant.so": b"\x7fELF junk"})
+    bad = rewrite(good[2], tmp_path / "bad.fmu", replace={BINARY: b"\x7fELF junk"})
     with pytest.raises(FMUError, match="cannot load the binary"):
         load(bad, extract_to=sandbox)
 
 
 @pytest.mark.parametrize("version, word", [(2, "GUID"), (3, "instantiationToken")])
+@pytest.mark.needs_cc
 def test_token_mismatch_is_detected_at_instantiation(good, tmp_path, sandbox, version, word):
     xml = model_xml(good[version])
     attr = "guid" if version == 2 else "instantiationToken"
@@ -279,6 +312,7 @@ def test_token_mismatch_is_detected_at_instantiation(good, tmp_path, sandbox, ve
 
 # --- variables and run-time errors ------------------------------------------------------------------------
 
+@pytest.mark.needs_cc
 def test_cosimulating_an_fmu_without_the_loop_variables(good, sandbox):
     scenario = make_scenario(simulation={"t_final": 0.1, "output_step": 0.01})
     with pytest.raises(FMUMissingVariablesError,
@@ -287,6 +321,7 @@ def test_cosimulating_an_fmu_without_the_loop_variables(good, sandbox):
     assert "q[0]" in err.value.missing
 
 
+@pytest.mark.needs_cc
 def test_require_variables_suggests_close_names(good, sandbox):
     with FMUInstance(good[2], extract_to=sandbox) as fmu:
         require_variables(fmu.model_description, ["q[0]", "tau[3]"], source="plant")
@@ -296,6 +331,7 @@ def test_require_variables_suggests_close_names(good, sandbox):
             require_variables(fmu.model_description, ["q[0]"], causality="input", source="plant")
 
 
+@pytest.mark.needs_cc
 def test_cosimulation_refuses_an_output_step_that_is_not_a_multiple_of_h(good, sandbox):
     scenario = make_scenario(simulation={"t_final": 0.1, "output_step": 0.005})
     with pytest.raises(CoSimulationError, match=r"output step \(0.005 s\) is not a whole multiple of the "
@@ -312,11 +348,13 @@ def test_export_checks_the_start_state(tmp_path, kw, words):
     assert not (tmp_path / "p.fmu").exists()
 
 
+@pytest.mark.needs_cc
 def test_unknown_start_value(good, sandbox):
     with pytest.raises(FMUModelDescriptionError, match=r"unknown variable\(s\) \['mass1'\]"):
         load(good[2], start_values={"mass1": 1.0}, extract_to=sandbox)
 
 
+@pytest.mark.needs_cc
 def test_error_status_during_a_cosimulation_step(good, sandbox):
     """The lag reports an error once |x| > x_max: the master stops, names time and status, returns nothing."""
     T, h, x_max = 0.5, 0.01, 0.5
@@ -328,6 +366,7 @@ def test_error_status_during_a_cosimulation_step(good, sandbox):
     assert t_cross - h - 1e-9 <= err.value.time <= t_cross + 1e-9
 
 
+@pytest.mark.needs_cc
 def test_non_finite_torque_fails_the_plant_step(good, sandbox):
     """The plant FMU refuses to continue with a non-finite state (FMI 3, co-simulation)."""
     scenario = make_scenario(simulation={"t_final": 0.1, "output_step": 0.01})
@@ -342,6 +381,7 @@ def test_non_finite_torque_fails_the_plant_step(good, sandbox):
     assert err.value.time == pytest.approx(0.05)
 
 
+@pytest.mark.needs_cc
 def test_error_status_in_model_exchange(good, sandbox):
     """A Model Exchange evaluation with a non-finite input raises with the time of the call."""
     sys = load(good[2], extract_to=sandbox)
@@ -374,6 +414,7 @@ def count_extractions(run) -> int:
         _EXTRACTIONS = None
 
 
+@pytest.mark.needs_cc
 def test_each_command_extracts_the_fmu_once(good, tmp_path):
     from dobkit.cli import main as dobkit_main
     scenario = make_scenario(simulation={"t_final": 0.02, "output_step": 0.01})

@@ -25,6 +25,13 @@ LAG_DIR = Path(__file__).parent / "fmu_lag"
 SINE = {"kind": "joint_sine", "amplitude": [0.3, 0.25, 0.03, 0.4], "omega": 3.0, "offset": [0.3, 1.2, 0.2, 0.1]}
 T_FINAL = 0.4
 
+# The zero-order-hold coupling is first order: max |q_cosim - q_monolithic| = C_j h per joint.  C_j (rad/s; m/s
+# for joint 3) was measured on the fixture's scenario with h = 4, 2 and 1 ms, where err / h stays within 2 % of
+# these values.  The tests allow 1.2 C_j h: handing the plant the torque one step late raises the joint-3 error
+# (with observer) and every joint's error (without) 2- to 3-fold, far past that.
+ERROR_PER_STEP = {True: np.array([0.076, 0.101, 0.0215, 0.277]),        # with the observer
+                  False: np.array([0.0135, 0.0178, 0.0249, 0.0284])}    # without
+
 
 def build_lag(path: Path) -> Path:
     """Package the hand-written lag FMU (FMI 2.0, ME + CS)."""
@@ -50,12 +57,16 @@ def monolithic(scenario):
     return blocks.simulate(scenario)
 
 
+def q_rows(resp) -> np.ndarray:
+    labels = list(resp.output_labels)
+    return np.asarray(resp.outputs)[[labels.index(f"q[{i}]") for i in range(4)]]
+
+
 def q_error(resp, ref) -> float:
-    labels = list(ref.output_labels)
-    rows = [labels.index(f"q[{i}]") for i in range(4)]
-    return float(np.max(np.abs(np.asarray(resp.outputs)[rows] - np.asarray(ref.outputs)[rows])))
+    return float(np.max(np.abs(q_rows(resp) - q_rows(ref))))
 
 
+@pytest.mark.needs_cc
 def test_convergence_study_finds_first_order(fmus, scenario, monolithic):
     steps = (4e-3, 2e-3, 1e-3)
     study = cosim_convergence(fmus[2], scenario, steps=steps)
@@ -64,7 +75,7 @@ def test_convergence_study_finds_first_order(fmus, scenario, monolithic):
     assert np.all(np.diff(errors, axis=1) > 0)                              # smaller h, smaller error
     assert abs(study["order"] - 1.0) < 0.15                                 # zero-order hold: first order
     assert all(abs(p - 1.0) < 0.15 for p in study["order_per_joint"].values())
-    assert errors[:, 0].max() < 5e-3
+    assert np.all(errors <= 1.2 * np.outer(ERROR_PER_STEP[True], sorted(steps))), errors
     # the h = 4 ms error, measured independently on the fixture's coarser 8 ms grid (a subset of 4 ms)
     resp = cosimulate(fmus[2], scenario, step=4e-3)
     assert list(resp.output_labels) == list(monolithic.output_labels)
@@ -81,35 +92,45 @@ def test_fit_order_recovers_a_known_slope():
     assert np.isnan(fit_order(h, np.column_stack([h, np.zeros(4)]))[1][1])   # zero errors: no slope
 
 
+@pytest.mark.needs_cc
 def test_fmi3_plant_cosimulates_like_fmi2(fmus, scenario):
     a = cosimulate(fmus[2], scenario, step=4e-3)
     b = cosimulate(fmus[3], scenario, step=4e-3)
     np.testing.assert_allclose(np.asarray(a.outputs), np.asarray(b.outputs), rtol=0, atol=1e-12)
 
 
+@pytest.mark.needs_cc
 def test_cosimulation_without_observer_and_metrics(fmus, scenario):
     resp = cosimulate(fmus[2], scenario, step=4e-3, observer=False)
     assert "d_hat[0]" not in resp.output_labels and "tau_dis[2]" in resp.output_labels
     ref = blocks.simulate(scenario, observer=False)
     assert list(resp.output_labels) == list(ref.output_labels)
-    assert q_error(resp, ref) < 2e-2
+    difference = q_rows(resp) - q_rows(ref)
+    assert np.all(np.abs(difference).max(axis=1) <= 1.2 * ERROR_PER_STEP[False] * 4e-3)
     m_cosim, m_ref = tracking_metrics(resp), tracking_metrics(ref)
     assert m_cosim.keys() == m_ref.keys()
-    np.testing.assert_allclose(m_cosim["rms_position_error"], m_ref["rms_position_error"], rtol=0.5, atol=1e-4)
+    # both RMS errors (Eq. 13) are taken against the same q_ref, so by the triangle inequality of the RMS norm
+    # they differ by at most the RMS of q_cosim - q_monolithic, joint by joint
+    bound = np.sqrt(np.mean(difference ** 2, axis=1))
+    gap = np.abs(np.array(m_cosim["rms_position_error"]) - np.array(m_ref["rms_position_error"]))
+    assert np.all(gap <= bound * (1 + 1e-9)), (gap, bound)
 
 
+@pytest.mark.needs_cc
 def test_scenario_parameters_reach_the_fmu(fmus, scenario):
     """The FMU was exported with the paper defaults; the scenario's heavier tool must be used."""
     heavy = make_scenario(trajectory=SINE, robot={"m4": 0.4},
                           simulation={"t_final": 0.2, "output_step": 0.008, "rtol": 1e-10, "atol": 1e-12})
     ref = blocks.simulate(heavy)
-    assert q_error(cosimulate(fmus[2], heavy, step=1e-3), ref) < 2e-3
+    # measured 2.2e-4 at h = 1 ms (joint 4; it doubles at 2 ms); the FMU's own parameters give 5e-3
+    assert q_error(cosimulate(fmus[2], heavy, step=1e-3), ref) < 2.6e-4
     assert q_error(cosimulate(fmus[2], heavy, step=1e-3, parameters="fmu"), ref) > q_error(
         cosimulate(fmus[2], heavy, step=1e-3), ref)
 
 
 # --- an independent FMU with an exact answer -------------------------------------------------------------
 
+@pytest.mark.needs_cc
 def test_lag_fmu_under_pi_control_follows_the_exact_zoh_recursion(tmp_path):
     lag = build_lag(tmp_path / "lag.fmu")
     T, kp, ki, r, h, n = 0.5, 2.0, 3.0, 1.5, 0.05, 40
@@ -133,6 +154,7 @@ def test_lag_fmu_under_pi_control_follows_the_exact_zoh_recursion(tmp_path):
     np.testing.assert_allclose(resp.outputs[labels.index("e")], np.array(us) - np.array(xs), atol=1e-12)
 
 
+@pytest.mark.needs_cc
 def test_lag_cosimulation_approaches_the_continuous_loop(tmp_path):
     """P control around the lag: the continuous loop is a lag with time constant T / (1 + k)."""
     lag = build_lag(tmp_path / "lag.fmu")
@@ -149,6 +171,7 @@ def test_lag_cosimulation_approaches_the_continuous_loop(tmp_path):
 
 # --- command line ----------------------------------------------------------------------------------------
 
+@pytest.mark.needs_cc
 def test_cli_export_check_and_cosim(tmp_path, capsys):
     fmu = tmp_path / "plant.fmu"
     assert dobkit_main(["fmu", "export", "--fmi-version", "3", "--out", str(fmu)]) == 0
@@ -168,6 +191,7 @@ def test_cli_export_check_and_cosim(tmp_path, capsys):
     assert metrics["cosimulation"]["step"] == 0.005 and metrics["cosimulation"]["fmi_version"] == 3
 
 
+@pytest.mark.needs_cc
 def test_cli_convergence_writes_json_and_a_labelled_figure(fmus, tmp_path, capsys):
     scenario_file = tmp_path / "s.toml"
     scenario_file.write_text(make_scenario(trajectory=SINE, simulation={"t_final": 0.1, "output_step": 0.01})

@@ -22,6 +22,8 @@ from fmu import FMUMissingVariablesError, check_fmu, export_plant, load
 from fmu.package import package_fmu
 
 LAG_DIR = Path(__file__).parent / "fmu_lag"
+
+pytestmark = pytest.mark.needs_cc          # every test builds the plant or the lag FMU
 SINE = {"kind": "joint_sine", "amplitude": [0.3, 0.25, 0.03, 0.4], "omega": 3.0, "offset": [0.3, 1.2, 0.2, 0.1]}
 
 

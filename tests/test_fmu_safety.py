@@ -20,6 +20,8 @@ from fmu.package import package_fmu
 
 LAG_DIR = Path(__file__).parent / "fmu_lag"
 
+pytestmark = pytest.mark.needs_cc          # every test builds the plant or the lag FMU
+
 
 @pytest.fixture(scope="module")
 def fmus(tmp_path_factory):

@@ -1,6 +1,8 @@
 """integrate_on_grid: solve_ivp's output-grid loop with a divergence check on every step."""
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
@@ -13,14 +15,28 @@ def _oscillator(t, x):
     return np.array([x[1], -4.0 * x[0] - 0.4 * x[1] + np.sin(3.0 * t)])
 
 
-@pytest.mark.parametrize("method", ["RK45", "DOP853", "Radau", "LSODA"])
+@pytest.mark.parametrize("method", ["RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA"])
 def test_states_equal_solve_ivp_on_the_same_grid(method):
+    """Every documented method name gives solve_ivp's own numbers for that name, bit for bit.
+
+    solve_ivp maps the name to its solver class itself, so a name bound to the wrong class
+    (or options passed differently) shows up as different states or a different call count.
+    """
     t = np.linspace(0.0, 5.0, 101)
     states, nfev = integrate_on_grid(_oscillator, [1.0, 0.0], t, method, rtol=1e-8, atol=1e-10, max_step=0.3)
     ref = solve_ivp(_oscillator, (0.0, 5.0), [1.0, 0.0], method=method, t_eval=t, rtol=1e-8, atol=1e-10,
                     max_step=0.3)
     np.testing.assert_array_equal(states, ref.y)
     assert nfev == ref.nfev
+
+
+def test_the_solver_table_holds_exactly_the_solve_ivp_methods():
+    assert sorted(SOLVERS) == ["BDF", "DOP853", "LSODA", "RK23", "RK45", "Radau"]
+    # the six give six different results on the same problem: no two names share a solver
+    t = np.linspace(0.0, 5.0, 11)
+    finals = {name: integrate_on_grid(_oscillator, [1.0, 0.0], t, name, rtol=1e-3, atol=1e-6)[0][:, -1].tobytes()
+              for name in SOLVERS}
+    assert len(set(finals.values())) == len(SOLVERS)
 
 
 def test_an_exponential_matches_its_closed_form():
@@ -72,15 +88,33 @@ def test_bad_arguments_are_named(kwargs, match):
         integrate_on_grid(**args)
 
 
-def test_progress_reaches_one_or_is_not_called_for_a_short_run():
-    seen = []
-    integrate_on_grid(_oscillator, [1.0, 0.0], np.linspace(0.0, 1.0, 11), progress=seen.append)
-    assert all(0.0 <= f <= 1.0 for f in seen)
+def test_progress_is_reported_after_a_slow_stretch_and_grows():
+    """The callback fires once 0.2 s of wall time have passed since the last report.
+
+    The right-hand side sleeps 0.25 s once, at its first call past t = 0.5 s of a 1 s run:
+    a report must follow at the end of that step (or of its retry, which starts less than
+    one ``max_step`` before the call).  No time is measured here: a sleep lasts at least as
+    long as asked, however slow the machine.
+    """
+    seen, slept = [], []
+
+    def slow_once(t, x):
+        if t > 0.5 and not slept:
+            slept.append(t)
+            time.sleep(0.25)
+        return _oscillator(t, x)
+
+    integrate_on_grid(slow_once, [1.0, 0.0], np.linspace(0.0, 1.0, 11), progress=seen.append, max_step=0.05)
+    assert slept and seen, "no progress report after a 0.25 s stretch"
+    assert seen[-1] >= slept[0] - 0.05
+    assert all(0.0 <= f <= 1.0 for f in seen) and seen == sorted(seen)
 
 
-def test_solver_names_are_scipy_solvers():
-    from scipy.integrate import OdeSolver
-    assert all(issubclass(cls, OdeSolver) for cls in SOLVERS.values())
+def test_progress_is_optional():
+    t = np.linspace(0.0, 1.0, 11)
+    with_none, _ = integrate_on_grid(_oscillator, [1.0, 0.0], t, progress=None)
+    with_callback, _ = integrate_on_grid(_oscillator, [1.0, 0.0], t, progress=lambda f: None)
+    np.testing.assert_array_equal(with_none, with_callback)
 
 
 def test_the_first_crossing_in_a_step_is_reported():

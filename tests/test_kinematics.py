@@ -1,4 +1,4 @@
-"""Forward, differential and inverse kinematics against the paper-notes formulas and finite differences."""
+"""Forward, differential and inverse kinematics against docs/model.md ("Kinematics") and finite differences."""
 from __future__ import annotations
 
 import numpy as np
@@ -38,7 +38,10 @@ def test_jacobian_equals_finite_differences(params):
 
 
 def test_jacobian_corrected_entries():
-    """paper-notes: J[0,1] = -a2 sin(t1+t2) (printed -l2 cos) and last row [1, 1, 0, -1] (printed [1,1,0,1])."""
+    """J[0,1] = -a2 sin(t1+t2) (printed -l2 cos) and last row [1, 1, 0, -1] (printed [1,1,0,1]).
+
+    docs/model.md, "The corrected Jacobian".
+    """
     for q in CONFIGS:
         J = jacobian(q, ODD)
         assert J[0, 1] == pytest.approx(-ODD.a2 * np.sin(q[0] + q[1]), abs=1e-15)

@@ -25,6 +25,7 @@ def _alive(pid: int) -> bool:
         return False
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", multiprocessing.get_all_start_methods())
 def test_pool_runs_work_with_every_start_method(method):
     # with "forkserver" a worker's parent is the fork server, not this process: it must not take that for an exit
@@ -39,6 +40,7 @@ def test_bad_pool_size():
         worker_pool(0)
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_workers_exit_when_their_parent_is_killed(tmp_path):
     pid_file = tmp_path / "pids"

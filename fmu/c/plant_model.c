@@ -196,7 +196,7 @@ int plant_parameters_valid(const PlantData *d, char *msg, unsigned long msg_size
         snprintf(msg, msg_size, "parameter n_substeps must be >= 1, got %d", d->n_substeps);
         return 0;
     }
-    /* M(q) positive definite for every theta2 (dobkit paper-notes) */
+    /* M(q) positive definite for every theta2 (docs/model.md, "Inertia matrix") */
     plant_constants(d->p, &k);
     margin = (k.k1 - k.k3) * (k.k3 - k.k5) - 0.25 * k.k2 * k.k2;
     if (!(k.k1 > k.k3 && k.k3 > k.k5 && margin > 0.0)) {
