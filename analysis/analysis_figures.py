@@ -1,6 +1,7 @@
 """Figures of the analyses (headless matplotlib; PNG and SVG; labelled axes with units).
 
-Each function takes the JSON-ready result of one analysis and writes
+Each function takes the typed result of one analysis (see
+:mod:`analysis.results`) and writes
 ``stem.png`` and ``stem.svg`` into a folder with
 :func:`analysis.figures.save_figure` (no dates or tool stamps, fixed SVG
 ids: the same numbers give the same bytes), returning the paths.
@@ -15,7 +16,12 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from .bandwidth import BandwidthOverview, BandwidthSurvey  # noqa: E402
 from .figures import save_figure  # noqa: E402
+from .frequency import FrequencyAnalysis  # noqa: E402
+from .gain_design import SimulationCheck  # noqa: E402
+from .linear import MismatchStudy, OperatingPoint  # noqa: E402
+from .studies import GainGridStudy, ObserverGainStudy  # noqa: E402
 from blocks.metrics import JOINT_LABELS  # noqa: E402
 
 __all__ = ["pole_figure", "mismatch_figure", "bandwidth_figure", "design_figure", "bode_figure",
@@ -32,7 +38,7 @@ def _finish(ax, title: str, which: str = "both", axis: str = "both", **legend) -
     ax.legend(**{"fontsize": 8, **legend})
 
 
-def pole_figure(operating_points: list, out_dir) -> list[Path]:
+def pole_figure(operating_points: list[OperatingPoint], out_dir) -> list[Path]:
     """Closed-loop poles: complex plane of the first operating point, decay rates of all of them."""
     fig, axes = plt.subplots(1, 2, figsize=(13, 4.8), constrained_layout=True,
                              gridspec_kw={"width_ratios": [1, 1.3]})
@@ -40,26 +46,26 @@ def pole_figure(operating_points: list, out_dir) -> list[Path]:
     first = operating_points[0]
     for key, marker, size, title in (("with_dob", "o", 9, "with observer"), ("without_dob", "s", 5, "without")):
         for block in ("plant", "observer"):
-            poles = np.array([m["pole"] for m in first[f"modes_{key}"] if m["block"] == block]).reshape(-1, 2)
+            poles = np.array([m.pole for m in first.modes(key == "with_dob") if m.block == block])
             if len(poles):
-                ax.plot(poles[:, 0], poles[:, 1], marker, ms=size, mfc="none", color=_BLOCK_COLORS[block],
+                ax.plot(poles.real, poles.imag, marker, ms=size, mfc="none", color=_BLOCK_COLORS[block],
                         label=f"{title}: {block} modes")
-    analytic = np.array([m["analytic_pole"] for m in first["modes_with_dob"]])
-    ax.plot(analytic[:, 0], analytic[:, 1], "x", ms=5, color="black", label="analytic split (perfect model)")
+    analytic = np.array([m.analytic_pole for m in first.modes_with_dob])
+    ax.plot(analytic.real, analytic.imag, "x", ms=5, color="black", label="analytic split (perfect model)")
     ax.set_xscale("symlog", linthresh=1.0)
     ax.axvline(0, color="gray", lw=0.8)
     ax.set_xlabel("real part (rad/s, symlog scale)")
     ax.set_ylabel("imaginary part (rad/s)")
-    _finish(ax, f"Poles at {first.get('label', 'the first operating point')}")
+    _finish(ax, f"Poles at {first.label or 'the first operating point'}")
     ax = axes[1]
     rows = []
     for op in operating_points:
-        for key, title in (("with_dob", "with"), ("without_dob", "without")):
-            rows.append((f"{op.get('label', '')}, {title}", op[f"modes_{key}"]))
+        for observer, title in ((True, "with"), (False, "without")):
+            rows.append((f"{op.label}, {title}", op.modes(observer)))
     for r, (label, modes) in enumerate(rows):
         for m in modes:
-            ax.plot(-m["pole"][0], r, "o", ms=7, mfc="none", color=_BLOCK_COLORS[m["block"]])
-            ax.plot(-m["analytic_pole"][0], r, "x", ms=4, color="black")
+            ax.plot(m.decay_rate_rad_s, r, "o", ms=7, mfc="none", color=_BLOCK_COLORS[m.block])
+            ax.plot(-m.analytic_pole.real, r, "x", ms=4, color="black")
     for block, color in _BLOCK_COLORS.items():
         ax.plot([], [], "o", mfc="none", color=color, label=f"{block} mode")
     ax.plot([], [], "x", color="black", label="analytic")
@@ -71,32 +77,32 @@ def pole_figure(operating_points: list, out_dir) -> list[Path]:
     return save_figure(fig, out_dir, "linear_poles")
 
 
-def mismatch_figure(mismatch: dict, out_dir) -> list[Path]:
+def mismatch_figure(mismatch: MismatchStudy, out_dir) -> list[Path]:
     """Spectral abscissa and pole decay rates against the nominal/true inertia ratio."""
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.6), constrained_layout=True)
     ax = axes[0]
-    for key, color, label in (("with_dob", "tab:orange", "with observer"), ("without_dob", "tab:blue", "without")):
-        scan = mismatch[key]["boundaries"]["scan"]
-        ax.plot(scan["factors"], scan["spectral_abscissa"], "o-", ms=3, color=color, label=label)
-        for b in mismatch[key]["boundaries"]["boundaries"]:
-            ax.axvline(b["factor"], color=color, ls="--", lw=1)
-            ax.annotate(f"boundary a = {b['factor']:.4g}", (b["factor"], 0), textcoords="offset points",
+    for observer, color, label in ((True, "tab:orange", "with observer"), (False, "tab:blue", "without")):
+        search = mismatch.loop(observer).boundaries
+        ax.plot(search.scan.factors, search.scan.spectral_abscissa, "o-", ms=3, color=color, label=label)
+        for a in search.factors:
+            ax.axvline(a, color=color, ls="--", lw=1)
+            ax.annotate(f"boundary a = {a:.4g}", (a, 0), textcoords="offset points",
                         xytext=(5, 10), fontsize=8, color=color)
     ax.axhline(0, color="black", lw=0.8)
-    lo, hi = min(mismatch["with_dob"]["sweep"]["factors"]), max(mismatch["with_dob"]["sweep"]["factors"])
+    lo, hi = min(mismatch.with_dob.sweep.factors), max(mismatch.with_dob.sweep.factors)
     ax.axvspan(lo, hi, color="green", alpha=0.08, label=f"pole sweep {lo:g}x-{hi:g}x")
     ax.set_xscale("log")
     ax.set_xlabel("scale a of the scenario's nominal inertia (a = 1: the scenario's model)")
     ax.set_ylabel("largest pole real part (rad/s)")
     _finish(ax, "Stability against inertia mismatch (> 0: unstable)")
     ax = axes[1]
-    for key, marker, label in (("with_dob", "o", "with observer"), ("without_dob", "s", "without")):
-        sweep = mismatch[key]["sweep"]
-        for a, poles in zip(sweep["factors"], sweep["poles"]):
-            re = -np.array([p[0] for p in poles])
+    for observer, marker, label in ((True, "o", "with observer"), (False, "s", "without")):
+        sweep = mismatch.loop(observer).sweep
+        for a, poles in zip(sweep.factors, sweep.poles):
+            re = -np.array([p.real for p in poles])
             ax.plot(np.full(re.shape, a), np.where(re > 0, re, np.nan), marker, ms=4, mfc="none",
-                    color="tab:orange" if key == "with_dob" else "tab:blue",
-                    label=label if a == sweep["factors"][0] else None)
+                    color="tab:orange" if observer else "tab:blue",
+                    label=label if a == sweep.factors[0] else None)
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("scale a of the scenario's nominal inertia")
@@ -105,17 +111,18 @@ def mismatch_figure(mismatch: dict, out_dir) -> list[Path]:
     return save_figure(fig, out_dir, "linear_mismatch")
 
 
-def bandwidth_figure(survey: dict, designed: dict | None, pd_slowest: float, out_dir) -> list[Path]:
+def bandwidth_figure(survey: BandwidthSurvey, designed: BandwidthOverview | None, pd_slowest: float,
+                     out_dir) -> list[Path]:
     """Eigenvalues of ``Y M^-1`` along theta2 (log scale) and the slowest mode's direction."""
-    theta2 = np.array(survey["theta2"])
-    eig = np.array(survey["eigenvalues"])
+    theta2 = np.array(survey.theta2)
+    eig = np.array(survey.eigenvalues)
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.8), constrained_layout=True)
     ax = axes[0]
     for k in range(eig.shape[1]):
         ax.plot(theta2, eig[:, k], lw=2.2 if k == 0 else 1.4,
                 label=f"mode {k + 1}: {eig[:, k].min():.3g}-{eig[:, k].max():.3g} rad/s")
     if designed is not None:
-        d_eig = np.array(designed["eigenvalues"])
+        d_eig = np.array(designed.eigenvalues)
         for k in range(d_eig.shape[1]):
             ax.plot(theta2, d_eig[:, k], color="black", ls="--", lw=1,
                     label="designed Y (all 4 modes)" if k == 0 else None)
@@ -125,7 +132,7 @@ def bandwidth_figure(survey: dict, designed: dict | None, pd_slowest: float, out
     ax.set_ylabel("observer mode decay rate (rad/s)")
     _finish(ax, "Eigenvalues of Y M^-1(q) along theta2 (solid: scenario gain Y)")
     ax = axes[1]
-    direction = np.array(survey["slowest_direction"])
+    direction = np.array(survey.slowest_direction)
     for j in range(4):
         ax.plot(theta2, direction[:, j], label=f"{JOINT_LABELS[j]} component")
     ax.set_xlabel("theta2 (rad)")
@@ -134,24 +141,24 @@ def bandwidth_figure(survey: dict, designed: dict | None, pd_slowest: float, out
     return save_figure(fig, out_dir, "observer_bandwidth")
 
 
-def design_figure(confirm: dict, out_dir) -> list[Path]:
+def design_figure(confirm: dict[str, SimulationCheck], out_dir) -> list[Path]:
     """Simulated estimation error and the Lyapunov certificate, paper gain against the designed gain."""
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.6), constrained_layout=True)
     colors = ["tab:red", "tab:blue", "tab:green", "tab:purple"]
     for (label, run), color in zip(confirm.items(), colors):
-        t = np.array(run["time"])
-        conv = run["convergence_time_s"]
-        axes[0].semilogy(t, np.maximum(run["error_norm"], 1e-300), color=color,
-                         label=f"{label}: within {100 * run['threshold']:g}% after "
+        t = np.array(run.time)
+        conv = run.convergence_time_s
+        axes[0].semilogy(t, np.maximum(run.error_norm, 1e-300), color=color,
+                         label=f"{label}: within {100 * run.threshold:g}% after "
                                + (f"{conv:.3g} s" if conv is not None else "- (not within the run)"))
-        if run["lyapunov_ratio"] is not None:         # None: no error at the start (V(0) = 0), nothing to bound
-            axes[1].semilogy(t, run["lyapunov_ratio"], color=color, label=f"{label}: V/V(0)")
-            axes[1].semilogy(t, np.exp(-2 * run["beta_run_rad_s"] * t), color=color, ls="--",
-                             label=f"{label}: bound exp(-2 beta t), beta = {run['beta_run_rad_s']:.3g} rad/s")
+        if run.lyapunov_ratio is not None:         # None: no error at the start (V(0) = 0), nothing to bound
+            axes[1].semilogy(t, run.lyapunov_ratio, color=color, label=f"{label}: V/V(0)")
+            axes[1].semilogy(t, np.exp(-2 * run.beta_run_rad_s * t), color=color, ls="--",
+                             label=f"{label}: bound exp(-2 beta t), beta = {run.beta_run_rad_s:.3g} rad/s")
     axes[0].set_xlabel("time (s)")
     axes[0].set_ylabel("|d - d_hat| (N m, N)")
     # below these levels the ODE solver's own error (rtol, atol) dominates the curves
-    top = max(max(r["error_norm"]) for r in confirm.values())
+    top = max(max(r.error_norm) for r in confirm.values())
     if top > 0:
         axes[0].set_ylim(1e-6 * top, None)
     axes[0].set_title("Estimation error in the nonlinear simulation", fontsize=10)
@@ -165,23 +172,23 @@ def design_figure(confirm: dict, out_dir) -> list[Path]:
     return save_figure(fig, out_dir, "observer_design")
 
 
-def bode_figure(freq: dict, out_dir, kind: str = "tracking") -> list[Path]:
+def bode_figure(freq: FrequencyAnalysis, out_dir, kind: str = "tracking") -> list[Path]:
     """Bode magnitude per joint of ``w[i] -> e[i]`` (``kind="tracking"``) or ``w[i] -> e_d[i]`` (``"estimation"``)."""
-    omega = np.array(freq["omega_rad_s"])
+    omega = np.array(freq.omega_rad_s)
     fig, axes = plt.subplots(2, 2, figsize=(12, 7), constrained_layout=True, sharex=True)
-    units = freq["units"][kind]
+    units = freq.units[kind]
     curves = [("with_dob", "tab:blue", "-", "with observer")]
     if kind == "tracking":
         curves.append(("without_dob", "tab:red", "--", "without observer"))
     for i, ax in enumerate(axes.flat):
         for key, color, ls, label in curves:
-            data = freq[f"{kind}_{key}"]
-            mag = np.maximum(np.array(data["magnitude"][i]), 1e-300)
+            data = getattr(freq, f"{kind}_{key}")
+            mag = np.maximum(np.array(data.magnitude[i]), 1e-300)
             ax.semilogx(omega, 20 * np.log10(mag), color=color, ls=ls, label=label)
-            m = data["metrics"][i]
-            if m["kind"] == "band-pass" and m["peak_rad_s"]:
-                ax.plot(m["peak_rad_s"], 20 * np.log10(m["peak_gain"]), "v", color=color)
-            for edge in m["band_3db_rad_s"]:
+            m = data.metrics[i]
+            if m.kind == "band-pass" and m.peak_rad_s:
+                ax.plot(m.peak_rad_s, 20 * np.log10(m.peak_gain), "v", color=color)
+            for edge in m.band_3db_rad_s:
                 if edge:
                     ax.axvline(edge, color=color, ls=":", lw=0.8)
         ax.set_title(_JOINT_TITLES[i], fontsize=10)
@@ -197,16 +204,16 @@ def bode_figure(freq: dict, out_dir, kind: str = "tracking") -> list[Path]:
     return save_figure(fig, out_dir, f"frequency_{kind}")
 
 
-def _grid_values(study: dict, metric: str, target: str = "tool_mm") -> tuple[np.ndarray, list]:
-    """Values of one metric over the grid (NaN where there is none) and the text of each cell."""
-    out = np.full((len(study["kp"]), len(study["kd"])), np.nan)
-    text = [["" for _ in study["kd"]] for _ in study["kp"]]
-    for i, row in enumerate(study["runs"]):
+def _grid_values(study: GainGridStudy, metric: str) -> tuple[np.ndarray, list]:
+    """Values of one tool-tip metric over the grid (NaN where there is none) and the text of each cell."""
+    out = np.full((len(study.kp), len(study.kd)), np.nan)
+    text = [["" for _ in study.kd] for _ in study.kp]
+    for i, row in enumerate(study.runs):
         for j, run in enumerate(row):
-            if not run.get("ok"):
+            if not run.ok:
                 text[i][j] = "failed"
                 continue
-            value = run[target][metric]
+            value = getattr(run.tool_mm, metric)
             if value is None:
                 text[i][j] = "not\nsettled"
             else:
@@ -215,7 +222,7 @@ def _grid_values(study: dict, metric: str, target: str = "tool_mm") -> tuple[np.
     return out, text
 
 
-def gain_study_figure(with_dob: dict, without_dob: dict, out_dir) -> list[Path]:
+def gain_study_figure(with_dob: GainGridStudy, without_dob: GainGridStudy, out_dir) -> list[Path]:
     """Heat maps of the tool-tip error metrics over the Kp x Kd grid, with and without the observer."""
     metrics = (("settling_time_s", "settling time (s)"), ("steady_state_error", "steady-state error (mm)"),
                ("peak_error", "peak error (mm)"), ("rms_error", "RMS error (mm)"))
@@ -231,42 +238,42 @@ def gain_study_figure(with_dob: dict, without_dob: dict, out_dir) -> list[Path]:
                     light = not np.isfinite(values[i, j]) or im.norm(values[i, j]) > 0.6
                     ax.text(j, i, text[i][j], ha="center", va="center", fontsize=8,
                             color="black" if light else "white")
-            ax.set_xticks(range(len(study["kd"])), [f"{v:g}" for v in study["kd"]])
-            ax.set_yticks(range(len(study["kp"])), [f"{v:g}" for v in study["kp"]])
+            ax.set_xticks(range(len(study.kd)), [f"{v:g}" for v in study.kd])
+            ax.set_yticks(range(len(study.kp)), [f"{v:g}" for v in study.kp])
             ax.set_xlabel("Kd (1/s)")
             ax.set_ylabel("Kp (1/s^2)")
             ax.set_title(f"tool tip {label}\n{title}", fontsize=9)
             fig.colorbar(im, ax=ax, shrink=0.8)
     fig.suptitle(f"Gain study: tool-tip error after a disturbance step on the held arm, over Kp x Kd "
-                 f"({with_dob['t_final_s']:g} s runs; settling: within {100 * with_dob['settle_fraction']:g}% band "
+                 f"({with_dob.t_final_s:g} s runs; settling: within {100 * with_dob.settle_fraction:g}% band "
                  "of the final value)")
     return save_figure(fig, out_dir, "study_gains")
 
 
-def observer_study_figure(study: dict, out_dir) -> list[Path]:
+def observer_study_figure(study: ObserverGainStudy, out_dir) -> list[Path]:
     """Trade-off of the observer gain: tool-tip error and torque noise against the slowest observer mode."""
-    labels, runs = study["labels"], study["runs"]
-    ok = [k for k, r in enumerate(runs) if r.get("ok") and study["slowest_mode_rad_s"][k] is not None]
-    base = runs[0]["torque_noise_rms"] if runs[0].get("ok") else None
+    labels, runs, slowest = study.labels, study.runs, study.slowest_mode_rad_s
+    ok = [k for k, r in enumerate(runs) if r.ok and slowest[k] is not None]
+    base = runs[0].torque_noise_rms if runs[0].ok else None
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.8), constrained_layout=True)
-    x = np.array([study["slowest_mode_rad_s"][k] for k in ok])
+    x = np.array([slowest[k] for k in ok])
     ax = axes[0]
     for metric, marker, name in (("peak_error", "o", "peak"), ("rms_error", "s", "RMS")):
-        y = [runs[k]["tool_mm"][metric] for k in ok]
+        y = [getattr(runs[k].tool_mm, metric) for k in ok]
         ax.plot(x, y, marker, label=f"{name} tool-tip error")
-        if runs[0].get("ok"):
-            ax.axhline(runs[0]["tool_mm"][metric], ls="--", lw=0.8, color=ax.lines[-1].get_color(),
+        if runs[0].ok:
+            ax.axhline(getattr(runs[0].tool_mm, metric), ls="--", lw=0.8, color=ax.lines[-1].get_color(),
                        label=f"{name}, no observer")
     for xi, k in zip(x, ok):
-        ax.annotate(labels[k], (xi, runs[k]["tool_mm"]["peak_error"]), textcoords="offset points", xytext=(4, 4),
+        ax.annotate(labels[k], (xi, runs[k].tool_mm.peak_error), textcoords="offset points", xytext=(4, 4),
                     fontsize=7)
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("slowest observer mode over the workspace (rad/s)")
     ax.set_ylabel("tool-tip error (mm)")
-    _finish(ax, f"What a faster observer buys (disturbance step, {study['t_final_s']:g} s runs)", fontsize=7)
+    _finish(ax, f"What a faster observer buys (disturbance step, {study.t_final_s:g} s runs)", fontsize=7)
     ax = axes[1]
-    noise = np.array([runs[k]["torque_noise_rms"] for k in ok])
+    noise = np.array([runs[k].torque_noise_rms for k in ok])
     units = ("N m", "N m", "N", "N m")
     for j in range(4):
         ratio = noise[:, j] / base[j] if base is not None else noise[:, j]
@@ -277,10 +284,10 @@ def observer_study_figure(study: dict, out_dir) -> list[Path]:
     ax.set_ylabel("torque noise / torque noise without observer (1)" if base is not None else "torque noise")
     _finish(ax, "What it costs: torque noise from measurement noise")
     ax = axes[2]
-    shown = [0] + ok if runs[0].get("ok") else ok
+    shown = [0] + ok if runs[0].ok else ok
     width = 0.8 / len(shown)
     for n, k in enumerate(shown):
-        ax.bar(np.arange(4) + n * width, runs[k]["torque_noise_rms"], width, label=labels[k])
+        ax.bar(np.arange(4) + n * width, runs[k].torque_noise_rms, width, label=labels[k])
     ax.set_xticks(np.arange(4) + 0.4 - width / 2, [f"joint {j + 1} ({u})" for j, u in enumerate(units)])
     ax.set_yscale("log")
     ax.set_ylabel("torque noise rms (N m, N)")

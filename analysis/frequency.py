@@ -18,6 +18,7 @@ functions"), for ``W`` the disturbance:
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import control as ct
 import numpy as np
@@ -26,9 +27,10 @@ from scipy.optimize import brentq, minimize_scalar
 from blocks import build_blocks, inertia
 from blocks.scenario import Scenario
 from .linear import equilibrium, hold_scenario, linearize_loop
+from .results import JsonResult
 
-__all__ = ["DEFAULT_OMEGA", "disturbance_loop", "frozen_response", "closed_form", "siso_metrics",
-           "frequency_analysis"]
+__all__ = ["DEFAULT_OMEGA", "ChannelMetrics", "ResponseSet", "FrequencyAnalysis", "disturbance_loop",
+           "frozen_response", "closed_form", "siso_metrics", "frequency_analysis"]
 
 DEFAULT_OMEGA = np.logspace(-2, 3, 501)     # rad/s
 
@@ -111,7 +113,73 @@ def _gain(sys: ct.StateSpace, out: int, inp: int, omega) -> np.ndarray:
     return np.abs(x @ C[out] + D[out, inp])
 
 
-def siso_metrics(sys: ct.StateSpace, out: int, inp: int, omega=DEFAULT_OMEGA) -> dict:
+@dataclass(frozen=True)
+class ChannelMetrics(JsonResult):
+    """DC gain, peak and -3 dB band of one channel (gains in its units: rad/(N m), m/N or 1).
+
+    Attributes
+    ----------
+    dc_gain : float
+        Signed gain at s = 0.
+    hf_gain : float
+        ``|D|``, the gain as the frequency goes to infinity.
+    peak_gain : float
+        The largest gain.
+    peak_rad_s : float or None
+        Where it is reached (rad/s): 0 for a low-pass channel without resonance; None when at infinity.
+    band_3db_rad_s : list of (float or None)
+        ``[low, high]`` edges of the -3 dB band; None for an edge at infinity.
+    kind : str
+        ``"low-pass"``, ``"high-pass"`` or ``"band-pass"``.
+    """
+
+    dc_gain: float
+    hf_gain: float
+    peak_gain: float
+    peak_rad_s: float | None
+    band_3db_rad_s: list[float | None]
+    kind: str
+
+
+@dataclass(frozen=True)
+class ResponseSet(JsonResult):
+    """The 4 diagonal channels ``w[i] -> y[i]`` of one response.
+
+    Attributes
+    ----------
+    magnitude : list of list of float
+        Per joint, ``|G_ii(j omega)|`` over the frequency grid.
+    metrics : list of ChannelMetrics
+        Per joint.
+    closed_form_max_rel_error : float
+        Largest relative distance from the closed form over the grid, all 16 channels.
+    """
+
+    magnitude: list[list[float]]
+    metrics: list[ChannelMetrics]
+    closed_form_max_rel_error: float
+
+
+@dataclass(frozen=True)
+class FrequencyAnalysis(JsonResult):
+    """Disturbance responses of the loop held at ``q0`` (rad, rad, m, rad) on the grid ``omega_rad_s`` (rad/s).
+
+    ``units`` gives the gain units of each joint's ``tracking`` and ``estimation`` channel.
+    """
+
+    q0: list[float]
+    omega_rad_s: list[float]
+    units: dict[str, list[str]]
+    tracking_with_dob: ResponseSet
+    estimation_with_dob: ResponseSet
+    tracking_without_dob: ResponseSet
+
+    def tracking(self, observer: bool) -> ResponseSet:
+        """Disturbance to tracking error, with (True) or without (False) the observer."""
+        return self.tracking_with_dob if observer else self.tracking_without_dob
+
+
+def siso_metrics(sys: ct.StateSpace, out: int, inp: int, omega=DEFAULT_OMEGA) -> ChannelMetrics:
     """DC gain, peak gain and its frequency, and the -3 dB band of one channel.
 
     The channel is classed by where its gain is largest: *low-pass* if the DC
@@ -122,11 +190,7 @@ def siso_metrics(sys: ct.StateSpace, out: int, inp: int, omega=DEFAULT_OMEGA) ->
 
     Returns
     -------
-    dict
-        ``dc_gain`` (signed), ``hf_gain``, ``peak_gain``, ``peak_rad_s`` (0 for a
-        low-pass channel without resonance, None when the peak is at infinity),
-        ``band_3db_rad_s`` and ``kind``; gains in the channel's units
-        (rad/(N m), m/N or dimensionless).
+    ChannelMetrics
     """
     omega = np.asarray(omega, dtype=float)
     A, B, C, D = (np.asarray(m) for m in (sys.A, sys.B, sys.C, sys.D))
@@ -166,21 +230,17 @@ def siso_metrics(sys: ct.StateSpace, out: int, inp: int, omega=DEFAULT_OMEGA) ->
     else:
         left, right = change[change < k], change[change >= k]
         band = [crossing(left[-1]) if left.size else 0.0, crossing(right[0]) if right.size else None]
-    return {"dc_gain": dc, "hf_gain": hf, "peak_gain": peak, "peak_rad_s": peak_w, "band_3db_rad_s": band,
-            "kind": kind}
+    return ChannelMetrics(dc_gain=dc, hf_gain=hf, peak_gain=peak, peak_rad_s=peak_w, band_3db_rad_s=band, kind=kind)
 
 
-def frequency_analysis(scenario: Scenario, q0, omega=DEFAULT_OMEGA, t: float = 0.0) -> dict:
+def frequency_analysis(scenario: Scenario, q0, omega=DEFAULT_OMEGA, t: float = 0.0) -> FrequencyAnalysis:
     """Bode magnitudes and per-joint metrics of ``w[i] -> e[i]`` (with/without) and ``w[i] -> e_d[i]``.
 
     Returns
     -------
-    dict
-        JSON-ready: ``omega_rad_s``; for ``tracking_with_dob``,
-        ``tracking_without_dob`` and ``estimation_with_dob``: ``magnitude``
-        (4 lists, diagonal channels), ``metrics`` (4 dicts of
-        :func:`siso_metrics`), ``closed_form_max_rel_error`` (largest relative
-        distance from the closed form over the grid, all 16 channels).
+    FrequencyAnalysis
+        ``tracking_with_dob``, ``estimation_with_dob`` and
+        ``tracking_without_dob`` (see :class:`ResponseSet`).
     """
     q0 = np.asarray(q0, dtype=float)
     omega = np.asarray(omega, dtype=float)
@@ -194,9 +254,9 @@ def frequency_analysis(scenario: Scenario, q0, omega=DEFAULT_OMEGA, t: float = 0
             full = np.moveaxis(np.asarray(lin(1j * omega))[offset:offset + 4, :, :], -1, 0)  # (n_omega, 4, 4)
             exact = closed_form(held, q0, omega, observer, output)
             scale = np.maximum(np.abs(exact), np.abs(exact).max(axis=(1, 2), keepdims=True) * 1e-9)
-            out[f"{name}_{key}"] = {
-                "magnitude": [np.abs(full[:, i, i]).tolist() for i in range(4)],
-                "metrics": [siso_metrics(lin, offset + i, i, omega) for i in range(4)],
-                "closed_form_max_rel_error": float(np.max(np.abs(full - exact) / scale)),
-            }
-    return out
+            out[f"{name}_{key}"] = ResponseSet(
+                magnitude=[np.abs(full[:, i, i]).tolist() for i in range(4)],
+                metrics=[siso_metrics(lin, offset + i, i, omega) for i in range(4)],
+                closed_form_max_rel_error=float(np.max(np.abs(full - exact) / scale)),
+            )
+    return FrequencyAnalysis(**out)

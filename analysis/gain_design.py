@@ -29,21 +29,197 @@ Certificate
 from __future__ import annotations
 
 import itertools
+import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from blocks import inertia
 from blocks.dynamics import inertia_derivative_theta2
 from blocks.parameters import RobotParameters
-from .bandwidth import observer_modes
+from .bandwidth import BandwidthOverview, observer_modes
+from .results import JsonResult
 
-__all__ = ["design_observer_gain", "inertia_partials", "decay_rates", "convergence_certificate",
-           "critical_speed", "lyapunov_function", "confirm_by_simulation"]
+__all__ = ["GainDesign", "Certificate", "CriticalSpeed", "SimulationCheck", "ObserverDesign", "design_observer_gain",
+           "inertia_partials", "decay_rates", "convergence_certificate", "critical_speed", "lyapunov_function",
+           "confirm_by_simulation"]
 
 _FD_STEP = 1e-6   # m or rad; joints other than theta2 (M does not depend on them for this arm)
 
 
-def design_observer_gain(params: RobotParameters, target_rad_s: float, q_grid, base=None, rtol: float = 1e-10) -> dict:
+@dataclass(frozen=True, eq=False)
+class GainDesign:
+    """A designed observer gain ``Y = base + c M_ref`` (see :func:`design_observer_gain`).
+
+    Attributes
+    ----------
+    Y, base, M_ref : numpy.ndarray, shape (4, 4)
+        The gain, the starting gain and the averaged nominal inertia (kg m^2/s for Y and base; kg m^2, kg for M_ref).
+    c_per_s : float
+        The factor ``c`` (1/s).
+    target_rad_s, slowest_rad_s, fastest_rad_s : float
+        The target and the slowest and fastest mode over the grid (rad/s).
+    """
+
+    Y: np.ndarray
+    base: np.ndarray
+    M_ref: np.ndarray
+    c_per_s: float
+    target_rad_s: float
+    slowest_rad_s: float
+    fastest_rad_s: float
+
+
+@dataclass(frozen=True)
+class Certificate(JsonResult):
+    """The convergence certificate of an observer gain over a grid and a joint-speed box.
+
+    Attributes
+    ----------
+    beta_min_rad_s : float
+        The smallest certified decay rate (rad/s); > 0 means exponential convergence at least that fast.
+    holds : bool
+        ``beta_min_rad_s > 0``.
+    q_at, dq_at : list of float
+        The configuration (rad, m) and box vertex (rad/s, m/s) where the minimum is.
+    beta_at_rest_min_rad_s : float
+        The same minimum with ``q' = 0`` (rad/s).
+    speed_bound : list of float
+        The box ``|q_j'| <= speed_bound[j]`` (rad/s, m/s).
+    configurations : int
+        Grid size.
+    """
+
+    beta_min_rad_s: float
+    holds: bool
+    q_at: list[float]
+    dq_at: list[float]
+    beta_at_rest_min_rad_s: float
+    speed_bound: list[float]
+    configurations: int
+
+
+@dataclass(frozen=True)
+class CriticalSpeed(JsonResult):
+    """The largest speed factor along a direction for which the certificate condition holds.
+
+    Attributes
+    ----------
+    speed_factor : float
+        ``s``; infinity when ``M`` does not change along the direction
+        (``unlimited`` True; JSON writes the infinity as null and reading restores it).
+    unlimited : bool
+    q_at, dq_direction_at : list of float or None
+        Where the factor is reached (None when unlimited or when ``Y`` is not positive definite).
+    speed_bound : list of float
+        ``s * direction`` (rad/s, m/s); infinite entries when unlimited (null in JSON).
+    """
+
+    speed_factor: float
+    unlimited: bool
+    q_at: list[float] | None
+    dq_direction_at: list[float] | None
+    speed_bound: list[float]
+
+    @classmethod
+    def from_dict(cls, data: dict, where: str | None = None) -> "CriticalSpeed":
+        """Read back, with the infinities of an unlimited speed restored (JSON holds them as null)."""
+        out = super().from_dict(data, where)
+        if out.unlimited:
+            out = cls(speed_factor=math.inf, unlimited=True, q_at=out.q_at, dq_direction_at=out.dq_direction_at,
+                      speed_bound=[math.inf if math.isnan(v) else v for v in out.speed_bound])
+        return out
+
+
+@dataclass(frozen=True)
+class SimulationCheck(JsonResult):
+    """One nonlinear run with an observer gain (see :func:`confirm_by_simulation`).
+
+    Attributes
+    ----------
+    Y : list of list of float
+        The gain (kg m^2/s).
+    time, error_norm : list of float
+        Output times (s) and ``|d - d_hat|`` (N m / N).
+    lyapunov_ratio : list of float or None
+        ``V(t) / V(0)``; None when ``V(0) = 0`` (no estimation error at the start).
+    beta_run_rad_s : float
+        The certificate over the states the run visited (rad/s).
+    convergence_time_s : float or None
+        First time after which the error stays within ``threshold`` of the largest disturbance; None: not within
+        the run.
+    rms_disturbance_error : list of float
+        Per joint (N m, N m, N, N m).
+    bound_holds : bool or None
+        ``V(t) <= V(0) exp(-2 beta_run t)`` on the output grid; None when ``V(0) = 0``.
+    threshold : float
+        Convergence level, fraction of ``largest_disturbance`` (N m / N).
+    largest_disturbance : float
+    disturbance_kind : str or list of str
+        The disturbance models of the run.
+    f_r : list of float
+        The run's step amplitudes (N m, N m, N, N m).
+    """
+
+    Y: list[list[float]]
+    time: list[float]
+    error_norm: list[float]
+    lyapunov_ratio: list[float] | None
+    beta_run_rad_s: float
+    convergence_time_s: float | None
+    rms_disturbance_error: list[float]
+    bound_holds: bool | None
+    threshold: float
+    largest_disturbance: float
+    disturbance_kind: str | list[str]
+    f_r: list[float]
+
+
+@dataclass(frozen=True)
+class ObserverDesign(JsonResult):
+    """The observer gain designed for a target bandwidth, its certificate and its check in simulation.
+
+    Attributes
+    ----------
+    target_rad_s : float
+        Target slowest mode (rad/s).
+    base_is_scenario_gain : bool
+        Whether the design starts from the scenario's gain.
+    Y, base, M_ref : list of list of float
+        See :class:`GainDesign`.
+    c_per_s, slowest_rad_s, fastest_rad_s : float
+        See :class:`GainDesign`.
+    speed_bound, reference_speed_max : list of float
+        The certificate's joint-speed box and the path's largest reference speed per joint (rad/s, m/s).
+    certificate_designed, certificate_scenario_gain : Certificate
+    critical_theta2_speed_designed, critical_theta2_speed_scenario_gain : CriticalSpeed
+        Along theta2 alone.
+    bandwidth_designed : BandwidthOverview
+        The observer modes with the designed gain.
+    simulation : dict of str to SimulationCheck
+        By gain label (``"scenario gain"``, ``"designed"``).
+    """
+
+    target_rad_s: float
+    base_is_scenario_gain: bool
+    Y: list[list[float]]
+    base: list[list[float]]
+    M_ref: list[list[float]]
+    c_per_s: float
+    slowest_rad_s: float
+    fastest_rad_s: float
+    speed_bound: list[float]
+    reference_speed_max: list[float]
+    certificate_designed: Certificate
+    certificate_scenario_gain: Certificate
+    critical_theta2_speed_designed: CriticalSpeed
+    critical_theta2_speed_scenario_gain: CriticalSpeed
+    bandwidth_designed: BandwidthOverview
+    simulation: dict[str, SimulationCheck]
+
+
+def design_observer_gain(params: RobotParameters, target_rad_s: float, q_grid, base=None,
+                         rtol: float = 1e-10) -> GainDesign:
     """Matrix observer gain whose slowest mode is at least ``target_rad_s`` on every configuration of a grid.
 
     ``Y = base + c M_ref`` with ``M_ref`` the nominal inertia averaged over the
@@ -68,9 +244,8 @@ def design_observer_gain(params: RobotParameters, target_rad_s: float, q_grid, b
 
     Returns
     -------
-    dict
-        ``Y`` (4x4, symmetric positive definite; kg m^2/s, kg/s), ``base``,
-        ``M_ref``, ``c_per_s`` and ``slowest_rad_s``/``fastest_rad_s`` over the grid.
+    GainDesign
+        ``Y`` is symmetric positive definite (kg m^2/s, kg/s).
     """
     if not (isinstance(target_rad_s, (int, float)) and np.isfinite(target_rad_s) and target_rad_s > 0):
         raise ValueError(f"target observer bandwidth must be a finite number > 0 rad/s, got {target_rad_s!r}")
@@ -96,8 +271,9 @@ def design_observer_gain(params: RobotParameters, target_rad_s: float, q_grid, b
         c_lo, c_hi = (c_lo, mid) if slowest(base + mid * M_ref) >= target_rad_s else (mid, c_hi)
     Y = base + c_hi * M_ref
     rates, _ = observer_modes(params, Y, q_grid)
-    return {"Y": Y, "base": base, "M_ref": M_ref, "c_per_s": c_hi, "target_rad_s": float(target_rad_s),
-            "slowest_rad_s": float(np.real(rates[:, 0]).min()), "fastest_rad_s": float(np.real(rates[:, -1]).max())}
+    return GainDesign(Y=Y, base=base, M_ref=M_ref, c_per_s=c_hi, target_rad_s=float(target_rad_s),
+                      slowest_rad_s=float(np.real(rates[:, 0]).min()),
+                      fastest_rad_s=float(np.real(rates[:, -1]).max()))
 
 
 def inertia_partials(params: RobotParameters, q) -> np.ndarray:
@@ -143,7 +319,7 @@ def decay_rates(params: RobotParameters, Y, q, dq) -> np.ndarray:
     return np.linalg.eigvalsh((K + np.swapaxes(K, -1, -2)) / 2.0)[..., 0]
 
 
-def convergence_certificate(params: RobotParameters, Y, q_grid, speed_bound) -> dict:
+def convergence_certificate(params: RobotParameters, Y, q_grid, speed_bound) -> Certificate:
     """Smallest certified decay rate of the observer error over a grid and a joint-velocity box.
 
     Certified at the grid's configurations, for a constant or slowly varying
@@ -162,11 +338,7 @@ def convergence_certificate(params: RobotParameters, Y, q_grid, speed_bound) -> 
 
     Returns
     -------
-    dict
-        ``beta_min_rad_s`` (the certificate; > 0 means exponential convergence
-        at least that fast for a slowly varying disturbance), ``holds``,
-        ``q_at``/``dq_at`` (where the minimum is), ``beta_at_rest_min_rad_s``
-        (the same with ``q' = 0``) and the inputs.
+    Certificate
     """
     bound = np.asarray(speed_bound, dtype=float)
     if bound.shape != (4,) or not np.all(np.isfinite(bound)) or np.any(bound < 0):
@@ -176,12 +348,12 @@ def convergence_certificate(params: RobotParameters, Y, q_grid, speed_bound) -> 
     beta = decay_rates(params, Y, q_grid[:, None, :], vertices[None, :, :])
     k, v = np.unravel_index(int(np.argmin(beta)), beta.shape)
     rest = decay_rates(params, Y, q_grid, np.zeros(4))
-    return {"beta_min_rad_s": float(beta[k, v]), "holds": bool(beta[k, v] > 0), "q_at": q_grid[k].tolist(),
-            "dq_at": vertices[v].tolist(), "beta_at_rest_min_rad_s": float(rest.min()),
-            "speed_bound": bound.tolist(), "configurations": int(len(q_grid))}
+    return Certificate(beta_min_rad_s=float(beta[k, v]), holds=bool(beta[k, v] > 0), q_at=q_grid[k].tolist(),
+                       dq_at=vertices[v].tolist(), beta_at_rest_min_rad_s=float(rest.min()),
+                       speed_bound=bound.tolist(), configurations=int(len(q_grid)))
 
 
-def critical_speed(params: RobotParameters, Y, q_grid, direction) -> dict:
+def critical_speed(params: RobotParameters, Y, q_grid, direction) -> CriticalSpeed:
     """Largest ``s`` for which the condition holds (``beta > 0``) on the grid for all ``|q'| <= s * direction``.
 
     ``beta > 0`` exactly when ``S = (Y + Y')/2 - M'/2`` is positive definite.  At a
@@ -192,11 +364,7 @@ def critical_speed(params: RobotParameters, Y, q_grid, direction) -> dict:
 
     Returns
     -------
-    dict
-        ``speed_factor`` (``s``; ``inf`` if ``M`` does not change along
-        ``direction``, with ``unlimited`` True: JSON writes the infinity as
-        null), ``q_at`` and ``dq_direction_at`` where it is reached,
-        and the resulting joint speeds ``speed_bound`` (rad/s, m/s).
+    CriticalSpeed
     """
     direction = np.asarray(direction, dtype=float)
     if direction.shape != (4,) or not np.all(np.isfinite(direction)) or np.any(direction < 0):
@@ -204,21 +372,20 @@ def critical_speed(params: RobotParameters, Y, q_grid, direction) -> dict:
     Y = np.asarray(Y, dtype=float)
     w, V = np.linalg.eigh((Y + Y.T) / 2.0)
     if w.min() <= 0:
-        return {"speed_factor": 0.0, "unlimited": False, "q_at": None, "dq_direction_at": None,
-                "speed_bound": [0.0] * 4}
+        return CriticalSpeed(speed_factor=0.0, unlimited=False, q_at=None, dq_direction_at=None,
+                             speed_bound=[0.0] * 4)
     Ys_inv_half = V @ np.diag(w ** -0.5) @ V.T
     q_grid = np.atleast_2d(np.asarray(q_grid, dtype=float))
     vertices = np.array(list(itertools.product((-1.0, 1.0), repeat=4))) * direction
     M_dot = np.einsum("njab,vj->nvab", inertia_partials(params, q_grid), vertices)
     lam = np.linalg.eigvalsh(Ys_inv_half @ (M_dot / 2.0) @ Ys_inv_half)[..., -1]
     if lam.max() <= 0:
-        return {"speed_factor": float("inf"), "unlimited": True, "q_at": None, "dq_direction_at": None,
-                "speed_bound": [float("inf") if d > 0 else 0.0 for d in direction]}
+        return CriticalSpeed(speed_factor=math.inf, unlimited=True, q_at=None, dq_direction_at=None,
+                             speed_bound=[math.inf if d > 0 else 0.0 for d in direction])
     k, v = np.unravel_index(int(np.argmax(lam)), lam.shape)
     s = 1.0 / float(lam[k, v])
-    return {"speed_factor": s, "unlimited": False, "q_at": q_grid[k].tolist(),
-            "dq_direction_at": vertices[v].tolist(),
-            "speed_bound": (s * direction).tolist()}
+    return CriticalSpeed(speed_factor=s, unlimited=False, q_at=q_grid[k].tolist(),
+                         dq_direction_at=vertices[v].tolist(), speed_bound=(s * direction).tolist())
 
 
 def lyapunov_function(params: RobotParameters, Y, q, e_d) -> np.ndarray:
@@ -228,7 +395,7 @@ def lyapunov_function(params: RobotParameters, Y, q, e_d) -> np.ndarray:
 
 
 def confirm_by_simulation(scenario, gains, t_final: float | None = None, threshold: float = 0.02,
-                          disturbance: dict | None = None) -> dict:
+                          disturbance: dict | None = None) -> dict[str, SimulationCheck]:
     """Simulate the scenario with each observer gain and measure how fast the estimate converges.
 
     Parameters
@@ -248,15 +415,10 @@ def confirm_by_simulation(scenario, gains, t_final: float | None = None, thresho
 
     Returns
     -------
-    dict
-        Per label: ``time`` (s), ``error_norm`` (``|d - d_hat|``, N m / N),
-        ``lyapunov_ratio`` (``V(t)/V(0)``; None when ``V(0) = 0``, that is when
-        the disturbance is zero at the start), ``beta_run_rad_s`` (the
-        certificate over the states the run visited), ``convergence_time_s``
-        (first time after which ``max_i |d_i - d_hat_i| <= threshold * max_t
-        max_i |d_i(t)|``; None if never within the run), ``rms_disturbance_error``
-        per joint and ``bound_holds`` (``V(t) <= V(0) exp(-2 beta_run t)`` on the
-        output grid, 0.1% slack for the solver; None when ``V(0) = 0``).
+    dict of str to SimulationCheck
+        Per label.  Convergence: ``max_i |d_i - d_hat_i| <= threshold * max_t
+        max_i |d_i(t)|`` from then on; the bound is checked with 0.1% slack
+        for the solver, down to ``V = 1e-10 V(0)``.
     """
     from blocks import simulate
     from .linear import first_seconds
@@ -289,11 +451,12 @@ def confirm_by_simulation(scenario, gains, t_final: float | None = None, thresho
             holds = bool(np.all(V[meaningful] <= bound[meaningful] * 1.001))
         else:
             ratio, holds = None, None
-        out[str(label)] = {
-            "Y": Ymat.tolist(), "time": t.tolist(), "error_norm": np.linalg.norm(e_d, axis=1).tolist(),
-            "lyapunov_ratio": ratio, "beta_run_rad_s": beta, "convergence_time_s": conv,
-            "rms_disturbance_error": np.sqrt(np.mean(e_d ** 2, axis=0)).tolist(),
-            "bound_holds": holds, "threshold": threshold, "largest_disturbance": scale,
-            "disturbance_kind": variant.data["disturbance"]["kind"], "f_r": list(variant.disturbance.f_r),
-        }
+        kind = variant.data["disturbance"]["kind"]
+        out[str(label)] = SimulationCheck(
+            Y=Ymat.tolist(), time=t.tolist(), error_norm=np.linalg.norm(e_d, axis=1).tolist(),
+            lyapunov_ratio=ratio, beta_run_rad_s=beta, convergence_time_s=conv,
+            rms_disturbance_error=np.sqrt(np.mean(e_d ** 2, axis=0)).tolist(),
+            bound_holds=holds, threshold=float(threshold), largest_disturbance=scale,
+            disturbance_kind=kind if isinstance(kind, str) else list(kind),
+            f_r=[float(v) for v in variant.disturbance.f_r])
     return out

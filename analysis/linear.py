@@ -31,11 +31,14 @@ from scipy.optimize import brentq, linear_sum_assignment
 
 from blocks import closed_loop, external_disturbance, gravity, inertia
 from blocks.scenario import Scenario
+from .results import JsonResult
 
 __all__ = [
-    "INERTIA_PARAMETERS", "EQUILIBRIUM_RTOL", "Mode", "hold_scenario", "first_seconds", "scale_nominal_inertia",
-    "equilibrium", "linearize_loop", "loop_modes", "analytic_poles", "match_poles", "operating_point_analysis",
-    "spectral_abscissa", "mismatch_sweep", "stability_boundaries", "mismatch_polynomial",
+    "INERTIA_PARAMETERS", "EQUILIBRIUM_RTOL", "Mode", "ModeResult", "OperatingPoint", "MismatchSweep",
+    "StabilityBoundary", "BoundaryScan", "BoundarySearch", "MismatchLoop", "MismatchStudy", "hold_scenario",
+    "first_seconds", "scale_nominal_inertia", "equilibrium", "linearize_loop", "loop_modes", "analytic_poles",
+    "match_poles", "operating_point_analysis", "spectral_abscissa", "mismatch_sweep", "stability_boundaries",
+    "mismatch_analysis", "mismatch_polynomial",
 ]
 
 # Scaling all of these by ``a`` scales the inertia matrix M(q) (and gravity) by ``a``.
@@ -215,11 +218,122 @@ class Mode:
     block: str
     participation: dict
 
-    def as_dict(self) -> dict:
-        """JSON-ready form."""
-        return {"pole": [self.pole.real, self.pole.imag], "wn_rad_s": self.wn, "zeta": self.zeta,
-                "time_constant_s": (-1.0 / self.pole.real) if self.pole.real < 0 else None,
-                "block": self.block, "participation": self.participation}
+
+@dataclass(frozen=True)
+class ModeResult(JsonResult):
+    """One mode of a linearized loop, paired with its partner in the analytic split.
+
+    Attributes
+    ----------
+    pole : complex
+        Eigenvalue (rad/s); JSON ``[re, im]``.
+    wn_rad_s, zeta : float
+        Natural frequency (rad/s) and damping ratio (see :class:`Mode`).
+    time_constant_s : float or None
+        ``-1 / Re(pole)`` (s); None when the mode does not decay (``Re(pole) >= 0``).
+    block : str
+        Owning block by participation, ``"plant"`` or ``"observer"``.
+    participation : dict of str to float
+        Share of the mode in each block's states.
+    analytic_block : str
+        The block whose analytic pole set holds its partner.
+    analytic_pole : complex
+        The partner in the analytic split (rad/s).
+    rel_error_vs_analytic : float
+        ``|pole - partner| / |partner|``.
+    """
+
+    pole: complex
+    wn_rad_s: float
+    zeta: float
+    time_constant_s: float | None
+    block: str
+    participation: dict[str, float]
+    analytic_block: str
+    analytic_pole: complex
+    rel_error_vs_analytic: float
+
+    @property
+    def decay_rate_rad_s(self) -> float:
+        """``-Re(pole)`` (rad/s; < 0: growing)."""
+        return -self.pole.real
+
+
+@dataclass(frozen=True)
+class OperatingPoint(JsonResult):
+    """The held loop linearized at one configuration, with and without the observer.
+
+    Attributes
+    ----------
+    label : str
+        What the configuration is (for example "reference at t = 0").
+    q0 : list of float
+        Held configuration (rad, rad, m, rad).
+    t_s : float
+        Time (s) at which the disturbance is evaluated.
+    poles_with_dob, poles_without_dob : list of complex
+        Poles of the linearized loop (rad/s), slowest first; JSON ``[re, im]`` each.
+    modes_with_dob, modes_without_dob : list of ModeResult
+        The same poles with damping, owner and analytic partner.
+    q_equilibrium_with_dob, q_equilibrium_without_dob : list of float
+        Where the held arm rests (rad, rad, m, rad).
+    disturbance_at_rest : list of float
+        The lumped disturbance the held arm feels (N m, N m, N, N m), read from the observer's estimate at rest.
+    max_rel_error_with_dob, max_rel_error_without_dob : float
+        Largest relative distance of the linearized poles from the analytic split (meaningful on a perfect model).
+    attribution_agrees_with_dob, attribution_agrees_without_dob : bool
+        Whether every mode was attributed to the block whose analytic set holds its partner.
+    analytic_with_dob, analytic_without_dob : dict of str to list of complex
+        The analytic poles by block (see :func:`analytic_poles`).
+    perfect_model : bool
+        Whether the scenario's nominal model is the true one.
+    """
+
+    label: str
+    q0: list[float]
+    t_s: float
+    poles_with_dob: list[complex]
+    modes_with_dob: list[ModeResult]
+    q_equilibrium_with_dob: list[float]
+    disturbance_at_rest: list[float]
+    max_rel_error_with_dob: float
+    attribution_agrees_with_dob: bool
+    analytic_with_dob: dict[str, list[complex]]
+    poles_without_dob: list[complex]
+    modes_without_dob: list[ModeResult]
+    q_equilibrium_without_dob: list[float]
+    max_rel_error_without_dob: float
+    attribution_agrees_without_dob: bool
+    analytic_without_dob: dict[str, list[complex]]
+    perfect_model: bool
+
+    def poles(self, observer: bool) -> list[complex]:
+        """The poles of the loop with (True) or without (False) the observer."""
+        return self.poles_with_dob if observer else self.poles_without_dob
+
+    def modes(self, observer: bool) -> list[ModeResult]:
+        """The modes of the loop with (True) or without (False) the observer."""
+        return self.modes_with_dob if observer else self.modes_without_dob
+
+    def q_equilibrium(self, observer: bool) -> list[float]:
+        """Where the held arm rests with (True) or without (False) the observer."""
+        return self.q_equilibrium_with_dob if observer else self.q_equilibrium_without_dob
+
+    def max_rel_error(self, observer: bool) -> float:
+        """Largest relative distance from the analytic split, with or without the observer."""
+        return self.max_rel_error_with_dob if observer else self.max_rel_error_without_dob
+
+    def attribution_agrees(self, observer: bool) -> bool:
+        """Whether the mode owners agree with the analytic split, with or without the observer."""
+        return self.attribution_agrees_with_dob if observer else self.attribution_agrees_without_dob
+
+    def largest_real_part(self, observer: bool) -> float:
+        """The spectral abscissa (rad/s; >= 0: not asymptotically stable)."""
+        return max(p.real for p in self.poles(observer))
+
+    def pd_slowest_analytic_rad_s(self) -> float:
+        """Slowest decay rate of the analytic PD roots ``s^2 + Kd s + Kp`` (rad/s)."""
+        return min(-m.analytic_pole.real for m in self.modes_without_dob)
 
 
 def loop_modes(lin: ct.StateSpace, loop) -> list[Mode]:
@@ -293,11 +407,7 @@ def match_poles(numeric, analytic) -> tuple[np.ndarray, np.ndarray]:
     return order, np.abs(numeric - partner) / np.maximum(np.abs(partner), 1e-300)
 
 
-def _poles_json(poles) -> list:
-    return [[float(p.real), float(p.imag)] for p in poles]
-
-
-def operating_point_analysis(scenario: Scenario, q0, t: float = 0.0) -> dict:
+def operating_point_analysis(scenario: Scenario, q0, t: float = 0.0, label: str = "") -> OperatingPoint:
     """Linearize the held loop at ``q0`` with and without the observer; compare with the analytic split.
 
     Parameters
@@ -308,23 +418,18 @@ def operating_point_analysis(scenario: Scenario, q0, t: float = 0.0) -> dict:
         Held configuration (rad, rad, m, rad).
     t : float
         Time (s) at which the disturbance is evaluated.
+    label : str
+        What the configuration is, kept with the result.
 
     Returns
     -------
-    dict
-        JSON-ready: ``q0``, ``poles_with_dob``, ``poles_without_dob`` (``[re, im]``
-        in rad/s, slowest first), ``modes_with_dob``/``modes_without_dob`` (see
-        :class:`Mode`), ``q_equilibrium_*`` (where the arm rests),
-        ``disturbance_at_rest`` (the lumped disturbance on the held arm, N m / N,
-        read from the observer's estimate at equilibrium),
-        ``analytic`` poles and the largest relative distance of the
-        linearized poles from them (``max_rel_error_*``; meaningful on a
-        perfect model), and ``attribution_agrees``: whether every mode was
-        attributed to the block whose analytic set contains its partner.
+    OperatingPoint
+        Poles and modes (slowest first), where the arm rests, the disturbance
+        the held arm feels, and the comparison with the analytic split.
     """
     q0 = _joint_vector(q0, "q0")
     held = hold_scenario(scenario, q0)
-    out = {"q0": q0.tolist(), "t_s": float(t)}
+    out = {"label": str(label), "q0": q0.tolist(), "t_s": float(t)}
     for observer, key in ((True, "with_dob"), (False, "without_dob")):
         loop = closed_loop(held, observer=observer)
         x_eq = equilibrium(loop, t)
@@ -338,11 +443,13 @@ def operating_point_analysis(scenario: Scenario, q0, t: float = 0.0) -> dict:
         flat = np.concatenate(list(analytic.values()))
         owner = np.concatenate([[name] * len(v) for name, v in analytic.items()])
         order, rel = match_poles(numeric, flat)
-        out[f"poles_{key}"] = _poles_json(numeric)
-        out[f"modes_{key}"] = [m.as_dict() | {"analytic_block": str(owner[order[k]]),
-                                             "analytic_pole": [float(flat[order[k]].real), float(flat[order[k]].imag)],
-                                             "rel_error_vs_analytic": float(rel[k])}
-                               for k, m in enumerate(modes)]
+        out[f"poles_{key}"] = [complex(p) for p in numeric]
+        out[f"modes_{key}"] = [
+            ModeResult(pole=m.pole, wn_rad_s=m.wn, zeta=m.zeta,
+                       time_constant_s=(-1.0 / m.pole.real) if m.pole.real < 0 else None, block=m.block,
+                       participation=m.participation, analytic_block=str(owner[order[k]]),
+                       analytic_pole=complex(flat[order[k]]), rel_error_vs_analytic=float(rel[k]))
+            for k, m in enumerate(modes)]
         out[f"q_equilibrium_{key}"] = q_eq
         if observer:
             # at rest the estimate equals the lumped disturbance the held arm feels
@@ -351,9 +458,8 @@ def operating_point_analysis(scenario: Scenario, q0, t: float = 0.0) -> dict:
             out["disturbance_at_rest"] = [float(y[labels_out.index(f"d_hat[{i}]")]) for i in range(4)]
         out[f"max_rel_error_{key}"] = float(rel.max())
         out[f"attribution_agrees_{key}"] = bool(all(m.block == owner[order[k]] for k, m in enumerate(modes)))
-        out[f"analytic_{key}"] = {name: _poles_json(v) for name, v in analytic.items()}
-    out["perfect_model"] = scenario.nominal == scenario.robot
-    return out
+        out[f"analytic_{key}"] = {name: [complex(p) for p in v] for name, v in analytic.items()}
+    return OperatingPoint(**out, perfect_model=scenario.nominal == scenario.robot)
 
 
 def spectral_abscissa(scenario: Scenario, q0, observer: bool, t: float = 0.0) -> tuple[float, np.ndarray]:
@@ -364,26 +470,103 @@ def spectral_abscissa(scenario: Scenario, q0, observer: bool, t: float = 0.0) ->
     return float(poles.real.max()), poles
 
 
-def mismatch_sweep(scenario: Scenario, q0, factors, observer: bool, t: float = 0.0) -> dict:
-    """Closed-loop poles as the nominal inertia is scaled by each factor (``M^ = a M``).
+@dataclass(frozen=True)
+class MismatchSweep(JsonResult):
+    """Closed-loop poles against the scale ``a`` of the nominal inertia (``M^ = a M``).
 
-    Returns
-    -------
-    dict
-        ``factors``, ``poles`` (per factor, ``[re, im]`` list), ``spectral_abscissa``
-        (rad/s per factor).
+    Attributes
+    ----------
+    factors : list of float
+        The factors ``a``.
+    poles : list of list of complex
+        Per factor, the poles (rad/s), slowest first; JSON ``[re, im]`` each.
+    spectral_abscissa : list of float
+        Per factor, the largest real part (rad/s; > 0: unstable).
     """
+
+    factors: list[float]
+    poles: list[list[complex]]
+    spectral_abscissa: list[float]
+
+
+@dataclass(frozen=True)
+class StabilityBoundary(JsonResult):
+    """A factor ``a`` at which the loop changes stability; ``stable_side`` is ``"above"`` or ``"below"`` it."""
+
+    factor: float
+    stable_side: str
+
+
+@dataclass(frozen=True)
+class BoundaryScan(JsonResult):
+    """The logarithmic scan of a boundary search: factors and their spectral abscissa (rad/s)."""
+
+    factors: list[float]
+    spectral_abscissa: list[float]
+
+
+@dataclass(frozen=True)
+class BoundarySearch(JsonResult):
+    """Where the loop changes stability over a range of inertia factors.
+
+    Attributes
+    ----------
+    boundaries : list of StabilityBoundary
+        In increasing ``a``; empty when the stability does not change in the range.
+    range : list of float
+        ``[low, high]`` searched.
+    scan : BoundaryScan
+    """
+
+    boundaries: list[StabilityBoundary]
+    range: list[float]
+    scan: BoundaryScan
+
+    @property
+    def factors(self) -> list[float]:
+        """The boundary factors ``a``."""
+        return [b.factor for b in self.boundaries]
+
+    @property
+    def stable_at_low_end(self) -> bool:
+        """Whether the loop is stable at the low end of the range."""
+        return self.scan.spectral_abscissa[0] < 0
+
+
+@dataclass(frozen=True)
+class MismatchLoop(JsonResult):
+    """The pole sweep and the stability-boundary search of one loop."""
+
+    sweep: MismatchSweep
+    boundaries: BoundarySearch
+
+
+@dataclass(frozen=True)
+class MismatchStudy(JsonResult):
+    """Robustness to inertia mismatch at ``q0`` (rad, rad, m, rad), with and without the observer."""
+
+    q0: list[float]
+    with_dob: MismatchLoop
+    without_dob: MismatchLoop
+
+    def loop(self, observer: bool) -> MismatchLoop:
+        """The loop with (True) or without (False) the observer."""
+        return self.with_dob if observer else self.without_dob
+
+
+def mismatch_sweep(scenario: Scenario, q0, factors, observer: bool, t: float = 0.0) -> MismatchSweep:
+    """Closed-loop poles as the nominal inertia is scaled by each factor (``M^ = a M``)."""
     factors = [float(a) for a in factors]
     poles, abscissa = [], []
     for a in factors:
         alpha, p = spectral_abscissa(scale_nominal_inertia(scenario, a), q0, observer, t)
-        poles.append(_poles_json(p[np.argsort(-p.real)]))
+        poles.append([complex(z) for z in p[np.argsort(-p.real)]])
         abscissa.append(alpha)
-    return {"factors": factors, "poles": poles, "spectral_abscissa": abscissa}
+    return MismatchSweep(factors=factors, poles=poles, spectral_abscissa=abscissa)
 
 
 def stability_boundaries(scenario: Scenario, q0, observer: bool, low: float = 0.02, high: float = 50.0,
-                         points: int = 25, rtol: float = 1e-6, t: float = 0.0) -> dict:
+                         points: int = 25, rtol: float = 1e-6, t: float = 0.0) -> BoundarySearch:
     """Inertia scale factors ``a`` (``M^ = a M``) at which the linearized loop changes stability.
 
     A logarithmic scan of ``points`` factors over ``[low, high]`` brackets the
@@ -394,10 +577,9 @@ def stability_boundaries(scenario: Scenario, q0, observer: bool, low: float = 0.
 
     Returns
     -------
-    dict
-        ``boundaries``: list of ``{"factor", "stable_side"}`` (``"above"`` if the
-        loop is stable for factors just above the boundary); ``scan``:
-        ``{"factors", "spectral_abscissa"}``; ``range``: ``[low, high]``.
+    BoundarySearch
+        ``boundaries`` (each with the side on which the loop is stable), the
+        ``range`` searched and the ``scan``.
     """
     if not (0 < low < high) or points < 2:
         raise ValueError(f"need 0 < low < high and points >= 2, got low={low}, high={high}, points={points}")
@@ -413,9 +595,19 @@ def stability_boundaries(scenario: Scenario, q0, observer: bool, low: float = 0.
             continue
         root = brentq(lambda log_a: alpha(math.exp(log_a)), math.log(grid[k]), math.log(grid[k + 1]),
                       xtol=rtol / 2.0, rtol=4 * np.finfo(float).eps)
-        boundaries.append({"factor": math.exp(root), "stable_side": "below" if values[k] < 0 else "above"})
-    return {"boundaries": boundaries, "range": [float(low), float(high)],
-            "scan": {"factors": grid.tolist(), "spectral_abscissa": [float(v) for v in values]}}
+        boundaries.append(StabilityBoundary(factor=math.exp(root), stable_side="below" if values[k] < 0 else "above"))
+    return BoundarySearch(boundaries=boundaries, range=[float(low), float(high)],
+                          scan=BoundaryScan(factors=grid.tolist(), spectral_abscissa=[float(v) for v in values]))
+
+
+def mismatch_analysis(scenario: Scenario, q0, factors, low: float = 0.02, high: float = 50.0,
+                      points: int = 25) -> MismatchStudy:
+    """The pole sweep over ``factors`` and the boundary search over ``[low, high]``, with and without the observer."""
+    q0 = _joint_vector(q0, "q0")
+    loops = {key: MismatchLoop(sweep=mismatch_sweep(scenario, q0, factors, observer),
+                               boundaries=stability_boundaries(scenario, q0, observer, low, high, points=points))
+             for observer, key in ((True, "with_dob"), (False, "without_dob"))}
+    return MismatchStudy(q0=q0.tolist(), **loops)
 
 
 def mismatch_polynomial(M, Y, kp, kd, factor: float, observer: bool = True) -> np.ndarray:

@@ -3,24 +3,26 @@
 :func:`run_analysis` computes every analysis (pure, no files);
 :func:`analyze` writes ``analysis.json`` and the figures; :func:`write_report`
 also simulates the paper's experiment (Figures 4-8, Table 3) and writes one
-``report.html`` (text and HTML in :mod:`analysis.report_html`) with
-every figure embedded as base64 PNG and a plain-language summary computed
-from the numbers.  Nothing in the output depends on the time of day or the
-number of worker processes, so the same scenario and settings give the same
-numbers.
+``report.html`` (numbers and statements in :mod:`analysis.report_view`,
+laid out by the templates of :mod:`analysis.report_html`) with every figure
+embedded as base64 PNG and a plain-language summary computed from the
+numbers.  Nothing in the output depends on the time of day or the number of
+worker processes, so the same scenario and settings give the same numbers.
 
-JSON files are strict JSON (``allow_nan=False``): a value that is not a finite
-number (NaN, infinity) is written as ``null``; where infinity has a meaning
-(an unlimited critical speed) the result carries a flag saying so.
+The result is an :class:`AnalysisResult` (typed results, see
+:mod:`analysis.results`); ``analysis.json`` is its
+:meth:`~analysis.results.JsonResult.to_json` text and reads back with
+:meth:`AnalysisResult.from_json`.  JSON files are strict JSON: a value that is
+not a finite number (NaN, infinity) is written as ``null``; where infinity has
+a meaning (an unlimited critical speed) the result carries a flag saying so.
 """
 from __future__ import annotations
 
+import contextlib
 import copy
-import json
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Callable
 
 import control as ct
 import numpy as np
@@ -30,20 +32,22 @@ from blocks import load_scenario
 from blocks.scenario import Scenario
 from blocks.gains import validated_gain
 from . import analysis_figures as figs
-from .bandwidth import DEFAULT_POINTS, along_trajectory, bandwidth_survey, observer_modes, workspace_grid
-from .frequency import frequency_analysis
-from .gain_design import (confirm_by_simulation, convergence_certificate, critical_speed, design_observer_gain)
-from .linear import mismatch_sweep, operating_point_analysis, stability_boundaries
+from .bandwidth import DEFAULT_POINTS, BandwidthSurvey, along_trajectory, bandwidth_survey, observer_modes, \
+    workspace_grid
+from .frequency import FrequencyAnalysis, frequency_analysis
+from .gain_design import (ObserverDesign, confirm_by_simulation, convergence_certificate, critical_speed,
+                          design_observer_gain)
+from .linear import MismatchStudy, OperatingPoint, mismatch_analysis, operating_point_analysis
 from blocks.metrics import signal
 from blocks.outputs import staged_output
-from .report_html import plain_summary, render_html
-from .studies import gain_grid_study, observer_gain_study
+from blocks.progress import ProgressCallback as Progress
+from .report_html import render_html
+from .report_view import plain_summary
+from .results import JsonResult, omitted_if_none, strict_json
+from .studies import Studies, gain_grid_study, observer_gain_study
 
-__all__ = ["AnalysisSettings", "QUICK_SETTINGS", "run_analysis", "write_figures", "analyze", "write_report",
-           "plain_summary", "render_html", "json_text",
-           "experiment_metrics"]
-
-Progress = Callable[[str, float], None]
+__all__ = ["AnalysisSettings", "QUICK_SETTINGS", "ScenarioInfo", "AnalysisResult", "run_analysis", "write_figures",
+           "analyze", "write_report", "plain_summary", "render_html", "json_text", "experiment_metrics"]
 
 # The design check and the studies replace the scenario's disturbance models by the constant step f_r (Eq. 4,
 # with the scenario's f_r): the convergence certificate is about a constant or slowly varying disturbance, and a
@@ -124,9 +128,14 @@ QUICK_SETTINGS = AnalysisSettings(mismatch_factors=(0.5, 1.0, 2.0), boundary_poi
                                   noise_t_final=0.3)
 
 
-def _report(progress: Progress | None, stage: str, fraction: float = 0.0) -> None:
+@contextlib.contextmanager
+def _stage(progress: Progress | None, name: str):
+    """Report a stage's start (fraction 0) and, when it completes, its end (fraction 1)."""
     if progress is not None:
-        progress(stage, fraction)
+        progress(name, 0.0)
+    yield
+    if progress is not None:
+        progress(name, 1.0)
 
 
 def _t_final(value, scenario: Scenario):
@@ -137,140 +146,168 @@ def _t_final(value, scenario: Scenario):
     return min(max(round(float(value) / step), 1) * step, scenario.simulation.t_final)
 
 
+@dataclass(frozen=True)
+class ScenarioInfo(JsonResult):
+    """The scenario an analysis ran on: its name, where it came from, its description and complete TOML text."""
+
+    name: str
+    source: str
+    description: str
+    toml: str
+    perfect_model: bool
+
+
+@dataclass(frozen=True)
+class AnalysisResult(JsonResult):
+    """Every analysis of a scenario (what ``analysis.json`` holds).
+
+    Attributes
+    ----------
+    dobkit_version, python_control_version : str
+    scenario : ScenarioInfo
+    settings : AnalysisSettings
+        Written without ``workers`` (it does not change results).
+    observer_bandwidth : BandwidthSurvey
+        With ``along_trajectory`` set.
+    operating_points : list of OperatingPoint
+        The reference at t = 0 and at mid-run, and where the slowest observer
+        mode is slowest and fastest over the workspace.
+    mismatch : MismatchStudy
+        At the reference at t = 0.
+    observer_design : ObserverDesign
+    frequency : FrequencyAnalysis
+        At the reference at t = 0.
+    studies : Studies
+        ``observer.slowest_mode_rad_s`` set.
+    figures : list of str or None
+        Files written with the result (left out of the JSON while None).
+    """
+
+    dobkit_version: str
+    python_control_version: str
+    scenario: ScenarioInfo
+    settings: AnalysisSettings
+    observer_bandwidth: BandwidthSurvey
+    operating_points: list[OperatingPoint]
+    mismatch: MismatchStudy
+    observer_design: ObserverDesign
+    frequency: FrequencyAnalysis
+    studies: Studies
+    figures: list[str] | None = omitted_if_none()
+
+
 def run_analysis(scenario: Scenario | str = "paper", settings: AnalysisSettings = AnalysisSettings(),
-                 progress: Progress | None = None) -> dict:
-    """Every analysis of the issue "Analysis and reports", JSON-ready.
+                 progress: Progress | None = None) -> AnalysisResult:
+    """Every analysis of the issue "Analysis and reports".
+
+    Parameters
+    ----------
+    scenario : Scenario or str
+    settings : AnalysisSettings
+    progress : callable, optional
+        ``progress(stage, fraction)``: each stage reports 0 when it starts and 1 when it is done.
 
     Returns
     -------
-    dict
-        ``operating_points`` (linearized poles and modes, see
-        :func:`~analysis.linear.operating_point_analysis`), ``mismatch``,
-        ``observer_bandwidth``, ``observer_design``, ``frequency``, ``studies``,
-        plus ``scenario``, ``settings`` and versions.
+    AnalysisResult
     """
     s = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     q_grid, _ = workspace_grid(settings.workspace_points)
-    out = {"dobkit_version": __version__, "python_control_version": ct.__version__,
-           "scenario": {"name": s.name, "source": s.source, "description": s.data.get("description", ""),
-                        "toml": s.to_toml(), "perfect_model": s.nominal == s.robot},
-           "settings": settings.as_dict()}
+    info = ScenarioInfo(name=s.name, source=s.source, description=s.data.get("description", ""), toml=s.to_toml(),
+                        perfect_model=s.nominal == s.robot)
 
-    _report(progress, "observer bandwidth")
-    survey = bandwidth_survey(s, points=settings.workspace_points)
-    survey["along_trajectory"] = along_trajectory(s)
-    out["observer_bandwidth"] = survey
+    with _stage(progress, "observer bandwidth"):
+        survey = replace(bandwidth_survey(s, points=settings.workspace_points), along_trajectory=along_trajectory(s))
 
-    _report(progress, "linearized loop")
-    q_start = np.asarray(s.trajectory.evaluate(0.0)[0], dtype=float)
-    q_mid = np.asarray(s.trajectory.evaluate(s.simulation.t_final / 2.0)[0], dtype=float)
-    points = [("reference at t = 0", q_start), ("reference at mid-run", q_mid),
-              ("slowest observer mode (workspace)", np.array(survey["slowest_rad_s"]["q_at_min"])),
-              ("slowest observer mode at its fastest (workspace)", np.array(survey["slowest_rad_s"]["q_at_max"]))]
-    out["operating_points"] = [{"label": label, **operating_point_analysis(s, q)} for label, q in points]
+    with _stage(progress, "linearized loop"):
+        q_start = np.asarray(s.trajectory.evaluate(0.0)[0], dtype=float)
+        q_mid = np.asarray(s.trajectory.evaluate(s.simulation.t_final / 2.0)[0], dtype=float)
+        points = [("reference at t = 0", q_start), ("reference at mid-run", q_mid),
+                  ("slowest observer mode (workspace)", np.array(survey.slowest_rad_s.q_at_min)),
+                  ("slowest observer mode at its fastest (workspace)", np.array(survey.slowest_rad_s.q_at_max))]
+        operating_points = [operating_point_analysis(s, q, label=label) for label, q in points]
 
-    _report(progress, "inertia mismatch")
-    out["mismatch"] = {"q0": q_start.tolist()}
-    for observer, key in ((True, "with_dob"), (False, "without_dob")):
-        out["mismatch"][key] = {
-            "sweep": mismatch_sweep(s, q_start, settings.mismatch_factors, observer),
-            "boundaries": stability_boundaries(s, q_start, observer, *settings.boundary_range,
-                                               points=settings.boundary_points),
-        }
+    with _stage(progress, "inertia mismatch"):
+        mismatch = mismatch_analysis(s, q_start, settings.mismatch_factors, *settings.boundary_range,
+                                     points=settings.boundary_points)
 
-    _report(progress, "observer gain design")
-    t_ref = np.linspace(0.0, s.simulation.t_final, 2001)
-    speed = np.max(np.abs(s.trajectory.evaluate(t_ref)[1]), axis=0)
-    bound = np.maximum(settings.speed_margin * speed, settings.min_speed)
-    Y_s = s.observer_gain
-    # lift the scenario's gain when it is symmetric positive semidefinite (then no mode gets slower)
-    base = Y_s if np.allclose(Y_s, Y_s.T) and np.linalg.eigvalsh((Y_s + Y_s.T) / 2).min() >= 0 else None
-    design = design_observer_gain(s.nominal, settings.observer_target_rad_s, q_grid, base=base)
-    Y_design = design["Y"]
-    out["observer_design"] = {
-        "target_rad_s": settings.observer_target_rad_s, "base_is_scenario_gain": base is not None,
-        "Y": Y_design.tolist(), "base": design["base"].tolist(), "M_ref": design["M_ref"].tolist(),
-        "c_per_s": design["c_per_s"],
-        "slowest_rad_s": design["slowest_rad_s"], "fastest_rad_s": design["fastest_rad_s"],
-        "speed_bound": bound.tolist(), "reference_speed_max": speed.tolist(),
-        "certificate_designed": convergence_certificate(s.nominal, Y_design, q_grid, bound),
-        "certificate_scenario_gain": convergence_certificate(s.nominal, s.observer_gain, q_grid, bound),
-        "critical_theta2_speed_designed": critical_speed(s.nominal, Y_design, q_grid, [0, 1, 0, 0]),
-        "critical_theta2_speed_scenario_gain": critical_speed(s.nominal, s.observer_gain, q_grid, [0, 1, 0, 0]),
-        "bandwidth_designed": {k: v for k, v in bandwidth_survey(s, Y=Y_design, points=settings.workspace_points)
-                               .items() if k in ("theta2", "eigenvalues", "slowest_rad_s", "ranges_rad_s")},
-    }
-    _report(progress, "observer gain design: simulation", 0.5)
-    out["observer_design"]["simulation"] = confirm_by_simulation(
-        s, [("scenario gain", s.observer_gain), ("designed", Y_design)], t_final=_t_final(settings.design_t_final, s),
-        disturbance=STEP_DISTURBANCE)
+    with _stage(progress, "observer gain design"):
+        t_ref = np.linspace(0.0, s.simulation.t_final, 2001)
+        speed = np.max(np.abs(s.trajectory.evaluate(t_ref)[1]), axis=0)
+        bound = np.maximum(settings.speed_margin * speed, settings.min_speed)
+        Y_s = s.observer_gain
+        # lift the scenario's gain when it is symmetric positive semidefinite (then no mode gets slower)
+        base = Y_s if np.allclose(Y_s, Y_s.T) and np.linalg.eigvalsh((Y_s + Y_s.T) / 2).min() >= 0 else None
+        design = design_observer_gain(s.nominal, settings.observer_target_rad_s, q_grid, base=base)
+        Y_design = design.Y
+        designed = dict(
+            target_rad_s=settings.observer_target_rad_s, base_is_scenario_gain=base is not None,
+            Y=Y_design.tolist(), base=design.base.tolist(), M_ref=design.M_ref.tolist(), c_per_s=design.c_per_s,
+            slowest_rad_s=design.slowest_rad_s, fastest_rad_s=design.fastest_rad_s,
+            speed_bound=bound.tolist(), reference_speed_max=speed.tolist(),
+            certificate_designed=convergence_certificate(s.nominal, Y_design, q_grid, bound),
+            certificate_scenario_gain=convergence_certificate(s.nominal, s.observer_gain, q_grid, bound),
+            critical_theta2_speed_designed=critical_speed(s.nominal, Y_design, q_grid, [0, 1, 0, 0]),
+            critical_theta2_speed_scenario_gain=critical_speed(s.nominal, s.observer_gain, q_grid, [0, 1, 0, 0]),
+            bandwidth_designed=bandwidth_survey(s, Y=Y_design, points=settings.workspace_points).overview(),
+        )
+    with _stage(progress, "observer gain design: simulation"):
+        simulation = confirm_by_simulation(
+            s, [("scenario gain", s.observer_gain), ("designed", Y_design)],
+            t_final=_t_final(settings.design_t_final, s), disturbance=STEP_DISTURBANCE)
+    observer_design = ObserverDesign(**designed, simulation=simulation)
 
-    _report(progress, "frequency responses")
-    out["frequency"] = frequency_analysis(s, q_start)
+    with _stage(progress, "frequency responses"):
+        frequency = frequency_analysis(s, q_start)
 
-    studies = {}
+    grids = {}
     for observer, key in ((True, "gains_with_dob"), (False, "gains_without_dob")):
-        _report(progress, f"gain study {'with' if observer else 'without'} observer")
-        studies[key] = gain_grid_study(s, settings.kp_values, settings.kd_values, observer, settings.study_t_final,
-                                       settings.workers)
-    _report(progress, "observer gain and noise study")
-    gains = [(f"Y = {v:g} I" + (" (scenario)" if np.allclose(v * np.eye(4), s.observer_gain) else ""), v)
-             for v in settings.observer_values]
-    if not any(label.endswith("(scenario)") for label, _ in gains):
-        gains.insert(0, ("scenario Y (scenario)", s.observer_gain))
-    gains.append(("designed Y", Y_design))
-    obs = observer_gain_study(s, gains, t_final=settings.study_t_final, noise_t_final=settings.noise_t_final,
-                              workers=settings.workers)
-    obs["slowest_mode_rad_s"] = [None] + [
-        float(np.real(observer_modes(s.nominal, validated_gain(g, "observer"), q_grid)[0][:, 0]).min())
-        for _, g in gains]
-    studies["observer"] = obs
-    out["studies"] = studies
-    _report(progress, "analysis done", 1.0)
-    return out
+        with _stage(progress, f"gain study {'with' if observer else 'without'} observer"):
+            grids[key] = gain_grid_study(s, settings.kp_values, settings.kd_values, observer, settings.study_t_final,
+                                         settings.workers)
+    with _stage(progress, "observer gain and noise study"):
+        gains = [(f"Y = {v:g} I" + (" (scenario)" if np.allclose(v * np.eye(4), s.observer_gain) else ""), v)
+                 for v in settings.observer_values]
+        if not any(label.endswith("(scenario)") for label, _ in gains):
+            gains.insert(0, ("scenario Y (scenario)", s.observer_gain))
+        gains.append(("designed Y", Y_design))
+        obs = observer_gain_study(s, gains, t_final=settings.study_t_final, noise_t_final=settings.noise_t_final,
+                                  workers=settings.workers)
+        slowest = [None] + [
+            float(np.real(observer_modes(s.nominal, validated_gain(g, "observer"),
+                                         q_grid)[0][:, 0]).min())
+            for _, g in gains]
+    return AnalysisResult(
+        dobkit_version=__version__, python_control_version=ct.__version__, scenario=info, settings=settings,
+        observer_bandwidth=survey, operating_points=operating_points, mismatch=mismatch,
+        observer_design=observer_design, frequency=frequency,
+        studies=Studies(**grids, observer=replace(obs, slowest_mode_rad_s=slowest)))
 
 
-def write_figures(result: dict, out_dir) -> list[Path]:
+def write_figures(result: AnalysisResult, out_dir) -> list[Path]:
     """Write every analysis figure of a :func:`run_analysis` result into ``out_dir`` (PNG and SVG)."""
-    pd_slowest = min(-m["analytic_pole"][0] for m in result["operating_points"][0]["modes_without_dob"])
-    design = result["observer_design"]
+    design = result.observer_design
     files = []
-    files += figs.pole_figure(result["operating_points"], out_dir)
-    files += figs.mismatch_figure(result["mismatch"], out_dir)
-    files += figs.bandwidth_figure(result["observer_bandwidth"], design["bandwidth_designed"], pd_slowest, out_dir)
-    files += figs.design_figure(design["simulation"], out_dir)
-    files += figs.bode_figure(result["frequency"], out_dir, "tracking")
-    files += figs.bode_figure(result["frequency"], out_dir, "estimation")
-    files += figs.gain_study_figure(result["studies"]["gains_with_dob"], result["studies"]["gains_without_dob"],
-                                    out_dir)
-    files += figs.observer_study_figure(result["studies"]["observer"], out_dir)
+    files += figs.pole_figure(result.operating_points, out_dir)
+    files += figs.mismatch_figure(result.mismatch, out_dir)
+    files += figs.bandwidth_figure(result.observer_bandwidth, design.bandwidth_designed,
+                                   result.operating_points[0].pd_slowest_analytic_rad_s(), out_dir)
+    files += figs.design_figure(design.simulation, out_dir)
+    files += figs.bode_figure(result.frequency, out_dir, "tracking")
+    files += figs.bode_figure(result.frequency, out_dir, "estimation")
+    files += figs.gain_study_figure(result.studies.gains_with_dob, result.studies.gains_without_dob, out_dir)
+    files += figs.observer_study_figure(result.studies.observer, out_dir)
     return files
 
 
-def _plain(value):
-    """``value`` with numpy types made plain and every non-finite float replaced by None (JSON null)."""
-    if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _plain(value.tolist())
-    if isinstance(value, (bool, np.bool_)):
-        return bool(value)
-    if isinstance(value, (np.integer, int)):
-        return int(value)
-    if isinstance(value, (np.floating, float)):
-        return float(value) if math.isfinite(value) else None
-    return value
-
-
-def json_text(result: dict) -> str:
-    """Strict JSON text of a result: NaN and infinities written as null, never as non-standard constants."""
-    return json.dumps(_plain(result), indent=1, allow_nan=False) + "\n"
+def json_text(result) -> str:
+    """Strict JSON text of a result or of plain data: NaN and infinities written as null, never as non-standard
+    constants."""
+    return strict_json(result)
 
 
 def analyze(scenario: Scenario | str = "paper", out_dir=None, settings: AnalysisSettings = AnalysisSettings(),
-            progress: Progress | None = None) -> tuple[dict, list[Path]]:
+            progress: Progress | None = None) -> tuple[AnalysisResult, list[Path]]:
     """Run every analysis and write ``out_dir/analysis.json`` and the figures (PNG and SVG).
 
     Parameters
@@ -284,16 +321,16 @@ def analyze(scenario: Scenario | str = "paper", out_dir=None, settings: Analysis
 
     Returns
     -------
-    (dict, list of pathlib.Path)
-        The result (as written to ``analysis.json``) and the files written.
+    (AnalysisResult, list of pathlib.Path)
+        The result (as written to ``analysis.json``, with ``figures`` set) and the files written.
     """
     target = Path(out_dir)
     staging = staged_output(target)          # refuses a non-empty folder before any work is done
     result = run_analysis(scenario, settings, progress)
     with staging as stage:
-        names = [p.name for p in write_figures(result, stage)]
-        result["figures"] = names
-        (stage / "analysis.json").write_text(json_text(result))
+        with _stage(progress, "writing figures"):
+            result = replace(result, figures=[p.name for p in write_figures(result, stage)])
+        (stage / "analysis.json").write_text(result.to_json())
     return result, sorted(target.iterdir())
 
 
@@ -336,12 +373,11 @@ def write_report(scenario: Scenario | str = "paper", out_dir=None, settings: Ana
     experiment = run_experiment(s, None, progress=progress, figures=False)
     metrics = experiment_metrics(experiment)
     result = run_analysis(s, settings, progress)
-    with staging as stage:
-        _report(progress, "writing figures and report")
+    with staging as stage, _stage(progress, "writing figures and report"):
         fig_dir = stage / "figures"
         files = paper_figures(experiment.with_dob, experiment.without_dob, fig_dir) + write_figures(result, fig_dir)
-        result["figures"] = [f"figures/{p.name}" for p in files]
-        (stage / "analysis.json").write_text(json_text(result))
+        result = replace(result, figures=[f"figures/{p.name}" for p in files])
+        (stage / "analysis.json").write_text(result.to_json())
         (stage / "metrics.json").write_text(json_text(metrics))
         pngs = {p.stem: p for p in files if p.suffix == ".png"}
         sweeps = tuple(html_section(folder) for folder in sweep_summaries)

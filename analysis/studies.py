@@ -35,15 +35,19 @@ noise through ``Y``.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from blocks import SimulationError, closed_loop, forward_kinematics, simulate
 from blocks.scenario import Scenario
 from blocks.workers import worker_pool
 from .linear import equilibrium, hold_scenario
+from .results import JsonResult, omitted_if_none
 from blocks.metrics import signal
 
-__all__ = ["DEFAULT_NOISE", "SETTLE_FRACTION", "FINAL_WINDOW", "step_scenario", "run_metrics", "signal_metrics",
+__all__ = ["DEFAULT_NOISE", "SETTLE_FRACTION", "FINAL_WINDOW", "SignalMetrics", "RunMetrics", "StudyRun",
+           "GainGridStudy", "ObserverGainStudy", "Studies", "step_scenario", "run_metrics", "signal_metrics",
            "gain_grid_study", "observer_gain_study"]
 
 # Used when the scenario has no [noise] section: an encoder of about 0.01 deg (2e-4 rad, 20 um) and
@@ -55,8 +59,132 @@ SETTLE_FRACTION = 0.02     # settling band: this fraction of the largest deviati
 FINAL_WINDOW = 0.1         # "settled" needs the signal inside the band over this last fraction of the run
 
 
+@dataclass(frozen=True)
+class SignalMetrics(JsonResult):
+    """Settling, steady state, peak and RMS of one error signal (units of the signal; time in s).
+
+    ``settling_time_s`` is None when the signal has not settled within the run ("not settled").
+    """
+
+    final_value: float
+    steady_state_error: float
+    settling_time_s: float | None
+    settled: bool
+    peak_error: float
+    rms_error: float
+
+
+@dataclass(frozen=True)
+class RunMetrics(JsonResult):
+    """Study metrics of one run: per joint (``joints``, rad or m) and for the tool tip (``tool_mm``, mm)."""
+
+    joints: list[SignalMetrics]
+    tool_mm: SignalMetrics
+
+
+@dataclass(frozen=True)
+class StudyRun(JsonResult):
+    """One point of a study.
+
+    Attributes
+    ----------
+    ok : bool
+        False when the run failed (then only ``error`` is set).
+    error : str or None
+        Why it failed.
+    joints, tool_mm
+        The clean run's metrics (see :class:`RunMetrics`).
+    torque_noise_rms : list of float or None
+        Observer study only: RMS torque difference between the noisy and the clean short run (N m, N m, N, N m).
+    noisy, clean_short : RunMetrics or None
+        Observer study only: metrics of the short runs.
+    noise_t_final_s : float or None
+        Observer study only: their length (s).
+
+    Keys that are None are left out of the JSON.
+    """
+
+    ok: bool
+    error: str | None = omitted_if_none()
+    joints: list[SignalMetrics] | None = omitted_if_none()
+    tool_mm: SignalMetrics | None = omitted_if_none()
+    torque_noise_rms: list[float] | None = omitted_if_none()
+    noisy: RunMetrics | None = omitted_if_none()
+    clean_short: RunMetrics | None = omitted_if_none()
+    noise_t_final_s: float | None = omitted_if_none()
+
+
+@dataclass(frozen=True)
+class GainGridStudy(JsonResult):
+    """Disturbance-step runs over a grid of scalar ``Kp`` (1/s^2) and ``Kd`` (1/s).
+
+    ``runs[i][j]`` is the run with ``kp[i]`` and ``kd[j]``.  The experiment: the
+    arm held at ``q_hold`` (rad, rad, m, rad) under the step ``f_r`` (N m, N m,
+    N, N m) for ``t_final_s``; settling band ``settle_fraction`` of the largest
+    deviation, checked over the last ``final_window`` of the run.
+    """
+
+    kp: list[float]
+    kd: list[float]
+    observer: bool
+    q_hold: list[float]
+    f_r: list[float]
+    t_final_s: float
+    settle_fraction: float
+    final_window: float
+    runs: list[list[StudyRun]]
+
+    def cells(self) -> list[tuple[float, float, StudyRun]]:
+        """``(kp, kd, run)`` for every grid point, ``kp`` varying slowest."""
+        return [(kp, kd, self.runs[i][j]) for i, kp in enumerate(self.kp) for j, kd in enumerate(self.kd)]
+
+
+@dataclass(frozen=True)
+class ObserverGainStudy(JsonResult):
+    """Disturbance-step runs with each observer gain and one without the observer, and their torque noise.
+
+    Attributes
+    ----------
+    noise : dict
+        The ``[noise]`` table of the noisy runs.
+    labels : list of str
+        ``"none"`` first (no observer), then one per gain.
+    gains : list
+        The gains as given (None for ``"none"``; a number, 4 numbers or 4x4; kg m^2/s).
+    q_hold, f_r, t_final_s, settle_fraction, final_window
+        The experiment, as in :class:`GainGridStudy`.
+    noise_t_final_s : float
+        Length of the clean and noisy short runs (s).
+    runs : list of StudyRun
+        Per label.
+    slowest_mode_rad_s : list of (float or None) or None
+        Per label, the slowest observer mode over the workspace (rad/s; None for ``"none"``), when computed.
+    """
+
+    noise: dict
+    labels: list[str]
+    gains: list
+    q_hold: list[float]
+    f_r: list[float]
+    t_final_s: float
+    settle_fraction: float
+    final_window: float
+    noise_t_final_s: float
+    runs: list[StudyRun]
+    slowest_mode_rad_s: list[float | None] | None = omitted_if_none()
+
+
+@dataclass(frozen=True)
+class Studies(JsonResult):
+    """The Kp x Kd study with and without the observer, and the observer gain study."""
+
+    gains_with_dob: GainGridStudy
+    gains_without_dob: GainGridStudy
+    observer: ObserverGainStudy
+
+
 def signal_metrics(t, x, final: float | None = None, settle_fraction: float = SETTLE_FRACTION,
-                   final_window: float = FINAL_WINDOW) -> dict:
+                   final_window: float = FINAL_WINDOW) -> SignalMetrics:
     """Settling time, steady-state, peak and RMS of one signal ``x(t)`` (units of ``x``; time in s).
 
     Parameters
@@ -73,10 +201,7 @@ def signal_metrics(t, x, final: float | None = None, settle_fraction: float = SE
 
     Returns
     -------
-    dict
-        ``final_value``, ``steady_state_error`` (``|final_value|``),
-        ``settling_time_s`` (None: not settled within the run), ``settled``,
-        ``peak_error``, ``rms_error``.
+    SignalMetrics
     """
     t = np.asarray(t, dtype=float)
     x = np.asarray(x, dtype=float)
@@ -91,9 +216,9 @@ def signal_metrics(t, x, final: float | None = None, settle_fraction: float = SE
         settling = None
     else:
         settling = float(t[outside[-1] + 1])
-    return {"final_value": final, "steady_state_error": abs(final), "settling_time_s": settling,
-            "settled": settling is not None, "peak_error": float(np.max(np.abs(x))),
-            "rms_error": float(np.sqrt(np.mean(x ** 2)))}
+    return SignalMetrics(final_value=final, steady_state_error=abs(final), settling_time_s=settling,
+                         settled=settling is not None, peak_error=float(np.max(np.abs(x))),
+                         rms_error=float(np.sqrt(np.mean(x ** 2))))
 
 
 def _tip_error_mm(q_ref, q, robot) -> np.ndarray:
@@ -103,7 +228,7 @@ def _tip_error_mm(q_ref, q, robot) -> np.ndarray:
 
 
 def run_metrics(response, final_q=None, settle_fraction: float = SETTLE_FRACTION,
-                final_window: float = FINAL_WINDOW) -> dict:
+                final_window: float = FINAL_WINDOW) -> RunMetrics:
     """Study metrics of one run: per joint (``joints``, rad or m) and for the tool tip (``tool_mm``, mm).
 
     Parameters
@@ -124,9 +249,9 @@ def run_metrics(response, final_q=None, settle_fraction: float = SETTLE_FRACTION
         tip_final = float(_tip_error_mm(q_ref[:, -1], final_q, robot))
     else:
         e_final, tip_final = [None] * 4, None
-    out = {"joints": [signal_metrics(t, e[i], e_final[i], settle_fraction, final_window) for i in range(4)]}
-    out["tool_mm"] = signal_metrics(t, _tip_error_mm(q_ref.T, q.T, robot), tip_final, settle_fraction, final_window)
-    return out
+    return RunMetrics(joints=[signal_metrics(t, e[i], e_final[i], settle_fraction, final_window) for i in range(4)],
+                      tool_mm=signal_metrics(t, _tip_error_mm(q_ref.T, q.T, robot), tip_final, settle_fraction,
+                                             final_window))
 
 
 def step_scenario(scenario: Scenario, t_final: float | None = None, **sections) -> Scenario:
@@ -154,27 +279,27 @@ def _rest(variant: Scenario, observer: bool) -> np.ndarray:
     return np.array([x_eq[labels.index(f"plant_q[{i}]")] for i in range(4)])
 
 
-def _run(job) -> dict:
+def _run(job) -> StudyRun:
     """One study point (runs in a worker process): clean run, and a short clean and noisy pair when asked."""
     variant, observer, noise, noise_t_final = job
     try:
         clean = simulate(variant, observer=observer)
-        result = {"ok": True, **run_metrics(clean, final_q=_rest(variant, observer))}
-        if noise is not None:
-            # The noise is linear between samples; steps no longer than a sample keep the solver from rejecting
-            # steps at every kink (the torques come out the same).  Both runs use the same settings.
-            sim = {"t_final": noise_t_final, "max_step": float(noise["sample_period"])}
-            short = variant.replace(simulation=sim)
-            clean_short = simulate(short, observer=observer)
-            noisy = simulate(short.replace(noise=noise), observer=observer)
-            diff = signal(noisy, "tau") - signal(clean_short, "tau")
-            result["torque_noise_rms"] = np.sqrt(np.mean(diff ** 2, axis=1)).tolist()
-            result["noisy"] = run_metrics(noisy)
-            result["clean_short"] = run_metrics(clean_short)
-            result["noise_t_final_s"] = float(noise_t_final)
-        return result
+        metrics = run_metrics(clean, final_q=_rest(variant, observer))
+        if noise is None:
+            return StudyRun(ok=True, joints=metrics.joints, tool_mm=metrics.tool_mm)
+        # The noise is linear between samples; steps no longer than a sample keep the solver from rejecting
+        # steps at every kink (the torques come out the same).  Both runs use the same settings.
+        sim = {"t_final": noise_t_final, "max_step": float(noise["sample_period"])}
+        short = variant.replace(simulation=sim)
+        clean_short = simulate(short, observer=observer)
+        noisy = simulate(short.replace(noise=noise), observer=observer)
+        diff = signal(noisy, "tau") - signal(clean_short, "tau")
+        return StudyRun(ok=True, joints=metrics.joints, tool_mm=metrics.tool_mm,
+                        torque_noise_rms=np.sqrt(np.mean(diff ** 2, axis=1)).tolist(),
+                        noisy=run_metrics(noisy), clean_short=run_metrics(clean_short),
+                        noise_t_final_s=float(noise_t_final))
     except (SimulationError, RuntimeError) as err:
-        return {"ok": False, "error": str(err)}
+        return StudyRun(ok=False, error=str(err))
 
 
 def _map(jobs, workers: int) -> list:
@@ -185,14 +310,15 @@ def _map(jobs, workers: int) -> list:
 
 
 def _describe(variant: Scenario) -> dict:
-    """The experiment of a study, JSON-ready."""
-    return {"q_hold": list(variant.trajectory.offset), "f_r": list(variant.disturbance.f_r),
-            "t_final_s": variant.simulation.t_final, "settle_fraction": SETTLE_FRACTION,
+    """The experiment of a study (the shared fields of :class:`GainGridStudy` and :class:`ObserverGainStudy`)."""
+    return {"q_hold": [float(v) for v in variant.trajectory.offset],
+            "f_r": [float(v) for v in variant.disturbance.f_r],
+            "t_final_s": float(variant.simulation.t_final), "settle_fraction": SETTLE_FRACTION,
             "final_window": FINAL_WINDOW}
 
 
 def gain_grid_study(scenario: Scenario, kp_values, kd_values, observer: bool = True, t_final: float | None = None,
-                    workers: int = 1) -> dict:
+                    workers: int = 1) -> GainGridStudy:
     """Disturbance-step runs (see the module docstring) over a grid of scalar ``Kp`` (1/s^2) and ``Kd`` (1/s).
 
     Parameters
@@ -210,11 +336,7 @@ def gain_grid_study(scenario: Scenario, kp_values, kd_values, observer: bool = T
 
     Returns
     -------
-    dict
-        ``kp``, ``kd``, ``observer``, the experiment (``q_hold``, ``f_r``,
-        ``t_final_s``, ``settle_fraction``, ``final_window``) and ``runs[i][j]``
-        (metrics of :func:`run_metrics` for ``kp[i]``, ``kd[j]``, or
-        ``{"ok": False, "error"}``).
+    GainGridStudy
     """
     kp_values, kd_values = [float(v) for v in kp_values], [float(v) for v in kd_values]
     if not kp_values or not kd_values or min(kp_values + kd_values) <= 0:
@@ -222,11 +344,11 @@ def gain_grid_study(scenario: Scenario, kp_values, kd_values, observer: bool = T
     variants = [step_scenario(scenario, t_final, gains={"kp": kp, "kd": kd}) for kp in kp_values for kd in kd_values]
     flat = _map([(v, observer, None, None) for v in variants], workers)
     runs = [flat[i * len(kd_values):(i + 1) * len(kd_values)] for i in range(len(kp_values))]
-    return {"kp": kp_values, "kd": kd_values, "observer": observer, **_describe(variants[0]), "runs": runs}
+    return GainGridStudy(kp=kp_values, kd=kd_values, observer=bool(observer), **_describe(variants[0]), runs=runs)
 
 
 def observer_gain_study(scenario: Scenario, gains, noise: dict | None = None, t_final: float | None = None,
-                        noise_t_final: float = 1.0, workers: int = 1) -> dict:
+                        noise_t_final: float = 1.0, workers: int = 1) -> ObserverGainStudy:
     """Disturbance-step runs with each observer gain and one without the observer, plus their torque noise.
 
     Parameters
@@ -245,12 +367,8 @@ def observer_gain_study(scenario: Scenario, gains, noise: dict | None = None, t_
 
     Returns
     -------
-    dict
-        ``noise`` (the table used), ``labels`` (``"none"`` first: no observer),
-        ``gains``, the experiment (as in :func:`gain_grid_study`),
-        ``noise_t_final_s`` (rounded to the output grid) and ``runs`` (metrics
-        of :func:`run_metrics` plus ``torque_noise_rms`` per joint (N m, N), and
-        ``clean_short``/``noisy`` metrics over the first ``noise_t_final_s``).
+    ObserverGainStudy
+        ``noise_t_final_s`` rounded to the output grid; ``slowest_mode_rad_s`` left None.
     """
     if noise is None:
         noise = dict(scenario.data["noise"]) if scenario.noise is not None else dict(DEFAULT_NOISE)
@@ -264,5 +382,5 @@ def observer_gain_study(scenario: Scenario, gains, noise: dict | None = None, t_
     step = variants[0].simulation.output_step
     noise_t_final = min(max(round(float(noise_t_final) / step), 1) * step, variants[0].simulation.t_final)
     jobs = [(v, k > 0, noise, noise_t_final) for k, v in enumerate(variants)]
-    return {"noise": noise, "labels": labels, "gains": specs, **_describe(variants[0]),
-            "noise_t_final_s": noise_t_final, "runs": _map(jobs, workers)}
+    return ObserverGainStudy(noise=noise, labels=labels, gains=specs, **_describe(variants[0]),
+                             noise_t_final_s=float(noise_t_final), runs=_map(jobs, workers))

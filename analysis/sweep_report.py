@@ -3,28 +3,34 @@
 ::
 
     from analysis.sweep_report import summarize, write_summary
-    summary = summarize("sweep-results.jsonl")       # a dict, JSON-ready
+    summary = summarize("sweep-results.jsonl")       # a SweepSummary
     files = write_summary("sweep-results.jsonl", "sweep-summary")   # summary.json, summary.md, PNG + SVG figures
 
-``summary.md`` is Markdown with relative links to the figures; :func:`html_section`
-renders the same summary as a self-contained HTML ``<section>`` (figures embedded)
-for ``dobkit report`` to include.
+``summary.json`` is the :class:`SweepSummary` as strict JSON (reads back with
+:meth:`SweepSummary.from_json`).  ``summary.md`` is Markdown with relative links
+to the figures; :func:`html_section` renders the same summary as a
+self-contained HTML ``<section>`` (figures embedded) for ``dobkit report`` to
+include.  Both come from templates (``sweep_summary.md``,
+``sweep_section.html``); the numbers are formatted here.
 """
 from __future__ import annotations
 
 import base64
-import html
-import json
+import dataclasses
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from blocks.parameters import RobotParameters
 from blocks.metrics import DISTURBANCE_UNITS, JOINT_LABELS, JOINT_UNITS
+from .report_html import template_environment
+from .results import JsonResult, plain
 from .sweep_runner import read_results
 
-__all__ = ["summarize", "write_summary", "html_section", "metric_columns", "column_unit", "key_unit"]
+__all__ = ["RunCounts", "ColumnStatistics", "WorstRun", "DivergedRun", "SweepSummary", "summarize", "write_summary",
+           "html_section", "metric_columns", "column_unit", "key_unit"]
 
 _QUANTILES = (0.05, 0.5, 0.95)
 
@@ -78,22 +84,114 @@ def _label(column: str) -> str:
     return column
 
 
-def summarize(results) -> dict:
+@dataclass(frozen=True)
+class RunCounts(JsonResult):
+    """Runs in the sweep, finished (in the results file), finished ok, and diverged."""
+
+    runs: int
+    finished: int
+    ok: int
+    diverged: int
+
+
+@dataclass(frozen=True)
+class ColumnStatistics(JsonResult):
+    """Statistics of one metric column over the finished runs (finite values only), in ``unit``."""
+
+    count: int
+    mean: float
+    std: float
+    min: float
+    p5: float
+    median: float
+    p95: float
+    max: float
+    unit: str
+
+
+@dataclass(frozen=True)
+class WorstRun:
+    """One of the worst runs: its id, index, swept values and its value of the worst metric.
+
+    In JSON the value's key is the metric's name (see :class:`SweepSummary`).
+    """
+
+    run_id: str
+    index: int
+    values: dict
+    value: float
+
+
+@dataclass(frozen=True)
+class DivergedRun(JsonResult):
+    """A run that diverged: its values, when (``failed_at``, s; None if unknown) and the message."""
+
+    run_id: str
+    index: int
+    values: dict
+    failed_at: float | None
+    message: str
+
+
+@dataclass(frozen=True)
+class SweepSummary(JsonResult):
+    """Statistics of a sweep's results (see :func:`summarize`).
+
+    Attributes
+    ----------
+    sweep : dict
+        The results file's header (the sweep's definition).
+    counts : RunCounts
+    worst_metric : str or None
+        The metric column the worst runs are ranked by.
+    statistics : dict of str to ColumnStatistics
+        Per metric column (``rms_position_error[2]``, ``max_tool_position_error_mm``).
+    worst : list of WorstRun
+        Largest ``worst_metric`` first; in JSON each carries the value under the metric's name.
+    failed : list of DivergedRun
+    influence : dict of str to float
+        Per swept scalar key, the Spearman rank correlation with the worst metric.
+    """
+
+    sweep: dict
+    counts: RunCounts
+    worst_metric: str | None
+    statistics: dict[str, ColumnStatistics]
+    worst: list[WorstRun]
+    failed: list[DivergedRun]
+    influence: dict[str, float]
+
+    def as_dict(self) -> dict:
+        """JSON-ready dict; each worst run holds its value under the worst metric's name."""
+        worst = [{"run_id": w.run_id, "index": w.index, "values": plain(w.values),
+                  str(self.worst_metric): plain(w.value)} for w in self.worst]
+        return {f.name: worst if f.name == "worst" else plain(getattr(self, f.name)) for f in dataclasses.fields(self)}
+
+    @classmethod
+    def from_dict(cls, data: dict, where: str | None = None) -> "SweepSummary":
+        """Read back from :meth:`as_dict`'s form."""
+        metric = data.get("worst_metric")
+        worst = [WorstRun(run_id=w["run_id"], index=w["index"], values=w["values"],
+                          value=math.nan if w.get(metric) is None else float(w[metric])) for w in data.get("worst", [])]
+        out = super().from_dict({**data, "worst": []}, where)
+        return dataclasses.replace(out, worst=worst)
+
+
+def summarize(results) -> SweepSummary:
     """Statistics of every metric column over the finished runs, the worst runs and the swept values' influence.
 
     Parameters
     ----------
     results : path or (header, rows)
-        A results file written by :func:`analysis.sweep.run_sweep`.
+        A results file written by :func:`analysis.sweep_runner.run_sweep`.
 
     Returns
     -------
-    dict
-        ``sweep`` (the header), ``counts``, ``statistics`` (per column: count,
-        mean, std, min, p5, median, p95, max, unit), ``worst`` (the
-        ``worst_count`` runs with the largest ``worst_metric``, with their
-        values), ``failed`` (diverged runs and their values), ``influence``
-        (per swept scalar key: Spearman rank correlation with the worst metric).
+    SweepSummary
+        Statistics per column (count, mean, std, min, p5, median, p95, max,
+        unit), the ``worst_count`` runs with the largest ``worst_metric`` with
+        their values, the diverged runs, and the influence of each swept scalar
+        key (Spearman rank correlation with the worst metric).
     """
     header, rows = read_results(results) if not isinstance(results, tuple) else results
     header = header or {}
@@ -106,16 +204,17 @@ def summarize(results) -> dict:
         if v.size == 0:
             continue
         q05, q50, q95 = np.quantile(v, _QUANTILES)
-        stats[name] = {"count": int(v.size), "mean": float(v.mean()), "std": float(v.std(ddof=1)) if v.size > 1 else 0.0,
-                       "min": float(v.min()), "p5": float(q05), "median": float(q50), "p95": float(q95),
-                       "max": float(v.max()), "unit": column_unit(name)}
+        stats[name] = ColumnStatistics(count=int(v.size), mean=float(v.mean()),
+                                       std=float(v.std(ddof=1)) if v.size > 1 else 0.0, min=float(v.min()),
+                                       p5=float(q05), median=float(q50), p95=float(q95), max=float(v.max()),
+                                       unit=column_unit(name))
     worst_metric = header.get("worst_metric") or (next(iter(cols)) if cols else None)
     worst_count = int(header.get("worst_count", 5))
     worst = []
     if worst_metric in cols:
         order = np.argsort(-np.nan_to_num(cols[worst_metric], nan=-np.inf))[:worst_count]
-        worst = [{"run_id": ok[i]["run_id"], "index": ok[i]["index"], "values": ok[i]["values"],
-                  worst_metric: float(cols[worst_metric][i])} for i in order]
+        worst = [WorstRun(run_id=ok[i]["run_id"], index=ok[i]["index"], values=ok[i]["values"],
+                          value=float(cols[worst_metric][i])) for i in order]
     influence = {}
     if worst_metric in cols:
         y = cols[worst_metric]
@@ -124,12 +223,14 @@ def summarize(results) -> dict:
             good = np.isfinite(x) & np.isfinite(y)
             if good.sum() >= 3 and np.ptp(x[good]) > 0 and np.ptp(y[good]) > 0:
                 influence[key] = float(np.corrcoef(_ranks(x[good]), _ranks(y[good]))[0, 1])
-    return {"sweep": header, "counts": {"runs": int(header.get("runs", len(rows))), "finished": len(rows),
-                                        "ok": len(ok), "diverged": len(failed)},
-            "worst_metric": worst_metric, "statistics": stats, "worst": worst,
-            "failed": [{"run_id": r["run_id"], "index": r["index"], "values": r["values"],
-                        "failed_at": r.get("failed_at"), "message": r.get("message", "")} for r in failed],
-            "influence": influence}
+    return SweepSummary(
+        sweep=header,
+        counts=RunCounts(runs=int(header.get("runs", len(rows))), finished=len(rows), ok=len(ok),
+                         diverged=len(failed)),
+        worst_metric=worst_metric, statistics=stats, worst=worst,
+        failed=[DivergedRun(run_id=r["run_id"], index=r["index"], values=r["values"], failed_at=r.get("failed_at"),
+                            message=r.get("message", "")) for r in failed],
+        influence=influence)
 
 
 def _scalar(value) -> float:
@@ -184,9 +285,9 @@ def write_summary(results, out_dir, formats=("png", "svg")) -> dict:
         files["figures"] += _save(fig, out / f"hist_{metric}", formats)
         plt.close(fig)
 
-    wm = summary["worst_metric"]
-    worst_ids = {w["run_id"] for w in summary["worst"]}
-    for key in summary["influence"]:
+    wm = summary.worst_metric
+    worst_ids = {w.run_id for w in summary.worst}
+    for key in summary.influence:
         x = np.array([_scalar(r["values"].get(key)) for r in ok])
         y = cols[wm]
         mark = np.array([r["run_id"] in worst_ids for r in ok])
@@ -196,15 +297,17 @@ def write_summary(results, out_dir, formats=("png", "svg")) -> dict:
         unit = key_unit(key)
         ax.set_xlabel(f"{key}" + (f" [{unit}]" if unit else ""))
         ax.set_ylabel(f"{_label(wm)} [{column_unit(wm)}]")
-        ax.set_title(f"rank correlation {summary['influence'][key]:+.2f}")
+        ax.set_title(f"rank correlation {summary.influence[key]:+.2f}")
         ax.legend(fontsize=8)
         fig.tight_layout()
         safe = key.replace(".", "_").replace("[", "_").replace("]", "")
         files["figures"] += _save(fig, out / f"worst_vs_{safe}", formats)
         plt.close(fig)
 
-    (out / "summary.json").write_text(json.dumps(summary, indent=2), encoding="utf-8")
-    (out / "summary.md").write_text(_markdown(summary, files["figures"], out), encoding="utf-8")
+    (out / "summary.json").write_text(summary.to_json(indent=2), encoding="utf-8")
+    pngs = [f for f in files["figures"] if f.suffix == ".png"]
+    (out / "summary.md").write_text(_markdown(summary, [(f.stem, f.relative_to(out).as_posix()) for f in pngs]),
+                                    encoding="utf-8")
     files["json"], files["markdown"] = out / "summary.json", out / "summary.md"
     return files
 
@@ -226,46 +329,46 @@ def _fmt(x) -> str:
     return str(x)
 
 
-def _markdown(summary: dict, figures: list[Path], out: Path) -> str:
-    sw, c = summary["sweep"], summary["counts"]
-    lines = [f"## Sweep '{sw.get('name', '?')}'", "",
-             f"Base scenario '{sw.get('scenario', '?')}', engine {sw.get('engine', '?')}, "
-             f"{'with' if sw.get('observer', True) else 'without'} observer: {c['finished']} of {c['runs']} runs "
-             f"finished, {c['ok']} ok, {c['diverged']} diverged.", ""]
-    if sw.get("grid"):
-        lines += ["Grid: " + "; ".join(f"`{k}` = {_fmt(v)}" for k, v in sw["grid"].items()), ""]
+def _view(summary: SweepSummary) -> dict:
+    """The summary's numbers as the texts the Markdown and HTML templates lay out."""
+    sw, wm = summary.sweep, summary.worst_metric
+    keys = sorted({k for w in summary.worst for k in w.values})
     mc = sw.get("monte_carlo", {})
-    if mc.get("distributions"):
-        lines += [f"Monte Carlo: {mc['runs']} draws per grid point, seed {mc['seed']}: "
-                  + "; ".join(f"`{k}` ~ {d['kind']}(" + ", ".join(f"{p}={_fmt(v)}" for p, v in d.items() if p != 'kind')
-                              + ")" for k, d in mc["distributions"].items()), ""]
-    lines += ["### Statistics", "", "| metric | unit | mean | std | min | p5 | median | p95 | max |",
-              "|---|---|---|---|---|---|---|---|---|"]
-    for name, s in summary["statistics"].items():
-        lines.append(f"| {_label(name)} | {s['unit']} | " + " | ".join(_fmt(s[k]) for k in
-                                                                   ("mean", "std", "min", "p5", "median", "p95", "max")) + " |")
-    wm = summary["worst_metric"]
-    if summary["worst"]:
-        keys = sorted({k for w in summary["worst"] for k in w["values"]})
-        lines += ["", f"### Worst {len(summary['worst'])} runs by {_label(wm)} [{column_unit(wm)}]", "",
-                  "| run | " + " | ".join(f"`{k}`" for k in keys) + f" | {wm} |",
-                  "|---|" + "---|" * (len(keys) + 1)]
-        for w in summary["worst"]:
-            lines.append(f"| {w['index']} | " + " | ".join(_fmt(w['values'].get(k, '')) for k in keys)
-                         + f" | {_fmt(w[wm])} |")
-    if summary["failed"]:
-        lines += ["", "### Diverged runs", ""] + [f"- run {f['index']}: " + ", ".join(
-            f"`{k}` = {_fmt(v)}" for k, v in f["values"].items()) + (f" (at t = {f['failed_at']:.4g} s)"
-                                                                     if f.get("failed_at") is not None else "")
-            for f in summary["failed"]]
-    if summary["influence"]:
-        lines += ["", f"### Influence on {_label(wm)} (Spearman rank correlation)", "",
-                  "| value | correlation |", "|---|---|"]
-        lines += [f"| `{k}` | {v:+.2f} |" for k, v in sorted(summary["influence"].items(), key=lambda kv: -abs(kv[1]))]
-    pngs = [f for f in figures if f.suffix == ".png"]
-    if pngs:
-        lines += ["", "### Figures", ""] + [f"![{f.stem}]({f.relative_to(out)})" for f in pngs]
-    return "\n".join(lines) + "\n"
+    statistics = [(_label(n), st.unit, [_fmt(getattr(st, k)) for k in _STATISTICS])
+                  for n, st in summary.statistics.items()]
+    worst = [(w.index, [_fmt(w.values.get(k, "")) for k in keys], _fmt(w.value)) for w in summary.worst]
+    failed = [(f.index, [(k, _fmt(v)) for k, v in f.values.items()],
+               None if f.failed_at is None else f"{f.failed_at:.4g}", _fmt(f.failed_at)) for f in summary.failed]
+    return {
+        "name": str(sw.get("name", "?")), "scenario": str(sw.get("scenario", "?")),
+        "engine": str(sw.get("engine", "?")), "observer": "with" if sw.get("observer", True) else "without",
+        "counts": summary.counts,
+        "grid": [(k, _fmt(v)) for k, v in (sw.get("grid") or {}).items()],
+        "monte_carlo": None if not mc.get("distributions") else {
+            "runs": mc["runs"], "seed": mc["seed"],
+            "distributions": [(k, d["kind"], [(p, _fmt(v)) for p, v in d.items() if p != "kind"])
+                              for k, d in mc["distributions"].items()]},
+        "statistics": statistics,
+        "statistics_rows": [[label, unit] + values for label, unit, values in statistics],
+        "worst_metric": wm, "worst_label": _label(wm) if wm else "", "worst_unit": column_unit(wm) if wm else "",
+        "worst_keys": keys, "worst": worst,
+        "worst_rows": [[index] + values + [value] for index, values, value in worst],
+        "failed": failed,
+        "failed_rows": [[index, ", ".join(f"{k} = {v}" for k, v in values), at_text]
+                        for index, values, _, at_text in failed],
+        "influence": [(k, f"{v:+.2f}") for k, v in summary.influence.items()],
+        "influence_by_size": [(k, f"{v:+.2f}")
+                              for k, v in sorted(summary.influence.items(), key=lambda kv: -abs(kv[1]))],
+    }
+
+
+_STATISTICS = ("mean", "std", "min", "p5", "median", "p95", "max")
+
+
+def _markdown(summary: SweepSummary, figures: list[tuple[str, str]]) -> str:
+    """``summary.md``: the summary with links to the figures (``(stem, relative path)`` of each PNG)."""
+    template = template_environment().get_template("sweep_summary.md")
+    return template.render(s=_view(summary), figures=figures)
 
 
 def html_section(summary_dir) -> str:
@@ -273,38 +376,10 @@ def html_section(summary_dir) -> str:
 
     Tables of the statistics and the worst runs (with the values that produced
     them), the diverged runs, the influence of each swept value, and every PNG
-    figure embedded as data.
+    figure embedded as data.  Every text is escaped by the template.
     """
     folder = Path(summary_dir)
-    summary = json.loads((folder / "summary.json").read_text(encoding="utf-8"))
-    esc = html.escape
-    sw, c, wm = summary["sweep"], summary["counts"], summary["worst_metric"]
-
-    def table(header, rows):
-        head = "".join(f"<th>{esc(str(h))}</th>" for h in header)
-        body = "".join("<tr>" + "".join(f"<td>{esc(str(x))}</td>" for x in row) + "</tr>" for row in rows)
-        return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
-
-    parts = [f"<section class='sweep'><h2>Sweep {esc(str(sw.get('name', '?')))}</h2>",
-             f"<p>Base scenario {esc(str(sw.get('scenario', '?')))}, engine {esc(str(sw.get('engine', '?')))}: "
-             f"{c['finished']} of {c['runs']} runs finished, {c['ok']} ok, {c['diverged']} diverged.</p>",
-             table(["metric", "unit", "mean", "std", "min", "p5", "median", "p95", "max"],
-                   [[_label(n), st["unit"]] + [_fmt(st[k]) for k in ("mean", "std", "min", "p5", "median", "p95", "max")]
-                    for n, st in summary["statistics"].items()])]
-    if summary["worst"]:
-        keys = sorted({k for w in summary["worst"] for k in w["values"]})
-        parts += [f"<h3>Worst runs by {esc(_label(wm))} [{esc(column_unit(wm))}]</h3>",
-                  table(["run"] + keys + [wm], [[w["index"]] + [_fmt(w["values"].get(k, "")) for k in keys]
-                                                + [_fmt(w[wm])] for w in summary["worst"]])]
-    if summary["failed"]:
-        parts += ["<h3>Diverged runs</h3>", table(["run", "values", "at t [s]"], [
-            [f["index"], ", ".join(f"{k} = {_fmt(v)}" for k, v in f["values"].items()), _fmt(f.get("failed_at"))]
-            for f in summary["failed"]])]
-    if summary["influence"]:
-        parts += [f"<h3>Influence on {esc(_label(wm))} (Spearman rank correlation)</h3>",
-                  table(["value", "correlation"], [[k, f"{v:+.2f}"] for k, v in summary["influence"].items()])]
-    for png in sorted(folder.glob("*.png")):
-        data = base64.b64encode(png.read_bytes()).decode("ascii")
-        parts.append(f"<figure><img alt='{esc(png.stem)}' src='data:image/png;base64,{data}'>"
-                     f"<figcaption>{esc(png.stem)}</figcaption></figure>")
-    return "\n".join(parts) + "</section>"
+    summary = SweepSummary.from_json((folder / "summary.json").read_text(encoding="utf-8"))
+    figures = [(png.stem, "data:image/png;base64," + base64.b64encode(png.read_bytes()).decode("ascii"))
+               for png in sorted(folder.glob("*.png"))]
+    return template_environment().get_template("sweep_section.html").render(s=_view(summary), figures=figures)

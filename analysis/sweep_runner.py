@@ -20,7 +20,6 @@ import itertools
 import json
 import math
 import os
-import sys
 import time
 from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import dataclass
@@ -28,11 +27,12 @@ from pathlib import Path
 from typing import Callable, Iterable
 
 from blocks.batch import Variants, noise_breakpoints, simulate_batch
+from blocks.progress import ProgressCallback, count_progress
 from blocks.scenario import Scenario, scenario_from_dict
 from blocks.workers import worker_pool
 from .sweep import Run, SweepError, SweepSpec, json_default, load_sweep, split_changes
 
-__all__ = ["run_sweep", "read_results", "SweepOutcome", "Progress", "simulate_chunk"]
+__all__ = ["run_sweep", "read_results", "SweepOutcome", "simulate_chunk"]
 
 
 def read_results(path: str | Path) -> tuple[dict | None, list[dict]]:
@@ -167,47 +167,8 @@ def _chunks(spec: SweepSpec, pending: list[Run], workers: int) -> list[dict]:
     return payloads
 
 
-class Progress:
-    """A one-line progress bar on a stream (a line per tenth when the stream is not a terminal)."""
-
-    def __init__(self, total: int, done: int = 0, stream=None, enabled: bool = True, label: str = "sweep") -> None:
-        self.total, self.done, self.start_done = total, done, done
-        self.stream = sys.stderr if stream is None else stream
-        self.enabled, self.label = enabled, label
-        self.t0 = time.monotonic()
-        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
-        self.last_tenth = -1
-        self._draw()
-
-    def update(self, n: int) -> None:
-        self.done += n
-        self._draw()
-
-    def close(self) -> None:
-        if self.enabled and self.tty:
-            self.stream.write("\n")
-            self.stream.flush()
-
-    def _draw(self) -> None:
-        if not self.enabled:
-            return
-        frac = self.done / self.total if self.total else 1.0
-        elapsed = time.monotonic() - self.t0
-        rate = (self.done - self.start_done) / elapsed if elapsed > 0 else 0.0
-        eta = f"{(self.total - self.done) / rate:.0f} s" if rate > 0 else "?"
-        bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac))
-        text = f"{self.label} [{bar}] {self.done}/{self.total} runs {100 * frac:3.0f}%  {elapsed:.1f} s  ETA {eta}"
-        if self.tty:
-            self.stream.write("\r" + text)
-            self.stream.flush()
-        elif int(10 * frac) != self.last_tenth:
-            self.last_tenth = int(10 * frac)
-            self.stream.write(text + "\n")
-            self.stream.flush()
-
-
 def run_sweep(spec: SweepSpec | str | Path, results: str | Path, scheduler: str | None = None,
-              workers: int | None = None, progress: bool = True,
+              workers: int | None = None, progress: bool | ProgressCallback = True,
               on_rows: Callable[[list[dict]], None] | None = None) -> SweepOutcome:
     """Run the sweep's unfinished runs and append their rows to ``results``.
 
@@ -222,8 +183,10 @@ def run_sweep(spec: SweepSpec | str | Path, results: str | Path, scheduler: str 
         batches run on its workers.  Needs ``dask[distributed]``.
     workers : int, optional
         Local worker processes (default: all cores); 1 runs in this process.
-    progress : bool
-        Show a progress bar on standard error.
+    progress : bool or callable
+        True: show the finished runs on standard error (see
+        :class:`blocks.progress.CountProgress`); a callable is called as
+        ``progress("sweep", finished / total)`` at the start and after every batch.
     on_rows : callable, optional
         Called with each batch's rows after they are written.
 
@@ -242,7 +205,7 @@ def run_sweep(spec: SweepSpec | str | Path, results: str | Path, scheduler: str 
     skipped = len(spec.runs) - len(pending)
     workers = (os.cpu_count() or 1) if workers is None else max(1, int(workers))
     t0 = time.perf_counter()
-    bar = Progress(len(spec.runs), skipped, enabled=progress)
+    bar = count_progress(progress, len(spec.runs), skipped, label="sweep")
     writer = _Writer(results, spec.header())
     ran = diverged = 0
 

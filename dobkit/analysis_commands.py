@@ -9,6 +9,8 @@ import math
 import os
 from dataclasses import replace
 
+from blocks.progress import StageProgress
+
 __all__ = ["add_analysis_subcommands", "ANALYSIS_PREFIX", "REPORT_PREFIX"]
 
 # Default output folders: PREFIX-YYYYmmdd-HHMMSS under the current folder.
@@ -61,12 +63,6 @@ def _settings(args):
     return replace(settings, **changes)
 
 
-def _progress():
-    from dobkit.cli import ProgressBar
-
-    return ProgressBar()
-
-
 def _cmd_analyze(args) -> int:
     from blocks import load_scenario
     from blocks.outputs import default_out_dir
@@ -74,18 +70,15 @@ def _cmd_analyze(args) -> int:
 
     scenario = load_scenario(args.scenario)
     out = args.out if args.out is not None else default_out_dir(ANALYSIS_PREFIX)
-    bar = _progress()
-    try:
-        result, files = analyze(scenario, out, _settings(args), progress=bar)
-    finally:
-        bar.close()
-    slow = result["observer_bandwidth"]["slowest_rad_s"]
+    with StageProgress() as progress:
+        result, files = analyze(scenario, out, _settings(args), progress=progress)
+    slow = result.observer_bandwidth.slowest_rad_s
     print(f"scenario: {scenario.name} ({scenario.source})")
-    print(f"slowest observer mode over the workspace: {slow['min']:.4g} to {slow['max']:.4g} rad/s")
-    for key, label in (("with_dob", "with observer"), ("without_dob", "without observer")):
-        b = result["mismatch"][key]["boundaries"]["boundaries"]
+    print(f"slowest observer mode over the workspace: {slow.min:.4g} to {slow.max:.4g} rad/s")
+    for observer, label in ((True, "with observer"), (False, "without observer")):
+        found = result.mismatch.loop(observer).boundaries.factors
         print(f"inertia-mismatch stability boundary {label}: "
-              + (", ".join(f"a = {x['factor']:.6g}" for x in b) if b else "none in the searched range"))
+              + (", ".join(f"a = {a:.6g}" for a in found) if found else "none in the searched range"))
     print(f"analysis written to {out} ({len(files)} files)")
     return 0
 
@@ -97,11 +90,8 @@ def _cmd_report(args) -> int:
 
     scenario = load_scenario(args.scenario)
     out = args.out if args.out is not None else default_out_dir(REPORT_PREFIX)
-    bar = _progress()
-    try:
-        path = write_report(scenario, out, _settings(args), progress=bar, sweep_summaries=args.sweep)
-    finally:
-        bar.close()
+    with StageProgress() as progress:
+        path = write_report(scenario, out, _settings(args), progress=progress, sweep_summaries=args.sweep)
     print(f"report written to {path}")
     return 0
 

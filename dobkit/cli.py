@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
+
+from blocks.progress import StageProgress
 
 from . import __version__
 from .analysis_commands import add_analysis_subcommands
@@ -17,48 +18,14 @@ from .sweep_commands import add_sweep_subcommand
 __all__ = ["main"]
 
 
-
-class ProgressBar:
-    """A one-line progress display on stderr for long runs."""
-
-    def __init__(self, stream=sys.stderr) -> None:
-        self.stream = stream
-        self.stage = None
-        self.start = time.monotonic()
-
-    def __call__(self, stage: str, fraction: float) -> None:
-        if not self.stream.isatty():
-            # A log file gets one line per stage, not a redrawn bar.
-            if stage != self.stage:
-                self.stream.write(f"{stage} ... ({time.monotonic() - self.start:.1f} s)\n")
-                self.stream.flush()
-            self.stage = stage
-            return
-        if stage != self.stage and self.stage is not None:
-            self.stream.write("\n")
-        self.stage = stage
-        filled = int(30 * fraction)
-        self.stream.write(f"\r{stage:<34} [{'#' * filled}{'.' * (30 - filled)}] {100 * fraction:5.1f}% "
-                          f"{time.monotonic() - self.start:6.1f} s")
-        self.stream.flush()
-
-    def close(self) -> None:
-        if self.stage is not None and self.stream.isatty():
-            self.stream.write("\n")
-            self.stream.flush()
-
-
 def _cmd_simulate(args) -> int:
     from analysis.experiment import default_out_dir, format_rms_table, run_experiment
     from blocks import load_scenario
 
     scenario = load_scenario(args.scenario)
     out = args.out if args.out is not None else default_out_dir()
-    bar = ProgressBar()
-    try:
-        result = run_experiment(scenario, out, progress=bar)
-    finally:
-        bar.close()
+    with StageProgress() as progress:
+        result = run_experiment(scenario, out, progress=progress)
     print(f"scenario: {scenario.name} ({scenario.source})")
     print(format_rms_table(result.metrics))
     print(f"results written to {result.out_dir}")

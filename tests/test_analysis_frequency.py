@@ -79,23 +79,23 @@ def test_with_the_scenario_disturbance_the_observer_loop_still_matches(systems):
     s = make_scenario()                              # paper disturbance acting: the observer loop still rests at q0
     result = frequency.frequency_analysis(s, Q0, omega=OMEGA)
     E_without, E_with, E_d = _closed_forms(OMEGA)
-    mag = np.array(result["tracking_with_dob"]["magnitude"]).T
+    mag = np.array(result.tracking_with_dob.magnitude).T
     assert np.allclose(mag, np.abs(np.diagonal(E_with, axis1=1, axis2=2)), rtol=1e-6, atol=0)
-    assert result["tracking_with_dob"]["closed_form_max_rel_error"] < 1e-6
-    assert result["estimation_with_dob"]["closed_form_max_rel_error"] < 1e-6
+    assert result.tracking_with_dob.closed_form_max_rel_error < 1e-6
+    assert result.estimation_with_dob.closed_form_max_rel_error < 1e-6
     # without the observer the arm rests at q* off q0: the response is the displaced closed form ...
     displaced = _displaced_without_observer(OMEGA)
     numeric = _response(frequency.frozen_response(s, Q0, observer=False), slice(0, 4), OMEGA)
     scale = np.abs(displaced).max(axis=(1, 2), keepdims=True)
     assert np.max(np.abs(numeric - displaced) / scale) < 1e-6
-    mag = np.array(result["tracking_without_dob"]["magnitude"]).T
+    mag = np.array(result.tracking_without_dob.magnitude).T
     assert np.allclose(mag, np.abs(np.diagonal(displaced, axis1=1, axis2=2)), rtol=1e-6, atol=0)
     # ... so the reported distance from the q0 closed form is the distance between the two closed forms,
     # entry by entry relative to the q0 one (entries that are zero there are measured against 1e-9 of the largest)
     floor = np.maximum(np.abs(E_without), np.abs(E_without).max(axis=(1, 2), keepdims=True) * 1e-9)
     expected = np.max(np.abs(displaced - E_without) / floor)
     assert expected > 1e-4                            # the displacement is visible ...
-    assert result["tracking_without_dob"]["closed_form_max_rel_error"] == pytest.approx(expected, rel=1e-4)
+    assert result.tracking_without_dob.closed_form_max_rel_error == pytest.approx(expected, rel=1e-4)
 
 
 def test_dc_peak_and_bandwidth_metrics(systems):
@@ -106,22 +106,24 @@ def test_dc_peak_and_bandwidth_metrics(systems):
     _, E_with, E_d = _closed_forms(dense)
     for i in range(4):
         m = frequency.siso_metrics(without_dob, i, i)
-        assert m["kind"] == "low-pass"
-        assert m["dc_gain"] == pytest.approx(-Minv[i, i] / 180.0, rel=1e-7)
-        assert m["band_3db_rad_s"][0] == 0.0 and m["band_3db_rad_s"][1] == pytest.approx(w3db, rel=1e-6)
+        assert m.kind == "low-pass"
+        assert m.dc_gain == pytest.approx(-Minv[i, i] / 180.0, rel=1e-7)
+        assert m.band_3db_rad_s[0] == 0.0 and m.band_3db_rad_s[1] == pytest.approx(w3db, rel=1e-6)
         m = frequency.siso_metrics(with_dob, i, i)
-        assert m["kind"] == "band-pass" and abs(m["dc_gain"]) < 1e-12
+        assert m.kind == "band-pass" and abs(m.dc_gain) < 1e-12
         k = int(np.argmax(np.abs(E_with[:, i, i])))
-        assert m["peak_gain"] == pytest.approx(abs(E_with[k, i, i]), rel=1e-6)
-        assert m["peak_rad_s"] == pytest.approx(dense[k], rel=2e-3)
-        lo, hi = m["band_3db_rad_s"]
-        assert lo < m["peak_rad_s"] < hi
+        assert m.peak_gain == pytest.approx(abs(E_with[k, i, i]), rel=1e-6)
+        assert m.peak_rad_s == pytest.approx(dense[k], rel=2e-3)
+        lo, hi = m.band_3db_rad_s
+        assert lo < m.peak_rad_s < hi
     # prismatic joint: 31.1 mm per 1.4 N without observer and an estimation corner at 40 rad/s
     # (docs/model.md, "Frozen-configuration transfer functions")
-    assert -frequency.siso_metrics(without_dob, 2, 2)["dc_gain"] * 1.4 == pytest.approx(0.0311, abs=5e-5)
+    assert -frequency.siso_metrics(without_dob, 2, 2).dc_gain * 1.4 == pytest.approx(0.0311, abs=5e-5)
     m = frequency.siso_metrics(with_dob, 6, 2)
-    assert m["kind"] == "high-pass" and m["band_3db_rad_s"][0] == pytest.approx(40.0, rel=1e-6)
-    assert m["band_3db_rad_s"][1] is None and m["hf_gain"] == pytest.approx(1.0, rel=1e-9)
+    assert m.kind == "high-pass" and m.band_3db_rad_s[0] == pytest.approx(40.0, rel=1e-6)
+    assert m.band_3db_rad_s[1] is None and m.hf_gain == pytest.approx(1.0, rel=1e-9)
+    # the open upper edge is null in JSON and None again when read back
+    assert frequency.ChannelMetrics.from_json(m.to_json()) == m
 
 
 def test_noise_is_refused_for_the_frequency_loop():

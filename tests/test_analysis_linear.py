@@ -50,27 +50,27 @@ def test_linearized_poles_equal_analytic_split(gains):
     kp, kd, y = (np.broadcast_to(np.asarray(gains[k], dtype=float), (4,)) for k in ("kp", "kd", "observer"))
     pd = _pd_roots(kp, kd)
     observer = np.linalg.eigvals(-np.diag(y) @ np.linalg.inv(reference_inertia(Q0[1])))
-    with_dob = np.array([complex(*p) for p in result["poles_with_dob"]])
+    with_dob = np.array(result.poles_with_dob)
     assert len(with_dob) == 12
     assert _match_rel(with_dob, np.concatenate([pd, observer])) < 1e-6
-    assert result["q0"] == pytest.approx(Q0.tolist())
-    assert result["q_equilibrium_with_dob"] == pytest.approx(Q0.tolist(), abs=1e-9)
+    assert result.q0 == pytest.approx(Q0.tolist())
+    assert result.q_equilibrium_with_dob == pytest.approx(Q0.tolist(), abs=1e-9)
     # each mode is owned by the block of its analytic partner, wholly so on a perfect model
-    assert result["attribution_agrees_with_dob"]
-    for mode in result["modes_with_dob"]:
-        assert mode["participation"][mode["block"]] > 1 - 1e-6
-    assert sorted(m["block"] for m in result["modes_with_dob"]).count("observer") == 4
+    assert result.attribution_agrees_with_dob
+    for mode in result.modes_with_dob:
+        assert mode.participation[mode.block] > 1 - 1e-6
+    assert sorted(m.block for m in result.modes_with_dob).count("observer") == 4
 
 
 def test_without_observer_without_disturbance_gives_pd_poles():
     gains = {"kp": [100.0, 150.0, 400.0, 60.0], "kd": [10.0, 12.0, 30.0, 8.0]}
     s = make_scenario(gains=gains, disturbance={"kind": "none"})
     result = linear.operating_point_analysis(s, Q0)
-    without = np.array([complex(*p) for p in result["poles_without_dob"]])
+    without = np.array(result.poles_without_dob)
     assert len(without) == 8
     assert _match_rel(without, _pd_roots(gains["kp"], gains["kd"])) < 1e-6
     assert np.any(np.abs(without.imag) > 1)          # this gain set has oscillatory modes
-    zeta = {round(m["zeta"], 9) for m in result["modes_without_dob"]}
+    zeta = {round(m.zeta, 9) for m in result.modes_without_dob}
     expected = {round(d / (2 * math.sqrt(p)), 9) for p, d in zip(gains["kp"], gains["kd"]) if d * d < 4 * p}
     assert expected <= zeta
 
@@ -82,7 +82,7 @@ def test_without_observer_rests_off_target_and_poles_follow_hand_linearization()
     q = Q0.copy()
     for _ in range(50):                               # q* = q0 + Kp^-1 M(q*)^-1 f
         q = Q0 + np.linalg.solve(reference_inertia(q[1]), PAPER_FR) / kp
-    assert result["q_equilibrium_without_dob"] == pytest.approx(q.tolist(), abs=1e-10)
+    assert result.q_equilibrium_without_dob == pytest.approx(q.tolist(), abs=1e-10)
     assert (q - Q0)[2] == pytest.approx(1.4 / 0.25 / 180)          # docs/model.md: 31.1 mm on the prismatic joint
     M = reference_inertia(q[1])
     s2 = math.sin(q[1])
@@ -92,9 +92,11 @@ def test_without_observer_rests_off_target_and_poles_follow_hand_linearization()
     P = np.zeros((4, 4))
     P[:, 1] = -Minv @ dM @ Minv @ PAPER_FR
     A = np.block([[np.zeros((4, 4)), np.eye(4)], [-kp * np.eye(4) + P, -36.0 * np.eye(4)]])
-    without = np.array([complex(*p) for p in result["poles_without_dob"]])
+    without = np.array(result.poles_without_dob)
     assert _match_rel(without, np.linalg.eigvals(A)) < 1e-6
-    assert result["max_rel_error_without_dob"] > 1e-5          # visibly off the ideal PD roots
+    assert result.max_rel_error_without_dob > 1e-5          # visibly off the ideal PD roots
+    # the disturbance the held arm feels is the paper's step f_r (read from the observer's estimate at rest)
+    assert result.disturbance_at_rest == pytest.approx(PAPER_FR.tolist(), rel=1e-9)
 
 
 @pytest.mark.parametrize("a", [0.5, 2.0])
@@ -123,13 +125,12 @@ def test_stability_boundary_search_finds_constructed_boundary():
     qa, qb, qc = kd * kp, r * (kp + kd ** 2), r * (r * kd - kp)
     expected = (-qb + math.sqrt(qb * qb - 4 * qa * qc)) / (2 * qa)
     found = linear.stability_boundaries(s, Q0, observer=True, low=0.1, high=10.0, points=7, rtol=1e-8)
-    assert len(found["boundaries"]) == 1
-    assert found["boundaries"][0]["factor"] == pytest.approx(expected, rel=1e-6)
-    assert found["boundaries"][0]["stable_side"] == "above"
+    assert found.factors == [pytest.approx(expected, rel=1e-6)]
+    assert found.boundaries[0].stable_side == "above" and not found.stable_at_low_end
     alpha_below, _ = linear.spectral_abscissa(linear.scale_nominal_inertia(s, expected * 0.98), Q0, True)
     alpha_above, _ = linear.spectral_abscissa(linear.scale_nominal_inertia(s, expected * 1.02), Q0, True)
     assert alpha_below > 0 > alpha_above
-    assert linear.stability_boundaries(s, Q0, observer=False, low=0.1, high=10.0, points=7)["boundaries"] == []
+    assert linear.stability_boundaries(s, Q0, observer=False, low=0.1, high=10.0, points=7).boundaries == []
 
 
 def test_equilibrium_is_accepted_on_its_residual():

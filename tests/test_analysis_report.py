@@ -1,26 +1,35 @@
-"""``dobkit analyze`` and ``dobkit report`` end to end: files, JSON schema, self-contained HTML, same numbers again.
+"""``dobkit analyze`` and ``dobkit report`` end to end: typed results, strict JSON, self-contained HTML, same numbers
+again.
 
-Also: every built-in scenario goes through every analysis; the report's
-interpretive statements follow the computed numbers (no instability claimed
-when none was found, joints made worse by the observer disclosed); the HTML
-has all text escaped and the JSON is strict.
+The checks are on numbers: attributes of the typed results, values read back
+from ``analysis.json`` and ``metrics.json``, and the numbers the page shows next
+to their labels (table cells by row label) -- compared with the results or
+with independent derivations (docs/model.md, ``conftest.reference_inertia``).
+Also: every built-in scenario goes through every analysis; interpretive
+statements are made only where the numbers support them; the page escapes all
+text (a scenario name with ``<script>`` in it stays text) and the JSON is strict.
 """
 from __future__ import annotations
 
+import html
 import json
 import math
 import re
 from dataclasses import replace
 from html.parser import HTMLParser
 
+import control as ct
 import numpy as np
 import pytest
 
 from conftest import PAPER_FR, SHORT_SCENARIO_TOML as SHORT, reference_inertia
 from dobkit import analysis_commands as analysis_cli
+from analysis import gain_design
+from analysis.bandwidth import workspace_grid
 from analysis.experiment import run_experiment
-from analysis.report import (AnalysisSettings, experiment_metrics, json_text, render_html, run_analysis,
-                                    write_report)
+from analysis.report import (AnalysisResult, AnalysisSettings, experiment_metrics, json_text, render_html,
+                             run_analysis, write_report)
+from analysis.report_view import worse_with_observer
 from blocks import builtin_scenarios, load_scenario
 from dobkit.cli import main
 
@@ -40,11 +49,87 @@ MINIMAL = AnalysisSettings(mismatch_factors=(1.0,), boundary_points=2, workspace
 FIGURES = ("linear_poles", "linear_mismatch", "observer_bandwidth", "observer_design", "frequency_tracking",
            "frequency_estimation", "study_gains", "study_observer")
 
+# The short scenario's arm is held near q0 with Kp = 180, Kd = 36: its PD roots are the roots of s^2 + 36 s + 180.
+Q0 = [0.0, 2.0, 0.24, 0.0]
+PD_SLOWEST = 6.0
+
 
 def _strict(text):
     def bad(name):
         raise ValueError(f"non-standard JSON constant {name}")
     return json.loads(text, parse_constant=bad)
+
+
+class _Page(HTMLParser):
+    """Tags, text and tables of a page; HTMLParser reports a stray '<' (e.g. an unescaped '<=') as text."""
+
+    def __init__(self, page: str):
+        super().__init__(convert_charrefs=True)
+        self.stack, self.text, self.bad = [], [], []
+        self.tables, self.paragraphs = [], []
+        self._cell = self._para = None
+        self.feed(page)
+        self.close()
+
+    def handle_starttag(self, tag, attrs):
+        if tag in ("meta", "img", "br"):
+            return
+        self.stack.append(tag)
+        if tag == "table":
+            self.tables.append({"caption": "", "header": [], "rows": []})
+        elif tag == "tr":
+            self.tables[-1]["rows"].append([])
+        elif tag in ("td", "th", "caption"):
+            self._cell = []
+        elif tag == "p":
+            self._para = []
+
+    def handle_endtag(self, tag):
+        if not self.stack or self.stack.pop() != tag:
+            self.bad.append(tag)
+        if tag in ("td", "th", "caption"):
+            text = "".join(self._cell).strip()
+            table = self.tables[-1]
+            if tag == "caption":
+                table["caption"] = text
+            elif tag == "th":
+                table["header"].append(text)
+            else:
+                table["rows"][-1].append(text)
+            self._cell = None
+        elif tag == "p":
+            self.paragraphs.append("".join(self._para))
+            self._para = None
+
+    def handle_data(self, data):
+        if self.stack and self.stack[-1] != "style":
+            self.text.append(data)
+        for part in (self._cell, self._para):
+            if part is not None:
+                part.append(data)
+
+    def rows(self, caption: str | None = None, header: list | None = None) -> list[list[str]]:
+        """The body rows of the one table with this caption (start) or this header."""
+        found = [t for t in self.tables if (caption is None or t["caption"].startswith(caption))
+                 and (header is None or t["header"] == header)]
+        assert len(found) == 1, f"{len(found)} tables captioned {caption!r} with header {header!r}"
+        return [row for row in found[0]["rows"] if row]
+
+    def table(self, caption: str | None = None, header: list | None = None) -> dict:
+        """The same rows by their first cell (the first row of each label)."""
+        out = {}
+        for row in self.rows(caption, header):
+            out.setdefault(row[0], row[1:])
+        return out
+
+
+def _numbers(text: str) -> list[float]:
+    return [float(x) for x in re.findall(r"[-+]?\d+(?:\.\d+)?(?:e[-+]?\d+)?", text)]
+
+
+def _shown(value, digits: int):
+    """What a cell showing ``value`` to ``digits`` significant digits must equal."""
+    return pytest.approx(value, rel=0.51 * 10.0 ** (1 - digits))
 
 
 @pytest.fixture(scope="module")
@@ -64,29 +149,40 @@ def analyzed(tmp_path_factory, scenario_file):
 @pytest.fixture(scope="module")
 def reported(tmp_path_factory, scenario_file):
     out = tmp_path_factory.mktemp("report") / "out"
-    path = write_report(load_scenario(scenario_file), out, TINY)
-    return path, out
+    calls = []
+    path = write_report(load_scenario(scenario_file), out, TINY, progress=lambda stage, f: calls.append((stage, f)))
+    return path, out, calls
+
+
+@pytest.fixture(scope="module")
+def report_data(reported):
+    path, out, _ = reported
+    return (_Page(path.read_text(encoding="utf-8")), AnalysisResult.from_json((out / "analysis.json").read_text()),
+            _strict((out / "metrics.json").read_text()))
 
 
 def test_analyze_writes_json_and_figures(analyzed):
     status, out = analyzed
     assert status == 0
-    data = _strict((out / "analysis.json").read_text())
-    op = data["operating_points"][0]
-    assert op["q0"] == pytest.approx([0.0, 2.0, 0.24, 0.0])
-    assert len(op["poles_with_dob"]) == 12 and len(op["poles_without_dob"]) == 8
-    assert all(len(p) == 2 and p[0] < 0 for p in op["poles_with_dob"] + op["poles_without_dob"])
-    bw = data["observer_bandwidth"]
-    assert len(bw["theta2"]) == len(bw["eigenvalues"]) and all(len(row) == 4 for row in bw["eigenvalues"])
-    assert bw["slowest_rad_s"]["min"] == pytest.approx(0.848, abs=0.001)        # paper-notes, at theta2 = 0
-    assert bw["slowest_rad_s"]["min"] <= bw["slowest_rad_s"]["max"] == pytest.approx(0.930, abs=0.001)
-    for section in ("mismatch", "observer_design", "frequency", "studies"):
-        assert section in data
+    text = (out / "analysis.json").read_text()
+    _strict(text)
+    result = AnalysisResult.from_json(text)
+    op = result.operating_points[0]
+    assert op.q0 == pytest.approx(Q0)
+    assert len(op.poles_with_dob) == 12 and len(op.poles_without_dob) == 8
+    assert all(p.real < 0 for p in op.poles_with_dob + op.poles_without_dob)
+    # the PD roots of s^2 + 36 s + 180 are -6 and -30 (twice per joint)
+    assert sorted(m.analytic_pole.real for m in op.modes_without_dob) == pytest.approx([-30.0] * 4 + [-6.0] * 4)
+    bw = result.observer_bandwidth
+    assert len(bw.theta2) == len(bw.eigenvalues) and all(len(row) == 4 for row in bw.eigenvalues)
+    assert bw.slowest_rad_s.min == pytest.approx(0.848, abs=0.001)        # docs/model.md, at theta2 = 0
+    assert bw.slowest_rad_s.min <= bw.slowest_rad_s.max == pytest.approx(0.930, abs=0.001)
     names = {p.name for p in out.iterdir()}
     for stem in FIGURES:
         assert {f"{stem}.png", f"{stem}.svg"} <= names
         assert (out / f"{stem}.png").stat().st_size > 10_000
-    assert sorted(data["figures"]) == sorted(n for n in names if n != "analysis.json")
+    assert sorted(result.figures) == sorted(n for n in names if n != "analysis.json")
+    assert "workers" not in _strict(text)["settings"]             # it does not change results
 
 
 def test_cli_errors_are_one_clear_line(analyzed, scenario_file, capsys):
@@ -120,87 +216,155 @@ def test_report_and_analyze_default_to_their_own_folders(capsys):
 @pytest.mark.parametrize("name", builtin_scenarios())
 def test_every_builtin_scenario_goes_through_every_analysis(name):
     result = run_analysis(name, MINIMAL)
-    _strict(json_text(result))
-    for op in result["operating_points"]:          # an equilibrium was found and linearized at every point
-        assert len(op["poles_with_dob"]) == 12 and len(op["poles_without_dob"]) == 8
-    studies = result["studies"]
-    runs = [studies["gains_with_dob"]["runs"][0][0], studies["gains_without_dob"]["runs"][0][0]]
-    assert all(r["ok"] for r in runs + studies["observer"]["runs"])
-    assert set(result["observer_design"]["simulation"]) == {"scenario gain", "designed"}
+    _strict(result.to_json())
+    for op in result.operating_points:          # an equilibrium was found and linearized at every point
+        assert len(op.poles_with_dob) == 12 and len(op.poles_without_dob) == 8
+    studies = result.studies
+    runs = [studies.gains_with_dob.runs[0][0], studies.gains_without_dob.runs[0][0]]
+    assert all(r.ok for r in runs + studies.observer.runs)
+    assert set(result.observer_design.simulation) == {"scenario gain", "designed"}
 
 
 def test_report_is_one_self_contained_file(reported):
-    path, out = reported
-    html = path.read_text(encoding="utf-8")
-    assert html.startswith("<!DOCTYPE html>")
+    path, out, _ = reported
+    page = path.read_text(encoding="utf-8")
+    assert page.startswith("<!DOCTYPE html>")
     # nothing fetched from anywhere: no scripts, stylesheets or remote images; all images inline
-    assert not re.search(r"<script|<link|<iframe|src=\"(?!data:)", html)
-    assert "http://" not in html and "https://" not in html
-    images = re.findall(r'<img alt="[^"]*" src="data:image/png;base64,', html)
+    assert not re.search(r"<script|<link|<iframe|src=\"(?!data:)", page)
+    assert "http://" not in page and "https://" not in page
+    images = re.findall(r'<img alt="[^"]*" src="data:image/png;base64,', page)
     pngs = list((out / "figures").glob("*.png"))
     assert len(images) == len(pngs) >= len(FIGURES) + 5                   # ours and Figures 4-8
-    for heading in ("Summary for the surgical team", "1. Scenario", "2. Simulation", "3. Linearized closed loop",
-                    "4. Observer bandwidth", "5. Observer gain design", "6. Disturbance rejection in frequency",
-                    "7. Gain and noise studies", "Figure 5"):
-        assert heading in html
+    headings = re.findall(r"<h2[^>]*>([^<]*)</h2>", page)
+    assert [h.split(".")[0] for h in headings] == ["Summary for the surgical team", "1", "2", "3", "4", "5", "6", "7"]
 
 
-def test_report_numbers_come_from_the_computation(reported):
-    path, out = reported
-    html = path.read_text(encoding="utf-8")
-    metrics = _strict((out / "metrics.json").read_text())
-    data = _strict((out / "analysis.json").read_text())
-    worst = metrics["with_dob"]["max_tool_position_error_mm"]
-    assert f"strays at most {worst:.3g} mm" in html
-    assert f"{data['observer_bandwidth']['slowest_rad_s']['min']:.4g} rad/s at q" in html
-    boundary = data["mismatch"]["with_dob"]["boundaries"]["boundaries"]
-    assert boundary and f"a = {boundary[0]['factor']:.6g}" in html
+def test_report_tables_show_the_computed_numbers(report_data):
+    page, result, metrics = report_data
+    tracking = page.table("Tracking metrics per joint")
+    for label, run, key in (("RMS position error, with observer", "with_dob", "rms_position_error"),
+                            ("RMS position error, without observer", "without_dob", "rms_position_error"),
+                            ("largest position error, with observer", "with_dob", "max_abs_position_error")):
+        assert [float(c) for c in tracking[label]] == [_shown(v, 4) for v in metrics[run][key]]
+    # the short scenario sags without the observer by M^-1 d / Kp on the prismatic joint (docs/model.md: 31.1 mm)
+    assert float(tracking["largest position error, without observer"][2]) == pytest.approx(1.4 / 0.25 / 180, rel=0.05)
+
+    modes = page.table("Eigenvalues of Y M^-1(q) over the workspace")
+    for k, (lo, hi) in enumerate(result.observer_bandwidth.ranges_rad_s):
+        assert [float(c) for c in modes[f"mode {k + 1}"][:2]] == [_shown(lo, 4), _shown(hi, 4)]
+    assert float(modes["mode 4"][0]) == pytest.approx(40.0)                     # 10 / 0.25 (docs/model.md)
+
+    design = result.observer_design
+    cert = page.table("Convergence certificate")
+    assert [float(c) for c in cert["certificate beta_min (rad/s)"]] == [
+        _shown(design.certificate_scenario_gain.beta_min_rad_s, 5),
+        _shown(design.certificate_designed.beta_min_rad_s, 5)]
+    # the scenario gain Y = 10 I keeps beta > 0 for |theta2'| < 2 Y / ||dM/dtheta2|| = 34.8 rad/s (docs/model.md)
+    assert float(cert["largest |theta2'| keeping beta > 0 (rad/s)"][0]) == pytest.approx(34.8, abs=0.05)
+
+    mismatch = page.rows("Poles against inertia mismatch")
+    for observer, label in ((True, "with observer"), (False, "without observer")):
+        sweep = result.mismatch.loop(observer).sweep
+        shown = [row[1:3] for row in mismatch if row[0] == label]
+        assert [[float(a), float(alpha)] for a, alpha in shown] == [
+            [_shown(a, 4), _shown(alpha, 5)] for a, alpha in zip(sweep.factors, sweep.spectral_abscissa)]
+
+    responses = {tuple(row[:2]): row[2:] for row in page.rows("Per-joint disturbance responses")}
+    # 1 N on the prismatic joint without the observer: -1 / (k4 Kp) = -1 / 45 m/N (DC gain column)
+    assert float(responses["e, without observer", "joint 3"][1]) == pytest.approx(-1 / 45, rel=1e-3)
+    assert float(responses["e, with observer", "joint 3"][1]) == 0.0                    # the observer: zero
+    assert float(responses["d - d_hat, with observer", "joint 3"][5].split(" to ")[0]) == pytest.approx(40.0)
+
+
+def test_report_statements_carry_the_computed_numbers(report_data):
+    page, result, _ = report_data
+    # the stability boundary the search found is quoted in the mismatch reading, to 6 significant digits
+    found = result.mismatch.with_dob.boundaries.factors
+    assert found
+    stability = [p for p in page.paragraphs if p.startswith("Stability with observer:")][0]
+    assert [x for x in _numbers(stability) if x not in result.mismatch.with_dob.boundaries.range][-len(found):] == [
+        _shown(a, 6) for a in found]
+    # the slowest observer mode over the workspace and where it is, in the bandwidth section
+    slow = result.observer_bandwidth.slowest_rad_s
+    line = [p for p in page.paragraphs if p.startswith("Slowest mode:")][0]
+    assert _numbers(line)[:5] == [_shown(slow.min, 4)] + [_shown(v, 4) if v else 0.0 for v in slow.q_at_min]
+
+
+def test_summary_quotes_the_tool_tip_error_and_the_observer_speed(reported, report_data):
+    path, _, _ = reported
+    _, result, metrics = report_data
+    summary = [html.unescape(li) for li in re.findall(r"<li>(.*?)</li>", path.read_text(encoding="utf-8"), flags=re.S)]
+    w, wo = metrics["with_dob"], metrics["without_dob"]
+    assert _numbers(summary[0]) == [_shown(run[key], 3) for key in ("max_tool_position_error_mm",
+                                                                    "rms_tool_position_error_mm") for run in (w, wo)]
+    slow = result.observer_bandwidth.slowest_rad_s
+    speed = [s for s in summary if f"{slow.min:.3g} to {slow.max:.3g} rad/s" in s][0]
+    # slower than the slowest PD root by PD_SLOWEST / slowest mode (the observer limits the rejection speed)
+    ratios = [PD_SLOWEST / slow.max, PD_SLOWEST / slow.min]
+    assert [x for x in _numbers(speed) if x in (_shown(r, 3) for r in ratios)] == [_shown(r, 3) for r in ratios]
+
+
+def test_report_progress_reports_every_stage_done(reported):
+    _, _, calls = reported
+    stages = list(dict.fromkeys(stage for stage, _ in calls))
+    assert {"simulating with observer", "observer bandwidth", "inertia mismatch", "frequency responses",
+            "observer gain and noise study", "writing figures and report"} <= set(stages)
+    for stage in stages:
+        fractions = [f for s, f in calls if s == stage]
+        assert fractions == sorted(fractions) and fractions[-1] == 1.0 and 0.0 <= fractions[0]
 
 
 def test_same_scenario_gives_the_same_numbers(reported, scenario_file):
-    _, out = reported
-    written = _strict((out / "analysis.json").read_text())
-    written.pop("figures")
-    assert _strict(json_text(run_analysis(load_scenario(scenario_file), TINY))) == written
-
-
-class _Structure(HTMLParser):
-    """Collects tags and text; HTMLParser reports a stray '<' (e.g. an unescaped '<=') as text."""
-
-    def __init__(self):
-        super().__init__(convert_charrefs=True)
-        self.stack, self.text, self.bad = [], [], []
-
-    def handle_starttag(self, tag, attrs):
-        if tag not in ("meta", "img", "br"):
-            self.stack.append(tag)
-
-    def handle_endtag(self, tag):
-        if not self.stack or self.stack.pop() != tag:
-            self.bad.append(tag)
-
-    def handle_data(self, data):
-        if self.stack and self.stack[-1] != "style":
-            self.text.append(data)
+    _, out, _ = reported
+    written = (out / "analysis.json").read_text()
+    again = run_analysis(load_scenario(scenario_file), TINY)
+    assert replace(AnalysisResult.from_json(written), figures=None).to_json() == again.to_json()
+    # and the file reads back to exactly what was written
+    assert AnalysisResult.from_json(written).to_json() == written
 
 
 def test_report_text_is_escaped_and_well_formed(reported):
-    path, _ = reported
+    path, _, _ = reported
     page = path.read_text(encoding="utf-8")
-    parser = _Structure()
-    parser.feed(page)
-    parser.close()
+    parser = _Page(page)
     assert parser.bad == [] and parser.stack == []
-    text = "".join(parser.text)
-    assert "V(t) <= V(0) exp(-2 beta t)" in text and "&lt;=" in page
+    assert "<=" in "".join(parser.text) and "&lt;=" in page
     # every '<' or '>' of the page source belongs to a tag: removing the tags leaves none
     body = page.split("</style>", 1)[1]
     assert not re.search(r"[<>]", re.sub(r"</?[a-z][a-z0-9]*(\s[^<>]*)?>", "", body))
 
 
+def test_a_script_in_the_scenario_name_stays_text(fast_observer):
+    s, result, metrics = fast_observer
+    name = "held <script>alert('x')</script> & co"
+    hostile = s.replace(name=name, description='"quoted" <b>bold</b>')
+    page = render_html(replace(result, scenario=replace(result.scenario, name=name, toml=hostile.to_toml())),
+                       metrics, hostile, {})
+    assert "<script" not in page and "<b>bold" not in page
+    assert "&lt;script&gt;" in page
+    parsed = _Page(page)
+    assert parsed.bad == [] and parsed.stack == []
+    settings = parsed.table(header=["setting", "value"])
+    assert settings["name"] == [name] and settings["description"] == ['"quoted" <b>bold</b>']
+    assert f"dobkit report: {name}" in "".join(parsed.text)
+
+
 def test_json_has_no_nonstandard_numbers():
     text = json_text({"a": math.nan, "b": [math.inf, -math.inf, 1.5], "c": {"d": float("nan")}})
     assert _strict(text) == {"a": None, "b": [None, None, 1.5], "c": {"d": None}}
+    with pytest.raises(TypeError, match="control.*StateSpace.*no JSON form"):
+        json_text({"loop": ct.ss([[-1.0]], [[1.0]], [[1.0]], [[0.0]])})
+
+
+def test_an_unlimited_critical_speed_is_null_in_json_and_infinite_when_read_back():
+    # M(q) does not depend on theta1: moving joint 1 alone never breaks the condition
+    grid, _ = workspace_grid((1, 13, 1, 1))
+    crit = gain_design.critical_speed(load_scenario("paper").nominal, 10.0 * np.eye(4), grid, [1.0, 0.0, 0.0, 0.0])
+    assert crit.unlimited and crit.speed_factor == math.inf
+    data = _strict(crit.to_json())
+    assert data["speed_factor"] is None and data["speed_bound"] == [None, 0.0, 0.0, 0.0]
+    back = gain_design.CriticalSpeed.from_json(crit.to_json())
+    assert back.speed_factor == math.inf and back.speed_bound == [math.inf, 0.0, 0.0, 0.0]
 
 
 @pytest.fixture(scope="module")
@@ -214,40 +378,44 @@ def fast_observer(scenario_file):
 
 def test_report_claims_no_instability_that_was_not_found(fast_observer):
     s, result, metrics = fast_observer
-    with_dob = result["mismatch"]["with_dob"]["boundaries"]
-    assert with_dob["boundaries"] == [] and max(with_dob["scan"]["spectral_abscissa"]) < 0
-    page = render_html(result, metrics, s, {})
-    assert "unstable" not in page and "goes unstable" not in page
-    assert "with the observer the held loop stays stable for every nominal inertia from 0.02 to 50" in page
-    # and the statements that depend on the scenario are made only where the numbers support them
-    assert "zero DC gain" in page                      # stable, and DC gain computed ~0
-    slow = result["observer_bandwidth"]["slowest_rad_s"]["min"]
-    assert slow < 6.0 and "limits how fast a disturbance is rejected" in page
+    search = result.mismatch.with_dob.boundaries
+    assert search.boundaries == [] and max(search.scan.spectral_abscissa) < 0
+    page = _Page(render_html(result, metrics, s, {}))
+    assert "unstable" not in " ".join(page.paragraphs + page.text)
+    stability = [p for p in page.paragraphs if p.startswith("Stability with observer:")][0]
+    assert _numbers(stability) == pytest.approx(search.range)          # only the ends of the range searched
+    # held at q0 the arm rests on its target with the observer: every DC gain of the tracking error is zero
+    assert all(abs(m.dc_gain) <= 1e-6 * m.peak_gain for m in result.frequency.tracking_with_dob.metrics)
+    dc = [row[3] for row in page.rows("Per-joint disturbance responses")
+          if row[0] == "e, with observer" and row[1].startswith("joint")]
+    assert dc == ["0"] * 4
+    # Y = 50 I: the slowest observer mode (50 / the largest inertia seen) is still slower than the PD root at 6 rad/s
+    largest = max(np.linalg.eigvalsh(reference_inertia(t)).max() for t in np.linspace(-np.pi, np.pi, 73))
+    slow = result.observer_bandwidth.slowest_rad_s
+    assert slow.max < PD_SLOWEST and slow.min == pytest.approx(50.0 / largest, rel=1e-9)
 
 
-def test_report_discloses_joints_made_worse_by_the_observer(reported):
-    path, out = reported
-    page = path.read_text(encoding="utf-8")
-    summary = page.split("Summary for the surgical team", 1)[1].split("1. Scenario", 1)[0]
-    metrics = _strict((out / "metrics.json").read_text())
+def test_report_discloses_joints_made_worse_by_the_observer(reported, report_data, scenario_file):
+    _, result, metrics = report_data
     w, wo = metrics["with_dob"]["rms_position_error"], metrics["without_dob"]["rms_position_error"]
     worse = [j for j in range(4) if w[j] > wo[j]]
     assert worse == [0]          # this scenario, like the paper's: joint 1 is worse with the observer
-    for j in range(4):
-        assert (f"On joint {j + 1} " in summary) == (j in worse)
-    assert f"RMS {w[0]:.3g} rad with it against {wo[0]:.3g} rad without" in summary
+    lines = worse_with_observer(result, metrics, load_scenario(scenario_file))
+    assert len(lines) == len(worse)
+    numbers = _numbers(lines[0].split(")", 1)[1])          # past "On joint 1 (theta1)"
+    assert numbers[:2] == [_shown(w[0], 3), _shown(wo[0], 3)]
     # why, from independent numbers: held at q0 without the observer joint 1 rests M^-1 f / Kp off, which is
     # far smaller than what its own disturbance alone would give, (M^-1)_11 f_1 / Kp
-    q0 = np.array([0.0, 2.0, 0.24, 0.0])
+    q0 = np.array(Q0)
     q = q0.copy()
     for _ in range(50):
         q = q0 + np.linalg.solve(reference_inertia(q[1]), PAPER_FR) / 180.0
     own = np.linalg.inv(reference_inertia(q0[1]))[0, 0] * PAPER_FR[0] / 180.0
     assert abs(q - q0)[0] < 0.5 * own
-    assert f"only {abs(q - q0)[0]:.3g} rad off without the observer" in summary
-    assert f"which alone would leave {own:.3g} rad" in summary
+    assert _shown(abs(q - q0)[0], 3) in numbers and _shown(own, 3) in numbers
     # the error with the observer is called a start-up transient only when it is one: largest in the first half
     # of the run and less than half as large at its end
     peak, final = metrics["with_dob"]["max_abs_position_error"][0], metrics["with_dob"]["final_abs_position_error"][0]
     early = metrics["with_dob"]["time_of_max_abs_position_error"][0] <= 0.5 * metrics["duration_s"]
-    assert ("start-up transient" in summary) == (early and final < 0.5 * peak)
+    assert ("start-up transient" in lines[0]) == (early and final < 0.5 * peak)
+    assert _shown(peak, 3) in numbers and _shown(final, 3) in numbers

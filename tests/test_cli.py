@@ -1,12 +1,16 @@
-"""End-to-end checks of ``dobkit simulate``: files, schema, reproducibility and clear errors."""
+"""End-to-end checks of ``dobkit simulate``: files, schema, reproducibility, clear errors, and the progress display."""
 import csv
+import io
 import json
 
 import numpy as np
 import pytest
 
 from conftest import SHORT_SCENARIO_TOML as SHORT
-from blocks import load_scenario
+from analysis.sweep import load_sweep
+from analysis.sweep_runner import run_sweep
+from blocks import load_scenario, progress
+from dobkit import cli
 from dobkit.cli import main
 
 
@@ -98,3 +102,126 @@ def test_report_refuses_a_missing_sweep_summary_before_any_work(tmp_path, capsys
     assert main(["report", "--quick", "--sweep", str(tmp_path / "no-such-summary"), "--out", str(out)]) == 2
     assert "has no summary.json" in capsys.readouterr().err
     assert not out.exists()
+
+
+# --- progress -------------------------------------------------------------------------------------------------
+
+
+class _Recorded(progress.StageProgress):
+    """The CLI's own display, keeping every call it receives."""
+
+    made = []
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.calls = []
+        _Recorded.made.append(self)
+
+    def __call__(self, stage, fraction):
+        self.calls.append((stage, fraction))
+        super().__call__(stage, fraction)
+
+
+def _increasing_to_one(calls, stage):
+    fractions = [f for s, f in calls if s == stage]
+    assert fractions, f"no progress reported for {stage!r}"
+    assert all(0.0 <= f <= 1.0 for f in fractions) and fractions == sorted(fractions) and fractions[-1] == 1.0
+
+
+def test_simulate_reports_progress_of_both_runs(short_run, tmp_path, monkeypatch, capsys):
+    _, _, scenario = short_run
+    _Recorded.made.clear()
+    monkeypatch.setattr(cli, "StageProgress", _Recorded)
+    assert main(["simulate", "--scenario", str(scenario), "--out", str(tmp_path / "out")]) == 0
+    (display,) = _Recorded.made
+    for stage in ("simulating with observer", "simulating without observer"):
+        _increasing_to_one(display.calls, stage)
+    # stderr is not a terminal here: one line per stage, each with its own duration, in order
+    lines = capsys.readouterr().err.splitlines()
+    assert [line.rsplit(": ", 1)[0] for line in lines] == ["simulating with observer", "simulating without observer",
+                                                           "writing figures"]
+    assert all(line.endswith(" s") and float(line.rsplit(": ", 1)[1][:-2]) >= 0 for line in lines)
+
+
+def test_sweep_reports_finished_runs_up_to_all_of_them(short_run, tmp_path, capsys):
+    _, _, scenario = short_run
+    path = tmp_path / "s.toml"
+    path.write_text(f'scenario = "{scenario}"\n[grid]\n"gains.kp" = [120, 150, 180, 210]\n[batch]\nsize = 1\n')
+    calls = []
+    run_sweep(load_sweep(path), tmp_path / "r.jsonl", workers=1, progress=lambda stage, f: calls.append((stage, f)))
+    _increasing_to_one(calls, "sweep")
+    assert [f for _, f in calls] == [0.0, 0.25, 0.5, 0.75, 1.0]          # at the start, then after every batch
+    # resumed: the runs found in the results file count from the start
+    calls.clear()
+    run_sweep(load_sweep(path), tmp_path / "r.jsonl", workers=1, progress=lambda stage, f: calls.append((stage, f)))
+    assert calls == [("sweep", 1.0)]
+    # the command line's display, on a stream that is not a terminal: a line per tenth of the runs
+    args = cli.build_parser().parse_args(["sweep", str(path), "--results", str(tmp_path / "cli.jsonl"),
+                                          "--workers", "1"])
+    assert args.func(args) == 0
+    counts = [line.split()[1] for line in capsys.readouterr().err.splitlines() if line.startswith("sweep: ")]
+    assert counts == ["0/4", "1/4", "2/4", "3/4", "4/4"]
+
+
+class _Clock:
+    """A monotonic clock the test moves by hand."""
+
+    def __init__(self):
+        self.now = 100.0
+
+    def __call__(self):
+        return self.now
+
+
+class _Terminal(io.StringIO):
+    def isatty(self):
+        return True
+
+
+def test_each_stage_shows_its_own_duration(monkeypatch):
+    clock = _Clock()
+    monkeypatch.setattr(progress.time, "monotonic", clock)
+    log = io.StringIO()
+    with progress.StageProgress(log) as display:
+        display("first", 0.0)
+        clock.now += 5.0
+        display("first", 1.0)
+        display("second", 0.2)
+        clock.now += 2.0
+        display("second", 0.1)            # never backwards within a stage
+        assert display.fraction == 0.2
+        display("third", 0.0)
+        clock.now += 0.5
+    assert log.getvalue() == "first: 5.0 s\nsecond: 2.0 s\nthird: 0.5 s\n"
+    # a stage cut short by an error says so
+    log = io.StringIO()
+    with pytest.raises(RuntimeError):
+        with progress.StageProgress(log) as display:
+            display("doomed", 0.3)
+            clock.now += 1.0
+            raise RuntimeError("diverged")
+    assert log.getvalue() == "doomed: stopped after 1.0 s\n"
+
+
+def test_on_a_terminal_every_stage_is_a_bar_that_ends_full():
+    screen = _Terminal()
+    with progress.StageProgress(screen) as display:
+        for f in (0.0, 0.25, 0.5):
+            display("simulating", f)
+        display("writing figures", 0.0)
+    finals = [part for part in screen.getvalue().split("\r") if part.strip()]
+    assert any(p.startswith("simulating") and "100.0%" in p for p in finals)
+    assert any(p.startswith("writing figures") and "100.0%" in p for p in finals)
+    assert screen.getvalue().count("\n") == 2              # two finished bars, one line each
+
+
+def test_counter_writes_a_line_per_tenth_or_nothing():
+    log = io.StringIO()
+    counter = progress.CountProgress(100, done=0, stream=log)
+    for _ in range(100):
+        counter.update(1)
+    counter.close()
+    assert [line.split()[1] for line in log.getvalue().splitlines()] == [f"{10 * k}/100" for k in range(11)]
+    silent = io.StringIO()
+    progress.CountProgress(10, stream=silent, enabled=False).update(10)
+    assert silent.getvalue() == ""

@@ -16,11 +16,12 @@ import pytest
 import blocks
 from analysis import sweep
 from analysis.sweep import SweepError, load_sweep, sweep_from_dict
-from analysis.sweep_runner import Progress, read_results, run_sweep
+from analysis.sweep_runner import read_results, run_sweep
 from dobkit.sweep_commands import add_sweep_subcommand
 from analysis.sweep_report import html_section, summarize, write_summary
 from blocks.batch import METRIC_ATOL, METRIC_RTOL, simulate_batch
 from conftest import PAPER_FR
+from blocks.progress import CountProgress
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -266,15 +267,15 @@ def test_summary_lists_diverged_runs(tmp_path):
             {"run_id": "b", "index": 1, "values": {"gains.kd": 5000.0}, "status": "diverged", "metrics": {},
              "failed_at": 0.02}]
     summary = summarize(({"name": "x", "runs": 2, "worst_metric": "rms_position_error[1]"}, rows))
-    assert summary["counts"]["diverged"] == 1 and summary["failed"][0]["values"] == {"gains.kd": 5000.0}
-    assert summary["statistics"]["rms_position_error[2]"]["unit"] == "m"
+    assert summary.counts.diverged == 1 and summary.failed[0].values == {"gains.kd": 5000.0}
+    assert summary.statistics["rms_position_error[2]"].unit == "m"
     files = write_summary(({"name": "x", "runs": 2, "worst_metric": "rms_position_error[1]"}, rows), tmp_path)
     assert "Diverged runs" in files["markdown"].read_text()
 
 
 def test_progress_bar_reports_counts():
     stream = io.StringIO()
-    bar = Progress(10, done=2, stream=stream)
+    bar = CountProgress(10, done=2, stream=stream)
     bar.update(3)
     bar.update(5)
     bar.close()
