@@ -12,8 +12,9 @@ The plant, controller, observer and sensor are *kernel blocks*: their update
 and output functions are the block kernels below, which slice the stacked
 input and call the laws of :mod:`blocks.kernels`, and their contract carries
 those kernels with their parameters so that an engine can call them
-directly, over a time grid or over a batch.  The trajectory block wraps a
-path object.
+directly, over a time grid or over a batch.  The trajectory block is a
+kernel block too when its path has kernels (the paths of
+:mod:`blocks.trajectory` do); it wraps any other path object.
 """
 from __future__ import annotations
 
@@ -199,12 +200,20 @@ def trajectory_block(trajectory, name: str = "trajectory") -> Block:
     Parameters
     ----------
     trajectory : object
-        Anything with ``evaluate(t) -> (q, dq, ddq)`` returning three 4-vectors
-        for a scalar time ``t`` (s) (see :mod:`blocks.trajectory`).
-        When it also has ``evaluate_stacked(t)``, returning the three side by
-        side with shape ``np.shape(t) + (12,)`` for a scalar or a (T,) array of
-        times, that is used instead and the block takes columns.
+        A path of :mod:`blocks.trajectory` (the block is then a kernel block
+        whose output is the path's reference kernel), or anything with
+        ``evaluate(t) -> (q, dq, ddq)`` returning three 4-vectors for a scalar
+        time ``t`` (s).  When such an object also has ``evaluate_stacked(t)``,
+        returning the three side by side with shape ``np.shape(t) + (12,)``
+        for a scalar or a (T,) array of times, that is used instead and the
+        block takes columns.
     """
+    outputs = signal_names("q_ref") + signal_names("dq_ref") + signal_names("ddq_ref")
+    make_kernels = getattr(trajectory, "kernels", None)
+    if callable(make_kernels):
+        block = kernel_block(make_kernels(), name=name, inputs=[], outputs=outputs)
+        block.trajectory = trajectory
+        return block
     stacked = getattr(trajectory, "evaluate_stacked", None)
 
     def output(t, x, u, _params):
@@ -213,7 +222,6 @@ def trajectory_block(trajectory, name: str = "trajectory") -> Block:
             return refs if refs.ndim == 1 else refs.T
         return np.concatenate(trajectory.evaluate(t))
 
-    outputs = signal_names("q_ref") + signal_names("dq_ref") + signal_names("ddq_ref")
     block = Block(None, output, name=name, inputs=0, outputs=outputs,
                   contract=BlockContract(feedthrough=frozenset(), columnwise=stacked is not None))
     block.trajectory = trajectory
