@@ -150,7 +150,7 @@ def controller(nominal: RobotParameters, kp, kd, use_observer: bool = True, meas
 
 
 def observer(nominal: RobotParameters, gain, variant: str = "correct", measured: str = "",
-             name: str = "observer") -> Block:
+             name: str = "observer", matrix_gain: bool = False) -> Block:
     """Nonlinear disturbance observer (Chen et al. 2000; Mohammadi et al. 2013).
 
     ``d_hat = Y q' + z``, ``z' = -Y M^-1(q)(tau + d_hat - N(q, q') q' - G(q))``,
@@ -170,6 +170,10 @@ def observer(nominal: RobotParameters, gain, variant: str = "correct", measured:
     variant : {"correct", "paper-eq16"}
     measured : str
         Suffix of the measured signals it reads (see :func:`controller`).
+    matrix_gain : bool
+        Give the kernels ``Y`` as a 4x4 matrix even when it is diagonal (by
+        default a diagonal gain is given by its diagonal, which multiplies
+        elementwise); for engines that need one parameter layout for every gain.
 
     Raises
     ------
@@ -182,7 +186,8 @@ def observer(nominal: RobotParameters, gain, variant: str = "correct", measured:
         raise ValueError(f"observer variant {variant!r} is unknown; choose from {list(OBSERVER_VARIANTS)}")
     Y = validated_gain(gain, "observer")
     # a diagonal gain multiplies elementwise (see blocks.kernels.laws.gain_times)
-    y_param = np.diag(Y).copy() if np.count_nonzero(Y - np.diag(np.diag(Y))) == 0 else np.array(Y)
+    diagonal = np.count_nonzero(Y - np.diag(np.diag(Y))) == 0 and not matrix_gain
+    y_param = np.diag(Y).copy() if diagonal else np.array(Y)
     dq_in = signal_names("dq" + measured, nominal)
     inputs = signal_names("tau", nominal) + signal_names("q" + measured, nominal) + dq_in
     kernels = Kernels((arm_constants(nominal), y_param, 1.0 if variant == "paper-eq16" else 0.0),

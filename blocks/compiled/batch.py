@@ -13,11 +13,13 @@ chunk by chunk, so memory stays bounded.
 """
 from __future__ import annotations
 
+import control as ct
 import numpy as np
 
 from ..kernels import lumped_disturbance
 from ..loop import DIVERGENCE_BOUND, closed_loop
 from ..metrics import TrackingAccumulator
+from ..systems import observer as observer_block
 from ..systems import signal_names
 from .codegen import CompiledUnavailable
 from .engine import CompiledLoopEngine
@@ -57,6 +59,19 @@ def _param_rows(params, n: int) -> np.ndarray:
     return np.vstack(rows) if rows else np.zeros((0, n))
 
 
+def _with_matrix_observer_gain(loop):
+    """The same loop with an observer whose kernels take ``Y`` as a 4x4 matrix (one layout for every member)."""
+    s = loop.scenario
+    parts = [observer_block(s.nominal, s.observer_gain, s.observer_variant, matrix_gain=True,
+                            measured="_meas" if s.noise is not None else "") if b.name == "observer" else b
+             for b in loop.syslist]
+    outputs = list(loop.output_labels)
+    matrix_loop = ct.interconnect(parts, inplist=[], outlist=outputs, outputs=outputs, name=loop.name,
+                                  check_unused=False)
+    matrix_loop.scenario, matrix_loop.with_observer = s, loop.with_observer
+    return matrix_loop
+
+
 def run_compiled_batch(v, batch_loop, observer: bool, metrics: tuple, signals: tuple, times, grid_index,
                        workers: int = 1):
     """Integrate the members of ``v`` compiled; return ``(metrics, signals, failed_at)`` as the numpy batch does.
@@ -78,6 +93,8 @@ def run_compiled_batch(v, batch_loop, observer: bool, metrics: tuple, signals: t
         raise CompiledUnavailable(f"engine='compiled' cannot run this batch: {reason}")
     numba = numba_or_none()
     loop = closed_loop(v.base, observer=observer)
+    if observer and batch_loop.gain.ndim == 3:      # some member's Y is not diagonal: trace Y as a matrix
+        loop = _with_matrix_observer_gain(loop)
     engine = CompiledLoopEngine(loop)
     program, module, plan = engine.program, engine.module, engine.plan
     n, N = batch_loop.joints, batch_loop.n
@@ -128,7 +145,9 @@ def run_compiled_batch(v, batch_loop, observer: bool, metrics: tuple, signals: t
     if want_d:
         needed += ["dq", "tau", "tau_dis"] + (["d_hat"] if observer else [])
     needed = list(dict.fromkeys(needed))
-    rows_of = {sig: [labels.index(x) for x in signal_names(sig)] for sig in needed}
+    # without a sensor the measured signals are the true ones (as in the numpy batch)
+    alias = {} if "q_meas[0]" in labels else {"q_meas": "q", "dq_meas": "dq"}
+    rows_of = {sig: [labels.index(x) for x in signal_names(alias.get(sig, sig))] for sig in needed}
     keep = np.array([r for sig in needed for r in rows_of[sig]], dtype=np.int64)
     at = {sig: slice(needed.index(sig) * n, needed.index(sig) * n + n) for sig in needed}
     n_grid = int(grid_index.max()) + 1

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import importlib
 import inspect
+import os
 import sys
 import types
 
@@ -28,6 +29,11 @@ def numba_or_none():
             _numba = importlib.import_module("numba")
         except ImportError:
             _numba = None
+        else:
+            # The batch runs members on numba's threads, and sweeps and studies fork worker processes
+            # afterwards: GNU OpenMP's threads do not survive a fork, numba's own work queue does.
+            if "NUMBA_THREADING_LAYER" not in os.environ:
+                _numba.config.THREADING_LAYER = "workqueue"
     return _numba
 
 
