@@ -216,7 +216,7 @@ def convergence_figure(study: dict, out_dir, stem: str = "convergence") -> list[
     ax.set_xticks(h * 1e3, [f"{v:g}" for v in h * 1e3])
     ax.minorticks_off()
     ax.set_xlabel("communication step h (ms)")
-    ax.set_ylabel("max |q_cosim - q_monolithic| (each joint's unit, see legend)")
+    ax.set_ylabel("max |q_cosim - q_monolithic| (rad; joint 3 in m)")
     ax.set_title(f"{study['scenario']}: co-simulation error vs step, FMI {study['fmi_version']}, "
                  f"t_final = {study['t_final']:g} s")
     ax.grid(True, which="both", alpha=0.3)
