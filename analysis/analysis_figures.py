@@ -138,7 +138,9 @@ def bandwidth_figure(survey: BandwidthSurvey, designed: BandwidthOverview | None
     ax.set_yscale("log")
     ax.set_xlabel("theta2 (rad)")
     ax.set_ylabel("observer mode decay rate (rad/s)")
-    _finish(ax, "Eigenvalues of Y M^-1(q) along theta2 (solid: scenario gain Y)")
+    # the legend below the axes, where it covers no curve
+    _finish(ax, "Eigenvalues of Y M^-1(q) along theta2 (solid: scenario gain Y)", loc="upper center",
+            bbox_to_anchor=(0.5, -0.14), ncol=2)
     ax = axes[1]
     direction = np.array(survey.slowest_direction)
     for j in range(4):

@@ -103,8 +103,7 @@ def observer_reading(obs, scenario) -> str | None:
                          f"{'s' if len(beat) == 1 else ''} a smaller peak ({join([peak[k] for k in beat], 3)} mm) "
                          f"although {'its slowest mode is' if len(beat) == 1 else 'their slowest modes are'} slower "
                          f"({join([slowest[k] for k in beat], 3)} against {fmt(slowest[kd], 3)} rad/s): the slowest "
-                         "mode sets how long the estimate takes to settle, while the first peak comes from the "
-                         "faster modes.")
+                         "observer mode alone does not set the peak.")
     if not runs[0].ok:
         return text
     noisiest = max(ok, key=lambda k: max((r for r in _noise_ratios(obs, k) if math.isfinite(r)), default=-math.inf))
