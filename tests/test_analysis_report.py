@@ -507,3 +507,26 @@ def test_no_estimation_error_metric_that_only_measures_the_jump_at_t0(report_dat
     _, _, metrics = report_data
     assert "max_abs_disturbance_error" not in metrics["with_dob"]
     assert "rms_disturbance_error" in metrics["with_dob"]
+
+
+def test_long_steps_report_how_far_they_have_got(reported):
+    # the steps that take longest on the full settings say how far they are, not only that they started and ended
+    _, _, calls = reported
+    # (TINY's Kp x Kd grid is a single run, so the gain studies have nothing in between)
+    for stage in ("inertia mismatch", "observer gain design", "observer gain and noise study",
+                  "writing figures and report"):
+        inside = [f for s, f in calls if s == stage and 0.0 < f < 1.0]
+        assert inside, f"{stage!r} reports nothing between its start and its end"
+
+
+def test_figures_name_the_joints_as_a_person_reads_them(tmp_path):
+    from analysis.figures import convergence_figure
+    from blocks.joints import RRPR_JOINTS
+    h = [0.004, 0.002, 0.001]
+    study = {"steps": h, "errors": {f"q[{i}]": [(i + 1) * x for x in h] for i in range(4)},
+             "units": {"q[0]": "rad", "q[1]": "rad", "q[2]": "m", "q[3]": "rad"}, "order": 1.0, "scenario": "s",
+             "fmi_version": 2, "t_final": 1.0}
+    svg = next(p for p in convergence_figure(study, tmp_path) if p.suffix == ".svg").read_text()
+    for label in RRPR_JOINTS.labels:
+        assert label in svg
+    assert "q[0] (rad)" not in svg
