@@ -8,6 +8,7 @@ ids: the same numbers give the same bytes), returning the paths.
 """
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 
 import matplotlib
@@ -17,17 +18,16 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from .bandwidth import BandwidthOverview, BandwidthSurvey  # noqa: E402
-from .figures import save_figure  # noqa: E402
+from .figures import JOINT_TITLES, save_figure  # noqa: E402
 from .frequency import FrequencyAnalysis  # noqa: E402
 from .gain_design import SimulationCheck  # noqa: E402
 from .linear import MismatchStudy, OperatingPoint  # noqa: E402
-from .studies import GainGridStudy, ObserverGainStudy  # noqa: E402
-from blocks.metrics import JOINT_LABELS  # noqa: E402
+from .studies import GainGridStudy, ObserverGainStudy, settling_definition  # noqa: E402
+from blocks.metrics import DISTURBANCE_UNITS  # noqa: E402
 
 __all__ = ["pole_figure", "mismatch_figure", "bandwidth_figure", "design_figure", "bode_figure",
            "gain_study_figure", "observer_study_figure"]
 
-_JOINT_TITLES = ("Joint 1 (theta1)", "Joint 2 (theta2)", "Joint 3 (d3, prismatic)", "Joint 4 (theta4)")
 _BLOCK_COLORS = {"plant": "tab:blue", "observer": "tab:orange"}
 
 
@@ -44,14 +44,18 @@ def pole_figure(operating_points: list[OperatingPoint], out_dir) -> list[Path]:
                              gridspec_kw={"width_ratios": [1, 1.3]})
     ax = axes[0]
     first = operating_points[0]
-    for key, marker, size, title in (("with_dob", "o", 9, "with observer"), ("without_dob", "s", 5, "without")):
+    # where the loops share a pole the markers nest: a large ring (with), a small filled square inside it
+    # (without) and the analytic split as a small black dot at the centre
+    for key, style, title in (("with_dob", dict(marker="o", ms=13, mfc="none", mew=1.6), "with observer"),
+                              ("without_dob", dict(marker="s", ms=6, mew=0), "without")):
         for block in ("plant", "observer"):
             poles = np.array([m.pole for m in first.modes(key == "with_dob") if m.block == block])
             if len(poles):
-                ax.plot(poles.real, poles.imag, marker, ms=size, mfc="none", color=_BLOCK_COLORS[block],
-                        label=f"{title}: {block} modes")
+                color = _BLOCK_COLORS[block]
+                ax.plot(poles.real, poles.imag, ls="none", color=color, mfc=style.get("mfc", color),
+                        label=f"{title}: {block} modes", **{k: v for k, v in style.items() if k != "mfc"})
     analytic = np.array([m.analytic_pole for m in first.modes_with_dob])
-    ax.plot(analytic.real, analytic.imag, "x", ms=5, color="black", label="analytic split (perfect model)")
+    ax.plot(analytic.real, analytic.imag, ".", ms=3, color="black", label="analytic split (perfect model)")
     ax.set_xscale("symlog", linthresh=1.0)
     ax.axvline(0, color="gray", lw=0.8)
     ax.set_xlabel("real part (rad/s, symlog scale)")
@@ -73,7 +77,9 @@ def pole_figure(operating_points: list[OperatingPoint], out_dir) -> list[Path]:
     ax.invert_yaxis()
     ax.set_xscale("log")
     ax.set_xlabel("decay rate -Re(pole) (rad/s, log scale)")
-    _finish(ax, "Decay rates at every operating point", axis="x", loc="lower right")
+    # the legend below the axes, where it covers no pole
+    _finish(ax, "Decay rates at every operating point", axis="x", loc="upper center", bbox_to_anchor=(0.5, -0.12),
+            ncol=3)
     return save_figure(fig, out_dir, "linear_poles")
 
 
@@ -119,22 +125,26 @@ def bandwidth_figure(survey: BandwidthSurvey, designed: BandwidthOverview | None
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.8), constrained_layout=True)
     ax = axes[0]
     for k in range(eig.shape[1]):
+        lo, hi = f"{eig[:, k].min():.3g}", f"{eig[:, k].max():.3g}"
         ax.plot(theta2, eig[:, k], lw=2.2 if k == 0 else 1.4,
-                label=f"mode {k + 1}: {eig[:, k].min():.3g}-{eig[:, k].max():.3g} rad/s")
+                label=f"mode {k + 1}: {lo if lo == hi else f'{lo} to {hi}'} rad/s")
     if designed is not None:
         d_eig = np.array(designed.eigenvalues)
         for k in range(d_eig.shape[1]):
             ax.plot(theta2, d_eig[:, k], color="black", ls="--", lw=1,
                     label="designed Y (all 4 modes)" if k == 0 else None)
-    ax.axhline(pd_slowest, color="tab:green", ls=":", label=f"slowest PD pole {pd_slowest:.3g} rad/s")
+    # on top of the modes, in black: it may lie on one of them
+    ax.axhline(pd_slowest, color="black", ls=":", lw=2, zorder=5, label=f"slowest PD pole {pd_slowest:.3g} rad/s")
     ax.set_yscale("log")
     ax.set_xlabel("theta2 (rad)")
     ax.set_ylabel("observer mode decay rate (rad/s)")
-    _finish(ax, "Eigenvalues of Y M^-1(q) along theta2 (solid: scenario gain Y)")
+    # the legend below the axes, where it covers no curve
+    _finish(ax, "Eigenvalues of Y M^-1(q) along theta2 (solid: scenario gain Y)", loc="upper center",
+            bbox_to_anchor=(0.5, -0.14), ncol=2)
     ax = axes[1]
     direction = np.array(survey.slowest_direction)
     for j in range(4):
-        ax.plot(theta2, direction[:, j], label=f"{JOINT_LABELS[j]} component")
+        ax.plot(theta2, direction[:, j], label=JOINT_TITLES[j])
     ax.set_xlabel("theta2 (rad)")
     ax.set_ylabel("component of unit eigenvector (1)")
     _finish(ax, "Direction of the slowest observer mode (disturbance space)", which="major")
@@ -148,7 +158,9 @@ def design_figure(confirm: dict[str, SimulationCheck], out_dir) -> list[Path]:
     for (label, run), color in zip(confirm.items(), colors):
         t = np.array(run.time)
         conv = run.convergence_time_s
-        axes[0].semilogy(t, np.maximum(run.error_norm, 1e-300), color=color,
+        err = np.array(run.error_norm, dtype=float)
+        # an error of exactly zero has no place on a log axis: leave it out rather than draw it at 1e-300
+        axes[0].semilogy(t, np.where(err > 0, err, np.nan), color=color,
                          label=f"{label}: within {100 * run.threshold:g}% after "
                                + (f"{conv:.3g} s" if conv is not None else "- (not within the run)"))
         if run.lyapunov_ratio is not None:         # None: no error at the start (V(0) = 0), nothing to bound
@@ -160,7 +172,7 @@ def design_figure(confirm: dict[str, SimulationCheck], out_dir) -> list[Path]:
     # below these levels the ODE solver's own error (rtol, atol) dominates the curves
     top = max(max(r.error_norm) for r in confirm.values())
     if top > 0:
-        axes[0].set_ylim(1e-6 * top, None)
+        axes[0].set_ylim(1e-6 * top, 3 * top)
     axes[0].set_title("Estimation error in the nonlinear simulation", fontsize=10)
     axes[1].set_xlabel("time (s)")
     axes[1].set_ylabel("V(t) / V(0) (1)")
@@ -191,7 +203,7 @@ def bode_figure(freq: FrequencyAnalysis, out_dir, kind: str = "tracking") -> lis
             for edge in m.band_3db_rad_s:
                 if edge:
                     ax.axvline(edge, color=color, ls=":", lw=0.8)
-        ax.set_title(_JOINT_TITLES[i], fontsize=10)
+        ax.set_title(JOINT_TITLES[i], fontsize=10)
         ax.set_ylabel(f"|{'E' if kind == 'tracking' else 'E_d'}/W| (dB re 1 {units[i]})")
         ax.grid(True, alpha=0.3, which="both")
         if i >= 2:
@@ -244,9 +256,9 @@ def gain_study_figure(with_dob: GainGridStudy, without_dob: GainGridStudy, out_d
             ax.set_ylabel("Kp (1/s^2)")
             ax.set_title(f"tool tip {label}\n{title}", fontsize=9)
             fig.colorbar(im, ax=ax, shrink=0.8)
+    definition = settling_definition(with_dob.settle_fraction, with_dob.final_window).capitalize()
     fig.suptitle(f"Gain study: tool-tip error after a disturbance step on the held arm, over Kp x Kd "
-                 f"({with_dob.t_final_s:g} s runs; settling: within {100 * with_dob.settle_fraction:g}% band "
-                 "of the final value)")
+                 f"({with_dob.t_final_s:g} s runs)\n" + "\n".join(textwrap.wrap(definition, 150)), fontsize=10)
     return save_figure(fig, out_dir, "study_gains")
 
 
@@ -255,15 +267,17 @@ def observer_study_figure(study: ObserverGainStudy, out_dir) -> list[Path]:
     labels, runs, slowest = study.labels, study.runs, study.slowest_mode_rad_s
     ok = [k for k, r in enumerate(runs) if r.ok and slowest[k] is not None]
     base = runs[0].torque_noise_rms if runs[0].ok else None
-    fig, axes = plt.subplots(1, 3, figsize=(16, 4.8), constrained_layout=True)
+    fig, axes = plt.subplots(1, 3, figsize=(16, 5.6), constrained_layout=True)
     x = np.array([slowest[k] for k in ok])
     ax = axes[0]
     for metric, marker, name in (("peak_error", "o", "peak"), ("rms_error", "s", "RMS")):
-        y = [getattr(runs[k].tool_mm, metric) for k in ok]
-        ax.plot(x, y, marker, label=f"{name} tool-tip error")
-        if runs[0].ok:
-            ax.axhline(getattr(runs[0].tool_mm, metric), ls="--", lw=0.8, color=ax.lines[-1].get_color(),
-                       label=f"{name}, no observer")
+        ax.plot(x, [getattr(runs[k].tool_mm, metric) for k in ok], marker, label=f"{name} tool-tip error")
+    if runs[0].ok:
+        peak, rms = runs[0].tool_mm.peak_error, runs[0].tool_mm.rms_error
+        ax.axhline(peak, ls="--", lw=1, color="gray",
+                   label=f"no observer: peak {peak:.3g} mm" + (f", RMS {rms:.3g} mm" if rms > 0.9 * peak else ""))
+        if rms <= 0.9 * peak:                 # a separate line only where it does not lie on the peak's
+            ax.axhline(rms, ls=":", lw=1, color="gray", label=f"no observer: RMS {rms:.3g} mm")
     for xi, k in zip(x, ok):
         ax.annotate(labels[k], (xi, runs[k].tool_mm.peak_error), textcoords="offset points", xytext=(4, 4),
                     fontsize=7)
@@ -274,10 +288,9 @@ def observer_study_figure(study: ObserverGainStudy, out_dir) -> list[Path]:
     _finish(ax, f"What a faster observer buys (disturbance step, {study.t_final_s:g} s runs)", fontsize=7)
     ax = axes[1]
     noise = np.array([runs[k].torque_noise_rms for k in ok])
-    units = ("N m", "N m", "N", "N m")
     for j in range(4):
         ratio = noise[:, j] / base[j] if base is not None else noise[:, j]
-        ax.plot(x, ratio, "o", label=f"joint {j + 1} ({units[j]})")
+        ax.plot(x, ratio, "o", label=f"{JOINT_TITLES[j]} ({DISTURBANCE_UNITS[j]})")
     ax.axhline(1.0, color="gray", lw=0.8)
     ax.set_xscale("log")
     ax.set_xlabel("slowest observer mode over the workspace (rad/s)")
@@ -287,9 +300,13 @@ def observer_study_figure(study: ObserverGainStudy, out_dir) -> list[Path]:
     shown = [0] + ok if runs[0].ok else ok
     width = 0.8 / len(shown)
     for n, k in enumerate(shown):
-        ax.bar(np.arange(4) + n * width, runs[k].torque_noise_rms, width, label=labels[k])
-    ax.set_xticks(np.arange(4) + 0.4 - width / 2, [f"joint {j + 1} ({u})" for j, u in enumerate(units)])
+        ax.bar(np.arange(4) + n * width, runs[k].torque_noise_rms, width,
+               label="no observer" if labels[k] == "none" else labels[k])
+    ax.set_xticks(np.arange(4) + 0.4 - width / 2,
+                  [f"{JOINT_TITLES[j]}\n({DISTURBANCE_UNITS[j]})" for j in range(4)], fontsize=8)
     ax.set_yscale("log")
-    ax.set_ylabel("torque noise rms (N m, N)")
-    _finish(ax, "Torque noise per joint", axis="y", fontsize=7, ncol=2)
+    ax.set_ylabel("torque noise RMS (N m; N on Joint 3)")
+    # the legend below the bars, where it covers none of them
+    _finish(ax, "Torque noise per joint", axis="y", fontsize=7, ncol=3, loc="upper center",
+            bbox_to_anchor=(0.5, -0.16))
     return save_figure(fig, out_dir, "study_observer")

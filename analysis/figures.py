@@ -18,13 +18,34 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from blocks.joints import RRPR_JOINTS  # noqa: E402
 from blocks.kinematics import forward_kinematics  # noqa: E402
-from blocks.metrics import DISTURBANCE_UNITS, JOINT_LABELS, JOINT_UNITS, signal  # noqa: E402
+from blocks.metrics import DISTURBANCE_UNITS, JOINT_UNITS, signal  # noqa: E402
 
-__all__ = ["paper_figures", "save_figure", "convergence_figure"]
+__all__ = ["paper_figures", "save_figure", "convergence_figure", "JOINT_TITLES", "joint_title", "REFERENCE_STYLE",
+           "has_tissue_model"]
 
-_JOINT_TITLES = ("Joint 1 (theta1)", "Joint 2 (theta2)", "Joint 3 (d3, prismatic)", "Joint 4 (theta4)")
-_COLORS = {"ref": "black", "with": "tab:blue", "without": "tab:red", "d": "black", "d_hat": "tab:blue"}
+#: How every figure names the joints (the names a person reads everywhere: ``Joint 1 (theta1)``, ...).
+JOINT_TITLES = RRPR_JOINTS.labels
+_COLORS = {"with": "tab:blue", "without": "tab:red", "d_hat": "tab:blue"}
+#: The reference (or the true value) as a wide light band drawn first: a line that follows it exactly stays
+#: visible on top of it, and the band stays visible around that line.
+REFERENCE_STYLE = {"color": "0.72", "lw": 5.0, "solid_capstyle": "butt", "zorder": 1}
+
+
+def joint_title(name: str) -> str:
+    """The person's name of a joint signal: ``"q[2]"`` -> ``"Joint 3 (d3)"``; other names unchanged."""
+    if name.endswith("]") and "[" in name:
+        index = name[name.index("[") + 1:-1]
+        if index.isdigit() and int(index) < len(JOINT_TITLES):
+            return JOINT_TITLES[int(index)]
+    return name
+
+
+def has_tissue_model(scenario) -> bool:
+    """Whether the scenario's disturbance includes the tissue model (a force that resists the tool below the skin)."""
+    kind = scenario.data["disturbance"]["kind"]
+    return "tissue" in ([kind] if isinstance(kind, str) else list(kind))
 
 
 def save_figure(fig, out_dir: Path, stem: str) -> list[Path]:
@@ -44,7 +65,7 @@ def _joint_grid(title: str):
     fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True, constrained_layout=True)
     fig.suptitle(title)
     for i, ax in enumerate(axes.flat):
-        ax.set_title(_JOINT_TITLES[i], fontsize=10)
+        ax.set_title(JOINT_TITLES[i], fontsize=10)
         ax.grid(True, alpha=0.3)
         if i >= 2:
             ax.set_xlabel("time (s)")
@@ -56,7 +77,7 @@ def _scale(i: int) -> tuple[float, str]:
     return (1e3, "mm") if JOINT_UNITS[i] == "m" else (1.0, "rad")
 
 
-def paper_figures(with_dob, without_dob, out_dir) -> list[Path]:
+def paper_figures(with_dob, without_dob, out_dir, progress=None) -> list[Path]:
     """Write Figures 4-8 comparing a run with and a run without the observer.
 
     Parameters
@@ -65,12 +86,18 @@ def paper_figures(with_dob, without_dob, out_dir) -> list[Path]:
         Responses of :func:`blocks.simulate` with ``observer=True`` and ``False``.
     out_dir : str or pathlib.Path
         Folder for the PNG and SVG files (created if needed).
+    progress : callable, optional
+        ``progress(fraction)`` after each figure (fraction of the five written).
 
     Returns
     -------
     list of pathlib.Path
         The files written.
     """
+    def done(n: int) -> None:
+        if progress is not None:
+            progress(n / 5)
+
     out_dir = Path(out_dir)
     t = np.asarray(with_dob.time)
     q_ref, q_w, q_wo = signal(with_dob, "q_ref"), signal(with_dob, "q"), signal(without_dob, "q")
@@ -79,12 +106,13 @@ def paper_figures(with_dob, without_dob, out_dir) -> list[Path]:
     fig, axes = _joint_grid("Figure 4: joint tracking of the laceration path")
     for i, ax in enumerate(axes):
         k, unit = _scale(i)
-        ax.plot(t, k * q_ref[i], color=_COLORS["ref"], lw=2.2, label="reference")
+        ax.plot(t, k * q_ref[i], **REFERENCE_STYLE, label="reference (grey band)")
         ax.plot(t, k * q_w[i], color=_COLORS["with"], lw=1.2, label="with observer")
         ax.plot(t, k * q_wo[i], color=_COLORS["without"], lw=1.2, ls="--", label="without observer")
-        ax.set_ylabel(f"{JOINT_LABELS[i]} ({unit})")
+        ax.set_ylabel(f"position ({unit})")
     axes[0].legend(fontsize=8)
     written += save_figure(fig, out_dir, "fig4_joint_tracking")
+    done(1)
 
     fig, axes = _joint_grid("Figure 5: position tracking error q_ref - q")
     for i, ax in enumerate(axes):
@@ -94,40 +122,49 @@ def paper_figures(with_dob, without_dob, out_dir) -> list[Path]:
         ax.set_ylabel(f"error ({unit})")
     axes[0].legend(fontsize=8)
     written += save_figure(fig, out_dir, "fig5_tracking_error")
+    done(2)
 
     d, d_hat = signal(with_dob, "d"), signal(with_dob, "d_hat")
     tau_dis = signal(with_dob, "tau_dis")
     fig, axes = _joint_grid("Figure 6: disturbance and its estimate (with observer)")
     for i, ax in enumerate(axes):
-        ax.plot(t, d[i], color=_COLORS["d"], lw=2.2, label="disturbance d (lumped)")
+        ax.plot(t, d[i], **REFERENCE_STYLE, label="disturbance d, lumped (grey band)")
         if not np.allclose(d[i], tau_dis[i]):
             ax.plot(t, tau_dis[i], color="gray", lw=1, ls=":", label="external part tau_dis")
         ax.plot(t, d_hat[i], color=_COLORS["d_hat"], lw=1.2, label="estimate d_hat")
         ax.set_ylabel(f"disturbance ({DISTURBANCE_UNITS[i]})")
     axes[0].legend(fontsize=8)
     written += save_figure(fig, out_dir, "fig6_disturbance_estimate")
+    done(3)
 
     fig, axes = _joint_grid("Figure 7: disturbance estimation error d - d_hat")
     for i, ax in enumerate(axes):
         ax.plot(t, d[i] - d_hat[i], color=_COLORS["with"])
         ax.set_ylabel(f"error ({DISTURBANCE_UNITS[i]})")
     written += save_figure(fig, out_dir, "fig7_estimation_error")
+    done(4)
 
     written += _task_space_figure(with_dob, without_dob, out_dir)
+    done(5)
     return written
 
 
 def _task_space_figure(with_dob, without_dob, out_dir: Path) -> list[Path]:
-    robot = with_dob.scenario.robot
+    scenario = with_dob.scenario
+    robot = scenario.robot
     t = np.asarray(with_dob.time)
     p_ref = 1e3 * forward_kinematics(signal(with_dob, "q_ref").T, robot)[:, :3]
     p_w = 1e3 * forward_kinematics(signal(with_dob, "q").T, robot)[:, :3]
     p_wo = 1e3 * forward_kinematics(signal(without_dob, "q").T, robot)[:, :3]
     fig = plt.figure(figsize=(13, 7), constrained_layout=True)
-    fig.suptitle("Figure 8: tool-tip path in task space")
+    skin = getattr(scenario.trajectory, "skin_height", None)
+    title = "Figure 8: tool-tip path in task space"
+    if skin is not None and not has_tissue_model(scenario):
+        title += "\n(this scenario has no tissue model: nothing resists the tool below the skin)"
+    fig.suptitle(title)
     grid = fig.add_gridspec(3, 2, width_ratios=[1.2, 1])
     ax3 = fig.add_subplot(grid[:, 0], projection="3d")
-    ax3.plot(*p_ref.T, color=_COLORS["ref"], lw=2.2, label="reference")
+    ax3.plot(*p_ref.T, color="black", lw=2.2, label="reference")
     ax3.plot(*p_w.T, color=_COLORS["with"], lw=1.2, label="with observer")
     ax3.plot(*p_wo.T, color=_COLORS["without"], lw=1.2, ls="--", label="without observer")
     ax3.set_xlabel("x (mm)")
@@ -136,13 +173,16 @@ def _task_space_figure(with_dob, without_dob, out_dir: Path) -> list[Path]:
     ax3.legend(fontsize=8, loc="upper left")
     for k, name in enumerate("xyz"):
         ax = fig.add_subplot(grid[k, 1])
-        ax.plot(t, p_ref[:, k], color=_COLORS["ref"], lw=2.2, label="reference")
+        ax.plot(t, p_ref[:, k], **REFERENCE_STYLE, label="reference (grey band)")
         ax.plot(t, p_w[:, k], color=_COLORS["with"], lw=1.2, label="with observer")
         ax.plot(t, p_wo[:, k], color=_COLORS["without"], lw=1.2, ls="--", label="without observer")
         ax.set_ylabel(f"{name} (mm)")
         ax.grid(True, alpha=0.3)
         if k == 2:
+            if skin is not None:
+                ax.axhline(1e3 * skin, color="tab:brown", lw=0.9, ls=":", label="skin surface")
             ax.set_xlabel("time (s)")
+            ax.legend(fontsize=7, loc="center right")
     return save_figure(fig, out_dir, "fig8_task_space")
 
 
@@ -166,12 +206,13 @@ def convergence_figure(study: dict, out_dir, stem: str = "convergence") -> list[
         errs = np.asarray(errs)
         ok = errs > 0
         unit = study["units"][name]
-        ax.loglog(h[ok] * 1e3, errs[ok], "o-", label=f"{name} ({unit})")
+        # the data as markers only, the fit as a line through them: a line that fits well stays visible
+        points = ax.loglog(h[ok] * 1e3, errs[ok], "o", ms=7, label=f"{joint_title(name)} ({unit})")[0]
         if ok.sum() >= 2 and np.isfinite(study["order"]):
             # the common fitted slope through this joint's points (its own intercept)
             c = np.mean(np.log(errs[ok]) - study["order"] * np.log(h[ok]))
-            ax.loglog(h * 1e3, np.exp(c) * h ** study["order"], ":", color=ax.lines[-1].get_color(), lw=1)
-    ax.plot([], [], "k:", label=f"fitted slope p = {study['order']:.3f} (common to all joints)")
+            ax.loglog(h * 1e3, np.exp(c) * h ** study["order"], "-", color=points.get_color(), lw=1.2, zorder=1)
+    ax.plot([], [], "k-", lw=1.2, label=f"fitted slope p = {study['order']:.3f} (common to all joints)")
     ax.set_xticks(h * 1e3, [f"{v:g}" for v in h * 1e3])
     ax.minorticks_off()
     ax.set_xlabel("communication step h (ms)")

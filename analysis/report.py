@@ -20,33 +20,34 @@ from __future__ import annotations
 
 import contextlib
 import copy
-import math
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import control as ct
 import numpy as np
 
 from blocks import __version__
-from blocks import load_scenario
+from blocks import forward_kinematics, load_scenario
 from blocks.scenario import Scenario
 from blocks.gains import validated_gain
 from . import analysis_figures as figs
-from .bandwidth import DEFAULT_POINTS, BandwidthSurvey, along_trajectory, bandwidth_survey, observer_modes, \
-    workspace_grid
+from .bandwidth import BandwidthSurvey, along_trajectory, bandwidth_survey, observer_modes, workspace_grid
 from .frequency import FrequencyAnalysis, frequency_analysis
 from .gain_design import (ObserverDesign, confirm_by_simulation, convergence_certificate, critical_speed,
                           design_observer_gain)
-from .linear import MismatchStudy, OperatingPoint, mismatch_analysis, operating_point_analysis
+from .linear import (MismatchLoop, MismatchStudy, OperatingPoint, mismatch_sweep, operating_point_analysis,
+                     stability_boundaries)
 from blocks.metrics import signal
 from blocks.outputs import staged_output
 from blocks.progress import ProgressCallback as Progress
 from .report_html import render_html
 from .report_view import plain_summary
-from .results import JsonResult, omitted_if_none, strict_json
+from .results import JsonResult, strict_json
+from .settings import QUICK_SETTINGS, AnalysisSettings
 from .studies import Studies, gain_grid_study, observer_gain_study
 
 __all__ = ["AnalysisSettings", "QUICK_SETTINGS", "ScenarioInfo", "AnalysisResult", "run_analysis", "write_figures",
+           "gain_label", "observer_gains", "ANALYSIS_FIGURE_COUNT",
            "analyze", "write_report", "plain_summary", "render_html", "json_text", "experiment_metrics"]
 
 # The design check and the studies replace the scenario's disturbance models by the constant step f_r (Eq. 4,
@@ -55,87 +56,18 @@ __all__ = ["AnalysisSettings", "QUICK_SETTINGS", "ScenarioInfo", "AnalysisResult
 STEP_DISTURBANCE = {"kind": "paper"}
 
 
-@dataclass(frozen=True)
-class AnalysisSettings:
-    """What the analyses compute and on which grids.
-
-    Attributes
-    ----------
-    observer_target_rad_s : float
-        Target slowest observer mode of the gain design (rad/s), finite and > 0.
-    speed_margin : float
-        The certificate's joint-speed bound is this times the largest reference
-        speed of the scenario per joint (rad/s, m/s), at least ``min_speed``.
-    min_speed : 4 floats
-        Floor of that bound (rad/s, rad/s, m/s, rad/s).
-    mismatch_factors : floats
-        Nominal/true inertia ratios of the pole sweep.
-    boundary_range, boundary_points
-        Range and scan size of the stability-boundary search.
-    workspace_points : 4 ints
-        Grid of the observer-bandwidth survey and the gain design
-        (default :data:`analysis.bandwidth.DEFAULT_POINTS`).
-    kp_values, kd_values, observer_values : floats
-        Grids of the gain studies (scalar gains, the same on every joint).
-    study_t_final : float
-        Length (s) of the studies' runs: the arm held at the path's start under a
-        disturbance step (see :mod:`analysis.studies`).
-    design_t_final : float or None
-        Length (s) of the design check's runs on the scenario's path (None: the
-        whole path).
-    noise_t_final : float
-        Length (s) of the runs that measure the torque noise.
-    workers : int
-        Processes for the studies (results do not depend on it).
-    """
-
-    observer_target_rad_s: float = 10.0
-    speed_margin: float = 2.0
-    min_speed: tuple = (0.5, 0.5, 0.05, 0.5)
-    mismatch_factors: tuple = (0.5, 0.595, 0.707, 0.841, 1.0, 1.189, 1.414, 1.682, 2.0)
-    boundary_range: tuple = (0.02, 50.0)
-    boundary_points: int = 25
-    workspace_points: tuple = DEFAULT_POINTS
-    kp_values: tuple = (45.0, 90.0, 180.0, 360.0)
-    kd_values: tuple = (9.0, 18.0, 36.0, 72.0)
-    observer_values: tuple = (1.0, 3.0, 10.0, 30.0, 100.0)
-    study_t_final: float = 10.0
-    design_t_final: float | None = 6.0
-    noise_t_final: float = 2.0
-    workers: int = field(default=1, compare=False)
-
-    def __post_init__(self) -> None:
-        t = self.observer_target_rad_s
-        if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t) or t <= 0:
-            raise ValueError(f"observer target must be a finite number > 0 rad/s, got {t!r}")
-        for name in ("study_t_final", "noise_t_final") + (("design_t_final",) if self.design_t_final is not None
-                                                           else ()):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a finite number > 0 s, got {v!r}")
-
-    def as_dict(self) -> dict:
-        """JSON-ready settings (without ``workers``, which does not change results)."""
-        out = asdict(self)
-        out.pop("workers")
-        return out
-
-
-# Small grids and short runs: the same analyses in well under a minute (previews).
-QUICK_SETTINGS = AnalysisSettings(mismatch_factors=(0.5, 1.0, 2.0), boundary_points=9,
-                                  workspace_points=(3, 37, 2, 3), kp_values=(90.0, 180.0), kd_values=(18.0, 36.0),
-                                  observer_values=(3.0, 30.0), study_t_final=6.0, design_t_final=2.0,
-                                  noise_t_final=0.3)
-
-
 @contextlib.contextmanager
 def _stage(progress: Progress | None, name: str):
-    """Report a stage's start (fraction 0) and, when it completes, its end (fraction 1)."""
-    if progress is not None:
-        progress(name, 0.0)
-    yield
-    if progress is not None:
-        progress(name, 1.0)
+    """Report a stage's start (fraction 0) and, when it completes, its end (fraction 1).
+
+    Yields ``step(fraction)``, for a stage that can say how far it has got.
+    """
+    def step(fraction: float) -> None:
+        if progress is not None:
+            progress(name, fraction)
+    step(0.0)
+    yield step
+    step(1.0)
 
 
 def _t_final(value, scenario: Scenario):
@@ -179,8 +111,9 @@ class AnalysisResult(JsonResult):
         At the reference at t = 0.
     studies : Studies
         ``observer.slowest_mode_rad_s`` set.
-    figures : list of str or None
-        Files written with the result (left out of the JSON while None).
+    figures : list of str
+        The figure files written with the result (by :func:`analyze` or
+        :func:`write_report`); empty from :func:`run_analysis`, which writes nothing.
     """
 
     dobkit_version: str
@@ -193,7 +126,40 @@ class AnalysisResult(JsonResult):
     observer_design: ObserverDesign
     frequency: FrequencyAnalysis
     studies: Studies
-    figures: list[str] | None = omitted_if_none()
+    figures: list[str] = field(default_factory=list)
+
+
+def gain_label(Y) -> str:
+    """How a person reads an observer gain: ``Y = 10 I``, ``Y = diag(1, 2, 3, 4)`` or ``matrix Y`` (kg m^2/s)."""
+    Y = np.atleast_2d(np.asarray(Y, dtype=float))
+    if Y.shape == (1, 1):
+        return f"Y = {Y[0, 0]:g} I"
+    if np.allclose(Y, np.diag(np.diag(Y)), rtol=0, atol=0):
+        d = np.diag(Y)
+        return f"Y = {d[0]:g} I" if np.all(d == d[0]) else "Y = diag(" + ", ".join(f"{v:g}" for v in d) + ")"
+    return "matrix Y"
+
+
+def observer_gains(scenario_gain, values, designed) -> list[tuple[str, np.ndarray]]:
+    """The observer study's gains: ``Y = v I`` for each value, the scenario's gain (marked "(scenario)") in order of
+    ``v`` when it is ``v I`` (first otherwise), and the designed gain last.
+
+    Examples
+    --------
+    >>> [label for label, _ in observer_gains(10 * np.eye(4), (3.0, 30.0), np.eye(4))]
+    ['Y = 3 I', 'Y = 10 I (scenario)', 'Y = 30 I', 'designed Y']
+    """
+    Y_s = np.asarray(scenario_gain, dtype=float)
+    gains = [(f"Y = {v:g} I" + (" (scenario)" if np.allclose(v * np.eye(len(Y_s)), Y_s) else ""), v)
+             for v in values]
+    if not any(label.endswith("(scenario)") for label, _ in gains):
+        d = np.diag(Y_s)
+        scalar = np.array_equal(Y_s, np.diag(d)) and np.all(d == d[0])
+        # a scenario gain v I takes its place among the others by v; any other gain comes first
+        at = sum(1 for v in values if v < d[0]) if scalar else 0
+        gains.insert(at, (f"{gain_label(Y_s)} (scenario)", Y_s))
+    gains.append(("designed Y", np.asarray(designed, dtype=float)))
+    return gains
 
 
 def run_analysis(scenario: Scenario | str = "paper", settings: AnalysisSettings = AnalysisSettings(),
@@ -219,19 +185,28 @@ def run_analysis(scenario: Scenario | str = "paper", settings: AnalysisSettings 
     with _stage(progress, "observer bandwidth"):
         survey = replace(bandwidth_survey(s, points=settings.workspace_points), along_trajectory=along_trajectory(s))
 
-    with _stage(progress, "linearized loop"):
+    with _stage(progress, "linearized loop") as step:
         q_start = np.asarray(s.trajectory.evaluate(0.0)[0], dtype=float)
         q_mid = np.asarray(s.trajectory.evaluate(s.simulation.t_final / 2.0)[0], dtype=float)
         points = [("reference at t = 0", q_start), ("reference at mid-run", q_mid),
                   ("slowest observer mode (workspace)", np.array(survey.slowest_rad_s.q_at_min)),
                   ("slowest observer mode at its fastest (workspace)", np.array(survey.slowest_rad_s.q_at_max))]
-        operating_points = [operating_point_analysis(s, q, label=label) for label, q in points]
+        operating_points = []
+        for label, q in points:
+            operating_points.append(operating_point_analysis(s, q, label=label))
+            step(len(operating_points) / len(points))
 
-    with _stage(progress, "inertia mismatch"):
-        mismatch = mismatch_analysis(s, q_start, settings.mismatch_factors, *settings.boundary_range,
-                                     points=settings.boundary_points)
+    with _stage(progress, "inertia mismatch") as step:
+        loops = {}
+        for k, (observer, key) in enumerate(((True, "with_dob"), (False, "without_dob"))):
+            sweep = mismatch_sweep(s, q_start, settings.mismatch_factors, observer)
+            step((2 * k + 1) / 4)
+            loops[key] = MismatchLoop(sweep=sweep, boundaries=stability_boundaries(
+                s, q_start, observer, *settings.boundary_range, points=settings.boundary_points))
+            step((2 * k + 2) / 4)
+        mismatch = MismatchStudy(q0=q_start.tolist(), **loops)
 
-    with _stage(progress, "observer gain design"):
+    with _stage(progress, "observer gain design") as step:
         t_ref = np.linspace(0.0, s.simulation.t_final, 2001)
         speed = np.max(np.abs(s.trajectory.evaluate(t_ref)[1]), axis=0)
         bound = np.maximum(settings.speed_margin * speed, settings.min_speed)
@@ -240,15 +215,21 @@ def run_analysis(scenario: Scenario | str = "paper", settings: AnalysisSettings 
         base = Y_s if np.allclose(Y_s, Y_s.T) and np.linalg.eigvalsh((Y_s + Y_s.T) / 2).min() >= 0 else None
         design = design_observer_gain(s.nominal, settings.observer_target_rad_s, q_grid, base=base)
         Y_design = design.Y
+        step(0.2)
+        certificates = {}
+        for k, (key, Y) in enumerate((("designed", Y_design), ("scenario_gain", s.observer_gain))):
+            certificates[f"certificate_{key}"] = convergence_certificate(s.nominal, Y, q_grid, bound)
+            certificates[f"critical_theta2_speed_{key}"] = critical_speed(s.nominal, Y, q_grid, [0, 1, 0, 0])
+            step(0.2 + 0.35 * (k + 1))
         designed = dict(
             target_rad_s=settings.observer_target_rad_s, base_is_scenario_gain=base is not None,
             Y=Y_design.tolist(), base=design.base.tolist(), M_ref=design.M_ref.tolist(), c_per_s=design.c_per_s,
             slowest_rad_s=design.slowest_rad_s, fastest_rad_s=design.fastest_rad_s,
             speed_bound=bound.tolist(), reference_speed_max=speed.tolist(),
-            certificate_designed=convergence_certificate(s.nominal, Y_design, q_grid, bound),
-            certificate_scenario_gain=convergence_certificate(s.nominal, s.observer_gain, q_grid, bound),
-            critical_theta2_speed_designed=critical_speed(s.nominal, Y_design, q_grid, [0, 1, 0, 0]),
-            critical_theta2_speed_scenario_gain=critical_speed(s.nominal, s.observer_gain, q_grid, [0, 1, 0, 0]),
+            certificate_designed=certificates["certificate_designed"],
+            certificate_scenario_gain=certificates["certificate_scenario_gain"],
+            critical_theta2_speed_designed=certificates["critical_theta2_speed_designed"],
+            critical_theta2_speed_scenario_gain=certificates["critical_theta2_speed_scenario_gain"],
             bandwidth_designed=bandwidth_survey(s, Y=Y_design, points=settings.workspace_points).overview(),
         )
     with _stage(progress, "observer gain design: simulation"):
@@ -262,17 +243,13 @@ def run_analysis(scenario: Scenario | str = "paper", settings: AnalysisSettings 
 
     grids = {}
     for observer, key in ((True, "gains_with_dob"), (False, "gains_without_dob")):
-        with _stage(progress, f"gain study {'with' if observer else 'without'} observer"):
+        with _stage(progress, f"gain study {'with' if observer else 'without'} observer") as step:
             grids[key] = gain_grid_study(s, settings.kp_values, settings.kd_values, observer, settings.study_t_final,
-                                         settings.workers)
-    with _stage(progress, "observer gain and noise study"):
-        gains = [(f"Y = {v:g} I" + (" (scenario)" if np.allclose(v * np.eye(4), s.observer_gain) else ""), v)
-                 for v in settings.observer_values]
-        if not any(label.endswith("(scenario)") for label, _ in gains):
-            gains.insert(0, ("scenario Y (scenario)", s.observer_gain))
-        gains.append(("designed Y", Y_design))
+                                         settings.workers, progress=step)
+    with _stage(progress, "observer gain and noise study") as step:
+        gains = observer_gains(s.observer_gain, settings.observer_values, Y_design)
         obs = observer_gain_study(s, gains, t_final=settings.study_t_final, noise_t_final=settings.noise_t_final,
-                                  workers=settings.workers)
+                                  workers=settings.workers, progress=step)
         slowest = [None] + [
             float(np.real(observer_modes(s.nominal, validated_gain(g, "observer"),
                                          q_grid)[0][:, 0]).min())
@@ -284,19 +261,37 @@ def run_analysis(scenario: Scenario | str = "paper", settings: AnalysisSettings 
         studies=Studies(**grids, observer=replace(obs, slowest_mode_rad_s=slowest)))
 
 
-def write_figures(result: AnalysisResult, out_dir) -> list[Path]:
-    """Write every analysis figure of a :func:`run_analysis` result into ``out_dir`` (PNG and SVG)."""
+def _figure_writers(result: AnalysisResult) -> list:
+    """One ``write(out_dir) -> paths`` per analysis figure, in the report's order."""
     design = result.observer_design
+    return [
+        lambda out: figs.pole_figure(result.operating_points, out),
+        lambda out: figs.mismatch_figure(result.mismatch, out),
+        lambda out: figs.bandwidth_figure(result.observer_bandwidth, design.bandwidth_designed,
+                                          result.operating_points[0].pd_slowest_analytic_rad_s(), out),
+        lambda out: figs.design_figure(design.simulation, out),
+        lambda out: figs.bode_figure(result.frequency, out, "tracking"),
+        lambda out: figs.bode_figure(result.frequency, out, "estimation"),
+        lambda out: figs.gain_study_figure(result.studies.gains_with_dob, result.studies.gains_without_dob, out),
+        lambda out: figs.observer_study_figure(result.studies.observer, out),
+    ]
+
+
+#: Number of analysis figures :func:`write_figures` writes (each as PNG and SVG).
+ANALYSIS_FIGURE_COUNT = 8
+
+
+def write_figures(result: AnalysisResult, out_dir, progress=None) -> list[Path]:
+    """Write every analysis figure of a :func:`run_analysis` result into ``out_dir`` (PNG and SVG).
+
+    ``progress(fraction)``, if given, is called after each figure with the fraction written.
+    """
+    writers = _figure_writers(result)
     files = []
-    files += figs.pole_figure(result.operating_points, out_dir)
-    files += figs.mismatch_figure(result.mismatch, out_dir)
-    files += figs.bandwidth_figure(result.observer_bandwidth, design.bandwidth_designed,
-                                   result.operating_points[0].pd_slowest_analytic_rad_s(), out_dir)
-    files += figs.design_figure(design.simulation, out_dir)
-    files += figs.bode_figure(result.frequency, out_dir, "tracking")
-    files += figs.bode_figure(result.frequency, out_dir, "estimation")
-    files += figs.gain_study_figure(result.studies.gains_with_dob, result.studies.gains_without_dob, out_dir)
-    files += figs.observer_study_figure(result.studies.observer, out_dir)
+    for k, write in enumerate(writers):
+        files += write(out_dir)
+        if progress is not None:
+            progress((k + 1) / len(writers))
     return files
 
 
@@ -328,23 +323,42 @@ def analyze(scenario: Scenario | str = "paper", out_dir=None, settings: Analysis
     staging = staged_output(target)          # refuses a non-empty folder before any work is done
     result = run_analysis(scenario, settings, progress)
     with staging as stage:
-        with _stage(progress, "writing figures"):
-            result = replace(result, figures=[p.name for p in write_figures(result, stage)])
+        with _stage(progress, "writing figures") as step:
+            result = replace(result, figures=[p.name for p in write_figures(result, stage, step)])
         (stage / "analysis.json").write_text(result.to_json())
     return result, sorted(target.iterdir())
 
 
 def experiment_metrics(experiment) -> dict:
-    """The experiment's metrics plus what the report's statements need: ``duration_s`` and, per run,
-    ``time_of_max_abs_position_error`` (s, per joint)."""
+    """The experiment's metrics plus what the report's statements need.
+
+    Adds ``duration_s``; per run, ``time_of_max_abs_position_error`` (s, per
+    joint); and, on a path with a skin plane (``trajectory.skin_height``),
+    ``max_depth_below_skin_mm``: how far the tool tip goes below the skin at
+    most, planned (``reference``) and in each run (mm, 0 if it stays above).
+    """
     metrics = copy.deepcopy(experiment.metrics)
+    skin = getattr(experiment.scenario.trajectory, "skin_height", None)
+    robot = experiment.scenario.robot
+    depth = {}
     for key in ("with_dob", "without_dob"):
         run = getattr(experiment, key)
         t = np.asarray(run.time)
-        e = signal(run, "q_ref") - signal(run, "q")
-        metrics[key]["time_of_max_abs_position_error"] = t[np.argmax(np.abs(e), axis=1)].tolist()
+        q_ref, q = signal(run, "q_ref"), signal(run, "q")
+        metrics[key]["time_of_max_abs_position_error"] = t[np.argmax(np.abs(q_ref - q), axis=1)].tolist()
         metrics["duration_s"] = float(t[-1])
+        if skin is not None:
+            depth["reference"] = _depth_below_mm(q_ref, skin, robot)
+            depth[key] = _depth_below_mm(q, skin, robot)
+    if depth:
+        metrics["max_depth_below_skin_mm"] = depth
     return metrics
+
+
+def _depth_below_mm(q, skin_height: float, robot) -> float:
+    """Largest depth (mm) of the tool tip below the plane z = skin_height over a run's joint positions (4, n)."""
+    z = forward_kinematics(np.asarray(q).T, robot)[:, 2]
+    return float(max(0.0, 1e3 * np.max(skin_height - z)))
 
 
 def write_report(scenario: Scenario | str = "paper", out_dir=None, settings: AnalysisSettings = AnalysisSettings(),
@@ -373,9 +387,12 @@ def write_report(scenario: Scenario | str = "paper", out_dir=None, settings: Ana
     experiment = run_experiment(s, None, progress=progress, figures=False)
     metrics = experiment_metrics(experiment)
     result = run_analysis(s, settings, progress)
-    with staging as stage, _stage(progress, "writing figures and report"):
+    with staging as stage, _stage(progress, "writing figures and report") as step:
         fig_dir = stage / "figures"
-        files = paper_figures(experiment.with_dob, experiment.without_dob, fig_dir) + write_figures(result, fig_dir)
+        parts = 5 + ANALYSIS_FIGURE_COUNT + 1                # Figures 4-8, the analysis figures, the page
+        files = paper_figures(experiment.with_dob, experiment.without_dob, fig_dir,
+                              progress=lambda f: step(5 * f / parts))
+        files += write_figures(result, fig_dir, progress=lambda f: step((5 + ANALYSIS_FIGURE_COUNT * f) / parts))
         result = replace(result, figures=[f"figures/{p.name}" for p in files])
         (stage / "analysis.json").write_text(result.to_json())
         (stage / "metrics.json").write_text(json_text(metrics))

@@ -20,11 +20,12 @@ tool-tip position error ``|p(q_ref) - p(q)|`` (mm):
 ``steady_state_error``
     ``|final_value|``.
 ``settling_time_s``
-    The first time from which the signal stays within the settling band around
-    its final value to the end of the run.  Band: ``|x - final| <=
-    settle_fraction * max_t |x - final|`` (2 % of the largest deviation from the
-    final value).  None ("not settled") unless the signal is inside the band for
-    the whole last ``final_window`` fraction (10 %) of the run.
+    :func:`settling_definition` (the words the report, its figures and the
+    README use): the first time from which ``|x - final| <= settle_fraction *
+    max_t |x - final|`` holds to the end of the run (2 % of the largest
+    deviation from the final value).  None ("not settled") unless the signal
+    is inside the band for the whole last ``final_window`` fraction (10 %) of
+    the run.
 ``peak_error``, ``rms_error``
     ``max|x|`` and the root mean square over the run (Eq. 13).
 
@@ -36,6 +37,7 @@ noise through ``Y``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -48,7 +50,7 @@ from blocks.metrics import signal
 
 __all__ = ["DEFAULT_NOISE", "SETTLE_FRACTION", "FINAL_WINDOW", "SignalMetrics", "RunMetrics", "StudyRun",
            "GainGridStudy", "ObserverGainStudy", "Studies", "step_scenario", "run_metrics", "signal_metrics",
-           "gain_grid_study", "observer_gain_study"]
+           "gain_grid_study", "observer_gain_study", "settling_definition"]
 
 # Used when the scenario has no [noise] section: an encoder of about 0.01 deg (2e-4 rad, 20 um) and
 # velocities from differentiated positions (5e-3 rad/s, 0.5 mm/s).  Assumed values, not from the paper.
@@ -57,6 +59,19 @@ DEFAULT_NOISE = {"q_std": [2e-4, 2e-4, 2e-5, 2e-4], "dq_std": [5e-3, 5e-3, 5e-4,
 
 SETTLE_FRACTION = 0.02     # settling band: this fraction of the largest deviation from the final value
 FINAL_WINDOW = 0.1         # "settled" needs the signal inside the band over this last fraction of the run
+
+
+def settling_definition(settle_fraction: float = SETTLE_FRACTION, final_window: float = FINAL_WINDOW) -> str:
+    """The one wording of the settling time, used by the report, its figures and the README.
+
+    Examples
+    --------
+    >>> settling_definition()
+    'settling time: the time after which the error stays within 2 % of its largest deviation from its final value (where the held arm comes to rest) to the end of the run; "not settled" if it leaves that band anywhere in the last 10 % of the run'
+    """
+    return (f"settling time: the time after which the error stays within {100 * settle_fraction:g} % of its "
+            "largest deviation from its final value (where the held arm comes to rest) to the end of the run; "
+            f'"not settled" if it leaves that band anywhere in the last {100 * final_window:g} % of the run')
 
 
 @dataclass(frozen=True)
@@ -302,11 +317,24 @@ def _run(job) -> StudyRun:
         return StudyRun(ok=False, error=str(err))
 
 
-def _map(jobs, workers: int) -> list:
+def _map(jobs, workers: int, progress: Callable[[float], None] | None = None) -> list:
+    """``_run`` over the jobs, in order; ``progress(fraction of jobs done)`` after each."""
+    out = []
+    if progress:
+        progress(0.0)
     if workers <= 1 or len(jobs) <= 1:
-        return [_run(j) for j in jobs]
+        results = map(_run, jobs)
+        for r in results:
+            out.append(r)
+            if progress:
+                progress(len(out) / len(jobs))
+        return out
     with worker_pool(min(workers, len(jobs))) as pool:
-        return list(pool.map(_run, jobs))
+        for r in pool.map(_run, jobs):         # yields in job order, as each finishes
+            out.append(r)
+            if progress:
+                progress(len(out) / len(jobs))
+    return out
 
 
 def _describe(variant: Scenario) -> dict:
@@ -318,7 +346,7 @@ def _describe(variant: Scenario) -> dict:
 
 
 def gain_grid_study(scenario: Scenario, kp_values, kd_values, observer: bool = True, t_final: float | None = None,
-                    workers: int = 1) -> GainGridStudy:
+                    workers: int = 1, progress: Callable[[float], None] | None = None) -> GainGridStudy:
     """Disturbance-step runs (see the module docstring) over a grid of scalar ``Kp`` (1/s^2) and ``Kd`` (1/s).
 
     Parameters
@@ -333,6 +361,8 @@ def gain_grid_study(scenario: Scenario, kp_values, kd_values, observer: bool = T
         Length of the held runs (s); default the scenario's ``t_final``.
     workers : int
         Processes to use (results do not depend on it).
+    progress : callable, optional
+        ``progress(fraction)``: the fraction of the runs finished, after each.
 
     Returns
     -------
@@ -342,13 +372,14 @@ def gain_grid_study(scenario: Scenario, kp_values, kd_values, observer: bool = T
     if not kp_values or not kd_values or min(kp_values + kd_values) <= 0:
         raise ValueError(f"gain grids must be non-empty and > 0, got kp={kp_values}, kd={kd_values}")
     variants = [step_scenario(scenario, t_final, gains={"kp": kp, "kd": kd}) for kp in kp_values for kd in kd_values]
-    flat = _map([(v, observer, None, None) for v in variants], workers)
+    flat = _map([(v, observer, None, None) for v in variants], workers, progress)
     runs = [flat[i * len(kd_values):(i + 1) * len(kd_values)] for i in range(len(kp_values))]
     return GainGridStudy(kp=kp_values, kd=kd_values, observer=bool(observer), **_describe(variants[0]), runs=runs)
 
 
 def observer_gain_study(scenario: Scenario, gains, noise: dict | None = None, t_final: float | None = None,
-                        noise_t_final: float = 1.0, workers: int = 1) -> ObserverGainStudy:
+                        noise_t_final: float = 1.0, workers: int = 1,
+                        progress: Callable[[float], None] | None = None) -> ObserverGainStudy:
     """Disturbance-step runs with each observer gain and one without the observer, plus their torque noise.
 
     Parameters
@@ -364,6 +395,8 @@ def observer_gain_study(scenario: Scenario, gains, noise: dict | None = None, t_
         Length of the clean and noisy runs that measure the torque noise (s).
     workers : int
         Processes to use.
+    progress : callable, optional
+        ``progress(fraction)``: the fraction of the gains finished, after each.
 
     Returns
     -------
@@ -383,4 +416,4 @@ def observer_gain_study(scenario: Scenario, gains, noise: dict | None = None, t_
     noise_t_final = min(max(round(float(noise_t_final) / step), 1) * step, variants[0].simulation.t_final)
     jobs = [(v, k > 0, noise, noise_t_final) for k, v in enumerate(variants)]
     return ObserverGainStudy(noise=noise, labels=labels, gains=specs, **_describe(variants[0]),
-                             noise_t_final_s=float(noise_t_final), runs=_map(jobs, workers))
+                             noise_t_final_s=float(noise_t_final), runs=_map(jobs, workers, progress))

@@ -5,10 +5,13 @@ Long functions take ``progress``, a callable ``progress(stage, fraction)``:
 stage is done.  :class:`StageProgress` shows those calls; :func:`count_progress`
 gives the counter a batch of runs reports to (finished runs of a total).
 
-On a terminal the bars are drawn by tqdm (redrawn at most every 0.1 s).  On
-anything else -- a log file, a pipe, a CI console -- nothing is redrawn: a
-stage writes one line when it ends, with its own duration, and a counter
-writes one line per tenth of the runs.
+On a terminal the bars are drawn by tqdm (redrawn at most every 0.1 s); the
+time at the end of a bar is how long that step has taken so far ("step time").
+On anything else -- a log file, a pipe, a CI console -- nothing is redrawn: a
+stage that runs for more than :data:`LOG_EVERY_S` writes a line with how far it
+has got whenever it advances after that long a silence, and every stage writes
+one line when it ends, with how long it took; a counter writes one line per
+tenth of the runs.
 """
 from __future__ import annotations
 
@@ -25,7 +28,9 @@ ProgressCallback = Callable[[str, float], None]
 
 # Resolution of a stage bar: fractions are shown to 0.1 %.
 _STEPS = 1000
-_STAGE_FORMAT = "{desc:<34} {percentage:5.1f}%|{bar:30}| {elapsed_s:.1f} s"   # elapsed: this stage's own time
+_STAGE_FORMAT = "{desc:<34} {percentage:5.1f}%|{bar:30}| step time {elapsed_s:.1f} s"   # this stage's own time
+#: In a log, a stage that advances after this long (s) without a line writes how far it has got.
+LOG_EVERY_S = 2.0
 
 
 def is_terminal(stream) -> bool:
@@ -38,7 +43,7 @@ class StageProgress:
     """A ``progress(stage, fraction)`` display: one bar per stage on a terminal, one line per stage elsewhere.
 
     A stage ends when the next one starts or the display is closed; it then
-    shows its own duration (s).  Fractions are clipped to 0..1 and never go
+    shows how long it took (s).  Fractions are clipped to 0..1 and never go
     back within a stage.
 
     Parameters
@@ -56,8 +61,8 @@ class StageProgress:
     ...     progress("simulating", 0.5)
     ...     progress("simulating", 1.0)
     ...     progress("writing figures", 0.0)
-    >>> [line.split(":")[0] for line in log.getvalue().splitlines()]
-    ['simulating', 'writing figures']
+    >>> [line.split(", took")[0] for line in log.getvalue().splitlines()]
+    ['simulating: done', 'writing figures: done']
     """
 
     def __init__(self, stream=None, enabled: bool = True) -> None:
@@ -67,6 +72,7 @@ class StageProgress:
         self.stage: str | None = None
         self.fraction = 0.0
         self._started = 0.0
+        self._last_line = 0.0
         self._bar: tqdm | None = None
 
     def __call__(self, stage: str, fraction: float) -> None:
@@ -76,9 +82,16 @@ class StageProgress:
             self._end()
             self._begin(stage)
         fraction = float(fraction)
+        before = self.fraction
         self.fraction = max(self.fraction, min(1.0, fraction) if math.isfinite(fraction) else 0.0)
         if self._bar is not None:
             self._bar.update(round(_STEPS * self.fraction) - self._bar.n)
+        elif before < self.fraction < 1.0:
+            now = time.monotonic()
+            if now - self._last_line >= LOG_EVERY_S:
+                self._last_line = now
+                self.stream.write(f"{self.stage}: {100 * self.fraction:.0f}% after {now - self._started:.1f} s\n")
+                self.stream.flush()
 
     def close(self, failed: bool = False) -> None:
         """End the current stage (``failed``: it did not complete)."""
@@ -92,6 +105,7 @@ class StageProgress:
 
     def _begin(self, stage: str) -> None:
         self.stage, self.fraction, self._started = stage, 0.0, time.monotonic()
+        self._last_line = self._started
         if self.terminal:
             self._bar = tqdm(total=_STEPS, desc=stage, file=self.stream, leave=True, bar_format=_STAGE_FORMAT,
                              mininterval=0.1)
@@ -106,7 +120,8 @@ class StageProgress:
             self._bar = None
         else:
             seconds = time.monotonic() - self._started
-            self.stream.write(f"{self.stage}: {'stopped after ' if failed else ''}{seconds:.1f} s\n")
+            outcome = "stopped after" if failed else "done, took"
+            self.stream.write(f"{self.stage}: {outcome} {seconds:.1f} s\n")
             self.stream.flush()
         self.stage = None
 
@@ -171,9 +186,9 @@ class CountProgress:
         self._last_tenth = int(10 * frac)
         elapsed = time.monotonic() - self.started
         rate = (self.done - self.start_done) / elapsed if elapsed > 0 else 0.0
-        eta = f"{(self.total - self.done) / rate:.0f} s" if rate > 0 else "?"
-        self.stream.write(f"{self.label}: {self.done}/{self.total} runs {100 * frac:3.0f}%  {elapsed:.1f} s  "
-                          f"ETA {eta}\n")
+        left = f"about {(self.total - self.done) / rate:.0f} s left" if rate > 0 else "time left unknown"
+        self.stream.write(f"{self.label}: {self.done}/{self.total} runs {100 * frac:3.0f}%, {elapsed:.1f} s so far, "
+                          f"{left}\n")
         self.stream.flush()
 
 

@@ -8,6 +8,7 @@ import argparse
 import math
 import os
 from dataclasses import replace
+from pathlib import Path
 
 from blocks.progress import StageProgress
 
@@ -47,7 +48,8 @@ def _add_common(parser: argparse.ArgumentParser, prefix: str) -> None:
                         f"folder {prefix}-YYYYmmdd-HHMMSS under the current one)")
     parser.add_argument("--observer-target", type=_positive_rate, default=None, metavar="RAD_S",
                         help="target slowest observer mode of the gain design in rad/s, finite and > 0 (default: 10)")
-    parser.add_argument("--quick", action="store_true", help="small grids and short runs (a preview in under a minute)")
+    parser.add_argument("--quick", action="store_true", help="a quick preview: small grids and short runs, in well "
+                        "under a minute; its numbers differ from the full analysis (the report lists how)")
     parser.add_argument("--jobs", type=_positive_int, default=None, help="worker processes for the studies "
                         "(default: the number of CPUs; results do not depend on it)")
 
@@ -79,7 +81,8 @@ def _cmd_analyze(args) -> int:
         found = result.mismatch.loop(observer).boundaries.factors
         print(f"inertia-mismatch stability boundary {label}: "
               + (", ".join(f"a = {a:.6g}" for a in found) if found else "none in the searched range"))
-    print(f"analysis written to {out} ({len(files)} files)")
+    figures = sorted({Path(name).stem for name in result.figures})
+    print(f"analysis written to {out}: analysis.json and {len(figures)} figures, each as PNG and SVG")
     return 0
 
 
@@ -92,7 +95,7 @@ def _cmd_report(args) -> int:
     out = args.out if args.out is not None else default_out_dir(REPORT_PREFIX)
     with StageProgress() as progress:
         path = write_report(scenario, out, _settings(args), progress=progress, sweep_summaries=args.sweep)
-    print(f"report written to {path}")
+    print(f"{'quick preview of the report' if args.quick else 'report'} written to {path}")
     return 0
 
 

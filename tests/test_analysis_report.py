@@ -123,6 +123,12 @@ class _Page(HTMLParser):
         return out
 
 
+def _summary(page: str) -> list[str]:
+    """The statements of the page's summary for the surgical team (plain text)."""
+    block = re.search(r"<div class='summary'>(.*?)</div>", page, flags=re.S).group(1)
+    return [html.unescape(li) for li in re.findall(r"<li>(.*?)</li>", block, flags=re.S)]
+
+
 def _numbers(text: str) -> list[float]:
     return [float(x) for x in re.findall(r"[-+]?\d+(?:\.\d+)?(?:e[-+]?\d+)?", text)]
 
@@ -271,9 +277,9 @@ def test_report_tables_show_the_computed_numbers(report_data):
 
     responses = {tuple(row[:2]): row[2:] for row in page.rows("Per-joint disturbance responses")}
     # 1 N on the prismatic joint without the observer: -1 / (k4 Kp) = -1 / 45 m/N (DC gain column)
-    assert float(responses["e, without observer", "joint 3"][1]) == pytest.approx(-1 / 45, rel=1e-3)
-    assert float(responses["e, with observer", "joint 3"][1]) == 0.0                    # the observer: zero
-    assert float(responses["d - d_hat, with observer", "joint 3"][5].split(" to ")[0]) == pytest.approx(40.0)
+    assert float(responses["e, without observer", "Joint 3 (d3)"][1]) == pytest.approx(-1 / 45, rel=1e-3)
+    assert float(responses["e, with observer", "Joint 3 (d3)"][1]) == 0.0                    # the observer: zero
+    assert float(responses["d - d_hat, with observer", "Joint 3 (d3)"][5].split(" to ")[0]) == pytest.approx(40.0)
 
 
 def test_report_statements_carry_the_computed_numbers(report_data):
@@ -293,7 +299,7 @@ def test_report_statements_carry_the_computed_numbers(report_data):
 def test_summary_quotes_the_tool_tip_error_and_the_observer_speed(reported, report_data):
     path, _, _ = reported
     _, result, metrics = report_data
-    summary = [html.unescape(li) for li in re.findall(r"<li>(.*?)</li>", path.read_text(encoding="utf-8"), flags=re.S)]
+    summary = _summary(path.read_text(encoding="utf-8"))
     w, wo = metrics["with_dob"], metrics["without_dob"]
     assert _numbers(summary[0]) == [_shown(run[key], 3) for key in ("max_tool_position_error_mm",
                                                                     "rms_tool_position_error_mm") for run in (w, wo)]
@@ -318,7 +324,7 @@ def test_same_scenario_gives_the_same_numbers(reported, scenario_file):
     _, out, _ = reported
     written = (out / "analysis.json").read_text()
     again = run_analysis(load_scenario(scenario_file), TINY)
-    assert replace(AnalysisResult.from_json(written), figures=None).to_json() == again.to_json()
+    assert replace(AnalysisResult.from_json(written), figures=[]).to_json() == again.to_json()
     # and the file reads back to exactly what was written
     assert AnalysisResult.from_json(written).to_json() == written
 
@@ -346,7 +352,7 @@ def test_a_script_in_the_scenario_name_stays_text(fast_observer):
     assert parsed.bad == [] and parsed.stack == []
     settings = parsed.table(header=["setting", "value"])
     assert settings["name"] == [name] and settings["description"] == ['"quoted" <b>bold</b>']
-    assert f"dobkit report: {name}" in "".join(parsed.text)
+    assert f"dobkit analysis report: scenario '{name}'" in "".join(parsed.text)
 
 
 def test_json_has_no_nonstandard_numbers():
@@ -387,7 +393,7 @@ def test_report_claims_no_instability_that_was_not_found(fast_observer):
     # held at q0 the arm rests on its target with the observer: every DC gain of the tracking error is zero
     assert all(abs(m.dc_gain) <= 1e-6 * m.peak_gain for m in result.frequency.tracking_with_dob.metrics)
     dc = [row[3] for row in page.rows("Per-joint disturbance responses")
-          if row[0] == "e, with observer" and row[1].startswith("joint")]
+          if row[0] == "e, with observer" and row[1].startswith("Joint")]
     assert dc == ["0"] * 4
     # Y = 50 I: the slowest observer mode (50 / the largest inertia seen) is still slower than the PD root at 6 rad/s
     largest = max(np.linalg.eigvalsh(reference_inertia(t)).max() for t in np.linspace(-np.pi, np.pi, 73))
@@ -419,3 +425,108 @@ def test_report_discloses_joints_made_worse_by_the_observer(reported, report_dat
     early = metrics["with_dob"]["time_of_max_abs_position_error"][0] <= 0.5 * metrics["duration_s"]
     assert ("start-up transient" in lines[0]) == (early and final < 0.5 * peak)
     assert _shown(peak, 3) in numbers and _shown(final, 3) in numbers
+
+
+# --- what a reader sees -----------------------------------------------------------------------------------------
+
+
+def test_a_quick_preview_says_so_and_what_it_leaves_out(reported, report_data, scenario_file):
+    _, out, _ = reported
+    _, result, metrics = report_data
+    s = load_scenario(scenario_file)
+    pngs = {p.stem: p for p in (out / "figures").glob("*.png")}
+    full = _Page(render_html(result, metrics, s, pngs))
+    preview = _Page(render_html(replace(result, settings=replace(result.settings, quick=True)), metrics, s, pngs))
+    full_text, preview_text = " ".join(full.text), " ".join(preview.text)
+    assert "quick preview" not in full_text and "--quick" not in full_text
+    assert f"dobkit analysis report, quick preview: scenario '{s.name}'" in preview_text
+    assert f"dobkit report --scenario {s.source} --quick" in preview_text           # the regenerate line
+    # what it leaves out, from the settings: the study runs of TINY are 0.5 s where the full report runs 10 s
+    assert "length of the study runs: 0.5 s (full: 10 s)" in preview_text
+    assert "Kp of the gain study: 180 1/s^2 (full: 45, 90, 180, 360 1/s^2)" in preview_text
+
+
+def test_every_section_is_in_the_table_of_contents(reported):
+    path, _, _ = reported
+    page = path.read_text(encoding="utf-8")
+    ids = re.findall(r"<h2 id='([a-z]+)'", page)
+    links = re.findall(r"<li><a href='#([a-z]+)'>", page)
+    assert ids == links and len(ids) == 8
+
+
+def test_the_summary_repeats_no_paragraph_of_the_page(reported):
+    path, _, _ = reported
+    page = path.read_text(encoding="utf-8")
+    summary = _summary(page)
+    paragraphs = [html.unescape(re.sub(r"<[^>]+>", "", p)) for p in re.findall(r"<p>(.*?)</p>", page, flags=re.S)]
+    for line in summary:
+        assert not any(line in p for p in paragraphs), line
+
+
+def test_the_scenario_table_is_written_for_people(report_data):
+    page, result, _ = report_data
+    settings = page.table(header=["setting", "value"])
+    values = " ".join(v[0] for v in settings.values())
+    assert "[[" not in values and "['" not in values and "array(" not in values
+    Y = np.array(AnalysisResult.from_json(result.to_json()).observer_design.base)
+    assert settings["Kp (1/s^2)"] == ["180 (every joint)"]
+    assert np.allclose(Y, 10 * np.eye(4))                                      # the short scenario: Y = 10 I
+    assert settings["observer gain Y (kg m^2/s; kg/s on joint 3)"] == ["10 I"]
+    assert settings["disturbance"][0].startswith("paper: the constant step f_r = 1.43, 1.6, 1.4, 1.2")
+
+
+def test_the_observer_reading_compares_every_gain_tried(report_data):
+    page, result, _ = report_data
+    obs = result.studies.observer
+    ok = [k for k, r in enumerate(obs.runs) if r.ok and obs.labels[k] != "none"]
+    peaks = {obs.labels[k]: obs.runs[k].tool_mm.peak_error for k in ok}
+    reading = [p for p in page.paragraphs if p.startswith("Reading. Over the")][0]
+    largest, smallest = max(peaks, key=peaks.get), min(peaks, key=peaks.get)
+    assert f"from {peaks[largest]:.3g} mm ({largest}) down to {peaks[smallest]:.3g} mm ({smallest})" in reading
+    assert f"Over the {len(ok)} observer gains tried" in reading
+
+
+def test_settling_time_has_one_wording_in_the_readme_and_the_report(report_data):
+    from analysis.studies import settling_definition
+    from test_readme import README
+    page, _, _ = report_data
+    definition = settling_definition()
+    assert definition in " ".join(README.read_text(encoding="utf-8").split())      # line breaks aside
+    assert definition.capitalize() in " ".join(page.paragraphs)
+
+
+def test_run_analysis_and_analysis_json_have_the_same_keys(analyzed, scenario_file):
+    _, out = analyzed
+    written = _strict((out / "analysis.json").read_text())
+    computed = _strict(run_analysis(load_scenario(scenario_file), MINIMAL).to_json())
+    assert set(written) == set(computed) and computed["figures"] == [] and written["figures"]
+
+
+def test_no_estimation_error_metric_that_only_measures_the_jump_at_t0(report_data):
+    # with d_hat(0) = 0 the largest |d - d_hat| of a run is f_r at t = 0 whatever the gain: not reported
+    _, _, metrics = report_data
+    assert "max_abs_disturbance_error" not in metrics["with_dob"]
+    assert "rms_disturbance_error" in metrics["with_dob"]
+
+
+def test_long_steps_report_how_far_they_have_got(reported):
+    # the steps that take longest on the full settings say how far they are, not only that they started and ended
+    _, _, calls = reported
+    # (TINY's Kp x Kd grid is a single run, so the gain studies have nothing in between)
+    for stage in ("inertia mismatch", "observer gain design", "observer gain and noise study",
+                  "writing figures and report"):
+        inside = [f for s, f in calls if s == stage and 0.0 < f < 1.0]
+        assert inside, f"{stage!r} reports nothing between its start and its end"
+
+
+def test_figures_name_the_joints_as_a_person_reads_them(tmp_path):
+    from analysis.figures import convergence_figure
+    from blocks.joints import RRPR_JOINTS
+    h = [0.004, 0.002, 0.001]
+    study = {"steps": h, "errors": {f"q[{i}]": [(i + 1) * x for x in h] for i in range(4)},
+             "units": {"q[0]": "rad", "q[1]": "rad", "q[2]": "m", "q[3]": "rad"}, "order": 1.0, "scenario": "s",
+             "fmi_version": 2, "t_final": 1.0}
+    svg = next(p for p in convergence_figure(study, tmp_path) if p.suffix == ".svg").read_text()
+    for label in RRPR_JOINTS.labels:
+        assert label in svg
+    assert "q[0] (rad)" not in svg

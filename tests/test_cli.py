@@ -2,6 +2,7 @@
 import csv
 import io
 import json
+import re
 
 import numpy as np
 import pytest
@@ -136,11 +137,13 @@ def test_simulate_reports_progress_of_both_runs(short_run, tmp_path, monkeypatch
     (display,) = _Recorded.made
     for stage in ("simulating with observer", "simulating without observer"):
         _increasing_to_one(display.calls, stage)
-    # stderr is not a terminal here: one line per stage, each with its own duration, in order
+    # stderr is not a terminal here: a line when each stage ends, saying how long it took, in order (a stage slow
+    # enough may also write how far it has got)
     lines = capsys.readouterr().err.splitlines()
-    assert [line.rsplit(": ", 1)[0] for line in lines] == ["simulating with observer", "simulating without observer",
-                                                           "writing figures"]
-    assert all(line.endswith(" s") and float(line.rsplit(": ", 1)[1][:-2]) >= 0 for line in lines)
+    done = [re.fullmatch(r"(.+): done, took (\d+\.\d) s", line) for line in lines]
+    assert [m.group(1) for m in done if m] == ["simulating with observer", "simulating without observer",
+                                               "writing figures"]
+    assert all(m or re.fullmatch(r".+: \d+% after \d+\.\d s", line) for m, line in zip(done, lines))
 
 
 def test_sweep_reports_finished_runs_up_to_all_of_them(short_run, tmp_path, capsys):
@@ -192,7 +195,7 @@ def test_each_stage_shows_its_own_duration(monkeypatch):
         assert display.fraction == 0.2
         display("third", 0.0)
         clock.now += 0.5
-    assert log.getvalue() == "first: 5.0 s\nsecond: 2.0 s\nthird: 0.5 s\n"
+    assert log.getvalue() == "first: done, took 5.0 s\nsecond: done, took 2.0 s\nthird: done, took 0.5 s\n"
     # a stage cut short by an error says so
     log = io.StringIO()
     with pytest.raises(RuntimeError):
@@ -201,6 +204,20 @@ def test_each_stage_shows_its_own_duration(monkeypatch):
             clock.now += 1.0
             raise RuntimeError("diverged")
     assert log.getvalue() == "doomed: stopped after 1.0 s\n"
+
+
+def test_a_long_stage_says_how_far_it_has_got_in_a_log(monkeypatch):
+    # every step over LOG_EVERY_S (2 s) shows progress: after that long without a line, the next advance writes one
+    clock = _Clock()
+    monkeypatch.setattr(progress.time, "monotonic", clock)
+    log = io.StringIO()
+    with progress.StageProgress(log) as display:
+        display("noise study", 0.0)
+        for k in range(1, 10):
+            clock.now += 0.75
+            display("noise study", k / 10)
+    assert log.getvalue().splitlines() == ["noise study: 30% after 2.2 s", "noise study: 60% after 4.5 s",
+                                           "noise study: 90% after 6.8 s", "noise study: done, took 6.8 s"]
 
 
 def test_on_a_terminal_every_stage_is_a_bar_that_ends_full():
