@@ -50,7 +50,8 @@ class SolverFailure(RuntimeError):
 
 def integrate_on_grid(fun: Callable[[float, np.ndarray], np.ndarray], x0, t_grid, method: str = "RK45",
                       rtol: float = 1e-6, atol: float = 1e-8, max_step: float = np.inf, bound: float = np.inf,
-                      progress: Callable[[float], None] | None = None) -> tuple[np.ndarray, int]:
+                      progress: Callable[[float], None] | None = None,
+                      first_step: float | None = None) -> tuple[np.ndarray, int]:
     """States of ``x' = fun(t, x)`` at the times of ``t_grid``, integrated from ``x0`` at ``t_grid[0]``.
 
     Parameters
@@ -70,6 +71,8 @@ def integrate_on_grid(fun: Callable[[float, np.ndarray], np.ndarray], x0, t_grid
         state) raises :class:`DivergenceError`.
     progress : callable, optional
         Called with the fraction done (0 to 1), at most every 0.2 s of wall time.
+    first_step : float, optional
+        The first step to try (s); by default the solver's own estimate.
 
     Returns
     -------
@@ -90,8 +93,9 @@ def integrate_on_grid(fun: Callable[[float, np.ndarray], np.ndarray], x0, t_grid
     x0 = np.asarray(x0, dtype=float)
     if not np.all(np.isfinite(x0)) or not np.abs(x0).max(initial=0.0) <= bound:
         raise DivergenceError(t0, bound)
+    options = {} if first_step is None else {"first_step": min(first_step, t_end - t0, max_step)}
     solver = SOLVERS[method](fun, t0, x0, t_end, vectorized=False, rtol=rtol, atol=atol,
-                             max_step=max_step)
+                             max_step=max_step, **options)
     states = np.empty((solver.n, t_grid.size))
     done = 0                                    # grid points filled (the first one too from the first step)
     last_report = time.monotonic()

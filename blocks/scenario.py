@@ -20,6 +20,9 @@ Sections and keys (units in brackets)::
     [noise]          q_std [rad, m], dq_std [rad/s, m/s] (4 each), seed, sample_period [s]
     [initial]        q, dq (4 each; default: on the reference), d_hat (4; default 0)
     [simulation]     t_final [s], output_step [s], rtol, atol, method, max_step [s]
+    [controller]     the digital controller (blocks.digital): sample_rate [Hz], delay [samples],
+                     observer_discretization, velocity, velocity_cutoff [Hz], position_resolution
+                     [rad, m] (4), torque_limit [N m, N] (4); absent: the continuous controller
 
 Each section is read by one entry of the table ``_SECTIONS``: the keys it
 allows with the check of each value, and how its object is built from them.
@@ -43,6 +46,7 @@ from typing import Any
 
 import numpy as np
 
+from .digital import DISCRETIZATIONS, VELOCITY_SOURCES, DigitalController
 from .disturbances import DISTURBANCE_KINDS, DisturbanceSpec
 from .gains import GAIN_KEYS, OBSERVER_VARIANTS, GainError, validated_gain
 from .joints import RRPR_JOINTS
@@ -193,6 +197,8 @@ class Scenario:
     initial : dict
         ``q``, ``dq``, ``d_hat`` as 4-arrays or None (None: on the reference / zero).
     simulation : SimulationSettings
+    controller : DigitalController or None
+        The digital controller's settings; None for the continuous controller.
     source : str
         Where the scenario came from (built-in name or file path).
     user_data : dict
@@ -215,6 +221,7 @@ class Scenario:
     noise: MeasurementNoise | None
     initial: dict
     simulation: SimulationSettings
+    controller: DigitalController | None = None
     source: str = "<dict>"
     user_data: dict = field(default_factory=dict)
 
@@ -521,6 +528,27 @@ def _build_noise(given: dict, built: dict):
     return (noise if noise.enabled else None), {k: _plain(getattr(noise, k)) for k in _NOISE_KEYS}
 
 
+def _build_controller(given: dict, built: dict):
+    if not given:           # absent: the continuous controller, and no [controller] in the settings
+        return None, None
+    if "sample_rate" not in given:
+        raise ScenarioError("'controller.sample_rate' is required in a [controller] section (Hz)")
+    try:
+        controller = DigitalController(**given)
+    except ValueError as err:
+        raise ScenarioError(str(err)) from None
+    values = {k: _plain(v) for k, v in dataclasses.asdict(controller).items() if v is not None}
+    return controller, values
+
+
+def _whole(lower: int) -> Check:
+    def check(value, key: str) -> int:
+        if isinstance(value, bool) or not isinstance(value, int) or value < lower:
+            raise ScenarioError(f"'{key}' must be a whole number >= {lower}, got {value!r}")
+        return value
+    return check
+
+
 def _build_initial(given: dict, built: dict):
     return {k: (np.array(given[k]) if k in given else None) for k in _INITIAL_KEYS}, \
         {k: list(v) for k, v in given.items()}
@@ -568,6 +596,11 @@ _SECTIONS: dict[str, _Section] = {
     "noise": _Section({k: _like(d) for k, d in _defaults(MeasurementNoise).items() if k in _NOISE_KEYS},
                       _build_noise),
     "initial": _Section({k: _vector(RRPR_JOINTS.count) for k in _INITIAL_KEYS}, _build_initial),
+    "controller": _Section({"sample_rate": _finite(0.0, strict=True), "delay": _whole(0),
+                            "observer_discretization": _one_of(DISCRETIZATIONS), "velocity": _one_of(VELOCITY_SOURCES),
+                            "velocity_cutoff": _finite(0.0, strict=True),
+                            "position_resolution": _vector(RRPR_JOINTS.count),
+                            "torque_limit": _vector(RRPR_JOINTS.count)}, _build_controller),
 }
 _TOP_KEYS = ("name", "description") + tuple(_SECTIONS)
 _KEY = re.compile(r"(?P<section>[A-Za-z_]\w*)(?:\.(?P<name>\w+))?(?:\[(?P<index>\d+)\])?")
@@ -704,11 +737,14 @@ def _validated(data: Mapping, source: str) -> Scenario:
         _check_keys(table, checks, section, note=f" for kind = {kind!r}" if kind else "")
         given = {k: checks[k](v, f"{section}.{k}") for k, v in table.items()}
         built[section], out[section] = spec.build(given, built)
+        if out[section] is None:            # an optional section that is absent
+            del out[section]
     return Scenario(name=name, data=out, robot=built["robot"], nominal=built["nominal_scale"],
                     kp=built["gains"]["kp"], kd=built["gains"]["kd"], observer_gain=built["gains"]["observer"],
                     observer_variant=built["observer"], trajectory=built["trajectory"],
                     disturbance=built["disturbance"], noise=built["noise"], initial=built["initial"],
-                    simulation=built["simulation"], source=source, user_data=_plain(data))
+                    simulation=built["simulation"], controller=built["controller"], source=source,
+                    user_data=_plain(data))
 
 
 def _table(data: Mapping, key: str) -> Mapping:
