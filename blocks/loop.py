@@ -8,14 +8,26 @@
                                                +----------------------(q, dq)-------+
 
 The interconnected system returned by :func:`closed_loop` is the single
-description of the loop.  :func:`simulate` integrates it; by default through
-:class:`~blocks.fastsim.CompiledLoop` (each block evaluated once per
-step, in dependency order), or with ``engine="python-control"`` through
-:func:`control.input_output_response`.  Both give the same numbers to solver
-tolerance.
+description of the loop.  :func:`simulate` integrates it with one of three
+engines, which give the same numbers to solver tolerance:
+
+``compiled``
+    the loop's plan and kernels generated into one numba-compiled module
+    (:mod:`blocks.compiled`; needs the extra ``dobkit[fast]``);
+``fast``
+    the numpy engine, :class:`~blocks.fastsim.CompiledLoop` (each block
+    evaluated once per step, in dependency order) with ``solve_ivp``'s solvers;
+``python-control``
+    :func:`control.input_output_response` on the interconnection.
+
+``engine="auto"`` (the default) takes ``compiled`` when numba is installed,
+every block has kernels and the solver is RK45, and ``fast`` otherwise; the
+first fallback for each reason is reported once per process with an
+:class:`EngineFallbackWarning` that says why.
 """
 from __future__ import annotations
 
+import warnings
 from typing import Callable
 
 import control as ct
@@ -30,7 +42,10 @@ from .systems import controller, plant, sensor, signal_names, trajectory_block
 from .systems import observer as observer_block
 
 __all__ = ["build_blocks", "closed_loop", "initial_state", "simulate", "SimulationError", "lumped_disturbance",
-           "LOOP_SIGNALS"]
+           "LOOP_SIGNALS", "ENGINES", "EngineFallbackWarning", "select_engine"]
+
+#: Engines of :func:`simulate`.
+ENGINES = ("auto", "compiled", "fast", "python-control")
 
 LOOP_SIGNALS = ("q", "dq", "q_ref", "dq_ref", "ddq_ref", "tau", "d_hat", "tau_dis")
 
@@ -40,6 +55,41 @@ DIVERGENCE_BOUND = 1e6
 
 class SimulationError(RuntimeError):
     """The simulation failed or diverged; the message gives the time and the reason."""
+
+
+class EngineFallbackWarning(UserWarning):
+    """``engine="auto"`` runs the numpy engine because the compiled one cannot run this loop (the message says why)."""
+
+
+_fallbacks_reported: set[str] = set()
+
+
+def select_engine(engine: str, reason: str | None) -> str:
+    """The engine to run for a requested ``engine``, given why the compiled one cannot run (None: it can).
+
+    ``"auto"`` becomes ``"compiled"`` or ``"fast"``; a fallback is reported
+    once per reason and process (:class:`EngineFallbackWarning`).
+
+    Raises
+    ------
+    ValueError
+        If ``engine`` is not one of :data:`ENGINES`.
+    blocks.compiled.CompiledUnavailable
+        If ``engine="compiled"`` and ``reason`` is not None; the message is the reason.
+    """
+    if engine not in ENGINES:
+        raise ValueError(f"engine must be one of {list(ENGINES)}, got {engine!r}")
+    if engine == "compiled" and reason is not None:
+        from .compiled import CompiledUnavailable
+        raise CompiledUnavailable(f"engine='compiled' cannot run: {reason}")
+    if engine != "auto":
+        return engine
+    if reason is None:
+        return "compiled"
+    if reason not in _fallbacks_reported:
+        _fallbacks_reported.add(reason)
+        warnings.warn(f"engine='auto' uses the numpy engine: {reason}", EngineFallbackWarning, stacklevel=3)
+    return "fast"
 
 
 def _as_scenario(scenario) -> Scenario:
@@ -164,7 +214,7 @@ def lumped_disturbance(q, dq, tau, tau_dis, scenario: Scenario) -> np.ndarray:
     return np.moveaxis(d, 0, -1)
 
 
-def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=None, engine: str = "fast",
+def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=None, engine: str = "auto",
              progress: Callable[[float], None] | None = None) -> ct.TimeResponseData:
     """Simulate the Figure-2 loop of a scenario on its uniform output grid.
 
@@ -176,10 +226,14 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
         With or without the disturbance observer.
     plant : control.NonlinearIOSystem, optional
         A replacement plant (for example an FMU loaded with :func:`fmu.load`).
-    engine : {"fast", "python-control"}
-        ``fast`` integrates the compiled loop (each block output evaluated once
-        per call); ``python-control`` calls :func:`control.input_output_response`
-        on the same interconnected system.
+    engine : {"auto", "compiled", "fast", "python-control"}
+        ``compiled`` runs the loop's generated, numba-compiled module
+        (:mod:`blocks.compiled`: Dormand-Prince 5(4) with ``solve_ivp``'s RK45
+        step control); ``fast`` the numpy engine (each block output evaluated
+        once per call, ``solve_ivp``'s solvers); ``python-control`` calls
+        :func:`control.input_output_response` on the same interconnected
+        system.  ``auto`` takes ``compiled`` when it can run the loop and
+        ``fast`` otherwise (see :func:`select_engine`).
     progress : callable, optional
         Called with the fraction of simulated time done (0..1) as the solver advances.
 
@@ -196,14 +250,27 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
     ------
     SimulationError
         If the solver fails or the state diverges; the message says when and why.
+    ValueError
+        If ``engine`` is unknown.
+    blocks.compiled.CompiledUnavailable
+        If ``engine="compiled"`` cannot run: numba is not installed (the
+        message names the extra), a block has no kernels (it names the
+        block) or the scenario's solver is not RK45.
     """
+    if engine not in ENGINES:
+        raise ValueError(f"engine must be one of {list(ENGINES)}, got {engine!r}")
     s = _as_scenario(scenario)
     loop = closed_loop(s, observer=observer, plant=plant)
     x0 = initial_state(loop, s)
     sim = s.simulation
     t_grid = sim.time_grid
-    if engine == "fast":
-        states, outputs = _integrate_compiled(loop, x0, t_grid, sim, progress)
+    if engine in ("auto", "compiled"):
+        from .compiled import unavailable_reason
+        engine = select_engine(engine, unavailable_reason(loop, sim.method))
+    if engine == "compiled":
+        states, outputs = _integrate_with(_compiled_engine(loop), loop, x0, t_grid, sim, progress)
+    elif engine == "fast":
+        states, outputs = _integrate_with(_NumpyEngine(loop, sim.method), loop, x0, t_grid, sim, progress)
     elif engine == "python-control":
         resp = ct.input_output_response(loop, t_grid, 0, x0, solve_ivp_method=sim.method,
                                         solve_ivp_kwargs=dict(rtol=sim.rtol, atol=sim.atol, max_step=sim.max_step),
@@ -216,8 +283,6 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
         if beyond.any():
             raise SimulationError(f"scenario '{s.name}': the loop diverged at t = {t_grid[np.argmax(beyond)]:.6g} s "
                                   f"(a state exceeded {DIVERGENCE_BOUND:g}); no result is returned")
-    else:
-        raise ValueError(f"engine must be 'fast' or 'python-control', got {engine!r}")
     labels = list(loop.output_labels)
     idx = {name: labels.index(name) for name in labels}
     pick = lambda sig: outputs[[idx[n] for n in signal_names(sig)]]  # noqa: E731
@@ -233,12 +298,29 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
     return resp
 
 
-def _integrate_compiled(loop, x0, t_grid, sim, progress):
-    compiled = CompiledLoop(loop)
+class _NumpyEngine:
+    """The numpy engine with the interface of :class:`blocks.compiled.CompiledLoopEngine`."""
+
+    def __init__(self, loop, method: str) -> None:
+        self.compiled, self.method = CompiledLoop(loop), method
+
+    def integrate(self, x0, t_grid, rtol, atol, max_step, bound, progress):
+        return integrate_on_grid(self.compiled.rhs, x0, t_grid, self.method, rtol=rtol, atol=atol,
+                                 max_step=max_step, bound=bound, progress=progress)
+
+    def outputs_on_grid(self, t_grid, X):
+        return self.compiled.outputs_on_grid(t_grid, X)
+
+
+def _compiled_engine(loop):
+    from .compiled import CompiledLoopEngine
+    return CompiledLoopEngine(loop)
+
+
+def _integrate_with(engine, loop, x0, t_grid, sim, progress):
     name = loop.scenario.name
     try:
-        states, _ = integrate_on_grid(compiled.rhs, x0, t_grid, sim.method, rtol=sim.rtol, atol=sim.atol,
-                                      max_step=sim.max_step, bound=DIVERGENCE_BOUND, progress=progress)
+        states, _ = engine.integrate(x0, t_grid, sim.rtol, sim.atol, sim.max_step, DIVERGENCE_BOUND, progress)
     except DivergenceError as err:
         raise SimulationError(f"scenario '{name}': the loop diverged at t = {err.time:.6g} s "
                               f"(a state exceeded {DIVERGENCE_BOUND:g} or became non-finite); "
@@ -246,8 +328,8 @@ def _integrate_compiled(loop, x0, t_grid, sim, progress):
     except SolverFailure as err:
         raise SimulationError(f"scenario '{name}': the solver stopped at t = {err.time:.6g} s of "
                               f"{t_grid[-1]:g} s: {err.reason}") from None
-    # integrate_on_grid has checked every step's state: finite and within the bound
-    outputs = compiled.outputs_on_grid(t_grid, states)
+    # the integrator has checked every step's state: finite and within the bound
+    outputs = engine.outputs_on_grid(t_grid, states)
     if progress is not None:
         progress(1.0)
     return states, outputs

@@ -12,8 +12,9 @@ The plant, controller, observer and sensor are *kernel blocks*: their update
 and output functions are the block kernels below, which slice the stacked
 input and call the laws of :mod:`blocks.kernels`, and their contract carries
 those kernels with their parameters so that an engine can call them
-directly, over a time grid or over a batch.  The trajectory block wraps a
-path object.
+directly, over a time grid or over a batch.  The trajectory block is a
+kernel block too when its path has kernels (the paths of
+:mod:`blocks.trajectory` do); it wraps any other path object.
 """
 from __future__ import annotations
 
@@ -149,7 +150,7 @@ def controller(nominal: RobotParameters, kp, kd, use_observer: bool = True, meas
 
 
 def observer(nominal: RobotParameters, gain, variant: str = "correct", measured: str = "",
-             name: str = "observer") -> Block:
+             name: str = "observer", matrix_gain: bool = False) -> Block:
     """Nonlinear disturbance observer (Chen et al. 2000; Mohammadi et al. 2013).
 
     ``d_hat = Y q' + z``, ``z' = -Y M^-1(q)(tau + d_hat - N(q, q') q' - G(q))``,
@@ -169,6 +170,10 @@ def observer(nominal: RobotParameters, gain, variant: str = "correct", measured:
     variant : {"correct", "paper-eq16"}
     measured : str
         Suffix of the measured signals it reads (see :func:`controller`).
+    matrix_gain : bool
+        Give the kernels ``Y`` as a 4x4 matrix even when it is diagonal (by
+        default a diagonal gain is given by its diagonal, which multiplies
+        elementwise); for engines that need one parameter layout for every gain.
 
     Raises
     ------
@@ -181,7 +186,8 @@ def observer(nominal: RobotParameters, gain, variant: str = "correct", measured:
         raise ValueError(f"observer variant {variant!r} is unknown; choose from {list(OBSERVER_VARIANTS)}")
     Y = validated_gain(gain, "observer")
     # a diagonal gain multiplies elementwise (see blocks.kernels.laws.gain_times)
-    y_param = np.diag(Y).copy() if np.count_nonzero(Y - np.diag(np.diag(Y))) == 0 else np.array(Y)
+    diagonal = np.count_nonzero(Y - np.diag(np.diag(Y))) == 0 and not matrix_gain
+    y_param = np.diag(Y).copy() if diagonal else np.array(Y)
     dq_in = signal_names("dq" + measured, nominal)
     inputs = signal_names("tau", nominal) + signal_names("q" + measured, nominal) + dq_in
     kernels = Kernels((arm_constants(nominal), y_param, 1.0 if variant == "paper-eq16" else 0.0),
@@ -199,12 +205,20 @@ def trajectory_block(trajectory, name: str = "trajectory") -> Block:
     Parameters
     ----------
     trajectory : object
-        Anything with ``evaluate(t) -> (q, dq, ddq)`` returning three 4-vectors
-        for a scalar time ``t`` (s) (see :mod:`blocks.trajectory`).
-        When it also has ``evaluate_stacked(t)``, returning the three side by
-        side with shape ``np.shape(t) + (12,)`` for a scalar or a (T,) array of
-        times, that is used instead and the block takes columns.
+        A path of :mod:`blocks.trajectory` (the block is then a kernel block
+        whose output is the path's reference kernel), or anything with
+        ``evaluate(t) -> (q, dq, ddq)`` returning three 4-vectors for a scalar
+        time ``t`` (s).  When such an object also has ``evaluate_stacked(t)``,
+        returning the three side by side with shape ``np.shape(t) + (12,)``
+        for a scalar or a (T,) array of times, that is used instead and the
+        block takes columns.
     """
+    outputs = signal_names("q_ref") + signal_names("dq_ref") + signal_names("ddq_ref")
+    make_kernels = getattr(trajectory, "kernels", None)
+    if callable(make_kernels):
+        block = kernel_block(make_kernels(), name=name, inputs=[], outputs=outputs)
+        block.trajectory = trajectory
+        return block
     stacked = getattr(trajectory, "evaluate_stacked", None)
 
     def output(t, x, u, _params):
@@ -213,7 +227,6 @@ def trajectory_block(trajectory, name: str = "trajectory") -> Block:
             return refs if refs.ndim == 1 else refs.T
         return np.concatenate(trajectory.evaluate(t))
 
-    outputs = signal_names("q_ref") + signal_names("dq_ref") + signal_names("ddq_ref")
     block = Block(None, output, name=name, inputs=0, outputs=outputs,
                   contract=BlockContract(feedthrough=frozenset(), columnwise=stacked is not None))
     block.trajectory = trajectory

@@ -34,10 +34,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .contract import Kernels
 from .kinematics import ELBOWS, UnreachableError, inverse_kinematics, jacobian, jacobian_derivative_times_dq
 from .parameters import RobotParameters
 
-__all__ = ["LacerationPath", "JointSine", "TRAJECTORY_KINDS", "smoothstep5", "bump6"]
+__all__ = ["LacerationPath", "JointSine", "TRAJECTORY_KINDS", "smoothstep5", "bump6", "laceration_pose",
+           "laceration_reference", "laceration_output", "joint_sine_output"]
 
 TRAJECTORY_KINDS = ("laceration", "joint_sine")
 
@@ -52,6 +54,100 @@ def bump6(tau: float):
     """Bump ``64 tau^3 (1 - tau)^3`` (peak 1 at tau = 1/2, C2 at both ends) and its two derivatives."""
     u, du = tau * (1 - tau), 1 - 2 * tau
     return 64 * u ** 3, 192 * u ** 2 * du, 384 * u * du ** 2 - 384 * u ** 2
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Reference kernels: plain functions of a time and a parameter array, in the subset of Python numba compiles.
+# The path objects below call them, and their blocks carry them (see LacerationPath.kernels).
+# --------------------------------------------------------------------------------------------------------------
+#: Layout of a laceration path's parameter array (:meth:`LacerationPath._geometry`).
+LACERATION_FIELDS = ("phase_duration", "stitches", "duration", "x0", "y0", "x1", "y1", "bulge", "skin_height",
+                     "hover", "depth", "needle_roll", "roll_offset", "a1", "a2", "d1", "d4", "elbow", "q_near1",
+                     "q_near4")
+
+
+def laceration_pose(t, g):
+    """Task-space pose ``[x, y, z, phi]`` of a laceration path at time ``t`` (s) and its two rates, as 12 floats.
+
+    ``g`` holds the path's numbers in the order of :data:`LACERATION_FIELDS`.
+    """
+    T, stitches, duration = g[0], int(g[1]), g[2]
+    phase = min(max(math.floor(t / T), 0), 2 * stitches - 2)
+    tau = 1.0 if t >= duration else min(max(t / T - phase, 0.0), 1.0)
+    step = 1.0 / (stitches - 1)
+    # arc parameter s along the laceration advances in travel phases; the dip b acts in stitch phases
+    s, ds, dds, b, db, ddb = step * (phase // 2), 0.0, 0.0, 0.0, 0.0, 0.0
+    if phase % 2 == 1:
+        sig, dsig, ddsig = smoothstep5(tau)
+        s, ds, dds = s + step * sig, step * dsig / T, step * ddsig / T ** 2
+    else:
+        b, db, ddb = bump6(tau)
+        db, ddb = db / T, ddb / T ** 2
+    # the laceration: start + s (end - start) + a parabolic sideways offset of 'bulge' at its middle
+    x0, y0, x1, y1, bulge = g[3], g[4], g[5], g[6], g[7]
+    skin_height, hover, depth, needle_roll, roll_offset = g[8], g[9], g[10], g[11], g[12]
+    dx, dy = x1 - x0, y1 - y0
+    length = math.hypot(dx, dy)
+    nx, ny = -dy / length, dx / length
+    w, dw, ddw = 4 * bulge * s * (1 - s), 4 * bulge * (1 - 2 * s), -8 * bulge
+    tx, ty = dx + dw * nx, dy + dw * ny
+    reach = hover + depth
+    return (x0 + s * dx + w * nx, y0 + s * dy + w * ny, skin_height + hover - reach * b, roll_offset + needle_roll * b,
+            tx * ds, ty * ds, -reach * db, needle_roll * db,
+            ddw * nx * ds ** 2 + tx * dds, ddw * ny * ds ** 2 + ty * dds, -reach * ddb, needle_roll * ddb)
+
+
+def _planar_solve(a1, a2, c1, s1, c12, s12, det, bx, by):
+    """``J_xy^-1 [bx, by]`` for the planar 2x2 block of the Jacobian (determinant ``det = a1 a2 sin(theta2)``)."""
+    return (a2 * c12 * bx + a2 * s12 * by) / det, (-(a1 * c1 + a2 * c12) * bx - (a1 * s1 + a2 * s12) * by) / det
+
+
+def laceration_reference(t, g):
+    """``[q_ref, dq_ref, ddq_ref]`` (12,) of a laceration path at one time ``t`` (s), by closed-form inverse kinematics.
+
+    Uses the arm's structure: the planar 2x2 block of J has determinant
+    ``a1 a2 sin(theta2)``, ``d3' = -z'`` and ``theta4' = theta1' + theta2' - phi'``;
+    ``theta1`` and ``theta4`` are taken on the branch nearest the path's start pose.
+    """
+    x, y, z, phi, vx, vy, vz, vphi, ax, ay, az, aphi = laceration_pose(t, g)
+    a1, a2, d1, d4, elbow, q_near1, q_near4 = g[13], g[14], g[15], g[16], g[17], g[18], g[19]
+    c2 = (x * x + y * y - a1 * a1 - a2 * a2) / (2 * a1 * a2)
+    if abs(c2) > 1:
+        raise UnreachableError("laceration path leaves the workspace")
+    s2 = elbow * math.sqrt(max(0.0, 1 - c2 * c2))
+    t2 = math.atan2(s2, c2)
+    t1 = math.atan2(y, x) - math.atan2(a2 * s2, a1 + a2 * c2)
+    t1 = q_near1 + (t1 - q_near1 + math.pi) % (2 * math.pi) - math.pi
+    t4 = t1 + t2 - phi
+    t4 = q_near4 + (t4 - q_near4 + math.pi) % (2 * math.pi) - math.pi
+    c1, s1, c12, s12 = math.cos(t1), math.sin(t1), math.cos(t1 + t2), math.sin(t1 + t2)
+    det = a1 * a2 * s2
+    w1, w2 = _planar_solve(a1, a2, c1, s1, c12, s12, det, vx, vy)
+    w12 = w1 + w2
+    bx = ax + a1 * c1 * w1 ** 2 + a2 * c12 * w12 ** 2      # p'' - J' q'
+    by = ay + a1 * s1 * w1 ** 2 + a2 * s12 * w12 ** 2
+    e1, e2 = _planar_solve(a1, a2, c1, s1, c12, s12, det, bx, by)
+    return np.array([t1, t2, d1 - d4 - z, t4, w1, w2, -vz, w12 - vphi, e1, e2, -az, e1 + e2 - aphi])
+
+
+def laceration_output(t, x, u, g):
+    """Block kernel of a laceration path: rows ``[q_ref; dq_ref; ddq_ref]``, (12,) at one time or (12, K) at K times."""
+    if isinstance(t, (int, float)):          # one time (numba compiles this branch only)
+        return laceration_reference(t, g)
+    out = np.empty((12, t.shape[0]))
+    for k in range(t.shape[0]):
+        out[:, k] = laceration_reference(float(t[k]), g)
+    return out
+
+
+def joint_sine_output(t, x, u, amplitude, omega, offset):
+    """Block kernel of :class:`JointSine`: rows ``[q_ref; dq_ref; ddq_ref]`` at time(s) ``t`` (s).
+
+    One time gives (12,); a row of K times with parameters of shape (4, 1) gives (12, K).
+    """
+    phase = omega * t
+    return np.concatenate((offset + amplitude * np.sin(phase), amplitude * omega * np.cos(phase),
+                           -amplitude * omega ** 2 * np.sin(phase)))
 
 
 def _finite(value, name: str):
@@ -145,9 +241,11 @@ class LacerationPath:
             raise ValueError("trajectory.start and trajectory.end must differ")
         # The branch reference for theta1/theta4 continuity is the rest pose at the start.
         object.__setattr__(self, "_q_near", None)
+        object.__setattr__(self, "_table", None)
         self._check_reachable()
         q0 = inverse_kinematics(self.pose(0.0)[0][0], self.params, self.elbow)
         object.__setattr__(self, "_q_near", q0)
+        object.__setattr__(self, "_table", self._geometry())
 
     # -- task space -------------------------------------------------------------------------
     @property
@@ -165,59 +263,24 @@ class LacerationPath:
 
     def _pose_scalar(self, t: float):
         """The pose and its rates at one time, in plain floats (the simulator calls this thousands of times)."""
-        T = self.phase_duration
-        phase = min(max(math.floor(t / T), 0), 2 * self.stitches - 2)
-        tau = 1.0 if t >= self.duration else min(max(t / T - phase, 0.0), 1.0)
-        step = 1.0 / (self.stitches - 1)
-        # arc parameter s along the laceration advances in travel phases; the dip b acts in stitch phases
-        s, ds, dds, b, db, ddb = step * (phase // 2), 0.0, 0.0, 0.0, 0.0, 0.0
-        if phase % 2 == 1:
-            sig, dsig, ddsig = smoothstep5(tau)
-            s, ds, dds = s + step * sig, step * dsig / T, step * ddsig / T ** 2
-        else:
-            b, db, ddb = bump6(tau)
-            db, ddb = db / T, ddb / T ** 2
-        # the laceration: start + s (end - start) + a parabolic sideways offset of 'bulge' at its middle
-        (x0, y0), (x1, y1) = self.start, self.end
-        dx, dy = x1 - x0, y1 - y0
-        length = math.hypot(dx, dy)
-        nx, ny = -dy / length, dx / length
-        w, dw, ddw = 4 * self.bulge * s * (1 - s), 4 * self.bulge * (1 - 2 * s), -8 * self.bulge
-        tx, ty = dx + dw * nx, dy + dw * ny
-        reach = self.hover + self.depth
-        pos = (x0 + s * dx + w * nx, y0 + s * dy + w * ny, self.skin_height + self.hover - reach * b,
-               self.roll_offset + self.needle_roll * b)
-        vel = (tx * ds, ty * ds, -reach * db, self.needle_roll * db)
-        acc = (ddw * nx * ds ** 2 + tx * dds, ddw * ny * ds ** 2 + ty * dds, -reach * ddb, self.needle_roll * ddb)
-        return pos, vel, acc
+        p = laceration_pose(float(t), self._geometry())
+        return p[0:4], p[4:8], p[8:12]
+
+    def _geometry(self) -> np.ndarray:
+        """The path's numbers in the layout of :func:`laceration_pose` (the reference kernel's parameters)."""
+        q_near = (0.0, 0.0, 0.0, 0.0) if self._q_near is None else self._q_near
+        return np.array([self.phase_duration, self.stitches, self.duration, *self.start, *self.end, self.bulge,
+                         self.skin_height, self.hover, self.depth, self.needle_roll, self.roll_offset,
+                         self.params.a1, self.params.a2, self.params.d1, self.params.d4, ELBOWS[self.elbow],
+                         q_near[0], q_near[3]], dtype=float)
 
     def _evaluate_scalar(self, t: float) -> np.ndarray:
-        """``[q_ref, dq_ref, ddq_ref]`` (12,) at one time by closed-form inverse kinematics, using the arm's structure:
-        the planar 2x2 block of J has determinant ``a1 a2 sin(theta2)``, ``d3' = -z'`` and
-        ``theta4' = theta1' + theta2' - phi'``."""
-        (x, y, z, phi), (vx, vy, vz, vphi), (ax, ay, az, aphi) = self._pose_scalar(float(t))
-        a1, a2, prm = self.params.a1, self.params.a2, self.params
-        c2 = (x * x + y * y - a1 * a1 - a2 * a2) / (2 * a1 * a2)
-        if abs(c2) > 1:
-            raise UnreachableError(f"laceration path leaves the workspace at t = {t} s")
-        s2 = ELBOWS[self.elbow] * math.sqrt(max(0.0, 1 - c2 * c2))
-        t2 = math.atan2(s2, c2)
-        t1 = math.atan2(y, x) - math.atan2(a2 * s2, a1 + a2 * c2)
-        t1 = self._q_near[0] + (t1 - self._q_near[0] + math.pi) % (2 * math.pi) - math.pi
-        t4 = t1 + t2 - phi
-        t4 = self._q_near[3] + (t4 - self._q_near[3] + math.pi) % (2 * math.pi) - math.pi
-        c1, s1, c12, s12 = math.cos(t1), math.sin(t1), math.cos(t1 + t2), math.sin(t1 + t2)
-        det = a1 * a2 * s2
+        """``[q_ref, dq_ref, ddq_ref]`` (12,) at one time (see :func:`laceration_reference`)."""
+        return laceration_reference(float(t), self._table)
 
-        def planar_solve(bx, by):
-            return (a2 * c12 * bx + a2 * s12 * by) / det, (-(a1 * c1 + a2 * c12) * bx - (a1 * s1 + a2 * s12) * by) / det
-
-        w1, w2 = planar_solve(vx, vy)
-        w12 = w1 + w2
-        bx = ax + a1 * c1 * w1 ** 2 + a2 * c12 * w12 ** 2      # p'' - J' q'
-        by = ay + a1 * s1 * w1 ** 2 + a2 * s12 * w12 ** 2
-        e1, e2 = planar_solve(bx, by)
-        return np.array([t1, t2, prm.d1 - prm.d4 - z, t4, w1, w2, -vz, w12 - vphi, e1, e2, -az, e1 + e2 - aphi])
+    def kernels(self) -> Kernels:
+        """The reference as a block kernel (:func:`laceration_output`) with the path's numbers as its parameter."""
+        return Kernels((self._table,), laceration_output, column_params=(self._table,))
 
     # -- joint space ------------------------------------------------------------------------
     def evaluate(self, t):
@@ -288,3 +351,7 @@ class JointSine:
     def evaluate_stacked(self, t) -> np.ndarray:
         """``[q_ref, dq_ref, ddq_ref]`` at time(s) ``t`` (s) in one array, shape ``np.shape(t) + (12,)``."""
         return np.concatenate(self.evaluate(t), axis=-1)
+
+    def kernels(self) -> Kernels:
+        """The reference as a block kernel (:func:`joint_sine_output`) with amplitude, omega and offset (4,) each."""
+        return Kernels(tuple(np.array(v) for v in (self.amplitude, self.omega, self.offset)), joint_sine_output)

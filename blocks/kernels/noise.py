@@ -28,6 +28,13 @@ def sampled_noise(t, table, period):
     """
     last = table.shape[1] - 1
     position = np.minimum(np.maximum(t / period, 0.0), float(last))
-    index = np.minimum(np.floor(position), last - 1.0).astype(np.int64)
+    index = _sample_index(position, last)
     weight = position - index
     return (1.0 - weight) * table[:, index] + weight * table[:, index + 1]
+
+
+def _sample_index(position, last):
+    """The sample at or before ``position`` (>= 0), at most ``last - 1``: an int, or int64 array for arrays."""
+    if isinstance(position, float):        # one time (numba compiles this branch only; it has no astype on floats)
+        return min(int(position), last - 1)
+    return np.minimum(np.floor(position), last - 1.0).astype(np.int64)

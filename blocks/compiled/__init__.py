@@ -1,0 +1,33 @@
+"""The compiled engine: the loop's evaluation plan and its blocks' kernels turned into one numba-compiled module.
+
+``blocks.simulate(..., engine="compiled")`` and ``simulate_batch(..., engine="compiled")``
+run here.  numba is the optional extra ``dobkit[fast]``; without it every
+engine but this one works, and ``engine="auto"`` (the default) uses the numpy
+path.
+
+How a loop becomes compiled code
+--------------------------------
+1. :func:`blocks.plan.make_plan` orders the blocks and records their input
+   gathers and the outputs read from states (as for the numpy engine).
+2. :mod:`blocks.compiled.trace` runs each block's kernels once on symbols
+   and records the scalar operations they perform; a block whose kernels
+   cannot be traced (the laceration path's phase logic, a noise table) is
+   called as the numba-compiled copy of its kernel (:mod:`blocks.compiled.jit`).
+3. :mod:`blocks.compiled.codegen` writes the module: the loop's sources,
+   right-hand side and outputs in plan order, plus the integrators of
+   :mod:`blocks.compiled.dopri` (Dormand-Prince 5(4) with ``solve_ivp``'s
+   step control and dense output; fixed-step RK4 over a batch, members in
+   parallel).  It is compiled by numba and cached on disk, keyed by its
+   text and the kernels' source.
+
+Nothing of the loop is written here by hand: a change to a kernel or to the
+interconnection changes the generated module.
+"""
+from __future__ import annotations
+
+from .codegen import CompiledUnavailable, cache_dir
+from .engine import METHODS, CompiledLoopEngine, unavailable_reason
+from .jit import numba_or_none
+
+__all__ = ["CompiledLoopEngine", "CompiledUnavailable", "unavailable_reason", "numba_or_none", "cache_dir",
+           "METHODS"]

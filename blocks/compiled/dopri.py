@@ -1,0 +1,307 @@
+"""The compiled engine's integrators, as source the code generator puts into each loop's module.
+
+This file is not imported as a module: :mod:`blocks.compiled.codegen`
+places its text before the generated functions ``loop_sources``,
+``loop_rhs`` and ``loop_outputs`` of one loop, and compiles the whole with
+numba (each loop structure gets its own module, cached on disk).
+
+``dopri_run`` is the Dormand-Prince 5(4) pair with the step-size control of
+:class:`scipy.integrate.RK45` (same tableau, error norm, safety factor 0.9,
+step factors 0.2 to 10, no growth right after a rejected step, initial step
+of Hairer, Norsett and Wanner II.4, ``max_step``) and its quartic dense
+output, which gives the states on the output grid as
+:func:`blocks.integrate.integrate_on_grid` does.  Each accepted step is
+checked against the divergence bound.  ``rk4_batch`` is the batch's
+fixed-step RK4 on a shared step schedule, members in parallel.
+"""
+import math
+
+import numpy as np
+
+try:
+    from numba import prange
+except ImportError:         # the text is compiled with numba only; this keeps the file importable
+    prange = range
+
+#: Functions compiled with ``parallel=True``.
+PARALLEL = ("rk4_batch",)
+
+# Dormand-Prince 5(4), as scipy.integrate.RK45
+DP_C = np.array([0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1.0])
+DP_A = np.array([
+    [0.0, 0.0, 0.0, 0.0, 0.0],
+    [1 / 5, 0.0, 0.0, 0.0, 0.0],
+    [3 / 40, 9 / 40, 0.0, 0.0, 0.0],
+    [44 / 45, -56 / 15, 32 / 9, 0.0, 0.0],
+    [19372 / 6561, -25360 / 2187, 64448 / 6561, -212 / 729, 0.0],
+    [9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656]])
+DP_B = np.array([35 / 384, 0.0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84])
+DP_E = np.array([-71 / 57600, 0.0, 71 / 16695, -71 / 1920, 17253 / 339200, -22 / 525, 1 / 40])
+DP_P = np.array([
+    [1.0, -8048581381 / 2820520608, 8663915743 / 2820520608, -12715105075 / 11282082432],
+    [0.0, 0.0, 0.0, 0.0],
+    [0.0, 131558114200 / 32700410799, -68118460800 / 10900136933, 87487479700 / 32700410799],
+    [0.0, -1754552775 / 470086768, 14199869525 / 1410260304, -10690763975 / 1880347072],
+    [0.0, 127303824393 / 49829197408, -318862633887 / 49829197408, 701980252875 / 199316789632],
+    [0.0, -282668133 / 205662961, 2019193451 / 616988883, -1453857185 / 822651844],
+    [0.0, 40617522 / 29380423, -110615467 / 29380423, 69997945 / 29380423]])
+SAFETY = 0.9
+MIN_FACTOR = 0.2
+MAX_FACTOR = 10.0
+ERROR_EXPONENT = -1.0 / 5.0
+
+# Status codes of dopri_run
+RUNNING, FINISHED, DIVERGED, STEP_TOO_SMALL = 0, 1, 2, 3
+# Slots of dopri_run's state vector
+S_T, S_H, S_NFEV, S_DONE, S_STARTED, S_T_OLD = 0, 1, 2, 3, 4, 5
+
+
+def loop_derivative(t, x, theta, ext, src, work, out):
+    """The loop's state derivative at ``(t, x)`` into ``out``: its sources, then its right-hand side."""
+    loop_sources(t, theta, ext, work, src)
+    loop_rhs(t, x, theta, src, ext, work, out)
+
+
+def rms_norm(v):
+    total = 0.0
+    for i in range(v.shape[0]):
+        total += v[i] * v[i]
+    return math.sqrt(total) / math.sqrt(v.shape[0])
+
+
+def initial_step(t0, y0, f0, t_bound, max_step, rtol, atol, theta, ext, src, work, f1):
+    """scipy's ``select_initial_step`` for an error estimator of order 4."""
+    n = y0.shape[0]
+    interval = abs(t_bound - t0)
+    if interval == 0.0:
+        return 0.0
+    scale = atol + np.abs(y0) * rtol
+    d0 = rms_norm(y0 / scale)
+    d1 = rms_norm(f0 / scale)
+    if d0 < 1e-5 or d1 < 1e-5:
+        h0 = 1e-6
+    else:
+        h0 = 0.01 * d0 / d1
+    h0 = min(h0, interval)
+    y1 = y0 + h0 * f0
+    loop_derivative(t0 + h0, y1, theta, ext, src, work, f1)
+    d2 = rms_norm((f1 - f0) / scale) / h0
+    if d1 <= 1e-15 and d2 <= 1e-15:
+        h1 = max(1e-6, h0 * 1e-3)
+    else:
+        h1 = (0.01 / max(d1, d2)) ** (1.0 / 5.0)
+    if n == 0:
+        return np.inf
+    return min(100 * h0, h1, interval, max_step)
+
+
+def dense_into(Q, y_old, h, t_old, t, out, k):
+    """The step's quartic interpolant at time ``t`` into column ``k`` of ``out`` (as scipy's RkDenseOutput)."""
+    x = (t - t_old) / h
+    p0 = x
+    p1 = p0 * x
+    p2 = p1 * x
+    p3 = p2 * x
+    for i in range(y_old.shape[0]):
+        out[i, k] = h * (Q[i, 0] * p0 + Q[i, 1] * p1 + Q[i, 2] * p2 + Q[i, 3] * p3) + y_old[i]
+
+
+def dopri_run(t_grid, theta, ext, rtol, atol, max_step, bound, max_steps, state, y, f, K, Q, y_old, X):
+    """Advance the integration by at most ``max_steps`` accepted steps; return a status code.
+
+    ``state`` holds ``[t, h_abs, nfev, grid points done, started, t_old]``;
+    ``y`` and ``f`` the current state and derivative (``y`` is the start
+    state on the first call).  States on the grid are written into ``X``
+    (n, T).  On divergence, ``y_old``, ``Q`` and ``state[S_T_OLD]`` describe
+    the step that crossed the bound.
+    """
+    n = y.shape[0]
+    t_bound = t_grid[-1]
+    src = np.empty(loop_source_count())
+    work = np.empty(loop_work_size())
+    y_new = np.empty(n)
+    f_new = np.empty(n)
+    y_stage = np.empty(n)
+    err = np.empty(n)
+    if state[S_STARTED] == 0.0:
+        t = t_grid[0]
+        loop_derivative(t, y, theta, ext, src, work, f)
+        state[S_H] = initial_step(t, y, f, t_bound, max_step, rtol, atol, theta, ext, src, work, f_new)
+        state[S_NFEV] = 2.0
+        state[S_T] = t
+        state[S_STARTED] = 1.0
+        for i in range(n):
+            X[i, 0] = y[i]
+        state[S_DONE] = 1.0
+    t = state[S_T]
+    h_abs = state[S_H]
+    done = int(state[S_DONE])
+    n_grid = t_grid.shape[0]
+    steps = 0
+    while t < t_bound and steps < max_steps:
+        min_step = 10.0 * abs(np.nextafter(t, np.inf) - t)
+        if h_abs > max_step:
+            h_abs = max_step
+        elif h_abs < min_step:
+            h_abs = min_step
+        accepted = False
+        rejected = False
+        h = 0.0
+        t_new = t
+        while not accepted:
+            if h_abs < min_step:
+                state[S_T] = t
+                return STEP_TOO_SMALL
+            h = h_abs
+            t_new = t + h
+            if t_new - t_bound > 0:
+                t_new = t_bound
+            h = t_new - t
+            h_abs = abs(h)
+            # stages: K[0] = f, K[s] = f(t + c_s h, y + h sum_j a_sj K[j]), as scipy's rk_step
+            for i in range(n):
+                K[0, i] = f[i]
+            for s in range(1, 6):
+                for i in range(n):
+                    acc = 0.0
+                    for j in range(s):
+                        acc += K[j, i] * DP_A[s, j]
+                    y_stage[i] = y[i] + acc * h
+                loop_derivative(t + DP_C[s] * h, y_stage, theta, ext, src, work, K[s])
+            for i in range(n):
+                acc = 0.0
+                for j in range(6):
+                    acc += K[j, i] * DP_B[j]
+                y_new[i] = y[i] + h * acc
+            loop_derivative(t + h, y_new, theta, ext, src, work, f_new)
+            for i in range(n):
+                K[6, i] = f_new[i]
+            state[S_NFEV] += 6.0
+            for i in range(n):
+                acc = 0.0
+                for j in range(7):
+                    acc += K[j, i] * DP_E[j]
+                scale = atol + max(abs(y[i]), abs(y_new[i])) * rtol
+                err[i] = acc * h / scale
+            error_norm = rms_norm(err)
+            if error_norm < 1.0:
+                if error_norm == 0.0:
+                    factor = MAX_FACTOR
+                else:
+                    factor = min(MAX_FACTOR, SAFETY * error_norm ** ERROR_EXPONENT)
+                if rejected:
+                    factor = min(1.0, factor)
+                h_abs *= factor
+                accepted = True
+            else:
+                h_abs *= max(MIN_FACTOR, SAFETY * error_norm ** ERROR_EXPONENT)
+                rejected = True
+        # the step from t to t_new is accepted: its dense output, Q = K^T P
+        for i in range(n):
+            y_old[i] = y[i]
+            for m in range(4):
+                acc = 0.0
+                for j in range(7):
+                    acc += K[j, i] * DP_P[j, m]
+                Q[i, m] = acc
+        largest = 0.0
+        finite = True
+        for i in range(n):
+            v = abs(y_new[i])
+            if not v <= bound:
+                finite = False
+            if v > largest:
+                largest = v
+        state[S_T_OLD] = t
+        if not finite:
+            for i in range(n):
+                y[i] = y_new[i]
+            state[S_T] = t_new
+            state[S_H] = h
+            return DIVERGED
+        while done < n_grid and t_grid[done] <= t_new:
+            dense_into(Q, y_old, h, t, t_grid[done], X, done)
+            done += 1
+        for i in range(n):
+            y[i] = y_new[i]
+            f[i] = f_new[i]
+        t = t_new
+        steps += 1
+    state[S_T] = t
+    state[S_H] = h_abs
+    state[S_DONE] = float(done)
+    if t >= t_bound:
+        return FINISHED
+    return RUNNING
+
+
+def grid_outputs(t_grid, X, theta, ext, Y):
+    """The loop's outputs at every grid time from its states there: ``Y[:, k]`` from ``X[:, k]``."""
+    src = np.empty(loop_source_count())
+    work = np.empty(loop_work_size())
+    y = np.empty(Y.shape[0])
+    for k in range(t_grid.shape[0]):
+        loop_sources(t_grid[k], theta, ext, work, src)
+        loop_outputs(t_grid[k], X[:, k], theta, src, ext, work, y)
+        for i in range(y.shape[0]):
+            Y[i, k] = y[i]
+
+
+def source_table(times, theta, ext, table):
+    """The sources' outputs at each of ``times``: ``table[k]`` (shared by every member of a batch)."""
+    work = np.empty(loop_work_size())
+    for k in range(times.shape[0]):
+        loop_sources(times[k], theta, ext, work, table[k])
+
+
+def rk4_batch(times, grid_index, src_at, src_mid, X0, theta, ext, keep, bound, Y, failed_at):
+    """Fixed-step RK4 of every member on the shared schedule ``times``, members in parallel.
+
+    ``src_at``/``src_mid`` are the sources' outputs at the step times and
+    the mid points; ``X0`` (N, n) the start states, ``theta`` (N, p) the
+    members' parameters.  At each grid point the outputs ``keep`` are stored
+    in ``Y[member, grid index]``; a member whose state is non-finite or
+    beyond ``bound`` at a grid point gets that time in ``failed_at`` and stops.
+    """
+    n_members, n = X0.shape
+    n_out = loop_output_count()
+    for m in prange(n_members):
+        x = X0[m].copy()
+        th = theta[m]
+        work = np.empty(loop_work_size())
+        k1 = np.empty(n)
+        k2 = np.empty(n)
+        k3 = np.empty(n)
+        k4 = np.empty(n)
+        xs = np.empty(n)
+        y = np.empty(n_out)
+        last = times.shape[0] - 1
+        for k in range(times.shape[0]):
+            t0 = times[k]
+            g = grid_index[k]
+            if g >= 0:
+                ok = True
+                for i in range(n):
+                    if not abs(x[i]) <= bound:
+                        ok = False
+                if not ok:
+                    failed_at[m] = t0
+                    break
+                loop_outputs(t0, x, th, src_at[k], ext, work, y)
+                for r in range(keep.shape[0]):
+                    Y[m, g, r] = y[keep[r]]
+            if k == last:
+                break
+            h = times[k + 1] - t0
+            loop_rhs(t0, x, th, src_at[k], ext, work, k1)
+            for i in range(n):
+                xs[i] = x[i] + (0.5 * h) * k1[i]
+            loop_rhs(t0 + 0.5 * h, xs, th, src_mid[k], ext, work, k2)
+            for i in range(n):
+                xs[i] = x[i] + (0.5 * h) * k2[i]
+            loop_rhs(t0 + 0.5 * h, xs, th, src_mid[k], ext, work, k3)
+            for i in range(n):
+                xs[i] = x[i] + h * k3[i]
+            loop_rhs(times[k + 1], xs, th, src_at[k + 1], ext, work, k4)
+            for i in range(n):
+                x[i] = x[i] + (h / 6.0) * (k1[i] + 2.0 * (k2[i] + k3[i]) + k4[i])

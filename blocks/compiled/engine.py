@@ -1,0 +1,192 @@
+"""The compiled engine for one interconnection: its generated module, its numbers, and a run on a grid."""
+from __future__ import annotations
+
+import sys
+import time
+import types
+from typing import Callable
+
+import numpy as np
+
+from ..contract import contract_of
+from ..control_compat import subsystems
+from ..integrate import DivergenceError, SolverFailure, _crossing_time
+from ..plan import make_plan
+from .codegen import CompiledUnavailable, LoopProgram, load_module, loop_program, mark_compiled
+from .jit import numba_or_none
+from .trace import param_structure, param_values
+
+__all__ = ["CompiledLoopEngine", "unavailable_reason", "METHODS"]
+
+#: The solver methods the compiled engine implements (with scipy's step control).
+METHODS = ("RK45",)
+
+# Status codes and state slots of dopri_run (blocks/compiled/dopri.py)
+_RUNNING, _FINISHED, _DIVERGED, _STEP_TOO_SMALL = 0, 1, 2, 3
+_S_T, _S_NFEV, _S_T_OLD = 0, 2, 5
+# Accepted steps per call when progress is reported (a few milliseconds of work)
+_PROGRESS_STEPS = 200
+
+_programs: dict[str, LoopProgram] = {}
+
+
+def unavailable_reason(system, method: str = "RK45") -> str | None:
+    """Why the compiled engine cannot run ``system`` with solver ``method``, or None when it can."""
+    if numba_or_none() is None:
+        return "numba is not installed (it comes with the optional extra: pip install \"dobkit[fast]\")"
+    if method not in METHODS:
+        return f"solver method {method!r} is not compiled (the compiled engine integrates with {', '.join(METHODS)})"
+    for block in subsystems(system):
+        if contract_of(block).kernels is None:
+            return (f"block '{block.name}' has no kernels (a user's own python-control system or an FMU), "
+                    f"so the loop cannot be compiled")
+    return None
+
+
+def _structure(plan, kernels: dict) -> str:
+    parts = []
+    for s in plan.steps:
+        k = kernels[s.name]
+        parts.append(f"{s.name}|{k.output}|{k.update}|{param_structure(k.params)}|{s.x}|{s.y}|{s.gather!r}")
+    parts.append(f"{plan.copy_y!r}|{plan.copy_x!r}|{plan.out_index.tolist()}|{plan.direct}")
+    return "\n".join(parts)
+
+
+class CompiledLoopEngine:
+    """An interconnection run by its generated, numba-compiled module.
+
+    Parameters
+    ----------
+    system : control.InterconnectedSystem
+        The loop; every block must carry kernels (see :mod:`blocks.contract`).
+
+    Raises
+    ------
+    CompiledUnavailable
+        If numba is missing, the interconnection is not direct, or a block has no kernels.
+    """
+
+    def __init__(self, system) -> None:
+        if numba_or_none() is None:
+            raise CompiledUnavailable("engine='compiled' needs numba, the optional extra: "
+                                      "pip install \"dobkit[fast]\"")
+        self.system = system
+        self.plan = make_plan(system)
+        blocks = {b.name: b for b in subsystems(system)}
+        kernels = {}
+        for s in self.plan.steps:
+            k = contract_of(blocks[s.name]).kernels
+            if k is None or not s.kernel:
+                raise CompiledUnavailable(f"block '{s.name}' has no kernels (a user's own python-control system "
+                                          f"or an FMU), so the compiled engine cannot run this loop")
+            kernels[s.name] = k
+        self.kernels = kernels
+        structure = _structure(self.plan, kernels)
+        program = _programs.get(structure)
+        if program is None:
+            program = loop_program(self.plan, system)
+            _programs[structure] = program
+        self.program = program
+        # this loop's numbers: the traced blocks' into theta, the called kernels' parameters into ext
+        values: list[float] = []
+        for name in program.traced:
+            param_values(kernels[name].params, values)
+        self.theta = np.array(values, dtype=float)
+        self.ext = tuple(p for name in program.called for p in kernels[name].params)
+        self.module, cached = load_module(program)
+        self._announce = not cached
+        self.nstates = self.plan.nstates
+
+    # -- compiling -------------------------------------------------------------------------------------
+    def _first_call(self, fn: Callable[[], object]):
+        """Run ``fn``; when this loop structure was never compiled here, say so and how long it took."""
+        if not self._announce:
+            return fn()
+        print(f"dobkit: compiling the loop with numba (once per loop structure; cached in "
+              f"{self.module.__file__.rsplit('/', 1)[0]}) ...", file=sys.stderr, flush=True)
+        t0 = time.perf_counter()
+        out = fn()
+        print(f"dobkit: compiled in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+        self._announce = False
+        return out
+
+    def warm(self) -> None:
+        """Compile (or load from the cache) every function a run calls, on a two-point grid."""
+        x0 = np.zeros(self.nstates)
+        self._first_call(lambda: (self._integrate(x0, np.array([0.0, 1e-9]), 1e-3, 1e-6, np.inf, np.inf, None),
+                                  self.outputs_on_grid(np.array([0.0]), x0[:, None])))
+        mark_compiled(self.program)
+
+    # -- a run -------------------------------------------------------------------------------------------
+    def integrate(self, x0, t_grid, rtol: float = 1e-6, atol: float = 1e-8, max_step: float = np.inf,
+                  bound: float = np.inf, progress: Callable[[float], None] | None = None) -> tuple[np.ndarray, int]:
+        """States on ``t_grid`` (n, T) from ``x0`` and the number of right-hand-side calls.
+
+        Dormand-Prince 5(4) with the step control of :class:`scipy.integrate.RK45`
+        (see :mod:`blocks.compiled.dopri`); the arguments are those of
+        :func:`blocks.integrate.integrate_on_grid`.
+
+        Raises
+        ------
+        DivergenceError, SolverFailure
+        """
+        t_grid = np.ascontiguousarray(t_grid, dtype=float)
+        if t_grid.ndim != 1 or t_grid.size < 2 or not np.all(np.isfinite(t_grid)) or np.any(np.diff(t_grid) <= 0):
+            raise ValueError("t_grid must be at least two finite, increasing times")
+        x0 = np.array(x0, dtype=float)
+        if not np.all(np.isfinite(x0)) or not np.abs(x0).max(initial=0.0) <= bound:
+            raise DivergenceError(float(t_grid[0]), bound)
+        if self._announce:
+            self.warm()
+        return self._integrate(x0, t_grid, float(rtol), float(atol), float(max_step), float(bound), progress)
+
+    def _integrate(self, x0, t_grid, rtol, atol, max_step, bound, progress):
+        n = x0.size
+        state = np.zeros(6)
+        y, f, K, Q = x0.copy(), np.empty(n), np.empty((7, n)), np.empty((n, 4))
+        y_old, X = np.empty(n), np.empty((n, t_grid.size))
+        chunk = _PROGRESS_STEPS if progress is not None else 2 ** 62
+        t0, t_end = t_grid[0], t_grid[-1]
+        while True:
+            status = self.module.dopri_run(t_grid, self.theta, self.ext, rtol, atol, max_step, bound, chunk, state,
+                                           y, f, K, Q, y_old, X)
+            if status == _FINISHED:
+                return X, int(state[_S_NFEV])
+            if status == _DIVERGED:
+                raise DivergenceError(_crossing_time(_StepView(state, y, y_old, Q), bound), bound)
+            if status == _STEP_TOO_SMALL:
+                raise SolverFailure(float(state[_S_T]), "Required step size is less than spacing between numbers.")
+            if progress is not None:
+                progress(min(1.0, (state[_S_T] - t0) / (t_end - t0)))
+
+    def outputs_on_grid(self, t_grid, X) -> np.ndarray:
+        """The interconnection's outputs (noutputs, T) at the times ``t_grid`` from the states ``X`` (n, T)."""
+        t_grid = np.ascontiguousarray(t_grid, dtype=float)
+        X = np.ascontiguousarray(X, dtype=float)
+        if X.shape != (self.nstates, t_grid.size):
+            raise ValueError(f"states must have shape ({self.nstates}, {t_grid.size}), got {X.shape}")
+        Y = np.empty((self.program.n_out, t_grid.size))
+        self.module.grid_outputs(t_grid, X, self.theta, self.ext, Y)
+        return Y
+
+    def rhs(self, t: float, x) -> np.ndarray:
+        """The loop's state derivative at one point (for checks; the integrator calls the compiled code directly)."""
+        dx = np.empty(self.nstates)
+        src, work = np.empty(self.program.n_src), np.empty(self.program.n_work)
+        self.module.loop_derivative(float(t), np.asarray(x, dtype=float), self.theta, self.ext, src, work, dx)
+        return dx
+
+
+class _StepView:
+    """The step that crossed the bound, as :func:`blocks.integrate._crossing_time` reads a solver."""
+
+    def __init__(self, state, y_new, y_old, Q) -> None:
+        self.t_old, self.t, self.y = float(state[_S_T_OLD]), float(state[_S_T]), y_new.copy()
+        self._y_old, self._Q, self._h = y_old.copy(), Q.copy(), self.t - self.t_old
+
+    def dense_output(self):
+        def dense(t):
+            x = (np.asarray(t, dtype=float) - self.t_old) / self._h
+            p = np.cumprod(np.repeat(x[..., None], 4, axis=-1), axis=-1)
+            return self._y_old + self._h * (p @ self._Q.T)
+        return dense

@@ -1,0 +1,289 @@
+"""Trace a kernel into scalar expressions: the kernels run once on symbols, and what they compute is recorded.
+
+A block kernel of :mod:`blocks.kernels` is a plain numpy function of rows.
+Called with object arrays whose elements are :class:`Sym` (symbols for the
+states, inputs, time and numeric parameters), it runs unchanged and returns
+rows of expressions: every ``+``, ``*``, ``np.cos`` ... it performed, in its
+order, with structural choices (which disturbance models act, a diagonal or
+full gain) taken at trace time.  Equal sub-expressions are one node
+(hash-consing), so a term the controller and the observer both compute, such
+as ``cos(theta2)`` of the nominal model, is computed once in the generated
+code.
+
+What cannot be traced -- a branch on a value (``if x > 0``), ``math``
+functions on a symbol, a table indexed by a value -- raises
+:class:`TraceError`; the engine then calls that block's kernel as a compiled
+function instead (see :mod:`blocks.compiled.codegen`).
+"""
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+
+__all__ = ["Sym", "TraceError", "Graph", "symbolic_params", "param_structure"]
+
+
+class TraceError(TypeError):
+    """A kernel did something with a symbol that has no scalar expression (a branch on its value, say)."""
+
+
+# Ufuncs a symbol takes part in, by numpy name -> the operator or function name of the generated code.
+_BINARY = {"add": "+", "subtract": "-", "multiply": "*", "true_divide": "/", "divide": "/",
+           "greater": ">", "less": "<", "greater_equal": ">=", "less_equal": "<="}
+_CALLS = {"cos", "sin", "tan", "tanh", "sqrt", "exp", "sign", "floor", "absolute", "negative", "maximum", "minimum",
+          "arctan2", "square"}
+
+
+class Graph:
+    """The nodes of one trace: every expression once, in creation order (which is a dependency order)."""
+
+    def __init__(self) -> None:
+        self.nodes: dict[tuple, "Sym"] = {}
+
+    def node(self, op: str, args: tuple) -> "Sym":
+        key = (op,) + tuple(a if isinstance(a, Sym) else ("c", a) for a in args)
+        found = self.nodes.get(key)
+        if found is None:
+            found = Sym(self, op, args, len(self.nodes))
+            self.nodes[key] = found
+        return found
+
+    def leaf(self, kind: str, index) -> "Sym":
+        """A value the generated code reads: ``t``, ``x[i]``, ``theta[j]``, ``src[j]``, an opaque result, ..."""
+        return self.node("leaf", (kind, index))
+
+    def const(self, value: float) -> "Sym":
+        return self.node("const", (float(value),))
+
+
+def _is_const(v, value: float) -> bool:
+    return isinstance(v, Sym) and v.op == "const" and v.args[0] == value
+
+
+class Sym:
+    """A scalar expression of a trace.  Arithmetic with numbers, symbols and numpy builds new expressions."""
+
+    __slots__ = ("graph", "op", "args", "id")
+    __array_priority__ = 1000
+
+    def __init__(self, graph: Graph, op: str, args: tuple, ident: int) -> None:
+        self.graph, self.op, self.args, self.id = graph, op, args, ident
+
+    def __repr__(self) -> str:
+        return f"Sym#{self.id}({self.op})"
+
+    # -- building ------------------------------------------------------------------------------------
+    def _wrap(self, v) -> "Sym":
+        if isinstance(v, Sym):
+            return v
+        if isinstance(v, (bool, np.bool_)):
+            return self.graph.const(1.0 if v else 0.0)
+        if isinstance(v, numbers.Real):
+            return self.graph.const(float(v))
+        raise TraceError(f"cannot combine a traced value with {type(v).__name__}")
+
+    def _binary(self, op: str, a, b) -> "Sym":
+        a, b = self._wrap(a), self._wrap(b)
+        if a.op == "const" and b.op == "const" and op in "+-*/":
+            x, y = np.float64(a.args[0]), np.float64(b.args[0])
+            with np.errstate(all="ignore"):
+                return self.graph.const({"+": x + y, "-": x - y, "*": x * y, "/": x / y}[op])
+        # exact identities only (x + 0, x * 1, ...): the generated code must round as the kernel does
+        if op == "+" and _is_const(b, 0.0):
+            return a
+        if op == "+" and _is_const(a, 0.0):
+            return b
+        if op == "-" and _is_const(b, 0.0):
+            return a
+        if op == "-" and _is_const(a, 0.0):
+            return self.graph.node("call", ("negative", b))
+        if op == "*" and _is_const(b, 1.0):
+            return a
+        if op == "*" and _is_const(a, 1.0):
+            return b
+        if op == "/" and _is_const(b, 1.0):
+            return a
+        return self.graph.node("bin", (op, a, b))
+
+    def _call(self, name: str, *args) -> "Sym":
+        return self.graph.node("call", (name,) + tuple(self._wrap(a) for a in args))
+
+    def __add__(self, o):
+        return _elementwise(self, o, lambda a, b: self._binary("+", a, b))
+
+    def __radd__(self, o):
+        return _elementwise(o, self, lambda a, b: self._binary("+", a, b))
+
+    def __sub__(self, o):
+        return _elementwise(self, o, lambda a, b: self._binary("-", a, b))
+
+    def __rsub__(self, o):
+        return _elementwise(o, self, lambda a, b: self._binary("-", a, b))
+
+    def __mul__(self, o):
+        return _elementwise(self, o, lambda a, b: self._binary("*", a, b))
+
+    def __rmul__(self, o):
+        return _elementwise(o, self, lambda a, b: self._binary("*", a, b))
+
+    def __truediv__(self, o):
+        return _elementwise(self, o, lambda a, b: self._binary("/", a, b))
+
+    def __rtruediv__(self, o):
+        return _elementwise(o, self, lambda a, b: self._binary("/", a, b))
+
+    def __gt__(self, o):
+        return _elementwise(self, o, lambda a, b: self._binary(">", a, b))
+
+    def __lt__(self, o):
+        return _elementwise(self, o, lambda a, b: self._binary("<", a, b))
+
+    def __ge__(self, o):
+        return _elementwise(self, o, lambda a, b: self._binary(">=", a, b))
+
+    def __le__(self, o):
+        return _elementwise(self, o, lambda a, b: self._binary("<=", a, b))
+
+    def __neg__(self):
+        if self.op == "const":
+            return self.graph.const(-self.args[0])
+        return self._call("negative", self)
+
+    def __pos__(self):
+        return self
+
+    def __abs__(self):
+        return self._call("absolute", self)
+
+    def __pow__(self, o):
+        if isinstance(o, numbers.Integral) and o == 2:      # numpy squares exactly, as x * x
+            return self._binary("*", self, self)
+        raise TraceError(f"power {o!r} of a traced value is not supported")
+
+    def __bool__(self):
+        raise TraceError("a kernel branches on a traced value")
+
+    def __float__(self):
+        raise TraceError("a kernel converts a traced value to a Python number")
+
+    def __int__(self):
+        raise TraceError("a kernel converts a traced value to an integer")
+
+    def __index__(self):
+        raise TraceError("a kernel indexes with a traced value")
+
+    # methods numpy's object-array loops call, by ufunc name
+    def cos(self):
+        return self._call("cos", self)
+
+    def sin(self):
+        return self._call("sin", self)
+
+    def tan(self):
+        return self._call("tan", self)
+
+    def tanh(self):
+        return self._call("tanh", self)
+
+    def sqrt(self):
+        return self._call("sqrt", self)
+
+    def exp(self):
+        return self._call("exp", self)
+
+    def __array_ufunc__(self, ufunc, method, *inputs, **kwargs):
+        if method != "__call__" or kwargs:
+            raise TraceError(f"numpy {ufunc.__name__}.{method} on a traced value is not supported")
+        name = ufunc.__name__
+        if name in _BINARY and len(inputs) == 2:
+            op = _BINARY[name]
+            return _elementwise(inputs[0], inputs[1], lambda a, b: self._binary(op, a, b))
+        if name in _CALLS:
+            if name == "negative":
+                return _elementwise_unary(inputs[0], lambda a: -self._wrap(a))
+            if name == "square":
+                return _elementwise_unary(inputs[0], lambda a: self._wrap(a) ** 2)
+            if len(inputs) == 1:
+                return _elementwise_unary(inputs[0], lambda a: self._call(name, a))
+            return _elementwise(inputs[0], inputs[1], lambda a, b: self._call(name, a, b))
+        raise TraceError(f"numpy {name} on a traced value is not supported")
+
+
+def _elementwise(a, b, fn):
+    """``fn`` on scalars, or element by element with numpy broadcasting when an operand is an array."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return np.frompyfunc(fn, 2, 1)(_as_objects(a), _as_objects(b))
+    return fn(a, b)
+
+
+def _elementwise_unary(a, fn):
+    if isinstance(a, np.ndarray):
+        return np.frompyfunc(fn, 1, 1)(_as_objects(a))
+    return fn(a)
+
+
+def _as_objects(a):
+    if isinstance(a, np.ndarray):
+        return a.astype(object)
+    box = np.empty((), dtype=object)
+    box[()] = a
+    return box
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Parameters: numbers become symbols read from one flat vector; flags and shapes stay as they are
+# ----------------------------------------------------------------------------------------------------------
+def symbolic_params(graph: Graph, params, values: list):
+    """``params`` with every number replaced by a symbol ``theta[j]`` and its value appended to ``values``.
+
+    Floats and float arrays become symbols (an array becomes an object array
+    of symbols of the same shape); booleans, integers, strings and None are
+    structure and stay (the generated code is specialised on them); named
+    tuples and tuples are converted element by element.
+    """
+    if isinstance(params, (bool, np.bool_, str, type(None))) or isinstance(params, numbers.Integral):
+        return params
+    if isinstance(params, numbers.Real):
+        values.append(float(params))
+        return graph.leaf("theta", len(values) - 1)
+    if isinstance(params, np.ndarray):
+        if params.dtype.kind not in "fiu":
+            raise TraceError(f"a parameter array of dtype {params.dtype} cannot be traced")
+        flat = np.empty(params.size, dtype=object)
+        for i, v in enumerate(np.asarray(params, dtype=float).ravel()):
+            values.append(float(v))
+            flat[i] = graph.leaf("theta", len(values) - 1)
+        return flat.reshape(params.shape)
+    if isinstance(params, tuple):
+        items = [symbolic_params(graph, v, values) for v in params]
+        return type(params)(*items) if hasattr(params, "_fields") else tuple(items)
+    raise TraceError(f"a parameter of type {type(params).__name__} cannot be traced")
+
+
+def param_structure(params) -> str:
+    """What the generated code is specialised on: types, shapes and structural values (not the numbers)."""
+    if isinstance(params, (bool, np.bool_, str, type(None))) or isinstance(params, numbers.Integral):
+        return repr(params)
+    if isinstance(params, numbers.Real):
+        return "f"
+    if isinstance(params, np.ndarray):
+        return f"a{params.dtype.kind}{params.shape}"
+    if isinstance(params, tuple):
+        name = type(params).__name__ if hasattr(params, "_fields") else ""
+        return name + "(" + ",".join(param_structure(v) for v in params) + ")"
+    return type(params).__name__
+
+
+def param_values(params, out: list) -> list:
+    """The numbers of ``params`` in the order :func:`symbolic_params` reads them (for a new set of values)."""
+    if isinstance(params, (bool, np.bool_, str, type(None))) or isinstance(params, numbers.Integral):
+        return out
+    if isinstance(params, numbers.Real):
+        out.append(float(params))
+    elif isinstance(params, np.ndarray):
+        out.extend(np.asarray(params, dtype=float).ravel().tolist())
+    elif isinstance(params, tuple):
+        for v in params:
+            param_values(v, out)
+    return out

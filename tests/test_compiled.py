@@ -1,0 +1,173 @@
+"""The compiled engine (blocks.compiled) gives the numpy engine's numbers: states to solver tolerance, metrics to 1e-6."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+import blocks
+from blocks.batch import STATE_ATOL, Variants, simulate_batch
+from blocks.fastsim import CompiledLoop
+from blocks.metrics import tracking_metrics
+
+from conftest import hold_trajectory, make_scenario
+
+numba = pytest.importorskip("numba", reason="the compiled engine needs the extra dobkit[fast]")
+
+from blocks.compiled import CompiledLoopEngine  # noqa: E402
+
+METRIC_RTOL = 1e-6
+
+
+def _scenarios():
+    paper = blocks.load_scenario("paper")
+    short = paper.replace(simulation={"t_final": 2.0})
+    return {
+        "paper, 10 s": (paper, True),
+        "paper without observer, 10 s": (paper, False),
+        "surgical": (blocks.load_scenario("surgical").replace(simulation={"t_final": 2.0}), True),
+        "joint-sine": (blocks.load_scenario("joint-sine").replace(simulation={"t_final": 2.0}), True),
+        "friction, tissue, Eq. 16 as printed, mismatch": (
+            short.replace(disturbance={"kind": ["paper", "friction", "tissue"]}, observer={"variant": "paper-eq16"},
+                          nominal_scale={"m1": 0.8, "I2": 1.3}), True),
+        "full observer gain, noise": (
+            short.replace(simulation={"t_final": 0.5}, gains={"observer": [[12.0, 1.0, 0, 0], [1.0, 9.0, 0, 0],
+                                                                            [0, 0, 10.0, 0], [0, 0, 0, 10.0]]},
+                          noise={"q_std": [1e-4] * 4, "dq_std": [1e-3] * 4, "seed": 3}), True),
+    }
+
+
+def _assert_same_run(compiled, fast, sim, metric_rtol=None):
+    assert list(compiled.output_labels) == list(fast.output_labels)
+    np.testing.assert_array_equal(compiled.time, fast.time)
+    # to solver tolerance: each joint position within 10 x (rtol x its largest magnitude + atol) of the numpy
+    # run's.  (The two pick their own steps once a rounding difference flips a step decision; velocities and
+    # observer states then differ by the solver's local error, which noise and contact kinks make larger.)
+    q = slice(0, 4)
+    scale = np.max(np.abs(fast.states[q]), axis=1, keepdims=True)
+    assert np.all(np.abs(compiled.states[q] - fast.states[q]) <= 10 * (sim.rtol * scale + sim.atol))
+    mc, mf = tracking_metrics(compiled), tracking_metrics(fast)
+    position_tol = float(np.max(10 * (sim.rtol * scale + sim.atol)))
+    for name, value in mf.items():
+        if metric_rtol is not None and name.startswith("rms"):
+            np.testing.assert_allclose(mc[name], value, rtol=metric_rtol, atol=0, err_msg=name)
+        elif name in ("rms_position_error", "max_abs_position_error", "final_abs_position_error"):
+            # a position metric moves by at most the largest position difference
+            np.testing.assert_allclose(mc[name], value, rtol=0, atol=position_tol, err_msg=name)
+
+
+@pytest.mark.parametrize("name", list(_scenarios()))
+def test_compiled_equals_numpy_engine(name):
+    scenario, observer = _scenarios()[name]
+    compiled = blocks.simulate(scenario, observer=observer, engine="compiled")
+    fast = blocks.simulate(scenario, observer=observer, engine="fast")
+    # the paper's 10 s runs (Table 3): every RMS metric to 1e-6 relative
+    _assert_same_run(compiled, fast, scenario.simulation, METRIC_RTOL if name.startswith("paper") else None)
+
+
+def test_compiled_equals_numpy_engine_on_random_variants():
+    rng = np.random.default_rng(11)
+    base = blocks.load_scenario("paper").replace(simulation={"t_final": 1.0})
+    for _ in range(3):
+        s = base.replace(gains={"kp": float(rng.uniform(100, 250)), "kd": float(rng.uniform(25, 45)),
+                                "observer": list(rng.uniform(5, 30, 4))},
+                         nominal_scale={k: float(rng.uniform(0.8, 1.2)) for k in ("m1", "m2", "I1", "I4")},
+                         disturbance={"f_r": list(rng.uniform(0.5, 3.0, 4))})
+        _assert_same_run(blocks.simulate(s, engine="compiled"), blocks.simulate(s, engine="fast"), s.simulation)
+
+
+def test_generated_right_hand_side_and_outputs_equal_the_plan_executed_with_numpy():
+    """The traced and called kernels give each block's numbers at arbitrary states (rounding only)."""
+    rng = np.random.default_rng(5)
+    for scenario, observer in _scenarios().values():
+        loop = blocks.closed_loop(scenario, observer=observer)
+        engine, numpy_loop = CompiledLoopEngine(loop), CompiledLoop(loop)
+        x0 = blocks.initial_state(loop, scenario)
+        t = np.array([0.0, 0.013, 0.37, 1.9])
+        X = x0[:, None] + 0.01 * rng.standard_normal((x0.size, t.size))
+        for k, tk in enumerate(t):
+            want = numpy_loop.rhs(tk, X[:, k])
+            np.testing.assert_allclose(engine.rhs(tk, X[:, k]), want, rtol=1e-11, atol=1e-11 * np.abs(want).max())
+        want = numpy_loop.outputs_on_grid(t, X)
+        scale = np.abs(want).max(axis=1, keepdims=True) + 1.0
+        np.testing.assert_allclose(engine.outputs_on_grid(t, X) / scale, want / scale, rtol=0, atol=1e-12)
+
+
+def test_blocks_are_traced_or_called_as_their_kernels_allow():
+    s = blocks.load_scenario("paper").replace(noise={"q_std": [1e-4] * 4, "dq_std": [1e-3] * 4})
+    program = CompiledLoopEngine(blocks.closed_loop(s)).program
+    assert sorted(program.traced) == ["controller", "observer", "plant"]
+    # the laceration path branches on the phase and the sensor reads a noise table: called as compiled kernels
+    assert sorted(program.called) == ["sensor", "trajectory"]
+    sine = CompiledLoopEngine(blocks.closed_loop(blocks.load_scenario("joint-sine"))).program
+    assert "trajectory" in sine.traced and sine.sources == ["trajectory"]
+
+
+def test_divergence_is_reported_with_the_crossing_time():
+    s = make_scenario(trajectory=hold_trajectory(), disturbance={"f_r": [0.0, 0.0, 1e9, 0.0]},
+                      simulation={"t_final": 1.0, "output_step": 0.01})
+    errors = {}
+    for engine in ("compiled", "fast"):
+        with pytest.raises(blocks.SimulationError, match="diverged at t = ") as info:
+            blocks.simulate(s, observer=False, engine=engine)
+        errors[engine] = float(str(info.value).split("t = ")[1].split(" s")[0])
+    assert errors["compiled"] == pytest.approx(errors["fast"], rel=1e-3)
+
+
+def _paper_variants(n, seed=3):
+    rng = np.random.default_rng(seed)
+    return {"gains.kp": rng.uniform(120.0, 250.0, n), "gains.kd": rng.uniform(30.0, 45.0, n),
+            "nominal_scale.m2": rng.uniform(0.9, 1.1, n), "disturbance.f_r": 1.43 * rng.uniform(0.5, 2.0, (n, 4))}
+
+
+def test_compiled_batch_equals_numpy_batch_and_single_compiled_runs():
+    base = blocks.load_scenario("paper").replace(simulation={"t_final": 2.0})
+    v = Variants(base, _paper_variants(5))
+    compiled = simulate_batch(base, v, engine="compiled", signals=("q", "d_hat", "d"), workers=2)
+    numpy_batch = simulate_batch(base, v, engine="fast", signals=("q", "d_hat", "d"))
+    # the same RK4 schedule: equal to rounding
+    for name, value in numpy_batch.metrics.items():
+        np.testing.assert_allclose(compiled.metrics[name], value, rtol=1e-9, atol=1e-12, err_msg=name)
+    for name, value in numpy_batch.signals.items():
+        np.testing.assert_allclose(compiled.signals[name], value, rtol=1e-9, atol=1e-10, err_msg=name)
+    # and each member equals its own single compiled run within the batch's stated tolerance
+    for i in range(len(v)):
+        single = blocks.simulate(v.scenario(i), engine="compiled")
+        q = np.stack([single.outputs[list(single.output_labels).index(f"q[{j}]")] for j in range(4)], axis=1)
+        assert np.abs(compiled.signals["q"][i] - q).max() < STATE_ATOL
+
+
+def test_compiled_batch_marks_diverging_members():
+    base = make_scenario(trajectory=hold_trajectory(), simulation={"t_final": 1.0, "output_step": 0.01})
+    v = Variants(base, {"disturbance.f_r": [[1.43, 1.6, 1.4, 1.2], [0.0, 0.0, 1e9, 0.0]]})
+    compiled = simulate_batch(base, v, observer=False, engine="compiled")
+    numpy_batch = simulate_batch(base, v, observer=False, engine="fast")
+    np.testing.assert_array_equal(np.isnan(compiled.failed_at), np.isnan(numpy_batch.failed_at))
+    assert not compiled.ok[1] and compiled.ok[0]
+    assert np.isnan(compiled.metrics["rms_position_error"][1]).all()
+
+
+def test_a_second_process_loads_the_compiled_code_from_the_cache(tmp_path):
+    """Two processes on one cache folder: the first compiles, the second only loads (numba's cache hits)."""
+    script = textwrap.dedent("""
+        import blocks
+        from blocks.compiled import CompiledLoopEngine
+        s = blocks.load_scenario("paper").replace(simulation={"t_final": 0.2})
+        engine = CompiledLoopEngine(blocks.closed_loop(s))
+        r = blocks.simulate(s, engine="compiled")
+        stats = engine.module.dopri_run.stats
+        print("hits", sum(stats.cache_hits.values()), "misses", sum(stats.cache_misses.values()))
+    """)
+    env = dict(os.environ, DOBKIT_CACHE_DIR=str(tmp_path))
+    runs = [subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=300)
+            for _ in range(2)]
+    for run in runs:
+        assert run.returncode == 0, run.stderr
+    assert "compiling the loop with numba" in runs[0].stderr
+    assert "compiling" not in runs[1].stderr
+    assert "misses 1" in runs[0].stdout and "hits 0" in runs[0].stdout
+    assert "hits 1" in runs[1].stdout and "misses 0" in runs[1].stdout

@@ -1,0 +1,153 @@
+"""Engine selection: "auto" falls back to numpy and says why once; "compiled" refuses with a message naming the cause.
+
+With ``DOBKIT_HIDE_NUMBA=1`` (a second CI run) numba is made unimportable
+before the package is imported, so these tests run as on a machine without
+the extra ``dobkit[fast]``.  The subprocess test does the same in every run.
+"""
+from __future__ import annotations
+
+import importlib.abc
+import os
+import subprocess
+import sys
+import textwrap
+import warnings
+
+import numpy as np
+import pytest
+
+
+class _NoNumba(importlib.abc.MetaPathFinder):
+    """Makes ``import numba`` fail, as on a machine without it."""
+
+    def find_spec(self, name, path=None, target=None):
+        if name == "numba" or name.startswith("numba."):
+            raise ImportError(f"{name} hidden for the test (DOBKIT_HIDE_NUMBA)")
+        return None
+
+
+HIDDEN = os.environ.get("DOBKIT_HIDE_NUMBA") == "1"
+if HIDDEN:
+    sys.meta_path.insert(0, _NoNumba())
+
+import blocks  # noqa: E402
+from blocks.batch import simulate_batch  # noqa: E402
+from blocks.compiled import CompiledUnavailable, numba_or_none  # noqa: E402
+from blocks.contract import Block, BlockContract  # noqa: E402
+from blocks.loop import EngineFallbackWarning, select_engine  # noqa: E402
+from blocks.systems import plant_output, plant_update  # noqa: E402
+from blocks.kernels import arm_constants, disturbance_params  # noqa: E402
+
+HAVE_NUMBA = numba_or_none() is not None
+SHORT = blocks.load_scenario("paper").replace(simulation={"t_final": 0.2})
+
+
+@pytest.fixture(autouse=True)
+def fresh_fallback_reports(monkeypatch):
+    """Each test starts as a new process would: no fallback reported yet (they are reported once per process)."""
+    monkeypatch.setattr("blocks.loop._fallbacks_reported", set())
+
+
+def test_numba_is_hidden_when_asked():
+    if HIDDEN:
+        assert not HAVE_NUMBA
+
+
+def _users_plant(s):
+    """The plant as a user's own block: the same maths and no feedthrough declared, but no kernels."""
+    k, dist = arm_constants(s.robot), disturbance_params(s.disturbance, s.robot)
+    states = [f"q[{i}]" for i in range(4)] + [f"dq[{i}]" for i in range(4)]
+    return Block(lambda t, x, u, p: plant_update(t, x, u, k, dist), lambda t, x, u, p: plant_output(t, x, u, k, dist),
+                 contract=BlockContract(feedthrough=frozenset()), inputs=[f"tau[{i}]" for i in range(4)],
+                 states=states, outputs=states + [f"tau_dis[{i}]" for i in range(4)], name="users_plant")
+
+
+def test_unknown_engine_is_refused_by_name():
+    with pytest.raises(ValueError, match="'turbo'"):
+        blocks.simulate(SHORT, engine="turbo")
+    with pytest.raises(ValueError, match="'python-control'"):
+        simulate_batch(SHORT, [{"gains.kp": 100.0}], engine="python-control")
+
+
+def test_compiled_refuses_a_block_without_kernels_and_names_it():
+    plant = _users_plant(SHORT)
+    with pytest.raises(CompiledUnavailable, match="block 'users_plant' has no kernels" if HAVE_NUMBA else "dobkit\\[fast\\]"):
+        blocks.simulate(SHORT, plant=plant, engine="compiled")
+
+
+def test_auto_falls_back_to_numpy_once_and_gives_the_numpy_numbers():
+    plant = _users_plant(SHORT)
+    with pytest.warns(EngineFallbackWarning, match="users_plant|numba"):
+        auto = blocks.simulate(SHORT.replace(name="fallback-once"), plant=plant)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", EngineFallbackWarning)       # the same reason is not reported again
+        again = blocks.simulate(SHORT.replace(name="fallback-once"), plant=plant)
+    fast = blocks.simulate(SHORT, plant=plant, engine="fast")
+    np.testing.assert_array_equal(auto.states, fast.states)
+    np.testing.assert_array_equal(again.states, fast.states)
+
+
+def test_compiled_refuses_a_solver_it_does_not_implement():
+    s = SHORT.replace(simulation={"method": "DOP853"})
+    with pytest.raises(CompiledUnavailable, match="'DOP853'" if HAVE_NUMBA else "dobkit\\[fast\\]"):
+        blocks.simulate(s, engine="compiled")
+    assert select_engine("fast", "any reason") == "fast"
+
+
+@pytest.mark.skipif(HAVE_NUMBA, reason="numba is installed")
+def test_without_numba_compiled_names_the_extra_and_auto_runs_numpy():
+    with pytest.raises(CompiledUnavailable, match='pip install "dobkit\\[fast\\]"'):
+        blocks.simulate(SHORT, engine="compiled")
+    with pytest.raises(CompiledUnavailable, match="dobkit\\[fast\\]"):
+        simulate_batch(SHORT, [{"gains.kp": 100.0}], engine="compiled")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", EngineFallbackWarning)
+        np.testing.assert_array_equal(blocks.simulate(SHORT).states, blocks.simulate(SHORT, engine="fast").states)
+
+
+@pytest.mark.skipif(not HAVE_NUMBA, reason="needs numba")
+def test_auto_is_compiled_when_it_can_be():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", EngineFallbackWarning)
+        auto = blocks.simulate(SHORT)
+    np.testing.assert_array_equal(auto.states, blocks.simulate(SHORT, engine="compiled").states)
+
+
+@pytest.mark.skipif(not HAVE_NUMBA, reason="needs numba")
+def test_compiled_batch_refuses_per_member_noise_and_auto_falls_back():
+    s = SHORT.replace(noise={"q_std": [1e-4] * 4, "dq_std": [1e-3] * 4, "seed": 1})
+    variants = [{"noise.seed": 1}, {"noise.seed": 2}]
+    with pytest.raises(CompiledUnavailable, match="noise"):
+        simulate_batch(s, variants, engine="compiled")
+    with pytest.warns(EngineFallbackWarning, match="noise"):
+        auto = simulate_batch(s, variants)
+    fast = simulate_batch(s, variants, engine="fast")
+    np.testing.assert_array_equal(auto.metrics["rms_position_error"], fast.metrics["rms_position_error"])
+
+
+def test_a_process_without_numba_runs_everything_on_numpy():
+    script = textwrap.dedent("""
+        import importlib.abc, sys, warnings
+        class NoNumba(importlib.abc.MetaPathFinder):
+            def find_spec(self, name, path=None, target=None):
+                if name == "numba" or name.startswith("numba."):
+                    raise ImportError("hidden")
+        sys.meta_path.insert(0, NoNumba())
+        import blocks
+        from blocks.compiled import CompiledUnavailable
+        s = blocks.load_scenario("paper").replace(simulation={"t_final": 0.1})
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            blocks.simulate(s)
+            blocks.simulate(s)
+        print("warnings", len(caught), caught[0].message)
+        try:
+            blocks.simulate(s, engine="compiled")
+        except CompiledUnavailable as err:
+            print("refused:", err)
+    """)
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert "warnings 1 engine='auto' uses the numpy engine: numba is not installed" in run.stdout
+    assert 'refused: engine=\'compiled\' cannot run: numba is not installed (it comes with the optional extra: ' \
+           'pip install "dobkit[fast]")' in run.stdout
