@@ -60,7 +60,7 @@ __all__ = ["Scenario", "ScenarioError", "SimulationSettings", "load_scenario", "
 SOLVER_METHODS = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA")
 # Largest grids a scenario may ask for: beyond these a run would exhaust memory rather than finish.
 MAX_OUTPUT_POINTS = 2_000_000
-MAX_NOISE_SAMPLES = 20_000_000
+MAX_NOISE_SAMPLES = 2_000_000       # 8 signals x 8 bytes: 128 MB
 MAX_SCENARIO_BYTES = 1_000_000
 # Shortest output step and sample spacing (s): below it times lose their meaning in double precision.
 MIN_TIME_STEP = 1e-9
