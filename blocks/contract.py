@@ -161,7 +161,7 @@ def contract_of(system) -> BlockContract:
 
 
 def kernel_block(kernels: Kernels, *, name: str, inputs, outputs, states=(), feedthrough=(),
-                 state_outputs=()) -> Block:
+                 state_outputs=(), dt: float = 0) -> Block:
     """A :class:`Block` whose python-control functions are its kernels bound to their parameters.
 
     Parameters
@@ -176,6 +176,9 @@ def kernel_block(kernels: Kernels, *, name: str, inputs, outputs, states=(), fee
         Inputs that reach the outputs directly.
     state_outputs : iterable of (str, str)
         Outputs that are copies of states.
+    dt : float
+        0 for a continuous block, or the sample period (s) of a discrete one,
+        whose update gives the next state (python-control's convention).
     """
     params = kernels.params
     output, update = kernels.output, kernels.update
@@ -183,7 +186,7 @@ def kernel_block(kernels: Kernels, *, name: str, inputs, outputs, states=(), fee
     updfcn = None if update is None else (lambda t, x, u, _p: update(t, x, u, *params))
     contract = BlockContract(feedthrough=frozenset(feedthrough), state_outputs=tuple(state_outputs),
                              columnwise=True, kernels=kernels)
-    signals = dict(name=name, inputs=list(inputs), outputs=list(outputs))
+    signals = dict(name=name, inputs=list(inputs), outputs=list(outputs), dt=dt)
     if states:      # python-control refuses a state count of 0 without an update function
         signals["states"] = list(states)
     return Block(updfcn, outfcn, contract=contract, **signals)

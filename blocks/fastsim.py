@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .plan import AlgebraicLoopError, LoopPlan, make_plan, with_params
+from .plan import AlgebraicLoopError, LoopPlan, make_plan, settle, with_params
 
 __all__ = ["CompiledLoop", "AlgebraicLoopError"]
 
@@ -68,12 +68,14 @@ class CompiledLoop:
     def _signals(self, plan: LoopPlan, t: float, x: np.ndarray, u_ext: np.ndarray | None,
                  steps) -> tuple[np.ndarray, list]:
         """All block outputs at ``(t, x)`` and, for plans that are not direct, every block's inputs."""
-        y = np.empty(plan.nsignals)
+        y = np.zeros(plan.nsignals)
         if plan.direct:
             y[plan.copy_y] = x[plan.copy_x]
-            for s in steps:
-                y[s.y] = _rows(s.output(t, x[s.x], y[s.gather], *s.output_args))
-            return y, []
+
+            def one_pass(y):
+                for s in steps:
+                    y[s.y] = _rows(s.output(t, x[s.x], y[s.gather], *s.output_args))
+            return settle(plan, one_pass, y), []
         u_ext = np.zeros(plan.input_map.shape[1]) if u_ext is None else np.asarray(u_ext, dtype=float)
         y[:] = 0.0
         inputs = []
@@ -139,12 +141,14 @@ class CompiledLoop:
         if not plan.direct:
             return np.column_stack([self.output(tk, X[:, k]) for k, tk in enumerate(t)]) if t.size else \
                 np.empty((self.system.noutputs, 0))
-        Y = np.empty((plan.nsignals, t.size))
-        for s in plan.steps:
-            if s.column_output is not None:
-                Y[s.y] = s.column_output(t, X[s.x], Y[s.gather], *s.column_args)
-            else:
-                U = Y[s.gather]
-                for k in range(t.size):
-                    Y[s.y, k] = _rows(s.output(t[k], X[s.x, k], U[:, k], *s.output_args))
-        return Y[plan.out_index]
+        Y = np.zeros((plan.nsignals, t.size))
+
+        def one_pass(Y):
+            for s in plan.steps:
+                if s.column_output is not None:
+                    Y[s.y] = s.column_output(t, X[s.x], Y[s.gather], *s.column_args)
+                else:
+                    U = Y[s.gather]
+                    for k in range(t.size):
+                        Y[s.y, k] = _rows(s.output(t[k], X[s.x, k], U[:, k], *s.output_args))
+        return settle(plan, one_pass, Y)[plan.out_index]

@@ -31,12 +31,14 @@ _CROSSING_SAMPLES = 33
 
 
 class DivergenceError(RuntimeError):
-    """A state left the bound (or became non-finite) at time :attr:`time` (s)."""
+    """A state left its bound (or became non-finite) at time :attr:`time` (s); :attr:`state` is the state then."""
 
-    def __init__(self, time: float, bound: float) -> None:
-        super().__init__(f"a state exceeded {bound:g} (or became non-finite) at t = {time:.6g} s")
+    def __init__(self, time: float, bound, state: np.ndarray | None = None) -> None:
+        shown = f"{bound:g}" if np.ndim(bound) == 0 else "its bound"
+        super().__init__(f"a state exceeded {shown} (or became non-finite) at t = {time:.6g} s")
         self.time = time
         self.bound = bound
+        self.state = state
 
 
 class SolverFailure(RuntimeError):
@@ -50,7 +52,9 @@ class SolverFailure(RuntimeError):
 
 def integrate_on_grid(fun: Callable[[float, np.ndarray], np.ndarray], x0, t_grid, method: str = "RK45",
                       rtol: float = 1e-6, atol: float = 1e-8, max_step: float = np.inf, bound: float = np.inf,
-                      progress: Callable[[float], None] | None = None) -> tuple[np.ndarray, int]:
+                      progress: Callable[[float], None] | None = None,
+                      first_step: float | None = None, max_evaluations: int | None = None,
+                      deadline: float | None = None) -> tuple[np.ndarray, int]:
     """States of ``x' = fun(t, x)`` at the times of ``t_grid``, integrated from ``x0`` at ``t_grid[0]``.
 
     Parameters
@@ -65,11 +69,17 @@ def integrate_on_grid(fun: Callable[[float, np.ndarray], np.ndarray], x0, t_grid
         A :data:`SOLVERS` name.
     rtol, atol, max_step : float
         Solver options as in :func:`scipy.integrate.solve_ivp` (``max_step`` in s).
-    bound : float
-        Largest magnitude a state may reach; a step beyond it (or a non-finite
-        state) raises :class:`DivergenceError`.
+    bound : float or array_like, shape (n,)
+        Largest magnitude a state (or each state) may reach; a step beyond it
+        (or a non-finite state) raises :class:`DivergenceError`.
     progress : callable, optional
         Called with the fraction done (0 to 1), at most every 0.2 s of wall time.
+    first_step : float, optional
+        The first step to try (s); by default the solver's own estimate.
+    max_evaluations : int, optional
+        Stop with :class:`SolverFailure` once the solver has called ``fun`` more often.
+    deadline : float, optional
+        A :func:`time.monotonic` time; stop with :class:`SolverFailure` when a step ends after it.
 
     Returns
     -------
@@ -88,10 +98,12 @@ def integrate_on_grid(fun: Callable[[float, np.ndarray], np.ndarray], x0, t_grid
         raise ValueError("t_grid must be at least two finite, increasing times")
     t0, t_end = float(t_grid[0]), float(t_grid[-1])
     x0 = np.asarray(x0, dtype=float)
-    if not np.all(np.isfinite(x0)) or not np.abs(x0).max(initial=0.0) <= bound:
-        raise DivergenceError(t0, bound)
+    bound = np.asarray(bound, dtype=float)
+    if not np.all(np.isfinite(x0)) or not np.all(np.abs(x0) <= bound):
+        raise DivergenceError(t0, bound, x0)
+    options = {} if first_step is None else {"first_step": min(first_step, t_end - t0, max_step)}
     solver = SOLVERS[method](fun, t0, x0, t_end, vectorized=False, rtol=rtol, atol=atol,
-                             max_step=max_step)
+                             max_step=max_step, **options)
     states = np.empty((solver.n, t_grid.size))
     done = 0                                    # grid points filled (the first one too from the first step)
     last_report = time.monotonic()
@@ -99,8 +111,16 @@ def integrate_on_grid(fun: Callable[[float, np.ndarray], np.ndarray], x0, t_grid
         message = solver.step()
         if solver.status == "failed":
             raise SolverFailure(float(solver.t), str(message))
-        if not np.abs(solver.y).max() <= bound:
-            raise DivergenceError(_crossing_time(solver, bound), bound)
+        if not np.all(np.abs(solver.y) <= bound):
+            t_cross = _crossing_time(solver, bound)
+            raise DivergenceError(t_cross, bound, solver.dense_output()(t_cross) if np.all(np.isfinite(solver.y))
+                                  else solver.y.copy())
+        if max_evaluations is not None and solver.nfev > max_evaluations:
+            raise SolverFailure(float(solver.t), f"it needed more than {max_evaluations:,} right-hand-side "
+                                f"evaluations, {solver.nfev / max(solver.t - t0, 1e-300):.3g} per simulated second "
+                                f"(steps of {solver.step_size:.3g} s): the problem is stiff or fast")
+        if deadline is not None and time.monotonic() > deadline:
+            raise SolverFailure(float(solver.t), "the wall-time limit was reached")
         # grid times up to and including the new time, interpolated as solve_ivp does
         upto = int(np.searchsorted(t_grid, solver.t, side="right"))
         if upto > done:
@@ -123,7 +143,7 @@ def _crossing_time(solver, bound: float) -> float:
     if not np.all(np.isfinite(solver.y)):
         return t_new
     dense = solver.dense_output()
-    margin = lambda t: bound - np.abs(dense(t)).max()     # noqa: E731  > 0 inside the bound
+    margin = lambda t: np.min(bound - np.abs(dense(t)))     # noqa: E731  > 0 inside the bound
     # the first sample of the step at or beyond the bound brackets the first crossing
     samples = np.linspace(t_old, t_new, _CROSSING_SAMPLES)
     inside = np.array([margin(t) > 0.0 for t in samples])

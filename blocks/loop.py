@@ -37,6 +37,8 @@ from .kernels import arm_constants
 from .kernels import lumped_disturbance as lumped_disturbance_rows
 from .fastsim import CompiledLoop
 from .integrate import DivergenceError, SolverFailure, integrate_on_grid
+from .divergence import state_bounds
+from .run_limits import check_run
 from .scenario import Scenario, load_scenario
 from .systems import controller, plant, sensor, signal_names, trajectory_block
 from .systems import observer as observer_block
@@ -49,7 +51,7 @@ ENGINES = ("auto", "compiled", "fast", "python-control")
 
 LOOP_SIGNALS = ("q", "dq", "q_ref", "dq_ref", "ddq_ref", "tau", "d_hat", "tau_dis")
 
-# A state this large (rad, m, rad/s, N m) means the loop has diverged: stop with an error.
+# The batch engines judge a member diverged when a state is this large (single runs: blocks.divergence).
 DIVERGENCE_BOUND = 1e6
 
 
@@ -117,6 +119,9 @@ def build_blocks(scenario: Scenario | str = "paper", observer: bool = True, plan
         when present, keyed by block name.
     """
     s = _as_scenario(scenario)
+    if plant_system is not None and not isinstance(plant_system, ct.NonlinearIOSystem):
+        raise TypeError(f"plant must be a python-control NonlinearIOSystem (for example from fmu.load), got "
+                        f"{type(plant_system).__name__} {plant_system!r}")
     measured = "_meas" if s.noise is not None else ""
     blocks = {
         "trajectory": trajectory_block(s.trajectory),
@@ -260,6 +265,14 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
     if engine not in ENGINES:
         raise ValueError(f"engine must be one of {list(ENGINES)}, got {engine!r}")
     s = _as_scenario(scenario)
+    if not isinstance(observer, bool):
+        raise TypeError(f"observer must be True or False, got {observer!r}")
+    if s.controller is not None:            # the digital controller: a sampled-data loop
+        if engine not in ENGINES:
+            raise ValueError(f"engine must be one of {list(ENGINES)}, got {engine!r}")
+        from .digital_loop import simulate_sampled
+        return simulate_sampled(s, observer=observer, plant=plant, progress=progress)
+    limits = check_run(s, observer)
     loop = closed_loop(s, observer=observer, plant=plant)
     x0 = initial_state(loop, s)
     sim = s.simulation
@@ -267,10 +280,12 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
     if engine in ("auto", "compiled"):
         from .compiled import unavailable_reason
         engine = select_engine(engine, unavailable_reason(loop, sim.method))
+    bounds = state_bounds(loop, s)
     if engine == "compiled":
-        states, outputs = _integrate_with(_compiled_engine(loop), loop, x0, t_grid, sim, progress)
+        states, outputs = _integrate_with(_compiled_engine(loop), loop, x0, t_grid, sim, progress, bounds)
     elif engine == "fast":
-        states, outputs = _integrate_with(_NumpyEngine(loop, sim.method), loop, x0, t_grid, sim, progress)
+        states, outputs = _integrate_with(_NumpyEngine(loop, sim.method, limits, t_grid[-1]), loop, x0, t_grid, sim,
+                                          progress, bounds)
     elif engine == "python-control":
         resp = ct.input_output_response(loop, t_grid, 0, x0, solve_ivp_method=sim.method,
                                         solve_ivp_kwargs=dict(rtol=sim.rtol, atol=sim.atol, max_step=sim.max_step),
@@ -278,11 +293,7 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
         if not resp.success:
             raise SimulationError(f"scenario '{s.name}': solver failed: {resp.message}")
         states, outputs = np.atleast_2d(resp.states), np.atleast_2d(resp.outputs)
-        _check_finite(t_grid, states, s)
-        beyond = np.max(np.abs(states), axis=0) > DIVERGENCE_BOUND
-        if beyond.any():
-            raise SimulationError(f"scenario '{s.name}': the loop diverged at t = {t_grid[np.argmax(beyond)]:.6g} s "
-                                  f"(a state exceeded {DIVERGENCE_BOUND:g}); no result is returned")
+        _check_bounds(t_grid, states, s, bounds)
     labels = list(loop.output_labels)
     idx = {name: labels.index(name) for name in labels}
     pick = lambda sig: outputs[[idx[n] for n in signal_names(sig)]]  # noqa: E731
@@ -301,12 +312,18 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
 class _NumpyEngine:
     """The numpy engine with the interface of :class:`blocks.compiled.CompiledLoopEngine`."""
 
-    def __init__(self, loop, method: str) -> None:
+    #: It stops at the first step beyond any state's own bound.
+    per_state_bounds = True
+
+    def __init__(self, loop, method: str, limits=None, t_final: float = 0.0) -> None:
         self.compiled, self.method = CompiledLoop(loop), method
+        self.limits, self.t_final = limits, t_final
 
     def integrate(self, x0, t_grid, rtol, atol, max_step, bound, progress):
+        limits = {} if self.limits is None else {"max_evaluations": self.limits.max_evaluations(self.t_final),
+                                                 "deadline": self.limits.deadline()}
         return integrate_on_grid(self.compiled.rhs, x0, t_grid, self.method, rtol=rtol, atol=atol,
-                                 max_step=max_step, bound=bound, progress=progress)
+                                 max_step=max_step, bound=bound, progress=progress, **limits)
 
     def outputs_on_grid(self, t_grid, X):
         return self.compiled.outputs_on_grid(t_grid, X)
@@ -317,25 +334,31 @@ def _compiled_engine(loop):
     return CompiledLoopEngine(loop)
 
 
-def _integrate_with(engine, loop, x0, t_grid, sim, progress):
+def _integrate_with(engine, loop, x0, t_grid, sim, progress, bounds):
     name = loop.scenario.name
+    # an engine that judges all states against one bound is given the loosest, and checked on the grid after
+    bound = bounds.bounds if getattr(engine, "per_state_bounds", False) else \
+        float(np.max(bounds.bounds[np.isfinite(bounds.bounds)], initial=np.inf))
     try:
-        states, _ = engine.integrate(x0, t_grid, sim.rtol, sim.atol, sim.max_step, DIVERGENCE_BOUND, progress)
+        states, _ = engine.integrate(x0, t_grid, sim.rtol, sim.atol, sim.max_step, bound, progress)
     except DivergenceError as err:
-        raise SimulationError(f"scenario '{name}': the loop diverged at t = {err.time:.6g} s "
-                              f"(a state exceeded {DIVERGENCE_BOUND:g} or became non-finite); "
+        where = bounds.describe(err.state) if err.state is not None else "a state left its bound"
+        raise SimulationError(f"scenario '{name}': the loop diverged at t = {err.time:.6g} s: {where}; "
                               f"no result is returned") from None
     except SolverFailure as err:
         raise SimulationError(f"scenario '{name}': the solver stopped at t = {err.time:.6g} s of "
                               f"{t_grid[-1]:g} s: {err.reason}") from None
-    # the integrator has checked every step's state: finite and within the bound
+    _check_bounds(t_grid, states, loop.scenario, bounds)
     outputs = engine.outputs_on_grid(t_grid, states)
     if progress is not None:
         progress(1.0)
     return states, outputs
 
 
-def _check_finite(t_grid, states, s):
-    bad = ~np.all(np.isfinite(states), axis=0)
+def _check_bounds(t_grid, states, s, bounds):
+    """Refuse states on the grid that are not finite or beyond their bounds (:mod:`blocks.divergence`)."""
+    bad = ~np.all(np.abs(states) <= bounds.bounds[:, None], axis=0)       # NaN counts as beyond
     if bad.any():
-        raise SimulationError(f"scenario '{s.name}': the state became non-finite at t = {t_grid[np.argmax(bad)]:.6g} s")
+        k = int(np.argmax(bad))
+        raise SimulationError(f"scenario '{s.name}': the loop diverged by t = {t_grid[k]:.6g} s: "
+                              f"{bounds.describe(states[:, k])}; no result is returned")

@@ -29,11 +29,20 @@ import numpy as np
 from .contract import contract_of
 from .control_compat import connection_maps, merged_params, output_function, subsystems, update_function
 
-__all__ = ["AlgebraicLoopError", "BlockStep", "LoopPlan", "make_plan"]
+__all__ = ["AlgebraicLoopError", "BlockStep", "LoopPlan", "make_plan", "settle"]
 
 
 class AlgebraicLoopError(RuntimeError):
-    """The interconnection has a cycle of direct feedthrough and cannot be ordered."""
+    """The interconnection has a cycle of direct feedthrough and cannot be ordered (or does not settle).
+
+    ``undeclared`` is True when a block in the cycle has no declared
+    feedthrough: the cycle may not be real, and the plan then evaluates the
+    blocks to a fixed point, as python-control does.
+    """
+
+    def __init__(self, message: str, undeclared: bool = False) -> None:
+        super().__init__(message)
+        self.undeclared = undeclared
 
 
 @dataclass(frozen=True)
@@ -96,6 +105,10 @@ class LoopPlan:
         The interconnection's matrices (used by plans that are not direct).
     input_rows : tuple of slice
         Each block's rows of ``connect_map``, in ``steps`` order.
+    fixed_point : bool
+        The blocks could not be ordered because some declare no feedthrough:
+        one pass over them is repeated until the signals stop changing
+        (at most one pass per block and one more), as python-control does.
     """
 
     steps: tuple
@@ -111,6 +124,7 @@ class LoopPlan:
     input_map: np.ndarray
     output_map: np.ndarray
     input_rows: tuple
+    fixed_point: bool = False
 
     @property
     def order(self) -> list[str]:
@@ -153,8 +167,11 @@ def _topological_order(blocks, C, u_off, y_off) -> list[int]:
         if k in done:
             return
         if k in visiting:
-            cycle = " -> ".join(blocks[m].name for m in path[path.index(k):] + [k])
-            raise AlgebraicLoopError(f"algebraic loop through blocks {cycle}: no evaluation order exists")
+            members = path[path.index(k):] + [k]
+            cycle = " -> ".join(blocks[m].name for m in members)
+            undeclared = any(contract_of(blocks[m]).feedthrough is None for m in members)
+            raise AlgebraicLoopError(f"algebraic loop through blocks {cycle}: no evaluation order exists",
+                                     undeclared=undeclared)
         visiting.add(k)
         for m in sorted(deps[k]):
             visit(m, path + [k])
@@ -219,7 +236,8 @@ def make_plan(system, params: dict | None = None) -> LoopPlan:
     Raises
     ------
     AlgebraicLoopError
-        If the blocks' declared feedthrough forms a cycle.
+        If the blocks' declared feedthrough forms a cycle (a cycle through a
+        block that declares none gives a fixed-point plan instead).
     ValueError
         If a block's declared state outputs are not its states.
     """
@@ -230,7 +248,12 @@ def make_plan(system, params: dict | None = None) -> LoopPlan:
     direct = bool(np.all(np.count_nonzero(C, axis=1) == 1) and np.all(C[C != 0] == 1) and not B.any()
                   and np.all(np.count_nonzero(O, axis=1) == 1) and np.all(O[O != 0] == 1) and not O[:, n_y:].any())
     source = np.argmax(C != 0, axis=1)
-    order = _topological_order(blocks, C, u_off, y_off)
+    try:
+        order, fixed_point = _topological_order(blocks, C, u_off, y_off), False
+    except AlgebraicLoopError as err:
+        if not err.undeclared:
+            raise
+        order, fixed_point = list(range(len(blocks))), True     # python-control's way: iterate to a fixed point
     steps, input_rows = [], []
     for k in order:
         us = slice(int(u_off[k]), int(u_off[k + 1]))
@@ -254,7 +277,27 @@ def make_plan(system, params: dict | None = None) -> LoopPlan:
     out_index = np.argmax(O != 0, axis=1) if direct else np.zeros(0, dtype=int)
     return LoopPlan(tuple(steps), tuple(rhs_steps), updates, _index_or_slice(np.array(copy_y, dtype=int)),
                     _index_or_slice(np.array(copy_x, dtype=int)), out_index, direct, int(x_off[-1]), n_y,
-                    C, B, O, tuple(input_rows))
+                    C, B, O, tuple(input_rows), fixed_point)
+
+
+def settle(plan: LoopPlan, one_pass, y: np.ndarray) -> np.ndarray:
+    """Run ``one_pass(y)`` (evaluate blocks in plan order, writing their outputs into ``y``) once, or, for a
+    fixed-point plan, until ``y`` stops changing.
+
+    Raises
+    ------
+    AlgebraicLoopError
+        If a fixed-point plan does not settle within one pass per block and one more.
+    """
+    if not plan.fixed_point:
+        one_pass(y)
+        return y
+    for _ in range(len(plan.steps) + 1):
+        before = y.copy()
+        one_pass(y)
+        if np.array_equal(before, y):
+            return y
+    raise AlgebraicLoopError(f"the blocks {plan.order} did not settle: there is an algebraic loop")
 
 
 def with_params(plan: LoopPlan, system, params: dict) -> LoopPlan:

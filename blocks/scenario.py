@@ -20,6 +20,9 @@ Sections and keys (units in brackets)::
     [noise]          q_std [rad, m], dq_std [rad/s, m/s] (4 each), seed, sample_period [s]
     [initial]        q, dq (4 each; default: on the reference), d_hat (4; default 0)
     [simulation]     t_final [s], output_step [s], rtol, atol, method, max_step [s]
+    [controller]     the digital controller (blocks.digital): sample_rate [Hz], delay [samples],
+                     observer_discretization, velocity, velocity_cutoff [Hz], position_resolution
+                     [rad, m] (4), torque_limit [N m, N] (4); absent: the continuous controller
 
 Each section is read by one entry of the table ``_SECTIONS``: the keys it
 allows with the check of each value, and how its object is built from them.
@@ -43,6 +46,7 @@ from typing import Any
 
 import numpy as np
 
+from .digital import DISCRETIZATIONS, VELOCITY_SOURCES, DigitalController
 from .disturbances import DISTURBANCE_KINDS, DisturbanceSpec
 from .gains import GAIN_KEYS, OBSERVER_VARIANTS, GainError, validated_gain
 from .joints import RRPR_JOINTS
@@ -56,7 +60,13 @@ __all__ = ["Scenario", "ScenarioError", "SimulationSettings", "load_scenario", "
 SOLVER_METHODS = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA")
 # Largest grids a scenario may ask for: beyond these a run would exhaust memory rather than finish.
 MAX_OUTPUT_POINTS = 2_000_000
-MAX_NOISE_SAMPLES = 20_000_000
+MAX_NOISE_SAMPLES = 2_000_000       # 8 signals x 8 bytes: 128 MB
+MAX_SCENARIO_BYTES = 1_000_000
+# Shortest output step and sample spacing (s): below it times lose their meaning in double precision.
+MIN_TIME_STEP = 1e-9
+# Solver tolerances that mean something: tighter than rounding is noise, looser than 1 % is not a solution.
+RTOL_RANGE = (1e-13, 1e-2)
+ATOL_RANGE = (1e-15, 1e-2)
 
 
 class ScenarioError(ValueError):
@@ -193,6 +203,8 @@ class Scenario:
     initial : dict
         ``q``, ``dq``, ``d_hat`` as 4-arrays or None (None: on the reference / zero).
     simulation : SimulationSettings
+    controller : DigitalController or None
+        The digital controller's settings; None for the continuous controller.
     source : str
         Where the scenario came from (built-in name or file path).
     user_data : dict
@@ -215,6 +227,7 @@ class Scenario:
     noise: MeasurementNoise | None
     initial: dict
     simulation: SimulationSettings
+    controller: DigitalController | None = None
     source: str = "<dict>"
     user_data: dict = field(default_factory=dict)
 
@@ -356,11 +369,36 @@ Check = Callable[[Any, str], Any]
 
 def _finite(lower: float | None = None, strict: bool = False) -> Check:
     def check(value, key: str) -> float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise ScenarioError(f"'{key}' must be a finite number, got {value!r}")
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not _finite_float(value):
+            raise ScenarioError(f"'{key}' must be a finite number, got {_number_text(value)}")
         if lower is not None and (value <= lower if strict else value < lower):
             raise ScenarioError(f"'{key}' must be {'>' if strict else '>='} {lower}, got {value!r}")
         return float(value)
+    return check
+
+
+def _number_text(value) -> str:
+    """A value for a message: huge whole numbers in short scientific form."""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10 ** 15:
+        digits = str(abs(value))
+        return f"{'-' if value < 0 else ''}{digits[0]}.{digits[1:4]}e+{len(digits) - 1}"
+    return repr(value)
+
+
+def _finite_float(value) -> bool:
+    """A number that is finite as a float (an int too large for a float is not)."""
+    try:
+        return math.isfinite(float(value))
+    except OverflowError:
+        return False
+
+
+def _in_range(low: float, high: float) -> Check:
+    def check(value, key: str) -> float:
+        value = _finite(0.0, strict=True)(value, key)
+        if not low <= value <= high:
+            raise ScenarioError(f"'{key}' must be between {low:g} and {high:g} (a solver tolerance), got {value!r}")
+        return value
     return check
 
 
@@ -469,6 +507,8 @@ def _build_observer(given: dict, built: dict):
 
 def _build_simulation(given: dict, built: dict):
     sim = SimulationSettings(**given)
+    if sim.output_step < MIN_TIME_STEP:
+        raise ScenarioError(f"'simulation.output_step' ({sim.output_step:g} s) must be at least {MIN_TIME_STEP:g} s")
     if sim.output_step > sim.t_final:
         raise ScenarioError(f"'simulation.output_step' ({sim.output_step} s) must not exceed "
                             f"'simulation.t_final' ({sim.t_final} s)")
@@ -495,10 +535,12 @@ def _build_disturbance(given: dict, built: dict):
 def _build_trajectory(given: dict, built: dict):
     kind = given.get("kind", _SECTIONS["trajectory"].default_kind)
     kw = {k: v for k, v in given.items() if k != "kind"}
+    if kind == "laceration":
+        kw.setdefault("duration", built["simulation"].t_final)          # the path completes within the run
+        kw.setdefault("skin_height", built["disturbance"].skin_height)  # the path stitches the tissue's skin
+        _check_phases(kw, built["simulation"])
     try:
         if kind == "laceration":
-            kw.setdefault("duration", built["simulation"].t_final)          # the path completes within the run
-            kw.setdefault("skin_height", built["disturbance"].skin_height)  # the path stitches the tissue's skin
             trajectory = LacerationPath(params=built["robot"], **kw)
         else:
             trajectory = JointSine(**kw)
@@ -508,10 +550,25 @@ def _build_trajectory(given: dict, built: dict):
     return trajectory, {"kind": kind} | {k: _plain(getattr(trajectory, k)) for k in keys}
 
 
+def _check_phases(path: dict, sim: SimulationSettings) -> None:
+    """Refuse a laceration path whose phases are shorter than the output step: the run could not show them
+    (and a huge stitch count would only cost memory and time)."""
+    stitches = path.get("stitches", LacerationPath.stitches)
+    if isinstance(stitches, int) and stitches >= 1:
+        phase = path["duration"] / (2 * stitches - 1)
+        if phase < sim.output_step:
+            raise ScenarioError(f"'trajectory.stitches' = {_number_text(stitches)} makes each of the path's "
+                                f"{_number_text(2 * stitches - 1)} phases {phase:.3g} s long, shorter than 'simulation.output_step' "
+                                f"({sim.output_step:g} s): use fewer stitches or a longer 'trajectory.duration'")
+
+
 def _build_noise(given: dict, built: dict):
     t_final = built["simulation"].t_final
     period = given.get("sample_period", MeasurementNoise.sample_period)
-    if period > 0 and t_final / period > MAX_NOISE_SAMPLES:
+    stds = tuple(given.get("q_std", ())) + tuple(given.get("dq_std", ()))
+    if period > 0 and period < MIN_TIME_STEP:
+        raise ScenarioError(f"'noise.sample_period' ({period:g} s) must be at least {MIN_TIME_STEP:g} s")
+    if any(v != 0 for v in stds) and period > 0 and t_final / period > MAX_NOISE_SAMPLES:
         raise ScenarioError(f"'noise.sample_period' ({period} s) asks for {t_final / period:.3g} noise samples "
                             f"over {t_final} s; at most {MAX_NOISE_SAMPLES:,} are allowed")
     try:
@@ -519,6 +576,27 @@ def _build_noise(given: dict, built: dict):
     except ValueError as err:
         raise ScenarioError(f"[noise] {err}") from None
     return (noise if noise.enabled else None), {k: _plain(getattr(noise, k)) for k in _NOISE_KEYS}
+
+
+def _build_controller(given: dict, built: dict):
+    if not given:           # absent: the continuous controller, and no [controller] in the settings
+        return None, None
+    if "sample_rate" not in given:
+        raise ScenarioError("'controller.sample_rate' is required in a [controller] section (Hz)")
+    try:
+        controller = DigitalController(**given)
+    except ValueError as err:
+        raise ScenarioError(str(err)) from None
+    values = {k: _plain(v) for k, v in dataclasses.asdict(controller).items() if v is not None}
+    return controller, values
+
+
+def _whole(lower: int) -> Check:
+    def check(value, key: str) -> int:
+        if isinstance(value, bool) or not isinstance(value, int) or value < lower:
+            raise ScenarioError(f"'{key}' must be a whole number >= {lower}, got {value!r}")
+        return value
+    return check
 
 
 def _build_initial(given: dict, built: dict):
@@ -557,7 +635,7 @@ _SECTIONS: dict[str, _Section] = {
     "gains": _Section({k: _gain for k in GAIN_KEYS}, _build_gains),
     "observer": _Section({"variant": _one_of(OBSERVER_VARIANTS)}, _build_observer),
     "simulation": _Section({"t_final": _finite(0.0, True), "output_step": _finite(0.0, True),
-                            "rtol": _finite(0.0, True), "atol": _finite(0.0, True),
+                            "rtol": _in_range(*RTOL_RANGE), "atol": _in_range(*ATOL_RANGE),
                             "method": _one_of(SOLVER_METHODS), "max_step": _positive_or_inf}, _build_simulation),
     "disturbance": _Section({"kind": _disturbance_kinds} | {k: _like(d) for k, d in
                                                             _defaults(DisturbanceSpec, skip=("kinds",)).items()},
@@ -568,6 +646,11 @@ _SECTIONS: dict[str, _Section] = {
     "noise": _Section({k: _like(d) for k, d in _defaults(MeasurementNoise).items() if k in _NOISE_KEYS},
                       _build_noise),
     "initial": _Section({k: _vector(RRPR_JOINTS.count) for k in _INITIAL_KEYS}, _build_initial),
+    "controller": _Section({"sample_rate": _finite(0.0, strict=True), "delay": _whole(0),
+                            "observer_discretization": _one_of(DISCRETIZATIONS), "velocity": _one_of(VELOCITY_SOURCES),
+                            "velocity_cutoff": _finite(0.0, strict=True),
+                            "position_resolution": _vector(RRPR_JOINTS.count),
+                            "torque_limit": _vector(RRPR_JOINTS.count)}, _build_controller),
 }
 _TOP_KEYS = ("name", "description") + tuple(_SECTIONS)
 _KEY = re.compile(r"(?P<section>[A-Za-z_]\w*)(?:\.(?P<name>\w+))?(?:\[(?P<index>\d+)\])?")
@@ -655,12 +738,24 @@ def load_scenario(name_or_path: str | Path = "paper") -> Scenario:
 
 
 def _read_source(name_or_path) -> tuple[str, str]:
+    if isinstance(name_or_path, Mapping):
+        raise TypeError("a scenario given as a dict is read with blocks.scenario_from_dict(data); load_scenario "
+                        "takes a built-in name or the path of a .toml file")
+    if not isinstance(name_or_path, (str, Path)):
+        raise TypeError(f"a scenario is a Scenario, a built-in name or the path of a .toml file, got "
+                        f"{type(name_or_path).__name__} {name_or_path!r}")
     path = Path(name_or_path)
     if path.suffix == ".toml" or path.exists() or "/" in str(name_or_path):
+        if path.is_dir():
+            raise ScenarioError(f"'{path}' is a folder, not a scenario file (give the path of a .toml file)")
         if not path.is_file():
             raise ScenarioError(f"scenario file '{path}' does not exist")
+        if path.stat().st_size > MAX_SCENARIO_BYTES:
+            raise ScenarioError(f"scenario file '{path}' is {path.stat().st_size:,} bytes; a scenario is a short "
+                                f"text file (at most {MAX_SCENARIO_BYTES:,} bytes)")
         try:
-            return path.read_text(encoding="utf-8"), str(path)
+            # utf-8-sig: a byte-order mark, as some editors write, is not part of the TOML text
+            return path.read_text(encoding="utf-8-sig"), str(path)
         except UnicodeDecodeError as err:
             raise ScenarioError(f"scenario file '{path}' is not UTF-8 text (byte {err.start})") from None
     names = builtin_scenarios()
@@ -704,11 +799,14 @@ def _validated(data: Mapping, source: str) -> Scenario:
         _check_keys(table, checks, section, note=f" for kind = {kind!r}" if kind else "")
         given = {k: checks[k](v, f"{section}.{k}") for k, v in table.items()}
         built[section], out[section] = spec.build(given, built)
+        if out[section] is None:            # an optional section that is absent
+            del out[section]
     return Scenario(name=name, data=out, robot=built["robot"], nominal=built["nominal_scale"],
                     kp=built["gains"]["kp"], kd=built["gains"]["kd"], observer_gain=built["gains"]["observer"],
                     observer_variant=built["observer"], trajectory=built["trajectory"],
                     disturbance=built["disturbance"], noise=built["noise"], initial=built["initial"],
-                    simulation=built["simulation"], source=source, user_data=_plain(data))
+                    simulation=built["simulation"], controller=built["controller"], source=source,
+                    user_data=_plain(data))
 
 
 def _table(data: Mapping, key: str) -> Mapping:

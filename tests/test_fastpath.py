@@ -59,11 +59,31 @@ def test_block_order_follows_the_signal_flow():
     assert order.index("observer") > order.index("plant")
 
 
-def test_a_feedthrough_cycle_is_reported():
-    a = ct.nlsys(None, lambda t, x, u, p: u, inputs=["u"], outputs=["y"], name="a")
-    b = ct.nlsys(None, lambda t, x, u, p: u, inputs=["y"], outputs=["u"], name="b")
+def test_a_declared_feedthrough_cycle_is_reported():
+    through = BlockContract(feedthrough={"u"})
+    a = Block(None, lambda t, x, u, p: u, inputs=["u"], outputs=["y"], name="a", contract=through)
+    b = Block(None, lambda t, x, u, p: u, inputs=["y"], outputs=["u"], name="b",
+              contract=BlockContract(feedthrough={"y"}))
     with pytest.raises(AlgebraicLoopError, match="a -> b -> a|b -> a -> b"):
         CompiledLoop(ct.interconnect([a, b], inplist=[], outlist=["y"], check_unused=False))
+
+
+def test_blocks_without_declared_feedthrough_are_evaluated_to_a_fixed_point_as_python_control_does():
+    """No contract: feedthrough unknown.  A cycle that is not a real algebraic loop (the integrator's output is its
+    state) is then iterated to a fixed point, giving python-control's numbers; one that does not settle is refused."""
+    gain = ct.nlsys(None, lambda t, x, u, p: -2.0 * u, inputs=["e"], outputs=["v"], name="gain")
+    integ = ct.nlsys(lambda t, x, u, p: u, lambda t, x, u, p: x, inputs=["v"], outputs=["e"], states=1, name="integ")
+    loop = ct.interconnect([gain, integ], inplist=[], outlist=["e", "v"])
+    compiled = CompiledLoop(loop)
+    assert compiled.plan.fixed_point
+    x = np.array([0.7])
+    np.testing.assert_array_equal(compiled.rhs(0.0, x), loop.dynamics(0.0, x, []))
+    np.testing.assert_array_equal(compiled.output(0.0, x), loop.output(0.0, x, []))
+    grows = ct.nlsys(None, lambda t, x, u, p: u + 1.0, inputs=["u"], outputs=["y"], name="a")
+    back = ct.nlsys(None, lambda t, x, u, p: u, inputs=["y"], outputs=["u"], name="b")
+    never = CompiledLoop(ct.interconnect([grows, back], inplist=[], outlist=["y"], check_unused=False))
+    with pytest.raises(AlgebraicLoopError, match="did not settle"):
+        never.output(0.0, np.zeros(0))
 
 
 def test_outputs_on_grid_equal_the_point_by_point_outputs():

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from conftest import PAPER_FR, PAPER_KD, PAPER_KP, PAPER_Y, paper_toml_dict
+from blocks.digital import DigitalController
 from blocks import (JointSine, LacerationPath, Scenario, ScenarioError, builtin_scenarios, load_scenario,
                     scenario_from_dict)
 
@@ -249,6 +250,7 @@ def _changed(s, name: str):
              "disturbance": type(s.disturbance)(kinds=("friction",)),
              "noise": None, "initial": {**s.initial, "dq": np.array([0.0, 0.0, 0.0, 1e-12])},
              "simulation": type(s.simulation)(t_final=5.0), "source": "elsewhere.toml",
+             "controller": DigitalController(sample_rate=1000.0),
              "user_data": {**s.user_data, "name": "other"}}
     return dataclasses.replace(s, **{name: other[name]})
 

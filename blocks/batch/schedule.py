@@ -9,7 +9,7 @@ import numpy as np
 from ..scenario import Scenario
 from .variants import Variants
 
-__all__ = ["step_schedule", "auto_substeps", "fastest_rate", "noise_breakpoints", "batch_schedule",
+__all__ = ["step_schedule", "auto_substeps", "fastest_rate", "rates_by_source", "noise_breakpoints", "batch_schedule",
            "STEP_LAMBDA", "STEPS_PER_PHASE", "TISSUE_STEP"]
 
 
@@ -33,13 +33,14 @@ STEPS_PER_PHASE = 200
 TISSUE_STEP = 1e-3
 
 
-def fastest_rate(variants: "Variants", observer: bool = True) -> float:
-    """An upper estimate (1/s) of the fastest closed-loop rate over all members.
+def rates_by_source(variants: "Variants", observer: bool = True) -> dict[str, np.ndarray]:
+    """Upper estimates (1/s) of the fastest closed-loop rate of each member, by the scenario key that sets it.
 
-    The largest of: the PD poles ``s^2 + kd s + kp`` scaled by the model
-    mismatch ``lambda_max(M^-1 M^)``; the observer's ``Y M^-1`` on the true and
-    nominal inertia; the friction's ``M^-1 (F_c / v_s + F_v)``.  Inertia is
-    taken at ``cos(theta2) = -1, 0, 1``.
+    ``"gains.kp"``: the PD poles ``s^2 + kd s + kp`` scaled by the model
+    mismatch ``lambda_max(M^-1 M^)``; ``"gains.observer"``: the observer's
+    ``Y M^-1`` on the true and nominal inertia; ``"disturbance.friction_velocity"``:
+    the friction's ``M^-1 (F_c / v_s + F_v)``.  Inertia is taken at
+    ``cos(theta2) = -1, 0, 1``.  Each value has shape (N,).
     """
     from ..dynamics import inertia
     c2 = np.array([-1.0, 0.0, 1.0])
@@ -52,18 +53,23 @@ def fastest_rate(variants: "Variants", observer: bool = True) -> float:
     kp, kd = variants.kp.T, variants.kd.T                                                   # (N, 4)
     disc = kd ** 2 - 4 * kp
     pd = np.where(disc >= 0, 0.5 * (kd + np.sqrt(np.abs(disc))), np.sqrt(kp)).max(axis=1)
-    rates = [pd * np.maximum(mismatch, 1.0)]
+    rates = {"gains.kp": pd * np.maximum(mismatch, 1.0)}
     if observer:
         Y = variants.y_full.transpose(2, 0, 1) if variants.y_full is not None else \
             np.apply_along_axis(np.diag, 1, variants.y_diag.T)                             # (N, 4, 4)
-        for inv in (M_inv, M_hat_inv):
-            rates.append(np.abs(np.linalg.eigvals(Y[:, None] @ inv)).max(axis=(1, 2)))
+        rates["gains.observer"] = np.max([np.abs(np.linalg.eigvals(Y[:, None] @ inv)).max(axis=(1, 2))
+                                          for inv in (M_inv, M_hat_inv)], axis=0)
     if "friction" in variants.base.disturbance.kinds:
         dist = variants.disturbance
         damping = dist.coulomb / dist.friction_velocity + dist.viscous                      # (N, 4)
         D = np.apply_along_axis(np.diag, 1, damping)
-        rates.append(np.abs(np.linalg.eigvals(M_inv @ D[:, None])).max(axis=(1, 2)))
-    return float(np.max(rates))
+        rates["disturbance.friction_velocity"] = np.abs(np.linalg.eigvals(M_inv @ D[:, None])).max(axis=(1, 2))
+    return rates
+
+
+def fastest_rate(variants: "Variants", observer: bool = True) -> float:
+    """An upper estimate (1/s) of the fastest closed-loop rate over all members (see :func:`rates_by_source`)."""
+    return float(max(r.max() for r in rates_by_source(variants, observer).values()))
 
 
 def auto_substeps(variants: "Variants", observer: bool = True) -> int:

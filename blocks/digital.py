@@ -1,0 +1,291 @@
+"""The digital controller: computed torque and observer sampled at a fixed rate, with encoders and torque limits.
+
+A joint controller is a program that runs every ``Ts = 1 / sample_rate``
+seconds.  At ``t_k = k Ts`` it reads the encoders, forms the velocity
+estimate, the disturbance estimate ``d_hat_k = Y dq_k + z_k`` and the
+torque ``tau_k`` of Eq. 11 on the nominal model, and writes the torque,
+which the motor drives hold until the next sample.  With ``delay = d`` the
+torque computed at ``t_k`` is applied from ``t_{k+d}``; the applied torque
+is saturated at ``torque_limit``.  The observer updates ``z_{k+1}`` from
+``q_k``, ``dq_k``, ``z_k`` and the torque applied over the sample (so it sees
+the saturated torque and does not wind up), either by forward Euler or by the
+exact solution of its equation with ``M^(q_k)`` and its inputs frozen over
+the sample (``"zoh"``).
+
+Velocity: ``"measured"`` samples the velocity signal (a tachometer or the
+drive's own estimate); ``"difference"`` takes the backward difference of
+the sampled (quantized) positions, ``(q_k - q_{k-1}) / Ts``, through a
+first-order low-pass ``v_k = a v_{k-1} + (1 - a) diff_k`` with
+``a = exp(-2 pi f_c Ts)`` when ``velocity_cutoff = f_c`` is given (the
+raw difference otherwise).  Positions are quantized to ``position_resolution``
+per joint (``res * round(q / res)``; 0 = exact).
+
+Stability: in the loop (the controller subtracts ``d_hat``, the plant
+integrates the held torque) the estimate's error follows
+``e_{k+1} = (I - Ts Y M^-1) e_k`` whichever discretization the observer
+uses, so the gain is limited by ``Ts lambda_max(Y M^-1) < 2`` for both;
+``"zoh"`` makes the observer's own update stable at any rate (it matters
+when the estimate is not fed back).  See ``docs/model.md``, "Digital observer".
+
+The blocks are python-control discrete-time systems (``dt = Ts``) and run
+in a :class:`~blocks.hybrid.HybridSystem` with the continuous plant::
+
+    trajectory --> controller --(tau_cmd)--> actuator --(tau)--> plant --(q, dq)--> [sensor] --> encoder
+                      ^    ^                                 |                                      |
+                      |    +---(d_hat)--- observer <---(tau)-+----------------(q_s, dq_s)-----------+
+                      +-----------------------------(q_s, dq_s)-------------------------------------+
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from .contract import Kernels, kernel_block
+from .gains import OBSERVER_VARIANTS, validated_gain
+from .kernels import arm_constants, gain_times, mass_solve, observer_estimate, observer_rate
+from .kernels.arm import bias_forces
+from .parameters import RobotParameters
+from .systems import controller_output, controller_output_with_estimate, signal_names
+
+__all__ = ["DigitalController", "DISCRETIZATIONS", "VELOCITY_SOURCES", "encoder", "digital_controller", "actuator",
+           "digital_observer", "euler_stability_limit"]
+
+DISCRETIZATIONS = ("euler", "zoh")
+VELOCITY_SOURCES = ("measured", "difference")
+
+
+@dataclass(frozen=True)
+class DigitalController:
+    """How the controller is implemented: its rate, delay, encoders, velocity estimate and torque limits.
+
+    Parameters
+    ----------
+    sample_rate : float
+        Samples per second (Hz), finite and > 0.
+    delay : int
+        Whole samples between reading the sensors and applying the torque, >= 0.
+    observer_discretization : {"euler", "zoh"}
+        The observer's update: forward Euler, or the exact solution with its inputs held over the sample.
+    velocity : {"measured", "difference"}
+        Sampled velocity signal, or backward difference of the sampled positions.
+    velocity_cutoff : float, optional
+        Cut-off (Hz) of the first-order low-pass on the difference, below the
+        Nyquist frequency ``sample_rate / 2``; only with ``"difference"``.
+    position_resolution : 4 floats
+        Encoder quantization step per joint (rad, rad, m, rad), >= 0; 0 = exact.
+    torque_limit : 4 floats
+        Saturation per joint (N m, N m, N, N m), >= 0; 0 = none.
+    """
+
+    sample_rate: float
+    delay: int = 0
+    observer_discretization: str = "euler"
+    velocity: str = "measured"
+    velocity_cutoff: float | None = None
+    position_resolution: tuple = (0.0, 0.0, 0.0, 0.0)
+    torque_limit: tuple = (0.0, 0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        rate = self.sample_rate
+        if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not math.isfinite(rate) or rate <= 0:
+            raise ValueError(f"'controller.sample_rate' must be a finite number of Hz > 0, got {rate!r}")
+        object.__setattr__(self, "sample_rate", float(rate))
+        d = self.delay
+        if isinstance(d, bool) or not isinstance(d, (int, np.integer)) or d < 0:
+            raise ValueError(f"'controller.delay' must be a whole number of samples >= 0, got {d!r}")
+        object.__setattr__(self, "delay", int(d))
+        if self.observer_discretization not in DISCRETIZATIONS:
+            raise ValueError(f"'controller.observer_discretization' must be one of {list(DISCRETIZATIONS)}, "
+                             f"got {self.observer_discretization!r}")
+        if self.velocity not in VELOCITY_SOURCES:
+            raise ValueError(f"'controller.velocity' must be one of {list(VELOCITY_SOURCES)}, got {self.velocity!r}")
+        fc = self.velocity_cutoff
+        if fc is not None:
+            if self.velocity != "difference":
+                raise ValueError("'controller.velocity_cutoff' filters the position difference: it needs "
+                                 f"velocity = \"difference\" (velocity is {self.velocity!r})")
+            if isinstance(fc, bool) or not isinstance(fc, (int, float)) or not math.isfinite(fc) or fc <= 0:
+                raise ValueError(f"'controller.velocity_cutoff' must be a finite number of Hz > 0, got {fc!r}")
+            if fc >= rate / 2:
+                raise ValueError(f"'controller.velocity_cutoff' ({fc:g} Hz) must be below the Nyquist frequency "
+                                 f"sample_rate / 2 = {rate / 2:g} Hz")
+            object.__setattr__(self, "velocity_cutoff", float(fc))
+        for name, unit in (("position_resolution", "rad, rad, m, rad"), ("torque_limit", "N m, N m, N, N m")):
+            value = getattr(self, name)
+            try:
+                arr = np.asarray(value, dtype=float)
+            except (TypeError, ValueError):
+                arr = np.array([np.nan])
+            if arr.shape != (4,) or not np.all(np.isfinite(arr)) or np.any(arr < 0) or \
+                    any(isinstance(v, bool) for v in np.ravel(np.asarray(value, dtype=object))):
+                raise ValueError(f"'controller.{name}' must be 4 finite numbers >= 0 ({unit}), got {value!r}")
+            object.__setattr__(self, name, tuple(float(v) for v in arr))
+
+    @property
+    def period(self) -> float:
+        """The sample period ``Ts`` (s)."""
+        return 1.0 / self.sample_rate
+
+    @property
+    def filter_pole(self) -> float:
+        """``a = exp(-2 pi f_c Ts)`` of the velocity low-pass (0: no filter)."""
+        return 0.0 if self.velocity_cutoff is None else math.exp(-2 * math.pi * self.velocity_cutoff * self.period)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Discrete block kernels: outputs y_k = g(x_k, u_k), updates x_{k+1} = f(x_k, u_k)
+# --------------------------------------------------------------------------------------------------------------
+def quantized(q, resolution):
+    """``res * round(q / res)`` per joint, ``q`` itself where the resolution is 0."""
+    steps = resolution > 0
+    return np.where(steps, np.round(q / np.where(steps, resolution, 1.0)) * resolution, q)
+
+
+def encoder_measured_output(t, x, u, resolution):
+    """Sampled ``[q_s; dq_s]``: quantized positions and the velocity signal as measured."""
+    n = resolution.shape[0]
+    return np.concatenate((quantized(u[:n], resolution), u[n:]))
+
+
+def encoder_difference_output(t, x, u, resolution, period, pole):
+    """Sampled ``[q_s; dq_s]`` with ``dq_s`` the low-passed backward difference; state ``[q_s(k-1); dq_s(k-1)]``."""
+    n = resolution.shape[0]
+    q_s = quantized(u[:n], resolution)
+    return np.concatenate((q_s, pole * x[n:] + (1.0 - pole) * (q_s - x[:n]) / period))
+
+
+def encoder_difference_update(t, x, u, resolution, period, pole):
+    """The encoder's next state: this sample's position and velocity estimate."""
+    return encoder_difference_output(t, x, u, resolution, period, pole)
+
+
+def actuator_output(t, x, u, limit, n):
+    """The applied torque: the command (delay 0) or the oldest buffered one, saturated at ``limit``."""
+    command = u if x.shape[0] == 0 else x[:n]
+    return np.clip(command, -limit, limit)
+
+
+def actuator_update(t, x, u, limit, n):
+    """The buffer of commands not yet applied, oldest first."""
+    return np.concatenate((x[n:], u))
+
+
+def observer_euler_update(t, z, u, k, gain, eq16_weight, period):
+    """``z_{k+1} = z_k + Ts z'(q_k, dq_k, tau_k, z_k)``: inputs ``[tau; q_s; dq_s]``."""
+    n = z.shape[0]
+    return z + period * observer_rate(k, gain, eq16_weight, u[n:2 * n], u[2 * n:3 * n], u[:n], z)
+
+
+def observer_zoh_update(t, z, u, k, gain, eq16_weight, period):
+    """The exact solution of ``z' = A z + c`` over the sample, ``A = -Y M^(q_k)^-1`` and ``c`` frozen at ``t_k``.
+
+    ``z' = -Y M^-1 (tau + Y dq + z - N q' - G) - w Y dq`` is linear in ``z``
+    with the other inputs held; ``expm`` of the augmented matrix
+    ``[[A, c], [0, 0]] Ts`` gives ``z_{k+1} = e^{A Ts} z_k + (int_0^Ts e^{A s} ds) c``.
+    """
+    n = z.shape[0]
+    tau, q, dq = u[:n], u[n:2 * n], u[2 * n:3 * n]
+    m_inv = mass_solve(k, np.cos(q[1]), np.eye(n))                      # columns of M^-1
+    y_matrix = gain if gain.ndim == 2 else np.diag(gain)
+    A = -y_matrix @ m_inv
+    y_dq = gain_times(gain, dq)
+    c = A @ (tau + y_dq - bias_forces(k, np.sin(q[1]), dq)) - eq16_weight * y_dq
+    augmented = np.zeros((n + 1, n + 1))
+    augmented[:n, :n], augmented[:n, n] = A * period, c * period
+    step = scipy.linalg.expm(augmented)
+    return step[:n, :n] @ z + step[:n, n]
+
+
+def observer_sampled_output(t, z, u, k, gain, eq16_weight, period):
+    """``d_hat_k = Y dq_k + z_k``."""
+    n = z.shape[0]
+    return observer_estimate(gain, u[2 * n:3 * n], z)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Factories
+# --------------------------------------------------------------------------------------------------------------
+def encoder(settings: DigitalController, measured: str = "", name: str = "encoder"):
+    """Sampled positions ``q_s[i]`` and velocity estimate ``dq_s[i]`` from ``q[i]``, ``dq[i]`` (or ``*_meas``)."""
+    res = np.array(settings.position_resolution)
+    inputs = signal_names("q" + measured) + signal_names("dq" + measured)
+    outputs = signal_names("q_s") + signal_names("dq_s")
+    if settings.velocity == "measured":
+        return kernel_block(Kernels((res,), encoder_measured_output, column_params=(res,)), name=name,
+                            inputs=inputs, outputs=outputs, feedthrough=inputs, dt=settings.period)
+    params = (res, settings.period, settings.filter_pole)
+    return kernel_block(Kernels(params, encoder_difference_output, encoder_difference_update, column_params=params),
+                        name=name, inputs=inputs, outputs=outputs, dt=settings.period,
+                        states=signal_names("q_prev") + signal_names("v_prev"),
+                        feedthrough=signal_names("q" + measured))
+
+
+def digital_controller(nominal: RobotParameters, kp, kd, settings: DigitalController, use_observer: bool = True,
+                       name: str = "controller"):
+    """Eq. 11 at each sample, from the sampled signals; output the command ``tau_cmd[i]``."""
+    Kp, Kd = validated_gain(kp, "kp"), validated_gain(kd, "kd")
+    inputs = [s for prefix in ("q_ref", "dq_ref", "ddq_ref", "q_s", "dq_s") for s in signal_names(prefix)]
+    if use_observer:
+        inputs += signal_names("d_hat")
+    law = controller_output_with_estimate if use_observer else controller_output
+    block = kernel_block(Kernels((arm_constants(nominal), np.diag(Kp).copy(), np.diag(Kd).copy()), law), name=name,
+                         inputs=inputs, outputs=signal_names("tau_cmd"), feedthrough=inputs, dt=settings.period)
+    block.gains = {"kp": Kp, "kd": Kd}
+    return block
+
+
+def actuator(settings: DigitalController, name: str = "actuator"):
+    """Delay by ``settings.delay`` samples and saturate: ``tau_cmd[i]`` -> applied ``tau[i]``."""
+    limit = np.array([v if v > 0 else np.inf for v in settings.torque_limit])
+    n, d = limit.size, settings.delay
+    params = (limit, n)
+    inputs = signal_names("tau_cmd")
+    states = [f"buffer{j}[{i}]" for j in range(d) for i in range(n)]
+    return kernel_block(Kernels(params, actuator_output, actuator_update if d else None, column_params=params),
+                        name=name, inputs=inputs, outputs=signal_names("tau"), states=states,
+                        feedthrough=() if d else inputs, dt=settings.period)
+
+
+def digital_observer(nominal: RobotParameters, gain, settings: DigitalController, variant: str = "correct",
+                     name: str = "observer"):
+    """The observer sampled at ``settings.period``: inputs ``tau[i]`` (applied), ``q_s[i]``, ``dq_s[i]``."""
+    if variant not in OBSERVER_VARIANTS:
+        raise ValueError(f"observer variant {variant!r} is unknown; choose from {list(OBSERVER_VARIANTS)}")
+    Y = validated_gain(gain, "observer")
+    y_param = np.diag(Y).copy() if np.count_nonzero(Y - np.diag(np.diag(Y))) == 0 else np.array(Y)
+    update = observer_zoh_update if settings.observer_discretization == "zoh" else observer_euler_update
+    params = (arm_constants(nominal), y_param, 1.0 if variant == "paper-eq16" else 0.0, settings.period)
+    inputs = signal_names("tau") + signal_names("q_s") + signal_names("dq_s")
+    block = kernel_block(Kernels(params, observer_sampled_output, update), name=name, inputs=inputs,
+                         states=signal_names("z"), outputs=signal_names("d_hat"), feedthrough=signal_names("dq_s"),
+                         dt=settings.period)
+    block.gain = Y
+    return block
+
+
+def euler_stability_limit(nominal: RobotParameters, gain: np.ndarray, period: float, q_samples: np.ndarray) -> dict:
+    """The forward-Euler observer's stability margin over the configurations ``q_samples`` (N, 4).
+
+    The Euler update's error map is ``I - Ts Y M^-1(q)``; it is stable when
+    every eigenvalue ``lambda`` of ``Y M^-1`` has ``|1 - Ts lambda| < 1``,
+    i.e. (for real ``lambda``) ``lambda < 2 / Ts``.  Scaling the gain by
+    ``c`` keeps it stable while ``c < 2 Re(lambda) / (Ts |lambda|^2)`` for all
+    of them.
+
+    Returns
+    -------
+    dict
+        ``stable`` (bool), ``largest_eigenvalue`` (1/s, largest ``|lambda|``),
+        ``largest_stable_scale`` (the factor ``c`` above; the gain times it is
+        the largest stable gain of this shape), ``q_worst`` (where ``c`` is smallest).
+    """
+    from .dynamics import inertia
+    q_samples = np.atleast_2d(np.asarray(q_samples, dtype=float))
+    lam = np.linalg.eigvals(gain[None] @ np.linalg.inv(inertia(q_samples, nominal)))       # (N, 4)
+    scale = 2 * lam.real / (period * np.abs(lam) ** 2)
+    worst = np.unravel_index(np.argmin(scale), scale.shape)
+    return {"stable": bool(np.all(np.abs(1 - period * lam) < 1)), "largest_eigenvalue": float(np.abs(lam).max()),
+            "largest_stable_scale": float(scale[worst]), "q_worst": q_samples[worst[0]].tolist()}
