@@ -56,14 +56,19 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except (ValueError, OSError, RuntimeError) as err:
+    except (ValueError, OSError, RuntimeError, TypeError) as err:
         # Expected failures (bad scenario, unreachable path, diverging run, bad FMU, unwritable folder): one line.
         print(f"dobkit {args.command}: error: {err}", file=sys.stderr)
         return 2
     except MemoryError:
-        print(f"dobkit {args.command}: error: out of memory; use a coarser output_step or a shorter t_final",
-              file=sys.stderr)
+        # the jobs estimate their memory before they start; this is what the estimate did not foresee
+        print(f"dobkit {args.command}: error: out of memory (the machine had less free memory than the job's "
+              "estimate allowed for); nothing was written", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        # output folders are staged: an interrupted command leaves no partial results behind
+        print(f"dobkit {args.command}: interrupted; nothing partial was written", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":
