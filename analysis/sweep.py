@@ -80,7 +80,8 @@ from blocks.progress import count_progress
 from blocks.scenario import Scenario, ScenarioError, load_scenario, parse_key
 
 __all__ = ["SweepError", "Distribution", "Run", "RunList", "RunPlan", "SweepSpec", "load_sweep", "sweep_from_dict",
-           "split_changes", "json_default", "check_name", "differences", "DISTRIBUTIONS", "ENGINES", "SWEEP_RUN_BYTES", "CHECK_PROGRESS_RUNS",
+           "split_changes", "json_default", "check_name", "differences", "run_schedule", "DISTRIBUTIONS", "ENGINES",
+           "SWEEP_RUN_BYTES", "CHECK_PROGRESS_RUNS",
            "PRESENTATION_KEYS"]
 
 ENGINES = ("batch", "fast")
@@ -592,7 +593,8 @@ def _distribution(spec, label: str, fail) -> Distribution:
         weights = params.get("weights")
         if weights is not None:
             ok = isinstance(weights, list) and len(weights) == len(values) and all(
-                not isinstance(w, bool) and isinstance(w, (int, float)) and math.isfinite(w) and w >= 0 for w in weights)
+                not isinstance(w, bool) and isinstance(w, (int, float)) and math.isfinite(w) and w >= 0
+                for w in weights)
             if not ok or sum(weights) <= 0:
                 fail(f"{label}: 'weights' must be {len(values)} numbers >= 0 with a positive sum, got {weights!r}")
     return Distribution(kind=kind, params=dict(params))
@@ -702,7 +704,7 @@ def _plan_group(spec: SweepSpec, base: Scenario, members: np.ndarray, plan: RunP
         classes.setdefault((int(plan.substeps[i]), bool(plan.noise[i])), i)
     for (substeps, noisy), i in classes.items():
         values = runs.values(i)[0]
-        estimate = _run_estimate(spec, base, quiet, split_changes(values)[1], substeps, noisy, samples)
+        estimate = _run_estimate(spec, base, quiet, split_changes(values)[1], substeps, noisy)
         what = f"{spec.name}: run {i} ({_describe(values)})"
         spec.budget.check(estimate, what)
         if plan.largest is None or (estimate.steps, estimate.memory) > (plan.largest.steps, plan.largest.memory):
@@ -732,6 +734,31 @@ def _noise_samples(base: Scenario) -> int:
     return int(math.ceil(sim.t_final / base.data["noise"]["sample_period"])) + 2
 
 
+@dataclass(frozen=True)
+class Schedule:
+    """The size of a run's fixed-step schedule (see :func:`run_schedule`), counted, not built."""
+
+    steps: int
+    grid_points: int
+    noise_samples: int
+    grid_steps: int
+    path_breaks: int
+    noise_breaks: int
+
+
+def run_schedule(base: Scenario, substeps: int, noisy: bool) -> Schedule:
+    """Steps of a batch run of ``base`` (shared scenario) at ``substeps`` per output interval, with or without
+    noise: the output grid divided by ``substeps``, plus the path's phase boundaries and, with noise, the noise
+    sample times (as :func:`blocks.batch.schedule.batch_schedule` builds them; an upper bound)."""
+    sim = base.simulation
+    grid_steps = schedule_steps(sim.t_final, sim.output_step, substeps)
+    path = _path_breakpoints(base)
+    samples = _noise_samples(base)
+    noise_breaks = samples - 3 if noisy else 0
+    return Schedule(steps=grid_steps + path + noise_breaks, grid_points=int(round(sim.t_final / sim.output_step)) + 1,
+                    noise_samples=samples, grid_steps=grid_steps, path_breaks=path, noise_breaks=noise_breaks)
+
+
 def _path_breakpoints(base: Scenario) -> int:
     """Breakpoints of the reference before ``t_final`` (the laceration path's phase boundaries), counted."""
     trajectory, t_final = base.trajectory, base.simulation.t_final
@@ -743,16 +770,14 @@ def _path_breakpoints(base: Scenario) -> int:
     return len(list(explicit())) if callable(explicit) else 0
 
 
-def _run_estimate(spec: SweepSpec, base: Scenario, quiet: Scenario, record: dict, substeps: int, noisy: bool,
-                  samples: int) -> Estimate:
+def _run_estimate(spec: SweepSpec, base: Scenario, quiet: Scenario, record: dict, substeps: int,
+                  noisy: bool) -> Estimate:
     """Steps and one-run batch memory of a run, with the key that drives the step count."""
     sim = base.simulation
-    grid_steps = schedule_steps(sim.t_final, sim.output_step, substeps)
-    path = _path_breakpoints(base)
-    noise_breaks = samples - 3 if noisy else 0
-    steps = grid_steps + path + noise_breaks
-    n_grid = int(round(sim.t_final / sim.output_step))
-    causes = {"grid": grid_steps, "path": path, "noise": noise_breaks}
+    size = run_schedule(base, substeps, noisy)
+    path = size.path_breaks
+    n_grid = size.grid_points - 1
+    causes = {"grid": size.grid_steps, "path": path, "noise": size.noise_breaks}
     cause = max(causes, key=causes.get)
     if cause == "path":
         key, reason = "trajectory.stitches", (f"{path:.3g} phase boundaries of a {base.trajectory.stitches}-stitch "
@@ -766,9 +791,8 @@ def _run_estimate(spec: SweepSpec, base: Scenario, quiet: Scenario, record: dict
         key, reason = "batch.substeps", f"{n_grid:.3g} output intervals x {substeps} substeps"
     else:
         key, reason = _step_cause(quiet, record, spec.observer, n_grid, substeps)
-    estimate = estimate_batch(1, steps=steps, grid_points=n_grid + 1, noise=noisy, noise_samples=samples,
-                              keys={"steps": key}, steps_reason=reason)
-    return estimate
+    return estimate_batch(1, steps=size.steps, grid_points=size.grid_points, noise=noisy,
+                          noise_samples=size.noise_samples, keys={"steps": key}, steps_reason=reason)
 
 
 def _step_cause(quiet: Scenario, record: dict, observer: bool, n_grid: int, substeps: int) -> tuple[str, str]:

@@ -53,8 +53,7 @@ from blocks.budget import Budget, BudgetError, largest_batch
 from blocks.progress import ProgressCallback, count_progress
 from blocks.scenario import Scenario, scenario_from_dict
 from blocks.workers import worker_pool
-from .sweep import SweepError, SweepSpec, _noise_samples, _path_breakpoints, differences, json_default, load_sweep, \
-    split_changes
+from .sweep import SweepError, SweepSpec, differences, json_default, load_sweep, run_schedule, split_changes
 
 __all__ = ["run_sweep", "read_results", "read_header", "ResultsFile", "SweepOutcome", "simulate_chunk",
            "results_lock", "ROW_STATUSES"]
@@ -374,15 +373,13 @@ def _payloads(spec: SweepSpec, pending: np.ndarray, workers: int, budget: Budget
         base = base_for[g]
         n = size
         if spec.engine == "batch":
-            sim = base.simulation
-            steps = int(round(sim.t_final / sim.output_step)) * substeps + _path_breakpoints(base) + \
-                (_noise_samples(base) if noisy else 0)
-            fits = largest_batch(share.memory, steps=steps, grid_points=int(round(sim.t_final / sim.output_step)) + 1,
-                                 noise=noisy, noise_samples=_noise_samples(base))
+            schedule = run_schedule(base, substeps, noisy)
+            fits = largest_batch(share.memory, steps=schedule.steps, grid_points=schedule.grid_points, noise=noisy,
+                                 noise_samples=schedule.noise_samples)
             if fits < 1:
-                raise BudgetError(f"{spec.name}: one run of {steps:.3g} steps does not fit in the memory budget of "
-                                  f"{workers} workers running at a time ({share.memory / 2 ** 20:.0f} MiB each); use "
-                                  "fewer --workers or raise --max-memory", key="workers", limit="memory")
+                raise BudgetError(f"{spec.name}: one run of {schedule.steps:.3g} steps does not fit in the memory "
+                                  f"budget of {workers} workers running at a time ({share.memory / 2 ** 20:.0f} MiB "
+                                  "each); use fewer --workers or raise --max-memory", key="workers", limit="memory")
             n = min(n, fits)
         for start in range(0, members.size, n):
             runs = []
@@ -511,7 +508,8 @@ def run_sweep(spec: SweepSpec | str | Path, results: str | Path, scheduler: str 
             count_progress(progress, len(spec.runs), skipped, label="sweep").close()
             outcome.seconds = time.perf_counter() - t0
             return outcome
-        client = _dask_client(scheduler, scheduler_timeout) if scheduler is not None else None     # connect before writing anything
+        # connect before writing anything: a failed connection leaves no results file
+        client = _dask_client(scheduler, scheduler_timeout) if scheduler is not None else None
         writer = _Writer(results, spec.header())
         bar = count_progress(progress, len(spec.runs), skipped, label="sweep")
 

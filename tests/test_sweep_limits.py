@@ -232,3 +232,34 @@ def test_the_wall_time_budget_stops_between_batches_keeping_the_finished_runs(tm
     assert len(read_results(results)[1]) == 1
     outcome = run_sweep(load_sweep(path), results, workers=1, progress=False)
     assert (outcome.skipped, outcome.ran) == (1, 3)
+
+
+@pytest.mark.slow
+def test_a_run_costs_the_sweep_less_than_its_stated_bookkeeping(tmp_path):
+    """SWEEP_RUN_BYTES (the sweep-size check) bounds what each run adds to finding the pending runs and to the
+    summary, measured with tracemalloc over a results file with every metric."""
+    from analysis.sweep import SWEEP_RUN_BYTES
+    from analysis.sweep_report import summarize
+    from analysis.sweep_runner import ResultsFile, read_header
+    from blocks.batch import METRICS
+    rng = np.random.default_rng(0)
+    peaks = {}
+    for n in (1000, 4000):
+        spec = sweep_from_dict({"scenario": "paper", "grid": {"gains.kp": list(range(100, 100 + n // 10))},
+                                "monte_carlo": {"runs": 10, "distributions": {
+                                    "nominal_scale.m1": {"kind": "uniform", "low": 0.8, "high": 1.2}}}})
+        path = tmp_path / f"r{n}.jsonl"
+        with path.open("w") as fh:
+            fh.write(json.dumps(spec.header()) + "\n")
+            for run in spec.runs:
+                metrics = {m: float(rng.random()) if m.endswith("_mm") else rng.random(4).tolist() for m in METRICS}
+                fh.write(json.dumps({"run_id": run.run_id, "index": run.index, "values": run.values, "status": "ok",
+                                     "metrics": metrics, "engine": "batch", "seconds": 0.001}) + "\n")
+
+        def pending():
+            finished = {row["run_id"] for row in ResultsFile(path, read_header(path)).rows()}
+            return [i for i in range(len(spec.runs)) if spec.runs.run_id(i) not in finished]
+
+        plan = spec.plan.group.nbytes + spec.plan.substeps.nbytes + spec.plan.noise.nbytes     # held throughout
+        peaks[n] = _peak(pending) + _peak(lambda: summarize(path, spec)) + plan
+    assert (peaks[4000] - peaks[1000]) / 3000 <= SWEEP_RUN_BYTES

@@ -225,5 +225,5 @@ def test_an_ordinary_gain_grid_is_summarised(tmp_path, short_file):
     summary = summarize(tmp_path / "r.jsonl", spec)
     peak = summary.statistics["max_abs_disturbance_error[0]"]
     assert peak.max - peak.min <= 1e-12 * peak.max
-    assert [f.file for f in files["summary"].figures] == ["hist_max_abs_disturbance_error.png",
-                                                          "hist_max_tool_position_error_mm.png", "worst_vs_gains_kp.png"]
+    assert [f.file for f in files["summary"].figures] == [
+        "hist_max_abs_disturbance_error.png", "hist_max_tool_position_error_mm.png", "worst_vs_gains_kp.png"]
