@@ -6,89 +6,283 @@
     from analysis.sweep_runner import run_sweep
     outcome = run_sweep(load_sweep("robustness.toml"), "robustness-results.jsonl")
 
-Results go to a JSON-lines file: a header line describing the sweep, then one
+Results go to a JSON-lines file: a header line describing the sweep (with its
+*definition*, the hash of everything that decides its runs and rows), then one
 line per finished run, appended as batches finish and flushed to disk --
 ``run_id``, ``index``, ``values`` (by sweep key), ``status`` (``ok`` or
-``diverged``), ``metrics``, ``engine``, ``seconds``.  Running the same sweep
-again skips every run whose id the file already holds, so a sweep stopped half
-way completes without repeating or losing finished runs; a line cut off by a
-kill is dropped and that run is done again.
+``diverged``), ``metrics``, ``engine``, ``substeps`` (batch engine),
+``seconds``.  Running the same sweep again skips every run whose id the file
+already holds, so a sweep stopped half way (killed, interrupted with Ctrl-C,
+or out of its wall-time budget) completes without repeating or losing finished
+runs; a line cut off by a kill is dropped and that run is done again.
+
+One file, one sweep
+    A results file whose header records another definition (an edited grid,
+    other metrics, another base scenario) is refused with what differs;
+    ``restart=True`` (``--restart``) moves it aside, under a name that says
+    which definition it held, and starts a new file.  Only the name,
+    description and worst-case settings may change: the header is then
+    rewritten in place.
+One writer
+    While a sweep runs, ``<results>.lock`` is locked (``flock``); a second
+    ``run_sweep`` on the same file is refused with the first one's process id,
+    host and start time.  The lock ends with the process, however it ends.
 """
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import itertools
 import json
 import math
 import os
+import signal
+import socket
+import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, wait
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from datetime import datetime
 from pathlib import Path
-from typing import Callable, Iterable
+from typing import Callable, Iterable, Iterator
 
-from blocks.batch import Variants, noise_breakpoints, simulate_batch
+import numpy as np
+
+from blocks.batch import Variants, simulate_batch
+from blocks.budget import Budget, BudgetError, largest_batch
 from blocks.progress import ProgressCallback, count_progress
 from blocks.scenario import Scenario, scenario_from_dict
 from blocks.workers import worker_pool
-from .sweep import Run, SweepError, SweepSpec, json_default, load_sweep, split_changes
+from .sweep import SweepError, SweepSpec, differences, json_default, load_sweep, run_schedule, split_changes
 
-__all__ = ["run_sweep", "read_results", "SweepOutcome", "simulate_chunk"]
+__all__ = ["run_sweep", "read_results", "read_header", "ResultsFile", "SweepOutcome", "simulate_chunk",
+           "results_lock", "ROW_STATUSES"]
+
+#: Statuses of a finished run.
+ROW_STATUSES = ("ok", "diverged")
+
+
+# --------------------------------------------------------------------------------------------
+# Reading the results file
+# --------------------------------------------------------------------------------------------
+def row_problem(record) -> str:
+    """Why a parsed line is not a usable run row ('' if it is)."""
+    if not isinstance(record, dict):
+        return "not a JSON object"
+    missing = [k for k in ("run_id", "index", "values", "status", "metrics") if k not in record]
+    if missing:
+        return f"missing {', '.join(missing)}"
+    if not isinstance(record["run_id"], str) or not record["run_id"]:
+        return f"run_id {record['run_id']!r} is not text"
+    if isinstance(record["index"], bool) or not isinstance(record["index"], int) or record["index"] < 0:
+        return f"index {record['index']!r} is not a whole number >= 0"
+    if not isinstance(record["values"], dict):
+        return "values is not an object"
+    if record["status"] not in ROW_STATUSES:
+        return f"status {record['status']!r} is not one of {list(ROW_STATUSES)}"
+    if not isinstance(record["metrics"], dict):
+        return "metrics is not an object"
+    for name, value in record["metrics"].items():
+        values = value if isinstance(value, list) else [value]
+        if not all(v is None or (isinstance(v, (int, float)) and not isinstance(v, bool)) for v in values):
+            return f"metric {name!r} is not a number or a list of numbers"
+    return ""
+
+
+@dataclass
+class ResultsFile:
+    """A results file read line by line: its header, its usable rows, and the lines it could not use.
+
+    Attributes
+    ----------
+    header : dict or None
+        The sweep header (first line), None for a missing or empty file.
+    problems : list of str
+        One entry per line that is not a usable row (``"line 7: missing values"``).
+    """
+
+    path: Path
+    header: dict | None = None
+    problems: list = field(default_factory=list)
+
+    def rows(self) -> Iterator[dict]:
+        """The usable run rows, in file order; a truncated last line (a killed writer) is not a row."""
+        self.problems = []
+        if not self.path.exists():
+            return
+        with self.path.open("r", encoding="utf-8") as fh:
+            for number, line in enumerate(fh, start=1):
+                if not line.endswith("\n"):
+                    break                      # cut off mid-write: that run was not finished
+                if not line.strip():
+                    continue
+                try:
+                    record = json.loads(line)
+                except json.JSONDecodeError as err:
+                    self.problems.append(f"line {number}: not JSON ({err.msg})")
+                    continue
+                if number == 1 and isinstance(record, dict) and "sweep" in record:
+                    continue
+                problem = row_problem(record)
+                if problem:
+                    self.problems.append(f"line {number}: {problem}")
+                    continue
+                yield record
+
+
+def read_header(path: str | Path) -> dict | None:
+    """The sweep header of a results file (its first line), or None when the file is missing or has none."""
+    path = Path(path)
+    if not path.exists():
+        return None
+    with path.open("r", encoding="utf-8") as fh:
+        first = fh.readline()
+    if not first.endswith("\n"):
+        return None
+    try:
+        record = json.loads(first)
+    except json.JSONDecodeError:
+        return None
+    return record["sweep"] if isinstance(record, dict) and isinstance(record.get("sweep"), dict) else None
 
 
 def read_results(path: str | Path) -> tuple[dict | None, list[dict]]:
-    """The header and the run rows of a results file; a truncated last line (a killed writer) is ignored."""
-    path = Path(path)
-    if not path.exists():
-        return None, []
-    header, rows = None, []
-    with path.open("r", encoding="utf-8") as fh:
-        for line in fh:
-            if not line.endswith("\n"):
-                break                      # cut off mid-write: that run was not finished
-            try:
-                record = json.loads(line)
-            except json.JSONDecodeError:
-                continue
-            if "sweep" in record and header is None:
-                header = record["sweep"]
-            elif "run_id" in record:
-                rows.append(record)
-    return header, rows
+    """The header and the usable run rows of a results file (see :class:`ResultsFile` for the lines left out)."""
+    results = ResultsFile(Path(path), read_header(path))
+    return results.header, list(results.rows())
+
+
+# --------------------------------------------------------------------------------------------
+# Writing it: one writer at a time, whole lines only
+# --------------------------------------------------------------------------------------------
+@contextlib.contextmanager
+def results_lock(results: Path):
+    """Hold ``<results>.lock`` (an exclusive ``flock``) while the block runs.
+
+    Raises
+    ------
+    SweepError
+        When another process holds it; the message says which (process id, host, since when).
+    """
+    path = results.with_name(results.name + ".lock")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.read(fd, 500).decode("utf-8", "replace").strip() or "a process that did not say who it is"
+            os.close(fd)
+            raise SweepError(f"results file '{results}' is in use by another sweep ({holder}); wait for it to "
+                             "end, or give this one another --results file") from None
+        try:
+            same = os.fstat(fd).st_ino == os.stat(path).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)             # the previous holder removed the file between our open and our lock: again
+    try:
+        os.ftruncate(fd, 0)
+        os.write(fd, f"pid {os.getpid()} on {socket.gethostname()}, since {datetime.now():%Y-%m-%d %H:%M:%S}\n"
+                 .encode())
+        yield path
+    finally:
+        with contextlib.suppress(OSError):
+            os.unlink(path)
+        os.close(fd)
 
 
 def _repair(path: Path) -> None:
-    """Cut a partial last line left by a writer that was killed mid-line."""
+    """Cut a partial last line left by a writer that was killed or interrupted mid-line."""
     if not path.exists() or path.stat().st_size == 0:
         return
     with path.open("rb+") as fh:
-        data = fh.read()
-        if not data.endswith(b"\n"):
-            fh.truncate(data.rfind(b"\n") + 1)
+        fh.seek(0, os.SEEK_END)
+        size = fh.tell()
+        fh.seek(max(0, size - 1))
+        if fh.read(1) == b"\n":
+            return
+        # find the last newline, reading backwards in blocks
+        end = size
+        while end > 0:
+            start = max(0, end - 65536)
+            fh.seek(start)
+            block = fh.read(end - start)
+            cut = block.rfind(b"\n")
+            if cut >= 0:
+                fh.truncate(start + cut + 1)
+                return
+            end = start
+        fh.truncate(0)
+
+
+def _atomic_write_lines(path: Path, lines: Iterable[str]) -> None:
+    """Write a file through a temporary sibling and a rename, so that a crash leaves the old or the new file."""
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        with tmp.open("w", encoding="utf-8") as fh:
+            for line in lines:
+                fh.write(line)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
 
 
 class _Writer:
-    """Appends rows to the results file; every batch is flushed and synced so a kill loses nothing finished."""
+    """Appends rows to the results file, creating it (header first) with the first rows: a sweep that fails
+    before any run finishes leaves no file.  Every batch is written whole, flushed and synced."""
 
     def __init__(self, path: Path, header: dict) -> None:
-        _repair(path)
-        new = not path.exists() or path.stat().st_size == 0
-        path.parent.mkdir(parents=True, exist_ok=True)
-        self.fh = path.open("a", encoding="utf-8")
-        if new:
-            self.write([header])
+        self.path, self.header, self.fh = path, header, None
 
     def write(self, rows: Iterable[dict]) -> None:
-        self.fh.write("".join(json.dumps(r, default=json_default) + "\n" for r in rows))
+        text = "".join(json.dumps(r, default=json_default, allow_nan=False) + "\n" for r in rows)
+        if self.fh is None:
+            _repair(self.path)
+            new = not self.path.exists() or self.path.stat().st_size == 0
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self.fh = self.path.open("a", encoding="utf-8")
+            if new:
+                text = json.dumps(self.header, default=json_default) + "\n" + text
+        self.fh.write(text)
         self.fh.flush()
         os.fsync(self.fh.fileno())
 
     def close(self) -> None:
-        self.fh.close()
+        if self.fh is not None:
+            self.fh.close()
+            _repair(self.path)          # an interrupted write may have left part of a line
 
 
+def _strict(value):
+    """A metric value with non-finite numbers as None (strict JSON; the summary reads None as not finite)."""
+    if isinstance(value, list):
+        return [_strict(v) for v in value]
+    return value if value is None or math.isfinite(value) else None
+
+
+# --------------------------------------------------------------------------------------------
+# Simulating a chunk (in this process, a worker process or on a Dask worker)
+# --------------------------------------------------------------------------------------------
 @dataclass
 class SweepOutcome:
-    """Counts of a :func:`run_sweep` call: runs in the sweep, found finished, run now, and diverged now."""
+    """What a :func:`run_sweep` call did.
+
+    Attributes
+    ----------
+    total, skipped, ran, diverged : int
+        Runs in the sweep, found finished in the results file, run now, and diverged now.
+    results : pathlib.Path
+    seconds : float
+    moved_to : pathlib.Path or None
+        Where an old results file of another definition was moved (``restart=True``).
+    problems : list of str
+        Lines of the results file that are not usable rows (their runs are done again).
+    """
 
     total: int
     skipped: int
@@ -96,14 +290,16 @@ class SweepOutcome:
     diverged: int
     results: Path
     seconds: float
+    moved_to: Path | None = None
+    problems: list = field(default_factory=list)
 
 
 def simulate_chunk(payload: dict) -> list[dict]:
     """Run one chunk of a sweep and return its rows (picklable in and out: used by processes and Dask).
 
     ``payload``: ``scenario`` (data dict) and ``source``, ``observer``, ``engine``, ``substeps``,
-    ``noise`` (step on the noise sample times), ``metrics``, and ``runs`` as a list of
-    ``{run_id, index, values, draw, member}`` where ``member`` holds the run's per-member scenario keys.
+    ``metrics``, and ``runs`` as a list of ``{run_id, index, values, draw, member}`` where ``member``
+    holds the run's per-member scenario keys.
     """
     base = scenario_from_dict(payload["scenario"], source=payload["source"])
     runs = payload["runs"]
@@ -111,13 +307,12 @@ def simulate_chunk(payload: dict) -> list[dict]:
     rows = []
     if payload["engine"] == "batch":
         result = simulate_batch(None, Variants(base, [r["member"] for r in runs]), observer=payload["observer"],
-                                metrics=payload["metrics"], substeps=payload["substeps"],
-                                breakpoints=noise_breakpoints(base) if payload.get("noise") else ())
+                                metrics=payload["metrics"], substeps=payload["substeps"])
         seconds = (time.perf_counter() - t0) / len(runs)
         for i, r in enumerate(runs):
             ok = bool(result.ok[i])
             rows.append(_row(r, "ok" if ok else "diverged", result.member_metrics(i) if ok else {},
-                             None if ok else float(result.failed_at[i]), seconds, "batch"))
+                             None if ok else float(result.failed_at[i]), seconds, "batch", substeps=result.substeps))
         return rows
     from blocks.loop import SimulationError, simulate
     from blocks.metrics import tracking_metrics
@@ -126,50 +321,135 @@ def simulate_chunk(payload: dict) -> list[dict]:
         try:
             response = simulate(base.with_changes(r["member"]), observer=payload["observer"])
         except SimulationError as err:
-            rows.append(_row(r, "diverged", {}, None, time.perf_counter() - t1, "fast", str(err)))
+            rows.append(_row(r, "diverged", {}, None, time.perf_counter() - t1, "fast", message=str(err)))
             continue
         metrics = tracking_metrics(response)
         rows.append(_row(r, "ok", {m: metrics[m] for m in payload["metrics"]}, None, time.perf_counter() - t1, "fast"))
     return rows
 
 
-def _row(run: dict, status: str, metrics: dict, failed_at, seconds: float, engine: str, message: str = "") -> dict:
+def _chunk_in_worker(payload: dict) -> list[dict]:
+    """:func:`simulate_chunk` in a worker process, which leaves Ctrl-C to the process that started it."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    return simulate_chunk(payload)
+
+
+def _row(run: dict, status: str, metrics: dict, failed_at, seconds: float, engine: str, message: str = "",
+         substeps: int | None = None) -> dict:
     row = {"run_id": run["run_id"], "index": run["index"], "values": run["values"], "status": status,
-           "metrics": metrics, "engine": engine, "seconds": round(seconds, 6)}
+           "metrics": {k: _strict(v) for k, v in metrics.items()}, "engine": engine, "seconds": round(seconds, 6)}
+    if substeps is not None:
+        row["substeps"] = int(substeps)
     if run.get("draw") is not None:
         row["draw"] = run["draw"]
-    if failed_at is not None:
+    if failed_at is not None and math.isfinite(failed_at):
         row["failed_at"] = failed_at
     if message:
         row["message"] = message
     return row
 
 
-def _chunks(spec: SweepSpec, pending: list[Run], workers: int) -> list[dict]:
-    """Payloads: runs grouped by their shared scenario, cut into batches (smaller when that keeps all workers busy)."""
-    groups: dict[str, tuple[Scenario, list]] = {}
-    for run in pending:
-        structural, member = split_changes(run.values)
-        gkey = json.dumps(structural, sort_keys=True, default=json_default)
-        if gkey not in groups:
-            groups[gkey] = (spec.base.with_changes(structural), [])
-        groups[gkey][1].append({"run_id": run.run_id, "index": run.index, "values": run.values, "draw": run.draw,
-                                "member": member})
+def _payloads(spec: SweepSpec, pending: np.ndarray, workers: int, budget: Budget) -> Iterator[dict]:
+    """Payloads, made as they are needed: pending runs grouped by shared scenario, substeps and noise, cut
+    into batches of at most ``batch.size`` runs, fewer when the memory budget (shared by ``workers``
+    batches at a time) asks for it or when that keeps all workers busy."""
+    plan = spec.plan
+    order = pending[np.lexsort((pending, plan.noise[pending], plan.substeps[pending], plan.group[pending]))]
+    keys = np.stack([plan.group[order], plan.substeps[order], plan.noise[order].astype(np.int64)], axis=1)
+    bounds = np.flatnonzero(np.any(np.diff(keys, axis=0) != 0, axis=1)) + 1 if order.size else []
     size = spec.batch_size if spec.engine == "batch" else max(1, min(spec.batch_size, 8))
     size = max(1, min(size, math.ceil(len(pending) / max(1, workers))))
-    payloads = []
-    for gkey, (base, runs) in groups.items():
-        schedule = spec.schedules.get(gkey, {"substeps": spec.substeps, "noise": False})
-        for start in range(0, len(runs), size):
-            payloads.append({"scenario": base.data, "source": base.source, "observer": spec.observer,
-                             "engine": spec.engine, "substeps": schedule["substeps"], "noise": schedule["noise"],
-                             "metrics": list(spec.metrics), "runs": runs[start:start + size]})
-    return payloads
+    share = budget.share(workers)
+    base_for: dict[int, Scenario] = {}
+    for members in np.split(order, bounds):
+        if members.size == 0:
+            continue
+        first = int(members[0])
+        g, substeps, noisy = int(plan.group[first]), int(plan.substeps[first]), bool(plan.noise[first])
+        if g not in base_for:
+            base_for.clear()             # keep one shared scenario at a time
+            base_for[g] = spec.base.with_changes(plan.shared[g])
+        base = base_for[g]
+        n = size
+        if spec.engine == "batch":
+            schedule = run_schedule(base, substeps, noisy)
+            fits = largest_batch(share.memory, steps=schedule.steps, grid_points=schedule.grid_points, noise=noisy,
+                                 noise_samples=schedule.noise_samples)
+            if fits < 1:
+                raise BudgetError(f"{spec.name}: one run of {schedule.steps:.3g} steps does not fit in the memory "
+                                  f"budget of {workers} workers running at a time ({share.memory / 2 ** 20:.0f} MiB "
+                                  "each); use fewer --workers or raise --max-memory", key="workers", limit="memory")
+            n = min(n, fits)
+        for start in range(0, members.size, n):
+            runs = []
+            for i in members[start:start + n].tolist():
+                run = spec.runs[i]
+                runs.append({"run_id": run.run_id, "index": run.index, "values": run.values, "draw": run.draw,
+                             "member": split_changes(run.values)[1]})
+            yield {"scenario": base.data, "source": base.source, "observer": spec.observer, "engine": spec.engine,
+                   "substeps": substeps, "metrics": list(spec.metrics), "runs": runs}
+
+
+# --------------------------------------------------------------------------------------------
+# Running
+# --------------------------------------------------------------------------------------------
+def check_workers(workers) -> int:
+    """The number of local worker processes: None is all cores; anything but a whole number >= 1 is refused."""
+    if workers is None:
+        return os.cpu_count() or 1
+    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
+        raise SweepError(f"workers must be a whole number >= 1, got {workers!r}")
+    return int(workers)
+
+
+def _prepare(spec: SweepSpec, results: Path, restart: bool) -> Path | None:
+    """Make the results file the sweep's own: refuse (or, with ``restart``, move aside) a file of another
+    definition; rewrite the header when only the name or the worst-case settings changed.  Returns where an
+    old file was moved, if it was."""
+    header = read_header(results)
+    if header is None:
+        if results.exists() and results.stat().st_size > 0:
+            if not restart:
+                raise SweepError(f"results file '{results}' does not start with a sweep header, so it is not a "
+                                 "results file of this sweep; choose another --results file, or --restart to move it "
+                                 "aside and start anew")
+            return _move_aside(results, "unknown")
+        return None
+    new = spec.header()["sweep"]
+    if header.get("definition") != spec.definition:
+        if restart:
+            return _move_aside(results, str(header.get("definition") or "undefined"))
+        what = ", ".join(differences(header, new)) or "the sweep definition"
+        old = "written without a sweep definition (an older dobkit)" if "definition" not in header else \
+            f"of definition {header['definition']}"
+        raise SweepError(f"results file '{results}' belongs to sweep '{header.get('name')}' {old}, not to this "
+                         f"definition of sweep '{spec.name}' ({spec.definition}): {what} differ(s). Its rows would "
+                         "mix with this sweep's. Give this sweep another --results file, or --restart to move the "
+                         "old file aside and start anew")
+    if header != new:                 # the same runs; only how they are named or ranked changed
+        _repair(results)
+        with results.open("r", encoding="utf-8") as fh:
+            fh.readline()
+            _atomic_write_lines(results, itertools.chain([json.dumps({"sweep": new}, default=json_default) + "\n"],
+                                                         fh))
+    return None
+
+
+def _move_aside(results: Path, definition: str) -> Path:
+    target = results.with_name(f"{results.stem}.old-{definition[:16]}{results.suffix}")
+    k = 1
+    while target.exists():
+        target = results.with_name(f"{results.stem}.old-{definition[:16]}-{k}{results.suffix}")
+        k += 1
+    os.replace(results, target)
+    return target
 
 
 def run_sweep(spec: SweepSpec | str | Path, results: str | Path, scheduler: str | None = None,
               workers: int | None = None, progress: bool | ProgressCallback = True,
-              on_rows: Callable[[list[dict]], None] | None = None) -> SweepOutcome:
+              on_rows: Callable[[list[dict]], None] | None = None, restart: bool = False,
+              budget: Budget | None = None, scheduler_timeout: float = 10.0) -> SweepOutcome:
     """Run the sweep's unfinished runs and append their rows to ``results``.
 
     Parameters
@@ -180,7 +460,8 @@ def run_sweep(spec: SweepSpec | str | Path, results: str | Path, scheduler: str 
         The JSON-lines results file; runs whose id it already holds are skipped.
     scheduler : str, optional
         Address of a Dask distributed scheduler (``tcp://host:8786``); the
-        batches run on its workers.  Needs ``dask[distributed]``.
+        batches run on its workers.  Needs ``dask[distributed]``.  The
+        connection is made before the results file is touched.
     workers : int, optional
         Local worker processes (default: all cores); 1 runs in this process.
     progress : bool or callable
@@ -189,63 +470,117 @@ def run_sweep(spec: SweepSpec | str | Path, results: str | Path, scheduler: str 
         ``progress("sweep", finished / total)`` at the start and after every batch.
     on_rows : callable, optional
         Called with each batch's rows after they are written.
+    restart : bool
+        Move a results file of another sweep definition aside (see
+        :attr:`SweepOutcome.moved_to`) instead of refusing it.
+    budget : Budget, optional
+        Memory (shared by the batches in flight) and wall time; default: the
+        one the sweep was checked against.
+    scheduler_timeout : float
+        Seconds to wait for the Dask scheduler to answer.
 
     Returns
     -------
     SweepOutcome
+
+    Raises
+    ------
+    SweepError
+        On a results file of another definition, a results file in use, or bad ``workers``.
+    BudgetError
+        When the wall-time budget runs out (finished runs are kept: run again to go on).
     """
     spec = spec if isinstance(spec, SweepSpec) else load_sweep(spec)
+    budget = spec.budget if budget is None else budget
+    workers = check_workers(workers)
     results = Path(results)
-    header, rows = read_results(results)
-    if header is not None and header.get("name") != spec.name:
-        raise SweepError(f"results file '{results}' belongs to sweep '{header.get('name')}', not '{spec.name}'; "
-                         "choose another results file")
-    finished = {r["run_id"] for r in rows if r.get("status") in ("ok", "diverged")}
-    pending = [run for run in spec.runs if run.run_id not in finished]
-    skipped = len(spec.runs) - len(pending)
-    workers = (os.cpu_count() or 1) if workers is None else max(1, int(workers))
     t0 = time.perf_counter()
-    bar = count_progress(progress, len(spec.runs), skipped, label="sweep")
-    writer = _Writer(results, spec.header())
-    ran = diverged = 0
+    with results_lock(results):
+        moved = _prepare(spec, results, restart)
+        stored = ResultsFile(results, read_header(results))
+        finished = {row["run_id"] for row in stored.rows()}
+        pending = np.array([i for i in range(len(spec.runs)) if spec.runs.run_id(i) not in finished], dtype=np.int64)
+        skipped = len(spec.runs) - pending.size
+        del finished
+        outcome = SweepOutcome(total=len(spec.runs), skipped=skipped, ran=0, diverged=0, results=results, seconds=0.0,
+                               moved_to=moved, problems=list(stored.problems))
+        if pending.size == 0:
+            count_progress(progress, len(spec.runs), skipped, label="sweep").close()
+            outcome.seconds = time.perf_counter() - t0
+            return outcome
+        # connect before writing anything: a failed connection leaves no results file
+        client = _dask_client(scheduler, scheduler_timeout) if scheduler is not None else None
+        writer = _Writer(results, spec.header())
+        bar = count_progress(progress, len(spec.runs), skipped, label="sweep")
 
-    def take(new_rows: list[dict]) -> None:
-        nonlocal ran, diverged
-        writer.write(new_rows)
-        ran += len(new_rows)
-        diverged += sum(r["status"] == "diverged" for r in new_rows)
-        bar.update(len(new_rows))
-        if on_rows is not None:
-            on_rows(new_rows)
+        def take(new_rows: list[dict]) -> None:
+            writer.write(new_rows)
+            outcome.ran += len(new_rows)
+            outcome.diverged += sum(r["status"] == "diverged" for r in new_rows)
+            bar.update(len(new_rows))
+            if on_rows is not None:
+                on_rows(new_rows)
+            if budget.seconds is not None and time.perf_counter() - t0 > budget.seconds:
+                raise BudgetError(f"{spec.name}: the wall-time budget of {budget.seconds:g} s ran out after "
+                                  f"{outcome.ran} runs ({skipped + outcome.ran} of {len(spec.runs)} finished, kept in "
+                                  f"'{results}'); run the same command again to go on, or raise --max-seconds",
+                                  key="seconds", limit="seconds")
 
-    try:
-        if pending and scheduler is not None:
-            _run_dask(spec, pending, scheduler, take)
-        elif pending:
-            payloads = _chunks(spec, pending, workers)
-            if workers == 1 or len(payloads) == 1:
-                for payload in payloads:
-                    take(simulate_chunk(payload))
+        try:
+            if client is not None:
+                threads = sum(w.get("nthreads", 1) for w in client.scheduler_info()["workers"].values())
+                _run_dask(client, _payloads(spec, pending, max(1, threads), budget), max(1, threads), take)
             else:
-                _run_processes(payloads, workers, take)
+                payloads = _payloads(spec, pending, workers, budget)
+                if workers == 1:
+                    for payload in payloads:
+                        take(simulate_chunk(payload))
+                else:
+                    _run_processes(payloads, workers, take)
+        finally:
+            writer.close()
+            bar.close()
+            if client is not None:
+                client.close()
+    outcome.seconds = time.perf_counter() - t0
+    return outcome
+
+
+@contextlib.contextmanager
+def _sigint_ignored():
+    """Worker processes started here inherit 'ignore Ctrl-C': the terminal sends it to the whole process
+    group, and the process that started them handles it (ends them, keeps whole rows, says one line)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
     finally:
-        writer.close()
-        bar.close()
-    return SweepOutcome(total=len(spec.runs), skipped=skipped, ran=ran, diverged=diverged, results=results,
-                        seconds=time.perf_counter() - t0)
+        signal.signal(signal.SIGINT, previous)
 
 
-def _run_processes(payloads: list[dict], workers: int, take) -> None:
-    with worker_pool(min(workers, len(payloads))) as pool:
-        todo = iter(payloads)
-        running = {pool.submit(simulate_chunk, p) for p in itertools.islice(todo, workers)}
+def _run_processes(payloads: Iterator[dict], workers: int, take) -> None:
+    pool = worker_pool(workers)
+    try:
+        with _sigint_ignored():
+            running = {pool.submit(_chunk_in_worker, p) for p in itertools.islice(payloads, workers)}
         while running:            # keep at most one batch per worker in flight: memory stays bounded
             done, running = wait(running, return_when=FIRST_COMPLETED)
             for fut in done:
                 take(fut.result())
-                nxt = next(todo, None)
+                nxt = next(payloads, None)
                 if nxt is not None:
-                    running.add(pool.submit(simulate_chunk, nxt))
+                    with _sigint_ignored():
+                        running.add(pool.submit(_chunk_in_worker, nxt))
+    except BaseException:
+        # interrupted or failed: end the workers now rather than wait for their batches
+        for process in list((getattr(pool, "_processes", None) or {}).values()):
+            with contextlib.suppress(Exception):
+                process.terminate()
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
 
 
 def _dask():
@@ -256,10 +591,21 @@ def _dask():
     return distributed
 
 
-def _run_dask(spec: SweepSpec, pending: list[Run], address: str, take) -> None:
+def _dask_client(address: str, timeout: float):
     distributed = _dask()
-    with distributed.Client(address, timeout="10s") as client:
-        threads = sum(w.get("nthreads", 1) for w in client.scheduler_info()["workers"].values())
-        futures = [client.submit(simulate_chunk, p, pure=False) for p in _chunks(spec, pending, max(1, threads))]
-        for fut in distributed.as_completed(futures):
-            take(fut.result())
+    try:
+        return distributed.Client(address, timeout=f"{timeout}s")
+    except (OSError, TimeoutError, ValueError) as err:
+        raise SweepError(f"cannot reach the Dask scheduler at {address!r}: {err}; nothing was run or written") \
+            from None
+
+
+def _run_dask(client, payloads: Iterator[dict], threads: int, take) -> None:
+    distributed = _dask()
+    futures = distributed.as_completed([client.submit(simulate_chunk, p, pure=False)
+                                        for p in itertools.islice(payloads, 2 * threads)])
+    for fut in futures:           # at most two batches per thread in flight: memory stays bounded
+        take(fut.result())
+        nxt = next(payloads, None)
+        if nxt is not None:
+            futures.add(client.submit(simulate_chunk, nxt, pure=False))

@@ -7,6 +7,9 @@ Wire it into the console script's parser with::
     add_sweep_subcommand(subparsers)
     args = parser.parse_args()
     sys.exit(args.func(args))
+
+Exit status: 0 done, 2 a bad sweep file or setting (or a budget the sweep would
+exceed), 1 another failure, 130 interrupted (Ctrl-C).
 """
 from __future__ import annotations
 
@@ -14,9 +17,22 @@ import argparse
 import sys
 from pathlib import Path
 
+from blocks.budget import DEFAULT_MEMORY, DEFAULT_STEPS, ENVIRONMENT, Budget, format_bytes
 from blocks.scenario import ScenarioError
 
-__all__ = ["add_sweep_subcommand", "sweep_command"]
+__all__ = ["add_sweep_subcommand", "sweep_command", "default_summary_dir"]
+
+
+def _whole_number(flag: str):
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = 0
+        if value < 1 or str(value) != text.strip().lstrip("+"):
+            raise argparse.ArgumentTypeError(f"{flag} must be a whole number >= 1, got {text!r}")
+        return value
+    return parse
 
 
 def add_sweep_subcommand(subparsers) -> argparse.ArgumentParser:
@@ -24,47 +40,113 @@ def add_sweep_subcommand(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "sweep", help="run a grid / Monte Carlo sweep of scenario values (resumable)",
         description="Run every run of a sweep file that the results file does not hold yet, batched on this "
-                    "machine's cores or on a Dask cluster, then write summary statistics and plots.")
+                    "machine's cores or on a Dask cluster, then write summary statistics and plots. Before "
+                    "anything runs, the sweep's memory and each run's step count are estimated and checked "
+                    "against a budget.")
     p.add_argument("sweep_file", help="sweep file (TOML); see analysis.sweep")
     p.add_argument("--results", help="JSON-lines results file (default: <sweep name>-results.jsonl beside the sweep "
                                      "file); runs already in it are skipped")
-    p.add_argument("--summary-dir", help="where summary.md, summary.json and figures go "
-                                         "(default: <sweep name>-summary beside the results)")
+    p.add_argument("--summary-dir", help="where summary.md, summary.json and figures go (default: beside the "
+                                         "results file, named after it: NAME-results.jsonl -> NAME-summary)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="Dask distributed scheduler address (tcp://host:8786); needs dask[distributed]")
-    p.add_argument("--workers", type=int, help="local worker processes (default: all cores)")
+    p.add_argument("--workers", type=_whole_number("--workers"), help="local worker processes (default: all cores)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.add_argument("--check", action="store_true", help="validate the sweep file, print the run count and stop")
+    p.add_argument("--check", action="store_true",
+                   help="validate the sweep file and every run, print the run count and the estimates, and stop")
     p.add_argument("--summary-only", action="store_true", help="only (re)write the summary of the results file")
+    p.add_argument("--restart", action="store_true",
+                   help="if the results file holds another definition of the sweep, move it aside (its name then "
+                        "says which definition) and start a new one, instead of refusing")
+    p.add_argument("--max-memory", metavar="SIZE",
+                   help=f"memory budget such as 8G (default {format_bytes(DEFAULT_MEMORY)}, or "
+                        f"${ENVIRONMENT['memory']})")
+    p.add_argument("--max-steps", metavar="N",
+                   help=f"integrator steps one run may take (default {DEFAULT_STEPS:.0e}, or ${ENVIRONMENT['steps']})")
+    p.add_argument("--max-seconds", metavar="S",
+                   help=f"wall-clock seconds for the runs; finished runs are kept when it runs out (default: no "
+                        f"limit, or ${ENVIRONMENT['seconds']})")
     p.set_defaults(func=sweep_command)
     return p
 
 
+def default_summary_dir(results: Path) -> Path:
+    """The summary folder of a results file: ``NAME-results.jsonl`` -> ``NAME-summary`` beside it."""
+    stem = results.name[:-len(".jsonl")] if results.name.endswith(".jsonl") else results.stem
+    stem = stem[:-len("-results")] if stem.endswith("-results") and len(stem) > len("-results") else stem
+    return results.parent / f"{stem}-summary"
+
+
 def sweep_command(args: argparse.Namespace) -> int:
-    """Handle ``dobkit sweep``; 0 on success, 2 on a bad sweep file, 1 on other failures."""
-    from analysis.sweep import SweepError, load_sweep
-    from analysis.sweep_runner import run_sweep
-    from analysis.sweep_report import write_summary
+    """Handle ``dobkit sweep``; 0 on success, 2 on a bad sweep file or budget, 1 on other failures, 130 on Ctrl-C."""
+    from analysis.sweep import SweepError
+    from blocks.budget import BudgetError
+
+    state: dict = {}
     try:
-        spec = load_sweep(args.sweep_file)
-    except (SweepError, ScenarioError) as err:
+        budget = state["budget"] = Budget.from_env(memory=args.max_memory, steps=args.max_steps,
+                                                   seconds=args.max_seconds)
+        return _sweep(args, budget, state)
+    except (SweepError, ScenarioError, BudgetError) as err:
         print(f"dobkit sweep: {err}", file=sys.stderr)
         return 2
+    except ValueError as err:                # a budget flag or variable that is not a number
+        print(f"dobkit sweep: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        where = f" in {state['results']}" if "results" in state else ""
+        print(f"dobkit sweep: interrupted; every finished run is kept{where}, and the same command resumes",
+              file=sys.stderr)
+        return 130
+    except MemoryError:
+        limit = f" within the memory budget of {format_bytes(state['budget'].memory)}" if "budget" in state else ""
+        print(f"dobkit sweep: out of memory{limit}: this machine has less to give; lower --max-memory (smaller "
+              "batches) or use fewer --workers; finished runs are kept and the same command resumes", file=sys.stderr)
+        return 1
+
+
+def _sweep(args: argparse.Namespace, budget: Budget, state: dict) -> int:
+    from analysis.sweep import load_sweep
+    from analysis.sweep_report import write_summary
+    from analysis.sweep_runner import run_sweep
+
+    spec = load_sweep(args.sweep_file, budget=budget, progress=not args.no_progress)
     folder = Path(args.sweep_file).parent
     results = Path(args.results) if args.results else folder / f"{spec.name}-results.jsonl"
-    summary_dir = Path(args.summary_dir) if args.summary_dir else results.parent / f"{spec.name}-summary"
+    summary_dir = Path(args.summary_dir) if args.summary_dir else default_summary_dir(results)
+    state["results"] = results
     if args.check:
-        print(f"sweep '{spec.name}': {len(spec.runs)} runs, valid")
+        print(_check_report(spec))
         return 0
     if not args.summary_only:
-        try:
-            outcome = run_sweep(spec, results, scheduler=args.scheduler, workers=args.workers,
-                                progress=not args.no_progress)
-        except SweepError as err:
-            print(f"dobkit sweep: {err}", file=sys.stderr)
-            return 2
+        outcome = run_sweep(spec, results, scheduler=args.scheduler, workers=args.workers,
+                            progress=not args.no_progress, restart=args.restart, budget=budget)
+        if outcome.moved_to is not None:
+            print(f"results file {results} held another definition of the sweep: moved to {outcome.moved_to}; "
+                  "starting anew")
         print(f"sweep '{spec.name}': {outcome.ran} runs done now ({outcome.diverged} diverged), "
               f"{outcome.skipped} already in {results}, {outcome.total} in all; {outcome.seconds:.1f} s")
-    files = write_summary(results, summary_dir)
-    print(f"summary: {files['markdown']} ({len(files['figures'])} figure files)")
+        if outcome.problems:
+            print(f"results file: {len(outcome.problems)} unusable line(s) left out and their runs done again "
+                  f"({outcome.problems[0]}{', ...' if len(outcome.problems) > 1 else ''})")
+    files = write_summary(results, summary_dir, spec=spec)
+    n = len(files["summary"].figures)
+    print(f"summary: {files['markdown']} ({n} figure{'s' if n != 1 else ''}, each as PNG and SVG)")
     return 0
+
+
+def _check_report(spec) -> str:
+    """What ``--check`` prints: runs, how they are batched, and the largest run's estimate against the budget."""
+    from blocks.budget import format_bytes as size
+    lines = [f"sweep '{spec.name}': {len(spec.runs)} runs, valid (definition {spec.definition})"]
+    if spec.engine == "batch":
+        classes = ", ".join(f"{n} at {s} substep{'s' if s != 1 else ''}{' with noise' if noisy else ''}"
+                            for (s, noisy), n in spec.plan.classes().items())
+        lines.append(f"  batch engine: {len(spec.plan.shared)} shared scenario(s); runs by step: {classes}")
+        largest = spec.plan.largest
+        if largest is not None:
+            lines.append(f"  largest run: {largest.steps:,} steps (budget {spec.budget.steps:,}); a batch of it alone "
+                         f"needs about {size(largest.memory)} (budget {size(spec.budget.memory)})")
+    else:
+        lines.append("  fast engine: one adaptive simulation per run; its steps are not known before it runs")
+    return "\n".join(lines)

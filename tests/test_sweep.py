@@ -205,6 +205,12 @@ BAD = {
     "metric needs the observer": ('observer = false\n[grid]\n"gains.kp" = [1]\n[outputs]\n'
                                   'metrics = ["rms_disturbance_error"]\n', ["outputs.metrics", "needs the observer"]),
     "key of another trajectory kind": ('[grid]\n"trajectory.omega" = [1.0]\n', ["trajectory.omega", "stitches"]),
+    # a name is used in file names: one plain component, never a path
+    "name climbing out": ('name = "../../../x"\n[grid]\n"gains.kp" = [1]\n', ["'name'", "plain file name"]),
+    "absolute name": ('name = "/tmp/x"\n[grid]\n"gains.kp" = [1]\n', ["'name'", "no folders"]),
+    "name with a folder": ('name = "a/b"\n[grid]\n"gains.kp" = [1]\n', ["'name'", "plain file name"]),
+    "hidden name": ('name = ".x"\n[grid]\n"gains.kp" = [1]\n', ["'name'", "starting with a letter or digit"]),
+    "empty name": ('name = ""\n[grid]\n"gains.kp" = [1]\n', ["'name'", "plain file name"]),
 }
 
 
@@ -220,6 +226,14 @@ def test_bad_sweep_files_fail_before_any_run_naming_the_key(tmp_path, scenario_f
     assert args.func(args) == 2
     assert not (tmp_path / "r.jsonl").exists()
     assert words[0] in capsys.readouterr().err
+
+
+def test_a_file_name_that_cannot_name_files_asks_for_a_name(tmp_path, scenario_file):
+    path = _sweep(tmp_path, '[grid]\n"gains.kp" = [150]\n', name="my sweep")
+    with pytest.raises(SweepError, match="give a plain 'name'"):
+        load_sweep(path)
+    path.write_text('name = "my-sweep"\nscenario = "short.toml"\n[grid]\n"gains.kp" = [150]\n')
+    assert load_sweep(path).name == "my-sweep"
 
 
 def test_a_results_file_of_another_sweep_is_refused(tmp_path, scenario_file):

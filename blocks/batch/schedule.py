@@ -118,7 +118,9 @@ def step_schedule(t_final: float, output_step: float, substeps: int = 1, breakpo
     fine = np.append((grid[:-1, None] + np.diff(grid)[:, None] * frac).ravel(), grid[-1])
     extra = np.array([b for b in breakpoints if merge < b < grid[-1] - merge], dtype=float)
     if extra.size:
-        near = np.min(np.abs(extra[:, None] - fine[None, :]), axis=1) <= merge
+        # nearest fine point by bisection: memory of order len(extra), not len(extra) * len(fine)
+        right = np.clip(np.searchsorted(fine, extra), 1, fine.size - 1)
+        near = np.minimum(np.abs(extra - fine[right - 1]), np.abs(extra - fine[right])) <= merge
         extra = extra[~near]
     times = np.union1d(fine, extra)
     grid_index = np.full(times.size, -1)

@@ -1,0 +1,229 @@
+"""Sweep summaries: figures that survive any data, words for people, escaped names, and a folder that is
+always one whole summary of one results file."""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import blocks
+from analysis import sweep_report
+from analysis.sweep import SweepError, load_sweep
+from analysis.sweep_report import html_section, summarize, write_summary
+from analysis.sweep_runner import run_sweep
+from dobkit.sweep_commands import add_sweep_subcommand
+
+ULP = np.finfo(float).eps
+
+
+@pytest.fixture()
+def short_file(tmp_path):
+    """The first 0.3 s of the paper scenario (its 10 s path), as a file the sweep files refer to."""
+    path = tmp_path / "short.toml"
+    short = blocks.load_scenario("paper").replace(simulation={"t_final": 0.3}, trajectory={"duration": 10.0})
+    path.write_text(short.to_toml(), encoding="utf-8")
+    return path
+
+
+def _write(tmp_path, text: str, name: str = "s") -> Path:
+    path = tmp_path / f"{name}.toml"
+    path.write_text('scenario = "short.toml"\n' + text, encoding="utf-8")
+    return path
+
+
+def _cli(argv):
+    parser = argparse.ArgumentParser(prog="dobkit")
+    add_sweep_subcommand(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(argv)
+    return args.func(args)
+
+
+def _rows(columns: dict, keys=None) -> list[dict]:
+    """Result rows from metric columns (lists of values, None for a value that was not finite)."""
+    n = len(next(iter(columns.values())))
+    rows = []
+    for i in range(n):
+        metrics = {}
+        for name, values in columns.items():
+            metrics[name] = values[i]
+        rows.append({"run_id": f"run{i:04d}", "index": i, "values": {"gains.kp": 100.0 + i} | (keys or {}),
+                     "status": "ok", "metrics": metrics})
+    return rows
+
+
+FEW = '[outputs]\nmetrics = ["rms_position_error", "max_tool_position_error_mm"]\n'
+HEADER = {"name": "h", "runs": 0, "worst_metric": "max_tool_position_error_mm", "worst_count": 3}
+
+DATA = {
+    "constant": [2.9] * 12,
+    "one ulp apart": [1e-4, 1e-4 * (1 + ULP), 1e-4, 1e-4 * (1 + 2 * ULP)] * 3,
+    "one run": [3.1],
+    "with not finite": [1.0, None, 2.0, None, 3.0],
+    "nothing finite": [None, None, None],
+    "near the float limit": [1e308, -1e308, 5e307, 1.0],
+    "negative and tiny": [-1e-300, 2e-300, 0.0, 5e-301],
+}
+
+
+@pytest.mark.parametrize("case", list(DATA))
+def test_figures_and_statistics_survive_any_data(tmp_path, case):
+    values = DATA[case]
+    columns = {"max_tool_position_error_mm": values, "rms_position_error": [[v, v, v, v] for v in values]}
+    rows = _rows(columns)
+    files = write_summary((dict(HEADER, runs=len(rows)), rows), tmp_path / "out")
+    summary = json.loads(files["json"].read_text())
+    listed = [f["file"] for f in summary["figures"]]
+    assert "hist_max_tool_position_error_mm.png" in listed and "hist_rms_position_error.png" in listed
+    for name in listed:
+        assert (tmp_path / "out" / name).stat().st_size > 0
+        assert (tmp_path / "out" / name).with_suffix(".svg").stat().st_size > 0
+    finite = [v for v in values if v is not None]
+    stats = summary["statistics"].get("max_tool_position_error_mm")
+    if not finite:
+        assert stats is None
+        return
+    assert stats["count"] == len(finite) and stats["not_finite"] == len(values) - len(finite)
+    assert stats["min"] == min(finite) and stats["max"] == max(finite)
+    scale = max(abs(v) for v in finite) or 1.0
+    mean = math.fsum(v / scale for v in finite) / len(finite) * scale       # no overflow on the way
+    assert stats["mean"] == pytest.approx(mean, rel=1e-12, abs=1e-300)
+    assert "Infinity" not in files["json"].read_text() and "NaN" not in files["json"].read_text()
+
+
+def _texts_inside(fig) -> list[str]:
+    """What is drawn outside the figure (cut off in the PNG): axes with their tick labels and axis labels, and
+    the figure's title."""
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    box = fig.bbox
+    parts = [(ax.get_xlabel() or "axes", ax.get_tightbbox(renderer)) for ax in fig.axes]
+    parts += [(t.get_text(), t.get_window_extent(renderer)) for t in fig.texts if t.get_text()]
+    return [name for name, extent in parts
+            if extent.x0 < box.x0 - 1 or extent.x1 > box.x1 + 1 or extent.y0 < box.y0 - 1 or extent.y1 > box.y1 + 1]
+
+
+def test_axes_have_no_offset_text_and_no_label_is_cut(tmp_path):
+    """Values near 1.5e-4 with small spreads made matplotlib print '1e-4' over the unit label; a four-panel
+    figure cut the last label to '[N m'."""
+    rng = np.random.default_rng(3)
+    n = 60
+    d = (1.5e-4 + 1e-7 * rng.random((n, 4))).tolist()
+    rows = _rows({"rms_disturbance_error": d, "max_abs_disturbance_error": d,
+                  "max_tool_position_error_mm": (2.9 + 1e-3 * rng.random(n)).tolist()})
+    table, _ = sweep_report._load((dict(HEADER, runs=n), rows), None)
+    summary = sweep_report._summary(table, "")
+    drawn = list(sweep_report._draw_figures(table, summary))
+    assert {stem for _, stem, _ in drawn} >= {"hist_rms_disturbance_error", "worst_vs_gains_kp"}
+    for fig, stem, _ in drawn:
+        fig.canvas.draw()
+        for ax in fig.axes:
+            assert ax.xaxis.get_offset_text().get_text() == "", stem
+            assert ax.yaxis.get_offset_text().get_text() == "", stem
+        assert _texts_inside(fig) == [], stem
+    hist = next(fig for fig, stem, _ in drawn if stem == "hist_rms_disturbance_error")
+    labels = [ax.get_xlabel() for ax in hist.axes]
+    assert labels == ["Joint 1 (theta1) [µN m]", "Joint 2 (theta2) [µN m]", "Joint 3 (d3) [µN]",
+                      "Joint 4 (theta4) [µN m]"]
+
+
+def test_names_and_values_cannot_add_html_to_the_summary(tmp_path):
+    header = dict(HEADER, name="<img src=x onerror=alert(1)>", description="<script>alert(2)</script> | a pipe",
+                  scenario="<b>base</b>", runs=2)
+    rows = _rows({"max_tool_position_error_mm": [1.0, 2.0]}, keys={"observer.variant": "<i>eq16</i>"})
+    rows.append({"run_id": "bad", "index": 2, "values": {"gains.kp": 1.0}, "status": "diverged", "metrics": {},
+                 "message": "<a href='x'>diverged</a>"})
+    files = write_summary((header, rows), tmp_path / "out")
+    markdown = files["markdown"].read_text()
+    for raw in ("<img", "<script", "<b>", "<i>", "<a href"):
+        assert raw not in markdown
+    assert "&lt;script&gt;alert(2)&lt;/script&gt; \\| a pipe" in markdown
+    section = html_section(tmp_path / "out")
+    for raw in ("<img src=x", "<script", "<b>base", "<i>eq16", "<a href"):
+        assert raw not in section
+
+
+def test_captions_and_metric_names_are_for_people(tmp_path, short_file):
+    path = _write(tmp_path, '[grid]\n"gains.kp" = [150, 250]\n[monte_carlo]\nruns = 3\nseed = 2\n'
+                            '[monte_carlo.distributions]\n'
+                            '"disturbance.f_r[2]" = {kind = "normal", mean = 1.4, std = 0.2}\n' + FEW)
+    assert _cli(["sweep", str(path), "--workers", "1", "--no-progress"]) == 0
+    folder = tmp_path / "s-summary"
+    summary = json.loads((folder / "summary.json").read_text())
+    captions = {f["file"]: f["caption"] for f in summary["figures"]}
+    assert captions["worst_vs_disturbance_f_r_2.png"].startswith(
+        "Peak tool-tip error against the Eq. 4 amplitude f_r, Joint 3 (d3) (disturbance.f_r[2])")
+    assert captions["hist_rms_position_error.png"].startswith("Distribution of the RMS position error over the 6")
+    section = re.sub(r"data:image/png;base64,[A-Za-z0-9+/=]+", "", html_section(folder))
+    figcaptions = re.findall(r"<figcaption>(.*?)</figcaption>", section)
+    assert len(figcaptions) == len(captions) and not any(re.fullmatch(r"[\w]+", c) for c in figcaptions)
+    assert "RMS position error, Joint 1 (theta1)" in section and "Peak tool-tip error" in section
+    for code in ("rms_position_error", "max_tool_position_error_mm", "worst_vs_"):
+        assert code not in section
+    markdown = (folder / "summary.md").read_text()
+    assert "| RMS position error, Joint 3 (d3) |" in markdown and "rms_position_error[" not in markdown
+
+
+def test_a_failed_summary_leaves_the_previous_one_whole(tmp_path, short_file):
+    spec = load_sweep(_write(tmp_path, '[grid]\n"gains.kp" = [150, 250]\n' + FEW))
+    results = tmp_path / "r.jsonl"
+    run_sweep(spec, results, workers=1, progress=False)
+    folder = tmp_path / "sum"
+    write_summary(results, folder, spec=spec)
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    with pytest.raises(ValueError):
+        write_summary(results, folder, formats=("png", "no-such-format"), spec=spec)      # fails after some figures
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("keep")
+    with pytest.raises(SweepError, match="not a sweep summary"):
+        write_summary(results, tmp_path / "mine", spec=spec)
+    assert (tmp_path / "mine" / "notes.txt").read_text() == "keep"
+
+
+def test_the_summary_folder_belongs_to_its_results_file(tmp_path, short_file, capsys):
+    path = _write(tmp_path, '[grid]\n"gains.kp" = [150, 250]\n' + FEW)
+    assert _cli(["sweep", str(path), "--results", str(tmp_path / "other.jsonl"), "--workers", "1",
+                 "--no-progress"]) == 0
+    summary = json.loads((tmp_path / "other-summary" / "summary.json").read_text())
+    assert summary["results"] == "other.jsonl" and summary["definition"] == load_sweep(path).definition
+    assert not (tmp_path / "s-summary").exists()
+    # --summary-only writes it again from the results alone
+    for p in (tmp_path / "other-summary").iterdir():
+        p.unlink()
+    (tmp_path / "other-summary").rmdir()
+    assert _cli(["sweep", str(path), "--results", str(tmp_path / "other.jsonl"), "--summary-only"]) == 0
+    assert (tmp_path / "other-summary" / "summary.md").is_file()
+    assert _cli(["sweep", str(path), "--results", str(tmp_path / "none.jsonl"), "--summary-only"]) == 2
+    assert "run the sweep first" in capsys.readouterr().err
+
+
+def test_the_report_embeds_only_the_figures_of_a_whole_summary(tmp_path, short_file):
+    spec = load_sweep(_write(tmp_path, '[grid]\n"gains.kp" = [150, 250]\n' + FEW))
+    run_sweep(spec, tmp_path / "r.jsonl", workers=1, progress=False)
+    folder = tmp_path / "sum"
+    files = write_summary(tmp_path / "r.jsonl", folder, spec=spec)
+    n = len(files["summary"].figures)
+    (folder / "hist_from_another_sweep.png").write_bytes((folder / files["summary"].figures[0].file).read_bytes())
+    assert html_section(folder).count("<img") == n
+    (folder / files["summary"].figures[-1].file).unlink()
+    with pytest.raises(SweepError, match="is not there"):
+        html_section(folder)
+
+
+def test_an_ordinary_gain_grid_is_summarised(tmp_path, short_file):
+    """`gains.kp = [100, 180, 250]`: its disturbance-estimate peaks (f_r at t = 0) are equal to a few ulp."""
+    spec = load_sweep(_write(tmp_path, '[grid]\n"gains.kp" = [100, 180, 250]\n[outputs]\n'
+                                       'metrics = ["max_abs_disturbance_error", "max_tool_position_error_mm"]\n'))
+    run_sweep(spec, tmp_path / "r.jsonl", workers=1, progress=False)
+    files = write_summary(tmp_path / "r.jsonl", tmp_path / "sum", spec=spec)
+    summary = summarize(tmp_path / "r.jsonl", spec)
+    peak = summary.statistics["max_abs_disturbance_error[0]"]
+    assert peak.max - peak.min <= 1e-12 * peak.max
+    assert [f.file for f in files["summary"].figures] == [
+        "hist_max_abs_disturbance_error.png", "hist_max_tool_position_error_mm.png", "worst_vs_gains_kp.png"]
