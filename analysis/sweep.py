@@ -75,6 +75,7 @@ import numpy as np
 
 from blocks.batch import BATCH_KEYS, METRICS, Variants, auto_substeps, fastest_rate
 from blocks.batch.schedule import STEP_LAMBDA, STEPS_PER_PHASE, TISSUE_STEP
+from blocks.metrics import OBSERVER_METRICS
 from blocks.budget import Budget, BudgetError, Estimate, estimate_batch, format_bytes, schedule_steps
 from blocks.progress import count_progress
 from blocks.scenario import Scenario, ScenarioError, load_scenario, parse_key
@@ -95,9 +96,8 @@ SWEEP_RUN_BYTES = 1024
 CHECK_PROGRESS_RUNS = 20_000
 #: Header entries that only change how results are shown, not which runs there are or what their rows hold.
 PRESENTATION_KEYS = ("name", "source", "description", "worst_metric", "worst_count", "runs")
-_OBSERVER_METRICS = ("rms_disturbance_error", "max_abs_disturbance_error")
-_PER_JOINT = ("rms_position_error", "max_abs_position_error", "final_abs_position_error", "rms_disturbance_error",
-              "max_abs_disturbance_error")
+_OBSERVER_METRICS = OBSERVER_METRICS
+_PER_JOINT = tuple(m for m in METRICS if "tool" not in m)        # the tool-tip metrics are one number a run
 # Member keys that do not change how fast the loop is (so not its step): see blocks.batch.fastest_rate.
 _RATE_FREE = ("noise.", "initial.", "disturbance.f_r", "observer.variant")
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]{0,99}")

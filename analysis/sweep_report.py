@@ -65,7 +65,6 @@ METRIC_NAMES = {
     "max_tool_position_error_mm": "peak tool-tip error",
     "rms_tool_position_error_mm": "RMS tool-tip error",
     "rms_disturbance_error": "RMS disturbance-estimate error |d - d_hat|",
-    "max_abs_disturbance_error": "peak disturbance-estimate error |d - d_hat|",
 }
 _KEY_NAMES = {
     "gains.kp": "position gain Kp", "gains.kd": "velocity gain Kd", "gains.observer": "observer gain Y",

@@ -62,6 +62,8 @@ SOLVER_METHODS = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA")
 MAX_OUTPUT_POINTS = 2_000_000
 MAX_NOISE_SAMPLES = 2_000_000       # 8 signals x 8 bytes: 128 MB
 MAX_SCENARIO_BYTES = 1_000_000
+# Shortest phase of a laceration path (s).
+MIN_PHASE_DURATION = 1e-3
 # Shortest output step and sample spacing (s): below it times lose their meaning in double precision.
 MIN_TIME_STEP = 1e-9
 # Solver tolerances that mean something: tighter than rounding is noise, looser than 1 % is not a solution.
@@ -551,15 +553,15 @@ def _build_trajectory(given: dict, built: dict):
 
 
 def _check_phases(path: dict, sim: SimulationSettings) -> None:
-    """Refuse a laceration path whose phases are shorter than the output step: the run could not show them
-    (and a huge stitch count would only cost memory and time)."""
+    """Refuse a laceration path whose phases (a stitch or a move between stitches) are shorter than
+    :data:`MIN_PHASE_DURATION`: no arm sews that fast, and a huge stitch count would only cost memory and time."""
     stitches = path.get("stitches", LacerationPath.stitches)
     if isinstance(stitches, int) and stitches >= 1:
         phase = path["duration"] / (2 * stitches - 1)
-        if phase < sim.output_step:
+        if phase < MIN_PHASE_DURATION:
             raise ScenarioError(f"'trajectory.stitches' = {_number_text(stitches)} makes each of the path's "
-                                f"{_number_text(2 * stitches - 1)} phases {phase:.3g} s long, shorter than 'simulation.output_step' "
-                                f"({sim.output_step:g} s): use fewer stitches or a longer 'trajectory.duration'")
+                                f"{_number_text(2 * stitches - 1)} phases {phase:.3g} s long, shorter than "
+                                f"{MIN_PHASE_DURATION:g} s: use fewer stitches or a longer 'trajectory.duration'")
 
 
 def _build_noise(given: dict, built: dict):

@@ -27,6 +27,7 @@ SHORT = {"simulation.t_final": 0.2, "trajectory.duration": 10.0}
     ({"simulation.atol": 1e3}, "simulation.atol' must be between"),
     ({"simulation.t_final": 10 ** 400}, "t_final' must be a finite number, got 1.000e\\+400"),
     ({"trajectory.stitches": 10 ** 30}, "trajectory.stitches' = 1.000e\\+30 makes each of the path's"),
+    ({"trajectory.stitches": 10 ** 6}, "phases 5e-06 s long, shorter than 0.001 s"),
     ({"noise.sample_period": 1e-6, "noise.q_std": [1e-5] * 4}, "noise.sample_period' \\(1e-06 s\\) asks for 1e\\+07"),
 ])
 def test_scenario_values_that_cannot_give_a_run_are_refused_by_key(changes, words):

@@ -88,11 +88,12 @@ def test_stiff_observer_gains_are_refused_naming_the_key_and_the_steps(tmp_path,
     ('[grid]\n"gains.kp" = [180]\n[batch]\nsubsteps = 1000000000\n', "batch.substeps"),
 ])
 def test_a_run_whose_schedule_is_huge_is_refused_before_it_is_built(tmp_path, text, key, capsys):
+    """Refused by the budget, or (a million stitches: phases of 5 us) by the scenario's own check first."""
     path = _write(tmp_path, text, scenario="paper")
     peak = _peak(lambda: load_sweep(path, budget=Budget()))
-    with pytest.raises(BudgetError) as err:
+    with pytest.raises((BudgetError, SweepError)) as err:
         load_sweep(path, budget=Budget())
-    assert err.value.key == key and key in str(err.value)
+    assert key in str(err.value) and getattr(err.value, "key", key) == key
     assert peak < 100 * 2 ** 20                    # 6.4 GB before
     assert _cli(["sweep", str(path), "--check"]) == 2 and key in capsys.readouterr().err
 
@@ -219,7 +220,9 @@ def test_running_out_of_memory_says_what_to_lower(tmp_path):
     done = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True,
                           timeout=300)
     assert done.returncode == 1, done.stderr
-    assert done.stderr.startswith("dobkit sweep: out of memory within the memory budget of 100.0 GiB")
+    # (numba cannot load its LLVM library under the limit: engine='auto' says so, then the sweep runs on numpy)
+    assert done.stderr.strip().splitlines()[-1].startswith(
+        "dobkit sweep: out of memory within the memory budget of 100.0 GiB")
     assert "--max-memory" in done.stderr and "output_step" not in done.stderr and "Traceback" not in done.stderr
 
 

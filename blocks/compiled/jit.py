@@ -27,7 +27,7 @@ def numba_or_none():
     if _numba is _UNSET:
         try:
             _numba = importlib.import_module("numba")
-        except ImportError:
+        except (ImportError, OSError):      # not installed, or its LLVM library cannot load (a memory limit)
             _numba = None
         else:
             # The batch runs members on numba's threads, and sweeps and studies fork worker processes
