@@ -520,10 +520,17 @@ def digital_analysis(scenario: Scenario, rates_hz=DEFAULT_RATES_HZ, configuratio
 def _answer(s: Scenario, scale: float, noise: QuantizationNoise | None) -> str:
     """The plain-language answer, every number from the results."""
     c = s.controller
-    gain = np.diag(s.observer_gain)
+    Y = np.asarray(s.observer_gain)
+    gain = np.diag(Y)
+    if np.allclose(Y, gain[0] * np.eye(len(gain))):
+        shown = f"{gain[0]:g} I"
+    elif np.allclose(Y, np.diag(gain)):
+        shown = "diag(" + ", ".join(f"{g:g}" for g in gain) + ")"
+    else:
+        shown = "the scenario's matrix"
     text = (f"At {c.sample_rate:g} Hz ({c.observer_discretization} observer update, delay {c.delay} "
             f"sample{'s' if c.delay != 1 else ''}) the observer gain may be raised up to {scale:.3g} times the "
-            f"scenario's (Y = diag{np.round(gain, 3).tolist()}) before the loop becomes unstable")
+            f"scenario's (Y = {shown}) before the loop becomes unstable")
     text += "; the scenario's gain is stable." if scale > 1 else "; the scenario's gain is NOT stable at this rate."
     if noise is not None:
         worst = int(np.argmax(np.asarray(noise.predicted_rms) / np.maximum(np.abs(gain), 1e-12)))

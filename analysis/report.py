@@ -31,6 +31,8 @@ from blocks import forward_kinematics, load_scenario
 from blocks.scenario import Scenario
 from blocks.gains import validated_gain
 from . import analysis_figures as figs
+from .digital import DigitalAnalysis, digital_analysis
+from .digital_figures import digital_figures
 from .bandwidth import BandwidthSurvey, along_trajectory, bandwidth_survey, observer_modes, workspace_grid
 from .frequency import FrequencyAnalysis, frequency_analysis
 from .gain_design import (ObserverDesign, confirm_by_simulation, convergence_certificate, critical_speed,
@@ -42,7 +44,7 @@ from blocks.outputs import staged_output
 from blocks.progress import ProgressCallback as Progress
 from .report_html import render_html
 from .report_view import plain_summary
-from .results import JsonResult, strict_json
+from .results import JsonResult, omitted_if_none, strict_json
 from .settings import QUICK_SETTINGS, AnalysisSettings
 from .studies import Studies, gain_grid_study, observer_gain_study
 
@@ -111,6 +113,9 @@ class AnalysisResult(JsonResult):
         At the reference at t = 0.
     studies : Studies
         ``observer.slowest_mode_rad_s`` set.
+    digital : DigitalAnalysis or None
+        The digital implementation (scenarios with a ``[controller]`` section;
+        the key is absent otherwise).
     figures : list of str
         The figure files written with the result (by :func:`analyze` or
         :func:`write_report`); empty from :func:`run_analysis`, which writes nothing.
@@ -127,6 +132,7 @@ class AnalysisResult(JsonResult):
     frequency: FrequencyAnalysis
     studies: Studies
     figures: list[str] = field(default_factory=list)
+    digital: DigitalAnalysis | None = omitted_if_none()
 
 
 def gain_label(Y) -> str:
@@ -254,11 +260,17 @@ def run_analysis(scenario: Scenario | str = "paper", settings: AnalysisSettings 
             float(np.real(observer_modes(s.nominal, validated_gain(g, "observer"),
                                          q_grid)[0][:, 0]).min())
             for _, g in gains]
+    digital = None
+    if s.controller is not None:
+        with _stage(progress, "digital implementation"):
+            digital = digital_analysis(s, rates_hz=settings.digital_rates_hz,
+                                       configurations=[q_start] if settings.quick else None,
+                                       simulate_noise=not settings.quick)
     return AnalysisResult(
         dobkit_version=__version__, python_control_version=ct.__version__, scenario=info, settings=settings,
         observer_bandwidth=survey, operating_points=operating_points, mismatch=mismatch,
         observer_design=observer_design, frequency=frequency,
-        studies=Studies(**grids, observer=replace(obs, slowest_mode_rad_s=slowest)))
+        studies=Studies(**grids, observer=replace(obs, slowest_mode_rad_s=slowest)), digital=digital)
 
 
 def _figure_writers(result: AnalysisResult) -> list:
@@ -274,7 +286,7 @@ def _figure_writers(result: AnalysisResult) -> list:
         lambda out: figs.bode_figure(result.frequency, out, "estimation"),
         lambda out: figs.gain_study_figure(result.studies.gains_with_dob, result.studies.gains_without_dob, out),
         lambda out: figs.observer_study_figure(result.studies.observer, out),
-    ]
+    ] + ([lambda out: digital_figures(result.digital, out)] if result.digital is not None else [])
 
 
 #: Number of analysis figures :func:`write_figures` writes (each as PNG and SVG).

@@ -44,6 +44,9 @@ class AnalysisSettings:
         whole path).
     noise_t_final : float
         Length (s) of the runs that measure the torque noise.
+    digital_rates_hz : floats
+        Sample rates (Hz) of the digital-implementation study (scenarios with a
+        ``[controller]`` section; the scenario's own rate is added).
     workers : int
         Processes for the studies (results do not depend on it).
     quick : bool
@@ -64,6 +67,7 @@ class AnalysisSettings:
     study_t_final: float = 10.0
     design_t_final: float | None = 6.0
     noise_t_final: float = 2.0
+    digital_rates_hz: tuple = (100.0, 200.0, 500.0, 1000.0, 2000.0, 5000.0, 10000.0)
     workers: int = field(default=1, compare=False)
     quick: bool = False
 
@@ -88,7 +92,7 @@ class AnalysisSettings:
 QUICK_SETTINGS = AnalysisSettings(quick=True, mismatch_factors=(0.5, 1.0, 2.0), boundary_points=9,
                                   workspace_points=(3, 37, 2, 3), kp_values=(90.0, 180.0), kd_values=(18.0, 36.0),
                                   observer_values=(3.0, 30.0), study_t_final=6.0, design_t_final=2.0,
-                                  noise_t_final=0.3)
+                                  noise_t_final=0.3, digital_rates_hz=(200.0, 1000.0, 5000.0))
 
 
 def _values(values, unit: str = "") -> str:
@@ -108,6 +112,7 @@ _DESCRIBE = {
     "design_t_final": ("length of the design check's runs",
                        lambda v: "the whole path" if v is None else f"{v:g} s"),
     "noise_t_final": ("length of the torque-noise runs", lambda v: f"{v:g} s"),
+    "digital_rates_hz": ("sample rates of the digital-implementation study", lambda v: _values(v, "Hz")),
 }
 
 

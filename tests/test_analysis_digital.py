@@ -103,3 +103,20 @@ def test_digital_analysis_answers_in_numbers_and_draws(tmp_path):
                                        "digital_gain_limit.svg"}
     with pytest.raises(ValueError, match="no \\[controller\\] section"):
         digital_analysis(blocks.load_scenario("paper"))
+
+
+def test_a_report_of_a_digital_scenario_has_the_digital_section(tmp_path):
+    """A tiny analysis (small grids, short runs) of a 1 kHz scenario: the section, its numbers and figures."""
+    from analysis.report import write_report
+    from analysis.settings import AnalysisSettings
+    s = _paper({"controller.sample_rate": 1000.0, "simulation.t_final": 1.0, "trajectory.duration": 10.0,
+                "controller.position_resolution": [1e-4, 1e-4, 1e-6, 1e-4]})
+    tiny = AnalysisSettings(quick=True, mismatch_factors=(1.0,), boundary_points=3, workspace_points=(2, 5, 2, 2),
+                            kp_values=(180.0,), kd_values=(36.0,), observer_values=(10.0,), study_t_final=0.5,
+                            design_t_final=0.5, noise_t_final=0.1, digital_rates_hz=(1000.0,))
+    page = write_report(s, tmp_path / "report", tiny).read_text(encoding="utf-8")
+    assert "8. Digital implementation" in page and "href='#digital'" in page
+    result = __import__("json").loads((tmp_path / "report" / "analysis.json").read_text())
+    assert result["digital"]["largest_stable_scale"] == pytest.approx(50.0, rel=0.01)     # 2 f / lambda_max, f = 1 kHz
+    assert f"{result['digital']['largest_stable_scale']:.3g} times" in page
+    assert (tmp_path / "report" / "figures" / "digital_gain_limit.png").exists()

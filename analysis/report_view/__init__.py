@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from ..settings import AnalysisSettings, preview_differences
 from .bandwidth import BandwidthSection, bandwidth_section
 from .design import DesignSection, design_section
+from .digital import DigitalSection, digital_section
 from .frequency import FrequencySection, frequency_section
 from .linear import LinearSection, linear_section
 from .scenario import ScenarioSection, scenario_section
@@ -37,6 +38,8 @@ SECTIONS = (("summary", "Summary for the surgical team"), ("scenario", "1. Scena
             ("linear", "3. Linearized closed loop"), ("bandwidth", "4. Observer bandwidth across the workspace"),
             ("design", "5. Observer gain design"), ("frequency", "6. Disturbance rejection in frequency"),
             ("studies", "7. Gain and noise studies"))
+#: The section of scenarios with a digital controller.
+DIGITAL_SECTION = ("digital", "8. Digital implementation")
 
 
 @dataclass(frozen=True)
@@ -67,6 +70,7 @@ class ReportView:
     design: DesignSection
     frequency: FrequencySection
     studies: StudiesSection
+    digital: DigitalSection | None = None
     extra_sections: list[str] = field(default_factory=list)
 
 
@@ -108,7 +112,8 @@ def build_view(result, experiment: dict, scenario, figure_files: dict,
     extra_sections : tuple of str
         Ready-made HTML sections appended at the end (for example a sweep summary).
     """
-    contents = list(SECTIONS) + ([("sweeps", "Sweep summaries")] if extra_sections else [])
+    contents = list(SECTIONS) + ([DIGITAL_SECTION] if result.digital is not None else []) \
+        + ([("sweeps", "Sweep summaries")] if extra_sections else [])
     return ReportView(
         scenario_name=scenario.name, header=_header(result, scenario), dobkit_version=result.dobkit_version,
         python_control_version=result.python_control_version, contents=contents, headings=dict(contents),
@@ -120,4 +125,5 @@ def build_view(result, experiment: dict, scenario, figure_files: dict,
         design=design_section(result, scenario, figure_files),
         frequency=frequency_section(result, scenario, figure_files),
         studies=studies_section(result, scenario, figure_files),
+        digital=digital_section(result, figure_files),
         extra_sections=list(extra_sections))

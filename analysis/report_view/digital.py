@@ -1,0 +1,63 @@
+"""Section 8 of the report (scenarios with a ``[controller]`` section): the digital implementation."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .text import JOINT_TITLES, Figure, Table, figures, fmt, pole
+
+__all__ = ["DigitalSection", "digital_section"]
+
+
+@dataclass(frozen=True)
+class DigitalSection:
+    """8. The controller as a program sampled at a fixed rate."""
+
+    settings: Table
+    answer: str
+    poles: Table
+    gain_limit: Table
+    quantization: Table | None
+    figures: list[Figure]
+
+
+def digital_section(result, files: dict) -> DigitalSection | None:
+    d = result.digital
+    if d is None:
+        return None
+    shown = {"sample_rate": "sample rate (Hz)", "delay": "delay (samples)",
+             "observer_discretization": "observer update", "velocity": "velocity estimate",
+             "velocity_cutoff": "velocity low-pass cut-off (Hz)",
+             "position_resolution": "encoder resolution (rad, rad, m, rad)",
+             "torque_limit": "torque limit (N m, N m, N, N m; 0 = none)"}
+    settings = Table.of(["setting", "value"], [[shown.get(k, k), ", ".join(fmt(x, 4) for x in v)
+                                               if isinstance(v, (list, tuple)) else
+                                               (fmt(v, 6) if isinstance(v, (int, float)) else str(v))]
+                                              for k, v in d.settings.items()], "The scenario's [controller] section")
+    modes = [m for m in d.poles.modes if np.isfinite(m.wn_rad_s)]
+    poles = Table.of(["z", "|z|", "s = ln(z) / Ts (1/s)", "damping", "block"],
+                     [[pole(m.z), fmt(abs(m.z), 6), pole(m.s_equivalent), fmt(m.zeta, 3), m.block] for m in modes],
+                     f"Poles of the sampled loop at {fmt(d.sample_rate_hz, 5)} Hz, held at the path's start "
+                     f"(max |z| = {fmt(d.poles.spectral_radius, 6)}; poles at z = 0 left out)")
+    curves = d.gain_limit.curves
+    rows = []
+    for k, rate in enumerate(curves[0].rates_hz):
+        rows.append([fmt(rate, 5), fmt(curves[0].euler_bound_scale[k], 4)]
+                    + [fmt(c.largest_scale[k], 4) for c in curves])
+    gain_limit = Table.of(["rate (Hz)", "2 / (Ts lambda_max)"]
+                          + [f"{c.discretization}, delay {c.delay}" for c in curves], rows,
+                          "Largest stable observer gain, in multiples of the scenario's gain")
+    quantization = None
+    if d.quantization is not None:
+        q = d.quantization
+        quantization = Table.of(
+            ["joint", "resolution", "torque noise, linear model", "torque noise, simulated"],
+            [[JOINT_TITLES[i], fmt(q.position_resolution[i], 4), fmt(q.predicted_rms[i], 3),
+              "-" if q.simulated_rms is None else fmt(q.simulated_rms[i], 3)] for i in range(len(q.predicted_rms))],
+            "RMS torque noise from encoder quantization (N m; N on joint 3)")
+    return DigitalSection(settings=settings, answer=d.answer, poles=poles, gain_limit=gain_limit,
+                          quantization=quantization,
+                          figures=figures(files, ("digital_poles", "Poles of the sampled loop"),
+                                          ("digital_gain_limit", "How fast the observer may be at each sample rate"),
+                                          ("digital_quantization", "Torque noise from encoder quantization")))
