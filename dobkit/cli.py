@@ -27,6 +27,13 @@ def _cmd_simulate(args) -> int:
     with StageProgress() as progress:
         result = run_experiment(scenario, out, progress=progress)
     print(f"scenario: {scenario.name} ({scenario.source})")
+    c = scenario.controller
+    if c is not None:
+        encoders = "exact" if not any(c.position_resolution) else \
+            "resolution " + ", ".join(f"{r:.3g}" for r in c.position_resolution) + " (rad, rad, m, rad)"
+        velocity = c.velocity if c.velocity_cutoff is None else f"{c.velocity} through a {c.velocity_cutoff:g} Hz low-pass"
+        print(f"controller: sampled at {c.sample_rate:g} Hz, {c.observer_discretization} observer update, delay "
+              f"{c.delay}, velocity {velocity}, encoders {encoders}")
     print(format_rms_table(result.metrics))
     print(f"results written to {result.out_dir}")
     return 0
