@@ -20,7 +20,9 @@ Two couplings, for the master of :mod:`fmu.master`:
     1), else the straight line between the two values.  For an FMU without
     direct feedthrough every signal is then exact to ``O(h^2)`` over a step,
     so the coupling is second order.  An algebraic path through both sides
-    keeps the one-step break of the zero-order hold.
+    keeps the one-step break of the zero-order hold.  The slope assumes the
+    Python outputs are continuous in time; for a side whose outputs jump (a
+    sampled controller) use the zero-order hold.
 
 In both, a Python-side input named like an FMU *input* receives exactly the
 signal that FMU input receives (held, or the same straight line), so that,
