@@ -1,23 +1,32 @@
-"""``dobkit fmu ...`` subcommands: export, co-simulate and check the plant FMU.
+"""``dobkit fmu ...`` subcommands: export, co-simulate and check FMUs.
 
 ::
 
-    dobkit fmu export [--scenario S] [--fmi-version 2|3] [--substeps N] --out plant.fmu
-    dobkit fmu cosim PLANT.fmu [--scenario S] [--step H] [--out DIR] [--no-figures]
-    dobkit fmu convergence PLANT.fmu [--scenario S] [--steps 0.004,0.002,0.001,0.0005] [--out DIR]
-    dobkit fmu check PLANT.fmu [--json]
+    dobkit fmu export [--scenario S] [--fmi-version 2|3] [--substeps N] --out plant.fmu [--force]
+    dobkit fmu cosim PLANT.fmu [--scenario S] [--step H] [--coupling zoh|linear] [--out DIR] [--no-figures]
+    dobkit fmu convergence PLANT.fmu [--scenario S] [--steps 0.004,0.002,0.001,0.0005] [--coupling ...] [--out DIR]
+    dobkit fmu check ANY.fmu [--json]
 
 Each is a thin layer over :func:`fmu.export_plant`,
 :func:`fmu.cosimulate`, :func:`fmu.cosim_convergence` and
-:func:`fmu.check_fmu`.  Each command extracts the FMU once.
+:func:`fmu.check_fmu`.  Each command extracts the FMU once.  The
+long-running ones take ``--max-steps`` and ``--max-wall-time``
+(:class:`fmu.budget.Budget`): they estimate their steps first and refuse
+beyond the budget.  Every JSON file or listing they write is strict JSON:
+a value that is not a finite number is written as ``null`` and its place is
+listed under ``non_finite_values``.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 
-__all__ = ["add_fmu_subcommands"]
+__all__ = ["add_fmu_subcommands", "strict_json"]
+
+_NON_FINITE_MEANING = ("null marks a value that was not a finite number (NaN or infinite); each place is listed "
+                       "as a path of keys and list indices")
 
 
 def _positive_float(text: str) -> float:
@@ -25,8 +34,18 @@ def _positive_float(text: str) -> float:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+    return value
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}")
     return value
 
 
@@ -37,19 +56,71 @@ def _step_list(text: str) -> tuple[float, ...]:
     return steps
 
 
+def strict_json(data) -> str:
+    """``data`` as strict JSON text: non-finite floats become ``null``, listed under ``non_finite_values``.
+
+    Examples
+    --------
+    >>> import json
+    >>> data = json.loads(strict_json({"a": [1.0, float("nan")]}))
+    >>> data["a"], data["non_finite_values"]["paths"]
+    ([1.0, None], ['a/1'])
+    """
+    paths: list[str] = []
+
+    def clean(value, path: str):
+        if isinstance(value, float) and not math.isfinite(value):
+            paths.append(path or "/")
+            return None
+        if isinstance(value, dict):
+            return {k: clean(v, f"{path}/{k}" if path else str(k)) for k, v in value.items()}
+        if isinstance(value, (list, tuple)):
+            return [clean(v, f"{path}/{i}" if path else str(i)) for i, v in enumerate(value)]
+        return value
+
+    cleaned = clean(data, "")
+    if paths:
+        cleaned = dict(cleaned) if isinstance(cleaned, dict) else {"value": cleaned}
+        cleaned["non_finite_values"] = {"meaning": _NON_FINITE_MEANING, "paths": paths}
+    return json.dumps(cleaned, indent=2, allow_nan=False) + "\n"
+
+
+def _budget(args):
+    from fmu.budget import Budget
+    return Budget(max_steps=args.max_steps, max_wall_time=args.max_wall_time)
+
+
 def _cmd_export(args) -> int:
     from blocks import load_scenario
     from fmu.export import export_plant
 
+    out = Path(args.out)
+    if out.is_dir():
+        raise ValueError(f"--out {out} is a folder; give the path of the .fmu file to write")
+    if out.exists() and not args.force:
+        raise ValueError(f"--out {out} exists; refusing to overwrite it (use --force to replace it)")
     s = load_scenario(args.scenario)
     q_ref0, dq_ref0, _ = s.trajectory.evaluate(0.0)
     q0 = s.initial["q"] if s.initial["q"] is not None else q_ref0
     dq0 = s.initial["dq"] if s.initial["dq"] is not None else dq_ref0
-    path = export_plant(args.out, params=s.robot, disturbance=s.disturbance, fmi_version=args.fmi_version,
+    path = export_plant(out, params=s.robot, disturbance=s.disturbance, fmi_version=args.fmi_version,
                         substeps=args.substeps, q0=q0, dq0=dq0)
     print(f"wrote {path} (FMI {args.fmi_version}.0, Model Exchange + Co-Simulation, scenario {s.name}, "
           f"{args.substeps} RK4 sub-steps per co-simulation step)")
     return 0
+
+
+def _estimate_line(estimate: dict) -> str:
+    if "skipped" in estimate:
+        return f"error estimate: skipped ({estimate['skipped']})"
+    parts = []
+    for sig, label in (("q", "q"), ("d_hat", "d_hat")):
+        if sig in estimate:
+            values = list(estimate[sig].values())
+            parts.append(f"{label} " + ", ".join(f"{v:.1e}" for v in values)
+                         + f" ({', '.join(estimate['units'][sig])})")
+    return (f"estimated coupling error (step doubling over the first {estimate['t_final']:g} s, order "
+            f"{estimate['order']}): " + "; ".join(parts))
 
 
 def _cmd_cosim(args) -> int:
@@ -59,28 +130,32 @@ def _cmd_cosim(args) -> int:
     from fmu.cosim import cosimulate
 
     s = load_scenario(args.scenario)
+    budget = _budget(args)
     out = Path(args.out) if args.out is not None else default_out_dir("dobkit-cosim")
     staging = staged_output(out)  # refuses a non-empty folder before any work
     runs = {}
     with extract_fmu(args.fmu) as extracted:  # once for both runs
         for key, observer in (("with_dob", True), ("without_dob", False)):
-            runs[key] = cosimulate(extracted, s, step=args.step, observer=observer,
-                                   side_substeps=args.side_substeps, parameters=args.parameters)
+            runs[key] = cosimulate(extracted, s, step=args.step, observer=observer, coupling=args.coupling,
+                                   side_substeps=args.side_substeps, parameters=args.parameters, budget=budget)
     info = runs["with_dob"].cosim
     metrics = comparison_metrics(s, runs["with_dob"], runs["without_dob"]) | {
-        "cosimulation": {k: info[k] for k in ("fmu", "fmi_version", "model", "step", "side_substeps", "method",
-                                              "parameters")},
+        "cosimulation": {k: info[k] for k in ("fmu", "fmi_version", "model", "step", "side_substeps", "coupling",
+                                              "output_derivatives", "method", "parameters")}
+        | {"error_estimate": {key: run.cosim["error_estimate"] for key, run in runs.items()}},
     }
     figures_note = "figures: skipped (--no-figures)"
     with staging as stage:
-        (stage / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+        (stage / "metrics.json").write_text(strict_json(metrics))
         (stage / "scenario.toml").write_text(s.to_toml())
         if not args.no_figures:
             from analysis.figures import paper_figures
             written = paper_figures(runs["with_dob"], runs["without_dob"], stage)
             figures_note = f"figures: {len(written)} files (PNG and SVG)"
-    print(f"co-simulated {args.fmu} (FMI {info['fmi_version']}) with scenario {s.name}, h = {args.step:g} s")
+    print(f"co-simulated {args.fmu} (FMI {info['fmi_version']}) with scenario {s.name}, h = {args.step:g} s, "
+          f"{info['coupling']} coupling")
     print(format_rms_table(metrics))
+    print(_estimate_line(info["error_estimate"]) + " (with observer)")
     print(figures_note)
     print(f"results written to {out}")
     return 0
@@ -88,24 +163,24 @@ def _cmd_cosim(args) -> int:
 
 def _cmd_convergence(args) -> int:
     from analysis.experiment import default_out_dir, staged_output
-    from blocks import load_scenario
     from analysis.figures import convergence_figure
+    from blocks import load_scenario
     from fmu.convergence import cosim_convergence
 
     s = load_scenario(args.scenario)
     out = Path(args.out) if args.out is not None else default_out_dir("dobkit-convergence")
     staging = staged_output(out)  # refuses a non-empty folder before the (long) study
-    study = cosim_convergence(args.fmu, s, steps=args.steps, t_final=args.t_final,
-                              side_substeps=args.side_substeps)
+    study = cosim_convergence(args.fmu, s, steps=args.steps, t_final=args.t_final, side_substeps=args.side_substeps,
+                              coupling=args.coupling, budget=_budget(args))
     figures_note = "figure: skipped (--no-figures)"
     with staging as stage:
-        (stage / "convergence.json").write_text(json.dumps(study, indent=2) + "\n")
+        (stage / "convergence.json").write_text(strict_json(study))
         (stage / "scenario.toml").write_text(s.to_toml())
         if not args.no_figures:
             convergence_figure(study, stage)
             figures_note = "figure: convergence.png, convergence.svg"
-    print(f"co-simulation of {args.fmu} (FMI {study['fmi_version']}) against the monolithic loop, scenario "
-          f"{s.name}, t_final = {study['t_final']:g} s")
+    print(f"co-simulation of {args.fmu} (FMI {study['fmi_version']}, {study['coupling']} coupling) against the "
+          f"monolithic loop, scenario {s.name}, t_final = {study['t_final']:g} s")
     print("  h (s)      " + "  ".join(f"{n} ({u})".rjust(14) for n, u in study["units"].items()))
     for k, h in enumerate(study["steps"]):
         print(f"  {h:<10g} " + "  ".join(f"{study['errors'][n][k]:14.4e}" for n in study["units"]))
@@ -116,33 +191,87 @@ def _cmd_convergence(args) -> int:
     return 0
 
 
+def _verdict(passed: bool) -> str:
+    return "passed" if passed else "FAILED"
+
+
+def _print_check(report: dict) -> None:
+    interfaces = ", ".join(report.get("interfaces") or []) or "none"
+    print(f"{report['path']}: FMI {report['fmi_version']}, model {report['model']}; interfaces: {interfaces}")
+    v = report["validation"]
+    note = f" ({len(v['warnings'])} naming-convention warning(s))" if v["warnings"] else ""
+    print(f"  validation (fmpy): {_verdict(v['passed'])}{note}")
+    for problem in v["errors"]:
+        print(f"    - error: {problem.splitlines()[0]}")
+    for problem in v["warnings"]:
+        print(f"    - warning (variable-naming convention only; the FMU can still be used): {problem.splitlines()[0]}")
+    me = report["model_exchange"]
+    if "skipped" in me:
+        print(f"  Model Exchange: {me['skipped']}")
+    elif not me.get("loads"):
+        print(f"  Model Exchange: FAILED, fmu.load refuses it: {me['refused']}")
+    else:
+        run = me["run"]
+        what = (f"loads as a block ({me['states']} states, {len(me['inputs'])} inputs, {len(me['outputs'])} "
+                f"outputs, feedthrough {me['feedthrough'] or 'none'})")
+        if "error" in run:
+            print(f"  Model Exchange: {what}; the run FAILED: {run['error']}")
+        else:
+            print(f"  Model Exchange: {what}; {run['t_final']:g} s with inputs at their start values: outputs "
+                  f"{'finite' if run['finite'] else 'NOT finite'} -- {_verdict(run['passed'])}")
+    cs = report["co_simulation"]
+    if "skipped" in cs:
+        print(f"  Co-Simulation: {cs['skipped']}")
+    elif not cs.get("runs"):
+        print(f"  Co-Simulation: FAILED to run: {cs['error']}")
+    else:
+        run = cs["run"]
+        print(f"  Co-Simulation: {run['steps']} steps of {run['step']:g} s with inputs at their start values: outputs "
+              f"{'finite' if run['finite'] else 'NOT finite'} -- {_verdict(cs['passed'])}")
+        if not cs["couples"]:
+            print(f"    {cs['refused']}")
+    both = report["me_vs_cs"]
+    if "skipped" not in both:
+        print(f"  Model Exchange vs Co-Simulation: max |difference| {both['max_abs_difference']:.3e} (tolerance "
+              f"{both['tolerance']:.3g}) {_verdict(both['passed'])}")
+    plant = report["plant_comparison"]
+    if "skipped" in plant:
+        print(f"  comparison with the Python plant: skipped ({plant['skipped']})")
+    for key, label in (("model_exchange", "Model Exchange vs Python plant"),
+                       ("co_simulation", "Co-Simulation vs exact ZOH solution")):
+        part = plant.get(key)
+        if part is not None:
+            print(f"  {label}: max |error| {part['max_abs_error']:.3e} (tolerance {part['tolerance']:g}) "
+                  f"{_verdict(part['passed'])}")
+    if "unusable" in report:
+        print(f"  {report['unusable']}")
+    print(_verdict(report["passed"]))
+
+
 def _cmd_check(args) -> int:
     from fmu.check import check_fmu
 
-    report = check_fmu(args.fmu, t_final=args.t_final, tolerance=args.tolerance)
+    report = check_fmu(args.fmu, t_final=args.t_final, tolerance=args.tolerance, cs_step=args.cs_step,
+                       me_cs_tolerance=args.me_cs_tolerance, budget=_budget(args))
     if args.json:
-        print(json.dumps(report, indent=2))
+        print(strict_json(report), end="")
     else:
-        v = report["validation"]
-        print(f"{report['path']}: FMI {report['fmi_version']}, model {report['model']}")
-        print(f"  validation (fmpy): {'passed' if v['passed'] else 'FAILED'}")
-        for problem in v["problems"]:
-            print(f"    - {problem}")
-        for key, label in (("model_exchange", "Model Exchange vs Python plant"),
-                           ("co_simulation", "Co-Simulation vs exact ZOH solution")):
-            part = report[key]
-            if "skipped" in part:
-                print(f"  {label}: skipped ({part['skipped']})")
-            else:
-                print(f"  {label}: max |error| {part['max_abs_error']:.3e} (tolerance {part['tolerance']:g}) "
-                      f"{'passed' if part['passed'] else 'FAILED'}")
-        print("passed" if report["passed"] else "FAILED")
+        _print_check(report)
     return 0 if report["passed"] else 1
+
+
+def _add_budget(parser, default_wall: float = 3600.0) -> None:
+    from fmu.budget import DEFAULT_BUDGET
+    parser.add_argument("--max-steps", type=_positive_int, default=DEFAULT_BUDGET.max_steps,
+                        help=f"largest number of steps of one run, estimated before it starts (default: "
+                             f"{DEFAULT_BUDGET.max_steps})")
+    parser.add_argument("--max-wall-time", type=_positive_float, default=default_wall,
+                        help=f"wall-time limit of the command in s (default: {default_wall:g})")
 
 
 def add_fmu_subcommands(subparsers) -> None:
     """Add ``fmu export``, ``fmu cosim``, ``fmu convergence`` and ``fmu check`` to a ``dobkit`` subparsers object."""
-    fmu = subparsers.add_parser("fmu", help="export the plant as an FMU, co-simulate against it, check it")
+    fmu = subparsers.add_parser("fmu", help="export the plant as an FMU, co-simulate against it, check any FMU")
     sub = fmu.add_subparsers(dest="fmu_command", required=True)
 
     exp = sub.add_parser("export", help="export the scenario's true plant as an FMU (ME + CS)")
@@ -150,20 +279,26 @@ def add_fmu_subcommands(subparsers) -> None:
     exp.add_argument("--fmi-version", type=int, choices=(2, 3), default=2, help="FMI version (default: 2)")
     exp.add_argument("--substeps", type=int, default=4,
                      help="RK4 steps per co-simulation communication step (default: 4)")
-    exp.add_argument("--out", required=True, help="path of the .fmu file to write")
+    exp.add_argument("--out", required=True, help="path of the .fmu file to write (an existing file is refused)")
+    exp.add_argument("--force", action="store_true", help="replace an existing --out file")
     exp.set_defaults(func=_cmd_export)
 
     cos = sub.add_parser("cosim", help="co-simulate the scenario's controller side against a plant FMU; "
-                         "write metrics.json (as 'dobkit simulate') and figures")
+                         "write metrics.json (as 'dobkit simulate', plus the coupling and its error estimate) "
+                         "and figures")
     cos.add_argument("fmu", help="plant FMU (Co-Simulation)")
     cos.add_argument("--scenario", default="paper", help="scenario name or TOML path (default: paper)")
     cos.add_argument("--step", type=_positive_float, default=1e-3, help="communication step in s (default: 0.001)")
-    cos.add_argument("--side-substeps", type=int, default=1,
+    cos.add_argument("--coupling", choices=("zoh", "linear"), default=None,
+                     help="zoh: hold both ways (first order); linear: first-order hold into the FMU, interpolated "
+                          "FMU outputs (second order); default: the best the FMU supports")
+    cos.add_argument("--side-substeps", type=_positive_int, default=1,
                      help="RK4 steps of the Python side per communication step (default: 1)")
     cos.add_argument("--parameters", choices=("scenario", "fmu"), default="scenario",
                      help="set the FMU's plant parameters from the scenario (default) or keep the FMU's own")
     cos.add_argument("--out", default=None, help="output folder (default: a new folder under the current one)")
     cos.add_argument("--no-figures", action="store_true", help="write metrics only")
+    _add_budget(cos)
     cos.set_defaults(func=_cmd_cosim)
 
     con = sub.add_parser("convergence", help="co-simulate at several steps h against the monolithic loop; "
@@ -173,18 +308,29 @@ def add_fmu_subcommands(subparsers) -> None:
     con.add_argument("--steps", type=_step_list, default=(0.004, 0.002, 0.001, 0.0005),
                      help="communication steps in s, comma separated; each must divide the largest "
                           "(default: 0.004,0.002,0.001,0.0005)")
+    con.add_argument("--coupling", choices=("zoh", "linear"), default=None,
+                     help="coupling of every run (default: the best the FMU supports)")
     con.add_argument("--t-final", type=_positive_float, default=None,
                      help="simulated time in s (default: the scenario's)")
-    con.add_argument("--side-substeps", type=int, default=1,
+    con.add_argument("--side-substeps", type=_positive_int, default=1,
                      help="RK4 steps of the Python side per communication step (default: 1)")
     con.add_argument("--out", default=None, help="output folder (default: a new folder under the current one)")
     con.add_argument("--no-figures", action="store_true", help="write convergence.json only")
+    _add_budget(con)
     con.set_defaults(func=_cmd_convergence)
 
-    chk = sub.add_parser("check", help="validate an FMU and compare the plant FMU with the Python plant")
+    chk = sub.add_parser("check", help="validate any FMU, say whether it loads and runs with dobkit (and why "
+                         "not), compare its interfaces, and compare the plant FMU with the Python plant; runs "
+                         "the FMU's native code: check untrusted FMUs in a sandbox")
     chk.add_argument("fmu", help="the .fmu file")
-    chk.add_argument("--t-final", type=_positive_float, default=1.0, help="comparison length in s (default: 1)")
+    chk.add_argument("--t-final", type=_positive_float, default=1.0, help="length of the runs in s (default: 1)")
+    chk.add_argument("--cs-step", type=_positive_float, default=0.01,
+                     help="communication step of the Co-Simulation runs in s (default: 0.01)")
     chk.add_argument("--tolerance", type=_positive_float, default=1e-6,
-                     help="largest allowed Model Exchange difference (default: 1e-6)")
-    chk.add_argument("--json", action="store_true", help="print the full report as JSON")
+                     help="largest allowed difference to the Python plant (default: 1e-6)")
+    chk.add_argument("--me-cs-tolerance", type=_positive_float, default=1e-4,
+                     help="largest allowed Model Exchange / Co-Simulation difference, relative to max(1, max|y|) "
+                          "(default: 1e-4)")
+    chk.add_argument("--json", action="store_true", help="print the full report as (strict) JSON")
+    _add_budget(chk, default_wall=600.0)
     chk.set_defaults(func=_cmd_check)

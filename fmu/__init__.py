@@ -9,39 +9,46 @@
     plant = fmu.load(path)                                   # Model Exchange FMU -> NonlinearIOSystem
     loop = blocks.closed_loop("paper", plant=plant)          # drop-in for the Python plant
     resp = fmu.cosimulate(path, "paper", step=1e-3)          # Co-Simulation against the Python controller side
-    report = fmu.check_fmu(path)                             # fmpy validation + comparison with the Python plant
+    report = fmu.check_fmu(path)                             # validate, load, run; plant vs Python plant
     study = fmu.cosim_convergence(path, "paper")             # co-simulation error vs h, fitted order
 
 Bad FMUs raise a subclass of :class:`FMUError` (a ``ValueError``) naming what
 is wrong; archives are checked before anything is extracted, into a private
-temporary folder that is removed afterwards.
+temporary folder that is removed afterwards (and, should the process die
+inside FMU code, at the next start).  Loading or checking an FMU runs its
+native code in this process (a shared library's constructor runs on load):
+check an untrusted FMU in a sandbox.
 
 Modules, one job each: ``archive`` (safe extraction), ``description`` (model
 description checks, supported subset), ``logger`` (FMU log messages to the
 right instance), ``instance`` (one native instance), ``block`` (``load``: ME FMU as a
-block), ``master`` (fixed-step co-simulation), ``scenario_values`` (scenario
--> FMU start values), ``cosim`` (a scenario against a plant FMU),
-``convergence`` (co-simulation error versus step size), ``check``,
+block), ``coupling`` (what crosses between the sides within a step),
+``master`` (fixed-step co-simulation), ``budget`` (limits on steps and wall
+time), ``scenario_values`` (scenario -> FMU start values), ``cosim`` (a
+scenario against a plant FMU), ``convergence`` (co-simulation error versus
+step size), ``check`` and ``plant_check``,
 ``export`` / ``variables`` / ``modeldescription`` / ``build`` / ``package``
 (the plant FMU), ``c/`` (the plant's C code).
 The command line (``dobkit fmu ...``) lives in :mod:`dobkit.fmu_commands`.
 """
 from .archive import ExtractedFMU, ExtractionLimits, extract_fmu
 from .block import FMUBlock, load
+from .budget import Budget
 from .check import check_fmu
 from .convergence import cosim_convergence
 from .cosim import controller_side, cosimulate
 from .description import require_variables
-from .errors import (FMUArchiveError, FMUBuildError, FMUError, FMUInstantiationError, FMUMissingVariablesError,
-                     FMUModelDescriptionError, FMUPlatformError, FMUStepError, FMUUnsupportedError, FMUVersionError)
+from .errors import (BudgetError, CoSimulationError, FMUArchiveError, FMUBuildError, FMUError, FMUInstantiationError,
+                     FMUMissingVariablesError, FMUModelDescriptionError, FMUPlatformError, FMUStepError,
+                     FMUUnsupportedError, FMUVersionError)
 from .export import MODEL_IDENTIFIER, export_plant
 from .instance import FMUInstance
-from .master import CoSimulationError, cosimulate_system
+from .master import cosimulate_system
 
 __all__ = [
     "export_plant", "load", "FMUBlock", "cosimulate", "cosimulate_system", "controller_side", "check_fmu",
     "extract_fmu", "cosim_convergence", "require_variables", "FMUInstance", "ExtractedFMU", "ExtractionLimits",
     "MODEL_IDENTIFIER", "FMUError", "FMUArchiveError", "FMUModelDescriptionError", "FMUVersionError",
     "FMUUnsupportedError", "FMUPlatformError", "FMUMissingVariablesError", "FMUInstantiationError", "FMUStepError",
-    "FMUBuildError", "CoSimulationError",
+    "FMUBuildError", "CoSimulationError", "Budget", "BudgetError",
 ]

@@ -7,7 +7,9 @@ every entry is checked:
 * no entry may leave the extraction folder: absolute paths, ``..``
   components, backslashes, drive letters or other colons, NUL characters,
   symbolic links and other special files are refused;
-* no duplicate (after normalisation) or encrypted entries;
+* no duplicate (after normalisation) file entries or encrypted entries
+  (a directory entry zipped twice, a common packaging artefact, is harmless
+  and accepted);
 * size limits: the number of entries, the total uncompressed size, the
   compression ratio of each large entry and the ratio of the whole archive
   (total uncompressed / total compressed size), so that a bomb made of many
@@ -18,7 +20,11 @@ every entry is checked:
 Extraction goes into a fresh folder from :func:`tempfile.mkdtemp` that the
 returned :class:`ExtractedFMU` owns and removes (``cleanup``, ``with``, or
 at garbage collection).  Nothing is written outside it; on any error it is
-removed before the exception propagates.
+removed before the exception propagates.  The folder's name carries the
+process id (``dobkit-fmu-<pid>-...``): when FMU code crashes or hangs the
+process, nothing runs to remove it, so the first extraction of a later
+process removes the folders, in the same parent folder, of processes that
+no longer exist.
 """
 from __future__ import annotations
 
@@ -35,9 +41,12 @@ from pathlib import Path
 
 from .errors import FMUArchiveError
 
-__all__ = ["ExtractionLimits", "ExtractedFMU", "extract_fmu", "check_entries", "open_extracted"]
+__all__ = ["ExtractionLimits", "ExtractedFMU", "extract_fmu", "check_entries", "open_extracted",
+           "remove_stale_extractions"]
 
 _CHUNK = 1 << 16
+_PREFIX = "dobkit-fmu-"
+_SWEPT: set[str] = set()        # parent folders already cleaned of dead processes' extractions
 
 
 @dataclass(frozen=True)
@@ -61,6 +70,14 @@ class ExtractionLimits:
         archive (default 100; a typical FMU is below 10).
     max_entries : int
         Largest number of entries (default 10000).
+    max_description_size : int
+        Largest ``modelDescription.xml`` in bytes (default 64 MiB; large
+        generated models stay well below), checked before it is extracted or parsed.
+    max_description_token : int
+        Largest single comment, attribute value or text run in
+        ``modelDescription.xml`` in bytes (default 1 MiB): the XML parser
+        takes time quadratic in the length of one such token (80 MB of
+        comment: 45 s), so longer ones are refused before parsing.
     """
 
     max_total_size: int = 512 * 2 ** 20
@@ -68,9 +85,12 @@ class ExtractionLimits:
     ratio_min_size: int = 2 ** 20
     max_entries: int = 10_000
     max_total_ratio: float = 100.0
+    max_description_size: int = 64 * 2 ** 20
+    max_description_token: int = 2 ** 20
 
     def __post_init__(self) -> None:
-        for name in ("max_total_size", "max_ratio", "max_entries", "max_total_ratio"):
+        for name in ("max_total_size", "max_ratio", "max_entries", "max_total_ratio", "max_description_size",
+                     "max_description_token"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
                 raise ValueError(f"ExtractionLimits.{name} must be a number > 0, got {value!r}")
@@ -133,8 +153,14 @@ def check_entries(zf: zipfile.ZipFile, source: str, limits: ExtractionLimits) ->
         if not key:
             continue
         if key in seen:
+            if info.is_dir() and seen[key].endswith("/"):
+                continue            # the same directory twice: nothing to overwrite
             raise FMUArchiveError(f"{source}: entries {seen[key]!r} and {info.orig_filename!r} name the same file")
         seen[key] = info.orig_filename
+        if key == "modelDescription.xml" and info.file_size > limits.max_description_size:
+            raise FMUArchiveError(f"{source}: modelDescription.xml has {info.file_size} bytes, more than the limit of "
+                                  f"{limits.max_description_size} (ExtractionLimits.max_description_size); refusing "
+                                  "to extract")
         total += info.file_size
         compressed += info.compress_size
         if total > limits.max_total_size:
@@ -166,9 +192,10 @@ class ExtractedFMU:
         The archive it came from.
     """
 
-    def __init__(self, root: Path, source: str):
+    def __init__(self, root: Path, source: str, limits: ExtractionLimits | None = None):
         self.root = root
         self.source = source
+        self.limits = ExtractionLimits() if limits is None else limits
         self.model_description = None  # filled once by fmu.description.described
         self._finalizer = weakref.finalize(self, shutil.rmtree, str(root), True)
 
@@ -216,6 +243,45 @@ def _extract_one(zf: zipfile.ZipFile, info: zipfile.ZipInfo, root: Path, root_re
     os.chmod(target, 0o700 if key.startswith("binaries/") else 0o600)
 
 
+def _process_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:     # another user's process: alive
+        return True
+    return True
+
+
+def remove_stale_extractions(parent=None) -> list[str]:
+    """Remove extraction folders left in ``parent`` by processes that no longer exist (crashed in FMU code).
+
+    Only folders named ``dobkit-fmu-<pid>-...``, owned by this user, whose
+    process is gone, are removed.  Returns their paths.
+    """
+    folder = Path(tempfile.gettempdir() if parent is None else parent)
+    removed = []
+    try:
+        entries = list(folder.iterdir())
+    except OSError:
+        return removed
+    for entry in entries:
+        name = entry.name
+        if not name.startswith(_PREFIX):
+            continue
+        pid_text = name[len(_PREFIX):].split("-", 1)[0]
+        if not pid_text.isdigit() or int(pid_text) == os.getpid() or _process_alive(int(pid_text)):
+            continue
+        try:
+            info = entry.lstat()
+        except OSError:
+            continue
+        if stat.S_ISDIR(info.st_mode) and (not hasattr(os, "getuid") or info.st_uid == os.getuid()):
+            shutil.rmtree(entry, ignore_errors=True)
+            removed.append(str(entry))
+    return removed
+
+
 def extract_fmu(path, limits: ExtractionLimits | None = None, parent=None) -> ExtractedFMU:
     """Check and extract an FMU into a new private temporary folder.
 
@@ -252,8 +318,12 @@ def extract_fmu(path, limits: ExtractionLimits | None = None, parent=None) -> Ex
         raise FMUArchiveError(f"{source}: cannot be read as a zip archive: {err}") from None
     with zf:
         infos = check_entries(zf, source, limits)
-        root = Path(tempfile.mkdtemp(prefix="dobkit-fmu-", dir=parent))
-        extracted = ExtractedFMU(root, source)
+        sweep_key = str(Path(tempfile.gettempdir() if parent is None else parent).resolve())
+        if sweep_key not in _SWEPT:         # once per parent folder and process
+            _SWEPT.add(sweep_key)
+            remove_stale_extractions(parent)
+        root = Path(tempfile.mkdtemp(prefix=f"{_PREFIX}{os.getpid()}-", dir=parent))
+        extracted = ExtractedFMU(root, source, limits)
         root_real = os.path.realpath(root) + os.sep
         budget = [limits.max_total_size]
         try:

@@ -7,12 +7,23 @@ The returned system is a drop-in block for :func:`control.interconnect`:
 * inputs: its real input variables; outputs: its real output variables,
   in model-description order, with their FMU names;
 * ``updfcn(t, x, u)`` sets time, states and inputs and returns the state
-  derivatives; ``outfcn(t, x, u)`` does the same and returns the outputs.
+  derivatives; ``outfcn(t, x, u)`` sets time, states and *only the inputs
+  some output depends on* and returns the outputs.
 
-The system is a :class:`blocks.contract.Block`: its contract declares the
-inputs on which some output depends according to ``ModelStructure`` (all
-inputs if it does not say) as its feedthrough, and ``close()`` (or a
-``with`` statement) releases the FMU.  Attributes: ``initial_state`` (the states after initialization), ``fmu`` (the
+Which inputs an output needs comes from the model structure (FMI 2
+``ModelStructure/Outputs`` dependencies, FMI 3 ``Output`` dependencies; an
+output without the attribute needs every input).  Engines -- python-control's
+own evaluation of an interconnection and :class:`blocks.fastsim.CompiledLoop`
+-- evaluate outputs before every input is known, with zeros or stale values
+in its place; an FMU whose equations divide by an input (a mass, a length)
+would return an error status if that input were set to zero, although no
+output needs it.  Those inputs are set only for the state derivatives.
+
+The system is a :class:`blocks.contract.Block`: its contract declares
+exactly those needed inputs as its feedthrough, and ``close()`` (or a
+``with`` statement) releases the FMU.  An FMU without continuous states
+(a gain, an adder, a table) is a static block.  Attributes:
+``initial_state`` (the states after initialization), ``fmu`` (the
 :class:`~fmu.instance.FMUInstance`, which owns the native instance
 and the extraction folder; ``sys.fmu.close()`` releases them early) and
 ``model_description``.
@@ -28,7 +39,7 @@ from .description import described, real_variables, require_variables
 from .errors import FMUModelDescriptionError
 from .instance import FMUInstance
 
-__all__ = ["load", "output_feedthrough", "FMUBlock"]
+__all__ = ["load", "output_feedthrough", "output_dependencies", "FMUBlock"]
 
 
 class FMUBlock(Block):
@@ -41,6 +52,33 @@ class FMUBlock(Block):
             fmu.close()
 
 
+def output_dependencies(model_description, input_names: list[str]) -> dict[str, frozenset[str]]:
+    """For each output variable, the inputs among ``input_names`` it depends on directly.
+
+    From ``ModelStructure``: FMI 2 ``Outputs/Unknown``, FMI 3 ``Output``
+    elements.  An output without a ``dependencies`` attribute, or missing from
+    the model structure, depends on every input (the standard's default).
+
+    Parameters
+    ----------
+    model_description : fmpy.model_description.ModelDescription
+    input_names : list of str
+        Names of the input variables of interest.
+    """
+    wanted = frozenset(input_names)
+    listed = {u.variable.name: u for u in model_description.outputs}
+    deps: dict[str, frozenset[str]] = {}
+    for v in model_description.modelVariables:
+        if v.causality != "output":
+            continue
+        unknown = listed.get(v.name)
+        if unknown is None or unknown.dependencies is None:
+            deps[v.name] = wanted
+        else:
+            deps[v.name] = frozenset(d.name for d in unknown.dependencies) & wanted
+    return deps
+
+
 def output_feedthrough(model_description, input_names: list[str]) -> frozenset[str]:
     """Inputs that reach some output directly, from ``ModelStructure`` (all inputs if unknown).
 
@@ -50,15 +88,8 @@ def output_feedthrough(model_description, input_names: list[str]) -> frozenset[s
     input_names : list of str
         Names of the input variables of interest.
     """
-    outputs = model_description.outputs
-    if not outputs and any(v.causality == "output" for v in model_description.modelVariables):
-        return frozenset(input_names)
-    through: set[str] = set()
-    for unknown in outputs:
-        if unknown.dependencies is None:  # no dependency information: assume every input
-            return frozenset(input_names)
-        through.update(v.name for v in unknown.dependencies if v.name in input_names)
-    return frozenset(through)
+    deps = output_dependencies(model_description, input_names)
+    return frozenset().union(*deps.values()) if deps else frozenset()
 
 
 def load(path, name: str = "plant", start_values: dict | None = None, start_time: float = 0.0,
@@ -112,8 +143,10 @@ def load(path, name: str = "plant", start_values: dict | None = None, start_time
     Notes
     -----
     Supported subset: Model Exchange FMUs (FMI 2.0 or 3.0) that are
-    continuous-time systems with scalar Real / Float64 inputs and outputs.
-    Refused at load, with the feature named:
+    continuous-time systems with scalar Real / Float64 inputs and outputs,
+    with or without continuous states (an FMU without states is a static
+    block).  Parameters and start values of any type can be set (FMI 3
+    enumerations as Int64).  Refused at load, with the feature named:
 
     * state events -- ``numberOfEventIndicators`` > 0 (FMI 2) or
       ``EventIndicator`` elements (FMI 3);
@@ -125,9 +158,13 @@ def load(path, name: str = "plant", start_values: dict | None = None, start_time
     Not detected, so do not use them: FMUs that need ``completedIntegratorStep``
     to request step events, or whose discrete variables change in continuous time.
 
-    The FMU's native code runs in this process: a crashing FMU ends Python.
-    Each call sets time, states and inputs before evaluating, so the block
-    may be evaluated at any time and state, in any order (as solvers do).
+    The FMU's native code runs in this process: loading runs the shared
+    library's constructors, and a crashing FMU ends Python -- load an
+    untrusted FMU only in a sandbox.  Each call sets time, states and the
+    inputs it needs before evaluating, so the block may be evaluated at any
+    time and state, in any order (as solvers do).  An error status raises
+    :class:`~fmu.errors.FMUStepError` with the FMU's own log lines of the
+    failing call (the FMU is instantiated with logging on).
     Loading is serialised by a lock (fmpy changes the working directory
     while it loads a library); evaluating one instance from several threads
     at once is not supported.
@@ -164,31 +201,37 @@ def load(path, name: str = "plant", start_values: dict | None = None, start_time
             raise FMUModelDescriptionError(f"{inst.source}: the FMU has no real output variables to connect")
         in_vr = inst.value_references(inputs)
         out_vr = inst.value_references(outputs)
+        deps = output_dependencies(md, inputs)
+        needed = [j for j, n in enumerate(inputs) if any(n in deps[o] for o in outputs)]
+        needed_vr = inst.value_references([inputs[j] for j in needed])
         initial_state = inst.get_states() if state_names else np.zeros(0)
     except BaseException:
         inst.close()
         raise
+    needed_idx = np.array(needed, dtype=int)
 
-    def prepare(t, x, u) -> None:
+    def prepare(t, x) -> None:
         inst.set_time(float(t))
         if state_names:
             inst.set_states(x)
-        if inputs:
-            inst.set_real(in_vr, u)
 
     def update(t, x, u, params):
-        prepare(t, x, u)
+        prepare(t, x)
+        if inputs:
+            inst.set_real(in_vr, u)
         return inst.derivatives()
 
     def output(t, x, u, params):
-        prepare(t, x, u)
+        prepare(t, x)
+        if needed:      # only the inputs the outputs depend on: the others may be zeros or stale here
+            inst.set_real(needed_vr, np.asarray(u, dtype=float)[needed_idx])
         return inst.get_real(out_vr)
 
     signals = dict(name=name, inputs=inputs, outputs=outputs)
     if state_names:     # python-control refuses a state count of 0 without an update function
         signals["states"] = state_names
     sys = FMUBlock(update if state_names else None, output, contract=BlockContract(
-        feedthrough=output_feedthrough(md, inputs)), **signals)
+        feedthrough=frozenset(inputs[j] for j in needed)), **signals)
     sys.initial_state = initial_state
     sys.fmu = inst
     sys.model_description = md

@@ -17,14 +17,14 @@ different units do not matter), and per joint.
 """
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
 from blocks.scenario import Scenario, load_scenario
 from .archive import ExtractionLimits, open_extracted
-from .master import CoSimulationError
+from .budget import DEFAULT_BUDGET, Budget
+from .master import CoSimulationError, validated_time
 from blocks.joints import RRPR_JOINTS
 
 __all__ = ["cosim_convergence", "fit_order", "DEFAULT_STEPS", "REFERENCE"]
@@ -89,6 +89,7 @@ def _common_grid(steps, t_final: float) -> float:
 
 def cosim_convergence(fmu_path, scenario: Scenario | str = "paper", steps=DEFAULT_STEPS,
                       t_final: float | None = None, observer: bool = True, side_substeps: int = 1,
+                      coupling: str | None = None, budget: Budget | None = None,
                       limits: ExtractionLimits | None = None, extract_to=None,
                       progress: Callable[[str, float], None] | None = None) -> dict:
     """Co-simulation error against the monolithic loop at several communication steps.
@@ -111,6 +112,10 @@ def cosim_convergence(fmu_path, scenario: Scenario | str = "paper", steps=DEFAUL
         With or without the disturbance observer.
     side_substeps : int
         RK4 steps of the Python side per communication step.
+    coupling : {"zoh", "linear"}, optional
+        Coupling of every run (:mod:`fmu.coupling`); default the best the FMU supports.
+    budget : Budget, optional
+        Limits on the steps of each run and the wall time of the whole study.
     limits, extract_to :
         Archive limits and extraction parent (the FMU is extracted once for all runs).
     progress : callable, optional
@@ -123,7 +128,8 @@ def cosim_convergence(fmu_path, scenario: Scenario | str = "paper", steps=DEFAUL
         one per step, in ``units``), ``order`` (common fitted slope),
         ``order_per_joint``, ``output_step`` (s, the common grid), ``t_final``
         (s), ``reference`` (solver of the monolithic run), ``definition``,
-        ``scenario``, ``fmu``, ``fmi_version``, ``observer``, ``side_substeps``.
+        ``scenario``, ``fmu``, ``fmi_version``, ``observer``, ``side_substeps``,
+        ``coupling``.
 
     Raises
     ------
@@ -137,8 +143,12 @@ def cosim_convergence(fmu_path, scenario: Scenario | str = "paper", steps=DEFAUL
     if len(steps) < 2 or not all(np.isfinite(h) and h > 0 for h in steps):
         raise CoSimulationError(f"need at least two different finite steps > 0 s, got {steps}")
     s = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
-    t_end = s.simulation.t_final if t_final is None else float(t_final)
+    t_end = s.simulation.t_final if t_final is None else validated_time(t_final, "t_final")
     grid = _common_grid(steps, t_end)
+    budget = DEFAULT_BUDGET if budget is None else budget
+    budget.check_steps(t_end / min(steps) * side_substeps, "convergence study",
+                       f"t_final = {t_end:g} s / smallest step h = {min(steps):g} s")
+    deadline = budget.deadline("convergence study")
     s = s.replace(simulation={"t_final": t_end, "output_step": grid})
     report = progress or (lambda stage, fraction: None)
 
@@ -154,8 +164,10 @@ def cosim_convergence(fmu_path, scenario: Scenario | str = "paper", steps=DEFAUL
     try:
         for k, h in enumerate(steps):
             stage = f"co-simulation h = {h:g} s"
+            deadline.check(f"before the run at h = {h:g} s")
             resp = cosimulate(extracted, s, step=h, observer=observer, side_substeps=side_substeps,
-                              parameters="scenario", progress=lambda f, st=stage: report(st, f))
+                              parameters="scenario", coupling=coupling, error_estimate=False, budget=budget,
+                              progress=lambda f, st=stage: report(st, f))
             if resp.time.shape != ref.time.shape or np.max(np.abs(resp.time - ref.time)) > 1e-9:
                 raise CoSimulationError(f"h = {h:g} s: the co-simulation grid differs from the reference grid")
             got = np.asarray(resp.outputs)[[list(resp.output_labels).index(f"q[{i}]") for i in range(JOINTS)]]
@@ -172,6 +184,7 @@ def cosim_convergence(fmu_path, scenario: Scenario | str = "paper", steps=DEFAUL
         "fmi_version": info["fmi_version"],
         "observer": observer,
         "side_substeps": side_substeps,
+        "coupling": info["coupling"],
         "t_final": t_end,
         "output_step": grid,
         "steps": steps,
@@ -182,5 +195,6 @@ def cosim_convergence(fmu_path, scenario: Scenario | str = "paper", steps=DEFAUL
         "reference": dict(REFERENCE, engine="blocks.simulate (monolithic Python loop)"),
         "definition": ("error = max over the output grid of |q_cosim - q_monolithic| per joint; order = "
                        "least-squares slope of log(error) against log(h), common to all joints (one intercept "
-                       "per joint); zero-order-hold coupling is first order, so order ~ 1"),
+                       "per joint); the zero-order hold is first order (order ~ 1), the linear coupling second "
+                       "order (order ~ 2)"),
     }

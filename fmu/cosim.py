@@ -1,33 +1,30 @@
 """Co-simulate a scenario's controller side in Python against a plant Co-Simulation FMU.
 
 The Python side is the scenario's trajectory, controller, observer (and
-sensor with noise), built by :func:`blocks.build_blocks` and wired
-with :func:`control.interconnect`; its external inputs are the plant's
-``q[i]`` and ``dq[i]``.  The plant is the FMU, started where the scenario
-starts the arm and, by default, given the scenario's true-robot and
-disturbance parameters (those the FMU declares).  The coupling is the
-fixed-step master of :mod:`fmu.master`: zero-order hold on the
-exchanged signals, first-order in the communication step ``h``.
+sensor with noise), built by :func:`blocks.build_blocks` and wired by name
+with :func:`control.interconnect`.  Its external inputs are the plant's
+``q[i]`` and ``dq[i]`` and, with the observer, the torque ``tau[i]`` *that
+the plant receives*: the observer estimates the disturbance from the torque
+the plant actually got over each step (held, or following the same slope),
+not from the controller's command as it would move within the step.  The
+plant is the FMU, started where the scenario starts the arm and, by
+default, given the scenario's true-robot and disturbance parameters (those
+the FMU declares).
 
-Accuracy.  The zero-order-hold coupling is *first order* in ``h``: the
-plant sees the torque of ``t_k`` over the whole step and the controller the
-state of ``t_k``, a delay of up to one step in each direction, so the
-difference to the monolithic loop (:func:`blocks.simulate`) falls
-like ``h``, not like the RK4 integration inside each side: halving ``h``
-halves the difference.  The RMS metrics of Eq. 13-14 move with ``h`` as
-well; the README (section on the FMU) lists the differences measured on the
-``paper`` scenario.  Choose h from a convergence study (``dobkit fmu
-convergence``, :func:`fmu.cosim_convergence`) or a comparison with the
-monolithic run before trusting co-simulated numbers.
+The coupling is the fixed-step master of :mod:`fmu.master`, by default the
+best the FMU supports: for the exported plant the ``linear`` coupling
+(:mod:`fmu.coupling`) -- a first-order hold on the torque, the plant's
+outputs interpolated from their exact derivatives -- which is second order
+in the communication step ``h`` because the plant has no direct
+feedthrough; ``coupling="zoh"`` holds both ways and is first order.  The
+README (section on the FMU) lists the differences to the monolithic loop
+(:func:`blocks.simulate`) measured on the ``paper`` scenario.
 
-Because the plant has no direct feedthrough (its outputs ``q``, ``dq``,
-``tau_dis`` do not depend on ``tau``), a second-order scheme is possible:
-advance the plant first over ``[t_k, t_k + h]`` with the torque extrapolated
-linearly from the last two communication points (FMI 2
-``fmi2SetRealInputDerivatives``, which the exported plant refuses today),
-then advance the Python side with the plant outputs interpolated between
-``t_k`` and ``t_k + h``, with no algebraic loop to iterate.  It is not
-implemented.
+Each run carries an error estimate from step doubling over its first
+seconds: the same co-simulation at ``h`` and ``2 h``, their largest
+difference divided by ``2^p - 1`` (``p`` the coupling's order).  A
+convergence study (``dobkit fmu convergence``, :func:`fmu.cosim_convergence`)
+measures the error against the monolithic loop itself.
 
 The result has the same named outputs as :func:`blocks.simulate`
 (``q``, ``dq``, ``q_ref``, ``dq_ref``, ``ddq_ref``, ``tau``, ``tau_dis``,
@@ -45,8 +42,10 @@ import numpy as np
 from blocks.loop import LOOP_SIGNALS, build_blocks, initial_state, lumped_disturbance
 from blocks.scenario import Scenario, load_scenario
 from .archive import ExtractionLimits, open_extracted
+from .budget import DEFAULT_BUDGET, Budget
+from .coupling import COUPLINGS
 from .description import described, require_variables
-from .master import CoSimulationError, cosimulate_system
+from .master import CoSimulationError, cosimulate_system, validated_step, validated_time
 from .scenario_values import plant_start_values
 from blocks.joints import RRPR_JOINTS
 
@@ -60,20 +59,36 @@ def _names(prefix: str) -> list[str]:
 
 
 def controller_side(scenario: Scenario, observer: bool = True) -> ct.InterconnectedSystem:
-    """Trajectory, controller, observer (and sensor) of a scenario: inputs ``q[i]``, ``dq[i]``.
+    """Trajectory, controller, observer (and sensor) of a scenario, as the Python side of a co-simulation.
 
-    Outputs are the loop signals the Python side produces: ``q_ref``,
-    ``dq_ref``, ``ddq_ref``, ``tau``, and ``d_hat`` / ``q_meas`` / ``dq_meas``
-    when present.
+    Inputs: ``q[i]``, ``dq[i]`` (the plant's outputs) and, with the
+    observer, ``tau[i]``: the torque the plant receives, which feeds the
+    observer.  Outputs are the loop signals the Python side produces:
+    ``q_ref``, ``dq_ref``, ``ddq_ref``, ``tau`` (the controller's command),
+    and ``d_hat`` / ``q_meas`` / ``dq_meas`` when present.  A signal name is
+    both an input and an output only for ``tau[i]``: the command goes out,
+    the applied torque comes back.
     """
     blocks = build_blocks(scenario, observer=observer)
     side = [b for key, b in blocks.items() if key != "plant"]
-    inputs = _names("q") + _names("dq")
+    external = _names("q") + _names("dq") + (_names("tau") if observer else [])
+    sources = {label: b for b in side for label in b.output_labels}
+    connections, consumers = [], {name: [] for name in external}
+    for b in side:
+        for label in b.input_labels:
+            if label in consumers and not (label.startswith("tau[") and b.name == "controller"):
+                consumers[label].append(f"{b.name}.{label}")
+            elif label in sources:
+                connections.append([f"{b.name}.{label}", f"{sources[label].name}.{label}"])
+            else:
+                raise CoSimulationError(f"block {b.name!r} reads {label!r}, which no block of the Python side gives")
+    inputs = [name for name in external if consumers[name]]
     signals = ["q_ref", "dq_ref", "ddq_ref", "tau"] + (["d_hat"] if observer else [])
     if "sensor" in blocks:
         signals += ["q_meas", "dq_meas"]
     outputs = [n for sig in signals for n in _names(sig)]
-    return ct.interconnect(side, inplist=inputs, inputs=inputs, outlist=outputs, outputs=outputs,
+    return ct.interconnect(side, connections=connections, inplist=[consumers[n] for n in inputs], inputs=inputs,
+                           outlist=[f"{sources[n].name}.{n}" for n in outputs], outputs=outputs,
                            name="controller_side", check_unused=False)
 
 
@@ -89,16 +104,23 @@ def _plant_variables(extracted) -> set[str]:
 def _record_every(output_step: float, step: float) -> int:
     """How many communication steps make one output step; raises unless it is a whole number."""
     ratio = output_step / step
-    k = int(round(ratio))
+    k = int(round(ratio)) if np.isfinite(ratio) else 0
     if k < 1 or abs(ratio - k) > 1e-9 * max(1.0, ratio):
+        finer = output_step / max(1, int(np.ceil(ratio))) if np.isfinite(ratio) else output_step
         raise CoSimulationError(f"the scenario's output step ({output_step:g} s) is not a whole multiple of the "
                                 f"communication step h = {step:g} s; choose h = output_step / n (e.g. "
-                                f"{output_step / max(1, int(np.ceil(ratio))):g} s) or change simulation.output_step")
+                                f"{finer:g} s) or change simulation.output_step")
     return k
+
+
+# step doubling runs over at most this much of the start (s)
+ESTIMATE_TIME = 1.0
+_ORDER = {"zoh": 1, "linear": 2}
 
 
 def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3, observer: bool = True,
                side_substeps: int = 1, parameters: str = "scenario", t_final: float | None = None,
+               coupling: str | None = None, error_estimate: bool = True, budget: Budget | None = None,
                limits: ExtractionLimits | None = None, extract_to=None,
                progress: Callable[[float], None] | None = None) -> ct.TimeResponseData:
     """Run a scenario's Python side against a plant Co-Simulation FMU.
@@ -113,9 +135,9 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
     scenario : Scenario or str
         Scenario or its name/path (default ``paper``).
     step : float
-        Communication step ``h`` (s); ``t_final`` and the scenario's
-        ``simulation.output_step`` must be whole numbers of steps (no
-        interpolation: the result is recorded at communication points only).
+        Communication step ``h`` (s), finite and > 0; ``t_final`` and the
+        scenario's ``simulation.output_step`` must be whole numbers of steps
+        (no interpolation: the result is recorded at communication points only).
     observer : bool
         With or without the disturbance observer.
     side_substeps : int
@@ -126,6 +148,13 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
         rest); ``fmu``: keep the FMU's own start values.
     t_final : float, optional
         End time (s); default the scenario's ``simulation.t_final``.
+    coupling : {"zoh", "linear"}, optional
+        See :mod:`fmu.coupling`; default the best the FMU supports.
+    error_estimate : bool
+        Estimate the coupling error by step doubling over the first
+        ``min(1 s, t_final)`` (two short extra runs, at ``h`` and ``2 h``).
+    budget : Budget, optional
+        Limits on steps and wall time (:data:`fmu.budget.DEFAULT_BUDGET`).
     limits, extract_to :
         Archive size limits and extraction parent folder.
     progress : callable, optional
@@ -135,26 +164,38 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
     -------
     control.TimeResponseData
         Outputs named as in :func:`blocks.simulate`, on the scenario's
-        output grid; attributes ``scenario``, ``with_observer`` and ``cosim`` (settings).
+        output grid; attributes ``scenario``, ``with_observer`` and ``cosim``
+        (settings, the coupling used, and ``error_estimate``).
 
     Raises
     ------
     CoSimulationError
-        If ``output_step`` or ``t_final`` is not a whole number of steps ``h`` (naming both values).
+        If ``step`` is not a finite number > 0, ``output_step`` or
+        ``t_final`` is not a whole number of steps ``h`` (naming both values),
+        the coupling is unknown or unsupported, or a signal diverges.
+    BudgetError
+        If the runs would exceed the budget's steps, or exceed its wall time.
     FMUError
         (a subclass) for a bad FMU, missing variables, or an FMU error status
         during a step (naming the time and status).
     """
+    step = validated_step(step)
     s = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
-    t_end = s.simulation.t_final if t_final is None else float(t_final)
+    t_end = s.simulation.t_final if t_final is None else validated_time(t_final, "t_final")
+    if coupling is not None and coupling not in COUPLINGS:
+        raise CoSimulationError(f"coupling must be one of {list(COUPLINGS)}, got {coupling!r}")
+    record_every = _record_every(s.simulation.output_step, step)
+    budget = DEFAULT_BUDGET if budget is None else budget
     side = controller_side(s, observer=observer)
     side_x0 = initial_state(side, s)
-    record_every = _record_every(s.simulation.output_step, step)
     extracted, owned = open_extracted(fmu_path, limits=limits, parent=extract_to)
     try:
         start = plant_start_values(s, _plant_variables(extracted), parameters)
-        raw = cosimulate_system(extracted, side, t_end, step, side_x0=side_x0, start_values=start,
-                                side_substeps=side_substeps, record_every=record_every, progress=progress)
+        run = dict(side_x0=side_x0, start_values=start, side_substeps=side_substeps, coupling=coupling,
+                   budget=budget)
+        raw = cosimulate_system(extracted, side, t_end, step, record_every=record_every, progress=progress, **run)
+        estimate = (_step_doubling(extracted, side, t_end, step, raw.cosim["coupling"], run) if error_estimate
+                    else {"skipped": "not asked for (error_estimate=False)"})
     finally:
         if owned:
             extracted.cleanup()
@@ -170,13 +211,38 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
     outputs = np.asarray(raw.outputs)[[labels.index(n) for n in wanted]]
     pick = {sig: outputs[[wanted.index(n) for n in _names(sig)]].T for sig in ("q", "dq", "tau", "tau_dis")}
     d = lumped_disturbance(pick["q"], pick["dq"], pick["tau"], pick["tau_dis"], s).T
-    title = (f"{s.name}: co-simulation with {raw.cosim['model']} (h = {step:g} s), "
-             f"{'with' if observer else 'without'} disturbance observer")
+    title = (f"{s.name}: co-simulation with {raw.cosim['model']} (h = {step:g} s, {raw.cosim['coupling']} "
+             f"coupling), {'with' if observer else 'without'} disturbance observer")
     states = np.asarray(raw.x) if raw.x is not None and np.size(raw.x) else None  # .states fails when None
     resp = ct.TimeResponseData(raw.time, np.vstack([outputs, d]), states, output_labels=wanted + _names("d"),
                                state_labels=list(side.state_labels) if states is not None else None, title=title,
                                sysname="cosim", issiso=False, plot_inputs=False)
     resp.scenario = s
     resp.with_observer = observer
-    resp.cosim = dict(raw.cosim, parameters=parameters, t_final=t_end)
+    resp.cosim = dict(raw.cosim, parameters=parameters, t_final=t_end, error_estimate=estimate)
     return resp
+
+
+def _step_doubling(extracted, side, t_end: float, step: float, coupling: str, run: dict) -> dict:
+    """Coupling error estimate: runs at ``h`` and ``2 h`` over the first seconds, ``|y_h - y_2h| / (2^p - 1)``."""
+    p = _ORDER[coupling]
+    n = int(np.floor(min(ESTIMATE_TIME, t_end) / (2 * step) + 1e-9))
+    if n < 2:
+        return {"skipped": f"t_final = {t_end:g} s is shorter than four steps h = {step:g} s"}
+    span = n * 2 * step
+    fine = cosimulate_system(extracted, side, span, step, record_every=2, **run)
+    coarse = cosimulate_system(extracted, side, span, 2 * step, record_every=1, **run)
+    labels = list(fine.output_labels)
+    estimate = {"method": f"step doubling: the co-simulation at h and 2h over the first {span:g} s, "
+                          f"max |y(h) - y(2h)| / (2^p - 1) with p = {p} ({coupling} coupling)",
+                "t_final": span, "order": p, "units": {}}
+    for sig in ("q", "d_hat", "tau"):
+        names = [n for n in _names(sig) if n in labels]
+        if not names:
+            continue
+        rows = [labels.index(n) for n in names]
+        gap = np.abs(np.asarray(fine.outputs)[rows] - np.asarray(coarse.outputs)[rows]).max(axis=1) / (2 ** p - 1)
+        estimate[sig] = dict(zip(names, gap.tolist()))
+        estimate["units"][sig] = {"q": ["rad", "rad", "m", "rad"], "d_hat": ["N m", "N m", "N", "N m"],
+                                  "tau": ["N m", "N m", "N", "N m"]}[sig]
+    return estimate

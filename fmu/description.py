@@ -2,8 +2,10 @@
 
 Checks, each with its own error naming what is wrong:
 
-* ``modelDescription.xml`` exists at the top of the archive and is well-formed
-  XML whose root is ``fmiModelDescription`` (:class:`FMUModelDescriptionError`);
+* ``modelDescription.xml`` exists at the top of the archive, is not too large
+  and has no huge comment, attribute or text (checked before parsing: the
+  parser is quadratic in such a token), and is well-formed XML whose root is
+  ``fmiModelDescription`` (:class:`FMUModelDescriptionError`);
 * the FMI version is 2.0 or 3.0 and the FMU offers the interface asked for
   (:class:`FMUVersionError`);
 * it passes fmpy's schema validation (:class:`FMUModelDescriptionError`,
@@ -17,13 +19,15 @@ Checks, each with its own error naming what is wrong:
 from __future__ import annotations
 
 import difflib
+import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 from .build import platform_folder, shared_library_suffix
 from .errors import FMUMissingVariablesError, FMUModelDescriptionError, FMUPlatformError, FMUVersionError
 
-__all__ = ["read_description", "described", "fmi_major", "interface", "binary_path", "require_variables",
+__all__ = ["read_description", "described", "intermediate_update_names", "offered_interfaces", "fmi_major",
+           "interface", "binary_path", "require_variables",
            "INTERFACES", "real_variables", "unsupported_features", "SUPPORTED_FMI_VERSIONS"]
 
 INTERFACES = ("ModelExchange", "CoSimulation")
@@ -36,7 +40,41 @@ def fmi_major(model_description) -> int:
     return 2 if model_description.fmiVersion == "2.0" else 3
 
 
-def read_description(root: Path, source: str, validate: bool = True):
+def _line(data: bytes, offset: int) -> int:
+    return data.count(b"\n", 0, offset) + 1
+
+
+# one attribute value (either quote) or text run between tags
+_LONG_TOKEN = r"""(?:"[^"]{%d,}")|(?:'[^']{%d,}')|(?:>[^<]{%d,})"""
+
+
+def _check_size(xml: Path, source: str, limits) -> None:
+    """Refuse a description too large, or with one comment, attribute or text too long, before parsing it."""
+    from .archive import ExtractionLimits
+    limits = ExtractionLimits() if limits is None else limits
+    size = xml.stat().st_size
+    if size > limits.max_description_size:
+        raise FMUModelDescriptionError(f"{source}: modelDescription.xml has {size} bytes, more than the limit of "
+                                       f"{limits.max_description_size} (ExtractionLimits.max_description_size)")
+    data = xml.read_bytes()
+    n = limits.max_description_token
+    start = data.find(b"<!--")
+    while start >= 0:
+        end = data.find(b"-->", start + 4)
+        stop = len(data) if end < 0 else end
+        if stop - start > n:
+            raise FMUModelDescriptionError(f"{source}: modelDescription.xml has a comment of {stop - start} bytes "
+                                           f"(line {_line(data, start)}), more than the limit of {n} "
+                                           "(ExtractionLimits.max_description_token); refusing to parse it")
+        start = data.find(b"<!--", stop)
+    long_token = re.search((_LONG_TOKEN % (n, n, n)).encode(), data)
+    if long_token:
+        raise FMUModelDescriptionError(f"{source}: modelDescription.xml has an attribute value or text of more "
+                                       f"than {n} bytes (line {_line(data, long_token.start())}; "
+                                       "ExtractionLimits.max_description_token); refusing to parse it")
+
+
+def read_description(root: Path, source: str, validate: bool = True, limits=None):
     """Parse and validate ``modelDescription.xml`` of an extracted FMU.
 
     Parameters
@@ -47,6 +85,8 @@ def read_description(root: Path, source: str, validate: bool = True):
         Name of the archive, for messages.
     validate : bool
         Check against the FMI schema (fmpy); a failure raises with the list of problems.
+    limits : ExtractionLimits, optional
+        Size limits of the description (checked before parsing).
 
     Returns
     -------
@@ -66,6 +106,7 @@ def read_description(root: Path, source: str, validate: bool = True):
         found = sorted(p.name for p in Path(root).iterdir())[:10]
         raise FMUModelDescriptionError(f"{source}: no modelDescription.xml at the top of the archive "
                                        f"(found: {found or 'nothing'})")
+    _check_size(xml, source, limits)
     try:
         element = ET.parse(xml).getroot()
     except ET.ParseError as err:
@@ -91,6 +132,13 @@ def read_description(root: Path, source: str, validate: bool = True):
                                        problems=[str(err)]) from None
 
 
+def intermediate_update_names(root: Path) -> frozenset[str]:
+    """FMI 3 variables marked ``intermediateUpdate="true"`` (fmpy does not read the attribute)."""
+    variables = ET.parse(Path(root) / "modelDescription.xml").getroot().find("ModelVariables")
+    return frozenset(e.get("name") for e in (variables if variables is not None else [])
+                     if e.get("intermediateUpdate") == "true")
+
+
 def described(extracted):
     """The (validated) model description of an :class:`~fmu.archive.ExtractedFMU`, parsed once.
 
@@ -99,7 +147,7 @@ def described(extracted):
     """
     md = getattr(extracted, "model_description", None)
     if md is None:
-        md = read_description(extracted.root, extracted.source)
+        md = read_description(extracted.root, extracted.source, limits=getattr(extracted, "limits", None))
         extracted.model_description = md
     return md
 
@@ -110,10 +158,17 @@ def interface(model_description, kind: str, source: str):
         raise ValueError(f"kind must be one of {INTERFACES}, got {kind!r}")
     element = model_description.modelExchange if kind == "ModelExchange" else model_description.coSimulation
     if element is None:
-        offered = [k for k, e in zip(INTERFACES, (model_description.modelExchange, model_description.coSimulation))
-                   if e is not None]
-        raise FMUVersionError(f"{source}: the FMU does not offer {kind} (it offers: {offered or 'neither'})")
+        offered = offered_interfaces(model_description)
+        raise FMUVersionError(f"{source}: the FMU does not offer {kind} (it offers: "
+                              f"{', '.join(offered) if offered else 'no interface'})")
     return element
+
+
+def offered_interfaces(model_description) -> list[str]:
+    """The interfaces an FMU declares: ``ModelExchange``, ``CoSimulation``, ``ScheduledExecution`` (FMI 3)."""
+    elements = (("ModelExchange", model_description.modelExchange), ("CoSimulation", model_description.coSimulation),
+                ("ScheduledExecution", getattr(model_description, "scheduledExecution", None)))
+    return [name for name, element in elements if element is not None]
 
 
 def binary_path(root: Path, model_description, kind: str, source: str) -> Path:

@@ -9,6 +9,7 @@ from __future__ import annotations
 __all__ = [
     "FMUError", "FMUArchiveError", "FMUModelDescriptionError", "FMUVersionError", "FMUUnsupportedError",
     "FMUPlatformError", "FMUMissingVariablesError", "FMUInstantiationError", "FMUStepError", "FMUBuildError",
+    "BudgetError", "CoSimulationError",
 ]
 
 
@@ -75,14 +76,30 @@ class FMUStepError(FMUError):
         The FMI status returned (``"error"``, ``"fatal"``, ...).
     function : str
         The FMI function that failed.
+    messages : list of str
+        The FMU's own log lines from the failing call (``"[status] text"``).
     """
 
-    def __init__(self, message: str, time: float, status: str, function: str):
+    def __init__(self, message: str, time: float, status: str, function: str, messages=()):
         super().__init__(message)
         self.time = time
         self.status = status
         self.function = function
+        self.messages = list(messages)
 
 
 class FMUBuildError(FMUError):
     """Exporting an FMU failed: no C compiler, or the compiler rejected the sources."""
+
+
+class BudgetError(FMUError):
+    """A run would take, or has taken, more steps, evaluations or wall time than its budget allows.
+
+    The message gives the estimate or the count, the budget, what makes the
+    run so large (the step, the simulated time, a stiff FMU) and the
+    argument or command-line flag that raises the budget.
+    """
+
+
+class CoSimulationError(FMUError):
+    """The co-simulation could not run: bad step, diverging signals, sides whose signals do not match."""

@@ -15,8 +15,11 @@ and the FMI version: the same export gives the same token, any change gives a
 new one.  The binary refuses to instantiate under any other token.
 
 Co-Simulation integrates with the classical fourth-order Runge-Kutta method,
-``n_substeps`` equal steps per communication step, with the inputs held
-constant over the step; its global error falls as ``(h / n_substeps)^4``.
+``n_substeps`` equal steps per communication step; its global error falls as
+``(h / n_substeps)^4``.  The inputs are held over the step, or follow the
+slopes the importer sets (FMI 2 ``fmi2SetRealInputDerivatives``) or the
+values it gives when asked during the step (FMI 3 intermediate update); the
+outputs' first derivatives are available (see :mod:`fmu.coupling`).
 """
 from __future__ import annotations
 

@@ -9,8 +9,10 @@ turns every error status into an :class:`~fmu.errors.FMUStepError`
 that names the FMI function, the simulation time, the status and the FMU's
 own log messages.
 
-Log messages reach the instance that logged them (:mod:`fmu.logger`);
-an error names only the messages logged during the failing call.  Every
+Instances are made with logging on, so that an FMU explains its errors to
+the importer rather than to standard output; log messages reach the
+instance that logged them (:mod:`fmu.logger`), which keeps the most recent
+ones.  An error names the messages logged during the failing call.  Every
 call on a closed instance raises :class:`~fmu.errors.FMUError` instead
 of reaching freed native memory.
 
@@ -30,7 +32,7 @@ import numpy as np
 
 from . import logger
 from .archive import ExtractedFMU, ExtractionLimits, open_extracted
-from .description import binary_path, described, fmi_major, interface, unsupported_features
+from .description import binary_path, described, fmi_major, intermediate_update_names, interface, unsupported_features
 from .errors import FMUError, FMUInstantiationError, FMUModelDescriptionError, FMUStepError, FMUUnsupportedError
 from .logger import STATUS_NAMES, status_name
 
@@ -38,6 +40,34 @@ __all__ = ["FMUInstance", "STATUS_NAMES"]
 
 _LOAD_LOCK = threading.Lock()
 _MAX_MESSAGES = 200
+_FMI3_INTEGER_SETTERS = {"Int8": "setInt8", "UInt8": "setUInt8", "Int16": "setInt16", "UInt16": "setUInt16",
+                         "Int32": "setInt32", "UInt32": "setUInt32", "Int64": "setInt64", "UInt64": "setUInt64",
+                         "Enumeration": "setInt64"}
+
+
+def _intermediate_callback(holder: dict):
+    """The FMI 3 intermediate-update callback: sets the inputs the provider gives for the asked time.
+
+    ``holder`` (shared with the instance, never the instance itself, so no
+    reference cycle keeps it alive) has ``provider`` -- None, or
+    ``(value_references, f)`` with ``f(t) -> values`` -- ``set`` (the
+    low-level setter) and ``error`` (the first exception raised here, which
+    cannot cross back into C; the master raises it after the step).
+    """
+
+    def callback(env, time, set_requested, get_allowed, step_finished, can_return_early, early_return_requested,
+                 early_return_time):
+        provider = holder["provider"]
+        if not set_requested or provider is None or holder["error"] is not None:
+            return
+        try:
+            vrs, values_at = provider
+            values = np.ascontiguousarray(values_at(float(time)), dtype=float)
+            holder["set"](vrs, len(vrs), values.ctypes.data_as(ctypes.POINTER(ctypes.c_double)))
+        except BaseException as err:  # noqa: BLE001 - nothing may propagate into the FMU's code
+            holder["error"] = err
+
+    return callback
 
 
 def _release(fmu, extracted, owned: bool, state: dict) -> None:
@@ -86,6 +116,9 @@ class FMUInstance:
     adopt : bool
         With an ``ExtractedFMU`` as ``path``: take it over and remove it at
         :meth:`close` as if it had been extracted here.
+    check_interface : bool
+        Refuse an FMU outside the supported subset (default).  False lets a
+        check run an FMU whose signals dobkit cannot couple.
 
     Raises
     ------
@@ -112,7 +145,7 @@ class FMUInstance:
 
     def __init__(self, path, kind: str = "ModelExchange", start_values: dict | None = None, name: str | None = None,
                  start_time: float = 0.0, limits: ExtractionLimits | None = None, extract_to=None,
-                 adopt: bool = False):
+                 adopt: bool = False, check_interface: bool = True):
         self.path = Path(path.source) if isinstance(path, ExtractedFMU) else Path(path)
         self.source = self.path.name
         self.kind = kind
@@ -121,6 +154,10 @@ class FMUInstance:
         self._state = {"instantiated": False, "initialized": False, "terminated": False, "failed": False,
                        "closed": False, "log_key": None}
         self._fmu = None
+        self._check_interface = check_interface
+        # the provider of intermediate inputs during an FMI 3 step (see set_input_provider)
+        self._intermediate = {"provider": None, "error": None, "set": None}
+        self._marked_intermediate = None
         self.extracted, owned = open_extracted(path, limits=limits, parent=extract_to)
         self._owned = owned or adopt
         self._finalizer = weakref.finalize(self, _release, None, self.extracted, self._owned, self._state)
@@ -138,7 +175,7 @@ class FMUInstance:
         self.model_description = md
         self.fmi_version = fmi_major(md)
         element = interface(md, self.kind, self.source)
-        unsupported = unsupported_features(md, self.kind)
+        unsupported = unsupported_features(md, self.kind) if self._check_interface else []
         if unsupported:
             raise FMUUnsupportedError(f"{self.source}: uses FMI features that dobkit does not support as "
                                       f"{self.kind}: " + "; ".join(unsupported))
@@ -185,9 +222,12 @@ class FMUInstance:
             if self.fmi_version == 2:
                 # one process-wide logger; this instance's key comes back as componentEnvironment
                 self._state["log_key"] = logger.register(self._log, fmu.instanceName)
-                fmu.instantiate(callbacks=logger.fmi2_callbacks(self._state["log_key"]))
+                fmu.instantiate(callbacks=logger.fmi2_callbacks(self._state["log_key"]), loggingOn=True)
+            elif self.kind == "CoSimulation" and self.provides_intermediate_update:
+                fmu.instantiate(logMessage=logger.fmi3_log_function(self._log), loggingOn=True,
+                                intermediateUpdate=_intermediate_callback(self._intermediate))
             else:
-                fmu.instantiate(logMessage=logger.fmi3_log_function(self._log))
+                fmu.instantiate(logMessage=logger.fmi3_log_function(self._log), loggingOn=True)
         except Exception as err:
             detail = " ".join(self.messages[-3:]) or str(err)
             token = "GUID" if self.fmi_version == 2 else "instantiationToken"
@@ -208,6 +248,7 @@ class FMUInstance:
             self._get_real = lambda vr, n, out: f.fmi3GetFloat64(c, vr, n, out, n)
             self._set_real = lambda vr, n, val: f.fmi3SetFloat64(c, vr, n, val, n)
             self._vr_type = ctypes.c_uint32
+        self._intermediate["set"] = self._set_real
         if self.kind == "ModelExchange":
             get_der = "fmi2GetDerivatives" if self.fmi_version == 2 else "fmi3GetContinuousStateDerivatives"
             prefix = f"fmi{self.fmi_version}"
@@ -234,9 +275,10 @@ class FMUInstance:
             if status in ("error", "fatal"):
                 self._state["failed"] = True
             new = self._log.since(mark)  # only what this call logged, never older messages
-            detail = (": " + " ".join(new)) if new else ""
+            detail = (": " + " ".join(new)) if new else " (the FMU logged no message)"
             raise FMUStepError(f"{self.source}: {err.function} returned status '{status}' at t = {t:.9g} s "
-                               f"during {what}{detail}", time=t, status=status, function=err.function) from None
+                               f"during {what}{detail}", time=t, status=status, function=err.function,
+                               messages=new) from None
 
     # ---- values -----------------------------------------------------------------------------------------------
 
@@ -285,10 +327,11 @@ class FMUInstance:
                     self.set_real(self.value_references([name]), [float(value)])
                 elif v.type == "Boolean":
                     self._fmu.setBoolean(vr, [bool(value)])
-                elif v.type in ("Integer", "Int32", "Enumeration") and self.fmi_version == 2:
+                elif v.type in ("Integer", "Enumeration") and self.fmi_version == 2:
                     self._fmu.setInteger(vr, [int(value)])
-                elif v.type in ("Int32", "Enumeration"):
-                    self._fmu.setInt32(vr, [int(value)])
+                elif v.type in _FMI3_INTEGER_SETTERS:
+                    # FMI 3 enumerations are Int64; each integer type has its own setter
+                    getattr(self._fmu, _FMI3_INTEGER_SETTERS[v.type])(vr, [int(value)])
                 else:
                     raise FMUModelDescriptionError(f"{self.source}: cannot set a start value for {name} of type "
                                                    f"{v.type}")
@@ -354,10 +397,74 @@ class FMUInstance:
 
     # ---- Co-Simulation ----------------------------------------------------------------------------------------
 
+    @property
+    def max_output_derivative_order(self) -> int:
+        """``maxOutputDerivativeOrder`` of the Co-Simulation interface (0 if none or not Co-Simulation)."""
+        cs = self.model_description.coSimulation
+        return int(getattr(cs, "maxOutputDerivativeOrder", 0) or 0) if cs is not None else 0
+
+    @property
+    def can_interpolate_inputs(self) -> bool:
+        """FMI 2 ``canInterpolateInputs``: inputs may follow slopes set by :meth:`set_input_derivatives`."""
+        cs = self.model_description.coSimulation
+        return self.fmi_version == 2 and cs is not None and bool(getattr(cs, "canInterpolateInputs", False))
+
+    @property
+    def provides_intermediate_update(self) -> bool:
+        """FMI 3 ``providesIntermediateUpdate``: the FMU asks for inputs during a step (:meth:`set_input_provider`)."""
+        cs = self.model_description.coSimulation
+        return self.fmi_version == 3 and cs is not None and bool(getattr(cs, "providesIntermediateUpdate", False))
+
+    def intermediate_inputs(self) -> set[str]:
+        """Names of the FMI 3 inputs that may be set during a step (``intermediateUpdate="true"``)."""
+        if self._marked_intermediate is None:
+            self._marked_intermediate = intermediate_update_names(self.extracted.root)
+        marked = self._marked_intermediate
+        return {v.name for v in self.model_description.modelVariables if v.causality == "input" and v.name in marked}
+
+    def get_output_derivatives(self, vrs: ctypes.Array, out: np.ndarray | None = None) -> np.ndarray:
+        """First time derivatives of outputs at the current communication point (needs ``maxOutputDerivativeOrder``)."""
+        self._check_open()
+        n = len(vrs)
+        out = np.empty(n) if out is None else out
+        if n:
+            f, c = self._fmu, self._fmu.component
+            with self._calling("reading output derivatives", self.time):
+                if self.fmi_version == 2:
+                    f.fmi2GetRealOutputDerivatives(c, vrs, n, (ctypes.c_int * n)(*([1] * n)),
+                                                   out.ctypes.data_as(ctypes.POINTER(ctypes.c_double)))
+                else:
+                    f.fmi3GetOutputDerivatives(c, vrs, n, (ctypes.c_int32 * n)(*([1] * n)),
+                                               out.ctypes.data_as(ctypes.POINTER(ctypes.c_double)), n)
+        return out
+
+    def set_input_derivatives(self, vrs: ctypes.Array, values) -> None:
+        """FMI 2: the slopes (per s) of inputs over the coming step; set the inputs' values first."""
+        self._check_open()
+        n = len(vrs)
+        if n:
+            arr = np.ascontiguousarray(values, dtype=float)
+            with self._calling("setting input derivatives", self.time):
+                self._fmu.fmi2SetRealInputDerivatives(self._fmu.component, vrs, n, (ctypes.c_int * n)(*([1] * n)),
+                                                      arr.ctypes.data_as(ctypes.POINTER(ctypes.c_double)))
+
+    def set_input_provider(self, vrs: ctypes.Array | None, values_at=None) -> None:
+        """FMI 3: inputs the FMU gets when it asks during a step; ``values_at(t)`` gives them at time ``t`` (s).
+
+        ``None`` stops providing (the inputs are then held over a step).
+        """
+        self._intermediate["provider"] = None if vrs is None else (vrs, values_at)
+
     def do_step(self, t: float, h: float) -> None:
         """Advance a Co-Simulation FMU from ``t`` by ``h`` (s)."""
+        self._intermediate["error"] = None
         with self._calling(f"the communication step from t = {t:.9g} s by h = {h:.9g} s", t):
             result = self._fmu.doStep(t, h)
+        error = self._intermediate["error"]
+        if error is not None:
+            self._intermediate["error"] = None
+            raise FMUStepError(f"{self.source}: providing intermediate inputs during the step from t = {t:.9g} s "
+                               f"failed: {error}", time=t, status="error", function="intermediateUpdate")
         if self.fmi_version == 3 and result and (result[1] or result[2]):
             raise FMUStepError(f"{self.source}: doStep from t = {t:.9g} s stopped early (terminate="
                                f"{result[1]}, earlyReturn={result[2]}) at t = {result[3]:.9g} s",

@@ -9,6 +9,12 @@ units, names variables with the structured convention (``q[0]``,
   plant has no direct feedthrough;
 * ``der(q[i])`` depends on ``dq[i]``; ``der(dq[i])`` on time, the states and
   the inputs.
+
+Co-Simulation offers what a second-order coupling needs: first derivatives
+of the outputs (``maxOutputDerivativeOrder`` 1) and inputs that follow a
+slope over the step -- FMI 2 ``canInterpolateInputs`` with
+``fmi2SetRealInputDerivatives``; FMI 3, which has no input derivatives,
+``providesIntermediateUpdate`` with the inputs marked ``intermediateUpdate``.
 """
 from __future__ import annotations
 
@@ -72,7 +78,8 @@ def _interfaces(root: ET.Element, fmi_version: int, model_identifier: str, sourc
         common = {"modelIdentifier": model_identifier, "canNotUseMemoryManagementFunctions": "true",
                   "canGetAndSetFMUstate": "true", "canSerializeFMUstate": "true"}
         me = ET.SubElement(root, "ModelExchange", common)
-        cs = ET.SubElement(root, "CoSimulation", dict(common, canHandleVariableCommunicationStepSize="true"))
+        cs = ET.SubElement(root, "CoSimulation", dict(common, canHandleVariableCommunicationStepSize="true",
+                                                      canInterpolateInputs="true", maxOutputDerivativeOrder="1"))
         for element in (me, cs):
             files = ET.SubElement(element, "SourceFiles")
             for name in sources:
@@ -81,7 +88,8 @@ def _interfaces(root: ET.Element, fmi_version: int, model_identifier: str, sourc
         common = {"modelIdentifier": model_identifier, "canGetAndSetFMUState": "true",
                   "canSerializeFMUState": "true"}
         ET.SubElement(root, "ModelExchange", common)
-        ET.SubElement(root, "CoSimulation", dict(common, canHandleVariableCommunicationStepSize="true"))
+        ET.SubElement(root, "CoSimulation", dict(common, canHandleVariableCommunicationStepSize="true",
+                                                 maxOutputDerivativeOrder="1", providesIntermediateUpdate="true"))
 
 
 def _units(root: ET.Element, variables: list[Variable]) -> None:
@@ -98,11 +106,13 @@ def _log_categories(root: ET.Element) -> None:
         ET.SubElement(cats, "Category", name=name, description=text)
 
 
-def _variable_attrs(v: Variable) -> dict[str, str]:
+def _variable_attrs(v: Variable, fmi_version: int) -> dict[str, str]:
     attrs = {"name": v.name, "valueReference": str(v.vr), "description": v.description,
              "causality": v.causality, "variability": v.variability}
     if v.initial is not None:
         attrs["initial"] = v.initial
+    if fmi_version == 3 and v.causality == "input":
+        attrs["intermediateUpdate"] = "true"   # set during a step through the intermediate-update callback
     return attrs
 
 
@@ -130,10 +140,10 @@ def _model_variables(root: ET.Element, variables: list[Variable], fmi_version: i
     mv = ET.SubElement(root, "ModelVariables")
     for v in variables:
         if fmi_version == 2:
-            sv = ET.SubElement(mv, "ScalarVariable", _variable_attrs(v))
+            sv = ET.SubElement(mv, "ScalarVariable", _variable_attrs(v, 2))
             ET.SubElement(sv, v.type, _type_attrs(v, by_name, 2))
         else:
-            ET.SubElement(mv, _FMI3_TYPES[v.type], {**_variable_attrs(v), **_type_attrs(v, by_name, 3)})
+            ET.SubElement(mv, _FMI3_TYPES[v.type], {**_variable_attrs(v, 3), **_type_attrs(v, by_name, 3)})
 
 
 def _model_structure(root: ET.Element, variables: list[Variable], fmi_version: int) -> None:

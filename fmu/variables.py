@@ -188,7 +188,7 @@ def plant_variables(params: RobotParameters, disturbance: DisturbanceSpec, subst
             start=float(getattr(d, name)), unit=unit, description=text, c_name=name, nonnegative=nonneg)
     add(name="n_substeps", type="Integer", causality="parameter", variability="fixed", initial="exact",
         start=int(substeps), unit=None,
-        description="Co-Simulation: classical RK4 steps per communication step (inputs held constant)")
+        description="Co-Simulation: classical RK4 steps per communication step")
     for kind in ("paper", "friction", "tissue"):
         add(name=f"disturbance_{kind}", type="Boolean", causality="parameter", variability="fixed",
             initial="exact", start=kind in d.kinds, unit=None,

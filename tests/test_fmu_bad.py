@@ -367,8 +367,8 @@ def test_error_status_during_a_cosimulation_step(good, sandbox):
 
 
 @pytest.mark.needs_cc
-def test_non_finite_torque_fails_the_plant_step(good, sandbox):
-    """The plant FMU refuses to continue with a non-finite state (FMI 3, co-simulation)."""
+def test_non_finite_torque_stops_the_master_and_fails_the_plant_step(good, sandbox):
+    """A NaN torque: the master stops before handing it over, naming signal and time; the FMU refuses it too."""
     scenario = make_scenario(simulation={"t_final": 0.1, "output_step": 0.01})
     from fmu.cosim import controller_side
     side = controller_side(scenario)
@@ -376,9 +376,13 @@ def test_non_finite_torque_fails_the_plant_step(good, sandbox):
     bad_side = ct.nlsys(None, lambda t, x, u, p: np.where(np.array([n.startswith("tau[2") for n in names]) &
                                                           (t >= 0.05), np.nan, 0.0),
                         inputs=list(side.input_labels), outputs=names)
-    with pytest.raises(FMUStepError, match=r"fmi3DoStep returned status 'error' at t = 0.05 s.*non-finite") as err:
+    with pytest.raises(CoSimulationError, match=r"output tau\[2\] = nan at t = 0.05 s is not finite"):
         cosimulate_system(good[3], bad_side, 0.1, 0.01, extract_to=sandbox)
-    assert err.value.time == pytest.approx(0.05)
+    with FMUInstance(good[3], kind="CoSimulation", extract_to=sandbox) as inst:
+        inst.set_real(inst.value_references(["tau[2]"]), [np.nan])
+        with pytest.raises(FMUStepError, match=r"fmi3DoStep returned status 'error' at t = 0 s.*non-finite") as err:
+            inst.do_step(0.0, 0.01)
+    assert err.value.time == 0.0 and err.value.messages
 
 
 @pytest.mark.needs_cc

@@ -4,8 +4,11 @@
  * those the FMU does not support log why and return fmi2Error.
  *
  * Co-Simulation integrates internally with classical fourth-order Runge-Kutta,
- * n_substeps equal steps per communication step, inputs held constant over
- * the step (see plant_model.c, plant_rk4).
+ * n_substeps equal steps per communication step (see plant_model.c, plant_rk4).
+ * The inputs are held over the step, or follow the slopes set with
+ * fmi2SetRealInputDerivatives (canInterpolateInputs; set the value first: fmi2SetReal
+ * resets its slope).  fmi2GetRealOutputDerivatives gives the first derivatives
+ * of the outputs (maxOutputDerivativeOrder 1).
  */
 #include <stdio.h>
 #include <stdlib.h>
@@ -450,21 +453,23 @@ fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x_nominal
 fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                                        const fmi2Integer order[], const fmi2Real value[])
 {
-    (void)vr;
-    (void)nvr;
-    (void)order;
-    (void)value;
-    return unsupported(c, "fmi2SetRealInputDerivatives (inputs are held constant over a step)");
+    size_t i;
+    CHECK(c);
+    if (!INST(c)->cosim) return unsupported(c, "fmi2SetRealInputDerivatives on a Model Exchange instance");
+    for (i = 0; i < nvr; i++)
+        if (plant_set_input_derivative(INST(c), vr[i], order[i], value[i]) != ST_OK) return fmi2Error;
+    return fmi2OK;
 }
 
 fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                                         const fmi2Integer order[], fmi2Real value[])
 {
-    (void)vr;
-    (void)nvr;
-    (void)order;
-    (void)value;
-    return unsupported(c, "fmi2GetRealOutputDerivatives");
+    size_t i;
+    CHECK(c);
+    if (!INST(c)->cosim) return unsupported(c, "fmi2GetRealOutputDerivatives on a Model Exchange instance");
+    for (i = 0; i < nvr; i++)
+        if (plant_get_output_derivative(INST(c), vr[i], order[i], &value[i]) != ST_OK) return fmi2Error;
+    return fmi2OK;
 }
 
 fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2Real communicationStepSize,

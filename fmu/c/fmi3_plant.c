@@ -5,8 +5,12 @@
  * why and return fmi3Error.
  *
  * Co-Simulation integrates internally with classical fourth-order Runge-Kutta,
- * n_substeps equal steps per communication step, inputs held constant over
- * the step (see plant_model.c, plant_rk4).
+ * n_substeps equal steps per communication step (see plant_model.c, plant_rk4).
+ * FMI 3 has no input derivatives: with an intermediate-update callback the
+ * FMU asks the importer for the inputs tau[i] (intermediateUpdate) at each
+ * new stage time of a step; without one they are held over the step.
+ * fmi3GetOutputDerivatives gives the first derivatives of the outputs
+ * (maxOutputDerivativeOrder 1).
  */
 #include <stdio.h>
 #include <stdlib.h>
@@ -19,6 +23,7 @@ typedef struct {
     PlantInstance core;           /* first member: a PlantInstance* is a Fmi3Plant* */
     fmi3InstanceEnvironment env;
     fmi3LogMessageCallback log;
+    fmi3IntermediateUpdateCallback intermediate;   /* NULL: inputs are held over a step */
 } Fmi3Plant;
 
 /* A saved FMU state: the model data and the mode it was in.  The same bytes are its serialized form,
@@ -39,6 +44,16 @@ static void emit3(PlantInstance *inst, int status, const char *category, const c
 
 #define INST(c) ((PlantInstance *)(c))
 #define CHECK(c) do { if (!(c)) return fmi3Error; } while (0)
+
+/* During a step, before each Runge-Kutta stage at a new time: the importer may set the inputs tau[i]
+ * (declared intermediateUpdate) for that time. */
+static void ask_for_inputs(void *ctx, double t)
+{
+    Fmi3Plant *c = (Fmi3Plant *)ctx;
+    fmi3Boolean early = fmi3False;
+    fmi3Float64 early_time = t;
+    c->intermediate(c->env, t, fmi3True, fmi3False, fmi3False, fmi3False, &early, &early_time);
+}
 
 static fmi3Status unsupported(fmi3Instance c, const char *function)
 {
@@ -61,7 +76,8 @@ fmi3Status fmi3SetDebugLogging(fmi3Instance c, fmi3Boolean loggingOn, size_t nCa
 }
 
 static fmi3Instance instantiate(fmi3String instanceName, fmi3String instantiationToken, fmi3Boolean loggingOn,
-                                fmi3InstanceEnvironment env, fmi3LogMessageCallback log, int cosim)
+                                fmi3InstanceEnvironment env, fmi3LogMessageCallback log, int cosim,
+                                fmi3IntermediateUpdateCallback intermediate)
 {
     Fmi3Plant *c;
     char message[1024];
@@ -78,7 +94,9 @@ static fmi3Instance instantiate(fmi3String instanceName, fmi3String instantiatio
     if (!c) return NULL;
     c->env = env;
     c->log = log;
+    c->intermediate = intermediate;
     plant_instance_init(&c->core, instanceName, cosim, loggingOn ? 1 : 0, emit3, c);
+    if (cosim && intermediate) c->core.input_update = ask_for_inputs;
     return c;
 }
 
@@ -89,7 +107,7 @@ fmi3Instance fmi3InstantiateModelExchange(fmi3String instanceName, fmi3String in
 {
     (void)resourcePath;
     (void)visible;
-    return instantiate(instanceName, instantiationToken, loggingOn, instanceEnvironment, logMessage, 0);
+    return instantiate(instanceName, instantiationToken, loggingOn, instanceEnvironment, logMessage, 0, NULL);
 }
 
 fmi3Instance fmi3InstantiateCoSimulation(fmi3String instanceName, fmi3String instantiationToken,
@@ -107,8 +125,8 @@ fmi3Instance fmi3InstantiateCoSimulation(fmi3String instanceName, fmi3String ins
     (void)earlyReturnAllowed;
     (void)requiredIntermediateVariables;
     (void)nRequiredIntermediateVariables;
-    (void)intermediateUpdate;
-    return instantiate(instanceName, instantiationToken, loggingOn, instanceEnvironment, logMessage, 1);
+    return instantiate(instanceName, instantiationToken, loggingOn, instanceEnvironment, logMessage, 1,
+                       intermediateUpdate);
 }
 
 fmi3Instance fmi3InstantiateScheduledExecution(fmi3String instanceName, fmi3String instantiationToken,
@@ -669,8 +687,13 @@ fmi3Status fmi3EnterStepMode(fmi3Instance c)
 fmi3Status fmi3GetOutputDerivatives(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr,
                                     const fmi3Int32 orders[], fmi3Float64 values[], size_t nValues)
 {
-    (void)vr; (void)nvr; (void)orders; (void)values; (void)nValues;
-    return unsupported(c, "fmi3GetOutputDerivatives");
+    size_t i;
+    CHECK(c);
+    if (!INST(c)->cosim) return unsupported(c, "fmi3GetOutputDerivatives on a Model Exchange instance");
+    if (check_scalar(c, nvr, nValues, "fmi3GetOutputDerivatives") != fmi3OK) return fmi3Error;
+    for (i = 0; i < nvr; i++)
+        if (plant_get_output_derivative(INST(c), vr[i], (int)orders[i], &values[i]) != ST_OK) return fmi3Error;
+    return fmi3OK;
 }
 
 fmi3Status fmi3DoStep(fmi3Instance c, fmi3Float64 currentCommunicationPoint, fmi3Float64 communicationStepSize,

@@ -149,6 +149,7 @@ int plant_set_real(PlantInstance *inst, unsigned vr, double value)
     if (plant_allowed(inst, "setting a real variable", ANY_LIVE_MODE) != ST_OK) return ST_ERROR;
     if (is_input(vr)) {
         inst->d.u[vr - VR_TAU] = value;
+        inst->d.du[vr - VR_TAU] = 0.0;   /* a new value without a slope is held over the step */
     } else if (is_param(vr)) {
         if (check_fixed(inst, vr) != ST_OK) return ST_ERROR;
         inst->d.p[vr - VR_PARAM] = value;
@@ -303,7 +304,7 @@ int plant_do_step(PlantInstance *inst, double t, double h)
         return ST_ERROR;
     }
     inst->d.time = t;
-    rc = plant_rk4(&inst->d, h, inst->d.n_substeps, &bad);
+    rc = plant_rk4(&inst->d, h, inst->d.n_substeps, &bad, inst->input_update, inst->host);
     if (rc != PLANT_OK) {
         inst->mode = MODE_FAILED;
         if (rc == PLANT_NOT_PD)
@@ -312,6 +313,52 @@ int plant_do_step(PlantInstance *inst, double t, double h)
         else
             plant_log(inst, ST_ERROR, "logStatusError", "step from t = %.17g s (h = %g s): the state %s "
                       "became non-finite", t, h, bad >= 0 && bad < NX ? var_name(VR_Q + (unsigned)bad) : "derivative");
+        return ST_ERROR;
+    }
+    return ST_OK;
+}
+
+int plant_set_input_derivative(PlantInstance *inst, unsigned vr, int order, double value)
+{
+    if (plant_allowed(inst, "setting input derivatives", IN(MODE_INITIALIZATION) | IN(MODE_STEP)) != ST_OK)
+        return ST_ERROR;
+    if (!is_input(vr)) {
+        plant_log(inst, ST_ERROR, "logStatusError", "input derivatives: %s (value reference %u) is not an input",
+                  var_name(vr), vr);
+        return ST_ERROR;
+    }
+    if (order != 1) {
+        plant_log(inst, ST_ERROR, "logStatusError", "input derivatives: order %d of %s requested; this FMU "
+                  "interpolates inputs linearly (order 1 only)", order, var_name(vr));
+        return ST_ERROR;
+    }
+    if (!isfinite(value)) {
+        plant_log(inst, ST_ERROR, "logStatusError", "input derivatives: d%s/dt = %g is not finite", var_name(vr),
+                  value);
+        return ST_ERROR;
+    }
+    inst->d.du[vr - VR_TAU] = value;
+    return ST_OK;
+}
+
+int plant_get_output_derivative(PlantInstance *inst, unsigned vr, int order, double *value)
+{
+    int rc;
+
+    if (order != 1) {
+        plant_log(inst, ST_ERROR, "logStatusError", "output derivatives: order %d of %s requested; "
+                  "maxOutputDerivativeOrder is 1", order, var_name(vr));
+        return ST_ERROR;
+    }
+    rc = plant_output_derivative(&inst->d, vr, value);
+    if (rc == -1) {
+        plant_log(inst, ST_ERROR, "logStatusError", "output derivatives: %s (value reference %u) is not an "
+                  "output", var_name(vr), vr);
+        return ST_ERROR;
+    }
+    if (rc != PLANT_OK) {
+        plant_log(inst, ST_ERROR, "logStatusError", "output derivative of %s at t = %.17g s: %s", var_name(vr),
+                  inst->d.time, rc == PLANT_NOT_PD ? "inertia matrix not positive definite" : "non-finite result");
         return ST_ERROR;
     }
     return ST_OK;

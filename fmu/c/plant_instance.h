@@ -38,6 +38,7 @@ struct PlantInstance {
     char name[128];
     PlantEmit emit;
     void *host;           /* the FMI layer's own data (callbacks) */
+    PlantInputUpdate input_update;  /* FMI 3: asks the importer for intermediate inputs during a step */
 };
 
 void plant_instance_init(PlantInstance *inst, const char *name, int cosim, int logging_on,
@@ -81,5 +82,11 @@ int plant_get_states(PlantInstance *inst, double *x, size_t nx);
 int plant_get_derivatives(PlantInstance *inst, double *dx, size_t nx);
 int plant_get_nominals(PlantInstance *inst, double *nominal, size_t nx);
 int plant_do_step(PlantInstance *inst, double t, double h);
+
+/* FMI 2 input derivatives: order 1 of an input sets its slope over the coming step (setting the input resets
+ * it to zero, a zero-order hold). */
+int plant_set_input_derivative(PlantInstance *inst, unsigned vr, int order, double value);
+/* FMI 2/3 output derivatives: order 1 of q[i], dq[i], tau_dis[i] at the current communication point. */
+int plant_get_output_derivative(PlantInstance *inst, unsigned vr, int order, double *value);
 
 #endif

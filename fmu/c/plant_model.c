@@ -139,23 +139,42 @@ int plant_derivatives(const PlantData *d, double t, const double *x, const doubl
     return PLANT_OK;
 }
 
-int plant_rk4(PlantData *d, double h, int n, int *bad_index)
+/* The input at stage time t of a step that started at t0 with input u0 (see plant_rk4). */
+static void stage_input(PlantData *d, double t0, const double *u0, double t, PlantInputUpdate update, void *ctx,
+                        double *u)
 {
-    double k1[NX], k2[NX], k3[NX], k4[NX], xt[NX];
+    int i;
+    if (update) {
+        update(ctx, t);
+        for (i = 0; i < NU; i++) u[i] = d->u[i];
+    } else {
+        for (i = 0; i < NU; i++) u[i] = u0[i] + (t - t0) * d->du[i];
+    }
+}
+
+int plant_rk4(PlantData *d, double h, int n, int *bad_index, PlantInputUpdate update, void *ctx)
+{
+    double k1[NX], k2[NX], k3[NX], k4[NX], xt[NX], u0[NU], ua[NU], um[NU], ub[NU];
     const double dt = h / n;
+    const double t0 = d->time;
     int step, i, rc;
 
     *bad_index = -1;
+    memcpy(u0, d->u, sizeof u0);
+    memcpy(ub, u0, sizeof ub);
     for (step = 0; step < n; step++) {
         /* time of this sub-step from its index, so rounding does not accumulate */
-        const double t = d->time + step * dt;
-        if ((rc = plant_derivatives(d, t, d->x, d->u, k1)) != PLANT_OK) return rc;
+        const double t = t0 + step * dt;
+        memcpy(ua, ub, sizeof ua);           /* the input at t: the end of the previous sub-step */
+        stage_input(d, t0, u0, t + 0.5 * dt, update, ctx, um);
+        stage_input(d, t0, u0, step + 1 == n ? t0 + h : t + dt, update, ctx, ub);
+        if ((rc = plant_derivatives(d, t, d->x, ua, k1)) != PLANT_OK) return rc;
         for (i = 0; i < NX; i++) xt[i] = d->x[i] + 0.5 * dt * k1[i];
-        if ((rc = plant_derivatives(d, t + 0.5 * dt, xt, d->u, k2)) != PLANT_OK) return rc;
+        if ((rc = plant_derivatives(d, t + 0.5 * dt, xt, um, k2)) != PLANT_OK) return rc;
         for (i = 0; i < NX; i++) xt[i] = d->x[i] + 0.5 * dt * k2[i];
-        if ((rc = plant_derivatives(d, t + 0.5 * dt, xt, d->u, k3)) != PLANT_OK) return rc;
+        if ((rc = plant_derivatives(d, t + 0.5 * dt, xt, um, k3)) != PLANT_OK) return rc;
         for (i = 0; i < NX; i++) xt[i] = d->x[i] + dt * k3[i];
-        if ((rc = plant_derivatives(d, t + dt, xt, d->u, k4)) != PLANT_OK) return rc;
+        if ((rc = plant_derivatives(d, t + dt, xt, ub, k4)) != PLANT_OK) return rc;
         for (i = 0; i < NX; i++) {
             d->x[i] += dt / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
             if (!isfinite(d->x[i])) {
@@ -164,8 +183,38 @@ int plant_rk4(PlantData *d, double h, int n, int *bad_index)
             }
         }
     }
-    d->time += h;
+    memcpy(d->u, ub, sizeof ub);
+    d->time = t0 + h;
     return PLANT_OK;
+}
+
+int plant_output_derivative(const PlantData *d, unsigned vr, double *value)
+{
+    double dx[NX], xp[NX], xm[NX], fp[4], fm[4];
+    int i, rc;
+
+    if (vr >= VR_Q && vr < VR_Q + 4) {
+        *value = d->x[4 + (vr - VR_Q)];
+        return PLANT_OK;
+    }
+    if (!((vr >= VR_DQ && vr < VR_DQ + 4) || (vr >= VR_TAU_DIS && vr < VR_TAU_DIS + 4))) return -1;
+    if ((rc = plant_derivatives(d, d->time, d->x, d->u, dx)) != PLANT_OK) return rc;
+    if (vr < VR_TAU_DIS) {
+        *value = dx[4 + (vr - VR_DQ)];
+        return PLANT_OK;
+    }
+    {
+        /* d tau_dis / dt along the motion: a central difference with a step that keeps the error near 1e-9 */
+        const double delta = 1e-5;
+        for (i = 0; i < NX; i++) {
+            xp[i] = d->x[i] + delta * dx[i];
+            xm[i] = d->x[i] - delta * dx[i];
+        }
+        plant_disturbance(d, d->time + delta, xp, fp);
+        plant_disturbance(d, d->time - delta, xm, fm);
+        *value = (fp[vr - VR_TAU_DIS] - fm[vr - VR_TAU_DIS]) / (2.0 * delta);
+    }
+    return isfinite(*value) ? PLANT_OK : PLANT_NONFINITE;
 }
 
 int plant_parameters_valid(const PlantData *d, char *msg, unsigned long msg_size)

@@ -22,6 +22,7 @@ typedef struct {
     double time;              /* s */
     double x[NX];             /* q[0..3], dq[0..3] */
     double u[NU];             /* tau[0..3]: N m, N m, N, N m */
+    double du[NU];            /* their time derivatives over the coming step (FMI 2 input derivatives), per s */
     double p[N_PARAMS];       /* real parameters, indexed by P_* */
     int n_substeps;           /* RK4 sub-steps per co-simulation step */
     int sw[N_SWITCHES];       /* disturbance model switches, indexed by SW_* */
@@ -43,8 +44,26 @@ void plant_disturbance(const PlantData *d, double t, const double *x, double *ta
 /* State derivative dx = [dq, M^-1 (u + tau_dis - N q' - G)]; returns a PLANT_* code. */
 int plant_derivatives(const PlantData *d, double t, const double *x, const double *u, double *dx);
 
-/* Advance d->x from d->time by h with n classical RK4 steps, input d->u held constant. */
-int plant_rk4(PlantData *d, double h, int n, int *bad_index);
+/*
+ * Lets the importer set the inputs for time t during a step (FMI 3 intermediate update): called before
+ * each Runge-Kutta stage at a new time, it may change d->u.
+ */
+typedef void (*PlantInputUpdate)(void *ctx, double t);
+
+/*
+ * Advance d->x from d->time by h with n classical RK4 steps.  The input at a stage time t is
+ * d->u + (t - d->time) d->du (first-order hold; a zero-order hold when du is zero), or, when `update`
+ * is given, whatever the importer sets from `update(ctx, t)`.  On return d->u holds the input at the
+ * end of the step.
+ */
+int plant_rk4(PlantData *d, double h, int n, int *bad_index, PlantInputUpdate update, void *ctx);
+
+/*
+ * First time derivative of the output with value reference vr (q[i], dq[i] or tau_dis[i]) at the
+ * current time, state and input: exact for q (dq) and dq (the acceleration); for tau_dis a central
+ * difference along the motion.  Returns a PLANT_* code, or -1 if vr is not an output.
+ */
+int plant_output_derivative(const PlantData *d, unsigned vr, double *value);
 
 /* Non-zero if the parameters describe a physical arm; fills msg with the first problem. */
 int plant_parameters_valid(const PlantData *d, char *msg, unsigned long msg_size);
