@@ -43,6 +43,7 @@ from blocks.loop import LOOP_SIGNALS, build_blocks, initial_state, lumped_distur
 from blocks.scenario import Scenario, load_scenario
 from .archive import ExtractionLimits, open_extracted
 from .budget import DEFAULT_BUDGET, Budget
+from .cosim_sampled import cosimulate_sampled
 from .coupling import COUPLINGS
 from .description import described, require_variables
 from .master import CoSimulationError, cosimulate_system, validated_step, validated_time
@@ -149,7 +150,10 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
     t_final : float, optional
         End time (s); default the scenario's ``simulation.t_final``.
     coupling : {"zoh", "linear"}, optional
-        See :mod:`fmu.coupling`; default the best the FMU supports.
+        See :mod:`fmu.coupling`; default the best the FMU supports.  A scenario
+        with a digital controller (``[controller]``) is co-simulated with its
+        samples as the communication points (:mod:`fmu.cosim_sampled`): ``step``
+        must be its sample period, and there is no coupling error.
     error_estimate : bool
         Estimate the coupling error by step doubling over the first
         ``min(1 s, t_final)`` (two short extra runs, at ``h`` and ``2 h``).
@@ -186,6 +190,22 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
         raise CoSimulationError(f"coupling must be one of {list(COUPLINGS)}, got {coupling!r}")
     record_every = _record_every(s.simulation.output_step, step)
     budget = DEFAULT_BUDGET if budget is None else budget
+    if s.controller is not None:        # a digital controller: its samples are the communication points
+        if coupling not in (None, "zoh"):
+            raise CoSimulationError(f"a digital controller holds its torque over each sample: the coupling is the "
+                                    f"samples themselves, not {coupling!r}")
+        extracted, owned = open_extracted(fmu_path, limits=limits, parent=extract_to)
+        try:
+            start = plant_start_values(s, _plant_variables(extracted), parameters)
+            resp = cosimulate_sampled(extracted, s, step, t_end, observer=observer, start_values=start,
+                                      record_every=record_every, budget=budget, progress=progress)
+        finally:
+            if owned:
+                extracted.cleanup()
+        resp.cosim = dict(resp.cosim, parameters=parameters, t_final=t_end,
+                          error_estimate={"skipped": "no coupling error: the FMU's steps are the controller's "
+                                                     "samples, with the torque held on both sides"})
+        return resp
     side = controller_side(s, observer=observer)
     side_x0 = initial_state(side, s)
     extracted, owned = open_extracted(fmu_path, limits=limits, parent=extract_to)
