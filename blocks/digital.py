@@ -45,8 +45,7 @@ import scipy.linalg
 
 from .contract import Kernels, kernel_block
 from .gains import OBSERVER_VARIANTS, validated_gain
-from .kernels import arm_constants, gain_times, mass_solve, observer_estimate, observer_rate
-from .kernels.arm import bias_forces
+from .kernels import arm_constants, observer_estimate, observer_rate
 from .parameters import RobotParameters
 from .systems import controller_output, controller_output_with_estimate, signal_names
 
@@ -182,17 +181,17 @@ def observer_euler_update(t, z, u, k, gain, eq16_weight, period):
 def observer_zoh_update(t, z, u, k, gain, eq16_weight, period):
     """The exact solution of ``z' = A z + c`` over the sample, ``A = -Y M^(q_k)^-1`` and ``c`` frozen at ``t_k``.
 
-    ``z' = -Y M^-1 (tau + Y dq + z - N q' - G) - w Y dq`` is linear in ``z``
-    with the other inputs held; ``expm`` of the augmented matrix
-    ``[[A, c], [0, 0]] Ts`` gives ``z_{k+1} = e^{A Ts} z_k + (int_0^Ts e^{A s} ds) c``.
+    The observer's law (:func:`blocks.kernels.observer_rate`) is affine in
+    ``z`` with the other inputs held, so ``c = z'(0)`` and the columns of
+    ``A`` are ``z'(e_j) - c``, evaluated with the law itself; ``expm`` of the
+    augmented matrix ``[[A, c], [0, 0]] Ts`` then gives
+    ``z_{k+1} = e^{A Ts} z_k + (int_0^Ts e^{A s} ds) c``.
     """
     n = z.shape[0]
     tau, q, dq = u[:n], u[n:2 * n], u[2 * n:3 * n]
-    m_inv = mass_solve(k, np.cos(q[1]), np.eye(n))                      # columns of M^-1
-    y_matrix = gain if gain.ndim == 2 else np.diag(gain)
-    A = -y_matrix @ m_inv
-    y_dq = gain_times(gain, dq)
-    c = A @ (tau + y_dq - bias_forces(k, np.sin(q[1]), dq)) - eq16_weight * y_dq
+    rate = lambda zz: observer_rate(k, gain, eq16_weight, q, dq, tau, zz)     # noqa: E731
+    c = rate(np.zeros(n))
+    A = np.column_stack([rate(e) - c for e in np.eye(n)])
     augmented = np.zeros((n + 1, n + 1))
     augmented[:n, :n], augmented[:n, n] = A * period, c * period
     step = scipy.linalg.expm(augmented)
