@@ -38,7 +38,7 @@ from .kernels import lumped_disturbance as lumped_disturbance_rows
 from .fastsim import CompiledLoop
 from .integrate import DivergenceError, SolverFailure, integrate_on_grid
 from .divergence import state_bounds
-from .run_limits import check_run
+from .run_limits import check_run, solver_limits
 from .scenario import Scenario, load_scenario
 from .systems import controller, plant, sensor, signal_names, trajectory_block
 from .systems import observer as observer_block
@@ -272,7 +272,7 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
             raise ValueError(f"engine must be one of {list(ENGINES)}, got {engine!r}")
         from .digital_loop import simulate_sampled
         return simulate_sampled(s, observer=observer, plant=plant, progress=progress)
-    limits = check_run(s, observer)
+    budget = check_run(s, observer)
     loop = closed_loop(s, observer=observer, plant=plant)
     x0 = initial_state(loop, s)
     sim = s.simulation
@@ -284,7 +284,7 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
     if engine == "compiled":
         states, outputs = _integrate_with(_compiled_engine(loop), loop, x0, t_grid, sim, progress, bounds)
     elif engine == "fast":
-        states, outputs = _integrate_with(_NumpyEngine(loop, sim.method, limits, t_grid[-1]), loop, x0, t_grid, sim,
+        states, outputs = _integrate_with(_NumpyEngine(loop, sim.method, budget), loop, x0, t_grid, sim,
                                           progress, bounds)
     elif engine == "python-control":
         resp = ct.input_output_response(loop, t_grid, 0, x0, solve_ivp_method=sim.method,
@@ -315,13 +315,11 @@ class _NumpyEngine:
     #: It stops at the first step beyond any state's own bound.
     per_state_bounds = True
 
-    def __init__(self, loop, method: str, limits=None, t_final: float = 0.0) -> None:
-        self.compiled, self.method = CompiledLoop(loop), method
-        self.limits, self.t_final = limits, t_final
+    def __init__(self, loop, method: str, budget=None) -> None:
+        self.compiled, self.method, self.budget = CompiledLoop(loop), method, budget
 
     def integrate(self, x0, t_grid, rtol, atol, max_step, bound, progress):
-        limits = {} if self.limits is None else {"max_evaluations": self.limits.max_evaluations(self.t_final),
-                                                 "deadline": self.limits.deadline()}
+        limits = {} if self.budget is None else solver_limits(self.budget, self.method)
         return integrate_on_grid(self.compiled.rhs, x0, t_grid, self.method, rtol=rtol, atol=atol,
                                  max_step=max_step, bound=bound, progress=progress, **limits)
 

@@ -13,7 +13,7 @@ import pytest
 import blocks
 from blocks.metrics import signal
 from blocks.outputs import staged_output
-from blocks.run_limits import RunLimitError
+from blocks.budget import BudgetError
 from blocks.scenario import ScenarioError
 
 PAPER = blocks.load_scenario("paper")
@@ -67,9 +67,11 @@ def test_scenario_files_with_a_byte_order_mark_or_given_as_folders(tmp_path):
     ({"gains.observer": 1e300}, "gains.observer"),
     ({"noise.sample_period": 1e-5, "noise.q_std": [1e-5] * 4}, "noise.sample_period"),
 ])
-def test_runs_that_would_never_finish_are_refused_before_they_start_with_the_key(changes, key):
-    with pytest.raises(RunLimitError, match=f"'{key}'.*evaluations.*DOBKIT_MAX_EVALUATIONS_PER_SECOND"):
+def test_runs_that_would_never_finish_are_refused_before_they_start_with_the_key(changes, key, monkeypatch):
+    monkeypatch.setenv("DOBKIT_MAX_STEPS", "500000")     # the noisy run's million steps would be allowed by default
+    with pytest.raises(BudgetError, match=f"integrator steps per run .*set by '{key}'.*DOBKIT_MAX_STEPS") as err:
         blocks.simulate(PAPER.with_changes(changes), engine="fast")
+    assert err.value.key == key
 
 
 def test_a_stiff_but_stable_loop_runs_with_an_implicit_method_and_is_not_called_diverged():
@@ -81,12 +83,14 @@ def test_a_stiff_but_stable_loop_runs_with_an_implicit_method_and_is_not_called_
     assert error.max() < 1e-3
 
 
-def test_the_run_limit_is_enforced_during_the_run(monkeypatch):
-    monkeypatch.setenv("DOBKIT_MAX_EVALUATIONS_PER_SECOND", "300")      # the paper run needs about 500 per second
-    with pytest.raises(blocks.SimulationError, match="more than 3,000 right-hand-side evaluations"):
+def test_the_step_budget_is_enforced_during_the_run(monkeypatch):
+    """The paper run is estimated at 100 steps (its PD rate 30 1/s over 10 s) and takes about 820 (4922 RK45
+    evaluations): within a budget of 150 steps it starts and is stopped at 900 evaluations."""
+    monkeypatch.setenv("DOBKIT_MAX_STEPS", "150")
+    with pytest.raises(blocks.SimulationError, match="more than 900 right-hand-side evaluations"):
         blocks.simulate(PAPER, engine="fast")
-    monkeypatch.setenv("DOBKIT_MAX_EVALUATIONS_PER_SECOND", "lots")
-    with pytest.raises(RunLimitError, match="DOBKIT_MAX_EVALUATIONS_PER_SECOND must be a number > 0, got 'lots'"):
+    monkeypatch.setenv("DOBKIT_MAX_STEPS", "lots")
+    with pytest.raises(ValueError, match="DOBKIT_MAX_STEPS"):
         blocks.simulate(PAPER.with_changes(SHORT), engine="fast")
 
 
