@@ -121,7 +121,7 @@ def preview_differences(settings: AnalysisSettings, full: AnalysisSettings | Non
 
     Examples
     --------
-    >>> preview_differences(QUICK_SETTINGS)[-1]
+    >>> preview_differences(QUICK_SETTINGS)[-2]
     'length of the torque-noise runs: 0.3 s (full: 2 s)'
     """
     full = AnalysisSettings(observer_target_rad_s=settings.observer_target_rad_s) if full is None else full
