@@ -28,6 +28,7 @@ first fallback for each reason is reported once per process with an
 from __future__ import annotations
 
 import warnings
+from collections import OrderedDict
 from typing import Callable
 
 import control as ct
@@ -260,19 +261,19 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
     if engine not in ENGINES:
         raise ValueError(f"engine must be one of {list(ENGINES)}, got {engine!r}")
     s = _as_scenario(scenario)
-    loop = closed_loop(s, observer=observer, plant=plant)
-    x0 = initial_state(loop, s)
     sim = s.simulation
     t_grid = sim.time_grid
+    run = _prepared(s, observer) if plant is None and engine != "python-control" else _Prepared(s, observer, plant)
+    loop = run.loop
     if engine in ("auto", "compiled"):
-        from .compiled import unavailable_reason
-        engine = select_engine(engine, unavailable_reason(loop, sim.method))
+        engine = select_engine(engine, run.compiled_reason(sim.method))
+    d = None
     if engine == "compiled":
-        states, outputs = _integrate_with(_compiled_engine(loop), loop, x0, t_grid, sim, progress)
+        states, outputs, d = _integrate_with(run.compiled_engine(), loop, run.x0, t_grid, sim, progress)
     elif engine == "fast":
-        states, outputs = _integrate_with(_NumpyEngine(loop, sim.method), loop, x0, t_grid, sim, progress)
+        states, outputs, d = _integrate_with(_NumpyEngine(loop, sim.method), loop, run.x0, t_grid, sim, progress)
     elif engine == "python-control":
-        resp = ct.input_output_response(loop, t_grid, 0, x0, solve_ivp_method=sim.method,
+        resp = ct.input_output_response(loop, t_grid, 0, run.x0, solve_ivp_method=sim.method,
                                         solve_ivp_kwargs=dict(rtol=sim.rtol, atol=sim.atol, max_step=sim.max_step),
                                         return_states=True)
         if not resp.success:
@@ -283,19 +284,71 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
         if beyond.any():
             raise SimulationError(f"scenario '{s.name}': the loop diverged at t = {t_grid[np.argmax(beyond)]:.6g} s "
                                   f"(a state exceeded {DIVERGENCE_BOUND:g}); no result is returned")
-    labels = list(loop.output_labels)
-    idx = {name: labels.index(name) for name in labels}
-    pick = lambda sig: outputs[[idx[n] for n in signal_names(sig)]]  # noqa: E731
-    d = lumped_disturbance_rows(arm_constants(s.robot), arm_constants(s.nominal), pick("q"), pick("dq"),
-                                pick("tau"), pick("tau_dis"))
-    all_outputs = np.vstack([outputs, d])
-    title = f"{s.name}: {'with' if observer else 'without'} disturbance observer"
-    resp = ct.TimeResponseData(t_grid, all_outputs, states, output_labels=labels + signal_names("d"),
-                               state_labels=list(loop.state_labels), title=title, sysname=loop.name, issiso=False,
+    if d is None:
+        d = lumped_disturbance_rows(run.k_true, run.k_nominal, *(outputs[rows] for rows in run.d_inputs))
+    resp = ct.TimeResponseData(t_grid, np.vstack([outputs, d]), states, output_labels=run.labels,
+                               state_labels=run.state_labels, title=run.title, sysname=loop.name, issiso=False,
                                plot_inputs=False)
     resp.scenario = s
     resp.with_observer = observer
     return resp
+
+
+class _Prepared:
+    """What every run of one (scenario, observer, plant) needs before integrating: the interconnection, its start
+    state, the response's labels, and the compiled engine when one is made.  Kept per scenario (see
+    :func:`_prepared`) so that repeated runs do no Python work twice."""
+
+    def __init__(self, s: Scenario, observer: bool, plant=None) -> None:
+        self.scenario, self.observer = s, observer
+        self.loop = loop = closed_loop(s, observer=observer, plant=plant)
+        self.x0 = initial_state(loop, s)
+        self.x0.setflags(write=False)
+        labels = list(loop.output_labels)
+        self.labels = labels + signal_names("d")
+        self.state_labels = list(loop.state_labels)
+        self.title = f"{s.name}: {'with' if observer else 'without'} disturbance observer"
+        self.d_inputs = [[labels.index(n) for n in signal_names(sig)] for sig in ("q", "dq", "tau", "tau_dis")]
+        self.k_true, self.k_nominal = arm_constants(s.robot), arm_constants(s.nominal)
+        self._reasons: dict[str, str | None] = {}
+        self._compiled = None
+
+    def compiled_reason(self, method: str) -> str | None:
+        """Why the compiled engine cannot run this loop with ``method`` (None: it can)."""
+        if method not in self._reasons:
+            from .compiled import unavailable_reason
+            self._reasons[method] = unavailable_reason(self.loop, method)
+        return self._reasons[method]
+
+    def compiled_engine(self):
+        if self._compiled is None:
+            from .compiled import CompiledLoopEngine
+            self._compiled = CompiledLoopEngine(self.loop)
+        return self._compiled
+
+
+# Prepared runs of the latest scenarios (scenarios are immutable and hashable; equal ones share an entry)
+_PREPARED_KEPT = 16
+_prepared_runs: OrderedDict = OrderedDict()
+_last_prepared: list = [None]
+
+
+def _prepared(s: Scenario, observer: bool) -> _Prepared:
+    """The :class:`_Prepared` run of ``s`` with the Python plant, made once and kept for the latest scenarios."""
+    last = _last_prepared[0]
+    if last is not None and last.scenario is s and last.observer == observer:
+        return last
+    key = (s, observer)
+    run = _prepared_runs.get(key)
+    if run is None:
+        run = _Prepared(s, observer)
+        _prepared_runs[key] = run
+        while len(_prepared_runs) > _PREPARED_KEPT:
+            _prepared_runs.popitem(last=False)
+    else:
+        _prepared_runs.move_to_end(key)
+    _last_prepared[0] = run
+    return run
 
 
 class _NumpyEngine:
@@ -305,19 +358,15 @@ class _NumpyEngine:
         self.compiled, self.method = CompiledLoop(loop), method
 
     def integrate(self, x0, t_grid, rtol, atol, max_step, bound, progress):
-        return integrate_on_grid(self.compiled.rhs, x0, t_grid, self.method, rtol=rtol, atol=atol,
+        return integrate_on_grid(self.compiled.point_rhs, x0, t_grid, self.method, rtol=rtol, atol=atol,
                                  max_step=max_step, bound=bound, progress=progress)
 
     def outputs_on_grid(self, t_grid, X):
         return self.compiled.outputs_on_grid(t_grid, X)
 
 
-def _compiled_engine(loop):
-    from .compiled import CompiledLoopEngine
-    return CompiledLoopEngine(loop)
-
-
 def _integrate_with(engine, loop, x0, t_grid, sim, progress):
+    """States and outputs on the grid, and the lumped disturbance when the engine computed it (else None)."""
     name = loop.scenario.name
     try:
         states, _ = engine.integrate(x0, t_grid, sim.rtol, sim.atol, sim.max_step, DIVERGENCE_BOUND, progress)
@@ -329,10 +378,14 @@ def _integrate_with(engine, loop, x0, t_grid, sim, progress):
         raise SimulationError(f"scenario '{name}': the solver stopped at t = {err.time:.6g} s of "
                               f"{t_grid[-1]:g} s: {err.reason}") from None
     # the integrator has checked every step's state: finite and within the bound
-    outputs = engine.outputs_on_grid(t_grid, states)
+    if "d" in getattr(engine, "row_groups", {}):        # the compiled engine computes d in the same pass
+        outputs, rows = engine.outputs_on_grid(t_grid, states, rows=("d",))
+        d = rows["d"]
+    else:
+        outputs, d = engine.outputs_on_grid(t_grid, states), None
     if progress is not None:
         progress(1.0)
-    return states, outputs
+    return states, outputs, d
 
 
 def _check_finite(t_grid, states, s):
