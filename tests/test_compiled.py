@@ -101,9 +101,11 @@ def test_generated_right_hand_side_and_outputs_equal_the_plan_executed_with_nump
 def test_blocks_are_traced_or_called_as_their_kernels_allow():
     s = blocks.load_scenario("paper").replace(noise={"q_std": [1e-4] * 4, "dq_std": [1e-3] * 4})
     program = CompiledLoopEngine(blocks.closed_loop(s)).program
-    assert sorted(program.traced) == ["controller", "observer", "plant"]
-    # the laceration path branches on the phase and the sensor reads a noise table: called as compiled kernels
-    assert sorted(program.called) == ["sensor", "trajectory"]
+    # the sensor's noise table is read by the generated code at a traced index; its length at run time
+    assert sorted(program.traced) == ["controller", "observer", "plant", "sensor"]
+    assert len(program.tables) == 1 and "ext[" in program.source and ".shape[1]" in program.source
+    # the laceration path branches on the phase: called as a compiled kernel (returning a tuple, no array)
+    assert program.called == ["trajectory"]
     sine = CompiledLoopEngine(blocks.closed_loop(blocks.load_scenario("joint-sine"))).program
     assert "trajectory" in sine.traced and sine.sources == ["trajectory"]
 
@@ -238,7 +240,8 @@ def test_compiled_progress_reports_fractions_of_simulated_time(monkeypatch):
 
 
 def test_no_allocation_per_step_in_the_compiled_right_hand_side(tmp_path):
-    """numba's allocation count of a run does not grow with the number of steps (paper loop, no noise)."""
+    """numba's allocation count of a run does not grow with the number of steps (paper loop, with and without
+    measurement noise; the batch)."""
     script = textwrap.dedent("""
         import numpy as np
         import blocks
@@ -246,14 +249,15 @@ def test_no_allocation_per_step_in_the_compiled_right_hand_side(tmp_path):
         from blocks.loop import _prepared
         from numba.core.runtime import rtsys
         s = blocks.load_scenario("paper")
-        engine = _prepared(s, True).compiled_engine()
-        engine.warm()
         counts = []
-        for t_final in (0.2, 2.0):
-            grid = s.replace(simulation={"t_final": t_final}).simulation.time_grid
-            before = rtsys.get_allocation_stats().alloc
-            states, nfev = engine.integrate(_prepared(s, True).x0, grid, 1e-6, 1e-8, np.inf, 1e6)
-            counts.append((nfev, rtsys.get_allocation_stats().alloc - before))
+        for loop_scenario in (s, s.replace(noise={"q_std": [1e-4] * 4, "dq_std": [1e-3] * 4})):
+            engine = _prepared(loop_scenario, True).compiled_engine()
+            engine.warm()
+            for t_final in (0.2, 2.0):
+                grid = s.replace(simulation={"t_final": t_final}).simulation.time_grid
+                before = rtsys.get_allocation_stats().alloc
+                states, nfev = engine.integrate(_prepared(loop_scenario, True).x0, grid, 1e-6, 1e-8, np.inf, 1e6)
+                counts.append((nfev, rtsys.get_allocation_stats().alloc - before))
         short = s.replace(simulation={"t_final": 0.2}, trajectory={"duration": 10.0})
         simulate_batch(short, [{"gains.kp": 150.0}, {}], engine="compiled")
         for t_final in (0.2, 2.0):
@@ -266,10 +270,12 @@ def test_no_allocation_per_step_in_the_compiled_right_hand_side(tmp_path):
     env = dict(os.environ, NUMBA_NRT_STATS="1")
     run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=600)
     assert run.returncode == 0, run.stderr
-    (calls_short, single_short), (calls_long, single_long), (_, batch_short), (_, batch_long) = \
+    (calls_short, single_short), (calls_long, single_long), (noisy_short_calls, noisy_short), \
+        (noisy_long_calls, noisy_long), (_, batch_short), (_, batch_long) = \
         ast.literal_eval(run.stdout.strip().splitlines()[-1])
-    assert calls_long > 5 * calls_short
+    assert calls_long > 5 * calls_short and noisy_long_calls > 5 * noisy_short_calls
     assert single_long == single_short
+    assert noisy_long == noisy_short                    # measurement noise read from its table in place
     assert batch_long == batch_short
 
 

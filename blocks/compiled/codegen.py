@@ -62,12 +62,9 @@ import numpy as np
 from ..contract import contract_of
 from ..control_compat import subsystems
 from .jit import jit_kernel, kernel_sources, numba_or_none
-from .trace import Graph, Sym, TraceError, param_structure, param_values, symbolic_params
+from .trace import Graph, Sym, TraceError, is_table, param_structure, param_tables, param_values, symbolic_params
 
 __all__ = ["CompiledUnavailable", "LoopProgram", "loop_program", "program_for", "cache_dir", "load_module"]
-
-# A parameter array larger than this is a table (noise samples), not numbers to trace.
-_TABLE_SIZE = 64
 
 
 class CompiledUnavailable(RuntimeError):
@@ -91,9 +88,10 @@ class LoopProgram:
     theta_slices : dict of str to slice
         Each traced block's part of ``theta``.
     ext : tuple
-        Parameters of the kernels called as functions, in order.
+        Parameters the generated code reads as they are: the called kernels'
+        parameters and the traced blocks' tables, in order.
     ext_slices : dict of str to tuple
-        Each called block's ``(first, stop)`` in ``ext``.
+        Each block's ``(first, stop)`` in ``ext``.
     traced, called : list of str
         Blocks traced into statements, and blocks whose kernels are called.
     sources : list of str
@@ -110,6 +108,8 @@ class LoopProgram:
         Rows of all groups, and shared values (``aux``) they read.
     tables : tuple of int
         Positions in ``ext`` of table parameters (see ``member_ext``).
+    order : list of str
+        Every block, in the order its numbers were read (see :meth:`numbers`).
     """
 
     source: str
@@ -129,6 +129,7 @@ class LoopProgram:
     n_rows: int = 0
     n_aux: int = 0
     tables: tuple = ()
+    order: list = field(default_factory=list)
 
     @cached_property
     def key(self) -> str:
@@ -148,10 +149,15 @@ class LoopProgram:
             The loop's kernels by block name.
         """
         values: list[float] = []
-        for name in self.traced:
-            param_values(kernels_by_block[name].params, values)
-        ext = tuple(p for name in self.called for p in kernels_by_block[name].params)
-        return np.array(values, dtype=float), ext
+        ext: list = []
+        for name in self.order:
+            params = kernels_by_block[name].params
+            if name in self.theta_slices:
+                param_values(params, values)
+                param_tables(params, ext)
+            else:
+                ext.extend(params)
+        return np.array(values, dtype=float), tuple(ext)
 
 
 def block_kernels(plan, system) -> dict:
@@ -172,18 +178,6 @@ def block_kernels(plan, system) -> dict:
                 f"python-control system or an FMU), so the compiled engine cannot run this loop")
         out[step.name] = kernels
     return out
-
-
-def _is_table(value) -> bool:
-    return isinstance(value, np.ndarray) and (value.size > _TABLE_SIZE or value.dtype.kind not in "fiu")
-
-
-def _has_table(params) -> bool:
-    if _is_table(params):
-        return True
-    if isinstance(params, tuple):
-        return any(_has_table(p) for p in params)
-    return False
 
 
 class _Builder:
@@ -212,28 +206,28 @@ class _Builder:
     # -- which blocks are traced -----------------------------------------------------------------------
     def _classify(self, step) -> None:
         k = self.kernels[step.name]
-        if not _has_table(k.params):
-            start = len(self.theta)
-            try:
-                sym = symbolic_params(self.graph, k.params, self.theta)
-                # a trial trace of every function the block has, on fresh symbols
-                x = self._leaves("x", range(step.x.start, step.x.stop))
-                u = self._leaves("trial", range(_gather_size(step)))
-                t = self.graph.leaf("t", 0)
-                if k.output is not None:
-                    _rows(k.output(t, x, u, *sym), step.y.stop - step.y.start)
-                if k.update is not None and step.x.stop > step.x.start:
-                    _rows(k.update(t, x, u, *sym), step.x.stop - step.x.start)
-                self.sym_params[step.name] = sym
-                self.theta_slices[step.name] = slice(start, len(self.theta))
-                self.traced.append(step.name)
-                return
-            except (TraceError, TypeError, AttributeError, IndexError, ValueError):
-                del self.theta[start:]
-        e0 = len(self.ext)
-        self.ext.extend(k.params)
+        start, e0 = len(self.theta), len(self.ext)
+        try:
+            sym = symbolic_params(self.graph, k.params, self.theta, self.ext)      # tables go to ext
+            # a trial trace of every function the block has, on fresh symbols
+            x = self._leaves("x", range(step.x.start, step.x.stop))
+            u = self._leaves("trial", range(_gather_size(step)))
+            t = self.graph.leaf("t", 0)
+            if k.output is not None:
+                _rows(k.output(t, x, u, *sym), step.y.stop - step.y.start)
+            if k.update is not None and step.x.stop > step.x.start:
+                _rows(k.update(t, x, u, *sym), step.x.stop - step.x.start)
+        except (TraceError, TypeError, AttributeError, IndexError, ValueError):
+            del self.theta[start:]
+            del self.ext[e0:]
+            self.ext.extend(k.params)
+            self.ext_slices[step.name] = (e0, len(self.ext))
+            self.called.append(step.name)
+            return
+        self.sym_params[step.name] = sym
+        self.theta_slices[step.name] = slice(start, len(self.theta))
         self.ext_slices[step.name] = (e0, len(self.ext))
-        self.called.append(step.name)
+        self.traced.append(step.name)
 
     def _leaves(self, kind: str, indices) -> np.ndarray:
         out = np.empty(len(indices), dtype=object)
@@ -368,8 +362,13 @@ class _Function:
             if kind == "call":
                 call, row = index
                 return f"r{call}[{row}]"
+            if kind == "tablen":
+                return f"ext[{index}].shape[1]"
             raise CompiledUnavailable(f"the generated code would read {kind!r} {index!r}: a block uses an input "
                                       "its contract says does not feed through")
+        if node.op == "lookup":                 # a table read at a whole-valued float index
+            slot, row, at = node.args
+            return f"ext[{slot}][{row}, int({self.value(at)})]"
         ops = [self.value(a) for a in node.args[1:]]
         if node.op == "bin":
             return f"{ops[0]} {node.args[0]} {ops[1]}"
@@ -402,6 +401,8 @@ class _Function:
 def _operands(node: Sym) -> list:
     if node.op in ("bin", "call"):
         return [a for a in node.args[1:] if isinstance(a, Sym)]
+    if node.op == "lookup":
+        return [node.args[2]]
     return []
 
 
@@ -540,7 +541,7 @@ def loop_program(plan, system, groups: tuple = ()) -> LoopProgram:
     if groups and _emit_row_groups(fn_out_rows, b, groups, _by_signal(labels, plan, signals), aux) != sizes:
         raise TraceError("a row group gave different row counts beside the right-hand side and the outputs")
 
-    tables = tuple(e for e, p in enumerate(b.ext) if _is_table(p))
+    tables = tuple(e for e, p in enumerate(b.ext) if is_table(p))
     if tables:
         parts = [f"tables[{tables.index(e)}][j]" if e in tables else f"ext[{e}]" for e in range(len(b.ext))]
         member_ext = f"def member_ext(ext, tables, j):\n    return ({', '.join(parts)},)\n\n\n"
@@ -561,7 +562,8 @@ def loop_program(plan, system, groups: tuple = ()) -> LoopProgram:
                        ext=tuple(b.ext), ext_slices=b.ext_slices, traced=b.traced, called=b.called,
                        sources=[s.name for s in b.source_steps], n_src=b.n_src, n_work=max(b.work, 1), n_out=n_out,
                        kernels=dict(b.kernel_names), structure=structure_of(plan, kernels, labels, groups),
-                       row_groups=row_groups, n_rows=offset, n_aux=n_aux, tables=tables)
+                       row_groups=row_groups, n_rows=offset, n_aux=n_aux, tables=tables,
+                       order=[s.name for s in plan.steps])
 
 
 _programs: dict[str, LoopProgram] = {}
