@@ -15,8 +15,10 @@ engines, which give the same numbers to solver tolerance:
     the loop's plan and kernels generated into one numba-compiled module
     (:mod:`blocks.compiled`; needs the extra ``dobkit[fast]``);
 ``fast``
-    the numpy engine, :class:`~blocks.fastsim.CompiledLoop` (each block
-    evaluated once per step, in dependency order) with ``solve_ivp``'s solvers;
+    the numpy engine, :class:`~blocks.fastsim.CompiledLoop`, with
+    ``solve_ivp``'s solvers: the plan's generated right-hand side run by
+    Python on floats when every block has kernels, else each block evaluated
+    once per call, in dependency order;
 ``python-control``
     :func:`control.input_output_response` on the interconnection.
 
@@ -230,13 +232,14 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
     engine : {"auto", "compiled", "fast", "python-control"}
         ``compiled`` runs the loop's generated, numba-compiled module
         (:mod:`blocks.compiled`: Dormand-Prince 5(4) with ``solve_ivp``'s RK45
-        step control); ``fast`` the numpy engine (each block output evaluated
-        once per call, ``solve_ivp``'s solvers); ``python-control`` calls
+        step control); ``fast`` the numpy engine (:class:`~blocks.fastsim.CompiledLoop`,
+        ``solve_ivp``'s solvers); ``python-control`` calls
         :func:`control.input_output_response` on the same interconnected
         system.  ``auto`` takes ``compiled`` when it can run the loop and
         ``fast`` otherwise (see :func:`select_engine`).
     progress : callable, optional
-        Called with the fraction of simulated time done (0..1) as the solver advances.
+        Called with the fraction of simulated time done (0..1) as the solver
+        advances, at most every 0.2 s of wall time, and with 1.0 at the end.
 
     Returns
     -------
@@ -267,11 +270,12 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
     loop = run.loop
     if engine in ("auto", "compiled"):
         engine = select_engine(engine, run.compiled_reason(sim.method))
-    d = None
+    with_d = False
     if engine == "compiled":
-        states, outputs, d = _integrate_with(run.compiled_engine(), loop, run.x0, t_grid, sim, progress)
+        states, outputs, with_d = _integrate_with(run.compiled_engine(), loop, run.x0, t_grid, sim, progress)
     elif engine == "fast":
-        states, outputs, d = _integrate_with(_NumpyEngine(loop, sim.method), loop, run.x0, t_grid, sim, progress)
+        states, outputs, with_d = _integrate_with(_NumpyEngine(loop, sim.method), loop, run.x0, t_grid, sim,
+                                                  progress)
     elif engine == "python-control":
         resp = ct.input_output_response(loop, t_grid, 0, run.x0, solve_ivp_method=sim.method,
                                         solve_ivp_kwargs=dict(rtol=sim.rtol, atol=sim.atol, max_step=sim.max_step),
@@ -284,9 +288,10 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
         if beyond.any():
             raise SimulationError(f"scenario '{s.name}': the loop diverged at t = {t_grid[np.argmax(beyond)]:.6g} s "
                                   f"(a state exceeded {DIVERGENCE_BOUND:g}); no result is returned")
-    if d is None:
+    if not with_d:
         d = lumped_disturbance_rows(run.k_true, run.k_nominal, *(outputs[rows] for rows in run.d_inputs))
-    resp = ct.TimeResponseData(t_grid, np.vstack([outputs, d]), states, output_labels=run.labels,
+        outputs = np.vstack([outputs, d])
+    resp = ct.TimeResponseData(t_grid, outputs, states, output_labels=run.labels,
                                state_labels=run.state_labels, title=run.title, sysname=loop.name, issiso=False,
                                plot_inputs=False)
     resp.scenario = s
@@ -366,7 +371,8 @@ class _NumpyEngine:
 
 
 def _integrate_with(engine, loop, x0, t_grid, sim, progress):
-    """States and outputs on the grid, and the lumped disturbance when the engine computed it (else None)."""
+    """States and outputs on the grid, and whether the outputs end with the lumped disturbance's rows (the compiled
+    engine computes them in its grid pass)."""
     name = loop.scenario.name
     try:
         states, _ = engine.integrate(x0, t_grid, sim.rtol, sim.atol, sim.max_step, DIVERGENCE_BOUND, progress)
@@ -378,14 +384,12 @@ def _integrate_with(engine, loop, x0, t_grid, sim, progress):
         raise SimulationError(f"scenario '{name}': the solver stopped at t = {err.time:.6g} s of "
                               f"{t_grid[-1]:g} s: {err.reason}") from None
     # the integrator has checked every step's state: finite and within the bound
-    if "d" in getattr(engine, "row_groups", {}):        # the compiled engine computes d in the same pass
-        outputs, rows = engine.outputs_on_grid(t_grid, states, rows=("d",))
-        d = rows["d"]
-    else:
-        outputs, d = engine.outputs_on_grid(t_grid, states), None
+    with_d = "d" in getattr(engine, "row_groups", {})      # the compiled engine computes d in the same pass
+    outputs = engine.outputs_on_grid(t_grid, states, rows=("d",), stacked=True) if with_d else \
+        engine.outputs_on_grid(t_grid, states)
     if progress is not None:
         progress(1.0)
-    return states, outputs, d
+    return states, outputs, with_d
 
 
 def _check_finite(t_grid, states, s):

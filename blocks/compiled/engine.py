@@ -154,11 +154,13 @@ class CompiledLoopEngine:
                 last_report = now
                 progress(min(1.0, (state[_S_T] - t0) / (t_end - t0)))
 
-    def outputs_on_grid(self, t_grid, X, rows: tuple = ()) -> np.ndarray | tuple[np.ndarray, dict]:
+    def outputs_on_grid(self, t_grid, X, rows: tuple = (), stacked: bool = False):
         """The interconnection's outputs (noutputs, T) at the times ``t_grid`` from the states ``X`` (n, T).
 
         With ``rows`` (names of row groups, see :mod:`blocks.compiled.rows`)
-        also those groups' rows in the same pass: ``(outputs, {name: (rows, T)})``.
+        also those groups' rows in the same pass: ``(outputs, {name: (rows, T)})``,
+        or with ``stacked`` one array, the outputs and then the groups' rows in
+        the order asked (no copy to join them).
         """
         t_grid = np.ascontiguousarray(t_grid, dtype=float)
         X = np.ascontiguousarray(X, dtype=float)
@@ -171,13 +173,18 @@ class CompiledLoopEngine:
         flags = np.zeros(max(len(groups), 1), dtype=np.int64)
         for name in rows:
             flags[groups[name][0]] = 1
-        Y = np.empty((self.program.n_out, t_grid.size))
-        R = np.empty((self.program.n_rows if rows else 0, t_grid.size))
+        n_out = self.program.n_out
+        out = np.empty((n_out + (self.program.n_rows if rows else 0), t_grid.size))
         aux = np.zeros((1, max(self.program.n_aux, 1)))
-        self.module.grid_outputs(t_grid, X, self.theta, self.ext, aux, flags, Y, R)
+        self.module.grid_outputs(t_grid, X, self.theta, self.ext, aux, flags, out[:n_out], out[n_out:])
         if not rows:
-            return Y
-        return Y, {name: R[groups[name][1]] for name in rows}
+            return out
+        if stacked:
+            picked = [np.arange(n_out)] + [n_out + np.arange(groups[name][1].start, groups[name][1].stop)
+                                           for name in rows]
+            order = np.concatenate(picked)
+            return out[:order.size] if np.array_equal(order, np.arange(order.size)) else out[order]
+        return out[:n_out], {name: out[n_out + groups[name][1].start:n_out + groups[name][1].stop] for name in rows}
 
     def rhs(self, t: float, x) -> np.ndarray:
         """The loop's state derivative at one point (for checks; the integrator calls the compiled code directly)."""
