@@ -27,7 +27,7 @@ from typing import Mapping
 
 __all__ = ["Budget", "BudgetError", "Estimate", "estimate_batch", "largest_batch", "schedule_steps", "parse_size",
            "format_bytes", "DEFAULT_MEMORY", "DEFAULT_STEPS", "ENVIRONMENT", "STEP_BYTES", "MEMBER_BYTES",
-           "NOISE_STEP_BYTES", "NOISE_SAMPLE_BYTES", "SIGNAL_POINT_BYTES", "BASE_BYTES"]
+           "NOISE_STEP_BYTES", "NOISE_SAMPLE_BYTES", "NOISE_BASE_BYTES", "SIGNAL_POINT_BYTES", "BASE_BYTES"]
 
 #: Default memory budget (bytes): 4 GiB.
 DEFAULT_MEMORY = 4 * 2 ** 30
@@ -49,6 +49,9 @@ NOISE_SAMPLE_BYTES = 192
 SIGNAL_POINT_BYTES = 32
 #: Bytes a batch needs whatever its size (scenario, kernels' small tables).
 BASE_BYTES = 1024 * 1024
+#: Bytes a batch with measurement noise needs whatever its size (the compiled batch's noise tables and driver
+#: buffers: measured about 2.6 MB).
+NOISE_BASE_BYTES = 3 * 1024 * 1024
 
 _UNITS = {"": 1, "K": 2 ** 10, "M": 2 ** 20, "G": 2 ** 30, "T": 2 ** 40}
 
@@ -289,7 +292,7 @@ def estimate_batch(members: int, steps: int, grid_points: int, signals: int = 0,
     parts = {
         "the step schedule": BASE_BYTES + STEP_BYTES * steps + members * NOISE_STEP_BYTES * steps * bool(noise),
         "the members' states": members * MEMBER_BYTES,
-        "the noise samples": members * NOISE_SAMPLE_BYTES * int(noise_samples) * bool(noise),
+        "the noise samples": (NOISE_BASE_BYTES + members * NOISE_SAMPLE_BYTES * int(noise_samples)) * bool(noise),
         "the kept signals": members * SIGNAL_POINT_BYTES * int(grid_points) * int(signals),
     }
     reasons = {"the step schedule": f"{steps:.3g} steps" + (f" with noise for {members} runs" if noise else ""),

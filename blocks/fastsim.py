@@ -13,6 +13,14 @@ python-control honours them: merged into the parameters of every block that
 reads python-control's ``params`` (blocks made with kernels bind theirs when
 they are made and ignore them, as they do in python-control).
 
+When every block has kernels and the plan is direct (every loop
+:func:`blocks.closed_loop` builds), :attr:`CompiledLoop.point_rhs` runs the
+plan's generated right-hand side on Python floats instead
+(:mod:`blocks.compiled.scalar`: the kernels traced into scalar statements,
+the same numbers to the last bit, several times faster than a call per
+block on small arrays); :meth:`CompiledLoop.rhs` is the plan executed with
+numpy, the definition it is tested against.
+
 This is an engine for :func:`blocks.simulate`, not part of the public API.
 """
 from __future__ import annotations
@@ -56,6 +64,27 @@ class CompiledLoop:
         self.order = self.plan.order
         self.rhs_order = self.plan.rhs_order
         self._other: tuple[dict, LoopPlan] | None = None
+        self._point_rhs = self._plan_rhs_function = None
+
+    @property
+    def point_rhs(self):
+        """``f(t, x) -> dx`` for a solver: the generated right-hand side on floats when the loop allows it
+        (see the module docstring), else :meth:`rhs`.  Made on first use (tracing takes tens of ms once per
+        loop structure and process)."""
+        if self._point_rhs is None:
+            from .compiled.scalar import scalar_rhs
+            self._plan_rhs_function = fallback = self._plan_rhs
+            self._point_rhs = (scalar_rhs(self.plan, self.system, fallback) if self.params is None else None) \
+                or fallback
+        return self._point_rhs
+
+    @property
+    def generated(self) -> bool:
+        """Whether :attr:`point_rhs` runs the plan's generated code (else the numpy plan)."""
+        return self.point_rhs is not self._plan_rhs_function
+
+    def _plan_rhs(self, t, x):
+        return self.rhs(t, x)
 
     def _plan_for(self, params: dict | None) -> LoopPlan:
         if params is None or params == self.params:

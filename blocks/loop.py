@@ -15,8 +15,10 @@ engines, which give the same numbers to solver tolerance:
     the loop's plan and kernels generated into one numba-compiled module
     (:mod:`blocks.compiled`; needs the extra ``dobkit[fast]``);
 ``fast``
-    the numpy engine, :class:`~blocks.fastsim.CompiledLoop` (each block
-    evaluated once per step, in dependency order) with ``solve_ivp``'s solvers;
+    the numpy engine, :class:`~blocks.fastsim.CompiledLoop`, with
+    ``solve_ivp``'s solvers: the plan's generated right-hand side run by
+    Python on floats when every block has kernels, else each block evaluated
+    once per call, in dependency order;
 ``python-control``
     :func:`control.input_output_response` on the interconnection.
 
@@ -28,6 +30,7 @@ first fallback for each reason is reported once per process with an
 from __future__ import annotations
 
 import warnings
+from collections import OrderedDict
 from typing import Callable
 
 import control as ct
@@ -37,8 +40,9 @@ from .kernels import arm_constants
 from .kernels import lumped_disturbance as lumped_disturbance_rows
 from .fastsim import CompiledLoop
 from .integrate import DivergenceError, SolverFailure, integrate_on_grid
+from .budget import Budget
 from .divergence import state_bounds
-from .run_limits import check_run, solver_limits
+from .run_limits import estimate_run, solver_limits
 from .scenario import Scenario, load_scenario
 from .systems import controller, plant, sensor, signal_names, trajectory_block
 from .systems import observer as observer_block
@@ -234,13 +238,14 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
     engine : {"auto", "compiled", "fast", "python-control"}
         ``compiled`` runs the loop's generated, numba-compiled module
         (:mod:`blocks.compiled`: Dormand-Prince 5(4) with ``solve_ivp``'s RK45
-        step control); ``fast`` the numpy engine (each block output evaluated
-        once per call, ``solve_ivp``'s solvers); ``python-control`` calls
+        step control); ``fast`` the numpy engine (:class:`~blocks.fastsim.CompiledLoop`,
+        ``solve_ivp``'s solvers); ``python-control`` calls
         :func:`control.input_output_response` on the same interconnected
         system.  ``auto`` takes ``compiled`` when it can run the loop and
         ``fast`` otherwise (see :func:`select_engine`).
     progress : callable, optional
-        Called with the fraction of simulated time done (0..1) as the solver advances.
+        Called with the fraction of simulated time done (0..1) as the solver
+        advances, at most every 0.2 s of wall time, and with 1.0 at the end.
 
     Returns
     -------
@@ -268,45 +273,109 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
     if not isinstance(observer, bool):
         raise TypeError(f"observer must be True or False, got {observer!r}")
     if s.controller is not None:            # the digital controller: a sampled-data loop
-        if engine not in ENGINES:
-            raise ValueError(f"engine must be one of {list(ENGINES)}, got {engine!r}")
         from .digital_loop import simulate_sampled
         return simulate_sampled(s, observer=observer, plant=plant, progress=progress)
-    budget = check_run(s, observer)
-    loop = closed_loop(s, observer=observer, plant=plant)
-    x0 = initial_state(loop, s)
     sim = s.simulation
     t_grid = sim.time_grid
+    run = _prepared(s, observer) if plant is None and engine != "python-control" else _Prepared(s, observer, plant)
+    loop = run.loop
+    budget = Budget.from_env()
+    budget.check(run.estimate(), f"scenario '{s.name}' ({sim.method})")
     if engine in ("auto", "compiled"):
-        from .compiled import unavailable_reason
-        engine = select_engine(engine, unavailable_reason(loop, sim.method))
-    bounds = state_bounds(loop, s)
+        engine = select_engine(engine, run.compiled_reason(sim.method))
+    with_d = False
     if engine == "compiled":
-        states, outputs = _integrate_with(_compiled_engine(loop), loop, x0, t_grid, sim, progress, bounds)
+        states, outputs, with_d = _integrate_with(run.compiled_engine(), loop, run.x0, t_grid, sim, progress,
+                                                  run.bounds())
     elif engine == "fast":
-        states, outputs = _integrate_with(_NumpyEngine(loop, sim.method, budget), loop, x0, t_grid, sim,
-                                          progress, bounds)
+        states, outputs, with_d = _integrate_with(_NumpyEngine(loop, sim.method, budget), loop, run.x0, t_grid, sim,
+                                                  progress, run.bounds())
     elif engine == "python-control":
-        resp = ct.input_output_response(loop, t_grid, 0, x0, solve_ivp_method=sim.method,
+        resp = ct.input_output_response(loop, t_grid, 0, run.x0, solve_ivp_method=sim.method,
                                         solve_ivp_kwargs=dict(rtol=sim.rtol, atol=sim.atol, max_step=sim.max_step),
                                         return_states=True)
         if not resp.success:
             raise SimulationError(f"scenario '{s.name}': solver failed: {resp.message}")
         states, outputs = np.atleast_2d(resp.states), np.atleast_2d(resp.outputs)
-        _check_bounds(t_grid, states, s, bounds)
-    labels = list(loop.output_labels)
-    idx = {name: labels.index(name) for name in labels}
-    pick = lambda sig: outputs[[idx[n] for n in signal_names(sig)]]  # noqa: E731
-    d = lumped_disturbance_rows(arm_constants(s.robot), arm_constants(s.nominal), pick("q"), pick("dq"),
-                                pick("tau"), pick("tau_dis"))
-    all_outputs = np.vstack([outputs, d])
-    title = f"{s.name}: {'with' if observer else 'without'} disturbance observer"
-    resp = ct.TimeResponseData(t_grid, all_outputs, states, output_labels=labels + signal_names("d"),
-                               state_labels=list(loop.state_labels), title=title, sysname=loop.name, issiso=False,
+        _check_bounds(t_grid, states, s, run.bounds())
+    if not with_d:
+        d = lumped_disturbance_rows(run.k_true, run.k_nominal, *(outputs[rows] for rows in run.d_inputs))
+        outputs = np.vstack([outputs, d])
+    resp = ct.TimeResponseData(t_grid, outputs, states, output_labels=run.labels,
+                               state_labels=run.state_labels, title=run.title, sysname=loop.name, issiso=False,
                                plot_inputs=False)
     resp.scenario = s
     resp.with_observer = observer
     return resp
+
+
+class _Prepared:
+    """What every run of one (scenario, observer, plant) needs before integrating: the interconnection, its start
+    state, the response's labels, and the compiled engine when one is made.  Kept per scenario (see
+    :func:`_prepared`) so that repeated runs do no Python work twice."""
+
+    def __init__(self, s: Scenario, observer: bool, plant=None) -> None:
+        self.scenario, self.observer = s, observer
+        self.loop = loop = closed_loop(s, observer=observer, plant=plant)
+        self.x0 = initial_state(loop, s)
+        self.x0.setflags(write=False)
+        labels = list(loop.output_labels)
+        self.labels = labels + signal_names("d")
+        self.state_labels = list(loop.state_labels)
+        self.title = f"{s.name}: {'with' if observer else 'without'} disturbance observer"
+        self.d_inputs = [[labels.index(n) for n in signal_names(sig)] for sig in ("q", "dq", "tau", "tau_dis")]
+        self.k_true, self.k_nominal = arm_constants(s.robot), arm_constants(s.nominal)
+        self._reasons: dict[str, str | None] = {}
+        self._compiled = self._estimate = self._bounds = None
+
+    def estimate(self):
+        """What a run needs (:func:`blocks.run_limits.estimate_run`), for the budget check."""
+        if self._estimate is None:
+            self._estimate = estimate_run(self.scenario, self.observer)
+        return self._estimate
+
+    def bounds(self):
+        """The divergence bounds of the loop's states (:func:`blocks.divergence.state_bounds`)."""
+        if self._bounds is None:
+            self._bounds = state_bounds(self.loop, self.scenario)
+        return self._bounds
+
+    def compiled_reason(self, method: str) -> str | None:
+        """Why the compiled engine cannot run this loop with ``method`` (None: it can)."""
+        if method not in self._reasons:
+            from .compiled import unavailable_reason
+            self._reasons[method] = unavailable_reason(self.loop, method)
+        return self._reasons[method]
+
+    def compiled_engine(self):
+        if self._compiled is None:
+            from .compiled import CompiledLoopEngine
+            self._compiled = CompiledLoopEngine(self.loop)
+        return self._compiled
+
+
+# Prepared runs of the latest scenarios (scenarios are immutable and hashable; equal ones share an entry)
+_PREPARED_KEPT = 16
+_prepared_runs: OrderedDict = OrderedDict()
+_last_prepared: list = [None]
+
+
+def _prepared(s: Scenario, observer: bool) -> _Prepared:
+    """The :class:`_Prepared` run of ``s`` with the Python plant, made once and kept for the latest scenarios."""
+    last = _last_prepared[0]
+    if last is not None and last.scenario is s and last.observer == observer:
+        return last
+    key = (s, observer)
+    run = _prepared_runs.get(key)
+    if run is None:
+        run = _Prepared(s, observer)
+        _prepared_runs[key] = run
+        while len(_prepared_runs) > _PREPARED_KEPT:
+            _prepared_runs.popitem(last=False)
+    else:
+        _prepared_runs.move_to_end(key)
+    _last_prepared[0] = run
+    return run
 
 
 class _NumpyEngine:
@@ -315,24 +384,21 @@ class _NumpyEngine:
     #: It stops at the first step beyond any state's own bound.
     per_state_bounds = True
 
-    def __init__(self, loop, method: str, budget=None) -> None:
+    def __init__(self, loop, method: str, budget: Budget | None = None) -> None:
         self.compiled, self.method, self.budget = CompiledLoop(loop), method, budget
 
     def integrate(self, x0, t_grid, rtol, atol, max_step, bound, progress):
         limits = {} if self.budget is None else solver_limits(self.budget, self.method)
-        return integrate_on_grid(self.compiled.rhs, x0, t_grid, self.method, rtol=rtol, atol=atol,
+        return integrate_on_grid(self.compiled.point_rhs, x0, t_grid, self.method, rtol=rtol, atol=atol,
                                  max_step=max_step, bound=bound, progress=progress, **limits)
 
     def outputs_on_grid(self, t_grid, X):
         return self.compiled.outputs_on_grid(t_grid, X)
 
 
-def _compiled_engine(loop):
-    from .compiled import CompiledLoopEngine
-    return CompiledLoopEngine(loop)
-
-
 def _integrate_with(engine, loop, x0, t_grid, sim, progress, bounds):
+    """States and outputs on the grid, and whether the outputs end with the lumped disturbance's rows (the compiled
+    engine computes them in its grid pass).  Divergence is judged on the bounds of :mod:`blocks.divergence`."""
     name = loop.scenario.name
     # an engine that judges all states against one bound is given the loosest, and checked on the grid after
     bound = bounds.bounds if getattr(engine, "per_state_bounds", False) else \
@@ -347,10 +413,12 @@ def _integrate_with(engine, loop, x0, t_grid, sim, progress, bounds):
         raise SimulationError(f"scenario '{name}': the solver stopped at t = {err.time:.6g} s of "
                               f"{t_grid[-1]:g} s: {err.reason}") from None
     _check_bounds(t_grid, states, loop.scenario, bounds)
-    outputs = engine.outputs_on_grid(t_grid, states)
+    with_d = "d" in getattr(engine, "row_groups", {})      # the compiled engine computes d in the same pass
+    outputs = engine.outputs_on_grid(t_grid, states, rows=("d",), stacked=True) if with_d else \
+        engine.outputs_on_grid(t_grid, states)
     if progress is not None:
         progress(1.0)
-    return states, outputs
+    return states, outputs, with_d
 
 
 def _check_bounds(t_grid, states, s, bounds):

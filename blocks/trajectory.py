@@ -39,7 +39,7 @@ from .kinematics import ELBOWS, UnreachableError, inverse_kinematics, jacobian, 
 from .parameters import RobotParameters
 
 __all__ = ["LacerationPath", "JointSine", "TRAJECTORY_KINDS", "smoothstep5", "bump6", "laceration_pose",
-           "laceration_reference", "laceration_output", "joint_sine_output"]
+           "laceration_rows", "laceration_reference", "laceration_output", "joint_sine_output"]
 
 TRAJECTORY_KINDS = ("laceration", "joint_sine")
 
@@ -57,10 +57,10 @@ def bump6(tau: float):
 
 
 # --------------------------------------------------------------------------------------------------------------
-# Reference kernels: plain functions of a time and a parameter array, in the subset of Python numba compiles.
+# Reference kernels: plain functions of a time and a parameter tuple, in the subset of Python numba compiles.
 # The path objects below call them, and their blocks carry them (see LacerationPath.kernels).
 # --------------------------------------------------------------------------------------------------------------
-#: Layout of a laceration path's parameter array (:meth:`LacerationPath._geometry`).
+#: Layout of a laceration path's parameter tuple (:meth:`LacerationPath._geometry`).
 LACERATION_FIELDS = ("phase_duration", "stitches", "duration", "x0", "y0", "x1", "y1", "bulge", "skin_height",
                      "hover", "depth", "needle_roll", "roll_offset", "a1", "a2", "d1", "d4", "elbow", "q_near1",
                      "q_near4")
@@ -102,12 +102,14 @@ def _planar_solve(a1, a2, c1, s1, c12, s12, det, bx, by):
     return (a2 * c12 * bx + a2 * s12 * by) / det, (-(a1 * c1 + a2 * c12) * bx - (a1 * s1 + a2 * s12) * by) / det
 
 
-def laceration_reference(t, g):
-    """``[q_ref, dq_ref, ddq_ref]`` (12,) of a laceration path at one time ``t`` (s), by closed-form inverse kinematics.
+def laceration_rows(t, g):
+    """``[q_ref, dq_ref, ddq_ref]`` of a laceration path at one time ``t`` (s) as a tuple of 12 floats.
 
-    Uses the arm's structure: the planar 2x2 block of J has determinant
-    ``a1 a2 sin(theta2)``, ``d3' = -z'`` and ``theta4' = theta1' + theta2' - phi'``;
-    ``theta1`` and ``theta4`` are taken on the branch nearest the path's start pose.
+    Closed-form inverse kinematics, using the arm's structure: the planar
+    2x2 block of J has determinant ``a1 a2 sin(theta2)``, ``d3' = -z'`` and
+    ``theta4' = theta1' + theta2' - phi'``; ``theta1`` and ``theta4`` are
+    taken on the branch nearest the path's start pose.  A tuple, not an
+    array, so that compiled code calls it without allocating.
     """
     x, y, z, phi, vx, vy, vz, vphi, ax, ay, az, aphi = laceration_pose(t, g)
     a1, a2, d1, d4, elbow, q_near1, q_near4 = g[13], g[14], g[15], g[16], g[17], g[18], g[19]
@@ -127,16 +129,24 @@ def laceration_reference(t, g):
     bx = ax + a1 * c1 * w1 ** 2 + a2 * c12 * w12 ** 2      # p'' - J' q'
     by = ay + a1 * s1 * w1 ** 2 + a2 * s12 * w12 ** 2
     e1, e2 = _planar_solve(a1, a2, c1, s1, c12, s12, det, bx, by)
-    return np.array([t1, t2, d1 - d4 - z, t4, w1, w2, -vz, w12 - vphi, e1, e2, -az, e1 + e2 - aphi])
+    return (t1, t2, d1 - d4 - z, t4, w1, w2, -vz, w12 - vphi, e1, e2, -az, e1 + e2 - aphi)
+
+
+def laceration_reference(t, g):
+    """``[q_ref, dq_ref, ddq_ref]`` (12,) of a laceration path at one time ``t`` (s) (see :func:`laceration_rows`)."""
+    return np.array(laceration_rows(t, g))
 
 
 def laceration_output(t, x, u, g):
-    """Block kernel of a laceration path: rows ``[q_ref; dq_ref; ddq_ref]``, (12,) at one time or (12, K) at K times."""
+    """Block kernel of a laceration path: rows ``[q_ref; dq_ref; ddq_ref]``, 12 floats at one time or (12, K) at K
+    times."""
     if isinstance(t, (int, float)):          # one time (numba compiles this branch only)
-        return laceration_reference(t, g)
+        return laceration_rows(t, g)
     out = np.empty((12, t.shape[0]))
     for k in range(t.shape[0]):
-        out[:, k] = laceration_reference(float(t[k]), g)
+        row = laceration_rows(float(t[k]), g)
+        for i in range(12):
+            out[i, k] = row[i]
     return out
 
 
@@ -241,7 +251,7 @@ class LacerationPath:
             raise ValueError("trajectory.start and trajectory.end must differ")
         # The branch reference for theta1/theta4 continuity is the rest pose at the start.
         object.__setattr__(self, "_q_near", None)
-        object.__setattr__(self, "_table", None)
+        object.__setattr__(self, "_table", self._geometry())      # the pose does not depend on the branch
         self._check_reachable()
         q0 = inverse_kinematics(self.pose(0.0)[0][0], self.params, self.elbow)
         object.__setattr__(self, "_q_near", q0)
@@ -263,16 +273,21 @@ class LacerationPath:
 
     def _pose_scalar(self, t: float):
         """The pose and its rates at one time, in plain floats (the simulator calls this thousands of times)."""
-        p = laceration_pose(float(t), self._geometry())
+        p = laceration_pose(float(t), self._table)
         return p[0:4], p[4:8], p[8:12]
 
-    def _geometry(self) -> np.ndarray:
-        """The path's numbers in the layout of :func:`laceration_pose` (the reference kernel's parameters)."""
+    def _geometry(self) -> tuple:
+        """The path's numbers in the layout of :func:`laceration_pose` (the reference kernel's parameter).
+
+        A tuple of Python floats: the numpy engine's one-point evaluation does
+        its arithmetic on floats, which is several times faster than on numpy
+        scalars; numba takes the tuple as it is.
+        """
         q_near = (0.0, 0.0, 0.0, 0.0) if self._q_near is None else self._q_near
-        return np.array([self.phase_duration, self.stitches, self.duration, *self.start, *self.end, self.bulge,
-                         self.skin_height, self.hover, self.depth, self.needle_roll, self.roll_offset,
-                         self.params.a1, self.params.a2, self.params.d1, self.params.d4, ELBOWS[self.elbow],
-                         q_near[0], q_near[3]], dtype=float)
+        return tuple(float(v) for v in (self.phase_duration, self.stitches, self.duration, *self.start, *self.end,
+                                        self.bulge, self.skin_height, self.hover, self.depth, self.needle_roll,
+                                        self.roll_offset, self.params.a1, self.params.a2, self.params.d1,
+                                        self.params.d4, ELBOWS[self.elbow], q_near[0], q_near[3]))
 
     def _evaluate_scalar(self, t: float) -> np.ndarray:
         """``[q_ref, dq_ref, ddq_ref]`` (12,) at one time (see :func:`laceration_reference`)."""

@@ -114,15 +114,16 @@ def test_auto_is_compiled_when_it_can_be():
 
 
 @pytest.mark.skipif(not HAVE_NUMBA, reason="needs numba")
-def test_compiled_batch_refuses_per_member_noise_and_auto_falls_back():
+def test_auto_runs_a_batch_with_per_member_noise_compiled():
     s = SHORT.replace(noise={"q_std": [1e-4] * 4, "dq_std": [1e-3] * 4, "seed": 1})
-    variants = [{"noise.seed": 1}, {"noise.seed": 2}]
-    with pytest.raises(CompiledUnavailable, match="noise"):
-        simulate_batch(s, variants, engine="compiled")
-    with pytest.warns(EngineFallbackWarning, match="noise"):
+    variants = [{"noise.seed": 1}, {"noise.seed": 2}, {"noise.q_std": [0.0] * 4, "noise.dq_std": [0.0] * 4}]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", EngineFallbackWarning)
         auto = simulate_batch(s, variants)
+    compiled = simulate_batch(s, variants, engine="compiled")
     fast = simulate_batch(s, variants, engine="fast")
-    np.testing.assert_array_equal(auto.metrics["rms_position_error"], fast.metrics["rms_position_error"])
+    np.testing.assert_array_equal(auto.metrics["rms_position_error"], compiled.metrics["rms_position_error"])
+    np.testing.assert_allclose(auto.metrics["rms_position_error"], fast.metrics["rms_position_error"], rtol=1e-10)
 
 
 def test_a_process_without_numba_runs_everything_on_numpy():

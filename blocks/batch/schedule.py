@@ -42,12 +42,11 @@ def rates_by_source(variants: "Variants", observer: bool = True) -> dict[str, np
     the friction's ``M^-1 (F_c / v_s + F_v)``.  Inertia is taken at
     ``cos(theta2) = -1, 0, 1``.  Each value has shape (N,).
     """
-    from ..dynamics import inertia
     c2 = np.array([-1.0, 0.0, 1.0])
     q = np.zeros((3, variants.base.robot.joints.count))
     q[:, 1] = np.arccos(c2)
-    M = np.array([inertia(q, p) for p in variants.robots])          # (N, 3, 4, 4)
-    M_hat = np.array([inertia(q, p) for p in variants.nominals])
+    M = _inertia_of_each(q, variants.robots)                        # (N, 3, 4, 4)
+    M_hat = _inertia_of_each(q, variants.nominals)
     M_inv, M_hat_inv = np.linalg.inv(M), np.linalg.inv(M_hat)
     mismatch = np.abs(np.linalg.eigvals(M_inv @ M_hat)).max(axis=(1, 2))                  # (N,)
     kp, kd = variants.kp.T, variants.kd.T                                                   # (N, 4)
@@ -70,6 +69,26 @@ def rates_by_source(variants: "Variants", observer: bool = True) -> dict[str, np
 def fastest_rate(variants: "Variants", observer: bool = True) -> float:
     """An upper estimate (1/s) of the fastest closed-loop rate over all members (see :func:`rates_by_source`)."""
     return float(max(r.max() for r in rates_by_source(variants, observer).values()))
+
+
+def _inertia_of_each(q: np.ndarray, arms: list) -> np.ndarray:
+    """``M(q)`` of every arm at the configurations ``q`` (m, 4): (len(arms), m, 4, 4), the numbers of
+    :func:`blocks.dynamics.inertia`, computed once per distinct arm (members often share one) and for all at once."""
+    from ..kernels import arm_constants, inertia_entries
+    unique: dict[int, object] = {}
+    for arm in arms:
+        unique.setdefault(id(arm), arm)
+    k = np.stack([arm_constants(a) for a in unique.values()], axis=1)[:, :, None]          # (6, U, 1)
+    m00, m01, m11, m22, m33 = np.broadcast_arrays(*inertia_entries(k, np.cos(q[:, 1])[None, :]))   # (U, m)
+    M = np.zeros(m00.shape + (4, 4))
+    M[..., 0, 0] = m00
+    M[..., 0, 1] = M[..., 1, 0] = m01
+    M[..., 1, 1] = m11
+    M[..., 2, 2] = m22
+    M[..., 0, 3] = M[..., 3, 0] = M[..., 1, 3] = M[..., 3, 1] = -m33
+    M[..., 3, 3] = m33
+    index = {key: i for i, key in enumerate(unique)}
+    return M[[index[id(a)] for a in arms]]
 
 
 def auto_substeps(variants: "Variants", observer: bool = True) -> int:

@@ -260,9 +260,10 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
         ``compiled`` runs the loop's generated module for every member in
         parallel (:mod:`blocks.compiled.batch`; needs ``dobkit[fast]``);
         ``fast`` the numpy batch over a member axis; ``auto`` takes
-        ``compiled`` when it can run the batch (numba installed, no
-        per-member measurement noise) and says once why when it cannot.
-        Both integrate the same RK4 schedule and agree to rounding.
+        ``compiled`` when it can run the batch (numba installed) and says
+        once why when it cannot.  Both integrate the same RK4 schedule and
+        agree to rounding (the compiled batch accumulates the metrics in its
+        driver; members with their own noise read their own noise table).
 
     Returns
     -------
@@ -276,7 +277,7 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
         On unknown metric or signal names, or an unknown engine.
     blocks.compiled.CompiledUnavailable
         If ``engine="compiled"`` cannot run (numba missing: the message names
-        the extra; per-member noise).
+        the extra).
     """
     if engine not in ("auto", "compiled", "fast"):
         raise ValueError(f"batch engine must be one of ['auto', 'compiled', 'fast'], got {engine!r}")

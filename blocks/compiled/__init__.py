@@ -10,15 +10,21 @@ How a loop becomes compiled code
 1. :func:`blocks.plan.make_plan` orders the blocks and records their input
    gathers and the outputs read from states (as for the numpy engine).
 2. :mod:`blocks.compiled.trace` runs each block's kernels once on symbols
-   and records the scalar operations they perform; a block whose kernels
-   cannot be traced (the laceration path's phase logic, a noise table) is
-   called as the numba-compiled copy of its kernel (:mod:`blocks.compiled.jit`).
+   and records the scalar operations they perform (a noise table is read in
+   place at a traced index); a block whose kernels cannot be traced (the
+   laceration path's phase logic) is called as the numba-compiled copy of
+   its kernel (:mod:`blocks.compiled.jit`), which returns a tuple.
 3. :mod:`blocks.compiled.codegen` writes the module: the loop's sources,
-   right-hand side and outputs in plan order, plus the integrators of
-   :mod:`blocks.compiled.dopri` (Dormand-Prince 5(4) with ``solve_ivp``'s
-   step control and dense output; fixed-step RK4 over a batch, members in
-   parallel).  It is compiled by numba and cached on disk, keyed by its
-   text and the kernels' source.
+   right-hand side and outputs in plan order, the rows of
+   :mod:`blocks.compiled.rows` beside them (lumped disturbance, tracking
+   errors), plus the integrators of :mod:`blocks.compiled.dopri`
+   (Dormand-Prince 5(4) with ``solve_ivp``'s step control and dense
+   output; fixed-step RK4 over a batch, members in parallel, metrics
+   accumulated in the driver).  It is compiled by numba and cached on disk,
+   keyed by its text and the kernels' source.
+
+The same generated text, run by Python on floats, is the ``fast`` engine's
+right-hand side (:mod:`blocks.compiled.scalar`); that needs no numba.
 
 Nothing of the loop is written here by hand: a change to a kernel or to the
 interconnection changes the generated module.

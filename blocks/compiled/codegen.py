@@ -1,34 +1,50 @@
-"""Generate one loop's compiled module from its evaluation plan and its blocks' kernels.
+"""Generate one loop's module from its evaluation plan and its blocks' kernels.
 
 :func:`loop_program` reads a :class:`~blocks.plan.LoopPlan` -- blocks in
 evaluation order, input gathers, outputs read from states -- and writes the
-source of three functions:
+source of these functions:
 
 ``loop_sources(t, theta, ext, work, src)``
     the outputs of the source blocks (no inputs, no states: the reference);
 ``loop_rhs(t, x, theta, src, ext, work, dx)``
     the loop's state derivative, the blocks in plan order;
 ``loop_outputs(t, x, theta, src, ext, work, y)``
-    the interconnection's outputs.
+    the interconnection's outputs;
+``loop_rhs_rows(t, x, theta, src, ext, work, aux, flags, dx, rows)`` and ``loop_outputs_rows(..., y, rows)``
+    the same, and beside them the rows of the asked-for row groups
+    (:mod:`blocks.compiled.rows`: the lumped disturbance, tracking-error
+    rows), traced from the kernels in the same function so that they share
+    its terms; ``flags[g] != 0`` asks for group ``g``, ``aux`` holds values
+    shared by every run at that time (the reference's tool pose);
+``member_ext(ext, tables, j)``
+    the called kernels' parameters with every table (a noise table) taken
+    from row ``j`` of ``tables``, for a batch whose members have their own.
 
 A block's kernels are traced (:mod:`blocks.compiled.trace`) into scalar
 statements when they can be: then the generated code has no array
 temporaries, and a term two blocks compute alike is computed once.  A
 kernel that cannot be traced (a table lookup, a branch on the time) is
-called as its numba-compiled copy (:func:`blocks.compiled.jit.jit_kernel`).
-The numbers of traced blocks are read from one vector ``theta``, so a new
-gain or mass needs no new code; the parameters of called kernels travel in
-the tuple ``ext``.  The module's text also holds the integrators of
-:mod:`blocks.compiled.dopri`.
+called as its compiled copy (:func:`blocks.compiled.jit.jit_kernel`); a
+kernel that returns its rows as a tuple of numbers (the laceration path's)
+is called without allocating.  The numbers of traced blocks are read from
+one vector ``theta``, so a new gain or mass needs no new code; the
+parameters of called kernels travel in the tuple ``ext``.
 
-Each module is written once to the cache folder under a name that hashes
-its text and the source of every kernel it calls; numba caches its machine
-code beside it, so a second process neither traces into new code nor
-recompiles.  The folder is ``$DOBKIT_CACHE_DIR`` or ``~/.cache/dobkit``
+The text is plain Python.  numba compiles it together with the integrators
+of :mod:`blocks.compiled.dopri` (:func:`load_module`), and
+:mod:`blocks.compiled.scalar` runs it as it is, on Python floats, for the
+``fast`` engine.  Programs are kept per loop structure for the process
+(:func:`program_for`).
+
+Each compiled module is written once to the cache folder under a name that
+hashes its text and the source of every kernel it calls; numba caches its
+machine code beside it, so a second process neither traces into new code
+nor recompiles.  The folder is ``$DOBKIT_CACHE_DIR`` or ``~/.cache/dobkit``
 (``$XDG_CACHE_HOME/dobkit``), with a temporary folder as the fallback.
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import importlib.util
 import os
@@ -38,6 +54,7 @@ import tempfile
 import time
 import types
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -45,12 +62,9 @@ import numpy as np
 from ..contract import contract_of
 from ..control_compat import subsystems
 from .jit import jit_kernel, kernel_sources, numba_or_none
-from .trace import Graph, Sym, TraceError, param_structure, param_values, symbolic_params
+from .trace import Graph, Sym, TraceError, is_table, param_structure, param_tables, param_values, symbolic_params
 
-__all__ = ["CompiledUnavailable", "LoopProgram", "loop_program", "cache_dir", "load_module"]
-
-# A parameter array larger than this is a table (noise samples), not numbers to trace.
-_TABLE_SIZE = 64
+__all__ = ["CompiledUnavailable", "LoopProgram", "loop_program", "program_for", "cache_dir", "load_module"]
 
 
 class CompiledUnavailable(RuntimeError):
@@ -60,22 +74,24 @@ class CompiledUnavailable(RuntimeError):
 # --------------------------------------------------------------------------------------------------------------
 # The program of one loop: which blocks are traced, where their numbers are, the generated text
 # --------------------------------------------------------------------------------------------------------------
-@dataclass
+@dataclass(eq=False)
 class LoopProgram:
-    """A loop's generated module and how to call it.
+    """A loop's generated functions and how to call them.
 
     Attributes
     ----------
-    key : str
-        Hash of the module's text and of the kernels it calls: its name in the cache.
     source : str
         The generated functions (without the integrators' text).
     theta : numpy.ndarray
-        The numbers of the traced blocks' parameters, in the order the code reads them.
+        The numbers of the traced blocks' parameters, in the order the code
+        reads them, for the loop the program was traced from (see :meth:`numbers`).
     theta_slices : dict of str to slice
         Each traced block's part of ``theta``.
     ext : tuple
-        Parameters of the kernels called as compiled functions, in order.
+        Parameters the generated code reads as they are: the called kernels'
+        parameters and the traced blocks' tables, in order.
+    ext_slices : dict of str to tuple
+        Each block's ``(first, stop)`` in ``ext``.
     traced, called : list of str
         Blocks traced into statements, and blocks whose kernels are called.
     sources : list of str
@@ -83,24 +99,75 @@ class LoopProgram:
     n_src, n_work, n_out : int
         Sizes of the source vector, the work buffer and the output vector.
     kernels : dict of str to function
-        The numpy kernels the generated code calls (by their name there).
+        The kernels the generated code calls (by their name there).
+    structure : str
+        What the text depends on (blocks, kernels, parameter layouts, plan, row groups).
+    row_groups : dict of str to (int, slice)
+        For each row group the loop has: its flag index and its rows.
+    n_rows, n_aux : int
+        Rows of all groups, and shared values (``aux``) they read.
+    tables : tuple of int
+        Positions in ``ext`` of table parameters (see ``member_ext``).
+    order : list of str
+        Every block, in the order its numbers were read (see :meth:`numbers`).
     """
 
-    key: str
     source: str
     theta: np.ndarray
     theta_slices: dict
     ext: tuple
+    ext_slices: dict
     traced: list
     called: list
     sources: list
     n_src: int
     n_work: int
     n_out: int
-    kernels: dict = field(default_factory=dict)
+    kernels: dict
+    structure: str
+    row_groups: dict = field(default_factory=dict)
+    n_rows: int = 0
+    n_aux: int = 0
+    tables: tuple = ()
+    order: list = field(default_factory=list)
+
+    @cached_property
+    def key(self) -> str:
+        """Hash of the module's text, the kernels it calls and the compiler's versions: its name in the cache."""
+        numba = numba_or_none()
+        key_text = "\n".join([self.source, _template_text(), kernel_sources(self.kernels.values()), self.structure,
+                              f"numba {getattr(numba, '__version__', None)}", f"numpy {np.__version__}",
+                              f"python {platform.python_version()} {sys.platform}"])
+        return hashlib.sha256(key_text.encode()).hexdigest()[:20]
+
+    def numbers(self, kernels_by_block: dict) -> tuple[np.ndarray, tuple]:
+        """``(theta, ext)`` of a loop with this program's structure and its own numbers.
+
+        Parameters
+        ----------
+        kernels_by_block : dict of str to Kernels
+            The loop's kernels by block name.
+        """
+        values: list[float] = []
+        ext: list = []
+        for name in self.order:
+            params = kernels_by_block[name].params
+            if name in self.theta_slices:
+                param_values(params, values)
+                param_tables(params, ext)
+            else:
+                ext.extend(params)
+        return np.array(values, dtype=float), tuple(ext)
 
 
-def _block_kernels_or_fail(plan, system) -> dict:
+def block_kernels(plan, system) -> dict:
+    """The kernels of every block of ``plan`` by name.
+
+    Raises
+    ------
+    CompiledUnavailable
+        If a block has none (its name is in the message).
+    """
     blocks = {b.name: b for b in subsystems(system)}
     out = {}
     for step in plan.steps:
@@ -111,14 +178,6 @@ def _block_kernels_or_fail(plan, system) -> dict:
                 f"python-control system or an FMU), so the compiled engine cannot run this loop")
         out[step.name] = kernels
     return out
-
-
-def _has_table(params) -> bool:
-    if isinstance(params, np.ndarray):
-        return params.size > _TABLE_SIZE or params.dtype.kind not in "fiu"
-    if isinstance(params, tuple):
-        return any(_has_table(p) for p in params)
-    return False
 
 
 class _Builder:
@@ -141,37 +200,34 @@ class _Builder:
             n += s.y.stop - s.y.start
         self.n_src = n
         self.work = 0
-        self.structure: list[str] = []
         for step in plan.steps:
             self._classify(step)
 
     # -- which blocks are traced -----------------------------------------------------------------------
     def _classify(self, step) -> None:
         k = self.kernels[step.name]
-        self.structure.append(f"{step.name}:{k.output.__module__}.{k.output.__qualname__}:"
-                              f"{getattr(k.update, '__qualname__', None)}:{param_structure(k.params)}")
-        if not _has_table(k.params):
-            start = len(self.theta)
-            try:
-                sym = symbolic_params(self.graph, k.params, self.theta)
-                # a trial trace of every function the block has, on fresh symbols
-                x = self._leaves("x", range(step.x.start, step.x.stop))
-                u = self._leaves("trial", range(_gather_size(step)))
-                t = self.graph.leaf("t", 0)
-                if k.output is not None:
-                    _rows(k.output(t, x, u, *sym), step.y.stop - step.y.start)
-                if k.update is not None and step.x.stop > step.x.start:
-                    _rows(k.update(t, x, u, *sym), step.x.stop - step.x.start)
-                self.sym_params[step.name] = sym
-                self.theta_slices[step.name] = slice(start, len(self.theta))
-                self.traced.append(step.name)
-                return
-            except (TraceError, TypeError, AttributeError, IndexError, ValueError):
-                del self.theta[start:]
-        e0 = len(self.ext)
-        self.ext.extend(k.params)
+        start, e0 = len(self.theta), len(self.ext)
+        try:
+            sym = symbolic_params(self.graph, k.params, self.theta, self.ext)      # tables go to ext
+            # a trial trace of every function the block has, on fresh symbols
+            x = self._leaves("x", range(step.x.start, step.x.stop))
+            u = self._leaves("trial", range(_gather_size(step)))
+            t = self.graph.leaf("t", 0)
+            if k.output is not None:
+                _rows(k.output(t, x, u, *sym), step.y.stop - step.y.start)
+            if k.update is not None and step.x.stop > step.x.start:
+                _rows(k.update(t, x, u, *sym), step.x.stop - step.x.start)
+        except (TraceError, TypeError, AttributeError, IndexError, ValueError):
+            del self.theta[start:]
+            del self.ext[e0:]
+            self.ext.extend(k.params)
+            self.ext_slices[step.name] = (e0, len(self.ext))
+            self.called.append(step.name)
+            return
+        self.sym_params[step.name] = sym
+        self.theta_slices[step.name] = slice(start, len(self.theta))
         self.ext_slices[step.name] = (e0, len(self.ext))
-        self.called.append(step.name)
+        self.traced.append(step.name)
 
     def _leaves(self, kind: str, indices) -> np.ndarray:
         out = np.empty(len(indices), dtype=object)
@@ -194,7 +250,7 @@ class _Builder:
             for i, s in enumerate(u_syms):
                 u[i] = s
             return _rows(fn(self.graph.leaf("t", 0), x, u, *self.sym_params[step.name]), n_rows)
-        # a called kernel: inputs into the work buffer, the compiled copy, its rows read back
+        # a called kernel: inputs into the work buffer, the kernel, its rows read back
         name = f"K_{step.name}_{which}"
         self.kernel_names[name] = fn
         w0 = self.work
@@ -218,10 +274,10 @@ def _gather_size(step) -> int:
     return len(_gather_list(step))
 
 
-def _rows(value, n: int) -> list:
-    """A kernel's result as ``n`` expressions (numbers become constants)."""
+def _rows(value, n: int | None) -> list:
+    """A kernel's result as ``n`` expressions (numbers become constants); any count when ``n`` is None."""
     arr = np.asarray(value, dtype=object).ravel()
-    if arr.size != n:
+    if n is not None and arr.size != n:
         raise TraceError(f"a kernel returned {arr.size} rows where {n} were expected")
     out = []
     for v in arr:
@@ -256,6 +312,22 @@ class _Function:
         self.lines: list[str] = []
         self.names: dict[int, str] = {}
         self.calls = 0
+        self.indent = ""
+
+    def emit(self, line: str) -> None:
+        self.lines.append(self.indent + line)
+
+    @contextlib.contextmanager
+    def guarded(self, condition: str):
+        """Statements emitted inside run only when ``condition`` holds; what they name is forgotten after."""
+        names, start = dict(self.names), len(self.lines)
+        self.emit(f"if {condition}:")
+        self.indent += "    "
+        yield
+        if len(self.lines) == start + 1:
+            self.emit("pass")
+        self.indent = self.indent[:-4]
+        self.names = names
 
     def value(self, v) -> str:
         if not isinstance(v, Sym):
@@ -277,7 +349,7 @@ class _Function:
             if node.id in self.names:
                 continue
             self.names[node.id] = name = f"v{node.id}"
-            self.lines.append(f"{name} = {self._expr(node)}")
+            self.emit(f"{name} = {self._expr(node)}")
         return self.names[v.id]
 
     def _expr(self, node: Sym) -> str:
@@ -285,13 +357,18 @@ class _Function:
             kind, index = node.args
             if kind == "t":
                 return "t"
-            if kind in ("x", "theta", "src"):
+            if kind in ("x", "theta", "src", "aux"):
                 return f"{kind}[{index}]"
             if kind == "call":
                 call, row = index
                 return f"r{call}[{row}]"
+            if kind == "tablen":
+                return f"ext[{index}].shape[1]"
             raise CompiledUnavailable(f"the generated code would read {kind!r} {index!r}: a block uses an input "
                                       "its contract says does not feed through")
+        if node.op == "lookup":                 # a table read at a whole-valued float index
+            slot, row, at = node.args
+            return f"ext[{slot}][{row}, int({self.value(at)})]"
         ops = [self.value(a) for a in node.args[1:]]
         if node.op == "bin":
             return f"{ops[0]} {node.args[0]} {ops[1]}"
@@ -301,19 +378,20 @@ class _Function:
         return f"{_CALL_NAMES[name]}({', '.join(ops)})"
 
     def call(self, kernel: str, step, w0: int, inputs: list, ext_slice: tuple) -> int:
-        """Emit a call of a compiled kernel on its gathered inputs; return the call's number."""
+        """Emit a call of a kernel on its gathered inputs; return the call's number."""
         for i, s in enumerate(inputs):
             unset = isinstance(s, Sym) and s.op == "leaf" and s.args[0] == "unset"
-            self.lines.append(f"work[{w0 + i}] = {'0.0' if unset else self.value(s)}")
+            self.emit(f"work[{w0 + i}] = {'0.0' if unset else self.value(s)}")
         self.calls += 1
         c = self.calls
-        x = f"x[{step.x.start}:{step.x.stop}]" if "x" in self.args.split(", ") else "work[0:0]"
+        stateful = step.x.stop > step.x.start and "x" in self.args.split(", ")
+        x = f"x[{step.x.start}:{step.x.stop}]" if stateful else "work[0:0]"
         params = "".join(f", ext[{e}]" for e in range(*ext_slice))
-        self.lines.append(f"r{c} = {kernel}(t, {x}, work[{w0}:{w0 + len(inputs)}]{params})")
+        self.emit(f"r{c} = {kernel}(t, {x}, work[{w0}:{w0 + len(inputs)}]{params})")
         return c
 
     def assign(self, target: str, v) -> None:
-        self.lines.append(f"{target} = {self.value(v)}")
+        self.emit(f"{target} = {self.value(v)}")
 
     def text(self) -> str:
         body = self.lines or ["pass"]
@@ -323,14 +401,66 @@ class _Function:
 def _operands(node: Sym) -> list:
     if node.op in ("bin", "call"):
         return [a for a in node.args[1:] if isinstance(a, Sym)]
+    if node.op == "lookup":
+        return [node.args[2]]
     return []
 
 
 # --------------------------------------------------------------------------------------------------------------
 # The program of a plan
 # --------------------------------------------------------------------------------------------------------------
-def loop_program(plan, system) -> LoopProgram:
+def _by_signal(labels: list, plan, signals: dict) -> dict:
+    """The interconnection's outputs as rows by signal name: ``{"q": [q[0], q[1], ...], ...}`` (object arrays)."""
+    rows: dict[str, dict] = {}
+    for r, j in enumerate(plan.out_index):
+        name, _, index = labels[r].partition("[")
+        rows.setdefault(name, {})[int(index.rstrip("]")) if index else 0] = signals[int(j)]
+    out = {}
+    for name, by_index in rows.items():
+        arr = np.empty(len(by_index), dtype=object)
+        for i, v in enumerate(by_index[k] for k in sorted(by_index)):
+            arr[i] = v
+        out[name] = arr
+    return out
+
+
+def _emit_row_groups(fn: _Function, b: _Builder, groups: tuple, by_signal: dict, aux) -> list:
+    """Each group's rows into ``rows``, guarded by its flag; the groups' row counts."""
+    offset, sizes = 0, []
+    for gi, group in enumerate(groups):
+        rows = _rows(group.rows(by_signal, aux, b.sym_params), None)
+        with fn.guarded(f"flags[{gi}] != 0"):
+            for r, v in enumerate(rows):
+                fn.assign(f"rows[{offset + r}]", v)
+        offset += len(rows)
+        sizes.append(len(rows))
+    return sizes
+
+
+def structure_of(plan, kernels: dict, labels: list, groups: tuple = ()) -> str:
+    """What a loop's generated text depends on: its blocks, their kernels and parameter layouts, the plan,
+    the output names and the row groups asked for."""
+    parts = []
+    for s in plan.steps:
+        k = kernels[s.name]
+        parts.append(f"{s.name}|{k.output.__module__}.{k.output.__qualname__}|"
+                     f"{getattr(k.update, '__qualname__', None)}|{param_structure(k.params)}|{s.x}|{s.y}|{s.gather!r}")
+    parts.append(f"{plan.copy_y!r}|{plan.copy_x!r}|{plan.out_index.tolist()}|{plan.direct}")
+    parts.append(",".join(labels))
+    parts.append(",".join(f"{g.name}:{g.rows.__module__}.{g.rows.__qualname__}" for g in groups))
+    return "\n".join(parts)
+
+
+def loop_program(plan, system, groups: tuple = ()) -> LoopProgram:
     """Trace the blocks of ``plan`` (of the interconnection ``system``) and generate the loop's functions.
+
+    Parameters
+    ----------
+    plan : LoopPlan
+    system : control.InterconnectedSystem
+    groups : tuple of RowGroup
+        Row groups (:mod:`blocks.compiled.rows`) to generate where the loop
+        has what they need.
 
     Raises
     ------
@@ -341,9 +471,13 @@ def loop_program(plan, system) -> LoopProgram:
     if not plan.direct:
         raise CompiledUnavailable("the interconnection is not direct (an input is a sum or a scaled signal, or the "
                                   "loop has external inputs), so the compiled engine cannot run it")
-    kernels = _block_kernels_or_fail(plan, system)
+    kernels = block_kernels(plan, system)
+    labels = list(system.output_labels)
     b = _Builder(plan, kernels)
     g = b.graph
+    groups = tuple(gr for gr in groups if gr.available(labels, b.traced))
+    n_aux = max((gr.aux for gr in groups), default=0)
+    aux = b._leaves("aux", range(n_aux))
 
     # loop_sources: the source blocks' outputs into src
     fn_src = _Function(b, "loop_sources", "t, theta, ext, work, src")
@@ -359,59 +493,105 @@ def loop_program(plan, system) -> LoopProgram:
                 signals[step.y.start + r] = g.leaf("src", b.src_offset[step.name] + r)
         return signals
 
-    # loop_rhs: outputs the right-hand side needs, then every update
-    fn_rhs = _Function(b, "loop_rhs", "t, x, theta, src, ext, work, dx")
-    signals = signals_with_sources()
-    copy_y, copy_x = _indices(plan.copy_y), _indices(plan.copy_x)
-    for j, i in zip(copy_y, copy_x):
-        signals[j] = g.leaf("x", i)
-    for step in plan.rhs_steps:
-        if _is_source(step):
-            continue
-        for r, v in enumerate(b.block_rows(fn_rhs, step, "output", signals)):
-            signals[step.y.start + r] = v
-    for step in plan.updates:
-        for r, v in enumerate(b.block_rows(fn_rhs, step, "update", signals)):
-            fn_rhs.assign(f"dx[{step.x.start + r}]", v)
+    def rhs(fn: _Function) -> dict:
+        """The right-hand side into ``fn``: outputs it needs, then every update; the signals it evaluated."""
+        signals = signals_with_sources()
+        for j, i in zip(_indices(plan.copy_y), _indices(plan.copy_x)):
+            signals[j] = g.leaf("x", i)
+        for step in plan.rhs_steps:
+            if _is_source(step):
+                continue
+            for r, v in enumerate(b.block_rows(fn, step, "output", signals)):
+                signals[step.y.start + r] = v
+        for step in plan.updates:
+            for r, v in enumerate(b.block_rows(fn, step, "update", signals)):
+                fn.assign(f"dx[{step.x.start + r}]", v)
+        return signals
 
-    # loop_outputs: every block's outputs, the interconnection's selection of them
+    def outputs(fn: _Function, signals: dict, skip=()) -> dict:
+        """Every block's outputs not evaluated yet (the blocks in ``skip`` were): the signals."""
+        for step in plan.steps:
+            if _is_source(step) or step.name in skip:
+                continue
+            for r, v in enumerate(b.block_rows(fn, step, "output", signals)):
+                signals[step.y.start + r] = v
+        return signals
+
+    fn_rhs = _Function(b, "loop_rhs", "t, x, theta, src, ext, work, dx")
+    rhs(fn_rhs)
+
     fn_out = _Function(b, "loop_outputs", "t, x, theta, src, ext, work, y")
-    signals = signals_with_sources()
-    for step in plan.steps:
-        if _is_source(step):
-            continue
-        for r, v in enumerate(b.block_rows(fn_out, step, "output", signals)):
-            signals[step.y.start + r] = v
+    signals = outputs(fn_out, signals_with_sources())
     for r, j in enumerate(plan.out_index):
         fn_out.assign(f"y[{r}]", signals[int(j)])
 
+    # the same with the row groups beside them, which share their terms
+    fn_rhs_rows = _Function(b, "loop_rhs_rows", "t, x, theta, src, ext, work, aux, flags, dx, rows")
+    signals = rhs(fn_rhs_rows)
+    sizes = []
+    if groups:
+        # the other blocks' outputs as expressions (traced blocks add no statements until a row uses them)
+        signals = outputs(fn_rhs_rows, signals, skip={s.name for s in plan.rhs_steps})
+        sizes = _emit_row_groups(fn_rhs_rows, b, groups, _by_signal(labels, plan, signals), aux)
+
+    fn_out_rows = _Function(b, "loop_outputs_rows", "t, x, theta, src, ext, work, aux, flags, y, rows")
+    signals = outputs(fn_out_rows, signals_with_sources())
+    for r, j in enumerate(plan.out_index):
+        fn_out_rows.assign(f"y[{r}]", signals[int(j)])
+    if groups and _emit_row_groups(fn_out_rows, b, groups, _by_signal(labels, plan, signals), aux) != sizes:
+        raise TraceError("a row group gave different row counts beside the right-hand side and the outputs")
+
+    tables = tuple(e for e, p in enumerate(b.ext) if is_table(p))
+    if tables:
+        parts = [f"tables[{tables.index(e)}][j]" if e in tables else f"ext[{e}]" for e in range(len(b.ext))]
+        member_ext = f"def member_ext(ext, tables, j):\n    return ({', '.join(parts)},)\n\n\n"
+    else:
+        member_ext = "def member_ext(ext, tables, j):\n    return ext\n\n\n"
+
     n_out = len(plan.out_index)
+    row_groups, offset = {}, 0
+    for gi, (group, size) in enumerate(zip(groups, sizes)):
+        row_groups[group.name] = (gi, slice(offset, offset + size))
+        offset += size
     sizes = (f"def loop_source_count():\n    return {b.n_src}\n\n\n"
              f"def loop_work_size():\n    return {max(b.work, 1)}\n\n\n"
-             f"def loop_output_count():\n    return {n_out}\n\n\n")
-    source = fn_src.text() + "\n" + fn_rhs.text() + "\n" + fn_out.text() + "\n" + sizes
-    numba = numba_or_none()
-    key_text = "\n".join([source, _template_text(), kernel_sources(b.kernel_names.values()),
-                          "\n".join(b.structure), f"numba {getattr(numba, '__version__', None)}",
-                          f"numpy {np.__version__}", f"python {platform.python_version()} {sys.platform}"])
-    key = hashlib.sha256(key_text.encode()).hexdigest()[:20]
-    return LoopProgram(key=key, source=source, theta=np.array(b.theta, dtype=float), theta_slices=b.theta_slices,
-                       ext=tuple(b.ext), traced=b.traced, called=b.called, sources=[s.name for s in b.source_steps],
-                       n_src=b.n_src, n_work=max(b.work, 1), n_out=n_out, kernels=dict(b.kernel_names))
+             f"def loop_output_count():\n    return {n_out}\n\n\n"
+             f"def loop_row_count():\n    return {max(offset, 1)}\n\n\n")
+    source = "\n".join(f.text() for f in (fn_src, fn_rhs, fn_out, fn_rhs_rows, fn_out_rows)) + "\n" + member_ext + sizes
+    return LoopProgram(source=source, theta=np.array(b.theta, dtype=float), theta_slices=b.theta_slices,
+                       ext=tuple(b.ext), ext_slices=b.ext_slices, traced=b.traced, called=b.called,
+                       sources=[s.name for s in b.source_steps], n_src=b.n_src, n_work=max(b.work, 1), n_out=n_out,
+                       kernels=dict(b.kernel_names), structure=structure_of(plan, kernels, labels, groups),
+                       row_groups=row_groups, n_rows=offset, n_aux=n_aux, tables=tables,
+                       order=[s.name for s in plan.steps])
+
+
+_programs: dict[str, LoopProgram] = {}
+
+
+def program_for(plan, system, groups: tuple = ()) -> tuple[LoopProgram, dict]:
+    """The program of a loop's structure (traced once per process) and the loop's kernels by block.
+
+    Raises
+    ------
+    CompiledUnavailable
+        As :func:`loop_program`.
+    """
+    if not plan.direct:
+        loop_program(plan, system, groups)          # raises with the reason
+    kernels = block_kernels(plan, system)
+    structure = structure_of(plan, kernels, list(system.output_labels), groups)
+    program = _programs.get(structure)
+    if program is None:
+        program = loop_program(plan, system, groups)
+        _programs[structure] = program
+    return program, kernels
 
 
 def _indices(idx) -> list:
     if isinstance(idx, slice):
         return list(range(idx.start or 0, idx.stop))
     return [int(i) for i in np.asarray(idx).ravel()]
-
-
-def theta_of(program: LoopProgram, plan, kernels_by_block: dict) -> np.ndarray:
-    """The ``theta`` vector of a loop with the program's structure but other numbers."""
-    out: list[float] = []
-    for name in program.traced:
-        param_values(kernels_by_block[name].params, out)
-    return np.array(out, dtype=float)
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -430,20 +610,28 @@ def cache_dir() -> Path:
     return Path(base) / "dobkit" / "compiled"
 
 
+_writable: dict[Path, Path] = {}
+
+
 def _writable_dir() -> Path:
-    for folder in (cache_dir(), Path(tempfile.gettempdir()) / f"dobkit-compiled-{os.getuid()}"):
+    wanted = cache_dir()
+    found = _writable.get(wanted)
+    if found is not None and found.is_dir():
+        return found
+    for folder in (wanted, Path(tempfile.gettempdir()) / f"dobkit-compiled-{os.getuid()}"):
         try:
             folder.mkdir(parents=True, exist_ok=True)
             probe = folder / f".probe-{os.getpid()}"
             probe.write_text("")
             probe.unlink()
+            _writable[wanted] = folder
             return folder
         except OSError:
             continue
     raise CompiledUnavailable(f"no writable folder for compiled code (tried {cache_dir()} and the temporary folder)")
 
 
-_modules: dict[str, types.ModuleType] = {}
+_modules: dict[str, tuple[types.ModuleType, Path]] = {}
 
 
 def module_path(program: LoopProgram) -> Path:
@@ -456,9 +644,10 @@ def load_module(program: LoopProgram) -> tuple[types.ModuleType, bool]:
     The functions are numba dispatchers with ``cache=True``; they compile on
     first call, or load the machine code numba cached beside the file.
     """
-    module = _modules.get(program.key)
-    if module is not None:
-        return module, module_path(program).with_suffix(".compiled").exists()
+    found = _modules.get(program.key)
+    if found is not None:
+        module, path = found
+        return module, path.with_suffix(".compiled").exists()
     numba = numba_or_none()
     path = module_path(program)
     text = ("# Generated by blocks.compiled.codegen for one loop structure; the cache may delete it.\n"
@@ -481,9 +670,8 @@ def load_module(program: LoopProgram) -> tuple[types.ModuleType, bool]:
             if attr in parallel:
                 options["parallel"] = True
             setattr(module, attr, numba.njit(**options)(value))
-    _modules[program.key] = module
-    marker = path.with_suffix(".compiled")
-    return module, marker.exists()
+    _modules[program.key] = (module, path)
+    return module, path.with_suffix(".compiled").exists()
 
 
 def mark_compiled(program: LoopProgram) -> None:

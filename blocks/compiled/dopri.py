@@ -1,9 +1,10 @@
 """The compiled engine's integrators, as source the code generator puts into each loop's module.
 
 This file is not imported as a module: :mod:`blocks.compiled.codegen`
-places its text before the generated functions ``loop_sources``,
-``loop_rhs`` and ``loop_outputs`` of one loop, and compiles the whole with
-numba (each loop structure gets its own module, cached on disk).
+places its text before the generated functions of one loop
+(``loop_sources``, ``loop_rhs``, ``loop_outputs``, ``loop_rhs_rows``,
+``loop_outputs_rows``, ``member_ext``) and compiles the whole with numba
+(each loop structure gets its own module, cached on disk).
 
 ``dopri_run`` is the Dormand-Prince 5(4) pair with the step-size control of
 :class:`scipy.integrate.RK45` (same tableau, error norm, safety factor 0.9,
@@ -11,8 +12,10 @@ step factors 0.2 to 10, no growth right after a rejected step, initial step
 of Hairer, Norsett and Wanner II.4, ``max_step``) and its quartic dense
 output, which gives the states on the output grid as
 :func:`blocks.integrate.integrate_on_grid` does.  Each accepted step is
-checked against the divergence bound.  ``rk4_batch`` is the batch's
-fixed-step RK4 on a shared step schedule, members in parallel.
+checked against the divergence bound.  ``grid_outputs`` evaluates the
+outputs (and row groups) on the grid afterwards.  ``rk4_batch`` is the
+batch's fixed-step RK4 on a shared step schedule, members in parallel, with
+the tracking metrics' sums accumulated per member as it goes.
 """
 import math
 
@@ -208,7 +211,7 @@ def dopri_run(t_grid, theta, ext, rtol, atol, max_step, bound, max_steps, state,
         finite = True
         for i in range(n):
             v = abs(y_new[i])
-            if not v <= bound:
+            if not v <= bound[i]:           # each state's own bound (NaN fails too)
                 finite = False
             if v > largest:
                 largest = v
@@ -235,16 +238,24 @@ def dopri_run(t_grid, theta, ext, rtol, atol, max_step, bound, max_steps, state,
     return RUNNING
 
 
-def grid_outputs(t_grid, X, theta, ext, Y):
-    """The loop's outputs at every grid time from its states there: ``Y[:, k]`` from ``X[:, k]``."""
+def grid_outputs(t_grid, X, theta, ext, aux, flags, Y, R):
+    """The loop's outputs and the flagged row groups at every grid time from its states there.
+
+    ``Y[:, k]`` and ``R[:, k]`` from ``X[:, k]``; ``aux`` holds one row of
+    shared values per grid time, or a single row for all.
+    """
     src = np.empty(loop_source_count())
     work = np.empty(loop_work_size())
     y = np.empty(Y.shape[0])
+    rows = np.zeros(loop_row_count())
+    shared = aux.shape[0] == 1
     for k in range(t_grid.shape[0]):
         loop_sources(t_grid[k], theta, ext, work, src)
-        loop_outputs(t_grid[k], X[:, k], theta, src, ext, work, y)
+        loop_outputs_rows(t_grid[k], X[:, k], theta, src, ext, work, aux[0] if shared else aux[k], flags, y, rows)
         for i in range(y.shape[0]):
             Y[i, k] = y[i]
+        for i in range(R.shape[0]):
+            R[i, k] = rows[i]
 
 
 def source_table(times, theta, ext, table):
@@ -254,20 +265,32 @@ def source_table(times, theta, ext, table):
         loop_sources(times[k], theta, ext, work, table[k])
 
 
-def rk4_batch(times, grid_index, src_at, src_mid, X0, theta, ext, keep, bound, Y, failed_at):
+def rk4_batch(times, grid_index, src_at, src_mid, aux, X0, theta, ext, tables, table_row, flags, keep, keep_rows,
+              last_grid, bound, Y, sum_sq, max_abs, final, failed_at):
     """Fixed-step RK4 of every member on the shared schedule ``times``, members in parallel.
 
     ``src_at``/``src_mid`` are the sources' outputs at the step times and
-    the mid points; ``X0`` (N, n) the start states, ``theta`` (N, p) the
-    members' parameters.  At each grid point the outputs ``keep`` are stored
-    in ``Y[member, grid index]``; a member whose state is non-finite or
-    beyond ``bound`` at a grid point gets that time in ``failed_at`` and stops.
+    the mid points, ``aux`` the shared values of the row groups at each grid
+    point; ``X0`` (N, n) the start states, ``theta`` (N, p) the members'
+    parameters, ``tables`` the members' tables (``member_ext``; member ``m``
+    reads row ``table_row[m]``).  At each grid point the flagged row groups
+    are evaluated with the step's first stage and accumulated per member:
+    ``sum_sq`` and ``max_abs`` (N, rows) and their value at the last grid
+    point (grid index ``last_grid``), ``final``.  When ``keep`` or ``keep_rows`` are not empty the
+    outputs ``keep`` and rows ``keep_rows`` are stored in ``Y[member, grid
+    index]``.  A member whose state is non-finite or beyond ``bound`` at a
+    grid point gets that time in ``failed_at`` and stops.  Nothing is
+    allocated per step.
     """
     n_members, n = X0.shape
     n_out = loop_output_count()
+    n_rows = sum_sq.shape[1]
+    n_keep = keep.shape[0]
+    n_keep_rows = keep_rows.shape[0]
     for m in prange(n_members):
         x = X0[m].copy()
         th = theta[m]
+        e = member_ext(ext, tables, table_row[m])
         work = np.empty(loop_work_size())
         k1 = np.empty(n)
         k2 = np.empty(n)
@@ -275,6 +298,8 @@ def rk4_batch(times, grid_index, src_at, src_mid, X0, theta, ext, keep, bound, Y
         k4 = np.empty(n)
         xs = np.empty(n)
         y = np.empty(n_out)
+        rows = np.zeros(loop_row_count())
+        rows_kept = np.zeros(loop_row_count())
         last = times.shape[0] - 1
         for k in range(times.shape[0]):
             t0 = times[k]
@@ -287,21 +312,34 @@ def rk4_batch(times, grid_index, src_at, src_mid, X0, theta, ext, keep, bound, Y
                 if not ok:
                     failed_at[m] = t0
                     break
-                loop_outputs(t0, x, th, src_at[k], ext, work, y)
-                for r in range(keep.shape[0]):
-                    Y[m, g, r] = y[keep[r]]
+                loop_rhs_rows(t0, x, th, src_at[k], e, work, aux[g], flags, k1, rows)
+                for r in range(n_rows):
+                    v = rows[r]
+                    sum_sq[m, r] += v * v
+                    a = abs(v)
+                    if a > max_abs[m, r] or a != a:
+                        max_abs[m, r] = a
+                    if g == last_grid:
+                        final[m, r] = v
+                if n_keep > 0 or n_keep_rows > 0:
+                    loop_outputs_rows(t0, x, th, src_at[k], e, work, aux[g], flags, y, rows_kept)
+                    for r in range(n_keep):
+                        Y[m, g, r] = y[keep[r]]
+                    for r in range(n_keep_rows):
+                        Y[m, g, n_keep + r] = rows_kept[keep_rows[r]]
+            elif k < last:
+                loop_rhs(t0, x, th, src_at[k], e, work, k1)
             if k == last:
                 break
             h = times[k + 1] - t0
-            loop_rhs(t0, x, th, src_at[k], ext, work, k1)
             for i in range(n):
                 xs[i] = x[i] + (0.5 * h) * k1[i]
-            loop_rhs(t0 + 0.5 * h, xs, th, src_mid[k], ext, work, k2)
+            loop_rhs(t0 + 0.5 * h, xs, th, src_mid[k], e, work, k2)
             for i in range(n):
                 xs[i] = x[i] + (0.5 * h) * k2[i]
-            loop_rhs(t0 + 0.5 * h, xs, th, src_mid[k], ext, work, k3)
+            loop_rhs(t0 + 0.5 * h, xs, th, src_mid[k], e, work, k3)
             for i in range(n):
                 xs[i] = x[i] + h * k3[i]
-            loop_rhs(times[k + 1], xs, th, src_at[k + 1], ext, work, k4)
+            loop_rhs(times[k + 1], xs, th, src_at[k + 1], e, work, k4)
             for i in range(n):
                 x[i] = x[i] + (h / 6.0) * (k1[i] + 2.0 * (k2[i] + k3[i]) + k4[i])

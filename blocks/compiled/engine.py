@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import sys
 import time
-import types
 from typing import Callable
 
 import numpy as np
@@ -12,9 +11,9 @@ from ..contract import contract_of
 from ..control_compat import subsystems
 from ..integrate import DivergenceError, SolverFailure, _crossing_time
 from ..plan import make_plan
-from .codegen import CompiledUnavailable, LoopProgram, load_module, loop_program, mark_compiled
+from .codegen import CompiledUnavailable, load_module, mark_compiled, program_for
 from .jit import numba_or_none
-from .trace import param_structure, param_values
+from .rows import LOOP_ROWS
 
 __all__ = ["CompiledLoopEngine", "unavailable_reason", "METHODS"]
 
@@ -24,10 +23,10 @@ METHODS = ("RK45",)
 # Status codes and state slots of dopri_run (blocks/compiled/dopri.py)
 _RUNNING, _FINISHED, _DIVERGED, _STEP_TOO_SMALL = 0, 1, 2, 3
 _S_T, _S_NFEV, _S_T_OLD = 0, 2, 5
-# Accepted steps per call when progress is reported (a few milliseconds of work)
-_PROGRESS_STEPS = 200
-
-_programs: dict[str, LoopProgram] = {}
+# Progress is reported at most this often (s of wall time), as integrate_on_grid reports it
+_PROGRESS_PERIOD = 0.2
+# Accepted steps of the first call when progress is reported; later calls are sized to last about a period
+_FIRST_STEPS = 64
 
 
 def unavailable_reason(system, method: str = "RK45") -> str | None:
@@ -41,15 +40,6 @@ def unavailable_reason(system, method: str = "RK45") -> str | None:
             return (f"block '{block.name}' has no kernels (a user's own python-control system or an FMU), "
                     f"so the loop cannot be compiled")
     return None
-
-
-def _structure(plan, kernels: dict) -> str:
-    parts = []
-    for s in plan.steps:
-        k = kernels[s.name]
-        parts.append(f"{s.name}|{k.output}|{k.update}|{param_structure(k.params)}|{s.x}|{s.y}|{s.gather!r}")
-    parts.append(f"{plan.copy_y!r}|{plan.copy_x!r}|{plan.out_index.tolist()}|{plan.direct}")
-    return "\n".join(parts)
 
 
 class CompiledLoopEngine:
@@ -66,36 +56,26 @@ class CompiledLoopEngine:
         If numba is missing, the interconnection is not direct, or a block has no kernels.
     """
 
+    #: It stops at the first step beyond any state's own bound.
+    per_state_bounds = True
+
     def __init__(self, system) -> None:
         if numba_or_none() is None:
             raise CompiledUnavailable("engine='compiled' needs numba, the optional extra: "
                                       "pip install \"dobkit[fast]\"")
         self.system = system
         self.plan = make_plan(system)
-        blocks = {b.name: b for b in subsystems(system)}
-        kernels = {}
-        for s in self.plan.steps:
-            k = contract_of(blocks[s.name]).kernels
-            if k is None or not s.kernel:
-                raise CompiledUnavailable(f"block '{s.name}' has no kernels (a user's own python-control system "
-                                          f"or an FMU), so the compiled engine cannot run this loop")
-            kernels[s.name] = k
-        self.kernels = kernels
-        structure = _structure(self.plan, kernels)
-        program = _programs.get(structure)
-        if program is None:
-            program = loop_program(self.plan, system)
-            _programs[structure] = program
-        self.program = program
+        self.program, self.kernels = program_for(self.plan, system, LOOP_ROWS)
         # this loop's numbers: the traced blocks' into theta, the called kernels' parameters into ext
-        values: list[float] = []
-        for name in program.traced:
-            param_values(kernels[name].params, values)
-        self.theta = np.array(values, dtype=float)
-        self.ext = tuple(p for name in program.called for p in kernels[name].params)
-        self.module, cached = load_module(program)
+        self.theta, self.ext = self.program.numbers(self.kernels)
+        self.module, cached = load_module(self.program)
         self._announce = not cached
         self.nstates = self.plan.nstates
+
+    @property
+    def row_groups(self) -> dict:
+        """The row groups this loop has (:mod:`blocks.compiled.rows`): name -> (flag index, rows)."""
+        return self.program.row_groups
 
     # -- compiling -------------------------------------------------------------------------------------
     def _first_call(self, fn: Callable[[], object]):
@@ -112,19 +92,20 @@ class CompiledLoopEngine:
 
     def warm(self) -> None:
         """Compile (or load from the cache) every function a run calls, on a two-point grid."""
-        x0 = np.zeros(self.nstates)
-        self._first_call(lambda: (self._integrate(x0, np.array([0.0, 1e-9]), 1e-3, 1e-6, np.inf, np.inf, None),
-                                  self.outputs_on_grid(np.array([0.0]), x0[:, None])))
+        x0, unbounded = np.zeros(self.nstates), np.full(self.nstates, np.inf)
+        self._first_call(lambda: (self._integrate(x0, np.array([0.0, 1e-9]), 1e-3, 1e-6, np.inf, unbounded, None),
+                                  self.outputs_on_grid(np.array([0.0]), x0[:, None], rows=("d",))))
         mark_compiled(self.program)
 
     # -- a run -------------------------------------------------------------------------------------------
     def integrate(self, x0, t_grid, rtol: float = 1e-6, atol: float = 1e-8, max_step: float = np.inf,
-                  bound: float = np.inf, progress: Callable[[float], None] | None = None) -> tuple[np.ndarray, int]:
+                  bound=np.inf, progress: Callable[[float], None] | None = None) -> tuple[np.ndarray, int]:
         """States on ``t_grid`` (n, T) from ``x0`` and the number of right-hand-side calls.
 
         Dormand-Prince 5(4) with the step control of :class:`scipy.integrate.RK45`
         (see :mod:`blocks.compiled.dopri`); the arguments are those of
-        :func:`blocks.integrate.integrate_on_grid`.
+        :func:`blocks.integrate.integrate_on_grid`.  ``progress`` is called
+        with the fraction of simulated time done at most every 0.2 s of wall time.
 
         Raises
         ------
@@ -134,40 +115,82 @@ class CompiledLoopEngine:
         if t_grid.ndim != 1 or t_grid.size < 2 or not np.all(np.isfinite(t_grid)) or np.any(np.diff(t_grid) <= 0):
             raise ValueError("t_grid must be at least two finite, increasing times")
         x0 = np.array(x0, dtype=float)
-        if not np.all(np.isfinite(x0)) or not np.abs(x0).max(initial=0.0) <= bound:
-            raise DivergenceError(float(t_grid[0]), bound)
+        bound = np.array(np.broadcast_to(np.asarray(bound, dtype=float), x0.shape))      # writable, like warm()'s
+        if not np.all(np.isfinite(x0)) or not np.all(np.abs(x0) <= bound):
+            raise DivergenceError(float(t_grid[0]), bound, x0)
         if self._announce:
             self.warm()
-        return self._integrate(x0, t_grid, float(rtol), float(atol), float(max_step), float(bound), progress)
+        return self._integrate(x0, t_grid, float(rtol), float(atol), float(max_step), bound, progress)
 
     def _integrate(self, x0, t_grid, rtol, atol, max_step, bound, progress):
         n = x0.size
         state = np.zeros(6)
         y, f, K, Q = x0.copy(), np.empty(n), np.empty((7, n)), np.empty((n, 4))
         y_old, X = np.empty(n), np.empty((n, t_grid.size))
-        chunk = _PROGRESS_STEPS if progress is not None else 2 ** 62
+        run = self.module.dopri_run
+        if progress is None:
+            status = run(t_grid, self.theta, self.ext, rtol, atol, max_step, bound, 2 ** 62, state, y, f, K, Q,
+                         y_old, X)
+        else:
+            status = self._integrate_reporting(run, t_grid, rtol, atol, max_step, bound, progress, state,
+                                               (y, f, K, Q, y_old, X))
+        if status == _FINISHED:
+            return X, int(state[_S_NFEV])
+        if status == _DIVERGED:
+            step = _StepView(state, y, y_old, Q)
+            t_cross = _crossing_time(step, bound)
+            raise DivergenceError(t_cross, bound, step.dense_output()(t_cross) if np.all(np.isfinite(y)) else y.copy())
+        raise SolverFailure(float(state[_S_T]), "Required step size is less than spacing between numbers.")
+
+    def _integrate_reporting(self, run, t_grid, rtol, atol, max_step, bound, progress, state, arrays) -> int:
+        """``dopri_run`` in calls of as many steps as take about 0.1 s, reporting the fraction of simulated
+        time done at most every 0.2 s of wall time."""
         t0, t_end = t_grid[0], t_grid[-1]
+        steps, last_report = _FIRST_STEPS, time.monotonic()
         while True:
-            status = self.module.dopri_run(t_grid, self.theta, self.ext, rtol, atol, max_step, bound, chunk, state,
-                                           y, f, K, Q, y_old, X)
-            if status == _FINISHED:
-                return X, int(state[_S_NFEV])
-            if status == _DIVERGED:
-                raise DivergenceError(_crossing_time(_StepView(state, y, y_old, Q), bound), bound)
-            if status == _STEP_TOO_SMALL:
-                raise SolverFailure(float(state[_S_T]), "Required step size is less than spacing between numbers.")
-            if progress is not None:
+            started = time.monotonic()
+            status = run(t_grid, self.theta, self.ext, rtol, atol, max_step, bound, steps, state, *arrays)
+            if status != _RUNNING:
+                return status
+            now = time.monotonic()
+            # size the next call from this one's pace, within a factor of 8 of it
+            steps = int(min(8 * steps, max(steps / 8, steps * 0.5 * _PROGRESS_PERIOD / max(now - started, 1e-6))))
+            steps = max(steps, 1)
+            if now - last_report >= _PROGRESS_PERIOD:
+                last_report = now
                 progress(min(1.0, (state[_S_T] - t0) / (t_end - t0)))
 
-    def outputs_on_grid(self, t_grid, X) -> np.ndarray:
-        """The interconnection's outputs (noutputs, T) at the times ``t_grid`` from the states ``X`` (n, T)."""
+    def outputs_on_grid(self, t_grid, X, rows: tuple = (), stacked: bool = False):
+        """The interconnection's outputs (noutputs, T) at the times ``t_grid`` from the states ``X`` (n, T).
+
+        With ``rows`` (names of row groups, see :mod:`blocks.compiled.rows`)
+        also those groups' rows in the same pass: ``(outputs, {name: (rows, T)})``,
+        or with ``stacked`` one array, the outputs and then the groups' rows in
+        the order asked (no copy to join them).
+        """
         t_grid = np.ascontiguousarray(t_grid, dtype=float)
         X = np.ascontiguousarray(X, dtype=float)
         if X.shape != (self.nstates, t_grid.size):
             raise ValueError(f"states must have shape ({self.nstates}, {t_grid.size}), got {X.shape}")
-        Y = np.empty((self.program.n_out, t_grid.size))
-        self.module.grid_outputs(t_grid, X, self.theta, self.ext, Y)
-        return Y
+        groups = self.program.row_groups
+        unknown = [name for name in rows if name not in groups]
+        if unknown:
+            raise ValueError(f"this loop has no row group {unknown}; it has {sorted(groups)}")
+        flags = np.zeros(max(len(groups), 1), dtype=np.int64)
+        for name in rows:
+            flags[groups[name][0]] = 1
+        n_out = self.program.n_out
+        out = np.empty((n_out + (self.program.n_rows if rows else 0), t_grid.size))
+        aux = np.zeros((1, max(self.program.n_aux, 1)))
+        self.module.grid_outputs(t_grid, X, self.theta, self.ext, aux, flags, out[:n_out], out[n_out:])
+        if not rows:
+            return out
+        if stacked:
+            picked = [np.arange(n_out)] + [n_out + np.arange(groups[name][1].start, groups[name][1].stop)
+                                           for name in rows]
+            order = np.concatenate(picked)
+            return out[:order.size] if np.array_equal(order, np.arange(order.size)) else out[order]
+        return out[:n_out], {name: out[n_out + groups[name][1].start:n_out + groups[name][1].stop] for name in rows}
 
     def rhs(self, t: float, x) -> np.ndarray:
         """The loop's state derivative at one point (for checks; the integrator calls the compiled code directly)."""

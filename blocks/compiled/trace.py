@@ -10,10 +10,16 @@ full gain) taken at trace time.  Equal sub-expressions are one node
 as ``cos(theta2)`` of the nominal model, is computed once in the generated
 code.
 
+A table parameter (a large array, such as the samples of measurement
+noise) is not turned into symbols: it becomes a :class:`SymTable`, read by
+the generated code from the called kernels' parameters, and indexing it
+with a traced value (``table[:, i]``) records a lookup; its length is read
+at run time, so the code does not depend on it.
+
 What cannot be traced -- a branch on a value (``if x > 0``), ``math``
-functions on a symbol, a table indexed by a value -- raises
-:class:`TraceError`; the engine then calls that block's kernel as a compiled
-function instead (see :mod:`blocks.compiled.codegen`).
+functions on a symbol -- raises :class:`TraceError`; the engine then calls
+that block's kernel as a compiled function instead (see
+:mod:`blocks.compiled.codegen`).
 """
 from __future__ import annotations
 
@@ -21,7 +27,16 @@ import numbers
 
 import numpy as np
 
-__all__ = ["Sym", "TraceError", "Graph", "symbolic_params", "param_structure"]
+__all__ = ["Sym", "SymTable", "TraceError", "Graph", "symbolic_params", "param_structure", "param_values",
+           "param_tables", "is_table", "TABLE_SIZE"]
+
+#: A parameter array larger than this is a table (noise samples), not numbers to trace.
+TABLE_SIZE = 64
+
+
+def is_table(value) -> bool:
+    """Whether a parameter is a table: an array of more than :data:`TABLE_SIZE` numbers, or not of numbers."""
+    return isinstance(value, np.ndarray) and (value.size > TABLE_SIZE or value.dtype.kind not in "fiu")
 
 
 class TraceError(TypeError):
@@ -173,6 +188,13 @@ class Sym:
     def __index__(self):
         raise TraceError("a kernel indexes with a traced value")
 
+    def astype(self, dtype):
+        """An index made of a traced value stays the (whole-valued) float expression; a :class:`SymTable`
+        converts it where it indexes."""
+        if np.dtype(dtype).kind not in "iu":
+            raise TraceError(f"a kernel converts a traced value to {dtype}")
+        return self
+
     # methods numpy's object-array loops call, by ufunc name
     def cos(self):
         return self._call("cos", self)
@@ -210,6 +232,31 @@ class Sym:
         raise TraceError(f"numpy {name} on a traced value is not supported")
 
 
+class SymTable:
+    """A table parameter during a trace: read by the generated code as ``ext[slot]``, indexed by traced values.
+
+    ``table.shape`` gives the row count and, for the length, a symbol read at
+    run time; ``table[:, i]`` with ``i`` a whole-valued expression gives one
+    lookup per row.
+    """
+
+    def __init__(self, graph: Graph, slot: int, rows: int) -> None:
+        self.graph, self.slot, self.rows = graph, slot, rows
+
+    @property
+    def shape(self) -> tuple:
+        return (self.rows, self.graph.leaf("tablen", self.slot))
+
+    def __getitem__(self, key):
+        if not (isinstance(key, tuple) and len(key) == 2 and key[0] == slice(None)):
+            raise TraceError("a traced table is read as table[:, i]")
+        index = key[1] if isinstance(key[1], Sym) else self.graph.const(float(key[1]))
+        out = np.empty(self.rows, dtype=object)
+        for r in range(self.rows):
+            out[r] = self.graph.node("lookup", (self.slot, r, index))
+        return out
+
+
 def _elementwise(a, b, fn):
     """``fn`` on scalars, or element by element with numpy broadcasting when an operand is an array."""
     if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
@@ -234,19 +281,27 @@ def _as_objects(a):
 # ----------------------------------------------------------------------------------------------------------
 # Parameters: numbers become symbols read from one flat vector; flags and shapes stay as they are
 # ----------------------------------------------------------------------------------------------------------
-def symbolic_params(graph: Graph, params, values: list):
+def symbolic_params(graph: Graph, params, values: list, tables: list | None = None):
     """``params`` with every number replaced by a symbol ``theta[j]`` and its value appended to ``values``.
 
     Floats and float arrays become symbols (an array becomes an object array
     of symbols of the same shape); booleans, integers, strings and None are
     structure and stay (the generated code is specialised on them); named
-    tuples and tuples are converted element by element.
+    tuples and tuples are converted element by element.  A table (see
+    :func:`is_table`) is appended to ``tables`` and becomes a
+    :class:`SymTable` of that slot (a 2-D table only); without ``tables`` it
+    cannot be traced.
     """
     if isinstance(params, (bool, np.bool_, str, type(None))) or isinstance(params, numbers.Integral):
         return params
     if isinstance(params, numbers.Real):
         values.append(float(params))
         return graph.leaf("theta", len(values) - 1)
+    if is_table(params):
+        if tables is None or params.ndim != 2 or params.dtype.kind != "f":
+            raise TraceError("a table parameter cannot be traced here")
+        tables.append(params)
+        return SymTable(graph, len(tables) - 1, params.shape[0])
     if isinstance(params, np.ndarray):
         if params.dtype.kind not in "fiu":
             raise TraceError(f"a parameter array of dtype {params.dtype} cannot be traced")
@@ -256,7 +311,7 @@ def symbolic_params(graph: Graph, params, values: list):
             flat[i] = graph.leaf("theta", len(values) - 1)
         return flat.reshape(params.shape)
     if isinstance(params, tuple):
-        items = [symbolic_params(graph, v, values) for v in params]
+        items = [symbolic_params(graph, v, values, tables) for v in params]
         return type(params)(*items) if hasattr(params, "_fields") else tuple(items)
     raise TraceError(f"a parameter of type {type(params).__name__} cannot be traced")
 
@@ -267,6 +322,8 @@ def param_structure(params) -> str:
         return repr(params)
     if isinstance(params, numbers.Real):
         return "f"
+    if is_table(params):                # its length is read at run time
+        return f"table{params.dtype.kind}{params.shape[:-1]}"
     if isinstance(params, np.ndarray):
         return f"a{params.dtype.kind}{params.shape}"
     if isinstance(params, tuple):
@@ -276,8 +333,10 @@ def param_structure(params) -> str:
 
 
 def param_values(params, out: list) -> list:
-    """The numbers of ``params`` in the order :func:`symbolic_params` reads them (for a new set of values)."""
-    if isinstance(params, (bool, np.bool_, str, type(None))) or isinstance(params, numbers.Integral):
+    """The numbers of ``params`` in the order :func:`symbolic_params` reads them (for a new set of values);
+    tables are not numbers."""
+    if isinstance(params, (bool, np.bool_, str, type(None))) or isinstance(params, numbers.Integral) \
+            or is_table(params):
         return out
     if isinstance(params, numbers.Real):
         out.append(float(params))
@@ -286,4 +345,14 @@ def param_values(params, out: list) -> list:
     elif isinstance(params, tuple):
         for v in params:
             param_values(v, out)
+    return out
+
+
+def param_tables(params, out: list) -> list:
+    """The tables of ``params`` in the order :func:`symbolic_params` reads them."""
+    if is_table(params):
+        out.append(params)
+    elif isinstance(params, tuple):
+        for v in params:
+            param_tables(v, out)
     return out

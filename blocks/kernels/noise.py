@@ -27,14 +27,18 @@ def sampled_noise(t, table, period):
         ``(n_signals, N)`` for a batch table at one time.
     """
     last = table.shape[1] - 1
-    position = np.minimum(np.maximum(t / period, 0.0), float(last))
+    position = np.minimum(np.maximum(t / period, 0.0), last * 1.0)
     index = _sample_index(position, last)
     weight = position - index
     return (1.0 - weight) * table[:, index] + weight * table[:, index + 1]
 
 
 def _sample_index(position, last):
-    """The sample at or before ``position`` (>= 0), at most ``last - 1``: an int, or int64 array for arrays."""
+    """The sample at or before ``position`` (>= 0), at most ``last - 1``: an int, or int64 array for arrays.
+
+    (The compiled engine traces the array form on one time: the index stays a
+    whole-valued expression until it reads the table.)
+    """
     if isinstance(position, float):        # one time (numba compiles this branch only; it has no astype on floats)
         return min(int(position), last - 1)
     return np.minimum(np.floor(position), last - 1.0).astype(np.int64)

@@ -1,0 +1,106 @@
+"""Rows the generated code computes beside a loop's outputs: the lumped disturbance and the tracking-error rows.
+
+A :class:`RowGroup` is a function of the interconnection's outputs (by
+signal name, as rows), of values shared by every run at that time (``aux``)
+and of the blocks' parameters, written with the kernels of
+:mod:`blocks.kernels`.  :func:`blocks.compiled.codegen.loop_program` traces
+it beside the right-hand side and beside the outputs, so that it shares
+their terms (the true arm's acceleration, the nominal model's inertia) and
+costs only what it adds.
+
+The groups of the Figure-2 loop, :data:`LOOP_ROWS`:
+
+``d``
+    the lumped disturbance the observer estimates,
+    :func:`~blocks.kernels.lumped_disturbance` of the true arm (the plant's
+    constants) and the nominal model (the controller's), as
+    :func:`blocks.loop.lumped_disturbance` computes it for a response;
+``position_error``
+    ``q_ref - q``;
+``tool_distance``
+    the tool tip's distance from the reference's (m),
+    :func:`~blocks.kernels.tool_pose` at ``q`` against the reference's
+    tool position ``aux[0:3]``, as :class:`blocks.metrics.TrackingAccumulator`
+    computes it;
+``disturbance_error``
+    ``d - d_hat``.
+
+The batch accumulates the last three into the tracking metrics inside the
+compiled driver (:mod:`blocks.compiled.batch`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from ..kernels import lumped_disturbance, tool_pose
+
+__all__ = ["RowGroup", "LOOP_ROWS", "TOOL_AUX"]
+
+#: Shared values the tool-distance rows read: the reference's tool position x, y, z (m).
+TOOL_AUX = 3
+
+
+@dataclass(frozen=True)
+class RowGroup:
+    """Rows computed from a loop's outputs, traced into the generated code.
+
+    Parameters
+    ----------
+    name : str
+        The group's name.
+    rows : callable
+        ``rows(signals, aux, params) -> sequence`` with ``signals`` the
+        outputs by name (object arrays of rows), ``aux`` the shared values
+        and ``params`` each traced block's parameters by block name.
+    signals : tuple of str
+        Output signals it reads.
+    blocks : tuple of str
+        Blocks whose parameters it reads (they must be traced).
+    aux : int
+        How many shared values it reads.
+    """
+
+    name: str
+    rows: Callable
+    signals: tuple
+    blocks: tuple = ()
+    aux: int = 0
+
+    def available(self, labels, traced) -> bool:
+        """Whether a loop with output ``labels`` and ``traced`` blocks has what the group reads."""
+        names = {label.partition("[")[0] for label in labels}
+        return set(self.signals) <= names and set(self.blocks) <= set(traced)
+
+
+def _lumped(signals, aux, params):
+    # the plant's first parameter is the true arm's constants, the controller's the nominal model's
+    # (blocks.systems.plant and .controller)
+    return lumped_disturbance(params["plant"][0], params["controller"][0], signals["q"], signals["dq"],
+                              signals["tau"], signals["tau_dis"])
+
+
+def _position_error(signals, aux, params):
+    return signals["q_ref"] - signals["q"]
+
+
+def _tool_distance(signals, aux, params):
+    # the kinematic lengths travel with the plant's disturbance parameters (blocks.kernels.disturbance_params)
+    pose = tool_pose(params["plant"][1].kin, signals["q"])
+    dx, dy, dz = aux[0] - pose[0], aux[1] - pose[1], aux[2] - pose[2]
+    return [np.sqrt(dx * dx + dy * dy + dz * dz)]
+
+
+def _disturbance_error(signals, aux, params):
+    return _lumped(signals, aux, params) - signals["d_hat"]
+
+
+#: The row groups of the Figure-2 loop, in the order of their flags.
+LOOP_ROWS = (
+    RowGroup("d", _lumped, ("q", "dq", "tau", "tau_dis"), ("plant", "controller")),
+    RowGroup("position_error", _position_error, ("q", "q_ref")),
+    RowGroup("tool_distance", _tool_distance, ("q",), ("plant",), TOOL_AUX),
+    RowGroup("disturbance_error", _disturbance_error, ("q", "dq", "tau", "tau_dis", "d_hat"), ("plant", "controller")),
+)

@@ -1,0 +1,140 @@
+"""A loop's generated functions run by CPython on Python floats: the ``fast`` engine's right-hand side.
+
+The functions :func:`blocks.compiled.codegen.loop_program` writes are plain
+Python.  Here they are executed as they are, with ``np`` bound to
+:data:`SCALAR_MATH` -- scalar functions with numpy's results -- and the
+called kernels (the laceration path, a noise table) bound to their numpy
+versions: a right-hand-side call is then a few hundred float operations
+with no array temporaries, no gathers and no function call per block.  The
+numbers are the numpy kernels' to the last bit: the traced statements are
+the kernels' own operations in their order, ``math.sin``/``math.cos``/
+``math.sqrt``/``math.atan2`` round as numpy's do, and ``tanh``/``exp`` are
+numpy's.
+
+Where Python's float arithmetic and numpy's part ways -- a division by zero
+or a domain error raise in Python and give inf or nan in numpy -- the call
+is repeated by the numpy plan (:class:`blocks.fastsim.CompiledLoop`), so
+a diverging run diverges as it does there.
+
+numba is not needed: this is the engine the toolkit runs without the
+extra ``dobkit[fast]``.
+"""
+from __future__ import annotations
+
+import math
+import types
+from typing import Callable
+
+import numpy as np
+
+from .codegen import CompiledUnavailable, LoopProgram, program_for
+from .rows import LOOP_ROWS
+
+__all__ = ["SCALAR_MATH", "scalar_rhs", "ScalarFunctions"]
+
+
+def _sign(v):
+    if v > 0.0:
+        return 1.0
+    if v < 0.0:
+        return -1.0
+    return v * 0.0 if v == v else v          # +-0 keeps its sign, nan stays nan, as numpy.sign
+
+
+def _maximum(a, b):
+    return a if (a >= b or a != a) else b      # nan wins, as numpy.maximum
+
+
+def _minimum(a, b):
+    return a if (a <= b or a != a) else b
+
+
+def _floor(v):
+    return float(math.floor(v))
+
+
+def _numpy_scalar(fn):
+    def scalar(v):
+        return float(fn(v))
+    scalar.__name__ = fn.__name__
+    return scalar
+
+
+#: The ``np.<name>`` functions the generated code calls, for Python floats.
+SCALAR_MATH = types.SimpleNamespace(
+    cos=math.cos, sin=math.sin, tan=math.tan, sqrt=math.sqrt, arctan2=math.atan2, abs=abs,
+    tanh=_numpy_scalar(np.tanh), exp=_numpy_scalar(np.exp), sign=_sign, floor=_floor,
+    maximum=_maximum, minimum=_minimum, nan=math.nan, inf=math.inf)
+
+
+def _called(fn):
+    """A kernel as the generated code calls it: states as an array, rows back as Python floats."""
+    def call(t, x, u, *params):
+        if isinstance(x, list):
+            x = np.array(x, dtype=float)
+        out = fn(t, x, u, *params)
+        return out.tolist() if isinstance(out, np.ndarray) else out
+    return call
+
+
+class ScalarFunctions:
+    """The generated functions of one program, executed by Python (once per loop structure and process)."""
+
+    _made: dict[int, "ScalarFunctions"] = {}
+
+    def __init__(self, program: LoopProgram) -> None:
+        namespace = {"np": SCALAR_MATH, "__name__": "dobkit_scalar_loop"}
+        namespace.update({name: _called(fn) for name, fn in program.kernels.items()})
+        exec(compile(program.source, "<dobkit generated loop>", "exec"), namespace)
+        self.sources, self.rhs = namespace["loop_sources"], namespace["loop_rhs"]
+        self.outputs = namespace["loop_outputs"]
+        self.program = program
+
+    @classmethod
+    def of(cls, program: LoopProgram) -> "ScalarFunctions":
+        found = cls._made.get(id(program))
+        if found is None or found.program is not program:
+            found = cls._made[id(program)] = cls(program)
+        return found
+
+
+def scalar_rhs(plan, system, fallback: Callable) -> Callable | None:
+    """``f(t, x) -> dx`` running the loop's generated right-hand side on floats, or None when it cannot.
+
+    Parameters
+    ----------
+    plan : LoopPlan
+        The loop's plan.
+    system : control.InterconnectedSystem
+        The loop.
+    fallback : callable
+        ``fallback(t, x)``: the numpy plan's right-hand side, for a call on
+        which float arithmetic raises (see the module docstring).
+
+    Returns None when a block has no kernels or the plan is not direct
+    (:class:`~blocks.compiled.CompiledUnavailable`).
+    """
+    try:
+        program, kernels = program_for(plan, system, LOOP_ROWS)      # the compiled engine's program too
+    except CompiledUnavailable:
+        return None
+    fns = ScalarFunctions.of(program)
+    theta_array, ext = program.numbers(kernels)
+    theta = tuple(theta_array.tolist())
+    loop_sources, loop_rhs = fns.sources, fns.rhs
+    work = np.zeros(program.n_work)
+    src = [0.0] * program.n_src
+    n = plan.nstates
+    array = np.array
+
+    def rhs(t, x):
+        t = float(t)
+        dx = [0.0] * n
+        try:
+            loop_sources(t, theta, ext, work, src)
+            loop_rhs(t, x.tolist(), theta, src, ext, work, dx)
+        except (ArithmeticError, ValueError):
+            return fallback(t, x)
+        return array(dx)
+
+    return rhs
