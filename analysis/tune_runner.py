@@ -177,13 +177,16 @@ class TuneResult(JsonResult):
         One sentence on the outcome.
     history : TuneHistory
     evaluations : dict of str to int
-        ``search``, ``polish`` (evaluations asked for), ``simulated`` (now), ``from_log`` (resumed),
-        ``linear_only`` (refused by the linear constraints, not simulated).
+        ``search``, ``polish`` (evaluations asked for), ``simulated`` (candidates simulated now), ``from_log``
+        (candidates taken from the evaluation log of an earlier run), ``linear_only`` (evaluations refused by the
+        linear constraints, not simulated).
     seconds : float
         Wall time of this call (s).
     scenario_file : str
         The tuned scenario's file name (in the output folder).
     figures : list of TuneFigure
+    log_problems : list of str
+        Lines of the evaluation log that were not usable (their candidates were simulated again).
     """
 
     name: str
@@ -207,6 +210,7 @@ class TuneResult(JsonResult):
     seconds: float
     scenario_file: str
     figures: list[TuneFigure] = field(default_factory=list)
+    log_problems: list[str] = field(default_factory=list)
 
 
 # --------------------------------------------------------------------------------------------
@@ -429,7 +433,7 @@ def run_tune(spec: TuneSpec | str | Path, out_dir: str | Path, workers: int | No
             evaluator.log_rows, evaluator.record = rows, writer.write
             evaluator.after_batch = search.after_batch
             result = search.run()
-            result = _finish(spec, evaluator, search, result, out, started, figures, report)
+            result = _finish(spec, evaluator, search, result, out, started, figures, report, problems)
     finally:
         if display is not None:
             display.close()
@@ -501,7 +505,7 @@ class _Search:
 # --------------------------------------------------------------------------------------------
 # The outputs
 # --------------------------------------------------------------------------------------------
-def _point(spec: TuneSpec, ev: Evaluation, nominal: float | None) -> PointResult:
+def _point(ev: Evaluation, nominal: float | None) -> PointResult:
     values = ev.values if ev.values is not None else None
     finite = values[np.isfinite(values)] if values is not None else np.array([])
     fin = lambda v: float(v) if v is not None and math.isfinite(v) else None              # noqa: E731
@@ -534,18 +538,18 @@ def nominal_metric(scenario, metric: str, workers: int = 1, engine: str = "auto"
 
 
 def _finish(spec: TuneSpec, evaluator: Evaluator, search: _Search, best: Evaluation, out: Path, started: float,
-            figures: bool, report) -> TuneResult:
+            figures: bool, report, problems: list[str]) -> TuneResult:
     from .tune_report import write_figures
 
     base = search.base
     scenario = tuned_scenario(spec, best.gains, best.feasible, best.objective if best.feasible else None)
     engine, workers = evaluator.engine, evaluator.workers
-    base_point = _point(spec, base, nominal_metric(spec.base, spec.metric, workers, engine))
-    tuned_point = _point(spec, best, nominal_metric(scenario, spec.metric, workers, engine))
+    base_point = _point(base, nominal_metric(spec.base, spec.metric, workers, engine))
+    tuned_point = _point(best, nominal_metric(scenario, spec.metric, workers, engine))
     counts = {"search": sum(e.phase == "search" for e in evaluator.history),
               "polish": sum(e.phase == "polish" for e in evaluator.history),
               "simulated": evaluator.simulated_now,
-              "from_log": sum(e.from_log for e in evaluator.history if e.simulated),
+              "from_log": len({e.key for e in evaluator.history if e.from_log}),
               "linear_only": sum(not e.simulated for e in evaluator.history)}
     message = _message(spec, base_point, tuned_point)
     history = TuneHistory(phase=[e.phase for e in evaluator.history],
@@ -560,7 +564,7 @@ def _finish(spec: TuneSpec, evaluator: Evaluator, search: _Search, best: Evaluat
         parameters=[p.name for p in spec.parameters], units=[p.unit for p in spec.parameters],
         bounds=[[p.low, p.high] for p in spec.parameters], limits=spec.limits.as_dict(), base=base_point,
         tuned=tuned_point, feasible=bool(best.feasible), message=message, history=history, evaluations=counts,
-        seconds=0.0, scenario_file=file_name)
+        seconds=0.0, scenario_file=file_name, log_problems=list(problems))
     report("tuning: writing results", 0.0)
     _atomic_write_lines(out / file_name, [scenario.to_toml()])
     if figures:

@@ -146,6 +146,9 @@ def _summary(result, out: Path) -> str:
     if result.limits.get("torque_limit") is not None:
         lines.append(f"  peak torque [N m]: tuned {_numbers(result.tuned.peak_torque)}, limit "
                      f"{_numbers(result.limits['torque_limit'])}")
+    if result.log_problems:
+        lines.append(f"  evaluation log: {len(result.log_problems)} unusable line(s) left out and their candidates "
+                     f"simulated again ({result.log_problems[0]}{', ...' if len(result.log_problems) > 1 else ''})")
     lines.append(f"written to {out}: tune.json, {result.scenario_file} (dobkit simulate --scenario "
                  f"{out / result.scenario_file}), {len(result.figures)} figures (PNG and SVG); "
                  f"dobkit report --tune {out} adds them to a report")
