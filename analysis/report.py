@@ -374,11 +374,12 @@ def _depth_below_mm(q, skin_height: float, robot) -> float:
 
 
 def write_report(scenario: Scenario | str = "paper", out_dir=None, settings: AnalysisSettings = AnalysisSettings(),
-                 progress: Progress | None = None, sweep_summaries=()) -> Path:
+                 progress: Progress | None = None, sweep_summaries=(), tunings=()) -> Path:
     """Simulate, analyze and write ``out_dir/report.html`` (plus ``analysis.json``, ``metrics.json`` and figures).
 
-    ``sweep_summaries`` are folders written by ``dobkit sweep`` (``summary.json`` and its figures); each
-    becomes a section of the report.
+    ``sweep_summaries`` are folders written by ``dobkit sweep`` (``summary.json`` and its figures), and
+    ``tunings`` folders written by ``dobkit tune`` (``tune.json`` and its figures); each becomes a section
+    of the report.
 
     Returns
     -------
@@ -394,6 +395,9 @@ def write_report(scenario: Scenario | str = "paper", out_dir=None, settings: Ana
     for folder in sweep_summaries:           # a missing sweep summary is an error before any work is done
         if not (Path(folder) / "summary.json").is_file():
             raise FileNotFoundError(f"sweep summary folder '{folder}' has no summary.json (run 'dobkit sweep' first)")
+    from .tune_report import read_result
+    for folder in tunings:                   # so is a missing or incomplete tuning
+        read_result(folder)
     target = Path(out_dir)
     staging = staged_output(target)          # refuses a non-empty folder before any work is done
     experiment = run_experiment(s, None, progress=progress, figures=False)
@@ -409,6 +413,7 @@ def write_report(scenario: Scenario | str = "paper", out_dir=None, settings: Ana
         (stage / "analysis.json").write_text(result.to_json())
         (stage / "metrics.json").write_text(json_text(metrics))
         pngs = {p.stem: p for p in files if p.suffix == ".png"}
-        sweeps = tuple(html_section(folder) for folder in sweep_summaries)
+        from .tune_report import html_section as tune_section
+        sweeps = tuple(html_section(folder) for folder in sweep_summaries) + tuple(map(tune_section, tunings))
         (stage / "report.html").write_text(render_html(result, metrics, s, pngs, sweeps), encoding="utf-8")
     return target / "report.html"

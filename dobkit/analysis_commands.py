@@ -94,7 +94,8 @@ def _cmd_report(args) -> int:
     scenario = load_scenario(args.scenario)
     out = args.out if args.out is not None else default_out_dir(REPORT_PREFIX)
     with StageProgress() as progress:
-        path = write_report(scenario, out, _settings(args), progress=progress, sweep_summaries=args.sweep)
+        path = write_report(scenario, out, _settings(args), progress=progress, sweep_summaries=args.sweep,
+                            tunings=args.tune)
     print(f"{'quick preview of the report' if args.quick else 'report'} written to {path}")
     return 0
 
@@ -110,5 +111,7 @@ def add_analysis_subcommands(subparsers) -> None:
     _add_common(p, REPORT_PREFIX)
     p.add_argument("--sweep", action="append", default=[], metavar="SUMMARY_DIR",
                    help="include the summary of a 'dobkit sweep' run (its summary folder); may be repeated")
+    p.add_argument("--tune", action="append", default=[], metavar="FOLDER",
+                   help="include a 'dobkit tune' result (its output folder); may be repeated")
     p.set_defaults(func=_cmd_report)
 

@@ -14,6 +14,7 @@ from . import __version__
 from .analysis_commands import add_analysis_subcommands
 from .fmu_commands import add_fmu_subcommands
 from .sweep_commands import add_sweep_subcommand
+from .tune_commands import add_tune_subcommand
 
 __all__ = ["main"]
 
@@ -53,6 +54,7 @@ def build_parser() -> argparse.ArgumentParser:
     sim.set_defaults(func=_cmd_simulate)
     add_analysis_subcommands(sub)
     add_sweep_subcommand(sub)
+    add_tune_subcommand(sub)
     add_fmu_subcommands(sub)
     return parser
 

@@ -1,0 +1,587 @@
+"""Gain tuning files: which gains to tune within which bounds, for which objective, under which constraints.
+
+A tuning file (TOML) names a base scenario, the gains to search, the objective
+over a Monte Carlo set of mismatches and disturbances, and the constraints::
+
+    name = "paper-tune"          # optional (default: the file's name); a plain file name
+    description = "..."          # optional
+    scenario = "paper"           # built-in name, or a scenario file (relative to the tuning file)
+    objective = "worst"          # "worst" (largest over the set) or "mean" of the metric
+    metric = "rms_tool_position_error_mm"    # or "max_tool_position_error_mm" (mm, per run)
+
+    [search]                     # bounds of the gains to tune; a gain left out keeps the scenario's value
+    "gains.kp" = [50, 1000]      # one value for every joint (1/s^2) ...
+    "gains.kd" = [5, 80]         # (1/s)
+    "gains.observer" = [[1, 100], [1, 100], [0.5, 50], [1, 100]]   # ... or one per joint: a diagonal (kg m^2/s)
+    seed = 1                     # of the search (default 1)
+    population = 12              # candidates per generation of differential evolution (default 12, >= 5)
+    max_evaluations = 400        # objective evaluations in all, search and polish (default 400)
+    polish_evaluations = 80      # of those, for the local polish (default a fifth, at most 100; 0: none)
+
+    [constraints]                # every one optional
+    torque_noise_rms = "base"    # N m (N): a number, 4 numbers, or "base": the base scenario's gains' own noise
+    torque_limit = 40            # N m (N): a number or 4; peak |tau| over every run of the set
+    stability_margin = 0.5       # 1/s: the linearized loop's poles have real parts <= -margin
+    sensor_noise = {q_std = [2e-4, 2e-4, 2e-5, 2e-4], dq_std = [5e-3, 5e-3, 5e-4, 5e-3], sample_period = 0.001}
+                                 # default: the scenario's [noise], else analysis.studies.DEFAULT_NOISE
+
+    [monte_carlo]                # the mismatch / disturbance set, exactly as in sweep files (analysis.sweep)
+    runs = 64
+    seed = 1
+    [monte_carlo.distributions]
+    "nominal_scale.m1" = {kind = "uniform", low = 0.8, high = 1.2}
+    "disturbance.f_r[2]" = {kind = "uniform", low = 0.7, high = 2.1}
+
+Without ``[monte_carlo]`` the set is the base scenario alone.  The set's
+keys must be ones that vary within a batch (:data:`blocks.batch.BATCH_KEYS`),
+and not the tuned gains.
+
+The search runs over ``log10`` of each gain (gains span decades), each gain
+rounded to :data:`SIGNIFICANT_DIGITS` significant digits, so the tuned scenario
+file holds exactly the values that were evaluated.
+
+Constraints (:mod:`analysis.tune_linear` for the linear ones)
+    *Torque noise*: the stationary RMS of the torque caused by the sensor noise,
+    per joint, at the noise sample instants, for the loop held at the path's
+    start (the arm of :mod:`analysis.studies`) with the base scenario's models.
+    ``"base"`` sets the budget to the noise of the base scenario's own gains
+    (the paper's on the paper scenario): the same torque-noise budget.
+    *Stability margin*: the spectral abscissa of the held loop linearized at
+    :data:`STABILITY_CONFIGURATIONS` configurations along the path, for the base
+    models and every member of the set (true and nominal inertia), is at most
+    ``-margin``.  *Torque limit*: the peak ``|tau|`` per joint on the output
+    grid of every run of the set.  The linear constraints cost milliseconds and
+    are checked first: a candidate that fails them is not simulated.
+
+Everything is validated when the file is read, before anything runs; errors
+name the key.  Running a tuning: :mod:`analysis.tune_runner`.
+"""
+from __future__ import annotations
+
+import copy
+import dataclasses
+import hashlib
+import json
+import math
+import tomllib
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from blocks.batch import BATCH_KEYS
+from blocks.budget import Budget
+from blocks.scenario import Scenario, ScenarioError, load_scenario, parse_key
+from .studies import DEFAULT_NOISE
+from .sweep import SweepError, check_name, json_default, split_changes, sweep_from_dict
+
+__all__ = ["TuneError", "Parameter", "Limits", "TuneSpec", "load_tuning", "tuning_from_dict", "builtin_tunings",
+           "with_evaluations", "differences",
+           "TUNABLE", "OBJECTIVES", "TUNE_METRICS", "METRIC_WORDS", "SIGNIFICANT_DIGITS", "STABILITY_CONFIGURATIONS"]
+
+#: The gains a tuning may search.
+TUNABLE = ("gains.kp", "gains.kd", "gains.observer")
+#: How the metric is reduced over the set.
+OBJECTIVES = ("worst", "mean")
+#: Metrics the objective may use (mm, one number per run).
+TUNE_METRICS = ("rms_tool_position_error_mm", "max_tool_position_error_mm")
+#: The metrics as a person reads them.
+METRIC_WORDS = {"rms_tool_position_error_mm": "RMS tool-tip error",
+                "max_tool_position_error_mm": "largest tool-tip error"}
+#: Tuned gains are rounded to this many significant digits (the values the scenario file holds).
+SIGNIFICANT_DIGITS = 6
+#: Configurations along the path at which the stability margin is checked (equally spaced in time).
+STABILITY_CONFIGURATIONS = 5
+_GAIN_UNITS = {"gains.kp": "1/s^2", "gains.kd": "1/s", "gains.observer": "kg m^2/s"}
+
+
+class TuneError(ValueError):
+    """A tuning file or setting is invalid, or its constraints cannot be met; the message names the key."""
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One searched value: a gain for every joint (``joint`` None) or one joint's diagonal entry.
+
+    Attributes
+    ----------
+    key : str
+        ``"gains.kp"``, ``"gains.kd"`` or ``"gains.observer"``.
+    joint : int or None
+    low, high : float
+        Bounds of the gain (its unit), ``0 < low < high``.
+    """
+
+    key: str
+    joint: int | None
+    low: float
+    high: float
+
+    @property
+    def name(self) -> str:
+        """``gains.kp`` or ``gains.observer[2]``."""
+        return self.key if self.joint is None else f"{self.key}[{self.joint}]"
+
+    @property
+    def unit(self) -> str:
+        return _GAIN_UNITS[self.key]
+
+    def value(self, u: float) -> float:
+        """The gain at ``u`` in [0, 1] on a log scale between the bounds, rounded (:data:`SIGNIFICANT_DIGITS`)."""
+        lo, hi = math.log10(self.low), math.log10(self.high)
+        u = min(1.0, max(0.0, float(u)))
+        return min(self.high, max(self.low, _round(10.0 ** (lo + u * (hi - lo)))))
+
+    def unit_of(self, gain: float) -> float:
+        """The ``u`` in [0, 1] of a gain (inverse of :meth:`value`, before rounding)."""
+        lo, hi = math.log10(self.low), math.log10(self.high)
+        return (math.log10(gain) - lo) / (hi - lo)
+
+
+def _round(value: float) -> float:
+    return float(f"{value:.{SIGNIFICANT_DIGITS}g}")
+
+
+@dataclass(frozen=True)
+class Limits:
+    """The constraints of a tuning (None: not constrained).
+
+    Attributes
+    ----------
+    torque_noise_rms : numpy.ndarray or None
+        Per joint (N m, N m, N, N m).
+    torque_noise_from : str
+        ``"base"`` (the base gains' own noise) or ``"given"``.
+    torque_limit : numpy.ndarray or None
+        Peak ``|tau|`` per joint (N m, N m, N, N m).
+    stability_margin : float or None
+        1/s.
+    sensor_noise : dict
+        ``q_std``, ``dq_std`` (4 numbers each) and ``sample_period`` (s) of the torque-noise constraint.
+    """
+
+    torque_noise_rms: np.ndarray | None
+    torque_noise_from: str
+    torque_limit: np.ndarray | None
+    stability_margin: float | None
+    sensor_noise: dict
+
+    def as_dict(self) -> dict:
+        return {"torque_noise_rms": None if self.torque_noise_rms is None else self.torque_noise_rms.tolist(),
+                "torque_noise_from": self.torque_noise_from,
+                "torque_limit": None if self.torque_limit is None else self.torque_limit.tolist(),
+                "stability_margin": self.stability_margin, "sensor_noise": self.sensor_noise}
+
+
+@dataclass
+class TuneSpec:
+    """A validated tuning (see the module docstring).
+
+    Attributes
+    ----------
+    base : Scenario
+        The base scenario (its gains are the reference the tuned ones are compared with).
+    parameters : list of Parameter
+        The searched values, in order (the search vector).
+    records : list of dict
+        The set: per run, its per-member scenario values (``[{}]`` without Monte Carlo).
+    draws : dict
+        The ``[monte_carlo]`` table as validated (runs, seed, distributions), for the header.
+    limits : Limits
+    hold : numpy.ndarray
+        Where the torque noise is computed: the path's reference at t = 0 (rad, rad, m, rad).
+    configurations : numpy.ndarray, shape (STABILITY_CONFIGURATIONS, 4)
+        Where the stability margin is checked.
+    definition : str
+        Hash of everything that decides which gains are evaluated and what an evaluation gives (not the name,
+        the description or the evaluation budget).
+    """
+
+    name: str
+    source: str
+    description: str
+    base: Scenario
+    objective: str
+    metric: str
+    parameters: list
+    seed: int
+    population: int
+    max_evaluations: int
+    polish_evaluations: int
+    limits: Limits
+    records: list
+    draws: dict
+    hold: np.ndarray
+    configurations: np.ndarray
+    definition: str = ""
+    budget: Budget = field(default_factory=Budget)
+
+    @property
+    def runs(self) -> int:
+        """Runs in the set (members of one evaluation's batch)."""
+        return len(self.records)
+
+    @property
+    def generations(self) -> int:
+        """Generations of differential evolution after the first population, within the evaluation budget."""
+        return max(0, (self.max_evaluations - self.polish_evaluations) // self.population - 1)
+
+    def gains(self, u) -> dict:
+        """The scenario changes of a point ``u`` of the unit box: ``{"gains.kp": 412.3, "gains.observer": [...]}``.
+
+        Per-joint parameters of a gain fill its diagonal; joints not searched keep the base value.
+        """
+        u = np.asarray(u, dtype=float).ravel()
+        out: dict[str, Any] = {}
+        for p, ui in zip(self.parameters, u):
+            value = p.value(ui)
+            if p.joint is None:
+                out[p.key] = value
+            else:
+                diagonal = out.setdefault(p.key, self.base_diagonal(p.key))
+                diagonal[p.joint] = value
+        return out
+
+    def base_diagonal(self, key: str) -> list[float]:
+        """The base scenario's diagonal of a gain (4 numbers)."""
+        matrix = {"gains.kp": self.base.kp, "gains.kd": self.base.kd, "gains.observer": self.base.observer_gain}[key]
+        return [float(v) for v in np.diag(matrix)]
+
+    def base_gains(self) -> dict:
+        """The base scenario's values of the tuned gains, as the scenario file has them."""
+        return {key: copy.deepcopy(self.base.data["gains"][key.split(".")[1]]) for key in self.tuned_keys}
+
+    def gains_of_base(self) -> dict:
+        """The base gains as a candidate: written as :meth:`gains` writes them when that is the same values
+        (so the search's first member, the base gains, is the same candidate), else as the scenario has them."""
+        point = self.base_point()
+        if point is not None:
+            gains = self.gains(point)
+            if all(np.array_equal(np.broadcast_to(np.asarray(v, dtype=float), (4,)), self.base_diagonal(k))
+                   for k, v in gains.items()):
+                return gains
+        return self.base_gains()
+
+    @property
+    def tuned_keys(self) -> list[str]:
+        return list(dict.fromkeys(p.key for p in self.parameters))
+
+    def base_point(self) -> np.ndarray | None:
+        """The base gains as a point of the unit box, or None when they are not one (outside the bounds, a
+        matrix observer gain, or joints that differ where one value is searched)."""
+        u = []
+        for p in self.parameters:
+            matrix = {"gains.kp": self.base.kp, "gains.kd": self.base.kd, "gains.observer": self.base.observer_gain}[
+                p.key]
+            if np.any(matrix - np.diag(np.diag(matrix))):
+                return None
+            diagonal = np.diag(matrix)
+            value = float(diagonal[0] if p.joint is None else diagonal[p.joint])
+            if p.joint is None and np.any(diagonal != value):
+                return None
+            if not p.low <= value <= p.high:
+                return None
+            u.append(p.unit_of(value))
+        return np.array(u)
+
+    def header(self) -> dict:
+        """What the evaluation log records about the tuning (its first line)."""
+        return {"tune": {"name": self.name, "source": self.source, "description": self.description,
+                         "definition": self.definition, **self._decisive(),
+                         "max_evaluations": self.max_evaluations, "polish_evaluations": self.polish_evaluations}}
+
+    def _decisive(self) -> dict:
+        return {"scenario": self.base.name, "scenario_values": _hash(self.base.data), "objective": self.objective,
+                "metric": self.metric,
+                "search": {p.name: [p.low, p.high] for p in self.parameters},
+                "seed": self.seed, "population": self.population, "constraints": self.limits.as_dict(),
+                "monte_carlo": self.draws, "set": _hash(self.records)}
+
+
+def differences(old: dict, new: dict) -> list[str]:
+    """The parts of two log headers that decide evaluations and differ, in words."""
+    parts = {"scenario": "the base scenario", "scenario_values": "the base scenario's values",
+             "objective": "objective", "metric": "metric", "search": "the [search] bounds", "seed": "search.seed",
+             "population": "search.population", "constraints": "[constraints]", "monte_carlo": "[monte_carlo]",
+             "set": "the Monte Carlo set"}
+    return [words for key, words in parts.items()
+            if json.dumps(old.get(key), sort_keys=True, default=json_default)
+            != json.dumps(new.get(key), sort_keys=True, default=json_default)]
+
+
+def _hash(value) -> str:
+    return hashlib.sha256(json.dumps(value, sort_keys=True, default=json_default).encode()).hexdigest()[:16]
+
+
+# --------------------------------------------------------------------------------------------
+# Reading and validating
+# --------------------------------------------------------------------------------------------
+def builtin_tunings() -> list[str]:
+    """Names of the tuning files shipped with the toolkit (``analysis/tunings``)."""
+    folder = resources.files("analysis") / "tunings"
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def load_tuning(name_or_path: str | Path, budget: Budget | None = None) -> TuneSpec:
+    """Read and fully validate a tuning file (TOML), or a built-in one by name (:func:`builtin_tunings`).
+
+    Raises
+    ------
+    TuneError
+        On any problem, before anything runs; the message names the key.
+    blocks.budget.BudgetError
+        When one evaluation would exceed the memory or step budget.
+    """
+    path = Path(name_or_path)
+    if path.suffix != ".toml" and "/" not in str(name_or_path) and not path.exists():
+        names = builtin_tunings()
+        if str(name_or_path) not in names:
+            raise TuneError(f"no built-in tuning named '{name_or_path}'; built-in: {names} (or give a .toml path)")
+        text = (resources.files("analysis") / "tunings" / f"{name_or_path}.toml").read_text(encoding="utf-8")
+        source, folder = str(name_or_path), None
+    else:
+        if not path.is_file():
+            raise TuneError(f"tuning file '{path}' does not exist" + (" (it is a folder)" if path.is_dir() else ""))
+        try:
+            text = path.read_text(encoding="utf-8-sig")
+        except UnicodeDecodeError as err:
+            raise TuneError(f"{path}: not UTF-8 text: {err}") from None
+        source, folder = str(path), path.parent
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise TuneError(f"{source}: not valid TOML: {err}") from None
+    return tuning_from_dict(data, source=source, folder=folder, budget=budget)
+
+
+@dataclass(frozen=True)
+class _Key:
+    allows: Callable[[Any], bool]
+    expected: str
+    default: Any = None
+
+
+def _whole(minimum: int) -> Callable[[Any], bool]:
+    return lambda v: not isinstance(v, bool) and isinstance(v, int) and v >= minimum
+
+
+def _number(v) -> bool:
+    return not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
+
+
+def _numbers(v, n: int) -> bool:
+    return isinstance(v, list) and len(v) == n and all(map(_number, v))
+
+
+#: The settings of a tuning file by table (None: the top level); gain bounds in [search] are checked apart.
+_KEYS: dict[str | None, dict[str, _Key]] = {
+    None: {"name": _Key(lambda v: isinstance(v, str), "a plain file name"),
+           "description": _Key(lambda v: isinstance(v, str), "a string", ""),
+           "scenario": _Key(lambda v: isinstance(v, str), "a built-in scenario name or a file path", "paper"),
+           "objective": _Key(lambda v: v in OBJECTIVES, f"one of {list(OBJECTIVES)}", "worst"),
+           "metric": _Key(lambda v: v in TUNE_METRICS, f"one of {list(TUNE_METRICS)}", TUNE_METRICS[0]),
+           "search": _Key(lambda v: isinstance(v, dict), "a table ([search])", {}),
+           "constraints": _Key(lambda v: isinstance(v, dict), "a table ([constraints])", {}),
+           "monte_carlo": _Key(lambda v: isinstance(v, dict), "a table ([monte_carlo])", {})},
+    "search": {"seed": _Key(_whole(0), "a whole number >= 0", 1),
+               "population": _Key(_whole(5), "a whole number >= 5", 12),
+               "max_evaluations": _Key(_whole(1), "a whole number >= 1", 400),
+               "polish_evaluations": _Key(_whole(0), "a whole number >= 0")},
+    "constraints": {
+        "torque_noise_rms": _Key(lambda v: v == "base" or (_number(v) and v > 0) or
+                                 (_numbers(v, 4) and min(v) > 0),
+                                 '"base", a number > 0 or 4 numbers > 0 (N m, N m, N, N m)'),
+        "torque_limit": _Key(lambda v: (_number(v) and v > 0) or (_numbers(v, 4) and min(v) > 0),
+                             "a number > 0 or 4 numbers > 0 (N m, N m, N, N m)"),
+        "stability_margin": _Key(lambda v: _number(v) and v >= 0, "a number >= 0 (1/s)"),
+        "sensor_noise": _Key(lambda v: isinstance(v, dict), "a table {q_std = [...], dq_std = [...], sample_period}")},
+}
+_NOISE_KEYS = ("q_std", "dq_std", "sample_period")
+
+
+def _read(table: dict, section: str | None, fail, skip: Callable[[str], bool] = lambda k: False) -> dict:
+    keys = _KEYS[section]
+    unknown = sorted(k for k in set(table) - set(keys) if not skip(k))
+    if unknown:
+        where = "at the top level" if section is None else f"in [{section}]"
+        extra = f" and the gains {list(TUNABLE)} with their bounds" if section == "search" else ""
+        fail(f"unknown key(s) {[k if section is None else f'{section}.{k}' for k in unknown]}; allowed {where}: "
+             f"{', '.join(keys)}{extra}")
+    out = {}
+    for key, spec in keys.items():
+        value = table.get(key, copy.deepcopy(spec.default))
+        if key in table and not spec.allows(value):
+            fail(f"'{key if section is None else f'{section}.{key}'}' must be {spec.expected}, got {value!r}")
+        out[key] = value
+    return out
+
+
+def tuning_from_dict(data: dict, source: str = "<dict>", folder: Path | None = None,
+                     budget: Budget | None = None) -> TuneSpec:
+    """Validate a tuning given as a dictionary (the parsed TOML); see :func:`load_tuning`."""
+
+    def fail(msg: str):
+        raise TuneError(f"{source}: {msg}")
+
+    budget = Budget.from_env() if budget is None else budget
+    if not isinstance(data, dict):
+        fail(f"a tuning must be a table, got {type(data).__name__}")
+    top = _read(data, None, fail)
+    name = top["name"] if top["name"] is not None else (Path(source).stem if source.endswith(".toml") else source)
+    try:
+        check_name(name, "'name'" if top["name"] is not None else "the tuning file's name")
+    except SweepError as err:
+        fail(str(err))
+    search = _read(top["search"], "search", fail, skip=lambda k: "." in k)
+    base, records, draws = _the_set(top, name, source, folder, budget, fail)
+    if base.controller is not None:
+        fail("the scenario has a [controller] (digital) section; tuning simulates the continuous controller in "
+             "batches, so it would tune another loop than the scenario's. Remove [controller] to tune")
+    if base.observer_variant != "correct":
+        fail(f"the scenario's observer.variant is {base.observer_variant!r}; tuning needs the correct observer "
+             "(its constraints use the correct observer's linearization)")
+    parameters = _parameters({k: v for k, v in top["search"].items() if "." in k}, fail)
+    drawn = [k for k in draws.get("distributions", {}) if parse_key(k)[0] == "gains" and
+             f"gains.{parse_key(k)[1]}" in {p.key for p in parameters}]
+    if drawn:
+        fail(f"monte_carlo.distributions.\"{drawn[0]}\" draws a gain that [search] tunes; tune it or draw it")
+    limits = _limits(_read(top["constraints"], "constraints", fail), base, fail)
+    max_ev = search["max_evaluations"]
+    polish = search["polish_evaluations"]
+    if polish is None:
+        polish = min(100, max_ev // 5)
+    _check_evaluations(max_ev, polish, search["population"], fail)
+    t_end = base.simulation.t_final
+    times = np.linspace(0.0, t_end, STABILITY_CONFIGURATIONS)
+    configurations = np.array([np.asarray(base.trajectory.evaluate(t)[0], dtype=float) for t in times])
+    spec = TuneSpec(name=name, source=source, description=top["description"], base=base,
+                    objective=top["objective"], metric=top["metric"], parameters=parameters, seed=search["seed"],
+                    population=search["population"], max_evaluations=max_ev, polish_evaluations=polish,
+                    limits=limits, records=records, draws=draws, hold=configurations[0].copy(),
+                    configurations=configurations, budget=budget)
+    spec.definition = _hash(spec._decisive() | {"scenario_data": spec.base.data})
+    return spec
+
+
+def with_evaluations(spec: TuneSpec, max_evaluations: int) -> TuneSpec:
+    """The tuning with another evaluation budget (not part of its definition: a larger one continues it).
+
+    Raises
+    ------
+    TuneError
+        When the budget leaves differential evolution fewer than two generations after the polish's share.
+    """
+    if isinstance(max_evaluations, bool) or not isinstance(max_evaluations, int) or max_evaluations < 1:
+        raise TuneError(f"max_evaluations must be a whole number >= 1, got {max_evaluations!r}")
+    def fail(msg: str):
+        raise TuneError(f"{spec.source}: {msg}")
+
+    _check_evaluations(max_evaluations, spec.polish_evaluations, spec.population, fail)
+    return dataclasses.replace(spec, max_evaluations=max_evaluations)
+
+
+def _check_evaluations(max_ev: int, polish: int, population: int, fail) -> None:
+    if polish > max_ev:
+        fail(f"'search.polish_evaluations' ({polish}) must not exceed 'search.max_evaluations' ({max_ev})")
+    if max_ev - polish < 2 * population:
+        fail(f"'search.max_evaluations' ({max_ev}) leaves {max_ev - polish} evaluations for differential evolution "
+             f"after the polish's {polish}: fewer than two generations of 'search.population' = {population}; "
+             "raise max_evaluations or lower population")
+
+
+def _the_set(top: dict, name: str, source: str, folder: Path | None, budget: Budget, fail):
+    """The base scenario and the set's records, through the sweep's own Monte Carlo validation and draws."""
+    mc = top["monte_carlo"]
+    if not mc:
+        target = top["scenario"]
+        if folder is not None and (target.endswith(".toml") or "/" in target) and not Path(target).is_absolute():
+            target = str(folder / target)
+        try:
+            return load_scenario(target), [{}], {}
+        except ScenarioError as err:
+            fail(f"'scenario': {err}")
+    sweep = {"name": name, "scenario": top["scenario"], "monte_carlo": mc, "outputs": {"metrics": [top["metric"]]}}
+    try:
+        spec = sweep_from_dict(sweep, source=source, folder=folder, budget=budget)
+    except SweepError as err:
+        raise TuneError(str(err)) from None
+    records = []
+    for run in spec.runs:
+        shared, member = split_changes(run.values)
+        if shared:
+            key = next(iter(shared))
+            fail(f"monte_carlo.distributions.\"{key}\" cannot vary within a batch: every candidate's set runs as one "
+                 f"batch, so only per-member keys may be drawn ({', '.join(sorted(BATCH_KEYS))}, and their "
+                 "elements)")
+        records.append(member)
+    draws = {"runs": spec.runs_per_point, "seed": spec.seed,
+             "distributions": {k: {"kind": d.kind} | d.params for k, d in spec.distributions.items()}}
+    return spec.base, records, draws
+
+
+def _parameters(bounds: dict, fail) -> list[Parameter]:
+    if not bounds:
+        fail(f"[search] names no gain to tune; give bounds for at least one of {list(TUNABLE)}, e.g. "
+             "\"gains.kp\" = [50, 1000]")
+    out = []
+    for key, value in bounds.items():
+        label = f"search.\"{key}\""
+        if key not in TUNABLE:
+            fail(f"{label} is not a tunable gain; tunable: {list(TUNABLE)} (a gain left out keeps the scenario's "
+                 "value)")
+        per_joint = isinstance(value, list) and len(value) == 4 and all(isinstance(v, list) for v in value)
+        pairs = value if per_joint else [value]
+        for j, pair in enumerate(pairs):
+            where = f"{label}[{j}]" if per_joint else label
+            if not (isinstance(pair, list) and len(pair) == 2 and all(map(_number, pair))):
+                fail(f"{where} must be bounds [low, high] (two numbers)"
+                     + ("" if per_joint else ", or four of them [[low, high], ...] for one gain per joint")
+                     + f", got {pair!r}")
+            low, high = float(pair[0]), float(pair[1])
+            if low == high:
+                fail(f"{where} = {pair!r} is empty: the low bound must be below the high bound (leave a gain out "
+                     "of [search] to keep its value)")
+            if low > high:
+                fail(f"{where} = {pair!r} is inverted: low {pair[0]!r} > high {pair[1]!r}; write [low, high]")
+            if low <= 0:
+                fail(f"{where} = {pair!r}: gains are > 0 (the search runs over log10 of the gain)")
+            out.append(Parameter(key=key, joint=j if per_joint else None, low=low, high=high))
+    return out
+
+
+def _limits(table: dict, base: Scenario, fail) -> Limits:
+    noise = dict(base.data["noise"]) if base.noise is not None else dict(DEFAULT_NOISE)
+    given = table["sensor_noise"]
+    if given is not None:
+        unknown = sorted(set(given) - set(_NOISE_KEYS))
+        if unknown:
+            fail(f"unknown key(s) {[f'constraints.sensor_noise.{k}' for k in unknown]}; allowed: "
+                 f"{', '.join(_NOISE_KEYS)}")
+        for k in ("q_std", "dq_std"):
+            if k in given and not (_numbers(given[k], 4) and min(given[k]) >= 0):
+                fail(f"'constraints.sensor_noise.{k}' must be 4 numbers >= 0, got {given[k]!r}")
+        if "sample_period" in given and not (_number(given["sample_period"]) and given["sample_period"] > 0):
+            fail(f"'constraints.sensor_noise.sample_period' must be a number > 0 (s), got {given['sample_period']!r}")
+        noise.update(given)
+    sensor = {"q_std": [float(v) for v in noise["q_std"]], "dq_std": [float(v) for v in noise["dq_std"]],
+              "sample_period": float(noise["sample_period"])}
+    if table["torque_noise_rms"] is not None and not any(sensor["q_std"] + sensor["dq_std"]):
+        fail("'constraints.torque_noise_rms' is given but the sensor noise is zero on every joint; give "
+             "constraints.sensor_noise")
+    vector = lambda v: None if v is None else np.broadcast_to(np.asarray(v, dtype=float), (4,)).copy()  # noqa: E731
+    budget = table["torque_noise_rms"]
+    source = "base" if budget == "base" else "given"
+    if budget == "base":
+        from .tune_linear import torque_noise_rms
+        from blocks import inertia
+        q0 = np.asarray(base.trajectory.evaluate(0.0)[0], dtype=float)
+        budget = torque_noise_rms(inertia(q0, base.robot), inertia(q0, base.nominal), base.kp, base.kd,
+                                  base.observer_gain, sensor["q_std"], sensor["dq_std"], sensor["sample_period"])
+        if not np.all(np.isfinite(budget)):
+            fail("'constraints.torque_noise_rms' = \"base\": the base scenario's own gains do not give a stable "
+                 "held loop, so they set no torque-noise budget; give numbers (N m)")
+    return Limits(torque_noise_rms=vector(budget), torque_noise_from=source, torque_limit=vector(table["torque_limit"]),
+                  stability_margin=None if table["stability_margin"] is None else float(table["stability_margin"]),
+                  sensor_noise=sensor)

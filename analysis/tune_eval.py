@@ -1,0 +1,337 @@
+"""Evaluating candidate gains of a tuning: the linear constraints first, then one batch of the set per candidate.
+
+An *evaluation* of a candidate (a set of gains) is one batch of the tuning's
+set (:attr:`analysis.tune.TuneSpec.records`, every run with the candidate's
+gains) through :func:`blocks.batch.simulate_batch`; the objective is the worst
+or the mean of the metric over the runs, and the peak ``|tau|`` per joint over
+every run's output grid is kept for the torque limit.  Before that, the linear
+constraints (torque noise, stability margin; :mod:`analysis.tune_linear`) are
+computed in milliseconds; a candidate that fails them is not simulated.
+
+Step sizes
+    Each candidate's runs are integrated with the RK4 step its own gains need
+    (:func:`blocks.batch.auto_substeps` over its runs, rounded up to a power of
+    two), and candidates are batched together only when they need the same
+    step, so a candidate's numbers do not depend on which others shared its
+    batch: evaluating the tuned scenario file again gives the same numbers.
+
+Ranking (what the search minimises, :attr:`Evaluation.energy`)
+    A feasible candidate scores its objective (mm).  Any other scores
+    ``INFEASIBLE * (1 + total violation)``: worse than every feasible one, and
+    among infeasible ones the smaller violation wins.  Violations are relative
+    (``noise / budget - 1``, ``peak / limit - 1``) except the stability margin's
+    (``abscissa + margin``, 1/s); a diverged run adds 1 plus the diverged fraction.
+"""
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from blocks import inertia
+from blocks.batch import Variants, auto_substeps, simulate_batch
+from blocks.batch.schedule import rates_by_source
+from blocks.budget import Budget, BudgetError, Estimate, estimate_batch, largest_batch
+from .sweep import json_default, run_schedule
+from .tune import TuneSpec
+from .tune_linear import inertia_pairs, spectral_abscissas, torque_noise_rms
+
+__all__ = ["Evaluation", "Evaluator", "evaluation_estimate", "gains_key", "INFEASIBLE", "MAX_CANDIDATES_PER_BATCH"]
+
+#: The score of an infeasible candidate starts here (mm; far above any tracking error).
+INFEASIBLE = 1e9
+#: Largest single violation counted in a score (keeps scores finite for unstable loops).
+_VIOLATION_CAP = 1e6
+#: Candidates simulated in one batch at most (fewer when the memory budget asks for it).
+MAX_CANDIDATES_PER_BATCH = 16
+
+
+def gains_key(gains: dict) -> str:
+    """The text that identifies a candidate (its gains, sorted), as the evaluation log stores it."""
+    return json.dumps(gains, sort_keys=True, default=json_default)
+
+
+@dataclass
+class Evaluation:
+    """One candidate's evaluation.
+
+    Attributes
+    ----------
+    gains : dict
+        Scenario changes (``"gains.kp"`` -> value).
+    torque_noise_rms : numpy.ndarray
+        Linear torque noise per joint (N m, N m, N, N m).
+    spectral_abscissa : float
+        Largest real part of the linearized loop's poles over configurations and models (1/s).
+    simulated : bool
+        False when the linear constraints failed and the set was not run.
+    values : numpy.ndarray or None
+        The metric of each run of the set (mm; NaN for a diverged run).
+    peak_torque : numpy.ndarray or None
+        Peak ``|tau|`` per joint over the set (N m, N m, N, N m).
+    diverged : int
+        Runs of the set that diverged.
+    substeps : int
+        RK4 steps per output interval of the candidate's batch (0 when not simulated).
+    seconds : float
+        Simulation time of the candidate's share of its batch (s).
+    from_log : bool
+        Whether the simulation result came from the evaluation log (a resumed tuning).
+    objective : float
+        Worst or mean of ``values`` (mm); infinity when not simulated or a run diverged.
+    violations : dict of str to float
+        Per constraint, how far it is violated (0: met).
+    feasible : bool
+    energy : float
+        What the search minimises (module docstring).
+    """
+
+    gains: dict
+    torque_noise_rms: np.ndarray
+    spectral_abscissa: float
+    simulated: bool = False
+    values: np.ndarray | None = None
+    peak_torque: np.ndarray | None = None
+    diverged: int = 0
+    substeps: int = 0
+    seconds: float = 0.0
+    from_log: bool = False
+    phase: str = ""
+    objective: float = math.inf
+    violations: dict = field(default_factory=dict)
+    feasible: bool = False
+    energy: float = math.inf
+
+    @property
+    def key(self) -> str:
+        return gains_key(self.gains)
+
+    def row(self) -> dict:
+        """The evaluation log's line for a simulated evaluation (strict JSON values)."""
+        fin = lambda v: float(v) if math.isfinite(v) else None                       # noqa: E731
+        return {"key": self.key, "gains": self.gains, "phase": self.phase,
+                "status": "ok" if self.diverged == 0 else "diverged", "objective": fin(self.objective),
+                "values": [fin(v) for v in self.values], "peak_torque": [fin(v) for v in self.peak_torque],
+                "torque_noise_rms": [fin(v) for v in self.torque_noise_rms],
+                "spectral_abscissa": fin(self.spectral_abscissa), "diverged": int(self.diverged),
+                "substeps": int(self.substeps), "seconds": round(self.seconds, 6)}
+
+
+def _pow2(n: int) -> int:
+    return 1 << max(0, math.ceil(math.log2(max(1, n))))
+
+
+class Evaluator:
+    """Evaluates candidates of one tuning, remembers every evaluation, and simulates each candidate at most once.
+
+    Parameters
+    ----------
+    spec : TuneSpec
+    workers : int
+        Threads (compiled engine) or processes (numpy engine) of each batch.
+    log_rows : dict, optional
+        Rows of the evaluation log by :func:`gains_key`: candidates found there are not simulated again.
+    record : callable, optional
+        Called with the rows of every batch once it is simulated (the evaluation log's writer).
+    after_batch : callable, optional
+        Called with the number of candidates simulated, after every batch (progress, wall-time budget).
+    engine : str
+        :func:`blocks.batch.simulate_batch`'s engine.
+    """
+
+    def __init__(self, spec: TuneSpec, workers: int = 1, log_rows: dict | None = None,
+                 record: Callable[[list[dict]], None] | None = None,
+                 after_batch: Callable[[int], None] | None = None, engine: str = "auto") -> None:
+        self.spec, self.workers, self.engine = spec, int(workers), engine
+        self.log_rows = dict(log_rows or {})
+        self.record, self.after_batch = record, after_batch
+        self.history: list[Evaluation] = []          # every evaluation asked for, in order
+        self.simulated_now = 0
+        self._known: dict[str, Evaluation] = {}
+        base = spec.base
+        members = Variants(base, spec.records)
+        robots, nominals = [base.robot] + members.robots, [base.nominal] + members.nominals
+        self._M, self._M_nominal = inertia_pairs(spec.configurations, robots, nominals)
+        self._hold = (inertia(spec.hold, base.robot), inertia(spec.hold, base.nominal))
+
+    # -- the linear constraints ------------------------------------------------------------------
+    def linear(self, gains: dict) -> tuple[np.ndarray, float]:
+        """Torque noise per joint (N m) and spectral abscissa (1/s) of a candidate."""
+        s = self.spec.base
+        kp = gains.get("gains.kp", np.diag(s.kp))
+        kd = gains.get("gains.kd", np.diag(s.kd))
+        Y = gains.get("gains.observer", s.observer_gain)
+        abscissa = float(spectral_abscissas(self._M, self._M_nominal, kp, kd, Y).max())
+        noise = self.spec.limits.sensor_noise
+        rms = torque_noise_rms(*self._hold, kp, kd, Y, noise["q_std"], noise["dq_std"], noise["sample_period"])
+        return rms, abscissa
+
+    def linear_violations(self, noise: np.ndarray, abscissa: float) -> dict:
+        limits = self.spec.limits
+        out = {}
+        if limits.torque_noise_rms is not None:
+            out["torque_noise_rms"] = _relative_excess(noise, limits.torque_noise_rms)
+        if limits.stability_margin is not None:
+            out["stability_margin"] = min(_VIOLATION_CAP, max(0.0, abscissa + limits.stability_margin))
+        return out
+
+    # -- evaluations -------------------------------------------------------------------------------
+    def evaluate(self, candidates: list[dict], phase: str, force: bool = False) -> list[Evaluation]:
+        """Evaluate candidates (gains dicts) in order; ``force`` simulates them even when the linear constraints
+        fail (the base gains, the final answer).  Each is appended to :attr:`history`."""
+        out = [self._prepare(g, phase) for g in candidates]
+        pending: dict[str, Evaluation] = {}
+        for ev in out:
+            if ev.simulated or ev.key in pending:
+                continue
+            if force or all(v == 0 for v in ev.violations.values()):
+                row = self.log_rows.get(ev.key)
+                if row is not None:
+                    self._take_row(ev, row)
+                else:
+                    pending[ev.key] = ev
+        if pending:
+            self._simulate(list(pending.values()))
+        for ev in out:
+            if not ev.simulated and ev.key in self._known and self._known[ev.key].simulated:
+                self._copy(self._known[ev.key], ev)
+            self._finish(ev)
+            self._known[ev.key] = ev
+            self.history.append(ev)
+        return out
+
+    def _prepare(self, gains: dict, phase: str) -> Evaluation:
+        key = gains_key(gains)
+        known = self._known.get(key)
+        if known is not None:
+            ev = Evaluation(gains=gains, torque_noise_rms=known.torque_noise_rms,
+                            spectral_abscissa=known.spectral_abscissa, phase=phase)
+            ev.violations = self.linear_violations(ev.torque_noise_rms, ev.spectral_abscissa)
+            if known.simulated:
+                self._copy(known, ev)
+            return ev
+        noise, abscissa = self.linear(gains)
+        ev = Evaluation(gains=gains, torque_noise_rms=noise, spectral_abscissa=abscissa, phase=phase)
+        ev.violations = self.linear_violations(noise, abscissa)
+        return ev
+
+    @staticmethod
+    def _copy(src: Evaluation, dst: Evaluation) -> None:
+        dst.simulated, dst.values, dst.peak_torque = True, src.values, src.peak_torque
+        dst.diverged, dst.substeps, dst.seconds, dst.from_log = src.diverged, src.substeps, src.seconds, src.from_log
+
+    def _take_row(self, ev: Evaluation, row: dict) -> None:
+        ev.simulated, ev.from_log = True, True
+        ev.values = np.array([np.nan if v is None else v for v in row["values"]], dtype=float)
+        ev.peak_torque = np.array([np.nan if v is None else v for v in row["peak_torque"]], dtype=float)
+        ev.diverged, ev.substeps, ev.seconds = int(row["diverged"]), int(row["substeps"]), float(row["seconds"])
+
+    def _finish(self, ev: Evaluation) -> None:
+        """Objective, violations, feasibility and score of an evaluation."""
+        limits = self.spec.limits
+        if ev.simulated:
+            finite = ev.values[np.isfinite(ev.values)]
+            if ev.diverged or finite.size < ev.values.size:
+                ev.objective = math.inf
+                ev.violations["diverged"] = 1.0 + ev.diverged / max(1, ev.values.size)
+            else:
+                ev.objective = float(finite.max() if self.spec.objective == "worst" else finite.mean())
+            if limits.torque_limit is not None:
+                ev.violations["torque_limit"] = _relative_excess(ev.peak_torque, limits.torque_limit)
+        total = float(sum(ev.violations.values()))
+        ev.feasible = ev.simulated and total == 0 and math.isfinite(ev.objective)
+        ev.energy = ev.objective if ev.feasible else INFEASIBLE * (1.0 + total)
+
+    def _substeps(self, gains: dict) -> int:
+        variants = Variants(self.spec.base, [rec | gains for rec in self.spec.records])
+        return _pow2(auto_substeps(variants, True))
+
+    def _simulate(self, pending: list[Evaluation]) -> None:
+        """Run the pending candidates' sets, batched by step; record each batch's rows as it finishes."""
+        spec = self.spec
+        groups: dict[int, list[Evaluation]] = {}
+        for ev in pending:
+            groups.setdefault(self._substeps(ev.gains), []).append(ev)
+        runs = spec.runs
+        for substeps, evs in sorted(groups.items()):
+            size = run_schedule(spec.base, substeps, _noisy(spec))
+            fits = largest_batch(spec.budget.memory, steps=size.steps, grid_points=size.grid_points, signals=1,
+                                 noise=_noisy(spec), noise_samples=size.noise_samples)
+            per_batch = max(1, min(MAX_CANDIDATES_PER_BATCH, fits // runs))
+            for start in range(0, len(evs), per_batch):
+                chunk = evs[start:start + per_batch]
+                records = [rec | ev.gains for ev in chunk for rec in spec.records]
+                t0 = time.perf_counter()
+                result = simulate_batch(None, Variants(spec.base, records), observer=True, metrics=[spec.metric],
+                                        signals=("tau",), substeps=substeps, workers=self.workers,
+                                        engine=self.engine)
+                seconds = (time.perf_counter() - t0) / len(chunk)
+                values = result.metrics[spec.metric].reshape(len(chunk), runs)
+                ok = result.ok.reshape(len(chunk), runs)
+                tau = result.signals["tau"]
+                tau[~result.ok] = 0.0                  # a diverged run's torques are NaN; it counts as diverged
+                peaks = np.abs(tau).max(axis=1).reshape(len(chunk), runs, -1)
+                del result, tau
+                for i, ev in enumerate(chunk):
+                    ev.simulated, ev.substeps, ev.seconds = True, substeps, seconds
+                    ev.values = np.where(ok[i], values[i], np.nan)
+                    ev.diverged = int((~ok[i]).sum())
+                    ev.peak_torque = peaks[i].max(axis=0)
+                    self._known[ev.key] = ev
+                self.simulated_now += len(chunk)
+                if self.record is not None:
+                    self.record([ev.row() for ev in chunk])
+                if self.after_batch is not None:
+                    self.after_batch(len(chunk))
+
+
+def _relative_excess(values: np.ndarray, limits: np.ndarray) -> float:
+    """``max_j (values_j / limits_j - 1)``, at least 0 (absolute excess where a limit is 0), capped."""
+    values, limits = np.asarray(values, dtype=float), np.asarray(limits, dtype=float)
+    if np.any(np.isnan(values)):
+        return _VIOLATION_CAP
+    excess = np.where(limits > 0, values / np.where(limits > 0, limits, 1.0) - 1.0, values - limits)
+    return float(min(_VIOLATION_CAP, max(0.0, float(excess.max()))))
+
+
+def _noisy(spec: TuneSpec) -> bool:
+    return spec.base.noise is not None or any(k.startswith("noise.") for rec in spec.records for k in rec)
+
+
+def evaluation_estimate(spec: TuneSpec) -> tuple[Estimate, int]:
+    """One evaluation's steps and memory at the bounds' fastest gains (every gain at its high bound), checked
+    against the tuning's budget, and the substeps there.
+
+    Raises
+    ------
+    blocks.budget.BudgetError
+        Naming the ``[search]`` gain whose high bound makes the step small, or ``monte_carlo.runs``.
+    """
+    corner = spec.gains(np.ones(len(spec.parameters)))
+    variants = Variants(spec.base, [rec | corner for rec in spec.records])
+    substeps = _pow2(auto_substeps(variants, True))
+    rates = {k: float(v.max()) for k, v in rates_by_source(variants, True).items()}
+    source = max(rates, key=rates.get)
+    tuned = {p.key for p in spec.parameters}
+    key = f'search."{source}"' if source in tuned else ("search.\"gains.kd\"" if source == "gains.kp" and
+                                                         "gains.kd" in tuned else source)
+    size = run_schedule(spec.base, substeps, _noisy(spec))
+    reason = (f"{size.grid_points - 1:.3g} output intervals x {substeps} substeps, as the fastest rate at the high "
+              f"bounds is {rates[source]:.3g} 1/s ({source})")
+    estimate = estimate_batch(spec.runs, steps=size.steps, grid_points=size.grid_points, signals=1,
+                              noise=_noisy(spec), noise_samples=size.noise_samples,
+                              keys={"steps": key, "members": "monte_carlo.runs"}, steps_reason=reason)
+    spec.budget.check(estimate, f"{spec.name}: one evaluation ({spec.runs} runs) at the high bounds")
+    return estimate, substeps
+
+
+def check_seconds(budget: Budget, started: float, what: str) -> None:
+    """Raise :class:`~blocks.budget.BudgetError` when the wall-time budget has run out."""
+    if budget.seconds is not None and time.perf_counter() - started > budget.seconds:
+        raise BudgetError(f"{what}: the wall-time budget of {budget.seconds:g} s ran out; every finished "
+                          "evaluation is kept in the evaluation log: run the same command again to go on, or raise "
+                          "--max-seconds", key="seconds", limit="seconds")

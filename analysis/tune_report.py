@@ -1,0 +1,240 @@
+"""Figures and the report section of a tuning (``tune.json`` of :mod:`analysis.tune_runner`).
+
+Figures (PNG and SVG, in ``figures/`` of the tuning's folder):
+
+``tune_history``
+    The objective of every simulated evaluation in order, feasible and not,
+    the best feasible one so far, the base gains' objective, and where the
+    polish starts.
+``tune_robustness``
+    The distribution of the metric over the set's runs with the base gains and
+    with the tuned ones (their worst and mean marked).
+``tune_constraints``
+    Torque noise and peak torque per joint with the base and the tuned gains,
+    against the budget and the limit.
+
+:func:`html_section` renders a tuning folder as one self-contained HTML
+``<section>`` (template ``tune_section.html``, autoescaped, figures embedded)
+for ``dobkit report --tune``.
+"""
+from __future__ import annotations
+
+import base64
+import math
+from pathlib import Path
+
+import numpy as np
+
+from blocks.joints import RRPR_JOINTS
+from .report_html import template_environment
+from .tune import METRIC_WORDS, TuneError
+
+__all__ = ["write_figures", "html_section", "read_result", "FIGURES"]
+
+FIGURES = ("tune_history", "tune_robustness", "tune_constraints")
+
+
+def _save(fig, folder: Path, stem: str) -> str:
+    folder.mkdir(parents=True, exist_ok=True)
+    fig.savefig(folder / f"{stem}.png", dpi=120, metadata={"Software": None})
+    fig.savefig(folder / f"{stem}.svg", metadata={"Date": None, "Creator": None})
+    return f"{stem}.png"
+
+
+def _figure(size):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    fig = Figure(figsize=size, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def write_figures(result, folder) -> list[tuple[str, str]]:
+    """Write the tuning's figures into ``folder``; return (PNG file name, caption) per figure."""
+    import matplotlib
+    folder = Path(folder)
+    words = METRIC_WORDS.get(result.metric, result.metric)
+    out = []
+    with matplotlib.rc_context({"svg.hashsalt": "dobkit"}):
+        out.append(_history(result, folder, words))
+        out.append(_robustness(result, folder, words))
+        out.append(_constraints(result, folder))
+    return out
+
+
+def _history(result, folder: Path, words: str) -> tuple[str, str]:
+    h = result.history
+    n = len(h.phase)
+    index = np.arange(1, n + 1)
+    objective = np.array([np.nan if v is None else v for v in h.objective], dtype=float)
+    feasible = np.array(h.feasible, dtype=bool)
+    simulated = np.array(h.simulated, dtype=bool)
+    fig = _figure((6.4, 3.6))
+    ax = fig.subplots()
+    shown = simulated & np.isfinite(objective)
+    ax.scatter(index[shown & feasible], objective[shown & feasible], s=10, color="tab:blue", label="feasible")
+    ax.scatter(index[shown & ~feasible], objective[shown & ~feasible], s=14, marker="x", color="tab:red",
+               label="simulated, infeasible")
+    best = np.where(feasible & np.isfinite(objective), objective, np.inf)
+    running = np.minimum.accumulate(best) if n else best
+    ok = np.isfinite(running)
+    if ok.any():
+        ax.step(index[ok], running[ok], where="post", color="black", lw=1.2, label="best feasible so far")
+    if result.base.objective is not None:
+        ax.axhline(result.base.objective, color="tab:gray", ls="--", lw=1, label="base gains")
+    polish = [i for i, p in enumerate(h.phase) if p == "polish"]
+    if polish:
+        ax.axvline(polish[0] + 0.5, color="tab:green", ls=":", lw=1, label="polish starts")
+    finite = objective[shown]
+    if finite.size and np.nanmax(finite) > 20 * np.nanmin(finite) > 0:
+        ax.set_yscale("log")
+    ax.set_xlabel("evaluation")
+    ax.set_ylabel(f"{result.objective} {words} [mm]")
+    ax.legend(fontsize=7, loc="upper right")
+    linear = int((~simulated).sum())
+    caption = (f"The {result.objective} {words} over the {result.runs}-run set of each evaluation, in order "
+               f"({int(simulated.sum())} simulated; {linear} more refused by the linear constraints without "
+               "simulating), the best feasible one so far and the base scenario's gains (dashed).")
+    return _save(fig, folder, "tune_history"), caption
+
+
+def _robustness(result, folder: Path, words: str) -> tuple[str, str]:
+    fig = _figure((6.0, 3.4))
+    ax = fig.subplots()
+    sets = [("base gains", result.base, "tab:gray"), ("tuned gains", result.tuned, "tab:blue")]
+    data = [np.array([np.nan if v is None else v for v in (p.values or [])], dtype=float) for _, p, _ in sets]
+    finite = np.concatenate([d[np.isfinite(d)] for d in data]) if data else np.array([])
+    if finite.size:
+        lo, hi = float(finite.min()), float(finite.max())
+        if hi <= lo:
+            lo, hi = lo * 0.95, hi * 1.05 + 1e-12
+        edges = np.linspace(lo, hi, max(6, min(30, 2 * int(math.sqrt(result.runs))) + 1))
+        for (label, point, color), d in zip(sets, data):
+            d = d[np.isfinite(d)]
+            if d.size:
+                ax.hist(d, bins=edges, color=color, alpha=0.55, label=f"{label}: worst {d.max():.3g}, "
+                        f"mean {d.mean():.3g} mm")
+                ax.axvline(d.max(), color=color, lw=1.5)
+                ax.axvline(d.mean(), color=color, lw=1, ls="--")
+    ax.set_xlabel(f"{words} [mm]")
+    ax.set_ylabel("runs")
+    ax.legend(fontsize=7)
+    caption = (f"Robustness: the {words} of each of the {result.runs} runs of the set (model mismatch and "
+               "disturbances) with the base scenario's gains and with the tuned ones; solid lines: worst, "
+               "dashed: mean.")
+    return _save(fig, folder, "tune_robustness"), caption
+
+
+def _constraints(result, folder: Path) -> tuple[str, str]:
+    fig = _figure((7.2, 3.4))
+    left, right = fig.subplots(1, 2)
+    joints = np.arange(RRPR_JOINTS.count)
+    width = 0.38
+    handles = {}
+    for ax, attr, limit_key, title in ((left, "torque_noise_rms", "torque_noise_rms", "torque noise (RMS)"),
+                                       (right, "peak_torque", "torque_limit", "peak |torque| over the set")):
+        for k, (label, point, color) in enumerate((("base gains", result.base, "tab:gray"),
+                                                   ("tuned gains", result.tuned, "tab:blue"))):
+            values = getattr(point, attr)
+            if values is not None:
+                handles[label] = ax.bar(joints + (k - 0.5) * width, [np.nan if v is None else v for v in values],
+                                        width, color=color)
+        limit = result.limits.get(limit_key)
+        if limit is not None:
+            handles["budget / limit"] = ax.scatter(joints, limit, marker="_", s=400, color="tab:red", zorder=3)
+        ax.set_xticks(joints, list(RRPR_JOINTS.names))
+        ax.set_ylabel(f"{title} [N m; N]")
+    noise = np.array([v for p in (result.base, result.tuned) for v in p.torque_noise_rms], dtype=float)
+    if np.any(np.isfinite(noise) & (noise > 0)):
+        left.set_yscale("log")          # joint 3 (N, light) is two decades below the others
+    fig.legend(list(handles.values()), list(handles), loc="outside upper center", ncol=len(handles), fontsize=8)
+    caption = ("Constraints per joint (N m; N for the prismatic joint d3): the torque noise that the sensor noise "
+               "causes (linearized held loop) and the peak torque over every run of the set, with the base and "
+               "the tuned gains; red: the budget and the limit where the tuning sets them.")
+    return _save(fig, folder, "tune_constraints"), caption
+
+
+# --------------------------------------------------------------------------------------------
+# The report section
+# --------------------------------------------------------------------------------------------
+def read_result(folder):
+    """The :class:`~analysis.tune_runner.TuneResult` of a tuning folder.
+
+    Raises
+    ------
+    TuneError
+        When the folder has no readable ``tune.json`` or a listed figure is missing.
+    """
+    from .tune_runner import RESULT_NAME, TuneResult
+    folder = Path(folder)
+    path = folder / RESULT_NAME
+    if not path.is_file():
+        raise TuneError(f"tuning folder '{folder}' has no {RESULT_NAME} (run 'dobkit tune' first)")
+    try:
+        result = TuneResult.from_json(path.read_text(encoding="utf-8"))
+    except (ValueError, KeyError, TypeError) as err:
+        raise TuneError(f"tuning result '{path}' cannot be read ({err}); run 'dobkit tune' again") from None
+    for figure in result.figures:
+        if Path(figure.file).name != figure.file or not (folder / "figures" / figure.file).is_file():
+            raise TuneError(f"tuning folder '{folder}' lists the figure '{figure.file}', which is not in its "
+                            "figures/ folder: the folder is incomplete; run 'dobkit tune' again")
+    return result
+
+
+def _fmt(value, digits: int = 4) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_fmt(v, digits) for v in value) + "]"
+    if isinstance(value, float) and not math.isfinite(value):
+        return "-"
+    return f"{value:.{digits}g}" if isinstance(value, (int, float)) else str(value)
+
+
+def _gain_rows(result) -> list[list[str]]:
+    rows = []
+    for name, unit, bounds in zip(result.parameters, result.units, result.bounds):
+        key, _, joint = name.partition("[")
+        base, tuned = result.base.gains.get(key), result.tuned.gains.get(key)
+        if joint:
+            j = int(joint.rstrip("]"))
+            base = base[j] if isinstance(base, list) and len(base) == 4 and not isinstance(base[0], list) else base
+            tuned = tuned[j] if isinstance(tuned, list) else tuned
+        rows.append([name, unit, f"{_fmt(bounds[0])} to {_fmt(bounds[1])}", _fmt(base, 6), _fmt(tuned, 6)])
+    return rows
+
+
+def _constraint_rows(result) -> list[list[str]]:
+    limits, rows = result.limits, []
+    if limits.get("torque_noise_rms") is not None:
+        source = " (the base gains' own)" if limits.get("torque_noise_from") == "base" else ""
+        rows.append(["torque noise RMS [N m, N m, N, N m]", _fmt(limits["torque_noise_rms"]) + source,
+                     _fmt(result.base.torque_noise_rms), _fmt(result.tuned.torque_noise_rms)])
+    if limits.get("torque_limit") is not None:
+        rows.append(["peak |torque| [N m, N m, N, N m]", _fmt(limits["torque_limit"]), _fmt(result.base.peak_torque),
+                     _fmt(result.tuned.peak_torque)])
+    margin = limits.get("stability_margin")
+    rows.append(["slowest pole, real part [1/s]", "-" if margin is None else f"<= {_fmt(-margin)}",
+                 _fmt(result.base.spectral_abscissa), _fmt(result.tuned.spectral_abscissa)])
+    return rows
+
+
+def html_section(folder) -> str:
+    """A tuning folder as one self-contained HTML ``<section>`` (figures embedded as PNG data).
+
+    Raises
+    ------
+    TuneError
+        See :func:`read_result`.
+    """
+    folder = Path(folder)
+    result = read_result(folder)
+    words = METRIC_WORDS.get(result.metric, result.metric)
+    figures = [(f.caption, "data:image/png;base64," +
+                base64.b64encode((folder / "figures" / f.file).read_bytes()).decode("ascii")) for f in result.figures]
+    view = {"r": result, "words": words, "gain_rows": _gain_rows(result),
+            "constraint_rows": _constraint_rows(result),
+            "base_objective": _fmt(result.base.objective), "tuned_objective": _fmt(result.tuned.objective),
+            "base_nominal": _fmt(result.base.nominal), "tuned_nominal": _fmt(result.tuned.nominal),
+            "evaluations": result.evaluations}
+    return template_environment().get_template("tune_section.html").render(v=view, figures=figures)
