@@ -17,13 +17,14 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from blocks.metrics import DISTURBANCE_UNITS  # noqa: E402
+
 from .bandwidth import BandwidthOverview, BandwidthSurvey  # noqa: E402
 from .figures import JOINT_TITLES, save_figure  # noqa: E402
 from .frequency import FrequencyAnalysis  # noqa: E402
 from .gain_design import SimulationCheck  # noqa: E402
 from .linear import MismatchStudy, OperatingPoint  # noqa: E402
 from .studies import GainGridStudy, ObserverGainStudy, settling_definition  # noqa: E402
-from blocks.metrics import DISTURBANCE_UNITS  # noqa: E402
 
 __all__ = ["pole_figure", "mismatch_figure", "bandwidth_figure", "design_figure", "bode_figure",
            "gain_study_figure", "observer_study_figure"]
@@ -66,7 +67,7 @@ def pole_figure(operating_points: list[OperatingPoint], out_dir) -> list[Path]:
     for op in operating_points:
         for observer, title in ((True, "with"), (False, "without")):
             rows.append((f"{op.label}, {title}", op.modes(observer)))
-    for r, (label, modes) in enumerate(rows):
+    for r, (_, modes) in enumerate(rows):
         for m in modes:
             ax.plot(m.decay_rate_rad_s, r, "o", ms=7, mfc="none", color=_BLOCK_COLORS[m.block])
             ax.plot(-m.analytic_pole.real, r, "x", ms=4, color="black")

@@ -19,6 +19,7 @@ import numpy as np
 from blocks import inertia
 from blocks.parameters import RobotParameters
 from blocks.scenario import Scenario
+
 from .results import JsonResult, omitted_if_none
 
 __all__ = ["DEFAULT_RANGES", "SlowestMode", "FastestMode", "SurveyGrid", "PathModes", "BandwidthOverview",

@@ -31,11 +31,12 @@ import numpy as np
 import scipy.linalg
 
 from blocks.digital import digital_observer
-from blocks.dynamics import inertia
 from blocks.digital_loop import sampled_initial_state, sampled_loop, simulate_sampled
+from blocks.dynamics import inertia
 from blocks.loop import closed_loop
 from blocks.metrics import signal
 from blocks.scenario import Scenario
+
 from .linear import equilibrium, hold_scenario
 from .results import JsonResult
 
@@ -535,8 +536,8 @@ def _answer(s: Scenario, scale: float, noise: QuantizationNoise | None) -> str:
     if noise is not None:
         worst = int(np.argmax(np.asarray(noise.predicted_rms) / np.maximum(np.abs(gain), 1e-12)))
         units = ("N m", "N m", "N", "N m")
-        text += (f" Encoder quantization adds torque noise of {', '.join(f'{v:.3g} {u}' for v, u in zip(noise.predicted_rms, units))}"
-                 f" RMS (joints 1-4, linear prediction")
+        values = ", ".join(f"{v:.3g} {u}" for v, u in zip(noise.predicted_rms, units))
+        text += f" Encoder quantization adds torque noise of {values} RMS (joints 1-4, linear prediction"
         if noise.simulated_rms is not None:
             text += f"; simulated {', '.join(f'{v:.3g}' for v in noise.simulated_rms)}"
         text += f"), most on joint {worst + 1}."

@@ -11,6 +11,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from blocks.joints import RRPR_JOINTS  # noqa: E402
+
 from .digital import DigitalAnalysis  # noqa: E402
 from .figures import save_figure  # noqa: E402
 

@@ -15,17 +15,17 @@ from __future__ import annotations
 
 import csv
 import json
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
-from blocks import __version__
-from blocks import Scenario, load_scenario, simulate
-from .figures import paper_figures
+from blocks import Scenario, __version__, load_scenario, simulate
 from blocks.metrics import DISTURBANCE_UNITS, JOINT_UNITS, tracking_metrics
 from blocks.outputs import default_out_dir, staged_output
+
+from .figures import paper_figures
 
 __all__ = ["ExperimentResult", "run_experiment", "comparison_metrics", "format_rms_table", "default_out_dir",
            "staged_output"]

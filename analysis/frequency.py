@@ -26,6 +26,7 @@ from scipy.optimize import brentq, minimize_scalar
 
 from blocks import build_blocks, inertia
 from blocks.scenario import Scenario
+
 from .linear import equilibrium, hold_scenario, linearize_loop
 from .results import JsonResult
 

@@ -37,6 +37,7 @@ import numpy as np
 from blocks import inertia
 from blocks.dynamics import inertia_derivative_theta2
 from blocks.parameters import RobotParameters
+
 from .bandwidth import BandwidthOverview, observer_modes
 from .results import JsonResult
 
@@ -122,7 +123,7 @@ class CriticalSpeed(JsonResult):
     speed_bound: list[float]
 
     @classmethod
-    def from_dict(cls, data: dict, where: str | None = None) -> "CriticalSpeed":
+    def from_dict(cls, data: dict, where: str | None = None) -> CriticalSpeed:
         """Read back, with the infinities of an unlimited speed restored (JSON holds them as null)."""
         out = super().from_dict(data, where)
         if out.unlimited:
@@ -421,8 +422,9 @@ def confirm_by_simulation(scenario, gains, t_final: float | None = None, thresho
         for the solver, down to ``V = 1e-10 V(0)``.
     """
     from blocks import simulate
-    from .linear import first_seconds
     from blocks.metrics import signal
+
+    from .linear import first_seconds
 
     out = {}
     for label, gain in gains:

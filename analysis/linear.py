@@ -31,6 +31,7 @@ from scipy.optimize import brentq, linear_sum_assignment
 
 from blocks import closed_loop, external_disturbance, gravity, inertia
 from blocks.scenario import Scenario
+
 from .results import JsonResult
 
 __all__ = [

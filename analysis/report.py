@@ -26,22 +26,33 @@ from pathlib import Path
 import control as ct
 import numpy as np
 
-from blocks import __version__
-from blocks import forward_kinematics, load_scenario
-from blocks.scenario import Scenario
+from blocks import __version__, forward_kinematics, load_scenario
 from blocks.gains import validated_gain
-from . import analysis_figures as figs
-from .digital import DigitalAnalysis, digital_analysis
-from .digital_figures import digital_figures
-from .bandwidth import BandwidthSurvey, along_trajectory, bandwidth_survey, observer_modes, workspace_grid
-from .frequency import FrequencyAnalysis, frequency_analysis
-from .gain_design import (ObserverDesign, confirm_by_simulation, convergence_certificate, critical_speed,
-                          design_observer_gain)
-from .linear import (MismatchLoop, MismatchStudy, OperatingPoint, mismatch_sweep, operating_point_analysis,
-                     stability_boundaries)
 from blocks.metrics import signal
 from blocks.outputs import staged_output
 from blocks.progress import ProgressCallback as Progress
+from blocks.scenario import Scenario
+
+from . import analysis_figures as figs
+from .bandwidth import BandwidthSurvey, along_trajectory, bandwidth_survey, observer_modes, workspace_grid
+from .digital import DigitalAnalysis, digital_analysis
+from .digital_figures import digital_figures
+from .frequency import FrequencyAnalysis, frequency_analysis
+from .gain_design import (
+    ObserverDesign,
+    confirm_by_simulation,
+    convergence_certificate,
+    critical_speed,
+    design_observer_gain,
+)
+from .linear import (
+    MismatchLoop,
+    MismatchStudy,
+    OperatingPoint,
+    mismatch_sweep,
+    operating_point_analysis,
+    stability_boundaries,
+)
 from .report_html import render_html
 from .report_view import plain_summary
 from .results import JsonResult, omitted_if_none, strict_json
@@ -388,7 +399,6 @@ def write_report(scenario: Scenario | str = "paper", out_dir=None, settings: Ana
     """
     from .experiment import run_experiment
     from .figures import paper_figures
-
     from .sweep_report import html_section
 
     s = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)

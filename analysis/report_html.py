@@ -15,6 +15,7 @@ import functools
 import jinja2
 
 from blocks.scenario import Scenario
+
 from .report_view import build_view
 
 __all__ = ["render_html", "template_environment"]

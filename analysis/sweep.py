@@ -75,8 +75,8 @@ import numpy as np
 
 from blocks.batch import BATCH_KEYS, METRICS, Variants, auto_substeps, fastest_rate
 from blocks.batch.schedule import STEP_LAMBDA, STEPS_PER_PHASE, TISSUE_STEP
-from blocks.metrics import OBSERVER_METRICS
 from blocks.budget import Budget, BudgetError, Estimate, estimate_batch, format_bytes, schedule_steps
+from blocks.metrics import OBSERVER_METRICS
 from blocks.progress import count_progress
 from blocks.scenario import Scenario, ScenarioError, load_scenario, parse_key
 

@@ -44,6 +44,7 @@ import numpy as np
 from blocks.joints import RRPR_JOINTS
 from blocks.metrics import DISTURBANCE_UNITS, JOINT_UNITS
 from blocks.parameters import RobotParameters
+
 from .report_html import template_environment
 from .results import JsonResult, plain
 from .sweep import SweepError, SweepSpec, differences
@@ -282,7 +283,7 @@ class SweepSummary(JsonResult):
         return {f.name: worst if f.name == "worst" else plain(getattr(self, f.name)) for f in dataclasses.fields(self)}
 
     @classmethod
-    def from_dict(cls, data: dict, where: str | None = None) -> "SweepSummary":
+    def from_dict(cls, data: dict, where: str | None = None) -> SweepSummary:
         """Read back from :meth:`as_dict`'s form."""
         metric = data.get("worst_metric")
         worst = [WorstRun(run_id=w["run_id"], index=w["index"], values=w["values"],

@@ -40,11 +40,11 @@ import signal
 import socket
 import threading
 import time
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
-from typing import Callable, Iterable, Iterator
 
 import numpy as np
 
@@ -53,6 +53,7 @@ from blocks.budget import Budget, BudgetError, largest_batch
 from blocks.progress import ProgressCallback, count_progress
 from blocks.scenario import Scenario, scenario_from_dict
 from blocks.workers import worker_pool
+
 from .sweep import SweepError, SweepSpec, differences, json_default, load_sweep, run_schedule, split_changes
 
 __all__ = ["run_sweep", "read_results", "read_header", "ResultsFile", "SweepOutcome", "simulate_chunk",

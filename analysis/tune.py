@@ -64,16 +64,18 @@ import hashlib
 import json
 import math
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from blocks.batch import BATCH_KEYS
 from blocks.budget import Budget
 from blocks.scenario import Scenario, ScenarioError, load_scenario, parse_key
+
 from .studies import DEFAULT_NOISE
 from .sweep import SweepError, check_name, json_default, split_changes, sweep_from_dict
 
@@ -574,8 +576,9 @@ def _limits(table: dict, base: Scenario, fail) -> Limits:
     budget = table["torque_noise_rms"]
     source = "base" if budget == "base" else "given"
     if budget == "base":
-        from .tune_linear import torque_noise_rms
         from blocks import inertia
+
+        from .tune_linear import torque_noise_rms
         q0 = np.asarray(base.trajectory.evaluate(0.0)[0], dtype=float)
         budget = torque_noise_rms(inertia(q0, base.robot), inertia(q0, base.nominal), base.kp, base.kd,
                                   base.observer_gain, sensor["q_std"], sensor["dq_std"], sensor["sample_period"])

@@ -27,8 +27,8 @@ from __future__ import annotations
 import json
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -36,6 +36,7 @@ from blocks import inertia
 from blocks.batch import Variants, auto_substeps, simulate_batch
 from blocks.batch.schedule import rates_by_source
 from blocks.budget import Budget, BudgetError, Estimate, estimate_batch, largest_batch
+
 from .sweep import json_default, run_schedule
 from .tune import TuneSpec
 from .tune_linear import inertia_pairs, spectral_abscissas, torque_noise_rms

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from blocks.joints import RRPR_JOINTS
+
 from .report_html import template_environment
 from .tune import METRIC_WORDS, TuneError
 
@@ -109,7 +110,7 @@ def _robustness(result, folder: Path, words: str) -> tuple[str, str]:
         if hi <= lo:
             lo, hi = lo * 0.95, hi * 1.05 + 1e-12
         edges = np.linspace(lo, hi, max(6, min(30, 2 * int(math.sqrt(result.runs))) + 1))
-        for (label, point, color), d in zip(sets, data):
+        for (label, _, color), d in zip(sets, data):
             d = d[np.isfinite(d)]
             if d.size:
                 ax.hist(d, bins=edges, color=color, alpha=0.55, label=f"{label}: worst {d.max():.3g}, "

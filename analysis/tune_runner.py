@@ -62,6 +62,7 @@ from scipy.stats import qmc
 from blocks.batch import simulate_batch
 from blocks.budget import Budget
 from blocks.progress import ProgressCallback, StageProgress
+
 from .results import JsonResult
 from .sweep import SweepError, json_default
 from .sweep_runner import _atomic_write_lines, _move_aside, _repair, results_lock

@@ -7,7 +7,7 @@ import resource
 import statistics
 import time
 import tracemalloc
-from typing import Callable
+from collections.abc import Callable
 
 
 def time_interleaved(cases: dict[str, Callable[[], object]], repeats: int,
@@ -54,10 +54,11 @@ def summary(values: list[float]) -> tuple[float, float]:
 
 def machine() -> str:
     """One line naming the machine and the library versions."""
+    import os
+
     import control
     import numpy
     import scipy
-    import os
     return (f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, "
             f"numpy {numpy.__version__}, scipy {scipy.__version__}, python-control {control.__version__}")
 

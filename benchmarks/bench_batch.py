@@ -29,7 +29,7 @@ import blocks
 from blocks.batch import Variants, simulate_batch
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))     # _timing, run from anywhere
-from _timing import print_and_save, machine, max_rss_mb, peak_memory, table, time_interleaved  # noqa: E402
+from _timing import machine, max_rss_mb, peak_memory, print_and_save, table, time_interleaved  # noqa: E402
 from bench_fastpath import hand_fused  # noqa: E402
 
 #: Target: 1000 variants, all metrics, both cores, in at most this many lean-baseline runs (issue 10).

@@ -40,7 +40,7 @@ from scipy.integrate import solve_ivp
 import blocks
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))     # _timing, run from anywhere
-from _timing import print_and_save, machine, max_rss_mb, peak_memory, summary, table, time_interleaved  # noqa: E402
+from _timing import machine, max_rss_mb, peak_memory, print_and_save, summary, table, time_interleaved  # noqa: E402
 
 #: The fast path's target, as a multiple of the hand-fused time (issue 10).
 TARGET_RATIO = 1.3
@@ -175,8 +175,8 @@ def run(scenario: str = "paper", repeats: int = 9, pc_repeats: int = 3) -> dict:
 def _cached_start(scenario: str) -> float:
     """Seconds of a first compiled run in a new process whose code is in numba's cache (imports excluded)."""
     import subprocess
-    code = ("import time, blocks; s = blocks.load_scenario(%r); t0 = time.perf_counter(); "
-            "blocks.simulate(s, engine='compiled'); print(time.perf_counter() - t0)" % scenario)
+    code = (f"import time, blocks; s = blocks.load_scenario({scenario!r}); t0 = time.perf_counter(); "
+            "blocks.simulate(s, engine='compiled'); print(time.perf_counter() - t0)")
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     return float(run.stdout.strip().splitlines()[-1]) if run.returncode == 0 else float("nan")

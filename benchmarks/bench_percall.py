@@ -29,8 +29,8 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from bench_fastpath import hand_fused_rhs  # noqa: E402
 from _timing import table  # noqa: E402
+from bench_fastpath import hand_fused_rhs  # noqa: E402
 
 import blocks  # noqa: E402
 from blocks.fastsim import CompiledLoop  # noqa: E402

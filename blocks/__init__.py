@@ -16,8 +16,15 @@ from importlib.metadata import PackageNotFoundError, version
 
 from .contract import Block, BlockContract, ContractError, Kernels, contract_of, kernel_block
 from .disturbances import DisturbanceSpec, external_disturbance
-from .dynamics import (coriolis_matrix, coriolis_vector, forward_dynamics, gravity, inertia, inverse_dynamics,
-                       kinetic_energy)
+from .dynamics import (
+    coriolis_matrix,
+    coriolis_vector,
+    forward_dynamics,
+    gravity,
+    inertia,
+    inverse_dynamics,
+    kinetic_energy,
+)
 from .gains import GainError, validated_gain
 from .joints import RRPR_JOINTS, JointSpace
 from .kinematics import UnreachableError, forward_kinematics, inverse_kinematics, jacobian

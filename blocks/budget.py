@@ -22,8 +22,8 @@ from __future__ import annotations
 import math
 import os
 import re
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
-from typing import Mapping
 
 __all__ = ["Budget", "BudgetError", "Estimate", "estimate_batch", "largest_batch", "schedule_steps", "parse_size",
            "format_bytes", "DEFAULT_MEMORY", "DEFAULT_STEPS", "ENVIRONMENT", "STEP_BYTES", "MEMBER_BYTES",
@@ -69,7 +69,7 @@ class BudgetError(ValueError):
         Which budget is exceeded: ``"memory"``, ``"steps"`` or ``"seconds"``.
     """
 
-    def __init__(self, message: str, estimate: "Estimate | None" = None, key: str = "", limit: str = "") -> None:
+    def __init__(self, message: str, estimate: Estimate | None = None, key: str = "", limit: str = "") -> None:
         super().__init__(message)
         self.estimate, self.key, self.limit = estimate, key, limit
 
@@ -159,7 +159,7 @@ class Budget:
 
     @classmethod
     def from_env(cls, environ: Mapping[str, str] | None = None, *, memory=None, steps=None,
-                 seconds=None) -> "Budget":
+                 seconds=None) -> Budget:
         """The budget from explicit values (flags), else the :data:`ENVIRONMENT` variables, else the defaults.
 
         Raises
@@ -184,11 +184,11 @@ class Budget:
                 raise ValueError(f"{source}{err}") from None
         return cls(**values)
 
-    def share(self, parts: int) -> "Budget":
+    def share(self, parts: int) -> Budget:
         """The budget of one of ``parts`` jobs that run at the same time (memory divided)."""
         return replace(self, memory=max(1, self.memory // max(1, int(parts))))
 
-    def check(self, estimate: "Estimate", what: str) -> None:
+    def check(self, estimate: Estimate, what: str) -> None:
         """Raise :class:`BudgetError` when ``estimate`` exceeds this budget; ``what`` names the job in the message."""
         if estimate.steps > self.steps:
             key = f"; set by '{estimate.steps_key}'" if estimate.steps_key else ""

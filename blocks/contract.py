@@ -22,8 +22,8 @@ nothing else promised.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Callable, Mapping
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 
 import control as ct
 
@@ -103,7 +103,7 @@ class BlockContract:
         """Whether the block's outputs can be evaluated for many columns in one call."""
         return self.columnwise or (self.kernels is not None and self.kernels.output is not None)
 
-    def check(self, system) -> "BlockContract":
+    def check(self, system) -> BlockContract:
         """Raise :class:`ContractError` unless every name refers to a signal of ``system``; return self."""
         inputs, outputs = list(system.input_labels), list(system.output_labels)
         states = list(system.state_labels)
@@ -144,7 +144,7 @@ class Block(ct.NonlinearIOSystem):
         super().__init__(updfcn, outfcn, **kwargs)
         self.contract = contract.check(self)
 
-    def __enter__(self) -> "Block":
+    def __enter__(self) -> Block:
         return self
 
     def __exit__(self, *exc) -> None:

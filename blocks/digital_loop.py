@@ -7,13 +7,20 @@ observer are sampled at ``controller.sample_rate``.  See
 """
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import control as ct
 import numpy as np
 
-from .digital import (DigitalController, actuator, digital_controller, digital_observer, encoder,
-                      euler_stability_limit, quantized)
+from .digital import (
+    DigitalController,
+    actuator,
+    digital_controller,
+    digital_observer,
+    encoder,
+    euler_stability_limit,
+    quantized,
+)
 from .hybrid import HybridSystem
 from .kernels import arm_constants
 from .kernels import lumped_disturbance as lumped_disturbance_rows

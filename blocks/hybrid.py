@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import copy
 import math
-from typing import Callable
+from collections.abc import Callable
 
 import control as ct
 import numpy as np

@@ -14,7 +14,7 @@ paper scenario's fast run, for a check that costs 2 microseconds here.
 from __future__ import annotations
 
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import scipy.integrate

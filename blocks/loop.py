@@ -31,17 +31,17 @@ from __future__ import annotations
 
 import warnings
 from collections import OrderedDict
-from typing import Callable
+from collections.abc import Callable
 
 import control as ct
 import numpy as np
 
-from .kernels import arm_constants
-from .kernels import lumped_disturbance as lumped_disturbance_rows
-from .fastsim import CompiledLoop
-from .integrate import DivergenceError, SolverFailure, integrate_on_grid
 from .budget import Budget
 from .divergence import state_bounds
+from .fastsim import CompiledLoop
+from .integrate import DivergenceError, SolverFailure, integrate_on_grid
+from .kernels import arm_constants
+from .kernels import lumped_disturbance as lumped_disturbance_rows
 from .run_limits import estimate_run, solver_limits
 from .scenario import Scenario, load_scenario
 from .systems import controller, plant, sensor, signal_names, trajectory_block

@@ -137,7 +137,7 @@ class RobotParameters:
         k3 = self.I2 + self.I3 + self.I4 + self.m2 * self.l2 ** 2 + 4 * self.l2 ** 2 * m34
         return InertiaConstants(k1=k1, k2=k2, k3=k3, k4=m34, k5=self.I4, g=self.g)
 
-    def scaled(self, **scales: float) -> "RobotParameters":
+    def scaled(self, **scales: float) -> RobotParameters:
         """Return a copy with named parameters multiplied by the given factors.
 
         Examples

@@ -18,7 +18,8 @@ from __future__ import annotations
 import math
 import sys
 import time
-from typing import Callable, Protocol
+from collections.abc import Callable
+from typing import Protocol
 
 from tqdm import tqdm
 
@@ -97,7 +98,7 @@ class StageProgress:
         """End the current stage (``failed``: it did not complete)."""
         self._end(failed)
 
-    def __enter__(self) -> "StageProgress":
+    def __enter__(self) -> StageProgress:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:

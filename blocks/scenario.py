@@ -254,7 +254,7 @@ class Scenario:
         # through the constructor, so that a copy or an unpickled scenario is read-only too
         return Scenario, tuple(getattr(self, f.name) for f in dataclasses.fields(self))
 
-    def with_changes(self, changes: Mapping[str, Any]) -> "Scenario":
+    def with_changes(self, changes: Mapping[str, Any]) -> Scenario:
         """A new scenario with some values changed by dotted key, validated like a file.
 
         Parameters
@@ -304,7 +304,7 @@ class Scenario:
                 data[section] = _plain(value)
         return scenario_from_dict(data, source=self.source)
 
-    def replace(self, **sections) -> "Scenario":
+    def replace(self, **sections) -> Scenario:
         """:meth:`with_changes` written by section: ``replace(gains={"kp": 100})`` is
         ``with_changes({"gains.kp": 100})``; ``name=`` and ``description=`` set those."""
         changes: dict[str, Any] = {}

@@ -23,8 +23,15 @@ import numpy as np
 from .contract import Block, BlockContract, Kernels, kernel_block
 from .disturbances import DisturbanceSpec
 from .gains import OBSERVER_VARIANTS, validated_gain
-from .kernels import (arm_constants, computed_torque, disturbance_params, external_disturbance, observer_estimate,
-                      observer_rate, plant_acceleration)
+from .kernels import (
+    arm_constants,
+    computed_torque,
+    disturbance_params,
+    external_disturbance,
+    observer_estimate,
+    observer_rate,
+    plant_acceleration,
+)
 from .kernels.noise import sampled_noise
 from .noise import MeasurementNoise
 from .parameters import RobotParameters

@@ -66,9 +66,9 @@ def _settings(args):
 
 
 def _cmd_analyze(args) -> int:
+    from analysis.report import analyze
     from blocks import load_scenario
     from blocks.outputs import default_out_dir
-    from analysis.report import analyze
 
     scenario = load_scenario(args.scenario)
     out = args.out if args.out is not None else default_out_dir(ANALYSIS_PREFIX)
@@ -87,9 +87,9 @@ def _cmd_analyze(args) -> int:
 
 
 def _cmd_report(args) -> int:
+    from analysis.report import write_report
     from blocks import load_scenario
     from blocks.outputs import default_out_dir
-    from analysis.report import write_report
 
     scenario = load_scenario(args.scenario)
     out = args.out if args.out is not None else default_out_dir(REPORT_PREFIX)

@@ -38,9 +38,20 @@ from .check import check_fmu
 from .convergence import cosim_convergence
 from .cosim import controller_side, cosimulate
 from .description import require_variables
-from .errors import (BudgetError, CoSimulationError, FMUArchiveError, FMUBuildError, FMUError, FMUInstantiationError,
-                     FMUMissingVariablesError, FMUModelDescriptionError, FMUPlatformError, FMUStepError,
-                     FMUUnsupportedError, FMUVersionError)
+from .errors import (
+                     BudgetError,
+                     CoSimulationError,
+                     FMUArchiveError,
+                     FMUBuildError,
+                     FMUError,
+                     FMUInstantiationError,
+                     FMUMissingVariablesError,
+                     FMUModelDescriptionError,
+                     FMUPlatformError,
+                     FMUStepError,
+                     FMUUnsupportedError,
+                     FMUVersionError,
+)
 from .export import MODEL_IDENTIFIER, export_plant
 from .instance import FMUInstance
 from .master import cosimulate_system

@@ -208,7 +208,7 @@ class ExtractedFMU:
         """True once the folder has been removed."""
         return not self._finalizer.alive
 
-    def __enter__(self) -> "ExtractedFMU":
+    def __enter__(self) -> ExtractedFMU:
         return self
 
     def __exit__(self, *exc) -> None:

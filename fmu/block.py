@@ -241,6 +241,7 @@ def load(path, name: str = "plant", start_values: dict | None = None, start_time
 def _scenario_start_values(extracted, scenario) -> dict:
     """The scenario's true-plant parameters and start state, for an FMU with the plant's signals."""
     from blocks.scenario import Scenario, load_scenario  # the scenario machinery only when asked for
+
     from .scenario_values import JOINTS, plant_start_values
     s = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     md = described(extracted)

@@ -73,7 +73,7 @@ class Budget:
                               f"{self.max_steps:.3g} steps (max_steps; command line --max-steps); choose a larger "
                               f"step or a shorter time, or raise the budget")
 
-    def deadline(self, what: str) -> "Deadline":
+    def deadline(self, what: str) -> Deadline:
         """A wall-time deadline starting now."""
         return Deadline(self.max_wall_time, what)
 

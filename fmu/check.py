@@ -38,14 +38,21 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from blocks.control_compat import fast_dynamics, fast_output
+
 from .archive import ExtractionLimits, extract_fmu
 from .block import load
 from .budget import DEFAULT_BUDGET, Budget, Deadline, counted
 from .description import described, offered_interfaces, read_description, real_variables, unsupported_features
 from .errors import BudgetError, FMUError, FMUModelDescriptionError
 from .instance import FMUInstance
-from .plant_check import (CHECK_INITIAL_STATE, check_torque, compare_co_simulation, compare_model_exchange,
-                          plant_from_description, worst)
+from .plant_check import (
+    CHECK_INITIAL_STATE,
+    check_torque,
+    compare_co_simulation,
+    compare_model_exchange,
+    plant_from_description,
+    worst,
+)
 
 __all__ = ["check_fmu", "check_torque", "plant_from_description", "CHECK_INITIAL_STATE", "NAMING_FINDING"]
 

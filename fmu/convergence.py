@@ -17,15 +17,16 @@ different units do not matter), and per joint.
 """
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
+from blocks.joints import RRPR_JOINTS
 from blocks.scenario import Scenario, load_scenario
+
 from .archive import ExtractionLimits, open_extracted
 from .budget import DEFAULT_BUDGET, Budget
 from .master import CoSimulationError, validated_time
-from blocks.joints import RRPR_JOINTS
 
 __all__ = ["cosim_convergence", "fit_order", "DEFAULT_STEPS", "REFERENCE"]
 
@@ -137,6 +138,7 @@ def cosim_convergence(fmu_path, scenario: Scenario | str = "paper", steps=DEFAUL
         If fewer than two steps are given or the steps do not share a grid.
     """
     from blocks.loop import simulate
+
     from .cosim import cosimulate
 
     steps = sorted({float(h) for h in steps})

@@ -34,13 +34,15 @@ and the figures work on it unchanged.
 """
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import control as ct
 import numpy as np
 
+from blocks.joints import RRPR_JOINTS
 from blocks.loop import LOOP_SIGNALS, build_blocks, initial_state, lumped_disturbance
 from blocks.scenario import Scenario, load_scenario
+
 from .archive import ExtractionLimits, open_extracted
 from .budget import DEFAULT_BUDGET, Budget
 from .cosim_sampled import cosimulate_sampled
@@ -48,7 +50,6 @@ from .coupling import COUPLINGS
 from .description import described, require_variables
 from .master import CoSimulationError, cosimulate_system, validated_step, validated_time
 from .scenario_values import plant_start_values
-from blocks.joints import RRPR_JOINTS
 
 __all__ = ["cosimulate", "controller_side", "CoSimulationError"]
 

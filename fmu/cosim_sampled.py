@@ -13,7 +13,7 @@ by the FMU's own integration error over each step (its RK4 sub-steps).
 """
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import control as ct
 import numpy as np
@@ -23,6 +23,7 @@ from blocks.kernels import arm_constants
 from blocks.kernels import lumped_disturbance as lumped_disturbance_rows
 from blocks.scenario import Scenario
 from blocks.systems import signal_names
+
 from .budget import DEFAULT_BUDGET, Budget
 from .errors import FMUMissingVariablesError
 from .instance import FMUInstance

@@ -32,6 +32,7 @@ from pathlib import Path
 
 from blocks.disturbances import DisturbanceSpec
 from blocks.parameters import RobotParameters
+
 from .build import COMPILE_FLAGS, platform_folder, shared_library_suffix
 from .modeldescription import build_description_xml, model_description_xml
 from .package import package_fmu

@@ -32,7 +32,7 @@ import numpy as np
 
 from . import logger
 from .archive import ExtractedFMU, ExtractionLimits, open_extracted
-from .description import binary_path, described, fmi_major, intermediate_update_names, interface, unsupported_features
+from .description import binary_path, described, fmi_major, interface, intermediate_update_names, unsupported_features
 from .errors import FMUError, FMUInstantiationError, FMUModelDescriptionError, FMUStepError, FMUUnsupportedError
 from .logger import STATUS_NAMES, status_name
 
@@ -485,7 +485,7 @@ class FMUInstance:
         """True once :meth:`close` has run."""
         return not self._finalizer.alive
 
-    def __enter__(self) -> "FMUInstance":
+    def __enter__(self) -> FMUInstance:
         return self
 
     def __exit__(self, *exc) -> None:

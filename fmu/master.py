@@ -35,13 +35,14 @@ is returned.  The number of steps is checked against a
 from __future__ import annotations
 
 import math
-from typing import Callable
+from collections.abc import Callable
 
 import control as ct
 import numpy as np
 
 from blocks.control_compat import fast_dynamics, fast_output
 from blocks.fastsim import CompiledLoop
+
 from .archive import ExtractionLimits
 from .block import output_feedthrough
 from .budget import DEFAULT_BUDGET, Budget

@@ -21,6 +21,7 @@ from blocks.disturbances import DISTURBANCE_KINDS, DisturbanceSpec
 from blocks.joints import RRPR_JOINTS
 from blocks.parameters import RobotParameters
 from blocks.systems import plant as python_plant
+
 from .block import load
 from .budget import Budget, Deadline, counted
 from .errors import FMUError

@@ -8,9 +8,10 @@ from __future__ import annotations
 
 import warnings
 
-from blocks.scenario import Scenario
-from .variables import plant_parameter_values
 from blocks.joints import RRPR_JOINTS
+from blocks.scenario import Scenario
+
+from .variables import plant_parameter_values
 
 __all__ = ["plant_start_values", "JOINTS"]
 

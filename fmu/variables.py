@@ -23,8 +23,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from blocks.disturbances import DisturbanceSpec
-from blocks.parameters import RobotParameters
 from blocks.joints import RRPR_JOINTS
+from blocks.parameters import RobotParameters
 
 __all__ = ["Variable", "UNITS", "plant_variables", "plant_parameter_values", "config_header", "JOINT_UNITS"]
 

@@ -9,8 +9,13 @@ import numpy as np
 import pytest
 
 import blocks
-from analysis.digital import (digital_analysis, linear_sampled_loop, observer_gain_limit, quantization_torque_noise,
-                              sampled_poles)
+from analysis.digital import (
+    digital_analysis,
+    linear_sampled_loop,
+    observer_gain_limit,
+    quantization_torque_noise,
+    sampled_poles,
+)
 from analysis.digital_figures import digital_figures
 
 Q0 = np.array([0.3, 1.2, 0.1, 0.2])

@@ -11,8 +11,8 @@ import math
 
 import numpy as np
 import pytest
-
 from conftest import PAPER_K, make_scenario, reference_inertia
+
 from analysis import bandwidth, gain_design
 
 

@@ -21,18 +21,25 @@ from html.parser import HTMLParser
 import control as ct
 import numpy as np
 import pytest
+from conftest import PAPER_FR, reference_inertia
+from conftest import SHORT_SCENARIO_TOML as SHORT
 
-from conftest import PAPER_FR, SHORT_SCENARIO_TOML as SHORT, reference_inertia
-from dobkit import analysis_commands as analysis_cli
 from analysis import gain_design
 from analysis.bandwidth import workspace_grid
 from analysis.experiment import run_experiment
-from analysis.report import (AnalysisResult, AnalysisSettings, experiment_metrics, json_text, render_html,
-                             run_analysis, write_report)
+from analysis.report import (
+    AnalysisResult,
+    AnalysisSettings,
+    experiment_metrics,
+    json_text,
+    render_html,
+    run_analysis,
+    write_report,
+)
 from analysis.report_view import worse_with_observer
 from blocks import builtin_scenarios, load_scenario
+from dobkit import analysis_commands as analysis_cli
 from dobkit.cli import main
-
 
 # Small grids and short runs: every analysis, in seconds.
 TINY = AnalysisSettings(mismatch_factors=(0.5, 2.0), boundary_points=5, workspace_points=(2, 13, 1, 2),
@@ -487,8 +494,9 @@ def test_the_observer_reading_compares_every_gain_tried(report_data):
 
 
 def test_settling_time_has_one_wording_in_the_readme_and_the_report(report_data):
-    from analysis.studies import settling_definition
     from test_readme import README
+
+    from analysis.studies import settling_definition
     page, _, _ = report_data
     definition = settling_definition()
     assert definition in " ".join(README.read_text(encoding="utf-8").split())      # line breaks aside

@@ -17,8 +17,8 @@ import math
 import numpy as np
 import pytest
 import scipy.signal
-
 from conftest import PAPER_FR, PAPER_K, hold_trajectory, make_scenario
+
 from analysis import studies
 from blocks import MeasurementNoise
 

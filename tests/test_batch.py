@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 import blocks
-from blocks.metrics import signal, tracking_metrics
 from blocks import batch
 from blocks.batch import Variants, simulate_batch, step_schedule
+from blocks.metrics import signal, tracking_metrics
 from blocks.scenario import ScenarioError
 
 # The paper scenario cut at 2 s: the first fifth of the paper's 10 s path, at its speed.

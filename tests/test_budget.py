@@ -9,8 +9,17 @@ import pytest
 
 import blocks
 from blocks.batch import Variants, simulate_batch, step_schedule
-from blocks.budget import (DEFAULT_MEMORY, DEFAULT_STEPS, Budget, BudgetError, estimate_batch, format_bytes,
-                           largest_batch, parse_size, schedule_steps)
+from blocks.budget import (
+    DEFAULT_MEMORY,
+    DEFAULT_STEPS,
+    Budget,
+    BudgetError,
+    estimate_batch,
+    format_bytes,
+    largest_batch,
+    parse_size,
+    schedule_steps,
+)
 
 
 @pytest.mark.parametrize("text, size", [("4G", 4 * 1024 ** 3), ("4GiB", 4 * 1024 ** 3), ("512M", 512 * 1024 ** 2),

@@ -6,8 +6,8 @@ import re
 
 import numpy as np
 import pytest
-
 from conftest import SHORT_SCENARIO_TOML as SHORT
+
 from analysis.sweep import load_sweep
 from analysis.sweep_runner import run_sweep
 from blocks import load_scenario, progress

@@ -9,13 +9,12 @@ import textwrap
 
 import numpy as np
 import pytest
+from conftest import hold_trajectory, make_scenario
 
 import blocks
 from blocks.batch import STATE_ATOL, Variants, simulate_batch
 from blocks.fastsim import CompiledLoop
 from blocks.metrics import METRICS, OBSERVER_METRICS, tracking_metrics
-
-from conftest import hold_trajectory, make_scenario
 
 numba = pytest.importorskip("numba", reason="the compiled engine needs the extra dobkit[fast]")
 

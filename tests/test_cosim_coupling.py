@@ -12,11 +12,11 @@ from __future__ import annotations
 import control as ct
 import numpy as np
 import pytest
-
 from conftest import make_scenario
-from blocks.fastsim import CompiledLoop
-from fmu import BudgetError, Budget, CoSimulationError, controller_side, cosimulate, cosimulate_system, export_plant
 from fmu_models import build
+
+from blocks.fastsim import CompiledLoop
+from fmu import Budget, BudgetError, CoSimulationError, controller_side, cosimulate, cosimulate_system, export_plant
 
 pytestmark = pytest.mark.needs_cc
 

@@ -1,17 +1,33 @@
 """Parameters, rigid-body dynamics, energy and the disturbance models, against independent values."""
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
+from conftest import (
+    PAPER_FR,
+    PAPER_G,
+    PAPER_K,
+    PAPER_S1,
+    PAPER_S2,
+    SKIN_DEFAULT,
+    fd_jacobian,
+    reference_fk,
+    reference_inertia,
+)
 from scipy.integrate import solve_ivp
 
-from conftest import (PAPER_FR, PAPER_G, PAPER_K, PAPER_S1, PAPER_S2, SKIN_DEFAULT, fd_jacobian, reference_fk,
-                      reference_inertia)
 from blocks import DisturbanceSpec, ParameterError, RobotParameters, plant
 from blocks.disturbances import external_disturbance, friction_disturbance, tissue_disturbance
-from blocks.dynamics import (coriolis_matrix, coriolis_vector, forward_dynamics, gravity, inertia,
-                                    inverse_dynamics, kinetic_energy, potential_energy)
+from blocks.dynamics import (
+    coriolis_matrix,
+    coriolis_vector,
+    forward_dynamics,
+    gravity,
+    inertia,
+    inverse_dynamics,
+    kinetic_energy,
+    potential_energy,
+)
 
 THETA2 = np.linspace(0.0, 2 * np.pi, 73)
 

@@ -17,12 +17,29 @@ import control as ct
 import fmpy
 import numpy as np
 import pytest
-
 from conftest import make_scenario
-from fmu import (CoSimulationError, ExtractionLimits, FMUArchiveError, FMUError, FMUInstance,
-                        FMUInstantiationError, FMUMissingVariablesError, FMUModelDescriptionError, FMUPlatformError,
-                        FMUStepError, FMUUnsupportedError, FMUVersionError, check_fmu, cosimulate, cosimulate_system,
-                        export_plant, extract_fmu, load, require_variables)
+
+from fmu import (
+    CoSimulationError,
+    ExtractionLimits,
+    FMUArchiveError,
+    FMUError,
+    FMUInstance,
+    FMUInstantiationError,
+    FMUMissingVariablesError,
+    FMUModelDescriptionError,
+    FMUPlatformError,
+    FMUStepError,
+    FMUUnsupportedError,
+    FMUVersionError,
+    check_fmu,
+    cosimulate,
+    cosimulate_system,
+    export_plant,
+    extract_fmu,
+    load,
+    require_variables,
+)
 from fmu.package import package_fmu
 
 LAG_DIR = Path(__file__).parent / "fmu_lag"

@@ -14,8 +14,8 @@ from pathlib import Path
 import control as ct
 import numpy as np
 import pytest
-
 from conftest import make_scenario
+
 import blocks
 from blocks.metrics import tracking_metrics
 from dobkit.cli import main as dobkit_main

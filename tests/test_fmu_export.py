@@ -14,11 +14,11 @@ from pathlib import Path
 import fmpy
 import numpy as np
 import pytest
+from conftest import PAPER_FR, PAPER_G, PAPER_K
 from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 from scipy.integrate import solve_ivp
 
-from conftest import PAPER_FR, PAPER_G, PAPER_K
 from blocks.disturbances import DisturbanceSpec
 from blocks.parameters import RobotParameters
 from blocks.systems import plant as python_plant

@@ -16,14 +16,24 @@ from pathlib import Path
 import control as ct
 import numpy as np
 import pytest
+from fmu_models import build
 from scipy.integrate import solve_ivp
 
 from blocks.fastsim import CompiledLoop
 from dobkit.cli import main as dobkit_main
-from fmu import (BudgetError, ExtractionLimits, FMUArchiveError, FMUModelDescriptionError,
-                 FMUStepError, FMUVersionError, check_fmu, export_plant, extract_fmu, load)
+from fmu import (
+    BudgetError,
+    ExtractionLimits,
+    FMUArchiveError,
+    FMUModelDescriptionError,
+    FMUStepError,
+    FMUVersionError,
+    check_fmu,
+    export_plant,
+    extract_fmu,
+    load,
+)
 from fmu.archive import remove_stale_extractions
-from fmu_models import build
 
 pytestmark = pytest.mark.needs_cc
 

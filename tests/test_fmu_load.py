@@ -11,8 +11,8 @@ from pathlib import Path
 import control as ct
 import numpy as np
 import pytest
-
 from conftest import make_scenario
+
 import blocks
 from blocks.contract import contract_of
 from blocks.disturbances import DisturbanceSpec

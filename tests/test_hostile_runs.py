@@ -2,18 +2,15 @@
 output folders that are checked before the work and never mixed (docs/hostile-inputs.md, "Single runs")."""
 from __future__ import annotations
 
-import math
 import os
-import threading
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 import blocks
+from blocks.budget import BudgetError
 from blocks.metrics import signal
 from blocks.outputs import staged_output
-from blocks.budget import BudgetError
 from blocks.scenario import ScenarioError
 
 PAPER = blocks.load_scenario("paper")

@@ -3,11 +3,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from conftest import fd_jacobian, reference_fk
+
 from blocks import RobotParameters, UnreachableError
-from blocks.kinematics import (forward_kinematics, inverse_kinematics, jacobian, jacobian_derivative_times_dq,
-                                      planar_reach)
+from blocks.kinematics import (
+    forward_kinematics,
+    inverse_kinematics,
+    jacobian,
+    jacobian_derivative_times_dq,
+    planar_reach,
+)
 
 # Unequal, non-paper kinematic lengths catch a swapped a1/a2 or l/a mix-up.
 ODD = RobotParameters(a1=0.45, a2=0.25, d1=0.15, d4=0.3)

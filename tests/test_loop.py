@@ -9,10 +9,18 @@ import re
 
 import numpy as np
 import pytest
+from conftest import (
+    PAPER_FR,
+    PAPER_K,
+    PAPER_KP,
+    hold_trajectory,
+    joint_signal,
+    make_scenario,
+    paper_toml_dict,
+    reference_inertia,
+)
 from scipy.linalg import expm
 
-from conftest import PAPER_FR, PAPER_K, PAPER_KP, hold_trajectory, joint_signal, make_scenario
-from conftest import paper_toml_dict, reference_inertia
 from blocks import SimulationError, closed_loop, initial_state, simulate
 
 HOLD_Q = np.array([0.3, 2.0, 0.24, 0.1])

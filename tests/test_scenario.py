@@ -6,11 +6,18 @@ import dataclasses
 
 import numpy as np
 import pytest
-
 from conftest import PAPER_FR, PAPER_KD, PAPER_KP, PAPER_Y, paper_toml_dict
+
+from blocks import (
+    JointSine,
+    LacerationPath,
+    Scenario,
+    ScenarioError,
+    builtin_scenarios,
+    load_scenario,
+    scenario_from_dict,
+)
 from blocks.digital import DigitalController
-from blocks import (JointSine, LacerationPath, Scenario, ScenarioError, builtin_scenarios, load_scenario,
-                    scenario_from_dict)
 
 
 @pytest.fixture(scope="module")

@@ -7,13 +7,13 @@ from importlib import resources
 
 import numpy as np
 import pytest
+from conftest import PAPER_FR, paper_toml_dict
 
 import blocks.scenario
 from analysis.experiment import run_experiment
 from blocks import ScenarioError, load_scenario, scenario_from_dict
 from blocks.batch import Variants
 from blocks.noise import MeasurementNoise
-from conftest import PAPER_FR, paper_toml_dict
 
 
 def test_derived_defaults_follow_a_replaced_key():

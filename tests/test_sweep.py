@@ -12,16 +12,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import PAPER_FR
 
 import blocks
 from analysis import sweep
 from analysis.sweep import SweepError, load_sweep, sweep_from_dict
-from analysis.sweep_runner import read_results, run_sweep
-from dobkit.sweep_commands import add_sweep_subcommand
 from analysis.sweep_report import html_section, summarize, write_summary
+from analysis.sweep_runner import read_results, run_sweep
 from blocks.batch import METRIC_ATOL, METRIC_RTOL, simulate_batch
-from conftest import PAPER_FR
 from blocks.progress import CountProgress
+from dobkit.sweep_commands import add_sweep_subcommand
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from conftest import SKIN_DEFAULT, reference_fk
+
 import blocks
 from blocks import JointSine, LacerationPath, RobotParameters, UnreachableError
 

@@ -69,8 +69,8 @@ def tuning_text(**changes) -> str:
         "search": {'"gains.kp"': [20, 2000], "seed": 3, "population": 6, "max_evaluations": 48,
                    "polish_evaluations": 24},
         "constraints": {"torque_noise_rms": _budget_at(KP_EDGE), "stability_margin": 0.5,
-                        "sensor_noise": "{q_std = %s, dq_std = %s, sample_period = 0.001}" % (NOISE["q_std"],
-                                                                                              NOISE["dq_std"])},
+                        "sensor_noise": f"{{q_std = {NOISE['q_std']}, dq_std = {NOISE['dq_std']}, "
+                                        "sample_period = 0.001}"},
         "monte_carlo": {"runs": 3, "seed": 1},
     }
     top = {"name": '"short-tune"', "scenario": '"base.toml"', "objective": '"worst"'}

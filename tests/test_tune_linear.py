@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from conftest import make_scenario, reference_inertia
+
 from analysis import linear
 from analysis.studies import step_scenario
 from analysis.tune_linear import held_loop_matrices, loop_poles, spectral_abscissas, torque_noise_rms

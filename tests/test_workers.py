@@ -13,6 +13,7 @@ import pytest
 
 from blocks.workers import worker_pool
 
+
 def _alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)

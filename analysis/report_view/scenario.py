@@ -6,6 +6,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from blocks.metrics import DISTURBANCE_UNITS
+
 from .text import Table, and_words, fmt, gain_text, join, kinds, per_joint
 
 __all__ = ["ScenarioSection", "scenario_section"]

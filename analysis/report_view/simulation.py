@@ -12,8 +12,9 @@ import numpy as np
 
 from blocks import inertia
 from blocks.metrics import DISTURBANCE_UNITS, JOINT_UNITS
+
 from ..figures import has_tissue_model
-from .text import JOINT_TITLES, Figure, Table, fmt, figures, value
+from .text import JOINT_TITLES, Figure, Table, figures, fmt, value
 
 __all__ = ["SimulationSection", "simulation_section", "worse_with_observer", "worse_with_observer_short",
            "figure8_caption"]

@@ -14,6 +14,7 @@ import numpy as np
 
 from blocks import inertia
 from blocks.metrics import DISTURBANCE_UNITS
+
 from ..studies import settling_definition
 from .text import JOINT_TITLES, Figure, Table, and_words, figures, fmt, join, kinds, settling
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from blocks import forward_kinematics
+
 from .simulation import worse_with_observer_short
 from .text import ZERO_REL, and_words, fmt, join, kinds, mode_text, span, split_caveats, stable_ranges
 

@@ -131,7 +131,7 @@ class Table:
     caption: str | None = None
 
     @classmethod
-    def of(cls, header, rows, caption: str | None = None) -> "Table":
+    def of(cls, header, rows, caption: str | None = None) -> Table:
         """A table from header and row texts; number cells are recognized."""
         return cls([str(h) for h in header], [[Cell(str(c), _is_number(str(c))) for c in row] for row in rows],
                    caption)

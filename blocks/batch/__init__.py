@@ -66,8 +66,17 @@ about ``16 * 8 * t_final / sample_period`` bytes per member (1.3 MB for 10 s at
 from __future__ import annotations
 
 from .schedule import auto_substeps, fastest_rate, noise_breakpoints, step_schedule
-from .simulate import (METRIC_ATOL, METRIC_RTOL, METRICS, SIGNALS, STATE_ATOL, STATE_ATOL_CONTACT, STATE_ERROR,
-                       BatchResult, simulate_batch)
+from .simulate import (
+                       METRIC_ATOL,
+                       METRIC_RTOL,
+                       METRICS,
+                       SIGNALS,
+                       STATE_ATOL,
+                       STATE_ATOL_CONTACT,
+                       STATE_ERROR,
+                       BatchResult,
+                       simulate_batch,
+)
 from .variants import BATCH_KEYS, Variants
 
 __all__ = ["BATCH_KEYS", "METRICS", "SIGNALS", "STATE_ATOL", "STATE_ATOL_CONTACT", "STATE_ERROR", "METRIC_RTOL",

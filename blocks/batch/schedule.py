@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import math
-from typing import Iterable, Sequence
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 
@@ -33,7 +33,7 @@ STEPS_PER_PHASE = 200
 TISSUE_STEP = 1e-3
 
 
-def rates_by_source(variants: "Variants", observer: bool = True) -> dict[str, np.ndarray]:
+def rates_by_source(variants: Variants, observer: bool = True) -> dict[str, np.ndarray]:
     """Upper estimates (1/s) of the fastest closed-loop rate of each member, by the scenario key that sets it.
 
     ``"gains.kp"``: the PD poles ``s^2 + kd s + kp`` scaled by the model
@@ -66,7 +66,7 @@ def rates_by_source(variants: "Variants", observer: bool = True) -> dict[str, np
     return rates
 
 
-def fastest_rate(variants: "Variants", observer: bool = True) -> float:
+def fastest_rate(variants: Variants, observer: bool = True) -> float:
     """An upper estimate (1/s) of the fastest closed-loop rate over all members (see :func:`rates_by_source`)."""
     return float(max(r.max() for r in rates_by_source(variants, observer).values()))
 
@@ -91,7 +91,7 @@ def _inertia_of_each(q: np.ndarray, arms: list) -> np.ndarray:
     return M[[index[id(a)] for a in arms]]
 
 
-def auto_substeps(variants: "Variants", observer: bool = True) -> int:
+def auto_substeps(variants: Variants, observer: bool = True) -> int:
     """RK4 steps per output interval so that ``h * fastest_rate <= STEP_LAMBDA``, the reference
     gets at least :data:`STEPS_PER_PHASE` steps per phase, and tissue contact ``h <= TISSUE_STEP``."""
     s = variants.base

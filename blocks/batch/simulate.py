@@ -1,13 +1,23 @@
 """Integrating a batch: the Figure-2 loop over a member axis, fixed-step RK4, metrics on the fly."""
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
-from ..kernels import (DisturbanceParams, arm_constants, computed_torque, external_disturbance, gain_times,
-                       kinematic_lengths, lumped_disturbance, observer_estimate, observer_rate, plant_acceleration)
+from ..kernels import (
+    DisturbanceParams,
+    arm_constants,
+    computed_torque,
+    external_disturbance,
+    gain_times,
+    kinematic_lengths,
+    lumped_disturbance,
+    observer_estimate,
+    observer_rate,
+    plant_acceleration,
+)
 from ..metrics import METRICS, OBSERVER_METRICS, TrackingAccumulator
 from ..scenario import Scenario, load_scenario
 from ..workers import worker_pool

@@ -236,7 +236,7 @@ class _Builder:
         return out
 
     # -- one block in a function -----------------------------------------------------------------------
-    def block_rows(self, fn_out: "_Function", step, which: str, signals: dict) -> list:
+    def block_rows(self, fn_out: _Function, step, which: str, signals: dict) -> list:
         """Expressions of the block's outputs (``which="output"``) or derivative (``"update"``)."""
         k = self.kernels[step.name]
         fn = k.output if which == "output" else k.update

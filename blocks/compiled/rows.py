@@ -30,8 +30,8 @@ compiled driver (:mod:`blocks.compiled.batch`).
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 

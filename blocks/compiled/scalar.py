@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 import types
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -80,7 +80,7 @@ def _called(fn):
 class ScalarFunctions:
     """The generated functions of one program, executed by Python (once per loop structure and process)."""
 
-    _made: dict[int, "ScalarFunctions"] = {}
+    _made: dict[int, ScalarFunctions] = {}
 
     def __init__(self, program: LoopProgram) -> None:
         namespace = {"np": SCALAR_MATH, "__name__": "dobkit_scalar_loop"}
@@ -91,7 +91,7 @@ class ScalarFunctions:
         self.program = program
 
     @classmethod
-    def of(cls, program: LoopProgram) -> "ScalarFunctions":
+    def of(cls, program: LoopProgram) -> ScalarFunctions:
         found = cls._made.get(id(program))
         if found is None or found.program is not program:
             found = cls._made[id(program)] = cls(program)

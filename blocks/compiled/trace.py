@@ -54,9 +54,9 @@ class Graph:
     """The nodes of one trace: every expression once, in creation order (which is a dependency order)."""
 
     def __init__(self) -> None:
-        self.nodes: dict[tuple, "Sym"] = {}
+        self.nodes: dict[tuple, Sym] = {}
 
-    def node(self, op: str, args: tuple) -> "Sym":
+    def node(self, op: str, args: tuple) -> Sym:
         key = (op,) + tuple(a if isinstance(a, Sym) else ("c", a) for a in args)
         found = self.nodes.get(key)
         if found is None:
@@ -64,11 +64,11 @@ class Graph:
             self.nodes[key] = found
         return found
 
-    def leaf(self, kind: str, index) -> "Sym":
+    def leaf(self, kind: str, index) -> Sym:
         """A value the generated code reads: ``t``, ``x[i]``, ``theta[j]``, ``src[j]``, an opaque result, ..."""
         return self.node("leaf", (kind, index))
 
-    def const(self, value: float) -> "Sym":
+    def const(self, value: float) -> Sym:
         return self.node("const", (float(value),))
 
 
@@ -89,7 +89,7 @@ class Sym:
         return f"Sym#{self.id}({self.op})"
 
     # -- building ------------------------------------------------------------------------------------
-    def _wrap(self, v) -> "Sym":
+    def _wrap(self, v) -> Sym:
         if isinstance(v, Sym):
             return v
         if isinstance(v, (bool, np.bool_)):
@@ -98,7 +98,7 @@ class Sym:
             return self.graph.const(float(v))
         raise TraceError(f"cannot combine a traced value with {type(v).__name__}")
 
-    def _binary(self, op: str, a, b) -> "Sym":
+    def _binary(self, op: str, a, b) -> Sym:
         a, b = self._wrap(a), self._wrap(b)
         if a.op == "const" and b.op == "const" and op in "+-*/":
             x, y = np.float64(a.args[0]), np.float64(b.args[0])
@@ -121,7 +121,7 @@ class Sym:
             return a
         return self.graph.node("bin", (op, a, b))
 
-    def _call(self, name: str, *args) -> "Sym":
+    def _call(self, name: str, *args) -> Sym:
         return self.graph.node("call", (name,) + tuple(self._wrap(a) for a in args))
 
     def __add__(self, o):

@@ -28,10 +28,23 @@ from __future__ import annotations
 
 import numpy as np
 
-from .arm import (arm_constants, bias_forces, coriolis_forces, inertia_entries, mass_solve, mass_times,
-                  plant_acceleration)
-from .disturbance import (DisturbanceParams, disturbance_params, external_disturbance, friction_disturbance,
-                          paper_disturbance, tissue_disturbance)
+from .arm import (
+    arm_constants,
+    bias_forces,
+    coriolis_forces,
+    inertia_entries,
+    mass_solve,
+    mass_times,
+    plant_acceleration,
+)
+from .disturbance import (
+    DisturbanceParams,
+    disturbance_params,
+    external_disturbance,
+    friction_disturbance,
+    paper_disturbance,
+    tissue_disturbance,
+)
 from .kinematics import jacobian_entries, kinematic_lengths, tool_pose, tool_velocity
 from .laws import computed_torque, gain_times, lumped_disturbance, observer_estimate, observer_rate
 
