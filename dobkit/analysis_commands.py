@@ -5,12 +5,12 @@ Registered on the main ``dobkit`` parser by :func:`add_analysis_subcommands`.
 from __future__ import annotations
 
 import argparse
-import math
 import os
 from dataclasses import replace
 from pathlib import Path
 
 from blocks.progress import StageProgress
+from dobkit.arguments import positive_number, whole_number
 
 __all__ = ["add_analysis_subcommands", "ANALYSIS_PREFIX", "REPORT_PREFIX"]
 
@@ -19,38 +19,16 @@ ANALYSIS_PREFIX = "dobkit-analysis"
 REPORT_PREFIX = "dobkit-report"
 
 
-def _positive_rate(text: str) -> float:
-    """``--observer-target``: a finite number > 0 (rad/s), checked while the arguments are parsed."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a number in rad/s, got {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0 rad/s, got {text!r}")
-    return value
-
-
-def _positive_int(text: str) -> int:
-    """``--jobs``: a whole number >= 1, checked while the arguments are parsed."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a whole number >= 1, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a whole number >= 1, got {text!r}")
-    return value
-
-
 def _add_common(parser: argparse.ArgumentParser, prefix: str) -> None:
     parser.add_argument("--scenario", default="paper", help="built-in scenario name or path to a TOML file "
                         "(default: paper)")
     parser.add_argument("--out", default=None, help="output folder, must not exist or be empty (default: a new "
                         f"folder {prefix}-YYYYmmdd-HHMMSS under the current one)")
-    parser.add_argument("--observer-target", type=_positive_rate, default=None, metavar="RAD_S",
+    parser.add_argument("--observer-target", type=positive_number("rad/s"), default=None, metavar="RAD_S",
                         help="target slowest observer mode of the gain design in rad/s, finite and > 0 (default: 10)")
     parser.add_argument("--quick", action="store_true", help="a quick preview: small grids and short runs, in well "
                         "under a minute; its numbers differ from the full analysis (the report lists how)")
-    parser.add_argument("--jobs", type=_positive_int, default=None, help="worker processes for the studies "
+    parser.add_argument("--jobs", type=whole_number("--jobs"), default=None, help="worker processes for the studies "
                         "(default: the number of CPUs; results do not depend on it)")
 
 

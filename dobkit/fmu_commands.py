@@ -23,30 +23,16 @@ import json
 import math
 from pathlib import Path
 
+from dobkit.arguments import positive_number, whole_number
+
 __all__ = ["add_fmu_subcommands", "strict_json"]
 
 _NON_FINITE_MEANING = ("null marks a value that was not a finite number (NaN or infinite); each place is listed "
                        "as a path of keys and list indices")
 
 
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
-    return value
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}")
-    return value
+_positive_float = positive_number()
+_positive_int = whole_number("the value")
 
 
 def _step_list(text: str) -> tuple[float, ...]:

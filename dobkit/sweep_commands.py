@@ -17,22 +17,11 @@ import argparse
 import sys
 from pathlib import Path
 
-from blocks.budget import DEFAULT_MEMORY, DEFAULT_STEPS, ENVIRONMENT, Budget, format_bytes
+from blocks.budget import Budget, format_bytes
 from blocks.scenario import ScenarioError
+from dobkit.arguments import add_budget_flags, whole_number
 
 __all__ = ["add_sweep_subcommand", "sweep_command", "default_summary_dir"]
-
-
-def _whole_number(flag: str):
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            value = 0
-        if value < 1 or str(value) != text.strip().lstrip("+"):
-            raise argparse.ArgumentTypeError(f"{flag} must be a whole number >= 1, got {text!r}")
-        return value
-    return parse
 
 
 def add_sweep_subcommand(subparsers) -> argparse.ArgumentParser:
@@ -50,7 +39,7 @@ def add_sweep_subcommand(subparsers) -> argparse.ArgumentParser:
                                          "results file, named after it: NAME-results.jsonl -> NAME-summary)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="Dask distributed scheduler address (tcp://host:8786); needs dask[distributed]")
-    p.add_argument("--workers", type=_whole_number("--workers"), help="local worker processes (default: all cores)")
+    p.add_argument("--workers", type=whole_number("--workers"), help="local worker processes (default: all cores)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--check", action="store_true",
                    help="validate the sweep file and every run, print the run count and the estimates, and stop")
@@ -58,14 +47,7 @@ def add_sweep_subcommand(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--restart", action="store_true",
                    help="if the results file holds another definition of the sweep, move it aside (its name then "
                         "says which definition) and start a new one, instead of refusing")
-    p.add_argument("--max-memory", metavar="SIZE",
-                   help=f"memory budget such as 8G (default {format_bytes(DEFAULT_MEMORY)}, or "
-                        f"${ENVIRONMENT['memory']})")
-    p.add_argument("--max-steps", metavar="N",
-                   help=f"integrator steps one run may take (default {DEFAULT_STEPS:.0e}, or ${ENVIRONMENT['steps']})")
-    p.add_argument("--max-seconds", metavar="S",
-                   help=f"wall-clock seconds for the runs; finished runs are kept when it runs out (default: no "
-                        f"limit, or ${ENVIRONMENT['seconds']})")
+    add_budget_flags(p, "finished runs are kept when it runs out")
     p.set_defaults(func=sweep_command)
     return p
 

@@ -13,25 +13,14 @@ import argparse
 import sys
 from pathlib import Path
 
-from blocks.budget import DEFAULT_MEMORY, DEFAULT_STEPS, ENVIRONMENT, Budget, format_bytes
+from blocks.budget import Budget, format_bytes
 from blocks.scenario import ScenarioError
+from dobkit.arguments import add_budget_flags, whole_number
 
 __all__ = ["add_tune_subcommand", "tune_command", "default_out_dir", "EXIT_INFEASIBLE"]
 
 #: Exit status of a tuning that ended without gains that meet every constraint.
 EXIT_INFEASIBLE = 3
-
-
-def _whole_number(flag: str):
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            value = 0
-        if value < 1 or str(value) != text.strip().lstrip("+"):
-            raise argparse.ArgumentTypeError(f"{flag} must be a whole number >= 1, got {text!r}")
-        return value
-    return parse
 
 
 def add_tune_subcommand(subparsers) -> argparse.ArgumentParser:
@@ -46,8 +35,8 @@ def add_tune_subcommand(subparsers) -> argparse.ArgumentParser:
     p.add_argument("tuning_file", help="tuning file (TOML; see analysis.tune) or a built-in name (paper-tune)")
     p.add_argument("--out", help="output folder, which also holds the evaluation log (default: NAME-results beside "
                                  "the tuning file, or in the current folder for a built-in one)")
-    p.add_argument("--workers", type=_whole_number("--workers"), help="threads of each batch (default: all cores)")
-    p.add_argument("--max-evaluations", type=_whole_number("--max-evaluations"),
+    p.add_argument("--workers", type=whole_number("--workers"), help="threads of each batch (default: all cores)")
+    p.add_argument("--max-evaluations", type=whole_number("--max-evaluations"),
                    help="objective evaluations in all (overrides search.max_evaluations; a larger number continues "
                         "a finished tuning)")
     p.add_argument("--no-progress", action="store_true", help="no progress display")
@@ -57,14 +46,7 @@ def add_tune_subcommand(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--restart", action="store_true",
                    help="if the output folder's evaluation log holds another definition of the tuning, move it "
                         "aside and start anew, instead of refusing")
-    p.add_argument("--max-memory", metavar="SIZE",
-                   help=f"memory budget such as 8G (default {format_bytes(DEFAULT_MEMORY)}, or "
-                        f"${ENVIRONMENT['memory']})")
-    p.add_argument("--max-steps", metavar="N",
-                   help=f"integrator steps one run may take (default {DEFAULT_STEPS:.0e}, or ${ENVIRONMENT['steps']})")
-    p.add_argument("--max-seconds", metavar="S",
-                   help=f"wall-clock seconds; finished evaluations are kept when it runs out (default: no limit, or "
-                        f"${ENVIRONMENT['seconds']})")
+    add_budget_flags(p, "finished evaluations are kept when it runs out")
     p.set_defaults(func=tune_command)
     return p
 
