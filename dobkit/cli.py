@@ -6,7 +6,9 @@ Subcommands: ``simulate`` (the paper's experiment), ``analyze`` and ``report``
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
+import warnings
 
 from blocks.progress import StageProgress
 
@@ -59,12 +61,32 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@contextlib.contextmanager
+def _warnings_as_notes(command: str):
+    """Show warnings as one ``dobkit <command>: note: ...`` line each, not Python's two-line form.
+
+    A user of the command line has no use for the source line Python echoes (e.g. which engine
+    serves a run when numba is not installed); the hook is restored afterwards so that callers of
+    :func:`main` from Python keep their own warning handling.
+    """
+    def show(message, category, filename, lineno, file=None, line=None):
+        print(f"dobkit {command}: note: {message}", file=sys.stderr if file is None else file)
+
+    previous = warnings.showwarning
+    warnings.showwarning = show
+    try:
+        yield
+    finally:
+        warnings.showwarning = previous
+
+
 def main(argv=None) -> int:
     """Entry point of the ``dobkit`` console script; returns the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return int(args.func(args) or 0)
+        with _warnings_as_notes(args.command):
+            return int(args.func(args) or 0)
     except (ValueError, OSError, RuntimeError, TypeError) as err:
         # Expected failures (bad scenario, unreachable path, diverging run, bad FMU, unwritable folder): one line.
         print(f"dobkit {args.command}: error: {err}", file=sys.stderr)

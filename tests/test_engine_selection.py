@@ -152,3 +152,25 @@ def test_a_process_without_numba_runs_everything_on_numpy():
     assert "warnings 1 engine='auto' uses the numpy engine: numba is not installed" in run.stdout
     assert 'refused: engine=\'compiled\' cannot run: numba is not installed (it comes with the optional extra: ' \
            'pip install "dobkit[fast]")' in run.stdout
+
+
+def test_the_command_line_says_which_engine_in_one_note_line(tmp_path):
+    short = tmp_path / "short.toml"
+    short.write_text(SHORT.to_toml())
+    script = textwrap.dedent(f"""
+        import importlib.abc, sys
+        class NoNumba(importlib.abc.MetaPathFinder):
+            def find_spec(self, name, path=None, target=None):
+                if name == "numba" or name.startswith("numba."):
+                    raise ImportError("hidden")
+        sys.meta_path.insert(0, NoNumba())
+        from dobkit.cli import main
+        sys.exit(main(["simulate", "--scenario", {str(short)!r}, "--out", {str(tmp_path / 'run')!r}]))
+    """)
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    notes = [line for line in run.stderr.splitlines() if "numpy engine" in line]
+    # once per process, one line, no echo of the Python source line that raised it
+    assert notes == ["dobkit simulate: note: engine='auto' uses the numpy engine: numba is not installed "
+                     "(it comes with the optional extra: pip install \"dobkit[fast]\")"]
+    assert "simulate(" not in run.stderr
