@@ -405,7 +405,7 @@ def write_report(scenario: Scenario | str = "paper", out_dir=None, settings: Ana
     for folder in sweep_summaries:           # a missing sweep summary is an error before any work is done
         if not (Path(folder) / "summary.json").is_file():
             raise FileNotFoundError(f"sweep summary folder '{folder}' has no summary.json (run 'dobkit sweep' first)")
-    from .tune_report import read_result
+    from .tune_results import read_result
     for folder in tunings:                   # so is a missing or incomplete tuning
         read_result(folder)
     target = Path(out_dir)

@@ -28,7 +28,8 @@ import numpy as np
 from blocks.joints import RRPR_JOINTS
 
 from .report_html import template_environment
-from .tune import METRIC_WORDS, TuneError
+from .tune import METRIC_WORDS
+from .tune_results import read_result
 
 __all__ = ["write_figures", "html_section", "read_result", "FIGURES"]
 
@@ -158,30 +159,6 @@ def _constraints(result, folder: Path) -> tuple[str, str]:
 # --------------------------------------------------------------------------------------------
 # The report section
 # --------------------------------------------------------------------------------------------
-def read_result(folder):
-    """The :class:`~analysis.tune_runner.TuneResult` of a tuning folder.
-
-    Raises
-    ------
-    TuneError
-        When the folder has no readable ``tune.json`` or a listed figure is missing.
-    """
-    from .tune_runner import RESULT_NAME, TuneResult
-    folder = Path(folder)
-    path = folder / RESULT_NAME
-    if not path.is_file():
-        raise TuneError(f"tuning folder '{folder}' has no {RESULT_NAME} (run 'dobkit tune' first)")
-    try:
-        result = TuneResult.from_json(path.read_text(encoding="utf-8"))
-    except (ValueError, KeyError, TypeError) as err:
-        raise TuneError(f"tuning result '{path}' cannot be read ({err}); run 'dobkit tune' again") from None
-    for figure in result.figures:
-        if Path(figure.file).name != figure.file or not (folder / "figures" / figure.file).is_file():
-            raise TuneError(f"tuning folder '{folder}' lists the figure '{figure.file}', which is not in its "
-                            "figures/ folder: the folder is incomplete; run 'dobkit tune' again")
-    return result
-
-
 def _fmt(value, digits: int = 4) -> str:
     if value is None:
         return "-"

@@ -52,7 +52,6 @@ import json
 import math
 import os
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -63,17 +62,16 @@ from blocks.batch import simulate_batch
 from blocks.budget import Budget
 from blocks.progress import ProgressCallback, StageProgress
 
-from .results import JsonResult
 from .sweep import SweepError, json_default
 from .sweep_runner import _atomic_write_lines, _move_aside, _repair, results_lock
 from .tune import METRIC_WORDS, TuneError, TuneSpec, differences, load_tuning
 from .tune_eval import Evaluation, Evaluator, check_seconds, evaluation_estimate, gains_key
+from .tune_results import RESULT_NAME, PointResult, TuneFigure, TuneHistory, TuneResult
 
 __all__ = ["run_tune", "TuneResult", "PointResult", "TuneHistory", "TuneFigure", "read_log", "LOG_NAME",
            "RESULT_NAME", "FEASIBILITY_SAMPLES", "DE_TOL"]
 
 LOG_NAME = "evaluations.jsonl"
-RESULT_NAME = "tune.json"
 #: Points of the bounds at which the linear constraints are tried before the search.
 FEASIBILITY_SAMPLES = 128
 #: Relative spread of the population's scores at which differential evolution stops early.
@@ -81,137 +79,6 @@ DE_TOL = 1e-3
 _FEASIBILITY_POLISH = 400
 
 
-@dataclass(frozen=True)
-class PointResult(JsonResult):
-    """One set of gains evaluated on the set.
-
-    Attributes
-    ----------
-    gains : dict
-        The tuned keys' values as the scenario file holds them (a number, or 4 for a diagonal).
-    objective : float or None
-        Worst or mean of the metric over the set (mm); None when a run diverged or the set was not run.
-    worst, mean : float or None
-        Largest and mean metric over the set (mm).
-    values : list of float or None
-        The metric of every run of the set (mm; None: diverged), in the set's order.
-    nominal : float or None
-        The metric of the scenario itself with these gains, without the set's changes (mm).
-    torque_noise_rms : list of float
-        Linear torque noise per joint (N m, N m, N, N m).
-    peak_torque : list of float or None
-        Peak ``|tau|`` per joint over the set (N m, N m, N, N m).
-    spectral_abscissa : float
-        Largest real part of the linearized loop's poles (1/s).
-    violations : dict of str to float
-        Per constraint, how far it is missed (0: met; see :mod:`analysis.tune_eval`).
-    feasible : bool
-    diverged : int
-        Runs of the set that diverged.
-    """
-
-    gains: dict
-    objective: float | None
-    worst: float | None
-    mean: float | None
-    values: list[float | None] | None
-    nominal: float | None
-    torque_noise_rms: list[float]
-    peak_torque: list[float] | None
-    spectral_abscissa: float
-    violations: dict[str, float]
-    feasible: bool
-    diverged: int
-
-
-@dataclass(frozen=True)
-class TuneHistory(JsonResult):
-    """Every evaluation of the search in order (linear-only ones included).
-
-    Attributes
-    ----------
-    phase : list of str
-        ``"base"``, ``"search"``, ``"polish"`` or ``"final"``.
-    objective : list of float or None
-        Objective (mm); None when not simulated or a run diverged.
-    feasible, simulated : list of bool
-    """
-
-    phase: list[str]
-    objective: list[float | None]
-    feasible: list[bool]
-    simulated: list[bool]
-
-
-@dataclass(frozen=True)
-class TuneFigure(JsonResult):
-    """A figure of the tuning: its PNG file name (in ``figures/``) and caption."""
-
-    file: str
-    caption: str
-
-
-@dataclass(frozen=True)
-class TuneResult(JsonResult):
-    """What a tuning found (``tune.json``).
-
-    Attributes
-    ----------
-    name, source, description, definition : str
-        The tuning, its file and its definition (see :mod:`analysis.tune_runner`).
-    scenario : str
-        The base scenario's name.
-    objective, metric : str
-        ``"worst"`` or ``"mean"`` of ``metric`` over the set.
-    runs : int
-        Runs in the set.
-    parameters, units : list of str
-        The searched values (``gains.kp``, ``gains.observer[2]``) and their units.
-    bounds : list of list of float
-    limits : dict
-        The constraints (:meth:`analysis.tune.Limits.as_dict`).
-    base, tuned : PointResult
-        The base scenario's gains and the tuned ones.
-    feasible : bool
-        Whether the tuned gains meet every constraint; False: they are the best infeasible point found.
-    message : str
-        One sentence on the outcome.
-    history : TuneHistory
-    evaluations : dict of str to int
-        ``search``, ``polish`` (evaluations asked for), ``simulated`` (candidates simulated now), ``from_log``
-        (candidates taken from the evaluation log of an earlier run), ``linear_only`` (evaluations refused by the
-        linear constraints, not simulated).
-    seconds : float
-        Wall time of this call (s).
-    scenario_file : str
-        The tuned scenario's file name (in the output folder).
-    figures : list of TuneFigure
-    log_problems : list of str
-        Lines of the evaluation log that were not usable (their candidates were simulated again).
-    """
-
-    name: str
-    source: str
-    description: str
-    definition: str
-    scenario: str
-    objective: str
-    metric: str
-    runs: int
-    parameters: list[str]
-    units: list[str]
-    bounds: list[list[float]]
-    limits: dict
-    base: PointResult
-    tuned: PointResult
-    feasible: bool
-    message: str
-    history: TuneHistory
-    evaluations: dict[str, int]
-    seconds: float
-    scenario_file: str
-    figures: list[TuneFigure] = field(default_factory=list)
-    log_problems: list[str] = field(default_factory=list)
 
 
 # --------------------------------------------------------------------------------------------
