@@ -2,7 +2,6 @@
 step it needs, runs never held in memory all at once."""
 from __future__ import annotations
 
-import argparse
 import gc
 import hashlib
 import itertools
@@ -15,13 +14,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from sweep_files import run_sweep_command, write_short_scenario, write_sweep
 
 import blocks
 from analysis.sweep import RunList, SweepError, load_sweep, sweep_from_dict
 from analysis.sweep_runner import read_results, run_sweep
 from blocks.batch import simulate_batch
 from blocks.budget import Budget, BudgetError, estimate_batch
-from dobkit.sweep_commands import add_sweep_subcommand
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -29,23 +28,12 @@ ROOT = Path(__file__).resolve().parents[1]
 @pytest.fixture()
 def short_file(tmp_path):
     """The first 0.2 s of the paper scenario (its 10 s path), as a file the sweep files refer to."""
-    path = tmp_path / "short.toml"
-    short = blocks.load_scenario("paper").replace(simulation={"t_final": 0.2}, trajectory={"duration": 10.0})
-    path.write_text(short.to_toml(), encoding="utf-8")
-    return path
+    return write_short_scenario(tmp_path, t_final=0.2)
 
 
-def _write(tmp_path, text: str, name: str = "s", scenario: str = "short.toml") -> Path:
-    path = tmp_path / f"{name}.toml"
-    path.write_text(f'scenario = "{scenario}"\n' + text, encoding="utf-8")
-    return path
+_write = write_sweep
 
-
-def _cli(argv):
-    parser = argparse.ArgumentParser(prog="dobkit")
-    add_sweep_subcommand(parser.add_subparsers(dest="command"))
-    args = parser.parse_args(argv)
-    return args.func(args)
+_cli = run_sweep_command
 
 
 def _peak(job) -> int:

@@ -2,7 +2,6 @@
 unusable lines listed, and Ctrl-C or a failed connection leaving nothing partial."""
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import signal
@@ -12,12 +11,11 @@ import time
 from pathlib import Path
 
 import pytest
+from sweep_files import run_sweep_command, write_short_scenario, write_sweep
 
-import blocks
 from analysis.sweep import SweepError, load_sweep
 from analysis.sweep_report import summarize, write_summary
 from analysis.sweep_runner import read_results, run_sweep
-from dobkit.sweep_commands import add_sweep_subcommand
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -25,23 +23,12 @@ ROOT = Path(__file__).resolve().parents[1]
 @pytest.fixture()
 def short_file(tmp_path):
     """The first 0.3 s of the paper scenario (its 10 s path), as a file the sweep files refer to."""
-    path = tmp_path / "short.toml"
-    short = blocks.load_scenario("paper").replace(simulation={"t_final": 0.3}, trajectory={"duration": 10.0})
-    path.write_text(short.to_toml(), encoding="utf-8")
-    return path
+    return write_short_scenario(tmp_path, t_final=0.3)
 
 
-def _write(tmp_path, text: str, name: str = "s") -> Path:
-    path = tmp_path / f"{name}.toml"
-    path.write_text('scenario = "short.toml"\n' + text, encoding="utf-8")
-    return path
+_write = write_sweep
 
-
-def _cli(argv):
-    parser = argparse.ArgumentParser(prog="dobkit")
-    add_sweep_subcommand(parser.add_subparsers(dest="command"))
-    args = parser.parse_args(argv)
-    return args.func(args)
+_cli = run_sweep_command
 
 
 def _env():

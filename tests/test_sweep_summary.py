@@ -2,21 +2,18 @@
 always one whole summary of one results file."""
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
+from sweep_files import run_sweep_command, write_short_scenario, write_sweep
 
-import blocks
 from analysis import sweep_report
 from analysis.sweep import SweepError, load_sweep
 from analysis.sweep_report import html_section, summarize, write_summary
 from analysis.sweep_runner import run_sweep
-from dobkit.sweep_commands import add_sweep_subcommand
 
 ULP = np.finfo(float).eps
 
@@ -24,23 +21,12 @@ ULP = np.finfo(float).eps
 @pytest.fixture()
 def short_file(tmp_path):
     """The first 0.3 s of the paper scenario (its 10 s path), as a file the sweep files refer to."""
-    path = tmp_path / "short.toml"
-    short = blocks.load_scenario("paper").replace(simulation={"t_final": 0.3}, trajectory={"duration": 10.0})
-    path.write_text(short.to_toml(), encoding="utf-8")
-    return path
+    return write_short_scenario(tmp_path, t_final=0.3)
 
 
-def _write(tmp_path, text: str, name: str = "s") -> Path:
-    path = tmp_path / f"{name}.toml"
-    path.write_text('scenario = "short.toml"\n' + text, encoding="utf-8")
-    return path
+_write = write_sweep
 
-
-def _cli(argv):
-    parser = argparse.ArgumentParser(prog="dobkit")
-    add_sweep_subcommand(parser.add_subparsers(dest="command"))
-    args = parser.parse_args(argv)
-    return args.func(args)
+_cli = run_sweep_command
 
 
 def _rows(columns: dict, keys=None) -> list[dict]:
