@@ -31,19 +31,16 @@ One writer
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import itertools
 import json
 import math
 import os
 import signal
-import socket
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import dataclass, field
-from datetime import datetime
 from pathlib import Path
 
 import numpy as np
@@ -54,6 +51,7 @@ from blocks.progress import ProgressCallback, count_progress
 from blocks.scenario import Scenario, scenario_from_dict
 from blocks.workers import worker_pool
 
+from .job_files import cut_partial_last_line, exclusive_lock, move_aside, write_lines_atomically
 from .sweep import SweepError, SweepSpec, differences, json_default, load_sweep, run_schedule, split_changes
 
 __all__ = ["run_sweep", "read_results", "read_header", "ResultsFile", "SweepOutcome", "simulate_chunk",
@@ -156,81 +154,15 @@ def read_results(path: str | Path) -> tuple[dict | None, list[dict]]:
 # --------------------------------------------------------------------------------------------
 # Writing it: one writer at a time, whole lines only
 # --------------------------------------------------------------------------------------------
-@contextlib.contextmanager
 def results_lock(results: Path):
-    """Hold ``<results>.lock`` (an exclusive ``flock``) while the block runs.
+    """Hold ``<results>.lock`` while the block runs (:func:`analysis.job_files.exclusive_lock`).
 
     Raises
     ------
     SweepError
         When another process holds it; the message says which (process id, host, since when).
     """
-    path = results.with_name(results.name + ".lock")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    while True:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.read(fd, 500).decode("utf-8", "replace").strip() or "a process that did not say who it is"
-            os.close(fd)
-            raise SweepError(f"results file '{results}' is in use by another sweep ({holder}); wait for it to "
-                             "end, or give this one another --results file") from None
-        try:
-            same = os.fstat(fd).st_ino == os.stat(path).st_ino
-        except FileNotFoundError:
-            same = False
-        if same:
-            break
-        os.close(fd)             # the previous holder removed the file between our open and our lock: again
-    try:
-        os.ftruncate(fd, 0)
-        os.write(fd, f"pid {os.getpid()} on {socket.gethostname()}, since {datetime.now():%Y-%m-%d %H:%M:%S}\n"
-                 .encode())
-        yield path
-    finally:
-        with contextlib.suppress(OSError):
-            os.unlink(path)
-        os.close(fd)
-
-
-def _repair(path: Path) -> None:
-    """Cut a partial last line left by a writer that was killed or interrupted mid-line."""
-    if not path.exists() or path.stat().st_size == 0:
-        return
-    with path.open("rb+") as fh:
-        fh.seek(0, os.SEEK_END)
-        size = fh.tell()
-        fh.seek(max(0, size - 1))
-        if fh.read(1) == b"\n":
-            return
-        # find the last newline, reading backwards in blocks
-        end = size
-        while end > 0:
-            start = max(0, end - 65536)
-            fh.seek(start)
-            block = fh.read(end - start)
-            cut = block.rfind(b"\n")
-            if cut >= 0:
-                fh.truncate(start + cut + 1)
-                return
-            end = start
-        fh.truncate(0)
-
-
-def _atomic_write_lines(path: Path, lines: Iterable[str]) -> None:
-    """Write a file through a temporary sibling and a rename, so that a crash leaves the old or the new file."""
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        with tmp.open("w", encoding="utf-8") as fh:
-            for line in lines:
-                fh.write(line)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    finally:
-        with contextlib.suppress(FileNotFoundError):
-            tmp.unlink()
+    return exclusive_lock(results, SweepError, "results file", "sweep", "another --results file")
 
 
 class _Writer:
@@ -243,7 +175,7 @@ class _Writer:
     def write(self, rows: Iterable[dict]) -> None:
         text = "".join(json.dumps(r, default=json_default, allow_nan=False) + "\n" for r in rows)
         if self.fh is None:
-            _repair(self.path)
+            cut_partial_last_line(self.path)
             new = not self.path.exists() or self.path.stat().st_size == 0
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self.fh = self.path.open("a", encoding="utf-8")
@@ -256,7 +188,7 @@ class _Writer:
     def close(self) -> None:
         if self.fh is not None:
             self.fh.close()
-            _repair(self.path)          # an interrupted write may have left part of a line
+            cut_partial_last_line(self.path)          # an interrupted write may have left part of a line
 
 
 def _strict(value):
@@ -415,12 +347,12 @@ def _prepare(spec: SweepSpec, results: Path, restart: bool) -> Path | None:
                 raise SweepError(f"results file '{results}' does not start with a sweep header, so it is not a "
                                  "results file of this sweep; choose another --results file, or --restart to move it "
                                  "aside and start anew")
-            return _move_aside(results, "unknown")
+            return move_aside(results, "unknown")
         return None
     new = spec.header()["sweep"]
     if header.get("definition") != spec.definition:
         if restart:
-            return _move_aside(results, str(header.get("definition") or "undefined"))
+            return move_aside(results, str(header.get("definition") or "undefined"))
         what = ", ".join(differences(header, new)) or "the sweep definition"
         old = "written without a sweep definition (an older dobkit)" if "definition" not in header else \
             f"of definition {header['definition']}"
@@ -429,22 +361,12 @@ def _prepare(spec: SweepSpec, results: Path, restart: bool) -> Path | None:
                          "mix with this sweep's. Give this sweep another --results file, or --restart to move the "
                          "old file aside and start anew")
     if header != new:                 # the same runs; only how they are named or ranked changed
-        _repair(results)
+        cut_partial_last_line(results)
         with results.open("r", encoding="utf-8") as fh:
             fh.readline()
-            _atomic_write_lines(results, itertools.chain([json.dumps({"sweep": new}, default=json_default) + "\n"],
+            write_lines_atomically(results, itertools.chain([json.dumps({"sweep": new}, default=json_default) + "\n"],
                                                          fh))
     return None
-
-
-def _move_aside(results: Path, definition: str) -> Path:
-    target = results.with_name(f"{results.stem}.old-{definition[:16]}{results.suffix}")
-    k = 1
-    while target.exists():
-        target = results.with_name(f"{results.stem}.old-{definition[:16]}-{k}{results.suffix}")
-        k += 1
-    os.replace(results, target)
-    return target
 
 
 def run_sweep(spec: SweepSpec | str | Path, results: str | Path, scheduler: str | None = None,

@@ -62,8 +62,8 @@ from blocks.batch import simulate_batch
 from blocks.budget import Budget
 from blocks.progress import ProgressCallback, StageProgress
 
-from .sweep import SweepError, json_default
-from .sweep_runner import _atomic_write_lines, _move_aside, _repair, results_lock
+from .job_files import cut_partial_last_line, exclusive_lock, move_aside, write_lines_atomically
+from .sweep import json_default
 from .tune import METRIC_WORDS, TuneError, TuneSpec, differences, load_tuning
 from .tune_eval import Evaluation, Evaluator, check_seconds, evaluation_estimate, gains_key
 from .tune_results import RESULT_NAME, PointResult, TuneFigure, TuneHistory, TuneResult
@@ -130,23 +130,23 @@ def _prepare_log(spec: TuneSpec, log: Path, restart: bool) -> Path | None:
             if not restart:
                 raise TuneError(f"evaluation log '{log}' does not start with a tuning header, so it is not a log of "
                                 "this tuning; choose another --out folder, or --restart to move it aside")
-            return _move_aside(log, "unknown")
+            return move_aside(log, "unknown")
         return None
     new = spec.header()["tune"]
     if header.get("definition") != spec.definition:
         if restart:
-            return _move_aside(log, str(header.get("definition") or "undefined"))
+            return move_aside(log, str(header.get("definition") or "undefined"))
         what = ", ".join(differences(header, new)) or "the tuning definition"
         raise TuneError(f"evaluation log '{log}' belongs to tuning '{header.get('name')}' of definition "
                         f"{header.get('definition')}, not to this definition of '{spec.name}' ({spec.definition}): "
                         f"{what} differ(s). Its evaluations would mix with this tuning's. Give this tuning another "
                         "--out folder, or --restart to move the old log aside and start anew")
     if header != new:
-        _repair(log)
+        cut_partial_last_line(log)
         with log.open("r", encoding="utf-8") as fh:
             fh.readline()
             rest = fh.readlines()
-        _atomic_write_lines(log, [json.dumps({"tune": new}, default=json_default) + "\n"] + rest)
+        write_lines_atomically(log, [json.dumps({"tune": new}, default=json_default) + "\n"] + rest)
     return None
 
 
@@ -159,7 +159,7 @@ class _LogWriter:
     def write(self, rows: list[dict]) -> None:
         text = "".join(json.dumps(r, default=json_default, allow_nan=False) + "\n" for r in rows)
         if self.fh is None:
-            _repair(self.path)
+            cut_partial_last_line(self.path)
             if not self.path.exists() or self.path.stat().st_size == 0:
                 text = json.dumps(self.header, default=json_default) + "\n" + text
             self.fh = self.path.open("a", encoding="utf-8")
@@ -170,7 +170,7 @@ class _LogWriter:
     def close(self) -> None:
         if self.fh is not None:
             self.fh.close()
-            _repair(self.path)
+            cut_partial_last_line(self.path)
 
 
 # --------------------------------------------------------------------------------------------
@@ -288,11 +288,7 @@ def run_tune(spec: TuneSpec | str | Path, out_dir: str | Path, workers: int | No
             check_linear_feasibility(spec, evaluator)
             out.mkdir(parents=True, exist_ok=True)
             log = out / LOG_NAME
-            try:
-                stack.enter_context(results_lock(log))
-            except SweepError as err:
-                raise TuneError(str(err).replace("another sweep", "another tuning")
-                                .replace("another --results file", "another --out folder")) from None
+            stack.enter_context(exclusive_lock(log, TuneError, "evaluation log", "tuning", "another --out folder"))
             _prepare_log(spec, log, restart)
             _, rows, problems = read_log(log)
             writer = _LogWriter(log, spec.header())
@@ -434,12 +430,12 @@ def _finish(spec: TuneSpec, evaluator: Evaluator, search: _Search, best: Evaluat
         tuned=tuned_point, feasible=bool(best.feasible), message=message, history=history, evaluations=counts,
         seconds=0.0, scenario_file=file_name, log_problems=list(problems))
     report("tuning: writing results", 0.0)
-    _atomic_write_lines(out / file_name, [scenario.to_toml()])
+    write_lines_atomically(out / file_name, [scenario.to_toml()])
     if figures:
         made = write_figures(result, out / "figures")
         result = _replace(result, figures=[TuneFigure(file=p, caption=c) for p, c in made])
     result = _replace(result, seconds=round(time.perf_counter() - started, 3))
-    _atomic_write_lines(out / RESULT_NAME, [result.to_json()])
+    write_lines_atomically(out / RESULT_NAME, [result.to_json()])
     report("tuning: writing results", 1.0)
     return result
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kernels import arm_constants, bias_forces, coriolis_forces, inertia_entries, mass_solve, mass_times
+from .kernels import arm_constants, bias_forces, coriolis_forces, inertia_matrix, mass_solve, mass_times
 from .parameters import RobotParameters
 
 __all__ = [
@@ -53,15 +53,7 @@ def inertia(q, params: RobotParameters) -> np.ndarray:
         Symmetric positive definite inertia matrix.
     """
     q = _as_joint_array(q, "q")
-    m00, m01, m11, m22, m33 = inertia_entries(arm_constants(params), np.cos(q[..., 1]))
-    M = np.zeros(q.shape[:-1] + (4, 4))
-    M[..., 0, 0] = m00
-    M[..., 0, 1] = M[..., 1, 0] = m01
-    M[..., 1, 1] = m11
-    M[..., 2, 2] = m22
-    M[..., 0, 3] = M[..., 3, 0] = M[..., 1, 3] = M[..., 3, 1] = -m33
-    M[..., 3, 3] = m33
-    return M
+    return inertia_matrix(arm_constants(params), np.cos(q[..., 1]))
 
 
 def inertia_derivative_theta2(q, params: RobotParameters) -> np.ndarray:

@@ -221,6 +221,28 @@ def test_an_interrupted_tuning_resumes_to_the_same_result(problem, tmp_path):
     assert third.evaluations["simulated"] == 0
 
 
+def test_a_second_tuning_on_one_folder_says_who_holds_it(problem, tmp_path):
+    path, _, whole = problem
+    out = tmp_path / "out"
+    # a second process holds the folder's evaluation log (the lock a running tuning takes), then is killed
+    holder = ("import sys, time; from pathlib import Path; from analysis.job_files import exclusive_lock; "
+              f"lock = exclusive_lock(Path({str(out / LOG_NAME)!r}), RuntimeError, 'log', 'tuning', 'x'); "
+              "lock.__enter__(); print('held', flush=True); time.sleep(300)")
+    proc = subprocess.Popen([sys.executable, "-c", holder], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "held"
+        with pytest.raises(TuneError) as err:
+            run_tune(load_tuning(path), out, workers=1, progress=False)
+        message = str(err.value)
+        assert f"evaluation log '{out / LOG_NAME}' is in use by another tuning (pid {proc.pid} on " in message
+        assert message.endswith("give this one another --out folder")
+        assert not (out / LOG_NAME).exists() and not (out / RESULT_NAME).exists()
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    _same(run_tune(load_tuning(path), out, workers=1, progress=False), whole)       # the lock ended with it
+
+
 def test_the_wall_time_budget_stops_between_batches_and_the_same_call_goes_on(problem, tmp_path):
     path, _, whole = problem
     out = tmp_path / "out"

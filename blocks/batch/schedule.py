@@ -74,19 +74,12 @@ def fastest_rate(variants: Variants, observer: bool = True) -> float:
 def _inertia_of_each(q: np.ndarray, arms: list) -> np.ndarray:
     """``M(q)`` of every arm at the configurations ``q`` (m, 4): (len(arms), m, 4, 4), the numbers of
     :func:`blocks.dynamics.inertia`, computed once per distinct arm (members often share one) and for all at once."""
-    from ..kernels import arm_constants, inertia_entries
+    from ..kernels import arm_constants, inertia_matrix
     unique: dict[int, object] = {}
     for arm in arms:
         unique.setdefault(id(arm), arm)
     k = np.stack([arm_constants(a) for a in unique.values()], axis=1)[:, :, None]          # (6, U, 1)
-    m00, m01, m11, m22, m33 = np.broadcast_arrays(*inertia_entries(k, np.cos(q[:, 1])[None, :]))   # (U, m)
-    M = np.zeros(m00.shape + (4, 4))
-    M[..., 0, 0] = m00
-    M[..., 0, 1] = M[..., 1, 0] = m01
-    M[..., 1, 1] = m11
-    M[..., 2, 2] = m22
-    M[..., 0, 3] = M[..., 3, 0] = M[..., 1, 3] = M[..., 3, 1] = -m33
-    M[..., 3, 3] = m33
+    M = inertia_matrix(k, np.cos(q[:, 1])[None, :])                                       # (U, m, 4, 4)
     index = {key: i for i, key in enumerate(unique)}
     return M[[index[id(a)] for a in arms]]
 

@@ -33,6 +33,7 @@ from .arm import (
     bias_forces,
     coriolis_forces,
     inertia_entries,
+    inertia_matrix,
     mass_solve,
     mass_times,
     plant_acceleration,
@@ -49,7 +50,7 @@ from .kinematics import jacobian_entries, kinematic_lengths, tool_pose, tool_vel
 from .laws import computed_torque, gain_times, lumped_disturbance, observer_estimate, observer_rate
 
 __all__ = [
-    "arm_constants", "inertia_entries", "mass_times", "mass_solve", "coriolis_forces", "bias_forces",
+    "arm_constants", "inertia_entries", "inertia_matrix", "mass_times", "mass_solve", "coriolis_forces", "bias_forces",
     "plant_acceleration", "kinematic_lengths", "tool_pose", "tool_velocity", "jacobian_entries",
     "DisturbanceParams", "disturbance_params", "paper_disturbance", "friction_disturbance", "tissue_disturbance",
     "external_disturbance", "computed_torque", "observer_estimate", "observer_rate", "gain_times",

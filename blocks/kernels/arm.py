@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["arm_constants", "inertia_entries", "mass_times", "mass_solve", "coriolis_forces", "bias_forces",
+__all__ = ["arm_constants", "inertia_entries", "inertia_matrix", "mass_times", "mass_solve", "coriolis_forces", "bias_forces",
            "plant_acceleration"]
 
 
@@ -36,6 +36,23 @@ def inertia_entries(k, c2):
     """
     k2c2 = k[1] * c2
     return k[0] + k2c2, k[2] + 0.5 * k2c2, k[2], k[3], k[4]
+
+
+def inertia_matrix(k, c2) -> np.ndarray:
+    """``M(q)`` as a matrix, shape ``broadcast(k[0], c2).shape + (4, 4)`` (kg m^2, kg), from :func:`inertia_entries`.
+
+    For the analyses that need the whole matrix; the right-hand sides use
+    :func:`mass_times` and :func:`mass_solve` instead.
+    """
+    m00, m01, m11, m22, m33 = np.broadcast_arrays(*inertia_entries(k, c2))
+    M = np.zeros(m00.shape + (4, 4))
+    M[..., 0, 0] = m00
+    M[..., 0, 1] = M[..., 1, 0] = m01
+    M[..., 1, 1] = m11
+    M[..., 2, 2] = m22
+    M[..., 0, 3] = M[..., 3, 0] = M[..., 1, 3] = M[..., 3, 1] = -m33
+    M[..., 3, 3] = m33
+    return M
 
 
 def mass_times(k, c2, v):
