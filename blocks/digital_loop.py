@@ -173,14 +173,19 @@ def check_observer_rate(scenario, samples: int = 201) -> None:
 
 
 def _down(value: float, digits: int = 4) -> str:
-    """``value`` to ``digits`` significant digits, rounded towards zero (a limit shown never exceeds the computed one)."""
+    """A limit to ``digits`` significant digits, rounded down so that the number shown is not past the limit.
+
+    The bisection returns the stable end of its bracket, up to ``1e-7`` below the limit; it is nudged up by
+    ``1e-6`` first so that a limit that is a round number (Euler's 2) shows as itself.
+    """
     if not math.isfinite(value) or value == 0:
         return f"{value:g}"
+    value *= 1.0 + 1e-6
     step = 10.0 ** (math.floor(math.log10(abs(value))) - digits + 1)
     return f"{math.floor(value / step) * step:.{digits}g}"
 
 
-def _lowest_stable_rate(scenario, samples: int, rtol: float = 1e-3) -> float | None:
+def _lowest_stable_rate(scenario, samples: int, rtol: float = 1e-4) -> float | None:
     """The lowest sample rate (Hz) at which the scenario's gains are stable (bisection; None past 1000x)."""
     from .digital_stability import scenario_stability
     rate = scenario.controller.sample_rate
