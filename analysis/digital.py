@@ -36,6 +36,7 @@ import control as ct
 import numpy as np
 import scipy.linalg
 
+from blocks.digital import DigitalController
 from blocks.digital_loop import sampled_initial_state, sampled_loop, simulate_sampled
 from blocks.digital_stability import sampled_stability
 from blocks.loop import closed_loop
@@ -381,19 +382,19 @@ def observer_gain_limit(scenario: Scenario, rates_hz=DEFAULT_RATES_HZ, configura
     if configurations is None:
         configurations = [q_start] + [np.array([q_start[0], t2, q_start[2], q_start[3]]) for t2 in (0.3, 1.57, 2.8)]
     configurations = [np.asarray(q, dtype=float) for q in configurations]
+    base = scenario.controller if scenario.controller is not None else DigitalController(sample_rate=1.0)
     curves = []
     for method in discretizations:
         for delay in delays:
             scales, bounds, limits = [], [], []
             for rate in rates_hz:
-                changes = {"controller.sample_rate": float(rate), "controller.delay": int(delay),
-                           "controller.observer_discretization": method}
-                cutoff = scenario.controller.velocity_cutoff if scenario.controller else None
+                changes = {"sample_rate": float(rate), "delay": int(delay), "observer_discretization": method}
+                cutoff = base.velocity_cutoff
                 if cutoff is not None and cutoff >= NYQUIST_SHARE * rate:     # keep the filter below Nyquist
-                    changes["controller.velocity_cutoff"] = NYQUIST_SHARE * rate
-                s = scenario.with_changes(changes)
-                verdict = sampled_stability(s.nominal, configurations, s.kp, s.kd, s.observer_gain, s.controller,
-                                            s.observer_variant)
+                    changes["velocity_cutoff"] = NYQUIST_SHARE * rate
+                s = scenario
+                verdict = sampled_stability(s.nominal, configurations, s.kp, s.kd, s.observer_gain,
+                                            dataclasses.replace(base, **changes), s.observer_variant)
                 scales.append(verdict.largest_stable_scale)
                 limits.append(verdict.ts_lambda_limit)
                 bounds.append(2.0 / verdict.ts_lambda_max)

@@ -61,6 +61,7 @@ def test_the_euler_gain_limit_is_the_frozen_inertia_bound_and_zoh_is_below():
     {"controller.observer_discretization": "zoh"},
     {"controller.velocity": "difference", "controller.velocity_cutoff": 40.0},
     {"controller.observer_discretization": "zoh", "controller.delay": 1, "controller.velocity": "difference"},
+    {"controller.delay": 1, "controller.velocity": "difference", "controller.velocity_cutoff": 20.0},
 ])
 def test_the_stability_computation_is_the_linearization_of_the_blocks(changes):
     """blocks.digital_stability writes the linearized one-sample map out; linear_sampled_loop linearizes the
