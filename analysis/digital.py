@@ -392,9 +392,9 @@ def observer_gain_limit(scenario: Scenario, rates_hz=DEFAULT_RATES_HZ, configura
                 cutoff = base.velocity_cutoff
                 if cutoff is not None and cutoff >= NYQUIST_SHARE * rate:     # keep the filter below Nyquist
                     changes["velocity_cutoff"] = NYQUIST_SHARE * rate
-                s = scenario
-                verdict = sampled_stability(s.nominal, configurations, s.kp, s.kd, s.observer_gain,
-                                            dataclasses.replace(base, **changes), s.observer_variant)
+                verdict = sampled_stability(scenario.nominal, configurations, scenario.kp, scenario.kd,
+                                            scenario.observer_gain, dataclasses.replace(base, **changes),
+                                            scenario.observer_variant)
                 scales.append(verdict.largest_stable_scale)
                 limits.append(verdict.ts_lambda_limit)
                 bounds.append(2.0 / verdict.ts_lambda_max)
