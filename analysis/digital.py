@@ -19,7 +19,8 @@ the loop's one-sample map ``x_{k+1} = A x_k + B w_k``.
   one computation the pre-run check also uses (its one-sample map is the
   same linearization written out; a test checks the two agree).  Only
   forward Euler with measured velocity reaches ``2 / (Ts lambda_max(Y M^-1))``
-  exactly; zoh, a velocity estimate and a delay stay below it
+  exactly (with or without a delay); zoh and a velocity difference stay
+  below it, lower still with a delay
   (``docs/model.md``, "Digital observer").
 * :func:`quantization_torque_noise`: the RMS torque that encoder quantization
   causes, predicted from ``A, B`` with the quantization error as white noise of

@@ -32,8 +32,9 @@ The loop is stable at ``q`` when the map's spectral radius is below 1.
 Only forward Euler with measured velocity has a closed form: the
 estimate's error then obeys ``e+ = (I + Ts A) e`` whatever the torque, the
 map is block-triangular and the limit is ``Ts lambda_max(Y M^-1) < 2``
-(for real eigenvalues).  With ``"zoh"``, a velocity estimate or (through the
-PD loop) a delay the error and the tracking couple, and the limit is lower:
+(for real eigenvalues), with or without a delay as long as the delayed PD
+loop is stable.  With ``"zoh"`` or a velocity difference the error and the
+tracking couple and the limit is lower, and a delay lowers it further:
 for ``Kp = 180``, ``Kd = 36`` the zoh loop with measured velocity loses
 stability at ``Ts lambda_max = 1.9795`` at 1 kHz and ``1.7899`` at 100 Hz
 (``docs/model.md``, "Digital observer").

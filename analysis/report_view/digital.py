@@ -83,5 +83,5 @@ def _rule_text(d) -> str:
             f"runs). For the scenario ({own}, delay {c.get('delay', 0)}) at {fmt(d.sample_rate_hz, 5)} Hz the "
             f"rule is Ts lambda_max(Y M^-1) < {fmt(d.ts_lambda_limit, 5)}. Only forward Euler with measured "
             f"velocity has the closed form 2 (the column 2 / (Ts lambda_max)): its estimate's error obeys "
-            f"e[k+1] = (I - Ts Y M^-1) e[k] whatever the torque; zoh, a velocity estimate or a delay couple the "
-            f"estimate with the tracking and lower the limit.")
+            f"e[k+1] = (I - Ts Y M^-1) e[k] whatever the torque, delayed or not; zoh and a velocity estimate "
+            f"couple the estimate with the tracking and lower the limit, and a delay lowers theirs further.")
