@@ -15,8 +15,13 @@ the loop's one-sample map ``x_{k+1} = A x_k + B w_k``.
 * :func:`observer_gain_limit`: the largest factor ``c`` for which the loop with
   observer gain ``c Y`` is stable, against the sample rate, for both
   discretizations and delays 0 and 1, the smallest over a set of
-  configurations.  For a frozen inertia without delay it is close to
-  ``2 / (Ts lambda_max(Y M^-1))`` (``docs/model.md``, "Digital observer").
+  configurations.  It is computed by :mod:`blocks.digital_stability`, the
+  one computation the pre-run check also uses (its one-sample map is the
+  same linearization written out; a test checks the two agree).  Only
+  forward Euler with measured velocity reaches ``2 / (Ts lambda_max(Y M^-1))``
+  exactly (with or without a delay); zoh and a velocity difference stay
+  below it, lower still with a delay
+  (``docs/model.md``, "Digital observer").
 * :func:`quantization_torque_noise`: the RMS torque that encoder quantization
   causes, predicted from ``A, B`` with the quantization error as white noise of
   variance ``res^2 / 12`` entering the encoder, and measured by simulation
@@ -24,15 +29,17 @@ the loop's one-sample map ``x_{k+1} = A x_k + B w_k``.
 """
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass
 
 import control as ct
 import numpy as np
 import scipy.linalg
 
-from blocks.digital import digital_observer
+from blocks.digital import DigitalController
 from blocks.digital_loop import sampled_initial_state, sampled_loop, simulate_sampled
-from blocks.dynamics import inertia
+from blocks.digital_stability import sampled_stability
 from blocks.loop import closed_loop
 from blocks.metrics import signal
 from blocks.scenario import Scenario
@@ -108,7 +115,11 @@ class GainLimitCurve(JsonResult):
     largest_scale : list of float
         The factor ``c`` (the gain ``c Y`` is the largest stable one), smallest over the configurations.
     euler_bound_scale : list of float
-        ``2 / (Ts lambda_max(Y M^-1))`` over the same configurations (the frozen-inertia Euler bound).
+        ``2 / (Ts lambda_max(Y M^-1))`` over the same configurations: the limit of forward Euler with measured
+        velocity, a reference the others stay below.
+    ts_lambda_limit : list of float
+        ``Ts lambda_max(Y M^-1)`` at the largest stable gain: the loop is stable while
+        ``Ts lambda_max(Y M^-1)`` is below it (2 for Euler with measured velocity).
     """
 
     discretization: str
@@ -116,6 +127,7 @@ class GainLimitCurve(JsonResult):
     rates_hz: list
     largest_scale: list
     euler_bound_scale: list
+    ts_lambda_limit: list = dataclasses.field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -351,31 +363,6 @@ def sampled_poles(scenario: Scenario, q0=None) -> SampledPoles:
                         spectral_radius=float(max(abs(m.z) for m in modes)), modes=modes)
 
 
-def _largest_stable_scale(loop, x_op, held: Scenario, hi_guess: float, rtol: float = 2e-3) -> float:
-    """The factor ``c`` at which the loop's spectral radius reaches 1 (bisection in ``log c``)."""
-    cache: dict = {}
-
-    def radius(scale: float) -> float:
-        obs = digital_observer(held.nominal, scale * held.observer_gain, held.controller, held.observer_variant)
-        A, _, _ = linear_sampled_loop(loop, x_op, replace={"observer": obs}, cache=cache)
-        return float(np.max(np.abs(np.linalg.eigvals(A))))
-
-    lo, hi = 0.0, hi_guess
-    while radius(hi) < 1.0:
-        lo, hi = hi, 2 * hi
-        if hi > 1e6:
-            return float("inf")
-    lo = lo if lo > 0 else hi / 1e3
-    while radius(lo) >= 1.0:
-        lo /= 2
-        if lo < 1e-9:
-            return 0.0
-    while hi / lo > 1 + rtol:
-        mid = np.sqrt(lo * hi)
-        lo, hi = (mid, hi) if radius(mid) < 1.0 else (lo, mid)
-    return float(lo)
-
-
 def observer_gain_limit(scenario: Scenario, rates_hz=DEFAULT_RATES_HZ, configurations=None,
                         discretizations=("euler", "zoh"), delays=(0, 1)) -> GainLimitStudy:
     """The largest stable observer gain ``c Y`` against the sample rate (see the module docstring).
@@ -396,31 +383,24 @@ def observer_gain_limit(scenario: Scenario, rates_hz=DEFAULT_RATES_HZ, configura
     if configurations is None:
         configurations = [q_start] + [np.array([q_start[0], t2, q_start[2], q_start[3]]) for t2 in (0.3, 1.57, 2.8)]
     configurations = [np.asarray(q, dtype=float) for q in configurations]
+    base = scenario.controller if scenario.controller is not None else DigitalController(sample_rate=1.0)
     curves = []
     for method in discretizations:
         for delay in delays:
-            scales, bounds = [], []
+            scales, bounds, limits = [], [], []
             for rate in rates_hz:
-                changes = {"controller.sample_rate": float(rate), "controller.delay": int(delay),
-                           "controller.observer_discretization": method}
-                cutoff = scenario.controller.velocity_cutoff if scenario.controller else None
+                changes = {"sample_rate": float(rate), "delay": int(delay), "observer_discretization": method}
+                cutoff = base.velocity_cutoff
                 if cutoff is not None and cutoff >= NYQUIST_SHARE * rate:     # keep the filter below Nyquist
-                    changes["controller.velocity_cutoff"] = NYQUIST_SHARE * rate
-                s = scenario.with_changes(changes)
-                worst, bound = np.inf, np.inf
-                for q in configurations:
-                    held = _held(s, q)
-                    loop = sampled_loop(held)
-                    x_op = _operating_state(held, loop)
-                    lam = np.abs(np.linalg.eigvals(held.observer_gain @ np.linalg.inv(
-                        inertia(q, held.nominal)))).max()
-                    euler = 2 * rate / lam
-                    bound = min(bound, euler)
-                    worst = min(worst, _largest_stable_scale(loop, x_op, held, hi_guess=euler))
-                scales.append(worst)
-                bounds.append(bound)
+                    changes["velocity_cutoff"] = NYQUIST_SHARE * rate
+                verdict = sampled_stability(scenario.nominal, configurations, scenario.kp, scenario.kd,
+                                            scenario.observer_gain, dataclasses.replace(base, **changes),
+                                            scenario.observer_variant)
+                scales.append(verdict.largest_stable_scale)
+                limits.append(verdict.ts_lambda_limit)
+                bounds.append(2.0 / verdict.ts_lambda_max)
             curves.append(GainLimitCurve(discretization=method, delay=int(delay), rates_hz=[float(r) for r in rates_hz],
-                                         largest_scale=scales, euler_bound_scale=bounds))
+                                         largest_scale=scales, euler_bound_scale=bounds, ts_lambda_limit=limits))
     return GainLimitStudy(observer_gain=np.asarray(scenario.observer_gain).tolist(),
                           configurations=[q.tolist() for q in configurations], curves=curves)
 
@@ -481,6 +461,8 @@ class DigitalAnalysis(JsonResult):
         None when the encoders are exact.
     largest_stable_scale : float
         For the scenario's own discretization and delay, at its rate: the observer may be this many times faster.
+    ts_lambda_limit : float
+        The same limit as ``Ts lambda_max(Y M^-1)``: the loop is stable while it stays below this number.
     answer : str
         The plain-language answer for the scenario's settings.
     """
@@ -492,6 +474,7 @@ class DigitalAnalysis(JsonResult):
     quantization: QuantizationNoise | None
     largest_stable_scale: float
     answer: str
+    ts_lambda_limit: float = math.nan
 
 
 def digital_analysis(scenario: Scenario, rates_hz=DEFAULT_RATES_HZ, configurations=None,
@@ -508,17 +491,20 @@ def digital_analysis(scenario: Scenario, rates_hz=DEFAULT_RATES_HZ, configuratio
         raise ValueError(f"scenario '{scenario.name}' has no [controller] section: there is no digital "
                          "implementation to analyse")
     rates = sorted(set(float(r) for r in rates_hz) | {c.sample_rate})
-    study = observer_gain_limit(scenario, rates, configurations, discretizations=(c.observer_discretization,),
+    methods = (c.observer_discretization,) + tuple(m for m in ("euler", "zoh") if m != c.observer_discretization)
+    study = observer_gain_limit(scenario, rates, configurations, discretizations=methods,
                                 delays=sorted({0, 1, c.delay}))
-    own = next(cv for cv in study.curves if cv.delay == c.delay)
-    scale = own.largest_scale[own.rates_hz.index(c.sample_rate)]
+    own = next(cv for cv in study.curves if cv.delay == c.delay and cv.discretization == c.observer_discretization)
+    k = own.rates_hz.index(c.sample_rate)
+    scale, limit = own.largest_scale[k], own.ts_lambda_limit[k]
     noise = quantization_torque_noise(scenario, simulate=simulate_noise) if any(c.position_resolution) else None
     return DigitalAnalysis(sample_rate_hz=c.sample_rate, settings=dict(scenario.data["controller"]),
                            poles=sampled_poles(scenario), gain_limit=study, quantization=noise,
-                           largest_stable_scale=scale, answer=_answer(scenario, scale, noise))
+                           largest_stable_scale=scale, answer=_answer(scenario, scale, limit, noise),
+                           ts_lambda_limit=limit)
 
 
-def _answer(s: Scenario, scale: float, noise: QuantizationNoise | None) -> str:
+def _answer(s: Scenario, scale: float, limit: float, noise: QuantizationNoise | None) -> str:
     """The plain-language answer, every number from the results."""
     c = s.controller
     Y = np.asarray(s.observer_gain)
@@ -529,9 +515,12 @@ def _answer(s: Scenario, scale: float, noise: QuantizationNoise | None) -> str:
         shown = "diag(" + ", ".join(f"{g:g}" for g in gain) + ")"
     else:
         shown = "the scenario's matrix"
-    text = (f"At {c.sample_rate:g} Hz ({c.observer_discretization} observer update, delay {c.delay} "
+    velocity = c.velocity + (f" velocity through a {c.velocity_cutoff:g} Hz low-pass" if c.velocity_cutoff
+                             else " velocity")
+    text = (f"At {c.sample_rate:g} Hz ({c.observer_discretization} observer update, {velocity}, delay {c.delay} "
             f"sample{'s' if c.delay != 1 else ''}) the observer gain may be raised up to {scale:.3g} times the "
-            f"scenario's (Y = {shown}) before the loop becomes unstable")
+            f"scenario's (Y = {shown}) before the loop becomes unstable, that is while Ts lambda_max(Y M^-1) "
+            f"< {limit:.4g}")
     text += "; the scenario's gain is stable." if scale > 1 else "; the scenario's gain is NOT stable at this rate."
     if noise is not None:
         worst = int(np.argmax(np.asarray(noise.predicted_rms) / np.maximum(np.abs(gain), 1e-12)))

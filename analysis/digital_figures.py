@@ -56,8 +56,8 @@ def digital_figures(result: DigitalAnalysis, out_dir) -> list[Path]:
     fig, ax = plt.subplots(figsize=(7.5, 5), constrained_layout=True)
     curves = result.gain_limit.curves
     ax.loglog(curves[0].rates_hz, curves[0].euler_bound_scale, "k--", lw=1.2,
-              label="2 / (Ts lambda_max(Y M^-1)) (frozen inertia)")
-    for curve, marker in zip(curves, "osd^v"):
+              label="2 / (Ts lambda_max(Y M^-1)): Euler, measured velocity")
+    for curve, marker in zip(curves, "osd^v<>ph"):
         ax.loglog(curve.rates_hz, curve.largest_scale, marker + "-", ms=5, mfc="none",
                   label=f"{curve.discretization}, delay {curve.delay}")
     ax.axhline(1.0, color="tab:red", lw=0.8, label="the scenario's gain")

@@ -20,12 +20,18 @@ first-order low-pass ``v_k = a v_{k-1} + (1 - a) diff_k`` with
 raw difference otherwise).  Positions are quantized to ``position_resolution``
 per joint (``res * round(q / res)``; 0 = exact).
 
-Stability: in the loop (the controller subtracts ``d_hat``, the plant
-integrates the held torque) the estimate's error follows
-``e_{k+1} = (I - Ts Y M^-1) e_k`` whichever discretization the observer
-uses, so the gain is limited by ``Ts lambda_max(Y M^-1) < 2`` for both;
-``"zoh"`` makes the observer's own update stable at any rate (it matters
-when the estimate is not fed back).  See ``docs/model.md``, "Digital observer".
+Stability: alone (the estimate not fed back) the ``"zoh"`` update is stable
+at any rate and forward Euler while ``Ts lambda_max(Y M^-1) < 2``.  In the
+loop (the controller subtracts ``d_hat``, the plant integrates the held
+torque) only forward Euler with measured velocity keeps that limit exactly:
+its estimate's error follows ``e_{k+1} = (I - Ts Y M^-1) e_k`` whatever the
+torque (with or without a delay).  With ``"zoh"`` or a velocity difference
+the estimate and the tracking couple and the limit is lower, and a delay
+lowers it further (zoh, measured, Kp = 180,
+Kd = 36: ``Ts lambda_max < 1.7899`` at 100 Hz, ``1.9795`` at 1 kHz); it is
+computed from the loop's linearized one-sample map by
+:mod:`blocks.digital_stability`, which the pre-run check uses.  See
+``docs/model.md``, "Digital observer".
 
 The blocks are python-control discrete-time systems (``dt = Ts``) and run
 in a :class:`~blocks.hybrid.HybridSystem` with the continuous plant::
@@ -50,7 +56,7 @@ from .parameters import RobotParameters
 from .systems import controller_output, controller_output_with_estimate, signal_names
 
 __all__ = ["DigitalController", "DISCRETIZATIONS", "VELOCITY_SOURCES", "encoder", "digital_controller", "actuator",
-           "digital_observer", "euler_stability_limit"]
+           "digital_observer"]
 
 DISCRETIZATIONS = ("euler", "zoh")
 VELOCITY_SOURCES = ("measured", "difference")
@@ -263,28 +269,3 @@ def digital_observer(nominal: RobotParameters, gain, settings: DigitalController
                          dt=settings.period)
     block.gain = Y
     return block
-
-
-def euler_stability_limit(nominal: RobotParameters, gain: np.ndarray, period: float, q_samples: np.ndarray) -> dict:
-    """The forward-Euler observer's stability margin over the configurations ``q_samples`` (N, 4).
-
-    The Euler update's error map is ``I - Ts Y M^-1(q)``; it is stable when
-    every eigenvalue ``lambda`` of ``Y M^-1`` has ``|1 - Ts lambda| < 1``,
-    i.e. (for real ``lambda``) ``lambda < 2 / Ts``.  Scaling the gain by
-    ``c`` keeps it stable while ``c < 2 Re(lambda) / (Ts |lambda|^2)`` for all
-    of them.
-
-    Returns
-    -------
-    dict
-        ``stable`` (bool), ``largest_eigenvalue`` (1/s, largest ``|lambda|``),
-        ``largest_stable_scale`` (the factor ``c`` above; the gain times it is
-        the largest stable gain of this shape), ``q_worst`` (where ``c`` is smallest).
-    """
-    from .dynamics import inertia
-    q_samples = np.atleast_2d(np.asarray(q_samples, dtype=float))
-    lam = np.linalg.eigvals(gain[None] @ np.linalg.inv(inertia(q_samples, nominal)))       # (N, 4)
-    scale = 2 * lam.real / (period * np.abs(lam) ** 2)
-    worst = np.unravel_index(np.argmin(scale), scale.shape)
-    return {"stable": bool(np.all(np.abs(1 - period * lam) < 1)), "largest_eigenvalue": float(np.abs(lam).max()),
-            "largest_stable_scale": float(scale[worst]), "q_worst": q_samples[worst[0]].tolist()}

@@ -7,6 +7,7 @@ observer are sampled at ``controller.sample_rate``.  See
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import control as ct
@@ -18,7 +19,6 @@ from .digital import (
     digital_controller,
     digital_observer,
     encoder,
-    euler_stability_limit,
     quantized,
 )
 from .hybrid import HybridSystem
@@ -111,37 +111,96 @@ def _signal(loop: HybridSystem, y: np.ndarray, prefix: str) -> np.ndarray:
 
 
 def check_observer_rate(scenario, samples: int = 201) -> None:
-    """Refuse, before a run, an observer gain that the sample rate makes unstable.
+    """Refuse, before a run, an observer gain that the sampled loop cannot keep stable.
 
-    In the loop -- the controller subtracts ``d_hat`` and the plant
-    integrates the held torque -- the estimate's error follows
-    ``e_{k+1} = (I - Ts Y M^-1) e_k`` for both discretizations of the
-    observer (``docs/model.md``, "Digital observer"): it is stable when
-    ``|1 - Ts lambda| < 1`` for every eigenvalue of ``Y M^-1(q)``, checked at
-    the configurations of the reference path on the nominal model
-    (:func:`blocks.digital.euler_stability_limit`).
+    The loop is linearized at the configurations of the reference path on
+    the nominal model and its one-sample map -- the plant under the held
+    torque, the controller, the observer's update (``euler`` or ``zoh``), the
+    velocity estimate and the delay -- must have spectral radius below 1
+    (:func:`blocks.digital_stability.scenario_stability`).  Only forward
+    Euler with measured velocity has the closed form ``Ts lambda_max(Y M^-1)
+    < 2``; the others are computed (``docs/model.md``, "Digital observer").
 
     Raises
     ------
     blocks.scenario.ScenarioError
-        Naming ``controller.sample_rate`` and ``gains.observer``, with the
-        largest stable gain at this rate and the lowest stable rate for this gain.
+        Naming ``gains.observer`` and ``controller.sample_rate`` (and the
+        discretization, velocity and delay keys), with the computed limit on
+        ``Ts lambda_max(Y M^-1)``, the largest stable scale of the gain and
+        the lowest stable rate; naming ``gains.kp`` and ``gains.kd`` when no
+        observer gain is stable at this rate.
     """
+    from .digital_stability import scenario_stability
     from .scenario import ScenarioError
     s, settings = scenario, scenario.controller
-    times = np.linspace(0.0, s.simulation.t_final, samples)
-    q_path = np.array([s.trajectory.evaluate(float(t))[0] for t in times])
-    margin = euler_stability_limit(s.nominal, s.observer_gain, settings.period, q_path)
-    if margin["stable"]:
+    verdict = scenario_stability(s, samples, limit=False)
+    if verdict.stable:
         return
-    scale = margin["largest_stable_scale"]
-    raise ScenarioError(
-        f"{s.source}: 'controller.sample_rate' = {settings.sample_rate:g} Hz makes the observer with "
-        f"'gains.observer' unstable in the loop: Ts lambda_max(Y M^-1) = "
-        f"{settings.period * margin['largest_eigenvalue']:.3g} > 2 at q = {np.round(margin['q_worst'], 4).tolist()}. "
-        f"The largest stable gain at this rate is {scale:.3g} x gains.observer (for a scalar gain: "
-        f"{scale * float(np.max(np.diag(s.observer_gain))):.4g}); or raise the rate above "
-        f"{settings.sample_rate / scale:.4g} Hz")
+    verdict = scenario_stability(s, samples)
+    used = (f"controller.observer_discretization = \"{settings.observer_discretization}\", "
+            f"controller.velocity = \"{settings.velocity}\"")
+    if settings.velocity_cutoff is not None:
+        used += f", controller.velocity_cutoff = {settings.velocity_cutoff:g} Hz"
+    used += f", controller.delay = {settings.delay}"
+    where = (f"{s.source}: at 'controller.sample_rate' = {settings.sample_rate:g} Hz ({used}) the sampled loop is "
+             f"unstable: its linearized one-sample map has spectral radius {verdict.spectral_radius:.4g} > 1 at "
+             f"q = {np.round(verdict.q_worst, 4).tolist()}")
+    scale = verdict.largest_stable_scale
+    if not scale > 0:
+        raise ScenarioError(f"{where} for any 'gains.observer': the controller alone is unstable at this rate; "
+                            f"lower 'gains.kp' / 'gains.kd' or raise 'controller.sample_rate'")
+    text = (f"{where}. With 'gains.observer' Ts lambda_max(Y M^-1) = {verdict.ts_lambda_max:.4g}; the computed "
+            f"limit for these settings is Ts lambda_max(Y M^-1) < {_down(verdict.ts_lambda_limit)}, i.e. at most "
+            f"{_down(scale)} x gains.observer (for a scalar gain: "
+            f"{_down(scale * float(np.max(np.diag(s.observer_gain))))})")
+    rate = _lowest_stable_rate(s, samples)
+    if rate is not None:
+        text += f"; or raise 'controller.sample_rate' to {rate:.4g} Hz"
+    others = {"observer_discretization": "zoh" if settings.observer_discretization == "euler" else "euler",
+              "velocity": "measured" if settings.velocity == "difference" else None,
+              "delay": 0 if settings.delay else None}
+    stable_with = []
+    for key, value in others.items():
+        if value is None:
+            continue
+        change = {key: value} | ({"velocity_cutoff": None} if key == "velocity" else {})
+        if scenario_stability(s, samples, limit=False, **change).stable:
+            shown = f'"{value}"' if isinstance(value, str) else f"{value}"
+            stable_with.append(f"'controller.{key}' = {shown}")
+    if stable_with:
+        text += f". The gain is stable with {' or '.join(stable_with)}"
+    raise ScenarioError(text)
+
+
+def _down(value: float, digits: int = 4) -> str:
+    """A limit to ``digits`` significant digits, rounded down so that the number shown is not past the limit.
+
+    The bisection returns the stable end of its bracket, up to ``1e-7`` below the limit; it is nudged up by
+    ``1e-6`` first so that a limit that is a round number (Euler's 2) shows as itself.
+    """
+    if not math.isfinite(value) or value == 0:
+        return f"{value:g}"
+    value *= 1.0 + 1e-6
+    step = 10.0 ** (math.floor(math.log10(abs(value))) - digits + 1)
+    return f"{math.floor(value / step) * step:.{digits}g}"
+
+
+def _lowest_stable_rate(scenario, samples: int, rtol: float = 1e-4) -> float | None:
+    """The lowest sample rate (Hz) at which the scenario's gains are stable (bisection; None past 1000x)."""
+    from .digital_stability import scenario_stability
+    rate = scenario.controller.sample_rate
+    lo, hi = rate, 2.0 * rate
+
+    def stable(r: float) -> bool:
+        return scenario_stability(scenario, samples, limit=False, sample_rate=r).stable
+    while not stable(hi):
+        lo, hi = hi, 2.0 * hi
+        if hi > 1000.0 * rate:
+            return None
+    while hi > lo * (1.0 + rtol):
+        mid = math.sqrt(lo * hi)
+        lo, hi = (lo, mid) if stable(mid) else (mid, hi)
+    return hi
 
 
 def simulate_sampled(scenario, observer: bool = True, plant=None,

@@ -1,6 +1,7 @@
 """The linearized sampled loop against independent derivations: the continuous poles as the rate grows, the
-forward-Euler observer bound 2 / (Ts lambda_max(Y M^-1)) (docs/model.md, "Digital observer"), and the encoder
-quantization noise against simulation."""
+forward-Euler observer bound 2 / (Ts lambda_max(Y M^-1)) with measured velocity (docs/model.md, "Digital
+observer"), the stability computation (blocks.digital_stability) against this module's linearization of the
+blocks themselves, and the encoder quantization noise against simulation."""
 from __future__ import annotations
 
 import math
@@ -40,15 +41,43 @@ def test_at_a_high_rate_the_poles_are_the_continuous_ones():
     assert owners == {"observer"}
 
 
-def test_the_euler_gain_limit_without_delay_is_the_frozen_inertia_bound():
-    """Largest stable c with Y = c 10 I at rate f: c = 2 f / lambda_max(10 M^-1) = 2 f / 40 (lambda_min(M) = k4)."""
+def test_the_euler_gain_limit_is_the_frozen_inertia_bound_and_zoh_is_below():
+    """Largest stable c with Y = c 10 I at rate f: Euler with measured velocity c = 2 f / lambda_max(10 M^-1)
+    = 2 f / 40 (lambda_min(M) = k4), with or without a delay (its error map I - Ts Y M^-1 does not involve the
+    torque); zoh below it, and lower with a delay."""
     s = _paper(HELD | {"controller.sample_rate": 1000.0})
-    study = observer_gain_limit(s, rates_hz=(200.0, 1000.0), configurations=[Q0], discretizations=("euler",),
+    study = observer_gain_limit(s, rates_hz=(200.0, 1000.0), configurations=[Q0], discretizations=("euler", "zoh"),
                                 delays=(0, 1))
-    no_delay, one = study.curves
+    no_delay, one, zoh, zoh_one = study.curves
     np.testing.assert_allclose(no_delay.euler_bound_scale, [10.0, 50.0], rtol=1e-9)
-    np.testing.assert_allclose(no_delay.largest_scale, [10.0, 50.0], rtol=0.01)
-    assert all(a < b for a, b in zip(one.largest_scale, no_delay.largest_scale))     # a delay costs margin
+    np.testing.assert_allclose(no_delay.largest_scale, [10.0, 50.0], rtol=1e-6)
+    np.testing.assert_allclose(one.largest_scale, [10.0, 50.0], rtol=1e-6)
+    np.testing.assert_allclose(no_delay.ts_lambda_limit, [2.0, 2.0], rtol=1e-6)
+    assert all(z1 < z0 < e for z1, z0, e in zip(zoh_one.largest_scale, zoh.largest_scale, no_delay.largest_scale))
+    assert zoh.ts_lambda_limit[1] == pytest.approx(1.9795, abs=1e-4)          # issue 17, 1 kHz
+
+
+@pytest.mark.parametrize("changes", [
+    {"controller.observer_discretization": "zoh"},
+    {"controller.velocity": "difference", "controller.velocity_cutoff": 40.0},
+    {"controller.observer_discretization": "zoh", "controller.delay": 1, "controller.velocity": "difference"},
+    {"controller.delay": 1, "controller.velocity": "difference", "controller.velocity_cutoff": 20.0},
+])
+def test_the_stability_computation_is_the_linearization_of_the_blocks(changes):
+    """blocks.digital_stability writes the linearized one-sample map out; linear_sampled_loop linearizes the
+    hybrid loop's own blocks numerically (control.linearize, control's ZOH of the plant): same moduli of the
+    eigenvalues at 100 Hz with the gain 4 Y (near the limits)."""
+    from analysis.digital import _held, _operating_state
+    from blocks.digital_loop import sampled_loop
+    from blocks.digital_stability import sampled_loop_map
+    s = _paper(HELD | {"controller.sample_rate": 100.0, "gains.observer": 40.0} | changes)
+    held = _held(s, Q0)
+    loop = sampled_loop(held)
+    A, _, _ = linear_sampled_loop(loop, _operating_state(held, loop))
+    Phi = sampled_loop_map(blocks.inertia(Q0, s.nominal), s.kp, s.kd, s.observer_gain, s.controller)
+    assert A.shape == Phi.shape
+    np.testing.assert_allclose(np.sort(np.abs(np.linalg.eigvals(A))), np.sort(np.abs(np.linalg.eigvals(Phi))),
+                               atol=1e-6)
 
 
 def test_the_gain_limit_agrees_with_simulation():
@@ -99,8 +128,10 @@ def test_quantization_noise_is_predicted_within_20_percent():
 def test_digital_analysis_answers_in_numbers_and_draws(tmp_path):
     s = _paper(HELD | {"controller.sample_rate": 1000.0, "simulation.t_final": 1.0})
     result = digital_analysis(s, rates_hz=(500.0, 2000.0), configurations=[Q0])
-    assert result.largest_stable_scale == pytest.approx(50.0, rel=0.01)
+    assert result.largest_stable_scale == pytest.approx(50.0, rel=1e-6)        # Euler, measured: 2 f / 40
+    assert result.ts_lambda_limit == pytest.approx(2.0, rel=1e-6)
     assert "1000 Hz" in result.answer and f"{result.largest_stable_scale:.3g} times" in result.answer
+    assert f"Ts lambda_max(Y M^-1) < {result.ts_lambda_limit:.4g}" in result.answer
     assert result.quantization is None                   # exact encoders: nothing to add
     assert type(result).from_json(result.to_json()).largest_stable_scale == result.largest_stable_scale
     paths = digital_figures(result, tmp_path)
@@ -124,4 +155,8 @@ def test_a_report_of_a_digital_scenario_has_the_digital_section(tmp_path):
     result = __import__("json").loads((tmp_path / "report" / "analysis.json").read_text())
     assert result["digital"]["largest_stable_scale"] == pytest.approx(50.0, rel=0.01)     # 2 f / lambda_max, f = 1 kHz
     assert f"{result['digital']['largest_stable_scale']:.3g} times" in page
+    # the rule the section states is the computed one, not prose
+    from analysis.report_view.text import fmt
+    assert f"the rule is Ts lambda_max(Y M^-1) &lt; {fmt(result['digital']['ts_lambda_limit'], 5)}." in page
+    assert "lambda_max(Y M^-1) &lt; 2 for both" not in page
     assert (tmp_path / "report" / "figures" / "digital_gain_limit.png").exists()

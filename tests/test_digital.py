@@ -3,7 +3,9 @@
 * a double integrator under sampled PD + Euler observer: the exact discrete closed form (ZOH) of the loop;
 * the arm's digital loop (delay, saturation, quantization, differenced velocity): a sampled implementation
   written here from the [controller] section's definition, with the plant integrated by solve_ivp;
-* the Euler observer's stability limit 2 / (Ts lambda_max(Y M^-1)) (docs/model.md: lambda_min(M) = k4 = 0.25);
+* the Euler observer's stability limit 2 / (Ts lambda_max(Y M^-1)) with measured velocity (docs/model.md:
+  lambda_min(M) = k4 = 0.25), refused before the run for both updates beyond it (tests/test_sampled_stability.py
+  has the zoh, velocity-difference and delay limits, which are lower);
 * convergence to the continuous loop as the rate grows, and the observer fed the saturated torque (no wind-up).
 """
 from __future__ import annotations
@@ -16,8 +18,9 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import blocks
-from blocks.digital import euler_stability_limit
+from blocks.digital import DigitalController
 from blocks.digital_loop import sampled_initial_state, sampled_loop, simulate_sampled
+from blocks.digital_stability import sampled_stability
 from blocks.hybrid import HybridError, HybridSystem
 from blocks.metrics import signal
 from blocks.scenario import ScenarioError
@@ -174,18 +177,25 @@ def test_sampled_runs_converge_to_the_continuous_run_at_first_order():
 
 
 def test_the_euler_observer_limit_is_two_over_ts_lambda_max():
-    """lambda_max(Y M^-1) = Y / k4 = 500 / 0.25 = 2000 1/s: the Euler update is stable below Ts = 1 ms."""
+    """lambda_max(Y M^-1) = Y / k4 = 500 / 0.25 = 2000 1/s: with measured velocity the Euler update is stable
+    below Ts = 1 ms; beyond that rate both updates are refused (zoh's own limit is lower still)."""
     q = np.array([[0.3, 1.2, 0.1, 0.2]])
-    nominal = blocks.PAPER_PARAMETERS
+    nominal, kp, kd = blocks.PAPER_PARAMETERS, 180 * np.eye(4), 36 * np.eye(4)
     for rate, stable in ((950.0, False), (1050.0, True)):
-        margin = euler_stability_limit(nominal, 500 * np.eye(4), 1 / rate, q)
-        assert margin["stable"] is stable
-        assert margin["largest_eigenvalue"] == pytest.approx(2000.0, rel=1e-9)
-        assert margin["largest_stable_scale"] == pytest.approx(2 * rate / 2000.0, rel=1e-9)
+        margin = sampled_stability(nominal, q, kp, kd, 500 * np.eye(4), DigitalController(sample_rate=rate))
+        assert margin.stable is stable
+        assert margin.ts_lambda_max == pytest.approx(2000.0 / rate, rel=1e-9)
+        assert margin.largest_stable_scale == pytest.approx(2 * rate / 2000.0, rel=1e-6)
     s = _scenario(HELD | {"gains.observer": 500.0, "controller.sample_rate": 950.0, "simulation.t_final": 0.2})
-    for method in ("euler", "zoh"):           # in the loop the limit holds for both (see the next test)
-        with pytest.raises(ScenarioError, match=r"controller.sample_rate.*950 Hz.*gains.observer.*0.95 x.*1000 Hz"):
-            simulate_sampled(s.with_changes({"controller.observer_discretization": method}))
+    with pytest.raises(ScenarioError, match=r"controller.sample_rate' = 950 Hz.*gains.observer.*< 2, i.e. at most "
+                       r"0.95 x gains.observer.*raise 'controller.sample_rate' to 1000 Hz"):
+        simulate_sampled(s)
+    zoh = s.with_changes({"controller.observer_discretization": "zoh"})
+    limit = sampled_stability(nominal, q, kp, kd, 500 * np.eye(4), zoh.controller).largest_stable_scale
+    assert limit < 0.95
+    with pytest.raises(ScenarioError, match=r"controller.sample_rate' = 950 Hz.*observer_discretization = \"zoh\""
+                       r".*gains.observer.*at most 0.9\d* x gains.observer"):
+        simulate_sampled(zoh)
 
 
 def _estimate_error(changes: dict, t_final: float, feedback: bool = True) -> float:
@@ -206,10 +216,11 @@ def _estimate_error(changes: dict, t_final: float, feedback: bool = True) -> flo
     return float(np.abs(d_hat - d[:, None])[:, -1].max())
 
 
-def test_in_the_loop_both_discretizations_share_the_limit():
-    """With the controller subtracting d_hat and the plant integrating the held torque, the estimate's error obeys
-    e_{k+1} = (I - Ts Y M^-1) e_k for Euler and for zoh alike (docs/model.md, "Digital observer"): stable at
-    1050 Hz (Ts lambda = 1.905), growing by |1 - Ts lambda| = 1.105 per sample at 950 Hz (110x in 50 ms)."""
+def test_in_the_loop_both_discretizations_diverge_beyond_the_euler_limit():
+    """With the controller subtracting d_hat and the plant integrating the held torque, Euler's estimate error
+    obeys e_{k+1} = (I - Ts Y M^-1) e_k (docs/model.md, "Digital observer"): stable at 1050 Hz (Ts lambda =
+    1.905), growing by |1 - Ts lambda| = 1.105 per sample at 950 Hz (110x in 50 ms); zoh, whose loop limit is
+    lower, diverges there too."""
     assert _estimate_error({"controller.sample_rate": 1050.0}, 0.5) < 1e-3     # slowest mode 500 x 0.085 = 42 1/s
     for method in ("euler", "zoh"):
         assert _estimate_error({"controller.sample_rate": 950.0, "controller.observer_discretization": method},
