@@ -97,7 +97,7 @@ class Monitor:
         self.method = method
         self.started = time.monotonic()
         self.deadline = None if self.budget.seconds is None else self.started + self.budget.seconds
-        self._progress, self._last_report = progress, -math.inf
+        self._progress, self._last_report = progress, self.started
 
     # -- bounds ---------------------------------------------------------------------------------------
     @property

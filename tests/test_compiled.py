@@ -235,7 +235,7 @@ def test_compiled_progress_reports_fractions_of_simulated_time(monkeypatch):
     assert len(seen) > 5 and seen == sorted(seen) and 0 < seen[0] < 0.5 and seen[-1] == 1.0
     np.testing.assert_array_equal(with_progress.states, blocks.simulate(s, engine="compiled").states)
     seen.clear()
-    monkeypatch.setattr(engine_module, "_PROGRESS_PERIOD", 1e9)     # a run shorter than the period: only its end
+    monkeypatch.setattr(monitor_module, "PROGRESS_PERIOD", 1e9)     # a run shorter than the period: only its end
     blocks.simulate(s, engine="compiled", progress=seen.append)
     assert seen == [1.0]
 
