@@ -13,6 +13,7 @@ from collections.abc import Callable
 import control as ct
 import numpy as np
 
+from .budget import Budget
 from .digital import (
     DigitalController,
     actuator,
@@ -21,9 +22,12 @@ from .digital import (
     encoder,
     quantized,
 )
+from .divergence import state_bounds
 from .hybrid import HybridSystem
 from .kernels import arm_constants
 from .kernels import lumped_disturbance as lumped_disturbance_rows
+from .monitor import Monitor
+from .run_limits import estimate_run
 from .systems import plant, sensor, signal_names, trajectory_block
 
 __all__ = ["sampled_loop", "sampled_initial_state", "simulate_sampled", "check_observer_rate",
@@ -211,16 +215,25 @@ def simulate_sampled(scenario, observer: bool = True, plant=None,
     ------
     blocks.scenario.ScenarioError
         Before the run, if the observer is unstable at this rate (:func:`check_observer_rate`).
+    blocks.budget.BudgetError
+        Before the loop is built, if the run's estimate (ticks, the delay buffer, the output grid) exceeds the
+        budget; during the run, if the wall-time budget runs out.
+    blocks.monitor.SimulationError
+        If a physical signal leaves its bound (:mod:`blocks.divergence`): the signal, the bound and the time named.
     """
     s = scenario
     if observer:
         check_observer_rate(s)
+    sim = s.simulation
+    budget = Budget.from_env()
+    budget.check(estimate_run(s, observer), f"scenario '{s.name}' (sampled at {s.controller.sample_rate:g} Hz)")
     loop = sampled_loop(s, observer=observer, plant_system=plant)
     x0 = sampled_initial_state(loop, s)
-    sim = s.simulation
+    monitor = Monitor(f"scenario '{s.name}'", state_bounds(loop, s), x0, budget, sim.t_final, progress, sim.method)
     t_grid = sim.time_grid
     states, outputs = loop.simulate(x0, t_grid, sim.method, rtol=sim.rtol, atol=sim.atol, max_step=sim.max_step,
-                                    progress=progress)
+                                    monitor=monitor)
+    monitor.report(sim.t_final, final=True)
     labels = loop.output_labels
     pick = lambda sig: outputs[[labels.index(n) for n in signal_names(sig)]]  # noqa: E731
     d = lumped_disturbance_rows(arm_constants(s.robot), arm_constants(s.nominal), pick("q"), pick("dq"),

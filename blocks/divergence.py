@@ -1,4 +1,4 @@
-"""When a run has diverged: bounds on the physical signals, derived from the scenario.
+"""When a run has diverged: bounds on the physical signals, derived from the scenario (the one rule).
 
 A loop has diverged when the arm moves or spins far beyond anything its
 reference asks, or its disturbance estimate grows far beyond any force in
@@ -17,18 +17,29 @@ Bounds, per joint (units rad, m; rad/s, m/s; N m, N):
   scenario holds at the start (the external disturbance, gravity, the
   reference's torque), plus 1.
 
-States of other blocks (an FMU's own states, a user's blocks, the digital
-controller's buffers) are judged only for being finite.
+The digital controller's states are physical too: the encoder's previous
+sample is a position, its filtered velocity a velocity.  A state with no
+physical meaning known here (an FMU's own states, a user's blocks, the
+actuator's command buffer) is judged by growth: beyond :data:`GROWTH_FACTOR`
+times its start magnitude plus :data:`GROWTH_FLOOR` (see
+:meth:`StateBounds.with_growth`).
+
+Every engine judges the same array of bounds (:class:`blocks.monitor.Monitor`):
+single runs, both batches (one column of bounds per member: the force bound
+depends on the member's arm, disturbance and gain), the sampled loop and
+co-simulation.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .dynamics import gravity, inverse_dynamics
+from .kernels import arm_constants, bias_forces, external_disturbance, mass_times
+from .kernels import disturbance_params as kernel_disturbance_params
 
-__all__ = ["StateBounds", "state_bounds", "POSITION_MARGIN", "VELOCITY_MARGIN", "FORCE_FACTOR"]
+__all__ = ["StateBounds", "state_bounds", "ReferenceLimits", "reference_limits", "force_bounds", "batch_bounds",
+           "POSITION_MARGIN", "VELOCITY_MARGIN", "FORCE_FACTOR", "GROWTH_FACTOR", "GROWTH_FLOOR"]
 
 #: Added to the reference's largest position (rad for revolute joints, m for prismatic ones).
 POSITION_MARGIN = {"revolute": 100.0, "prismatic": 10.0}
@@ -36,16 +47,29 @@ POSITION_MARGIN = {"revolute": 100.0, "prismatic": 10.0}
 VELOCITY_MARGIN = {"revolute": 1e3, "prismatic": 1e2}
 #: The disturbance estimate's bound in multiples of the largest force in the scenario.
 FORCE_FACTOR = 1e3
+#: A state without a physical bound has diverged beyond this many times its start magnitude (plus the floor).
+GROWTH_FACTOR = 1e6
+#: Added to a state's start magnitude before the growth factor (in the state's own unit).
+GROWTH_FLOOR = 1.0
+
+
+def _format_pair(value: float, bound: float) -> tuple[str, str]:
+    """``value`` and ``bound`` with enough digits that a value beyond its bound prints beyond it."""
+    for digits in range(4, 17):
+        a, b = f"{value:.{digits}g}", f"{bound:.{digits}g}"
+        if a != b and abs(float(a)) != abs(float(b)):
+            return a, b
+    return f"{value!r}", f"{bound!r}"
 
 
 @dataclass(frozen=True)
 class StateBounds:
-    """A bound per loop state (``inf`` where only finiteness is judged), and what each state is.
+    """A bound per loop state (``inf`` where no physical bound is known), and what each state is.
 
     Attributes
     ----------
     bounds : numpy.ndarray
-        Largest magnitude of each state.
+        Largest magnitude of each state, shape (nstates,) or (nstates, N) for a batch (one column per member).
     names : list of str
         The signal each judged state stands for (``"plant q[2]"``), or the state's own label.
     units : list of str
@@ -58,52 +82,171 @@ class StateBounds:
     units: list
     reasons: list
 
+    def with_growth(self, x0) -> StateBounds:
+        """These bounds with every ``inf`` replaced by the growth bound ``GROWTH_FACTOR (|x0| + GROWTH_FLOOR)``.
+
+        ``x0`` is the start state (nstates,) or (nstates, N).  A state with no
+        physical bound is thus judged the same way by every engine: a blow-up
+        by six orders of magnitude is divergence, not the state's business.
+        """
+        x0 = np.asarray(x0, dtype=float)
+        bounds = np.array(np.broadcast_to(self.bounds, np.broadcast_shapes(self.bounds.shape, x0.shape)),
+                          dtype=float)
+        growth = GROWTH_FACTOR * (np.abs(np.broadcast_to(x0, bounds.shape)) + GROWTH_FLOOR)
+        free = ~np.isfinite(bounds)
+        bounds[free] = growth[free]
+        reasons = list(self.reasons)
+        rows = free if free.ndim == 1 else free.any(axis=1)
+        for k in np.flatnonzero(rows):
+            reasons[k] = f"no physical bound known: {GROWTH_FACTOR:g} x (its start magnitude + {GROWTH_FLOOR:g})"
+        return replace(self, bounds=bounds, reasons=reasons)
+
+    def member(self, m: int) -> StateBounds:
+        """The bounds of batch member ``m`` (column ``m``), as for a single run."""
+        return replace(self, bounds=self.bounds[:, m] if self.bounds.ndim == 2 else self.bounds)
+
+    def violated(self, x) -> np.ndarray:
+        """True for every state (or state and member) that is not finite or beyond its bound."""
+        return ~(np.abs(np.asarray(x, dtype=float)) <= self.bounds)        # NaN counts as beyond
+
     def describe(self, x: np.ndarray) -> str:
-        """Which state is out of bounds (or not finite) in ``x``, as a sentence."""
+        """Which state is out of bounds (or not finite) in ``x`` (one run's state), as a sentence."""
         x = np.asarray(x, dtype=float)
+        bounds = self.bounds if self.bounds.ndim == 1 else self.bounds[:, 0]
         bad = ~np.isfinite(x)
         if bad.any():
             k = int(np.argmax(bad))
             return f"{self.names[k]} became {x[k]}"
-        k = int(np.argmax(np.abs(x) / self.bounds))
-        return (f"{self.names[k]} reached {x[k]:.4g} {self.units[k]}, beyond its bound {self.bounds[k]:.4g} "
-                f"{self.units[k]} ({self.reasons[k]})")
+        with np.errstate(divide="ignore", invalid="ignore"):
+            k = int(np.argmax(np.abs(x) / bounds))
+        value, bound = _format_pair(abs(float(x[k])), float(bounds[k]))
+        sign = "-" if x[k] < 0 else ""
+        return (f"{self.names[k]} reached {sign}{value} {self.units[k]}, beyond its bound {bound} "
+                f"{self.units[k]} ({self.reasons[k]})").replace("  ", " ")
 
 
-def state_bounds(loop, scenario, samples: int = 201) -> StateBounds:
-    """The bounds of :mod:`this module <blocks.divergence>` for the states of an interconnected ``loop``."""
+@dataclass(frozen=True)
+class ReferenceLimits:
+    """What the bounds take from the reference: per joint position and velocity bounds and the start point."""
+
+    position: np.ndarray
+    velocity: np.ndarray
+    q0: np.ndarray
+    dq0: np.ndarray
+    ddq0: np.ndarray
+    kinds: tuple
+    position_units: tuple
+    velocity_units: tuple
+    force_units: tuple
+
+
+def reference_limits(scenario, samples: int = 201) -> ReferenceLimits:
+    """The position and velocity bounds of :mod:`this module <blocks.divergence>` from the scenario's reference."""
     s = scenario
     joints = s.robot.joints
     times = np.linspace(0.0, s.simulation.t_final, samples)
-    refs = [np.array(a) for a in zip(*(s.trajectory.evaluate(float(t)) for t in times))]   # (T, 4) each
-    q_ref, dq_ref, ddq_ref = refs
+    q_ref, dq_ref, ddq_ref = (np.asarray(a, dtype=float) for a in s.trajectory.evaluate(times))   # (T, n) each
     pos = np.abs(q_ref).max(axis=0) + np.array([POSITION_MARGIN[k] for k in joints.kinds])
     vel = np.abs(dq_ref).max(axis=0) + np.array([VELOCITY_MARGIN[k] for k in joints.kinds])
-    q0, dq0 = q_ref[0], dq_ref[0]
-    from .disturbances import external_disturbance
-    forces = np.abs(external_disturbance(0.0, q0, dq0, s.disturbance, s.robot)) + np.abs(gravity(q0, s.robot)) \
-        + np.abs(inverse_dynamics(q0, dq0, ddq_ref[0], s.robot))
-    force = FORCE_FACTOR * (forces.max() + 1.0)
-    Y = np.abs(np.asarray(s.observer_gain))
+    return ReferenceLimits(pos, vel, q_ref[0], dq_ref[0], ddq_ref[0], tuple(joints.kinds),
+                           tuple(joints.position_units), tuple(joints.velocity_units), tuple(joints.force_units))
+
+
+def force_bounds(k_true: np.ndarray, disturbance, ref: ReferenceLimits) -> np.ndarray:
+    """The disturbance estimate's bound per member: ``FORCE_FACTOR`` (largest start force + 1) (N m, N).
+
+    Parameters
+    ----------
+    k_true : numpy.ndarray
+        Arm constants of the true arm, (6,) or (6, N) for N members.
+    disturbance : blocks.kernels.DisturbanceParams
+        The external disturbance in the same layout (rows, one column per member).
+    ref : ReferenceLimits
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape () for one arm, (N,) for N members.
+    """
+    batch = np.ndim(k_true) == 2
+    col = (lambda a: np.asarray(a, dtype=float)[:, None]) if batch else (lambda a: np.asarray(a, dtype=float))
+    q0, dq0, ddq0 = col(ref.q0), col(ref.dq0), col(ref.ddq0)
+    if batch:
+        q0, dq0, ddq0 = (np.repeat(a, np.shape(k_true)[1], axis=1) for a in (q0, dq0, ddq0))
+    c2, s2 = np.cos(q0[1]), np.sin(q0[1])
+    gravity_only = bias_forces(k_true, s2, np.zeros_like(dq0))
+    inverse = mass_times(k_true, c2, ddq0) + bias_forces(k_true, s2, dq0)
+    forces = np.abs(external_disturbance(0.0, q0, dq0, disturbance)) + np.abs(gravity_only) + np.abs(inverse)
+    return FORCE_FACTOR * (forces.max(axis=0) + 1.0)
+
+
+def _bound_of(block: str, label: str, ref: ReferenceLimits, force, gain):
+    """The bound of one state by its block and label: (bound, name, unit, reason); ``inf`` if not physical."""
+    n = ref.position.size
+    for i in range(n):
+        if (block == "plant" and label == f"q[{i}]") or (block == "encoder" and label == f"q_prev[{i}]"):
+            return (ref.position[i], f"{block} {label}", ref.position_units[i],
+                    f"the reference's largest |q[{i}]| plus {POSITION_MARGIN[ref.kinds[i]]:g} {ref.position_units[i]}")
+        if (block == "plant" and label == f"dq[{i}]") or (block == "encoder" and label == f"v_prev[{i}]"):
+            return (ref.velocity[i], f"{block} {label}", ref.velocity_units[i],
+                    f"the reference's largest speed plus {VELOCITY_MARGIN[ref.kinds[i]]:g} {ref.velocity_units[i]}")
+        if block == "observer" and label == f"z[{i}]":
+            y_row = np.abs(gain[i])                      # (n,) for one run, (n, N) for a batch
+            reach = (y_row * (ref.velocity if y_row.ndim == 1 else ref.velocity[:, None])).sum(axis=0)
+            return (force + reach, f"observer z[{i}] (= d_hat - Y dq)", ref.force_units[i],
+                    f"{FORCE_FACTOR:g} x the largest force at the start for d_hat, plus Y dq within the velocity "
+                    "bounds")
+    return np.inf, f"{block} {label}", "", "finite"
+
+
+def _labelled_bounds(labels, ref: ReferenceLimits, force, gain) -> StateBounds:
+    """Bounds for states given as ``(block name, state label)`` pairs."""
     bounds, names, units, reasons = [], [], [], []
-    for block in loop.syslist:
-        labels = list(block.state_labels)
-        for label in labels:
-            bound, name, unit, reason = np.inf, f"{block.name} {label}", "", "finite"
-            for i in range(joints.count):
-                if block.name == "plant" and label == f"q[{i}]":
-                    bound, name, unit = pos[i], f"plant q[{i}]", joints.position_units[i]
-                    reason = f"the reference's largest |q[{i}]| plus {POSITION_MARGIN[joints.kinds[i]]:g} {unit}"
-                elif block.name == "plant" and label == f"dq[{i}]":
-                    bound, name, unit = vel[i], f"plant dq[{i}]", joints.velocity_units[i]
-                    reason = f"the reference's largest speed plus {VELOCITY_MARGIN[joints.kinds[i]]:g} {unit}"
-                elif block.name == "observer" and label == f"z[{i}]":
-                    bound, unit = force + float(Y[i] @ vel), joints.force_units[i]
-                    name = f"observer z[{i}] (= d_hat - Y dq)"
-                    reason = (f"{FORCE_FACTOR:g} x the largest force at the start for d_hat, plus Y dq within the "
-                              "velocity bounds")
-            bounds.append(bound)
-            names.append(name)
-            units.append(unit)
-            reasons.append(reason)
-    return StateBounds(np.array(bounds, dtype=float), names, units, reasons)
+    for block, label in labels:
+        bound, name, unit, reason = _bound_of(block, label, ref, force, gain)
+        bounds.append(bound)
+        names.append(name)
+        units.append(unit)
+        reasons.append(reason)
+    N = np.size(force)
+    if np.ndim(force) == 0:
+        array = np.array([float(b) for b in bounds], dtype=float)
+    else:
+        array = np.array([np.broadcast_to(b, (N,)) for b in bounds], dtype=float).reshape(len(bounds), N)
+    return StateBounds(array, names, units, reasons)
+
+
+def state_bounds(loop, scenario, samples: int = 201) -> StateBounds:
+    """The bounds of :mod:`this module <blocks.divergence>` for the states of an interconnected ``loop``.
+
+    ``loop`` is the continuous loop (:func:`blocks.closed_loop`) or the sampled one
+    (:func:`blocks.digital_loop.sampled_loop`): anything with ``syslist`` of blocks with ``state_labels``.
+    """
+    s = scenario
+    ref = reference_limits(s, samples)
+    spec = kernel_disturbance_params(s.disturbance, s.robot)
+    force = float(force_bounds(arm_constants(s.robot), spec, ref))
+    labels = [(block.name, label) for block in loop.syslist for label in block.state_labels]
+    return _labelled_bounds(labels, ref, force, np.asarray(s.observer_gain, dtype=float))
+
+
+def batch_bounds(batch_loop, labels=None) -> StateBounds:
+    """Per-member bounds (nstates, N) of a batch (:class:`blocks.batch.simulate._BatchLoop`).
+
+    ``labels`` are ``(block, label)`` pairs in the engine's state order; by
+    default the numpy batch's rows ``q; dq; z``.
+    """
+    b = batch_loop
+    ref = reference_limits(b.v.base)
+    force = force_bounds(b.k_true, b.disturbance, ref)                                   # (N,)
+    n = b.joints
+    if labels is None:
+        labels = [("plant", f"q[{i}]") for i in range(n)] + [("plant", f"dq[{i}]") for i in range(n)]
+        if b.observer:
+            labels += [("observer", f"z[{i}]") for i in range(n)]
+    gain = np.asarray(b.gain, dtype=float)
+    if gain.ndim == 2:                      # diagonal gains, rows (n, N): as full matrices (n, n, N)
+        eye = np.eye(n)[:, :, None]
+        gain = eye * gain[None, :, :]
+    return _labelled_bounds(labels, ref, force, gain)
+

@@ -223,8 +223,14 @@ class HybridSystem:
     # -- a run --------------------------------------------------------------------------------------
     def simulate(self, x0, t_grid, method: str = "RK45", rtol: float = 1e-6, atol: float = 1e-8,
                  max_step: float = math.inf, bound: float = math.inf,
-                 progress: Callable[[float], None] | None = None) -> tuple[np.ndarray, np.ndarray]:
+                 progress: Callable[[float], None] | None = None, monitor=None) -> tuple[np.ndarray, np.ndarray]:
         """States and outputs on ``t_grid`` (s), starting from ``x0`` at ``t_grid[0] = 0``.
+
+        With a ``monitor`` (:class:`blocks.monitor.Monitor`) its bounds replace
+        ``bound``, the states are judged after every tick's updates and within
+        every interval, the step budget counts the right-hand-side evaluations
+        of all intervals together, and the wall time and progress are checked
+        at every tick.
 
         Returns
         -------
@@ -238,6 +244,8 @@ class HybridSystem:
         ------
         blocks.integrate.DivergenceError, blocks.integrate.SolverFailure
             As :func:`blocks.integrate.integrate_on_grid`, for a continuous interval.
+        blocks.monitor.SimulationError, blocks.budget.BudgetError
+            With a monitor: divergence (the signal, its bound and the time named), the step or the time budget.
         """
         t_grid = np.asarray(t_grid, dtype=float)
         if t_grid[0] != 0.0:
@@ -250,18 +258,31 @@ class HybridSystem:
         outputs = np.empty((len(self.output_labels), t_grid.size))
         g = 0                                   # next grid point to fill
         last_report = -1.0
+        if monitor is not None:
+            bound = monitor.limits
+        evaluations = 0
         for k in range(n_ticks + 1):
             t0 = k * Tb
             t1 = min((k + 1) * Tb, t_grid[-1]) if k < n_ticks else t_grid[-1]
             y = self.tick_outputs(k, x, held)
             x_after = self.tick_updates(k, x, y)
+            if monitor is not None:
+                monitor.check(t0, x_after)
             # grid points in [t0, t1): the continuous state is continuous, discrete ones are the updated
             upto = int(np.searchsorted(t_grid, t1 if k < n_ticks else np.inf, side="left"))
             if t1 > t0:
                 inside = t_grid[g:upto]
                 times = np.unique(np.concatenate(([t0], inside, [t1])))
-                X, _ = integrate_on_grid(self.continuous_rhs(held), x_after, times, method, rtol=rtol, atol=atol,
-                                         max_step=max_step, bound=bound, first_step=t1 - t0)
+                try:
+                    X, nfev = integrate_on_grid(self.continuous_rhs(held), x_after, times, method, rtol=rtol,
+                                                atol=atol, max_step=max_step, bound=bound, first_step=t1 - t0)
+                except DivergenceError as err:
+                    if monitor is None:
+                        raise
+                    raise monitor.diverged(err.time, err.state) from None
+                evaluations += nfev
+                if monitor is not None:
+                    monitor.check_evaluations(t1, evaluations)
                 pick = np.searchsorted(times, inside)
                 states[:, g:upto] = X[:, pick]
                 x = X[:, -1]
@@ -273,6 +294,9 @@ class HybridSystem:
             if upto > g:
                 outputs[:, g:upto] = self.outputs_between_ticks(t_grid[g:upto], states[:, g:upto], held)
                 g = upto
+            if monitor is not None:
+                monitor.check_time(t1)
+                monitor.report(t1)
             if progress is not None and t_grid[-1] > 0 and (t1 / t_grid[-1] - last_report) >= 0.05:
                 last_report = t1 / t_grid[-1]
                 progress(min(1.0, last_report))

@@ -54,7 +54,7 @@ def integrate_on_grid(fun: Callable[[float, np.ndarray], np.ndarray], x0, t_grid
                       rtol: float = 1e-6, atol: float = 1e-8, max_step: float = np.inf, bound: float = np.inf,
                       progress: Callable[[float], None] | None = None,
                       first_step: float | None = None, max_evaluations: int | None = None,
-                      deadline: float | None = None) -> tuple[np.ndarray, int]:
+                      deadline: float | None = None, monitor=None) -> tuple[np.ndarray, int]:
     """States of ``x' = fun(t, x)`` at the times of ``t_grid``, integrated from ``x0`` at ``t_grid[0]``.
 
     Parameters
@@ -80,6 +80,10 @@ def integrate_on_grid(fun: Callable[[float, np.ndarray], np.ndarray], x0, t_grid
         Stop with :class:`SolverFailure` once the solver has called ``fun`` more often.
     deadline : float, optional
         A :func:`time.monotonic` time; stop with :class:`SolverFailure` when a step ends after it.
+    monitor : blocks.monitor.Monitor, optional
+        The job's Monitor: after every step it judges the step budget (raising
+        :class:`~blocks.monitor.SimulationError`) and the wall time (raising
+        :class:`~blocks.budget.BudgetError`), and takes the progress reports.
 
     Returns
     -------
@@ -121,6 +125,10 @@ def integrate_on_grid(fun: Callable[[float, np.ndarray], np.ndarray], x0, t_grid
                                 f"(steps of {solver.step_size:.3g} s): the problem is stiff or fast")
         if deadline is not None and time.monotonic() > deadline:
             raise SolverFailure(float(solver.t), "the wall-time limit was reached")
+        if monitor is not None:
+            monitor.check_evaluations(float(solver.t), solver.nfev)
+            monitor.check_time(float(solver.t))
+            monitor.report(float(solver.t))
         # grid times up to and including the new time, interpolated as solve_ivp does
         upto = int(np.searchsorted(t_grid, solver.t, side="right"))
         if upto > done:

@@ -42,7 +42,8 @@ from .fastsim import CompiledLoop
 from .integrate import DivergenceError, SolverFailure, integrate_on_grid
 from .kernels import arm_constants
 from .kernels import lumped_disturbance as lumped_disturbance_rows
-from .run_limits import estimate_run, solver_limits
+from .monitor import Monitor, SimulationError
+from .run_limits import estimate_run
 from .scenario import Scenario, load_scenario
 from .systems import controller, plant, sensor, signal_names, trajectory_block
 from .systems import observer as observer_block
@@ -54,13 +55,6 @@ __all__ = ["build_blocks", "closed_loop", "initial_state", "simulate", "Simulati
 ENGINES = ("auto", "compiled", "fast", "python-control")
 
 LOOP_SIGNALS = ("q", "dq", "q_ref", "dq_ref", "ddq_ref", "tau", "d_hat", "tau_dis")
-
-# The batch engines judge a member diverged when a state is this large (single runs: blocks.divergence).
-DIVERGENCE_BOUND = 1e6
-
-
-class SimulationError(RuntimeError):
-    """The simulation failed or diverged; the message gives the time and the reason."""
 
 
 class EngineFallbackWarning(UserWarning):
@@ -283,21 +277,23 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
     budget.check(run.estimate(), f"scenario '{s.name}' ({sim.method})")
     if engine in ("auto", "compiled"):
         engine = select_engine(engine, run.compiled_reason(sim.method))
+    monitor = Monitor(f"scenario '{s.name}'", run.bounds(), run.x0, budget, sim.t_final, progress, sim.method)
     with_d = False
     if engine == "compiled":
-        states, outputs, with_d = _integrate_with(run.compiled_engine(), loop, run.x0, t_grid, sim, progress,
-                                                  run.bounds())
+        states, outputs, with_d = _integrate_with(run.compiled_engine(), loop, run.x0, t_grid, sim, monitor)
     elif engine == "fast":
-        states, outputs, with_d = _integrate_with(_NumpyEngine(loop, sim.method, budget), loop, run.x0, t_grid, sim,
-                                                  progress, run.bounds())
+        states, outputs, with_d = _integrate_with(_NumpyEngine(loop, sim.method), loop, run.x0, t_grid, sim, monitor)
     elif engine == "python-control":
         resp = ct.input_output_response(loop, t_grid, 0, run.x0, solve_ivp_method=sim.method,
                                         solve_ivp_kwargs=dict(rtol=sim.rtol, atol=sim.atol, max_step=sim.max_step),
                                         return_states=True)
-        if not resp.success:
-            raise SimulationError(f"scenario '{s.name}': solver failed: {resp.message}")
         states, outputs = np.atleast_2d(resp.states), np.atleast_2d(resp.outputs)
-        _check_bounds(t_grid, states, s, run.bounds())
+        if not resp.success:
+            # a solver that gave up on a diverging loop: name the signal where the states left their bounds
+            finite = np.all(np.isfinite(states), axis=0)
+            monitor.check_grid(t_grid[finite], states[:, finite])
+            raise SimulationError(f"scenario '{s.name}': solver failed: {resp.message}")
+        monitor.check_grid(t_grid, states)
     if not with_d:
         d = lumped_disturbance_rows(run.k_true, run.k_nominal, *(outputs[rows] for rows in run.d_inputs))
         outputs = np.vstack([outputs, d])
@@ -381,50 +377,31 @@ def _prepared(s: Scenario, observer: bool) -> _Prepared:
 class _NumpyEngine:
     """The numpy engine with the interface of :class:`blocks.compiled.CompiledLoopEngine`."""
 
-    #: It stops at the first step beyond any state's own bound.
-    per_state_bounds = True
+    def __init__(self, loop, method: str) -> None:
+        self.compiled, self.method = CompiledLoop(loop), method
 
-    def __init__(self, loop, method: str, budget: Budget | None = None) -> None:
-        self.compiled, self.method, self.budget = CompiledLoop(loop), method, budget
-
-    def integrate(self, x0, t_grid, rtol, atol, max_step, bound, progress):
-        limits = {} if self.budget is None else solver_limits(self.budget, self.method)
+    def integrate(self, x0, t_grid, rtol, atol, max_step, monitor: Monitor):
         return integrate_on_grid(self.compiled.point_rhs, x0, t_grid, self.method, rtol=rtol, atol=atol,
-                                 max_step=max_step, bound=bound, progress=progress, **limits)
+                                 max_step=max_step, bound=monitor.limits, monitor=monitor)
 
     def outputs_on_grid(self, t_grid, X):
         return self.compiled.outputs_on_grid(t_grid, X)
 
 
-def _integrate_with(engine, loop, x0, t_grid, sim, progress, bounds):
+def _integrate_with(engine, loop, x0, t_grid, sim, monitor: Monitor):
     """States and outputs on the grid, and whether the outputs end with the lumped disturbance's rows (the compiled
-    engine computes them in its grid pass).  Divergence is judged on the bounds of :mod:`blocks.divergence`."""
+    engine computes them in its grid pass).  The engine stops where the :class:`~blocks.monitor.Monitor` says."""
     name = loop.scenario.name
-    # an engine that judges all states against one bound is given the loosest, and checked on the grid after
-    bound = bounds.bounds if getattr(engine, "per_state_bounds", False) else \
-        float(np.max(bounds.bounds[np.isfinite(bounds.bounds)], initial=np.inf))
     try:
-        states, _ = engine.integrate(x0, t_grid, sim.rtol, sim.atol, sim.max_step, bound, progress)
+        states, _ = engine.integrate(x0, t_grid, sim.rtol, sim.atol, sim.max_step, monitor=monitor)
     except DivergenceError as err:
-        where = bounds.describe(err.state) if err.state is not None else "a state left its bound"
-        raise SimulationError(f"scenario '{name}': the loop diverged at t = {err.time:.6g} s: {where}; "
-                              f"no result is returned") from None
+        raise monitor.diverged(err.time, err.state) from None
     except SolverFailure as err:
         raise SimulationError(f"scenario '{name}': the solver stopped at t = {err.time:.6g} s of "
-                              f"{t_grid[-1]:g} s: {err.reason}") from None
-    _check_bounds(t_grid, states, loop.scenario, bounds)
+                              f"{t_grid[-1]:g} s: {err.reason}", time=err.time) from None
+    monitor.check_grid(t_grid, states)
     with_d = "d" in getattr(engine, "row_groups", {})      # the compiled engine computes d in the same pass
     outputs = engine.outputs_on_grid(t_grid, states, rows=("d",), stacked=True) if with_d else \
         engine.outputs_on_grid(t_grid, states)
-    if progress is not None:
-        progress(1.0)
+    monitor.report(t_grid[-1], final=True)
     return states, outputs, with_d
-
-
-def _check_bounds(t_grid, states, s, bounds):
-    """Refuse states on the grid that are not finite or beyond their bounds (:mod:`blocks.divergence`)."""
-    bad = ~np.all(np.abs(states) <= bounds.bounds[:, None], axis=0)       # NaN counts as beyond
-    if bad.any():
-        k = int(np.argmax(bad))
-        raise SimulationError(f"scenario '{s.name}': the loop diverged by t = {t_grid[k]:.6g} s: "
-                              f"{bounds.describe(states[:, k])}; no result is returned")

@@ -9,30 +9,36 @@ An explicit solver (RK45, RK23, DOP853) takes steps no longer than about
 ``STABILITY_SPAN / lambda`` for the loop's fastest rate ``lambda`` (1/s), so a
 very stiff loop -- a huge gain, a tiny friction velocity -- asks for millions of
 steps; interpolated measurement noise has a kink at every sample, which the
-solver must step to.  :func:`estimate_run` counts the steps from those rates
-(:func:`blocks.batch.schedule.rates_by_source`) and the memory from the output
-grid and the noise table, naming the scenario key behind each;
-:func:`check_run` refuses a run over budget before it starts.  During the run
-the step budget (as right-hand-side evaluations) and the wall-time budget
-stop the solver (:func:`blocks.integrate.integrate_on_grid`).
+solver must step to; ``simulation.max_step`` caps every step; a sampled
+controller restarts the solver at every tick.  :func:`estimate_run` counts
+the steps from those (:func:`blocks.batch.schedule.rates_by_source`) and the
+memory from the output grid, the noise table and the actuator's delay buffer,
+naming the scenario key behind each; :func:`check_run` refuses a run over
+budget before it starts (before the loop is even built).  During the run the
+:class:`~blocks.monitor.Monitor` holds every engine to the step budget (as
+right-hand-side evaluations) and the wall-time budget.
 """
 from __future__ import annotations
 
-import time
+import math
 
 from .budget import Budget, Estimate
 from .scenario import Scenario
 
-__all__ = ["estimate_run", "check_run", "solver_limits", "EXPLICIT_METHODS", "STABILITY_SPAN"]
+__all__ = ["estimate_run", "check_run", "EXPLICIT_METHODS", "STABILITY_SPAN"]
 
 #: Methods whose step is limited by the fastest rate (the others are implicit).
 EXPLICIT_METHODS = ("RK45", "RK23", "DOP853")
 #: ``h lambda`` an explicit Runge-Kutta step stays stable below (about 3.3 for RK45 on the real axis).
 STABILITY_SPAN = 3.0
-#: Right-hand-side evaluations per step (RK45 uses six; DOP853 twelve, RK23 three; implicit methods vary).
-EVALUATIONS_PER_STEP = {"RK45": 6, "RK23": 3, "DOP853": 12}
 # Bytes per output grid point: states and outputs of the response, and the engine's copies of them.
 _GRID_POINT_BYTES = 4 * 8 * 80
+#: Bytes per number of a sampled loop's state or output at an output grid point: the response's states and
+#: outputs, the engine's copies and the per-tick temporaries.
+SAMPLED_VALUE_BYTES = 4 * 8
+#: Bytes per slot of the actuator's delay buffer beside its values on the grid: its state label and the
+#: interconnection's index entries (measured: about 150).
+BUFFER_SLOT_BYTES = 256
 
 
 def estimate_run(scenario: Scenario, observer: bool = True) -> Estimate:
@@ -42,12 +48,19 @@ def estimate_run(scenario: Scenario, observer: bool = True) -> Estimate:
     s = scenario
     t_final = s.simulation.t_final
     candidates = []
-    if s.simulation.method in EXPLICIT_METHODS:
+    if s.controller is not None:
+        rate = s.controller.sample_rate
+        candidates.append((t_final * rate, "controller.sample_rate",
+                           f"one integrator step at least per controller tick: {t_final:g} s at {rate:g} Hz"))
+    elif s.simulation.method in EXPLICIT_METHODS:
         for key, rates in rates_by_source(Variants(s, [{}]), observer).items():
             rate = float(rates.max())
             candidates.append((t_final * rate / STABILITY_SPAN, key,
                                f"its fastest rate, about {rate:.3g} 1/s, limits an explicit {s.simulation.method} "
                                f"step to {STABILITY_SPAN / rate:.3g} s"))
+    if math.isfinite(s.simulation.max_step):
+        candidates.append((t_final / s.simulation.max_step, "simulation.max_step",
+                           f"steps no longer than {s.simulation.max_step:g} s over {t_final:g} s"))
     if s.noise is not None:
         candidates.append((t_final / s.noise.sample_period, "noise.sample_period",
                            f"one step at least per noise sample, every {s.noise.sample_period:g} s"))
@@ -56,6 +69,12 @@ def estimate_run(scenario: Scenario, observer: bool = True) -> Estimate:
     parts = {"output grid": grid * _GRID_POINT_BYTES}
     keys = {"steps": key, "output grid": "simulation.output_step"}
     reasons = {"steps": reason, "output grid": f"{grid:,} points"}
+    if s.controller is not None and s.controller.delay:
+        slots = s.controller.delay * s.robot.joints.count
+        parts["the actuator's delay buffer"] = slots * (BUFFER_SLOT_BYTES + SAMPLED_VALUE_BYTES * grid)
+        keys["the actuator's delay buffer"] = "controller.delay"
+        reasons["the actuator's delay buffer"] = (f"{s.controller.delay:,} samples of {s.robot.joints.count} torques, "
+                                                  f"kept at {grid:,} output points")
     if s.noise is not None:
         parts["noise table"] = s.noise.table.nbytes
         keys["noise table"] = "noise.sample_period"
@@ -74,11 +93,3 @@ def check_run(scenario: Scenario, observer: bool = True, budget: Budget | None =
     budget = Budget.from_env() if budget is None else budget
     budget.check(estimate_run(scenario, observer), f"scenario '{scenario.name}' ({scenario.simulation.method})")
     return budget
-
-
-def solver_limits(budget: Budget, method: str) -> dict:
-    """``max_evaluations`` and ``deadline`` for :func:`blocks.integrate.integrate_on_grid` from a budget."""
-    limits = {"max_evaluations": budget.steps * EVALUATIONS_PER_STEP.get(method, 6)}
-    if budget.seconds is not None:
-        limits["deadline"] = time.monotonic() + budget.seconds
-    return limits

@@ -227,13 +227,15 @@ def test_compiled_progress_reports_fractions_of_simulated_time(monkeypatch):
     s = blocks.load_scenario("paper").replace(simulation={"t_final": 1.0})
     blocks.simulate(s, engine="compiled")
     seen = []
-    monkeypatch.setattr(engine_module, "_PROGRESS_PERIOD", 0.0)     # report after every call of the compiled loop
+    import blocks.monitor as monitor_module
+    monkeypatch.setattr(monitor_module, "PROGRESS_PERIOD", 0.0)     # report after every call of the compiled loop
+    monkeypatch.setattr(monitor_module, "CHUNK_SECONDS", 0.0)       # and return to the Monitor after few steps
     monkeypatch.setattr(engine_module, "_FIRST_STEPS", 4)
     with_progress = blocks.simulate(s, engine="compiled", progress=seen.append)
     assert len(seen) > 5 and seen == sorted(seen) and 0 < seen[0] < 0.5 and seen[-1] == 1.0
     np.testing.assert_array_equal(with_progress.states, blocks.simulate(s, engine="compiled").states)
     seen.clear()
-    monkeypatch.setattr(engine_module, "_PROGRESS_PERIOD", 1e9)     # a run shorter than the period: only its end
+    monkeypatch.setattr(monitor_module, "PROGRESS_PERIOD", 1e9)     # a run shorter than the period: only its end
     blocks.simulate(s, engine="compiled", progress=seen.append)
     assert seen == [1.0]
 

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -18,7 +18,9 @@ from ..kernels import (
     observer_rate,
     plant_acceleration,
 )
+from ..divergence import batch_bounds
 from ..metrics import METRICS, OBSERVER_METRICS, TrackingAccumulator
+from ..monitor import Monitor
 from ..scenario import Scenario, load_scenario
 from ..workers import worker_pool
 from .schedule import auto_substeps, batch_schedule
@@ -41,10 +43,6 @@ STATE_ERROR = 2e-7
 METRIC_RTOL = 1e-3
 METRIC_ATOL = 1e-6
 
-# A state this large (rad, m, rad/s, N m) means the member has diverged (as in loop.simulate).
-DIVERGENCE_BOUND = 1e6
-
-
 @dataclass
 class BatchResult:
     """What a batch run kept.
@@ -64,6 +62,9 @@ class BatchResult:
         Each asked-for signal on the grid, shape (N, len(time), 4).
     failed_at : numpy.ndarray
         Time (s) at which each member diverged, NaN if it did not.
+    failures : dict of int to str
+        For each member that diverged, which signal left which bound (:mod:`blocks.divergence`, the rule of
+        single runs), as a sentence.
     steps : int
         Number of RK4 steps taken.
     substeps : int
@@ -78,6 +79,7 @@ class BatchResult:
     failed_at: np.ndarray
     steps: int
     substeps: int
+    failures: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.variants)
@@ -318,10 +320,10 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
         engine = select_engine(engine, batch_unavailable_reason(v))
     if engine == "compiled":
         times, grid_index = _schedule if _schedule is not None else batch_schedule(v, substeps, breakpoints)
-        values, kept, failed_at = run_compiled_batch(v, _BatchLoop(v, observer), observer, metrics, tuple(signals),
-                                                     times, grid_index, workers)
+        values, kept, failed_at, failures = run_compiled_batch(v, _BatchLoop(v, observer), observer, metrics,
+                                                               tuple(signals), times, grid_index, workers)
         return BatchResult(variants=v, observer=observer, time=s.simulation.time_grid, metrics=values, signals=kept,
-                           failed_at=failed_at, steps=times.size - 1, substeps=int(substeps))
+                           failed_at=failed_at, steps=times.size - 1, substeps=int(substeps), failures=failures)
     if workers > 1 and len(v) > 1:
         return _simulate_in_processes(v, observer, metrics, tuple(signals), substeps, workers,
                                       batch_schedule(v, substeps, breakpoints))
@@ -339,7 +341,15 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
     acc = _Accumulator(loop, metrics, signals, n_grid, ref_grid)
 
     x = loop.initial_state([r[0] for r in refs], None if noise_at is None else noise_at[0])
+    monitor = Monitor(f"batch of scenario '{s.name}'", batch_bounds(loop), x)
     failed_at = np.full(loop.n, np.nan)
+    failures: dict[int, str] = {}
+
+    def judge(t: float, x: np.ndarray, failed_at: np.ndarray) -> np.ndarray:
+        now = monitor.check_members(t, x, failed_at)
+        for m in np.flatnonzero(np.isnan(failed_at) & ~np.isnan(now)):
+            failures[int(m)] = f"t = {t:.6g} s: {monitor.member_reason(int(m), x[:, m])}"
+        return now
     pick = (lambda tab, k: None) if noise_at is None else (lambda tab, k: tab[k])
     with np.errstate(all="ignore"):      # a diverging member must not stop the others
         for k in range(times.size - 1):
@@ -349,7 +359,7 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
             sig = {} if grid_index[k] >= 0 else None
             k1 = loop.rhs(t0, x, ref0, pick(noise_at, k), sig)
             if sig is not None:
-                failed_at = _check(x, t0, failed_at)
+                failed_at = judge(t0, x, failed_at)
                 acc.add(grid_index[k], sig)
             k2 = loop.rhs(t0 + 0.5 * h, x + (0.5 * h) * k1, refm, pick(noise_mid, k))
             k3 = loop.rhs(t0 + 0.5 * h, x + (0.5 * h) * k2, refm, pick(noise_mid, k))
@@ -361,18 +371,18 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
         sig = {}
         k = times.size - 1
         loop.rhs(times[k], x, [r[k] for r in refs], pick(noise_at, k), sig)
-        failed_at = _check(x, times[k], failed_at)
+        failed_at = judge(times[k], x, failed_at)
         acc.add(grid_index[k], sig)
     values, kept = acc.result(~np.isnan(failed_at))
     return BatchResult(variants=v, observer=observer, time=sim.time_grid, metrics=values, signals=kept,
-                       failed_at=failed_at, steps=times.size - 1, substeps=int(substeps))
+                       failed_at=failed_at, steps=times.size - 1, substeps=int(substeps), failures=failures)
 
 
 def _simulate_part(job: tuple) -> tuple:
     base, records, observer, metrics, signals, substeps, schedule = job
     r = simulate_batch(None, Variants(base, records), observer, metrics, signals, substeps, engine="fast",
                        _schedule=schedule)
-    return r.metrics, r.signals, r.failed_at, r.steps
+    return r.metrics, r.signals, r.failed_at, r.steps, r.failures
 
 
 def _simulate_in_processes(v: Variants, observer: bool, metrics: tuple, signals: tuple, substeps: int,
@@ -384,17 +394,7 @@ def _simulate_in_processes(v: Variants, observer: bool, metrics: tuple, signals:
     with worker_pool(len(jobs)) as pool:
         parts = list(pool.map(_simulate_part, jobs))
     join = lambda i: {k: np.concatenate([p[i][k] for p in parts]) for k in parts[0][i]}   # noqa: E731
+    failures = {int(idx[m]): reason for idx, p in zip(slices, parts) for m, reason in p[4].items()}
     return BatchResult(variants=v, observer=observer, time=v.base.simulation.time_grid, metrics=join(0),
                        signals=join(1), failed_at=np.concatenate([p[2] for p in parts]), steps=parts[0][3],
-                       substeps=int(substeps))
-
-
-def _check(x: np.ndarray, t: float, failed_at: np.ndarray) -> np.ndarray:
-    """Mark members whose state is non-finite or beyond :data:`DIVERGENCE_BOUND` at time ``t``."""
-    largest = np.max(np.abs(x), axis=0)
-    bad = ~(largest <= DIVERGENCE_BOUND)          # also true for NaN
-    new = bad & np.isnan(failed_at)
-    if new.any():
-        failed_at = failed_at.copy()
-        failed_at[new] = t
-    return failed_at
+                       substeps=int(substeps), failures=failures)

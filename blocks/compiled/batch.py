@@ -25,7 +25,9 @@ import control as ct
 import numpy as np
 
 from ..kernels import tool_pose
-from ..loop import DIVERGENCE_BOUND, _prepared, closed_loop
+from ..divergence import batch_bounds
+from ..loop import _prepared, closed_loop
+from ..monitor import Monitor
 from ..systems import observer as observer_block
 from ..systems import signal_names
 from .codegen import CompiledUnavailable
@@ -138,7 +140,8 @@ def _noise_tables(v, engine) -> tuple[list, np.ndarray | None]:
 
 def run_compiled_batch(v, batch_loop, observer: bool, metrics: tuple, signals: tuple, times, grid_index,
                        workers: int = 1):
-    """Integrate the members of ``v`` compiled; return ``(metrics, signals, failed_at)`` as the numpy batch does.
+    """Integrate the members of ``v`` compiled; return ``(metrics, signals, failed_at, failures)`` as the numpy
+    batch does (``failures``: member -> which signal left which bound, the rule of :mod:`blocks.divergence`).
 
     Parameters
     ----------
@@ -188,6 +191,11 @@ def run_compiled_batch(v, batch_loop, observer: bool, metrics: tuple, signals: t
     X0[:, steps["plant"].x] = x_rows[:2 * n].T
     if observer:
         X0[:, steps["observer"].x] = x_rows[2 * n:3 * n].T
+    # each member's bounds in the loop's state order (the interconnection's: blocks in order, their own labels)
+    labels = [(block.name, label) for block in loop.syslist for label in block.state_labels]
+    monitor = Monitor(f"batch of scenario '{v.base.name}'", batch_bounds(batch_loop, labels), X0.T)
+    bound = np.ascontiguousarray(monitor.limits.T)                          # (N, nstates)
+    failed_x = np.zeros((N, plan.nstates))
 
     # the row groups the metrics need, and the reference's tool position at each grid point (shared)
     groups = engine.row_groups
@@ -238,18 +246,20 @@ def run_compiled_batch(v, batch_loop, observer: bool, metrics: tuple, signals: t
             else:
                 tables, table_row = (), np.zeros(c1 - c0, dtype=np.int64)
             module.rk4_batch(times, grid_index, src_at, src_mid, aux, X0[c0:c1], theta[c0:c1], ext, tables,
-                             table_row, flags, keep, keep_rows, n_grid - 1, DIVERGENCE_BOUND, Y[c0:c1],
-                             sum_sq[c0:c1], max_abs[c0:c1], final[c0:c1], failed_at[c0:c1])
+                             table_row, flags, keep, keep_rows, n_grid - 1, bound[c0:c1], Y[c0:c1],
+                             sum_sq[c0:c1], max_abs[c0:c1], final[c0:c1], failed_at[c0:c1], failed_x[c0:c1])
     finally:
         numba.set_num_threads(previous)
     failed = ~np.isnan(failed_at)
+    failures = {int(m): f"t = {failed_at[m]:.6g} s: {monitor.member_reason(int(m), failed_x[m])}"
+                for m in np.flatnonzero(failed)}
     values = _metrics(metrics, groups, n_grid, sum_sq, max_abs, final)
     for value in values.values():
         value[failed] = np.nan
     kept = {name: Y[:, :, at[name]].copy() for name in signals}
     for store in kept.values():
         store[failed] = np.nan
-    return values, kept, failed_at
+    return values, kept, failed_at, failures
 
 
 def _metrics(metrics: tuple, groups: dict, n_points: int, sum_sq, max_abs, final) -> dict:

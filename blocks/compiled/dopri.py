@@ -266,7 +266,7 @@ def source_table(times, theta, ext, table):
 
 
 def rk4_batch(times, grid_index, src_at, src_mid, aux, X0, theta, ext, tables, table_row, flags, keep, keep_rows,
-              last_grid, bound, Y, sum_sq, max_abs, final, failed_at):
+              last_grid, bound, Y, sum_sq, max_abs, final, failed_at, failed_x):
     """Fixed-step RK4 of every member on the shared schedule ``times``, members in parallel.
 
     ``src_at``/``src_mid`` are the sources' outputs at the step times and
@@ -278,9 +278,10 @@ def rk4_batch(times, grid_index, src_at, src_mid, aux, X0, theta, ext, tables, t
     ``sum_sq`` and ``max_abs`` (N, rows) and their value at the last grid
     point (grid index ``last_grid``), ``final``.  When ``keep`` or ``keep_rows`` are not empty the
     outputs ``keep`` and rows ``keep_rows`` are stored in ``Y[member, grid
-    index]``.  A member whose state is non-finite or beyond ``bound`` at a
-    grid point gets that time in ``failed_at`` and stops.  Nothing is
-    allocated per step.
+    index]``.  A member whose state is non-finite or beyond its bound at a
+    grid point (``bound[m, i]``: each member's physical bounds, see
+    :mod:`blocks.divergence`) gets that time in ``failed_at``, that state in
+    ``failed_x[m]``, and stops.  Nothing is allocated per step.
     """
     n_members, n = X0.shape
     n_out = loop_output_count()
@@ -307,10 +308,12 @@ def rk4_batch(times, grid_index, src_at, src_mid, aux, X0, theta, ext, tables, t
             if g >= 0:
                 ok = True
                 for i in range(n):
-                    if not abs(x[i]) <= bound:
+                    if not abs(x[i]) <= bound[m, i]:
                         ok = False
                 if not ok:
                     failed_at[m] = t0
+                    for i in range(n):
+                        failed_x[m, i] = x[i]
                     break
                 loop_rhs_rows(t0, x, th, src_at[k], e, work, aux[g], flags, k1, rows)
                 for r in range(n_rows):

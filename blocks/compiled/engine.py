@@ -99,36 +99,48 @@ class CompiledLoopEngine:
 
     # -- a run -------------------------------------------------------------------------------------------
     def integrate(self, x0, t_grid, rtol: float = 1e-6, atol: float = 1e-8, max_step: float = np.inf,
-                  bound=np.inf, progress: Callable[[float], None] | None = None) -> tuple[np.ndarray, int]:
+                  bound=np.inf, progress: Callable[[float], None] | None = None,
+                  monitor=None) -> tuple[np.ndarray, int]:
         """States on ``t_grid`` (n, T) from ``x0`` and the number of right-hand-side calls.
 
         Dormand-Prince 5(4) with the step control of :class:`scipy.integrate.RK45`
         (see :mod:`blocks.compiled.dopri`); the arguments are those of
         :func:`blocks.integrate.integrate_on_grid`.  ``progress`` is called
         with the fraction of simulated time done at most every 0.2 s of wall time.
+        With a ``monitor`` (:class:`blocks.monitor.Monitor`) its bounds replace
+        ``bound`` and the run returns to it at least every
+        :data:`blocks.monitor.CHUNK_SECONDS`: it enforces the step and wall-time
+        budgets, takes the progress reports, and lets Ctrl-C through.
 
         Raises
         ------
         DivergenceError, SolverFailure
+            And with a monitor :class:`~blocks.monitor.SimulationError` (step budget) and
+            :class:`~blocks.budget.BudgetError` (wall time).
         """
         t_grid = np.ascontiguousarray(t_grid, dtype=float)
         if t_grid.ndim != 1 or t_grid.size < 2 or not np.all(np.isfinite(t_grid)) or np.any(np.diff(t_grid) <= 0):
             raise ValueError("t_grid must be at least two finite, increasing times")
         x0 = np.array(x0, dtype=float)
+        if monitor is not None:
+            bound = monitor.limits
         bound = np.array(np.broadcast_to(np.asarray(bound, dtype=float), x0.shape))      # writable, like warm()'s
         if not np.all(np.isfinite(x0)) or not np.all(np.abs(x0) <= bound):
             raise DivergenceError(float(t_grid[0]), bound, x0)
         if self._announce:
             self.warm()
-        return self._integrate(x0, t_grid, float(rtol), float(atol), float(max_step), bound, progress)
+        return self._integrate(x0, t_grid, float(rtol), float(atol), float(max_step), bound, progress, monitor)
 
-    def _integrate(self, x0, t_grid, rtol, atol, max_step, bound, progress):
+    def _integrate(self, x0, t_grid, rtol, atol, max_step, bound, progress, monitor=None):
         n = x0.size
         state = np.zeros(6)
         y, f, K, Q = x0.copy(), np.empty(n), np.empty((7, n)), np.empty((n, 4))
         y_old, X = np.empty(n), np.empty((n, t_grid.size))
         run = self.module.dopri_run
-        if progress is None:
+        if monitor is not None:
+            status = self._integrate_monitored(run, t_grid, rtol, atol, max_step, bound, monitor, state,
+                                               (y, f, K, Q, y_old, X))
+        elif progress is None:
             status = run(t_grid, self.theta, self.ext, rtol, atol, max_step, bound, 2 ** 62, state, y, f, K, Q,
                          y_old, X)
         else:
@@ -141,6 +153,24 @@ class CompiledLoopEngine:
             t_cross = _crossing_time(step, bound)
             raise DivergenceError(t_cross, bound, step.dense_output()(t_cross) if np.all(np.isfinite(y)) else y.copy())
         raise SolverFailure(float(state[_S_T]), "Required step size is less than spacing between numbers.")
+
+    def _integrate_monitored(self, run, t_grid, rtol, atol, max_step, bound, monitor, state, arrays) -> int:
+        """``dopri_run`` in calls of as many steps as take about :data:`~blocks.monitor.CHUNK_SECONDS`, the
+        Monitor judging the step budget and the wall time and taking the progress between calls."""
+        from ..monitor import CHUNK_SECONDS
+        steps = _FIRST_STEPS
+        while True:
+            started = time.monotonic()
+            status = run(t_grid, self.theta, self.ext, rtol, atol, max_step, bound, steps, state, *arrays)
+            t = float(state[_S_T])
+            if status != _RUNNING:
+                return status
+            monitor.check_evaluations(t, int(state[_S_NFEV]))
+            monitor.check_time(t)
+            monitor.report(t)
+            took = time.monotonic() - started
+            # size the next call from this one's pace, within a factor of 8 of it
+            steps = max(1, int(min(8 * steps, max(steps / 8, steps * CHUNK_SECONDS / max(took, 1e-6)))))
 
     def _integrate_reporting(self, run, t_grid, rtol, atol, max_step, bound, progress, state, arrays) -> int:
         """``dopri_run`` in calls of as many steps as take about 0.1 s, reporting the fraction of simulated
