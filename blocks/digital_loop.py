@@ -222,11 +222,12 @@ def simulate_sampled(scenario, observer: bool = True, plant=None,
         If a physical signal leaves its bound (:mod:`blocks.divergence`): the signal, the bound and the time named.
     """
     s = scenario
-    if observer:
-        check_observer_rate(s)
     sim = s.simulation
     budget = Budget.from_env()
+    # the estimate first: a huge delay or rate must be refused before anything is sized by it
     budget.check(estimate_run(s, observer), f"scenario '{s.name}' (sampled at {s.controller.sample_rate:g} Hz)")
+    if observer:
+        check_observer_rate(s)
     loop = sampled_loop(s, observer=observer, plant_system=plant)
     x0 = sampled_initial_state(loop, s)
     monitor = Monitor(f"scenario '{s.name}'", state_bounds(loop, s), x0, budget, sim.t_final, progress, sim.method)
