@@ -14,6 +14,7 @@ import control as ct
 import numpy as np
 
 from .budget import Budget
+from .derived import loop_response
 from .digital import (
     DigitalController,
     actuator,
@@ -24,8 +25,6 @@ from .digital import (
 )
 from .divergence import state_bounds
 from .hybrid import HybridSystem
-from .kernels import arm_constants
-from .kernels import lumped_disturbance as lumped_disturbance_rows
 from .monitor import Monitor
 from .run_limits import estimate_run
 from .systems import plant, sensor, signal_names, trajectory_block
@@ -235,15 +234,7 @@ def simulate_sampled(scenario, observer: bool = True, plant=None,
     states, outputs = loop.simulate(x0, t_grid, sim.method, rtol=sim.rtol, atol=sim.atol, max_step=sim.max_step,
                                     monitor=monitor)
     monitor.report(sim.t_final, final=True)
-    labels = loop.output_labels
-    pick = lambda sig: outputs[[labels.index(n) for n in signal_names(sig)]]  # noqa: E731
-    d = lumped_disturbance_rows(arm_constants(s.robot), arm_constants(s.nominal), pick("q"), pick("dq"),
-                                pick("tau"), pick("tau_dis"))
     rate = s.controller.sample_rate
     title = f"{s.name}: {'with' if observer else 'without'} disturbance observer, sampled at {rate:g} Hz"
-    resp = ct.TimeResponseData(t_grid, np.vstack([outputs, d]), states, output_labels=labels + signal_names("d"),
-                               state_labels=loop.state_labels, title=title, sysname=loop.name, issiso=False,
-                               plot_inputs=False)
-    resp.scenario = s
-    resp.with_observer = observer
-    return resp
+    return loop_response(t_grid, outputs, states, loop.output_labels, loop.state_labels, s, observer, title,
+                         loop.name)

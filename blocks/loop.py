@@ -37,6 +37,7 @@ import control as ct
 import numpy as np
 
 from .budget import Budget
+from .derived import loop_response
 from .divergence import state_bounds
 from .fastsim import CompiledLoop
 from .integrate import DivergenceError, SolverFailure, integrate_on_grid
@@ -294,15 +295,12 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
             monitor.check_grid(t_grid[finite], states[:, finite])
             raise SimulationError(f"scenario '{s.name}': solver failed: {resp.message}")
         monitor.check_grid(t_grid, states)
-    if not with_d:
-        d = lumped_disturbance_rows(run.k_true, run.k_nominal, *(outputs[rows] for rows in run.d_inputs))
-        outputs = np.vstack([outputs, d])
-    resp = ct.TimeResponseData(t_grid, outputs, states, output_labels=run.labels,
-                               state_labels=run.state_labels, title=run.title, sysname=loop.name, issiso=False,
-                               plot_inputs=False)
-    resp.scenario = s
-    resp.with_observer = observer
-    return resp
+    d = None
+    if with_d:                               # the compiled engine's grid pass gave d already, as the last rows
+        n = s.robot.joints.count
+        outputs, d = outputs[:-n], outputs[-n:]
+    return loop_response(t_grid, outputs, states, run.labels, run.state_labels, s, observer, run.title, loop.name,
+                         d=d)
 
 
 class _Prepared:
@@ -315,12 +313,9 @@ class _Prepared:
         self.loop = loop = closed_loop(s, observer=observer, plant=plant)
         self.x0 = initial_state(loop, s)
         self.x0.setflags(write=False)
-        labels = list(loop.output_labels)
-        self.labels = labels + signal_names("d")
+        self.labels = list(loop.output_labels)
         self.state_labels = list(loop.state_labels)
         self.title = f"{s.name}: {'with' if observer else 'without'} disturbance observer"
-        self.d_inputs = [[labels.index(n) for n in signal_names(sig)] for sig in ("q", "dq", "tau", "tau_dis")]
-        self.k_true, self.k_nominal = arm_constants(s.robot), arm_constants(s.nominal)
         self._reasons: dict[str, str | None] = {}
         self._compiled = self._estimate = self._bounds = None
 

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..divergence import batch_bounds
 from ..kernels import (
     DisturbanceParams,
     arm_constants,
@@ -18,7 +19,6 @@ from ..kernels import (
     observer_rate,
     plant_acceleration,
 )
-from ..divergence import batch_bounds
 from ..metrics import METRICS, OBSERVER_METRICS, TrackingAccumulator
 from ..monitor import Monitor
 from ..scenario import Scenario, load_scenario

@@ -24,8 +24,8 @@ from __future__ import annotations
 import control as ct
 import numpy as np
 
-from ..kernels import tool_pose
 from ..divergence import batch_bounds
+from ..kernels import tool_pose
 from ..loop import _prepared, closed_loop
 from ..monitor import Monitor
 from ..systems import observer as observer_block
