@@ -22,6 +22,7 @@ from ..kernels import (
 from ..metrics import METRICS, OBSERVER_METRICS, TrackingAccumulator
 from ..monitor import Monitor
 from ..scenario import Scenario, load_scenario
+from ..steppers import rk4_step
 from ..workers import worker_pool
 from .schedule import auto_substeps, batch_schedule
 from .variants import Variants
@@ -361,10 +362,8 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
             if sig is not None:
                 failed_at = judge(t0, x, failed_at)
                 acc.add(grid_index[k], sig)
-            k2 = loop.rhs(t0 + 0.5 * h, x + (0.5 * h) * k1, refm, pick(noise_mid, k))
-            k3 = loop.rhs(t0 + 0.5 * h, x + (0.5 * h) * k2, refm, pick(noise_mid, k))
-            k4 = loop.rhs(t1, x + h * k3, ref1, pick(noise_at, k + 1))
-            x = x + (h / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
+            x = rk4_step(loop.rhs, t0, x, h, mid=(refm, pick(noise_mid, k)), end=(ref1, pick(noise_at, k + 1)),
+                         k1=k1)
             bad = ~np.isnan(failed_at)
             if bad.any():
                 x[:, bad] = 0.0         # park diverged members at a harmless finite state
