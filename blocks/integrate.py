@@ -53,8 +53,7 @@ class SolverFailure(RuntimeError):
 def integrate_on_grid(fun: Callable[[float, np.ndarray], np.ndarray], x0, t_grid, method: str = "RK45",
                       rtol: float = 1e-6, atol: float = 1e-8, max_step: float = np.inf, bound: float = np.inf,
                       progress: Callable[[float], None] | None = None,
-                      first_step: float | None = None, max_evaluations: int | None = None,
-                      deadline: float | None = None, monitor=None) -> tuple[np.ndarray, int]:
+                      first_step: float | None = None, monitor=None) -> tuple[np.ndarray, int]:
     """States of ``x' = fun(t, x)`` at the times of ``t_grid``, integrated from ``x0`` at ``t_grid[0]``.
 
     Parameters
@@ -76,10 +75,6 @@ def integrate_on_grid(fun: Callable[[float, np.ndarray], np.ndarray], x0, t_grid
         Called with the fraction done (0 to 1), at most every 0.2 s of wall time.
     first_step : float, optional
         The first step to try (s); by default the solver's own estimate.
-    max_evaluations : int, optional
-        Stop with :class:`SolverFailure` once the solver has called ``fun`` more often.
-    deadline : float, optional
-        A :func:`time.monotonic` time; stop with :class:`SolverFailure` when a step ends after it.
     monitor : blocks.monitor.Monitor, optional
         The job's Monitor: after every step it judges the step budget (raising
         :class:`~blocks.monitor.SimulationError`) and the wall time (raising
@@ -119,12 +114,6 @@ def integrate_on_grid(fun: Callable[[float, np.ndarray], np.ndarray], x0, t_grid
             t_cross = _crossing_time(solver, bound)
             raise DivergenceError(t_cross, bound, solver.dense_output()(t_cross) if np.all(np.isfinite(solver.y))
                                   else solver.y.copy())
-        if max_evaluations is not None and solver.nfev > max_evaluations:
-            raise SolverFailure(float(solver.t), f"it needed more than {max_evaluations:,} right-hand-side "
-                                f"evaluations, {solver.nfev / max(solver.t - t0, 1e-300):.3g} per simulated second "
-                                f"(steps of {solver.step_size:.3g} s): the problem is stiff or fast")
-        if deadline is not None and time.monotonic() > deadline:
-            raise SolverFailure(float(solver.t), "the wall-time limit was reached")
         if monitor is not None:
             monitor.check_evaluations(float(solver.t), solver.nfev)
             monitor.check_time(float(solver.t))
