@@ -18,7 +18,8 @@ from pathlib import Path
 import pytest
 
 MIRROR = Path("/work/.mirror/modelica+Reference-FMUs/repo")
-MODELS = {2: ("BouncingBall", "Stair", "Dahlquist"), 3: ("BouncingBall", "Stair", "Dahlquist", "StateSpace")}
+MODELS = {2: ("BouncingBall", "Stair", "Dahlquist", "Feedthrough"),
+          3: ("BouncingBall", "Stair", "Dahlquist", "Feedthrough", "StateSpace")}
 # taken before the test session points tempfile at its private folder: the cache outlives one run
 CACHE_ROOT = Path(os.environ.get("DOBKIT_REFERENCE_FMU_CACHE", Path(tempfile.gettempdir()) / "dobkit-reference-fmus"))
 
@@ -78,7 +79,8 @@ def reference_fmus():
     source, why = _source()
     if source is None:
         pytest.skip(why)
-    target = CACHE_ROOT / _revision(source)
+    models = "-".join(f"{v}{''.join(m[0] for m in names)}" for v, names in MODELS.items())
+    target = CACHE_ROOT / f"{_revision(source)}-{models}"
     if not target.is_dir():
         CACHE_ROOT.mkdir(parents=True, exist_ok=True)
         try:
