@@ -35,7 +35,7 @@ import numpy as np
 from blocks.contract import Block, BlockContract
 
 from .archive import ExtractionLimits, open_extracted
-from .description import described, real_variables, require_variables
+from .description import described, real_variables, require_variables, state_variables
 from .errors import FMUModelDescriptionError
 from .instance import FMUInstance
 
@@ -194,7 +194,7 @@ def load(path, name: str = "plant", start_values: dict | None = None, start_time
                        adopt=owned)
     try:
         md = inst.model_description
-        state_names = [d.variable.derivative.name for d in md.derivatives]
+        state_names = [v.name for v in state_variables(md, inst.source)]
         inputs = [v.name for v in real_variables(md, "input")]
         outputs = [v.name for v in real_variables(md, "output")]
         if not outputs:

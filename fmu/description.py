@@ -30,7 +30,7 @@ from .errors import FMUMissingVariablesError, FMUModelDescriptionError, FMUPlatf
 __all__ = ["read_description", "described", "intermediate_update_names", "offered_interfaces", "fmi_major",
            "interface", "binary_path", "require_variables",
            "INTERFACES", "real_variables", "unsupported_features", "SUPPORTED_FMI_VERSIONS", "array_shape",
-           "element_names", "state_count", "event_indicator_count"]
+           "element_names", "state_count", "event_indicator_count", "state_variables"]
 
 INTERFACES = ("ModelExchange", "CoSimulation")
 _REAL_TYPES = ("Real", "Float64")
@@ -235,12 +235,32 @@ def element_names(variable, shape: tuple[int, ...]) -> list[str]:
     return [f"{variable.name}[{','.join(map(str, idx))}]" for idx in itertools.product(*(range(n) for n in shape))]
 
 
+def state_variables(model_description, source: str = "FMU") -> list:
+    """The continuous state variables, in the order of ``ModelStructure/Derivatives`` (FMI 3: ``ContinuousStateDerivative``).
+
+    Raises
+    ------
+    FMUModelDescriptionError
+        If an entry points at a variable that is not the derivative of another (a malformed model structure,
+        for example indices shifted by extra variables), naming the entry and the variable.
+    """
+    states = []
+    for k, unknown in enumerate(model_description.derivatives):
+        variable = unknown.variable
+        state = getattr(variable, "derivative", None)
+        if state is None:
+            where = "Derivatives" if fmi_major(model_description) == 2 else "ContinuousStateDerivative"
+            raise FMUModelDescriptionError(
+                f"{source}: ModelStructure/{where} entry {k + 1} points at {getattr(variable, 'name', variable)!r}, "
+                "which is not the derivative of a state (it has no 'derivative' attribute): the model structure is "
+                "malformed")
+        states.append(state)
+    return states
+
+
 def state_count(model_description, source: str = "FMU") -> int:
     """The number of continuous states: one per scalar state, the size of each array state."""
-    total = 0
-    for unknown in model_description.derivatives:
-        total += math.prod(array_shape(unknown.variable, source))
-    return total
+    return sum(math.prod(array_shape(v, source)) for v in state_variables(model_description, source))
 
 
 def event_indicator_count(model_description, source: str = "FMU") -> int:
@@ -266,8 +286,9 @@ def unsupported_features(model_description, kind: str, events: bool = False) -> 
       Float64 -- :func:`fmu.simulate_fmu` handles all three;
     * for Co-Simulation: array variables and inputs or outputs that are not
       Real / Float64 (the master couples scalar real signals);
-    * for both: inputs of ``discrete`` variability (settable only at events,
-      while dobkit sets inputs in continuous time) and clocks (FMI 3).
+    * for Model Exchange: inputs of ``discrete`` variability (settable only
+      at events, while dobkit sets inputs in continuous time);
+    * for both: clocks (FMI 3).
 
     With ``events=True`` (:func:`fmu.simulate_fmu`) only the last two remain.
 
@@ -298,14 +319,14 @@ def unsupported_features(model_description, kind: str, events: bool = False) -> 
                          f"monitored by a block ({use})")
     signals = [v for v in md.modelVariables if v.causality in ("input", "output")]
     if not events:
-        states = [d.variable.derivative for d in md.derivatives if d.variable.derivative is not None]
+        states = [d.variable.derivative for d in md.derivatives if getattr(d.variable, "derivative", None) is not None]
         arrays = [v for v in signals + states if _is_array(v)]
         if arrays:
             found.append(f"array variables (FMI 3 'dimensions'): {names(arrays)}: the "
                          + ("master couples scalar signals" if kind == "CoSimulation" else f"block has scalar signals "
                             f"({use})"))
     discrete = [v for v in signals if v.causality == "input" and v.variability == "discrete" and v.type != "Clock"]
-    if discrete:
+    if discrete and kind == "ModelExchange":    # Co-Simulation sets every input between steps
         found.append(f"inputs of discrete variability, which may be set only at events: {names(discrete)} (dobkit "
                      "sets inputs in continuous time, so it cannot use them as inputs)")
     clocks = [v for v in md.modelVariables if v.type == "Clock"]

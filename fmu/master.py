@@ -374,7 +374,8 @@ class _Growth:
         self.first = np.zeros(len(names))
 
     def check(self, y: np.ndarray, y_next: np.ndarray, t: float, h: float, coupling: str) -> None:
-        grew = np.abs(y_next) > GROWTH_FACTOR * np.abs(y)
+        with np.errstate(over="ignore"):     # a huge previous value simply does not count as growth
+            grew = np.abs(y_next) > GROWTH_FACTOR * np.abs(y)
         self.first = np.where(grew & (self.streak == 0), np.abs(y), self.first)
         self.streak = np.where(grew, self.streak + 1, 0)
         if not np.any(self.streak >= GROWTH_STEPS):

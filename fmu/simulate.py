@@ -37,7 +37,7 @@ from scipy.integrate import BDF, DOP853, LSODA, RK45, Radau
 
 from .archive import ExtractionLimits
 from .budget import DEFAULT_BUDGET, Budget
-from .description import array_shape, element_names
+from .description import array_shape, element_names, state_variables
 from .errors import FMUError
 from .instance import FMUInstance
 
@@ -253,7 +253,7 @@ def simulate_fmu(path, t_final: float, output_step: float, inputs: dict | None =
                    if v.causality == "output" and v.type in _NUMERIC_OUTPUTS]
         out_labels = [e for n in outputs for e in element_names(inst.variables[n],
                                                                 array_shape(inst.variables[n], inst.source))]
-        state_vars = [d.variable.derivative for d in inst.model_description.derivatives]
+        state_vars = state_variables(inst.model_description, inst.source)
         state_labels = [e for v in state_vars for e in element_names(v, array_shape(v, inst.source))]
         rec_t, rec_y, rec_x, rec_u = [], [], [], []
         events: list[dict] = []

@@ -19,7 +19,7 @@ import pytest
 
 MIRROR = Path("/work/.mirror/modelica+Reference-FMUs/repo")
 MODELS = {2: ("BouncingBall", "Stair", "Dahlquist", "Feedthrough"),
-          3: ("BouncingBall", "Stair", "Dahlquist", "Feedthrough", "StateSpace")}
+          3: ("BouncingBall", "Stair", "Dahlquist", "Feedthrough", "StateSpace", "Roberts")}
 # taken before the test session points tempfile at its private folder: the cache outlives one run
 CACHE_ROOT = Path(os.environ.get("DOBKIT_REFERENCE_FMU_CACHE", Path(tempfile.gettempdir()) / "dobkit-reference-fmus"))
 
