@@ -188,7 +188,8 @@ _STAGE_LABELS = {"archive": "archive", "model_description": "model description",
 
 
 def _stage_line(report: dict, name: str) -> str:
-    part = report[name]
+    from fmu.check import stage
+    part = stage(report, name)
     status = {"passed": "passed", "failed": "FAILED", "not applicable": "not applicable"}[part["status"]]
     return f"  {_STAGE_LABELS[name]}: {status} -- {part['why']}"
 
@@ -197,7 +198,7 @@ def _print_check(report: dict) -> None:
     interfaces = ", ".join(report.get("interfaces") or []) or "none"
     print(f"{report['path']}: FMI {report['fmi_version']}, model {report['model']}; interfaces: {interfaces}")
     for name in ("archive", "model_description"):
-        if report[name]["status"] != "passed":
+        if "passed" not in report[name] or not report[name]["passed"]:
             print(_stage_line(report, name))
     v = report["validation"]
     if "skipped" in v:

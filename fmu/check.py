@@ -5,7 +5,7 @@ with dobkit, in a JSON-ready report that is always written: every stage
 (``archive``, ``model_description``, ``validation``, ``model_exchange``,
 ``simulate_fmu``, ``co_simulation``, ``me_vs_cs``, ``plant_comparison``)
 has a ``status`` -- ``"passed"``, ``"failed"`` or ``"not applicable"`` --
-and a ``why``; ``stages`` lists them in order.  An FMU that cannot be
+and a ``why``, listed in order under ``stages``.  An FMU that cannot be
 opened, described, loaded or run fails its stage and the report goes on;
 only bad arguments and the budget (a run the caller's limits refuse) raise.
 
@@ -74,7 +74,7 @@ from .plant_check import (
     worst,
 )
 
-__all__ = ["check_fmu", "check_torque", "plant_from_description", "CHECK_INITIAL_STATE", "NAMING_FINDING"]
+__all__ = ["check_fmu", "stage", "STAGES", "check_torque", "plant_from_description", "CHECK_INITIAL_STATE", "NAMING_FINDING"]
 
 # how fmpy words a finding of the variable-naming convention check
 NAMING_FINDING = "is not a legal variable name for naming convention"
@@ -301,18 +301,22 @@ def _status(part: dict) -> tuple[str, str]:
     if part.get("finding"):
         return "failed", part["finding"]
     if "errors" in part and part["errors"]:
-        return "failed", f"{len(part['errors'])} schema or consistency error(s)"
+        return "failed", f"{len(part['errors'])} error(s), the first: {part['errors'][0].splitlines()[0]}"
     return "failed", "see the details"
 
 
 def _finish(report: dict) -> dict:
-    """Statuses and the ordered list of stages."""
+    """The ordered list of stages, each with its status and why."""
     report["stages"] = []
     for name in STAGES:
-        part = report.setdefault(name, {"skipped": "not reached"})
-        part["status"], part["why"] = _status(part)
-        report["stages"].append({"stage": name, "status": part["status"], "why": part["why"]})
+        status, why = _status(report.setdefault(name, {"skipped": "not reached"}))
+        report["stages"].append({"stage": name, "status": status, "why": why})
     return report
+
+
+def stage(report: dict, name: str) -> dict:
+    """The ``{"stage", "status", "why"}`` entry of one stage of a :func:`check_fmu` report."""
+    return next(s for s in report["stages"] if s["stage"] == name)
 
 
 def _not_applicable(report: dict, after: str, why: str) -> None:
@@ -351,8 +355,9 @@ def check_fmu(path, t_final: float = 1.0, tolerance: float = 1e-6, cs_step: floa
         ``path``, ``fmi_version``, ``model``, ``interfaces``, one entry per
         stage (``archive``, ``model_description``, ``validation``,
         ``model_exchange``, ``simulate_fmu``, ``co_simulation``, ``me_vs_cs``,
-        ``plant_comparison``; each with ``status`` and ``why``), ``stages``
-        (the same in order) and ``passed`` (see the module docstring).
+        ``plant_comparison``: the findings of each), ``stages``
+        (each stage's ``status`` and ``why``, in order; :func:`stage` picks one)
+        and ``passed`` (see the module docstring).
 
     Raises
     ------
