@@ -82,8 +82,11 @@ _POINTS = 100       # recorded intervals of the short runs
 
 
 def _validation(extracted) -> dict:
-    from fmpy.validation import validate_fmu
-    problems = [str(p) for p in validate_fmu(str(extracted.root))]
+    # the schema was validated when the description was read: the rest of fmpy's checks on the parsed description
+    # (validate_fmu would parse the XML a second time, the bulk of the cost for a large description)
+    from fmpy.validation import validate_model_description
+    problems = [str(p) for p in validate_model_description(described(extracted), validate_variable_names=True,
+                                                           validate_model_structure=True)]
     warnings = [p for p in problems if NAMING_FINDING in p]
     errors = [p for p in problems if NAMING_FINDING not in p]
     return {"problems": problems, "errors": errors, "warnings": warnings, "passed": not errors}

@@ -127,3 +127,17 @@ def test_bad_arguments_are_named(reference_fmus, kwargs, words):  # noqa: F811
     args = {"t_final": 1.0, "output_step": 0.1} | kwargs
     with pytest.raises(ValueError, match=words):
         simulate_fmu(reference_fmus(3, "StateSpace"), **args)
+
+
+def with_clock(xml: str) -> str:
+    return xml.replace("  </ModelVariables>", '    <Clock name="tick" valueReference="9" causality="input" '
+                                             'intervalVariability="constant" intervalDecimal="0.1"/>\n  </ModelVariables>')
+
+
+def test_clocks_stay_refused_saying_so(tmp_path):
+    from fmu_models import build
+    path = build("selector", tmp_path, xml_edit=with_clock, filename="clocked")
+    with pytest.raises(FMUUnsupportedError, match=r"clocks \(FMI 3 Clock variables, not supported\): tick"):
+        simulate_fmu(path, 1.0, 0.1)
+    with pytest.raises(FMUUnsupportedError, match=r"clocks \(FMI 3 Clock variables, not supported\): tick"):
+        load(path)
