@@ -287,12 +287,19 @@ STAGES = ("archive", "model_description", "validation", "model_exchange", "simul
           "plant_comparison")
 
 
-def _status(part: dict) -> tuple[str, str]:
+_PASSED = {"validation": "no schema or consistency errors (fmpy)",
+           "model_exchange": "loads as a block and runs with finite outputs (inputs at their start values)",
+           "simulate_fmu": "runs with its events, outputs finite",
+           "co_simulation": "runs with finite outputs and the master can couple it",
+           "plant_comparison": "matches the Python plant within the tolerances"}
+
+
+def _status(name: str, part: dict) -> tuple[str, str]:
     """(status, why) of one stage from its findings."""
     if "skipped" in part:
         return "not applicable", part["skipped"]
     if part.get("passed"):
-        return "passed", part.get("finding") or part.get("why") or "ok"
+        return "passed", part.get("finding") or part.get("why") or _PASSED.get(name, "ok")
     for key in ("error", "refused", "why"):
         if part.get(key):
             return "failed", part[key]
@@ -312,7 +319,7 @@ def _finish(report: dict) -> dict:
     """The ordered list of stages, each with its status and why."""
     report["stages"] = []
     for name in STAGES:
-        status, why = _status(report.setdefault(name, {"skipped": "not reached"}))
+        status, why = _status(name, report.setdefault(name, {"skipped": "not reached"}))
         report["stages"].append({"stage": name, "status": status, "why": why})
     return report
 
