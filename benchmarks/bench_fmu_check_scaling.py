@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import tempfile
 import time
+import zipfile
 from pathlib import Path
 
 
@@ -40,7 +41,7 @@ def main() -> None:
     from fmpy import read_model_description
 
     from fmu import check_fmu, extract_fmu
-    print(f"{'variables':>10} {'MB':>6} {'check (s)':>10} {'fmpy parse (s)':>15} {'check per variable (us)':>24}")
+    print(f"{'variables':>10} {'XML MB':>6} {'check (s)':>10} {'fmpy parse (s)':>15} {'check per variable (us)':>24}")
     with tempfile.TemporaryDirectory() as tmp:
         for n in (int(s) for s in args.sizes.split(",")):
             path = package(n, Path(tmp))
@@ -48,7 +49,8 @@ def main() -> None:
             with extract_fmu(path) as ex:
                 parse = min(cpu(lambda: read_model_description(str(ex.root), validate=False))
                             for _ in range(args.repeats))
-            print(f"{n:>10} {path.stat().st_size / 1e6:>6.2f} {check:>10.2f} {parse:>15.2f} {1e6 * check / n:>24.0f}")
+            size = zipfile.ZipFile(path).getinfo("modelDescription.xml").file_size
+            print(f"{n:>10} {size / 1e6:>6.2f} {check:>10.2f} {parse:>15.2f} {1e6 * check / n:>24.0f}")
 
 
 if __name__ == "__main__":
