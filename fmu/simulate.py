@@ -38,7 +38,7 @@ from scipy.integrate import BDF, DOP853, LSODA, RK45, Radau
 from .archive import ExtractionLimits
 from .budget import DEFAULT_BUDGET, Budget
 from .description import array_shape, element_names, state_variables
-from .errors import FMUError
+from .errors import BudgetError, FMUError
 from .instance import FMUInstance
 
 __all__ = ["simulate_fmu", "SOLVERS"]
@@ -218,6 +218,8 @@ def simulate_fmu(path, t_final: float, output_step: float, inputs: dict | None =
         For a bad ``t_final``, ``output_step``, ``method`` or input.
     FMUUnsupportedError
         For clocks or discrete-variability inputs.
+    BudgetError
+        When the recorded points, the right-hand-side evaluations or the wall time exceed ``budget``.
     FMUError
         (other subclasses) for a bad archive or an error status from the FMU
         (:class:`~fmu.errors.FMUStepError` names the call and the time).
@@ -302,9 +304,10 @@ def simulate_fmu(path, t_final: float, output_step: float, inputs: dict | None =
                     k += 1
                 t, x = t_new, np.array(state_at(t_new), dtype=float)
                 if model.evaluations > budget.max_rhs_evaluations:
-                    raise FMUError(f"{inst.source}: {model.evaluations} right-hand-side evaluations by t = {t:.6g} s, "
-                                   f"more than the budget ({budget.max_rhs_evaluations}); the FMU is stiff (try "
-                                   "method='BDF') or the budget too small")
+                    raise BudgetError(f"simulate_fmu of {inst.source}: {model.evaluations} right-hand-side evaluations "
+                                      f"by t = {t:.6g} s, more than the budget of {budget.max_rhs_evaluations:.3g} "
+                                      "(max_rhs_evaluations): the FMU is stiff (try method='BDF') or fast there; "
+                                      "shorten the run or raise the budget")
                 deadline.check(f"t = {t:.6g} s of {t_final:g} s")
                 if event_kind is None:
                     model.at(t, x)

@@ -141,3 +141,10 @@ def test_clocks_stay_refused_saying_so(tmp_path):
         simulate_fmu(path, 1.0, 0.1)
     with pytest.raises(FMUUnsupportedError, match=r"clocks \(FMI 3 Clock variables, not supported\): tick"):
         load(path)
+
+
+def test_a_run_beyond_its_evaluation_budget_stops_saying_so(reference_fmus):  # noqa: F811
+    from fmu import Budget, BudgetError
+    with pytest.raises(BudgetError, match=r"simulate_fmu of BouncingBall.fmu: \d+ right-hand-side evaluations by "
+                                          r"t = .* more than the budget of 50"):
+        simulate_fmu(reference_fmus(2, "BouncingBall"), 2.0, 0.01, budget=Budget(max_rhs_evaluations=50))
