@@ -181,19 +181,43 @@ def _verdict(passed: bool) -> str:
     return "passed" if passed else "FAILED"
 
 
+_STAGE_LABELS = {"archive": "archive", "model_description": "model description", "validation": "validation (fmpy)",
+                 "model_exchange": "Model Exchange", "simulate_fmu": "fmu.simulate_fmu (events, arrays)",
+                 "co_simulation": "Co-Simulation", "me_vs_cs": "Model Exchange vs Co-Simulation",
+                 "plant_comparison": "comparison with the Python plant"}
+
+
+def _stage_line(report: dict, name: str) -> str:
+    from fmu.check import stage
+    part = stage(report, name)
+    status = {"passed": "passed", "failed": "FAILED", "not applicable": "not applicable"}[part["status"]]
+    return f"  {_STAGE_LABELS[name]}: {status} -- {part['why']}"
+
+
 def _print_check(report: dict) -> None:
     interfaces = ", ".join(report.get("interfaces") or []) or "none"
     print(f"{report['path']}: FMI {report['fmi_version']}, model {report['model']}; interfaces: {interfaces}")
+    for name in ("archive", "model_description"):
+        if "passed" not in report[name] or not report[name]["passed"]:
+            print(_stage_line(report, name))
     v = report["validation"]
-    note = f" ({len(v['warnings'])} naming-convention warning(s))" if v["warnings"] else ""
-    print(f"  validation (fmpy): {_verdict(v['passed'])}{note}")
-    for problem in v["errors"]:
-        print(f"    - error: {problem.splitlines()[0]}")
-    for problem in v["warnings"]:
-        print(f"    - warning (variable-naming convention only; the FMU can still be used): {problem.splitlines()[0]}")
+    if "skipped" in v:
+        print(_stage_line(report, "validation"))
+    else:
+        note = f" ({len(v['warnings'])} naming-convention warning(s))" if v.get("warnings") else ""
+        print(f"  validation (fmpy): {_verdict(v['passed'])}{note}")
+        for problem in v.get("errors", []):
+            print(f"    - error: {problem.splitlines()[0]}")
+        for problem in v.get("warnings", []):
+            print(f"    - warning (variable-naming convention only; the FMU can still be used): "
+                  f"{problem.splitlines()[0]}")
+        if "error" in v:
+            print(f"    the validation could not run: {v['error']}")
     me = report["model_exchange"]
     if "skipped" in me:
-        print(f"  Model Exchange: {me['skipped']}")
+        print(_stage_line(report, "model_exchange"))
+    elif "loads" not in me:
+        print(_stage_line(report, "model_exchange"))
     elif not me.get("loads"):
         print(f"  Model Exchange: FAILED, fmu.load refuses it: {me['refused']}")
     else:
@@ -205,9 +229,17 @@ def _print_check(report: dict) -> None:
         else:
             print(f"  Model Exchange: {what}; {run['t_final']:g} s with inputs at their start values: outputs "
                   f"{'finite' if run['finite'] else 'NOT finite'} -- {_verdict(run['passed'])}")
+    sim = report["simulate_fmu"]
+    if sim.get("runs"):
+        ended = f", the FMU ended the run at t = {sim['terminated']:g} s" if sim["terminated"] is not None else ""
+        print(f"  fmu.simulate_fmu (events, arrays): {sim['t_final']:g} s, {sim['state_events']} state and "
+              f"{sim['time_events']} time events{ended}; outputs {'finite' if sim['finite'] else 'NOT finite'} -- "
+              f"{_verdict(sim['passed'])}")
+    else:
+        print(_stage_line(report, "simulate_fmu"))
     cs = report["co_simulation"]
     if "skipped" in cs:
-        print(f"  Co-Simulation: {cs['skipped']}")
+        print(_stage_line(report, "co_simulation"))
     elif not cs.get("runs"):
         print(f"  Co-Simulation: FAILED to run: {cs['error']}")
     else:
@@ -217,12 +249,20 @@ def _print_check(report: dict) -> None:
         if not cs["couples"]:
             print(f"    {cs['refused']}")
     both = report["me_vs_cs"]
-    if "skipped" not in both:
+    if both.get("trivial"):
+        print(f"  Model Exchange vs Co-Simulation: not applicable -- {both['skipped']}")
+    elif "max_abs_difference" in both:
         print(f"  Model Exchange vs Co-Simulation: max |difference| {both['max_abs_difference']:.3e} (tolerance "
               f"{both['tolerance']:.3g}) {_verdict(both['passed'])}")
+        if "finding" in both:
+            print(f"    against the fine reference ({both['reference']}): {both['finding']}")
+    elif "error" in both:
+        print(_stage_line(report, "me_vs_cs"))
     plant = report["plant_comparison"]
     if "skipped" in plant:
         print(f"  comparison with the Python plant: skipped ({plant['skipped']})")
+    elif "error" in plant:
+        print(_stage_line(report, "plant_comparison"))
     for key, label in (("model_exchange", "Model Exchange vs Python plant"),
                        ("co_simulation", "Co-Simulation vs exact ZOH solution")):
         part = plant.get(key)

@@ -11,6 +11,7 @@
     resp = fmu.cosimulate(path, "paper", step=1e-3)          # Co-Simulation against the Python controller side
     report = fmu.check_fmu(path)                             # validate, load, run; plant vs Python plant
     study = fmu.cosim_convergence(path, "paper")             # co-simulation error vs h, fitted order
+    resp = fmu.simulate_fmu("BouncingBall.fmu", 2.0, 0.01)   # any ME FMU alone: state/time events, FMI 3 arrays
 
 Bad FMUs raise a subclass of :class:`FMUError` (a ``ValueError``) naming what
 is wrong; archives are checked before anything is extracted, into a private
@@ -23,7 +24,8 @@ Modules, one job each: ``archive`` (safe extraction), ``description`` (model
 description checks, supported subset), ``logger`` (FMU log messages to the
 right instance), ``instance`` (one native instance), ``block`` (``load``: ME FMU as a
 block), ``coupling`` (what crosses between the sides within a step),
-``master`` (fixed-step co-simulation), ``budget`` (limits on steps and wall
+``master`` (fixed-step co-simulation), ``simulate`` (a Model Exchange FMU
+on its own, with events and arrays), ``start_values`` (start values checked by type), ``budget`` (limits on steps and wall
 time), ``scenario_values`` (scenario -> FMU start values), ``cosim`` (a
 scenario against a plant FMU), ``convergence`` (co-simulation error versus
 step size), ``check`` and ``plant_check``,
@@ -48,6 +50,7 @@ from .errors import (
                      FMUMissingVariablesError,
                      FMUModelDescriptionError,
                      FMUPlatformError,
+                     FMUStartValueError,
                      FMUStepError,
                      FMUUnsupportedError,
                      FMUVersionError,
@@ -55,11 +58,12 @@ from .errors import (
 from .export import MODEL_IDENTIFIER, export_plant
 from .instance import FMUInstance
 from .master import cosimulate_system
+from .simulate import simulate_fmu
 
 __all__ = [
     "export_plant", "load", "FMUBlock", "cosimulate", "cosimulate_system", "controller_side", "check_fmu",
     "extract_fmu", "cosim_convergence", "require_variables", "FMUInstance", "ExtractedFMU", "ExtractionLimits",
     "MODEL_IDENTIFIER", "FMUError", "FMUArchiveError", "FMUModelDescriptionError", "FMUVersionError",
     "FMUUnsupportedError", "FMUPlatformError", "FMUMissingVariablesError", "FMUInstantiationError", "FMUStepError",
-    "FMUBuildError", "CoSimulationError", "Budget", "BudgetError",
+    "FMUBuildError", "CoSimulationError", "Budget", "BudgetError", "simulate_fmu", "FMUStartValueError",
 ]

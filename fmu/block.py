@@ -35,7 +35,7 @@ import numpy as np
 from blocks.contract import Block, BlockContract
 
 from .archive import ExtractionLimits, open_extracted
-from .description import described, real_variables, require_variables
+from .description import described, real_variables, require_variables, state_variables
 from .errors import FMUModelDescriptionError
 from .instance import FMUInstance
 
@@ -145,14 +145,17 @@ def load(path, name: str = "plant", start_values: dict | None = None, start_time
     Supported subset: Model Exchange FMUs (FMI 2.0 or 3.0) that are
     continuous-time systems with scalar Real / Float64 inputs and outputs,
     with or without continuous states (an FMU without states is a static
-    block).  Parameters and start values of any type can be set (FMI 3
-    enumerations as Int64).  Refused at load, with the feature named:
+    block).  Start values of every type can be set (FMI 3 enumerations as
+    Int64), checked against the range of their type first
+    (:mod:`fmu.start_values`).  Refused at load, with the feature named
+    (:func:`fmu.simulate_fmu` runs the first four on its own):
 
     * state events -- ``numberOfEventIndicators`` > 0 (FMI 2) or
       ``EventIndicator`` elements (FMI 3);
     * time events -- a next event time announced at initialization;
     * FMI 3 array variables (``Dimension``) among inputs, outputs or states;
     * inputs or outputs of another type (Integer, Boolean, String, Float32, ...);
+    * inputs of discrete variability (settable only at events);
     * FMI 3 clocks.
 
     Not detected, so do not use them: FMUs that need ``completedIntegratorStep``
@@ -194,7 +197,7 @@ def load(path, name: str = "plant", start_values: dict | None = None, start_time
                        adopt=owned)
     try:
         md = inst.model_description
-        state_names = [d.variable.derivative.name for d in md.derivatives]
+        state_names = [v.name for v in state_variables(md, inst.source)]
         inputs = [v.name for v in real_variables(md, "input")]
         outputs = [v.name for v in real_variables(md, "output")]
         if not outputs:

@@ -34,9 +34,13 @@ import numpy as np
 
 from .errors import CoSimulationError
 
-__all__ = ["COUPLINGS", "interpolates_inputs", "choose_coupling", "hermite", "describe"]
+__all__ = ["COUPLINGS", "interpolates_inputs", "choose_coupling", "hermite", "describe", "CouplingFallbackWarning"]
 
 COUPLINGS = ("zoh", "linear")
+
+
+class CouplingFallbackWarning(UserWarning):
+    """The ``linear`` coupling fell back to ``zoh``: the FMU's output derivatives were not finite numbers."""
 
 
 def interpolates_inputs(fmu) -> tuple[bool, str]:

@@ -19,6 +19,7 @@ Checks, each with its own error naming what is wrong:
 from __future__ import annotations
 
 import difflib
+import math
 import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -28,7 +29,8 @@ from .errors import FMUMissingVariablesError, FMUModelDescriptionError, FMUPlatf
 
 __all__ = ["read_description", "described", "intermediate_update_names", "offered_interfaces", "fmi_major",
            "interface", "binary_path", "require_variables",
-           "INTERFACES", "real_variables", "unsupported_features", "SUPPORTED_FMI_VERSIONS"]
+           "INTERFACES", "real_variables", "unsupported_features", "SUPPORTED_FMI_VERSIONS", "array_shape",
+           "element_names", "state_count", "event_indicator_count", "state_variables"]
 
 INTERFACES = ("ModelExchange", "CoSimulation")
 _REAL_TYPES = ("Real", "Float64")
@@ -74,6 +76,30 @@ def _check_size(xml: Path, source: str, limits) -> None:
                                        "ExtractionLimits.max_description_token); refusing to parse it")
 
 
+def _root_element(xml: Path, source: str) -> tuple[str, dict]:
+    """The root element's tag and attributes, the whole document checked for well-formedness without a tree.
+
+    expat without handlers for the rest runs in C: a 24 MB description in a fraction of a second, where
+    building an ElementTree costs as much as fmpy's own parse.
+    """
+    from xml.parsers import expat
+    parser = expat.ParserCreate()
+    found: list = []
+
+    def start(name, attributes):
+        if not found:
+            found.append((name, attributes))
+            parser.StartElementHandler = None
+
+    parser.StartElementHandler = start
+    try:
+        with open(xml, "rb") as f:
+            parser.ParseFile(f)
+    except expat.ExpatError as err:
+        raise FMUModelDescriptionError(f"{source}: modelDescription.xml is not well-formed XML: {err}") from None
+    return found[0]
+
+
 def read_description(root: Path, source: str, validate: bool = True, limits=None):
     """Parse and validate ``modelDescription.xml`` of an extracted FMU.
 
@@ -107,14 +133,11 @@ def read_description(root: Path, source: str, validate: bool = True, limits=None
         raise FMUModelDescriptionError(f"{source}: no modelDescription.xml at the top of the archive "
                                        f"(found: {found or 'nothing'})")
     _check_size(xml, source, limits)
-    try:
-        element = ET.parse(xml).getroot()
-    except ET.ParseError as err:
-        raise FMUModelDescriptionError(f"{source}: modelDescription.xml is not well-formed XML: {err}") from None
-    if element.tag != "fmiModelDescription":
-        raise FMUModelDescriptionError(f"{source}: modelDescription.xml has root element <{element.tag}>, "
+    tag, attributes = _root_element(xml, source)
+    if tag != "fmiModelDescription":
+        raise FMUModelDescriptionError(f"{source}: modelDescription.xml has root element <{tag}>, "
                                        "expected <fmiModelDescription>")
-    version = element.get("fmiVersion")
+    version = attributes.get("fmiVersion")
     if version not in SUPPORTED_FMI_VERSIONS:
         raise FMUVersionError(f"{source}: unsupported FMI version {version!r} (supported: "
                               f"{', '.join(SUPPORTED_FMI_VERSIONS)})")
@@ -190,23 +213,112 @@ def _is_array(variable) -> bool:
     return bool(getattr(variable, "dimensions", None))
 
 
-def unsupported_features(model_description, kind: str) -> list[str]:
+def array_shape(variable, source: str = "FMU") -> tuple[int, ...]:
+    """The shape of an FMI 3 array variable (``()`` for a scalar), structural parameters at their start values.
+
+    Each ``Dimension`` has a fixed ``start`` or names a structural parameter
+    (``valueReference``) whose start value is the size.  dobkit does not
+    change structural parameters, so the sizes are those of the model description.
+
+    Raises
+    ------
+    FMUModelDescriptionError
+        For a size that is not a whole number >= 0, naming the variable and the dimension.
+    """
+    shape = []
+    for k, dim in enumerate(getattr(variable, "dimensions", None) or []):
+        ref = getattr(dim, "variable", None)
+        text = dim.start if getattr(dim, "start", None) is not None else (ref.start if ref is not None else None)
+        try:
+            size = int(str(text).strip())
+        except (TypeError, ValueError):
+            size = -1
+        if size < 0:
+            by = f"structural parameter {ref.name!r}" if ref is not None else f"value reference {dim.valueReference}"
+            raise FMUModelDescriptionError(f"{source}: dimension {k} of array variable {variable.name!r} (from "
+                                           f"{by}) has size {text!r}; a whole number >= 0 is needed")
+        shape.append(size)
+    return tuple(shape)
+
+
+def element_names(variable, shape: tuple[int, ...]) -> list[str]:
+    """Signal names of a variable's elements: ``[name]`` for a scalar, ``y[0]``, ``y[1]``, ... (row-major).
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace
+    >>> element_names(SimpleNamespace(name="y"), (3,)), element_names(SimpleNamespace(name="A"), (2, 2))
+    (['y[0]', 'y[1]', 'y[2]'], ['A[0,0]', 'A[0,1]', 'A[1,0]', 'A[1,1]'])
+    """
+    if not shape:
+        return [variable.name]
+    import itertools
+    return [f"{variable.name}[{','.join(map(str, idx))}]" for idx in itertools.product(*(range(n) for n in shape))]
+
+
+def state_variables(model_description, source: str = "FMU") -> list:
+    """The continuous state variables, in the order of ``ModelStructure/Derivatives`` (FMI 3: ``ContinuousStateDerivative``).
+
+    Raises
+    ------
+    FMUModelDescriptionError
+        If an entry points at a variable that is not the derivative of another (a malformed model structure,
+        for example indices shifted by extra variables), naming the entry and the variable.
+    """
+    states = []
+    for k, unknown in enumerate(model_description.derivatives):
+        variable = unknown.variable
+        state = getattr(variable, "derivative", None)
+        if state is None:
+            where = "Derivatives" if fmi_major(model_description) == 2 else "ContinuousStateDerivative"
+            raise FMUModelDescriptionError(
+                f"{source}: ModelStructure/{where} entry {k + 1} points at {getattr(variable, 'name', variable)!r}, "
+                "which is not the derivative of a state (it has no 'derivative' attribute): the model structure is "
+                "malformed")
+        states.append(state)
+    return states
+
+
+def state_count(model_description, source: str = "FMU") -> int:
+    """The number of continuous states: one per scalar state, the size of each array state."""
+    return sum(math.prod(array_shape(v, source)) for v in state_variables(model_description, source))
+
+
+def event_indicator_count(model_description, source: str = "FMU") -> int:
+    """The number of event indicators (FMI 2 attribute; FMI 3 ``EventIndicator`` elements, arrays by size)."""
+    if fmi_major(model_description) == 2:
+        return int(getattr(model_description, "numberOfEventIndicators", 0) or 0)
+    return sum(math.prod(array_shape(u.variable, source)) for u in (model_description.eventIndicators or []))
+
+
+def unsupported_features(model_description, kind: str, events: bool = False) -> list[str]:
     """What an FMU uses that dobkit's importer does not handle (empty: supported).
 
-    dobkit couples FMUs through scalar real signals in continuous time.  It
-    does not handle, and so refuses rather than silently ignores:
+    With ``events=False`` (the default: :func:`fmu.load` blocks and the
+    co-simulation master) dobkit couples FMUs through scalar real signals in
+    continuous time.  It does not handle, and so refuses rather than
+    silently ignores:
 
-    * for Model Exchange: state events (``numberOfEventIndicators`` > 0 in FMI 2,
-      ``EventIndicator`` elements in FMI 3) -- time events are detected at
-      initialization by :class:`~fmu.instance.FMUInstance`;
-    * for both interfaces: array variables (FMI 3 ``Dimension``) among the
-      inputs, outputs or continuous states; inputs or outputs of any type
-      other than Real / Float64; clocks (FMI 3).
+    * for Model Exchange: state events (``numberOfEventIndicators`` > 0 in
+      FMI 2, ``EventIndicator`` elements in FMI 3) -- time events are
+      detected at initialization by :class:`~fmu.instance.FMUInstance`;
+      array variables (FMI 3 ``Dimension``) among the inputs, outputs or
+      continuous states; inputs or outputs of a type other than Real /
+      Float64 -- :func:`fmu.simulate_fmu` handles all three;
+    * for Co-Simulation: array variables and inputs or outputs that are not
+      Real / Float64 (the master couples scalar real signals);
+    * for Model Exchange: inputs of ``discrete`` variability (settable only
+      at events, while dobkit sets inputs in continuous time);
+    * for both: clocks (FMI 3).
+
+    With ``events=True`` (:func:`fmu.simulate_fmu`) only the last two remain.
 
     Parameters
     ----------
     model_description : fmpy.model_description.ModelDescription
     kind : {"ModelExchange", "CoSimulation"}
+    events : bool
+        True for the event-handling simulation of :func:`fmu.simulate_fmu`.
 
     Returns
     -------
@@ -220,24 +332,39 @@ def unsupported_features(model_description, kind: str) -> list[str]:
         listed = [v.name for v in variables]
         return ", ".join(listed[:limit]) + (f" and {len(listed) - limit} more" if len(listed) > limit else "")
 
-    if kind == "ModelExchange":
+    use = "use fmu.simulate_fmu, which handles them"
+    if kind == "ModelExchange" and not events:
         n_events = int(getattr(md, "numberOfEventIndicators", 0) or 0)
         if n_events > 0 or getattr(md, "eventIndicators", None):
             found.append(f"state events (numberOfEventIndicators = {n_events}): event indicators are not "
-                         "monitored")
+                         f"monitored by a block ({use})")
     signals = [v for v in md.modelVariables if v.causality in ("input", "output")]
-    states = [d.variable.derivative for d in md.derivatives if d.variable.derivative is not None]
-    arrays = [v for v in signals + states if _is_array(v)]
-    if arrays:
-        found.append(f"array variables (FMI 3 'dimensions'): {names(arrays)}")
+    if not events:
+        states = [d.variable.derivative for d in md.derivatives if getattr(d.variable, "derivative", None) is not None]
+        arrays = [v for v in signals + states if _is_array(v)]
+        if arrays:
+            found.append(f"array variables (FMI 3 'dimensions'): {names(arrays)}: the "
+                         + ("master couples scalar signals" if kind == "CoSimulation" else f"block has scalar signals "
+                            f"({use})"))
+    discrete = [v for v in signals if v.causality == "input" and v.variability == "discrete" and v.type != "Clock"]
+    if discrete and kind == "ModelExchange":    # Co-Simulation sets every input between steps
+        found.append(f"inputs of discrete variability, which may be set only at events: {names(discrete)} (dobkit "
+                     "sets inputs in continuous time, so it cannot use them as inputs)")
     clocks = [v for v in md.modelVariables if v.type == "Clock"]
     if clocks:
-        found.append(f"clocks: {names(clocks)}")
+        found.append(f"clocks (FMI 3 Clock variables, not supported): {names(clocks)}")
     other = [v for v in signals if v.type not in _REAL_TYPES and v.type != "Clock"]
-    if other:
+    if other and not events:
         found.append("inputs/outputs that are not Real/Float64: "
                      + ", ".join(f"{v.name} ({v.type})" for v in other[:5])
-                     + (f" and {len(other) - 5} more" if len(other) > 5 else ""))
+                     + (f" and {len(other) - 5} more" if len(other) > 5 else "")
+                     + ("" if kind == "CoSimulation" else f" ({use})"))
+    elif events:
+        other_inputs = [v for v in signals if v.causality == "input" and v.type not in _REAL_TYPES
+                        and v.type != "Clock"]
+        if other_inputs:
+            found.append("inputs that are not Real/Float64 (fmu.simulate_fmu drives real inputs): "
+                         + names(other_inputs))
     return found
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 __all__ = [
     "FMUError", "FMUArchiveError", "FMUModelDescriptionError", "FMUVersionError", "FMUUnsupportedError",
     "FMUPlatformError", "FMUMissingVariablesError", "FMUInstantiationError", "FMUStepError", "FMUBuildError",
-    "BudgetError", "CoSimulationError",
+    "BudgetError", "CoSimulationError", "FMUStartValueError",
 ]
 
 
@@ -41,6 +41,10 @@ class FMUVersionError(FMUModelDescriptionError):
 
 class FMUUnsupportedError(FMUModelDescriptionError):
     """The FMU uses an FMI feature that dobkit does not handle (events, arrays, non-real signals, clocks)."""
+
+
+class FMUStartValueError(FMUError):
+    """A start value does not fit the type of its variable (out of range, not whole, not a string, wrong size)."""
 
 
 class FMUPlatformError(FMUError):

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import math
 import os
 import threading
 import weakref
@@ -32,9 +33,20 @@ import numpy as np
 
 from . import logger
 from .archive import ExtractedFMU, ExtractionLimits, open_extracted
-from .description import binary_path, described, fmi_major, interface, intermediate_update_names, unsupported_features
+from .description import (
+    array_shape,
+    binary_path,
+    described,
+    event_indicator_count,
+    fmi_major,
+    interface,
+    intermediate_update_names,
+    state_count,
+    unsupported_features,
+)
 from .errors import FMUError, FMUInstantiationError, FMUModelDescriptionError, FMUStepError, FMUUnsupportedError
 from .logger import STATUS_NAMES, status_name
+from .start_values import checked_start_value
 
 __all__ = ["FMUInstance", "STATUS_NAMES"]
 
@@ -43,6 +55,10 @@ _MAX_MESSAGES = 200
 _FMI3_INTEGER_SETTERS = {"Int8": "setInt8", "UInt8": "setUInt8", "Int16": "setInt16", "UInt16": "setUInt16",
                          "Int32": "setInt32", "UInt32": "setUInt32", "Int64": "setInt64", "UInt64": "setUInt64",
                          "Enumeration": "setInt64"}
+_FMI3_GETTERS = {"Float64": "getFloat64", "Float32": "getFloat32", "Boolean": "getBoolean", "String": "getString",
+                 "Enumeration": "getInt64", **{t: "g" + s[1:] for t, s in _FMI3_INTEGER_SETTERS.items() if t != "Enumeration"}}
+_FMI2_GETTERS = {"Real": "getReal", "Integer": "getInteger", "Enumeration": "getInteger", "Boolean": "getBoolean",
+                 "String": "getString"}
 
 
 def _intermediate_callback(holder: dict):
@@ -119,6 +135,11 @@ class FMUInstance:
     check_interface : bool
         Refuse an FMU outside the supported subset (default).  False lets a
         check run an FMU whose signals dobkit cannot couple.
+    events : bool
+        Model Exchange with event handling (:func:`fmu.simulate_fmu`): state
+        events, time events, arrays and non-real outputs are accepted, and
+        the time of the next time event announced at initialization is kept
+        in ``next_event_time`` instead of being refused.
 
     Raises
     ------
@@ -145,7 +166,7 @@ class FMUInstance:
 
     def __init__(self, path, kind: str = "ModelExchange", start_values: dict | None = None, name: str | None = None,
                  start_time: float = 0.0, limits: ExtractionLimits | None = None, extract_to=None,
-                 adopt: bool = False, check_interface: bool = True):
+                 adopt: bool = False, check_interface: bool = True, events: bool = False):
         self.path = Path(path.source) if isinstance(path, ExtractedFMU) else Path(path)
         self.source = self.path.name
         self.kind = kind
@@ -155,6 +176,9 @@ class FMUInstance:
                        "closed": False, "log_key": None}
         self._fmu = None
         self._check_interface = check_interface
+        self._events = events
+        self.next_event_time: float | None = None     # time event announced by the last event iteration (s)
+        self.terminate_requested = False               # the FMU asked to end the simulation
         # the provider of intermediate inputs during an FMI 3 step (see set_input_provider)
         self._intermediate = {"provider": None, "error": None, "set": None}
         self._marked_intermediate = None
@@ -175,14 +199,15 @@ class FMUInstance:
         self.model_description = md
         self.fmi_version = fmi_major(md)
         element = interface(md, self.kind, self.source)
-        unsupported = unsupported_features(md, self.kind) if self._check_interface else []
+        unsupported = unsupported_features(md, self.kind, events=self._events) if self._check_interface else []
         if unsupported:
             raise FMUUnsupportedError(f"{self.source}: uses FMI features that dobkit does not support as "
                                       f"{self.kind}: " + "; ".join(unsupported))
         binary_path(root, md, self.kind, self.source)
         self.model_identifier = element.modelIdentifier
         self.variables = {v.name: v for v in md.modelVariables}
-        self.n_states = len(md.derivatives)
+        self.n_states = state_count(md, self.source)
+        self.n_event_indicators = event_indicator_count(md, self.source)
         self.time = start_time
         unknown = sorted(set(start_values) - set(self.variables))
         if unknown:
@@ -241,14 +266,14 @@ class FMUInstance:
     def _bind_low_level(self) -> None:
         f, c = self._fmu, self._fmu.component
         if self.fmi_version == 2:
-            self._get_real = lambda vr, n, out: f.fmi2GetReal(c, vr, n, out)
-            self._set_real = lambda vr, n, val: f.fmi2SetReal(c, vr, n, val)
+            self._get_real = lambda vr, n, out, count: f.fmi2GetReal(c, vr, n, out)
+            self._set_real = lambda vr, n, val, count: f.fmi2SetReal(c, vr, n, val)
             self._vr_type = ctypes.c_uint
         else:
-            self._get_real = lambda vr, n, out: f.fmi3GetFloat64(c, vr, n, out, n)
-            self._set_real = lambda vr, n, val: f.fmi3SetFloat64(c, vr, n, val, n)
+            self._get_real = lambda vr, n, out, count: f.fmi3GetFloat64(c, vr, n, out, count)
+            self._set_real = lambda vr, n, val, count: f.fmi3SetFloat64(c, vr, n, val, count)
             self._vr_type = ctypes.c_uint32
-        self._intermediate["set"] = self._set_real
+        self._intermediate["set"] = lambda vr, n, val: self._set_real(vr, n, val, getattr(vr, "count", n))
         if self.kind == "ModelExchange":
             get_der = "fmi2GetDerivatives" if self.fmi_version == 2 else "fmi3GetContinuousStateDerivatives"
             prefix = f"fmi{self.fmi_version}"
@@ -288,16 +313,24 @@ class FMUInstance:
         unknown = [n for n in names if n not in self.variables]
         if unknown:
             raise FMUModelDescriptionError(f"{self.source}: unknown variable(s) {unknown}")
-        return (self._vr_type * len(names))(*[self.variables[n].valueReference for n in names])
+        refs = (self._vr_type * len(names))(*[self.variables[n].valueReference for n in names])
+        # FMI 3 arrays: one value reference carries all elements (nValues in the calls)
+        refs.count = sum(self.size(n) for n in names)
+        return refs
+
+    def size(self, name: str) -> int:
+        """Number of values of a variable: 1 for a scalar, the element count of an FMI 3 array."""
+        return math.prod(array_shape(self.variables[name], self.source))
 
     def get_real(self, vrs: ctypes.Array, out: np.ndarray | None = None) -> np.ndarray:
         """Values of real variables (value references from :meth:`value_references`)."""
         self._check_open()
         n = len(vrs)
-        out = np.empty(n) if out is None else out
+        count = getattr(vrs, "count", n)
+        out = np.empty(count) if out is None else out
         if n:
             with self._calling("reading outputs", self.time):
-                self._get_real(vrs, n, out.ctypes.data_as(ctypes.POINTER(ctypes.c_double)))
+                self._get_real(vrs, n, out.ctypes.data_as(ctypes.POINTER(ctypes.c_double)), count)
         return out
 
     def set_real(self, vrs: ctypes.Array, values) -> None:
@@ -306,8 +339,11 @@ class FMUInstance:
         n = len(vrs)
         if n:
             arr = np.ascontiguousarray(values, dtype=float)
+            count = getattr(vrs, "count", n)
+            if arr.size != count:
+                raise FMUError(f"{self.source}: {count} values are needed for these variables, got {arr.size}")
             with self._calling("setting inputs", self.time):
-                self._set_real(vrs, n, arr.ctypes.data_as(ctypes.POINTER(ctypes.c_double)))
+                self._set_real(vrs, n, arr.ctypes.data_as(ctypes.POINTER(ctypes.c_double)), count)
 
     def get_integer(self, name: str) -> int:
         """Value of one integer variable (FMI 2 Integer, FMI 3 Int32) by name."""
@@ -319,22 +355,49 @@ class FMUInstance:
     def _apply_start_values(self, start_values: dict) -> None:
         for name, value in start_values.items():
             v = self.variables[name]
+            if v.causality == "structuralParameter":
+                raise FMUUnsupportedError(f"{self.source}: start value {name} = {value!r}: structural parameters stay "
+                                          "at their start values in dobkit (array sizes are read from them)")
+            count = math.prod(array_shape(v, self.source))
+            values = checked_start_value(v, value, self.fmi_version, count, self.source)
             vr = [v.valueReference]
-            if getattr(v, "dimensions", None):
-                raise FMUUnsupportedError(f"{self.source}: cannot set a start value for the array variable {name}")
             with self._calling(f"setting the start value of {name}", self.time):
                 if v.type in ("Real", "Float64"):
-                    self.set_real(self.value_references([name]), [float(value)])
+                    self.set_real(self.value_references([name]), values)
+                elif v.type == "Float32":
+                    self._fmu.setFloat32(vr, values)
+                elif v.type == "String":
+                    self._fmu.setString(vr, values)
                 elif v.type == "Boolean":
-                    self._fmu.setBoolean(vr, [bool(value)])
+                    self._fmu.setBoolean(vr, values)
                 elif v.type in ("Integer", "Enumeration") and self.fmi_version == 2:
-                    self._fmu.setInteger(vr, [int(value)])
+                    self._fmu.setInteger(vr, values)
                 elif v.type in _FMI3_INTEGER_SETTERS:
                     # FMI 3 enumerations are Int64; each integer type has its own setter
-                    getattr(self._fmu, _FMI3_INTEGER_SETTERS[v.type])(vr, [int(value)])
+                    getattr(self._fmu, _FMI3_INTEGER_SETTERS[v.type])(vr, values)
                 else:
                     raise FMUModelDescriptionError(f"{self.source}: cannot set a start value for {name} of type "
                                                    f"{v.type}")
+
+    def read(self, names: list[str]) -> np.ndarray:
+        """Values of variables of any type but String and Binary, as floats, arrays flattened (row-major).
+
+        Booleans read as 0 and 1; integers exactly up to 2**53.
+        """
+        self._check_open()
+        out = []
+        for name in names:
+            v = self.variables[name]
+            if v.type in ("Real", "Float64"):
+                out.append(self.get_real(self.value_references([name])))
+                continue
+            getter = (_FMI2_GETTERS if self.fmi_version == 2 else _FMI3_GETTERS).get(v.type)
+            if getter is None or v.type == "String":
+                raise FMUUnsupportedError(f"{self.source}: cannot read {name} of type {v.type} as a number")
+            with self._calling(f"reading {name}", self.time):
+                args = ([v.valueReference],) if self.fmi_version == 2 else ([v.valueReference], self.size(name))
+                out.append(np.asarray(getattr(self._fmu, getter)(*args), dtype=float))
+        return np.concatenate(out) if out else np.zeros(0)
 
     def _initialize(self, start_time: float) -> None:
         f = self._fmu
@@ -351,21 +414,70 @@ class FMUInstance:
                 self._leave_event_mode()
 
     def _leave_event_mode(self) -> None:
+        self.update_discrete_states()
+        if self.terminate_requested and not self._events:
+            raise FMUError(f"{self.source}: the FMU asked to terminate during initialization")
+        if self.next_event_time is not None and not self._events:
+            raise FMUUnsupportedError(f"{self.source}: the FMU announces a time event at t = {self.next_event_time:.9g} "
+                                      "s; time events are not supported by a block (dobkit integrates Model Exchange "
+                                      "blocks as continuous systems; fmu.simulate_fmu handles events)")
+        if not self.terminate_requested:
+            self.enter_continuous_time_mode()
+
+    # ---- events (Model Exchange) ----------------------------------------------------------------------------
+
+    def update_discrete_states(self, max_iterations: int = 1000) -> bool:
+        """Event iteration: ``fmi2NewDiscreteStates`` / ``fmi3UpdateDiscreteStates`` until no update is needed.
+
+        Sets :attr:`next_event_time` (None if the FMU announces none) and
+        :attr:`terminate_requested`.
+
+        Returns
+        -------
+        bool
+            Whether the FMU changed the values of its continuous states (re-initialisation).
+        """
         f = self._fmu
-        for _ in range(1000):
+        changed = False
+        for _ in range(max_iterations):
             # (discrete states need update, terminate, nominals changed, values changed, time event?, its time)
-            info = f.newDiscreteStates() if self.fmi_version == 2 else f.updateDiscreteStates()
+            with self._calling("the event iteration", self.time):
+                info = f.newDiscreteStates() if self.fmi_version == 2 else f.updateDiscreteStates()
+            changed = changed or bool(info[3])
+            if info[1]:
+                self.terminate_requested = True
+                break
             if not info[0]:
                 break
         else:
-            raise FMUError(f"{self.source}: event iteration did not converge at initialization")
-        if info[1]:
-            raise FMUError(f"{self.source}: the FMU asked to terminate during initialization")
-        if info[4]:
-            raise FMUUnsupportedError(f"{self.source}: the FMU announces a time event at t = {info[5]:.9g} s; "
-                                      "time events are not supported (dobkit integrates Model Exchange FMUs as "
-                                      "continuous blocks without event handling)")
-        f.enterContinuousTimeMode()
+            raise FMUError(f"{self.source}: the event iteration at t = {self.time:.9g} s did not converge in "
+                           f"{max_iterations} iterations")
+        self.next_event_time = float(info[5]) if info[4] else None
+        return changed
+
+    def enter_event_mode(self) -> None:
+        """Model Exchange: enter Event Mode at the time and states last set."""
+        with self._calling("entering event mode", self.time):
+            self._fmu.enterEventMode()
+
+    def enter_continuous_time_mode(self) -> None:
+        """Model Exchange: leave Event Mode."""
+        with self._calling("entering continuous-time mode", self.time):
+            self._fmu.enterContinuousTimeMode()
+
+    def completed_integrator_step(self) -> tuple[bool, bool]:
+        """Tell the FMU an integrator step is accepted; ``(enter event mode?, terminate?)``."""
+        with self._calling("completing an integrator step", self.time):
+            step_event, terminate = self._fmu.completedIntegratorStep()
+        return bool(step_event), bool(terminate)
+
+    def event_indicators(self) -> np.ndarray:
+        """The event indicators at the time, states and inputs last set."""
+        out = np.empty(self.n_event_indicators)
+        if out.size:
+            with self._calling("evaluating the event indicators", self.time):
+                self._fmu.getEventIndicators(out.ctypes.data_as(ctypes.POINTER(ctypes.c_double)), out.size)
+        return out
 
     # ---- Model Exchange ---------------------------------------------------------------------------------------
 

@@ -28,13 +28,21 @@ README).  The Python side is evaluated through
 Every step checks the exchanged signals, the FMU outputs and the Python
 state: the first non-finite value stops the run with a
 :class:`CoSimulationError` naming the signal and the time; an error status
-from the FMU raises :class:`~fmu.errors.FMUStepError`.  No partial result
+from the FMU raises :class:`~fmu.errors.FMUStepError`.  An FMU output that
+grows more than tenfold in each of three consecutive steps stops the run
+too, saying that the FMU's own co-simulation solver (or the loop) is
+unstable at this step -- an unstable solver returns huge but finite numbers
+long before it overflows.  Output derivatives that are not finite (some
+FMUs declare them and return NaN with status OK) switch the ``linear``
+coupling to ``zoh`` for the rest of the run, with one
+:class:`~fmu.coupling.CouplingFallbackWarning` naming the FMU and why.  No partial result
 is returned.  The number of steps is checked against a
 :class:`~fmu.budget.Budget` before the run, the wall time during it.
 """
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable
 
 import control as ct
@@ -46,7 +54,7 @@ from blocks.fastsim import CompiledLoop
 from .archive import ExtractionLimits
 from .block import output_feedthrough
 from .budget import DEFAULT_BUDGET, Budget
-from .coupling import choose_coupling, describe, hermite
+from .coupling import CouplingFallbackWarning, choose_coupling, describe, hermite
 from .description import real_variables, require_variables
 from .errors import CoSimulationError, FMUMissingVariablesError
 from .instance import FMUInstance
@@ -55,6 +63,9 @@ __all__ = ["cosimulate_system", "CoSimulationError", "validated_step", "validate
 
 # one-sided difference for the time derivative of the Python outputs: a small fraction of the step
 _DERIVATIVE_FRACTION = 1e-4
+# an FMU output growing more than GROWTH_FACTOR-fold in each of GROWTH_STEPS consecutive steps is unstable there
+GROWTH_FACTOR = 10.0
+GROWTH_STEPS = 3
 
 
 def _evaluator(side: ct.NonlinearIOSystem):
@@ -252,6 +263,8 @@ def cosimulate_system(fmu_path, side: ct.NonlinearIOSystem, t_final: float, step
         applied = _start_values(fmu, w.fmu_inputs)   # what the FMU inputs hold until the first command
         u = np.empty(len(w.side_in))
         every = max(1, n_steps // 50)
+        fallback = None
+        growth = _Growth(fmu.source, w.fmu_outputs)
         h = step
         for k in range(n_steps + 1):
             t = k * h
@@ -267,6 +280,9 @@ def cosimulate_system(fmu_path, side: ct.NonlinearIOSystem, t_final: float, step
             fmu.set_real(w.in_vr, cmd)
             if derivatives:    # at t_k with the new inputs: an acceleration, say, depends on the new torque
                 dy_m = fmu.get_output_derivatives(w.meas_vr)
+                if not np.all(np.isfinite(dy_m)):
+                    fallback = _fall_back(fmu, w, dy_m, t, k > 0)
+                    linear = derivatives = False
             if linear:
                 slope_m = dy_m if derivatives else ((y_m - y_m_prev) / h if y_m_prev is not None else 0.0 * y_m)
                 dcmd = _output_slope(rhs, out, t, x, u, w, slope_m, cmd, h)
@@ -291,8 +307,13 @@ def cosimulate_system(fmu_path, side: ct.NonlinearIOSystem, t_final: float, step
             bad = _first_bad(y_next, w.fmu_outputs)
             if bad:
                 raise _stop("the FMU output", bad, t + h)
+            growth.check(y_f, y_next, t, h, coupling if fallback is None else "zoh")
             y_m_next = y_next[w.meas_src]
+            ended = cmd + h * dcmd if linear else cmd     # what the FMU inputs hold at the end of the step
             dy_next = fmu.get_output_derivatives(w.meas_vr) if derivatives else None
+            if dy_next is not None and not np.all(np.isfinite(dy_next)):
+                fallback = _fall_back(fmu, w, dy_next, t + h, True)
+                linear = derivatives = False
             if linear:
                 inputs_at = _interpolated_inputs(u, w, t, h, y_m, dy_m, y_m_next, dy_next, cmd, dcmd)
             else:
@@ -303,7 +324,7 @@ def cosimulate_system(fmu_path, side: ct.NonlinearIOSystem, t_final: float, step
             bad = _first_bad(x, list(side.state_labels))
             if bad:
                 raise _stop("the Python side's state", bad, t + h)
-            applied = cmd + h * dcmd if linear else cmd    # what the FMU inputs hold at the end of the step
+            applied = ended
             y_m_prev, y_m, y_f = y_m, y_m_next, y_next
             if k % every == 0:
                 deadline.check(f"t = {t:.6g} s of {float(t_final):g} s")
@@ -311,9 +332,11 @@ def cosimulate_system(fmu_path, side: ct.NonlinearIOSystem, t_final: float, step
                     progress(k / n_steps)
         if linear and fmu.fmi_version == 3:
             fmu.set_input_provider(None)
+        if fallback is not None:
+            coupling = "zoh"
         info = {"fmu": str(fmu.path), "fmi_version": fmu.fmi_version, "model": fmu.model_identifier,
                 "step": step, "side_substeps": side_substeps, "record_every": record_every, "coupling": coupling,
-                "output_derivatives": bool(derivatives),
+                "output_derivatives": bool(derivatives), "coupling_fallback": fallback,
                 "method": "fixed-step coupling, FMU first; " + describe(coupling, bool(derivatives), fmu.fmi_version)
                           + "; Python side classical RK4"}
     if progress is not None:
@@ -324,6 +347,47 @@ def cosimulate_system(fmu_path, side: ct.NonlinearIOSystem, t_final: float, step
                                sysname=f"cosim[{side.name}]", issiso=False, plot_inputs=False)
     resp.cosim = info
     return resp
+
+
+def _fall_back(fmu: FMUInstance, w: _Wiring, values: np.ndarray, t: float, slopes_set: bool) -> str:
+    """Switch an FMU whose output derivatives are not finite to the zero-order hold; one warning says why."""
+    function = "fmi2GetRealOutputDerivatives" if fmu.fmi_version == 2 else "fmi3GetOutputDerivatives"
+    bad = _first_bad(values, [w.fmu_outputs[i] for i in w.meas_src])
+    note = (f"{fmu.source}: {function} returned d({bad.replace(' = ', ')/dt = ')} at t = {t:.9g} s (the FMU declares "
+            f"maxOutputDerivativeOrder = {fmu.max_output_derivative_order}); its output derivatives are unusable, so "
+            "the co-simulation uses coupling 'zoh' (first order in h) from there")
+    if slopes_set and len(w.fmu_inputs):    # the inputs stop following the last slope
+        if fmu.fmi_version == 2:
+            fmu.set_input_derivatives(w.in_vr, np.zeros(len(w.fmu_inputs)))
+        else:
+            fmu.set_input_provider(None)
+    warnings.warn(note, CouplingFallbackWarning, stacklevel=3)
+    return note
+
+
+class _Growth:
+    """Stops a run whose FMU outputs grow more than :data:`GROWTH_FACTOR`-fold per step, :data:`GROWTH_STEPS` in a row."""
+
+    def __init__(self, source: str, names: list[str]):
+        self.source, self.names = source, names
+        self.streak = np.zeros(len(names), dtype=int)
+        self.first = np.zeros(len(names))
+
+    def check(self, y: np.ndarray, y_next: np.ndarray, t: float, h: float, coupling: str) -> None:
+        with np.errstate(over="ignore"):     # a huge previous value simply does not count as growth
+            grew = np.abs(y_next) > GROWTH_FACTOR * np.abs(y)
+        self.first = np.where(grew & (self.streak == 0), np.abs(y), self.first)
+        self.streak = np.where(grew, self.streak + 1, 0)
+        if not np.any(self.streak >= GROWTH_STEPS):
+            return
+        j = int(np.flatnonzero(self.streak >= GROWTH_STEPS)[0])
+        held = "held" if coupling == "zoh" else "following a first-order hold"
+        raise CoSimulationError(
+            f"the co-simulation stopped: the FMU output {self.names[j]} grew more than {GROWTH_FACTOR:g}-fold in each "
+            f"of {GROWTH_STEPS} consecutive communication steps, from |{self.names[j]}| = {self.first[j]:.3g} to "
+            f"{y_next[j]:.3g} at t = {t + h:.9g} s; with its inputs {held} over each step this is {self.source}'s own "
+            f"co-simulation solver being unstable at h = {h:g} s (or a loop unstable at this step): choose a smaller "
+            "step, or use the FMU's Model Exchange interface with dobkit's solver; no result is returned")
 
 
 def _start_values(fmu: FMUInstance, names: list[str]) -> np.ndarray:

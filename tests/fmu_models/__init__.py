@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 HERE = Path(__file__).parent
-FMI2_MODELS = ("mass", "spring", "gain", "oscillator", "integrator")
+FMI2_MODELS = ("mass", "spring", "gain", "oscillator", "integrator", "nanlag")
 FMI3_MODELS = ("selector",)
 
 

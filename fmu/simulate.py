@@ -1,0 +1,364 @@
+"""Simulate a Model Exchange FMU on its own, events included: :func:`simulate_fmu`.
+
+The FMU's continuous states are integrated by a SciPy solver (DOP853 by
+default) step by step.  After every accepted step:
+
+1. the event indicators are evaluated at the step's end; where one changed
+   sign (``z > 0`` before, ``z <= 0`` after, or the other way) the first
+   crossing is located by bisection on the solver's dense output until the
+   bracket is shorter than ``event_tolerance`` (1e-12 s by default); the
+   step is cut at the bracket's right end (the indicator has crossed there);
+2. ``completedIntegratorStep`` is called; a step event it asks for, a time
+   event announced by the last event iteration (the solver never steps past
+   it) or a located state event puts the FMU into Event Mode at that time
+   and state, where the event iteration (``fmi2NewDiscreteStates`` /
+   ``fmi3UpdateDiscreteStates``) runs until no discrete state needs an
+   update; states the FMU re-initialised are read back and the solver
+   restarts from them;
+3. ``terminateSimulation`` (from the event iteration or from
+   ``completedIntegratorStep``) ends the run at that time: the result stops
+   there and says so.
+
+Outputs are recorded on the grid ``start_time + k * output_step`` from the
+dense output; a grid point that coincides with an event gets the values
+after the event.  FMI 3 arrays are flattened (``y[0]``, ``y[1]``, ...,
+row-major; ``A[i,j]`` for two dimensions), their sizes taken from the
+structural parameters' start values.  Integer, enumeration and Boolean
+outputs are recorded as numbers.  Clocks and inputs of discrete variability
+are refused, saying so.
+"""
+from __future__ import annotations
+
+import math
+
+import control as ct
+import numpy as np
+from scipy.integrate import BDF, DOP853, LSODA, RK45, Radau
+
+from .archive import ExtractionLimits
+from .budget import DEFAULT_BUDGET, Budget
+from .description import array_shape, element_names, state_variables
+from .errors import BudgetError, FMUError
+from .instance import FMUInstance
+
+__all__ = ["simulate_fmu", "SOLVERS"]
+
+SOLVERS = {"DOP853": DOP853, "RK45": RK45, "LSODA": LSODA, "BDF": BDF, "Radau": Radau}
+_MAX_EVENTS = 100_000
+_NUMERIC_OUTPUTS = ("Real", "Float64", "Float32", "Integer", "Enumeration", "Boolean", "Int8", "UInt8", "Int16",
+                    "UInt16", "Int32", "UInt32", "Int64", "UInt64")
+
+
+def _positive(value, name: str) -> float:
+    if isinstance(value, (bool, str, bytes)):
+        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a finite number > 0, got {value!r}") from None
+    if not (math.isfinite(number) and number > 0):
+        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+    return number
+
+
+def _grid(start: float, t_final: float, output_step: float) -> np.ndarray:
+    span = t_final - start
+    if not (math.isfinite(span) and span > 0):
+        raise ValueError(f"t_final must be after start_time = {start:g} s, got {t_final!r}")
+    n = int(math.floor(span / output_step * (1 + 1e-12)))
+    grid = start + output_step * np.arange(n + 1)
+    if t_final - grid[-1] > 1e-9 * max(1.0, abs(t_final)):
+        grid = np.append(grid, t_final)     # the end is always recorded
+    else:
+        grid[-1] = t_final
+    return grid
+
+
+class _Inputs:
+    """The real inputs as functions of time: constants, callables ``f(t)``, or the FMU's start values."""
+
+    def __init__(self, inst: FMUInstance, inputs: dict | None):
+        md = inst.model_description
+        self.names = [v.name for v in md.modelVariables if v.causality == "input" and v.type in ("Real", "Float64")]
+        given = dict(inputs or {})
+        unknown = sorted(set(given) - set(self.names))
+        if unknown:
+            raise ValueError(f"inputs: {unknown} are not real inputs of {inst.source} (its real inputs: "
+                             f"{self.names or 'none'})")
+        self.sizes = [inst.size(n) for n in self.names]
+        self.labels = [e for n in self.names for e in element_names(inst.variables[n],
+                                                                    array_shape(inst.variables[n], inst.source))]
+        self.vr = inst.value_references(self.names)
+        self.parts: list = []
+        for name, size in zip(self.names, self.sizes):
+            value = given.get(name)
+            if value is None:
+                value = _start_array(inst.variables[name], size)
+            self.parts.append(value if callable(value) else self._constant(name, value, size))
+        self.constant = all(not callable(p) for p in self.parts)
+        self._value = (np.concatenate([np.asarray(p, dtype=float).ravel() for p in self.parts]) if self.parts
+                       else np.zeros(0)) if self.constant else None
+
+    @staticmethod
+    def _constant(name: str, value, size: int) -> np.ndarray:
+        arr = np.asarray(value, dtype=float).ravel()
+        if arr.size != size or not np.all(np.isfinite(arr)):
+            raise ValueError(f"inputs[{name!r}] must be {size} finite number(s) or a function of t, got {value!r}")
+        return arr
+
+    def at(self, t: float) -> np.ndarray:
+        """All input elements at time ``t`` (s)."""
+        if self.constant:
+            return self._value
+        values = []
+        for name, size, part in zip(self.names, self.sizes, self.parts):
+            arr = np.asarray(part(t) if callable(part) else part, dtype=float).ravel()
+            if arr.size != size or not np.all(np.isfinite(arr)):
+                raise ValueError(f"inputs[{name!r}]({t:.9g}) must give {size} finite number(s), got {arr.tolist()}")
+            values.append(arr)
+        return np.concatenate(values) if values else np.zeros(0)
+
+
+def _start_array(variable, size: int) -> np.ndarray:
+    text = variable.start
+    if text is None:
+        return np.zeros(size)
+    values = [float(s) for s in str(text).split()] if isinstance(text, str) else [float(text)]
+    return np.array(values if len(values) == size else values[:1] * size)
+
+
+class _Model:
+    """The FMU seen by the solver: set time, states and inputs, then ask."""
+
+    def __init__(self, inst: FMUInstance, inputs: _Inputs):
+        self.inst, self.inputs = inst, inputs
+        self.evaluations = 0
+
+    def at(self, t: float, x: np.ndarray) -> None:
+        self.inst.set_time(float(t))
+        if x.size:
+            self.inst.set_states(x)
+        if self.inputs.names:
+            self.inst.set_real(self.inputs.vr, self.inputs.at(float(t)))
+
+    def rhs(self, t, x):
+        self.evaluations += 1
+        self.at(t, x)
+        return self.inst.derivatives()
+
+    def indicators(self, t: float, x: np.ndarray) -> np.ndarray:
+        self.at(t, x)
+        return self.inst.event_indicators()
+
+
+def _locate(model: _Model, state_at, t0: float, t1: float, above: np.ndarray, tol: float) -> float:
+    """The right end of a bracket shorter than ``tol`` of the first sign change of any indicator in ``(t0, t1]``."""
+    a, b = t0, t1
+    while b - a > tol:
+        mid = 0.5 * (a + b)
+        if mid <= a or mid >= b:    # the bracket is down to adjacent floats
+            break
+        crossed = np.any((model.indicators(mid, state_at(mid)) > 0) != above)
+        a, b = (a, mid) if crossed else (mid, b)
+    return b
+
+
+def simulate_fmu(path, t_final: float, output_step: float, inputs: dict | None = None,
+                 start_values: dict | None = None, *, start_time: float = 0.0, method: str = "DOP853",
+                 rtol: float = 1e-10, atol: float = 1e-12, event_tolerance: float = 1e-12,
+                 max_step: float | None = None, budget: Budget | None = None, limits: ExtractionLimits | None = None,
+                 extract_to=None) -> ct.TimeResponseData:
+    """Simulate a Model Exchange FMU (FMI 2 or 3) with its events; outputs on a fixed grid.
+
+    Parameters
+    ----------
+    path : str, pathlib.Path or ExtractedFMU
+        The ``.fmu`` file (Model Exchange).
+    t_final : float
+        End time (s).
+    output_step : float
+        Spacing of the recorded points (s); ``t_final`` is always recorded.
+    inputs : dict, optional
+        Real input name -> constant (a number, or ``size`` numbers for an FMI 3
+        array input) or function of ``t`` (s) returning it.  Inputs not given
+        keep their start values.
+    start_values : dict, optional
+        Variable name -> start value set before initialization, checked
+        against the variable's type (:mod:`fmu.start_values`).
+    start_time : float
+        Initial time (s).
+    method : {"DOP853", "RK45", "LSODA", "BDF", "Radau"}
+        SciPy solver of the continuous states (a stiff FMU wants BDF, Radau or LSODA).
+    rtol, atol : float
+        Solver tolerances.
+    event_tolerance : float
+        Length (s) below which a state event's bracket is accepted.
+    max_step : float, optional
+        Largest solver step (s); default ``output_step`` (an indicator that
+        crosses twice within one step would otherwise go unseen).
+    budget : Budget, optional
+        The recorded points are checked against ``max_steps``, the
+        right-hand-side evaluations against ``max_rhs_evaluations``, and the wall time.
+    limits, extract_to :
+        Passed to :class:`~fmu.instance.FMUInstance`.
+
+    Returns
+    -------
+    control.TimeResponseData
+        Outputs named by the FMU's output variables (arrays as ``y[0]``,
+        ``y[1]``, ...), states by its state variables, inputs by its real
+        inputs.  Attribute ``simulation``: ``events`` (list of ``{"time",
+        "kind"}``, kind ``"state"``, ``"time"`` or ``"step"``), ``terminated``
+        (the time the FMU asked to stop, or None), ``method``,
+        ``rhs_evaluations``.
+
+    Raises
+    ------
+    ValueError
+        For a bad ``t_final``, ``output_step``, ``method`` or input.
+    FMUUnsupportedError
+        For clocks or discrete-variability inputs.
+    BudgetError
+        When the recorded points, the right-hand-side evaluations or the wall time exceed ``budget``.
+    FMUError
+        (other subclasses) for a bad archive or an error status from the FMU
+        (:class:`~fmu.errors.FMUStepError` names the call and the time).
+
+    Examples
+    --------
+    The FMI Reference FMU BouncingBall (built from its public source)::
+
+        resp = fmu.simulate_fmu("BouncingBall.fmu", t_final=2.0, output_step=0.01)
+        height = resp.outputs[resp.output_labels.index("h")]      # m, on the 10 ms grid
+        impacts = [e["time"] for e in resp.simulation["events"]]  # s: 0.4515, 1.0837, 1.5261, 1.8359
+    """
+    output_step = _positive(output_step, "output_step")
+    start_time = float(start_time)
+    if not math.isfinite(start_time):
+        raise ValueError(f"start_time must be a finite number (s), got {start_time!r}")
+    try:
+        t_final = float(t_final)
+    except (TypeError, ValueError):
+        raise ValueError(f"t_final must be a finite number (s), got {t_final!r}") from None
+    grid = _grid(start_time, t_final, output_step)
+    event_tolerance = _positive(event_tolerance, "event_tolerance")
+    if method not in SOLVERS:
+        raise ValueError(f"method must be one of {list(SOLVERS)}, got {method!r}")
+    max_step = output_step if max_step is None else _positive(max_step, "max_step")
+    budget = DEFAULT_BUDGET if budget is None else budget
+    budget.check_steps(grid.size, "simulate_fmu", f"(t_final - start_time) = {t_final - start_time:g} s / "
+                       f"output_step = {output_step:g} s")
+
+    with FMUInstance(path, kind="ModelExchange", start_values=start_values,
+                     start_time=start_time, limits=limits, extract_to=extract_to, events=True) as inst:
+        ins = _Inputs(inst, inputs)
+        model = _Model(inst, ins)
+        deadline = budget.deadline(f"simulate_fmu of {inst.source}")
+        outputs = [v.name for v in inst.model_description.modelVariables
+                   if v.causality == "output" and v.type in _NUMERIC_OUTPUTS]
+        out_labels = [e for n in outputs for e in element_names(inst.variables[n],
+                                                                array_shape(inst.variables[n], inst.source))]
+        state_vars = state_variables(inst.model_description, inst.source)
+        state_labels = [e for v in state_vars for e in element_names(v, array_shape(v, inst.source))]
+        rec_t, rec_y, rec_x, rec_u = [], [], [], []
+        events: list[dict] = []
+
+        def record(s: float, x: np.ndarray) -> None:
+            model.at(s, x)
+            rec_t.append(s)
+            rec_y.append(inst.read(outputs))
+            rec_x.append(np.array(x))
+            rec_u.append(ins.at(s).copy())
+
+        t = start_time
+        x = inst.get_states() if inst.n_states else np.zeros(0)
+        k = 0                                   # next grid point to record
+        terminated = t if inst.terminate_requested else None
+        while terminated is None:
+            stop = t_final if inst.next_event_time is None else min(t_final, inst.next_event_time)
+            if inst.next_event_time is not None and inst.next_event_time < t - event_tolerance:
+                raise FMUError(f"{inst.source}: the FMU announced a time event at t = {inst.next_event_time:.9g} s, "
+                               f"before the current time t = {t:.9g} s")
+            z = model.indicators(t, x) if inst.n_event_indicators else np.zeros(0)
+            above = z > 0
+            solver = (SOLVERS[method](model.rhs, t, x, stop, rtol=rtol, atol=atol, max_step=max_step)
+                      if x.size and stop > t else None)
+            event_kind = None
+            while True:
+                t_old = t
+                if solver is not None and solver.status == "running":
+                    message = solver.step()
+                    if solver.status == "failed":
+                        raise FMUError(f"{inst.source}: the {method} solver failed at t = {solver.t:.9g} s: {message}")
+                    t_new, dense = solver.t, solver.dense_output()
+                    state_at = dense
+                else:       # no states: march on the grid (the indicators may depend on time and inputs)
+                    t_new = min(stop, t_old + max_step) if stop > t_old else t_old
+                    held = x
+                    state_at = lambda s, held=held: held       # noqa: E731
+                    dense = None
+                if z.size and t_new > t_old:
+                    crossed = (model.indicators(t_new, state_at(t_new)) > 0) != above
+                    if np.any(crossed):
+                        t_new = _locate(model, state_at, t_old, t_new, above, event_tolerance)
+                        event_kind = "state"
+                while k < grid.size and grid[k] < t_new - 1e-13 * max(1.0, abs(t_new)):
+                    record(grid[k], state_at(grid[k]))
+                    k += 1
+                t, x = t_new, np.array(state_at(t_new), dtype=float)
+                if model.evaluations > budget.max_rhs_evaluations:
+                    raise BudgetError(f"simulate_fmu of {inst.source}: {model.evaluations} right-hand-side evaluations "
+                                      f"by t = {t:.6g} s, more than the budget of {budget.max_rhs_evaluations:.3g} "
+                                      "(max_rhs_evaluations): the FMU is stiff (try method='BDF') or fast there; "
+                                      "shorten the run or raise the budget")
+                deadline.check(f"t = {t:.6g} s of {t_final:g} s")
+                if event_kind is None:
+                    model.at(t, x)
+                    step_event, stop_now = inst.completed_integrator_step()
+                    if stop_now:
+                        terminated = t
+                        break
+                    if step_event:
+                        event_kind = "step"
+                if event_kind is None and inst.next_event_time is not None and t >= inst.next_event_time - 1e-13 * \
+                        max(1.0, abs(t)):
+                    event_kind = "time"
+                if event_kind is not None or t >= stop:
+                    break
+            if terminated is not None:
+                break
+            if event_kind is None:      # t_final reached
+                break
+            model.at(t, x)
+            inst.enter_event_mode()
+            changed = inst.update_discrete_states()
+            events.append({"time": float(t), "kind": event_kind})
+            if len(events) > _MAX_EVENTS:
+                raise FMUError(f"{inst.source}: more than {_MAX_EVENTS} events by t = {t:.9g} s (chattering or a "
+                               "Zeno trajectory)")
+            if changed and x.size:
+                x = inst.get_states()
+            if inst.terminate_requested:
+                terminated = t
+                break
+            inst.enter_continuous_time_mode()
+        # the points at t (after its events): the end, or up to where the FMU stopped
+        end = t if terminated is not None else t_final
+        while k < grid.size and grid[k] <= end + 1e-13 * max(1.0, abs(end)):
+            record(grid[k], x)
+            k += 1
+        if terminated is not None and (not rec_t or rec_t[-1] < terminated):
+            record(terminated, x)
+        info = {"fmu": str(inst.path), "fmi_version": inst.fmi_version, "model": inst.model_identifier,
+                "method": f"SciPy {method}, rtol {rtol:g}, atol {atol:g}; state events located to "
+                          f"{event_tolerance:g} s", "events": events,
+                "terminated": None if terminated is None else float(terminated), "rhs_evaluations": model.evaluations}
+    resp = ct.TimeResponseData(np.array(rec_t), np.array(rec_y).T if out_labels else np.zeros((0, len(rec_t))),
+                               np.array(rec_x).T if state_labels else None,
+                               np.array(rec_u).T if ins.labels else None,
+                               output_labels=out_labels, state_labels=state_labels or None,
+                               input_labels=ins.labels or None, sysname=inst.model_identifier, issiso=False,
+                               plot_inputs=bool(ins.labels))
+    resp.simulation = info
+    return resp
+
