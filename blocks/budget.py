@@ -188,6 +188,25 @@ class Budget:
         """The budget of one of ``parts`` jobs that run at the same time (memory divided)."""
         return replace(self, memory=max(1, self.memory // max(1, int(parts))))
 
+    def check_steps(self, steps: float, what: str, cause: str, key: str = "") -> None:
+        """Refuse a fixed-step run of ``steps`` steps beyond :attr:`steps` (a co-simulation, a check's run).
+
+        Parameters
+        ----------
+        steps : float
+            The estimate (may be huge or infinite).
+        what : str
+            The run, e.g. ``"co-simulation of plant.fmu"``.
+        cause : str
+            The values that give the estimate, e.g. ``"t_final = 10 s / step = 1e-09 s"``.
+        key : str
+            The argument or scenario key that drives it (``"step"``), for :attr:`BudgetError.key`.
+        """
+        if not steps <= self.steps:
+            raise BudgetError(f"{what}: {cause} gives {steps:.3g} steps, more than the step budget of "
+                              f"{self.steps:.3g}; choose a larger step or a shorter time, or raise the budget with "
+                              f"--max-steps or {ENVIRONMENT['steps']}", None, key, "steps")
+
     def check(self, estimate: Estimate, what: str) -> None:
         """Raise :class:`BudgetError` when ``estimate`` exceeds this budget; ``what`` names the job in the message."""
         if estimate.steps > self.steps:

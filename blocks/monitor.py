@@ -81,6 +81,12 @@ class Monitor:
         The solver, for the step budget in right-hand-side evaluations.
     """
 
+    @classmethod
+    def for_job(cls, what: str, budget: Budget | None = None, t_final: float = math.inf,
+                progress: Callable[[float], None] | None = None) -> Monitor:
+        """A Monitor of the budget and progress of a job whose states it does not judge (an FMU check, a study)."""
+        return cls(what, None, np.zeros(0), budget, t_final, progress)
+
     def __init__(self, what: str, bounds: StateBounds | None, x0, budget: Budget | None = None,
                  t_final: float = math.inf, progress: Callable[[float], None] | None = None,
                  method: str = "RK45") -> None:
@@ -152,15 +158,42 @@ class Monitor:
     def out_of_time(self) -> bool:
         return self.deadline is not None and time.monotonic() > self.deadline
 
-    def time_error(self, t: float) -> BudgetError:
-        return BudgetError(f"{self.what}: the wall-time budget of {self.budget.seconds:g} s ran out at t = {t:.6g} s "
-                           f"of {self.t_final:g} s; raise it with --max-seconds or {ENVIRONMENT['seconds']}; no "
-                           "result is returned", key="", limit="seconds")
+    def time_error(self, t: float | None, where: str = "") -> BudgetError:
+        """The error for a job whose wall-time budget ran out at simulated time ``t`` (or at ``where``)."""
+        at = where or f"t = {t:.6g} s of {self.t_final:g} s"
+        return BudgetError(f"{self.what}: the wall-time budget of {self.budget.seconds:g} s ran out at {at}; raise it "
+                           f"with --max-seconds or {ENVIRONMENT['seconds']}; no result is returned", key="",
+                           limit="seconds")
 
-    def check_time(self, t: float) -> None:
+    def check_time(self, t: float | None = None, where: str = "") -> None:
         """Raise :class:`~blocks.budget.BudgetError` when the wall-time budget has run out."""
         if self.out_of_time():
-            raise self.time_error(t)
+            raise self.time_error(t, where)
+
+    def counted(self, rhs: Callable, what: str = "") -> Callable:
+        """``rhs(t, x)`` that counts its calls against the step budget and checks the wall time every 1000 calls.
+
+        For integrations the Monitor does not step itself (an FMU's Model Exchange run by scipy).  The count is
+        ``wrapped.count[0]``.
+        """
+        count = [0]
+        label = what or self.what
+
+        def wrapped(t, x):
+            count[0] += 1
+            if count[0] > self.max_evaluations:
+                raise BudgetError(
+                    f"{label}: {count[0] - 1:,} right-hand-side evaluations by t = {float(t):.6g} s "
+                    f"({count[0] / max(abs(float(t)), 1e-300):.3g} per simulated second), more than the step budget "
+                    f"allows ({self.budget.steps:,} steps, {self.max_evaluations:,} evaluations): the dynamics are "
+                    f"stiff or fast there; shorten the run or raise it with --max-steps or {ENVIRONMENT['steps']}",
+                    key="", limit="steps")
+            if count[0] % 1000 == 0:
+                self.check_time(float(t))
+            return rhs(t, x)
+
+        wrapped.count = count
+        return wrapped
 
     def steps_error(self, t: float, count: int, unit: str = "right-hand-side evaluations") -> SimulationError:
         rate = count / max(float(t), 1e-300)

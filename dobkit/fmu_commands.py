@@ -10,8 +10,8 @@
 Each is a thin layer over :func:`fmu.export_plant`,
 :func:`fmu.cosimulate`, :func:`fmu.cosim_convergence` and
 :func:`fmu.check_fmu`.  Each command extracts the FMU once.  The
-long-running ones take ``--max-steps`` and ``--max-wall-time``
-(:class:`fmu.budget.Budget`): they estimate their steps first and refuse
+long-running ones take ``--max-steps`` and ``--max-seconds``
+(:class:`blocks.budget.Budget`): they estimate their steps first and refuse
 beyond the budget.  Every JSON file or listing they write is strict JSON:
 a value that is not a finite number is written as ``null`` and its place is
 listed under ``non_finite_values``.
@@ -72,8 +72,8 @@ def strict_json(data) -> str:
 
 
 def _budget(args):
-    from fmu.budget import Budget
-    return Budget(max_steps=args.max_steps, max_wall_time=args.max_wall_time)
+    from blocks.budget import Budget
+    return Budget.from_env(memory=args.max_memory, steps=args.max_steps, seconds=args.max_seconds)
 
 
 def _cmd_export(args) -> int:
@@ -286,14 +286,10 @@ def _cmd_check(args) -> int:
     return 0 if report["passed"] else 1
 
 
-def _add_budget(parser, default_wall: float = 3600.0) -> None:
-    from fmu.budget import DEFAULT_BUDGET
-    parser.add_argument("--max-steps", type=_positive_int, default=DEFAULT_BUDGET.max_steps,
-                        help=f"largest number of steps of one run, estimated before it starts (default: "
-                             f"{DEFAULT_BUDGET.max_steps})")
-    parser.add_argument("--max-wall-time", type=_positive_float, default=default_wall,
-                        help=f"wall-time limit of the command in s (default: {default_wall:g})")
-
+def _add_budget(parser) -> None:
+    """The project's budget flags (one spelling for every command: :func:`dobkit.arguments.add_budget_flags`)."""
+    from dobkit.arguments import add_budget_flags
+    add_budget_flags(parser, "the command stops with a clear message when they run out")
 
 def add_fmu_subcommands(subparsers) -> None:
     """Add ``fmu export``, ``fmu cosim``, ``fmu convergence`` and ``fmu check`` to a ``dobkit`` subparsers object."""
@@ -358,5 +354,5 @@ def add_fmu_subcommands(subparsers) -> None:
                      help="largest allowed Model Exchange / Co-Simulation difference, relative to max(1, max|y|) "
                           "(default: 1e-4)")
     chk.add_argument("--json", action="store_true", help="print the full report as (strict) JSON")
-    _add_budget(chk, default_wall=600.0)
+    _add_budget(chk)
     chk.set_defaults(func=_cmd_check)

@@ -25,17 +25,18 @@ description checks, supported subset), ``logger`` (FMU log messages to the
 right instance), ``instance`` (one native instance), ``block`` (``load``: ME FMU as a
 block), ``coupling`` (what crosses between the sides within a step),
 ``master`` (fixed-step co-simulation), ``simulate`` (a Model Exchange FMU
-on its own, with events and arrays), ``start_values`` (start values checked by type), ``budget`` (limits on steps and wall
-time), ``scenario_values`` (scenario -> FMU start values), ``cosim`` (a
+on its own, with events and arrays), ``start_values`` (start values checked by type),
+``scenario_values`` (scenario -> FMU start values), ``cosim`` (a
 scenario against a plant FMU), ``convergence`` (co-simulation error versus
 step size), ``check`` and ``plant_check``,
 ``export`` / ``variables`` / ``modeldescription`` / ``build`` / ``package``
 (the plant FMU), ``c/`` (the plant's C code).
 The command line (``dobkit fmu ...``) lives in :mod:`dobkit.fmu_commands`.
 """
+from blocks.budget import Budget
+
 from .archive import ExtractedFMU, ExtractionLimits, extract_fmu
 from .block import FMUBlock, load
-from .budget import Budget
 from .check import check_fmu
 from .convergence import cosim_convergence
 from .cosim import controller_side, cosimulate

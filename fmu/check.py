@@ -38,7 +38,7 @@ part that it offers works with dobkit.  A NaN anywhere fails the part it is in. 
 model description that fails the schema validation is reported (its
 problems listed, nothing run); so is a missing or malformed one, or an
 unsupported FMI version.  Sizes are checked against a
-:class:`~fmu.budget.Budget` before anything runs.  The archive is extracted
+:class:`~blocks.budget.Budget` before anything runs.  The archive is extracted
 once.  Checking runs the FMU's native code in this process: check an
 untrusted FMU in a sandbox.
 """
@@ -49,11 +49,12 @@ import math
 import numpy as np
 from scipy.integrate import solve_ivp
 
+from blocks.budget import Budget
 from blocks.control_compat import fast_dynamics, fast_output
+from blocks.monitor import Monitor
 
 from .archive import ExtractionLimits, extract_fmu
 from .block import load
-from .budget import DEFAULT_BUDGET, Budget, Deadline, counted
 from .description import (
     array_shape,
     described,
@@ -109,7 +110,7 @@ def _grid(t_final: float, step: float) -> tuple[int, int, float]:
     return _POINTS * every, every, t_final / (_POINTS * every)
 
 
-def _model_exchange(extracted, md, t_final: float, budget: Budget, deadline: Deadline) -> tuple[dict, dict | None]:
+def _model_exchange(extracted, md, t_final: float, budget: Budget, deadline: Monitor) -> tuple[dict, dict | None]:
     """The Model Exchange part and, when it ran, its outputs by name on the check's grid."""
     if md.modelExchange is None:
         return {"offered": False, "skipped": "the FMU does not offer Model Exchange (it offers: "
@@ -127,7 +128,7 @@ def _model_exchange(extracted, md, t_final: float, budget: Budget, deadline: Dea
         try:
             if block.nstates:
                 f = fast_dynamics(block)
-                rhs = counted(lambda t, x: f(t, x, u), budget, deadline, "the Model Exchange run")
+                rhs = deadline.counted(lambda t, x: f(t, x, u), "the Model Exchange run")
                 sol = solve_ivp(rhs, (0.0, t_final), block.initial_state, method="LSODA", t_eval=times, rtol=1e-8,
                                 atol=1e-10)
                 if not sol.success:
@@ -153,7 +154,7 @@ def _model_exchange(extracted, md, t_final: float, budget: Budget, deadline: Dea
     return part, dict(zip(block.output_labels, y))
 
 
-def _co_simulation(extracted, md, t_final: float, step: float, deadline: Deadline) -> tuple[dict, dict | None]:
+def _co_simulation(extracted, md, t_final: float, step: float, deadline: Monitor) -> tuple[dict, dict | None]:
     """The Co-Simulation part and, when it ran, its real outputs by name on the check's grid."""
     if md.coSimulation is None:
         return {"offered": False, "skipped": "the FMU does not offer Co-Simulation (it offers: "
@@ -175,7 +176,7 @@ def _co_simulation(extracted, md, t_final: float, step: float, deadline: Deadlin
                 fmu.do_step(k * h, h)
                 if (k + 1) % every == 0:
                     rows.append(fmu.get_real(vr).copy())
-                    deadline.check(f"Co-Simulation run at t = {(k + 1) * h:.6g} s")
+                    deadline.check_time(where=f"Co-Simulation run at t = {(k + 1) * h:.6g} s")
     except BudgetError:
         raise
     except FMUError as err:
@@ -355,7 +356,7 @@ def check_fmu(path, t_final: float = 1.0, tolerance: float = 1e-6, cs_step: floa
         Largest allowed difference of either interface to the fine reference, relative to ``max(1, max |y|)``.
     budget : Budget, optional
         Limits on steps, right-hand-side evaluations and wall time
-        (:data:`fmu.budget.DEFAULT_BUDGET`); the step counts are estimated first.
+        (:meth:`blocks.budget.Budget.from_env`); the step counts are estimated first.
     limits : ExtractionLimits, optional
         Archive size limits.
 
@@ -379,7 +380,7 @@ def check_fmu(path, t_final: float = 1.0, tolerance: float = 1e-6, cs_step: floa
     for name, value in (("t_final", t_final), ("cs_step", cs_step)):
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
             raise ValueError(f"{name} must be a finite number > 0 s, got {value!r}")
-    budget = DEFAULT_BUDGET if budget is None else budget
+    budget = Budget.from_env() if budget is None else budget
     report: dict = {"path": str(path), "fmi_version": "unknown", "model": "unknown", "interfaces": []}
     try:
         extracted = extract_fmu(path, limits=limits)
@@ -418,7 +419,7 @@ def check_fmu(path, t_final: float = 1.0, tolerance: float = 1e-6, cs_step: floa
             if plant is not None:
                 budget.check_steps(t_final / cs_step, "the plant's Co-Simulation comparison",
                                    f"t_final = {t_final:g} s (--t-final) / step {cs_step:g} s")
-        deadline = budget.deadline(f"check of {extracted.source}")
+        deadline = Monitor.for_job(f"check of {extracted.source}", budget)
         report["validation"] = _guarded(lambda: _validation(extracted))
         me_out = cs_out = ref_out = None
 

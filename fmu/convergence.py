@@ -21,11 +21,12 @@ from collections.abc import Callable
 
 import numpy as np
 
+from blocks.budget import Budget
 from blocks.joints import RRPR_JOINTS
+from blocks.monitor import Monitor
 from blocks.scenario import Scenario, load_scenario
 
 from .archive import ExtractionLimits, open_extracted
-from .budget import DEFAULT_BUDGET, Budget
 from .master import CoSimulationError, validated_time
 
 __all__ = ["cosim_convergence", "fit_order", "DEFAULT_STEPS", "REFERENCE"]
@@ -147,10 +148,10 @@ def cosim_convergence(fmu_path, scenario: Scenario | str = "paper", steps=DEFAUL
     s = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     t_end = s.simulation.t_final if t_final is None else validated_time(t_final, "t_final")
     grid = _common_grid(steps, t_end)
-    budget = DEFAULT_BUDGET if budget is None else budget
+    budget = Budget.from_env() if budget is None else budget
     budget.check_steps(t_end / min(steps) * side_substeps, "convergence study",
                        f"t_final = {t_end:g} s / smallest step h = {min(steps):g} s")
-    deadline = budget.deadline("convergence study")
+    deadline = Monitor.for_job("convergence study", budget)
     s = s.replace(simulation={"t_final": t_end, "output_step": grid})
     report = progress or (lambda stage, fraction: None)
 
@@ -166,7 +167,7 @@ def cosim_convergence(fmu_path, scenario: Scenario | str = "paper", steps=DEFAUL
     try:
         for k, h in enumerate(steps):
             stage = f"co-simulation h = {h:g} s"
-            deadline.check(f"before the run at h = {h:g} s")
+            deadline.check_time(where=f"before the run at h = {h:g} s")
             resp = cosimulate(extracted, s, step=h, observer=observer, side_substeps=side_substeps,
                               parameters="scenario", coupling=coupling, error_estimate=False, budget=budget,
                               progress=lambda f, st=stage: report(st, f))

@@ -39,12 +39,12 @@ from collections.abc import Callable
 import control as ct
 import numpy as np
 
+from blocks.budget import Budget
 from blocks.joints import RRPR_JOINTS
 from blocks.loop import LOOP_SIGNALS, build_blocks, initial_state, lumped_disturbance
 from blocks.scenario import Scenario, load_scenario
 
 from .archive import ExtractionLimits, open_extracted
-from .budget import DEFAULT_BUDGET, Budget
 from .cosim_sampled import cosimulate_sampled
 from .coupling import COUPLINGS
 from .description import described, require_variables
@@ -159,7 +159,7 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
         Estimate the coupling error by step doubling over the first
         ``min(1 s, t_final)`` (two short extra runs, at ``h`` and ``2 h``).
     budget : Budget, optional
-        Limits on steps and wall time (:data:`fmu.budget.DEFAULT_BUDGET`).
+        Limits on steps and wall time (:meth:`blocks.budget.Budget.from_env`).
     limits, extract_to :
         Archive size limits and extraction parent folder.
     progress : callable, optional
@@ -190,7 +190,7 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
     if coupling is not None and coupling not in COUPLINGS:
         raise CoSimulationError(f"coupling must be one of {list(COUPLINGS)}, got {coupling!r}")
     record_every = _record_every(s.simulation.output_step, step)
-    budget = DEFAULT_BUDGET if budget is None else budget
+    budget = Budget.from_env() if budget is None else budget
     if s.controller is not None:        # a digital controller: its samples are the communication points
         if coupling not in (None, "zoh"):
             raise CoSimulationError(f"a digital controller holds its torque over each sample: the coupling is the "

@@ -18,13 +18,14 @@ from collections.abc import Callable
 import control as ct
 import numpy as np
 
+from blocks.budget import Budget
 from blocks.digital_loop import sampled_initial_state, sampled_loop
 from blocks.kernels import arm_constants
 from blocks.kernels import lumped_disturbance as lumped_disturbance_rows
+from blocks.monitor import Monitor
 from blocks.scenario import Scenario
 from blocks.systems import signal_names
 
-from .budget import DEFAULT_BUDGET, Budget
 from .errors import FMUMissingVariablesError
 from .instance import FMUInstance
 from .master import CoSimulationError
@@ -90,7 +91,7 @@ def cosimulate_sampled(extracted, scenario: Scenario, step: float, t_final: floa
     n_steps = int(round(t_final / Ts))
     if abs(n_steps * Ts - t_final) > 1e-9 * max(1.0, t_final):
         raise CoSimulationError(f"t_final = {t_final:g} s is not a whole number of samples of {Ts:g} s")
-    budget = DEFAULT_BUDGET if budget is None else budget
+    budget = Budget.from_env() if budget is None else budget
     budget.check_steps(n_steps, "co-simulation", f"t_final = {t_final:g} s / step h = {Ts:g} s")
     loop = sampled_loop(s, observer=observer)
     x = sampled_initial_state(loop, s)
@@ -110,7 +111,7 @@ def cosimulate_sampled(extracted, scenario: Scenario, step: float, t_final: floa
             in_vr = fmu.value_references(signal_names("tau"))
         except KeyError as err:
             raise FMUMissingVariablesError(f"{fmu.source}: the plant FMU lacks {err}") from None
-        deadline = budget.deadline(f"co-simulation of {fmu.source}")
+        deadline = Monitor.for_job(f"co-simulation of {fmu.source}", budget)
         n = len(q_pos)
         for k in range(n_steps + 1):
             t = k * Ts
@@ -136,7 +137,7 @@ def cosimulate_sampled(extracted, scenario: Scenario, step: float, t_final: floa
             fmu.set_real(in_vr, tau)
             fmu.do_step(t, Ts)
             if k % max(1, n_steps // 50) == 0:
-                deadline.check(f"t = {t:.6g} s of {t_final:g} s")
+                deadline.check_time(where=f"t = {t:.6g} s of {t_final:g} s")
                 if progress is not None:
                     progress(k / n_steps)
         info = {"fmu": str(fmu.path), "fmi_version": fmu.fmi_version, "model": fmu.model_identifier, "step": Ts,

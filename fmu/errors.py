@@ -1,10 +1,13 @@
-"""The exceptions of :mod:`fmu`: one hierarchy under :class:`FMUError`.
+"""The exceptions of :mod:`fmu`: one hierarchy under :class:`FMUError` (and the one budget error of the project,
+:class:`blocks.budget.BudgetError`, re-exported here).
 
 Every message names what is wrong (the archive entry, the variable, the
 platform, the simulation time and status) so that it can be acted on without
 a debugger.
 """
 from __future__ import annotations
+
+from blocks.budget import BudgetError
 
 __all__ = [
     "FMUError", "FMUArchiveError", "FMUModelDescriptionError", "FMUVersionError", "FMUUnsupportedError",
@@ -94,15 +97,6 @@ class FMUStepError(FMUError):
 
 class FMUBuildError(FMUError):
     """Exporting an FMU failed: no C compiler, or the compiler rejected the sources."""
-
-
-class BudgetError(FMUError):
-    """A run would take, or has taken, more steps, evaluations or wall time than its budget allows.
-
-    The message gives the estimate or the count, the budget, what makes the
-    run so large (the step, the simulated time, a stiff FMU) and the
-    argument or command-line flag that raises the budget.
-    """
 
 
 class CoSimulationError(FMUError):

@@ -37,7 +37,7 @@ FMUs declare them and return NaN with status OK) switch the ``linear``
 coupling to ``zoh`` for the rest of the run, with one
 :class:`~fmu.coupling.CouplingFallbackWarning` naming the FMU and why.  No partial result
 is returned.  The number of steps is checked against a
-:class:`~fmu.budget.Budget` before the run, the wall time during it.
+:class:`~blocks.budget.Budget` before the run, the wall time during it.
 """
 from __future__ import annotations
 
@@ -48,12 +48,13 @@ from collections.abc import Callable
 import control as ct
 import numpy as np
 
+from blocks.budget import Budget
 from blocks.control_compat import fast_dynamics, fast_output
 from blocks.fastsim import CompiledLoop
+from blocks.monitor import Monitor
 
 from .archive import ExtractionLimits
 from .block import output_feedthrough
-from .budget import DEFAULT_BUDGET, Budget
 from .coupling import CouplingFallbackWarning, choose_coupling, describe, hermite
 from .description import real_variables, require_variables
 from .errors import CoSimulationError, FMUMissingVariablesError
@@ -201,7 +202,7 @@ def cosimulate_system(fmu_path, side: ct.NonlinearIOSystem, t_final: float, step
         See :mod:`fmu.coupling`; default the best the FMU supports
         (``linear`` when its inputs can follow a slope over a step).
     budget : Budget, optional
-        Limits on steps and wall time (:data:`fmu.budget.DEFAULT_BUDGET`).
+        Limits on steps and wall time (:meth:`blocks.budget.Budget.from_env`).
     limits, extract_to :
         Passed to :class:`~fmu.instance.FMUInstance`.
     progress : callable, optional
@@ -231,7 +232,7 @@ def cosimulate_system(fmu_path, side: ct.NonlinearIOSystem, t_final: float, step
         raise CoSimulationError(f"side_substeps must be an integer >= 1, got {side_substeps!r}")
     if isinstance(record_every, bool) or not isinstance(record_every, int) or record_every < 1:
         raise CoSimulationError(f"record_every must be an integer >= 1, got {record_every!r}")
-    budget = DEFAULT_BUDGET if budget is None else budget
+    budget = Budget.from_env() if budget is None else budget
     budget.check_steps(n_steps * side_substeps, "co-simulation",
                        f"t_final = {float(t_final):g} s / step h = {step:g} s"
                        + (f" x side_substeps = {side_substeps}" if side_substeps > 1 else ""))
@@ -246,7 +247,7 @@ def cosimulate_system(fmu_path, side: ct.NonlinearIOSystem, t_final: float, step
         coupling = choose_coupling(fmu, coupling, bool(w.fmu_inputs))
         linear = coupling == "linear"
         derivatives = bool(linear and fmu.max_output_derivative_order >= 1 and len(w.meas_vr))
-        deadline = budget.deadline(f"co-simulation of {fmu.source}")
+        deadline = Monitor.for_job(f"co-simulation of {fmu.source}", budget)
 
         n_rec = n_steps // record_every + 1
         times = np.empty(n_rec)
@@ -327,7 +328,7 @@ def cosimulate_system(fmu_path, side: ct.NonlinearIOSystem, t_final: float, step
             applied = ended
             y_m_prev, y_m, y_f = y_m, y_m_next, y_next
             if k % every == 0:
-                deadline.check(f"t = {t:.6g} s of {float(t_final):g} s")
+                deadline.check_time(where=f"t = {t:.6g} s of {float(t_final):g} s")
                 if progress is not None:
                     progress(k / n_steps)
         if linear and fmu.fmi_version == 3:

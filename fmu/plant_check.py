@@ -16,14 +16,15 @@ from __future__ import annotations
 import numpy as np
 from scipy.integrate import solve_ivp
 
+from blocks.budget import Budget
 from blocks.control_compat import fast_dynamics, fast_output
 from blocks.disturbances import DISTURBANCE_KINDS, DisturbanceSpec
 from blocks.joints import RRPR_JOINTS
+from blocks.monitor import Monitor
 from blocks.parameters import RobotParameters
 from blocks.systems import plant as python_plant
 
 from .block import load
-from .budget import Budget, Deadline, counted
 from .errors import FMUError
 from .instance import FMUInstance
 
@@ -72,7 +73,7 @@ def plant_from_description(model_description) -> tuple[RobotParameters, Disturba
 
 
 def compare_model_exchange(extracted, robot, spec, t_final: float, tolerance: float, budget: Budget,
-                           deadline: Deadline) -> dict:
+                           deadline: Monitor) -> dict:
     """Model Exchange FMU against the Python plant under :func:`check_torque` (see the module docstring)."""
     x0 = CHECK_INITIAL_STATE
     fmu = load(extracted, name="fmu_plant", start_values=dict(zip(STATES, x0)))
@@ -81,8 +82,8 @@ def compare_model_exchange(extracted, robot, spec, t_final: float, tolerance: fl
         t_eval = np.linspace(0.0, t_final, 101)
         runs = {}
         for key, sys in (("fmu", fmu), ("python", py)):
-            rhs = counted(lambda t, x, f=fast_dynamics(sys): f(t, x, check_torque(t, robot)), budget, deadline,
-                          f"the Model Exchange comparison ({key} plant)")
+            rhs = deadline.counted(lambda t, x, f=fast_dynamics(sys): f(t, x, check_torque(t, robot)),
+                                   f"the Model Exchange comparison ({key} plant)")
             sol = solve_ivp(rhs, (0.0, t_final), x0, method="DOP853", t_eval=t_eval, rtol=1e-11, atol=1e-12)
             if not sol.success:
                 raise FMUError(f"{key} plant: the reference integration failed: {sol.message}")
@@ -104,7 +105,7 @@ def compare_model_exchange(extracted, robot, spec, t_final: float, tolerance: fl
 
 
 def compare_co_simulation(extracted, robot, spec, t_final: float, step: float, tolerance: float,
-                          deadline: Deadline) -> dict:
+                          deadline: Monitor) -> dict:
     """Co-Simulation FMU against the Python plant integrated exactly under the same held torque."""
     x0 = CHECK_INITIAL_STATE
     py = python_plant(robot, spec)
@@ -122,7 +123,7 @@ def compare_co_simulation(extracted, robot, spec, t_final: float, step: float, t
                             rtol=1e-12, atol=1e-13)
             x_ref = sol.y[:, -1]
             if k % 100 == 0:
-                deadline.check(f"Co-Simulation comparison at t = {t:.6g} s")
+                deadline.check_time(where=f"Co-Simulation comparison at t = {t:.6g} s")
         x_fmu = fmu.get_real(out_vr)
     err = worst(x_fmu - x_ref)
     return {"t_final": n * step, "step": step, "n_substeps": substeps, "max_abs_error": err, "tolerance": tolerance,

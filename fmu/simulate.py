@@ -35,8 +35,10 @@ import control as ct
 import numpy as np
 from scipy.integrate import BDF, DOP853, LSODA, RK45, Radau
 
+from blocks.budget import Budget
+from blocks.monitor import Monitor
+
 from .archive import ExtractionLimits
-from .budget import DEFAULT_BUDGET, Budget
 from .description import array_shape, element_names, state_variables
 from .errors import BudgetError, FMUError
 from .instance import FMUInstance
@@ -197,8 +199,9 @@ def simulate_fmu(path, t_final: float, output_step: float, inputs: dict | None =
         Largest solver step (s); default ``output_step`` (an indicator that
         crosses twice within one step would otherwise go unseen).
     budget : Budget, optional
-        The recorded points are checked against ``max_steps``, the
-        right-hand-side evaluations against ``max_rhs_evaluations``, and the wall time.
+        The recorded points are checked against its ``steps``, the
+        right-hand-side evaluations against ``steps`` x 6, and the wall time
+        against ``seconds`` (default :meth:`blocks.budget.Budget.from_env`).
     limits, extract_to :
         Passed to :class:`~fmu.instance.FMUInstance`.
 
@@ -245,7 +248,7 @@ def simulate_fmu(path, t_final: float, output_step: float, inputs: dict | None =
     if method not in SOLVERS:
         raise ValueError(f"method must be one of {list(SOLVERS)}, got {method!r}")
     max_step = output_step if max_step is None else _positive(max_step, "max_step")
-    budget = DEFAULT_BUDGET if budget is None else budget
+    budget = Budget.from_env() if budget is None else budget
     budget.check_steps(grid.size, "simulate_fmu", f"(t_final - start_time) = {t_final - start_time:g} s / "
                        f"output_step = {output_step:g} s")
 
@@ -253,7 +256,7 @@ def simulate_fmu(path, t_final: float, output_step: float, inputs: dict | None =
                      start_time=start_time, limits=limits, extract_to=extract_to, events=True) as inst:
         ins = _Inputs(inst, inputs)
         model = _Model(inst, ins)
-        deadline = budget.deadline(f"simulate_fmu of {inst.source}")
+        deadline = Monitor.for_job(f"simulate_fmu of {inst.source}", budget)
         outputs = [v.name for v in inst.model_description.modelVariables
                    if v.causality == "output" and v.type in _NUMERIC_OUTPUTS]
         out_labels = [e for n in outputs for e in element_names(inst.variables[n],
@@ -306,12 +309,13 @@ def simulate_fmu(path, t_final: float, output_step: float, inputs: dict | None =
                     record(grid[k], state_at(grid[k]))
                     k += 1
                 t, x = t_new, np.array(state_at(t_new), dtype=float)
-                if model.evaluations > budget.max_rhs_evaluations:
+                if model.evaluations > deadline.max_evaluations:
                     raise BudgetError(f"simulate_fmu of {inst.source}: {model.evaluations} right-hand-side evaluations "
-                                      f"by t = {t:.6g} s, more than the budget of {budget.max_rhs_evaluations:.3g} "
-                                      "(max_rhs_evaluations): the FMU is stiff (try method='BDF') or fast there; "
-                                      "shorten the run or raise the budget")
-                deadline.check(f"t = {t:.6g} s of {t_final:g} s")
+                                      f"by t = {t:.6g} s, more than the step budget allows ({budget.steps:,} steps, "
+                                      f"{deadline.max_evaluations:,} evaluations): the FMU is stiff (try "
+                                      "method='BDF') or fast there; shorten the run or raise it with --max-steps or "
+                                      "DOBKIT_MAX_STEPS", key="", limit="steps")
+                deadline.check_time(where=f"t = {t:.6g} s of {t_final:g} s")
                 if event_kind is None:
                     model.at(t, x)
                     step_event, stop_now = inst.completed_integrator_step()
