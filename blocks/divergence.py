@@ -22,7 +22,11 @@ sample is a position, its filtered velocity a velocity.  A state with no
 physical meaning known here (an FMU's own states, a user's blocks, the
 actuator's command buffer) is judged by growth: beyond :data:`GROWTH_FACTOR`
 times its start magnitude plus :data:`GROWTH_FLOOR` (see
-:meth:`StateBounds.with_growth`).
+:meth:`StateBounds.with_growth`).  Where an engine advances in fixed steps
+of its own and knows no bound at all (the outputs of a foreign FMU in
+co-simulation), a signal that grows more than :data:`RUNAWAY_FACTOR`-fold
+in each of :data:`RUNAWAY_STEPS` consecutive steps has run away
+(:class:`Runaway`): the signature of an unstable explicit step.
 
 Every engine judges the same array of bounds (:class:`blocks.monitor.Monitor`):
 single runs, both batches (one column of bounds per member: the force bound
@@ -38,8 +42,9 @@ import numpy as np
 from .kernels import arm_constants, bias_forces, external_disturbance, mass_times
 from .kernels import disturbance_params as kernel_disturbance_params
 
-__all__ = ["StateBounds", "state_bounds", "ReferenceLimits", "reference_limits", "force_bounds", "batch_bounds",
-           "POSITION_MARGIN", "VELOCITY_MARGIN", "FORCE_FACTOR", "GROWTH_FACTOR", "GROWTH_FLOOR"]
+__all__ = ["StateBounds", "state_bounds", "signal_bounds", "ReferenceLimits", "reference_limits", "force_bounds",
+           "batch_bounds", "Runaway", "POSITION_MARGIN", "VELOCITY_MARGIN", "FORCE_FACTOR", "GROWTH_FACTOR",
+           "GROWTH_FLOOR", "RUNAWAY_FACTOR", "RUNAWAY_STEPS"]
 
 #: Added to the reference's largest position (rad for revolute joints, m for prismatic ones).
 POSITION_MARGIN = {"revolute": 100.0, "prismatic": 10.0}
@@ -51,6 +56,10 @@ FORCE_FACTOR = 1e3
 GROWTH_FACTOR = 1e6
 #: Added to a state's start magnitude before the growth factor (in the state's own unit).
 GROWTH_FLOOR = 1.0
+#: A signal judged between fixed steps (co-simulation) runs away when it grows more than RUNAWAY_FACTOR-fold ...
+RUNAWAY_FACTOR = 10.0
+#: ... in each of this many consecutive steps (an unstable explicit step multiplies by a constant factor).
+RUNAWAY_STEPS = 3
 
 
 def _format_pair(value: float, bound: float) -> tuple[str, str]:
@@ -250,3 +259,35 @@ def batch_bounds(batch_loop, labels=None) -> StateBounds:
         gain = eye * gain[None, :, :]
     return _labelled_bounds(labels, ref, force, gain)
 
+
+def signal_bounds(names, scenario, samples: int = 201) -> StateBounds:
+    """Bounds for signals named as the loop names them (``q[i]``, ``dq[i]``: the plant's), e.g. a plant FMU's
+    outputs; other names are judged by growth (:meth:`StateBounds.with_growth`)."""
+    s = scenario
+    ref = reference_limits(s, samples)
+    force = float(force_bounds(arm_constants(s.robot), kernel_disturbance_params(s.disturbance, s.robot), ref))
+    return _labelled_bounds([("plant", name) for name in names], ref, force, np.asarray(s.observer_gain, dtype=float))
+
+
+class Runaway:
+    """Watches signals between fixed steps for runaway growth (:data:`RUNAWAY_FACTOR`, :data:`RUNAWAY_STEPS`).
+
+    Parameters
+    ----------
+    size : int
+        Number of signals.
+    """
+
+    def __init__(self, size: int) -> None:
+        self.streak = np.zeros(size, dtype=int)
+        self.first = np.zeros(size)
+
+    def update(self, y, y_next) -> int | None:
+        """Take one step from ``y`` to ``y_next``; the index of a signal that has run away, or None."""
+        y, y_next = np.asarray(y, dtype=float), np.asarray(y_next, dtype=float)
+        with np.errstate(over="ignore"):     # a huge previous value simply does not count as growth
+            grew = np.abs(y_next) > RUNAWAY_FACTOR * np.abs(y)
+        self.first = np.where(grew & (self.streak == 0), np.abs(y), self.first)
+        self.streak = np.where(grew, self.streak + 1, 0)
+        gone = np.flatnonzero(self.streak >= RUNAWAY_STEPS)
+        return int(gone[0]) if gone.size else None

@@ -40,6 +40,7 @@ import control as ct
 import numpy as np
 
 from blocks.budget import Budget
+from blocks.divergence import signal_bounds
 from blocks.joints import RRPR_JOINTS
 from blocks.loop import LOOP_SIGNALS, build_blocks, initial_state, lumped_disturbance
 from blocks.scenario import Scenario, load_scenario
@@ -213,7 +214,7 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
     try:
         start = plant_start_values(s, _plant_variables(extracted), parameters)
         run = dict(side_x0=side_x0, start_values=start, side_substeps=side_substeps, coupling=coupling,
-                   budget=budget)
+                   budget=budget, bounds=lambda names: signal_bounds(names, s))
         raw = cosimulate_system(extracted, side, t_end, step, record_every=record_every, progress=progress, **run)
         estimate = (_step_doubling(extracted, side, t_end, step, raw.cosim["coupling"], run) if error_estimate
                     else {"skipped": "not asked for (error_estimate=False)"})

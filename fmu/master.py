@@ -50,6 +50,7 @@ import numpy as np
 
 from blocks.budget import Budget
 from blocks.control_compat import fast_dynamics, fast_output
+from blocks.divergence import RUNAWAY_FACTOR, RUNAWAY_STEPS, Runaway
 from blocks.fastsim import CompiledLoop
 from blocks.monitor import Monitor
 
@@ -64,9 +65,6 @@ __all__ = ["cosimulate_system", "CoSimulationError", "validated_step", "validate
 
 # one-sided difference for the time derivative of the Python outputs: a small fraction of the step
 _DERIVATIVE_FRACTION = 1e-4
-# an FMU output growing more than GROWTH_FACTOR-fold in each of GROWTH_STEPS consecutive steps is unstable there
-GROWTH_FACTOR = 10.0
-GROWTH_STEPS = 3
 
 
 def _evaluator(side: ct.NonlinearIOSystem):
@@ -176,7 +174,7 @@ def cosimulate_system(fmu_path, side: ct.NonlinearIOSystem, t_final: float, step
                       start_values: dict | None = None, side_substeps: int = 1, record_every: int = 1,
                       coupling: str | None = None, budget: Budget | None = None,
                       limits: ExtractionLimits | None = None, extract_to=None,
-                      progress: Callable[[float], None] | None = None) -> ct.TimeResponseData:
+                      progress: Callable[[float], None] | None = None, bounds=None) -> ct.TimeResponseData:
     """Co-simulate a Co-Simulation FMU with a python-control system (see the module docstring).
 
     Parameters
@@ -207,6 +205,11 @@ def cosimulate_system(fmu_path, side: ct.NonlinearIOSystem, t_final: float, step
         Passed to :class:`~fmu.instance.FMUInstance`.
     progress : callable, optional
         Called with the fraction of time done (0..1), about every 2 % of the steps.
+    bounds : callable, optional
+        ``bounds(names) -> blocks.divergence.StateBounds`` for the FMU's outputs (for a plant FMU,
+        :func:`blocks.divergence.signal_bounds` of the scenario): the run's :class:`~blocks.monitor.Monitor`
+        judges them after every step, as every engine judges its states.  Without it the outputs are judged
+        for being finite and for runaway growth only.
 
     Returns
     -------
@@ -222,7 +225,9 @@ def cosimulate_system(fmu_path, side: ct.NonlinearIOSystem, t_final: float, step
     FMUStepError
         If the FMU returns an error status (the message names the time and status).
     CoSimulationError
-        On a bad step or coupling, or when a signal or the Python state becomes non-finite.
+        On a bad step or coupling, or when a signal or the Python state becomes non-finite or runs away.
+    blocks.monitor.SimulationError
+        With ``bounds``: when an FMU output leaves its bound (the signal, the bound and the time named).
     BudgetError
         If the run would exceed the budget's steps, or exceeds its wall time.
     """
@@ -247,7 +252,6 @@ def cosimulate_system(fmu_path, side: ct.NonlinearIOSystem, t_final: float, step
         coupling = choose_coupling(fmu, coupling, bool(w.fmu_inputs))
         linear = coupling == "linear"
         derivatives = bool(linear and fmu.max_output_derivative_order >= 1 and len(w.meas_vr))
-        deadline = Monitor.for_job(f"co-simulation of {fmu.source}", budget)
 
         n_rec = n_steps // record_every + 1
         times = np.empty(n_rec)
@@ -266,6 +270,8 @@ def cosimulate_system(fmu_path, side: ct.NonlinearIOSystem, t_final: float, step
         every = max(1, n_steps // 50)
         fallback = None
         growth = _Growth(fmu.source, w.fmu_outputs)
+        deadline = Monitor(f"co-simulation of {fmu.source}", bounds(w.fmu_outputs) if bounds is not None else None,
+                           y_f, budget, float(t_final))
         h = step
         for k in range(n_steps + 1):
             t = k * h
@@ -309,6 +315,8 @@ def cosimulate_system(fmu_path, side: ct.NonlinearIOSystem, t_final: float, step
             if bad:
                 raise _stop("the FMU output", bad, t + h)
             growth.check(y_f, y_next, t, h, coupling if fallback is None else "zoh")
+            if bounds is not None:
+                deadline.check(t + h, y_next)
             y_m_next = y_next[w.meas_src]
             ended = cmd + h * dcmd if linear else cmd     # what the FMU inputs hold at the end of the step
             dy_next = fmu.get_output_derivatives(w.meas_vr) if derivatives else None
@@ -367,29 +375,23 @@ def _fall_back(fmu: FMUInstance, w: _Wiring, values: np.ndarray, t: float, slope
 
 
 class _Growth:
-    """Stops a run whose FMU outputs grow more than :data:`GROWTH_FACTOR`-fold per step, :data:`GROWTH_STEPS` in a row."""
+    """Stops a run whose FMU outputs run away (:class:`blocks.divergence.Runaway`), saying what that means here."""
 
     def __init__(self, source: str, names: list[str]):
         self.source, self.names = source, names
-        self.streak = np.zeros(len(names), dtype=int)
-        self.first = np.zeros(len(names))
+        self.watch = Runaway(len(names))
 
     def check(self, y: np.ndarray, y_next: np.ndarray, t: float, h: float, coupling: str) -> None:
-        with np.errstate(over="ignore"):     # a huge previous value simply does not count as growth
-            grew = np.abs(y_next) > GROWTH_FACTOR * np.abs(y)
-        self.first = np.where(grew & (self.streak == 0), np.abs(y), self.first)
-        self.streak = np.where(grew, self.streak + 1, 0)
-        if not np.any(self.streak >= GROWTH_STEPS):
+        j = self.watch.update(y, y_next)
+        if j is None:
             return
-        j = int(np.flatnonzero(self.streak >= GROWTH_STEPS)[0])
         held = "held" if coupling == "zoh" else "following a first-order hold"
         raise CoSimulationError(
-            f"the co-simulation stopped: the FMU output {self.names[j]} grew more than {GROWTH_FACTOR:g}-fold in each "
-            f"of {GROWTH_STEPS} consecutive communication steps, from |{self.names[j]}| = {self.first[j]:.3g} to "
-            f"{y_next[j]:.3g} at t = {t + h:.9g} s; with its inputs {held} over each step this is {self.source}'s own "
-            f"co-simulation solver being unstable at h = {h:g} s (or a loop unstable at this step): choose a smaller "
-            "step, or use the FMU's Model Exchange interface with dobkit's solver; no result is returned")
-
+            f"the co-simulation stopped: the FMU output {self.names[j]} grew more than {RUNAWAY_FACTOR:g}-fold in each "
+            f"of {RUNAWAY_STEPS} consecutive communication steps, from |{self.names[j]}| = {self.watch.first[j]:.3g} "
+            f"to {y_next[j]:.3g} at t = {t + h:.9g} s; with its inputs {held} over each step this is {self.source}'s "
+            f"own co-simulation solver being unstable at h = {h:g} s (or a loop unstable at this step): choose a "
+            "smaller step, or use the FMU's Model Exchange interface with dobkit's solver; no result is returned")
 
 def _start_values(fmu: FMUInstance, names: list[str]) -> np.ndarray:
     """Start values of real variables from the model description (0 where none is given)."""

@@ -71,15 +71,48 @@ def _batch(engine):
     return run
 
 
+_PLANT: dict = {}
+
+
+def _plant_fmu(tmp_path_factory):
+    if "path" not in _PLANT:
+        from fmu import export_plant
+        _PLANT["path"] = export_plant(tmp_path_factory.mktemp("plant") / "plant.fmu")
+    return _PLANT["path"]
+
+
+def _cosim(sampled: bool):
+    def run(s, tmp_path_factory):
+        from conftest import c_compiler_available
+        if not c_compiler_available():
+            pytest.skip("no C compiler to build the plant FMU")
+        from fmu import cosimulate
+        if sampled:
+            s = s.with_changes(SAMPLED | {"simulation.output_step": 1e-5})
+            cosimulate(_plant_fmu(tmp_path_factory), s, step=1e-6, parameters="scenario")
+        else:
+            # h lambda = 0.4 for the observer's 4e5 1/s at Y = 1e5: the coupling and the Python side's RK4 both stable
+            cosimulate(_plant_fmu(tmp_path_factory), s, step=1e-6, parameters="scenario", error_estimate=False)
+    return run
+
+
 ENGINES = {"python-control": _single("python-control"), "numpy": _single("fast"), "compiled": _single("compiled"),
            "numpy batch": _batch("fast"), "compiled batch": _batch("compiled"),
-           "sampled numpy": _sampled("fast"), "sampled compiled": _sampled("compiled")}
+           "sampled numpy": _sampled("fast"), "sampled compiled": _sampled("compiled"),
+           "co-simulation": _cosim(False), "sampled co-simulation": _cosim(True)}
+
+
+def _run(engine, s, tmp_path_factory):
+    if "co-simulation" in engine:
+        ENGINES[engine](s, tmp_path_factory)
+    else:
+        ENGINES[engine](s)
 
 
 @pytest.mark.parametrize("engine", list(ENGINES))
-def test_every_engine_gives_the_same_verdict_on_a_diverging_loop(engine):
+def test_every_engine_gives_the_same_verdict_on_a_diverging_loop(engine, tmp_path_factory):
     with pytest.raises(blocks.SimulationError) as err:
-        ENGINES[engine](DIVERGING)
+        _run(engine, DIVERGING, tmp_path_factory)
     signal, bound, t = _verdict(str(err.value))
     assert signal == "plant dq[2]"
     assert bound == pytest.approx(_bound_by_hand(DIVERGING), rel=1e-3)
@@ -90,8 +123,8 @@ def test_every_engine_gives_the_same_verdict_on_a_diverging_loop(engine):
 
 
 @pytest.mark.parametrize("engine", list(ENGINES))
-def test_every_engine_runs_a_stiff_but_stable_loop_to_the_end(engine):
-    ENGINES[engine](STIFF)
+def test_every_engine_runs_a_stiff_but_stable_loop_to_the_end(engine, tmp_path_factory):
+    _run(engine, STIFF, tmp_path_factory)
 
 
 def test_a_diverging_batch_member_is_reported_alone_and_the_others_kept():
