@@ -154,7 +154,8 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
         See :mod:`fmu.coupling`; default the best the FMU supports.  A scenario
         with a digital controller (``[controller]``) is co-simulated with its
         samples as the communication points (:mod:`fmu.cosim_sampled`): ``step``
-        must be its sample period, and there is no coupling error.
+        must be its sample period, any ``output_step`` is served (a step is
+        split at an output point between samples), and there is no coupling error.
     error_estimate : bool
         Estimate the coupling error by step doubling over the first
         ``min(1 s, t_final)`` (two short extra runs, at ``h`` and ``2 h``).
@@ -189,7 +190,6 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
     t_end = s.simulation.t_final if t_final is None else validated_time(t_final, "t_final")
     if coupling is not None and coupling not in COUPLINGS:
         raise CoSimulationError(f"coupling must be one of {list(COUPLINGS)}, got {coupling!r}")
-    record_every = _record_every(s.simulation.output_step, step)
     budget = DEFAULT_BUDGET if budget is None else budget
     if s.controller is not None:        # a digital controller: its samples are the communication points
         if coupling not in (None, "zoh"):
@@ -199,7 +199,7 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
         try:
             start = plant_start_values(s, _plant_variables(extracted), parameters)
             resp = cosimulate_sampled(extracted, s, step, t_end, observer=observer, start_values=start,
-                                      record_every=record_every, budget=budget, progress=progress)
+                                      output_step=s.simulation.output_step, budget=budget, progress=progress)
         finally:
             if owned:
                 extracted.cleanup()
@@ -207,6 +207,7 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
                           error_estimate={"skipped": "no coupling error: the FMU's steps are the controller's "
                                                      "samples, with the torque held on both sides"})
         return resp
+    record_every = _record_every(s.simulation.output_step, step)
     side = controller_side(s, observer=observer)
     side_x0 = initial_state(side, s)
     extracted, owned = open_extracted(fmu_path, limits=limits, parent=extract_to)
