@@ -238,8 +238,6 @@ class ModuleCache:
             self.corrupt(f"{len(bad)} file(s) were not as its manifest records them ({', '.join(bad[:3])}"
                          f"{', ...' if len(bad) > 3 else ''})")
             self._update_manifest(lambda m: [m["files"].pop(name, None) for name in bad])
-        elif manifest == {} and present:
-            self._update_manifest(lambda m: None)                   # a readable manifest again
         return bool(manifest) and bool(manifest.get("compiled")) and not bad
 
     def _matches(self, name: str, entry: dict | None) -> bool:
@@ -332,14 +330,15 @@ def _guarded_cache_class():
             store, index = self._store, self._file._index_name
             if not self._enabled or not store.trusted(index):
                 return None
+            reading = index
             try:
                 overloads = self._file._load_index()
-                name = overloads.get(self._index_key(sig, target_context.codegen()))
-                if name is None or not store.trusted(name):
+                reading = overloads.get(self._index_key(sig, target_context.codegen()))
+                if reading is None or not store.trusted(reading):
                     return None
-                return compiler.CompileResult._rebuild(target_context, *self._file._load_data(name))
+                return compiler.CompileResult._rebuild(target_context, *self._file._load_data(reading))
             except Exception as err:          # anything numba cannot read is a miss: compile again
-                store.reject(index, f"could not be read ({type(err).__name__}: {err})")
+                store.reject(str(reading), f"could not be read ({type(err).__name__}: {err})")
                 return None
 
         def save_overload(self, sig, cres):
