@@ -116,6 +116,10 @@ def _cmd_cosim(args) -> int:
     from fmu.cosim import cosimulate
 
     s = load_scenario(args.scenario)
+    if s.controller is not None and args.side_substeps != 1:
+        raise ValueError(f"--side-substeps {args.side_substeps}: scenario '{s.name}' has a digital controller "
+                         f"([controller]), which is not integrated: its samples are the communication steps "
+                         f"(--step {s.controller.period:g}); leave --side-substeps out")
     budget = _budget(args)
     out = Path(args.out) if args.out is not None else default_out_dir("dobkit-cosim")
     staging = staged_output(out)  # refuses a non-empty folder before any work

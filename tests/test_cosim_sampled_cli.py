@@ -84,3 +84,15 @@ def test_cli_refuses_a_step_other_than_the_sample_period_naming_it(plant_fmu, tm
     assert status == 2
     assert "co-simulate it with the communication step h = 0.002 s, got 0.001 s" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_cli_refuses_side_substeps_for_a_digital_controller(plant_fmu, tmp_path, capsys):
+    """A digital controller has no continuous side to sub-step: the flag is refused, not silently ignored."""
+    scenario_file = tmp_path / "s.toml"
+    scenario_file.write_text(_digital(500.0, 0.005).to_toml())
+    out = tmp_path / "run"
+    assert dobkit_main(["fmu", "cosim", str(plant_fmu), "--scenario", str(scenario_file), "--step", "0.002",
+                        "--side-substeps", "4", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "--side-substeps 4: scenario" in err and "digital controller ([controller])" in err and "0.002" in err
+    assert not out.exists()
