@@ -116,6 +116,10 @@ def _cmd_cosim(args) -> int:
     from fmu.cosim import cosimulate
 
     s = load_scenario(args.scenario)
+    if s.controller is not None and args.side_substeps != 1:
+        raise ValueError(f"--side-substeps {args.side_substeps}: scenario '{s.name}' has a digital controller "
+                         f"([controller]), which is not integrated: its samples are the communication steps "
+                         f"(--step {s.controller.period:g}); leave --side-substeps out")
     budget = _budget(args)
     out = Path(args.out) if args.out is not None else default_out_dir("dobkit-cosim")
     staging = staged_output(out)  # refuses a non-empty folder before any work
@@ -125,9 +129,11 @@ def _cmd_cosim(args) -> int:
             runs[key] = cosimulate(extracted, s, step=args.step, observer=observer, coupling=args.coupling,
                                    side_substeps=args.side_substeps, parameters=args.parameters, budget=budget)
     info = runs["with_dob"].cosim
+    # a digital controller's run (coupling "sampled") has no Python-side sub-steps or output derivatives
     metrics = comparison_metrics(s, runs["with_dob"], runs["without_dob"]) | {
         "cosimulation": {k: info[k] for k in ("fmu", "fmi_version", "model", "step", "side_substeps", "coupling",
-                                              "output_derivatives", "method", "parameters")}
+                                              "output_derivatives", "output_step", "method", "parameters")
+                         if k in info}
         | {"error_estimate": {key: run.cosim["error_estimate"] for key, run in runs.items()}},
     }
     figures_note = "figures: skipped (--no-figures)"
@@ -138,8 +144,10 @@ def _cmd_cosim(args) -> int:
             from analysis.figures import paper_figures
             written = paper_figures(runs["with_dob"], runs["without_dob"], stage)
             figures_note = f"figures: {len(written)} files (PNG and SVG)"
+    coupling = ("the digital controller's samples as communication points" if info["coupling"] == "sampled"
+                else f"{info['coupling']} coupling")
     print(f"co-simulated {args.fmu} (FMI {info['fmi_version']}) with scenario {s.name}, h = {args.step:g} s, "
-          f"{info['coupling']} coupling")
+          f"{coupling}")
     print(format_rms_table(metrics))
     print(_estimate_line(info["error_estimate"]) + " (with observer)")
     print(figures_note)

@@ -40,9 +40,10 @@ import control as ct
 import numpy as np
 
 from blocks.budget import Budget
+from blocks.derived import loop_response
 from blocks.divergence import signal_bounds
 from blocks.joints import RRPR_JOINTS
-from blocks.loop import LOOP_SIGNALS, build_blocks, initial_state, lumped_disturbance
+from blocks.loop import LOOP_SIGNALS, build_blocks, initial_state
 from blocks.scenario import Scenario, load_scenario
 
 from .archive import ExtractionLimits, open_extracted
@@ -155,7 +156,8 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
         See :mod:`fmu.coupling`; default the best the FMU supports.  A scenario
         with a digital controller (``[controller]``) is co-simulated with its
         samples as the communication points (:mod:`fmu.cosim_sampled`): ``step``
-        must be its sample period, and there is no coupling error.
+        must be its sample period, any ``output_step`` is served (a step is
+        split at an output point between samples), and there is no coupling error.
     error_estimate : bool
         Estimate the coupling error by step doubling over the first
         ``min(1 s, t_final)`` (two short extra runs, at ``h`` and ``2 h``).
@@ -190,7 +192,6 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
     t_end = s.simulation.t_final if t_final is None else validated_time(t_final, "t_final")
     if coupling is not None and coupling not in COUPLINGS:
         raise CoSimulationError(f"coupling must be one of {list(COUPLINGS)}, got {coupling!r}")
-    record_every = _record_every(s.simulation.output_step, step)
     budget = Budget.from_env() if budget is None else budget
     if s.controller is not None:        # a digital controller: its samples are the communication points
         if coupling not in (None, "zoh"):
@@ -200,7 +201,7 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
         try:
             start = plant_start_values(s, _plant_variables(extracted), parameters)
             resp = cosimulate_sampled(extracted, s, step, t_end, observer=observer, start_values=start,
-                                      record_every=record_every, budget=budget, progress=progress)
+                                      output_step=s.simulation.output_step, budget=budget, progress=progress)
         finally:
             if owned:
                 extracted.cleanup()
@@ -208,6 +209,7 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
                           error_estimate={"skipped": "no coupling error: the FMU's steps are the controller's "
                                                      "samples, with the torque held on both sides"})
         return resp
+    record_every = _record_every(s.simulation.output_step, step)
     side = controller_side(s, observer=observer)
     side_x0 = initial_state(side, s)
     extracted, owned = open_extracted(fmu_path, limits=limits, parent=extract_to)
@@ -231,16 +233,10 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
     if absent:
         raise CoSimulationError(f"the co-simulation did not produce signal(s) {absent}")
     outputs = np.asarray(raw.outputs)[[labels.index(n) for n in wanted]]
-    pick = {sig: outputs[[wanted.index(n) for n in _names(sig)]].T for sig in ("q", "dq", "tau", "tau_dis")}
-    d = lumped_disturbance(pick["q"], pick["dq"], pick["tau"], pick["tau_dis"], s).T
     title = (f"{s.name}: co-simulation with {raw.cosim['model']} (h = {step:g} s, {raw.cosim['coupling']} "
              f"coupling), {'with' if observer else 'without'} disturbance observer")
     states = np.asarray(raw.x) if raw.x is not None and np.size(raw.x) else None  # .states fails when None
-    resp = ct.TimeResponseData(raw.time, np.vstack([outputs, d]), states, output_labels=wanted + _names("d"),
-                               state_labels=list(side.state_labels) if states is not None else None, title=title,
-                               sysname="cosim", issiso=False, plot_inputs=False)
-    resp.scenario = s
-    resp.with_observer = observer
+    resp = loop_response(raw.time, outputs, states, wanted, list(side.state_labels), s, observer, title, "cosim")
     resp.cosim = dict(raw.cosim, parameters=parameters, t_final=t_end, error_estimate=estimate)
     return resp
 

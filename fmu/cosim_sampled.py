@@ -19,9 +19,9 @@ import control as ct
 import numpy as np
 
 from blocks.budget import Budget
+from blocks.derived import loop_response
 from blocks.digital_loop import sampled_initial_state, sampled_loop
-from blocks.kernels import arm_constants
-from blocks.kernels import lumped_disturbance as lumped_disturbance_rows
+from blocks.divergence import signal_bounds
 from blocks.monitor import Monitor
 from blocks.scenario import Scenario
 from blocks.systems import signal_names
@@ -30,7 +30,7 @@ from .errors import FMUMissingVariablesError
 from .instance import FMUInstance
 from .master import CoSimulationError
 
-__all__ = ["cosimulate_sampled"]
+__all__ = ["cosimulate_sampled", "output_times"]
 
 # h = Ts to this relative tolerance
 _STEP_RTOL = 1e-9
@@ -47,8 +47,29 @@ def _plant_state_positions(loop) -> dict[str, int]:
     return out
 
 
+def output_times(t_final: float, output_step: float) -> np.ndarray:
+    """The output grid ``0, output_step, ..., t_final`` (s), as a scenario's ``simulation.time_grid`` builds it."""
+    n = int(round(t_final / output_step))
+    return np.linspace(0.0, n * output_step, n + 1)
+
+
+def _visits(times: np.ndarray, Ts: float) -> tuple[int, list[list[int]], list[list[int]]]:
+    """The last tick and, for every tick interval ``k``, the output points at tick ``k`` and those inside it."""
+    n_ticks = int(np.floor(times[-1] / Ts * (1 + 1e-12)))
+    at_tick = [[] for _ in range(n_ticks + 1)]
+    inside = [[] for _ in range(n_ticks + 1)]
+    for j, t in enumerate(times):
+        k = int(round(t / Ts))
+        if abs(t - k * Ts) <= _STEP_RTOL * Ts and k <= n_ticks:
+            at_tick[k].append(j)
+        else:
+            inside[min(int(np.floor(t / Ts)), n_ticks)].append(j)
+    return n_ticks, at_tick, inside
+
+
 def cosimulate_sampled(extracted, scenario: Scenario, step: float, t_final: float, observer: bool = True,
-                       start_values: dict | None = None, record_every: int = 1, budget: Budget | None = None,
+                       start_values: dict | None = None, output_step: float | None = None,
+                       budget: Budget | None = None,
                        progress: Callable[[float], None] | None = None) -> ct.TimeResponseData:
     """Run the scenario's digital controller against a plant Co-Simulation FMU at ``h = Ts``.
 
@@ -61,12 +82,16 @@ def cosimulate_sampled(extracted, scenario: Scenario, step: float, t_final: floa
     step : float
         The communication step (s); must equal the controller's sample period.
     t_final : float
-        End time (s), a whole number of steps.
+        End time (s).
     observer : bool
     start_values : dict, optional
         FMU start values.
-    record_every : int
-        Record every ``record_every``-th sample.
+    output_step : float, optional
+        Spacing of the output grid (s), any value > 0 (default: every sample).
+        An output point between two samples splits the FMU's step there: the
+        torque is held over the whole step, so two shorter steps integrate
+        the same sampled-data system, and the point is served exactly (no
+        interpolation), as the monolithic run serves it.
     budget : Budget, optional
     progress : callable, optional
 
@@ -74,8 +99,10 @@ def cosimulate_sampled(extracted, scenario: Scenario, step: float, t_final: floa
     -------
     control.TimeResponseData
         Outputs named as :func:`blocks.simulate`'s for a digital scenario
-        (``q_s``, ``dq_s``, ``tau_cmd`` besides the loop's signals, and ``d``);
-        attributes ``scenario``, ``with_observer`` and ``cosim``.
+        (``q_s``, ``dq_s``, ``tau_cmd`` besides the loop's signals, and ``d``)
+        on the output grid; between samples the controller's outputs are those
+        held since the last sample; attributes ``scenario``, ``with_observer``
+        and ``cosim``.
 
     Raises
     ------
@@ -88,11 +115,14 @@ def cosimulate_sampled(extracted, scenario: Scenario, step: float, t_final: floa
         raise CoSimulationError(f"scenario '{s.name}' has a digital controller sampled every {Ts:g} s "
                                 f"(controller.sample_rate = {s.controller.sample_rate:g} Hz); co-simulate it with "
                                 f"the communication step h = {Ts:g} s, got {step:g} s")
-    n_steps = int(round(t_final / Ts))
-    if abs(n_steps * Ts - t_final) > 1e-9 * max(1.0, t_final):
-        raise CoSimulationError(f"t_final = {t_final:g} s is not a whole number of samples of {Ts:g} s")
+    grid = output_times(t_final, Ts if output_step is None else output_step)
+    n_ticks, at_tick, inside = _visits(grid, Ts)
+    n_split = sum(len(j) for j in inside)
     budget = Budget.from_env() if budget is None else budget
-    budget.check_steps(n_steps, "co-simulation", f"t_final = {t_final:g} s / step h = {Ts:g} s")
+    budget.check_steps(n_ticks + n_split, "co-simulation",
+                       f"t_final = {t_final:g} s / step h = {Ts:g} s" + (
+                           f" + {n_split} output points between samples (output_step = {output_step:g} s)"
+                           if n_split else ""))
     loop = sampled_loop(s, observer=observer)
     x = sampled_initial_state(loop, s)
     positions = _plant_state_positions(loop)
@@ -102,56 +132,70 @@ def cosimulate_sampled(extracted, scenario: Scenario, step: float, t_final: floa
     names = [n for block in loop.system.syslist for n in block.output_labels]
     tau_rows = [names.index(n) for n in signal_names("tau")]
     dis_out = [labels.index(n) for n in signal_names("tau_dis")]
+    measured_names = signal_names("q") + signal_names("dq") + signal_names("tau_dis")
     held = np.zeros(loop.plan.nsignals)
-    n_rec = n_steps // record_every + 1
-    times, outputs = np.empty(n_rec), np.empty((len(labels), n_rec))
+    outputs = np.empty((len(labels), grid.size))
     with FMUInstance(extracted, kind="CoSimulation", start_values=start_values) as fmu:
         try:
-            out_vr = fmu.value_references(signal_names("q") + signal_names("dq") + signal_names("tau_dis"))
+            out_vr = fmu.value_references(measured_names)
             in_vr = fmu.value_references(signal_names("tau"))
         except KeyError as err:
             raise FMUMissingVariablesError(f"{fmu.source}: the plant FMU lacks {err}") from None
-        deadline = Monitor.for_job(f"co-simulation of {fmu.source}", budget)
         n = len(q_pos)
-        for k in range(n_steps + 1):
-            t = k * Ts
+        first = fmu.get_real(out_vr)
+        # the plant's outputs judged as every engine judges its states (blocks.divergence, blocks.monitor)
+        deadline = Monitor(f"co-simulation of {fmu.source}", signal_bounds(measured_names, s), first, budget,
+                           t_final)
+
+        def measure(t: float) -> np.ndarray:
             measured = fmu.get_real(out_vr)
             if not np.all(np.isfinite(measured)):
-                bad = (signal_names("q") + signal_names("dq") + signal_names("tau_dis"))[
-                    int(np.argmax(~np.isfinite(measured)))]
-                raise CoSimulationError(f"the FMU output {bad} became {measured[~np.isfinite(measured)][0]} at "
+                bad = int(np.argmax(~np.isfinite(measured)))
+                raise CoSimulationError(f"the FMU output {measured_names[bad]} became {measured[bad]} at "
                                         f"t = {t:.6g} s")
+            deadline.check(t, measured)
+            return measured
+
+        for k in range(n_ticks + 1):
+            t = k * Ts
+            measured = measure(t)
             x[q_pos], x[dq_pos] = measured[:n], measured[n:2 * n]
             y = loop.tick_outputs(k, x, held)
             tau = y[tau_rows]
             if not np.all(np.isfinite(tau)):
                 raise CoSimulationError(f"the controller's torque became non-finite at t = {t:.6g} s")
-            if k % record_every == 0:
-                j = k // record_every
-                times[j] = t
+            for j in at_tick[k]:
                 outputs[:, j] = y[loop.plan.out_index]
                 outputs[dis_out, j] = measured[2 * n:]            # the plant's own disturbance
-            if k == n_steps:
-                break
             x = loop.tick_updates(k, x, y)
             fmu.set_real(in_vr, tau)
-            fmu.do_step(t, Ts)
-            if k % max(1, n_steps // 50) == 0:
+            # output points before the next sample: the FMU's step split there, the torque held over both parts
+            t_now = t
+            for j in inside[k]:
+                fmu.do_step(t_now, grid[j] - t_now)
+                t_now = grid[j]
+                measured = measure(t_now)
+                x_j = x.copy()
+                x_j[q_pos], x_j[dq_pos] = measured[:n], measured[n:2 * n]
+                outputs[:, j] = loop.outputs_between_ticks(grid[j:j + 1], x_j[:, None], held)[:, 0]
+                outputs[dis_out, j] = measured[2 * n:]
+            if k == n_ticks:
+                break
+            fmu.do_step(t_now, (k + 1) * Ts - t_now)
+            if k % max(1, n_ticks // 50) == 0:
                 deadline.check_time(where=f"t = {t:.6g} s of {t_final:g} s")
                 if progress is not None:
-                    progress(k / n_steps)
+                    progress(k / n_ticks)
         info = {"fmu": str(fmu.path), "fmi_version": fmu.fmi_version, "model": fmu.model_identifier, "step": Ts,
-                "record_every": record_every, "coupling": "sampled",
+                "output_step": float(grid[1] - grid[0]) if grid.size > 1 else None, "coupling": "sampled",
+                "side_substeps": None, "output_derivatives": False,
                 "method": "the digital controller's samples as communication points (h = Ts): the torque is held "
-                          "over each step on both sides, as in the monolithic run"}
+                          "over each step on both sides, as in the monolithic run"
+                          + ("; a step is split at each output point between samples" if n_split else "")}
     if progress is not None:
         progress(1.0)
-    pick = lambda sig: outputs[[labels.index(nm) for nm in signal_names(sig)]]   # noqa: E731
-    d = lumped_disturbance_rows(arm_constants(s.robot), arm_constants(s.nominal), pick("q"), pick("dq"),
-                                pick("tau"), pick("tau_dis"))
-    resp = ct.TimeResponseData(times, np.vstack([outputs, d]), None, output_labels=labels + signal_names("d"),
-                               title=f"{s.name}: co-simulation of the digital controller at {1 / Ts:g} Hz with "
-                                     f"{info['model']}", sysname="cosim", issiso=False, plot_inputs=False)
-    resp.scenario, resp.with_observer = s, observer
+    resp = loop_response(grid, outputs, None, labels, None, s, observer,
+                         f"{s.name}: co-simulation of the digital controller at {1 / Ts:g} Hz with {info['model']}",
+                         "cosim")
     resp.cosim = info
     return resp

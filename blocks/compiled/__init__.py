@@ -21,7 +21,8 @@ How a loop becomes compiled code
    (Dormand-Prince 5(4) with ``solve_ivp``'s step control and dense
    output; fixed-step RK4 over a batch, members in parallel, metrics
    accumulated in the driver).  It is compiled by numba and cached on disk,
-   keyed by its text and the kernels' source.
+   keyed by its text and the kernels' source; :mod:`blocks.compiled.cache`
+   checks the cached files before numba reads them.
 
 The same generated text, run by Python on floats, is the ``fast`` engine's
 right-hand side (:mod:`blocks.compiled.scalar`); that needs no numba.
@@ -31,9 +32,10 @@ interconnection changes the generated module.
 """
 from __future__ import annotations
 
+from .cache import CompiledCacheWarning
 from .codegen import CompiledUnavailable, cache_dir
 from .engine import METHODS, CompiledLoopEngine, unavailable_reason
 from .jit import numba_or_none
 
 __all__ = ["CompiledLoopEngine", "CompiledUnavailable", "unavailable_reason", "numba_or_none", "cache_dir",
-           "METHODS"]
+           "CompiledCacheWarning", "METHODS"]
