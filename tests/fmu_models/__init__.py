@@ -9,8 +9,10 @@ from __future__ import annotations
 from pathlib import Path
 
 HERE = Path(__file__).parent
-FMI2_MODELS = ("mass", "spring", "gain", "oscillator", "integrator", "nanlag")
+FMI2_MODELS = ("mass", "spring", "gain", "oscillator", "integrator", "nanlag", "ball", "stair")
 FMI3_MODELS = ("selector",)
+# further sources a model includes besides its frame
+INCLUDES = {"ball": ("ball_equations.inc",)}
 
 
 def build(name: str, folder: Path, xml_edit=None, filename: str | None = None) -> Path:
@@ -23,4 +25,5 @@ def build(name: str, folder: Path, xml_edit=None, filename: str | None = None) -
     if xml_edit is not None:
         xml = xml_edit(xml)
     sources = {f"{name}.c": HERE / f"{name}.c", frame: HERE / frame}
+    sources |= {inc: HERE / inc for inc in INCLUDES.get(name, ())}
     return package_fmu(Path(folder) / f"{filename or name}.fmu", xml, sources, [f"{name}.c"], name, version)
