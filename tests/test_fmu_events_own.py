@@ -2,7 +2,7 @@
 
 tests/test_fmu_events.py runs the same kinds of event on the FMI Reference FMUs, which are built from a source
 mirror that a fresh machine lacks.  The models here (ball.c, stair.c) are written for these tests; the references
-are closed forms computed by hand below, not by the code under test:
+are closed forms computed by hand below, not by the code under test (ball3.c is the ball as an FMI 3 FMU):
 
 * ball (h0 = 1 m, g = 9.81 m/s^2, e = 0.7, v_min = 0.1 m/s): free fall to the first impact at t1 = sqrt(2 h0 / g)
   with speed v1 = g t1; the k-th rebound leaves at e^k v1 and flies 2 e^k v1 / g, so impact k + 1 is at
@@ -28,6 +28,7 @@ from fmu.check import stage
 pytestmark = pytest.mark.needs_cc
 
 G, E, H0, V_MIN = 9.81, 0.7, 1.0, 0.1
+BALL = {2: "ball", 3: "ball3"}
 STAGES = ["archive", "model_description", "validation", "model_exchange", "simulate_fmu", "co_simulation", "me_vs_cs",
           "plant_comparison"]
 
@@ -36,7 +37,7 @@ STAGES = ["archive", "model_description", "validation", "model_exchange", "simul
 def fmus(tmp_path_factory):
     """name -> path of the FMUs built once for this module."""
     folder = tmp_path_factory.mktemp("own-event-fmus")
-    return {name: build(name, folder) for name in ("ball", "stair")}
+    return {name: build(name, folder) for name in ("ball", "ball3", "stair")}
 
 
 def impacts(e: float = E, until: float = math.inf) -> tuple[list[float], float | None]:
@@ -76,8 +77,9 @@ def test_the_hand_computed_ball_is_the_one_in_the_docstring():
     assert height(0.5) == pytest.approx(3.0991 * 0.0485 - 0.5 * G * 0.0485 ** 2, abs=1e-3)
 
 
-def test_ball_heights_and_impact_times_match_the_analytic_ball_until_2_s(fmus):
-    resp = simulate_fmu(fmus["ball"], t_final=2.0, output_step=0.01)
+@pytest.mark.parametrize("version", [2, 3])
+def test_ball_heights_and_impact_times_match_the_analytic_ball_until_2_s(fmus, version):
+    resp = simulate_fmu(fmus[BALL[version]], t_final=2.0, output_step=0.01)
     assert resp.output_labels == ["h", "v"] and resp.state_labels == ["h", "v"]
     assert resp.time[0] == 0.0 and resp.time[-1] == 2.0 and resp.time.size == 201
     h = resp.outputs[0]
@@ -88,9 +90,10 @@ def test_ball_heights_and_impact_times_match_the_analytic_ball_until_2_s(fmus):
     assert resp.simulation["terminated"] is None
 
 
-def test_the_ball_is_re_initialised_at_each_impact(fmus):
-    """Right after impact k the speed is +e^k v1: fmi2NewDiscreteStates' new state reached the solver."""
-    resp = simulate_fmu(fmus["ball"], t_final=1.2, output_step=1e-3)
+@pytest.mark.parametrize("version", [2, 3])
+def test_the_ball_is_re_initialised_at_each_impact(fmus, version):
+    """Right after impact k the speed is +e^k v1: the event iteration's new state reached the solver."""
+    resp = simulate_fmu(fmus[BALL[version]], t_final=1.2, output_step=1e-3)
     v = resp.outputs[1]
     t1, t2 = impacts(until=1.2)[0]
     v1 = G * t1
@@ -100,8 +103,9 @@ def test_the_ball_is_re_initialised_at_each_impact(fmus):
         assert v[j] == pytest.approx(E ** k * v1 - G * (resp.time[j] - tk), abs=1e-8)
 
 
-def test_the_ball_comes_to_rest_and_has_no_more_events(fmus):
-    resp = simulate_fmu(fmus["ball"], t_final=3.0, output_step=0.005)
+@pytest.mark.parametrize("version", [2, 3])
+def test_the_ball_comes_to_rest_and_has_no_more_events(fmus, version):
+    resp = simulate_fmu(fmus[BALL[version]], t_final=3.0, output_step=0.005)
     times, rest = impacts()
     events = resp.simulation["events"]
     assert len(events) == 11 and {e["kind"] for e in events} == {"state"}
@@ -112,18 +116,20 @@ def test_the_ball_comes_to_rest_and_has_no_more_events(fmus):
     assert np.all(resp.outputs[0] >= 0.0)                                # never below the floor on the grid
 
 
-def test_the_restitution_is_a_start_value(fmus):
+@pytest.mark.parametrize("version", [2, 3])
+def test_the_restitution_is_a_start_value(fmus, version):
     """e = 0.5: flights of 2 (0.5^k) v1 / g; 0.5^5 v1 = 0.138 > v_min > 0.5^6 v1: it rests at impact 6."""
-    resp = simulate_fmu(fmus["ball"], t_final=2.0, output_step=0.01, start_values={"e": 0.5})
+    resp = simulate_fmu(fmus[BALL[version]], t_final=2.0, output_step=0.01, start_values={"e": 0.5})
     times, rest = impacts(e=0.5)
     assert len(times) == 6 and rest == pytest.approx(1.32636, abs=1e-5)
     np.testing.assert_allclose([e["time"] for e in resp.simulation["events"]], times, rtol=0, atol=1e-9)
     np.testing.assert_allclose(resp.outputs[0], [height(t, e=0.5) for t in resp.time], rtol=0, atol=1e-6)
 
 
-def test_a_bad_restitution_is_named_by_the_fmu(fmus):
+@pytest.mark.parametrize("version", [2, 3])
+def test_a_bad_restitution_is_named_by_the_fmu(fmus, version):
     with pytest.raises(FMUError, match=r"parameter e = 1\.5: allowed is 0 <= e <= 1"):
-        simulate_fmu(fmus["ball"], 1.0, 0.1, start_values={"e": 1.5})
+        simulate_fmu(fmus[BALL[version]], 1.0, 0.1, start_values={"e": 1.5})
 
 
 def test_stair_steps_at_its_time_events_and_the_fmu_ends_the_run_at_9_s(fmus):
@@ -147,17 +153,19 @@ def test_stair_stopped_before_9_s_is_not_terminated(fmus):
 def test_fmpys_own_solver_sees_the_same_ball_and_stair(fmus):
     """An independent importer (fmpy, CVode with root finding) on the same FMUs."""
     fmpy = pytest.importorskip("fmpy")
-    ball = fmpy.simulate_fmu(str(fmus["ball"]), stop_time=3.0, output_interval=0.01, relative_tolerance=1e-10,
-                             output=["h", "v"])
-    early = ball["time"] <= 2.0
-    np.testing.assert_allclose(ball["h"][early], [height(t) for t in ball["time"][early]], rtol=0, atol=1e-6)
-    assert np.all(ball["h"][ball["time"] > 2.5] == 0.0) and np.all(ball["v"][ball["time"] > 2.5] == 0.0)
+    for name in BALL.values():
+        ball = fmpy.simulate_fmu(str(fmus[name]), stop_time=3.0, output_interval=0.01, relative_tolerance=1e-10,
+                                 output=["h", "v"])
+        early = ball["time"] <= 2.0
+        np.testing.assert_allclose(ball["h"][early], [height(t) for t in ball["time"][early]], rtol=0, atol=1e-6)
+        assert np.all(ball["h"][ball["time"] > 2.5] == 0.0) and np.all(ball["v"][ball["time"] > 2.5] == 0.0)
     stair = fmpy.simulate_fmu(str(fmus["stair"]), stop_time=12.0, output_interval=0.5)
     assert stair["time"][-1] == 9.0 and stair["counter"].max() >= 8.0
 
 
 @pytest.mark.parametrize("name, refusal, events", [
     ("ball", "state events (numberOfEventIndicators = 1)", {"state_events": 1, "time_events": 0}),  # 0.4515 s
+    ("ball3", "state events (numberOfEventIndicators = 1)", {"state_events": 1, "time_events": 0}),
     ("stair", "the FMU announces a time event at t = 1 s", {"state_events": 0, "time_events": 1}),  # at t_final
 ])
 def test_fmu_check_reports_every_stage_without_aborting(fmus, capsys, name, refusal, events):

@@ -3,6 +3,8 @@
 :func:`build` compiles one of them with the system C compiler and packages it
 with :func:`fmu.package.package_fmu`; ``xml_edit`` lets a test package a
 variant of the model description (for example one declaring event indicators).
+``ball`` / ``ball3`` (state events, FMI 2 / 3) and ``stair`` (time events,
+terminate) are Model Exchange only: the frames' Co-Simulation ignores events.
 """
 from __future__ import annotations
 
@@ -10,9 +12,9 @@ from pathlib import Path
 
 HERE = Path(__file__).parent
 FMI2_MODELS = ("mass", "spring", "gain", "oscillator", "integrator", "nanlag", "ball", "stair")
-FMI3_MODELS = ("selector",)
+FMI3_MODELS = ("selector", "ball3")
 # further sources a model includes besides its frame
-INCLUDES = {"ball": ("ball_equations.inc",)}
+INCLUDES = {"ball": ("ball_equations.inc",), "ball3": ("ball_equations.inc",)}
 
 
 def build(name: str, folder: Path, xml_edit=None, filename: str | None = None) -> Path:
