@@ -64,7 +64,7 @@ from .description import (
     real_variables,
     unsupported_features,
 )
-from .errors import BudgetError, FMUError, FMUModelDescriptionError
+from .errors import BudgetError, FMUError, FMUModelDescriptionError, FMUUnsupportedError
 from .instance import FMUInstance
 from .plant_check import (
     CHECK_INITIAL_STATE,
@@ -117,6 +117,12 @@ def _model_exchange(extracted, md, t_final: float, budget: Budget, deadline: Mon
                 f"{', '.join(offered_interfaces(md)) or 'no interface'})", "passed": True}, None
     try:
         block = load(extracted, name="checked")
+    except FMUUnsupportedError as err:
+        if "simulate_fmu" not in str(err):
+            return {"offered": True, "loads": False, "refused": str(err), "passed": False}, None
+        # events or arrays: not a block, but a Model Exchange FMU all the same, run by the simulate_fmu stage
+        return {"offered": True, "loads": False, "refused": str(err), "passed": True,
+                "skipped": f"not a block: {err}; the simulate_fmu stage runs it"}, None
     except FMUError as err:
         return {"offered": True, "loads": False, "refused": str(err), "passed": False}, None
     part = {"offered": True, "loads": True, "states": block.nstates, "inputs": list(block.input_labels),
