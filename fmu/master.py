@@ -53,6 +53,7 @@ from blocks.control_compat import fast_dynamics, fast_output
 from blocks.divergence import RUNAWAY_FACTOR, RUNAWAY_STEPS, Runaway
 from blocks.fastsim import CompiledLoop
 from blocks.monitor import Monitor
+from blocks.steppers import rk4_step
 
 from .archive import ExtractionLimits
 from .block import output_feedthrough
@@ -121,18 +122,14 @@ def _stop(what: str, bad: str, t: float) -> CoSimulationError:
 
 
 def _rk4(rhs, t: float, x: np.ndarray, inputs_at, h: float, m: int) -> np.ndarray:
-    """``m`` classical RK4 steps over ``[t, t + h]``, the inputs ``inputs_at(s)`` at each stage time ``s``."""
+    """``m`` classical RK4 steps (:func:`blocks.steppers.rk4_step`) over ``[t, t + h]``, the inputs
+    ``inputs_at(s)`` at each stage time ``s``."""
     dt = h / m
     u_start = inputs_at(t)
     for j in range(m):
         tj = t + j * dt
-        u_mid = inputs_at(tj + 0.5 * dt)
         u_end = inputs_at(t + h if j + 1 == m else tj + dt)
-        k1 = rhs(tj, x, u_start)
-        k2 = rhs(tj + 0.5 * dt, x + 0.5 * dt * k1, u_mid)
-        k3 = rhs(tj + 0.5 * dt, x + 0.5 * dt * k2, u_mid)
-        k4 = rhs(tj + dt, x + dt * k3, u_end)
-        x = x + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        x = rk4_step(rhs, tj, x, dt, (u_start,), (inputs_at(tj + 0.5 * dt),), (u_end,))
         u_start = u_end
     return x
 
