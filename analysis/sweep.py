@@ -80,8 +80,10 @@ from blocks.metrics import OBSERVER_METRICS
 from blocks.progress import count_progress
 from blocks.scenario import Scenario, ScenarioError, load_scenario, parse_key
 
+from .job_files import json_default
+
 __all__ = ["SweepError", "Distribution", "Run", "RunList", "RunPlan", "SweepSpec", "load_sweep", "sweep_from_dict",
-           "split_changes", "json_default", "check_name", "differences", "run_schedule", "DISTRIBUTIONS", "ENGINES",
+           "split_changes", "json_default", "check_name", "HEADER_PARTS", "run_schedule", "DISTRIBUTIONS", "ENGINES",
            "SWEEP_RUN_BYTES", "CHECK_PROGRESS_RUNS",
            "PRESENTATION_KEYS"]
 
@@ -316,13 +318,10 @@ class SweepSpec:
                           "worst_count": self.worst_count, "runs": len(self.runs)}}
 
 
-def differences(old: Mapping, new: Mapping) -> list[str]:
-    """The parts of two results-file headers that decide runs and rows and differ, in words."""
-    parts = {"scenario": "the base scenario", "scenario_values": "the base scenario's values",
-             "observer": "observer on/off", "engine": "the engine", "substeps": "batch.substeps", "grid": "[grid]",
-             "monte_carlo": "[monte_carlo]", "metrics": "outputs.metrics"}
-    return [words for key, words in parts.items() if json.dumps(old.get(key), sort_keys=True, default=json_default)
-            != json.dumps(new.get(key), sort_keys=True, default=json_default)]
+#: The results-file header entries that decide runs and rows, in words (see :func:`analysis.job_files.differences`).
+HEADER_PARTS = {"scenario": "the base scenario", "scenario_values": "the base scenario's values",
+                "observer": "observer on/off", "engine": "the engine", "substeps": "batch.substeps", "grid": "[grid]",
+                "monte_carlo": "[monte_carlo]", "metrics": "outputs.metrics"}
 
 
 # --------------------------------------------------------------------------------------------
@@ -598,15 +597,6 @@ def _distribution(spec, label: str, fail) -> Distribution:
             if not ok or sum(weights) <= 0:
                 fail(f"{label}: 'weights' must be {len(values)} numbers >= 0 with a positive sum, got {weights!r}")
     return Distribution(kind=kind, params=dict(params))
-
-
-def json_default(value):
-    """``json.dumps`` helper: numpy scalars and arrays as plain values."""
-    if isinstance(value, (np.floating, np.integer)):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"cannot write {value!r} as JSON")
 
 
 def split_changes(values: Mapping[str, Any]) -> tuple[dict, dict]:

@@ -80,7 +80,7 @@ from .studies import DEFAULT_NOISE
 from .sweep import SweepError, check_name, json_default, split_changes, sweep_from_dict
 
 __all__ = ["TuneError", "Parameter", "Limits", "TuneSpec", "load_tuning", "tuning_from_dict", "builtin_tunings",
-           "with_evaluations", "differences",
+           "with_evaluations", "HEADER_PARTS",
            "TUNABLE", "OBJECTIVES", "TUNE_METRICS", "METRIC_WORDS", "SIGNIFICANT_DIGITS", "STABILITY_CONFIGURATIONS"]
 
 #: The gains a tuning may search.
@@ -302,15 +302,11 @@ class TuneSpec:
                 "monte_carlo": self.draws, "set": _hash(self.records)}
 
 
-def differences(old: dict, new: dict) -> list[str]:
-    """The parts of two log headers that decide evaluations and differ, in words."""
-    parts = {"scenario": "the base scenario", "scenario_values": "the base scenario's values",
-             "objective": "objective", "metric": "metric", "search": "the [search] bounds", "seed": "search.seed",
-             "population": "search.population", "constraints": "[constraints]", "monte_carlo": "[monte_carlo]",
-             "set": "the Monte Carlo set"}
-    return [words for key, words in parts.items()
-            if json.dumps(old.get(key), sort_keys=True, default=json_default)
-            != json.dumps(new.get(key), sort_keys=True, default=json_default)]
+#: The evaluation-log header entries that decide evaluations, in words (:func:`analysis.job_files.differences`).
+HEADER_PARTS = {"scenario": "the base scenario", "scenario_values": "the base scenario's values",
+                "objective": "objective", "metric": "metric", "search": "the [search] bounds", "seed": "search.seed",
+                "population": "search.population", "constraints": "[constraints]", "monte_carlo": "[monte_carlo]",
+                "set": "the Monte Carlo set"}
 
 
 def _hash(value) -> str:

@@ -48,7 +48,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import json
 import math
 import os
 import time
@@ -62,14 +61,13 @@ from blocks.batch import simulate_batch
 from blocks.budget import Budget
 from blocks.progress import ProgressCallback, StageProgress
 
-from .job_files import cut_partial_last_line, exclusive_lock, move_aside, write_lines_atomically
-from .sweep import json_default
-from .tune import METRIC_WORDS, TuneError, TuneSpec, differences, load_tuning
+from .job_files import JobLog, LogKind, write_lines_atomically
+from .tune import HEADER_PARTS, METRIC_WORDS, TuneError, TuneSpec, load_tuning
 from .tune_eval import Evaluation, Evaluator, check_seconds, evaluation_estimate, gains_key
 from .tune_results import RESULT_NAME, PointResult, TuneFigure, TuneHistory, TuneResult
 
 __all__ = ["run_tune", "TuneResult", "PointResult", "TuneHistory", "TuneFigure", "read_log", "LOG_NAME",
-           "RESULT_NAME", "FEASIBILITY_SAMPLES", "DE_TOL"]
+           "RESULT_NAME", "FEASIBILITY_SAMPLES", "DE_TOL", "EVALUATION_LOG"]
 
 LOG_NAME = "evaluations.jsonl"
 #: Points of the bounds at which the linear constraints are tried before the search.
@@ -85,92 +83,34 @@ _FEASIBILITY_POLISH = 400
 # The evaluation log
 # --------------------------------------------------------------------------------------------
 _ROW_KEYS = ("key", "gains", "values", "peak_torque", "diverged", "substeps", "seconds")
+#: The evaluation log as a job log (:mod:`analysis.job_files`): its words, its header and its row ids.
+EVALUATION_LOG = LogKind(header_key="tune", id_key="key", error=TuneError, what="evaluation log", job="tuning",
+                         elsewhere="another --out folder", parts=HEADER_PARTS, volatile=("seconds", "phase"))
+
+
+def _row_problem(record: dict) -> str:
+    missing = [k for k in _ROW_KEYS if k not in record]
+    if missing:
+        return f"missing {', '.join(missing)}"
+    if record["key"] != gains_key(record["gains"]):
+        return "its key does not match its gains"
+    return ""
 
 
 def read_log(path: str | Path) -> tuple[dict | None, dict, list[str]]:
     """The header, the rows by candidate key, and the unusable lines of an evaluation log.
 
-    A last line cut off by a kill is not a row (that candidate is simulated again).
+    A last line cut off by a kill is not a row (that candidate is simulated again); checksums, repeats and
+    bytes that are not UTF-8 as :class:`analysis.job_files.JobLog` reads them.
+
+    Raises
+    ------
+    TuneError
+        On two rows of one candidate with different values, or bytes that are not UTF-8.
     """
-    path = Path(path)
-    header, rows, problems = None, {}, []
-    if not path.exists():
-        return None, rows, problems
-    with path.open("r", encoding="utf-8") as fh:
-        for number, line in enumerate(fh, start=1):
-            if not line.endswith("\n"):
-                break
-            if not line.strip():
-                continue
-            try:
-                record = json.loads(line)
-            except json.JSONDecodeError as err:
-                problems.append(f"line {number}: not JSON ({err.msg})")
-                continue
-            if number == 1 and isinstance(record, dict) and isinstance(record.get("tune"), dict):
-                header = record["tune"]
-                continue
-            missing = [k for k in _ROW_KEYS if not isinstance(record, dict) or k not in record]
-            if missing:
-                problems.append(f"line {number}: missing {', '.join(missing)}")
-                continue
-            if record["key"] != gains_key(record["gains"]):
-                problems.append(f"line {number}: its key does not match its gains")
-                continue
-            rows[record["key"]] = record
-    return header, rows, problems
-
-
-def _prepare_log(spec: TuneSpec, log: Path, restart: bool) -> Path | None:
-    """Make the log the tuning's own: refuse (or with ``restart`` move aside) one of another definition; rewrite
-    the header when only the name, description or budget changed.  Returns where an old log was moved."""
-    header, _, _ = read_log(log)
-    if header is None:
-        if log.exists() and log.stat().st_size > 0:
-            if not restart:
-                raise TuneError(f"evaluation log '{log}' does not start with a tuning header, so it is not a log of "
-                                "this tuning; choose another --out folder, or --restart to move it aside")
-            return move_aside(log, "unknown")
-        return None
-    new = spec.header()["tune"]
-    if header.get("definition") != spec.definition:
-        if restart:
-            return move_aside(log, str(header.get("definition") or "undefined"))
-        what = ", ".join(differences(header, new)) or "the tuning definition"
-        raise TuneError(f"evaluation log '{log}' belongs to tuning '{header.get('name')}' of definition "
-                        f"{header.get('definition')}, not to this definition of '{spec.name}' ({spec.definition}): "
-                        f"{what} differ(s). Its evaluations would mix with this tuning's. Give this tuning another "
-                        "--out folder, or --restart to move the old log aside and start anew")
-    if header != new:
-        cut_partial_last_line(log)
-        with log.open("r", encoding="utf-8") as fh:
-            fh.readline()
-            rest = fh.readlines()
-        write_lines_atomically(log, [json.dumps({"tune": new}, default=json_default) + "\n"] + rest)
-    return None
-
-
-class _LogWriter:
-    """Appends rows to the log (header first when new); every batch written whole, flushed and synced."""
-
-    def __init__(self, path: Path, header: dict) -> None:
-        self.path, self.header, self.fh = path, header, None
-
-    def write(self, rows: list[dict]) -> None:
-        text = "".join(json.dumps(r, default=json_default, allow_nan=False) + "\n" for r in rows)
-        if self.fh is None:
-            cut_partial_last_line(self.path)
-            if not self.path.exists() or self.path.stat().st_size == 0:
-                text = json.dumps(self.header, default=json_default) + "\n" + text
-            self.fh = self.path.open("a", encoding="utf-8")
-        self.fh.write(text)
-        self.fh.flush()
-        os.fsync(self.fh.fileno())
-
-    def close(self) -> None:
-        if self.fh is not None:
-            self.fh.close()
-            cut_partial_last_line(self.path)
+    log = JobLog(Path(path), EVALUATION_LOG)
+    rows = {row["key"]: row for row in log.rows(_row_problem)}
+    return log.header(), rows, list(log.problems)
 
 
 # --------------------------------------------------------------------------------------------
@@ -287,11 +227,11 @@ def run_tune(spec: TuneSpec | str | Path, out_dir: str | Path, workers: int | No
             evaluator = Evaluator(spec, workers=workers, engine=engine)
             check_linear_feasibility(spec, evaluator)
             out.mkdir(parents=True, exist_ok=True)
-            log = out / LOG_NAME
-            stack.enter_context(exclusive_lock(log, TuneError, "evaluation log", "tuning", "another --out folder"))
-            _prepare_log(spec, log, restart)
-            _, rows, problems = read_log(log)
-            writer = _LogWriter(log, spec.header())
+            log = JobLog(out / LOG_NAME, EVALUATION_LOG)
+            stack.enter_context(log.lock())
+            log.prepare(spec.header()["tune"], spec.name, restart)
+            _, rows, problems = read_log(log.path)
+            writer = log.writer(spec.header()["tune"])
             stack.callback(writer.close)
             search = _Search(spec, evaluator, report, budget, started)
             evaluator.log_rows, evaluator.record = rows, writer.write
