@@ -391,23 +391,24 @@ def run_sweep(spec: SweepSpec | str | Path, results: str | Path, scheduler: str 
 
 
 @contextlib.contextmanager
-def _sigint_ignored():
-    """Worker processes started here inherit 'ignore Ctrl-C': the terminal sends it to the whole process
-    group, and the process that started them handles it (ends them, keeps whole rows, says one line)."""
+def _sigint_held():
+    """Worker processes started here inherit a blocked Ctrl-C: the terminal sends it to the whole process
+    group, and the process that started them handles it (ends them, keeps whole rows, says one line).
+    Blocked, not ignored: a Ctrl-C that arrives while a worker starts reaches this process right after."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def _run_processes(payloads: Iterator[dict], workers: int, take) -> None:
     pool = worker_pool(workers)
     try:
-        with _sigint_ignored():
+        with _sigint_held():
             running = {pool.submit(_chunk_in_worker, p) for p in itertools.islice(payloads, workers)}
         while running:            # keep at most one batch per worker in flight: memory stays bounded
             done, running = wait(running, return_when=FIRST_COMPLETED)
@@ -415,16 +416,25 @@ def _run_processes(payloads: Iterator[dict], workers: int, take) -> None:
                 take(fut.result())
                 nxt = next(payloads, None)
                 if nxt is not None:
-                    with _sigint_ignored():
+                    with _sigint_held():
                         running.add(pool.submit(_chunk_in_worker, nxt))
     except BaseException:
-        # interrupted or failed: end the workers now rather than wait for their batches
-        for process in list((getattr(pool, "_processes", None) or {}).values()):
-            with contextlib.suppress(Exception):
-                process.terminate()
-        pool.shutdown(wait=False, cancel_futures=True)
+        _end_now(pool)
         raise
     pool.shutdown(wait=True)
+
+
+def _end_now(pool) -> None:
+    """End an interrupted or failed pool now rather than wait for its batches: its workers terminated, then
+    its threads joined, so that nothing is left for the interpreter's exit to wait on (where another Ctrl-C
+    would print a concurrent.futures traceback)."""
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        with contextlib.suppress(Exception):
+            process.terminate()
+    try:
+        pool.shutdown(wait=True, cancel_futures=True)
+    except BaseException:         # noqa: BLE001 -- a second Ctrl-C while the threads end: the first one is reported
+        pool.shutdown(wait=False, cancel_futures=True)
 
 
 def _dask():
