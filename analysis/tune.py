@@ -22,6 +22,9 @@ over a Monte Carlo set of mismatches and disturbances, and the constraints::
     torque_noise_rms = "base"    # N m (N): a number, 4 numbers, or "base": the base scenario's gains' own noise
     torque_limit = 40            # N m (N): a number or 4; peak |tau| over every run of the set
     stability_margin = 0.5       # 1/s: the linearized loop's poles have real parts <= -margin
+    min_damping_ratio = 0.7      # of the error dynamics, every joint (default 0.7; 0: not constrained) ...
+    max_overshoot = 0.05         # ... or instead the largest overshoot of a step (a fraction: 0.05 = 5 %)
+    min_observer_bandwidth_ratio = 0.5   # slowest observer mode / tracking bandwidth (default: not constrained)
     sensor_noise = {q_std = [2e-4, 2e-4, 2e-5, 2e-4], dq_std = [5e-3, 5e-3, 5e-4, 5e-3], sample_period = 0.001}
                                  # default: the scenario's [noise], else analysis.studies.DEFAULT_NOISE
 
@@ -51,7 +54,22 @@ Constraints (:mod:`analysis.tune_linear` for the linear ones)
     models and every member of the set (true and nominal inertia), is at most
     ``-margin``.  *Torque limit*: the peak ``|tau|`` per joint on the output
     grid of every run of the set.  The linear constraints cost milliseconds and
-    are checked first: a candidate that fails them is not simulated.
+    are checked first: a candidate that fails the torque noise or the stability
+    margin is not simulated.
+    *Damping*: the error dynamics ``e'' + Kd e' + Kp e = 0`` of each joint
+    (paper-notes, Eq. 9-11) has the damping ratio ``zeta = kd / (2 sqrt(kp))``;
+    every joint's must be at least ``min_damping_ratio`` (default
+    :data:`DEFAULT_MIN_DAMPING`: a well-damped response, about 4.6 % overshoot).
+    ``max_overshoot`` states it as the step's overshoot instead,
+    ``exp(-pi zeta / sqrt(1 - zeta^2))`` (0 for ``zeta >= 1``).  Candidates that
+    miss only this are simulated all the same, so that the search's own log
+    tells what the constraint costs (the best evaluation that meets every other
+    constraint: :attr:`analysis.tune_results.TuneResult.unconstrained`).
+    *Observer bandwidth ratio*: the slowest mode of the observer, the smallest
+    eigenvalue of ``Y M^-1(q)`` with the base nominal inertia at the stability
+    configurations (rad/s, :mod:`analysis.bandwidth`), over the tracking
+    bandwidth, the largest natural frequency ``sqrt(kp)`` of the error dynamics
+    (rad/s), is at least ``min_observer_bandwidth_ratio``.
 
 Everything is validated when the file is read, before anything runs; errors
 name the key.  Running a tuning: :mod:`analysis.tune_runner`.
@@ -81,7 +99,8 @@ from .sweep import SweepError, check_name, json_default, split_changes, sweep_fr
 
 __all__ = ["TuneError", "Parameter", "Limits", "TuneSpec", "load_tuning", "tuning_from_dict", "builtin_tunings",
            "with_evaluations", "HEADER_PARTS",
-           "TUNABLE", "OBJECTIVES", "TUNE_METRICS", "METRIC_WORDS", "SIGNIFICANT_DIGITS", "STABILITY_CONFIGURATIONS"]
+           "TUNABLE", "OBJECTIVES", "TUNE_METRICS", "METRIC_WORDS", "SIGNIFICANT_DIGITS", "STABILITY_CONFIGURATIONS",
+           "DEFAULT_MIN_DAMPING", "damping_ratios", "overshoots", "damping_for_overshoot"]
 
 #: The gains a tuning may search.
 TUNABLE = ("gains.kp", "gains.kd", "gains.observer")
@@ -96,6 +115,8 @@ METRIC_WORDS = {"rms_tool_position_error_mm": "RMS tool-tip error",
 SIGNIFICANT_DIGITS = 6
 #: Configurations along the path at which the stability margin is checked (equally spaced in time).
 STABILITY_CONFIGURATIONS = 5
+#: The damping ratio of the error dynamics every joint must reach unless the tuning file says otherwise.
+DEFAULT_MIN_DAMPING = 0.7
 _GAIN_UNITS = {"gains.kp": "1/s^2", "gains.kd": "1/s", "gains.observer": "kg m^2/s"}
 
 
@@ -162,6 +183,14 @@ class Limits:
         1/s.
     sensor_noise : dict
         ``q_std``, ``dq_std`` (4 numbers each) and ``sample_period`` (s) of the torque-noise constraint.
+    min_damping_ratio : float or None
+        Of the error dynamics, every joint (module docstring); None with ``max_overshoot`` or when switched off.
+    damping_from : str
+        ``"default"`` (:data:`DEFAULT_MIN_DAMPING`), ``"given"``, ``"overshoot"`` or ``"off"``.
+    max_overshoot : float or None
+        Largest step overshoot of the error dynamics, a fraction.
+    min_observer_bandwidth_ratio : float or None
+        Slowest observer mode over the tracking bandwidth.
     """
 
     torque_noise_rms: np.ndarray | None
@@ -169,12 +198,39 @@ class Limits:
     torque_limit: np.ndarray | None
     stability_margin: float | None
     sensor_noise: dict
+    min_damping_ratio: float | None = None
+    damping_from: str = "off"
+    max_overshoot: float | None = None
+    min_observer_bandwidth_ratio: float | None = None
 
     def as_dict(self) -> dict:
         return {"torque_noise_rms": None if self.torque_noise_rms is None else self.torque_noise_rms.tolist(),
                 "torque_noise_from": self.torque_noise_from,
                 "torque_limit": None if self.torque_limit is None else self.torque_limit.tolist(),
-                "stability_margin": self.stability_margin, "sensor_noise": self.sensor_noise}
+                "stability_margin": self.stability_margin, "sensor_noise": self.sensor_noise,
+                "min_damping_ratio": self.min_damping_ratio, "damping_from": self.damping_from,
+                "max_overshoot": self.max_overshoot,
+                "min_observer_bandwidth_ratio": self.min_observer_bandwidth_ratio}
+
+
+def damping_ratios(kp, kd) -> np.ndarray:
+    """``zeta = kd / (2 sqrt(kp))`` per joint of ``e'' + kd e' + kp e = 0`` (kp 1/s^2, kd 1/s; scalars or 4)."""
+    kp = np.broadcast_to(np.asarray(kp, dtype=float), (4,))
+    kd = np.broadcast_to(np.asarray(kd, dtype=float), (4,))
+    return kd / (2.0 * np.sqrt(kp))
+
+
+def overshoots(zeta) -> np.ndarray:
+    """Step overshoot (a fraction) of a second-order system of damping ratio ``zeta``: 0 when ``zeta >= 1``."""
+    z = np.minimum(np.asarray(zeta, dtype=float), 1.0)
+    with np.errstate(divide="ignore"):
+        return np.where(z < 1.0, np.exp(-np.pi * z / np.sqrt(1.0 - z * z)), 0.0)
+
+
+def damping_for_overshoot(overshoot: float) -> float:
+    """The damping ratio whose step overshoot is ``overshoot`` (0 < overshoot < 1): the inverse of :func:`overshoots`."""
+    a = -math.log(overshoot)
+    return a / math.sqrt(math.pi ** 2 + a * a)
 
 
 @dataclass
@@ -394,6 +450,10 @@ _KEYS: dict[str | None, dict[str, _Key]] = {
         "torque_limit": _Key(lambda v: (_number(v) and v > 0) or (_numbers(v, 4) and min(v) > 0),
                              "a number > 0 or 4 numbers > 0 (N m, N m, N, N m)"),
         "stability_margin": _Key(lambda v: _number(v) and v >= 0, "a number >= 0 (1/s)"),
+        "min_damping_ratio": _Key(lambda v: _number(v) and 0 <= v <= 10,
+                                  f"a number from 0 (not constrained) to 10 (default {DEFAULT_MIN_DAMPING})"),
+        "max_overshoot": _Key(lambda v: _number(v) and 0 < v < 1, "a fraction between 0 and 1 (0.05 = 5 %)"),
+        "min_observer_bandwidth_ratio": _Key(lambda v: _number(v) and v > 0, "a number > 0"),
         "sensor_noise": _Key(lambda v: isinstance(v, dict), "a table {q_std = [...], dq_std = [...], sample_period}")},
 }
 _NOISE_KEYS = ("q_std", "dq_std", "sample_period")
@@ -581,6 +641,19 @@ def _limits(table: dict, base: Scenario, fail) -> Limits:
         if not np.all(np.isfinite(budget)):
             fail("'constraints.torque_noise_rms' = \"base\": the base scenario's own gains do not give a stable "
                  "held loop, so they set no torque-noise budget; give numbers (N m)")
+    if table["max_overshoot"] is not None and table["min_damping_ratio"] is not None:
+        fail(f"'constraints.min_damping_ratio' ({table['min_damping_ratio']!r}) and 'constraints.max_overshoot' "
+             f"({table['max_overshoot']!r}) state one constraint twice; give one of them")
+    if table["max_overshoot"] is not None:
+        damping, damping_from = None, "overshoot"
+    elif table["min_damping_ratio"] is None:
+        damping, damping_from = DEFAULT_MIN_DAMPING, "default"
+    else:
+        damping = float(table["min_damping_ratio"]) or None
+        damping_from = "given" if damping else "off"
+    ratio = table["min_observer_bandwidth_ratio"]
     return Limits(torque_noise_rms=vector(budget), torque_noise_from=source, torque_limit=vector(table["torque_limit"]),
                   stability_margin=None if table["stability_margin"] is None else float(table["stability_margin"]),
-                  sensor_noise=sensor)
+                  sensor_noise=sensor, min_damping_ratio=damping, damping_from=damping_from,
+                  max_overshoot=None if table["max_overshoot"] is None else float(table["max_overshoot"]),
+                  min_observer_bandwidth_ratio=None if ratio is None else float(ratio))

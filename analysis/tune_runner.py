@@ -62,8 +62,8 @@ from blocks.budget import Budget
 from blocks.progress import ProgressCallback, StageProgress
 
 from .job_files import JobLog, LogKind, write_lines_atomically
-from .tune import HEADER_PARTS, METRIC_WORDS, TuneError, TuneSpec, load_tuning
-from .tune_eval import Evaluation, Evaluator, check_seconds, evaluation_estimate, gains_key
+from .tune import HEADER_PARTS, METRIC_WORDS, TuneError, TuneSpec, damping_for_overshoot, load_tuning
+from .tune_eval import DAMPING_CONSTRAINTS, Evaluation, Evaluator, check_seconds, evaluation_estimate, gains_key
 from .tune_results import RESULT_NAME, PointResult, TuneFigure, TuneHistory, TuneResult
 
 __all__ = ["run_tune", "TuneResult", "PointResult", "TuneHistory", "TuneFigure", "read_log", "LOG_NAME",
@@ -124,13 +124,17 @@ def check_linear_feasibility(spec: TuneSpec, evaluator: Evaluator) -> None:
     TuneError
         Naming the closest gains found and what they miss by.
     """
-    if spec.limits.torque_noise_rms is None and spec.limits.stability_margin is None:
+    limits = spec.limits
+    if all(v is None for v in (limits.torque_noise_rms, limits.stability_margin, limits.min_damping_ratio,
+                                limits.max_overshoot, limits.min_observer_bandwidth_ratio)):
         return
     n = len(spec.parameters)
 
+    def violations(gains) -> dict:
+        return evaluator.linear_violations(*evaluator.linear(gains), *evaluator.design(gains))
+
     def violation(u) -> float:
-        noise, abscissa = evaluator.linear(spec.gains(u))
-        return float(sum(evaluator.linear_violations(noise, abscissa).values()))
+        return float(sum(violations(spec.gains(u)).values()))
 
     sample = qmc.LatinHypercube(d=n, rng=np.random.default_rng(spec.seed)).random(FEASIBILITY_SAMPLES)
     extra = [np.zeros(n), np.ones(n)] + ([spec.base_point()] if spec.base_point() is not None else [])
@@ -148,7 +152,9 @@ def check_linear_feasibility(spec: TuneSpec, evaluator: Evaluator) -> None:
     u = found.x if found.fun < best_v else best_u
     gains = spec.gains(u)
     noise, abscissa = evaluator.linear(gains)
-    limits, misses = spec.limits, []
+    zeta, ratio = evaluator.design(gains)
+    missed = violations(gains)
+    misses = []
     if limits.torque_noise_rms is not None and np.any(noise > limits.torque_noise_rms):
         j = int(np.argmax(noise / limits.torque_noise_rms))
         misses.append(f"torque noise {np.round(noise, 4).tolist()} against the budget "
@@ -157,9 +163,17 @@ def check_linear_feasibility(spec: TuneSpec, evaluator: Evaluator) -> None:
     if limits.stability_margin is not None and abscissa > -limits.stability_margin:
         misses.append(f"slowest pole at {abscissa:.4g} 1/s, not <= -{limits.stability_margin:g} 1/s "
                       "(constraints.stability_margin)")
+    if missed.get("min_damping_ratio", 0) > 0 or missed.get("max_overshoot", 0) > 0:
+        what = (f">= {limits.min_damping_ratio:g} (constraints.min_damping_ratio)" if limits.min_damping_ratio
+                is not None else f">= {damping_for_overshoot(limits.max_overshoot):.3g} (constraints.max_overshoot = "
+                f"{limits.max_overshoot:g})")
+        misses.append(f"damping ratios {np.round(zeta, 3).tolist()}, not all {what}")
+    if missed.get("min_observer_bandwidth_ratio", 0) > 0:
+        misses.append(f"observer bandwidth ratio {ratio:.3g}, not >= {limits.min_observer_bandwidth_ratio:g} "
+                      "(constraints.min_observer_bandwidth_ratio)")
     raise TuneError(f"{spec.source}: the constraints cannot be met within the [search] bounds: no gains found among "
-                    f"{FEASIBILITY_SAMPLES + len(extra)} sampled and {found.nfev} searched meet the torque-noise and "
-                    f"stability constraints. The closest, {_describe(gains)}, has " + "; ".join(misses)
+                    f"{FEASIBILITY_SAMPLES + len(extra)} sampled and {found.nfev} searched meet the linear "
+                    f"constraints ({', '.join(missed)}). The closest, {_describe(gains)}, has " + "; ".join(misses)
                     + ". Widen the bounds or loosen [constraints]; nothing was simulated")
 
 
@@ -309,7 +323,7 @@ class _Search:
 # --------------------------------------------------------------------------------------------
 # The outputs
 # --------------------------------------------------------------------------------------------
-def _point(ev: Evaluation, nominal: float | None) -> PointResult:
+def _point(ev: Evaluation, nominal: float | None, evaluator: Evaluator) -> PointResult:
     values = ev.values if ev.values is not None else None
     finite = values[np.isfinite(values)] if values is not None else np.array([])
     fin = lambda v: float(v) if v is not None and math.isfinite(v) else None              # noqa: E731
@@ -320,7 +334,18 @@ def _point(ev: Evaluation, nominal: float | None) -> PointResult:
         torque_noise_rms=[float(v) for v in ev.torque_noise_rms],
         peak_torque=None if ev.peak_torque is None else [float(v) for v in ev.peak_torque],
         spectral_abscissa=float(ev.spectral_abscissa), violations=dict(ev.violations), feasible=bool(ev.feasible),
-        diverged=int(ev.diverged))
+        diverged=int(ev.diverged), damping_ratio=[float(v) for v in ev.damping_ratio],
+        bandwidth_ratio=fin(ev.bandwidth_ratio), margins=evaluator.margins(ev))
+
+
+def unconstrained_best(evaluator: Evaluator) -> Evaluation | None:
+    """The best simulated evaluation that meets every constraint but the damping (or overshoot) one, or None."""
+    limits = evaluator.spec.limits
+    if limits.min_damping_ratio is None and limits.max_overshoot is None:
+        return None
+    pool = [e for e in evaluator.history if e.simulated and math.isfinite(e.objective)
+            and all(v == 0 for k, v in e.violations.items() if k not in DAMPING_CONSTRAINTS)]
+    return min(pool, key=lambda e: e.objective, default=None)
 
 
 def tuned_scenario(spec: TuneSpec, gains: dict, feasible: bool, objective: float | None):
@@ -348,8 +373,11 @@ def _finish(spec: TuneSpec, evaluator: Evaluator, search: _Search, best: Evaluat
     base = search.base
     scenario = tuned_scenario(spec, best.gains, best.feasible, best.objective if best.feasible else None)
     engine, workers = evaluator.engine, evaluator.workers
-    base_point = _point(base, nominal_metric(spec.base, spec.metric, workers, engine))
-    tuned_point = _point(best, nominal_metric(scenario, spec.metric, workers, engine))
+    base_point = _point(base, nominal_metric(spec.base, spec.metric, workers, engine), evaluator)
+    tuned_point = _point(best, nominal_metric(scenario, spec.metric, workers, engine), evaluator)
+    free = unconstrained_best(evaluator)
+    free_point = None if free is None else _point(free, None, evaluator)
+    cost = None if free is None or not best.feasible else max(0.0, float(best.objective - free.objective))
     counts = {"search": sum(e.phase == "search" for e in evaluator.history),
               "polish": sum(e.phase == "polish" for e in evaluator.history),
               "simulated": evaluator.simulated_now,
@@ -368,7 +396,8 @@ def _finish(spec: TuneSpec, evaluator: Evaluator, search: _Search, best: Evaluat
         parameters=[p.name for p in spec.parameters], units=[p.unit for p in spec.parameters],
         bounds=[[p.low, p.high] for p in spec.parameters], limits=spec.limits.as_dict(), base=base_point,
         tuned=tuned_point, feasible=bool(best.feasible), message=message, history=history, evaluations=counts,
-        seconds=0.0, scenario_file=file_name, log_problems=list(problems))
+        seconds=0.0, scenario_file=file_name, log_problems=list(problems), unconstrained=free_point,
+        damping_cost=cost)
     report("tuning: writing results", 0.0)
     write_lines_atomically(out / file_name, [scenario.to_toml()])
     if figures:

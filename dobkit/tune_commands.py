@@ -122,12 +122,7 @@ def _summary(result, out: Path) -> str:
              result.message,
              f"  tuned gains: {_gains_text(result.tuned.gains)}{'' if result.feasible else ' (INFEASIBLE)'}",
              f"  base gains:  {_gains_text(result.base.gains)}"]
-    if result.limits.get("torque_noise_rms") is not None:
-        lines.append(f"  torque noise RMS [N m]: tuned {_numbers(result.tuned.torque_noise_rms)}, base "
-                     f"{_numbers(result.base.torque_noise_rms)}, budget {_numbers(result.limits['torque_noise_rms'])}")
-    if result.limits.get("torque_limit") is not None:
-        lines.append(f"  peak torque [N m]: tuned {_numbers(result.tuned.peak_torque)}, limit "
-                     f"{_numbers(result.limits['torque_limit'])}")
+    lines += constraint_lines(result)
     if result.log_problems:
         lines.append(f"  evaluation log: {len(result.log_problems)} unusable line(s) left out and their candidates "
                      f"simulated again ({result.log_problems[0]}{', ...' if len(result.log_problems) > 1 else ''})")
@@ -135,6 +130,47 @@ def _summary(result, out: Path) -> str:
                  f"{out / result.scenario_file}), {len(result.figures)} figures (PNG and SVG); "
                  f"dobkit report --tune {out} adds them to a report")
     return "\n".join(lines)
+
+
+#: Each constraint as stdout names it, with the unit of its margin (analysis.tune_eval, "Margins").
+_MARGIN_WORDS = {"torque_noise_rms": ("torque noise", "of the budget left", 100.0, "%"),
+                 "torque_limit": ("peak torque", "below the limit", 100.0, "%"),
+                 "stability_margin": ("stability margin", "beyond it", 1.0, " 1/s"),
+                 "min_damping_ratio": ("damping ratio", "above the minimum", 1.0, ""),
+                 "max_overshoot": ("overshoot", "below the maximum", 100.0, " % points"),
+                 "min_observer_bandwidth_ratio": ("observer bandwidth ratio", "above the minimum", 1.0, "")}
+
+
+def constraint_lines(result) -> list[str]:
+    """Lines on every constraint of a tuning result: the tuned and base values, the limit and the tuned margin."""
+    limits, tuned, base = result.limits, result.tuned, result.base
+    lines = []
+    if limits.get("torque_noise_rms") is not None:
+        lines.append(f"  torque noise RMS [N m]: tuned {_numbers(tuned.torque_noise_rms)}, base "
+                     f"{_numbers(base.torque_noise_rms)}, budget {_numbers(limits['torque_noise_rms'])}")
+    if limits.get("torque_limit") is not None:
+        lines.append(f"  peak torque [N m]: tuned {_numbers(tuned.peak_torque)}, limit "
+                     f"{_numbers(limits['torque_limit'])}")
+    if tuned.damping_ratio:
+        minimum = limits.get("min_damping_ratio")
+        bound = (f", at least {minimum:g}" + (" (the default)" if limits.get("damping_from") == "default" else "")
+                 if minimum is not None else f", overshoot at most {100 * limits['max_overshoot']:g} %"
+                 if limits.get("max_overshoot") is not None else " (not constrained)")
+        lines.append(f"  damping ratio of the error dynamics: tuned {_numbers(tuned.damping_ratio)}, base "
+                     f"{_numbers(base.damping_ratio)}{bound}")
+    if tuned.margins:
+        parts = []
+        for key, value in tuned.margins.items():
+            name, words, scale, unit = _MARGIN_WORDS.get(key, (key, "margin", 1.0, ""))
+            parts.append(f"{name} {scale * value:+.3g}{unit} {words}" if value >= 0 else
+                         f"{name} MISSED by {-scale * value:.3g}{unit}")
+        lines.append("  margins of the tuned gains: " + "; ".join(parts))
+    free, cost = result.unconstrained, result.damping_cost
+    if free is not None and cost is not None:
+        lines.append(f"  the damping constraint costs {cost:.4g} mm: the best of this search's evaluations without it "
+                     f"reached {free.objective:.4g} mm (damping ratio {_numbers(free.damping_ratio)}, "
+                     f"{_gains_text(free.gains)})")
+    return lines
 
 
 def _check_report(spec, estimate, substeps: int) -> str:
@@ -151,6 +187,13 @@ def _check_report(spec, estimate, substeps: int) -> str:
         lines.append(f"  torque limit [N m]: {_numbers(limits.torque_limit)}")
     if limits.stability_margin is not None:
         lines.append(f"  stability margin: poles at real part <= -{limits.stability_margin:g} 1/s")
+    if limits.min_damping_ratio is not None:
+        lines.append(f"  damping ratio of the error dynamics kd / (2 sqrt(kp)) >= {limits.min_damping_ratio:g} on every "
+                     "joint" + (" (the default)" if limits.damping_from == "default" else ""))
+    if limits.max_overshoot is not None:
+        lines.append(f"  overshoot of the error dynamics <= {100 * limits.max_overshoot:g} % on every joint")
+    if limits.min_observer_bandwidth_ratio is not None:
+        lines.append(f"  slowest observer mode / tracking bandwidth >= {limits.min_observer_bandwidth_ratio:g}")
     lines.append("  the linear constraints can be met within the bounds")
     lines.append(f"  one evaluation: {spec.runs} runs of at most {estimate.steps:,} RK4 steps ({substeps} substeps at "
                  f"the high bounds), about {format_bytes(estimate.memory)}; at most "
