@@ -94,6 +94,7 @@ from blocks.batch import BATCH_KEYS
 from blocks.budget import Budget
 from blocks.scenario import Scenario, ScenarioError, load_scenario, parse_key
 
+from .job_keys import Key, number, numbers, read_table, whole
 from .studies import DEFAULT_NOISE
 from .sweep import SweepError, check_name, json_default, split_changes, sweep_from_dict
 
@@ -410,70 +411,40 @@ def load_tuning(name_or_path: str | Path, budget: Budget | None = None) -> TuneS
     return tuning_from_dict(data, source=source, folder=folder, budget=budget)
 
 
-@dataclass(frozen=True)
-class _Key:
-    allows: Callable[[Any], bool]
-    expected: str
-    default: Any = None
-
-
-def _whole(minimum: int) -> Callable[[Any], bool]:
-    return lambda v: not isinstance(v, bool) and isinstance(v, int) and v >= minimum
-
-
-def _number(v) -> bool:
-    return not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
-
-
-def _numbers(v, n: int) -> bool:
-    return isinstance(v, list) and len(v) == n and all(map(_number, v))
-
-
 #: The settings of a tuning file by table (None: the top level); gain bounds in [search] are checked apart.
-_KEYS: dict[str | None, dict[str, _Key]] = {
-    None: {"name": _Key(lambda v: isinstance(v, str), "a plain file name"),
-           "description": _Key(lambda v: isinstance(v, str), "a string", ""),
-           "scenario": _Key(lambda v: isinstance(v, str), "a built-in scenario name or a file path", "paper"),
-           "objective": _Key(lambda v: v in OBJECTIVES, f"one of {list(OBJECTIVES)}", "worst"),
-           "metric": _Key(lambda v: v in TUNE_METRICS, f"one of {list(TUNE_METRICS)}", TUNE_METRICS[0]),
-           "search": _Key(lambda v: isinstance(v, dict), "a table ([search])", {}),
-           "constraints": _Key(lambda v: isinstance(v, dict), "a table ([constraints])", {}),
-           "monte_carlo": _Key(lambda v: isinstance(v, dict), "a table ([monte_carlo])", {})},
-    "search": {"seed": _Key(_whole(0), "a whole number >= 0", 1),
-               "population": _Key(_whole(5), "a whole number >= 5", 12),
-               "max_evaluations": _Key(_whole(1), "a whole number >= 1", 400),
-               "polish_evaluations": _Key(_whole(0), "a whole number >= 0")},
+_KEYS: dict[str | None, dict[str, Key]] = {
+    None: {"name": Key(lambda v: isinstance(v, str), "a plain file name"),
+           "description": Key(lambda v: isinstance(v, str), "a string", ""),
+           "scenario": Key(lambda v: isinstance(v, str), "a built-in scenario name or a file path", "paper"),
+           "objective": Key(lambda v: v in OBJECTIVES, f"one of {list(OBJECTIVES)}", "worst"),
+           "metric": Key(lambda v: v in TUNE_METRICS, f"one of {list(TUNE_METRICS)}", TUNE_METRICS[0]),
+           "search": Key(lambda v: isinstance(v, dict), "a table ([search])", {}),
+           "constraints": Key(lambda v: isinstance(v, dict), "a table ([constraints])", {}),
+           "monte_carlo": Key(lambda v: isinstance(v, dict), "a table ([monte_carlo])", {})},
+    "search": {"seed": Key(whole(0), "a whole number >= 0", 1),
+               "population": Key(whole(5), "a whole number >= 5", 12),
+               "max_evaluations": Key(whole(1), "a whole number >= 1", 400),
+               "polish_evaluations": Key(whole(0), "a whole number >= 0")},
     "constraints": {
-        "torque_noise_rms": _Key(lambda v: v == "base" or (_number(v) and v > 0) or
-                                 (_numbers(v, 4) and min(v) > 0),
+        "torque_noise_rms": Key(lambda v: v == "base" or (number(v) and v > 0) or
+                                 (numbers(v, 4) and min(v) > 0),
                                  '"base", a number > 0 or 4 numbers > 0 (N m, N m, N, N m)'),
-        "torque_limit": _Key(lambda v: (_number(v) and v > 0) or (_numbers(v, 4) and min(v) > 0),
+        "torque_limit": Key(lambda v: (number(v) and v > 0) or (numbers(v, 4) and min(v) > 0),
                              "a number > 0 or 4 numbers > 0 (N m, N m, N, N m)"),
-        "stability_margin": _Key(lambda v: _number(v) and v >= 0, "a number >= 0 (1/s)"),
-        "min_damping_ratio": _Key(lambda v: _number(v) and 0 <= v <= 10,
+        "stability_margin": Key(lambda v: number(v) and v >= 0, "a number >= 0 (1/s)"),
+        "min_damping_ratio": Key(lambda v: number(v) and 0 <= v <= 10,
                                   f"a number from 0 (not constrained) to 10 (default {DEFAULT_MIN_DAMPING})"),
-        "max_overshoot": _Key(lambda v: _number(v) and 0 < v < 1, "a fraction between 0 and 1 (0.05 = 5 %)"),
-        "min_observer_bandwidth_ratio": _Key(lambda v: _number(v) and v > 0, "a number > 0"),
-        "sensor_noise": _Key(lambda v: isinstance(v, dict), "a table {q_std = [...], dq_std = [...], sample_period}")},
+        "max_overshoot": Key(lambda v: number(v) and 0 < v < 1, "a fraction between 0 and 1 (0.05 = 5 %)"),
+        "min_observer_bandwidth_ratio": Key(lambda v: number(v) and v > 0, "a number > 0"),
+        "sensor_noise": Key(lambda v: isinstance(v, dict), "a table {q_std = [...], dq_std = [...], sample_period}")},
 }
 _NOISE_KEYS = ("q_std", "dq_std", "sample_period")
 
 
 def _read(table: dict, section: str | None, fail, skip: Callable[[str], bool] = lambda k: False) -> dict:
-    keys = _KEYS[section]
-    unknown = sorted(k for k in set(table) - set(keys) if not skip(k))
-    if unknown:
-        where = "at the top level" if section is None else f"in [{section}]"
-        extra = f" and the gains {list(TUNABLE)} with their bounds" if section == "search" else ""
-        fail(f"unknown key(s) {[k if section is None else f'{section}.{k}' for k in unknown]}; allowed {where}: "
-             f"{', '.join(keys)}{extra}")
-    out = {}
-    for key, spec in keys.items():
-        value = table.get(key, copy.deepcopy(spec.default))
-        if key in table and not spec.allows(value):
-            fail(f"'{key if section is None else f'{section}.{key}'}' must be {spec.expected}, got {value!r}")
-        out[key] = value
-    return out
+    """The keys of one table checked against :data:`_KEYS` (:func:`analysis.job_keys.read_table`)."""
+    also = f" and the gains {list(TUNABLE)} with their bounds" if section == "search" else ""
+    return read_table(table, _KEYS, section, fail, skip=skip, also=also)
 
 
 def tuning_from_dict(data: dict, source: str = "<dict>", folder: Path | None = None,
@@ -593,7 +564,7 @@ def _parameters(bounds: dict, fail) -> list[Parameter]:
         pairs = value if per_joint else [value]
         for j, pair in enumerate(pairs):
             where = f"{label}[{j}]" if per_joint else label
-            if not (isinstance(pair, list) and len(pair) == 2 and all(map(_number, pair))):
+            if not (isinstance(pair, list) and len(pair) == 2 and all(map(number, pair))):
                 fail(f"{where} must be bounds [low, high] (two numbers)"
                      + ("" if per_joint else ", or four of them [[low, high], ...] for one gain per joint")
                      + f", got {pair!r}")
@@ -618,9 +589,9 @@ def _limits(table: dict, base: Scenario, fail) -> Limits:
             fail(f"unknown key(s) {[f'constraints.sensor_noise.{k}' for k in unknown]}; allowed: "
                  f"{', '.join(_NOISE_KEYS)}")
         for k in ("q_std", "dq_std"):
-            if k in given and not (_numbers(given[k], 4) and min(given[k]) >= 0):
+            if k in given and not (numbers(given[k], 4) and min(given[k]) >= 0):
                 fail(f"'constraints.sensor_noise.{k}' must be 4 numbers >= 0, got {given[k]!r}")
-        if "sample_period" in given and not (_number(given["sample_period"]) and given["sample_period"] > 0):
+        if "sample_period" in given and not (number(given["sample_period"]) and given["sample_period"] > 0):
             fail(f"'constraints.sensor_noise.sample_period' must be a number > 0 (s), got {given['sample_period']!r}")
         noise.update(given)
     sensor = {"q_std": [float(v) for v in noise["q_std"]], "dq_std": [float(v) for v in noise["dq_std"]],
