@@ -17,7 +17,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["Key", "read_table", "whole", "number", "numbers", "text", "a_table"]
+__all__ = ["Key", "read_table", "read_top", "failing", "whole", "number", "numbers", "text", "a_table"]
 
 
 @dataclass(frozen=True)
@@ -82,3 +82,17 @@ def read_table(table: Mapping, keys: Mapping[str | None, Mapping[str, Key]], sec
             fail(f"'{key if section is None else f'{section}.{key}'}' must be {spec.expected}, got {value!r}")
         out[key] = value
     return out
+
+
+def failing(error: type[Exception], source: str):
+    """The ``fail`` of one file: raises ``error`` with the message after the file's name."""
+    def fail(message: str):
+        raise error(f"{source}: {message}")
+    return fail
+
+
+def read_top(data, keys: Mapping[str | None, Mapping[str, Key]], what: str, fail) -> dict:
+    """The top level of a job file (``data``, the parsed TOML) checked as :func:`read_table` checks a table."""
+    if not isinstance(data, dict):
+        fail(f"a {what} must be a table, got {type(data).__name__}")
+    return read_table(data, keys, None, fail)

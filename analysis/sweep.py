@@ -81,7 +81,7 @@ from blocks.progress import count_progress
 from blocks.scenario import Scenario, ScenarioError, load_scenario, parse_key
 
 from .job_files import json_default
-from .job_keys import Key, a_table, read_table, text, whole
+from .job_keys import Key, a_table, failing, read_table, read_top, text, whole
 
 __all__ = ["SweepError", "Distribution", "Run", "RunList", "RunPlan", "SweepSpec", "load_sweep", "sweep_from_dict",
            "split_changes", "json_default", "check_name", "HEADER_PARTS", "run_schedule", "DISTRIBUTIONS", "ENGINES",
@@ -392,13 +392,9 @@ def sweep_from_dict(data: dict, source: str = "<dict>", folder: Path | None = No
                     budget: Budget | None = None, progress=False) -> SweepSpec:
     """Validate a sweep given as a dictionary (the parsed TOML); see :func:`load_sweep`."""
 
-    def fail(msg: str):
-        raise SweepError(f"{source}: {msg}")
-
+    fail = failing(SweepError, source)
     budget = Budget.from_env() if budget is None else budget
-    if not isinstance(data, dict):
-        fail(f"a sweep must be a table, got {type(data).__name__}")
-    top = _read(data, None, fail)
+    top = read_top(data, _KEYS, "sweep", fail)
     name = top["name"]
     if name is None:
         name = Path(source).stem if source.endswith(".toml") else "sweep"

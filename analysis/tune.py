@@ -94,7 +94,7 @@ from blocks.batch import BATCH_KEYS
 from blocks.budget import Budget
 from blocks.scenario import Scenario, ScenarioError, load_scenario, parse_key
 
-from .job_keys import Key, number, numbers, read_table, whole
+from .job_keys import Key, failing, number, numbers, read_table, read_top, whole
 from .studies import DEFAULT_NOISE
 from .sweep import SweepError, check_name, json_default, split_changes, sweep_from_dict
 
@@ -451,13 +451,9 @@ def tuning_from_dict(data: dict, source: str = "<dict>", folder: Path | None = N
                      budget: Budget | None = None) -> TuneSpec:
     """Validate a tuning given as a dictionary (the parsed TOML); see :func:`load_tuning`."""
 
-    def fail(msg: str):
-        raise TuneError(f"{source}: {msg}")
-
+    fail = failing(TuneError, source)
     budget = Budget.from_env() if budget is None else budget
-    if not isinstance(data, dict):
-        fail(f"a tuning must be a table, got {type(data).__name__}")
-    top = _read(data, None, fail)
+    top = read_top(data, _KEYS, "tuning", fail)
     name = top["name"] if top["name"] is not None else (Path(source).stem if source.endswith(".toml") else source)
     try:
         check_name(name, "'name'" if top["name"] is not None else "the tuning file's name")
@@ -504,9 +500,7 @@ def with_evaluations(spec: TuneSpec, max_evaluations: int) -> TuneSpec:
     """
     if isinstance(max_evaluations, bool) or not isinstance(max_evaluations, int) or max_evaluations < 1:
         raise TuneError(f"max_evaluations must be a whole number >= 1, got {max_evaluations!r}")
-    def fail(msg: str):
-        raise TuneError(f"{spec.source}: {msg}")
-
+    fail = failing(TuneError, spec.source)
     _check_evaluations(max_evaluations, spec.polish_evaluations, spec.population, fail)
     return dataclasses.replace(spec, max_evaluations=max_evaluations)
 

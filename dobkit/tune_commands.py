@@ -10,12 +10,11 @@ and the same command resumes).
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 from blocks.budget import Budget, format_bytes
-from blocks.scenario import ScenarioError
-from dobkit.arguments import add_budget_flags, whole_number
+from dobkit.arguments import whole_number
+from dobkit.job_commands import add_job_flags, add_job_parser, run_job
 
 __all__ = ["add_tune_subcommand", "tune_command", "default_out_dir", "EXIT_INFEASIBLE"]
 
@@ -25,28 +24,27 @@ EXIT_INFEASIBLE = 3
 
 def add_tune_subcommand(subparsers) -> argparse.ArgumentParser:
     """Add ``tune`` to an ``argparse`` subparsers object; its handler is ``args.func`` (returns an exit code)."""
-    p = subparsers.add_parser(
-        "tune", help="tune Kp, Kd and the observer gain over a Monte Carlo set under constraints (resumable)",
+    p = add_job_parser(
+        subparsers, "tune", help="tune Kp, Kd and the observer gain over a Monte Carlo set under constraints "
+                                 "(resumable)",
         description="Choose the gains of a tuning file's [search] to minimise the worst or mean tool-tip error over "
-                    "a Monte Carlo set of mismatches and disturbances, under torque-noise, torque-limit and "
-                    "stability constraints: differential evolution, then a Nelder-Mead polish. Every evaluation "
-                    "goes to OUT/evaluations.jsonl as it finishes; the same command resumes a stopped tuning. "
-                    "Writes OUT/tune.json, the tuned scenario OUT/<scenario>-tuned.toml and figures.")
-    p.add_argument("tuning_file", help="tuning file (TOML; see analysis.tune) or a built-in name (paper-tune)")
+                    "a Monte Carlo set of mismatches and disturbances, under torque-noise, torque-limit, stability "
+                    "and damping constraints (the error dynamics' damping ratio >= 0.7 unless the file says "
+                    "otherwise): differential evolution, then a Nelder-Mead polish. Every evaluation goes to "
+                    "OUT/evaluations.jsonl as it finishes; the same command resumes a stopped tuning. Writes "
+                    "OUT/tune.json, the tuned scenario OUT/<scenario>-tuned.toml and figures.",
+        file="tuning_file", file_help="tuning file (TOML; see analysis.tune) or a built-in name (paper-tune)")
     p.add_argument("--out", help="output folder, which also holds the evaluation log (default: NAME-results beside "
                                  "the tuning file, or in the current folder for a built-in one)")
-    p.add_argument("--workers", type=whole_number("--workers"), help="threads of each batch (default: all cores)")
     p.add_argument("--max-evaluations", type=whole_number("--max-evaluations"),
                    help="objective evaluations in all (overrides search.max_evaluations; a larger number continues "
                         "a finished tuning)")
-    p.add_argument("--no-progress", action="store_true", help="no progress display")
-    p.add_argument("--check", action="store_true",
-                   help="validate the file, check that the linear constraints can be met, print the estimates, "
-                        "and stop")
-    p.add_argument("--restart", action="store_true",
-                   help="if the output folder's evaluation log holds another definition of the tuning, move it "
-                        "aside and start anew, instead of refusing")
-    add_budget_flags(p, "finished evaluations are kept when it runs out")
+    add_job_flags(p, workers="threads of each batch (default: all cores)",
+                  check="validate the file, check that the linear constraints can be met, print the estimates, "
+                        "and stop",
+                  restart="if the output folder's evaluation log holds another definition of the tuning, or cannot "
+                          "be used, move it aside and start anew, instead of refusing",
+                  seconds="finished evaluations are kept when it runs out")
     p.set_defaults(func=tune_command)
     return p
 
@@ -61,20 +59,8 @@ def default_out_dir(spec) -> Path:
 def tune_command(args: argparse.Namespace) -> int:
     """Handle ``dobkit tune``; see the module docstring for the exit status."""
     from analysis.tune import TuneError
-    from blocks.budget import BudgetError
 
-    state: dict = {}
-    try:
-        budget = Budget.from_env(memory=args.max_memory, steps=args.max_steps, seconds=args.max_seconds)
-        return _tune(args, budget, state)
-    except (TuneError, ScenarioError, BudgetError, ValueError) as err:
-        print(f"dobkit tune: {err}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        where = f" in {state['out']}" if "out" in state else ""
-        print(f"dobkit tune: interrupted; every finished evaluation is kept{where}, and the same command resumes",
-              file=sys.stderr)
-        return 130
+    return run_job("tune", args, _tune, (TuneError,), "evaluation", "out")
 
 
 def _tune(args: argparse.Namespace, budget: Budget, state: dict) -> int:
