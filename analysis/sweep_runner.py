@@ -27,6 +27,13 @@ One writer
     While a sweep runs, ``<results>.lock`` is locked (``flock``); a second
     ``run_sweep`` on the same file is refused with the first one's process id,
     host and start time.  The lock ends with the process, however it ends.
+Integrity
+    Every row carries a checksum of its contents; a row changed after it was
+    written is left out (its run is done again).  Two rows of one run that
+    differ in more than the time they took are refused, naming both lines and
+    the fields, and so are bytes that are not UTF-8 (file, line, and
+    ``--restart`` as the remedy).  The results file is a job log of
+    :mod:`analysis.job_files`, as the tuning's evaluation log is.
 """
 from __future__ import annotations
 

@@ -7,8 +7,9 @@
     result = run_tune(load_tuning("paper-tune"), "paper-tune-out")      # a TuneResult; files in the folder
 
 The search
-    1. The linear constraints (torque noise, stability margin) are checked on
-       a Latin hypercube sample of the bounds, then, if no sample meets them,
+    1. The linear constraints (torque noise, stability margin, damping, the
+       observer bandwidth ratio) are checked on a Latin hypercube sample of
+       the bounds, then, if no sample meets them,
        by a Nelder-Mead search for the smallest violation: when no gains within
        the bounds meet them, the tuning is refused before anything is simulated,
        naming the closest gains found and what they miss by.
@@ -36,13 +37,19 @@ The evaluation log (``evaluations.jsonl`` in the output folder)
     uninterrupted one.  A log of another definition is refused (``restart``
     moves it aside); only the name, description and evaluation budget may
     change (raising ``max_evaluations`` continues a finished tuning).  While a
-    tuning runs, ``evaluations.jsonl.lock`` keeps a second one out.
+    tuning runs, ``evaluations.jsonl.lock`` keeps a second one out.  Rows are
+    checksummed, and two rows of one candidate that differ are refused: the
+    log is a job log of :mod:`analysis.job_files`, as a sweep's results file is.
 
 Outputs (written when the search ends)
     ``tune.json`` (:class:`TuneResult`), the tuned scenario ``<scenario>-tuned.toml``
     (the base scenario with the tuned gains; ``dobkit simulate --scenario`` runs
     it, and evaluating it on the set gives the reported objective), and the
-    figures (:mod:`analysis.tune_report`).
+    figures (:mod:`analysis.tune_report`).  Every constraint is reported with
+    its margin (:meth:`analysis.tune_eval.Evaluator.margins`), and with a
+    damping constraint, what it costs: the tuned objective against the best
+    evaluation of the same search that meets every other constraint
+    (:func:`unconstrained_best`).
 """
 from __future__ import annotations
 
