@@ -316,49 +316,78 @@ class JobLog:
         except (_Undecodable, _Conflict) as err:
             raise self.kind.error(str(err)) from None
 
+    def _usable(self, number: int, text: str, problem, required: bool | None) -> tuple[dict | None, str, str]:
+        """A parsed row, its checksum and ``""``; or None, ``""`` and why it is not usable."""
+        try:
+            record = json.loads(text)
+        except json.JSONDecodeError as err:
+            return None, "", f"not JSON ({err.msg})"
+        if not isinstance(record, dict):
+            return None, "", "not a JSON object"
+        given, digest = record.get(_CHECKSUM_KEY), row_checksum(record)
+        if given is None and required:
+            return None, "", "no checksum (the log's header says its rows have one)"
+        if given is not None and given != digest:
+            return None, "", "its checksum does not match its contents (the line was changed after it was written)"
+        why = problem(record)
+        if not why and not isinstance(record.get(self.kind.id_key), str):
+            why = f"missing {self.kind.id_key}" if self.kind.id_key not in record else \
+                f"{self.kind.id_key} {record[self.kind.id_key]!r} is not text"
+        return (None, "", why) if why else (record, digest, "")
+
     def _rows(self, problem: Callable[[dict], str]) -> Iterator[dict]:
         self.problems, self.repeated = [], 0
         required = None
-        seen: dict[str, int] = {}                 # id -> hash of what a repeat must agree in
+        seen: dict[str, int] = {}                 # id -> its first row's checksum (as a number: less memory)
+        suspects: dict[int, str] = {}             # line -> id of repeats whose checksum differs from the first row's
         for number, text in self._lines():
             if not text.strip():
                 continue
-            try:
-                record = json.loads(text)
-            except json.JSONDecodeError as err:
-                self.problems.append(f"line {number}: not JSON ({err.msg})")
-                continue
-            if number == 1 and isinstance(record, dict) and isinstance(record.get(self.kind.header_key), dict):
-                required = record.get("row_checksum") == ROW_CHECKSUM
-                continue
-            why = "not a JSON object" if not isinstance(record, dict) else _checksum_problem(record, required)
-            why = why or problem(record)
-            if not why and not isinstance(record.get(self.kind.id_key), str):
-                why = f"missing {self.kind.id_key}" if self.kind.id_key not in record else \
-                    f"{self.kind.id_key} {record[self.kind.id_key]!r} is not text"
-            if why:
+            if number == 1:
+                line = _record(text)
+                if isinstance(line, dict) and isinstance(line.get(self.kind.header_key), dict):
+                    required = line.get("row_checksum") == ROW_CHECKSUM
+                    continue
+            record, digest, why = self._usable(number, text, problem, required)
+            if record is None:
                 self.problems.append(f"line {number}: {why}")
                 continue
-            work = record[self.kind.id_key]
-            stable = self._stable(record)
+            work, key = record[self.kind.id_key], int(digest, 16)
             if work in seen:
-                if seen[work] != stable:
-                    raise _Conflict(self._conflict(work, seen[work], number, record))
-                self.repeated += 1
+                if seen[work] == key:
+                    self.repeated += 1          # the same row again, to the letter
+                else:
+                    suspects[number] = work     # may differ in the time it took only: compared below
                 continue
-            seen[work] = stable
+            seen[work] = key
             record.pop(_CHECKSUM_KEY, None)
             yield record
+        if suspects:
+            self._compare(suspects, problem, required)
 
-    def _stable(self, record: dict) -> int:
-        """A hash of what two rows of one piece of work must agree in."""
-        return hash(_canonical({k: v for k, v in record.items() if k != _CHECKSUM_KEY and k not in self.kind.volatile}))
+    def _compare(self, suspects: dict[int, str], problem, required: bool | None) -> None:
+        """Count the suspect repeats that agree with their work's first row but for :attr:`LogKind.volatile`;
+        raise on the first that does not (one more pass over the file, keeping the first rows of those ids)."""
+        ids, first, strip, last = set(suspects.values()), {}, (_CHECKSUM_KEY,) + self.kind.volatile, max(suspects)
+        for number, text in self._lines():
+            if number > last:
+                break
+            if not text.strip() or _record_id(text, self.kind.id_key) not in ids:
+                continue
+            record, _, _ = self._usable(number, text, problem, required)
+            if record is None:
+                continue
+            work = record[self.kind.id_key]
+            if number not in suspects:
+                first.setdefault(work, (number, record))
+                continue
+            first_number, earlier = first[work]
+            if _differing(earlier, record, strip):
+                raise _Conflict(self._conflict(work, first_number, earlier, number, record))
+            self.repeated += 1
 
-    def _conflict(self, work: str, stable: int, number: int, record: dict) -> str:
-        """The message on two rows of one piece of work that differ (the first one found again by its hash)."""
-        first_number, first = next((n, r) for n, r in ((n, _record(t)) for n, t in self._lines() if n < number)
-                                   if isinstance(r, dict) and r.get(self.kind.id_key) == work
-                                   and self._stable(r) == stable)
+    def _conflict(self, work: str, first_number: int, first: dict, number: int, record: dict) -> str:
+        """The message on two rows of one piece of work that differ."""
         fields = [f"{name} {_short(a)} against {_short(b)}" for name, a, b in
                   _differing(first, record, (_CHECKSUM_KEY,) + self.kind.volatile)]
         k = self.kind
@@ -463,13 +492,9 @@ class LogWriter:
             cut_partial_last_line(self.path)          # an interrupted write may have left part of a line
 
 
-def _checksum_problem(record: dict, required: bool | None) -> str:
-    given = record.get(_CHECKSUM_KEY)
-    if given is None:
-        return "no checksum (the log's header says its rows have one)" if required else ""
-    if given != row_checksum(record):
-        return "its checksum does not match its contents (the line was changed after it was written)"
-    return ""
+def _record_id(text: str, id_key: str):
+    record = _record(text)
+    return record.get(id_key) if isinstance(record, dict) else None
 
 
 def _record(text: str):

@@ -234,10 +234,14 @@ def _damping_cost(result) -> str:
     if free is None or cost is None:
         return ""
     words = METRIC_WORDS.get(result.metric, result.metric)
-    return (f"Without the damping constraint, the best of this search's own evaluations reaches a {result.objective} "
-            f"{words} of {_fmt(free.objective)} mm with damping ratios {_fmt(free.damping_ratio, 3)} "
-            f"(gains {_fmt_gains(free.gains)}): the constraint costs {_fmt(cost)} mm. The search was steered by the "
-            "constraint, so the optimum without it may be lower still, and the cost larger.")
+    searched = result.unconstrained_from == "search"
+    how = "the same search run without it reaches" if searched else "the best of this search's own evaluations reaches"
+    note = "" if searched else (" The search was steered by the constraint, so the optimum without it may be lower "
+                                "still, and the cost larger (dobkit tune --compare-unconstrained runs the search "
+                                "without it).")
+    return (f"Without the damping constraint, {how} a {result.objective} {words} of {_fmt(free.objective)} mm with "
+            f"damping ratios {_fmt(free.damping_ratio, 3)} (gains {_fmt_gains(free.gains)}): the constraint costs "
+            f"{_fmt(cost)} mm.{note}")
 
 
 def _fmt_gains(gains: dict) -> str:

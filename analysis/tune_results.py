@@ -137,9 +137,11 @@ class TuneResult(JsonResult):
         The best evaluation of the same search that meets every constraint but the damping (or overshoot) one:
         what the search found without it.  None when the tuning has no damping constraint or no such evaluation.
     damping_cost : float or None
-        What the damping constraint costs: the tuned objective minus the unconstrained one (mm; >= 0).  The
-        search was steered by the constraint, so this is what its own evaluations show: the true optimum
-        without the constraint is as good or better, and the cost as large or larger.
+        What the damping constraint costs: the tuned objective minus the unconstrained one (mm; >= 0).
+    unconstrained_from : str or None
+        ``"evaluations"``: the best of the constrained search's own evaluations (the search was steered by the
+        constraint, so the optimum without it may be lower and the cost larger); ``"search"``: the answer of the
+        same search run without the constraint (``compare_unconstrained``).
     """
 
     name: str
@@ -166,6 +168,7 @@ class TuneResult(JsonResult):
     log_problems: list[str] = field(default_factory=list)
     unconstrained: PointResult | None = None
     damping_cost: float | None = None
+    unconstrained_from: str | None = None
 
 
 def read_result(folder):
