@@ -66,7 +66,7 @@ import json
 import math
 import re
 import tomllib
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -80,8 +80,11 @@ from blocks.metrics import OBSERVER_METRICS
 from blocks.progress import count_progress
 from blocks.scenario import Scenario, ScenarioError, load_scenario, parse_key
 
+from .job_files import json_default
+from .job_keys import Key, a_table, failing, read_table, read_top, text, whole
+
 __all__ = ["SweepError", "Distribution", "Run", "RunList", "RunPlan", "SweepSpec", "load_sweep", "sweep_from_dict",
-           "split_changes", "json_default", "check_name", "differences", "run_schedule", "DISTRIBUTIONS", "ENGINES",
+           "split_changes", "json_default", "check_name", "HEADER_PARTS", "run_schedule", "DISTRIBUTIONS", "ENGINES",
            "SWEEP_RUN_BYTES", "CHECK_PROGRESS_RUNS",
            "PRESENTATION_KEYS"]
 
@@ -316,13 +319,10 @@ class SweepSpec:
                           "worst_count": self.worst_count, "runs": len(self.runs)}}
 
 
-def differences(old: Mapping, new: Mapping) -> list[str]:
-    """The parts of two results-file headers that decide runs and rows and differ, in words."""
-    parts = {"scenario": "the base scenario", "scenario_values": "the base scenario's values",
-             "observer": "observer on/off", "engine": "the engine", "substeps": "batch.substeps", "grid": "[grid]",
-             "monte_carlo": "[monte_carlo]", "metrics": "outputs.metrics"}
-    return [words for key, words in parts.items() if json.dumps(old.get(key), sort_keys=True, default=json_default)
-            != json.dumps(new.get(key), sort_keys=True, default=json_default)]
+#: The results-file header entries that decide runs and rows, in words (see :func:`analysis.job_files.differences`).
+HEADER_PARTS = {"scenario": "the base scenario", "scenario_values": "the base scenario's values",
+                "observer": "observer on/off", "engine": "the engine", "substeps": "batch.substeps", "grid": "[grid]",
+                "monte_carlo": "[monte_carlo]", "metrics": "outputs.metrics"}
 
 
 # --------------------------------------------------------------------------------------------
@@ -360,77 +360,41 @@ def load_sweep(path: str | Path, budget: Budget | None = None, progress=False) -
     return sweep_from_dict(data, source=str(path), folder=path.parent, budget=budget, progress=progress)
 
 
-@dataclass(frozen=True)
-class _Key:
-    """One key of a sweep file: whether a value is allowed, what is (for the message), and its default."""
-
-    allows: Callable[[Any], bool]
-    expected: str
-    default: Any = None
-
-
-def _whole(minimum: int) -> Callable[[Any], bool]:
-    return lambda v: not isinstance(v, bool) and isinstance(v, int) and v >= minimum
-
-
-def _text(v) -> bool:
-    return isinstance(v, str)
-
-
-def _a_table(v) -> bool:
-    return isinstance(v, dict)
-
-
 #: The keys of a sweep file by table (None: the top level), with their checks and defaults.  Defaults
 #: of None are derived from other keys (name from the file name, metrics from ``observer``, ...).
-_KEYS: dict[str | None, dict[str, _Key]] = {
-    None: {"name": _Key(lambda v: isinstance(v, str) and bool(_NAME.fullmatch(v)),
+_KEYS: dict[str | None, dict[str, Key]] = {
+    None: {"name": Key(lambda v: isinstance(v, str) and bool(_NAME.fullmatch(v)),
                         "a plain file name (letters, digits and _ . + -, starting with a letter or digit, at most "
                         "100 characters; no folders)"),
-           "description": _Key(_text, "a string", ""),
-           "scenario": _Key(_text, "a built-in scenario name or a file path", "paper"),
-           "observer": _Key(lambda v: isinstance(v, bool), "true or false", True),
-           "engine": _Key(lambda v: v in ENGINES, f"one of {list(ENGINES)}", "batch"),
-           "grid": _Key(_a_table, "a table ([grid])", {}), "monte_carlo": _Key(_a_table, "a table ([monte_carlo])", {}),
-           "outputs": _Key(_a_table, "a table ([outputs])", {}), "batch": _Key(_a_table, "a table ([batch])", {})},
-    "monte_carlo": {"runs": _Key(_whole(1), "a whole number >= 1"), "seed": _Key(_whole(0), "a whole number >= 0", 0),
-                    "distributions": _Key(_a_table, "a table of distributions by scenario key", {})},
-    "outputs": {"metrics": _Key(lambda v: isinstance(v, list) and bool(v) and all(map(_text, v)),
+           "description": Key(text, "a string", ""),
+           "scenario": Key(text, "a built-in scenario name or a file path", "paper"),
+           "observer": Key(lambda v: isinstance(v, bool), "true or false", True),
+           "engine": Key(lambda v: v in ENGINES, f"one of {list(ENGINES)}", "batch"),
+           "grid": Key(a_table, "a table ([grid])", {}), "monte_carlo": Key(a_table, "a table ([monte_carlo])", {}),
+           "outputs": Key(a_table, "a table ([outputs])", {}), "batch": Key(a_table, "a table ([batch])", {})},
+    "monte_carlo": {"runs": Key(whole(1), "a whole number >= 1"), "seed": Key(whole(0), "a whole number >= 0", 0),
+                    "distributions": Key(a_table, "a table of distributions by scenario key", {})},
+    "outputs": {"metrics": Key(lambda v: isinstance(v, list) and bool(v) and all(map(text, v)),
                                 "a non-empty list of metric names"),
-                "worst_metric": _Key(_text, "one of the kept metric columns"),
-                "worst_count": _Key(_whole(1), "a whole number >= 1", 5)},
-    "batch": {"size": _Key(_whole(1), "a whole number >= 1", 250),
-              "substeps": _Key(lambda v: v == "auto" or _whole(1)(v), '"auto" or a whole number >= 1', "auto")},
+                "worst_metric": Key(text, "one of the kept metric columns"),
+                "worst_count": Key(whole(1), "a whole number >= 1", 5)},
+    "batch": {"size": Key(whole(1), "a whole number >= 1", 250),
+              "substeps": Key(lambda v: v == "auto" or whole(1)(v), '"auto" or a whole number >= 1', "auto")},
 }
 
 
 def _read(table: dict, section: str | None, fail) -> dict:
-    """The keys of one table checked against :data:`_KEYS`, defaults filled in."""
-    keys = _KEYS[section]
-    unknown = sorted(set(table) - set(keys))
-    if unknown:
-        fail(f"unknown key(s) {[k if section is None else f'{section}.{k}' for k in unknown]}; allowed "
-             f"{'at the top level' if section is None else f'in [{section}]'}: {', '.join(keys)}")
-    out = {}
-    for key, spec in keys.items():
-        value = table.get(key, copy.deepcopy(spec.default))
-        if key in table and not spec.allows(value):
-            fail(f"'{key if section is None else f'{section}.{key}'}' must be {spec.expected}, got {value!r}")
-        out[key] = value
-    return out
+    """The keys of one table checked against :data:`_KEYS`, defaults filled in (:func:`analysis.job_keys.read_table`)."""
+    return read_table(table, _KEYS, section, fail)
 
 
 def sweep_from_dict(data: dict, source: str = "<dict>", folder: Path | None = None,
                     budget: Budget | None = None, progress=False) -> SweepSpec:
     """Validate a sweep given as a dictionary (the parsed TOML); see :func:`load_sweep`."""
 
-    def fail(msg: str):
-        raise SweepError(f"{source}: {msg}")
-
+    fail = failing(SweepError, source)
     budget = Budget.from_env() if budget is None else budget
-    if not isinstance(data, dict):
-        fail(f"a sweep must be a table, got {type(data).__name__}")
-    top = _read(data, None, fail)
+    top = read_top(data, _KEYS, "sweep", fail)
     name = top["name"]
     if name is None:
         name = Path(source).stem if source.endswith(".toml") else "sweep"
@@ -598,15 +562,6 @@ def _distribution(spec, label: str, fail) -> Distribution:
             if not ok or sum(weights) <= 0:
                 fail(f"{label}: 'weights' must be {len(values)} numbers >= 0 with a positive sum, got {weights!r}")
     return Distribution(kind=kind, params=dict(params))
-
-
-def json_default(value):
-    """``json.dumps`` helper: numpy scalars and arrays as plain values."""
-    if isinstance(value, (np.floating, np.integer)):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"cannot write {value!r} as JSON")
 
 
 def split_changes(values: Mapping[str, Any]) -> tuple[dict, dict]:

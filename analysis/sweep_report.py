@@ -45,9 +45,10 @@ from blocks.joints import RRPR_JOINTS
 from blocks.metrics import DISTURBANCE_UNITS, JOINT_UNITS
 from blocks.parameters import RobotParameters
 
+from .job_files import differences
 from .report_html import template_environment
 from .results import JsonResult, plain
-from .sweep import SweepError, SweepSpec, differences
+from .sweep import HEADER_PARTS, SweepError, SweepSpec
 from .sweep_runner import ResultsFile, read_header
 
 __all__ = ["RunCounts", "ColumnStatistics", "WorstRun", "DivergedRun", "SweepFigure", "SweepSummary", "summarize",
@@ -363,7 +364,7 @@ def _load(results, spec: SweepSpec | None) -> tuple[_Table, str]:
     header = dict(header or {})
     if spec is not None:
         if header and header.get("definition") != spec.definition:
-            what = ", ".join(differences(header, spec.header()["sweep"])) or "the sweep definition"
+            what = ", ".join(differences(header, spec.header()["sweep"], HEADER_PARTS)) or "the sweep definition"
             raise SweepError(f"results file '{name or 'given'}' holds another definition of sweep "
                              f"'{header.get('name')}' ({what} differ(s)); its summary would not describe this sweep "
                              "file. Run the sweep (with --restart to move the old file aside) first")
@@ -378,10 +379,11 @@ def _load(results, spec: SweepSpec | None) -> tuple[_Table, str]:
                                      and spec.runs.run_id(row["index"]) == row["run_id"]):
             other += 1
             continue
-        if row["run_id"] in seen:
-            repeated += 1
-            continue
-        seen.add(row["run_id"])
+        if file is None:                     # a results file gives each run once (job_files.JobLog.rows)
+            if row["run_id"] in seen:
+                repeated += 1
+                continue
+            seen.add(row["run_id"])
         if row["status"] == "ok":
             table.add_ok(row, worst_metric, worst_count)
         else:
@@ -391,6 +393,7 @@ def _load(results, spec: SweepSpec | None) -> tuple[_Table, str]:
     del seen
     if file is not None:
         table.problems += file.problems
+        repeated += file.repeated
     if other:
         table.problems.append(f"{other} row(s) of runs that are not in this sweep were left out")
     if repeated:

@@ -27,18 +27,24 @@ One writer
     While a sweep runs, ``<results>.lock`` is locked (``flock``); a second
     ``run_sweep`` on the same file is refused with the first one's process id,
     host and start time.  The lock ends with the process, however it ends.
+Integrity
+    Every row carries a checksum of its contents; a row changed after it was
+    written is left out (its run is done again).  Two rows of one run that
+    differ in more than the time they took are refused, naming both lines and
+    the fields, and so are bytes that are not UTF-8 (file, line, and
+    ``--restart`` as the remedy).  The results file is a job log of
+    :mod:`analysis.job_files`, as the tuning's evaluation log is.
 """
 from __future__ import annotations
 
 import contextlib
 import itertools
-import json
 import math
 import os
 import signal
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -51,11 +57,11 @@ from blocks.progress import ProgressCallback, count_progress
 from blocks.scenario import Scenario, scenario_from_dict
 from blocks.workers import worker_pool
 
-from .job_files import cut_partial_last_line, exclusive_lock, move_aside, write_lines_atomically
-from .sweep import SweepError, SweepSpec, differences, json_default, load_sweep, run_schedule, split_changes
+from .job_files import JobLog, LogKind
+from .sweep import HEADER_PARTS, SweepError, SweepSpec, load_sweep, run_schedule, split_changes
 
 __all__ = ["run_sweep", "read_results", "read_header", "ResultsFile", "SweepOutcome", "simulate_chunk",
-           "results_lock", "ROW_STATUSES"]
+           "results_lock", "ROW_STATUSES", "RESULTS_LOG"]
 
 #: Statuses of a finished run.
 ROW_STATUSES = ("ok", "diverged")
@@ -88,9 +94,15 @@ def row_problem(record) -> str:
     return ""
 
 
-@dataclass
-class ResultsFile:
+#: The results file as a job log (:mod:`analysis.job_files`): its words, its header and its row ids.
+RESULTS_LOG = LogKind(header_key="sweep", id_key="run_id", error=SweepError, what="results file", job="sweep",
+                      elsewhere="another --results file", parts=HEADER_PARTS)
+
+
+class ResultsFile(JobLog):
     """A results file read line by line: its header, its usable rows, and the lines it could not use.
+
+    A :class:`analysis.job_files.JobLog` of :data:`RESULTS_LOG` (checksums, repeats, bytes that are not UTF-8).
 
     Attributes
     ----------
@@ -98,51 +110,28 @@ class ResultsFile:
         The sweep header (first line), None for a missing or empty file.
     problems : list of str
         One entry per line that is not a usable row (``"line 7: missing values"``).
+    repeated : int
+        Rows that repeat an earlier row of the same run with the same values (counted once).
     """
 
-    path: Path
-    header: dict | None = None
-    problems: list = field(default_factory=list)
+    def __init__(self, path: Path, header: dict | None = None) -> None:
+        super().__init__(Path(path), RESULTS_LOG)
+        self.header = header
 
-    def rows(self) -> Iterator[dict]:
-        """The usable run rows, in file order; a truncated last line (a killed writer) is not a row."""
-        self.problems = []
-        if not self.path.exists():
-            return
-        with self.path.open("r", encoding="utf-8") as fh:
-            for number, line in enumerate(fh, start=1):
-                if not line.endswith("\n"):
-                    break                      # cut off mid-write: that run was not finished
-                if not line.strip():
-                    continue
-                try:
-                    record = json.loads(line)
-                except json.JSONDecodeError as err:
-                    self.problems.append(f"line {number}: not JSON ({err.msg})")
-                    continue
-                if number == 1 and isinstance(record, dict) and "sweep" in record:
-                    continue
-                problem = row_problem(record)
-                if problem:
-                    self.problems.append(f"line {number}: {problem}")
-                    continue
-                yield record
+    def rows(self, problem=row_problem) -> Iterator[dict]:
+        """The usable run rows, in file order, each run once; a truncated last line (a killed writer) is not a row.
+
+        Raises
+        ------
+        SweepError
+            On two rows of one run with different values, or bytes that are not UTF-8 (file, line and remedy).
+        """
+        return super().rows(problem)
 
 
 def read_header(path: str | Path) -> dict | None:
     """The sweep header of a results file (its first line), or None when the file is missing or has none."""
-    path = Path(path)
-    if not path.exists():
-        return None
-    with path.open("r", encoding="utf-8") as fh:
-        first = fh.readline()
-    if not first.endswith("\n"):
-        return None
-    try:
-        record = json.loads(first)
-    except json.JSONDecodeError:
-        return None
-    return record["sweep"] if isinstance(record, dict) and isinstance(record.get("sweep"), dict) else None
+    return JobLog(Path(path), RESULTS_LOG).header()
 
 
 def read_results(path: str | Path) -> tuple[dict | None, list[dict]]:
@@ -151,9 +140,6 @@ def read_results(path: str | Path) -> tuple[dict | None, list[dict]]:
     return results.header, list(results.rows())
 
 
-# --------------------------------------------------------------------------------------------
-# Writing it: one writer at a time, whole lines only
-# --------------------------------------------------------------------------------------------
 def results_lock(results: Path):
     """Hold ``<results>.lock`` while the block runs (:func:`analysis.job_files.exclusive_lock`).
 
@@ -162,33 +148,7 @@ def results_lock(results: Path):
     SweepError
         When another process holds it; the message says which (process id, host, since when).
     """
-    return exclusive_lock(results, SweepError, "results file", "sweep", "another --results file")
-
-
-class _Writer:
-    """Appends rows to the results file, creating it (header first) with the first rows: a sweep that fails
-    before any run finishes leaves no file.  Every batch is written whole, flushed and synced."""
-
-    def __init__(self, path: Path, header: dict) -> None:
-        self.path, self.header, self.fh = path, header, None
-
-    def write(self, rows: Iterable[dict]) -> None:
-        text = "".join(json.dumps(r, default=json_default, allow_nan=False) + "\n" for r in rows)
-        if self.fh is None:
-            cut_partial_last_line(self.path)
-            new = not self.path.exists() or self.path.stat().st_size == 0
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self.fh = self.path.open("a", encoding="utf-8")
-            if new:
-                text = json.dumps(self.header, default=json_default) + "\n" + text
-        self.fh.write(text)
-        self.fh.flush()
-        os.fsync(self.fh.fileno())
-
-    def close(self) -> None:
-        if self.fh is not None:
-            self.fh.close()
-            cut_partial_last_line(self.path)          # an interrupted write may have left part of a line
+    return JobLog(Path(results), RESULTS_LOG).lock()
 
 
 def _strict(value):
@@ -336,39 +296,6 @@ def check_workers(workers) -> int:
     return int(workers)
 
 
-def _prepare(spec: SweepSpec, results: Path, restart: bool) -> Path | None:
-    """Make the results file the sweep's own: refuse (or, with ``restart``, move aside) a file of another
-    definition; rewrite the header when only the name or the worst-case settings changed.  Returns where an
-    old file was moved, if it was."""
-    header = read_header(results)
-    if header is None:
-        if results.exists() and results.stat().st_size > 0:
-            if not restart:
-                raise SweepError(f"results file '{results}' does not start with a sweep header, so it is not a "
-                                 "results file of this sweep; choose another --results file, or --restart to move it "
-                                 "aside and start anew")
-            return move_aside(results, "unknown")
-        return None
-    new = spec.header()["sweep"]
-    if header.get("definition") != spec.definition:
-        if restart:
-            return move_aside(results, str(header.get("definition") or "undefined"))
-        what = ", ".join(differences(header, new)) or "the sweep definition"
-        old = "written without a sweep definition (an older dobkit)" if "definition" not in header else \
-            f"of definition {header['definition']}"
-        raise SweepError(f"results file '{results}' belongs to sweep '{header.get('name')}' {old}, not to this "
-                         f"definition of sweep '{spec.name}' ({spec.definition}): {what} differ(s). Its rows would "
-                         "mix with this sweep's. Give this sweep another --results file, or --restart to move the "
-                         "old file aside and start anew")
-    if header != new:                 # the same runs; only how they are named or ranked changed
-        cut_partial_last_line(results)
-        with results.open("r", encoding="utf-8") as fh:
-            fh.readline()
-            write_lines_atomically(results, itertools.chain([json.dumps({"sweep": new}, default=json_default) + "\n"],
-                                                         fh))
-    return None
-
-
 def run_sweep(spec: SweepSpec | str | Path, results: str | Path, scheduler: str | None = None,
               workers: int | None = None, progress: bool | ProgressCallback = True,
               on_rows: Callable[[list[dict]], None] | None = None, restart: bool = False,
@@ -418,8 +345,9 @@ def run_sweep(spec: SweepSpec | str | Path, results: str | Path, scheduler: str 
     workers = check_workers(workers)
     results = Path(results)
     t0 = time.perf_counter()
-    with results_lock(results):
-        moved = _prepare(spec, results, restart)
+    log = ResultsFile(results)
+    with log.lock():
+        moved = log.prepare(spec.header()["sweep"], spec.name, restart)
         stored = ResultsFile(results, read_header(results))
         finished = {row["run_id"] for row in stored.rows()}
         pending = np.array([i for i in range(len(spec.runs)) if spec.runs.run_id(i) not in finished], dtype=np.int64)
@@ -433,7 +361,7 @@ def run_sweep(spec: SweepSpec | str | Path, results: str | Path, scheduler: str 
             return outcome
         # connect before writing anything: a failed connection leaves no results file
         client = _dask_client(scheduler, scheduler_timeout) if scheduler is not None else None
-        writer = _Writer(results, spec.header())
+        writer = log.writer(spec.header()["sweep"])
         bar = count_progress(progress, len(spec.runs), skipped, label="sweep")
 
         def take(new_rows: list[dict]) -> None:
@@ -470,23 +398,24 @@ def run_sweep(spec: SweepSpec | str | Path, results: str | Path, scheduler: str 
 
 
 @contextlib.contextmanager
-def _sigint_ignored():
-    """Worker processes started here inherit 'ignore Ctrl-C': the terminal sends it to the whole process
-    group, and the process that started them handles it (ends them, keeps whole rows, says one line)."""
+def _sigint_held():
+    """Worker processes started here inherit a blocked Ctrl-C: the terminal sends it to the whole process
+    group, and the process that started them handles it (ends them, keeps whole rows, says one line).
+    Blocked, not ignored: a Ctrl-C that arrives while a worker starts reaches this process right after."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def _run_processes(payloads: Iterator[dict], workers: int, take) -> None:
     pool = worker_pool(workers)
     try:
-        with _sigint_ignored():
+        with _sigint_held():
             running = {pool.submit(_chunk_in_worker, p) for p in itertools.islice(payloads, workers)}
         while running:            # keep at most one batch per worker in flight: memory stays bounded
             done, running = wait(running, return_when=FIRST_COMPLETED)
@@ -494,16 +423,25 @@ def _run_processes(payloads: Iterator[dict], workers: int, take) -> None:
                 take(fut.result())
                 nxt = next(payloads, None)
                 if nxt is not None:
-                    with _sigint_ignored():
+                    with _sigint_held():
                         running.add(pool.submit(_chunk_in_worker, nxt))
     except BaseException:
-        # interrupted or failed: end the workers now rather than wait for their batches
-        for process in list((getattr(pool, "_processes", None) or {}).values()):
-            with contextlib.suppress(Exception):
-                process.terminate()
-        pool.shutdown(wait=False, cancel_futures=True)
+        _end_now(pool)
         raise
     pool.shutdown(wait=True)
+
+
+def _end_now(pool) -> None:
+    """End an interrupted or failed pool now rather than wait for its batches: its workers terminated, then
+    its threads joined, so that nothing is left for the interpreter's exit to wait on (where another Ctrl-C
+    would print a concurrent.futures traceback)."""
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        with contextlib.suppress(Exception):
+            process.terminate()
+    try:
+        pool.shutdown(wait=True, cancel_futures=True)
+    except BaseException:         # noqa: BLE001 -- a second Ctrl-C while the threads end: the first one is reported
+        pool.shutdown(wait=False, cancel_futures=True)
 
 
 def _dask():

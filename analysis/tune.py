@@ -22,6 +22,9 @@ over a Monte Carlo set of mismatches and disturbances, and the constraints::
     torque_noise_rms = "base"    # N m (N): a number, 4 numbers, or "base": the base scenario's gains' own noise
     torque_limit = 40            # N m (N): a number or 4; peak |tau| over every run of the set
     stability_margin = 0.5       # 1/s: the linearized loop's poles have real parts <= -margin
+    min_damping_ratio = 0.7      # of the error dynamics, every joint (default 0.7; 0: not constrained) ...
+    max_overshoot = 0.05         # ... or instead the largest overshoot of a step (a fraction: 0.05 = 5 %)
+    min_observer_bandwidth_ratio = 0.5   # slowest observer mode / tracking bandwidth (default: not constrained)
     sensor_noise = {q_std = [2e-4, 2e-4, 2e-5, 2e-4], dq_std = [5e-3, 5e-3, 5e-4, 5e-3], sample_period = 0.001}
                                  # default: the scenario's [noise], else analysis.studies.DEFAULT_NOISE
 
@@ -51,7 +54,22 @@ Constraints (:mod:`analysis.tune_linear` for the linear ones)
     models and every member of the set (true and nominal inertia), is at most
     ``-margin``.  *Torque limit*: the peak ``|tau|`` per joint on the output
     grid of every run of the set.  The linear constraints cost milliseconds and
-    are checked first: a candidate that fails them is not simulated.
+    are checked first: a candidate that fails the torque noise or the stability
+    margin is not simulated.
+    *Damping*: the error dynamics ``e'' + Kd e' + Kp e = 0`` of each joint
+    (paper-notes, Eq. 9-11) has the damping ratio ``zeta = kd / (2 sqrt(kp))``;
+    every joint's must be at least ``min_damping_ratio`` (default
+    :data:`DEFAULT_MIN_DAMPING`: a well-damped response, about 4.6 % overshoot).
+    ``max_overshoot`` states it as the step's overshoot instead,
+    ``exp(-pi zeta / sqrt(1 - zeta^2))`` (0 for ``zeta >= 1``).  Candidates that
+    miss only this are simulated all the same, so that the search's own log
+    tells what the constraint costs (the best evaluation that meets every other
+    constraint: :attr:`analysis.tune_results.TuneResult.unconstrained`).
+    *Observer bandwidth ratio*: the slowest mode of the observer, the smallest
+    eigenvalue of ``Y M^-1(q)`` with the base nominal inertia at the stability
+    configurations (rad/s, :mod:`analysis.bandwidth`), over the tracking
+    bandwidth, the largest natural frequency ``sqrt(kp)`` of the error dynamics
+    (rad/s), is at least ``min_observer_bandwidth_ratio``.
 
 Everything is validated when the file is read, before anything runs; errors
 name the key.  Running a tuning: :mod:`analysis.tune_runner`.
@@ -76,12 +94,14 @@ from blocks.batch import BATCH_KEYS
 from blocks.budget import Budget
 from blocks.scenario import Scenario, ScenarioError, load_scenario, parse_key
 
+from .job_keys import Key, failing, number, numbers, read_table, read_top, whole
 from .studies import DEFAULT_NOISE
 from .sweep import SweepError, check_name, json_default, split_changes, sweep_from_dict
 
 __all__ = ["TuneError", "Parameter", "Limits", "TuneSpec", "load_tuning", "tuning_from_dict", "builtin_tunings",
-           "with_evaluations", "differences",
-           "TUNABLE", "OBJECTIVES", "TUNE_METRICS", "METRIC_WORDS", "SIGNIFICANT_DIGITS", "STABILITY_CONFIGURATIONS"]
+           "with_evaluations", "HEADER_PARTS",
+           "TUNABLE", "OBJECTIVES", "TUNE_METRICS", "METRIC_WORDS", "SIGNIFICANT_DIGITS", "STABILITY_CONFIGURATIONS",
+           "DEFAULT_MIN_DAMPING", "damping_ratios", "overshoots", "damping_for_overshoot"]
 
 #: The gains a tuning may search.
 TUNABLE = ("gains.kp", "gains.kd", "gains.observer")
@@ -96,6 +116,8 @@ METRIC_WORDS = {"rms_tool_position_error_mm": "RMS tool-tip error",
 SIGNIFICANT_DIGITS = 6
 #: Configurations along the path at which the stability margin is checked (equally spaced in time).
 STABILITY_CONFIGURATIONS = 5
+#: The damping ratio of the error dynamics every joint must reach unless the tuning file says otherwise.
+DEFAULT_MIN_DAMPING = 0.7
 _GAIN_UNITS = {"gains.kp": "1/s^2", "gains.kd": "1/s", "gains.observer": "kg m^2/s"}
 
 
@@ -162,6 +184,14 @@ class Limits:
         1/s.
     sensor_noise : dict
         ``q_std``, ``dq_std`` (4 numbers each) and ``sample_period`` (s) of the torque-noise constraint.
+    min_damping_ratio : float or None
+        Of the error dynamics, every joint (module docstring); None with ``max_overshoot`` or when switched off.
+    damping_from : str
+        ``"default"`` (:data:`DEFAULT_MIN_DAMPING`), ``"given"``, ``"overshoot"`` or ``"off"``.
+    max_overshoot : float or None
+        Largest step overshoot of the error dynamics, a fraction.
+    min_observer_bandwidth_ratio : float or None
+        Slowest observer mode over the tracking bandwidth.
     """
 
     torque_noise_rms: np.ndarray | None
@@ -169,12 +199,39 @@ class Limits:
     torque_limit: np.ndarray | None
     stability_margin: float | None
     sensor_noise: dict
+    min_damping_ratio: float | None = None
+    damping_from: str = "off"
+    max_overshoot: float | None = None
+    min_observer_bandwidth_ratio: float | None = None
 
     def as_dict(self) -> dict:
         return {"torque_noise_rms": None if self.torque_noise_rms is None else self.torque_noise_rms.tolist(),
                 "torque_noise_from": self.torque_noise_from,
                 "torque_limit": None if self.torque_limit is None else self.torque_limit.tolist(),
-                "stability_margin": self.stability_margin, "sensor_noise": self.sensor_noise}
+                "stability_margin": self.stability_margin, "sensor_noise": self.sensor_noise,
+                "min_damping_ratio": self.min_damping_ratio, "damping_from": self.damping_from,
+                "max_overshoot": self.max_overshoot,
+                "min_observer_bandwidth_ratio": self.min_observer_bandwidth_ratio}
+
+
+def damping_ratios(kp, kd) -> np.ndarray:
+    """``zeta = kd / (2 sqrt(kp))`` per joint of ``e'' + kd e' + kp e = 0`` (kp 1/s^2, kd 1/s; scalars or 4)."""
+    kp = np.broadcast_to(np.asarray(kp, dtype=float), (4,))
+    kd = np.broadcast_to(np.asarray(kd, dtype=float), (4,))
+    return kd / (2.0 * np.sqrt(kp))
+
+
+def overshoots(zeta) -> np.ndarray:
+    """Step overshoot (a fraction) of a second-order system of damping ratio ``zeta``: 0 when ``zeta >= 1``."""
+    z = np.minimum(np.asarray(zeta, dtype=float), 1.0)
+    with np.errstate(divide="ignore"):
+        return np.where(z < 1.0, np.exp(-np.pi * z / np.sqrt(1.0 - z * z)), 0.0)
+
+
+def damping_for_overshoot(overshoot: float) -> float:
+    """The damping ratio whose step overshoot is ``overshoot`` (0 < overshoot < 1): the inverse of :func:`overshoots`."""
+    a = -math.log(overshoot)
+    return a / math.sqrt(math.pi ** 2 + a * a)
 
 
 @dataclass
@@ -302,15 +359,11 @@ class TuneSpec:
                 "monte_carlo": self.draws, "set": _hash(self.records)}
 
 
-def differences(old: dict, new: dict) -> list[str]:
-    """The parts of two log headers that decide evaluations and differ, in words."""
-    parts = {"scenario": "the base scenario", "scenario_values": "the base scenario's values",
-             "objective": "objective", "metric": "metric", "search": "the [search] bounds", "seed": "search.seed",
-             "population": "search.population", "constraints": "[constraints]", "monte_carlo": "[monte_carlo]",
-             "set": "the Monte Carlo set"}
-    return [words for key, words in parts.items()
-            if json.dumps(old.get(key), sort_keys=True, default=json_default)
-            != json.dumps(new.get(key), sort_keys=True, default=json_default)]
+#: The evaluation-log header entries that decide evaluations, in words (:func:`analysis.job_files.differences`).
+HEADER_PARTS = {"scenario": "the base scenario", "scenario_values": "the base scenario's values",
+                "objective": "objective", "metric": "metric", "search": "the [search] bounds", "seed": "search.seed",
+                "population": "search.population", "constraints": "[constraints]", "monte_carlo": "[monte_carlo]",
+                "set": "the Monte Carlo set"}
 
 
 def _hash(value) -> str:
@@ -358,79 +411,49 @@ def load_tuning(name_or_path: str | Path, budget: Budget | None = None) -> TuneS
     return tuning_from_dict(data, source=source, folder=folder, budget=budget)
 
 
-@dataclass(frozen=True)
-class _Key:
-    allows: Callable[[Any], bool]
-    expected: str
-    default: Any = None
-
-
-def _whole(minimum: int) -> Callable[[Any], bool]:
-    return lambda v: not isinstance(v, bool) and isinstance(v, int) and v >= minimum
-
-
-def _number(v) -> bool:
-    return not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
-
-
-def _numbers(v, n: int) -> bool:
-    return isinstance(v, list) and len(v) == n and all(map(_number, v))
-
-
 #: The settings of a tuning file by table (None: the top level); gain bounds in [search] are checked apart.
-_KEYS: dict[str | None, dict[str, _Key]] = {
-    None: {"name": _Key(lambda v: isinstance(v, str), "a plain file name"),
-           "description": _Key(lambda v: isinstance(v, str), "a string", ""),
-           "scenario": _Key(lambda v: isinstance(v, str), "a built-in scenario name or a file path", "paper"),
-           "objective": _Key(lambda v: v in OBJECTIVES, f"one of {list(OBJECTIVES)}", "worst"),
-           "metric": _Key(lambda v: v in TUNE_METRICS, f"one of {list(TUNE_METRICS)}", TUNE_METRICS[0]),
-           "search": _Key(lambda v: isinstance(v, dict), "a table ([search])", {}),
-           "constraints": _Key(lambda v: isinstance(v, dict), "a table ([constraints])", {}),
-           "monte_carlo": _Key(lambda v: isinstance(v, dict), "a table ([monte_carlo])", {})},
-    "search": {"seed": _Key(_whole(0), "a whole number >= 0", 1),
-               "population": _Key(_whole(5), "a whole number >= 5", 12),
-               "max_evaluations": _Key(_whole(1), "a whole number >= 1", 400),
-               "polish_evaluations": _Key(_whole(0), "a whole number >= 0")},
+_KEYS: dict[str | None, dict[str, Key]] = {
+    None: {"name": Key(lambda v: isinstance(v, str), "a plain file name"),
+           "description": Key(lambda v: isinstance(v, str), "a string", ""),
+           "scenario": Key(lambda v: isinstance(v, str), "a built-in scenario name or a file path", "paper"),
+           "objective": Key(lambda v: v in OBJECTIVES, f"one of {list(OBJECTIVES)}", "worst"),
+           "metric": Key(lambda v: v in TUNE_METRICS, f"one of {list(TUNE_METRICS)}", TUNE_METRICS[0]),
+           "search": Key(lambda v: isinstance(v, dict), "a table ([search])", {}),
+           "constraints": Key(lambda v: isinstance(v, dict), "a table ([constraints])", {}),
+           "monte_carlo": Key(lambda v: isinstance(v, dict), "a table ([monte_carlo])", {})},
+    "search": {"seed": Key(whole(0), "a whole number >= 0", 1),
+               "population": Key(whole(5), "a whole number >= 5", 12),
+               "max_evaluations": Key(whole(1), "a whole number >= 1", 400),
+               "polish_evaluations": Key(whole(0), "a whole number >= 0")},
     "constraints": {
-        "torque_noise_rms": _Key(lambda v: v == "base" or (_number(v) and v > 0) or
-                                 (_numbers(v, 4) and min(v) > 0),
+        "torque_noise_rms": Key(lambda v: v == "base" or (number(v) and v > 0) or
+                                 (numbers(v, 4) and min(v) > 0),
                                  '"base", a number > 0 or 4 numbers > 0 (N m, N m, N, N m)'),
-        "torque_limit": _Key(lambda v: (_number(v) and v > 0) or (_numbers(v, 4) and min(v) > 0),
+        "torque_limit": Key(lambda v: (number(v) and v > 0) or (numbers(v, 4) and min(v) > 0),
                              "a number > 0 or 4 numbers > 0 (N m, N m, N, N m)"),
-        "stability_margin": _Key(lambda v: _number(v) and v >= 0, "a number >= 0 (1/s)"),
-        "sensor_noise": _Key(lambda v: isinstance(v, dict), "a table {q_std = [...], dq_std = [...], sample_period}")},
+        "stability_margin": Key(lambda v: number(v) and v >= 0, "a number >= 0 (1/s)"),
+        "min_damping_ratio": Key(lambda v: number(v) and 0 <= v <= 10,
+                                  f"a number from 0 (not constrained) to 10 (default {DEFAULT_MIN_DAMPING})"),
+        "max_overshoot": Key(lambda v: number(v) and 0 < v < 1, "a fraction between 0 and 1 (0.05 = 5 %)"),
+        "min_observer_bandwidth_ratio": Key(lambda v: number(v) and v > 0, "a number > 0"),
+        "sensor_noise": Key(lambda v: isinstance(v, dict), "a table {q_std = [...], dq_std = [...], sample_period}")},
 }
 _NOISE_KEYS = ("q_std", "dq_std", "sample_period")
 
 
 def _read(table: dict, section: str | None, fail, skip: Callable[[str], bool] = lambda k: False) -> dict:
-    keys = _KEYS[section]
-    unknown = sorted(k for k in set(table) - set(keys) if not skip(k))
-    if unknown:
-        where = "at the top level" if section is None else f"in [{section}]"
-        extra = f" and the gains {list(TUNABLE)} with their bounds" if section == "search" else ""
-        fail(f"unknown key(s) {[k if section is None else f'{section}.{k}' for k in unknown]}; allowed {where}: "
-             f"{', '.join(keys)}{extra}")
-    out = {}
-    for key, spec in keys.items():
-        value = table.get(key, copy.deepcopy(spec.default))
-        if key in table and not spec.allows(value):
-            fail(f"'{key if section is None else f'{section}.{key}'}' must be {spec.expected}, got {value!r}")
-        out[key] = value
-    return out
+    """The keys of one table checked against :data:`_KEYS` (:func:`analysis.job_keys.read_table`)."""
+    also = f" and the gains {list(TUNABLE)} with their bounds" if section == "search" else ""
+    return read_table(table, _KEYS, section, fail, skip=skip, also=also)
 
 
 def tuning_from_dict(data: dict, source: str = "<dict>", folder: Path | None = None,
                      budget: Budget | None = None) -> TuneSpec:
     """Validate a tuning given as a dictionary (the parsed TOML); see :func:`load_tuning`."""
 
-    def fail(msg: str):
-        raise TuneError(f"{source}: {msg}")
-
+    fail = failing(TuneError, source)
     budget = Budget.from_env() if budget is None else budget
-    if not isinstance(data, dict):
-        fail(f"a tuning must be a table, got {type(data).__name__}")
-    top = _read(data, None, fail)
+    top = read_top(data, _KEYS, "tuning", fail)
     name = top["name"] if top["name"] is not None else (Path(source).stem if source.endswith(".toml") else source)
     try:
         check_name(name, "'name'" if top["name"] is not None else "the tuning file's name")
@@ -477,9 +500,7 @@ def with_evaluations(spec: TuneSpec, max_evaluations: int) -> TuneSpec:
     """
     if isinstance(max_evaluations, bool) or not isinstance(max_evaluations, int) or max_evaluations < 1:
         raise TuneError(f"max_evaluations must be a whole number >= 1, got {max_evaluations!r}")
-    def fail(msg: str):
-        raise TuneError(f"{spec.source}: {msg}")
-
+    fail = failing(TuneError, spec.source)
     _check_evaluations(max_evaluations, spec.polish_evaluations, spec.population, fail)
     return dataclasses.replace(spec, max_evaluations=max_evaluations)
 
@@ -537,7 +558,7 @@ def _parameters(bounds: dict, fail) -> list[Parameter]:
         pairs = value if per_joint else [value]
         for j, pair in enumerate(pairs):
             where = f"{label}[{j}]" if per_joint else label
-            if not (isinstance(pair, list) and len(pair) == 2 and all(map(_number, pair))):
+            if not (isinstance(pair, list) and len(pair) == 2 and all(map(number, pair))):
                 fail(f"{where} must be bounds [low, high] (two numbers)"
                      + ("" if per_joint else ", or four of them [[low, high], ...] for one gain per joint")
                      + f", got {pair!r}")
@@ -562,9 +583,9 @@ def _limits(table: dict, base: Scenario, fail) -> Limits:
             fail(f"unknown key(s) {[f'constraints.sensor_noise.{k}' for k in unknown]}; allowed: "
                  f"{', '.join(_NOISE_KEYS)}")
         for k in ("q_std", "dq_std"):
-            if k in given and not (_numbers(given[k], 4) and min(given[k]) >= 0):
+            if k in given and not (numbers(given[k], 4) and min(given[k]) >= 0):
                 fail(f"'constraints.sensor_noise.{k}' must be 4 numbers >= 0, got {given[k]!r}")
-        if "sample_period" in given and not (_number(given["sample_period"]) and given["sample_period"] > 0):
+        if "sample_period" in given and not (number(given["sample_period"]) and given["sample_period"] > 0):
             fail(f"'constraints.sensor_noise.sample_period' must be a number > 0 (s), got {given['sample_period']!r}")
         noise.update(given)
     sensor = {"q_std": [float(v) for v in noise["q_std"]], "dq_std": [float(v) for v in noise["dq_std"]],
@@ -585,6 +606,19 @@ def _limits(table: dict, base: Scenario, fail) -> Limits:
         if not np.all(np.isfinite(budget)):
             fail("'constraints.torque_noise_rms' = \"base\": the base scenario's own gains do not give a stable "
                  "held loop, so they set no torque-noise budget; give numbers (N m)")
+    if table["max_overshoot"] is not None and table["min_damping_ratio"] is not None:
+        fail(f"'constraints.min_damping_ratio' ({table['min_damping_ratio']!r}) and 'constraints.max_overshoot' "
+             f"({table['max_overshoot']!r}) state one constraint twice; give one of them")
+    if table["max_overshoot"] is not None:
+        damping, damping_from = None, "overshoot"
+    elif table["min_damping_ratio"] is None:
+        damping, damping_from = DEFAULT_MIN_DAMPING, "default"
+    else:
+        damping = float(table["min_damping_ratio"]) or None
+        damping_from = "given" if damping else "off"
+    ratio = table["min_observer_bandwidth_ratio"]
     return Limits(torque_noise_rms=vector(budget), torque_noise_from=source, torque_limit=vector(table["torque_limit"]),
                   stability_margin=None if table["stability_margin"] is None else float(table["stability_margin"]),
-                  sensor_noise=sensor)
+                  sensor_noise=sensor, min_damping_ratio=damping, damping_from=damping_from,
+                  max_overshoot=None if table["max_overshoot"] is None else float(table["max_overshoot"]),
+                  min_observer_bandwidth_ratio=None if ratio is None else float(ratio))

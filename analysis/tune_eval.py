@@ -6,7 +6,11 @@ gains) through :func:`blocks.batch.simulate_batch`; the objective is the worst
 or the mean of the metric over the runs, and the peak ``|tau|`` per joint over
 every run's output grid is kept for the torque limit.  Before that, the linear
 constraints (torque noise, stability margin; :mod:`analysis.tune_linear`) are
-computed in milliseconds; a candidate that fails them is not simulated.
+computed in milliseconds; a candidate that fails the torque noise, the
+stability margin or the observer bandwidth ratio (:data:`SIMULATION_GATES`) is
+not simulated.  One that misses only the damping (or overshoot) constraint is
+simulated all the same and ranked infeasible: the log then holds what the
+search found without that constraint, and the result can say what it costs.
 
 Step sizes
     Each candidate's runs are integrated with the RK4 step its own gains need
@@ -20,7 +24,15 @@ Ranking (what the search minimises, :attr:`Evaluation.energy`)
     ``INFEASIBLE * (1 + total violation)``: worse than every feasible one, and
     among infeasible ones the smaller violation wins.  Violations are relative
     (``noise / budget - 1``, ``peak / limit - 1``) except the stability margin's
-    (``abscissa + margin``, 1/s); a diverged run adds 1 plus the diverged fraction.
+    (``abscissa + margin``, 1/s) and the damping's (``zeta_min / min zeta - 1``);
+a diverged run adds 1 plus the diverged fraction.
+
+Margins (:meth:`Evaluator.margins`, what ``tune.json`` reports per constraint; < 0: missed)
+    ``torque_noise_rms``, ``torque_limit``: the smallest ``1 - value / limit`` over
+    the joints (a fraction of the budget left); ``stability_margin``:
+    ``-abscissa - margin`` (1/s); ``min_damping_ratio``: ``min zeta - zeta_min``;
+    ``max_overshoot``: ``limit - largest overshoot``; ``min_observer_bandwidth_ratio``:
+    ``ratio - minimum``.
 """
 from __future__ import annotations
 
@@ -38,10 +50,11 @@ from blocks.batch.schedule import rates_by_source
 from blocks.budget import Budget, BudgetError, Estimate, estimate_batch, largest_batch
 
 from .sweep import json_default, run_schedule
-from .tune import TuneSpec
+from .tune import TuneSpec, damping_ratios, overshoots
 from .tune_linear import inertia_pairs, spectral_abscissas, torque_noise_rms
 
-__all__ = ["Evaluation", "Evaluator", "evaluation_estimate", "gains_key", "INFEASIBLE", "MAX_CANDIDATES_PER_BATCH"]
+__all__ = ["Evaluation", "Evaluator", "evaluation_estimate", "gains_key", "INFEASIBLE", "MAX_CANDIDATES_PER_BATCH",
+           "SIMULATION_GATES", "DAMPING_CONSTRAINTS"]
 
 #: The score of an infeasible candidate starts here (mm; far above any tracking error).
 INFEASIBLE = 1e9
@@ -49,6 +62,10 @@ INFEASIBLE = 1e9
 _VIOLATION_CAP = 1e6
 #: Candidates simulated in one batch at most (fewer when the memory budget asks for it).
 MAX_CANDIDATES_PER_BATCH = 16
+#: Linear constraints whose failure spares a candidate its simulation.
+SIMULATION_GATES = ("torque_noise_rms", "stability_margin", "min_observer_bandwidth_ratio")
+#: The damping constraint, as a minimum ratio or a maximum overshoot (its cost is reported).
+DAMPING_CONSTRAINTS = ("min_damping_ratio", "max_overshoot")
 
 
 def gains_key(gains: dict) -> str:
@@ -68,6 +85,10 @@ class Evaluation:
         Linear torque noise per joint (N m, N m, N, N m).
     spectral_abscissa : float
         Largest real part of the linearized loop's poles over configurations and models (1/s).
+    damping_ratio : numpy.ndarray
+        Of the error dynamics per joint, ``kd / (2 sqrt(kp))``.
+    bandwidth_ratio : float
+        Slowest observer mode over the tracking bandwidth (:mod:`analysis.tune`).
     simulated : bool
         False when the linear constraints failed and the set was not run.
     values : numpy.ndarray or None
@@ -94,6 +115,8 @@ class Evaluation:
     gains: dict
     torque_noise_rms: np.ndarray
     spectral_abscissa: float
+    damping_ratio: np.ndarray = field(default_factory=lambda: np.full(4, np.nan))
+    bandwidth_ratio: float = math.nan
     simulated: bool = False
     values: np.ndarray | None = None
     peak_torque: np.ndarray | None = None
@@ -158,6 +181,7 @@ class Evaluator:
         robots, nominals = [base.robot] + members.robots, [base.nominal] + members.nominals
         self._M, self._M_nominal = inertia_pairs(spec.configurations, robots, nominals)
         self._hold = (inertia(spec.hold, base.robot), inertia(spec.hold, base.nominal))
+        self._M_observer = inertia(spec.configurations, base.nominal)       # the base model along the path
 
     # -- the linear constraints ------------------------------------------------------------------
     def linear(self, gains: dict) -> tuple[np.ndarray, float]:
@@ -171,13 +195,49 @@ class Evaluator:
         rms = torque_noise_rms(*self._hold, kp, kd, Y, noise["q_std"], noise["dq_std"], noise["sample_period"])
         return rms, abscissa
 
-    def linear_violations(self, noise: np.ndarray, abscissa: float) -> dict:
+    def design(self, gains: dict) -> tuple[np.ndarray, float]:
+        """Damping ratio of the error dynamics per joint, and the observer bandwidth ratio, of a candidate."""
+        s = self.spec.base
+        kp = np.broadcast_to(np.asarray(gains.get("gains.kp", np.diag(s.kp)), dtype=float), (4,))
+        kd = gains.get("gains.kd", np.diag(s.kd))
+        Y = np.asarray(gains.get("gains.observer", s.observer_gain), dtype=float)
+        Y = Y * np.eye(4) if Y.ndim == 0 else (np.diag(Y) if Y.ndim == 1 else Y)
+        slowest = float(np.linalg.eigvals(Y @ np.linalg.inv(self._M_observer)).real.min())
+        return damping_ratios(kp, kd), slowest / float(np.sqrt(kp.max()))
+
+    def linear_violations(self, noise: np.ndarray, abscissa: float, zeta=None, ratio: float | None = None) -> dict:
+        """The linear constraints' violations (0: met); the damping and ratio ones when ``zeta``, ``ratio`` given."""
         limits = self.spec.limits
         out = {}
         if limits.torque_noise_rms is not None:
             out["torque_noise_rms"] = _relative_excess(noise, limits.torque_noise_rms)
         if limits.stability_margin is not None:
             out["stability_margin"] = min(_VIOLATION_CAP, max(0.0, abscissa + limits.stability_margin))
+        if zeta is not None and limits.min_damping_ratio is not None:
+            out["min_damping_ratio"] = min(_VIOLATION_CAP, max(0.0, limits.min_damping_ratio / float(np.min(zeta))
+                                                              - 1.0))
+        if zeta is not None and limits.max_overshoot is not None:
+            out["max_overshoot"] = _relative_excess(overshoots(zeta), np.full(4, limits.max_overshoot))
+        if ratio is not None and limits.min_observer_bandwidth_ratio is not None:
+            out["min_observer_bandwidth_ratio"] = min(_VIOLATION_CAP, max(
+                0.0, limits.min_observer_bandwidth_ratio / ratio - 1.0 if ratio > 0 else _VIOLATION_CAP))
+        return out
+
+    def margins(self, ev: Evaluation) -> dict:
+        """Per constraint, by how much the evaluation meets it (< 0: missed; module docstring)."""
+        limits, out = self.spec.limits, {}
+        if limits.torque_noise_rms is not None:
+            out["torque_noise_rms"] = float(np.min(1.0 - ev.torque_noise_rms / limits.torque_noise_rms))
+        if limits.torque_limit is not None and ev.peak_torque is not None:
+            out["torque_limit"] = float(np.min(1.0 - ev.peak_torque / limits.torque_limit))
+        if limits.stability_margin is not None:
+            out["stability_margin"] = float(-ev.spectral_abscissa - limits.stability_margin)
+        if limits.min_damping_ratio is not None:
+            out["min_damping_ratio"] = float(np.min(ev.damping_ratio) - limits.min_damping_ratio)
+        if limits.max_overshoot is not None:
+            out["max_overshoot"] = float(limits.max_overshoot - np.max(overshoots(ev.damping_ratio)))
+        if limits.min_observer_bandwidth_ratio is not None:
+            out["min_observer_bandwidth_ratio"] = float(ev.bandwidth_ratio - limits.min_observer_bandwidth_ratio)
         return out
 
     # -- evaluations -------------------------------------------------------------------------------
@@ -189,7 +249,7 @@ class Evaluator:
         for ev in out:
             if ev.simulated or ev.key in pending:
                 continue
-            if force or all(v == 0 for v in ev.violations.values()):
+            if force or all(ev.violations.get(k, 0) == 0 for k in SIMULATION_GATES):
                 row = self.log_rows.get(ev.key)
                 if row is not None:
                     self._take_row(ev, row)
@@ -210,14 +270,17 @@ class Evaluator:
         known = self._known.get(key)
         if known is not None:
             ev = Evaluation(gains=gains, torque_noise_rms=known.torque_noise_rms,
-                            spectral_abscissa=known.spectral_abscissa, phase=phase)
-            ev.violations = self.linear_violations(ev.torque_noise_rms, ev.spectral_abscissa)
+                            spectral_abscissa=known.spectral_abscissa, damping_ratio=known.damping_ratio,
+                            bandwidth_ratio=known.bandwidth_ratio, phase=phase)
             if known.simulated:
                 self._copy(known, ev)
-            return ev
-        noise, abscissa = self.linear(gains)
-        ev = Evaluation(gains=gains, torque_noise_rms=noise, spectral_abscissa=abscissa, phase=phase)
-        ev.violations = self.linear_violations(noise, abscissa)
+        else:
+            noise, abscissa = self.linear(gains)
+            zeta, ratio = self.design(gains)
+            ev = Evaluation(gains=gains, torque_noise_rms=noise, spectral_abscissa=abscissa, damping_ratio=zeta,
+                            bandwidth_ratio=ratio, phase=phase)
+        ev.violations = self.linear_violations(ev.torque_noise_rms, ev.spectral_abscissa, ev.damping_ratio,
+                                               ev.bandwidth_ratio)
         return ev
 
     @staticmethod

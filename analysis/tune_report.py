@@ -28,7 +28,7 @@ import numpy as np
 from blocks.joints import RRPR_JOINTS
 
 from .report_html import template_environment
-from .tune import METRIC_WORDS
+from .tune import METRIC_WORDS, overshoots
 from .tune_results import read_result
 
 __all__ = ["write_figures", "html_section", "read_result", "FIGURES"]
@@ -182,19 +182,70 @@ def _gain_rows(result) -> list[list[str]]:
     return rows
 
 
+def _margin(result, key: str) -> str:
+    """The tuned gains' margin on one constraint, in its unit (analysis.tune_eval, "Margins")."""
+    value = result.tuned.margins.get(key)
+    if value is None:
+        return "-"
+    if key in ("torque_noise_rms", "torque_limit"):
+        return f"{100 * value:+.3g} % of the limit"
+    if key == "max_overshoot":
+        return f"{100 * value:+.3g} % points"
+    return f"{value:+.3g}" + (" 1/s" if key == "stability_margin" else "")
+
+
 def _constraint_rows(result) -> list[list[str]]:
     limits, rows = result.limits, []
     if limits.get("torque_noise_rms") is not None:
         source = " (the base gains' own)" if limits.get("torque_noise_from") == "base" else ""
         rows.append(["torque noise RMS [N m, N m, N, N m]", _fmt(limits["torque_noise_rms"]) + source,
-                     _fmt(result.base.torque_noise_rms), _fmt(result.tuned.torque_noise_rms)])
+                     _fmt(result.base.torque_noise_rms), _fmt(result.tuned.torque_noise_rms),
+                     _margin(result, "torque_noise_rms")])
     if limits.get("torque_limit") is not None:
         rows.append(["peak |torque| [N m, N m, N, N m]", _fmt(limits["torque_limit"]), _fmt(result.base.peak_torque),
-                     _fmt(result.tuned.peak_torque)])
+                     _fmt(result.tuned.peak_torque), _margin(result, "torque_limit")])
     margin = limits.get("stability_margin")
     rows.append(["slowest pole, real part [1/s]", "-" if margin is None else f"<= {_fmt(-margin)}",
-                 _fmt(result.base.spectral_abscissa), _fmt(result.tuned.spectral_abscissa)])
+                 _fmt(result.base.spectral_abscissa), _fmt(result.tuned.spectral_abscissa),
+                 _margin(result, "stability_margin")])
+    if result.tuned.damping_ratio:
+        minimum, overshoot = limits.get("min_damping_ratio"), limits.get("max_overshoot")
+        bound = (f">= {_fmt(minimum)}" + (" (default)" if limits.get("damping_from") == "default" else "")
+                 if minimum is not None else "-")
+        rows.append(["damping ratio of the error dynamics, kd / (2 sqrt(kp)), per joint", bound,
+                     _fmt(result.base.damping_ratio, 3), _fmt(result.tuned.damping_ratio, 3),
+                     _margin(result, "min_damping_ratio")])
+        if overshoot is not None:
+            rows.append(["step overshoot of the error dynamics [%]", f"<= {_fmt(100 * overshoot)}",
+                         _fmt([100 * v for v in overshoots(result.base.damping_ratio)], 3),
+                         _fmt([100 * v for v in overshoots(result.tuned.damping_ratio)], 3),
+                         _margin(result, "max_overshoot")])
+    ratio = limits.get("min_observer_bandwidth_ratio")
+    if ratio is not None:
+        rows.append(["slowest observer mode / tracking bandwidth", f">= {_fmt(ratio)}",
+                     _fmt(result.base.bandwidth_ratio), _fmt(result.tuned.bandwidth_ratio),
+                     _margin(result, "min_observer_bandwidth_ratio")])
     return rows
+
+
+def _damping_cost(result) -> str:
+    """One sentence on what the damping constraint costs (empty without one)."""
+    free, cost = result.unconstrained, result.damping_cost
+    if free is None or cost is None:
+        return ""
+    words = METRIC_WORDS.get(result.metric, result.metric)
+    searched = result.unconstrained_from == "search"
+    how = "the same search run without it reaches" if searched else "the best of this search's own evaluations reaches"
+    note = "" if searched else (" The search was steered by the constraint, so the optimum without it may be lower "
+                                "still, and the cost larger (dobkit tune --compare-unconstrained runs the search "
+                                "without it).")
+    return (f"Without the damping constraint, {how} a {result.objective} {words} of {_fmt(free.objective)} mm with "
+            f"damping ratios {_fmt(free.damping_ratio, 3)} (gains {_fmt_gains(free.gains)}): the constraint costs "
+            f"{_fmt(cost)} mm.{note}")
+
+
+def _fmt_gains(gains: dict) -> str:
+    return ", ".join(f"{k} = {_fmt(v, 6)}" for k, v in gains.items())
 
 
 def html_section(folder) -> str:
@@ -214,5 +265,5 @@ def html_section(folder) -> str:
             "constraint_rows": _constraint_rows(result),
             "base_objective": _fmt(result.base.objective), "tuned_objective": _fmt(result.tuned.objective),
             "base_nominal": _fmt(result.base.nominal), "tuned_nominal": _fmt(result.tuned.nominal),
-            "evaluations": result.evaluations}
+            "evaluations": result.evaluations, "damping_cost": _damping_cost(result)}
     return template_environment().get_template("tune_section.html").render(v=view, figures=figures)

@@ -44,6 +44,12 @@ class PointResult(JsonResult):
     feasible : bool
     diverged : int
         Runs of the set that diverged.
+    damping_ratio : list of float
+        Of the error dynamics ``e'' + kd e' + kp e = 0`` per joint, ``kd / (2 sqrt(kp))``.
+    bandwidth_ratio : float or None
+        Slowest observer mode over the tracking bandwidth (:mod:`analysis.tune`).
+    margins : dict of str to float
+        Per constraint, by how much it is met (< 0: missed; :mod:`analysis.tune_eval` says in what unit).
     """
 
     gains: dict
@@ -58,6 +64,9 @@ class PointResult(JsonResult):
     violations: dict[str, float]
     feasible: bool
     diverged: int
+    damping_ratio: list[float] = field(default_factory=list)
+    bandwidth_ratio: float | None = None
+    margins: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -124,6 +133,15 @@ class TuneResult(JsonResult):
     figures : list of TuneFigure
     log_problems : list of str
         Lines of the evaluation log that were not usable (their candidates were simulated again).
+    unconstrained : PointResult or None
+        The best evaluation of the same search that meets every constraint but the damping (or overshoot) one:
+        what the search found without it.  None when the tuning has no damping constraint or no such evaluation.
+    damping_cost : float or None
+        What the damping constraint costs: the tuned objective minus the unconstrained one (mm; >= 0).
+    unconstrained_from : str or None
+        ``"evaluations"``: the best of the constrained search's own evaluations (the search was steered by the
+        constraint, so the optimum without it may be lower and the cost larger); ``"search"``: the answer of the
+        same search run without the constraint (``compare_unconstrained``).
     """
 
     name: str
@@ -148,6 +166,9 @@ class TuneResult(JsonResult):
     scenario_file: str
     figures: list[TuneFigure] = field(default_factory=list)
     log_problems: list[str] = field(default_factory=list)
+    unconstrained: PointResult | None = None
+    damping_cost: float | None = None
+    unconstrained_from: str | None = None
 
 
 def read_result(folder):

@@ -7,8 +7,9 @@
     result = run_tune(load_tuning("paper-tune"), "paper-tune-out")      # a TuneResult; files in the folder
 
 The search
-    1. The linear constraints (torque noise, stability margin) are checked on
-       a Latin hypercube sample of the bounds, then, if no sample meets them,
+    1. The linear constraints (torque noise, stability margin, damping, the
+       observer bandwidth ratio) are checked on a Latin hypercube sample of
+       the bounds, then, if no sample meets them,
        by a Nelder-Mead search for the smallest violation: when no gains within
        the bounds meet them, the tuning is refused before anything is simulated,
        naming the closest gains found and what they miss by.
@@ -36,19 +37,24 @@ The evaluation log (``evaluations.jsonl`` in the output folder)
     uninterrupted one.  A log of another definition is refused (``restart``
     moves it aside); only the name, description and evaluation budget may
     change (raising ``max_evaluations`` continues a finished tuning).  While a
-    tuning runs, ``evaluations.jsonl.lock`` keeps a second one out.
+    tuning runs, ``evaluations.jsonl.lock`` keeps a second one out.  Rows are
+    checksummed, and two rows of one candidate that differ are refused: the
+    log is a job log of :mod:`analysis.job_files`, as a sweep's results file is.
 
 Outputs (written when the search ends)
     ``tune.json`` (:class:`TuneResult`), the tuned scenario ``<scenario>-tuned.toml``
     (the base scenario with the tuned gains; ``dobkit simulate --scenario`` runs
     it, and evaluating it on the set gives the reported objective), and the
-    figures (:mod:`analysis.tune_report`).
+    figures (:mod:`analysis.tune_report`).  Every constraint is reported with
+    its margin (:meth:`analysis.tune_eval.Evaluator.margins`), and with a
+    damping constraint, what it costs: the tuned objective against the best
+    evaluation of the same search that meets every other constraint
+    (:func:`unconstrained_best`).
 """
 from __future__ import annotations
 
 import contextlib
 import dataclasses
-import json
 import math
 import os
 import time
@@ -62,14 +68,13 @@ from blocks.batch import simulate_batch
 from blocks.budget import Budget
 from blocks.progress import ProgressCallback, StageProgress
 
-from .job_files import cut_partial_last_line, exclusive_lock, move_aside, write_lines_atomically
-from .sweep import json_default
-from .tune import METRIC_WORDS, TuneError, TuneSpec, differences, load_tuning
-from .tune_eval import Evaluation, Evaluator, check_seconds, evaluation_estimate, gains_key
+from .job_files import JobLog, LogKind, write_lines_atomically
+from .tune import HEADER_PARTS, METRIC_WORDS, TuneError, TuneSpec, damping_for_overshoot, load_tuning
+from .tune_eval import DAMPING_CONSTRAINTS, Evaluation, Evaluator, check_seconds, evaluation_estimate, gains_key
 from .tune_results import RESULT_NAME, PointResult, TuneFigure, TuneHistory, TuneResult
 
 __all__ = ["run_tune", "TuneResult", "PointResult", "TuneHistory", "TuneFigure", "read_log", "LOG_NAME",
-           "RESULT_NAME", "FEASIBILITY_SAMPLES", "DE_TOL"]
+           "RESULT_NAME", "FEASIBILITY_SAMPLES", "DE_TOL", "EVALUATION_LOG"]
 
 LOG_NAME = "evaluations.jsonl"
 #: Points of the bounds at which the linear constraints are tried before the search.
@@ -85,92 +90,34 @@ _FEASIBILITY_POLISH = 400
 # The evaluation log
 # --------------------------------------------------------------------------------------------
 _ROW_KEYS = ("key", "gains", "values", "peak_torque", "diverged", "substeps", "seconds")
+#: The evaluation log as a job log (:mod:`analysis.job_files`): its words, its header and its row ids.
+EVALUATION_LOG = LogKind(header_key="tune", id_key="key", error=TuneError, what="evaluation log", job="tuning",
+                         elsewhere="another --out folder", parts=HEADER_PARTS, volatile=("seconds", "phase"))
+
+
+def _row_problem(record: dict) -> str:
+    missing = [k for k in _ROW_KEYS if k not in record]
+    if missing:
+        return f"missing {', '.join(missing)}"
+    if record["key"] != gains_key(record["gains"]):
+        return "its key does not match its gains"
+    return ""
 
 
 def read_log(path: str | Path) -> tuple[dict | None, dict, list[str]]:
     """The header, the rows by candidate key, and the unusable lines of an evaluation log.
 
-    A last line cut off by a kill is not a row (that candidate is simulated again).
+    A last line cut off by a kill is not a row (that candidate is simulated again); checksums, repeats and
+    bytes that are not UTF-8 as :class:`analysis.job_files.JobLog` reads them.
+
+    Raises
+    ------
+    TuneError
+        On two rows of one candidate with different values, or bytes that are not UTF-8.
     """
-    path = Path(path)
-    header, rows, problems = None, {}, []
-    if not path.exists():
-        return None, rows, problems
-    with path.open("r", encoding="utf-8") as fh:
-        for number, line in enumerate(fh, start=1):
-            if not line.endswith("\n"):
-                break
-            if not line.strip():
-                continue
-            try:
-                record = json.loads(line)
-            except json.JSONDecodeError as err:
-                problems.append(f"line {number}: not JSON ({err.msg})")
-                continue
-            if number == 1 and isinstance(record, dict) and isinstance(record.get("tune"), dict):
-                header = record["tune"]
-                continue
-            missing = [k for k in _ROW_KEYS if not isinstance(record, dict) or k not in record]
-            if missing:
-                problems.append(f"line {number}: missing {', '.join(missing)}")
-                continue
-            if record["key"] != gains_key(record["gains"]):
-                problems.append(f"line {number}: its key does not match its gains")
-                continue
-            rows[record["key"]] = record
-    return header, rows, problems
-
-
-def _prepare_log(spec: TuneSpec, log: Path, restart: bool) -> Path | None:
-    """Make the log the tuning's own: refuse (or with ``restart`` move aside) one of another definition; rewrite
-    the header when only the name, description or budget changed.  Returns where an old log was moved."""
-    header, _, _ = read_log(log)
-    if header is None:
-        if log.exists() and log.stat().st_size > 0:
-            if not restart:
-                raise TuneError(f"evaluation log '{log}' does not start with a tuning header, so it is not a log of "
-                                "this tuning; choose another --out folder, or --restart to move it aside")
-            return move_aside(log, "unknown")
-        return None
-    new = spec.header()["tune"]
-    if header.get("definition") != spec.definition:
-        if restart:
-            return move_aside(log, str(header.get("definition") or "undefined"))
-        what = ", ".join(differences(header, new)) or "the tuning definition"
-        raise TuneError(f"evaluation log '{log}' belongs to tuning '{header.get('name')}' of definition "
-                        f"{header.get('definition')}, not to this definition of '{spec.name}' ({spec.definition}): "
-                        f"{what} differ(s). Its evaluations would mix with this tuning's. Give this tuning another "
-                        "--out folder, or --restart to move the old log aside and start anew")
-    if header != new:
-        cut_partial_last_line(log)
-        with log.open("r", encoding="utf-8") as fh:
-            fh.readline()
-            rest = fh.readlines()
-        write_lines_atomically(log, [json.dumps({"tune": new}, default=json_default) + "\n"] + rest)
-    return None
-
-
-class _LogWriter:
-    """Appends rows to the log (header first when new); every batch written whole, flushed and synced."""
-
-    def __init__(self, path: Path, header: dict) -> None:
-        self.path, self.header, self.fh = path, header, None
-
-    def write(self, rows: list[dict]) -> None:
-        text = "".join(json.dumps(r, default=json_default, allow_nan=False) + "\n" for r in rows)
-        if self.fh is None:
-            cut_partial_last_line(self.path)
-            if not self.path.exists() or self.path.stat().st_size == 0:
-                text = json.dumps(self.header, default=json_default) + "\n" + text
-            self.fh = self.path.open("a", encoding="utf-8")
-        self.fh.write(text)
-        self.fh.flush()
-        os.fsync(self.fh.fileno())
-
-    def close(self) -> None:
-        if self.fh is not None:
-            self.fh.close()
-            cut_partial_last_line(self.path)
+    log = JobLog(Path(path), EVALUATION_LOG)
+    rows = {row["key"]: row for row in log.rows(_row_problem)}
+    return log.header(), rows, list(log.problems)
 
 
 # --------------------------------------------------------------------------------------------
@@ -184,13 +131,17 @@ def check_linear_feasibility(spec: TuneSpec, evaluator: Evaluator) -> None:
     TuneError
         Naming the closest gains found and what they miss by.
     """
-    if spec.limits.torque_noise_rms is None and spec.limits.stability_margin is None:
+    limits = spec.limits
+    if all(v is None for v in (limits.torque_noise_rms, limits.stability_margin, limits.min_damping_ratio,
+                                limits.max_overshoot, limits.min_observer_bandwidth_ratio)):
         return
     n = len(spec.parameters)
 
+    def violations(gains) -> dict:
+        return evaluator.linear_violations(*evaluator.linear(gains), *evaluator.design(gains))
+
     def violation(u) -> float:
-        noise, abscissa = evaluator.linear(spec.gains(u))
-        return float(sum(evaluator.linear_violations(noise, abscissa).values()))
+        return float(sum(violations(spec.gains(u)).values()))
 
     sample = qmc.LatinHypercube(d=n, rng=np.random.default_rng(spec.seed)).random(FEASIBILITY_SAMPLES)
     extra = [np.zeros(n), np.ones(n)] + ([spec.base_point()] if spec.base_point() is not None else [])
@@ -208,7 +159,9 @@ def check_linear_feasibility(spec: TuneSpec, evaluator: Evaluator) -> None:
     u = found.x if found.fun < best_v else best_u
     gains = spec.gains(u)
     noise, abscissa = evaluator.linear(gains)
-    limits, misses = spec.limits, []
+    zeta, ratio = evaluator.design(gains)
+    missed = violations(gains)
+    misses = []
     if limits.torque_noise_rms is not None and np.any(noise > limits.torque_noise_rms):
         j = int(np.argmax(noise / limits.torque_noise_rms))
         misses.append(f"torque noise {np.round(noise, 4).tolist()} against the budget "
@@ -217,9 +170,17 @@ def check_linear_feasibility(spec: TuneSpec, evaluator: Evaluator) -> None:
     if limits.stability_margin is not None and abscissa > -limits.stability_margin:
         misses.append(f"slowest pole at {abscissa:.4g} 1/s, not <= -{limits.stability_margin:g} 1/s "
                       "(constraints.stability_margin)")
+    if missed.get("min_damping_ratio", 0) > 0 or missed.get("max_overshoot", 0) > 0:
+        what = (f">= {limits.min_damping_ratio:g} (constraints.min_damping_ratio)" if limits.min_damping_ratio
+                is not None else f">= {damping_for_overshoot(limits.max_overshoot):.3g} (constraints.max_overshoot = "
+                f"{limits.max_overshoot:g})")
+        misses.append(f"damping ratios {np.round(zeta, 3).tolist()}, not all {what}")
+    if missed.get("min_observer_bandwidth_ratio", 0) > 0:
+        misses.append(f"observer bandwidth ratio {ratio:.3g}, not >= {limits.min_observer_bandwidth_ratio:g} "
+                      "(constraints.min_observer_bandwidth_ratio)")
     raise TuneError(f"{spec.source}: the constraints cannot be met within the [search] bounds: no gains found among "
-                    f"{FEASIBILITY_SAMPLES + len(extra)} sampled and {found.nfev} searched meet the torque-noise and "
-                    f"stability constraints. The closest, {_describe(gains)}, has " + "; ".join(misses)
+                    f"{FEASIBILITY_SAMPLES + len(extra)} sampled and {found.nfev} searched meet the linear "
+                    f"constraints ({', '.join(missed)}). The closest, {_describe(gains)}, has " + "; ".join(misses)
                     + ". Widen the bounds or loosen [constraints]; nothing was simulated")
 
 
@@ -234,7 +195,7 @@ def _describe(gains: dict) -> str:
 # --------------------------------------------------------------------------------------------
 def run_tune(spec: TuneSpec | str | Path, out_dir: str | Path, workers: int | None = None,
              progress: bool | ProgressCallback = True, restart: bool = False, budget: Budget | None = None,
-             engine: str = "auto", figures: bool = True) -> TuneResult:
+             engine: str = "auto", figures: bool = True, compare_unconstrained: bool = False) -> TuneResult:
     """Tune the gains (see the module docstring) and write the results into ``out_dir``.
 
     Parameters
@@ -256,6 +217,10 @@ def run_tune(spec: TuneSpec | str | Path, out_dir: str | Path, workers: int | No
         :func:`blocks.batch.simulate_batch`'s engine.
     figures : bool
         Write the figures.
+    compare_unconstrained : bool
+        With a damping (or overshoot) constraint: after the search, run the same search without it (its
+        evaluations go to the same log) and measure the constraint's cost against that search's answer,
+        rather than against the best of the constrained search's own evaluations.  About doubles the time.
 
     Returns
     -------
@@ -287,17 +252,20 @@ def run_tune(spec: TuneSpec | str | Path, out_dir: str | Path, workers: int | No
             evaluator = Evaluator(spec, workers=workers, engine=engine)
             check_linear_feasibility(spec, evaluator)
             out.mkdir(parents=True, exist_ok=True)
-            log = out / LOG_NAME
-            stack.enter_context(exclusive_lock(log, TuneError, "evaluation log", "tuning", "another --out folder"))
-            _prepare_log(spec, log, restart)
-            _, rows, problems = read_log(log)
-            writer = _LogWriter(log, spec.header())
+            log = JobLog(out / LOG_NAME, EVALUATION_LOG)
+            stack.enter_context(log.lock())
+            log.prepare(spec.header()["tune"], spec.name, restart)
+            _, rows, problems = read_log(log.path)
+            writer = log.writer(spec.header()["tune"])
             stack.callback(writer.close)
             search = _Search(spec, evaluator, report, budget, started)
             evaluator.log_rows, evaluator.record = rows, writer.write
             evaluator.after_batch = search.after_batch
             result = search.run()
-            result = _finish(spec, evaluator, search, result, out, started, figures, report, problems)
+            free = None
+            if compare_unconstrained and _damping_constrained(spec):
+                free = _search_without_damping(spec, evaluator, log.path, writer, report, budget, started)
+            result = _finish(spec, evaluator, search, result, out, started, figures, report, problems, free)
     finally:
         if display is not None:
             display.close()
@@ -369,7 +337,7 @@ class _Search:
 # --------------------------------------------------------------------------------------------
 # The outputs
 # --------------------------------------------------------------------------------------------
-def _point(ev: Evaluation, nominal: float | None) -> PointResult:
+def _point(ev: Evaluation, nominal: float | None, evaluator: Evaluator) -> PointResult:
     values = ev.values if ev.values is not None else None
     finite = values[np.isfinite(values)] if values is not None else np.array([])
     fin = lambda v: float(v) if v is not None and math.isfinite(v) else None              # noqa: E731
@@ -380,7 +348,18 @@ def _point(ev: Evaluation, nominal: float | None) -> PointResult:
         torque_noise_rms=[float(v) for v in ev.torque_noise_rms],
         peak_torque=None if ev.peak_torque is None else [float(v) for v in ev.peak_torque],
         spectral_abscissa=float(ev.spectral_abscissa), violations=dict(ev.violations), feasible=bool(ev.feasible),
-        diverged=int(ev.diverged))
+        diverged=int(ev.diverged), damping_ratio=[float(v) for v in ev.damping_ratio],
+        bandwidth_ratio=fin(ev.bandwidth_ratio), margins=evaluator.margins(ev))
+
+
+def unconstrained_best(evaluator: Evaluator) -> Evaluation | None:
+    """The best simulated evaluation that meets every constraint but the damping (or overshoot) one, or None."""
+    limits = evaluator.spec.limits
+    if limits.min_damping_ratio is None and limits.max_overshoot is None:
+        return None
+    pool = [e for e in evaluator.history if e.simulated and math.isfinite(e.objective)
+            and all(v == 0 for k, v in e.violations.items() if k not in DAMPING_CONSTRAINTS)]
+    return min(pool, key=lambda e: e.objective, default=None)
 
 
 def tuned_scenario(spec: TuneSpec, gains: dict, feasible: bool, objective: float | None):
@@ -401,20 +380,49 @@ def nominal_metric(scenario, metric: str, workers: int = 1, engine: str = "auto"
     return value if math.isfinite(value) else None
 
 
+def _damping_constrained(spec: TuneSpec) -> bool:
+    return spec.limits.min_damping_ratio is not None or spec.limits.max_overshoot is not None
+
+
+def _search_without_damping(spec: TuneSpec, evaluator: Evaluator, log: Path, writer, report, budget: Budget,
+                            started: float) -> tuple[Evaluation, int]:
+    """The same search without the damping constraint: its answer and the candidates it simulated.  An
+    evaluation's row does not depend on the constraints, so the two searches share the log's rows."""
+    limits = dataclasses.replace(spec.limits, min_damping_ratio=None, max_overshoot=None, damping_from="off")
+    free_spec = dataclasses.replace(spec, limits=limits)
+    free = Evaluator(free_spec, workers=evaluator.workers, engine=evaluator.engine, log_rows=read_log(log)[1],
+                     record=writer.write)
+    search = _Search(free_spec, free, lambda stage, f: report(stage.replace("tuning:", "without damping:"), f),
+                     budget, started)
+    free.after_batch = search.after_batch
+    best = search.run()
+    best.violations = evaluator.linear_violations(best.torque_noise_rms, best.spectral_abscissa, best.damping_ratio,
+                                                  best.bandwidth_ratio) | {k: v for k, v in best.violations.items()
+                                                                            if k not in DAMPING_CONSTRAINTS}
+    return best, free.simulated_now
+
+
 def _finish(spec: TuneSpec, evaluator: Evaluator, search: _Search, best: Evaluation, out: Path, started: float,
-            figures: bool, report, problems: list[str]) -> TuneResult:
+            figures: bool, report, problems: list[str], searched: tuple[Evaluation, int] | None = None) -> TuneResult:
     from .tune_report import write_figures
 
     base = search.base
     scenario = tuned_scenario(spec, best.gains, best.feasible, best.objective if best.feasible else None)
     engine, workers = evaluator.engine, evaluator.workers
-    base_point = _point(base, nominal_metric(spec.base, spec.metric, workers, engine))
-    tuned_point = _point(best, nominal_metric(scenario, spec.metric, workers, engine))
+    base_point = _point(base, nominal_metric(spec.base, spec.metric, workers, engine), evaluator)
+    tuned_point = _point(best, nominal_metric(scenario, spec.metric, workers, engine), evaluator)
+    # the unconstrained search's answer counts when it meets every other constraint (feasible without damping)
+    free = unconstrained_best(evaluator) if searched is None else searched[0] if searched[0].feasible else None
+    free_point = None if free is None else _point(free, None, evaluator)
+    if free_point is not None:                # feasible as the tuning counts it: it misses the damping constraint
+        free_point = _replace(free_point, feasible=not any(v > 0 for v in free_point.violations.values()))
+    cost = None if free is None or not best.feasible else max(0.0, float(best.objective - free.objective))
     counts = {"search": sum(e.phase == "search" for e in evaluator.history),
               "polish": sum(e.phase == "polish" for e in evaluator.history),
               "simulated": evaluator.simulated_now,
               "from_log": len({e.key for e in evaluator.history if e.from_log}),
-              "linear_only": sum(not e.simulated for e in evaluator.history)}
+              "linear_only": sum(not e.simulated for e in evaluator.history),
+              "unconstrained_simulated": 0 if searched is None else searched[1]}
     message = _message(spec, base_point, tuned_point)
     history = TuneHistory(phase=[e.phase for e in evaluator.history],
                           objective=[e.objective if e.simulated and math.isfinite(e.objective) else None
@@ -428,7 +436,9 @@ def _finish(spec: TuneSpec, evaluator: Evaluator, search: _Search, best: Evaluat
         parameters=[p.name for p in spec.parameters], units=[p.unit for p in spec.parameters],
         bounds=[[p.low, p.high] for p in spec.parameters], limits=spec.limits.as_dict(), base=base_point,
         tuned=tuned_point, feasible=bool(best.feasible), message=message, history=history, evaluations=counts,
-        seconds=0.0, scenario_file=file_name, log_problems=list(problems))
+        seconds=0.0, scenario_file=file_name, log_problems=list(problems), unconstrained=free_point,
+        damping_cost=cost, unconstrained_from=None if free is None else "evaluations" if searched is None
+        else "search")
     report("tuning: writing results", 0.0)
     write_lines_atomically(out / file_name, [scenario.to_toml()])
     if figures:

@@ -14,40 +14,35 @@ exceed), 1 another failure, 130 interrupted (Ctrl-C).
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
-from blocks.budget import Budget, format_bytes
-from blocks.scenario import ScenarioError
-from dobkit.arguments import add_budget_flags, whole_number
+from blocks.budget import Budget
+from dobkit.job_commands import add_job_flags, add_job_parser, run_job
 
 __all__ = ["add_sweep_subcommand", "sweep_command", "default_summary_dir"]
 
 
 def add_sweep_subcommand(subparsers) -> argparse.ArgumentParser:
     """Add ``sweep`` to an ``argparse`` subparsers object; its handler is ``args.func`` (returns an exit code)."""
-    p = subparsers.add_parser(
-        "sweep", help="run a grid / Monte Carlo sweep of scenario values (resumable)",
+    p = add_job_parser(
+        subparsers, "sweep", help="run a grid / Monte Carlo sweep of scenario values (resumable)",
         description="Run every run of a sweep file that the results file does not hold yet, batched on this "
                     "machine's cores or on a Dask cluster, then write summary statistics and plots. Before "
                     "anything runs, the sweep's memory and each run's step count are estimated and checked "
-                    "against a budget.")
-    p.add_argument("sweep_file", help="sweep file (TOML); see analysis.sweep")
+                    "against a budget.", file="sweep_file", file_help="sweep file (TOML); see analysis.sweep")
     p.add_argument("--results", help="JSON-lines results file (default: <sweep name>-results.jsonl beside the sweep "
                                      "file); runs already in it are skipped")
     p.add_argument("--summary-dir", help="where summary.md, summary.json and figures go (default: beside the "
                                          "results file, named after it: NAME-results.jsonl -> NAME-summary)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="Dask distributed scheduler address (tcp://host:8786); needs dask[distributed]")
-    p.add_argument("--workers", type=whole_number("--workers"), help="local worker processes (default: all cores)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.add_argument("--check", action="store_true",
-                   help="validate the sweep file and every run, print the run count and the estimates, and stop")
     p.add_argument("--summary-only", action="store_true", help="only (re)write the summary of the results file")
-    p.add_argument("--restart", action="store_true",
-                   help="if the results file holds another definition of the sweep, move it aside (its name then "
-                        "says which definition) and start a new one, instead of refusing")
-    add_budget_flags(p, "finished runs are kept when it runs out")
+    add_job_flags(p, workers="local worker processes (default: all cores)",
+                  check="validate the sweep file and every run, print the run count and the estimates, and stop",
+                  restart="if the results file holds another definition of the sweep, or cannot be used (bytes that "
+                          "are not UTF-8, two rows of one run that differ), move it aside (its name then says which "
+                          "definition) and start a new one, instead of refusing",
+                  seconds="finished runs are kept when it runs out")
     p.set_defaults(func=sweep_command)
     return p
 
@@ -62,29 +57,8 @@ def default_summary_dir(results: Path) -> Path:
 def sweep_command(args: argparse.Namespace) -> int:
     """Handle ``dobkit sweep``; 0 on success, 2 on a bad sweep file or budget, 1 on other failures, 130 on Ctrl-C."""
     from analysis.sweep import SweepError
-    from blocks.budget import BudgetError
 
-    state: dict = {}
-    try:
-        budget = state["budget"] = Budget.from_env(memory=args.max_memory, steps=args.max_steps,
-                                                   seconds=args.max_seconds)
-        return _sweep(args, budget, state)
-    except (SweepError, ScenarioError, BudgetError) as err:
-        print(f"dobkit sweep: {err}", file=sys.stderr)
-        return 2
-    except ValueError as err:                # a budget flag or variable that is not a number
-        print(f"dobkit sweep: {err}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        where = f" in {state['results']}" if "results" in state else ""
-        print(f"dobkit sweep: interrupted; every finished run is kept{where}, and the same command resumes",
-              file=sys.stderr)
-        return 130
-    except MemoryError:
-        limit = f" within the memory budget of {format_bytes(state['budget'].memory)}" if "budget" in state else ""
-        print(f"dobkit sweep: out of memory{limit}: this machine has less to give; lower --max-memory (smaller "
-              "batches) or use fewer --workers; finished runs are kept and the same command resumes", file=sys.stderr)
-        return 1
+    return run_job("sweep", args, _sweep, (SweepError,), "run", "results")
 
 
 def _sweep(args: argparse.Namespace, budget: Budget, state: dict) -> int:

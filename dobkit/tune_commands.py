@@ -10,12 +10,11 @@ and the same command resumes).
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 from blocks.budget import Budget, format_bytes
-from blocks.scenario import ScenarioError
-from dobkit.arguments import add_budget_flags, whole_number
+from dobkit.arguments import whole_number
+from dobkit.job_commands import add_job_flags, add_job_parser, run_job
 
 __all__ = ["add_tune_subcommand", "tune_command", "default_out_dir", "EXIT_INFEASIBLE"]
 
@@ -25,28 +24,31 @@ EXIT_INFEASIBLE = 3
 
 def add_tune_subcommand(subparsers) -> argparse.ArgumentParser:
     """Add ``tune`` to an ``argparse`` subparsers object; its handler is ``args.func`` (returns an exit code)."""
-    p = subparsers.add_parser(
-        "tune", help="tune Kp, Kd and the observer gain over a Monte Carlo set under constraints (resumable)",
+    p = add_job_parser(
+        subparsers, "tune", help="tune Kp, Kd and the observer gain over a Monte Carlo set under constraints "
+                                 "(resumable)",
         description="Choose the gains of a tuning file's [search] to minimise the worst or mean tool-tip error over "
-                    "a Monte Carlo set of mismatches and disturbances, under torque-noise, torque-limit and "
-                    "stability constraints: differential evolution, then a Nelder-Mead polish. Every evaluation "
-                    "goes to OUT/evaluations.jsonl as it finishes; the same command resumes a stopped tuning. "
-                    "Writes OUT/tune.json, the tuned scenario OUT/<scenario>-tuned.toml and figures.")
-    p.add_argument("tuning_file", help="tuning file (TOML; see analysis.tune) or a built-in name (paper-tune)")
+                    "a Monte Carlo set of mismatches and disturbances, under torque-noise, torque-limit, stability "
+                    "and damping constraints (the error dynamics' damping ratio >= 0.7 unless the file says "
+                    "otherwise): differential evolution, then a Nelder-Mead polish. Every evaluation goes to "
+                    "OUT/evaluations.jsonl as it finishes; the same command resumes a stopped tuning. Writes "
+                    "OUT/tune.json, the tuned scenario OUT/<scenario>-tuned.toml and figures.",
+        file="tuning_file", file_help="tuning file (TOML; see analysis.tune) or a built-in name (paper-tune)")
     p.add_argument("--out", help="output folder, which also holds the evaluation log (default: NAME-results beside "
                                  "the tuning file, or in the current folder for a built-in one)")
-    p.add_argument("--workers", type=whole_number("--workers"), help="threads of each batch (default: all cores)")
     p.add_argument("--max-evaluations", type=whole_number("--max-evaluations"),
                    help="objective evaluations in all (overrides search.max_evaluations; a larger number continues "
                         "a finished tuning)")
-    p.add_argument("--no-progress", action="store_true", help="no progress display")
-    p.add_argument("--check", action="store_true",
-                   help="validate the file, check that the linear constraints can be met, print the estimates, "
-                        "and stop")
-    p.add_argument("--restart", action="store_true",
-                   help="if the output folder's evaluation log holds another definition of the tuning, move it "
-                        "aside and start anew, instead of refusing")
-    add_budget_flags(p, "finished evaluations are kept when it runs out")
+    p.add_argument("--compare-unconstrained", action="store_true",
+                   help="with a damping (or overshoot) constraint, also run the same search without it and say what "
+                        "the constraint costs against that search's answer (about doubles the time; without it the "
+                        "cost is measured against the constrained search's own evaluations)")
+    add_job_flags(p, workers="threads of each batch (default: all cores)",
+                  check="validate the file, check that the linear constraints can be met, print the estimates, "
+                        "and stop",
+                  restart="if the output folder's evaluation log holds another definition of the tuning, or cannot "
+                          "be used, move it aside and start anew, instead of refusing",
+                  seconds="finished evaluations are kept when it runs out")
     p.set_defaults(func=tune_command)
     return p
 
@@ -61,20 +63,8 @@ def default_out_dir(spec) -> Path:
 def tune_command(args: argparse.Namespace) -> int:
     """Handle ``dobkit tune``; see the module docstring for the exit status."""
     from analysis.tune import TuneError
-    from blocks.budget import BudgetError
 
-    state: dict = {}
-    try:
-        budget = Budget.from_env(memory=args.max_memory, steps=args.max_steps, seconds=args.max_seconds)
-        return _tune(args, budget, state)
-    except (TuneError, ScenarioError, BudgetError, ValueError) as err:
-        print(f"dobkit tune: {err}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        where = f" in {state['out']}" if "out" in state else ""
-        print(f"dobkit tune: interrupted; every finished evaluation is kept{where}, and the same command resumes",
-              file=sys.stderr)
-        return 130
+    return run_job("tune", args, _tune, (TuneError,), "evaluation", "out")
 
 
 def _tune(args: argparse.Namespace, budget: Budget, state: dict) -> int:
@@ -97,7 +87,7 @@ def _tune(args: argparse.Namespace, budget: Budget, state: dict) -> int:
           f"{estimate.steps:,} RK4 steps (about {format_bytes(estimate.memory)}); evaluation log "
           f"{out / LOG_NAME}", flush=True)
     result = run_tune(spec, out, workers=args.workers, progress=not args.no_progress, restart=args.restart,
-                      budget=budget)
+                      budget=budget, compare_unconstrained=args.compare_unconstrained)
     print(_summary(result, out))
     return 0 if result.feasible else EXIT_INFEASIBLE
 
@@ -122,12 +112,7 @@ def _summary(result, out: Path) -> str:
              result.message,
              f"  tuned gains: {_gains_text(result.tuned.gains)}{'' if result.feasible else ' (INFEASIBLE)'}",
              f"  base gains:  {_gains_text(result.base.gains)}"]
-    if result.limits.get("torque_noise_rms") is not None:
-        lines.append(f"  torque noise RMS [N m]: tuned {_numbers(result.tuned.torque_noise_rms)}, base "
-                     f"{_numbers(result.base.torque_noise_rms)}, budget {_numbers(result.limits['torque_noise_rms'])}")
-    if result.limits.get("torque_limit") is not None:
-        lines.append(f"  peak torque [N m]: tuned {_numbers(result.tuned.peak_torque)}, limit "
-                     f"{_numbers(result.limits['torque_limit'])}")
+    lines += constraint_lines(result)
     if result.log_problems:
         lines.append(f"  evaluation log: {len(result.log_problems)} unusable line(s) left out and their candidates "
                      f"simulated again ({result.log_problems[0]}{', ...' if len(result.log_problems) > 1 else ''})")
@@ -135,6 +120,49 @@ def _summary(result, out: Path) -> str:
                  f"{out / result.scenario_file}), {len(result.figures)} figures (PNG and SVG); "
                  f"dobkit report --tune {out} adds them to a report")
     return "\n".join(lines)
+
+
+#: Each constraint as stdout names it, with the unit of its margin (analysis.tune_eval, "Margins").
+_MARGIN_WORDS = {"torque_noise_rms": ("torque noise", "of the budget left", 100.0, "%"),
+                 "torque_limit": ("peak torque", "below the limit", 100.0, "%"),
+                 "stability_margin": ("stability margin", "beyond it", 1.0, " 1/s"),
+                 "min_damping_ratio": ("damping ratio", "above the minimum", 1.0, ""),
+                 "max_overshoot": ("overshoot", "below the maximum", 100.0, " % points"),
+                 "min_observer_bandwidth_ratio": ("observer bandwidth ratio", "above the minimum", 1.0, "")}
+
+
+def constraint_lines(result) -> list[str]:
+    """Lines on every constraint of a tuning result: the tuned and base values, the limit and the tuned margin."""
+    limits, tuned, base = result.limits, result.tuned, result.base
+    lines = []
+    if limits.get("torque_noise_rms") is not None:
+        lines.append(f"  torque noise RMS [N m]: tuned {_numbers(tuned.torque_noise_rms)}, base "
+                     f"{_numbers(base.torque_noise_rms)}, budget {_numbers(limits['torque_noise_rms'])}")
+    if limits.get("torque_limit") is not None:
+        lines.append(f"  peak torque [N m]: tuned {_numbers(tuned.peak_torque)}, limit "
+                     f"{_numbers(limits['torque_limit'])}")
+    if tuned.damping_ratio:
+        minimum = limits.get("min_damping_ratio")
+        bound = (f", at least {minimum:g}" + (" (the default)" if limits.get("damping_from") == "default" else "")
+                 if minimum is not None else f", overshoot at most {100 * limits['max_overshoot']:g} %"
+                 if limits.get("max_overshoot") is not None else " (not constrained)")
+        lines.append(f"  damping ratio of the error dynamics: tuned {_numbers(tuned.damping_ratio)}, base "
+                     f"{_numbers(base.damping_ratio)}{bound}")
+    if tuned.margins:
+        parts = []
+        for key, value in tuned.margins.items():
+            name, words, scale, unit = _MARGIN_WORDS.get(key, (key, "margin", 1.0, ""))
+            parts.append(f"{name} {scale * value:+.3g}{unit} {words}" if value >= 0 else
+                         f"{name} MISSED by {-scale * value:.3g}{unit}")
+        lines.append("  margins of the tuned gains: " + "; ".join(parts))
+    free, cost = result.unconstrained, result.damping_cost
+    if free is not None and cost is not None:
+        how = ("the same search without it reached" if result.unconstrained_from == "search" else
+               "the best of this search's own evaluations without it (a lower bound of the cost; "
+               "--compare-unconstrained runs the search without it) reached")
+        lines.append(f"  the damping constraint costs {cost:.4g} mm: {how} {free.objective:.4g} mm (damping ratio "
+                     f"{_numbers(free.damping_ratio)}, {_gains_text(free.gains)})")
+    return lines
 
 
 def _check_report(spec, estimate, substeps: int) -> str:
@@ -151,6 +179,13 @@ def _check_report(spec, estimate, substeps: int) -> str:
         lines.append(f"  torque limit [N m]: {_numbers(limits.torque_limit)}")
     if limits.stability_margin is not None:
         lines.append(f"  stability margin: poles at real part <= -{limits.stability_margin:g} 1/s")
+    if limits.min_damping_ratio is not None:
+        lines.append(f"  damping ratio of the error dynamics kd / (2 sqrt(kp)) >= {limits.min_damping_ratio:g} on every "
+                     "joint" + (" (the default)" if limits.damping_from == "default" else ""))
+    if limits.max_overshoot is not None:
+        lines.append(f"  overshoot of the error dynamics <= {100 * limits.max_overshoot:g} % on every joint")
+    if limits.min_observer_bandwidth_ratio is not None:
+        lines.append(f"  slowest observer mode / tracking bandwidth >= {limits.min_observer_bandwidth_ratio:g}")
     lines.append("  the linear constraints can be met within the bounds")
     lines.append(f"  one evaluation: {spec.runs} runs of at most {estimate.steps:,} RK4 steps ({substeps} substeps at "
                  f"the high bounds), about {format_bytes(estimate.memory)}; at most "

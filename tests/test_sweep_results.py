@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 from sweep_files import run_sweep_command, write_short_scenario, write_sweep
 
+from analysis.job_files import row_line
 from analysis.sweep import SweepError, load_sweep
 from analysis.sweep_report import summarize, write_summary
 from analysis.sweep_runner import read_results, run_sweep
@@ -122,10 +123,10 @@ def test_rows_of_other_runs_and_repeated_rows_are_left_out(tmp_path, short_file)
     rows = read_results(results)[1]
     foreign = dict(rows[1], run_id="0123456789abcdef", metrics={"rms_position_error": [9.0] * 4,
                                                                "max_tool_position_error_mm": 99.0})
-    beyond = dict(rows[0], index=99)
-    with results.open("a") as fh:
+    beyond = dict(rows[0], run_id="fedcba9876543210", index=99)
+    with results.open("a") as fh:          # whole rows as a writer writes them (checksummed)
         for row in (foreign, rows[0], beyond):
-            fh.write(json.dumps(row) + "\n")
+            fh.write(row_line(row))
     summary = summarize(results, spec)
     assert summary.counts.finished == 3 and summary.statistics["max_tool_position_error_mm"].max < 99.0
     assert any("2 row(s) of runs that are not in this sweep" in p for p in summary.problems)
@@ -141,7 +142,7 @@ def test_unusable_lines_are_listed_and_their_runs_done_again(tmp_path, short_fil
     lines = results.read_text().splitlines(keepends=True)
     broken = json.loads(lines[2])
     del broken["values"]
-    lines[2] = json.dumps(broken) + "\n"
+    lines[2] = row_line(broken)                              # checksummed: only the row's own check refuses it
     results.write_text("".join(lines) + "not json at all\n")
     summary = summarize(results, spec)                     # a KeyError traceback before
     assert summary.counts.finished == 2

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from analysis.job_files import row_line
 from analysis.tune import TuneError, load_tuning, tuning_from_dict
 from analysis.tune_linear import torque_noise_rms
 from analysis.tune_report import html_section
@@ -270,11 +271,17 @@ def test_unusable_log_lines_are_left_out_named_and_simulated_again(problem, tmp_
     out = tmp_path / "out"
     out.mkdir()
     lines = (done / LOG_NAME).read_text().splitlines(keepends=True)
-    (out / LOG_NAME).write_text(lines[0] + "not json\n" + lines[1].replace('"key"', '"kee"') + "".join(lines[2:]))
+    renamed = json.loads(lines[1])
+    renamed["kee"] = renamed.pop("key")
+    edited = lines[2].replace('"diverged": 0', '"diverged": 1')          # changed after it was written
+    assert edited != lines[2]
+    (out / LOG_NAME).write_text(lines[0] + "not json\n" + row_line(renamed) + edited + "".join(lines[3:]))
     resumed = run_tune(load_tuning(path), out, workers=1, progress=False, figures=False)
     _same(resumed, whole)
-    assert resumed.log_problems == ["line 2: not JSON (Expecting value)", "line 3: missing key"]
-    assert resumed.evaluations["simulated"] == 1
+    assert resumed.log_problems == ["line 2: not JSON (Expecting value)", "line 3: missing key",
+                                    "line 4: its checksum does not match its contents (the line was changed after "
+                                    "it was written)"]
+    assert resumed.evaluations["simulated"] == 2
 
 
 def test_a_changed_tuning_is_refused_and_restart_moves_the_old_log_aside(problem, tmp_path):
