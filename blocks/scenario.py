@@ -36,7 +36,9 @@ import dataclasses
 import functools
 import json
 import math
+import os
 import re
+import stat
 import tomllib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -53,6 +55,7 @@ from .joints import RRPR_JOINTS
 from .noise import MeasurementNoise
 from .parameters import ParameterError, RobotParameters
 from .trajectory import TRAJECTORY_KINDS, JointSine, LacerationPath
+from .validation import number_text, read_only_array
 
 __all__ = ["Scenario", "ScenarioError", "SimulationSettings", "load_scenario", "builtin_scenarios",
            "scenario_from_dict", "to_toml", "parse_key", "check_value"]
@@ -146,9 +149,8 @@ def _read_only(value):
 
 
 def _read_only_array(value) -> np.ndarray:
-    arr = np.array(value, dtype=float)      # a copy: an array the caller keeps cannot change the scenario
-    arr.flags.writeable = False
-    return arr
+    # a copy that cannot be made writable again: neither the caller's array nor setflags changes the scenario
+    return read_only_array(value)
 
 
 def _plain(value):
@@ -290,6 +292,12 @@ class Scenario:
         if not changes:
             return self
         try:
+            return self._changed(changes)
+        except RecursionError:
+            raise ScenarioError(f"{self.source}: {_TOO_DEEP}") from None
+
+    def _changed(self, changes: Mapping[str, Any]) -> Scenario:
+        try:
             whole = self.expand(changes)
         except ScenarioError as err:
             raise ScenarioError(f"{self.source}: {err}") from None
@@ -379,12 +387,7 @@ def _finite(lower: float | None = None, strict: bool = False) -> Check:
     return check
 
 
-def _number_text(value) -> str:
-    """A value for a message: huge whole numbers in short scientific form."""
-    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10 ** 15:
-        digits = str(abs(value))
-        return f"{'-' if value < 0 else ''}{digits[0]}.{digits[1:4]}e+{len(digits) - 1}"
-    return repr(value)
+_number_text = number_text
 
 
 def _finite_float(value) -> bool:
@@ -736,6 +739,8 @@ def load_scenario(name_or_path: str | Path = "paper") -> Scenario:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise ScenarioError(f"{source}: not valid TOML: {err}") from None
+    except RecursionError:              # tomllib reads nested arrays recursively
+        raise ScenarioError(f"{source}: {_TOO_DEEP}") from None
     return scenario_from_dict(data, source=source)
 
 
@@ -750,14 +755,12 @@ def _read_source(name_or_path) -> tuple[str, str]:
     if path.suffix == ".toml" or path.exists() or "/" in str(name_or_path):
         if path.is_dir():
             raise ScenarioError(f"'{path}' is a folder, not a scenario file (give the path of a .toml file)")
-        if not path.is_file():
+        if not path.exists():
             raise ScenarioError(f"scenario file '{path}' does not exist")
-        if path.stat().st_size > MAX_SCENARIO_BYTES:
-            raise ScenarioError(f"scenario file '{path}' is {path.stat().st_size:,} bytes; a scenario is a short "
-                                f"text file (at most {MAX_SCENARIO_BYTES:,} bytes)")
+        raw = _read_bounded(path)
         try:
             # utf-8-sig: a byte-order mark, as some editors write, is not part of the TOML text
-            return path.read_text(encoding="utf-8-sig"), str(path)
+            return raw.decode("utf-8-sig"), str(path)
         except UnicodeDecodeError as err:
             raise ScenarioError(f"scenario file '{path}' is not UTF-8 text (byte {err.start})") from None
     names = builtin_scenarios()
@@ -765,6 +768,27 @@ def _read_source(name_or_path) -> tuple[str, str]:
         raise ScenarioError(f"no built-in scenario named '{name_or_path}'; built-in: {names} (or give a .toml path)")
     return (resources.files("blocks") / "scenarios" / f"{name_or_path}.toml").read_text(encoding="utf-8"), \
         str(name_or_path)
+
+
+def _read_bounded(path: Path) -> bytes:
+    """The bytes of a regular file of at most :data:`MAX_SCENARIO_BYTES`.
+
+    Opened without blocking and checked on the open file, so that a FIFO (which would wait for a writer) or a
+    device (``/dev/zero``, endless) is refused rather than read.
+    """
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except OSError as err:
+        raise ScenarioError(f"scenario file '{path}' cannot be read ({err.strerror or err})") from None
+    with os.fdopen(fd, "rb") as f:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise ScenarioError(f"scenario file '{path}' is not a regular file (a device, pipe or socket); give the "
+                                "path of a .toml file")
+        raw = f.read(MAX_SCENARIO_BYTES + 1)
+    if len(raw) > MAX_SCENARIO_BYTES:
+        raise ScenarioError(f"scenario file '{path}' is {path.stat().st_size:,} bytes; a scenario is a short text "
+                            f"file (at most {MAX_SCENARIO_BYTES:,} bytes)")
+    return raw
 
 
 def scenario_from_dict(data: Mapping, source: str = "<dict>") -> Scenario:
@@ -780,6 +804,12 @@ def scenario_from_dict(data: Mapping, source: str = "<dict>") -> Scenario:
         return _validated(data, source)
     except ScenarioError as err:
         raise ScenarioError(f"{source}: {err}") from None
+    except RecursionError:
+        raise ScenarioError(f"{source}: {_TOO_DEEP}") from None
+
+
+_TOO_DEEP = ("a value is nested too deeply (lists within lists hundreds of levels deep); a scenario's values are "
+             "numbers, lists of numbers and at most a 4x4 matrix")
 
 
 def _validated(data: Mapping, source: str) -> Scenario:

@@ -26,7 +26,20 @@ import numpy as np
 from .joints import RRPR_JOINTS, JointSpace
 from .parameters import RobotParameters
 
-__all__ = ["joint_array", "joint_arrays", "robot_parameters", "real_array", "callable_or_none", "read_only_array"]
+__all__ = ["joint_array", "joint_arrays", "robot_parameters", "real_array", "callable_or_none", "read_only_array",
+           "number_text"]
+
+
+def number_text(value) -> str:
+    """A value for a message: whole numbers too long to read (``10**400``) in short scientific form,
+    also inside lists; anything else as its ``repr``."""
+    if isinstance(value, (list, tuple)):
+        inner = ", ".join(number_text(v) for v in value)
+        return f"[{inner}]" if isinstance(value, list) else f"({inner}{',' if len(value) == 1 else ''})"
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10 ** 15:
+        digits = str(abs(value))
+        return f"{'-' if value < 0 else ''}{digits[0]}.{digits[1:4]}e+{len(digits) - 1}"
+    return repr(value)
 
 
 def _kind(value) -> str:
@@ -143,6 +156,5 @@ def read_only_array(value) -> np.ndarray:
     raises :class:`ValueError` (so does the same on its ``base``): a value held
     by a scenario stays what it was validated as.
     """
-    arr = np.array(value, dtype=float)
-    frozen = np.frombuffer(np.ascontiguousarray(arr).tobytes(), dtype=float)
-    return frozen.reshape(arr.shape)
+    arr = np.ascontiguousarray(value, dtype=float)     # no copy when it already is one; tobytes copies
+    return np.frombuffer(arr.tobytes(), dtype=float).reshape(arr.shape)
