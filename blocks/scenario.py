@@ -54,7 +54,7 @@ from .gains import GAIN_KEYS, OBSERVER_VARIANTS, GainError, validated_gain
 from .joints import RRPR_JOINTS
 from .noise import MeasurementNoise
 from .parameters import ParameterError, RobotParameters
-from .trajectory import TRAJECTORY_KINDS, JointSine, LacerationPath
+from .trajectory import TRAJECTORY_KINDS, JointSine, LacerationPath, check_joint_ranges
 from .validation import number_text, read_only_array
 
 __all__ = ["Scenario", "ScenarioError", "SimulationSettings", "load_scenario", "builtin_scenarios",
@@ -549,10 +549,22 @@ def _build_trajectory(given: dict, built: dict):
             trajectory = LacerationPath(params=built["robot"], **kw)
         else:
             trajectory = JointSine(**kw)
+            _check_sine_ranges(trajectory, built)
     except (ValueError, TypeError) as err:          # UnreachableError is a ValueError
         raise ScenarioError(f"[trajectory] {err}") from None
     keys = [k for k in _SECTIONS["trajectory"].checks_for(kind) if k != "kind"]
     return trajectory, {"kind": kind} | {k: _plain(getattr(trajectory, k)) for k in keys}
+
+
+def _check_sine_ranges(sine: JointSine, built: dict) -> None:
+    """Refuse joint sines that leave a joint's range within the run (sampled finely enough that a missed peak
+    is below a millionth of the amplitude)."""
+    t_final = built["simulation"].t_final
+    cycles = max(sine.omega) * t_final / (2 * math.pi)
+    samples = int(min(max(4001, 2000 * cycles), 200_001))
+    q, _, _ = sine.evaluate(np.linspace(0.0, t_final, samples))
+    check_joint_ranges(q, built["robot"].joints, "joint sine", "q = trajectory.offset + trajectory.amplitude "
+                                                               "x sin(trajectory.omega t) over the run")
 
 
 def _check_phases(path: dict, sim: SimulationSettings) -> None:
@@ -604,6 +616,17 @@ def _whole(lower: int) -> Check:
     return check
 
 
+def _joint_positions(value, key: str) -> tuple[float, ...]:
+    """Joint positions (rad, m) within the joints' ranges (the prismatic joint's stroke)."""
+    q = _vector(RRPR_JOINTS.count)(value, key)
+    for i, (v, (lo, hi)) in enumerate(zip(q, RRPR_JOINTS.limits)):
+        if not lo <= v <= hi:
+            unit = RRPR_JOINTS.position_units[i]
+            raise ScenarioError(f"'{key}[{i}]' = {v!r} {unit} is outside the range of joint {RRPR_JOINTS.names[i]}, "
+                                f"{lo:g} to {hi:g} {unit}")
+    return q
+
+
 def _build_initial(given: dict, built: dict):
     return {k: (np.array(given[k]) if k in given else None) for k in _INITIAL_KEYS}, \
         {k: list(v) for k, v in given.items()}
@@ -650,7 +673,8 @@ _SECTIONS: dict[str, _Section] = {
         "joint_sine": {k: _like(d) for k, d in _defaults(JointSine).items()}}, default_kind="laceration"),
     "noise": _Section({k: _like(d) for k, d in _defaults(MeasurementNoise).items() if k in _NOISE_KEYS},
                       _build_noise),
-    "initial": _Section({k: _vector(RRPR_JOINTS.count) for k in _INITIAL_KEYS}, _build_initial),
+    "initial": _Section({"q": _joint_positions} | {k: _vector(RRPR_JOINTS.count) for k in _INITIAL_KEYS[1:]},
+                        _build_initial),
     "controller": _Section({"sample_rate": _finite(0.0, strict=True), "delay": _whole(0),
                             "observer_discretization": _one_of(DISCRETIZATIONS), "velocity": _one_of(VELOCITY_SOURCES),
                             "velocity_cutoff": _finite(0.0, strict=True),
