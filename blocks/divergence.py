@@ -66,8 +66,19 @@ class StateBounds:
             k = int(np.argmax(bad))
             return f"{self.names[k]} became {x[k]}"
         k = int(np.argmax(np.abs(x) / self.bounds))
-        return (f"{self.names[k]} reached {x[k]:.4g} {self.units[k]}, beyond its bound {self.bounds[k]:.4g} "
+        value, bound = _apart(float(x[k]), float(self.bounds[k]))
+        return (f"{self.names[k]} reached {value} {self.units[k]}, beyond its bound {bound} "
                 f"{self.units[k]} ({self.reasons[k]})")
+
+
+def _apart(value: float, bound: float) -> tuple[str, str]:
+    """``value`` and ``bound`` with as many digits (4 at least) as it takes for a value beyond the bound to read
+    beyond it: 100.2 and 100.2 become 100.23 and 100.2."""
+    for digits in range(4, 18):
+        a, b = f"{abs(value):.{digits}g}", f"{bound:.{digits}g}"
+        if a != b:
+            break
+    return f"{value:.{digits}g}", b
 
 
 def state_bounds(loop, scenario, samples: int = 201) -> StateBounds:

@@ -18,7 +18,11 @@ stop the solver (:func:`blocks.integrate.integrate_on_grid`).
 """
 from __future__ import annotations
 
+import math
+import sys
 import time
+
+import numpy as np
 
 from .budget import Budget, Estimate
 from .scenario import Scenario
@@ -43,11 +47,19 @@ def estimate_run(scenario: Scenario, observer: bool = True) -> Estimate:
     t_final = s.simulation.t_final
     candidates = []
     if s.simulation.method in EXPLICIT_METHODS:
-        for key, rates in rates_by_source(Variants(s, [{}]), observer).items():
+        with np.errstate(over="ignore", invalid="ignore"):     # gains near 1e308: the rate is inf, said below
+            by_source = rates_by_source(Variants(s, [{}]), observer)
+        for key, rates in by_source.items():
             rate = float(rates.max())
-            candidates.append((t_final * rate / STABILITY_SPAN, key,
-                               f"its fastest rate, about {rate:.3g} 1/s, limits an explicit {s.simulation.method} "
-                               f"step to {STABILITY_SPAN / rate:.3g} s"))
+            steps = t_final * rate / STABILITY_SPAN
+            if not math.isfinite(steps):
+                candidates.append((math.inf, key, f"its fastest rate is beyond what a float holds (over "
+                                                  f"{sys.float_info.max:.3g} 1/s), so no explicit "
+                                                  f"{s.simulation.method} step is small enough"))
+                continue
+            candidates.append((steps, key, f"its fastest rate, about {rate:.3g} 1/s, limits an explicit "
+                                           f"{s.simulation.method} step to {STABILITY_SPAN / rate:.3g} s, "
+                                           f"{t_final:g} s / {STABILITY_SPAN / rate:.3g} s"))
     if s.noise is not None:
         candidates.append((t_final / s.noise.sample_period, "noise.sample_period",
                            f"one step at least per noise sample, every {s.noise.sample_period:g} s"))
@@ -60,7 +72,10 @@ def estimate_run(scenario: Scenario, observer: bool = True) -> Estimate:
         parts["noise table"] = s.noise.table.nbytes
         keys["noise table"] = "noise.sample_period"
         reasons["noise table"] = f"{s.noise.table.shape[1]:,} samples"
-    return Estimate(memory=sum(parts.values()), steps=int(min(steps, 1e30)), parts=parts, keys=keys, reasons=reasons)
+    # the step count as estimated, however large (the message's numbers must agree); the largest float when it is not
+    # a number at all
+    steps = int(min(steps, sys.float_info.max))
+    return Estimate(memory=sum(parts.values()), steps=steps, parts=parts, keys=keys, reasons=reasons)
 
 
 def check_run(scenario: Scenario, observer: bool = True, budget: Budget | None = None) -> Budget:
