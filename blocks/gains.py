@@ -69,10 +69,16 @@ def validated_gain(value, key: str, joints: JointSpace = RRPR_JOINTS) -> np.ndar
     n = joints.count
     full = key == "observer"
     allowed = f"a number, {n} numbers or {'a' if full else 'a diagonal'} {n}x{n} matrix"
-    matrix = _as_matrix(value, key, n, allowed)
+    try:
+        matrix = _as_matrix(value, key, n, allowed)
+    except RecursionError:
+        raise GainError(f"'gains.{key}' must be {allowed}, got lists nested too deeply") from None
     if full:
-        # d_hat' = Y M^-1 (d - d_hat): with M > 0 the error decays when Y + Y^T > 0
-        if np.linalg.eigvalsh(matrix + matrix.T).min() <= 0:
+        # d_hat' = Y M^-1 (d - d_hat): with M > 0 the error decays when Y + Y^T > 0; the symmetric part is
+        # scaled to at most 1 first, so that entries near 1e308 do not overflow
+        symmetric = 0.5 * matrix + 0.5 * matrix.T
+        scale = np.abs(symmetric).max()
+        if scale == 0 or np.linalg.eigvalsh(symmetric / scale).min() <= 0:
             raise GainError(f"'gains.{key}' must have a positive definite symmetric part (Y + Y^T > 0) "
                             f"for the observer to converge, got {_shown(value)}")
     else:

@@ -47,7 +47,7 @@ def jacobian(q, params: RobotParameters) -> np.ndarray:
     Rows are ``x, y, z, phi``; columns are the joints.  Singular where
     ``sin(theta2) = 0`` (arm stretched or folded).
     """
-    q = np.asarray(q, dtype=float)
+    q = joint_array(q, "q", robot_parameters(params).joints)
     j00, j01, j10, j11 = jacobian_entries(kinematic_lengths(params), np.moveaxis(q, -1, 0))
     J = np.zeros(q.shape[:-1] + (4, 4))
     J[..., 0, 0], J[..., 0, 1], J[..., 1, 0], J[..., 1, 1] = j00, j01, j10, j11

@@ -488,7 +488,8 @@ def _build_robot(given: dict, built: dict):
     try:
         robot = RobotParameters(**given)
     except ParameterError as err:
-        raise ScenarioError(f"[robot] {err}") from None
+        given_text = ", ".join(f"'robot.{k}' = {v!r}" for k, v in given.items())
+        raise ScenarioError(f"[robot] ({given_text}) {err}") from None
     return robot, robot.as_dict()
 
 
@@ -496,7 +497,8 @@ def _build_nominal(given: dict, built: dict):
     try:
         nominal = built["robot"].scaled(**given)
     except ParameterError as err:
-        raise ScenarioError(f"[nominal_scale] gives an impossible nominal model: {err}") from None
+        given_text = ", ".join(f"'nominal_scale.{k}' = {v!r}" for k, v in given.items())
+        raise ScenarioError(f"[nominal_scale] ({given_text}) gives an impossible nominal model: {err}") from None
     return nominal, {k: given.get(k, 1.0) for k in RobotParameters.names()}
 
 
@@ -572,7 +574,10 @@ def _check_phases(path: dict, sim: SimulationSettings) -> None:
     :data:`MIN_PHASE_DURATION`: no arm sews that fast, and a huge stitch count would only cost memory and time."""
     stitches = path.get("stitches", LacerationPath.stitches)
     if isinstance(stitches, int) and stitches >= 1:
-        phase = path["duration"] / (2 * stitches - 1)
+        try:
+            phase = path["duration"] / (2 * stitches - 1)
+        except OverflowError:               # a count beyond any float: phases of no length
+            phase = 0.0
         if phase < MIN_PHASE_DURATION:
             raise ScenarioError(f"'trajectory.stitches' = {_number_text(stitches)} makes each of the path's "
                                 f"{_number_text(2 * stitches - 1)} phases {phase:.3g} s long, shorter than "
@@ -582,7 +587,8 @@ def _check_phases(path: dict, sim: SimulationSettings) -> None:
 def _build_noise(given: dict, built: dict):
     t_final = built["simulation"].t_final
     period = given.get("sample_period", MeasurementNoise.sample_period)
-    stds = tuple(given.get("q_std", ())) + tuple(given.get("dq_std", ()))
+    # one number where four are due is refused by MeasurementNoise, by key
+    stds = tuple(np.atleast_1d(given.get("q_std", ()))) + tuple(np.atleast_1d(given.get("dq_std", ())))
     if period > 0 and period < MIN_TIME_STEP:
         raise ScenarioError(f"'noise.sample_period' ({period:g} s) must be at least {MIN_TIME_STEP:g} s")
     if any(v != 0 for v in stds) and period > 0 and t_final / period > MAX_NOISE_SAMPLES:
