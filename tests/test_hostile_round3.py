@@ -392,8 +392,8 @@ def test_a_value_beyond_its_bound_prints_beyond_it():
 TUNE_BASE = SHORT_SCENARIO_TOML.replace('name = "short"', 'name = "short-base"')
 
 
-def _tuning(folder: Path, constraints: str, search: str = "population = 5\nmax_evaluations = 10\n"
-            "polish_evaluations = 2\n") -> Path:
+def _tuning(folder: Path, constraints: str, search: str = "population = 5\nmax_evaluations = 20\n"
+            "polish_evaluations = 5\n") -> Path:
     (folder / "base.toml").write_text(TUNE_BASE)
     path = folder / "tune.toml"
     path.write_text('name = "round3"\nscenario = "base.toml"\nobjective = "worst"\n[search]\n"gains.kp" = [20, 2000]\n'
