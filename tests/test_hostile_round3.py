@@ -181,6 +181,13 @@ def test_entry_points_answer_bad_input_with_their_documented_errors(tmp_path):
     for value in [None, "x", 10 ** 400, [math.nan] * 4, deep[:1], {"a": 1}, 0.0, [[1.0] * 4] * 4]:
         with pytest.raises(GainError):
             validated_gain(value, "observer")
+    for name, value in [("observer", None), ("observer", 1), ("engine", 5), ("engine", "turbo"), ("progress", 5),
+                        ("progress", "x"), ("plant", "x"), ("plant", 5)]:
+        with pytest.raises((TypeError, ValueError), match=name):
+            blocks.simulate(PAPER, **{name: value})
+    for given in [None, 5, {"gains": {"kp": 1}}]:
+        with pytest.raises(TypeError):
+            blocks.closed_loop(given)
 
 
 # --------------------------------------------------------------------------------------------
