@@ -56,6 +56,10 @@ def real_array(value, name: str) -> np.ndarray:
     ValueError
         On ragged nesting or a non-finite entry (an integer too large for a float is not finite).
     """
+    if type(value) is np.ndarray and value.dtype == np.float64:        # the common case, checked at once
+        if not np.isfinite(value).all():
+            _not_finite(value, name)
+        return value
     if value is None or isinstance(value, (str, bytes, bool, np.bool_, Mapping)):
         raise TypeError(f"{name} must be an array of real numbers, got {_kind(value)} {value!r:.80}")
     try:
@@ -67,17 +71,21 @@ def real_array(value, name: str) -> np.ndarray:
         raise TypeError(f"{name} must be an array of real numbers, got an array of {raw.dtype} "
                         f"(shape {raw.shape})")
     try:
-        arr = raw.astype(float)
+        arr = np.asarray(raw, dtype=float)
     except OverflowError:
         raise ValueError(f"{name} must be finite, got a non-finite value: a number too large for a float "
                          f"(shape {raw.shape})") from None
     except (TypeError, ValueError):
         raise TypeError(f"{name} must be an array of real numbers, got {value!r:.80}") from None
-    if not np.all(np.isfinite(arr)):
-        where = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
-        raise ValueError(f"{name} must be finite, got a non-finite value {arr[where] if where else float(arr)} "
-                         f"{f'at index {where} ' if where else ''}(shape {arr.shape})")
+    if not np.isfinite(arr).all():
+        _not_finite(arr, name)
     return arr
+
+
+def _not_finite(arr: np.ndarray, name: str):
+    where = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
+    raise ValueError(f"{name} must be finite, got a non-finite value {arr[where] if where else float(arr)} "
+                     f"{f'at index {where} ' if where else ''}(shape {arr.shape})")
 
 
 def joint_array(value, name: str, joints: JointSpace = RRPR_JOINTS) -> np.ndarray:
