@@ -6,13 +6,15 @@ neither imports the other.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from .results import JsonResult
 from .tune import TuneError
 
-__all__ = ["RESULT_NAME", "PointResult", "TuneHistory", "TuneFigure", "TuneResult", "read_result"]
+__all__ = ["RESULT_NAME", "PointResult", "TuneHistory", "TuneFigure", "TuneResult", "read_result", "objective_text",
+           "numbers_text", "excess_text"]
 
 RESULT_NAME = "tune.json"
 
@@ -192,3 +194,40 @@ def read_result(folder):
             raise TuneError(f"tuning folder '{folder}' lists the figure '{figure.file}', which is not in its "
                             "figures/ folder: the folder is incomplete; run 'dobkit tune' again")
     return result
+
+
+# --------------------------------------------------------------------------------------------
+# Numbers in words: the same text wherever a tuning's outcome is written (stdout, tune.json, the tuned file)
+# --------------------------------------------------------------------------------------------
+def objective_text(objective: float | None, diverged: int = 0, runs: int = 0) -> str:
+    """A point's objective (mm) for messages: 4 significant digits, or why it has none.
+
+    Examples
+    --------
+    >>> objective_text(2.274712)
+    '2.275 mm'
+    >>> objective_text(None, diverged=2, runs=3)
+    'not finite (2 of 3 runs diverged)'
+    """
+    if objective is not None and math.isfinite(objective):
+        return f"{objective:.4g} mm"
+    return "not finite" + (f" ({diverged} of {runs} runs diverged)" if diverged else "")
+
+
+def numbers_text(values, unit: str = "") -> str:
+    """Numbers for messages with 4 significant digits, so that small ones stay visible: ``[1e-09, 0.02392]``."""
+    return "[" + ", ".join(f"{float(v):.4g}" for v in values) + "]" + (f" {unit}" if unit else "")
+
+
+def excess_text(value: float, limit: float) -> str:
+    """How far ``value`` is over ``limit`` (> 0): a percentage up to ten times, a factor beyond.
+
+    Examples
+    --------
+    >>> excess_text(1.5, 1.0)
+    'over by 50.0 %'
+    >>> excess_text(0.02392, 1e-9)
+    '2.392e+07 times its budget'
+    """
+    ratio = value / limit
+    return f"over by {100 * (ratio - 1):.1f} %" if ratio < 10 else f"{ratio:.4g} times its budget"

@@ -71,7 +71,16 @@ from blocks.progress import ProgressCallback, StageProgress
 from .job_files import JobLog, LogKind, write_lines_atomically
 from .tune import HEADER_PARTS, METRIC_WORDS, TuneError, TuneSpec, damping_for_overshoot, load_tuning
 from .tune_eval import DAMPING_CONSTRAINTS, Evaluation, Evaluator, check_seconds, evaluation_estimate, gains_key
-from .tune_results import RESULT_NAME, PointResult, TuneFigure, TuneHistory, TuneResult
+from .tune_results import (
+    RESULT_NAME,
+    PointResult,
+    TuneFigure,
+    TuneHistory,
+    TuneResult,
+    excess_text,
+    numbers_text,
+    objective_text,
+)
 
 __all__ = ["run_tune", "TuneResult", "PointResult", "TuneHistory", "TuneFigure", "read_log", "LOG_NAME",
            "RESULT_NAME", "FEASIBILITY_SAMPLES", "DE_TOL", "EVALUATION_LOG"]
@@ -164,9 +173,9 @@ def check_linear_feasibility(spec: TuneSpec, evaluator: Evaluator) -> None:
     misses = []
     if limits.torque_noise_rms is not None and np.any(noise > limits.torque_noise_rms):
         j = int(np.argmax(noise / limits.torque_noise_rms))
-        misses.append(f"torque noise {np.round(noise, 4).tolist()} against the budget "
-                      f"{np.round(limits.torque_noise_rms, 4).tolist()} N m (joint {j + 1} over by "
-                      f"{100 * (noise[j] / limits.torque_noise_rms[j] - 1):.1f} %)")
+        misses.append(f"torque noise {numbers_text(noise)} against the budget "
+                      f"{numbers_text(limits.torque_noise_rms, 'N m')} (joint {j + 1} "
+                      f"{excess_text(noise[j], limits.torque_noise_rms[j])})")
     if limits.stability_margin is not None and abscissa > -limits.stability_margin:
         misses.append(f"slowest pole at {abscissa:.4g} 1/s, not <= -{limits.stability_margin:g} 1/s "
                       "(constraints.stability_margin)")
@@ -365,7 +374,7 @@ def unconstrained_best(evaluator: Evaluator) -> Evaluation | None:
 def tuned_scenario(spec: TuneSpec, gains: dict, feasible: bool, objective: float | None):
     """The base scenario with the tuned gains, named and described for its file."""
     what = f"{spec.objective} {spec.metric} over the {spec.runs}-run set"
-    value = f"{objective:.6g} mm" if objective is not None else "not finite"
+    value = objective_text(objective)
     note = "" if feasible else "INFEASIBLE (the best point found misses a constraint): "
     return spec.base.with_changes(dict(gains) | {
         "name": f"{spec.base.name}-tuned",
@@ -407,7 +416,8 @@ def _finish(spec: TuneSpec, evaluator: Evaluator, search: _Search, best: Evaluat
     from .tune_report import write_figures
 
     base = search.base
-    scenario = tuned_scenario(spec, best.gains, best.feasible, best.objective if best.feasible else None)
+    # the objective of the best point, feasible or not: the tuned file says what stdout and tune.json say
+    scenario = tuned_scenario(spec, best.gains, best.feasible, best.objective if math.isfinite(best.objective) else None)
     engine, workers = evaluator.engine, evaluator.workers
     base_point = _point(base, nominal_metric(spec.base, spec.metric, workers, engine), evaluator)
     tuned_point = _point(best, nominal_metric(scenario, spec.metric, workers, engine), evaluator)
@@ -456,9 +466,10 @@ def _replace(result: TuneResult, **changes) -> TuneResult:
 
 def _message(spec: TuneSpec, base: PointResult, tuned: PointResult) -> str:
     what = f"{spec.objective} {METRIC_WORDS[spec.metric]} over {spec.runs} runs"
-    fmt = lambda v: "not finite" if v is None else f"{v:.4g} mm"                           # noqa: E731
+    def fmt(point: PointResult) -> str:
+        return objective_text(point.objective, point.diverged, spec.runs)
     if not tuned.feasible:
         missed = ", ".join(k for k, v in tuned.violations.items() if v > 0) or "a run diverged"
         return (f"No feasible gains found: the best point, named here as INFEASIBLE, misses {missed}; its {what} is "
-                f"{fmt(tuned.worst if spec.objective == 'worst' else tuned.mean)} (base gains: {fmt(base.objective)})")
-    return f"Tuned gains: {what} {fmt(tuned.objective)} (base gains: {fmt(base.objective)})"
+                f"{fmt(tuned)} (base gains: {fmt(base)})")
+    return f"Tuned gains: {what} {fmt(tuned)} (base gains: {fmt(base)})"

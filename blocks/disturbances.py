@@ -34,6 +34,7 @@ import numpy as np
 
 from . import kernels
 from .parameters import RobotParameters
+from .validation import joint_arrays, real_array, robot_parameters
 
 __all__ = ["DisturbanceSpec", "DISTURBANCE_KINDS", "external_disturbance",
            "paper_disturbance", "friction_disturbance", "tissue_disturbance"]
@@ -146,8 +147,10 @@ def external_disturbance(t, q, dq, spec: DisturbanceSpec, params: RobotParameter
     params : RobotParameters
         True arm parameters (for the tissue contact kinematics).
     """
-    q, dq = np.broadcast_arrays(np.asarray(q, dtype=float), np.asarray(dq, dtype=float))
-    t = np.asarray(t, dtype=float)
+    if not isinstance(spec, DisturbanceSpec):
+        raise TypeError(f"spec must be a DisturbanceSpec (scenario.disturbance), got {type(spec).__name__}")
+    q, dq = joint_arrays({"q": q, "dq": dq}, robot_parameters(params).joints)
+    t = real_array(t, "t")
     lead = np.broadcast_shapes(t.shape, q.shape[:-1])
     q, dq = (np.broadcast_to(a, lead + (4,)) for a in (q, dq))
     p = kernels.disturbance_params(spec, params)

@@ -6,7 +6,9 @@ shape ``(..., 4)``; matrices come back as ``(..., 4, 4)``.  Joint order is
 
 The formulas are those of :mod:`blocks.kernels` (joint rows first); these
 functions present them in the joint-last layout that analysis code and users
-expect.
+expect.  Each checks its arguments once (:mod:`blocks.validation`): a wrong
+type raises TypeError, a wrong shape or a non-finite entry ValueError, naming
+the argument.
 """
 from __future__ import annotations
 
@@ -14,6 +16,7 @@ import numpy as np
 
 from .kernels import arm_constants, bias_forces, coriolis_forces, inertia_matrix, mass_solve, mass_times
 from .parameters import RobotParameters
+from .validation import joint_array, joint_arrays, robot_parameters
 
 __all__ = [
     "inertia", "inertia_derivative_theta2", "coriolis_vector", "coriolis_matrix", "gravity",
@@ -21,16 +24,18 @@ __all__ = [
 ]
 
 
-def _as_joint_array(x, name: str) -> np.ndarray:
-    arr = np.asarray(x, dtype=float)
-    if arr.shape[-1:] != (4,):
-        raise ValueError(f"{name} must have a last axis of length 4 (joints), got shape {arr.shape}")
-    return arr
+def _checked(params, **arrays) -> list[np.ndarray]:
+    """The arguments of a public function checked once (:mod:`blocks.validation`): the joint arrays, broadcast."""
+    joints = robot_parameters(params).joints
+    if len(arrays) == 1:
+        (name, value), = arrays.items()
+        return [joint_array(value, name, joints)]
+    return joint_arrays(arrays, joints)
 
 
-def _rows(x, name: str) -> np.ndarray:
-    """A joint-last array as rows (joint first), for the kernels."""
-    return np.moveaxis(_as_joint_array(x, name), -1, 0)
+def _rows(x) -> np.ndarray:
+    """A checked joint-last array as rows (joint first), for the kernels."""
+    return np.moveaxis(x, -1, 0)
 
 
 def _joint_last(rows: np.ndarray) -> np.ndarray:
@@ -52,7 +57,7 @@ def inertia(q, params: RobotParameters) -> np.ndarray:
     numpy.ndarray, shape (..., 4, 4)
         Symmetric positive definite inertia matrix.
     """
-    q = _as_joint_array(q, "q")
+    q, = _checked(params, q=q)
     return inertia_matrix(arm_constants(params), np.cos(q[..., 1]))
 
 
@@ -61,7 +66,7 @@ def inertia_derivative_theta2(q, params: RobotParameters) -> np.ndarray:
 
     ``M`` depends on ``theta2`` through ``k2 cos(theta2)`` in ``m00`` and half of it in ``m01``.
     """
-    q = _as_joint_array(q, "q")
+    q, = _checked(params, q=q)
     k2s2 = params.constants.k2 * np.sin(q[..., 1])
     dM = np.zeros(q.shape[:-1] + (4, 4))
     dM[..., 0, 0] = -k2s2
@@ -71,8 +76,8 @@ def inertia_derivative_theta2(q, params: RobotParameters) -> np.ndarray:
 
 def coriolis_vector(q, dq, params: RobotParameters) -> np.ndarray:
     """Coriolis and centrifugal torques ``N(q, q') q'`` of Eq. 6, shape (..., 4), in N m / N."""
-    q, dq = np.broadcast_arrays(_as_joint_array(q, "q"), _as_joint_array(dq, "dq"))
-    return _joint_last(coriolis_forces(arm_constants(params), np.sin(q[..., 1]), _rows(dq, "dq")))
+    q, dq = _checked(params, q=q, dq=dq)
+    return _joint_last(coriolis_forces(arm_constants(params), np.sin(q[..., 1]), _rows(dq)))
 
 
 def coriolis_matrix(q, dq, params: RobotParameters) -> np.ndarray:
@@ -81,8 +86,7 @@ def coriolis_matrix(q, dq, params: RobotParameters) -> np.ndarray:
     This is not the paper's printed matrix N (which gives the same vector but
     not the skew property); see ``docs/model.md``.  Shape (..., 4, 4).
     """
-    q = _as_joint_array(q, "q")
-    dq = _as_joint_array(dq, "dq")
+    q, dq = _checked(params, q=q, dq=dq)
     h = 0.5 * params.constants.k2 * np.sin(q[..., 1])
     C = np.zeros(np.broadcast(q, dq).shape[:-1] + (4, 4))
     C[..., 0, 0] = -h * dq[..., 1]
@@ -93,7 +97,7 @@ def coriolis_matrix(q, dq, params: RobotParameters) -> np.ndarray:
 
 def gravity(q, params: RobotParameters) -> np.ndarray:
     """Gravity vector ``G(q)`` of Eq. 7 (``d3`` positive downwards), shape (..., 4)."""
-    q = _as_joint_array(q, "q")
+    q, = _checked(params, q=q)
     # N q' vanishes at q' = 0, leaving G
     return _joint_last(bias_forces(arm_constants(params), np.sin(q[..., 1]), np.zeros((4,) + q.shape[:-1])))
 
@@ -108,29 +112,28 @@ def forward_dynamics(q, dq, tau, params: RobotParameters) -> np.ndarray:
     tau : array_like, shape (..., 4)
         Total generalised force on each joint (N m, N for joint 3).
     """
-    q, dq, tau = np.broadcast_arrays(_as_joint_array(q, "q"), _as_joint_array(dq, "dq"), _as_joint_array(tau, "tau"))
+    q, dq, tau = _checked(params, q=q, dq=dq, tau=tau)
     k = arm_constants(params)
-    force = _rows(tau, "tau") - bias_forces(k, np.sin(q[..., 1]), _rows(dq, "dq"))
+    force = _rows(tau) - bias_forces(k, np.sin(q[..., 1]), _rows(dq))
     return _joint_last(mass_solve(k, np.cos(q[..., 1]), force))
 
 
 def inverse_dynamics(q, dq, ddq, params: RobotParameters) -> np.ndarray:
     """Generalised forces ``M q'' + N q' + G`` that produce ``ddq``, shape (..., 4)."""
-    q, dq, ddq = np.broadcast_arrays(_as_joint_array(q, "q"), _as_joint_array(dq, "dq"), _as_joint_array(ddq, "ddq"))
+    q, dq, ddq = _checked(params, q=q, dq=dq, ddq=ddq)
     k = arm_constants(params)
-    rows = mass_times(k, np.cos(q[..., 1]), _rows(ddq, "ddq")) + bias_forces(k, np.sin(q[..., 1]),
-                                                                                   _rows(dq, "dq"))
+    rows = mass_times(k, np.cos(q[..., 1]), _rows(ddq)) + bias_forces(k, np.sin(q[..., 1]), _rows(dq))
     return _joint_last(rows)
 
 
 def kinetic_energy(q, dq, params: RobotParameters) -> np.ndarray:
     """Kinetic energy ``0.5 q'^T M(q) q'`` in J, shape (...)."""
-    q, dq = np.broadcast_arrays(_as_joint_array(q, "q"), _as_joint_array(dq, "dq"))
-    rows = _rows(dq, "dq")
+    q, dq = _checked(params, q=q, dq=dq)
+    rows = _rows(dq)
     return 0.5 * np.sum(rows * mass_times(arm_constants(params), np.cos(q[..., 1]), rows), axis=0)
 
 
 def potential_energy(q, params: RobotParameters) -> np.ndarray:
     """Gravitational potential energy in J (zero at ``d3 = 0``), consistent with ``G = dV/dq``."""
-    q = _as_joint_array(q, "q")
+    q, = _checked(params, q=q)
     return -params.constants.k4 * params.g * q[..., 2]

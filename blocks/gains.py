@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from .joints import RRPR_JOINTS, JointSpace
+from .validation import number_text, read_only_array
 
 __all__ = ["GainError", "GAIN_KEYS", "OBSERVER_VARIANTS", "validated_gain"]
 
@@ -52,12 +53,13 @@ def validated_gain(value, key: str, joints: JointSpace = RRPR_JOINTS) -> np.ndar
     Returns
     -------
     numpy.ndarray
-        A new (n, n) float array with ``writeable`` off.
+        A new (n, n) float array that is read-only and cannot be made writable again.
 
     Raises
     ------
     GainError
-        On text or true/false, a non-finite entry, a wrong shape, a
+        On text or true/false, a non-finite entry (a whole number too large
+        for a float is not finite), a wrong shape, a
         non-diagonal ``kp`` or ``kd``, a ``kp`` or ``kd`` entry <= 0, or an
         observer gain whose symmetric part ``Y + Y^T`` is not positive
         definite (then the estimate need not converge).
@@ -67,10 +69,16 @@ def validated_gain(value, key: str, joints: JointSpace = RRPR_JOINTS) -> np.ndar
     n = joints.count
     full = key == "observer"
     allowed = f"a number, {n} numbers or {'a' if full else 'a diagonal'} {n}x{n} matrix"
-    matrix = _as_matrix(value, key, n, allowed)
+    try:
+        matrix = _as_matrix(value, key, n, allowed)
+    except RecursionError:
+        raise GainError(f"'gains.{key}' must be {allowed}, got lists nested too deeply") from None
     if full:
-        # d_hat' = Y M^-1 (d - d_hat): with M > 0 the error decays when Y + Y^T > 0
-        if np.linalg.eigvalsh(matrix + matrix.T).min() <= 0:
+        # d_hat' = Y M^-1 (d - d_hat): with M > 0 the error decays when Y + Y^T > 0; the symmetric part is
+        # scaled to at most 1 first, so that entries near 1e308 do not overflow
+        symmetric = 0.5 * matrix + 0.5 * matrix.T
+        scale = np.abs(symmetric).max()
+        if scale == 0 or np.linalg.eigvalsh(symmetric / scale).min() <= 0:
             raise GainError(f"'gains.{key}' must have a positive definite symmetric part (Y + Y^T > 0) "
                             f"for the observer to converge, got {_shown(value)}")
     else:
@@ -79,20 +87,21 @@ def validated_gain(value, key: str, joints: JointSpace = RRPR_JOINTS) -> np.ndar
                             f"got {_shown(value)}")
         if np.any(np.diag(matrix) <= 0):
             raise GainError(f"'gains.{key}' must be > 0 on every joint, got {_shown(value)}")
-    matrix.flags.writeable = False
-    return matrix
+    return read_only_array(matrix)
 
 
 def _as_matrix(value, key: str, n: int, allowed: str) -> np.ndarray:
     """A number, an n-vector or an n x n array of finite numbers as a new n x n float array."""
     if _holds_non_numbers(value):
-        raise GainError(f"'gains.{key}' must be {allowed}, got {_shown(value)!r}")
+        raise GainError(f"'gains.{key}' must be {allowed}, got {_shown(value)}")
     try:
         arr = np.array(value, dtype=float)      # a copy: the caller's array stays the caller's
+    except OverflowError:                       # a whole number beyond any float (10**400)
+        raise GainError(f"'gains.{key}' must be a finite number, got {_shown(value)}") from None
     except (TypeError, ValueError):
         raise GainError(f"'gains.{key}' must be {allowed}, got {_shown(value)}") from None
     if not np.all(np.isfinite(arr)):
-        raise GainError(f"'gains.{key}' must be finite, got {_shown(value)}")
+        raise GainError(f"'gains.{key}' must be a finite number, got {_shown(value)}")
     if arr.ndim == 0:
         return float(arr) * np.eye(n)
     if arr.shape == (n,):
@@ -113,6 +122,6 @@ def _holds_non_numbers(value) -> bool:
     return False
 
 
-def _shown(value):
-    """The value as the user wrote it (arrays as lists) for messages."""
-    return value.tolist() if isinstance(value, np.ndarray) else value
+def _shown(value) -> str:
+    """The value as the user wrote it (arrays as lists, huge whole numbers short) for messages."""
+    return number_text(value.tolist() if isinstance(value, np.ndarray) else value)

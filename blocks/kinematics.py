@@ -11,7 +11,9 @@ frame (m) and tool roll angle (rad).  With the paper's conventions
 The paper's printed Jacobian has two errors (``J[0, 1]`` printed as
 ``-l2 cos`` and the last row printed ``[1, 1, 0, 1]``); the Jacobian here is
 the exact derivative of the map above.  All functions accept a leading batch
-shape ``(..., 4)``.
+shape ``(..., 4)`` and check their arguments once (:mod:`blocks.validation`):
+a wrong type raises TypeError, a wrong shape or a non-finite entry ValueError,
+naming the argument.
 """
 from __future__ import annotations
 
@@ -19,6 +21,7 @@ import numpy as np
 
 from .kernels.kinematics import jacobian_entries, kinematic_lengths, tool_pose
 from .parameters import RobotParameters
+from .validation import joint_array, joint_arrays, real_array, robot_parameters
 
 __all__ = [
     "UnreachableError", "forward_kinematics", "jacobian", "jacobian_derivative_times_dq",
@@ -34,7 +37,7 @@ class UnreachableError(ValueError):
 
 def forward_kinematics(q, params: RobotParameters) -> np.ndarray:
     """Tool pose ``[x (m), y (m), z (m), phi (rad)]`` for joint positions ``q``, shape (..., 4)."""
-    q = np.asarray(q, dtype=float)
+    q = joint_array(q, "q", robot_parameters(params).joints)
     return np.moveaxis(tool_pose(kinematic_lengths(params), np.moveaxis(q, -1, 0)), 0, -1)
 
 
@@ -44,7 +47,7 @@ def jacobian(q, params: RobotParameters) -> np.ndarray:
     Rows are ``x, y, z, phi``; columns are the joints.  Singular where
     ``sin(theta2) = 0`` (arm stretched or folded).
     """
-    q = np.asarray(q, dtype=float)
+    q = joint_array(q, "q", robot_parameters(params).joints)
     j00, j01, j10, j11 = jacobian_entries(kinematic_lengths(params), np.moveaxis(q, -1, 0))
     J = np.zeros(q.shape[:-1] + (4, 4))
     J[..., 0, 0], J[..., 0, 1], J[..., 1, 0], J[..., 1, 1] = j00, j01, j10, j11
@@ -57,11 +60,10 @@ def jacobian(q, params: RobotParameters) -> np.ndarray:
 
 def jacobian_derivative_times_dq(q, dq, params: RobotParameters) -> np.ndarray:
     """The velocity product ``J'(q, q') q'`` (task-space acceleration at zero joint acceleration)."""
-    q = np.asarray(q, dtype=float)
-    dq = np.asarray(dq, dtype=float)
+    q, dq = joint_arrays({"q": q, "dq": dq}, robot_parameters(params).joints)
     t1, t12 = q[..., 0], q[..., 0] + q[..., 1]
     w1, w12 = dq[..., 0], dq[..., 0] + dq[..., 1]
-    out = np.zeros(np.broadcast(q, dq).shape)
+    out = np.zeros(q.shape)
     out[..., 0] = -params.a1 * np.cos(t1) * w1 ** 2 - params.a2 * np.cos(t12) * w12 ** 2
     out[..., 1] = -params.a1 * np.sin(t1) * w1 ** 2 - params.a2 * np.sin(t12) * w12 ** 2
     return out
@@ -69,6 +71,7 @@ def jacobian_derivative_times_dq(q, dq, params: RobotParameters) -> np.ndarray:
 
 def planar_reach(params: RobotParameters) -> tuple[float, float]:
     """Inner and outer radius (m) of the reachable annulus in the x-y plane."""
+    robot_parameters(params)
     return abs(params.a1 - params.a2), params.a1 + params.a2
 
 
@@ -99,13 +102,14 @@ def inverse_kinematics(pose, params: RobotParameters, elbow: str = "positive",
         closer to a singularity than ``min_sin_theta2``; the message names the
         first offending point.
     """
-    if elbow not in ELBOWS:
+    if not isinstance(elbow, str) or elbow not in ELBOWS:
         raise ValueError(f"elbow must be one of {sorted(ELBOWS)}, got {elbow!r}")
-    pose = np.asarray(pose, dtype=float)
+    robot_parameters(params)
+    pose = real_array(pose, "pose")
     if pose.shape[-1:] != (4,):
-        raise ValueError(f"pose must have a last axis of length 4 (x, y, z, phi), got shape {pose.shape}")
-    if not np.all(np.isfinite(pose)):
-        raise ValueError("pose contains non-finite values")
+        raise ValueError(f"pose must have shape (..., 4), a last axis of length 4 (x, y, z, phi), got shape "
+                         f"{pose.shape}")
+    min_sin_theta2 = float(real_array(min_sin_theta2, "min_sin_theta2"))
     x, y, z, phi = pose[..., 0], pose[..., 1], pose[..., 2], pose[..., 3]
     a1, a2 = params.a1, params.a2
     c2 = (x ** 2 + y ** 2 - a1 ** 2 - a2 ** 2) / (2 * a1 * a2)
@@ -126,7 +130,7 @@ def inverse_kinematics(pose, params: RobotParameters, elbow: str = "positive",
     d3 = params.d1 - params.d4 - z
     t4 = t1 + t2 - phi
     if q_near is not None:
-        q_near = np.asarray(q_near, dtype=float)
+        q_near = joint_array(q_near, "q_near", params.joints)
         t1 = q_near[..., 0] + _wrap(t1 - q_near[..., 0])
         t4 = t1 + t2 - phi
         t4 = q_near[..., 3] + _wrap(t4 - q_near[..., 3])

@@ -48,6 +48,7 @@ from .run_limits import estimate_run
 from .scenario import Scenario, load_scenario
 from .systems import controller, plant, sensor, signal_names, trajectory_block
 from .systems import observer as observer_block
+from .validation import callable_or_none, joint_arrays
 
 __all__ = ["build_blocks", "closed_loop", "initial_state", "simulate", "SimulationError", "lumped_disturbance",
            "LOOP_SIGNALS", "ENGINES", "EngineFallbackWarning", "select_engine"]
@@ -213,7 +214,10 @@ def lumped_disturbance(q, dq, tau, tau_dis, scenario: Scenario) -> np.ndarray:
     substituted plant (an FMU) whose parameters differ from the scenario's, ``d``
     is relative to the scenario's robot, not to that plant.
     """
-    rows = [np.moveaxis(np.asarray(a, dtype=float), -1, 0) for a in (q, dq, tau, tau_dis)]
+    if not isinstance(scenario, Scenario):
+        raise TypeError(f"scenario must be a Scenario, got {type(scenario).__name__} {scenario!r:.80}")
+    arrays = joint_arrays({"q": q, "dq": dq, "tau": tau, "tau_dis": tau_dis}, scenario.robot.joints)
+    rows = [np.moveaxis(a, -1, 0) for a in arrays]
     d = lumped_disturbance_rows(arm_constants(scenario.robot), arm_constants(scenario.nominal), *rows)
     return np.moveaxis(d, 0, -1)
 
@@ -267,6 +271,7 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
     s = _as_scenario(scenario)
     if not isinstance(observer, bool):
         raise TypeError(f"observer must be True or False, got {observer!r}")
+    callable_or_none(progress, "progress")
     if s.controller is not None:            # the digital controller: a sampled-data loop
         from .digital_loop import simulate_sampled
         return simulate_sampled(s, observer=observer, plant=plant, progress=progress)

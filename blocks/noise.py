@@ -17,11 +17,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from .kernels.noise import sampled_noise
+from .validation import read_only_array
 
 __all__ = ["MeasurementNoise"]
 
-_ZERO_TABLE = np.zeros((8, 2))
-_ZERO_TABLE.setflags(write=False)
+_ZERO_TABLE = read_only_array(np.zeros((8, 2)))
 
 
 @dataclass(frozen=True)
@@ -65,8 +65,8 @@ class MeasurementNoise:
         if self.enabled:        # no noise, no samples: long noise-free runs must not pay for them
             n = int(math.ceil(self.t_final / self.sample_period)) + 2
             rng = np.random.default_rng(self.seed)
-            samples = (rng.standard_normal((n, 8)) * np.array(self.q_std + self.dq_std)).T.copy()
-            samples.setflags(write=False)
+            # read-only for good: a scenario's noise cannot be changed through it
+            samples = read_only_array((rng.standard_normal((n, 8)) * np.array(self.q_std + self.dq_std)).T)
         object.__setattr__(self, "_samples", samples)
 
     @property

@@ -1,6 +1,7 @@
 """Output folders: default names, and reserved staging so that a failed or concurrent run leaves nothing mixed."""
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 import tempfile
@@ -8,7 +9,38 @@ import weakref
 from datetime import datetime
 from pathlib import Path
 
-__all__ = ["default_out_dir", "staged_output"]
+__all__ = ["default_out_dir", "staged_output", "file_error", "DISK_ERRORS"]
+
+#: Why a write fails for reasons of the file system rather than of the file, in words.
+DISK_ERRORS = {errno.EROFS: "the file system is read-only", errno.ENOSPC: "the disk is full (no space left)",
+               errno.EDQUOT: "the disk quota is used up", errno.EFBIG: "the file is larger than this system allows",
+               errno.EACCES: "permission denied", errno.EPERM: "the operation is not permitted"}
+
+
+def file_error(err: OSError, path, role: str, advice: str = "choose another --out") -> OSError:
+    """``err`` said in words that name the file's role and path, as an exception of the same type.
+
+    Parameters
+    ----------
+    err : OSError
+        What the system said (``[Errno 28] No space left on device``).
+    path : path-like
+        The file or folder the user gave or dobkit made.
+    role : str
+        What it is to the user: ``"output folder"``, ``"results file"``, ``"cache folder"``.
+    advice : str
+        What to do about it.
+
+    Examples
+    --------
+    >>> import errno
+    >>> str(file_error(OSError(errno.EROFS, "Read-only file system"), "/mnt/o", "output folder"))
+    "output folder '/mnt/o' cannot be written: the file system is read-only; choose another --out"
+    """
+    what = DISK_ERRORS.get(err.errno, err.strerror or str(err))
+    new = type(err)(f"{role} '{path}' cannot be written: {what}" + (f"; {advice}" if advice else ""))
+    new.errno = err.errno           # kept for callers that test it; without strerror and filename str() is the text
+    return new
 
 
 def default_out_dir(prefix: str = "dobkit-run") -> Path:
@@ -90,29 +122,38 @@ class staged_output:
             raise FileExistsError(f"output folder '{target}' exists and is not empty; choose a new --out")
         created = None
         if not target.exists():
-            target.parent.mkdir(parents=True, exist_ok=True)
             try:
+                target.parent.mkdir(parents=True, exist_ok=True)
                 target.mkdir()
             except FileExistsError:
                 raise FileExistsError(f"output folder '{target}' was just created by another run; choose another "
                                       "--out") from None
+            except OSError as err:
+                raise file_error(err, target, "output folder") from None
             created = target
         try:
             fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666)
         except FileExistsError:
             raise FileExistsError(f"output folder '{target}' is being written by another dobkit run; choose another "
                                   "--out") from None
-        except PermissionError:
+        except OSError as err:
             _release(lock, created)
-            raise PermissionError(f"output folder '{target}' cannot be written (permission denied); choose another "
-                                  "--out") from None
-        with os.fdopen(fd, "w") as f:
-            f.write(str(os.getpid()))
+            raise file_error(err, target, "output folder") from None
+        try:
+            with os.fdopen(fd, "w") as f:
+                f.write(str(os.getpid()))
+        except OSError as err:
+            _release(lock, created)
+            raise file_error(err, target, "output folder") from None
         self._lock, self._created = lock, created
         self._release = weakref.finalize(self, _release, lock, created)     # work that fails before `with`
 
     def __enter__(self) -> Path:
-        self.stage = Path(tempfile.mkdtemp(prefix=".partial-", dir=self.target))
+        try:
+            self.stage = Path(tempfile.mkdtemp(prefix=".partial-", dir=self.target))
+        except OSError as err:
+            self._release()
+            raise file_error(err, self.target, "output folder") from None
         self.stage.chmod(0o777 & ~_umask())
         return self.stage
 
@@ -120,6 +161,10 @@ class staged_output:
         if exc_type is not None:
             shutil.rmtree(self.stage, ignore_errors=True)
             self._release()
+            if isinstance(exc, OSError) and exc.errno in DISK_ERRORS and _inside(exc.filename, self.stage):
+                # a full disk or a file system turned read-only while the results were written
+                raise file_error(exc, self.target, "output folder", "free space or choose another --out; nothing "
+                                 "was kept") from None
             return
         try:
             for entry in sorted(self.stage.iterdir()):
@@ -134,6 +179,16 @@ class staged_output:
                           f"'{kept}'") from None
         self._lock.unlink(missing_ok=True)
         self._release.detach()
+
+
+def _inside(filename, folder: Path) -> bool:
+    """Whether an error's file is in ``folder`` (an error without a file name is taken as the writer's)."""
+    if filename is None or isinstance(filename, int):
+        return True
+    try:
+        return Path(os.fsdecode(filename)).resolve().is_relative_to(folder.resolve())
+    except (OSError, ValueError, TypeError):
+        return False
 
 
 def _lock_pid(lock: Path) -> int | None:

@@ -21,6 +21,9 @@ right-hand-side evaluations) and the wall-time budget.
 from __future__ import annotations
 
 import math
+import sys
+
+import numpy as np
 
 from .budget import Budget, Estimate
 from .scenario import Scenario
@@ -53,11 +56,19 @@ def estimate_run(scenario: Scenario, observer: bool = True) -> Estimate:
         candidates.append((t_final * rate, "controller.sample_rate",
                            f"one integrator step at least per controller tick: {t_final:g} s at {rate:g} Hz"))
     elif s.simulation.method in EXPLICIT_METHODS:
-        for key, rates in rates_by_source(Variants(s, [{}]), observer).items():
+        with np.errstate(over="ignore", invalid="ignore"):     # gains near 1e308: the rate is inf, said below
+            by_source = rates_by_source(Variants(s, [{}]), observer)
+        for key, rates in by_source.items():
             rate = float(rates.max())
-            candidates.append((t_final * rate / STABILITY_SPAN, key,
-                               f"its fastest rate, about {rate:.3g} 1/s, limits an explicit {s.simulation.method} "
-                               f"step to {STABILITY_SPAN / rate:.3g} s"))
+            steps = t_final * rate / STABILITY_SPAN
+            if not math.isfinite(steps):
+                candidates.append((math.inf, key, f"its fastest rate is beyond what a float holds (over "
+                                                  f"{sys.float_info.max:.3g} 1/s), so no explicit "
+                                                  f"{s.simulation.method} step is small enough"))
+                continue
+            candidates.append((steps, key, f"its fastest rate, about {rate:.3g} 1/s, limits an explicit "
+                                           f"{s.simulation.method} step to {STABILITY_SPAN / rate:.3g} s, "
+                                           f"{t_final:g} s / {STABILITY_SPAN / rate:.3g} s"))
     if math.isfinite(s.simulation.max_step):
         candidates.append((t_final / s.simulation.max_step, "simulation.max_step",
                            f"steps no longer than {s.simulation.max_step:g} s over {t_final:g} s"))
@@ -79,7 +90,10 @@ def estimate_run(scenario: Scenario, observer: bool = True) -> Estimate:
         parts["noise table"] = s.noise.table.nbytes
         keys["noise table"] = "noise.sample_period"
         reasons["noise table"] = f"{s.noise.table.shape[1]:,} samples"
-    return Estimate(memory=sum(parts.values()), steps=int(min(steps, 1e30)), parts=parts, keys=keys, reasons=reasons)
+    # the step count as estimated, however large (the message's numbers must agree); the largest float when it is not
+    # a number at all
+    steps = int(min(steps, sys.float_info.max))
+    return Estimate(memory=sum(parts.values()), steps=steps, parts=parts, keys=keys, reasons=reasons)
 
 
 def check_run(scenario: Scenario, observer: bool = True, budget: Budget | None = None) -> Budget:

@@ -36,7 +36,9 @@ import dataclasses
 import functools
 import json
 import math
+import os
 import re
+import stat
 import tomllib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -52,7 +54,8 @@ from .gains import GAIN_KEYS, OBSERVER_VARIANTS, GainError, validated_gain
 from .joints import RRPR_JOINTS
 from .noise import MeasurementNoise
 from .parameters import ParameterError, RobotParameters
-from .trajectory import TRAJECTORY_KINDS, JointSine, LacerationPath
+from .trajectory import TRAJECTORY_KINDS, JointSine, LacerationPath, check_joint_ranges
+from .validation import number_text, read_only_array
 
 __all__ = ["Scenario", "ScenarioError", "SimulationSettings", "load_scenario", "builtin_scenarios",
            "scenario_from_dict", "to_toml", "parse_key", "check_value"]
@@ -146,9 +149,8 @@ def _read_only(value):
 
 
 def _read_only_array(value) -> np.ndarray:
-    arr = np.array(value, dtype=float)      # a copy: an array the caller keeps cannot change the scenario
-    arr.flags.writeable = False
-    return arr
+    # a copy that cannot be made writable again: neither the caller's array nor setflags changes the scenario
+    return read_only_array(value)
 
 
 def _plain(value):
@@ -290,6 +292,12 @@ class Scenario:
         if not changes:
             return self
         try:
+            return self._changed(changes)
+        except RecursionError:
+            raise ScenarioError(f"{self.source}: {_TOO_DEEP}") from None
+
+    def _changed(self, changes: Mapping[str, Any]) -> Scenario:
+        try:
             whole = self.expand(changes)
         except ScenarioError as err:
             raise ScenarioError(f"{self.source}: {err}") from None
@@ -379,12 +387,7 @@ def _finite(lower: float | None = None, strict: bool = False) -> Check:
     return check
 
 
-def _number_text(value) -> str:
-    """A value for a message: huge whole numbers in short scientific form."""
-    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10 ** 15:
-        digits = str(abs(value))
-        return f"{'-' if value < 0 else ''}{digits[0]}.{digits[1:4]}e+{len(digits) - 1}"
-    return repr(value)
+_number_text = number_text
 
 
 def _finite_float(value) -> bool:
@@ -485,7 +488,8 @@ def _build_robot(given: dict, built: dict):
     try:
         robot = RobotParameters(**given)
     except ParameterError as err:
-        raise ScenarioError(f"[robot] {err}") from None
+        given_text = ", ".join(f"'robot.{k}' = {v!r}" for k, v in given.items())
+        raise ScenarioError(f"[robot] ({given_text}) {err}") from None
     return robot, robot.as_dict()
 
 
@@ -493,7 +497,8 @@ def _build_nominal(given: dict, built: dict):
     try:
         nominal = built["robot"].scaled(**given)
     except ParameterError as err:
-        raise ScenarioError(f"[nominal_scale] gives an impossible nominal model: {err}") from None
+        given_text = ", ".join(f"'nominal_scale.{k}' = {v!r}" for k, v in given.items())
+        raise ScenarioError(f"[nominal_scale] ({given_text}) gives an impossible nominal model: {err}") from None
     return nominal, {k: given.get(k, 1.0) for k in RobotParameters.names()}
 
 
@@ -546,10 +551,24 @@ def _build_trajectory(given: dict, built: dict):
             trajectory = LacerationPath(params=built["robot"], **kw)
         else:
             trajectory = JointSine(**kw)
+            _check_sine_ranges(trajectory, built)
     except (ValueError, TypeError) as err:          # UnreachableError is a ValueError
         raise ScenarioError(f"[trajectory] {err}") from None
     keys = [k for k in _SECTIONS["trajectory"].checks_for(kind) if k != "kind"]
     return trajectory, {"kind": kind} | {k: _plain(getattr(trajectory, k)) for k in keys}
+
+
+def _check_sine_ranges(sine: JointSine, built: dict) -> None:
+    """Refuse joint sines that leave a joint's range within the run: a joint whose sine completes a period
+    reaches ``offset +- |amplitude|``; a shorter stretch is sampled (4001 points: a missed peak is below 1e-6 of
+    the amplitude)."""
+    t_final = built["simulation"].t_final
+    q, _, _ = sine.evaluate(np.linspace(0.0, t_final, 4001))
+    offset, amplitude = np.array(sine.offset), np.abs(sine.amplitude)
+    whole = np.abs(sine.omega) * t_final >= 2 * math.pi
+    extremes = np.where(whole, [offset - amplitude, offset + amplitude], offset)
+    check_joint_ranges(np.vstack([q, extremes]), built["robot"].joints, "joint sine",
+                       "q = trajectory.offset + trajectory.amplitude x sin(trajectory.omega t) over the run")
 
 
 def _check_phases(path: dict, sim: SimulationSettings) -> None:
@@ -557,7 +576,10 @@ def _check_phases(path: dict, sim: SimulationSettings) -> None:
     :data:`MIN_PHASE_DURATION`: no arm sews that fast, and a huge stitch count would only cost memory and time."""
     stitches = path.get("stitches", LacerationPath.stitches)
     if isinstance(stitches, int) and stitches >= 1:
-        phase = path["duration"] / (2 * stitches - 1)
+        try:
+            phase = path["duration"] / (2 * stitches - 1)
+        except OverflowError:               # a count beyond any float: phases of no length
+            phase = 0.0
         if phase < MIN_PHASE_DURATION:
             raise ScenarioError(f"'trajectory.stitches' = {_number_text(stitches)} makes each of the path's "
                                 f"{_number_text(2 * stitches - 1)} phases {phase:.3g} s long, shorter than "
@@ -567,7 +589,8 @@ def _check_phases(path: dict, sim: SimulationSettings) -> None:
 def _build_noise(given: dict, built: dict):
     t_final = built["simulation"].t_final
     period = given.get("sample_period", MeasurementNoise.sample_period)
-    stds = tuple(given.get("q_std", ())) + tuple(given.get("dq_std", ()))
+    # one number where four are due is refused by MeasurementNoise, by key
+    stds = tuple(np.atleast_1d(given.get("q_std", ()))) + tuple(np.atleast_1d(given.get("dq_std", ())))
     if period > 0 and period < MIN_TIME_STEP:
         raise ScenarioError(f"'noise.sample_period' ({period:g} s) must be at least {MIN_TIME_STEP:g} s")
     if any(v != 0 for v in stds) and period > 0 and t_final / period > MAX_NOISE_SAMPLES:
@@ -599,6 +622,17 @@ def _whole(lower: int) -> Check:
             raise ScenarioError(f"'{key}' must be a whole number >= {lower}, got {value!r}")
         return value
     return check
+
+
+def _joint_positions(value, key: str) -> tuple[float, ...]:
+    """Joint positions (rad, m) within the joints' ranges (the prismatic joint's stroke)."""
+    q = _vector(RRPR_JOINTS.count)(value, key)
+    for i, (v, (lo, hi)) in enumerate(zip(q, RRPR_JOINTS.limits)):
+        if not lo <= v <= hi:
+            unit = RRPR_JOINTS.position_units[i]
+            raise ScenarioError(f"'{key}[{i}]' = {v!r} {unit} is outside the range of joint {RRPR_JOINTS.names[i]}, "
+                                f"{lo:g} to {hi:g} {unit}")
+    return q
 
 
 def _build_initial(given: dict, built: dict):
@@ -647,7 +681,8 @@ _SECTIONS: dict[str, _Section] = {
         "joint_sine": {k: _like(d) for k, d in _defaults(JointSine).items()}}, default_kind="laceration"),
     "noise": _Section({k: _like(d) for k, d in _defaults(MeasurementNoise).items() if k in _NOISE_KEYS},
                       _build_noise),
-    "initial": _Section({k: _vector(RRPR_JOINTS.count) for k in _INITIAL_KEYS}, _build_initial),
+    "initial": _Section({"q": _joint_positions} | {k: _vector(RRPR_JOINTS.count) for k in _INITIAL_KEYS[1:]},
+                        _build_initial),
     "controller": _Section({"sample_rate": _finite(0.0, strict=True), "delay": _whole(0),
                             "observer_discretization": _one_of(DISCRETIZATIONS), "velocity": _one_of(VELOCITY_SOURCES),
                             "velocity_cutoff": _finite(0.0, strict=True),
@@ -736,6 +771,8 @@ def load_scenario(name_or_path: str | Path = "paper") -> Scenario:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise ScenarioError(f"{source}: not valid TOML: {err}") from None
+    except RecursionError:              # tomllib reads nested arrays recursively
+        raise ScenarioError(f"{source}: {_TOO_DEEP}") from None
     return scenario_from_dict(data, source=source)
 
 
@@ -750,14 +787,12 @@ def _read_source(name_or_path) -> tuple[str, str]:
     if path.suffix == ".toml" or path.exists() or "/" in str(name_or_path):
         if path.is_dir():
             raise ScenarioError(f"'{path}' is a folder, not a scenario file (give the path of a .toml file)")
-        if not path.is_file():
+        if not path.exists():
             raise ScenarioError(f"scenario file '{path}' does not exist")
-        if path.stat().st_size > MAX_SCENARIO_BYTES:
-            raise ScenarioError(f"scenario file '{path}' is {path.stat().st_size:,} bytes; a scenario is a short "
-                                f"text file (at most {MAX_SCENARIO_BYTES:,} bytes)")
+        raw = _read_bounded(path)
         try:
             # utf-8-sig: a byte-order mark, as some editors write, is not part of the TOML text
-            return path.read_text(encoding="utf-8-sig"), str(path)
+            return raw.decode("utf-8-sig"), str(path)
         except UnicodeDecodeError as err:
             raise ScenarioError(f"scenario file '{path}' is not UTF-8 text (byte {err.start})") from None
     names = builtin_scenarios()
@@ -765,6 +800,27 @@ def _read_source(name_or_path) -> tuple[str, str]:
         raise ScenarioError(f"no built-in scenario named '{name_or_path}'; built-in: {names} (or give a .toml path)")
     return (resources.files("blocks") / "scenarios" / f"{name_or_path}.toml").read_text(encoding="utf-8"), \
         str(name_or_path)
+
+
+def _read_bounded(path: Path) -> bytes:
+    """The bytes of a regular file of at most :data:`MAX_SCENARIO_BYTES`.
+
+    Opened without blocking and checked on the open file, so that a FIFO (which would wait for a writer) or a
+    device (``/dev/zero``, endless) is refused rather than read.
+    """
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except OSError as err:
+        raise ScenarioError(f"scenario file '{path}' cannot be read ({err.strerror or err})") from None
+    with os.fdopen(fd, "rb") as f:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise ScenarioError(f"scenario file '{path}' is not a regular file (a device, pipe or socket); give the "
+                                "path of a .toml file")
+        raw = f.read(MAX_SCENARIO_BYTES + 1)
+    if len(raw) > MAX_SCENARIO_BYTES:
+        raise ScenarioError(f"scenario file '{path}' is {path.stat().st_size:,} bytes; a scenario is a short text "
+                            f"file (at most {MAX_SCENARIO_BYTES:,} bytes)")
+    return raw
 
 
 def scenario_from_dict(data: Mapping, source: str = "<dict>") -> Scenario:
@@ -780,6 +836,12 @@ def scenario_from_dict(data: Mapping, source: str = "<dict>") -> Scenario:
         return _validated(data, source)
     except ScenarioError as err:
         raise ScenarioError(f"{source}: {err}") from None
+    except RecursionError:
+        raise ScenarioError(f"{source}: {_TOO_DEEP}") from None
+
+
+_TOO_DEEP = ("a value is nested too deeply (lists within lists hundreds of levels deep); a scenario's values are "
+             "numbers, lists of numbers and at most a 4x4 matrix")
 
 
 def _validated(data: Mapping, source: str) -> Scenario:

@@ -24,8 +24,11 @@ differences.  After ``duration`` the reference holds the last pose.
 
 Construction samples the whole path and raises
 :class:`~blocks.kinematics.UnreachableError` if any point is outside
-the workspace or closer to the singular ``theta2 = 0, pi`` than
-``singularity_margin``.
+the workspace -- the planar annulus, or a joint's range (the prismatic
+joint's stroke, :data:`blocks.joints.D3_STROKE`) -- or closer to the
+singular ``theta2 = 0, pi`` than ``singularity_margin``.  A joint-sine
+reference is checked against the joint ranges by the scenario that runs it
+(:func:`check_joint_ranges`).
 """
 from __future__ import annotations
 
@@ -38,8 +41,8 @@ from .contract import Kernels
 from .kinematics import ELBOWS, UnreachableError, inverse_kinematics, jacobian, jacobian_derivative_times_dq
 from .parameters import RobotParameters
 
-__all__ = ["LacerationPath", "JointSine", "TRAJECTORY_KINDS", "smoothstep5", "bump6", "laceration_pose",
-           "laceration_rows", "laceration_reference", "laceration_output", "joint_sine_output"]
+__all__ = ["LacerationPath", "JointSine", "TRAJECTORY_KINDS", "check_joint_ranges", "smoothstep5", "bump6",
+           "laceration_pose", "laceration_rows", "laceration_reference", "laceration_output", "joint_sine_output"]
 
 TRAJECTORY_KINDS = ("laceration", "joint_sine")
 
@@ -175,6 +178,21 @@ def _scalar(value, name: str, unit: str) -> float:
     if arr.ndim != 0:
         raise ValueError(f"trajectory.{name} must be one number in {unit}, got {value!r}")
     return float(arr)
+
+
+def check_joint_ranges(q, joints, what: str, why: str = "") -> None:
+    """Refuse joint references ``q`` (shape (..., n)) that leave a joint's range (:attr:`JointSpace.limits
+    <blocks.joints.JointSpace.limits>`).
+
+    Raises
+    ------
+    UnreachableError
+        Naming ``what`` (the reference), the joint, the value it reaches, its range and ``why`` (the keys that
+        set the reference).
+    """
+    problem = joints.outside_limits(q)
+    if problem is not None:
+        raise UnreachableError(f"{what}: {problem}" + (f" ({why})" if why else ""))
 
 
 @dataclass(frozen=True)
@@ -323,9 +341,19 @@ class LacerationPath:
         t = np.linspace(0.0, self.duration, samples)
         pos, _, _ = self.pose(t)
         try:
-            inverse_kinematics(pos, self.params, self.elbow, min_sin_theta2=math.sin(self.singularity_margin))
+            q = inverse_kinematics(pos, self.params, self.elbow, min_sin_theta2=math.sin(self.singularity_margin))
         except UnreachableError as err:
             raise UnreachableError(f"laceration path: {err}") from None
+        # the planar reach is checked above; the height sets the prismatic joint, which has a stroke
+        p = self.params
+        top, bottom = self.skin_height + self.hover, self.skin_height - self.depth
+        strokes = [lim for lim, kind in zip(p.joints.limits, p.joints.kinds) if kind == "prismatic"]
+        heights = "" if len(strokes) != 1 else (
+            f"; the stroke allows tool heights z = d1 - d3 - d4 from {p.d1 - p.d4 - strokes[0][1]:.6g} m to "
+            f"{p.d1 - p.d4 - strokes[0][0]:.6g} m")
+        check_joint_ranges(q, p.joints, "laceration path", f"the tool goes from trajectory.skin_height + "
+                                                           f"trajectory.hover = {top:.6g} m down to trajectory."
+                                                           f"skin_height - trajectory.depth = {bottom:.6g} m{heights}")
 
 
 @dataclass(frozen=True)

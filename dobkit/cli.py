@@ -15,6 +15,7 @@ from blocks.progress import StageProgress
 from . import __version__
 from .analysis_commands import add_analysis_subcommands
 from .fmu_commands import add_fmu_subcommands
+from .signals import run_with_signals
 from .sweep_commands import add_sweep_subcommand
 from .tune_commands import add_tune_subcommand
 
@@ -81,7 +82,11 @@ def _warnings_as_notes(command: str):
 
 
 def main(argv=None) -> int:
-    """Entry point of the ``dobkit`` console script; returns the exit status."""
+    """Entry point of the ``dobkit`` console script; returns the exit status (SIGTERM: as Ctrl-C, 143)."""
+    return run_with_signals(_main, argv)
+
+
+def _main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

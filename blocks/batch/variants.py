@@ -10,7 +10,7 @@ member is to be run alone.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -179,11 +179,20 @@ class Variants:
 
 def _as_records(records) -> list[dict]:
     if isinstance(records, Mapping):
+        for k, v in records.items():
+            if isinstance(v, Mapping) or not isinstance(v, (list, tuple, np.ndarray)):
+                nested = isinstance(v, Mapping) and v
+                hint = (f"write dotted keys, {{'{k}.{next(iter(v))}': [...]}}" if nested else
+                        "each column is a list with one value per variant, {'gains.kp': [100, 180]}")
+                raise ScenarioError(f"variant column {k!r} must be a list of values, got {v!r:.80}; {hint}")
         lengths = {k: len(v) for k, v in records.items()}
         if len(set(lengths.values())) > 1:
             raise ScenarioError(f"variant columns must all have the same length, got {lengths}")
         n = next(iter(lengths.values()), 0)
         return [{str(k): _plain(records[k][i]) for k in records} for i in range(n)]
+    if isinstance(records, (str, bytes)) or not isinstance(records, Iterable):
+        raise ScenarioError(f"variants must be a mapping of columns ({{'gains.kp': [100, 180]}}) or a list of "
+                            f"mappings ([{{'gains.kp': 100}}, ...]), got {type(records).__name__} {records!r:.80}")
     out = []
     for i, rec in enumerate(records):
         if not isinstance(rec, Mapping):
