@@ -109,3 +109,40 @@ def test_both_sides_see_the_input_start_at_the_command_and_end_where_the_couplin
         np.testing.assert_allclose(end, want_end, rtol=0, atol=TOL)
     # the command recorded at t_k is c(t_k) itself
     np.testing.assert_allclose(np.asarray(resp.outputs[labels.index("u")]), c(t), rtol=0, atol=1e-15)
+
+
+# --- the exported plant, FMI 2 (input derivatives) and FMI 3 (intermediate update): four inputs ----------------------
+AMPLITUDE = np.array([1.0, -2.0, 0.5, 3.0])          # tau[i] = AMPLITUDE[i] c(t), N m or N
+
+
+@pytest.fixture(scope="module")
+def plants(tmp_path_factory):
+    from fmu import export_plant
+    folder = tmp_path_factory.mktemp("pinned-plant")
+    return {v: export_plant(folder / f"plant{v}.fmu", fmi_version=v) for v in (2, 3)}
+
+
+def torque_side() -> ct.NonlinearIOSystem:
+    """Commands ``tau[i] = a_i c(t)``, echoes the applied ``tau[i]`` and integrates their moments."""
+    names = [f"tau[{i}]" for i in range(4)]
+    return ct.nlsys(lambda t, x, u, p: np.concatenate([u, t * u]),
+                    lambda t, x, u, p: np.concatenate([AMPLITUDE * c(t), u]), inputs=names,
+                    outputs=names + [f"echo[{i}]" for i in range(4)],
+                    states=[f"A0[{i}]" for i in range(4)] + [f"A1[{i}]" for i in range(4)], name="torques")
+
+
+@pytest.mark.parametrize("version", [2, 3])
+@pytest.mark.parametrize("coupling", ["zoh", "linear"])
+def test_the_plants_torques_start_and_end_each_step_where_the_coupling_puts_them(plants, version, coupling):
+    resp = cosimulate_system(plants[version], torque_side(), STEPS * H, H, coupling=coupling)
+    assert (resp.cosim["coupling"], resp.cosim["fmi_version"]) == (coupling, version)
+    labels, states = list(resp.output_labels), list(resp.state_labels)
+    t = np.asarray(resp.time)
+    want_start, want_end = expected(coupling, t[:-1])
+    for i, a in enumerate(AMPLITUDE):
+        echo = np.asarray(resp.outputs[labels.index(f"echo[{i}]")])
+        assert echo[0] == 0.0
+        np.testing.assert_allclose(echo[1:], a * want_end, rtol=0, atol=abs(a) * TOL)
+        start, end = start_and_end(*(np.asarray(resp.states[states.index(f"A{j}[{i}]")]) for j in (0, 1)), t)
+        np.testing.assert_allclose(start, a * want_start, rtol=0, atol=abs(a) * TOL)
+        np.testing.assert_allclose(end, a * want_end, rtol=0, atol=abs(a) * TOL)
