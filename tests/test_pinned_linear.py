@@ -40,6 +40,15 @@ def test_analytic_observer_poles_are_those_of_the_nominal_model(doubled):
     assert np.min(got.real) == pytest.approx(-PAPER_Y / (2 * 0.25), rel=1e-12)
 
 
+def test_scaling_twice_multiplies_the_factors(doubled):
+    """2 then 1.5: M^ = 3 M, so the observer poles are the eigenvalues of -Y (3M)^-1 (the prismatic one -40/3)."""
+    tripled = scale_nominal_inertia(doubled, 1.5)
+    want = np.linalg.eigvals(-PAPER_Y * np.eye(4) @ np.linalg.inv(3.0 * reference_inertia(Q0[1])))
+    np.testing.assert_allclose(_sorted(analytic_poles(tripled, Q0)["observer"]), _sorted(want), rtol=1e-12)
+    with pytest.raises(ValueError, match="inertia scale factor must be a finite number > 0, got 0"):
+        scale_nominal_inertia(doubled, 0)
+
+
 def test_analytic_pd_poles_do_not_depend_on_the_model(doubled):
     # the paper's gains Kp = 180, Kd = 36: s^2 + 36 s + 180 = (s + 6)(s + 30), each joint
     got = analytic_poles(doubled, Q0, observer=False)
