@@ -146,3 +146,17 @@ def test_the_plants_torques_start_and_end_each_step_where_the_coupling_puts_them
         start, end = start_and_end(*(np.asarray(resp.states[states.index(f"A{j}[{i}]")]) for j in (0, 1)), t)
         np.testing.assert_allclose(start, a * want_start, rtol=0, atol=abs(a) * TOL)
         np.testing.assert_allclose(end, a * want_end, rtol=0, atol=abs(a) * TOL)
+
+
+@pytest.mark.parametrize("coupling", ["zoh", "linear"])
+def test_before_the_first_command_the_side_reads_the_inputs_start_value(tmp_path, coupling):
+    """An integrator whose input starts at 0.7 (its model description): that is what the side reads at t = 0."""
+    def start_at_07(xml: str) -> str:
+        old = 'causality="input" variability="continuous"><Real start="0"/>'
+        assert xml.count(old) == 1
+        return xml.replace(old, 'causality="input" variability="continuous"><Real start="0.7"/>')
+    fmu = build("integrator", tmp_path, xml_edit=start_at_07, filename="integrator07")
+    resp = cosimulate_system(fmu, echo_side(), 2 * H, H, coupling=coupling)
+    echo = np.asarray(resp.outputs[list(resp.output_labels).index("echo")])
+    assert echo[0] == 0.7
+    np.testing.assert_allclose(echo[1:], expected(coupling, np.array([0.0, H]))[1], rtol=0, atol=TOL)
