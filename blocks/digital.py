@@ -41,11 +41,11 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 
 from .contract import Kernels, kernel_block
 from .gains import OBSERVER_VARIANTS, validated_gain
 from .kernels import arm_constants, observer_estimate, observer_rate
+from .kernels.expm import expm_small
 from .parameters import RobotParameters
 from .systems import controller_output, controller_output_with_estimate, signal_names
 
@@ -183,19 +183,24 @@ def observer_zoh_update(t, z, u, k, gain, eq16_weight, period):
 
     The observer's law (:func:`blocks.kernels.observer_rate`) is affine in
     ``z`` with the other inputs held, so ``c = z'(0)`` and the columns of
-    ``A`` are ``z'(e_j) - c``, evaluated with the law itself; ``expm`` of the
+    ``A`` are ``z'(e_j) - c``, evaluated with the law itself; the exponential
+    (:func:`blocks.kernels.expm.expm_small`) of the
     augmented matrix ``[[A, c], [0, 0]] Ts`` then gives
     ``z_{k+1} = e^{A Ts} z_k + (int_0^Ts e^{A s} ds) c``.
     """
     n = z.shape[0]
     tau, q, dq = u[:n], u[n:2 * n], u[2 * n:3 * n]
-    rate = lambda zz: observer_rate(k, gain, eq16_weight, q, dq, tau, zz)     # noqa: E731
-    c = rate(np.zeros(n))
-    A = np.column_stack([rate(e) - c for e in np.eye(n)])
+    # written with loops and no closures so that the compiled sampled engine calls this same kernel
+    c = observer_rate(k, gain, eq16_weight, q, dq, tau, np.zeros(n))
     augmented = np.zeros((n + 1, n + 1))
-    augmented[:n, :n], augmented[:n, n] = A * period, c * period
-    step = scipy.linalg.expm(augmented)
-    return step[:n, :n] @ z + step[:n, n]
+    basis = np.zeros(n)
+    for j in range(n):
+        basis[:] = 0.0
+        basis[j] = 1.0
+        augmented[:n, j] = (observer_rate(k, gain, eq16_weight, q, dq, tau, basis) - c) * period
+    augmented[:n, n] = c * period
+    step = expm_small(augmented)
+    return np.ascontiguousarray(step[:n, :n]) @ z + step[:n, n]
 
 
 def observer_sampled_output(t, z, u, k, gain, eq16_weight, period):
