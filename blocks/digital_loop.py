@@ -145,13 +145,21 @@ def check_observer_rate(scenario, samples: int = 201) -> None:
 
 
 def simulate_sampled(scenario, observer: bool = True, plant=None,
-                     progress: Callable[[float], None] | None = None) -> ct.TimeResponseData:
+                     progress: Callable[[float], None] | None = None, engine: str = "auto") -> ct.TimeResponseData:
     """Simulate the digital loop of a scenario on its output grid (see :func:`blocks.simulate`).
+
+    ``engine="compiled"`` runs the loop's generated, numba-compiled module
+    (:class:`blocks.compiled.sampled.SampledEngine`), ``"fast"`` (and
+    ``"python-control"``) the numpy hybrid engine
+    (:meth:`blocks.hybrid.HybridSystem.simulate`); ``"auto"`` takes the
+    compiled one when it can run the loop (:func:`blocks.loop.select_engine`).
 
     Raises
     ------
     blocks.scenario.ScenarioError
         Before the run, if the observer is unstable at this rate (:func:`check_observer_rate`).
+    blocks.compiled.CompiledUnavailable
+        If ``engine="compiled"`` cannot run this loop (the message says why).
     """
     s = scenario
     if observer:
@@ -160,8 +168,11 @@ def simulate_sampled(scenario, observer: bool = True, plant=None,
     x0 = sampled_initial_state(loop, s)
     sim = s.simulation
     t_grid = sim.time_grid
-    states, outputs = loop.simulate(x0, t_grid, sim.method, rtol=sim.rtol, atol=sim.atol, max_step=sim.max_step,
-                                    progress=progress)
+    if _sampled_engine(loop, sim.method, engine) == "compiled":
+        states, outputs = _simulate_compiled(loop, x0, s, progress)
+    else:
+        states, outputs = loop.simulate(x0, t_grid, sim.method, rtol=sim.rtol, atol=sim.atol,
+                                        max_step=sim.max_step, progress=progress)
     labels = loop.output_labels
     pick = lambda sig: outputs[[labels.index(n) for n in signal_names(sig)]]  # noqa: E731
     d = lumped_disturbance_rows(arm_constants(s.robot), arm_constants(s.nominal), pick("q"), pick("dq"),
@@ -174,3 +185,34 @@ def simulate_sampled(scenario, observer: bool = True, plant=None,
     resp.scenario = s
     resp.with_observer = observer
     return resp
+
+
+def _sampled_engine(loop: HybridSystem, method: str, engine: str) -> str:
+    """``"compiled"`` or the numpy hybrid engine for a requested ``engine`` (see :func:`blocks.loop.select_engine`)."""
+    from .loop import select_engine
+    if engine not in ("auto", "compiled"):
+        select_engine(engine, None)             # refuses an unknown name
+        return "fast"
+    from .compiled.sampled import sampled_unavailable_reason
+    return select_engine(engine, sampled_unavailable_reason(loop, method))
+
+
+def _simulate_compiled(loop: HybridSystem, x0: np.ndarray, s, progress) -> tuple[np.ndarray, np.ndarray]:
+    """States and outputs of the compiled sampled engine, divergence judged on :mod:`blocks.divergence`'s bounds."""
+    from .compiled.sampled import SampledEngine
+    from .divergence import state_bounds
+    from .integrate import DivergenceError, SolverFailure
+    from .loop import SimulationError
+    sim, bounds = s.simulation, state_bounds(loop, s)
+    try:
+        states, outputs = SampledEngine(loop).simulate(x0, sim.time_grid, sim.rtol, sim.atol, sim.max_step,
+                                                       bounds.bounds, progress)
+    except DivergenceError as err:
+        raise SimulationError(f"scenario '{s.name}': the loop diverged at t = {err.time:.6g} s: "
+                              f"{bounds.describe(err.state)}; no result is returned") from None
+    except SolverFailure as err:
+        raise SimulationError(f"scenario '{s.name}': the solver stopped at t = {err.time:.6g} s of "
+                              f"{sim.t_final:g} s: {err.reason}") from None
+    if progress is not None:
+        progress(1.0)
+    return states, outputs

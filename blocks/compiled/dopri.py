@@ -351,8 +351,6 @@ def rk4_batch(times, grid_index, src_at, src_mid, aux, X0, theta, ext, tables, t
 # outputs held (sampled_rhs), Dormand-Prince restarted at every tick with first step = the interval, as
 # blocks.integrate.integrate_on_grid does there.  Generated functions: blocks.compiled.codegen.sampled_program.
 # ------------------------------------------------------------------------------------------------------------
-PARALLEL = PARALLEL + ("sampled_batch",)
-
 # Status of sampled_ticks beside RUNNING, FINISHED, DIVERGED (a step), STEP_TOO_SMALL: a tick's update diverged
 TICK_DIVERGED = 4
 # Slot of sampled_ticks' state vector holding the next tick (the others as dopri_run's: S_T, S_NFEV, S_DONE,
@@ -588,30 +586,39 @@ def sampled_ticks(t_grid, base_period, n_ticks, k_stop, theta, ext, rtol, atol, 
     return RUNNING
 
 
-def sampled_batch(t_grid, base_period, n_ticks, X0, held0, theta, ext, tables, table_row, rtol, atol, max_step,
-                  bound, err_a, err_b, sum_sq, failed_at, failed_state, status):
-    """The sampled loop of every member, members in parallel: ``X0`` (N, n) start states, ``held0`` the start
+def sampled_members(start, stride, t_grid, base_period, n_ticks, X0, held0, theta, ext, tables, table_row, rtol,
+                    atol, max_step, bound, err_a, err_b, sum_sq, failed_at, failed_state, status):
+    """The sampled loop of members ``start, start + stride, ...``: ``X0`` (N, n) start states, ``held0`` the start
     held outputs, ``theta`` (N, p), member ``m``'s tables row ``table_row[m]`` (``member_ext``).
 
     Each member's tracking sums go to ``sum_sq[m]`` (see ``sampled_ticks``);
     a member that diverges or whose step becomes too small gets its status
     in ``status[m]``, the time in ``failed_at[m]`` and its state then in
-    ``failed_state[m]``, and stops; the others go on.
+    ``failed_state[m]``, and stops; the others go on.  (The caller runs one
+    call per thread, the GIL released: numba's ``prange`` cannot take the
+    parameters' tuple, which holds tuples.)
     """
-    n_members, n = X0.shape
-    for m in prange(n_members):
-        x = X0[m].copy()
-        held = held0.copy()
-        state = np.zeros(6)
-        e = member_ext(ext, tables, table_row[m])
-        dummy_x = np.empty((1, n))
-        dummy_y = np.empty((1, loop_output_count()))
-        y_old = np.empty(n)
-        Q = np.empty((n, 4))
-        code = sampled_ticks(t_grid, base_period, n_ticks, n_ticks + 1, theta[m], e, rtol, atol, max_step, bound,
-                             state, x, held, False, dummy_x, dummy_y, err_a, err_b, sum_sq[m], y_old, Q)
-        status[m] = code
-        if code != FINISHED:
-            failed_at[m] = state[S_T]
-            for i in range(n):
-                failed_state[m, i] = x[i]
+    for m in range(start, X0.shape[0], stride):
+        status[m] = sampled_member(m, t_grid, base_period, n_ticks, X0, held0, theta, ext, tables, table_row, rtol,
+                                   atol, max_step, bound, err_a, err_b, sum_sq, failed_at, failed_state)
+
+
+def sampled_member(m, t_grid, base_period, n_ticks, X0, held0, theta, ext, tables, table_row, rtol, atol, max_step,
+                   bound, err_a, err_b, sum_sq, failed_at, failed_state):
+    """Member ``m`` of ``sampled_batch``: its whole run; its status code."""
+    n = X0.shape[1]
+    x = X0[m].copy()
+    held = held0.copy()
+    state = np.zeros(6)
+    e = member_ext(ext, tables, table_row[m])
+    dummy_x = np.empty((1, n))
+    dummy_y = np.empty((1, loop_output_count()))
+    y_old = np.empty(n)
+    Q = np.empty((n, 4))
+    code = sampled_ticks(t_grid, base_period, n_ticks, n_ticks + 1, theta[m], e, rtol, atol, max_step, bound,
+                         state, x, held, False, dummy_x, dummy_y, err_a, err_b, sum_sq[m], y_old, Q)
+    if code != FINISHED:
+        failed_at[m] = state[S_T]
+        for i in range(n):
+            failed_state[m, i] = x[i]
+    return code

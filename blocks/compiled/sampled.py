@@ -27,6 +27,7 @@ import math
 import sys
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -198,7 +199,7 @@ class SampledBatchResult:
 
 
 def simulate_sampled_batch(scenario, seeds: Sequence[int] | None = None, variants: Sequence | None = None,
-                           observer: bool = True) -> SampledBatchResult:
+                           observer: bool = True, threads: int | None = None) -> SampledBatchResult:
     """Run the digital loop of many members in one compiled call (members in parallel) and return their metrics.
 
     Parameters
@@ -214,6 +215,8 @@ def simulate_sampled_batch(scenario, seeds: Sequence[int] | None = None, variant
         the parameters of the kernels it calls (encoder resolution, torque limit).
     observer : bool
         With or without the disturbance observer.
+    threads : int, optional
+        Threads running members at once (default: numba's thread count, the cores).
 
     Returns
     -------
@@ -297,10 +300,17 @@ def simulate_sampled_batch(scenario, seeds: Sequence[int] | None = None, variant
     failed_at, failed_state = np.full(N, np.nan), np.zeros((N, n))
     status = np.zeros(N, dtype=np.int64)
     engine.warm()
-    engine.module.sampled_batch(t_grid, engine.base_period, engine.ticks(float(t_grid[-1])), X0,
-                                np.zeros(engine.nsignals), theta, engine.ext, member_tables, table_row,
-                                float(sim.rtol), float(sim.atol), float(sim.max_step), bounds.bounds, err_a, err_b,
-                                sum_sq, failed_at, failed_state, status)
+    run = _members_without_gil(engine)
+    args = (t_grid, engine.base_period, engine.ticks(float(t_grid[-1])), X0, np.zeros(engine.nsignals), theta,
+            engine.ext, member_tables, table_row, float(sim.rtol), float(sim.atol), float(sim.max_step),
+            bounds.bounds, err_a, err_b, sum_sq, failed_at, failed_state, status)
+    threads = max(1, min(N, _threads() if threads is None else int(threads)))
+    if threads == 1:
+        run(0, 1, *args)
+    else:
+        with ThreadPoolExecutor(threads) as pool:
+            for done in [pool.submit(run, start, threads, *args) for start in range(threads)]:
+                done.result()
     rms = np.sqrt(sum_sq / t_grid.size)
     failed = []
     for m in range(N):
@@ -313,6 +323,24 @@ def simulate_sampled_batch(scenario, seeds: Sequence[int] | None = None, variant
         else:
             failed.append(f"diverged by t = {failed_at[m]:.6g} s: {bounds.describe(failed_state[m])}")
     return SampledBatchResult(rms, failed, members)
+
+
+_nogil: dict = {}
+
+
+def _members_without_gil(engine):
+    """The module's ``sampled_members`` compiled to release the GIL, so that threads run members side by side."""
+    fn = _nogil.get(engine.program.key)
+    if fn is None:
+        numba = numba_or_none()
+        fn = numba.njit(nogil=True, cache=True, error_model="numpy")(engine.module.sampled_members.py_func)
+        _nogil[engine.program.key] = fn
+    return fn
+
+
+def _threads() -> int:
+    numba = numba_or_none()
+    return int(getattr(numba.config, "NUMBA_NUM_THREADS", 1) or 1)
 
 
 def _same(a, b) -> bool:
