@@ -199,11 +199,10 @@ def _sampled_engine(loop: HybridSystem, method: str, engine: str) -> str:
 
 def _simulate_compiled(loop: HybridSystem, x0: np.ndarray, s, progress) -> tuple[np.ndarray, np.ndarray]:
     """States and outputs of the compiled sampled engine, divergence judged on :mod:`blocks.divergence`'s bounds."""
-    from .compiled.sampled import SampledEngine
-    from .divergence import state_bounds
+    from .compiled.sampled import SampledEngine, bounds_for
     from .integrate import DivergenceError, SolverFailure
     from .loop import SimulationError
-    sim, bounds = s.simulation, state_bounds(loop, s)
+    sim, bounds = s.simulation, bounds_for(loop, s)
     try:
         states, outputs = SampledEngine(loop).simulate(x0, sim.time_grid, sim.rtol, sim.atol, sim.max_step,
                                                        bounds.bounds, progress)

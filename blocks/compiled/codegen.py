@@ -293,6 +293,7 @@ def _rows(value, n: int | None) -> list:
 _CALL_NAMES = {"cos": "np.cos", "sin": "np.sin", "tan": "np.tan", "tanh": "np.tanh", "sqrt": "np.sqrt",
                "exp": "np.exp", "sign": "np.sign", "floor": "np.floor", "absolute": "np.abs",
                "maximum": "np.maximum", "minimum": "np.minimum", "arctan2": "np.arctan2"}
+_CALL_NAMES["rint"] = "np.rint"          # the encoder's rounding (round half to even, as np.round)
 
 
 def _literal(value: float) -> str:

@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 import sys
 import time
+from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -38,7 +39,7 @@ from .codegen import CompiledUnavailable, load_module, mark_compiled, sampled_pr
 from .engine import METHODS, _StepView
 from .jit import numba_or_none
 
-__all__ = ["SampledEngine", "sampled_unavailable_reason", "simulate_sampled_batch", "SampledBatchResult"]
+__all__ = ["SampledEngine", "sampled_unavailable_reason", "simulate_sampled_batch", "SampledBatchResult", "bounds_for"]
 
 # Status codes of sampled_ticks (blocks/compiled/dopri.py)
 _RUNNING, _FINISHED, _DIVERGED, _STEP_TOO_SMALL, _TICK_DIVERGED = 0, 1, 2, 3, 4
@@ -231,7 +232,6 @@ def simulate_sampled_batch(scenario, seeds: Sequence[int] | None = None, variant
         If the loop cannot be compiled (numba missing, a solver other than RK45).
     """
     from ..digital_loop import sampled_initial_state, sampled_loop
-    from ..divergence import state_bounds
     from ..systems import signal_names
     s = scenario
     if (seeds is None) == (variants is None):
@@ -294,7 +294,7 @@ def simulate_sampled_batch(scenario, seeds: Sequence[int] | None = None, variant
     labels = list(loop.output_labels)
     err_a = np.array([labels.index(x) for x in signal_names("q_ref")], dtype=np.int64)
     err_b = np.array([labels.index(x) for x in signal_names("q")], dtype=np.int64)
-    bounds = state_bounds(loop, s)
+    bounds = bounds_for(loop, s)
     t_grid = np.ascontiguousarray(sim.time_grid, dtype=float)
     sum_sq = np.zeros((N, err_a.size))
     failed_at, failed_state = np.full(N, np.nan), np.zeros((N, n))
@@ -323,6 +323,26 @@ def simulate_sampled_batch(scenario, seeds: Sequence[int] | None = None, variant
         else:
             failed.append(f"diverged by t = {failed_at[m]:.6g} s: {bounds.describe(failed_state[m])}")
     return SampledBatchResult(rms, failed, members)
+
+
+_bounds: OrderedDict = OrderedDict()
+# Scenarios whose bounds are kept (scenarios are immutable and hashable; equal ones share an entry)
+_BOUNDS_KEPT = 16
+
+
+def bounds_for(hybrid, scenario):
+    """:func:`blocks.divergence.state_bounds` of a hybrid loop, kept for the latest scenarios (they cost a few ms
+    of reference evaluations, as much as a compiled run's set-up)."""
+    from ..divergence import state_bounds
+    key = (scenario, tuple(hybrid.state_labels))
+    found = _bounds.get(key)
+    if found is None:
+        found = _bounds[key] = state_bounds(hybrid, scenario)
+        while len(_bounds) > _BOUNDS_KEPT:
+            _bounds.popitem(last=False)
+    else:
+        _bounds.move_to_end(key)
+    return found
 
 
 _nogil: dict = {}
