@@ -258,6 +258,9 @@ def test_batch_refuses_bad_members():
         simulate_sampled_batch(s.with_changes(NOISE), seeds=[1, -2])
     with pytest.raises(ValueError, match="either seeds .* or variants"):
         simulate_sampled_batch(s)
-    other = s.with_changes(_digital(torque_limit=[10, 10, 10, 10]))
+    other_path = s.with_changes({"trajectory.bulge": 0.02})          # the reference is a called kernel
     with pytest.raises(ValueError, match=r"variants\[1\].*called kernel"):
-        simulate_sampled_batch(s, variants=[s, other])
+        simulate_sampled_batch(s, variants=[s, other_path])
+    other_structure = s.with_changes(_digital(delay=1))
+    with pytest.raises(ValueError, match=r"variants\[1\].*in structure"):
+        simulate_sampled_batch(s, variants=[s, other_structure])

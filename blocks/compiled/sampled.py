@@ -212,8 +212,10 @@ def simulate_sampled_batch(scenario, seeds: Sequence[int] | None = None, variant
     variants : sequence of Scenario, optional
         The members' scenarios themselves (instead of ``seeds``); they may
         differ from ``scenario`` in the numbers the generated code reads as
-        numbers (gains, masses, the noise table), not in its structure nor in
-        the parameters of the kernels it calls (encoder resolution, torque limit).
+        numbers (gains, masses, disturbance, encoder resolution, torque
+        limit, the noise table), not in its structure (velocity source,
+        observer update, delay, which joints quantize) nor in the parameters
+        of the kernels it calls (the reference path; the zoh observer's).
     observer : bool
         With or without the disturbance observer.
     threads : int, optional
@@ -265,23 +267,23 @@ def simulate_sampled_batch(scenario, seeds: Sequence[int] | None = None, variant
     tables = []
     for m, member in enumerate(members):
         own = loop if shared_loop else sampled_loop(member, observer=observer)
-        X0[m] = sampled_initial_state(own, member)
         if seeds is not None:
+            X0[m] = sampled_initial_state(own, member)
             theta[m] = engine.theta
             tables.append(member.noise.table)
             continue
-        if own.output_labels != loop.output_labels:
-            raise ValueError(f"variants[{m}] ('{member.name}') has other signals than '{s.name}'")
         own_program, own_kernels = sampled_program_for(own)
-        if own_program is not program:
+        if own_program is not program or own.output_labels != loop.output_labels:
             raise ValueError(f"variants[{m}] ('{member.name}') differs from '{s.name}' in structure (blocks, "
-                             "discretization, velocity source, delay, noise): run it in its own batch")
+                             "observer update, velocity source, delay, noise, which joints quantize): run it in "
+                             "its own batch")
+        X0[m] = sampled_initial_state(own, member)
         th, ext = own_program.numbers(own_kernels)
         for e, (a, b) in enumerate(zip(ext, engine.ext)):
             if e not in program.tables and not _same(a, b):
                 raise ValueError(f"variants[{m}] ('{member.name}') differs from '{s.name}' in a parameter of a "
-                                 "called kernel (encoder resolution, torque limit, delay, reference path); only "
-                                 "gains, masses and noise may vary within a batch")
+                                 "called kernel (the reference path, or the zoh observer's gains and model); "
+                                 "run it in its own batch")
         theta[m] = th
         tables.append(ext[program.tables[0]] if program.tables else None)
     if program.tables:
