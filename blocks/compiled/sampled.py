@@ -23,13 +23,13 @@ a member that diverges is reported on its own and the others are kept.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 import time
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -180,7 +180,7 @@ class SampledEngine:
 # --------------------------------------------------------------------------------------------------------------
 # Many members in one call
 # --------------------------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True)
 class SampledBatchResult:
     """Per-member results of :func:`simulate_sampled_batch`.
 
@@ -190,13 +190,13 @@ class SampledBatchResult:
         RMS of ``q_ref[i] - q[i]`` over the output grid (rad, rad, m, rad); NaN for a member that failed.
     failed : list of str or None
         Per member: None, or what stopped it (time, state and bound).
-    scenarios : list of Scenario
-        The members' scenarios.
+    members : list
+        The members: the noise seeds, or the variants' scenarios.
     """
 
     rms_error: np.ndarray
     failed: list
-    scenarios: list
+    members: list
 
 
 def simulate_sampled_batch(scenario, seeds: Sequence[int] | None = None, variants: Sequence | None = None,
@@ -249,7 +249,8 @@ def simulate_sampled_batch(scenario, seeds: Sequence[int] | None = None, variant
         if s.noise is None:
             raise ValueError(f"seeds vary the measurement noise, but scenario '{s.name}' has none ([noise] with a "
                              "q_std or dq_std > 0)")
-        members = [s.with_changes({"noise.seed": int(v)}) for v in seeds]
+        # the scenario with another noise (its record keeps the seed given; the members are listed as seeds)
+        members = [dataclasses.replace(s, noise=dataclasses.replace(s.noise, seed=int(v))) for v in seeds]
     else:
         members = list(variants)
         if not members:
@@ -324,7 +325,7 @@ def simulate_sampled_batch(scenario, seeds: Sequence[int] | None = None, variant
             failed.append(f"the solver's step became too small at t = {failed_at[m]:.6g} s")
         else:
             failed.append(f"diverged by t = {failed_at[m]:.6g} s: {bounds.describe(failed_state[m])}")
-    return SampledBatchResult(rms, failed, members)
+    return SampledBatchResult(rms, failed, seeds if seeds is not None else members)
 
 
 _bounds: OrderedDict = OrderedDict()
