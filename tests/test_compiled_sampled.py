@@ -264,3 +264,17 @@ def test_batch_refuses_bad_members():
     other_structure = s.with_changes(_digital(delay=1))
     with pytest.raises(ValueError, match=r"variants\[1\].*in structure"):
         simulate_sampled_batch(s, variants=[s, other_structure])
+
+
+def test_progress_is_reported_and_changes_no_number():
+    """Progress makes the driver run the ticks in chunks; the chunks must join exactly."""
+    s = blocks.load_scenario("paper-digital").with_changes({"simulation.t_final": 4.5})
+    loop = sampled_loop(s)
+    x0 = sampled_initial_state(loop, s)
+    seen = []
+    engine = SampledEngine(loop)
+    X1, Y1 = engine.simulate(x0, s.simulation.time_grid)
+    X2, Y2 = engine.simulate(x0, s.simulation.time_grid, progress=seen.append)
+    np.testing.assert_array_equal(X1, X2)
+    np.testing.assert_array_equal(Y1, Y2)
+    assert len(seen) >= 2 and seen == sorted(seen) and 0 < seen[0] < 1 and seen[-1] <= 1.0
