@@ -58,6 +58,36 @@ def _both(s: blocks.Scenario):
 
 
 # --------------------------------------------------------------------------------------------------------------
+# The zoh observer's matrix exponential (numba subset)
+# --------------------------------------------------------------------------------------------------------------
+def test_expm_small_against_closed_forms_and_scipy():
+    import scipy.linalg
+
+    from blocks.compiled.jit import jit_kernel
+    from blocks.kernels.expm import expm_small
+    compiled = jit_kernel(expm_small)
+    for w in (0.3, 2.0, 40.0):          # a rotation generator: exp = [[cos, -sin], [sin, cos]]; 40 needs squarings
+        a = np.array([[0.0, -w], [w, 0.0]])
+        want = np.array([[np.cos(w), -np.sin(w)], [np.sin(w), np.cos(w)]])
+        for fn in (expm_small, compiled):
+            np.testing.assert_allclose(fn(a), want, rtol=0, atol=1e-13 * max(1.0, w))
+    # [[A, c], [0, 0]]: exp gives e^A and (int_0^1 e^(A s) ds) c; for A = diag(l): (e^l - 1) / l c
+    lam, c = np.array([-3.0, -0.5, 1e-3, -12.0]), np.array([1.0, -2.0, 0.5, 3.0])
+    aug = np.zeros((5, 5))
+    aug[:4, :4], aug[:4, 4] = np.diag(lam), c
+    step = compiled(aug)
+    np.testing.assert_allclose(np.diag(step[:4, :4]), np.exp(lam), rtol=1e-14)
+    np.testing.assert_allclose(step[:4, 4], np.expm1(lam) / lam * c, rtol=1e-13)
+    rng = np.random.default_rng(5)
+    for scale in (1e-3, 1.0, 4.0, 25.0):
+        a = rng.standard_normal((5, 5)) * scale
+        ref = scipy.linalg.expm(a)
+        np.testing.assert_allclose(expm_small(a), ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+        np.testing.assert_allclose(compiled(a), expm_small(a), rtol=0, atol=1e-14 * np.abs(ref).max())
+    assert np.all(np.isnan(expm_small(np.array([[np.inf, 0.0], [0.0, 1.0]]))))
+
+
+# --------------------------------------------------------------------------------------------------------------
 # A closed form: double integrator, sampled PD and Euler observer, from kernel blocks
 # --------------------------------------------------------------------------------------------------------------
 def _plant_output(t, x, u, m, d):
