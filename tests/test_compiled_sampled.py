@@ -41,6 +41,9 @@ def _digital(**controller) -> dict:
 CASES = {
     # paper-digital as it is: Euler observer, differenced velocity through a 200 Hz low-pass, no delay
     "euler-difference-delay0": blocks.load_scenario("paper-digital").with_changes(SHORT),
+    # output points between ticks (interpolated in a step) and a last tick interval cut short by t_final
+    "euler-difference-delay0-offgrid": blocks.load_scenario("paper-digital").with_changes(
+        {"simulation.t_final": 0.3005, "simulation.output_step": 0.0005}),
     # the other choices at once: zoh observer, measured velocity, two samples of delay, a torque limit, noise
     "zoh-measured-delay2-limit-noise": blocks.load_scenario("paper").with_changes(
         SHORT | NOISE | _digital(sample_rate=1000, observer_discretization="zoh", velocity="measured", delay=2,
