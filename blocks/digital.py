@@ -47,11 +47,11 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 
 from .contract import Kernels, kernel_block
 from .gains import OBSERVER_VARIANTS, validated_gain
 from .kernels import arm_constants, observer_estimate, observer_rate
+from .kernels.expm import expm_small
 from .parameters import RobotParameters
 from .systems import controller_output, controller_output_with_estimate, signal_names
 
@@ -143,34 +143,42 @@ class DigitalController:
 # --------------------------------------------------------------------------------------------------------------
 # Discrete block kernels: outputs y_k = g(x_k, u_k), updates x_{k+1} = f(x_k, u_k)
 # --------------------------------------------------------------------------------------------------------------
-def quantized(q, resolution):
-    """``res * round(q / res)`` per joint, ``q`` itself where the resolution is 0."""
-    steps = resolution > 0
-    return np.where(steps, np.round(q / np.where(steps, resolution, 1.0)) * resolution, q)
+def quantized(q, resolution, steps=None):
+    """``res * round(q / res)`` per joint (to even at a tie), ``q`` itself where the resolution is 0.
+
+    ``steps`` says per joint whether its resolution is > 0 (a tuple of bools,
+    so that the compiled engine specialises on it instead of branching on a value).
+    """
+    steps = np.asarray(resolution > 0 if steps is None else steps)
+    return np.where(steps, np.rint(q / np.where(steps, resolution, 1.0)) * resolution, q)
 
 
-def encoder_measured_output(t, x, u, resolution):
+def encoder_measured_output(t, x, u, resolution, steps):
     """Sampled ``[q_s; dq_s]``: quantized positions and the velocity signal as measured."""
     n = resolution.shape[0]
-    return np.concatenate((quantized(u[:n], resolution), u[n:]))
+    return np.concatenate((quantized(u[:n], resolution, steps), u[n:]))
 
 
-def encoder_difference_output(t, x, u, resolution, period, pole):
+def encoder_difference_output(t, x, u, resolution, steps, period, pole):
     """Sampled ``[q_s; dq_s]`` with ``dq_s`` the low-passed backward difference; state ``[q_s(k-1); dq_s(k-1)]``."""
     n = resolution.shape[0]
-    q_s = quantized(u[:n], resolution)
+    q_s = quantized(u[:n], resolution, steps)
     return np.concatenate((q_s, pole * x[n:] + (1.0 - pole) * (q_s - x[:n]) / period))
 
 
-def encoder_difference_update(t, x, u, resolution, period, pole):
+def encoder_difference_update(t, x, u, resolution, steps, period, pole):
     """The encoder's next state: this sample's position and velocity estimate."""
-    return encoder_difference_output(t, x, u, resolution, period, pole)
+    return encoder_difference_output(t, x, u, resolution, steps, period, pole)
 
 
 def actuator_output(t, x, u, limit, n):
-    """The applied torque: the command (delay 0) or the oldest buffered one, saturated at ``limit``."""
+    """The applied torque: the command (delay 0) or the oldest buffered one, saturated at ``limit``.
+
+    Joint by joint ``min(max(command, -limit), limit)``, as ``np.clip``, in a
+    form the compiled engine traces into scalar statements.
+    """
     command = u if x.shape[0] == 0 else x[:n]
-    return np.clip(command, -limit, limit)
+    return np.array([np.minimum(np.maximum(command[i], -limit[i]), limit[i]) for i in range(n)])
 
 
 def actuator_update(t, x, u, limit, n):
@@ -189,19 +197,24 @@ def observer_zoh_update(t, z, u, k, gain, eq16_weight, period):
 
     The observer's law (:func:`blocks.kernels.observer_rate`) is affine in
     ``z`` with the other inputs held, so ``c = z'(0)`` and the columns of
-    ``A`` are ``z'(e_j) - c``, evaluated with the law itself; ``expm`` of the
+    ``A`` are ``z'(e_j) - c``, evaluated with the law itself; the exponential
+    (:func:`blocks.kernels.expm.expm_small`) of the
     augmented matrix ``[[A, c], [0, 0]] Ts`` then gives
     ``z_{k+1} = e^{A Ts} z_k + (int_0^Ts e^{A s} ds) c``.
     """
     n = z.shape[0]
     tau, q, dq = u[:n], u[n:2 * n], u[2 * n:3 * n]
-    rate = lambda zz: observer_rate(k, gain, eq16_weight, q, dq, tau, zz)     # noqa: E731
-    c = rate(np.zeros(n))
-    A = np.column_stack([rate(e) - c for e in np.eye(n)])
+    # written with loops and no closures so that the compiled sampled engine calls this same kernel
+    c = observer_rate(k, gain, eq16_weight, q, dq, tau, np.zeros(n))
     augmented = np.zeros((n + 1, n + 1))
-    augmented[:n, :n], augmented[:n, n] = A * period, c * period
-    step = scipy.linalg.expm(augmented)
-    return step[:n, :n] @ z + step[:n, n]
+    basis = np.zeros(n)
+    for j in range(n):
+        basis[:] = 0.0
+        basis[j] = 1.0
+        augmented[:n, j] = (observer_rate(k, gain, eq16_weight, q, dq, tau, basis) - c) * period
+    augmented[:n, n] = c * period
+    step = expm_small(augmented)
+    return np.ascontiguousarray(step[:n, :n]) @ z + step[:n, n]
 
 
 def observer_sampled_output(t, z, u, k, gain, eq16_weight, period):
@@ -216,12 +229,13 @@ def observer_sampled_output(t, z, u, k, gain, eq16_weight, period):
 def encoder(settings: DigitalController, measured: str = "", name: str = "encoder"):
     """Sampled positions ``q_s[i]`` and velocity estimate ``dq_s[i]`` from ``q[i]``, ``dq[i]`` (or ``*_meas``)."""
     res = np.array(settings.position_resolution)
+    steps = tuple(bool(r > 0) for r in res)         # which joints quantize: structure, not numbers
     inputs = signal_names("q" + measured) + signal_names("dq" + measured)
     outputs = signal_names("q_s") + signal_names("dq_s")
     if settings.velocity == "measured":
-        return kernel_block(Kernels((res,), encoder_measured_output, column_params=(res,)), name=name,
+        return kernel_block(Kernels((res, steps), encoder_measured_output, column_params=(res, steps)), name=name,
                             inputs=inputs, outputs=outputs, feedthrough=inputs, dt=settings.period)
-    params = (res, settings.period, settings.filter_pole)
+    params = (res, steps, settings.period, settings.filter_pole)
     return kernel_block(Kernels(params, encoder_difference_output, encoder_difference_update, column_params=params),
                         name=name, inputs=inputs, outputs=outputs, dt=settings.period,
                         states=signal_names("q_prev") + signal_names("v_prev"),

@@ -23,9 +23,9 @@ from .digital import (
     encoder,
     quantized,
 )
-from .divergence import state_bounds
+from .divergence import cached_state_bounds
 from .hybrid import HybridSystem
-from .monitor import Monitor
+from .monitor import Monitor, SimulationError
 from .run_limits import estimate_run
 from .systems import plant, sensor, signal_names, trajectory_block
 
@@ -207,8 +207,14 @@ def _lowest_stable_rate(scenario, samples: int, rtol: float = 1e-4) -> float | N
 
 
 def simulate_sampled(scenario, observer: bool = True, plant=None,
-                     progress: Callable[[float], None] | None = None) -> ct.TimeResponseData:
+                     progress: Callable[[float], None] | None = None, engine: str = "auto") -> ct.TimeResponseData:
     """Simulate the digital loop of a scenario on its output grid (see :func:`blocks.simulate`).
+
+    ``engine="compiled"`` runs the loop's generated, numba-compiled module
+    (:class:`blocks.compiled.sampled.SampledEngine`), ``"fast"`` (and
+    ``"python-control"``) the numpy hybrid engine
+    (:meth:`blocks.hybrid.HybridSystem.simulate`); ``"auto"`` takes the
+    compiled one when it can run the loop (:func:`blocks.loop.select_engine`).
 
     Raises
     ------
@@ -219,6 +225,8 @@ def simulate_sampled(scenario, observer: bool = True, plant=None,
         budget; during the run, if the wall-time budget runs out.
     blocks.monitor.SimulationError
         If a physical signal leaves its bound (:mod:`blocks.divergence`): the signal, the bound and the time named.
+    blocks.compiled.CompiledUnavailable
+        If ``engine="compiled"`` cannot run this loop (the message says why).
     """
     s = scenario
     sim = s.simulation
@@ -229,12 +237,40 @@ def simulate_sampled(scenario, observer: bool = True, plant=None,
         check_observer_rate(s)
     loop = sampled_loop(s, observer=observer, plant_system=plant)
     x0 = sampled_initial_state(loop, s)
-    monitor = Monitor(f"scenario '{s.name}'", state_bounds(loop, s), x0, budget, sim.t_final, progress, sim.method)
+    monitor = Monitor(f"scenario '{s.name}'", cached_state_bounds(loop, s), x0, budget, sim.t_final, progress,
+                      sim.method)
     t_grid = sim.time_grid
-    states, outputs = loop.simulate(x0, t_grid, sim.method, rtol=sim.rtol, atol=sim.atol, max_step=sim.max_step,
-                                    monitor=monitor)
+    if _sampled_engine(loop, sim.method, engine) == "compiled":
+        states, outputs = _simulate_compiled(loop, x0, s, monitor)
+    else:
+        states, outputs = loop.simulate(x0, t_grid, sim.method, rtol=sim.rtol, atol=sim.atol,
+                                        max_step=sim.max_step, monitor=monitor)
     monitor.report(sim.t_final, final=True)
     rate = s.controller.sample_rate
     title = f"{s.name}: {'with' if observer else 'without'} disturbance observer, sampled at {rate:g} Hz"
     return loop_response(t_grid, outputs, states, loop.output_labels, loop.state_labels, s, observer, title,
                          loop.name)
+
+
+def _sampled_engine(loop: HybridSystem, method: str, engine: str) -> str:
+    """``"compiled"`` or the numpy hybrid engine for a requested ``engine`` (see :func:`blocks.loop.select_engine`)."""
+    from .loop import select_engine
+    if engine not in ("auto", "compiled"):
+        select_engine(engine, None)             # refuses an unknown name
+        return "fast"
+    from .compiled.sampled import sampled_unavailable_reason
+    return select_engine(engine, sampled_unavailable_reason(loop, method))
+
+
+def _simulate_compiled(loop: HybridSystem, x0: np.ndarray, s, monitor: Monitor) -> tuple[np.ndarray, np.ndarray]:
+    """States and outputs of the compiled sampled engine, held by the run's :class:`~blocks.monitor.Monitor`."""
+    from .compiled.sampled import SampledEngine
+    from .integrate import DivergenceError, SolverFailure
+    sim = s.simulation
+    try:
+        return SampledEngine(loop).simulate(x0, sim.time_grid, sim.rtol, sim.atol, sim.max_step, monitor=monitor)
+    except DivergenceError as err:
+        raise monitor.diverged(err.time, err.state) from None
+    except SolverFailure as err:
+        raise SimulationError(f"scenario '{s.name}': the solver stopped at t = {err.time:.6g} s of "
+                              f"{sim.t_final:g} s: {err.reason}", time=err.time) from None

@@ -35,6 +35,7 @@ co-simulation.
 """
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -42,9 +43,9 @@ import numpy as np
 from .kernels import arm_constants, bias_forces, external_disturbance, mass_times
 from .kernels import disturbance_params as kernel_disturbance_params
 
-__all__ = ["StateBounds", "state_bounds", "signal_bounds", "ReferenceLimits", "reference_limits", "force_bounds",
-           "batch_bounds", "Runaway", "POSITION_MARGIN", "VELOCITY_MARGIN", "FORCE_FACTOR", "GROWTH_FACTOR",
-           "GROWTH_FLOOR", "RUNAWAY_FACTOR", "RUNAWAY_STEPS"]
+__all__ = ["StateBounds", "state_bounds", "cached_state_bounds", "signal_bounds", "ReferenceLimits",
+           "reference_limits", "force_bounds", "batch_bounds", "Runaway", "POSITION_MARGIN", "VELOCITY_MARGIN",
+           "FORCE_FACTOR", "GROWTH_FACTOR", "GROWTH_FLOOR", "RUNAWAY_FACTOR", "RUNAWAY_STEPS"]
 
 #: Added to the reference's largest position (rad for revolute joints, m for prismatic ones).
 POSITION_MARGIN = {"revolute": 100.0, "prismatic": 10.0}
@@ -237,6 +238,25 @@ def state_bounds(loop, scenario, samples: int = 201) -> StateBounds:
     force = float(force_bounds(arm_constants(s.robot), spec, ref))
     labels = [(block.name, label) for block in loop.syslist for label in block.state_labels]
     return _labelled_bounds(labels, ref, force, np.asarray(s.observer_gain, dtype=float))
+
+
+_kept: OrderedDict = OrderedDict()
+# Scenarios whose loops' bounds are kept (scenarios are immutable and hashable; equal ones share an entry)
+_KEPT = 16
+
+
+def cached_state_bounds(loop, scenario) -> StateBounds:
+    """:func:`state_bounds`, kept for the latest scenarios: they cost a few ms of reference evaluations, as much
+    as a compiled sampled run itself."""
+    key = (scenario, tuple(loop.state_labels))
+    found = _kept.get(key)
+    if found is None:
+        found = _kept[key] = state_bounds(loop, scenario)
+        while len(_kept) > _KEPT:
+            _kept.popitem(last=False)
+    else:
+        _kept.move_to_end(key)
+    return found
 
 
 def batch_bounds(batch_loop, labels=None) -> StateBounds:

@@ -274,7 +274,7 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
     callable_or_none(progress, "progress")
     if s.controller is not None:            # the digital controller: a sampled-data loop
         from .digital_loop import simulate_sampled
-        return simulate_sampled(s, observer=observer, plant=plant, progress=progress)
+        return simulate_sampled(s, observer=observer, plant=plant, progress=progress, engine=engine)
     sim = s.simulation
     t_grid = sim.time_grid
     run = _prepared(s, observer) if plant is None and engine != "python-control" else _Prepared(s, observer, plant)

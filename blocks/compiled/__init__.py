@@ -27,6 +27,16 @@ How a loop becomes compiled code
 The same generated text, run by Python on floats, is the ``fast`` engine's
 right-hand side (:mod:`blocks.compiled.scalar`); that needs no numba.
 
+A loop with the digital controller (a scenario's ``[controller]``, a
+:class:`~blocks.hybrid.HybridSystem`) is generated the same way by
+:func:`blocks.compiled.codegen.sampled_program` -- the tick (every block's
+output, the sampled ones held, their updates), the plant's derivative with
+the sampled outputs held, the outputs between ticks -- and run by
+:class:`blocks.compiled.sampled.SampledEngine`: the numpy hybrid engine's
+semantics and numbers, Dormand-Prince restarted at every tick.
+:func:`blocks.compiled.sampled.simulate_sampled_batch` runs many members of it
+side by side.
+
 Nothing of the loop is written here by hand: a change to a kernel or to the
 interconnection changes the generated module.
 """
@@ -36,6 +46,7 @@ from .cache import CompiledCacheWarning
 from .codegen import CompiledUnavailable, cache_dir
 from .engine import METHODS, CompiledLoopEngine, unavailable_reason
 from .jit import numba_or_none
+from .sampled import SampledEngine, sampled_unavailable_reason, simulate_sampled_batch
 
 __all__ = ["CompiledLoopEngine", "CompiledUnavailable", "unavailable_reason", "numba_or_none", "cache_dir",
-           "CompiledCacheWarning", "METHODS"]
+           "CompiledCacheWarning", "METHODS", "SampledEngine", "sampled_unavailable_reason", "simulate_sampled_batch"]

@@ -292,6 +292,7 @@ def _rows(value, n: int | None) -> list:
 _CALL_NAMES = {"cos": "np.cos", "sin": "np.sin", "tan": "np.tan", "tanh": "np.tanh", "sqrt": "np.sqrt",
                "exp": "np.exp", "sign": "np.sign", "floor": "np.floor", "absolute": "np.abs",
                "maximum": "np.maximum", "minimum": "np.minimum", "arctan2": "np.arctan2"}
+_CALL_NAMES["rint"] = "np.rint"          # the encoder's rounding (round half to even, as np.round)
 
 
 def _literal(value: float) -> str:
@@ -660,3 +661,156 @@ def mark_compiled(program: LoopProgram) -> None:
     found = _modules.get(program.key)
     if found is not None:
         _modules[program.key] = (found[0], True)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# The program of a sampled-data loop (a blocks.hybrid.HybridSystem): the tick, the plant between ticks, outputs
+# --------------------------------------------------------------------------------------------------------------
+def sampled_program(hybrid) -> LoopProgram:
+    """Trace the blocks of a hybrid diagram (continuous and sampled blocks) and generate its functions.
+
+    The functions mirror :class:`blocks.hybrid.HybridSystem`'s steps, with
+    ``aux`` holding the block outputs held since the last tick (all
+    ``nsignals`` of them; only the sampled blocks' entries are read):
+
+    ``loop_sources(t, theta, ext, work, src)``
+        the source blocks' outputs (as for a continuous loop);
+    ``sampled_tick(t, x, theta, src, ext, work, aux, held, xn)``
+        :meth:`~blocks.hybrid.HybridSystem.tick_outputs` and
+        :meth:`~blocks.hybrid.HybridSystem.tick_updates`: every block's
+        output in plan order (a sampled block's input not evaluated yet reads
+        its held value), the sampled blocks' outputs into ``held`` and their
+        next states into ``xn`` (the caller fills both with ``aux`` and ``x``
+        first);
+    ``sampled_rhs(t, x, theta, src, ext, work, aux, dx)``
+        :meth:`~blocks.hybrid.HybridSystem.continuous_rhs`: the continuous
+        states' derivative with the sampled outputs held, zero for the
+        sampled blocks' states (it evaluates the sources itself when a
+        continuous update needs them);
+    ``sampled_outputs(t, x, theta, src, ext, work, aux, y)``
+        :meth:`~blocks.hybrid.HybridSystem.outputs_between_ticks` at one
+        time: the continuous blocks evaluated, the sampled ones held (the
+        caller evaluates the sources at ``t`` first);
+
+    and ``member_ext`` and the size functions of :func:`loop_program`.
+
+    Raises
+    ------
+    CompiledUnavailable
+        If a block has no kernels, the plan is not a single pass, or a
+        sampled block runs at a multiple of the base period (one rate only).
+    """
+    plan, system = hybrid.plan, hybrid.system
+    if plan.fixed_point:
+        raise CompiledUnavailable("the diagram's blocks declare no order (a fixed-point plan), so the compiled "
+                                  "sampled engine cannot run it")
+    slow = {name: m for name, m in hybrid.multiples.items() if m != 1}
+    if slow:
+        raise CompiledUnavailable(f"blocks {sorted(slow)} are sampled at multiples {sorted(set(slow.values()))} of "
+                                  "the base period; the compiled sampled engine runs one sample rate")
+    kernels = block_kernels(plan, system)
+    discrete = set(hybrid.multiples)
+    b = _Builder(plan, kernels)
+    g = b.graph
+    held = lambda: {j: g.leaf("aux", j) for j in range(plan.nsignals)}      # noqa: E731
+
+    def with_sources(signals: dict) -> dict:
+        for step in b.source_steps:
+            for r in range(step.y.stop - step.y.start):
+                signals[step.y.start + r] = g.leaf("src", b.src_offset[step.name] + r)
+        return signals
+
+    fn_src = _Function(b, "loop_sources", "t, theta, ext, work, src")
+    for step in b.source_steps:
+        for r, v in enumerate(b.block_rows(fn_src, step, "output", {})):
+            fn_src.assign(f"src[{b.src_offset[step.name] + r}]", v)
+
+    # the tick: every output in plan order, then the sampled blocks' updates
+    fn_tick = _Function(b, "sampled_tick", "t, x, theta, src, ext, work, aux, held, xn")
+    signals = with_sources(held())
+    for j, i in zip(_indices(plan.copy_y), _indices(plan.copy_x)):
+        signals[j] = g.leaf("x", i)
+    for step in plan.steps:
+        if _is_source(step):
+            continue
+        for r, v in enumerate(b.block_rows(fn_tick, step, "output", signals)):
+            signals[step.y.start + r] = v
+    for step in plan.updates:
+        if step.name in discrete:
+            for r, v in enumerate(b.block_rows(fn_tick, step, "update", signals)):
+                fn_tick.assign(f"xn[{step.x.start + r}]", v)
+    for step in plan.steps:
+        if step.name in discrete:
+            for j in range(step.y.start, step.y.stop):
+                fn_tick.assign(f"held[{j}]", signals[j])
+
+    # between ticks: the continuous blocks a continuous update needs, then those updates
+    between = {s.name for s in hybrid._steps_between_ticks}
+    fn_rhs = _Function(b, "sampled_rhs", "t, x, theta, src, ext, work, aux, dx")
+    signals = held()
+    if any(_is_source(s) for s in plan.steps if s.name in between):
+        fn_rhs.emit("loop_sources(t, theta, ext, work, src)")
+        signals = with_sources(signals)
+    for j, i in zip(_indices(plan.copy_y), _indices(plan.copy_x)):
+        signals[j] = g.leaf("x", i)
+    for step in plan.rhs_steps:
+        if step.name in between and not _is_source(step):
+            for r, v in enumerate(b.block_rows(fn_rhs, step, "output", signals)):
+                signals[step.y.start + r] = v
+    for step in plan.updates:
+        if step.name in discrete:
+            for i in range(step.x.start, step.x.stop):
+                fn_rhs.emit(f"dx[{i}] = 0.0")
+        else:
+            for r, v in enumerate(b.block_rows(fn_rhs, step, "update", signals)):
+                fn_rhs.assign(f"dx[{step.x.start + r}]", v)
+
+    # outputs at a time between ticks
+    fn_out = _Function(b, "sampled_outputs", "t, x, theta, src, ext, work, aux, y")
+    signals = with_sources(held())
+    for step in plan.steps:
+        if _is_source(step) or step.name in discrete:
+            continue
+        for r, v in enumerate(b.block_rows(fn_out, step, "output", signals)):
+            signals[step.y.start + r] = v
+    for r, j in enumerate(plan.out_index):
+        fn_out.assign(f"y[{r}]", signals[int(j)])
+
+    tables = tuple(e for e, p in enumerate(b.ext) if is_table(p))
+    if tables:
+        parts = [f"tables[{tables.index(e)}][j]" if e in tables else f"ext[{e}]" for e in range(len(b.ext))]
+        member_ext = f"def member_ext(ext, tables, j):\n    return ({', '.join(parts)},)\n\n\n"
+    else:
+        member_ext = "def member_ext(ext, tables, j):\n    return ext\n\n\n"
+    n_out = len(plan.out_index)
+    sizes = (f"def loop_source_count():\n    return {max(b.n_src, 1)}\n\n\n"
+             f"def loop_work_size():\n    return {max(b.work, 1)}\n\n\n"
+             f"def loop_output_count():\n    return {n_out}\n\n\n"
+             f"def loop_signal_count():\n    return {plan.nsignals}\n\n\n"
+             f"def loop_row_count():\n    return 1\n\n\n")
+    source = "\n".join(f.text() for f in (fn_src, fn_tick, fn_rhs, fn_out)) + "\n" + member_ext + sizes
+    structure = "sampled\n" + structure_of(plan, kernels, list(system.output_labels)) + \
+        "\n" + ",".join(sorted(discrete)) + "|" + ",".join(sorted(between))
+    return LoopProgram(source=source, theta=np.array(b.theta, dtype=float), theta_slices=b.theta_slices,
+                       ext=tuple(b.ext), ext_slices=b.ext_slices, traced=b.traced, called=b.called,
+                       sources=[s.name for s in b.source_steps], n_src=max(b.n_src, 1), n_work=max(b.work, 1),
+                       n_out=n_out, kernels=dict(b.kernel_names), structure=structure, tables=tables,
+                       order=[s.name for s in plan.steps])
+
+
+def sampled_program_for(hybrid) -> tuple[LoopProgram, dict]:
+    """The sampled program of a hybrid diagram's structure (traced once per process) and its kernels by block.
+
+    Raises
+    ------
+    CompiledUnavailable
+        As :func:`sampled_program`.
+    """
+    kernels = block_kernels(hybrid.plan, hybrid.system)
+    key = "sampled\n" + structure_of(hybrid.plan, kernels, list(hybrid.system.output_labels)) + \
+        "\n" + repr(sorted(hybrid.multiples.items()))
+    program = _programs.get(key)
+    if program is None:
+        program = sampled_program(hybrid)
+        _programs[key] = program
+    return program, kernels

@@ -346,3 +346,282 @@ def rk4_batch(times, grid_index, src_at, src_mid, aux, X0, theta, ext, tables, t
             loop_rhs(times[k + 1], xs, th, src_at[k + 1], e, work, k4)
             for i in range(n):
                 x[i] = x[i] + (h / 6.0) * (k1[i] + 2.0 * (k2[i] + k3[i]) + k4[i])
+
+
+# ------------------------------------------------------------------------------------------------------------
+# The sampled-data loop (blocks.hybrid.HybridSystem.simulate), compiled: at each tick the sampled blocks'
+# outputs and updates (sampled_tick), then the continuous states integrated to the next tick with the sampled
+# outputs held (sampled_rhs), Dormand-Prince restarted at every tick with first step = the interval, as
+# blocks.integrate.integrate_on_grid does there.  Generated functions: blocks.compiled.codegen.sampled_program.
+# ------------------------------------------------------------------------------------------------------------
+# Status of sampled_ticks beside RUNNING, FINISHED, DIVERGED (a step), STEP_TOO_SMALL: a tick's update diverged
+TICK_DIVERGED = 4
+# Slot of sampled_ticks' state vector holding the next tick (the others as dopri_run's: S_T, S_NFEV, S_DONE,
+# S_T_OLD; S_DONE is the next grid point to fill)
+S_TICK = 1
+
+
+def held_step(t, t_bound, h_abs, max_step, rtol, atol, y, f, theta, ext, aux, src, work, K, y_new, f_new,
+              y_stage, err, out):
+    """One accepted Dormand-Prince step of ``x' = sampled_rhs`` from ``t`` towards ``t_bound``, with the step
+    control of :class:`scipy.integrate.RK45` (as ``dopri_run``); False when the step became too small.
+
+    ``K`` holds the stages (``K[0] = f`` on entry), ``y_new``/``f_new`` the
+    step's end; ``out`` gets ``[t_new, next h_abs, h, right-hand-side calls]``.
+    """
+    n = y.shape[0]
+    min_step = 10.0 * abs(np.nextafter(t, np.inf) - t)
+    if h_abs > max_step:
+        h_abs = max_step
+    elif h_abs < min_step:
+        h_abs = min_step
+    accepted = False
+    rejected = False
+    h = 0.0
+    t_new = t
+    nfev = 0
+    while not accepted:
+        if h_abs < min_step:
+            out[3] = nfev
+            return False
+        h = h_abs
+        t_new = t + h
+        if t_new - t_bound > 0:
+            t_new = t_bound
+        h = t_new - t
+        h_abs = abs(h)
+        for i in range(n):
+            K[0, i] = f[i]
+        for s in range(1, 6):
+            for i in range(n):
+                acc = 0.0
+                for j in range(s):
+                    acc += K[j, i] * DP_A[s, j]
+                y_stage[i] = y[i] + acc * h
+            sampled_rhs(t + DP_C[s] * h, y_stage, theta, src, ext, work, aux, K[s])
+        for i in range(n):
+            acc = 0.0
+            for j in range(6):
+                acc += K[j, i] * DP_B[j]
+            y_new[i] = y[i] + h * acc
+        sampled_rhs(t + h, y_new, theta, src, ext, work, aux, f_new)
+        for i in range(n):
+            K[6, i] = f_new[i]
+        nfev += 6
+        for i in range(n):
+            acc = 0.0
+            for j in range(7):
+                acc += K[j, i] * DP_E[j]
+            scale = atol + max(abs(y[i]), abs(y_new[i])) * rtol
+            err[i] = acc * h / scale
+        error_norm = rms_norm(err)
+        if error_norm < 1.0:
+            if error_norm == 0.0:
+                factor = MAX_FACTOR
+            else:
+                factor = min(MAX_FACTOR, SAFETY * error_norm ** ERROR_EXPONENT)
+            if rejected:
+                factor = min(1.0, factor)
+            h_abs *= factor
+            accepted = True
+        else:
+            h_abs *= max(MIN_FACTOR, SAFETY * error_norm ** ERROR_EXPONENT)
+            rejected = True
+    out[0] = t_new
+    out[1] = h_abs
+    out[2] = h
+    out[3] = nfev
+    return True
+
+
+def dense_row(Q, y_old, h, t_old, t, out):
+    """The step's quartic interpolant at time ``t`` into the vector ``out`` (as ``dense_into``)."""
+    x = (t - t_old) / h
+    p0 = x
+    p1 = p0 * x
+    p2 = p1 * x
+    p3 = p2 * x
+    for i in range(y_old.shape[0]):
+        out[i] = h * (Q[i, 0] * p0 + Q[i, 1] * p1 + Q[i, 2] * p2 + Q[i, 3] * p3) + y_old[i]
+
+
+def sampled_ticks(t_grid, base_period, n_ticks, k_stop, theta, ext, rtol, atol, max_step, bound, state, x, held,
+                  store, X, Y, err_a, err_b, sum_sq, y_old, Q):
+    """Run the ticks from ``state[S_TICK]`` up to (not including) ``k_stop``; return a status code.
+
+    ``x`` (n,) and ``held`` (all block outputs, the sampled ones held) carry
+    the loop from call to call; ``state`` is ``[t, next tick, rhs calls,
+    next grid point, -, t_old]``.  At each grid point the states and the
+    outputs are written into rows of ``X`` (T, n) and ``Y`` (T, outputs) when
+    ``store``, and ``(y[err_a[c]] - y[err_b[c]])^2`` is added to
+    ``sum_sq[c]``.  A state beyond its ``bound`` after a tick's update gives
+    ``TICK_DIVERGED`` (``x`` holds the state, ``state[S_T]`` the time); after
+    a step, ``DIVERGED`` with ``x`` the step's end and ``y_old``, ``Q``,
+    ``state[S_T_OLD]`` the step (for the crossing time).
+    """
+    n = x.shape[0]
+    n_grid = t_grid.shape[0]
+    t_end = t_grid[n_grid - 1]
+    src = np.empty(loop_source_count())
+    work = np.empty(loop_work_size())
+    held_new = np.empty(held.shape[0])
+    xn = np.empty(n)
+    f = np.empty(n)
+    K = np.empty((7, n))
+    y_new = np.empty(n)
+    f_new = np.empty(n)
+    y_stage = np.empty(n)
+    err = np.empty(n)
+    xg = np.empty(n)
+    yg = np.empty(loop_output_count())
+    out = np.zeros(4)
+    k = int(state[S_TICK])
+    g = int(state[S_DONE])
+    n_err = err_a.shape[0]
+    while k <= n_ticks and k < k_stop:
+        t0 = k * base_period
+        if k < n_ticks:
+            t1 = min((k + 1) * base_period, t_end)
+        else:
+            t1 = t_end
+        # the tick: sampled outputs (held from now) and updates
+        loop_sources(t0, theta, ext, work, src)
+        for i in range(n):
+            xn[i] = x[i]
+        for j in range(held.shape[0]):
+            held_new[j] = held[j]
+        sampled_tick(t0, x, theta, src, ext, work, held, held_new, xn)
+        for j in range(held.shape[0]):
+            held[j] = held_new[j]
+        for i in range(n):
+            x[i] = xn[i]
+        for i in range(n):
+            if not abs(x[i]) <= bound[i]:
+                state[S_T] = t0
+                state[S_TICK] = k
+                state[S_DONE] = g
+                return TICK_DIVERGED
+        # the grid points of this interval, [t0, t1) (the last tick takes the rest)
+        upto = g
+        if k < n_ticks:
+            while upto < n_grid and t_grid[upto] < t1:
+                upto += 1
+        else:
+            upto = n_grid
+        if t1 > t0:
+            sampled_rhs(t0, x, theta, src, ext, work, held, f)
+            state[S_NFEV] += 1.0
+            h_abs = min(t1 - t0, max_step)
+            t = t0
+            h = 0.0
+            while t < t1:
+                ok = held_step(t, t1, h_abs, max_step, rtol, atol, x, f, theta, ext, held, src, work, K, y_new,
+                               f_new, y_stage, err, out)
+                state[S_NFEV] += out[3]
+                if not ok:
+                    state[S_T] = t
+                    state[S_TICK] = k
+                    state[S_DONE] = g
+                    return STEP_TOO_SMALL
+                t_new = out[0]
+                h_abs = out[1]
+                h = out[2]
+                for i in range(n):
+                    y_old[i] = x[i]
+                    for m in range(4):
+                        acc = 0.0
+                        for j in range(7):
+                            acc += K[j, i] * DP_P[j, m]
+                        Q[i, m] = acc
+                finite = True
+                for i in range(n):
+                    if not abs(y_new[i]) <= bound[i]:
+                        finite = False
+                if not finite:
+                    for i in range(n):
+                        x[i] = y_new[i]
+                    state[S_T_OLD] = t
+                    state[S_T] = t_new
+                    state[S_TICK] = k
+                    state[S_DONE] = g
+                    return DIVERGED
+                while g < upto and t_grid[g] <= t_new:
+                    dense_row(Q, y_old, h, t, t_grid[g], xg)
+                    loop_sources(t_grid[g], theta, ext, work, src)
+                    sampled_outputs(t_grid[g], xg, theta, src, ext, work, held, yg)
+                    if store:
+                        for i in range(n):
+                            X[g, i] = xg[i]
+                        for i in range(yg.shape[0]):
+                            Y[g, i] = yg[i]
+                    for c in range(n_err):
+                        e = yg[err_a[c]] - yg[err_b[c]]
+                        sum_sq[c] += e * e
+                    g += 1
+                for i in range(n):
+                    x[i] = y_new[i]
+                    f[i] = f_new[i]
+                state[S_T_OLD] = t
+                t = t_new
+            # the next tick starts from the last step's interpolant at t1, as the numpy engine's grid does
+            dense_row(Q, y_old, h, state[S_T_OLD], t1, xn)
+            for i in range(n):
+                x[i] = xn[i]
+        else:
+            while g < upto:
+                loop_sources(t_grid[g], theta, ext, work, src)
+                sampled_outputs(t_grid[g], x, theta, src, ext, work, held, yg)
+                if store:
+                    for i in range(n):
+                        X[g, i] = x[i]
+                    for i in range(yg.shape[0]):
+                        Y[g, i] = yg[i]
+                for c in range(n_err):
+                    e = yg[err_a[c]] - yg[err_b[c]]
+                    sum_sq[c] += e * e
+                g += 1
+        k += 1
+    state[S_TICK] = k
+    state[S_DONE] = g
+    state[S_T] = min(k * base_period, t_end)
+    if k > n_ticks:
+        return FINISHED
+    return RUNNING
+
+
+def sampled_members(start, stride, t_grid, base_period, n_ticks, X0, held0, theta, ext, tables, table_row, rtol,
+                    atol, max_step, bound, err_a, err_b, sum_sq, failed_at, failed_state, status):
+    """The sampled loop of members ``start, start + stride, ...``: ``X0`` (N, n) start states, ``held0`` the start
+    held outputs, ``theta`` (N, p), member ``m``'s tables row ``table_row[m]`` (``member_ext``).
+
+    Each member's tracking sums go to ``sum_sq[m]`` (see ``sampled_ticks``);
+    a member that diverges or whose step becomes too small gets its status
+    in ``status[m]``, the time in ``failed_at[m]`` and its state then in
+    ``failed_state[m]``, and stops; the others go on.  (The caller runs one
+    call per thread, the GIL released: numba's ``prange`` cannot take the
+    parameters' tuple, which holds tuples.)
+    """
+    for m in range(start, X0.shape[0], stride):
+        status[m] = sampled_member(m, t_grid, base_period, n_ticks, X0, held0, theta, ext, tables, table_row, rtol,
+                                   atol, max_step, bound, err_a, err_b, sum_sq, failed_at, failed_state)
+
+
+def sampled_member(m, t_grid, base_period, n_ticks, X0, held0, theta, ext, tables, table_row, rtol, atol, max_step,
+                   bound, err_a, err_b, sum_sq, failed_at, failed_state):
+    """Member ``m`` of ``sampled_batch``: its whole run; its status code."""
+    n = X0.shape[1]
+    x = X0[m].copy()
+    held = held0.copy()
+    state = np.zeros(6)
+    e = member_ext(ext, tables, table_row[m])
+    dummy_x = np.empty((1, n))
+    dummy_y = np.empty((1, loop_output_count()))
+    y_old = np.empty(n)
+    Q = np.empty((n, 4))
+    code = sampled_ticks(t_grid, base_period, n_ticks, n_ticks + 1, theta[m], e, rtol, atol, max_step, bound,
+                         state, x, held, False, dummy_x, dummy_y, err_a, err_b, sum_sq[m], y_old, Q)
+    if code != FINISHED:
+        failed_at[m] = state[S_T]
+        for i in range(n):
+            failed_state[m, i] = x[i]
+    return code

@@ -47,7 +47,7 @@ class TraceError(TypeError):
 _BINARY = {"add": "+", "subtract": "-", "multiply": "*", "true_divide": "/", "divide": "/",
            "greater": ">", "less": "<", "greater_equal": ">=", "less_equal": "<="}
 _CALLS = {"cos", "sin", "tan", "tanh", "sqrt", "exp", "sign", "floor", "absolute", "negative", "maximum", "minimum",
-          "arctan2", "square"}
+          "arctan2", "square", "rint"}
 
 
 class Graph:
@@ -213,6 +213,9 @@ class Sym:
 
     def exp(self):
         return self._call("exp", self)
+
+    def rint(self):
+        return self._call("rint", self)
 
     def __array_ufunc__(self, ufunc, method, *inputs, **kwargs):
         if method != "__call__" or kwargs:
