@@ -202,12 +202,18 @@ def test_a_sampled_state_beyond_its_bound_stops_at_the_tick():
     assert abs(caught.value.state[z0]) > 1e-12
 
 
-def test_diverging_zoh_controller_is_refused_with_the_state_named():
-    """The issue's case: 100 Hz, zoh observer, measured velocity, Ts lambda_max(Y M^-1) = 1.95."""
+def test_diverging_zoh_controller_is_stopped_with_the_state_named(monkeypatch):
+    """The issue's case: 100 Hz, zoh observer, measured velocity, Ts lambda_max(Y M^-1) = 1.95.  The pre-run check
+    refuses it (tests/test_sampled_stability.py); with the check bypassed the compiled engine's Monitor stops it."""
+    import blocks.digital_loop
     s = blocks.load_scenario("paper").with_changes(
         {"gains.observer": 48.75, "simulation.t_final": 4.0}
         | _digital(sample_rate=100, observer_discretization="zoh", velocity="measured"))
-    with pytest.raises(SimulationError, match=r"diverged at t = [0-9.]+ s: (plant|observer) .*beyond its bound"):
+    with pytest.raises(blocks.scenario.ScenarioError, match="the sampled loop is unstable"):
+        blocks.simulate(s, engine="compiled")
+    monkeypatch.setattr(blocks.digital_loop, "check_observer_rate", lambda scenario: None)
+    with pytest.raises(SimulationError, match=r"diverged at t = [0-9.]+ s: (plant|observer|encoder) .*beyond its "
+                                              r"bound"):
         blocks.simulate(s, engine="compiled")
 
 
@@ -237,7 +243,8 @@ def test_fast_runs_the_numpy_hybrid_engine(monkeypatch):
 def test_a_solver_the_compiled_engine_lacks_is_named(monkeypatch):
     import blocks.loop
     monkeypatch.setattr(blocks.loop, "_fallbacks_reported", set())
-    s = CASES["euler-difference-delay0"].with_changes({"simulation.method": "RK23", "simulation.t_final": 0.02})
+    s = CASES["euler-difference-delay0"].with_changes({"simulation.method": "RK23", "simulation.t_final": 0.02,
+                                                      "trajectory.duration": 10.0})
     with pytest.raises(CompiledUnavailable, match="'RK23'"):
         blocks.simulate(s, engine="compiled")
     with pytest.warns(EngineFallbackWarning, match="'RK23'"):
