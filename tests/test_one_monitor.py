@@ -194,3 +194,28 @@ def test_the_wall_time_budget_stops_a_sampled_run(monkeypatch):
     s = PAPER.with_changes({"controller.sample_rate": 1000})
     with pytest.raises(BudgetError, match=r"wall-time budget of 0.3 s ran out at t = .* of 10 s"):
         blocks.simulate(s, engine="fast")
+
+
+def test_each_batch_member_is_judged_on_its_own_bounds_as_its_single_run_would_be():
+    """Members differ in their disturbance and gain, so their disturbance-estimate bounds differ: each member's
+    column equals the bounds of its own scenario run alone."""
+    from blocks.batch.simulate import _BatchLoop
+    from blocks.batch.variants import Variants
+    from blocks.divergence import batch_bounds, state_bounds
+    from blocks.loop import closed_loop
+    records = [{}, {"disturbance.f_r": [0.0, 0.0, 300.0, 0.0]}, {"gains.observer": 50.0}]
+    v = Variants(PAPER.with_changes(SHORT), records)
+    got = batch_bounds(_BatchLoop(v, observer=True))
+    for m in range(len(records)):
+        single = state_bounds(closed_loop(v.scenario(m)), v.scenario(m))
+        np.testing.assert_allclose(got.bounds[:, m], single.bounds, rtol=1e-12)
+    assert got.bounds[-2, 1] > 30 * got.bounds[-2, 0]           # joint 3 estimate bound follows its 300 N
+
+
+def test_a_member_that_failed_keeps_its_first_failure_time():
+    from blocks.divergence import StateBounds
+    from blocks.monitor import Monitor
+    monitor = Monitor("batch", StateBounds(np.array([1.0]), ["a"], ["m"], ["given"]), np.zeros((1, 2)))
+    failed = monitor.check_members(0.1, np.array([[2.0, 0.0]]), np.full(2, np.nan))
+    failed = monitor.check_members(0.2, np.array([[3.0, 5.0]]), failed)
+    assert failed.tolist() == [0.1, 0.2]
