@@ -41,13 +41,13 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 
-from .contract import Kernels, kernel_block
+# The block factories import python-control's side (contract, systems) when called, so that a scenario
+# holding a DigitalController loads without python-control.
+from .bound_kernels import Kernels
 from .gains import OBSERVER_VARIANTS, validated_gain
 from .kernels import arm_constants, observer_estimate, observer_rate
 from .parameters import RobotParameters
-from .systems import controller_output, controller_output_with_estimate, signal_names
 
 __all__ = ["DigitalController", "DISCRETIZATIONS", "VELOCITY_SOURCES", "encoder", "digital_controller", "actuator",
            "digital_observer", "euler_stability_limit"]
@@ -194,7 +194,9 @@ def observer_zoh_update(t, z, u, k, gain, eq16_weight, period):
     A = np.column_stack([rate(e) - c for e in np.eye(n)])
     augmented = np.zeros((n + 1, n + 1))
     augmented[:n, :n], augmented[:n, n] = A * period, c * period
-    step = scipy.linalg.expm(augmented)
+    from scipy.linalg import expm  # here, not at import: scenarios load without scipy
+
+    step = expm(augmented)
     return step[:n, :n] @ z + step[:n, n]
 
 
@@ -209,6 +211,8 @@ def observer_sampled_output(t, z, u, k, gain, eq16_weight, period):
 # --------------------------------------------------------------------------------------------------------------
 def encoder(settings: DigitalController, measured: str = "", name: str = "encoder"):
     """Sampled positions ``q_s[i]`` and velocity estimate ``dq_s[i]`` from ``q[i]``, ``dq[i]`` (or ``*_meas``)."""
+    from .contract import kernel_block
+    from .systems import signal_names
     res = np.array(settings.position_resolution)
     inputs = signal_names("q" + measured) + signal_names("dq" + measured)
     outputs = signal_names("q_s") + signal_names("dq_s")
@@ -225,6 +229,8 @@ def encoder(settings: DigitalController, measured: str = "", name: str = "encode
 def digital_controller(nominal: RobotParameters, kp, kd, settings: DigitalController, use_observer: bool = True,
                        name: str = "controller"):
     """Eq. 11 at each sample, from the sampled signals; output the command ``tau_cmd[i]``."""
+    from .contract import kernel_block
+    from .systems import controller_output, controller_output_with_estimate, signal_names
     Kp, Kd = validated_gain(kp, "kp"), validated_gain(kd, "kd")
     inputs = [s for prefix in ("q_ref", "dq_ref", "ddq_ref", "q_s", "dq_s") for s in signal_names(prefix)]
     if use_observer:
@@ -238,6 +244,8 @@ def digital_controller(nominal: RobotParameters, kp, kd, settings: DigitalContro
 
 def actuator(settings: DigitalController, name: str = "actuator"):
     """Delay by ``settings.delay`` samples and saturate: ``tau_cmd[i]`` -> applied ``tau[i]``."""
+    from .contract import kernel_block
+    from .systems import signal_names
     limit = np.array([v if v > 0 else np.inf for v in settings.torque_limit])
     n, d = limit.size, settings.delay
     params = (limit, n)
@@ -251,6 +259,8 @@ def actuator(settings: DigitalController, name: str = "actuator"):
 def digital_observer(nominal: RobotParameters, gain, settings: DigitalController, variant: str = "correct",
                      name: str = "observer"):
     """The observer sampled at ``settings.period``: inputs ``tau[i]`` (applied), ``q_s[i]``, ``dq_s[i]``."""
+    from .contract import kernel_block
+    from .systems import signal_names
     if variant not in OBSERVER_VARIANTS:
         raise ValueError(f"observer variant {variant!r} is unknown; choose from {list(OBSERVER_VARIANTS)}")
     Y = validated_gain(gain, "observer")

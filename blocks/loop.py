@@ -306,6 +306,7 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
                                plot_inputs=False)
     resp.scenario = s
     resp.with_observer = observer
+    resp.engine = engine                # the engine that ran ("auto" resolved)
     return resp
 
 

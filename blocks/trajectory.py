@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .contract import Kernels
+from .bound_kernels import Kernels
 from .kinematics import ELBOWS, UnreachableError, inverse_kinematics, jacobian, jacobian_derivative_times_dq
 from .parameters import RobotParameters
 

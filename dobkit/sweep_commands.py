@@ -18,7 +18,6 @@ import sys
 from pathlib import Path
 
 from blocks.budget import Budget, format_bytes
-from blocks.scenario import ScenarioError
 from dobkit.arguments import add_budget_flags, whole_number
 
 __all__ = ["add_sweep_subcommand", "sweep_command", "default_summary_dir"]
@@ -63,6 +62,7 @@ def sweep_command(args: argparse.Namespace) -> int:
     """Handle ``dobkit sweep``; 0 on success, 2 on a bad sweep file or budget, 1 on other failures, 130 on Ctrl-C."""
     from analysis.sweep import SweepError
     from blocks.budget import BudgetError
+    from blocks.scenario import ScenarioError
 
     state: dict = {}
     try:

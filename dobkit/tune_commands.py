@@ -14,7 +14,6 @@ import sys
 from pathlib import Path
 
 from blocks.budget import Budget, format_bytes
-from blocks.scenario import ScenarioError
 from dobkit.arguments import add_budget_flags, whole_number
 
 __all__ = ["add_tune_subcommand", "tune_command", "default_out_dir", "EXIT_INFEASIBLE"]
@@ -62,6 +61,7 @@ def tune_command(args: argparse.Namespace) -> int:
     """Handle ``dobkit tune``; see the module docstring for the exit status."""
     from analysis.tune import TuneError
     from blocks.budget import BudgetError
+    from blocks.scenario import ScenarioError
 
     state: dict = {}
     try:
