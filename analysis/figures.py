@@ -30,13 +30,10 @@ from blocks.kinematics import forward_kinematics  # noqa: E402
 from blocks.metrics import DISTURBANCE_UNITS, JOINT_UNITS, signal  # noqa: E402
 
 __all__ = ["paper_figures", "save_figure", "convergence_figure", "JOINT_TITLES", "joint_title", "REFERENCE_STYLE",
-           "has_tissue_model", "FIGURE_FORMATS", "PAPER_FIGURES"]
+           "has_tissue_model", "FIGURE_FORMATS"]
 
 #: The formats a figure may be written in.
 FIGURE_FORMATS = ("png", "svg")
-#: The stems of Figures 4-8, in order.
-PAPER_FIGURES = ("fig4_joint_tracking", "fig5_tracking_error", "fig6_disturbance_estimate", "fig7_estimation_error",
-                 "fig8_task_space")
 
 #: How every figure names the joints (the names a person reads everywhere: ``Joint 1 (theta1)``, ...).
 JOINT_TITLES = RRPR_JOINTS.labels
@@ -107,6 +104,10 @@ def save_figure(fig, out_dir: Path, stem: str, formats=FIGURE_FORMATS) -> list[P
     return paths
 
 
+#: Margins of the 2x2 joint grids (figure fractions), measured to fit the widest tick labels and the titles.
+_GRID_MARGINS = {"left": 0.08, "right": 0.985, "bottom": 0.075, "top": 0.9, "wspace": 0.2, "hspace": 0.18}
+
+
 def _joint_grid(title: str):
     # fixed margins (room for tick labels such as -0.00025 and a unit label): no layout pass per format
     fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True, gridspec_kw=_GRID_MARGINS)
@@ -119,10 +120,6 @@ def _joint_grid(title: str):
         if i >= 2:
             ax.set_xlabel("time (s)")
     return fig, axes.flat
-
-
-#: Margins of the 2x2 joint grids (figure fractions), measured to fit the widest tick labels and the titles.
-_GRID_MARGINS = {"left": 0.08, "right": 0.985, "bottom": 0.075, "top": 0.9, "wspace": 0.2, "hspace": 0.18}
 
 
 def _scale(i: int) -> tuple[float, str]:

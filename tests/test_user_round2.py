@@ -268,3 +268,12 @@ def test_export_replaces_with_force_and_starts_in_a_regular_pose(tmp_path):
     again = export_plant(tmp_path / "mine.fmu", q0=[0.1, 1.0, 0.2, 0.0])
     start = {v.name: v.start for v in fmpy.read_model_description(str(again)).modelVariables}
     assert float(start["q[1]"]) == pytest.approx(1.0)
+
+
+def test_figure_formats_are_checked(short_toml, tmp_path):
+    from analysis.figures import paper_figures
+
+    resp = blocks.simulate(load_scenario(short_toml), engine="fast")
+    with pytest.raises(ValueError, match=r"figure formats must be one or more of \['png', 'svg'\], got \('jpg',\)"):
+        paper_figures(resp, resp, tmp_path, formats=("jpg",))
+    assert not any(tmp_path.iterdir())
