@@ -18,18 +18,42 @@ report: what the page says and how it is laid out), ``sweep`` / ``sweep_runner``
 ``sweep_report`` (grids and Monte Carlo draws over scenario keys),
 ``results`` (strict JSON for the typed results).
 """
-from .bandwidth import BandwidthSurvey, bandwidth_survey, observer_modes
-from .experiment import ExperimentResult, run_experiment
-from .figures import convergence_figure, paper_figures, save_figure
-from .frequency import FrequencyAnalysis, frequency_analysis
-from .gain_design import ObserverDesign, convergence_certificate, design_observer_gain
-from .linear import MismatchStudy, OperatingPoint, mismatch_analysis, operating_point_analysis
-from .report import AnalysisResult, analyze, run_analysis, write_report
-from .settings import QUICK_SETTINGS, AnalysisSettings
-from .studies import Studies, gain_grid_study, observer_gain_study
-from .sweep import SweepError, SweepSpec, load_sweep
-from .sweep_report import SweepSummary, write_summary
-from .sweep_runner import SweepOutcome, run_sweep
+from importlib import import_module
+from importlib.util import find_spec
+
+# Each public name and its module, imported on first use (PEP 562): ``from analysis.sweep import load_sweep``
+# checks a sweep file without loading matplotlib and every analysis.
+_WHERE = {
+    "bandwidth": ("BandwidthSurvey", "bandwidth_survey", "observer_modes"),
+    "experiment": ("ExperimentResult", "run_experiment"),
+    "figures": ("convergence_figure", "paper_figures", "save_figure"),
+    "frequency": ("FrequencyAnalysis", "frequency_analysis"),
+    "gain_design": ("ObserverDesign", "convergence_certificate", "design_observer_gain"),
+    "linear": ("MismatchStudy", "OperatingPoint", "mismatch_analysis", "operating_point_analysis"),
+    "report": ("AnalysisResult", "analyze", "run_analysis", "write_report"),
+    "settings": ("QUICK_SETTINGS", "AnalysisSettings"),
+    "studies": ("Studies", "gain_grid_study", "observer_gain_study"),
+    "sweep": ("SweepError", "SweepSpec", "load_sweep"),
+    "sweep_report": ("SweepSummary", "write_summary"),
+    "sweep_runner": ("SweepOutcome", "run_sweep"),
+}
+_MODULE_OF = {name: module for module, names in _WHERE.items() for name in names}
+
+
+def __getattr__(name: str):
+    module = _MODULE_OF.get(name)
+    if module is None:
+        if not name.startswith("_") and find_spec(f"{__name__}.{name}") is not None:
+            return import_module(f".{name}", __name__)      # a submodule, as ``analysis.tune``
+        raise AttributeError(f"module 'analysis' has no attribute {name!r}")
+    value = getattr(import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_MODULE_OF))
+
 
 __all__ = [
     "run_analysis", "analyze", "write_report", "AnalysisSettings", "QUICK_SETTINGS", "AnalysisResult",

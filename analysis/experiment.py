@@ -5,7 +5,7 @@
 * ``metrics.json``: per-joint metrics of both runs (Table 3 and more), with units;
 * ``timeseries.csv``: every signal of both runs on the uniform output grid;
 * ``scenario.toml``: the complete scenario used (re-running it reproduces the numbers);
-* ``fig4..fig8`` as PNG and SVG.
+* ``fig4..fig8`` as PNG and/or SVG (``figure_formats``).
 
 Results are first written to a staging folder beside the target and moved
 into place only when everything succeeded, so a failed run leaves no partial
@@ -44,7 +44,8 @@ class ExperimentResult:
 
 
 def run_experiment(scenario: Scenario | str = "paper", out_dir: Path | str | None = None,
-                   progress: Callable[[str, float], None] | None = None, figures: bool = True) -> ExperimentResult:
+                   progress: Callable[[str, float], None] | None = None, figures: bool = True,
+                   engine: str = "auto", figure_formats=("png", "svg")) -> ExperimentResult:
     """Simulate a scenario with and without the observer and write the results.
 
     Parameters
@@ -57,6 +58,10 @@ def run_experiment(scenario: Scenario | str = "paper", out_dir: Path | str | Non
         ``progress(stage, fraction)`` as the simulations advance.
     figures : bool
         Write Figures 4-8.
+    engine : {"auto", "compiled", "fast", "python-control"}
+        The engine of both runs (see :func:`blocks.simulate`).
+    figure_formats : sequence of {"png", "svg"}
+        The formats of Figures 4-8 (``dobkit simulate`` writes PNG unless ``--svg``).
 
     Returns
     -------
@@ -67,9 +72,10 @@ def run_experiment(scenario: Scenario | str = "paper", out_dir: Path | str | Non
     runs = {}
     for key, with_observer in (("with_dob", True), ("without_dob", False)):
         stage = f"simulating {'with' if with_observer else 'without'} observer"
-        runs[key] = simulate(s, observer=with_observer,
+        runs[key] = simulate(s, observer=with_observer, engine=engine,
                              progress=(lambda f, st=stage: progress(st, f)) if progress else None)
     metrics = comparison_metrics(s, runs["with_dob"], runs["without_dob"])
+    metrics["engine"] = getattr(runs["with_dob"], "engine", engine)      # which engine ran both runs
     files: list[Path] = []
     if out_dir is not None:
         target = Path(out_dir)
@@ -80,7 +86,7 @@ def run_experiment(scenario: Scenario | str = "paper", out_dir: Path | str | Non
             if figures:
                 if progress:
                     progress("writing figures", 0.0)
-                paper_figures(runs["with_dob"], runs["without_dob"], stage)
+                paper_figures(runs["with_dob"], runs["without_dob"], stage, formats=figure_formats)
         files = sorted(target.iterdir())
     return ExperimentResult(s, runs["with_dob"], runs["without_dob"], metrics, Path(out_dir) if out_dir else None,
                             files)

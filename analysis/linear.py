@@ -91,8 +91,8 @@ def hold_scenario(scenario: Scenario, q0, disturbance: dict | None = None, **sec
 def first_seconds(scenario: Scenario, t_final: float | None, **sections) -> Scenario:
     """The first ``t_final`` seconds of the scenario's run (the same path, not a compressed one).
 
-    A laceration path's duration follows ``simulation.t_final`` unless it is
-    given, so it is given explicitly here.  Other sections can be changed at the
+    The path keeps its own duration (``simulation.t_final`` never rescales it);
+    it is also written into the changes here.  Other sections can be changed at the
     same time (merged, as :meth:`Scenario.replace` does).  ``t_final=None``
     keeps the run length.
     """

@@ -12,34 +12,52 @@ maths as array functions), :mod:`blocks.batch` (many variants at once),
 :mod:`blocks.metrics` (tracking metrics), :mod:`blocks.contract` (what a
 block promises the engines).
 """
+from importlib import import_module
 from importlib.metadata import PackageNotFoundError, version
-
-from .contract import Block, BlockContract, ContractError, Kernels, contract_of, kernel_block
-from .disturbances import DisturbanceSpec, external_disturbance
-from .dynamics import (
-    coriolis_matrix,
-    coriolis_vector,
-    forward_dynamics,
-    gravity,
-    inertia,
-    inverse_dynamics,
-    kinetic_energy,
-)
-from .gains import GainError, validated_gain
-from .joints import RRPR_JOINTS, JointSpace
-from .kinematics import UnreachableError, forward_kinematics, inverse_kinematics, jacobian
-from .loop import SimulationError, build_blocks, closed_loop, initial_state, lumped_disturbance, simulate
-from .noise import MeasurementNoise
-from .parameters import PAPER_PARAMETERS, ParameterError, RobotParameters
-from .plan import AlgebraicLoopError
-from .scenario import Scenario, ScenarioError, builtin_scenarios, load_scenario, scenario_from_dict
-from .systems import controller, observer, plant, sensor, trajectory_block
-from .trajectory import JointSine, LacerationPath
+from importlib.util import find_spec
 
 try:
     __version__ = version("dobkit")
 except PackageNotFoundError:       # a source tree that was never installed
     __version__ = "0+unknown"
+
+# Each public name and the module that defines it.  They are imported on first use (PEP 562), so that
+# ``import blocks.scenario`` or the command line's ``--version`` do not load python-control, scipy and
+# matplotlib; ``from blocks import simulate`` works as before.
+_WHERE = {
+    "contract": ("Block", "BlockContract", "ContractError", "contract_of", "kernel_block"),
+    "bound_kernels": ("Kernels",),
+    "disturbances": ("DisturbanceSpec", "external_disturbance"),
+    "dynamics": ("coriolis_matrix", "coriolis_vector", "forward_dynamics", "gravity", "inertia", "inverse_dynamics",
+                 "kinetic_energy"),
+    "gains": ("GainError", "validated_gain"),
+    "joints": ("RRPR_JOINTS", "JointSpace"),
+    "kinematics": ("UnreachableError", "forward_kinematics", "inverse_kinematics", "jacobian"),
+    "loop": ("SimulationError", "build_blocks", "closed_loop", "initial_state", "lumped_disturbance", "simulate"),
+    "noise": ("MeasurementNoise",),
+    "parameters": ("PAPER_PARAMETERS", "ParameterError", "RobotParameters"),
+    "plan": ("AlgebraicLoopError",),
+    "scenario": ("Scenario", "ScenarioError", "builtin_scenarios", "load_scenario", "scenario_from_dict"),
+    "systems": ("controller", "observer", "plant", "sensor", "trajectory_block"),
+    "trajectory": ("JointSine", "LacerationPath"),
+}
+_MODULE_OF = {name: module for module, names in _WHERE.items() for name in names}
+
+
+def __getattr__(name: str):
+    module = _MODULE_OF.get(name)
+    if module is None:
+        if not name.startswith("_") and find_spec(f"{__name__}.{name}") is not None:
+            return import_module(f".{name}", __name__)      # a submodule, as ``blocks.metrics``
+        raise AttributeError(f"module 'blocks' has no attribute {name!r}")
+    value = getattr(import_module(f".{module}", __name__), name)
+    globals()[name] = value            # later look-ups are plain attribute reads
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_MODULE_OF))
+
 
 __all__ = [
     "__version__",

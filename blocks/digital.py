@@ -48,12 +48,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .contract import Kernels, kernel_block
+# The block factories import python-control's side (contract, systems) when called, so that a scenario
+# holding a DigitalController loads without python-control.
+from .bound_kernels import Kernels
 from .gains import OBSERVER_VARIANTS, validated_gain
 from .kernels import arm_constants, observer_estimate, observer_rate
 from .kernels.expm import expm_small
 from .parameters import RobotParameters
-from .systems import controller_output, controller_output_with_estimate, signal_names
 
 __all__ = ["DigitalController", "DISCRETIZATIONS", "VELOCITY_SOURCES", "encoder", "digital_controller", "actuator",
            "digital_observer"]
@@ -228,6 +229,8 @@ def observer_sampled_output(t, z, u, k, gain, eq16_weight, period):
 # --------------------------------------------------------------------------------------------------------------
 def encoder(settings: DigitalController, measured: str = "", name: str = "encoder"):
     """Sampled positions ``q_s[i]`` and velocity estimate ``dq_s[i]`` from ``q[i]``, ``dq[i]`` (or ``*_meas``)."""
+    from .contract import kernel_block
+    from .systems import signal_names
     res = np.array(settings.position_resolution)
     steps = tuple(bool(r > 0) for r in res)         # which joints quantize: structure, not numbers
     inputs = signal_names("q" + measured) + signal_names("dq" + measured)
@@ -245,6 +248,8 @@ def encoder(settings: DigitalController, measured: str = "", name: str = "encode
 def digital_controller(nominal: RobotParameters, kp, kd, settings: DigitalController, use_observer: bool = True,
                        name: str = "controller"):
     """Eq. 11 at each sample, from the sampled signals; output the command ``tau_cmd[i]``."""
+    from .contract import kernel_block
+    from .systems import controller_output, controller_output_with_estimate, signal_names
     Kp, Kd = validated_gain(kp, "kp"), validated_gain(kd, "kd")
     inputs = [s for prefix in ("q_ref", "dq_ref", "ddq_ref", "q_s", "dq_s") for s in signal_names(prefix)]
     if use_observer:
@@ -258,6 +263,8 @@ def digital_controller(nominal: RobotParameters, kp, kd, settings: DigitalContro
 
 def actuator(settings: DigitalController, name: str = "actuator"):
     """Delay by ``settings.delay`` samples and saturate: ``tau_cmd[i]`` -> applied ``tau[i]``."""
+    from .contract import kernel_block
+    from .systems import signal_names
     limit = np.array([v if v > 0 else np.inf for v in settings.torque_limit])
     n, d = limit.size, settings.delay
     params = (limit, n)
@@ -271,6 +278,8 @@ def actuator(settings: DigitalController, name: str = "actuator"):
 def digital_observer(nominal: RobotParameters, gain, settings: DigitalController, variant: str = "correct",
                      name: str = "observer"):
     """The observer sampled at ``settings.period``: inputs ``tau[i]`` (applied), ``q_s[i]``, ``dq_s[i]``."""
+    from .contract import kernel_block
+    from .systems import signal_names
     if variant not in OBSERVER_VARIANTS:
         raise ValueError(f"observer variant {variant!r} is unknown; choose from {list(OBSERVER_VARIANTS)}")
     Y = validated_gain(gain, "observer")

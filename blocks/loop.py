@@ -304,8 +304,10 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
     if with_d:                               # the compiled engine's grid pass gave d already, as the last rows
         n = s.robot.joints.count
         outputs, d = outputs[:-n], outputs[-n:]
-    return loop_response(t_grid, outputs, states, run.labels, run.state_labels, s, observer, run.title, loop.name,
+    resp = loop_response(t_grid, outputs, states, run.labels, run.state_labels, s, observer, run.title, loop.name,
                          d=d)
+    resp.engine = engine                # the engine that ran ("auto" resolved)
+    return resp
 
 
 class _Prepared:

@@ -15,7 +15,9 @@ Sections and keys (units in brackets)::
     [nominal_scale]  per-parameter factor nominal / true (Eq. 3 internal disturbance), same names, 1 by default
     [gains]          kp [1/s^2], kd [1/s]: scalar or 4; observer [kg m^2/s]: scalar, 4 or 4x4
     [observer]       variant = "correct" | "paper-eq16"
-    [trajectory]     kind = "laceration" | "joint_sine" and that kind's keys (blocks.trajectory)
+    [trajectory]     kind = "laceration" | "joint_sine" and that kind's keys (blocks.trajectory);
+                     a laceration lasts duration [s] (10 by default) whatever simulation.t_final is,
+                     and stitches the skin plane disturbance.skin_height [m]
     [disturbance]    kind = "paper" | "friction" | "tissue" | a list of them | "none", and their keys
     [noise]          q_std [rad, m], dq_std [rad/s, m/s] (4 each), seed, sample_period [s]
     [initial]        q, dq (4 each; default: on the reference), d_hat (4; default 0)
@@ -213,9 +215,8 @@ class Scenario:
         Where the scenario came from (built-in name or file path).
     user_data : dict
         The settings as given, before defaults were filled in; :meth:`with_changes`
-        starts from these so that derived defaults (the path duration follows
-        ``simulation.t_final``, the path's skin height follows the tissue
-        model's) are derived again.
+        starts from these so that derived values (the path's skin plane is
+        ``disturbance.skin_height``) are derived again.
     """
 
     name: str
@@ -266,10 +267,12 @@ class Scenario:
             ``"nominal_scale.m1": 1.2``), ``"section.key[i]"`` -> one element of
             a list (``"disturbance.f_r[2]": 1.5``), or ``"name"`` /
             ``"description"`` -> text.  Applied in order.  Defaults that
-            follow other keys are derived again (the laceration path's duration
-            follows ``simulation.t_final`` and its skin height the tissue
-            model's, unless they were given); a new ``trajectory.kind`` starts
-            that section afresh, since each kind has its own keys.
+            follow other keys are derived again (the laceration path's skin
+            plane is ``disturbance.skin_height``); ``simulation.t_final``
+            never changes the path: its duration is ``trajectory.duration``
+            (10 s by default), a shorter run ends early on the same path and
+            a longer one holds its last pose.  A new ``trajectory.kind``
+            starts that section afresh, since each kind has its own keys.
 
         Raises
         ------
@@ -282,7 +285,7 @@ class Scenario:
         >>> float(s.kp[0, 0])
         100.0
         >>> load_scenario("paper").with_changes({"simulation.t_final": 2.0}).trajectory.duration
-        2.0
+        10.0
         >>> load_scenario("paper").with_changes({"disturbance.f_r[2]": 1.5}).disturbance.f_r
         (1.43, 1.6, 1.5, 1.2)
         """
@@ -543,8 +546,9 @@ def _build_trajectory(given: dict, built: dict):
     kind = given.get("kind", _SECTIONS["trajectory"].default_kind)
     kw = {k: v for k, v in given.items() if k != "kind"}
     if kind == "laceration":
-        kw.setdefault("duration", built["simulation"].t_final)          # the path completes within the run
-        kw.setdefault("skin_height", built["disturbance"].skin_height)  # the path stitches the tissue's skin
+        # the path keeps its own duration (trajectory.duration, 10 s by default): simulation.t_final only
+        # says how much of it is simulated, so a shorter run is the start of the same path
+        kw["skin_height"] = _skin_height(kw, built["disturbance"])
         _check_phases(kw, built["simulation"])
     try:
         if kind == "laceration":
@@ -554,7 +558,8 @@ def _build_trajectory(given: dict, built: dict):
             _check_sine_ranges(trajectory, built)
     except (ValueError, TypeError) as err:          # UnreachableError is a ValueError
         raise ScenarioError(f"[trajectory] {err}") from None
-    keys = [k for k in _SECTIONS["trajectory"].checks_for(kind) if k != "kind"]
+    # the skin plane is written once, under [disturbance]
+    keys = [k for k in _SECTIONS["trajectory"].checks_for(kind) if k not in ("kind", "skin_height")]
     return trajectory, {"kind": kind} | {k: _plain(getattr(trajectory, k)) for k in keys}
 
 
@@ -571,13 +576,28 @@ def _check_sine_ranges(sine: JointSine, built: dict) -> None:
                        "q = trajectory.offset + trajectory.amplitude x sin(trajectory.omega t) over the run")
 
 
+def _skin_height(path: dict, disturbance: DisturbanceSpec) -> float:
+    """The laceration's skin plane (m): ``disturbance.skin_height``, the one source shared with the tissue model.
+
+    ``trajectory.skin_height`` is accepted only when it says the same; a path
+    stitching one plane while the tissue pushes back from another is refused.
+    """
+    skin = disturbance.skin_height
+    given = path.get("skin_height", skin)
+    if not math.isclose(given, skin, rel_tol=0.0, abs_tol=1e-12):
+        raise ScenarioError(f"'trajectory.skin_height' ({given!r} m) disagrees with 'disturbance.skin_height' "
+                            f"({skin!r} m): the path and the tissue model share one skin plane; set "
+                            "'disturbance.skin_height' only")
+    return skin
+
+
 def _check_phases(path: dict, sim: SimulationSettings) -> None:
     """Refuse a laceration path whose phases (a stitch or a move between stitches) are shorter than
     :data:`MIN_PHASE_DURATION`: no arm sews that fast, and a huge stitch count would only cost memory and time."""
     stitches = path.get("stitches", LacerationPath.stitches)
     if isinstance(stitches, int) and stitches >= 1:
         try:
-            phase = path["duration"] / (2 * stitches - 1)
+            phase = path.get("duration", LacerationPath.duration) / (2 * stitches - 1)
         except OverflowError:               # a count beyond any float: phases of no length
             phase = 0.0
         if phase < MIN_PHASE_DURATION:

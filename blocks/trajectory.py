@@ -22,6 +22,10 @@ continuous first and second derivatives.  They come from inverse kinematics:
 ``q = IK(p)``, ``q' = J^-1 p'``, ``q'' = J^-1 (p'' - J' q')`` -- no finite
 differences.  After ``duration`` the reference holds the last pose.
 
+``duration`` belongs to the path, not to the run: a scenario's
+``simulation.t_final`` never rescales it.  A run shorter than the path follows
+its first ``t_final`` seconds exactly; a longer one holds the path's end.
+
 Construction samples the whole path and raises
 :class:`~blocks.kinematics.UnreachableError` if any point is outside
 the workspace -- the planar annulus, or a joint's range (the prismatic
@@ -37,7 +41,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .contract import Kernels
+from .bound_kernels import Kernels
 from .kinematics import ELBOWS, UnreachableError, inverse_kinematics, jacobian, jacobian_derivative_times_dq
 from .parameters import RobotParameters
 
@@ -211,7 +215,8 @@ class LacerationPath:
     stitches : int
         Number of stitches, >= 2, the first at ``start`` and the last at ``end``.
     skin_height : float
-        Height of the skin plane in the base frame (m).
+        Height of the skin plane in the base frame (m).  A scenario sets it
+        from ``disturbance.skin_height``, the plane the tissue model uses.
     hover : float
         Tool height above the skin while travelling (m), >= 0.
     depth : float
@@ -221,7 +226,8 @@ class LacerationPath:
     roll_offset : float
         Tool roll angle ``phi`` at rest (rad).
     duration : float
-        Time to complete all stitches (s), > 0.
+        Time to complete all stitches (s), > 0; the paper's 10 s by default,
+        independent of how long a run is simulated.
     elbow : {"positive", "negative"}
         Inverse-kinematics branch (sign of theta2).
     singularity_margin : float

@@ -44,11 +44,12 @@ def _settings(args):
 
 
 def _cmd_analyze(args) -> int:
-    from analysis.report import analyze
-    from blocks import load_scenario
     from blocks.outputs import default_out_dir
+    from blocks.scenario import load_scenario
 
-    scenario = load_scenario(args.scenario)
+    scenario = load_scenario(args.scenario)      # a bad scenario is refused before the heavy imports below
+    from analysis.report import analyze
+
     out = args.out if args.out is not None else default_out_dir(ANALYSIS_PREFIX)
     with StageProgress() as progress:
         result, files = analyze(scenario, out, _settings(args), progress=progress)
@@ -65,11 +66,12 @@ def _cmd_analyze(args) -> int:
 
 
 def _cmd_report(args) -> int:
-    from analysis.report import write_report
-    from blocks import load_scenario
     from blocks.outputs import default_out_dir
+    from blocks.scenario import load_scenario
 
-    scenario = load_scenario(args.scenario)
+    scenario = load_scenario(args.scenario)      # a bad scenario is refused before the heavy imports below
+    from analysis.report import write_report
+
     out = args.out if args.out is not None else default_out_dir(REPORT_PREFIX)
     with StageProgress() as progress:
         path = write_report(scenario, out, _settings(args), progress=progress, sweep_summaries=args.sweep,

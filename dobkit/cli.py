@@ -22,15 +22,23 @@ from .tune_commands import add_tune_subcommand
 __all__ = ["main"]
 
 
-def _cmd_simulate(args) -> int:
-    from analysis.experiment import default_out_dir, format_rms_table, run_experiment
-    from blocks import load_scenario
+#: The engines of ``dobkit simulate --engine`` (:data:`blocks.loop.ENGINES`, written here so that the parser
+#: does not import python-control; a test keeps the two equal).
+SIMULATE_ENGINES = ("auto", "compiled", "fast", "python-control")
 
-    scenario = load_scenario(args.scenario)
+
+def _cmd_simulate(args) -> int:
+    from blocks.scenario import load_scenario
+
+    scenario = load_scenario(args.scenario)      # a bad scenario is refused before the heavy imports below
+    from analysis.experiment import default_out_dir, format_rms_table, run_experiment
+
     out = args.out if args.out is not None else default_out_dir()
+    formats = ("png", "svg") if args.svg else ("png",)
     with StageProgress() as progress:
-        result = run_experiment(scenario, out, progress=progress)
-    print(f"scenario: {scenario.name} ({scenario.source})")
+        result = run_experiment(scenario, out, progress=progress, figures=not args.no_figures, engine=args.engine,
+                                figure_formats=formats)
+    print(f"scenario: {scenario.name} ({scenario.source}), engine: {result.metrics['engine']}")
     c = scenario.controller
     if c is not None:
         encoders = "exact" if not any(c.position_resolution) else \
@@ -39,7 +47,9 @@ def _cmd_simulate(args) -> int:
         print(f"controller: sampled at {c.sample_rate:g} Hz, {c.observer_discretization} observer update, delay "
               f"{c.delay}, velocity {velocity}, encoders {encoders}")
     print(format_rms_table(result.metrics))
-    print(f"results written to {result.out_dir}")
+    figures = "no figures (--no-figures)" if args.no_figures else \
+        "Figures 4-8 as " + " and ".join(f.upper() for f in formats)
+    print(f"results written to {result.out_dir}: metrics.json, timeseries.csv, scenario.toml, {figures}")
     return 0
 
 
@@ -50,10 +60,16 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"dobkit {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     sim = sub.add_parser("simulate", help="run a scenario with and without the observer; write metrics, "
-                         "time series and Figures 4-8")
+                         "time series and Figures 4-8 (PNG)")
     sim.add_argument("--scenario", default="paper", help="built-in scenario name or path to a TOML file "
                      "(default: paper)")
     sim.add_argument("--out", default=None, help="output folder (default: a new folder under the current one)")
+    sim.add_argument("--engine", choices=SIMULATE_ENGINES, default="auto",
+                     help="simulation engine of both runs: compiled (numba), fast (numpy), python-control "
+                          "(control.input_output_response); auto takes compiled when it can (default: auto)")
+    figures = sim.add_mutually_exclusive_group()
+    figures.add_argument("--no-figures", action="store_true", help="write metrics, time series and scenario only")
+    figures.add_argument("--svg", action="store_true", help="write each figure as SVG too (default: PNG only)")
     sim.set_defaults(func=_cmd_simulate)
     add_analysis_subcommands(sub)
     add_sweep_subcommand(sub)

@@ -77,8 +77,7 @@ def _budget(args):
 
 
 def _cmd_export(args) -> int:
-    from blocks import load_scenario
-    from fmu.export import export_plant
+    from blocks.scenario import load_scenario
 
     out = Path(args.out)
     if out.is_dir():
@@ -86,11 +85,12 @@ def _cmd_export(args) -> int:
     if out.exists() and not args.force:
         raise ValueError(f"--out {out} exists; refusing to overwrite it (use --force to replace it)")
     s = load_scenario(args.scenario)
+    from fmu.export import export_plant
     q_ref0, dq_ref0, _ = s.trajectory.evaluate(0.0)
     q0 = s.initial["q"] if s.initial["q"] is not None else q_ref0
     dq0 = s.initial["dq"] if s.initial["dq"] is not None else dq_ref0
     path = export_plant(out, params=s.robot, disturbance=s.disturbance, fmi_version=args.fmi_version,
-                        substeps=args.substeps, q0=q0, dq0=dq0)
+                        substeps=args.substeps, q0=q0, dq0=dq0, force=args.force)
     print(f"wrote {path} (FMI {args.fmi_version}.0, Model Exchange + Co-Simulation, scenario {s.name}, "
           f"{args.substeps} RK4 sub-steps per co-simulation step)")
     return 0

@@ -33,33 +33,43 @@ step size), ``check`` and ``plant_check``,
 (the plant FMU), ``c/`` (the plant's C code).
 The command line (``dobkit fmu ...``) lives in :mod:`dobkit.fmu_commands`.
 """
-from blocks.budget import Budget
+from importlib import import_module
+from importlib.util import find_spec
 
-from .archive import ExtractedFMU, ExtractionLimits, extract_fmu
-from .block import FMUBlock, load
-from .check import check_fmu
-from .convergence import cosim_convergence
-from .cosim import controller_side, cosimulate
-from .description import require_variables
-from .errors import (
-                     BudgetError,
-                     CoSimulationError,
-                     FMUArchiveError,
-                     FMUBuildError,
-                     FMUError,
-                     FMUInstantiationError,
-                     FMUMissingVariablesError,
-                     FMUModelDescriptionError,
-                     FMUPlatformError,
-                     FMUStartValueError,
-                     FMUStepError,
-                     FMUUnsupportedError,
-                     FMUVersionError,
-)
-from .export import MODEL_IDENTIFIER, export_plant
-from .instance import FMUInstance
-from .master import cosimulate_system
-from .simulate import simulate_fmu
+# Each public name and its module, imported on first use (PEP 562): ``import fmu.errors`` or the command
+# line's parser do not load fmpy, python-control or scipy.
+_WHERE = {
+    "archive": ("ExtractedFMU", "ExtractionLimits", "extract_fmu"),
+    "block": ("FMUBlock", "load"),
+    "check": ("check_fmu",),
+    "convergence": ("cosim_convergence",),
+    "cosim": ("controller_side", "cosimulate"),
+    "description": ("require_variables",),
+    "errors": ("Budget", "BudgetError", "CoSimulationError", "FMUArchiveError", "FMUBuildError", "FMUError",
+               "FMUInstantiationError", "FMUMissingVariablesError", "FMUModelDescriptionError", "FMUPlatformError",
+               "FMUStartValueError", "FMUStepError", "FMUUnsupportedError", "FMUVersionError"),
+    "export": ("MODEL_IDENTIFIER", "export_plant"),
+    "instance": ("FMUInstance",),
+    "master": ("cosimulate_system",),
+    "simulate": ("simulate_fmu",),
+}
+_MODULE_OF = {name: module for module, names in _WHERE.items() for name in names}
+
+
+def __getattr__(name: str):
+    module = _MODULE_OF.get(name)
+    if module is None:
+        if not name.startswith("_") and find_spec(f"{__name__}.{name}") is not None:
+            return import_module(f".{name}", __name__)      # a submodule, as ``fmu.scenario_values``
+        raise AttributeError(f"module 'fmu' has no attribute {name!r}")
+    value = getattr(import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_MODULE_OF))
+
 
 __all__ = [
     "export_plant", "load", "FMUBlock", "cosimulate", "cosimulate_system", "controller_side", "check_fmu",

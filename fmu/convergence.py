@@ -107,9 +107,8 @@ def cosim_convergence(fmu_path, scenario: Scenario | str = "paper", steps=DEFAUL
     t_final : float, optional
         Simulated time (s); default the scenario's.  A whole number of the
         largest step.  It replaces the scenario's ``simulation.t_final`` for
-        both runs, so a path whose duration follows ``t_final`` (the
-        laceration path unless its ``duration`` is set) runs faster when it
-        is shorter -- the runs stay comparable, but the scenario changes.
+        both runs: a shorter one is the start of the same path (the path
+        keeps its own ``trajectory.duration``).
     observer : bool
         With or without the disturbance observer.
     side_substeps : int

@@ -7,7 +7,8 @@ a debugger.
 """
 from __future__ import annotations
 
-from blocks.budget import BudgetError
+# the project's one budget and its error (blocks.budget), re-exported as fmu.Budget and fmu.BudgetError
+from blocks.budget import Budget, BudgetError  # noqa: F401
 
 __all__ = [
     "FMUError", "FMUArchiveError", "FMUModelDescriptionError", "FMUVersionError", "FMUUnsupportedError",

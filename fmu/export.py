@@ -36,6 +36,7 @@ from blocks.parameters import RobotParameters
 from .build import COMPILE_FLAGS, platform_folder, shared_library_suffix
 from .modeldescription import build_description_xml, model_description_xml
 from .package import package_fmu
+from .scenario_values import DEFAULT_START_Q
 from .variables import config_header, plant_variables
 
 __all__ = ["export_plant", "MODEL_IDENTIFIER", "plant_source_files"]
@@ -94,13 +95,15 @@ def _build_txt(fmi_version: int, sources: list[str]) -> str:
 
 
 def export_plant(path, params: RobotParameters | None = None, disturbance: DisturbanceSpec | None = None,
-                 fmi_version: int = 2, substeps: int = 4, cc: str | None = None, q0=None, dq0=None) -> Path:
+                 fmi_version: int = 2, substeps: int = 4, cc: str | None = None, q0=None, dq0=None,
+                 force: bool = False) -> Path:
     """Export the plant as an FMU (Model Exchange and Co-Simulation in one archive).
 
     Parameters
     ----------
     path : str or pathlib.Path
-        Where to write the ``.fmu`` file (its folder must exist).
+        Where to write the ``.fmu`` file (its folder must exist).  An existing
+        file is refused unless ``force`` is true.
     params : RobotParameters, optional
         True arm parameters (Table 1 by default); start values of the FMU's
         parameters ``m1`` ... ``d4``.  The FMU derives ``k1..k5`` from them, so
@@ -117,7 +120,12 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
     cc : str, optional
         C compiler command; default ``$CC``, else ``cc``/``gcc``/``clang``.
     q0, dq0 : 4 floats, optional
-        Start values of the joint positions (rad, m) and velocities (rad/s, m/s); zero by default.
+        Start values of the joint positions (rad, m) and velocities (rad/s, m/s).
+        By default the arm starts at rest in the regular pose
+        :data:`fmu.scenario_values.DEFAULT_START_Q` (``theta2 = pi/2``, ``d3 = 0.24 m``),
+        not at the singular ``theta2 = 0``.
+    force : bool
+        Replace an existing file at ``path`` (as ``dobkit fmu export --force``).
 
     Returns
     -------
@@ -130,6 +138,8 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
         If no C compiler is available or compilation fails.
     ValueError
         On an invalid ``fmi_version``, ``substeps``, ``q0`` or ``dq0``.
+    FileExistsError
+        If ``path`` exists and ``force`` is false (nothing is compiled).
 
     Examples
     --------
@@ -144,9 +154,14 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
     """
     _check_args(fmi_version, substeps)
     q0, dq0 = _joint_vector(q0, "q0"), _joint_vector(dq0, "dq0")
+    q0 = list(DEFAULT_START_Q) if q0 is None else q0
     params = RobotParameters() if params is None else params
     disturbance = DisturbanceSpec() if disturbance is None else disturbance
     path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(f"path {str(path)!r} is a folder; give the path of the .fmu file to write")
+    if path.exists() and not force:
+        raise FileExistsError(f"path {str(path)!r} exists; refusing to overwrite it (pass force=True to replace it)")
 
     variables = plant_variables(params, disturbance, substeps, q0=q0, dq0=dq0)
     sources = plant_source_files(fmi_version)

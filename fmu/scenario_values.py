@@ -6,6 +6,7 @@ block and a co-simulated FMU get the same values.
 """
 from __future__ import annotations
 
+import math
 import warnings
 
 from blocks.joints import RRPR_JOINTS
@@ -13,9 +14,15 @@ from blocks.scenario import Scenario
 
 from .variables import plant_parameter_values
 
-__all__ = ["plant_start_values", "JOINTS"]
+__all__ = ["plant_start_values", "JOINTS", "DEFAULT_START_Q"]
 
 JOINTS = RRPR_JOINTS.count
+
+#: Start pose of a plant FMU exported without one (rad, rad, m, rad): the elbow at a right angle
+#: (theta2 = pi/2, as far as it gets from the singular theta2 = 0 and pi, where the planar Jacobian's
+#: determinant a1 a2 sin(theta2) vanishes) and the tool slide at Table 1's d3 = 0.24 m.  An export from a
+#: scenario (``dobkit fmu export``) starts where the scenario does.
+DEFAULT_START_Q = (0.0, math.pi / 2, 0.24, 0.0)
 
 
 def plant_start_values(scenario: Scenario, fmu_variables: set[str] | None, parameters: str = "scenario",

@@ -50,7 +50,8 @@ def test_plant_block_has_the_python_plants_signals(plant_fmu, tmp_path):
     assert list(sys.output_labels) == list(ref.output_labels)
     assert list(sys.state_labels) == list(ref.state_labels)
     assert contract_of(sys).feedthrough == frozenset()   # from ModelStructure: no output depends on tau
-    np.testing.assert_array_equal(sys.initial_state, np.zeros(8))
+    # the export's default start: at rest, theta2 = pi/2 and Table 1's d3 = 0.24 m (not the singular theta2 = 0)
+    np.testing.assert_allclose(sys.initial_state, [0.0, np.pi / 2, 0.24, 0.0, 0.0, 0.0, 0.0, 0.0], atol=1e-15)
     x, u = np.array([0.1, 0.9, 0.2, -0.3, 0.5, 0.1, -0.2, 0.3]), np.array([1.0, -2.0, 0.5, 0.1])
     np.testing.assert_allclose(sys._rhs(0.2, x, u), ref._rhs(0.2, x, u), rtol=1e-13, atol=1e-13)
     np.testing.assert_allclose(sys._out(0.2, x, u), ref._out(0.2, x, u), rtol=1e-13, atol=1e-13)

@@ -20,7 +20,7 @@ def test_derived_defaults_follow_a_replaced_key():
     paper = load_scenario("paper")
     assert paper.trajectory.duration == 10.0
     short = paper.replace(simulation={"t_final": 2.0})
-    assert short.trajectory.duration == 2.0             # the path still completes within the run
+    assert short.trajectory.duration == 10.0            # the run ends early; the path is not rescaled
     moved = paper.replace(disturbance={"skin_height": -0.35})
     assert moved.trajectory.skin_height == -0.35         # the path and the tissue model share the skin
     # a key the user did give is kept
@@ -166,12 +166,12 @@ def test_with_changes_reaches_the_model_objects():
 
 def test_with_changes_derives_defaults_again():
     paper = load_scenario("paper")
-    assert paper.with_changes({"simulation.t_final": 2.0}).trajectory.duration == 2.0
+    assert paper.with_changes({"simulation.t_final": 2.0}).trajectory.duration == 10.0
     assert paper.with_changes({"disturbance.skin_height": -0.35}).trajectory.skin_height == -0.35
     pinned = paper.with_changes({"trajectory.duration": 8.0}).with_changes({"simulation.t_final": 2.0})
     assert pinned.trajectory.duration == 8.0 and pinned.simulation.t_final == 2.0
-    # the duration derived from t_final is not pinned by a change elsewhere
-    assert paper.with_changes({"gains.kp": 100.0}).with_changes({"simulation.t_final": 4.0}).trajectory.duration == 4.0
+    # t_final never rescales the path, whatever was changed before
+    assert paper.with_changes({"gains.kp": 100.0}).with_changes({"simulation.t_final": 4.0}).trajectory.duration == 10.0
 
 
 def test_a_new_trajectory_kind_starts_the_section_afresh():
