@@ -639,11 +639,14 @@ def load_module(program: LoopProgram) -> tuple[types.ModuleType, bool]:
     for kname, fn in program.kernels.items():
         setattr(module, kname, jit_kernel(fn))
     parallel = set(getattr(module, "PARALLEL", ()))
+    nogil = set(getattr(module, "NOGIL", ()))
     for attr, value in list(vars(module).items()):
         if isinstance(value, types.FunctionType) and value.__module__ == name:
             options = dict(error_model="numpy")
             if attr in parallel:
                 options["parallel"] = True
+            if attr in nogil:
+                options["nogil"] = True
             dispatcher = numba.njit(**options)(value)
             guard_dispatcher(dispatcher, store)
             setattr(module, attr, dispatcher)

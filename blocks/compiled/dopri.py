@@ -28,6 +28,8 @@ except ImportError:         # the text is compiled with numba only; this keeps t
 
 #: Functions compiled with ``parallel=True``.
 PARALLEL = ("rk4_batch",)
+# Functions compiled to release the GIL: threads run a batch's members side by side through them
+NOGIL = ("sampled_members",)
 
 # Dormand-Prince 5(4), as scipy.integrate.RK45
 DP_C = np.array([0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1.0])

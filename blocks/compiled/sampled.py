@@ -341,17 +341,10 @@ def simulate_sampled_batch(scenario, seeds: Sequence[int] | None = None, variant
     return SampledBatchResult(rms, failed, seeds if seeds is not None else members)
 
 
-_nogil: dict = {}
-
-
 def _members_without_gil(engine):
-    """The module's ``sampled_members`` compiled to release the GIL, so that threads run members side by side."""
-    fn = _nogil.get(engine.program.key)
-    if fn is None:
-        numba = numba_or_none()
-        fn = numba.njit(nogil=True, cache=True, error_model="numpy")(engine.module.sampled_members.py_func)
-        _nogil[engine.program.key] = fn
-    return fn
+    """The module's ``sampled_members``, compiled to release the GIL (``NOGIL`` in :mod:`blocks.compiled.dopri`) so
+    that threads run members side by side; cached with the module's other functions."""
+    return engine.module.sampled_members
 
 
 def _threads() -> int:
