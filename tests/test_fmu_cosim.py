@@ -276,7 +276,7 @@ def test_cli_cosim_refuses_a_step_beyond_the_budget_before_any_work(fmus, tmp_pa
     out = tmp_path / "run"
     assert dobkit_main(["fmu", "cosim", str(fmus[2]), "--step", "1e-9", "--out", str(out)]) == 2
     err = capsys.readouterr().err
-    assert "gives 1e+10 steps, more than the budget of 2e+06 steps" in err and "--max-steps" in err
+    assert "gives 1e+10 steps, more than the step budget of 2e+06" in err and "--max-steps" in err
     assert not out.exists() or not any(out.iterdir())
     assert dobkit_main(["fmu", "cosim", str(fmus[2]), "--step", "0.001", "--max-steps", "10",
                         "--out", str(out)]) == 2
