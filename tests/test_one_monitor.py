@@ -220,3 +220,16 @@ def test_a_member_that_failed_keeps_its_first_failure_time():
     failed = monitor.check_members(0.1, np.array([[2.0, 0.0]]), np.full(2, np.nan))
     failed = monitor.check_members(0.2, np.array([[3.0, 5.0]]), failed)
     assert failed.tolist() == [0.1, 0.2]
+
+
+@pytest.mark.parametrize("engine", ["fast", "compiled"])
+def test_a_batch_member_starting_beyond_its_own_bound_fails_at_once_whatever_the_others_bounds(engine):
+    """Member 0 has a loose estimate bound (a 50 N disturbance on joint 3, bound about 5e4 N); member 1 starts with
+    d_hat[2] = 2e4 N, beyond its own bound (about 9.3e3 N) but within member 0's: it fails at t = 0 on its own
+    observer state, as its single run would."""
+    if engine == "compiled":
+        _numba()
+    result = simulate_batch(PAPER.with_changes(SHORT), [{"disturbance.f_r": [1.43, 1.6, 50.0, 1.2]},
+                                                        {"initial.d_hat": [0.0, 0.0, 2e4, 0.0]}], engine=engine)
+    assert result.ok.tolist() == [True, False]
+    assert result.failed_at[1] == 0.0 and "observer z[2]" in result.failures[1]
