@@ -1,9 +1,10 @@
 """Build the Figure-2 blocks, wire them by signal name and simulate with python-control.
 
-The five blocks of the paper's Figure 2 (trajectory, controller, plant,
-observer; a sensor too when the scenario has measurement noise) are ordinary
-``control.NonlinearIOSystem`` objects whose signals are named ``q[i]``,
-``dq[i]``, ``tau[i]``, ``d_hat[i]``, ...  ``control.interconnect`` connects
+The blocks of the paper's Figure 2 (trajectory, controller, plant with its
+disturbance models inside, observer; a sensor too when the scenario has
+measurement noise) are ordinary ``control.NonlinearIOSystem`` objects whose
+signals are named ``q[i]``, ``dq[i]``, ``tau[i]``, ``d_hat[i]``, ...
+``control.interconnect`` connects
 equal names, so wiring the loop by hand is one call.  We keep four outputs
 (joint 3, the prismatic joint: position, torque, disturbance and its estimate),
 simulate the first second of the paper's 10 s path with
@@ -62,7 +63,7 @@ print(f"blocks.simulate has {full.noutputs} outputs (engine {full.engine}); larg
 
 # resp.plot() draws one axis per output; the second response goes onto the same axes.
 cplt = resp.plot(plot_inputs=False)
-picked.plot("--", ax=cplt.axes, plot_inputs=False)
+picked.plot("C1--", ax=cplt.axes, plot_inputs=False)
 cplt.axes[0, 0].legend(["ct.input_output_response", "blocks.simulate"], loc="best")
 units = ["q[2] (m)", "tau[2] (N)", "tau_dis[2] (N)", "d_hat[2] (N)"]
 for ax, unit in zip(cplt.axes[:, 0], units):
