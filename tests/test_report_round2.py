@@ -1,0 +1,61 @@
+"""What a reader sees in reports and figures, round 2 (issue 21, item 4): counts from one source, units a
+reader expects, one number format per column and figures that say what they draw."""
+from __future__ import annotations
+
+import re
+
+from analysis.tune_report import evaluations_text, html_section, write_figures
+from analysis.tune_results import PointResult, TuneHistory, TuneResult
+from dobkit.tune_commands import _summary, constraint_lines
+
+
+# --------------------------------------------------------------------------------------------
+# The tuning's evaluation counts
+# --------------------------------------------------------------------------------------------
+def _point(objective: float) -> PointResult:
+    return PointResult(gains={"gains.kp": 100.0}, objective=objective, worst=objective, mean=objective,
+                       values=[objective] * 3, nominal=objective, torque_noise_rms=[1.0, 1.0, 0.01, 0.5],
+                       peak_torque=[30.0, 30.0, 5.0, 28.0], spectral_abscissa=-2.0, violations={},
+                       feasible=True, diverged=0)
+
+
+def _tuning() -> TuneResult:
+    """A history counted by hand: 1 base, 6 search, 4 polish, 1 final = 12 evaluations; 5 refused (not
+    simulated); of the 7 with a simulation, 4 simulated now, 1 from the log, so 2 repeats."""
+    phase = ["base"] + ["search"] * 6 + ["polish"] * 4 + ["final"]
+    simulated = [True, True, False, True, False, True, False, True, False, False, True, True]
+    objective = [2.0 if s else None for s in simulated]
+    history = TuneHistory(phase=phase, objective=objective, feasible=list(simulated), simulated=simulated)
+    return TuneResult(name="t", source="t.toml", description="", definition="abc", scenario="paper",
+                      objective="worst", metric="rms_tool_error_mm", runs=3, parameters=["gains.kp"],
+                      units=["1/s^2"], bounds=[[50.0, 500.0]], limits={"torque_noise_rms": [2.0, 2.0, 0.02, 1.0]},
+                      base=_point(2.0), tuned=_point(1.5), feasible=True, message="Tuned gains", history=history,
+                      evaluations={"search": 6, "polish": 4, "simulated": 4, "from_log": 1, "linear_only": 5},
+                      seconds=1.0, scenario_file="t-tuned.toml")
+
+
+COUNTS = ("12 evaluations (1 with the base gains, 6 search, 4 polish, 1 final): 5 refused by the linear "
+          "constraints without simulating, 7 with a simulation of the set (4 simulated in this run, 1 taken "
+          "from the evaluation log of an earlier, stopped run, 2 repeats of gains already simulated)")
+
+
+def test_evaluation_counts_are_one_sentence_everywhere(tmp_path):
+    result = _tuning()
+    assert evaluations_text(result) == COUNTS
+    made = write_figures(result, tmp_path / "figures")
+    caption = dict(made)["tune_history.png"]
+    assert COUNTS in caption
+    assert COUNTS in _summary(result, tmp_path)
+    folder = tmp_path
+    result = TuneResult(**{**result.__dict__, "figures": []})
+    (folder / "tune.json").write_text(result.to_json(), encoding="utf-8")
+    section = re.sub(r"\s+", " ", html_section(folder))
+    assert COUNTS in section
+    # no second count in other words (the old "36 + 60 evaluations", "simulated now")
+    assert "simulated now" not in section and "6 + 4" not in section
+
+
+def test_tune_output_gives_the_prismatic_joint_newtons():
+    lines = "\n".join(constraint_lines(_tuning()))
+    assert "torque noise RMS [N m, N m, N, N m]" in lines
+    assert "[N m]:" not in lines
