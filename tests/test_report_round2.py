@@ -3,6 +3,10 @@ reader expects, one number format per column and figures that say what they draw
 from __future__ import annotations
 
 import re
+from pathlib import Path
+
+import numpy as np
+import pytest
 
 from analysis.tune_report import evaluations_text, html_section, write_figures
 from analysis.tune_results import PointResult, TuneHistory, TuneResult
@@ -59,3 +63,32 @@ def test_tune_output_gives_the_prismatic_joint_newtons():
     lines = "\n".join(constraint_lines(_tuning()))
     assert "torque noise RMS [N m, N m, N, N m]" in lines
     assert "[N m]:" not in lines
+
+
+# --------------------------------------------------------------------------------------------
+# The joint-1 offset without the observer: the README states the number the report computes
+# --------------------------------------------------------------------------------------------
+def test_readme_joint1_offset_is_the_rest_pose_the_report_computes():
+    """Without the observer, at rest ``Kp e = M(q)^-1 d`` (perfect model, computed torque): the rest pose is
+    the fixed point ``q = q0 + M(q)^-1 d / Kp``, solved here by iteration with the arm's inertia alone."""
+    from analysis.linear import operating_point_analysis
+    from blocks import inertia
+    from blocks.scenario import load_scenario
+
+    scenario = load_scenario("paper")
+    q0 = np.asarray(scenario.trajectory.evaluate(0.0)[0], dtype=float)
+    point = operating_point_analysis(scenario, q0)
+    d = np.asarray(point.disturbance_at_rest)
+    kp = np.diag(scenario.kp)
+    q = q0.copy()
+    for _ in range(50):
+        q = q0 + np.linalg.solve(inertia(q, scenario.robot), d) / kp
+    offset = q[0] - q0[0]
+    # at the path's start (M(q0)) it would be 1.84e-5: the README's old 1.8e-5 was that other number
+    assert abs(np.linalg.solve(inertia(q0, scenario.robot), d)[0] / kp[0] - 1.84e-5) < 0.01e-5
+    assert point.q_equilibrium_without_dob[0] - q0[0] == pytest.approx(offset, rel=1e-6)
+    readme = re.sub(r"\s+", " ", (Path(__file__).parents[1] / "README.md").read_text(encoding="utf-8"))
+    stated = re.search(r"rests with joint 1 only ([0-9.e-]+) rad off", readme)
+    assert stated is not None
+    assert float(stated.group(1)) == pytest.approx(offset, rel=5e-3)
+    assert f"{offset:.3g}".replace("e-05", "e-5") == stated.group(1)

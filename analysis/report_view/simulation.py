@@ -69,7 +69,7 @@ def worse_with_observer(result, experiment: dict, scenario) -> list[str]:
                 f"RMS {value(r_w, j)} with it against {value(r_wo, j)} without.")
         if np.max(np.abs(d)) > 0:
             text += (f" Held at the path's start, the disturbance leaves this joint only {value(abs(offset[j]), j)} "
-                     "off without the observer (M^-1 d / Kp)")
+                     "off without the observer (where it comes to rest: M^-1 d / Kp, M at the rest pose)")
             if abs(offset[j]) < 0.5 * own[j]:
                 text += (f": through the arm's coupled inertia the disturbances on the other joints nearly cancel "
                          f"this joint's own, which alone would leave {value(own[j], j)}")
