@@ -92,3 +92,35 @@ def test_readme_joint1_offset_is_the_rest_pose_the_report_computes():
     assert stated is not None
     assert float(stated.group(1)) == pytest.approx(offset, rel=5e-3)
     assert f"{offset:.3g}".replace("e-05", "e-5") == stated.group(1)
+
+
+# --------------------------------------------------------------------------------------------
+# The quick digital report: no column of dashes, and the banner says the noise was not simulated
+# --------------------------------------------------------------------------------------------
+def _quantized_paper():
+    from blocks.scenario import load_scenario
+    q0 = [0.3, 1.2, 0.1, 0.2]
+    return load_scenario("paper").with_changes({
+        "trajectory.kind": "joint_sine", "trajectory.amplitude": [0.0] * 4, "trajectory.offset": q0,
+        "simulation.t_final": 0.3, "controller.sample_rate": 1000.0,
+        "controller.position_resolution": [2 * np.pi / 2 ** 17] * 2 + [1e-6, 2 * np.pi / 2 ** 17]}), q0
+
+
+def test_quick_digital_report_says_the_noise_was_not_simulated():
+    from types import SimpleNamespace
+
+    from analysis.digital import digital_analysis
+    from analysis.report_view import _header
+    from analysis.report_view.digital import digital_section
+    from analysis.settings import QUICK_SETTINGS
+
+    scenario, q0 = _quantized_paper()
+    analysis = digital_analysis(scenario, rates_hz=(1000.0,), configurations=[np.array(q0)], simulate_noise=False)
+    assert analysis.quantization is not None and analysis.quantization.simulated_rms is None
+    result = SimpleNamespace(digital=analysis, settings=QUICK_SETTINGS)      # the two fields the views read
+    table = digital_section(result, {}).quantization
+    assert table.header == ["joint", "resolution", "torque noise, linear model"]
+    assert all(cell.text != "-" for row in table.rows for cell in row)
+    assert "does not simulate" in table.caption
+    banner = _header(result, scenario).preview
+    assert any("torque noise from encoder quantization" in item and "not simulated" in item for item in banner)
