@@ -27,7 +27,7 @@ from .linear import MismatchStudy, OperatingPoint  # noqa: E402
 from .studies import GainGridStudy, ObserverGainStudy, settling_definition  # noqa: E402
 
 __all__ = ["pole_figure", "mismatch_figure", "bandwidth_figure", "design_figure", "bode_figure",
-           "gain_study_figure", "observer_study_figure"]
+           "gain_study_figure", "gain_study_axes", "observer_study_figure", "ZERO_SHARE"]
 
 _BLOCK_COLORS = {"plant": "tab:blue", "observer": "tab:orange"}
 
@@ -235,8 +235,24 @@ def _grid_values(study: GainGridStudy, metric: str) -> tuple[np.ndarray, list]:
     return out, text
 
 
-def gain_study_figure(with_dob: GainGridStudy, without_dob: GainGridStudy, out_dir) -> list[Path]:
-    """Heat maps of the tool-tip error metrics over the Kp x Kd grid, with and without the observer."""
+#: A panel whose every value is below this share of its study's largest peak error is zero to rounding: a colour
+#: scale over it would only show rounding noise (or, all values equal, matplotlib's arbitrary +-0.1 range).
+ZERO_SHARE = 1e-6
+
+
+def _zero_to_rounding(values: np.ndarray, study: GainGridStudy) -> float | None:
+    """The bound (mm) under which every value of a panel lies when that is zero to rounding, else None."""
+    finite = values[np.isfinite(values)]
+    peaks = [run.tool_mm.peak_error for row in study.runs for run in row if run.ok]
+    scale = max(peaks) if peaks else 0.0
+    if finite.size == 0 or scale <= 0:
+        return None
+    bound = ZERO_SHARE * scale
+    return bound if float(np.max(np.abs(finite))) <= bound else None
+
+
+def gain_study_axes(with_dob: GainGridStudy, without_dob: GainGridStudy):
+    """The figure of :func:`gain_study_figure`, not yet written (matplotlib Figure with a 2 x 4 grid of axes)."""
     metrics = (("settling_time_s", "settling time (s)"), ("steady_state_error", "steady-state error (mm)"),
                ("peak_error", "peak error (mm)"), ("rms_error", "RMS error (mm)"))
     fig, axes = plt.subplots(2, 4, figsize=(16, 7.5), constrained_layout=True)
@@ -244,23 +260,43 @@ def gain_study_figure(with_dob: GainGridStudy, without_dob: GainGridStudy, out_d
         for c, (metric, label) in enumerate(metrics):
             ax = axes[r, c]
             values, text = _grid_values(study, metric)
-            im = ax.imshow(values, origin="lower", cmap="viridis", aspect="auto")
+            zero = _zero_to_rounding(values, study) if metric != "settling_time_s" else None
+            if zero is not None:
+                # one flat grey, no colour bar: there is nothing to scale
+                im = ax.imshow(np.where(np.isfinite(values), 0.0, np.nan), origin="lower", cmap="Greys",
+                               vmin=-1.0, vmax=4.0, aspect="auto")
+                text = [["0" if t and t[0].isdigit() else t for t in row] for row in text]
+            else:
+                im = ax.imshow(values, origin="lower", cmap="viridis", aspect="auto")
             for i in range(values.shape[0]):
                 for j in range(values.shape[1]):
                     # dark text on the light (high) end of the colour map and on empty cells
-                    light = not np.isfinite(values[i, j]) or im.norm(values[i, j]) > 0.6
+                    light = zero is not None or not np.isfinite(values[i, j]) or im.norm(values[i, j]) > 0.6
                     ax.text(j, i, text[i][j], ha="center", va="center", fontsize=8,
                             color="black" if light else "white")
             ax.set_xticks(range(len(study.kd)), [f"{v:g}" for v in study.kd])
             ax.set_yticks(range(len(study.kp)), [f"{v:g}" for v in study.kp])
             ax.set_xlabel("Kd (1/s)")
             ax.set_ylabel("Kp (1/s^2)")
-            ax.set_title(f"tool tip {label}\n{title}", fontsize=9)
-            fig.colorbar(im, ax=ax, shrink=0.8)
+            if zero is not None:
+                ax.set_title(f"tool tip {label}\n{title}: zero to rounding (< {zero:.1g} mm) at every gain",
+                             fontsize=9)
+            else:
+                ax.set_title(f"tool tip {label}\n{title}", fontsize=9)
+                fig.colorbar(im, ax=ax, shrink=0.8)
     definition = settling_definition(with_dob.settle_fraction, with_dob.final_window).capitalize()
     fig.suptitle(f"Gain study: tool-tip error after a disturbance step on the held arm, over Kp x Kd "
                  f"({with_dob.t_final_s:g} s runs)\n" + "\n".join(textwrap.wrap(definition, 150)), fontsize=10)
-    return save_figure(fig, out_dir, "study_gains")
+    return fig
+
+
+def gain_study_figure(with_dob: GainGridStudy, without_dob: GainGridStudy, out_dir) -> list[Path]:
+    """Heat maps of the tool-tip error metrics over the Kp x Kd grid, with and without the observer.
+
+    A panel whose values are all zero to rounding (below :data:`ZERO_SHARE` of the study's largest peak
+    error, as the observer's steady-state error is) is drawn flat, without a colour bar, and says so.
+    """
+    return save_figure(gain_study_axes(with_dob, without_dob), out_dir, "study_gains")
 
 
 def observer_study_figure(study: ObserverGainStudy, out_dir) -> list[Path]:

@@ -124,3 +124,34 @@ def test_quick_digital_report_says_the_noise_was_not_simulated():
     assert "does not simulate" in table.caption
     banner = _header(result, scenario).preview
     assert any("torque noise from encoder quantization" in item and "not simulated" in item for item in banner)
+
+
+# --------------------------------------------------------------------------------------------
+# The gain study's heat map: an all-zero panel says so instead of a +-0.1 colour bar
+# --------------------------------------------------------------------------------------------
+def test_gain_study_zero_panel_says_zero_to_rounding():
+    import matplotlib.pyplot as plt
+
+    from analysis.analysis_figures import gain_study_axes
+    from analysis.studies import gain_grid_study
+    from blocks.scenario import load_scenario
+
+    scenario = load_scenario("paper")
+    kp, kd = [100.0, 400.0], [40.0]
+    with_dob = gain_grid_study(scenario, kp, kd, observer=True, t_final=1.0)
+    without = gain_grid_study(scenario, kp, kd, observer=False, t_final=1.0)
+    # the observer's integral action: at rest its estimate equals the step, so the held arm rests on target
+    assert all(run.tool_mm.steady_state_error < 1e-9 for row in with_dob.runs for run in row)
+    fig = gain_study_axes(with_dob, without)
+    try:
+        panels = [ax for ax in fig.axes if ax.get_title()]
+        assert len(panels) == 8
+        zero = [ax for ax in panels if "zero to rounding" in ax.get_title()]
+        assert len(zero) == 1 and "steady-state error (mm)\nwith observer" in zero[0].get_title()
+        assert {t.get_text() for t in zero[0].texts} == {"0"}
+        assert len(fig.axes) == 8 + 7                    # a colour bar on every panel but that one
+        # without the observer the arm sags by M^-1 d / Kp: a real scale, with its colour bar and numbers
+        sagging = [ax for ax in panels if ax.get_title() == "tool tip steady-state error (mm)\nwithout observer"]
+        assert len(sagging) == 1 and all(float(t.get_text()) > 1.0 for t in sagging[0].texts)
+    finally:
+        plt.close(fig)
