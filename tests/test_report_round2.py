@@ -155,3 +155,59 @@ def test_gain_study_zero_panel_says_zero_to_rounding():
         assert len(sagging) == 1 and all(float(t.get_text()) > 1.0 for t in sagging[0].texts)
     finally:
         plt.close(fig)
+
+
+# --------------------------------------------------------------------------------------------
+# Fig. 6 of a digital run: the sampled estimate as steps, under a title that says sampled and quantized
+# --------------------------------------------------------------------------------------------
+def _figure6(monkeypatch, tmp_path, with_dob, without_dob) -> dict:
+    """Fig. 6's suptitle, texts and estimate lines as paper_figures drew them (recorded before it is written)."""
+    from analysis import figures
+
+    seen = {}
+    real = figures.save_figure
+
+    def record(fig, out_dir, stem, formats=figures.FIGURE_FORMATS):
+        if stem == "fig6_disturbance_estimate":
+            seen["title"] = fig.get_suptitle()
+            seen["texts"] = [t.get_text() for t in fig.texts]
+            seen["lines"] = [(ln.get_label(), ln.get_drawstyle(), ln.get_xdata(), ln.get_ydata())
+                             for ax in fig.axes for ln in ax.get_lines() if "d_hat" in ln.get_label()]
+        return real(fig, out_dir, stem, formats)
+
+    monkeypatch.setattr(figures, "save_figure", record)
+    figures.paper_figures(with_dob, without_dob, tmp_path, formats=("png",))
+    return seen
+
+
+def test_digital_figure6_draws_the_sampled_estimate_as_steps(monkeypatch, tmp_path):
+    from blocks.digital_loop import simulate_sampled
+    from blocks.metrics import signal
+    from blocks.scenario import load_scenario
+
+    scenario = load_scenario("paper-digital").with_changes({"simulation.t_final": 0.2})
+    with_dob, without = simulate_sampled(scenario), simulate_sampled(scenario, observer=False)
+    seen = _figure6(monkeypatch, tmp_path, with_dob, without)
+    assert "sampled, quantized estimate" in seen["title"]
+    rate, step_ms = scenario.controller.sample_rate, 1e3 * scenario.simulation.time_grid[1]
+    assert rate == 1000 and step_ms == pytest.approx(5.0)           # the case the issue saw: 1 kHz on 5 ms
+    assert any(f"computed at {rate:g} Hz from quantized encoder readings" in t and "5 ms output instants" in t
+               for t in seen["texts"])
+    d_hat = signal(with_dob, "d_hat")
+    assert len(seen["lines"]) == 4
+    for j, (label, style, x, y) in enumerate(seen["lines"]):
+        assert style == "steps-post" and "sampled" in label
+        np.testing.assert_array_equal(x, with_dob.time)
+        np.testing.assert_array_equal(y, d_hat[j])
+
+
+def test_continuous_figure6_keeps_its_curve_and_title(monkeypatch, tmp_path):
+    import blocks
+    from blocks.scenario import load_scenario
+
+    scenario = load_scenario("paper").with_changes({"simulation.t_final": 0.2})
+    with_dob, without = blocks.simulate(scenario), blocks.simulate(scenario, observer=False)
+    seen = _figure6(monkeypatch, tmp_path, with_dob, without)
+    assert seen["title"] == "Figure 6: disturbance and its estimate (with observer)"
+    assert not any("sampled" in t or "Hz" in t for t in seen["texts"])
+    assert all(style == "default" for _, style, _, _ in seen["lines"])
