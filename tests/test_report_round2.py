@@ -211,3 +211,31 @@ def test_continuous_figure6_keeps_its_curve_and_title(monkeypatch, tmp_path):
     assert seen["title"] == "Figure 6: disturbance and its estimate (with observer)"
     assert not any("sampled" in t or "Hz" in t for t in seen["texts"])
     assert all(style == "default" for _, style, _, _ in seen["lines"])
+
+
+# --------------------------------------------------------------------------------------------
+# Table 3: one notation per column
+# --------------------------------------------------------------------------------------------
+def test_table3_uses_one_notation_per_joint_column():
+    from analysis.report_view.simulation import simulation_section
+    from blocks.scenario import load_scenario
+
+    # the README's Table 3 magnitudes (every joint better with the observer, so no explanation is asked for)
+    w = {"rms_position_error": [6.32e-5, 2.33e-4, 3.78e-4, 3.54e-4],
+         "max_abs_position_error": [1.613e-4, 9.1e-4, 1.2e-3, 8.0e-4],
+         "rms_disturbance_error": [0.339, 0.25, 0.0545, 0.0961]}
+    wo = {"rms_position_error": [1.61e-4, 5.34e-3, 3.07e-2, 9.75e-3],
+          "max_abs_position_error": [3.0e-4, 8.2e-3, 3.11e-2, 1.2e-2]}
+    experiment = {"with_dob": w, "without_dob": wo}
+    table = simulation_section(None, experiment, load_scenario("paper"), {}).metrics
+    numeric = [row for row in table.rows if not row[0].text.strip().startswith("units")]
+    assert len(numeric) == 5
+    for j in range(1, 5):
+        cells = [row[j].text for row in numeric]
+        assert len({"e" in c for c in cells}) == 1, cells          # all scientific or all fixed
+        expected = [w["rms_position_error"][j - 1], wo["rms_position_error"][j - 1],
+                    w["max_abs_position_error"][j - 1], wo["max_abs_position_error"][j - 1],
+                    w["rms_disturbance_error"][j - 1]]
+        assert [float(c) for c in cells] == pytest.approx(expected, rel=5e-4)
+    # joint 1 has 6.32e-5 (which %.4g writes in scientific notation) and 0.339: the column is scientific
+    assert [row[1].text for row in numeric] == ["6.320e-05", "1.610e-04", "1.613e-04", "3.000e-04", "3.390e-01"]
