@@ -27,7 +27,7 @@ from .linear import MismatchStudy, OperatingPoint  # noqa: E402
 from .studies import GainGridStudy, ObserverGainStudy, settling_definition  # noqa: E402
 
 __all__ = ["pole_figure", "mismatch_figure", "bandwidth_figure", "design_figure", "bode_figure",
-           "gain_study_figure", "gain_study_axes", "observer_study_figure", "ZERO_SHARE"]
+           "gain_study_figure", "gain_study_axes", "observer_study_figure", "ZERO_SHARE", "design_axes"]
 
 _BLOCK_COLORS = {"plant": "tab:blue", "observer": "tab:orange"}
 
@@ -152,37 +152,67 @@ def bandwidth_figure(survey: BandwidthSurvey, designed: BandwidthOverview | None
     return save_figure(fig, out_dir, "observer_bandwidth")
 
 
+def _error_groups(run: SimulationCheck) -> list[tuple[str, str, np.ndarray]]:
+    """``|d - d_hat|`` of a run per unit: (joints in words, unit, norm over those joints per output time).
+
+    Torques (N m) and forces (N) are never summed into one number; results written before the per-joint error
+    was kept give their one mixed norm, labelled so.
+    """
+    if run.error_per_joint is None:
+        return [("all joints", "N m and N mixed", np.array(run.error_norm, dtype=float))]
+    err = np.array(run.error_per_joint, dtype=float)
+    groups = []
+    for unit in dict.fromkeys(DISTURBANCE_UNITS):
+        joints = [j for j, u in enumerate(DISTURBANCE_UNITS) if u == unit]
+        words = ("joint " if len(joints) == 1 else "joints ") + ", ".join(str(j + 1) for j in joints)
+        groups.append((words, unit, np.linalg.norm(err[:, joints], axis=1)))
+    return groups
+
+
 def design_figure(confirm: dict[str, SimulationCheck], out_dir) -> list[Path]:
-    """Simulated estimation error and the Lyapunov certificate, paper gain against the designed gain."""
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.6), constrained_layout=True)
+    """Simulated estimation error (per unit: the revolute joints in N m, the prismatic one in N) and the
+    Lyapunov certificate, paper gain against the designed gain."""
+    return save_figure(design_axes(confirm), out_dir, "observer_design")
+
+
+def design_axes(confirm: dict[str, SimulationCheck]):
+    """The figure of :func:`design_figure`, not yet written (matplotlib Figure)."""
+    first = next(iter(confirm.values()))
+    rows = len(_error_groups(first))
+    fig = plt.figure(figsize=(12, 2.6 + 2.0 * rows), constrained_layout=True)
+    grid = fig.add_gridspec(rows, 2)
+    error_axes = [fig.add_subplot(grid[r, 0]) for r in range(rows)]
+    bound_ax = fig.add_subplot(grid[:, 1])
     colors = ["tab:red", "tab:blue", "tab:green", "tab:purple"]
+    tops = [0.0] * rows
     for (label, run), color in zip(confirm.items(), colors):
         t = np.array(run.time)
         conv = run.convergence_time_s
-        err = np.array(run.error_norm, dtype=float)
-        # an error of exactly zero has no place on a log axis: leave it out rather than draw it at 1e-300
-        axes[0].semilogy(t, np.where(err > 0, err, np.nan), color=color,
-                         label=f"{label}: within {100 * run.threshold:g}% after "
-                               + (f"{conv:.3g} s" if conv is not None else "- (not within the run)"))
+        for r, (ax, (words, unit, err)) in enumerate(zip(error_axes, _error_groups(run))):
+            # an error of exactly zero has no place on a log axis: leave it out rather than draw it at 1e-300
+            name = (f"{label}: within {100 * run.threshold:g}% after "
+                    + (f"{conv:.3g} s" if conv is not None else "- (not within the run)")) if r == 0 else label
+            ax.semilogy(t, np.where(err > 0, err, np.nan), color=color, label=name)
+            ax.set_ylabel(f"|d - d_hat|, {words} ({unit})")
+            tops[r] = max(tops[r], float(np.max(err)) if err.size else 0.0)
         if run.lyapunov_ratio is not None:         # None: no error at the start (V(0) = 0), nothing to bound
-            axes[1].semilogy(t, run.lyapunov_ratio, color=color, label=f"{label}: V/V(0)")
-            axes[1].semilogy(t, np.exp(-2 * run.beta_run_rad_s * t), color=color, ls="--",
-                             label=f"{label}: bound exp(-2 beta t), beta = {run.beta_run_rad_s:.3g} rad/s")
-    axes[0].set_xlabel("time (s)")
-    axes[0].set_ylabel("|d - d_hat| (N m, N)")
-    # below these levels the ODE solver's own error (rtol, atol) dominates the curves
-    top = max(max(r.error_norm) for r in confirm.values())
-    if top > 0:
-        axes[0].set_ylim(1e-6 * top, 3 * top)
-    axes[0].set_title("Estimation error in the nonlinear simulation", fontsize=10)
-    axes[1].set_xlabel("time (s)")
-    axes[1].set_ylabel("V(t) / V(0) (1)")
-    axes[1].set_ylim(1e-10, 10)
-    axes[1].set_title("Lyapunov function against its certified decay", fontsize=10)
-    for ax in axes:
+            bound_ax.semilogy(t, run.lyapunov_ratio, color=color, label=f"{label}: V/V(0)")
+            bound_ax.semilogy(t, np.exp(-2 * run.beta_run_rad_s * t), color=color, ls="--",
+                              label=f"{label}: bound exp(-2 beta t), beta = {run.beta_run_rad_s:.3g} rad/s")
+    for ax, top in zip(error_axes, tops):
+        # below these levels the ODE solver's own error dominates the curves
+        if top > 0:
+            ax.set_ylim(1e-6 * top, 3 * top)
+    error_axes[-1].set_xlabel("time (s)")
+    error_axes[0].set_title("Estimation error in the nonlinear simulation", fontsize=10)
+    bound_ax.set_xlabel("time (s)")
+    bound_ax.set_ylabel("V(t) / V(0) (1)")
+    bound_ax.set_ylim(1e-10, 10)
+    bound_ax.set_title("Lyapunov function against its certified decay", fontsize=10)
+    for ax in error_axes + [bound_ax]:
         ax.grid(True, alpha=0.3, which="both")
         ax.legend(fontsize=8)
-    return save_figure(fig, out_dir, "observer_design")
+    return fig
 
 
 def bode_figure(freq: FrequencyAnalysis, out_dir, kind: str = "tracking") -> list[Path]:

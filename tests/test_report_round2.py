@@ -239,3 +239,43 @@ def test_table3_uses_one_notation_per_joint_column():
         assert [float(c) for c in cells] == pytest.approx(expected, rel=5e-4)
     # joint 1 has 6.32e-5 (which %.4g writes in scientific notation) and 0.339: the column is scientific
     assert [row[1].text for row in numeric] == ["6.320e-05", "1.610e-04", "1.613e-04", "3.000e-04", "3.390e-01"]
+
+
+# --------------------------------------------------------------------------------------------
+# The observer-design figure: |d - d_hat| per unit, never a norm over N m and N together
+# --------------------------------------------------------------------------------------------
+def test_design_figure_separates_torques_and_forces():
+    import matplotlib.pyplot as plt
+
+    from analysis.analysis_figures import design_axes
+    from analysis.gain_design import confirm_by_simulation
+    from blocks.metrics import signal
+    from blocks.scenario import load_scenario
+
+    scenario = load_scenario("paper")
+    runs = confirm_by_simulation(scenario, [("scenario gain", scenario.observer_gain)], t_final=0.3,
+                                 disturbance={"kind": "paper"})
+    run = runs["scenario gain"]
+    fig = design_axes(runs)
+    try:
+        labels = [ax.get_ylabel() for ax in fig.axes]
+        assert "|d - d_hat|, joints 1, 2, 4 (N m)" in labels and "|d - d_hat|, joint 3 (N)" in labels
+        assert not any("N m, N" in label or "mixed" in label for label in labels)
+        # the prismatic panel's curve is joint 3's own error, from an independent run of the same variant
+        import blocks
+        from analysis.linear import first_seconds
+        variant = first_seconds(scenario, 0.3, gains={"observer": np.asarray(scenario.observer_gain).tolist()},
+                                noise={"q_std": [0.0] * 4, "dq_std": [0.0] * 4}, disturbance={"kind": "paper"})
+        again = blocks.simulate(variant, observer=True)
+        e3 = np.abs(signal(again, "d")[2] - signal(again, "d_hat")[2])
+        prismatic = next(ax for ax in fig.axes if ax.get_ylabel().endswith("(N)"))
+        y = np.asarray(prismatic.get_lines()[0].get_ydata(), dtype=float)
+        ok = np.isfinite(y)
+        np.testing.assert_allclose(y[ok], e3[ok], rtol=1e-9, atol=1e-12)
+        revolute = next(ax for ax in fig.axes if ax.get_ylabel().endswith("(N m)"))
+        torques = np.array(run.error_per_joint)[:, [0, 1, 3]]
+        y = np.asarray(revolute.get_lines()[0].get_ydata(), dtype=float)
+        ok = np.isfinite(y)
+        np.testing.assert_allclose(y[ok], np.sqrt((torques ** 2).sum(axis=1))[ok], rtol=1e-12)
+    finally:
+        plt.close(fig)
