@@ -310,3 +310,29 @@ def test_sweep_summary_gives_tiny_lengths_in_mm():
         for ax in fig.axes:
             for label in (ax.get_xlabel(), ax.get_ylabel()):
                 assert "[pm]" not in label and "[nm]" not in label, (stem, label)
+
+
+# --------------------------------------------------------------------------------------------
+# The engine note: once per command, not once per sweep worker
+# --------------------------------------------------------------------------------------------
+def test_sweep_prints_the_engine_note_once_for_all_workers(tmp_path, capfd):
+    import warnings
+
+    import blocks
+    from analysis.sweep_runner import run_sweep
+    from blocks.loop import EngineFallbackWarning
+
+    # RK23 is a solver the compiled engine does not have: engine='auto' falls back to numpy in every worker
+    short = blocks.load_scenario("paper").replace(simulation={"t_final": 0.05, "method": "RK23"},
+                                                  trajectory={"duration": 10.0})
+    (tmp_path / "short.toml").write_text(short.to_toml(), encoding="utf-8")
+    (tmp_path / "s.toml").write_text('scenario = "short.toml"\nengine = "fast"\n[grid]\n"gains.kp" = [100, 120, 140, '
+                                     '160]\n[batch]\nsize = 1\n', encoding="utf-8")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        outcome = run_sweep(tmp_path / "s.toml", tmp_path / "r.jsonl", workers=2, progress=False)
+    assert outcome.ran == 4
+    notes = [w for w in caught if issubclass(w.category, EngineFallbackWarning)]
+    assert len(notes) == 1 and "RK23" in str(notes[0].message)
+    # and no worker printed its own copy on the shared stderr
+    assert "uses the numpy engine" not in capfd.readouterr().err
