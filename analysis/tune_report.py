@@ -139,10 +139,15 @@ def _history(result, folder: Path, words: str) -> tuple[str, str]:
     ax.set_xlabel("evaluation")
     ax.set_ylabel(f"{result.objective} {words} [mm]")
     ax.legend(fontsize=7, loc="upper right")
-    caption = (f"The {result.objective} {words} over the {result.runs}-run set of each evaluation with a "
-               f"simulation, in order ({evaluations_text(result)}), the best feasible one so far and the base "
-               "scenario's gains (dashed).")
-    return _save(fig, folder, "tune_history"), caption
+    return _save(fig, folder, "tune_history"), _history_caption(result, words)
+
+
+def _history_caption(result, words: str) -> str:
+    """The history figure's caption; the report makes it again, so a folder written before the counts had
+    one source states them as the section does."""
+    return (f"The {result.objective} {words} over the {result.runs}-run set of each evaluation with a "
+            f"simulation, in order ({evaluations_text(result)}), the best feasible one so far and the base "
+            "scenario's gains (dashed).")
 
 
 def _robustness(result, folder: Path, words: str) -> tuple[str, str]:
@@ -304,8 +309,9 @@ def html_section(folder) -> str:
     folder = Path(folder)
     result = read_result(folder)
     words = METRIC_WORDS.get(result.metric, result.metric)
-    figures = [(f.caption, "data:image/png;base64," +
-                base64.b64encode((folder / "figures" / f.file).read_bytes()).decode("ascii")) for f in result.figures]
+    figures = [(_history_caption(result, words) if f.file == "tune_history.png" else f.caption,
+                "data:image/png;base64," + base64.b64encode((folder / "figures" / f.file).read_bytes()).decode("ascii"))
+               for f in result.figures]
     view = {"r": result, "words": words, "gain_rows": _gain_rows(result),
             "constraint_rows": _constraint_rows(result),
             "base_objective": _fmt(result.base.objective), "tuned_objective": _fmt(result.tuned.objective),

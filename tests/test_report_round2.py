@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from analysis.tune_report import evaluations_text, html_section, write_figures
-from analysis.tune_results import PointResult, TuneHistory, TuneResult
+from analysis.tune_results import PointResult, TuneFigure, TuneHistory, TuneResult
 from dobkit.tune_commands import _summary, constraint_lines
 
 
@@ -50,11 +50,14 @@ def test_evaluation_counts_are_one_sentence_everywhere(tmp_path):
     caption = dict(made)["tune_history.png"]
     assert COUNTS in caption
     assert COUNTS in _summary(result, tmp_path)
+    # a folder written before the counts had one source: its stored caption is made again from the history
     folder = tmp_path
-    result = TuneResult(**{**result.__dict__, "figures": []})
+    stale = TuneFigure(file="tune_history.png", caption="(38 simulated; 59 more refused)")
+    result = TuneResult(**{**result.__dict__, "figures": [stale]})
     (folder / "tune.json").write_text(result.to_json(), encoding="utf-8")
     section = re.sub(r"\s+", " ", html_section(folder))
-    assert COUNTS in section
+    assert section.count(COUNTS) == 3                   # the paragraph, the caption and the image's alt text
+    assert "38 simulated" not in section
     # no second count in other words (the old "36 + 60 evaluations", "simulated now")
     assert "simulated now" not in section and "6 + 4" not in section
 
