@@ -27,7 +27,7 @@ from .linear import MismatchStudy, OperatingPoint  # noqa: E402
 from .studies import GainGridStudy, ObserverGainStudy, settling_definition  # noqa: E402
 
 __all__ = ["pole_figure", "mismatch_figure", "bandwidth_figure", "design_figure", "bode_figure",
-           "gain_study_figure", "observer_study_figure"]
+           "gain_study_figure", "gain_study_axes", "observer_study_figure", "ZERO_SHARE", "design_axes"]
 
 _BLOCK_COLORS = {"plant": "tab:blue", "observer": "tab:orange"}
 
@@ -152,37 +152,67 @@ def bandwidth_figure(survey: BandwidthSurvey, designed: BandwidthOverview | None
     return save_figure(fig, out_dir, "observer_bandwidth")
 
 
+def _error_groups(run: SimulationCheck) -> list[tuple[str, str, np.ndarray]]:
+    """``|d - d_hat|`` of a run per unit: (joints in words, unit, norm over those joints per output time).
+
+    Torques (N m) and forces (N) are never summed into one number; results written before the per-joint error
+    was kept give their one mixed norm, labelled so.
+    """
+    if run.error_per_joint is None:
+        return [("all joints", "N m and N mixed", np.array(run.error_norm, dtype=float))]
+    err = np.array(run.error_per_joint, dtype=float)
+    groups = []
+    for unit in dict.fromkeys(DISTURBANCE_UNITS):
+        joints = [j for j, u in enumerate(DISTURBANCE_UNITS) if u == unit]
+        words = ("joint " if len(joints) == 1 else "joints ") + ", ".join(str(j + 1) for j in joints)
+        groups.append((words, unit, np.linalg.norm(err[:, joints], axis=1)))
+    return groups
+
+
 def design_figure(confirm: dict[str, SimulationCheck], out_dir) -> list[Path]:
-    """Simulated estimation error and the Lyapunov certificate, paper gain against the designed gain."""
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.6), constrained_layout=True)
+    """Simulated estimation error (per unit: the revolute joints in N m, the prismatic one in N) and the
+    Lyapunov certificate, paper gain against the designed gain."""
+    return save_figure(design_axes(confirm), out_dir, "observer_design")
+
+
+def design_axes(confirm: dict[str, SimulationCheck]):
+    """The figure of :func:`design_figure`, not yet written (matplotlib Figure)."""
+    first = next(iter(confirm.values()))
+    rows = len(_error_groups(first))
+    fig = plt.figure(figsize=(12, 2.6 + 2.0 * rows), constrained_layout=True)
+    grid = fig.add_gridspec(rows, 2)
+    error_axes = [fig.add_subplot(grid[r, 0]) for r in range(rows)]
+    bound_ax = fig.add_subplot(grid[:, 1])
     colors = ["tab:red", "tab:blue", "tab:green", "tab:purple"]
+    tops = [0.0] * rows
     for (label, run), color in zip(confirm.items(), colors):
         t = np.array(run.time)
         conv = run.convergence_time_s
-        err = np.array(run.error_norm, dtype=float)
-        # an error of exactly zero has no place on a log axis: leave it out rather than draw it at 1e-300
-        axes[0].semilogy(t, np.where(err > 0, err, np.nan), color=color,
-                         label=f"{label}: within {100 * run.threshold:g}% after "
-                               + (f"{conv:.3g} s" if conv is not None else "- (not within the run)"))
+        for r, (ax, (words, unit, err)) in enumerate(zip(error_axes, _error_groups(run))):
+            # an error of exactly zero has no place on a log axis: leave it out rather than draw it at 1e-300
+            name = (f"{label}: within {100 * run.threshold:g}% after "
+                    + (f"{conv:.3g} s" if conv is not None else "- (not within the run)")) if r == 0 else label
+            ax.semilogy(t, np.where(err > 0, err, np.nan), color=color, label=name)
+            ax.set_ylabel(f"|d - d_hat|, {words} ({unit})")
+            tops[r] = max(tops[r], float(np.max(err)) if err.size else 0.0)
         if run.lyapunov_ratio is not None:         # None: no error at the start (V(0) = 0), nothing to bound
-            axes[1].semilogy(t, run.lyapunov_ratio, color=color, label=f"{label}: V/V(0)")
-            axes[1].semilogy(t, np.exp(-2 * run.beta_run_rad_s * t), color=color, ls="--",
-                             label=f"{label}: bound exp(-2 beta t), beta = {run.beta_run_rad_s:.3g} rad/s")
-    axes[0].set_xlabel("time (s)")
-    axes[0].set_ylabel("|d - d_hat| (N m, N)")
-    # below these levels the ODE solver's own error (rtol, atol) dominates the curves
-    top = max(max(r.error_norm) for r in confirm.values())
-    if top > 0:
-        axes[0].set_ylim(1e-6 * top, 3 * top)
-    axes[0].set_title("Estimation error in the nonlinear simulation", fontsize=10)
-    axes[1].set_xlabel("time (s)")
-    axes[1].set_ylabel("V(t) / V(0) (1)")
-    axes[1].set_ylim(1e-10, 10)
-    axes[1].set_title("Lyapunov function against its certified decay", fontsize=10)
-    for ax in axes:
+            bound_ax.semilogy(t, run.lyapunov_ratio, color=color, label=f"{label}: V/V(0)")
+            bound_ax.semilogy(t, np.exp(-2 * run.beta_run_rad_s * t), color=color, ls="--",
+                              label=f"{label}: bound exp(-2 beta t), beta = {run.beta_run_rad_s:.3g} rad/s")
+    for ax, top in zip(error_axes, tops):
+        # below these levels the ODE solver's own error dominates the curves
+        if top > 0:
+            ax.set_ylim(1e-6 * top, 3 * top)
+    error_axes[-1].set_xlabel("time (s)")
+    error_axes[0].set_title("Estimation error in the nonlinear simulation", fontsize=10)
+    bound_ax.set_xlabel("time (s)")
+    bound_ax.set_ylabel("V(t) / V(0) (1)")
+    bound_ax.set_ylim(1e-10, 10)
+    bound_ax.set_title("Lyapunov function against its certified decay", fontsize=10)
+    for ax in error_axes + [bound_ax]:
         ax.grid(True, alpha=0.3, which="both")
         ax.legend(fontsize=8)
-    return save_figure(fig, out_dir, "observer_design")
+    return fig
 
 
 def bode_figure(freq: FrequencyAnalysis, out_dir, kind: str = "tracking") -> list[Path]:
@@ -235,8 +265,24 @@ def _grid_values(study: GainGridStudy, metric: str) -> tuple[np.ndarray, list]:
     return out, text
 
 
-def gain_study_figure(with_dob: GainGridStudy, without_dob: GainGridStudy, out_dir) -> list[Path]:
-    """Heat maps of the tool-tip error metrics over the Kp x Kd grid, with and without the observer."""
+#: A panel whose every value is below this share of its study's largest peak error is zero to rounding: a colour
+#: scale over it would only show rounding noise (or, all values equal, matplotlib's arbitrary +-0.1 range).
+ZERO_SHARE = 1e-6
+
+
+def _zero_to_rounding(values: np.ndarray, study: GainGridStudy) -> float | None:
+    """The bound (mm) under which every value of a panel lies when that is zero to rounding, else None."""
+    finite = values[np.isfinite(values)]
+    peaks = [run.tool_mm.peak_error for row in study.runs for run in row if run.ok]
+    scale = max(peaks) if peaks else 0.0
+    if finite.size == 0 or scale <= 0:
+        return None
+    bound = ZERO_SHARE * scale
+    return bound if float(np.max(np.abs(finite))) <= bound else None
+
+
+def gain_study_axes(with_dob: GainGridStudy, without_dob: GainGridStudy):
+    """The figure of :func:`gain_study_figure`, not yet written (matplotlib Figure with a 2 x 4 grid of axes)."""
     metrics = (("settling_time_s", "settling time (s)"), ("steady_state_error", "steady-state error (mm)"),
                ("peak_error", "peak error (mm)"), ("rms_error", "RMS error (mm)"))
     fig, axes = plt.subplots(2, 4, figsize=(16, 7.5), constrained_layout=True)
@@ -244,23 +290,43 @@ def gain_study_figure(with_dob: GainGridStudy, without_dob: GainGridStudy, out_d
         for c, (metric, label) in enumerate(metrics):
             ax = axes[r, c]
             values, text = _grid_values(study, metric)
-            im = ax.imshow(values, origin="lower", cmap="viridis", aspect="auto")
+            zero = _zero_to_rounding(values, study) if metric != "settling_time_s" else None
+            if zero is not None:
+                # one flat grey, no colour bar: there is nothing to scale
+                im = ax.imshow(np.where(np.isfinite(values), 0.0, np.nan), origin="lower", cmap="Greys",
+                               vmin=-1.0, vmax=4.0, aspect="auto")
+                text = [["0" if t and t[0].isdigit() else t for t in row] for row in text]
+            else:
+                im = ax.imshow(values, origin="lower", cmap="viridis", aspect="auto")
             for i in range(values.shape[0]):
                 for j in range(values.shape[1]):
                     # dark text on the light (high) end of the colour map and on empty cells
-                    light = not np.isfinite(values[i, j]) or im.norm(values[i, j]) > 0.6
+                    light = zero is not None or not np.isfinite(values[i, j]) or im.norm(values[i, j]) > 0.6
                     ax.text(j, i, text[i][j], ha="center", va="center", fontsize=8,
                             color="black" if light else "white")
             ax.set_xticks(range(len(study.kd)), [f"{v:g}" for v in study.kd])
             ax.set_yticks(range(len(study.kp)), [f"{v:g}" for v in study.kp])
             ax.set_xlabel("Kd (1/s)")
             ax.set_ylabel("Kp (1/s^2)")
-            ax.set_title(f"tool tip {label}\n{title}", fontsize=9)
-            fig.colorbar(im, ax=ax, shrink=0.8)
+            if zero is not None:
+                ax.set_title(f"tool tip {label}\n{title}: zero to rounding (< {zero:.1g} mm) at every gain",
+                             fontsize=9)
+            else:
+                ax.set_title(f"tool tip {label}\n{title}", fontsize=9)
+                fig.colorbar(im, ax=ax, shrink=0.8)
     definition = settling_definition(with_dob.settle_fraction, with_dob.final_window).capitalize()
     fig.suptitle(f"Gain study: tool-tip error after a disturbance step on the held arm, over Kp x Kd "
                  f"({with_dob.t_final_s:g} s runs)\n" + "\n".join(textwrap.wrap(definition, 150)), fontsize=10)
-    return save_figure(fig, out_dir, "study_gains")
+    return fig
+
+
+def gain_study_figure(with_dob: GainGridStudy, without_dob: GainGridStudy, out_dir) -> list[Path]:
+    """Heat maps of the tool-tip error metrics over the Kp x Kd grid, with and without the observer.
+
+    A panel whose values are all zero to rounding (below :data:`ZERO_SHARE` of the study's largest peak
+    error, as the observer's steady-state error is) is drawn flat, without a colour bar, and says so.
+    """
+    return save_figure(gain_study_axes(with_dob, without_dob), out_dir, "study_gains")
 
 
 def observer_study_figure(study: ObserverGainStudy, out_dir) -> list[Path]:

@@ -29,8 +29,8 @@ from blocks.joints import RRPR_JOINTS  # noqa: E402
 from blocks.kinematics import forward_kinematics  # noqa: E402
 from blocks.metrics import DISTURBANCE_UNITS, JOINT_UNITS, signal  # noqa: E402
 
-__all__ = ["paper_figures", "save_figure", "convergence_figure", "JOINT_TITLES", "joint_title", "REFERENCE_STYLE",
-           "has_tissue_model", "FIGURE_FORMATS"]
+__all__ = ["paper_figures", "sampling_words", "save_figure", "convergence_figure", "JOINT_TITLES", "joint_title",
+           "REFERENCE_STYLE", "has_tissue_model", "FIGURE_FORMATS"]
 
 #: The formats a figure may be written in.
 FIGURE_FORMATS = ("png", "svg")
@@ -127,6 +127,25 @@ def _scale(i: int) -> tuple[float, str]:
     return (1e3, "mm") if JOINT_UNITS[i] == "m" else (1.0, "rad")
 
 
+def sampling_words(resp) -> str | None:
+    """How a sampled run's estimate was made ("sampled at 1000 Hz, quantized encoders, ..."), None when continuous.
+
+    Read from the response's scenario (:func:`blocks.derived.loop_response` keeps it): its ``[controller]``
+    section makes the controller a program sampled at ``sample_rate``.
+    """
+    controller = getattr(getattr(resp, "scenario", None), "controller", None)
+    if controller is None:
+        return None
+    rate = float(controller.sample_rate)
+    quantized = any(float(r) > 0 for r in controller.position_resolution)
+    words = (f"d_hat computed at {rate:g} Hz from {'quantized ' if quantized else ''}encoder readings, held "
+             "between samples")
+    step = float(np.median(np.diff(np.asarray(resp.time)))) if len(resp.time) > 1 else 0.0
+    if step > 1.5 / rate:
+        words += f"; drawn at the {1e3 * step:.3g} ms output instants"
+    return words
+
+
 def paper_figures(with_dob, without_dob, out_dir, progress=None, formats=FIGURE_FORMATS) -> list[Path]:
     """Write Figures 4-8 comparing a run with and a run without the observer.
 
@@ -179,12 +198,21 @@ def paper_figures(with_dob, without_dob, out_dir, progress=None, formats=FIGURE_
 
     d, d_hat = signal(with_dob, "d"), signal(with_dob, "d_hat")
     tau_dis = signal(with_dob, "tau_dis")
-    fig, axes = _joint_grid("Figure 6: disturbance and its estimate (with observer)")
+    sampled = sampling_words(with_dob)
+    fig, axes = _joint_grid("Figure 6: disturbance and its estimate (with observer)" if sampled is None else
+                            "Figure 6: disturbance and its sampled, quantized estimate (with observer)")
+    if sampled is not None:
+        fig.suptitle(fig.get_suptitle(), y=0.995)            # room for the line on how it was sampled
+        fig.text(0.5, 0.94, sampled, ha="center", va="bottom", fontsize=9)
     for i, ax in enumerate(axes):
         ax.plot(t, d[i], **REFERENCE_STYLE, label="disturbance d, lumped (grey band)")
         if not np.allclose(d[i], tau_dis[i]):
             ax.plot(t, tau_dis[i], color="gray", lw=1, ls=":", label="external part tau_dis")
-        ax.plot(t, d_hat[i], color=_COLORS["d_hat"], lw=1.2, label="estimate d_hat")
+        if sampled is None:
+            ax.plot(t, d_hat[i], color=_COLORS["d_hat"], lw=1.2, label="estimate d_hat")
+        else:       # a program's output: a value held from each sample instant to the next, not a curve
+            ax.step(t, d_hat[i], where="post", color=_COLORS["d_hat"], lw=0.8,
+                    label="estimate d_hat, sampled (held)")
         ax.set_ylabel(f"disturbance ({DISTURBANCE_UNITS[i]})")
     axes[0].legend(fontsize=8)
     written += save_figure(fig, out_dir, "fig6_disturbance_estimate", formats)

@@ -141,7 +141,9 @@ class SimulationCheck(JsonResult):
     Y : list of list of float
         The gain (kg m^2/s).
     time, error_norm : list of float
-        Output times (s) and ``|d - d_hat|`` (N m / N).
+        Output times (s) and ``|d - d_hat|`` over all joints (N m and N together: a rate, not a quantity to read).
+    error_per_joint : list of list of float or None
+        ``|d_i - d_hat_i|`` per output time and joint (N m, N m, N, N m); None in results written before it was kept.
     lyapunov_ratio : list of float or None
         ``V(t) / V(0)``; None when ``V(0) = 0`` (no estimation error at the start).
     beta_run_rad_s : float
@@ -174,6 +176,7 @@ class SimulationCheck(JsonResult):
     largest_disturbance: float
     disturbance_kind: str | list[str]
     f_r: list[float]
+    error_per_joint: list[list[float]] | None = None
 
 
 @dataclass(frozen=True)
@@ -460,5 +463,5 @@ def confirm_by_simulation(scenario, gains, t_final: float | None = None, thresho
             rms_disturbance_error=np.sqrt(np.mean(e_d ** 2, axis=0)).tolist(),
             bound_holds=holds, threshold=float(threshold), largest_disturbance=scale,
             disturbance_kind=kind if isinstance(kind, str) else list(kind),
-            f_r=[float(v) for v in variant.disturbance.f_r])
+            f_r=[float(v) for v in variant.disturbance.f_r], error_per_joint=np.abs(e_d).tolist())
     return out

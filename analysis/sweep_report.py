@@ -81,6 +81,8 @@ _KEY_NAMES = {
 # SI prefixes for axes: values are shown in a unit that puts the largest near 1..1000, never with an offset.
 _PREFIXED = {"m": "m", "rad": "rad", "N m": "N m", "N": "N", "mm": "m", "rad/s": "rad/s", "m/s": "m/s"}
 _PREFIXES = {6: "M", 3: "k", 0: "", -3: "m", -6: "µ", -9: "n", -12: "p"}
+# Lengths of a surgical arm read in m, mm or µm; smaller ones get a power of ten, not nm or pm.
+_LENGTH_POWERS = (0, -3, -6)
 
 
 # --------------------------------------------------------------------------------------------
@@ -157,6 +159,12 @@ def _with_unit(text: str, unit: str) -> str:
     return f"{text} [{unit}]" if unit else text
 
 
+def _table_scale(unit: str) -> tuple[float, str]:
+    """(factor, unit text) of a table's numbers: lengths in mm, every other unit as it is, and the numbers with
+    four significant digits (``3.538e-07 mm``), so that a reader compares rows without reading prefixes."""
+    return (1e-3, "mm") if unit == "m" else (1.0, unit)
+
+
 def _display_scale(unit: str, values: np.ndarray) -> tuple[float, str]:
     """(factor, unit text): divide values by factor to show them in ``unit text`` (an SI prefix or a power of
     ten in the unit), so that no axis needs an offset or a scale printed apart from its label."""
@@ -167,7 +175,8 @@ def _display_scale(unit: str, values: np.ndarray) -> tuple[float, str]:
     if largest == 0.0 or not math.isfinite(largest):
         return 1.0, unit
     power = 3 * math.floor(math.log10(largest) / 3)
-    if unit in _PREFIXED and power in _PREFIXES:
+    prefixed = power in (_LENGTH_POWERS if unit in ("m", "mm") else _PREFIXES)
+    if unit in _PREFIXED and prefixed:
         return 10.0 ** power / base_factor, f"{_PREFIXES[power]}{_PREFIXED[unit]}"
     if -3 <= math.log10(largest) < 4:
         return 1.0, unit
@@ -722,11 +731,10 @@ def _view(summary: SweepSummary) -> dict:
     mc = sw.get("monte_carlo") or {}
     statistics = []
     for column, st in summary.statistics.items():
-        factor, unit = _display_scale(st.unit, np.array([st.min, st.max]))
+        factor, unit = _table_scale(st.unit)
         numbers = [_fmt(getattr(st, k) / factor) for k in _STATISTICS]
         statistics.append((_capital(column_label(column)), unit, numbers, st.count, st.not_finite))
-    worst_factor, worst_unit = _display_scale(column_unit(wm) if wm else "", np.array([w.value for w in summary.worst]
-                                                                                      or [0.0]))
+    worst_factor, worst_unit = _table_scale(column_unit(wm) if wm else "")
     worst = [(w.index, [_fmt(w.values.get(k, "")) for k in keys], _fmt(w.value / worst_factor)) for w in summary.worst]
     failed = [(f.index, [(k, key_name(k), _fmt(v)) for k, v in f.values.items()],
                None if f.failed_at is None else f"{f.failed_at:.4g}", f.message) for f in summary.failed]

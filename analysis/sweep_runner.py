@@ -44,6 +44,7 @@ import os
 import signal
 import threading
 import time
+import warnings
 from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import dataclass, field
@@ -221,11 +222,43 @@ def simulate_chunk(payload: dict) -> list[dict]:
     return rows
 
 
-def _chunk_in_worker(payload: dict) -> list[dict]:
-    """:func:`simulate_chunk` in a worker process, which leaves Ctrl-C to the process that started it."""
+def _chunk_with_notes(payload: dict) -> tuple[list[dict], list[str]]:
+    """:func:`simulate_chunk` away from the command's process: its rows and the engine notes
+    (:class:`blocks.loop.EngineFallbackWarning`) it would have printed, for the command to print once
+    rather than every worker once.  Other warnings pass as they are."""
+    from blocks.loop import EngineFallbackWarning
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", EngineFallbackWarning)
+        rows = simulate_chunk(payload)
+    notes = []
+    for w in caught:
+        if issubclass(w.category, EngineFallbackWarning):
+            notes.append(str(w.message))
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return rows, notes
+
+
+def _chunk_in_worker(payload: dict) -> tuple[list[dict], list[str]]:
+    """:func:`_chunk_with_notes` in a worker process, which leaves Ctrl-C to the process that started it."""
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-    return simulate_chunk(payload)
+    return _chunk_with_notes(payload)
+
+
+#: Engine notes this process has printed for its workers (once per command, not once per worker).
+_notes_shown: set[str] = set()
+
+
+def _take_with_notes(result: tuple[list[dict], list[str]], take) -> None:
+    """Print a worker's engine notes that this command has not printed yet, then take its rows."""
+    from blocks.loop import EngineFallbackWarning
+    rows, notes = result
+    for note in notes:
+        if note not in _notes_shown:
+            _notes_shown.add(note)
+            warnings.warn(note, EngineFallbackWarning, stacklevel=2)
+    take(rows)
 
 
 def _row(run: dict, status: str, metrics: dict, failed_at, seconds: float, engine: str, message: str = "",
@@ -420,7 +453,7 @@ def _run_processes(payloads: Iterator[dict], workers: int, take) -> None:
         while running:            # keep at most one batch per worker in flight: memory stays bounded
             done, running = wait(running, return_when=FIRST_COMPLETED)
             for fut in done:
-                take(fut.result())
+                _take_with_notes(fut.result(), take)
                 nxt = next(payloads, None)
                 if nxt is not None:
                     with _sigint_held():
@@ -463,10 +496,10 @@ def _dask_client(address: str, timeout: float):
 
 def _run_dask(client, payloads: Iterator[dict], threads: int, take) -> None:
     distributed = _dask()
-    futures = distributed.as_completed([client.submit(simulate_chunk, p, pure=False)
+    futures = distributed.as_completed([client.submit(_chunk_with_notes, p, pure=False)
                                         for p in itertools.islice(payloads, 2 * threads)])
     for fut in futures:           # at most two batches per thread in flight: memory stays bounded
-        take(fut.result())
+        _take_with_notes(fut.result(), take)
         nxt = next(payloads, None)
         if nxt is not None:
-            futures.add(client.submit(simulate_chunk, nxt, pure=False))
+            futures.add(client.submit(_chunk_with_notes, nxt, pure=False))

@@ -31,9 +31,55 @@ from .report_html import template_environment
 from .tune import METRIC_WORDS, overshoots
 from .tune_results import read_result
 
-__all__ = ["write_figures", "html_section", "read_result", "FIGURES"]
+__all__ = ["write_figures", "html_section", "read_result", "evaluation_counts", "evaluations_text", "FIGURES"]
 
 FIGURES = ("tune_history", "tune_robustness", "tune_constraints")
+
+
+def evaluation_counts(result) -> dict[str, int]:
+    """A tuning's evaluations counted once, from its history, for every place that states them.
+
+    Returns
+    -------
+    dict of str to int
+        ``total`` (every evaluation, the base gains' and the final one included), ``base``, ``search``,
+        ``polish``, ``final`` (per phase), ``refused`` (refused by the linear constraints, not simulated),
+        ``with_simulation`` (``total - refused``), of those ``simulated_now`` (candidates simulated in this
+        run), ``from_log`` (taken from the evaluation log of an earlier run) and ``repeats`` (gains already
+        simulated earlier in the same search, evaluated again).
+    """
+    h = result.history
+    phases = list(h.phase)
+    total = len(phases)
+    with_simulation = int(sum(bool(s) for s in h.simulated))
+    now = int(result.evaluations.get("simulated", 0))
+    from_log = int(result.evaluations.get("from_log", 0))
+    return {"total": total, **{p: phases.count(p) for p in ("base", "search", "polish", "final")},
+            "refused": total - with_simulation, "with_simulation": with_simulation, "simulated_now": now,
+            "from_log": from_log, "repeats": max(0, with_simulation - now - from_log)}
+
+
+def evaluations_text(result) -> str:
+    """One sentence on a tuning's evaluations (:func:`evaluation_counts`): the same words in the report's
+    section, its figure caption and the command's output.
+
+    Examples
+    --------
+    ``397 evaluations (1 with the base gains, 336 search, 60 polish): 243 refused by the linear constraints
+    without simulating, 154 with a simulation of the set (148 simulated in this run, 6 repeats of gains
+    already simulated)``
+    """
+    c = evaluation_counts(result)
+    phases = ", ".join(f"{c[p]} {word}" for p, word in (("base", "with the base gains"), ("search", "search"),
+                                                        ("polish", "polish"), ("final", "final"))
+                       if c[p] or p in ("search", "polish"))
+    parts = [f"{c['simulated_now']} simulated in this run"]
+    if c["from_log"]:
+        parts.append(f"{c['from_log']} taken from the evaluation log of an earlier, stopped run")
+    if c["repeats"]:
+        parts.append(f"{c['repeats']} repeat{'s' if c['repeats'] != 1 else ''} of gains already simulated")
+    return (f"{c['total']} evaluations ({phases}): {c['refused']} refused by the linear constraints without "
+            f"simulating, {c['with_simulation']} with a simulation of the set ({', '.join(parts)})")
 
 
 def _save(fig, folder: Path, stem: str) -> str:
@@ -93,11 +139,15 @@ def _history(result, folder: Path, words: str) -> tuple[str, str]:
     ax.set_xlabel("evaluation")
     ax.set_ylabel(f"{result.objective} {words} [mm]")
     ax.legend(fontsize=7, loc="upper right")
-    linear = int((~simulated).sum())
-    caption = (f"The {result.objective} {words} over the {result.runs}-run set of each evaluation, in order "
-               f"({int(simulated.sum())} simulated; {linear} more refused by the linear constraints without "
-               "simulating), the best feasible one so far and the base scenario's gains (dashed).")
-    return _save(fig, folder, "tune_history"), caption
+    return _save(fig, folder, "tune_history"), _history_caption(result, words)
+
+
+def _history_caption(result, words: str) -> str:
+    """The history figure's caption; the report makes it again, so a folder written before the counts had
+    one source states them as the section does."""
+    return (f"The {result.objective} {words} over the {result.runs}-run set of each evaluation with a "
+            f"simulation, in order ({evaluations_text(result)}), the best feasible one so far and the base "
+            "scenario's gains (dashed).")
 
 
 def _robustness(result, folder: Path, words: str) -> tuple[str, str]:
@@ -259,11 +309,12 @@ def html_section(folder) -> str:
     folder = Path(folder)
     result = read_result(folder)
     words = METRIC_WORDS.get(result.metric, result.metric)
-    figures = [(f.caption, "data:image/png;base64," +
-                base64.b64encode((folder / "figures" / f.file).read_bytes()).decode("ascii")) for f in result.figures]
+    figures = [(_history_caption(result, words) if f.file == "tune_history.png" else f.caption,
+                "data:image/png;base64," + base64.b64encode((folder / "figures" / f.file).read_bytes()).decode("ascii"))
+               for f in result.figures]
     view = {"r": result, "words": words, "gain_rows": _gain_rows(result),
             "constraint_rows": _constraint_rows(result),
             "base_objective": _fmt(result.base.objective), "tuned_objective": _fmt(result.tuned.objective),
             "base_nominal": _fmt(result.base.nominal), "tuned_nominal": _fmt(result.tuned.nominal),
-            "evaluations": result.evaluations, "damping_cost": _damping_cost(result)}
+            "evaluations": evaluations_text(result), "damping_cost": _damping_cost(result)}
     return template_environment().get_template("tune_section.html").render(v=view, figures=figures)

@@ -89,9 +89,20 @@ def _header(result, scenario) -> Header:
         return Header(title=f"dobkit analysis report, quick preview: scenario '{scenario.name}'",
                       regenerate=regenerate_command(scenario.source, settings),
                       full_command=regenerate_command(scenario.source, settings, quick=False),
-                      preview=preview_differences(settings))
+                      preview=preview_differences(settings) + _left_out(result))
     return Header(title=f"dobkit analysis report: scenario '{scenario.name}'",
                   regenerate=regenerate_command(scenario.source, settings), full_command=None, preview=None)
+
+
+def _left_out(result) -> list[str]:
+    """What the quick preview does not compute at all (beyond its smaller settings), one phrase each."""
+    digital = getattr(result, "digital", None)
+    quantization = None if digital is None else digital.quantization
+    if quantization is not None and quantization.simulated_rms is None:
+        return ["the simulated torque noise from encoder quantization in section 8 (not simulated; the full "
+                "report simulates the sampled loop with and without quantization): the linear model's "
+                "prediction only"]
+    return []
 
 
 def build_view(result, experiment: dict, scenario, figure_files: dict,

@@ -58,11 +58,19 @@ def digital_section(result, files: dict) -> DigitalSection | None:
     quantization = None
     if d.quantization is not None:
         q = d.quantization
-        quantization = Table.of(
-            ["joint", "resolution", "torque noise, linear model", "torque noise, simulated"],
-            [[JOINT_TITLES[i], fmt(q.position_resolution[i], 4), fmt(q.predicted_rms[i], 3),
-              "-" if q.simulated_rms is None else fmt(q.simulated_rms[i], 3)] for i in range(len(q.predicted_rms))],
-            "RMS torque noise from encoder quantization (N m; N on joint 3)")
+        joints = range(len(q.predicted_rms))
+        if q.simulated_rms is None:       # the quick preview does not simulate it: no column of dashes
+            quantization = Table.of(
+                ["joint", "resolution", "torque noise, linear model"],
+                [[JOINT_TITLES[i], fmt(q.position_resolution[i], 4), fmt(q.predicted_rms[i], 3)] for i in joints],
+                "RMS torque noise from encoder quantization (N m; N on joint 3), from the linear model only: the "
+                "quick preview does not simulate it (the full report does)")
+        else:
+            quantization = Table.of(
+                ["joint", "resolution", "torque noise, linear model", "torque noise, simulated"],
+                [[JOINT_TITLES[i], fmt(q.position_resolution[i], 4), fmt(q.predicted_rms[i], 3),
+                  fmt(q.simulated_rms[i], 3)] for i in joints],
+                "RMS torque noise from encoder quantization (N m; N on joint 3)")
     return DigitalSection(settings=settings, answer=d.answer, poles=poles, gain_limit=gain_limit, rule=rule,
                           rule_text=_rule_text(d), quantization=quantization,
                           figures=figures(files, ("digital_poles", "Poles of the sampled loop"),

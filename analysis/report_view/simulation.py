@@ -14,7 +14,7 @@ from blocks import inertia
 from blocks.metrics import DISTURBANCE_UNITS, JOINT_UNITS
 
 from ..figures import has_tissue_model
-from .text import JOINT_TITLES, Figure, Table, figures, fmt, value
+from .text import JOINT_TITLES, Figure, Table, column, figures, fmt, value
 
 __all__ = ["SimulationSection", "simulation_section", "worse_with_observer", "worse_with_observer_short",
            "figure8_caption"]
@@ -54,6 +54,8 @@ def worse_with_observer(result, experiment: dict, scenario) -> list[str]:
     small at its end) while the observer learns the disturbance at the rate of
     its slowest mode along the path.
     """
+    if not _worse_joints(experiment):
+        return []
     w, wo = experiment["with_dob"], experiment["without_dob"]
     op = result.operating_points[0]
     at = result.observer_bandwidth.along_trajectory
@@ -69,7 +71,7 @@ def worse_with_observer(result, experiment: dict, scenario) -> list[str]:
                 f"RMS {value(r_w, j)} with it against {value(r_wo, j)} without.")
         if np.max(np.abs(d)) > 0:
             text += (f" Held at the path's start, the disturbance leaves this joint only {value(abs(offset[j]), j)} "
-                     "off without the observer (M^-1 d / Kp)")
+                     "off without the observer (where it comes to rest: M^-1 d / Kp, M at the rest pose)")
             if abs(offset[j]) < 0.5 * own[j]:
                 text += (f": through the arm's coupled inertia the disturbances on the other joints nearly cancel "
                          f"this joint's own, which alone would leave {value(own[j], j)}")
@@ -131,15 +133,18 @@ def figure8_caption(experiment: dict, scenario) -> str:
 
 def simulation_section(result, experiment: dict, scenario, files: dict) -> SimulationSection:
     w, wo = experiment["with_dob"], experiment["without_dob"]
-    units = [f"({u})" for u in JOINT_UNITS]
-    rows = [["RMS position error, with observer"] + [fmt(v) for v in w["rms_position_error"]],
-            ["RMS position error, without observer"] + [fmt(v) for v in wo["rms_position_error"]],
-            ["largest position error, with observer"] + [fmt(v) for v in w["max_abs_position_error"]],
-            ["largest position error, without observer"] + [fmt(v) for v in wo["max_abs_position_error"]],
-            ["  units"] + units]
+    numbers = [("RMS position error, with observer", w["rms_position_error"]),
+               ("RMS position error, without observer", wo["rms_position_error"]),
+               ("largest position error, with observer", w["max_abs_position_error"]),
+               ("largest position error, without observer", wo["max_abs_position_error"])]
     if "rms_disturbance_error" in w:
-        rows += [["RMS disturbance error d - d_hat, with observer"] + [fmt(v) for v in w["rms_disturbance_error"]],
-                 ["  units"] + [f"({u})" for u in DISTURBANCE_UNITS]]
+        numbers.append(("RMS disturbance error d - d_hat, with observer", w["rms_disturbance_error"]))
+    # one notation per joint column (a column of 1.613e-04 and 0.0001613 reads as two kinds of number)
+    columns = [column([values[j] for _, values in numbers]) for j in range(len(JOINT_UNITS))]
+    text = [[name] + [columns[j][k] for j in range(len(JOINT_UNITS))] for k, (name, _) in enumerate(numbers)]
+    rows = text[:4] + [["  units"] + [f"({u})" for u in JOINT_UNITS]]
+    if len(text) > 4:
+        rows += [text[4], ["  units"] + [f"({u})" for u in DISTURBANCE_UNITS]]
     tool = None
     if "max_tool_position_error_mm" in w:
         tool = Table.of(["tool tip", "with observer", "without observer"],

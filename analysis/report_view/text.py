@@ -18,7 +18,8 @@ from blocks.metrics import JOINT_UNITS
 
 __all__ = ["fmt", "join", "span", "settling", "pole", "Cell", "Table", "Figure", "Paragraph", "figures",
            "joints_text", "mode_text", "value", "kinds", "and_words", "split_caveats", "stable_ranges",
-           "stability_text", "gain_text", "matrix_rows", "per_joint", "JOINT_TITLES", "MODE_SHARE", "ZERO_REL"]
+           "stability_text", "gain_text", "matrix_rows", "per_joint", "column", "JOINT_TITLES", "MODE_SHARE",
+           "ZERO_REL"]
 
 #: How the report names the joints in tables and captions (the same names as the figures).
 JOINT_TITLES = RRPR_JOINTS.labels
@@ -50,6 +51,24 @@ def fmt(value, digits: int = 4) -> str:
     if value == 0:
         return "0"
     return f"{value:.{digits}g}"
+
+
+def column(values, digits: int = 4) -> list[str]:
+    """Numbers of one table column in one notation: scientific for all when :func:`fmt` would write any of them
+    so, else :func:`fmt`'s fixed notation (None, NaN and infinity as :func:`fmt` writes them).
+
+    Examples
+    --------
+    >>> column([0.0001613, 6.32e-05])
+    ['1.613e-04', '6.320e-05']
+    >>> column([0.339, 0.25, None])
+    ['0.339', '0.25', '-']
+    """
+    finite = [v is not None and math.isfinite(float(v)) for v in values]
+    texts = [fmt(v, digits) for v in values]
+    if not any(ok and "e" in text for ok, text in zip(finite, texts)):
+        return texts
+    return [f"{float(v):.{digits - 1}e}" if ok else text for v, ok, text in zip(values, finite, texts)]
 
 
 def join(values, digits: int = 4) -> str:
