@@ -240,9 +240,11 @@ def _chunk_with_notes(payload: dict) -> tuple[list[dict], list[str]]:
 
 
 def _chunk_in_worker(payload: dict) -> tuple[list[dict], list[str]]:
-    """:func:`_chunk_with_notes` in a worker process, which leaves Ctrl-C to the process that started it."""
+    """:func:`_chunk_with_notes` in a worker process, which leaves Ctrl-C to the process that started it, and ends
+    quietly when the pool is shut down with SIGTERM (the command's own SIGTERM handler is not a worker's)."""
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
     return _chunk_with_notes(payload)
 
 

@@ -10,6 +10,7 @@ parent's end.
 from __future__ import annotations
 
 import os
+import signal
 import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -28,6 +29,9 @@ def _exit_with_parent(parent_pid: int) -> None:
 
 
 def _watch_parent() -> None:
+    # A forked worker inherits the command's SIGTERM handler (dobkit.signals), which would print a traceback when
+    # the pool ends its workers: a worker ends on SIGTERM as a process does by default.
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     # The parent is whoever started this worker: the pool's process with "fork" and "spawn", the
     # multiprocessing fork server with "forkserver" (which itself ends when the pool's process does).
     threading.Thread(target=_exit_with_parent, args=(os.getppid(),), name="dobkit-parent-watch",

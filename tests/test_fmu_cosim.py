@@ -280,4 +280,4 @@ def test_cli_cosim_refuses_a_step_beyond_the_budget_before_any_work(fmus, tmp_pa
     assert not out.exists() or not any(out.iterdir())
     assert dobkit_main(["fmu", "cosim", str(fmus[2]), "--step", "0.001", "--max-steps", "10",
                         "--out", str(out)]) == 2
-    assert "more than the budget of 10 steps" in capsys.readouterr().err
+    assert "more than the step budget of 10" in capsys.readouterr().err
