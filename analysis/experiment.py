@@ -131,17 +131,18 @@ def _write_timeseries(path: Path, runs: dict) -> None:
 def format_rms_table(metrics: dict) -> str:
     """The paper's Table 3 layout (both runs, all joints, with units) as plain text."""
     units = metrics["units"]
-    head = f"{'RMS error':<34}" + "".join(f"{f'Joint {i + 1}':>14}" for i in range(4))
-    unit_row = f"{'':<34}" + "".join(f"{'(' + u + ')':>14}" for u in units["position"])
+    width = 37                  # the longest label, "Disturbance tracking, with observer", and two spaces
+    head = f"{'RMS error':<{width}}" + "".join(f"{f'Joint {i + 1}':>14}" for i in range(len(units["position"])))
+    unit_row = f"{'':<{width}}" + "".join(f"{'(' + u + ')':>14}" for u in units["position"])
     rows = [head, "-" * len(head)]
     for key, label in (("with_dob", "with observer"), ("without_dob", "without observer")):
         m = metrics[key]
-        rows.append(f"{'Position tracking, ' + label:<34}" + "".join(f"{v:>14.4e}" for v in m["rms_position_error"]))
+        rows.append(f"{'Position tracking, ' + label:<{width}}" + "".join(f"{v:>14.4e}" for v in m["rms_position_error"]))
     rows.append(unit_row)
     if "rms_disturbance_error" in metrics["with_dob"]:
-        rows.append(f"{'Disturbance tracking, with observer':<34}"
+        rows.append(f"{'Disturbance tracking, with observer':<{width}}"
                     + "".join(f"{v:>14.4e}" for v in metrics["with_dob"]["rms_disturbance_error"]))
-        rows.append(f"{'':<34}" + "".join(f"{'(' + u + ')':>14}" for u in units["disturbance"]))
+        rows.append(f"{'':<{width}}" + "".join(f"{'(' + u + ')':>14}" for u in units["disturbance"]))
     for key, label in (("with_dob", "with observer"), ("without_dob", "without observer")):
         if "max_tool_position_error_mm" in metrics[key]:
             rows.append(f"Worst tool-tip error, {label}: {metrics[key]['max_tool_position_error_mm']:.3f} mm")

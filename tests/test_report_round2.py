@@ -339,3 +339,18 @@ def test_sweep_prints_the_engine_note_once_for_all_workers(tmp_path, capfd):
     assert len(notes) == 1 and "RK23" in str(notes[0].message)
     # and no worker printed its own copy on the shared stderr
     assert "uses the numpy engine" not in capfd.readouterr().err
+
+
+def test_the_printed_rms_table_keeps_its_columns_aligned():
+    """Every number ends under its 'Joint i' heading, whichever label its row has (the longest is 35 characters)."""
+    from analysis.experiment import format_rms_table
+    row = {"rms_position_error": [1.6112e-04, 2.3299e-04, 3.7777e-04, 3.5417e-04],
+           "rms_disturbance_error": [0.34, 0.25, 0.055, 0.096], "max_tool_position_error_mm": 2.913}
+    metrics = {"units": {"position": ["rad", "rad", "m", "rad"], "disturbance": ["N m", "N m", "N", "N m"]},
+               "with_dob": row, "without_dob": {k: v for k, v in row.items() if k != "rms_disturbance_error"}}
+    lines = format_rms_table(metrics).splitlines()
+    ends = [lines[0].index(f"Joint {i}") + len(f"Joint {i}") for i in range(1, 5)]
+    numeric = [line for line in lines if "tracking" in line]
+    assert len(numeric) == 3
+    for line in numeric:
+        assert [line.index(text) + len(text) for text in line.split()[-4:]] == ends, line
