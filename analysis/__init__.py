@@ -18,8 +18,7 @@ report: what the page says and how it is laid out), ``sweep`` / ``sweep_runner``
 ``sweep_report`` (grids and Monte Carlo draws over scenario keys),
 ``results`` (strict JSON for the typed results).
 """
-from importlib import import_module
-from importlib.util import find_spec
+from blocks.lazy import lazy_exports
 
 # Each public name and its module, imported on first use (PEP 562): ``from analysis.sweep import load_sweep``
 # checks a sweep file without loading matplotlib and every analysis.
@@ -37,22 +36,7 @@ _WHERE = {
     "sweep_report": ("SweepSummary", "write_summary"),
     "sweep_runner": ("SweepOutcome", "run_sweep"),
 }
-_MODULE_OF = {name: module for module, names in _WHERE.items() for name in names}
-
-
-def __getattr__(name: str):
-    module = _MODULE_OF.get(name)
-    if module is None:
-        if not name.startswith("_") and find_spec(f"{__name__}.{name}") is not None:
-            return import_module(f".{name}", __name__)      # a submodule, as ``analysis.tune``
-        raise AttributeError(f"module 'analysis' has no attribute {name!r}")
-    value = getattr(import_module(f".{module}", __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(_MODULE_OF))
+__getattr__, __dir__ = lazy_exports(__name__, _WHERE, globals())
 
 
 __all__ = [

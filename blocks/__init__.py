@@ -12,9 +12,9 @@ maths as array functions), :mod:`blocks.batch` (many variants at once),
 :mod:`blocks.metrics` (tracking metrics), :mod:`blocks.contract` (what a
 block promises the engines).
 """
-from importlib import import_module
 from importlib.metadata import PackageNotFoundError, version
-from importlib.util import find_spec
+
+from .lazy import lazy_exports
 
 try:
     __version__ = version("dobkit")
@@ -41,22 +41,7 @@ _WHERE = {
     "systems": ("controller", "observer", "plant", "sensor", "trajectory_block"),
     "trajectory": ("JointSine", "LacerationPath"),
 }
-_MODULE_OF = {name: module for module, names in _WHERE.items() for name in names}
-
-
-def __getattr__(name: str):
-    module = _MODULE_OF.get(name)
-    if module is None:
-        if not name.startswith("_") and find_spec(f"{__name__}.{name}") is not None:
-            return import_module(f".{name}", __name__)      # a submodule, as ``blocks.metrics``
-        raise AttributeError(f"module 'blocks' has no attribute {name!r}")
-    value = getattr(import_module(f".{module}", __name__), name)
-    globals()[name] = value            # later look-ups are plain attribute reads
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(_MODULE_OF))
+__getattr__, __dir__ = lazy_exports(__name__, _WHERE, globals())
 
 
 __all__ = [

@@ -33,8 +33,7 @@ step size), ``check`` and ``plant_check``,
 (the plant FMU), ``c/`` (the plant's C code).
 The command line (``dobkit fmu ...``) lives in :mod:`dobkit.fmu_commands`.
 """
-from importlib import import_module
-from importlib.util import find_spec
+from blocks.lazy import lazy_exports
 
 # Each public name and its module, imported on first use (PEP 562): ``import fmu.errors`` or the command
 # line's parser do not load fmpy, python-control or scipy.
@@ -53,22 +52,7 @@ _WHERE = {
     "master": ("cosimulate_system",),
     "simulate": ("simulate_fmu",),
 }
-_MODULE_OF = {name: module for module, names in _WHERE.items() for name in names}
-
-
-def __getattr__(name: str):
-    module = _MODULE_OF.get(name)
-    if module is None:
-        if not name.startswith("_") and find_spec(f"{__name__}.{name}") is not None:
-            return import_module(f".{name}", __name__)      # a submodule, as ``fmu.scenario_values``
-        raise AttributeError(f"module 'fmu' has no attribute {name!r}")
-    value = getattr(import_module(f".{module}", __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(_MODULE_OF))
+__getattr__, __dir__ = lazy_exports(__name__, _WHERE, globals())
 
 
 __all__ = [
