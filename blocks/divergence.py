@@ -183,9 +183,8 @@ def force_bounds(k_true: np.ndarray, disturbance, ref: ReferenceLimits) -> np.nd
     q0, dq0, ddq0 = col(ref.q0), col(ref.dq0), col(ref.ddq0)
     if batch:
         q0, dq0, ddq0 = (np.repeat(a, np.shape(k_true)[1], axis=1) for a in (q0, dq0, ddq0))
-    c2, s2 = np.cos(q0[1]), np.sin(q0[1])
-    gravity_only = bias_forces(k_true, s2, np.zeros_like(dq0))
-    inverse = mass_times(k_true, c2, ddq0) + bias_forces(k_true, s2, dq0)
+    gravity_only = bias_forces(k_true, q0, np.zeros_like(dq0))
+    inverse = mass_times(k_true, q0, ddq0) + bias_forces(k_true, q0, dq0)
     forces = np.abs(external_disturbance(0.0, q0, dq0, disturbance)) + np.abs(gravity_only) + np.abs(inverse)
     return FORCE_FACTOR * (forces.max(axis=0) + 1.0)
 

@@ -58,7 +58,7 @@ def inertia(q, params: RobotParameters) -> np.ndarray:
         Symmetric positive definite inertia matrix.
     """
     q, = _checked(params, q=q)
-    return inertia_matrix(arm_constants(params), np.cos(q[..., 1]))
+    return inertia_matrix(arm_constants(params), _rows(q))
 
 
 def inertia_derivative_theta2(q, params: RobotParameters) -> np.ndarray:
@@ -77,7 +77,7 @@ def inertia_derivative_theta2(q, params: RobotParameters) -> np.ndarray:
 def coriolis_vector(q, dq, params: RobotParameters) -> np.ndarray:
     """Coriolis and centrifugal torques ``N(q, q') q'`` of Eq. 6, shape (..., 4), in N m / N."""
     q, dq = _checked(params, q=q, dq=dq)
-    return _joint_last(coriolis_forces(arm_constants(params), np.sin(q[..., 1]), _rows(dq)))
+    return _joint_last(coriolis_forces(arm_constants(params), _rows(q), _rows(dq)))
 
 
 def coriolis_matrix(q, dq, params: RobotParameters) -> np.ndarray:
@@ -99,7 +99,7 @@ def gravity(q, params: RobotParameters) -> np.ndarray:
     """Gravity vector ``G(q)`` of Eq. 7 (``d3`` positive downwards), shape (..., 4)."""
     q, = _checked(params, q=q)
     # N q' vanishes at q' = 0, leaving G
-    return _joint_last(bias_forces(arm_constants(params), np.sin(q[..., 1]), np.zeros((4,) + q.shape[:-1])))
+    return _joint_last(bias_forces(arm_constants(params), _rows(q), np.zeros_like(_rows(q))))
 
 
 def forward_dynamics(q, dq, tau, params: RobotParameters) -> np.ndarray:
@@ -114,15 +114,15 @@ def forward_dynamics(q, dq, tau, params: RobotParameters) -> np.ndarray:
     """
     q, dq, tau = _checked(params, q=q, dq=dq, tau=tau)
     k = arm_constants(params)
-    force = _rows(tau) - bias_forces(k, np.sin(q[..., 1]), _rows(dq))
-    return _joint_last(mass_solve(k, np.cos(q[..., 1]), force))
+    force = _rows(tau) - bias_forces(k, _rows(q), _rows(dq))
+    return _joint_last(mass_solve(k, _rows(q), force))
 
 
 def inverse_dynamics(q, dq, ddq, params: RobotParameters) -> np.ndarray:
     """Generalised forces ``M q'' + N q' + G`` that produce ``ddq``, shape (..., 4)."""
     q, dq, ddq = _checked(params, q=q, dq=dq, ddq=ddq)
     k = arm_constants(params)
-    rows = mass_times(k, np.cos(q[..., 1]), _rows(ddq)) + bias_forces(k, np.sin(q[..., 1]), _rows(dq))
+    rows = mass_times(k, _rows(q), _rows(ddq)) + bias_forces(k, _rows(q), _rows(dq))
     return _joint_last(rows)
 
 
@@ -130,7 +130,7 @@ def kinetic_energy(q, dq, params: RobotParameters) -> np.ndarray:
     """Kinetic energy ``0.5 q'^T M(q) q'`` in J, shape (...)."""
     q, dq = _checked(params, q=q, dq=dq)
     rows = _rows(dq)
-    return 0.5 * np.sum(rows * mass_times(arm_constants(params), np.cos(q[..., 1]), rows), axis=0)
+    return 0.5 * np.sum(rows * mass_times(arm_constants(params), _rows(q), rows), axis=0)
 
 
 def potential_energy(q, params: RobotParameters) -> np.ndarray:

@@ -17,7 +17,11 @@ from typing import ClassVar
 
 import numpy as np
 
+from . import kernels as _kernels
+from .arm import ArmModel
 from .joints import RRPR_JOINTS, JointSpace
+from .kernels import arm as _arm_kernels
+from .kernels import kinematics as _tool_kernels
 
 __all__ = ["RobotParameters", "InertiaConstants", "PAPER_PARAMETERS", "ParameterError"]
 
@@ -59,7 +63,7 @@ class InertiaConstants:
 
 
 @dataclass(frozen=True)
-class RobotParameters:
+class RobotParameters(ArmModel):
     """Masses, lengths and inertias of the arm (paper Table 1), SI units.
 
     Parameters
@@ -86,6 +90,8 @@ class RobotParameters:
     """
 
     joints: ClassVar[JointSpace] = RRPR_JOINTS
+    kernels: ClassVar = _arm_kernels
+    tool_kernels: ClassVar = _tool_kernels
 
     m1: float = 5.58
     m2: float = 0.689
@@ -152,6 +158,14 @@ class RobotParameters:
             if isinstance(factor, bool) or not isinstance(factor, (int, float)) or not math.isfinite(factor) or factor <= 0:
                 raise ParameterError(f"scale for robot parameter '{key}' must be a finite number > 0, got {factor!r}")
         return dataclasses.replace(self, **{k: getattr(self, k) * v for k, v in scales.items()})
+
+    def kernel_params(self) -> np.ndarray:
+        """``k = [k1, k2, k3, k4, k5, g]`` for the closed-form row kernels of :mod:`blocks.kernels.arm`."""
+        return _kernels.arm_constants(self)
+
+    def tool_params(self) -> np.ndarray:
+        """``kin = [a1, a2, d1, d4]`` (m) for the tool row kernels of :mod:`blocks.kernels.kinematics`."""
+        return _kernels.kinematic_lengths(self)
 
     def as_dict(self) -> dict[str, float]:
         """Parameters as a plain dictionary (name -> SI value)."""

@@ -79,7 +79,7 @@ def _inertia_of_each(q: np.ndarray, arms: list) -> np.ndarray:
     for arm in arms:
         unique.setdefault(id(arm), arm)
     k = np.stack([arm_constants(a) for a in unique.values()], axis=1)[:, :, None]          # (6, U, 1)
-    M = inertia_matrix(k, np.cos(q[:, 1])[None, :])                                       # (U, m, 4, 4)
+    M = inertia_matrix(k, q.T[:, None, :])                                       # (U, m, 4, 4)
     index = {key: i for i, key in enumerate(unique)}
     return M[[index[id(a)] for a in arms]]
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["arm_constants", "inertia_entries", "inertia_matrix", "mass_times", "mass_solve", "coriolis_forces", "bias_forces",
-           "plant_acceleration"]
+           "gravity_forces", "plant_acceleration"]
 
 
 def arm_constants(params) -> np.ndarray:
@@ -38,13 +38,13 @@ def inertia_entries(k, c2):
     return k[0] + k2c2, k[2] + 0.5 * k2c2, k[2], k[3], k[4]
 
 
-def inertia_matrix(k, c2) -> np.ndarray:
-    """``M(q)`` as a matrix, shape ``broadcast(k[0], c2).shape + (4, 4)`` (kg m^2, kg), from :func:`inertia_entries`.
+def inertia_matrix(k, q) -> np.ndarray:
+    """``M(q)`` as a matrix, shape ``broadcast(k[0], q[1]).shape + (4, 4)`` (kg m^2, kg), from :func:`inertia_entries`.
 
     For the analyses that need the whole matrix; the right-hand sides use
     :func:`mass_times` and :func:`mass_solve` instead.
     """
-    m00, m01, m11, m22, m33 = np.broadcast_arrays(*inertia_entries(k, c2))
+    m00, m01, m11, m22, m33 = np.broadcast_arrays(*inertia_entries(k, np.cos(q[1])))
     M = np.zeros(m00.shape + (4, 4))
     M[..., 0, 0] = m00
     M[..., 0, 1] = M[..., 1, 0] = m01
@@ -55,9 +55,9 @@ def inertia_matrix(k, c2) -> np.ndarray:
     return M
 
 
-def mass_times(k, c2, v):
-    """``M(q) v`` (N m, N) for ``c2 = cos(theta2)`` and a joint vector ``v`` (rad/s^2, m/s^2); ``v``'s shape."""
-    m00, m01, m11, m22, m33 = inertia_entries(k, c2)
+def mass_times(k, q, v):
+    """``M(q) v`` (N m, N) at joint positions ``q`` for a joint vector ``v`` (rad/s^2, m/s^2); ``v``'s shape."""
+    m00, m01, m11, m22, m33 = inertia_entries(k, np.cos(q[1]))
     coupling = m33 * v[3]
     out = np.empty_like(v)
     out[0] = m00 * v[0] + m01 * v[1] - coupling
@@ -67,15 +67,15 @@ def mass_times(k, c2, v):
     return out
 
 
-def mass_solve(k, c2, r):
-    """``M(q)^-1 r`` for ``c2 = cos(theta2)`` and a generalised force ``r`` (N m, N); ``r``'s shape.
+def mass_solve(k, q, r):
+    """``M(q)^-1 r`` at joint positions ``q`` for a generalised force ``r`` (N m, N); ``r``'s shape.
 
     Row 3 of ``M x = r`` reads ``m33 (x3 - x0 - x1) = r3``, so
     ``x3 = x0 + x1 + r3 / m33``; substituting it into rows 0 and 1 leaves a
     2x2 system whose determinant ``(k1 - k3)(k3 - k5) - k2^2 c2^2 / 4`` is
     positive for every valid arm.
     """
-    m00, m01, m11, m22, m33 = inertia_entries(k, c2)
+    m00, m01, m11, m22, m33 = inertia_entries(k, np.cos(q[1]))
     a = m00 - m33
     b = m01 - m33
     c = m11 - m33
@@ -90,9 +90,9 @@ def mass_solve(k, c2, r):
     return out
 
 
-def coriolis_forces(k, s2, dq):
-    """Coriolis and centrifugal forces ``N(q, q') q'`` of Eq. 6 (N m), for ``s2 = sin(theta2)``; ``dq``'s shape."""
-    h = k[1] * s2
+def coriolis_forces(k, q, dq):
+    """Coriolis and centrifugal forces ``N(q, q') q'`` of Eq. 6 (N m) at joint positions ``q``; ``dq``'s shape."""
+    h = k[1] * np.sin(q[1])
     out = np.empty_like(dq)
     out[0] = -h * dq[1] * (dq[0] + 0.5 * dq[1])
     out[1] = 0.5 * h * dq[0] * dq[0]
@@ -101,9 +101,16 @@ def coriolis_forces(k, s2, dq):
     return out
 
 
-def bias_forces(k, s2, dq):
+def bias_forces(k, q, dq):
     """``N(q, q') q' + G(q)`` (N m, N): Eq. 6 plus gravity, Eq. 7, on the prismatic joint (``d3`` positive down)."""
-    out = coriolis_forces(k, s2, dq)
+    out = coriolis_forces(k, q, dq)
+    out[2] = out[2] - k[3] * k[5]
+    return out
+
+
+def gravity_forces(k, q):
+    """``G(q)`` of Eq. 7 (N m, N): only the prismatic joint carries weight (``d3`` positive down); ``q``'s shape."""
+    out = np.zeros_like(q * k[5])
     out[2] = out[2] - k[3] * k[5]
     return out
 
@@ -120,4 +127,4 @@ def plant_acceleration(k, q, dq, force):
     force : numpy.ndarray
         Total generalised force on the joints, ``tau + tau_dis`` (N m, N).
     """
-    return mass_solve(k, np.cos(q[1]), force - bias_forces(k, np.sin(q[1]), dq))
+    return mass_solve(k, q, force - bias_forces(k, q, dq))

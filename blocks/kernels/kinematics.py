@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["kinematic_lengths", "tool_pose", "jacobian_entries", "tool_velocity"]
+__all__ = ["kinematic_lengths", "tool_pose", "jacobian_entries", "tool_velocity", "tool_position", "tool_jacobian",
+           "tool_acceleration_bias"]
 
 
 def kinematic_lengths(params) -> np.ndarray:
@@ -45,4 +46,31 @@ def tool_velocity(kin, q, dq):
     out[1] = j10 * dq[0] + j11 * dq[1]
     out[2] = -dq[2]
     out[3] = dq[0] + dq[1] - dq[3]
+    return out
+
+
+# --------------------------------------------------------------------------------------------------------------
+# The arm-model interface (blocks.arm.ArmModel): the tool point in the base frame, for any arm the same rows
+# --------------------------------------------------------------------------------------------------------------
+def tool_position(kin, q):
+    """Tool-tip position rows ``[x, y, z]`` (m) in the base frame; shape ``(3,) + q.shape[1:]``."""
+    return tool_pose(kin, q)[:3]
+
+
+def tool_jacobian(kin, q):
+    """Linear Jacobian ``dp/dq`` of the tool tip, rows ``(3, 4) + q.shape[1:]`` (m/rad, m/m)."""
+    j00, j01, j10, j11 = jacobian_entries(kin, q)
+    out = np.zeros((3, 4) + np.shape(q[0]), dtype=np.result_type(q, float))
+    out[0, 0], out[0, 1], out[1, 0], out[1, 1] = j00, j01, j10, j11
+    out[2, 2] = -1.0
+    return out
+
+
+def tool_acceleration_bias(kin, q, dq):
+    """``J'(q, q') q'`` (m/s^2): the tool tip's acceleration at ``q'' = 0``, rows ``(3,) + dq.shape[1:]``."""
+    t12 = q[0] + q[1]
+    w1, w12 = dq[0] * dq[0], (dq[0] + dq[1]) * (dq[0] + dq[1])
+    out = np.zeros((3,) + np.shape(dq[0]), dtype=np.result_type(dq, float))
+    out[0] = -kin[0] * np.cos(q[0]) * w1 - kin[1] * np.cos(t12) * w12
+    out[1] = -kin[0] * np.sin(q[0]) * w1 - kin[1] * np.sin(t12) * w12
     return out

@@ -16,8 +16,6 @@ it (to show its bias), ``0`` is the correct law.  See ``docs/model.md``.
 """
 from __future__ import annotations
 
-import numpy as np
-
 from .arm import bias_forces, mass_solve, mass_times, plant_acceleration
 
 __all__ = ["gain_times", "computed_torque", "observer_estimate", "observer_rate", "lumped_disturbance"]
@@ -52,7 +50,7 @@ def computed_torque(k, kp, kd, q, dq, q_ref, dq_ref, ddq_ref, d_hat):
         Disturbance estimate (N m, N); 0 without the observer.
     """
     v = ddq_ref + kd * (dq_ref - dq) + kp * (q_ref - q)
-    return mass_times(k, np.cos(q[1]), v) + bias_forces(k, np.sin(q[1]), dq) - d_hat
+    return mass_times(k, q, v) + bias_forces(k, q, dq) - d_hat
 
 
 def observer_estimate(gain, dq, z):
@@ -79,8 +77,8 @@ def observer_rate(k, gain, eq16_weight, q, dq, tau, z):
         Observer state.
     """
     y_dq = gain_times(gain, dq)
-    residual = tau + (y_dq + z) - bias_forces(k, np.sin(q[1]), dq)
-    return -gain_times(gain, mass_solve(k, np.cos(q[1]), residual)) - eq16_weight * y_dq
+    residual = tau + (y_dq + z) - bias_forces(k, q, dq)
+    return -gain_times(gain, mass_solve(k, q, residual)) - eq16_weight * y_dq
 
 
 def lumped_disturbance(k_true, k_nominal, q, dq, tau, tau_dis):
@@ -90,4 +88,4 @@ def lumped_disturbance(k_true, k_nominal, q, dq, tau, tau_dis):
     under ``tau + tau_dis``; ``d = tau_dis`` when the nominal model is exact.
     """
     ddq = plant_acceleration(k_true, q, dq, tau + tau_dis)
-    return mass_times(k_nominal, np.cos(q[1]), ddq) + bias_forces(k_nominal, np.sin(q[1]), dq) - tau
+    return mass_times(k_nominal, q, ddq) + bias_forces(k_nominal, q, dq) - tau
