@@ -5,8 +5,8 @@ monolithic sampled loop runs (:func:`blocks.digital_loop.sampled_loop`):
 ``encoder``, ``observer``, ``controller`` and ``actuator``.  Their kernels
 (:mod:`blocks.digital`) are called once on the traced symbols of
 :mod:`blocks.compiled.trace` -- the same trace the compiled numba engine
-uses -- and what they compute is printed as C statements, one per traced
-expression.  Four functions are generated:
+uses -- and :mod:`blocks.compiled.c_backend` writes what they compute as C
+statements, one per traced expression.  Four functions are generated:
 
 ``ctrl_start(in, theta, x)``
     the controller's state at the first tick from the first inputs, as
@@ -34,28 +34,17 @@ kernels' parameters (the gains among them, so that they are tunable).
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from blocks.compiled.trace import Graph, Sym, TraceError, symbolic_params
+from blocks.compiled.c_backend import C_PRELUDE, emit_c_function
+from blocks.compiled.trace import Graph, Sym, symbolic_params
 from blocks.contract import contract_of
 from blocks.digital import observer_zoh_update
 from blocks.kernels import observer_rate
 
-__all__ = ["TickCode", "trace_tick", "C_HELPERS"]
-
-# numpy name -> C function (helpers for those whose NaN or sign handling differs from libm)
-_C_CALLS = {"cos": "cos", "sin": "sin", "tan": "tan", "tanh": "tanh", "sqrt": "sqrt", "exp": "exp",
-            "sign": "dk_sign", "floor": "floor", "absolute": "fabs", "maximum": "dk_max", "minimum": "dk_min",
-            "arctan2": "atan2", "rint": "rint"}
-
-#: C helpers the generated statements call: numpy's semantics (NaN propagates through maximum and minimum).
-C_HELPERS = """static double dk_sign(double a) { return a > 0.0 ? 1.0 : (a < 0.0 ? -1.0 : a); }
-static double dk_max(double a, double b) { return (a != a || b != b) ? a + b : (a >= b ? a : b); }
-static double dk_min(double a, double b) { return (a != a || b != b) ? a + b : (a <= b ? a : b); }
-"""
+__all__ = ["TickCode", "trace_tick"]
 
 _BLOCKS = ("encoder", "observer", "controller", "actuator")
 
@@ -94,75 +83,6 @@ class TickCode:
     buffer: slice
     zoh: bool
     state_labels: list = field(default_factory=list)
-
-
-class _Emitter:
-    """Statements of one C function: every traced expression once, in dependency order."""
-
-    def __init__(self, graph: Graph) -> None:
-        self.graph = graph
-        self.names: dict[int, str] = {}
-        self.lines: list[str] = []
-
-    def value(self, v) -> str:
-        if not isinstance(v, Sym):
-            return _literal(float(v))
-        if v.op == "const":
-            return _literal(v.args[0])
-        stack = [v]
-        while stack:
-            node = stack[-1]
-            pending = [a for a in _operands(node) if a.op != "const" and a.id not in self.names]
-            if pending:
-                stack.extend(pending)
-                continue
-            stack.pop()
-            if node.id in self.names:
-                continue
-            expr = self._expr(node)
-            if node.op == "leaf":           # read in place: no copy
-                self.names[node.id] = expr
-            else:
-                self.names[node.id] = f"v{node.id}"
-                self.lines.append(f"    const double v{node.id} = {expr};")
-        return self.names[v.id]
-
-    def _expr(self, node: Sym) -> str:
-        if node.op == "leaf":
-            kind, index = node.args
-            if kind == "t":
-                return "t"
-            if kind in ("x", "in", "ref", "theta", "e"):
-                return f"{kind}[{index}]"
-            raise TraceError(f"the controller's C would read {kind!r} {index!r}: not an input of a tick")
-        ops = [self.value(a) for a in node.args[1:]]
-        if node.op == "bin":
-            return f"({ops[0]} {node.args[0]} {ops[1]})"
-        if node.op == "call":
-            name = node.args[0]
-            if name == "negative":
-                return f"(-{ops[0]})"
-            return f"{_C_CALLS[name]}({', '.join(ops)})"
-        raise TraceError(f"the controller's C cannot hold a {node.op!r} node (a table lookup?)")
-
-    def assign(self, target: str, v) -> None:
-        self.lines.append(f"    {target} = {self.value(v)};")
-
-
-def _operands(node: Sym) -> list:
-    if node.op in ("bin", "call"):
-        return [a for a in node.args[1:] if isinstance(a, Sym)]
-    if node.op == "lookup":
-        return [node.args[2]]
-    return []
-
-
-def _literal(value: float) -> str:
-    if math.isnan(value):
-        return "NAN"
-    if math.isinf(value):
-        return "INFINITY" if value > 0 else "(-INFINITY)"
-    return f"({value!r})" if value < 0 else repr(value)
 
 
 def _leaves(graph: Graph, kind: str, count: int, offset: int = 0) -> np.ndarray:
@@ -310,7 +230,6 @@ class _Tick:
         u = _leaves(graph, "in", 2 * n)
         q0, dq0 = u[:n], u[n:]
         x = [graph.const(0.0)] * self.nx
-        enc = self.kernels["encoder"]
         xs = self.x_slices["encoder"]
         if xs.stop > xs.start:
             res, steps, period = self.params(graph, "encoder")[:3]
@@ -343,15 +262,12 @@ def _renumber(graph: Graph, sym, start: int):
     return sym
 
 
-def _function(name: str, args: str, targets: list[tuple[str, object]], graph: Graph) -> str:
-    em = _Emitter(graph)
-    for target, v in targets:
-        em.value(v)
-    # every argument marked used: a function need not read all of them (no compiler warnings)
-    body = [f"    (void){a.split()[-1].lstrip('*')};" for a in args.split(", ") if "double *" not in a
-            or a.startswith("const")] + list(em.lines)
-    body += [f"    {target} = {em.value(v)};" for target, v in targets]
-    return f"void {name}({args})\n{{\n" + "\n".join(body) + "\n}\n"
+#: Leaf kinds of a tick's trace -> their C arguments.
+_LEAVES = {"t": "t", "x": "x[{i}]", "in": "in[{i}]", "ref": "ref[{i}]", "theta": "theta[{i}]", "e": "e[{i}]"}
+
+
+def _function(name: str, args: str, rows: list, out: str) -> str:
+    return emit_c_function(name, rows, leaves=_LEAVES, args=args, out=out)
 
 
 def trace_tick(loop, scenario) -> TickCode:
@@ -367,31 +283,32 @@ def trace_tick(loop, scenario) -> TickCode:
     Raises
     ------
     blocks.compiled.trace.TraceError
-        If a kernel cannot be traced (a branch on a value).
+        If a kernel cannot be traced (a branch on a value); its subclass
+        :class:`blocks.compiled.c_backend.CodegenError` if the trace holds what C cannot (a table).
     """
     tick = _Tick(loop, scenario)
     n = tick.n
-    head = "#include <math.h>\n\n#include \"controller_tick.h\"\n\n" + C_HELPERS + "\n"
+    head = C_PRELUDE + "\n#include \"controller_tick.h\"\n\n"
     const = "const double *"
     parts = []
     g = Graph()
     parts.append(_function("ctrl_start", f"{const}in, {const}theta, double *x",
-                           [(f"x[{i}]", v) for i, v in enumerate(tick.start(g))], g))
+                           tick.start(g), "x"))
     g = Graph()
     sig = tick.outputs(g)
     outs = sig["tau"] + sig["d_hat"] + sig["tau_cmd"]
     parts.append(_function("ctrl_outputs", f"double t, {const}x, {const}in, {const}ref, {const}theta, double *out",
-                           [(f"out[{i}]", v) for i, v in enumerate(outs)], g))
+                           outs, "out"))
     zoh = tick.kernels["observer"].update is observer_zoh_update
     if zoh:
         g = Graph()
         parts.append(_function("ctrl_zoh_matrix",
                                f"double t, {const}x, {const}in, {const}ref, {const}theta, double *a",
-                               [(f"a[{i}]", v) for i, v in enumerate(tick.zoh_matrix(g))], g))
+                               tick.zoh_matrix(g), "a"))
     g = Graph()
     parts.append(_function("ctrl_update",
                            f"double t, {const}x, {const}in, {const}ref, {const}theta, {const}e, double *xn",
-                           [(f"xn[{i}]", v) for i, v in enumerate(tick.update(g))], g))
+                           tick.update(g), "xn"))
     source = "/* controller_tick.c: traced from the dobkit sampled-controller kernels; do not edit. */\n" + \
         head + "\n".join(parts)
     buf = tick.x_slices["actuator"]
