@@ -51,9 +51,9 @@ from .package import package_fmu
 __all__ = ["export_controller", "CONTROLLER_IDENTIFIER", "reference_table"]
 
 CONTROLLER_IDENTIFIER = "dobkit_controller"
-_FIXED_SOURCES = ("fmi2_controller.c", "controller_expm.c")
+_FIXED_SOURCES = ("controller_core.c", "controller_expm.c")
 _GENERATED_SOURCES = ("controller_tick.c", "controller_reference.c")
-_HEADERS = ("controller_tick.h",)
+_HEADERS = ("controller_tick.h", "controller_core.h")
 _TOKEN_PLACEHOLDER = "{00000000-0000-0000-0000-000000000000}"
 
 
@@ -209,8 +209,9 @@ def export_controller(path, scenario, fmi_version: int = 2, cc: str | None = Non
     theta = code.theta
     variables = controller_variables(s.robot.joints.kinds, theta[code.gains["kp"]], theta[code.gains["kd"]],
                                      theta[code.gains["Y"]], code.y_full, period, (ticks - 1) * period)
-    sources = list(_FIXED_SOURCES) + list(_GENERATED_SOURCES)
-    texts = {name: _read_c(name) for name in list(_FIXED_SOURCES) + list(_HEADERS)}
+    fixed = [f"fmi{fmi_version}_controller.c"] + list(_FIXED_SOURCES)
+    sources = fixed + list(_GENERATED_SOURCES)
+    texts = {name: _read_c(name) for name in fixed + list(_HEADERS)}
     texts["controller_tick.c"] = code.source
     texts["controller_reference.c"] = ("/* controller_reference.c: the reference [q_ref; dq_ref; ddq_ref] at each "
                                        f"tick of {period!r} s; written by fmu.controller_export. */\n"

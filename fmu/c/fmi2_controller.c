@@ -12,134 +12,40 @@
  * Every function of the standard header is defined; Model Exchange and FMU-state functions log why
  * they are refused and return fmi2Error.
  */
-#include <math.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
 #include "fmi2Functions.h"
-#include "controller_config.h"
-#include "controller_tick.h"
-
-#define N CTRL_N
-#define NOUT (3 * CTRL_N)
-#define NE ((CTRL_N + 1) * (CTRL_N + 1))
-#define XSIZE (CTRL_NX > 0 ? CTRL_NX : 1)
-
-extern const double CTRL_REF[];
-
-typedef enum { MODE_INSTANTIATED, MODE_INIT, MODE_STEP, MODE_TERMINATED, MODE_FAILED } Mode;
+#include "controller_core.h"
 
 typedef struct {
-    char name[256];
+    CtrlCore core;                /* first member: a CtrlCore* is a Fmi2Ctrl* */
     fmi2CallbackFunctions cb;
-    int logging_on;
-    Mode mode;
-    long k;                       /* tick number: time = k Ts */
-    double in[2 * N];             /* q, dq */
-    double theta[CTRL_NTHETA];
-    double x[XSIZE];
-    double out[NOUT];             /* tau, d_hat, tau_cmd at tick k */
-    int started, outputs_valid;
-} Ctrl;
+} Fmi2Ctrl;
 
-static const int TUNABLE_THETA[N_TUNABLE] = CTRL_TUNABLE_THETA;
-static const char *TUNABLE_NAMES[N_TUNABLE] = CTRL_TUNABLE_NAMES;
-static const double THETA0[CTRL_NTHETA] = CTRL_THETA0;
-
-static void log_message(Ctrl *c, fmi2Status status, const char *category, const char *format, ...)
+static void emit2(void *ctx, int status, const char *category, const char *message)
 {
-    char text[1024], safe[2100];
+    Fmi2Ctrl *c = (Fmi2Ctrl *)ctx;
+    char safe[2100];
     size_t i, j = 0;
-    va_list args;
     if (!c->cb.logger) return;
-    if (status == fmi2OK && !c->logging_on) return;
-    va_start(args, format);
-    vsnprintf(text, sizeof text, format, args);
-    va_end(args);
-    for (i = 0; text[i] && j + 2 < sizeof safe; i++) {   /* the logger reads a printf format: escape '%' */
-        if (text[i] == '%') safe[j++] = '%';
-        safe[j++] = text[i];
+    for (i = 0; message[i] && j + 2 < sizeof safe; i++) {   /* the logger reads a printf format: escape '%' */
+        if (message[i] == '%') safe[j++] = '%';
+        safe[j++] = message[i];
     }
     safe[j] = '\0';
-    c->cb.logger(c->cb.componentEnvironment, c->name, status, category, safe);
+    c->cb.logger(c->cb.componentEnvironment, c->core.name, (fmi2Status)status, category, safe);
 }
 
-#define C(p) ((Ctrl *)(p))
+#define C(p) ((CtrlCore *)(p))
 #define CHECK(p) do { if (!(p)) return fmi2Error; } while (0)
 
 static fmi2Status refuse(fmi2Component c, const char *function)
 {
-    if (c) log_message(C(c), fmi2Error, "logStatusError", "%s is not supported by this FMU (Co-Simulation "
-                       "only, no FMU state)", function);
+    if (c) ctrl_log(C(c), CTRL_ERROR, "%s is not supported by this FMU (Co-Simulation only, no FMU state)",
+                    function);
     return fmi2Error;
-}
-
-static fmi2Status fail(Ctrl *c, const char *format, const char *detail)
-{
-    log_message(c, fmi2Error, "logStatusError", format, detail);
-    return fmi2Error;
-}
-
-/* ---- one tick --------------------------------------------------------------- */
-
-static double tick_time(const Ctrl *c) { return (double)c->k * CTRL_PERIOD; }
-
-static fmi2Status compute_outputs(Ctrl *c)
-{
-    const double *ref;
-    int i, j;
-    if (c->outputs_valid) return fmi2OK;
-    if (c->k >= CTRL_NTICKS) {
-        log_message(c, fmi2Error, "logStatusError", "the reference table ends at t = %.17g s (reference_end, "
-                    "the scenario's simulation.t_final); tick %ld is past it", CTRL_REFERENCE_END, c->k);
-        return fmi2Error;
-    }
-    ref = CTRL_REF + (size_t)c->k * (size_t)(3 * N);
-    if (!c->started) {
-        /* the first tick: states from the first inputs, the delay buffer holding the first command */
-        ctrl_start(c->in, c->theta, c->x);
-        if (CTRL_BUF_LEN > 0) {
-            ctrl_outputs(tick_time(c), c->x, c->in, ref, c->theta, c->out);
-            for (i = 0; i < CTRL_BUF_LEN; i += N)
-                for (j = 0; j < N; j++) c->x[CTRL_BUF_START + i + j] = c->out[2 * N + j];
-        }
-        c->started = 1;
-    }
-    ctrl_outputs(tick_time(c), c->x, c->in, ref, c->theta, c->out);
-    for (i = 0; i < NOUT; i++)
-        if (!isfinite(c->out[i])) {
-            log_message(c, fmi2Error, "logStatusError", "the controller's output %d is not finite at t = %.17g s",
-                        i, tick_time(c));
-            return fmi2Error;
-        }
-    c->outputs_valid = 1;
-    return fmi2OK;
-}
-
-static fmi2Status tick_update(Ctrl *c)
-{
-    double e[NE], a[NE], xn[XSIZE];
-    const double *ref;
-    if (compute_outputs(c) != fmi2OK) return fmi2Error;
-    ref = CTRL_REF + (size_t)c->k * (size_t)(3 * N);
-    memset(e, 0, sizeof e);
-#if CTRL_ZOH
-    ctrl_zoh_matrix(tick_time(c), c->x, c->in, ref, c->theta, a);
-    if (dk_expm(N + 1, a, e) != 0) {
-        log_message(c, fmi2Error, "logStatusError", "the observer's zero-order-hold matrix is not finite at "
-                    "t = %.17g s", tick_time(c));
-        return fmi2Error;
-    }
-#else
-    (void)a;
-#endif
-    ctrl_update(tick_time(c), c->x, c->in, ref, c->theta, e, xn);
-    memcpy(c->x, xn, sizeof(double) * (size_t)CTRL_NX);
-    c->k += 1;
-    c->outputs_valid = 0;
-    return fmi2OK;
 }
 
 /* ---- common functions --------------------------------------------------------- */
@@ -158,34 +64,45 @@ fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t nC
     return fmi2OK;
 }
 
+/* Log through the importer's callbacks before an instance exists. */
+static void early_log(const fmi2CallbackFunctions *functions, fmi2String instanceName, const char *message)
+{
+    char safe[2100];
+    size_t i, j = 0;
+    if (!functions->logger) return;
+    for (i = 0; message[i] && j + 2 < sizeof safe; i++) {
+        if (message[i] == '%') safe[j++] = '%';
+        safe[j++] = message[i];
+    }
+    safe[j] = '\0';
+    functions->logger(functions->componentEnvironment, instanceName, fmi2Error, "logStatusError", safe);
+}
+
 fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
                               fmi2String fmuResourceLocation, const fmi2CallbackFunctions *functions,
                               fmi2Boolean visible, fmi2Boolean loggingOn)
 {
-    Ctrl *c;
+    Fmi2Ctrl *c;
+    char message[1024];
     (void)fmuResourceLocation;
     (void)visible;
     if (!functions) return NULL;
-    c = (Ctrl *)calloc(1, sizeof *c);
-    if (!c) return NULL;
-    c->cb = *functions;
-    snprintf(c->name, sizeof c->name, "%s", instanceName ? instanceName : "controller");
     if (!fmuGUID || strcmp(fmuGUID, CTRL_TOKEN) != 0) {
-        log_message(c, fmi2Error, "logStatusError", "GUID mismatch: the importer passed '%s' but this binary was "
-                    "built for '" CTRL_TOKEN "'; the model description and the binary are not of one export",
-                    fmuGUID ? fmuGUID : "(null)");
-        free(c);
+        snprintf(message, sizeof message, "GUID mismatch: the importer passed '%s' but this binary was built for "
+                 "'%s'; the model description and the binary are not of one export",
+                 fmuGUID ? fmuGUID : "(null)", CTRL_TOKEN);
+        early_log(functions, instanceName, message);
         return NULL;
     }
     if (fmuType != fmi2CoSimulation) {
-        log_message(c, fmi2Error, "logStatusError", "this controller FMU is Co-Simulation only (a sampled "
-                    "program has no continuous states); Model Exchange was requested");
-        free(c);
+        early_log(functions, instanceName, "this controller FMU is Co-Simulation only (a sampled program has no "
+                  "continuous states); Model Exchange was requested");
         return NULL;
     }
-    c->logging_on = loggingOn ? 1 : 0;
-    memcpy(c->theta, THETA0, sizeof THETA0);
-    c->mode = MODE_INSTANTIATED;
+    c = (Fmi2Ctrl *)calloc(1, sizeof *c);
+    if (!c) return NULL;
+    c->cb = *functions;
+    ctrl_init(&c->core, instanceName, loggingOn ? 1 : 0, emit2, c);
     return c;
 }
 
@@ -197,50 +114,34 @@ fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fm
     (void)toleranceDefined;
     (void)tolerance;
     CHECK(c);
-    if (startTime != 0.0) {
-        log_message(C(c), fmi2Error, "logStatusError", "fmi2SetupExperiment: startTime = %.17g s; the "
-                    "controller's reference starts at t = 0 (startTime must be 0)", startTime);
-        return fmi2Error;
-    }
-    if (stopTimeDefined && stopTime > CTRL_REFERENCE_END * (1.0 + 1e-12)) {
-        log_message(C(c), fmi2Error, "logStatusError", "fmi2SetupExperiment: stopTime = %.17g s is past the end "
-                    "of the reference table, t = %.17g s (reference_end)", stopTime, CTRL_REFERENCE_END);
-        return fmi2Error;
-    }
-    return fmi2OK;
+    return (fmi2Status)ctrl_setup(C(c), startTime, stopTimeDefined != fmi2False, stopTime);
 }
 
 fmi2Status fmi2EnterInitializationMode(fmi2Component c)
 {
     CHECK(c);
-    C(c)->mode = MODE_INIT;
+    C(c)->mode = CTRL_INITIALIZING;
     return fmi2OK;
 }
 
 fmi2Status fmi2ExitInitializationMode(fmi2Component c)
 {
     CHECK(c);
-    C(c)->mode = MODE_STEP;
+    C(c)->mode = CTRL_STEPPING;
     return fmi2OK;
 }
 
 fmi2Status fmi2Terminate(fmi2Component c)
 {
     CHECK(c);
-    C(c)->mode = MODE_TERMINATED;
+    C(c)->mode = CTRL_TERMINATED;
     return fmi2OK;
 }
 
 fmi2Status fmi2Reset(fmi2Component c)
 {
-    Ctrl *p = C(c);
     CHECK(c);
-    p->mode = MODE_INSTANTIATED;
-    p->k = 0;
-    p->started = p->outputs_valid = 0;
-    memset(p->in, 0, sizeof p->in);
-    memset(p->x, 0, sizeof p->x);
-    memcpy(p->theta, THETA0, sizeof THETA0);
+    ctrl_reset(C(c));
     return fmi2OK;
 }
 
@@ -249,53 +150,18 @@ fmi2Status fmi2Reset(fmi2Component c)
 fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[])
 {
     size_t i;
-    Ctrl *p = C(c);
     CHECK(c);
-    for (i = 0; i < nvr; i++) {
-        fmi2ValueReference r = vr[i];
-        if (r < VR_TAU) {
-            value[i] = p->in[r];
-        } else if (r < VR_PARAM) {
-            if (compute_outputs(p) != fmi2OK) return fmi2Error;
-            value[i] = p->out[r - VR_TAU];
-        } else if (r < VR_PARAM + N_TUNABLE) {
-            value[i] = p->theta[TUNABLE_THETA[r - VR_PARAM]];
-        } else if (r == VR_SAMPLE_PERIOD) {
-            value[i] = CTRL_PERIOD;
-        } else if (r == VR_REFERENCE_END) {
-            value[i] = CTRL_REFERENCE_END;
-        } else {
-            log_message(p, fmi2Error, "logStatusError", "fmi2GetReal: unknown value reference %u", (unsigned)r);
-            return fmi2Error;
-        }
-    }
+    for (i = 0; i < nvr; i++)
+        if (ctrl_get_real(C(c), vr[i], &value[i]) != CTRL_OK) return fmi2Error;
     return fmi2OK;
 }
 
 fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[])
 {
     size_t i;
-    Ctrl *p = C(c);
     CHECK(c);
-    for (i = 0; i < nvr; i++) {
-        fmi2ValueReference r = vr[i];
-        if (!isfinite(value[i])) {
-            log_message(p, fmi2Error, "logStatusError", "fmi2SetReal: value reference %u: %g is not a finite "
-                        "number", (unsigned)r, value[i]);
-            return fmi2Error;
-        }
-        if (r < VR_TAU) {
-            p->in[r] = value[i];
-        } else if (r >= VR_PARAM && r < VR_PARAM + N_TUNABLE) {
-            p->theta[TUNABLE_THETA[r - VR_PARAM]] = value[i];
-        } else {
-            log_message(p, fmi2Error, "logStatusError", "fmi2SetReal: value reference %u is not an input or a "
-                        "tunable parameter (inputs q[i], dq[i]; parameters %s ...)", (unsigned)r,
-                        TUNABLE_NAMES[0]);
-            return fmi2Error;
-        }
-        p->outputs_valid = 0;
-    }
+    for (i = 0; i < nvr; i++)
+        if (ctrl_set_real(C(c), vr[i], value[i]) != CTRL_OK) return fmi2Error;
     return fmi2OK;
 }
 
@@ -303,7 +169,7 @@ static fmi2Status no_values(fmi2Component c, size_t nvr, const char *function)
 {
     CHECK(c);
     if (nvr == 0) return fmi2OK;
-    log_message(C(c), fmi2Error, "logStatusError", "%s: the controller has only Real variables", function);
+    ctrl_log(C(c), CTRL_ERROR, "%s: the controller has only Real variables", function);
     return fmi2Error;
 }
 
@@ -473,36 +339,9 @@ fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReferenc
 fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2Real communicationStepSize,
                       fmi2Boolean noSetFMUStatePriorToCurrentPoint)
 {
-    Ctrl *p = C(c);
     (void)noSetFMUStatePriorToCurrentPoint;
     CHECK(c);
-    if (p->mode != MODE_STEP) {
-        log_message(p, fmi2Error, "logStatusError", "fmi2DoStep is allowed after fmi2ExitInitializationMode only");
-        return fmi2Error;
-    }
-    if (!(fabs(communicationStepSize - CTRL_PERIOD) <= 1e-9 * CTRL_PERIOD)) {
-        log_message(p, fmi2Error, "logStatusError", "fmi2DoStep: communication step %.17g s refused: this "
-                    "controller runs at its sample period Ts = %.17g s (%.17g Hz), so every step must be one "
-                    "sample, h = Ts", communicationStepSize, CTRL_PERIOD, 1.0 / CTRL_PERIOD);
-        return fmi2Error;
-    }
-    if (!(fabs(currentCommunicationPoint - tick_time(p)) <= 1e-6 * CTRL_PERIOD)) {
-        log_message(p, fmi2Error, "logStatusError", "fmi2DoStep: currentCommunicationPoint %.17g s is not the "
-                    "controller's time %.17g s (tick %ld of period %.17g s)", currentCommunicationPoint,
-                    tick_time(p), p->k, CTRL_PERIOD);
-        return fmi2Error;
-    }
-    if (p->k + 1 >= CTRL_NTICKS) {
-        log_message(p, fmi2Error, "logStatusError", "fmi2DoStep at t = %.17g s: the reference table ends at "
-                    "t = %.17g s (reference_end, the scenario's simulation.t_final)", tick_time(p),
-                    CTRL_REFERENCE_END);
-        return fmi2Error;
-    }
-    if (tick_update(p) != fmi2OK) {
-        p->mode = MODE_FAILED;
-        return fmi2Error;
-    }
-    return fmi2OK;
+    return (fmi2Status)ctrl_do_step(C(c), currentCommunicationPoint, communicationStepSize);
 }
 
 fmi2Status fmi2CancelStep(fmi2Component c) { return refuse(c, "fmi2CancelStep (doStep never returns pending)"); }
@@ -511,7 +350,7 @@ fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *va
 {
     CHECK(c);
     if (s == fmi2DoStepStatus) {
-        *value = C(c)->mode == MODE_FAILED ? fmi2Error : fmi2OK;
+        *value = C(c)->mode == CTRL_FAILED ? fmi2Error : fmi2OK;
         return fmi2OK;
     }
     return refuse(c, "fmi2GetStatus for this status kind");
@@ -521,7 +360,7 @@ fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *
 {
     CHECK(c);
     if (s == fmi2LastSuccessfulTime) {
-        *value = tick_time(C(c));
+        *value = ctrl_time(C(c));
         return fmi2OK;
     }
     return refuse(c, "fmi2GetRealStatus for this status kind");
