@@ -3,7 +3,7 @@
 ::
 
     dobkit fmu export [--scenario S] [--fmi-version 2|3] [--substeps N] --out plant.fmu [--force]
-    dobkit fmu export-controller --scenario S --out controller.fmu [--fmi-version 2] [--force]
+    dobkit fmu export-controller --scenario S --out controller.fmu [--fmi-version 2|3] [--force]
     dobkit fmu cosim PLANT.fmu [--scenario S] [--step H] [--coupling zoh|linear] [--out DIR] [--no-figures]
     dobkit fmu convergence PLANT.fmu [--scenario S] [--steps 0.004,0.002,0.001,0.0005] [--coupling ...] [--out DIR]
     dobkit fmu check ANY.fmu [--json]
@@ -338,7 +338,7 @@ def add_fmu_subcommands(subparsers) -> None:
     ctl.add_argument("--scenario", required=True, help="scenario name or TOML path with a [controller] section "
                      "(e.g. paper-digital)")
     ctl.add_argument("--fmi-version", type=int, choices=(2, 3), default=2,
-                     help="FMI version (default: 2; 3 is refused for the controller so far)")
+                     help="FMI version (default: 2)")
     ctl.add_argument("--out", required=True, help="path of the .fmu file to write (an existing file is refused)")
     ctl.add_argument("--force", action="store_true", help="replace an existing --out file")
     ctl.set_defaults(func=_cmd_export_controller)

@@ -1,11 +1,11 @@
-"""Export a scenario's digital controller as a Co-Simulation FMU (FMI 2.0).
+"""Export a scenario's digital controller as a Co-Simulation FMU (FMI 2.0 or 3.0).
 
 :func:`export_controller` writes the sampled controller of a scenario with a
 ``[controller]`` section -- the computed-torque law of Eq. 11 on the nominal
 model, the disturbance observer's update (``euler`` or ``zoh``), the velocity
 estimate (measured, or the low-passed difference of the encoder positions),
 the encoders' quantization, the delay, the torque limit and the scenario's
-reference trajectory -- as an FMU that any FMI 2 Co-Simulation master can
+reference trajectory -- as an FMU that any FMI 2 or 3 Co-Simulation master can
 couple to a plant:
 
 * inputs ``q[i]``, ``dq[i]`` (named like the plant FMU's outputs), outputs
@@ -22,7 +22,8 @@ couple to a plant:
 
 The C of a tick is generated from the sampled-controller kernels through the
 trace the compiled engine uses (:mod:`fmu.controller_tick`); the FMI layer
-(``fmu/c/fmi2_controller.c``) and the matrix exponential of the ``zoh``
+(``fmu/c/fmi2_controller.c``, ``fmi3_controller.c`` over one instance core,
+``controller_core.c``) and the matrix exponential of the ``zoh``
 update (``fmu/c/controller_expm.c``) are fixed C.
 
 The reference is a table, one row ``[q_ref; dq_ref; ddq_ref]`` per tick from
@@ -46,6 +47,7 @@ import numpy as np
 from .build import COMPILE_FLAGS, shared_library_suffix
 from .controller_tick import TickCode, trace_tick
 from .controller_variables import controller_description_xml, controller_variables
+from .modeldescription import build_description_xml
 from .package import package_fmu
 
 __all__ = ["export_controller", "CONTROLLER_IDENTIFIER", "reference_table"]
@@ -112,7 +114,7 @@ def _config_header(code: TickCode, variables, token: str, period: float, ticks: 
         f"#define VR_TAU {by_name['tau[0]'].vr}", f"#define VR_D_HAT {by_name['d_hat[0]'].vr}",
         f"#define VR_PARAM {tunable[0].vr}", f"#define N_TUNABLE {len(tunable)}",
         f"#define VR_SAMPLE_PERIOD {by_name['sample_period'].vr}",
-        f"#define VR_REFERENCE_END {by_name['reference_end'].vr}", "",
+        f"#define VR_REFERENCE_END {by_name['reference_end'].vr}", f"#define VR_TIME {by_name['time'].vr}", "",
         "/* the place in theta of each tunable parameter, in value-reference order */",
         "#define CTRL_TUNABLE_THETA {" + ", ".join(str(i) for i in theta_index) + "}",
         "#define CTRL_TUNABLE_NAMES {" + ", ".join(f'"{v.name}"' for v in tunable) + "}",
@@ -122,21 +124,22 @@ def _config_header(code: TickCode, variables, token: str, period: float, ticks: 
     return "\n".join(lines)
 
 
-def _token(texts: list[str]) -> str:
-    digest = hashlib.sha256(b"dobkit-controller-fmi2")
+def _token(fmi_version: int, texts: list[str]) -> str:
+    digest = hashlib.sha256(f"dobkit-controller-fmi{fmi_version}".encode())
     for text in texts:
         digest.update(b"\0" + text.encode("utf-8"))
     return "{" + str(uuid.UUID(hex=digest.hexdigest()[:32])) + "}"
 
 
-def _build_txt(sources: list[str]) -> str:
+def _build_txt(fmi_version: int, sources: list[str]) -> str:
     lib = CONTROLLER_IDENTIFIER + shared_library_suffix()
     cmd = ["cc"] + list(COMPILE_FLAGS) + ["-I."] + sources + ["-o", lib, "-lm"]
-    return ("dobkit controller FMU (FMI 2.0 Co-Simulation): rebuild the binary from this folder with any C99 "
-            f"compiler\n\n    {shlex.join(cmd)}\n\nand place {lib} in binaries/<platform>/ of the FMU.\n"
+    return (f"dobkit controller FMU (FMI {fmi_version}.0 Co-Simulation): rebuild the binary from this folder "
+            f"with any C99 compiler\n\n    {shlex.join(cmd)}\n\nand place {lib} in binaries/<platform>/ of the FMU.\n"
             "controller_tick.c is generated from dobkit's sampled-controller kernels, controller_reference.c holds\n"
             "the reference table and controller_config.h this export's value references, gains and token.\n"
-            "The fmi2*.h headers are the standard FMI headers (2-clause BSD, Modelica Association Project FMI).\n")
+            f"The fmi{fmi_version}*.h headers are the standard FMI headers (2-clause BSD, Modelica Association "
+            "Project FMI).\n")
 
 
 def _check_scenario(s) -> None:
@@ -159,8 +162,8 @@ def export_controller(path, scenario, fmi_version: int = 2, cc: str | None = Non
         The ``.fmu`` file to write (its folder must exist); an existing file is refused unless ``force``.
     scenario : str, pathlib.Path or blocks.scenario.Scenario
         A scenario with a ``[controller]`` section (built-in name, file or object), e.g. ``"paper-digital"``.
-    fmi_version : {2}
-        FMI 2.0 (FMI 3.0 is not offered for the controller yet; refused, saying so).
+    fmi_version : {2, 3}
+        FMI 2.0 or 3.0 (Co-Simulation in both).
     cc : str, optional
         C compiler command; default ``$CC``, else ``cc``/``gcc``/``clang``.
     force : bool
@@ -174,7 +177,7 @@ def export_controller(path, scenario, fmi_version: int = 2, cc: str | None = Non
     Raises
     ------
     ValueError
-        A scenario without ``[controller]`` or with ``[noise]``, or ``fmi_version`` other than 2.
+        A scenario without ``[controller]`` or with ``[noise]``, or ``fmi_version`` other than 2 or 3.
     FileExistsError
         If ``path`` exists and ``force`` is false (nothing is compiled).
     fmu.errors.FMUBuildError
@@ -190,9 +193,6 @@ def export_controller(path, scenario, fmi_version: int = 2, cc: str | None = Non
     from blocks.scenario import Scenario, load_scenario
     if isinstance(fmi_version, bool) or fmi_version not in (2, 3):
         raise ValueError(f"fmi_version must be 2 or 3, got {fmi_version!r}")
-    if fmi_version == 3:
-        raise ValueError("fmi_version 3: the controller FMU is exported for FMI 2.0 only so far; use "
-                         "fmi_version=2 (--fmi-version 2)")
     s = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     _check_scenario(s)
     path = Path(path)
@@ -223,11 +223,13 @@ def export_controller(path, scenario, fmi_version: int = 2, cc: str | None = Non
 
     def xml_for(token: str) -> str:
         return controller_description_xml(variables, CONTROLLER_IDENTIFIER, token, sources, description, tool,
-                                          stop_time=(ticks - 1) * period, step=period)
+                                          stop_time=(ticks - 1) * period, step=period, fmi_version=fmi_version)
 
-    token = _token([texts[n] for n in sorted(texts)]
+    token = _token(fmi_version, [texts[n] for n in sorted(texts)]
                    + [_config_header(code, variables, _TOKEN_PLACEHOLDER, period, ticks), xml_for(_TOKEN_PLACEHOLDER)])
     texts["controller_config.h"] = _config_header(code, variables, token, period, ticks)
-    extra = {"sources/BUILD.txt": _build_txt(sources)}
-    package_fmu(path, xml_for(token), texts, sources, CONTROLLER_IDENTIFIER, 2, extra_files=extra, cc=cc)
+    extra = {"sources/BUILD.txt": _build_txt(fmi_version, sources)}
+    if fmi_version == 3:
+        extra["sources/buildDescription.xml"] = build_description_xml(CONTROLLER_IDENTIFIER, sources)
+    package_fmu(path, xml_for(token), texts, sources, CONTROLLER_IDENTIFIER, fmi_version, extra_files=extra, cc=cc)
     return path

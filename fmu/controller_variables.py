@@ -1,4 +1,4 @@
-"""The variables of the controller FMU and its ``modelDescription.xml`` (FMI 2.0 Co-Simulation).
+"""The variables of the controller FMU and its ``modelDescription.xml`` (FMI 2.0 and 3.0, Co-Simulation only).
 
 Value references, in blocks (n joints, from the scenario's arm)::
 
@@ -8,6 +8,7 @@ Value references, in blocks (n joints, from the scenario's arm)::
     3n .. 4n-1      d_hat[i]    outputs: the observer's disturbance estimate (N m, N)
     4n ..           kp[i], kd[i], Y[i] (or Y[i,j] for a full matrix)   tunable parameters
     then            sample_period, reference_end                       constants (s)
+    last            time                                               the independent variable (s)
 
 The names of the inputs and outputs are those of the plant FMU's outputs and
 inputs (:mod:`fmu.variables`), so the two FMUs connect by name.  Every output
@@ -84,6 +85,7 @@ def controller_variables(kinds, kp, kd, y, y_full: bool, period: float, referenc
         start=float(period), unit="s", initial="exact")
     add("reference_end", "local", "constant", "time of the reference table's last row (the scenario's t_final)",
         start=float(reference_end), unit="s", initial="exact")
+    add("time", "independent", "continuous", "simulation time", unit="s")
     return out
 
 
@@ -92,22 +94,32 @@ def _fmt(value: float) -> str:
 
 
 def controller_description_xml(variables: list[Variable], model_identifier: str, token: str, sources: list[str],
-                               description: str, tool: str, stop_time: float, step: float) -> str:
-    """The FMI 2.0 ``modelDescription.xml`` of the controller FMU (Co-Simulation only).
+                               description: str, tool: str, stop_time: float, step: float,
+                               fmi_version: int = 2) -> str:
+    """The ``modelDescription.xml`` of the controller FMU (Co-Simulation only), FMI 2.0 or 3.0.
 
     The communication step is fixed (``canHandleVariableCommunicationStepSize``
-    false) and the ``DefaultExperiment`` step is the sample period.
+    false) and the ``DefaultExperiment`` step is the sample period.  Every
+    output is declared as depending on every input.
     """
+    if fmi_version not in (2, 3):
+        raise ValueError(f"fmi_version must be 2 or 3, got {fmi_version!r}")
     root = ET.Element("fmiModelDescription", {
-        "fmiVersion": "2.0", "modelName": model_identifier, "guid": token, "description": description,
-        "generationTool": tool, "variableNamingConvention": "structured", "numberOfEventIndicators": "0"})
+        "fmiVersion": f"{fmi_version}.0", "modelName": model_identifier,
+        "guid" if fmi_version == 2 else "instantiationToken": token, "description": description,
+        "generationTool": tool, "variableNamingConvention": "structured"})
+    if fmi_version == 2:
+        root.set("numberOfEventIndicators", "0")
     cs = ET.SubElement(root, "CoSimulation", {
-        "modelIdentifier": model_identifier, "canHandleVariableCommunicationStepSize": "false",
-        "canNotUseMemoryManagementFunctions": "true", "canGetAndSetFMUstate": "false",
-        "canSerializeFMUstate": "false"})
-    files = ET.SubElement(cs, "SourceFiles")
-    for name in sources:
-        ET.SubElement(files, "File", name=name)
+        "modelIdentifier": model_identifier, "canHandleVariableCommunicationStepSize": "false"})
+    if fmi_version == 2:
+        cs.attrib.update(canNotUseMemoryManagementFunctions="true", canGetAndSetFMUstate="false",
+                         canSerializeFMUstate="false")
+        files = ET.SubElement(cs, "SourceFiles")
+        for name in sources:
+            ET.SubElement(files, "File", name=name)
+    else:
+        cs.attrib.update(canGetAndSetFMUState="false", canSerializeFMUState="false")
     defs = ET.SubElement(root, "UnitDefinitions")
     for name in sorted({v.unit for v in variables if v.unit is not None}):
         unit = ET.SubElement(defs, "Unit", name=name)
@@ -122,21 +134,29 @@ def controller_description_xml(variables: list[Variable], model_identifier: str,
                  "causality": v.causality, "variability": v.variability}
         if v.initial is not None:
             attrs["initial"] = v.initial
-        sv = ET.SubElement(mv, "ScalarVariable", attrs)
         real = {}
         if v.unit is not None:
             real["unit"] = v.unit
         if v.start is not None:
             real["start"] = _fmt(v.start)
-        ET.SubElement(sv, "Real", real)
-    inputs = " ".join(str(v.vr + 1) for v in variables if v.causality == "input")
-    ms = ET.SubElement(root, "ModelStructure")
+        if fmi_version == 2:
+            ET.SubElement(ET.SubElement(mv, "ScalarVariable", attrs), "Real", real)
+        else:
+            ET.SubElement(mv, "Float64", {**attrs, **real})
+
+    def ref(v: Variable) -> str:          # FMI 2: 1-based index in ModelVariables; FMI 3: value reference
+        return str(v.vr + 1) if fmi_version == 2 else str(v.vr)
+    inputs = " ".join(ref(v) for v in variables if v.causality == "input")
     outputs = [v for v in variables if v.causality == "output"]
-    group = ET.SubElement(ms, "Outputs")
-    for v in outputs:
-        ET.SubElement(group, "Unknown", index=str(v.vr + 1), dependencies=inputs)
-    group = ET.SubElement(ms, "InitialUnknowns")
-    for v in outputs:
-        ET.SubElement(group, "Unknown", index=str(v.vr + 1), dependencies=inputs)
+    ms = ET.SubElement(root, "ModelStructure")
+    if fmi_version == 2:
+        for tag in ("Outputs", "InitialUnknowns"):
+            group = ET.SubElement(ms, tag)
+            for v in outputs:
+                ET.SubElement(group, "Unknown", index=ref(v), dependencies=inputs)
+    else:
+        for tag in ("Output", "InitialUnknown"):
+            for v in outputs:
+                ET.SubElement(ms, tag, valueReference=ref(v), dependencies=inputs)
     ET.indent(root, space="  ")
     return '<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode") + "\n"

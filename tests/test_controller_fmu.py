@@ -16,11 +16,12 @@ import pytest
 from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave
+from fmpy.fmi3 import FMU3Slave
 from fmpy.validation import validate_fmu
 
 import blocks
 from dobkit.cli import main
-from fmu.logger import MessageLog, fmi2_callbacks, register, unregister
+from fmu.logger import MessageLog, fmi2_callbacks, fmi3_log_function, register, unregister
 
 pytestmark = pytest.mark.needs_cc
 
@@ -48,22 +49,35 @@ def made(tmp_path_factory):
     for key, path in files.items():
         controllers[key] = folder / f"controller-{key}.fmu"
         assert main(["fmu", "export-controller", "--scenario", str(path), "--out", str(controllers[key])]) == 0
+    controllers["euler-fmi3"] = folder / "controller-euler-fmi3.fmu"
+    assert main(["fmu", "export-controller", "--scenario", str(files["euler"]), "--fmi-version", "3",
+                 "--out", str(controllers["euler-fmi3"])]) == 0
     return {"folder": folder, "files": files, "plant": plant, "controllers": controllers}
 
 
 class _Slave:
-    """An FMI 2 Co-Simulation instance with its log messages collected (fmu.logger routes them here)."""
+    """A Co-Simulation instance (FMI 2 or 3) with its log messages collected (fmu.logger routes them here)."""
 
     def __init__(self, path, name: str) -> None:
         self.md = read_model_description(str(path))
         self.log = MessageLog()
-        self.key = register(self.log, name)
-        self.callbacks = fmi2_callbacks(self.key)
-        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=extract(str(path)),
-                             modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=name)
-        self.fmu.instantiate(callbacks=self.callbacks)
-        self.fmu.setupExperiment(startTime=0.0)
-        self.fmu.enterInitializationMode()
+        self.key = None
+        self.v3 = self.md.fmiVersion.startswith("3")
+        common = dict(unzipDirectory=extract(str(path)), modelIdentifier=self.md.coSimulation.modelIdentifier,
+                      instanceName=name)
+        if self.v3:
+            self.fmu = FMU3Slave(guid=self.md.instantiationToken, **common)
+            self.fmu.instantiate(logMessage=fmi3_log_function(self.log))
+            self.fmu.enterInitializationMode(startTime=0.0)
+            self.get, self.set = self.fmu.getFloat64, self.fmu.setFloat64
+        else:
+            self.key = register(self.log, name)
+            self.callbacks = fmi2_callbacks(self.key)
+            self.fmu = FMU2Slave(guid=self.md.guid, **common)
+            self.fmu.instantiate(callbacks=self.callbacks)
+            self.fmu.setupExperiment(startTime=0.0)
+            self.fmu.enterInitializationMode()
+            self.get, self.set = self.fmu.getReal, self.fmu.setReal
         self.fmu.exitInitializationMode()
         self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
 
@@ -73,7 +87,8 @@ class _Slave:
     def close(self) -> None:
         self.fmu.terminate()
         self.fmu.freeInstance()
-        unregister(self.key)
+        if self.key is not None:
+            unregister(self.key)
 
 
 def _gauss_seidel(controller_path, plant_path, t_final: float, period: float) -> np.ndarray:
@@ -87,13 +102,13 @@ def _gauss_seidel(controller_path, plant_path, t_final: float, period: float) ->
         rows = []
         for k in range(ticks + 1):
             t = k * period
-            y = plant.fmu.getReal(p_out)
-            ctrl.fmu.setReal(c_in, y)
-            tau = ctrl.fmu.getReal(c_tau)
-            rows.append([t] + y[:4] + tau + ctrl.fmu.getReal(c_dhat))
+            y = list(plant.get(p_out))
+            ctrl.set(c_in, y)
+            tau = list(ctrl.get(c_tau))
+            rows.append([t] + y[:4] + tau + list(ctrl.get(c_dhat)))
             if k == ticks:
                 break
-            plant.fmu.setReal(p_tau, tau)
+            plant.set(p_tau, tau)
             ctrl.fmu.doStep(t, period)
             plant.fmu.doStep(t, period)
         return np.array(rows)
@@ -103,11 +118,12 @@ def _gauss_seidel(controller_path, plant_path, t_final: float, period: float) ->
 
 
 # --------------------------------------------------------------------------------------------------------------
-def test_fmpy_validates_the_fmu_and_its_variables_are_as_declared(made):
-    path = made["controllers"]["euler"]
+@pytest.mark.parametrize("key, version", [("euler", "2.0"), ("euler-fmi3", "3.0")], ids=["FMI 2", "FMI 3"])
+def test_fmpy_validates_the_fmu_and_its_variables_are_as_declared(made, key, version):
+    path = made["controllers"][key]
     assert validate_fmu(str(path)) == []
     md = read_model_description(str(path))
-    assert md.fmiVersion == "2.0" and md.modelExchange is None
+    assert md.fmiVersion == version and md.modelExchange is None
     assert md.coSimulation.canHandleVariableCommunicationStepSize is False
     assert float(md.defaultExperiment.stepSize) == 1e-3          # paper-digital: 1 kHz
     by = {v.name: v for v in md.modelVariables}
@@ -135,10 +151,12 @@ def test_fmpy_validates_the_fmu_and_its_variables_are_as_declared(made):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("key", ["euler", "zoh"], ids=["paper-digital", "zoh, difference, delay, limit"])
+@pytest.mark.parametrize("key", ["euler", "zoh", "euler-fmi3"],
+                         ids=["paper-digital", "zoh, difference, delay, limit", "paper-digital, FMI 3 controller"])
 def test_gauss_seidel_loop_of_the_two_fmus_equals_dobkit_simulate(made, key):
+    scenario = made["files"][key.split("-")[0]]
     out = made["folder"] / f"simulate-{key}"
-    assert main(["simulate", "--scenario", str(made["files"][key]), "--out", str(out), "--no-figures",
+    assert main(["simulate", "--scenario", str(scenario), "--out", str(out), "--no-figures",
                  "--engine", "fast"]) == 0
     metrics = json.loads((out / "metrics.json").read_text())
     with open(out / "timeseries.csv", newline="") as f:
@@ -147,7 +165,7 @@ def test_gauss_seidel_loop_of_the_two_fmus_equals_dobkit_simulate(made, key):
     q_ref = np.array([[float(r[f"with_dob.q_ref[{i}]"]) for i in range(4)] for r in table])
     tau_mono = np.array([[float(r[f"with_dob.tau[{i}]"]) for i in range(4)] for r in table])
 
-    s = blocks.load_scenario(made["files"][key])
+    s = blocks.load_scenario(scenario)
     rows = _gauss_seidel(made["controllers"][key], made["plant"], _T_FINAL, s.controller.period)
     at = np.searchsorted(rows[:, 0], grid - 1e-9)
     assert np.allclose(rows[at, 0], grid, atol=1e-12)
@@ -160,10 +178,11 @@ def test_gauss_seidel_loop_of_the_two_fmus_equals_dobkit_simulate(made, key):
     assert np.all(np.abs(rows[at, 5:9] - tau_mono) <= 1e-6 * scale + 1e-9)
 
 
-def test_a_communication_step_other_than_the_sample_period_is_refused_naming_it(made):
-    ctrl = _Slave(made["controllers"]["euler"], "controller-step")
+@pytest.mark.parametrize("key", ["euler", "euler-fmi3"], ids=["FMI 2", "FMI 3"])
+def test_a_communication_step_other_than_the_sample_period_is_refused_naming_it(made, key):
+    ctrl = _Slave(made["controllers"][key], "controller-step")
     try:
-        ctrl.fmu.setReal(ctrl.refs("q") + ctrl.refs("dq"), [0.0, 1.5, 0.24, 0.0] + [0.0] * 4)
+        ctrl.set(ctrl.refs("q") + ctrl.refs("dq"), [0.0, 1.5, 0.24, 0.0] + [0.0] * 4)
         with pytest.raises(FMICallException):
             ctrl.fmu.doStep(0.0, 2e-3)
         text = "\n".join(ctrl.log.entries)
@@ -219,14 +238,14 @@ def test_a_tuned_observer_gain_changes_the_estimate_as_the_law_says(made):
     np.testing.assert_allclose(d_hat1, [5.0 * 0.5, 0.0, 0.0, -6.0 * 0.2], rtol=1e-9, atol=1e-9)
 
 
-def test_a_scenario_without_controller_and_fmi3_are_refused_saying_why(tmp_path, capsys):
+def test_a_scenario_without_controller_or_with_noise_is_refused_saying_why(tmp_path, capsys):
     out = tmp_path / "c.fmu"
     assert main(["fmu", "export-controller", "--scenario", "paper", "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert "scenario 'paper' has no [controller] section" in err and "paper-digital" in err
-    assert main(["fmu", "export-controller", "--scenario", "paper-digital", "--out", str(out),
-                 "--fmi-version", "3"]) == 2
-    assert "FMI 2.0 only" in capsys.readouterr().err
+    noisy = _scenario_file(tmp_path, {"noise.q_std": [1e-5, 1e-5, 1e-6, 1e-5], "noise.seed": 3}, "pd-noise")
+    assert main(["fmu", "export-controller", "--scenario", str(noisy), "--out", str(out)]) == 2
+    assert "has a [noise] section: measurement noise belongs to the plant side" in capsys.readouterr().err
     assert not out.exists()
 
 

@@ -137,6 +137,8 @@ int ctrl_get_real(CtrlCore *c, unsigned vr, double *value)
         *value = CTRL_PERIOD;
     } else if (vr == VR_REFERENCE_END) {
         *value = CTRL_REFERENCE_END;
+    } else if (vr == VR_TIME) {
+        *value = ctrl_time(c);
     } else {
         ctrl_log(c, CTRL_ERROR, "get: unknown value reference %u", vr);
         return CTRL_ERROR;
