@@ -28,6 +28,8 @@ pytestmark = pytest.mark.needs_cc
 _T_FINAL = 0.5          # s: 500 controller ticks; the paper scenario's first half second
 _ZOH = {"controller.observer_discretization": "zoh", "controller.delay": 1,
         "controller.torque_limit": [0.0, 0.0, 6.0, 0.0]}
+# a full observer gain: every entry a tunable parameter Y[i,j], d_hat = Y dq + z with coupled rows
+_FULL_Y = {"gains.observer": (np.diag([10.0, 10.0, 10.0, 10.0]) + 0.5).tolist()}
 
 
 def _scenario_file(folder, changes: dict, name: str):
@@ -42,7 +44,8 @@ def _scenario_file(folder, changes: dict, name: str):
 def made(tmp_path_factory):
     """The scenario files, the plant FMU (one for both: same arm, path and start) and one controller FMU each."""
     folder = tmp_path_factory.mktemp("controller_fmu")
-    files = {"euler": _scenario_file(folder, {}, "pd-euler"), "zoh": _scenario_file(folder, _ZOH, "pd-zoh")}
+    files = {"euler": _scenario_file(folder, {}, "pd-euler"), "zoh": _scenario_file(folder, _ZOH, "pd-zoh"),
+             "fully": _scenario_file(folder, _FULL_Y, "pd-full-y")}
     plant = folder / "plant.fmu"
     assert main(["fmu", "export", "--scenario", str(files["euler"]), "--substeps", "8", "--out", str(plant)]) == 0
     controllers = {}
@@ -151,8 +154,9 @@ def test_fmpy_validates_the_fmu_and_its_variables_are_as_declared(made, key, ver
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("key", ["euler", "zoh", "euler-fmi3"],
-                         ids=["paper-digital", "zoh, difference, delay, limit", "paper-digital, FMI 3 controller"])
+@pytest.mark.parametrize("key", ["euler", "zoh", "fully", "euler-fmi3"],
+                         ids=["paper-digital", "zoh, difference, delay, limit", "full observer gain",
+                              "paper-digital, FMI 3 controller"])
 def test_gauss_seidel_loop_of_the_two_fmus_equals_dobkit_simulate(made, key):
     scenario = made["files"][key.split("-")[0]]
     out = made["folder"] / f"simulate-{key}"
