@@ -185,8 +185,10 @@ def export_controller(path, scenario, fmi_version: int = 2, cc: str | None = Non
 
     Examples
     --------
+    >>> import blocks
     >>> from fmu.controller_export import export_controller
-    >>> export_controller("controller.fmu", "paper-digital").name      # doctest: +SKIP
+    >>> s = blocks.load_scenario("paper-digital").with_changes({"simulation.t_final": 1.0})
+    >>> export_controller("controller.fmu", s).name     # inputs q[i], dq[i]; outputs tau[i], d_hat[i]
     'controller.fmu'
     """
     from blocks.digital_loop import sampled_loop
