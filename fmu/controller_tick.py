@@ -41,7 +41,7 @@ import numpy as np
 from blocks.compiled.c_backend import C_PRELUDE, emit_c_function
 from blocks.compiled.trace import Graph, Sym, symbolic_params
 from blocks.contract import contract_of
-from blocks.digital import observer_zoh_update
+from blocks.digital import observer_zoh_update, quantized
 from blocks.kernels import observer_rate
 
 __all__ = ["TickCode", "trace_tick"]
@@ -72,6 +72,8 @@ class TickCode:
         The delay buffer's place in ``x`` (empty without a delay).
     zoh : bool
         Whether the observer update needs the exponential of ``ctrl_zoh_matrix``.
+    state_labels : list of str
+        The names of the entries of ``x`` (``q_prev[i]``, ``v_prev[i]``, ``z[i]``, ``buffer0[i]`` ...).
     """
 
     source: str
@@ -225,7 +227,6 @@ class _Tick:
 
     def start(self, graph: Graph) -> list:
         """The first tick's states from the first inputs (the buffer is filled by the caller)."""
-        from blocks.digital import quantized
         n = self.n
         u = _leaves(graph, "in", 2 * n)
         q0, dq0 = u[:n], u[n:]

@@ -47,7 +47,7 @@ def made(tmp_path_factory):
     files = {"euler": _scenario_file(folder, {}, "pd-euler"), "zoh": _scenario_file(folder, _ZOH, "pd-zoh"),
              "fully": _scenario_file(folder, _FULL_Y, "pd-full-y")}
     plant = folder / "plant.fmu"
-    assert main(["fmu", "export", "--scenario", str(files["euler"]), "--substeps", "8", "--out", str(plant)]) == 0
+    assert main(["fmu", "export", "--scenario", str(files["euler"]), "--out", str(plant)]) == 0
     controllers = {}
     for key, path in files.items():
         controllers[key] = folder / f"controller-{key}.fmu"
