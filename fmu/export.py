@@ -34,7 +34,7 @@ from blocks.disturbances import DisturbanceSpec
 from blocks.parameters import RobotParameters
 
 from .build import COMPILE_FLAGS, platform_folder, shared_library_suffix
-from .generated import GENERATED_HEADER, plant_c
+from .generated import GENERATED_HEADER, arm_disturbance, plant_c
 from .modeldescription import build_description_xml, model_description_xml
 from .package import package_fmu
 from .scenario_values import DEFAULT_START_Q
@@ -157,8 +157,9 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
     params = RobotParameters() if params is None else params
     n = params.joints.count
     q0, dq0 = _joint_vector(q0, "q0", n), _joint_vector(dq0, "dq0", n)
-    q0 = list(DEFAULT_START_Q) if q0 is None else q0
-    disturbance = DisturbanceSpec() if disturbance is None else disturbance
+    if q0 is None:
+        q0 = list(DEFAULT_START_Q) if isinstance(params, RobotParameters) else [0.0] * n
+    disturbance = arm_disturbance(params, disturbance)
     path = Path(path)
     if path.is_dir():
         raise IsADirectoryError(f"path {str(path)!r} is a folder; give the path of the .fmu file to write")
@@ -171,8 +172,12 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
     reals = [v for v in variables if v.c_name is not None]
     generated = plant_c(params, disturbance, [v.name for v in reals], {v.name: v.start for v in reals})
     c_texts[GENERATED_HEADER] = generated.text
-    description = ("4-DOF RRPR surgical arm (Verma, Chauhan & Gupta 2019, Eq. 1, 5-7) with external "
-                   "disturbance models; exported by dobkit")
+    if isinstance(params, RobotParameters):
+        description = ("4-DOF RRPR surgical arm (Verma, Chauhan & Gupta 2019, Eq. 1, 5-7) with external "
+                       "disturbance models; exported by dobkit")
+    else:
+        description = (f"{n}-joint arm ({', '.join(params.joints.names)}; tool {getattr(params, 'tool_frame', '?')}) "
+                       "with external disturbance models; exported by dobkit")
     tool = "fmu.export"
 
     def xml_for(token: str) -> str:

@@ -23,23 +23,24 @@ Generated (all ``static``, one header per export)::
     plant_calculated(const double *p, double *out)            calculated parameters (k1..k5)
     PLANT_UPDATE[mask](t, x, u, theta, dx)                     [dq; q''] of Eq. 1
     PLANT_TAU_DIS[mask](t, x, u, theta, tau_dis)               the acting disturbance
-    plant_arm_valid(const double *p, char *msg, unsigned long size)   the arm's own parameter check
+    plant_arm_valid(p, sw, msg, size)                        the arm's own parameter check
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from types import SimpleNamespace
 
 import numpy as np
 
 from blocks.compiled.c_backend import C_PRELUDE, CodegenError, emit_c_function, trace_block
 from blocks.compiled.trace import Graph, Sym, param_values
-from blocks.contract import contract_of
+from blocks.contract import Kernels, contract_of
 from blocks.disturbances import DISTURBANCE_KINDS, DisturbanceSpec
-from blocks.kernels.disturbance import DisturbanceParams
+from blocks.kernels.disturbance import DisturbanceParams, external_disturbance
 from blocks.parameters import RobotParameters
 from blocks.systems import plant as plant_block
 
-__all__ = ["GeneratedPlant", "plant_c", "GENERATED_HEADER"]
+__all__ = ["GeneratedPlant", "plant_c", "plant_kernels", "arm_disturbance", "GENERATED_HEADER"]
 
 #: The file name of the generated maths inside the FMU's ``sources/``.
 GENERATED_HEADER = "plant_generated.h"
@@ -75,6 +76,79 @@ class GeneratedPlant:
 
 
 # --------------------------------------------------------------------------------------------------------------
+# The plant's kernels for any arm
+# --------------------------------------------------------------------------------------------------------------
+#: Disturbance models that need the paper's arm (the tissue contact uses its planar Jacobian, Eq. 8).
+RRPR_ONLY_KINDS = ("tissue",)
+
+
+def arm_disturbance(arm, disturbance: DisturbanceSpec | None):
+    """The disturbance settings of a plant export, per joint of ``arm``.
+
+    For the paper's arm: the :class:`~blocks.disturbances.DisturbanceSpec`
+    itself (default: Eq. 4).  For another arm: its per-joint vectors must have
+    one entry per joint; without one, every model is off and the amplitudes
+    are zero (start values the user sets on the FMU).  The tissue model needs
+    the paper's kinematics and is refused by name for other arms.
+
+    Raises
+    ------
+    ValueError
+        On vectors of the wrong length or the tissue model on another arm.
+    """
+    if isinstance(arm, RobotParameters):
+        return DisturbanceSpec() if disturbance is None else disturbance
+    n = arm.joints.count
+    base = DisturbanceSpec()
+    if disturbance is None:
+        return SimpleNamespace(kinds=(), f_r=(0.0,) * n, coulomb=(0.0,) * n, viscous=(0.0,) * n,
+                               friction_velocity=base.friction_velocity, skin_height=base.skin_height,
+                               tissue_stiffness=base.tissue_stiffness, tissue_damping=base.tissue_damping,
+                               tissue_drag=base.tissue_drag)
+    bad = [k for k in disturbance.kinds if k in RRPR_ONLY_KINDS]
+    if bad:
+        raise ValueError(f"disturbance models {bad} need the paper's arm kinematics; the arm {arm!r} has none "
+                         f"(choose from {[k for k in DISTURBANCE_KINDS if k not in RRPR_ONLY_KINDS]})")
+    for name in ("f_r", "coulomb", "viscous"):
+        if len(getattr(disturbance, name)) != n:
+            raise ValueError(f"disturbance.{name} has {len(getattr(disturbance, name))} entries; the arm has {n} "
+                             "joints")
+    return disturbance
+
+
+def _disturbance_params(d, tissue_kin) -> DisturbanceParams:
+    return DisturbanceParams(
+        paper="paper" in d.kinds, friction="friction" in d.kinds, tissue="tissue" in d.kinds,
+        f_r=np.array(d.f_r, dtype=float), coulomb=np.array(d.coulomb, dtype=float),
+        viscous=np.array(d.viscous, dtype=float), friction_velocity=float(d.friction_velocity),
+        skin_height=float(d.skin_height), tissue_stiffness=float(d.tissue_stiffness),
+        tissue_damping=float(d.tissue_damping), tissue_drag=float(d.tissue_drag), kin=tissue_kin)
+
+
+def plant_kernels(arm, d) -> Kernels:
+    """The plant's kernels: ``update`` gives ``[dq; q'']`` of Eq. 1, ``output`` ``[q; dq; tau_dis]``.
+
+    The paper's arm uses the plant block's own kernels (:func:`blocks.systems.plant`); another arm its
+    row kernel ``plant_acceleration`` with the disturbance kernels of :mod:`blocks.kernels.disturbance`,
+    its geometry a frozen parameter (constants in the generated code).
+    """
+    if isinstance(arm, RobotParameters):
+        return contract_of(plant_block(arm, d)).kernels
+    rows = arm.kernels
+
+    def update(t, x, u, k, dist):
+        n = x.shape[0] // 2
+        q, dq = x[:n], x[n:]
+        return np.concatenate((dq, rows.plant_acceleration(k, q, dq, u + external_disturbance(t, q, dq, dist))))
+
+    def output(t, x, u, k, dist):
+        n = x.shape[0] // 2
+        return np.concatenate((x, external_disturbance(t, x[:n], x[n:], dist)))
+
+    return Kernels((arm.kernel_params(), _disturbance_params(d, np.zeros(0))), output, update)
+
+
+# --------------------------------------------------------------------------------------------------------------
 # The arm's parameter map: theta (what the trace lifted) as expressions of the FMU's real parameters
 # --------------------------------------------------------------------------------------------------------------
 class _Namespace:
@@ -94,6 +168,7 @@ def _rrpr_map(graph: Graph, p: dict) -> tuple[list, list, list, str]:
     # M(q) positive definite for every theta2 (docs/model.md, "Inertia matrix")
     valid = r"""    double k[N_CALCULATED];
     double margin;
+    (void)sw;
     plant_calculated(p, k);
     margin = (k[0] - k[2]) * (k[2] - k[4]) - 0.25 * k[1] * k[1];
     if (!(k[0] > k[2] && k[2] > k[4] && margin > 0.0)) {
@@ -110,10 +185,19 @@ def _rrpr_map(graph: Graph, p: dict) -> tuple[list, list, list, str]:
 
 def _theta_expressions(arm, spec: DisturbanceSpec, params, p: dict, graph: Graph) -> tuple[list, list, str]:
     """theta as expressions of ``p`` in the order the plant block's trace reads them; calculated; validity."""
-    if not isinstance(arm, RobotParameters):
-        raise CodegenError(f"no FMU parameter map for an arm of type {type(arm).__name__}: the plant FMU export "
-                           "knows the paper's RRPR (RobotParameters)")
-    arm_theta, kin, calculated, valid = _rrpr_map(graph, p)
+    if isinstance(arm, RobotParameters):
+        arm_theta, kin, calculated, valid = _rrpr_map(graph, p)
+    else:
+        # geometry and inertias are frozen (literals in the code): only the disturbance numbers are tunable
+        arm_theta, kin, calculated = [], [], []
+        valid = """    (void)p;
+    if (sw[SW_TISSUE]) {
+        snprintf(msg, msg_size, "disturbance_tissue needs the paper's arm kinematics; this arm has none "
+                 "(set disturbance_tissue false)");
+        return 0;
+    }
+    return 1;
+"""
     theta = list(arm_theta)
     dist = params[1]
     for name in DisturbanceParams._fields:
@@ -121,7 +205,7 @@ def _theta_expressions(arm, spec: DisturbanceSpec, params, p: dict, graph: Graph
         if isinstance(value, (bool, np.bool_)):
             continue
         if name == "kin":
-            theta += kin
+            theta += kin                # the tissue model's lengths (none for an arm without it)
         elif isinstance(value, np.ndarray):
             theta += [p[f"{name}[{i}]"] for i in range(value.size)]
         else:
@@ -172,7 +256,7 @@ def plant_c(arm, spec: DisturbanceSpec, param_order: list[str], start: dict) -> 
     nx, nu = 2 * n, n
     graph = Graph()
     p = {name: graph.leaf("p", j) for j, name in enumerate(param_order)}
-    base = contract_of(plant_block(arm, spec)).kernels
+    base = plant_kernels(arm, spec)
     theta_exprs, calculated, valid = _theta_expressions(arm, spec, base.params, p, graph)
     expected = param_values(base.params, [])
     if len(theta_exprs) != len(expected):
@@ -197,8 +281,11 @@ def plant_c(arm, spec: DisturbanceSpec, param_order: list[str], start: dict) -> 
                  "static void plant_calculated(const double *p, double *out)\n{\n    (void)p;\n    (void)out;\n}\n")
     functions = 2
     theta_names: tuple = ()
+    rrpr = isinstance(arm, RobotParameters)
     for mask, kinds in enumerate(_combinations()):
-        kernels = contract_of(plant_block(arm, replace(spec, kinds=kinds))).kernels
+        if not rrpr and any(k in RRPR_ONLY_KINDS for k in kinds):
+            continue            # refused at initialization (plant_arm_valid); its slot takes the mask without it
+        kernels = plant_kernels(arm, _with_kinds(spec, kinds))
         trace = trace_block(kernels, nx, nu, ("update", "output"), ("k", "disturbance"))
         if list(trace.theta) != expected:
             raise CodegenError(f"the plant with disturbance models {kinds} reads other numbers than the export's")
@@ -208,19 +295,33 @@ def plant_c(arm, spec: DisturbanceSpec, param_order: list[str], start: dict) -> 
         parts.append(emit_c_function(f"plant_tau_dis_{mask}", trace.rows["output"][nx:], args=_KERNEL_ARGS,
                                      static=True))
         functions += 2
-    combos = range(2 ** len(DISTURBANCE_KINDS))
+    combos = [m if rrpr else _without_rrpr_only(m) for m in range(2 ** len(DISTURBANCE_KINDS))]
     parts += ["typedef void (*PlantKernel)(double, const double *, const double *, const double *, double *);",
               "static const PlantKernel PLANT_UPDATE[N_MODEL_COMBOS] = {"
               + ", ".join(f"plant_update_{m}" for m in combos) + "};",
               "static const PlantKernel PLANT_TAU_DIS[N_MODEL_COMBOS] = {"
               + ", ".join(f"plant_tau_dis_{m}" for m in combos) + "};", "",
               "/* the arm's own check of its parameters (beyond the ranges of each one) */",
-              "static int plant_arm_valid(const double *p, char *msg, unsigned long msg_size)\n{\n" + valid + "}\n",
+              "static int plant_arm_valid(const double *p, const int *sw, char *msg, unsigned long msg_size)\n{\n"
+              + valid + "}\n",
               "#endif", ""]
     functions += 1
     return GeneratedPlant(text="\n".join(parts), n_joints=n, n_theta=len(theta_exprs), n_calculated=len(calculated),
                           calculated=tuple(c[:3] for c in calculated), functions=functions,
                           theta_names=theta_names)
+
+
+def _with_kinds(spec, kinds: tuple):
+    if isinstance(spec, DisturbanceSpec):
+        return replace(spec, kinds=kinds)
+    return SimpleNamespace(**(vars(spec) | {"kinds": kinds}))
+
+
+def _without_rrpr_only(mask: int) -> int:
+    for j, kind in enumerate(DISTURBANCE_KINDS):
+        if kind in RRPR_ONLY_KINDS:
+            mask &= ~(1 << j)
+    return mask
 
 
 def _combinations() -> list[tuple]:

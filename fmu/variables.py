@@ -122,10 +122,14 @@ def plant_variables(params: RobotParameters, disturbance: DisturbanceSpec, subst
 
     Parameters
     ----------
-    params : RobotParameters
-        True arm parameters; their values become the parameters' start values.
-    disturbance : DisturbanceSpec
-        Selected disturbance models and their parameters (start values).
+    params : blocks.arm.ArmModel
+        The true arm.  For the paper's arm (RobotParameters) its Table-1 values
+        become tunable parameters with k1..k5 calculated from them; another
+        arm's geometry is frozen in the generated C and only its joint count
+        and kinds shape the table.
+    disturbance : DisturbanceSpec or namespace
+        Selected disturbance models and their parameters (start values), one
+        entry per joint (see :func:`fmu.generated.arm_disturbance`).
     substeps : int
         Start value of ``n_substeps`` (RK4 steps per Co-Simulation step), >= 1.
     q0, dq0 : n floats, optional
@@ -158,11 +162,13 @@ def plant_variables(params: RobotParameters, disturbance: DisturbanceSpec, subst
         add(name=f"tau_dis[{i}]", type="Real", causality="output", variability="continuous",
             initial="calculated", start=None, unit=_joint_unit("force", i, joints),
             description=f"external disturbance on joint {i + 1} (sum of the selected models)")
-    for name, unit in (("k1", "kg.m2"), ("k2", "kg.m2"), ("k3", "kg.m2"), ("k4", "kg"), ("k5", "kg.m2")):
+    rrpr = isinstance(params, RobotParameters)       # another arm's geometry is frozen in the generated C
+    for name, unit in ((("k1", "kg.m2"), ("k2", "kg.m2"), ("k3", "kg.m2"), ("k4", "kg"), ("k5", "kg.m2"))
+                       if rrpr else ()):
         add(name=name, type="Real", causality="calculatedParameter", variability="fixed", initial="calculated",
             start=None, unit=unit, description=f"inertia constant {name} of Eq. 5-7, from Table 1")
 
-    for name in RobotParameters.names():
+    for name in RobotParameters.names() if rrpr else ():
         unit = RobotParameters.unit(name)
         add(name=name, type="Real", causality="parameter", variability="fixed", initial="exact",
             start=float(getattr(params, name)), unit=_ROBOT_UNITS[unit], description=_ROBOT_DESCRIPTIONS[name],

@@ -126,10 +126,12 @@ int plant_get_real(PlantInstance *inst, unsigned vr, double *value)
     } else if (vr >= VR_TAU_DIS && vr < VR_TAU_DIS + NU) {
         plant_disturbance(&inst->d, inst->d.time, inst->d.x, buf);
         *value = buf[vr - VR_TAU_DIS];
+#if N_CALCULATED_PARAMS > 0
     } else if (vr >= VR_K && vr < VR_K + N_CALCULATED_PARAMS) {
         double k[N_CALCULATED_PARAMS];
         plant_calculated_parameters(inst->d.p, k);
         *value = k[vr - VR_K];
+#endif
     } else if (is_param(vr)) {
         *value = inst->d.p[vr - VR_PARAM];
     } else {

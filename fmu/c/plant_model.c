@@ -149,5 +149,5 @@ int plant_parameters_valid(const PlantData *d, char *msg, unsigned long msg_size
         return 0;
     }
     /* the arm's own conditions (for the paper's arm: M(q) positive definite for every theta2) */
-    return plant_arm_valid(d->p, msg, msg_size);
+    return plant_arm_valid(d->p, d->sw, msg, msg_size);
 }
