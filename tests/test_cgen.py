@@ -163,3 +163,30 @@ def test_tables_and_unknown_leaves_are_refused():
 
 def test_theta_names():
     assert theta_names((np.ones((2, 2)), 1.0), ("Y", "w")) == ["Y[0,0]", "Y[0,1]", "Y[1,0]", "Y[1,1]", "w"]
+
+
+def _sampled_blocks():
+    from blocks.digital import DigitalController, actuator, digital_observer, encoder
+    settings = DigitalController(sample_rate=500.0, delay=2, observer_discretization="zoh", velocity="difference",
+                                 velocity_cutoff=80.0, position_resolution=(1e-3, 0.0, 2e-4, 1e-3),
+                                 torque_limit=(5.0, 0.0, 20.0, 2.0))
+    euler = DigitalController(sample_rate=1000.0)
+    return {"encoder": encoder(settings), "actuator": actuator(settings),
+            "observer_zoh": digital_observer(RobotParameters(), [10, 20, 5, 1], settings),
+            "observer_euler": digital_observer(RobotParameters(), 10, euler)}
+
+
+@pytest.mark.parametrize("which", ["encoder", "actuator", "observer_euler"])
+def test_sampled_controller_blocks_give_their_kernels_numbers(tmp_path, which):
+    """The blocks of a sampled controller (next-state updates, rint quantization, saturation) in C."""
+    block = _sampled_blocks()[which]
+    block.name = which
+    rng = np.random.default_rng(6)
+    _check_block(block, tmp_path, rng, block.nstates, block.ninputs, samples=30)
+
+
+def test_a_kernel_that_fills_a_float_array_is_refused_by_name():
+    """The zero-order-hold observer writes symbols into a float matrix (the numba engine calls it compiled):
+    no C, and the message says which function and why."""
+    with pytest.raises(CodegenError, match="update kernel cannot be traced into C: .*Python number"):
+        system_c(_sampled_blocks()["observer_zoh"])
