@@ -106,7 +106,7 @@ def _flat(value) -> list:
 
 
 class _Tick:
-    """The four blocks of a sampled loop, traced on one graph with symbolic parameters."""
+    """The four controller blocks of a sampled loop, traced with symbolic parameters (one graph per C function)."""
 
     def __init__(self, loop, scenario) -> None:
         names = {b.name: b for b in loop.syslist}
