@@ -12,7 +12,7 @@ default) step by step.  After every accepted step:
    event announced by the last event iteration (the solver never steps past
    it) or a located state event puts the FMU into Event Mode at that time
    and state, where the event iteration (``fmi2NewDiscreteStates`` /
-   ``fmi3UpdateDiscreteStates``) runs until no discrete state needs an
+   ``fmi3UpdateDiscreteStates``, :func:`fmu.events.event_iteration`) runs until no discrete state needs an
    update; states the FMU re-initialised are read back and the solver
    restarts from them;
 3. ``terminateSimulation`` (from the event iteration or from
@@ -36,11 +36,13 @@ import numpy as np
 from scipy.integrate import BDF, DOP853, LSODA, RK45, Radau
 
 from blocks.budget import Budget
+from blocks.integrate import locate_crossing
 from blocks.monitor import Monitor
 
 from .archive import ExtractionLimits
 from .description import array_shape, element_names, state_variables
 from .errors import BudgetError, FMUError
+from .events import event_iteration
 from .instance import FMUInstance
 
 __all__ = ["simulate_fmu", "SOLVERS"]
@@ -151,18 +153,6 @@ class _Model:
     def indicators(self, t: float, x: np.ndarray) -> np.ndarray:
         self.at(t, x)
         return self.inst.event_indicators()
-
-
-def _locate(model: _Model, state_at, t0: float, t1: float, above: np.ndarray, tol: float) -> float:
-    """The right end of a bracket shorter than ``tol`` of the first sign change of any indicator in ``(t0, t1]``."""
-    a, b = t0, t1
-    while b - a > tol:
-        mid = 0.5 * (a + b)
-        if mid <= a or mid >= b:    # the bracket is down to adjacent floats
-            break
-        crossed = np.any((model.indicators(mid, state_at(mid)) > 0) != above)
-        a, b = (a, mid) if crossed else (mid, b)
-    return b
 
 
 def simulate_fmu(path, t_final: float, output_step: float, inputs: dict | None = None,
@@ -303,7 +293,8 @@ def simulate_fmu(path, t_final: float, output_step: float, inputs: dict | None =
                 if z.size and t_new > t_old:
                     crossed = (model.indicators(t_new, state_at(t_new)) > 0) != above
                     if np.any(crossed):
-                        t_new = _locate(model, state_at, t_old, t_new, above, event_tolerance)
+                        t_new = locate_crossing(lambda s: model.indicators(s, state_at(s)), t_old, t_new, above,
+                                                event_tolerance)
                         event_kind = "state"
                 while k < grid.size and grid[k] < t_new - 1e-13 * max(1.0, abs(t_new)):
                     record(grid[k], state_at(grid[k]))
@@ -334,18 +325,16 @@ def simulate_fmu(path, t_final: float, output_step: float, inputs: dict | None =
             if event_kind is None:      # t_final reached
                 break
             model.at(t, x)
-            inst.enter_event_mode()
-            changed = inst.update_discrete_states()
+            changed, stop_now = event_iteration(inst)
             events.append({"time": float(t), "kind": event_kind})
             if len(events) > _MAX_EVENTS:
                 raise FMUError(f"{inst.source}: more than {_MAX_EVENTS} events by t = {t:.9g} s (chattering or a "
                                "Zeno trajectory)")
             if changed and x.size:
                 x = inst.get_states()
-            if inst.terminate_requested:
+            if stop_now:
                 terminated = t
                 break
-            inst.enter_continuous_time_mode()
         # the points at t (after its events): the end, or up to where the FMU stopped
         end = t if terminated is not None else t_final
         while k < grid.size and grid[k] <= end + 1e-13 * max(1.0, abs(end)):
