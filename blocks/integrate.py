@@ -34,7 +34,7 @@ import scipy.integrate
 import scipy.optimize
 
 __all__ = ["SOLVERS", "integrate_on_grid", "DivergenceError", "SolverFailure", "SimulationTerminated",
-           "EventSource", "LoopEvents", "loop_events", "locate_crossing"]
+           "EventSource", "LoopEvents", "loop_events", "hybrid_blocks", "refuse_hybrid", "locate_crossing"]
 
 #: The :func:`scipy.integrate.solve_ivp` methods, by name.
 SOLVERS = {name: getattr(scipy.integrate, name) for name in ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA")}
@@ -218,6 +218,9 @@ class EventSource:
     n_indicators = 0
     next_event_time: float | None = None
 
+    def begin(self, t: float) -> None:
+        """A run starts at ``t`` (s): raise if the block cannot start one there (e.g. it has run already)."""
+
     def indicators(self, t: float, x: np.ndarray) -> np.ndarray:
         """The event indicators at time ``t`` (s) and block state ``x``."""
         raise NotImplementedError
@@ -269,6 +272,11 @@ class LoopEvents:
     def names(self) -> str:
         """The hybrid blocks' names, quoted, for messages."""
         return ", ".join(f"'{src.name}'" for src, _ in self.sources)
+
+    def begin(self, t: float) -> None:
+        """Tell every block that a run starts at ``t`` (s)."""
+        for src, _ in self.sources:
+            src.begin(t)
 
     def next_time(self) -> float | None:
         """The earliest announced time event (s), or None."""
@@ -328,6 +336,27 @@ def loop_events(system, rhs: Callable, output: Callable | None = None) -> LoopEv
     return LoopEvents(sources, rhs, output) if sources else None
 
 
+def hybrid_blocks(system) -> list[str]:
+    """Names of an interconnection's blocks with events (an ``event_source``)."""
+    return [src.name for src, _ in _event_sources(system, 0)]
+
+
+def refuse_hybrid(system, engine: str) -> None:
+    """Raise ``ValueError`` naming the blocks with events when ``engine`` (which cannot stop at events) would run them.
+
+    Parameters
+    ----------
+    system : control.InterconnectedSystem
+    engine : str
+        The engine's name, for the message.
+    """
+    names = hybrid_blocks(system)
+    if names:
+        raise ValueError(f"engine {engine!r} cannot run block(s) {', '.join(repr(n) for n in names)}: they have "
+                         "events (an FMU's event indicators or time events), which only the numpy engine (engine="
+                         "'fast', fmu.simulate_loop) stops at")
+
+
 def _event_sources(system, offset: int):
     source = getattr(system, "event_source", None)
     if source is not None:
@@ -369,6 +398,7 @@ def _integrate_with_events(fun, x0, t_grid, method, options, bound, progress, mo
     t, x = t0, np.array(x0, dtype=float)
     done, nfev = 0, 0
     last_report = time.monotonic()
+    events.begin(t0)
 
     def keep(upto_time: float, state_at, inclusive: bool) -> None:
         nonlocal done

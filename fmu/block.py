@@ -252,7 +252,7 @@ def load(path, name: str = "plant", start_values: dict | None = None, start_time
     sys = FMUBlock(update if state_names else None, output, contract=BlockContract(
         feedthrough=frozenset(inputs[j] for j in needed)), **signals)
     sys.initial_state = initial_state
-    sys.event_source = FMUEventSource(inst, name) if has_events(inst) else None
+    sys.event_source = FMUEventSource(inst, name, start_time) if has_events(inst) else None
     sys.fmu = inst
     sys.model_description = md
     return sys

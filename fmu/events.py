@@ -70,11 +70,25 @@ class FMUEventSource(EventSource):
         Initialized with ``events=True``.
     name : str
         The block's name.
+    start_time : float
+        The time (s) the FMU was initialized at: a run must start there, and
+        only one run is possible (its discrete states move on).
     """
 
-    def __init__(self, inst: FMUInstance, name: str) -> None:
-        self.inst, self.name = inst, name
+    def __init__(self, inst: FMUInstance, name: str, start_time: float) -> None:
+        self.inst, self.name, self.start_time = inst, name, float(start_time)
         self.n_indicators = inst.n_event_indicators
+        self.ran = False
+
+    def begin(self, t: float) -> None:
+        # the FMU's discrete states move on with a run and cannot be set back
+        if self.ran:
+            raise FMUError(f"block '{self.name}' ({self.inst.source}): an FMU with events keeps the discrete states "
+                           "of its last run; load it again (fmu.load) for another run")
+        if abs(t - self.start_time) > 1e-12 * max(1.0, abs(t)):
+            raise FMUError(f"block '{self.name}' ({self.inst.source}): the run starts at t = {t:.9g} s, the FMU was "
+                           f"initialized at t = {self.start_time:.9g} s (fmu.load's start_time)")
+        self.ran = True
 
     @property
     def next_event_time(self) -> float | None:

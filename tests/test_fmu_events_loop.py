@@ -230,3 +230,48 @@ def test_bad_arguments_are_named(fmus, kwargs, words):
         with pytest.raises(ValueError, match=words):
             simulate_loop(loop, np.linspace(0.0, 1.0, 3), **kwargs)
     assert issubclass(FMUError, ValueError)
+
+
+def test_an_event_block_runs_once_and_from_its_start_time(fmus):
+    """Its discrete states move on with a run (the stair's counter): a second run, or one from another time, is
+    refused, naming the block."""
+    with load(fmus["stair"], name="stair") as stair:
+        lag = ct.nlsys(lambda t, x, u, p: [(u[0] - x[0]) / T_LAG], lambda t, x, u, p: x, inputs=["counter"],
+                       outputs=["y"], states=["y"], name="lag")
+        loop = ct.interconnect([stair, lag], inplist=[], outlist=["y"], check_unused=False)
+        with pytest.raises(FMUError, match=r"block 'stair' .*the run starts at t = 0.5 s, the FMU was initialized "
+                                           r"at t = 0 s"):
+            simulate_loop(loop, np.linspace(0.5, 2.0, 4))
+        stair.event_source.ran = False      # the refused run did not start: this one does
+        simulate_loop(loop, np.linspace(0.0, 2.0, 5))
+        with pytest.raises(FMUError, match="block 'stair' .*keeps the discrete states of its last run; load it again"):
+            simulate_loop(loop, np.linspace(0.0, 2.0, 5))
+
+
+def test_the_numpy_engine_of_blocks_simulate_stops_at_the_events(fmus):
+    """blocks.simulate's numpy engine (_NumpyEngine) takes the loop's event blocks: the stair's outputs are those
+    recorded during the run, not a pass over the grid afterwards (which would read the last counter, 8)."""
+    from blocks.loop import _NumpyEngine
+    from blocks.monitor import Monitor
+    with load(fmus["stair"], name="stair") as stair:
+        lag = ct.nlsys(lambda t, x, u, p: [(u[0] - x[0]) / T_LAG], lambda t, x, u, p: x, inputs=["counter"],
+                       outputs=["y"], states=["y"], name="lag")
+        loop = ct.interconnect([stair, lag], inplist=[], outlist=["counter", "y"], check_unused=False)
+        engine = _NumpyEngine(loop, "RK45")
+        grid = np.linspace(0.0, 5.0, 11)
+        states, _ = engine.integrate(np.zeros(1), grid, 1e-10, 1e-12, np.inf, Monitor("loop", None, np.zeros(1)))
+        outputs = engine.outputs_on_grid(grid, states)
+    np.testing.assert_array_equal(outputs[0], np.floor(grid))
+    np.testing.assert_allclose(outputs[1], [lag_response(t) for t in grid], atol=1e-7)
+    assert [e["time"] for e in engine.events.log] == [1.0, 2.0, 3.0, 4.0, 5.0]
+
+
+@pytest.mark.parametrize("scenario, engine, words", [
+    ("paper", "python-control", "engine 'python-control' cannot run block"),
+    ("paper-digital", "auto", "engine 'sampled' cannot run block"),
+])
+def test_blocks_simulate_refuses_event_blocks_on_engines_that_skip_events(fmus, scenario, engine, words):
+    import blocks
+    with load(fmus["ball"], name="ball") as ball:
+        with pytest.raises(ValueError, match=words + r"\(s\) 'ball': they have events"):
+            blocks.simulate(scenario, plant=ball, engine=engine)
