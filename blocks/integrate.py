@@ -33,7 +33,7 @@ import numpy as np
 import scipy.integrate
 import scipy.optimize
 
-__all__ = ["SOLVERS", "integrate_on_grid", "DivergenceError", "SolverFailure", "SimulationTerminated",
+__all__ = ["SOLVERS", "integrate_on_grid", "DivergenceError", "SolverFailure", "SimulationTerminated", "MAX_EVENTS",
            "EventSource", "LoopEvents", "loop_events", "hybrid_blocks", "refuse_hybrid", "locate_crossing"]
 
 #: The :func:`scipy.integrate.solve_ivp` methods, by name.

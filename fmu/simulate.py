@@ -36,7 +36,7 @@ import numpy as np
 from scipy.integrate import BDF, DOP853, LSODA, RK45, Radau
 
 from blocks.budget import Budget
-from blocks.integrate import locate_crossing
+from blocks.integrate import MAX_EVENTS, locate_crossing
 from blocks.monitor import Monitor
 
 from .archive import ExtractionLimits
@@ -48,7 +48,6 @@ from .instance import FMUInstance
 __all__ = ["simulate_fmu", "SOLVERS"]
 
 SOLVERS = {"DOP853": DOP853, "RK45": RK45, "LSODA": LSODA, "BDF": BDF, "Radau": Radau}
-_MAX_EVENTS = 100_000
 _NUMERIC_OUTPUTS = ("Real", "Float64", "Float32", "Integer", "Enumeration", "Boolean", "Int8", "UInt8", "Int16",
                     "UInt16", "Int32", "UInt32", "Int64", "UInt64")
 
@@ -327,8 +326,8 @@ def simulate_fmu(path, t_final: float, output_step: float, inputs: dict | None =
             model.at(t, x)
             changed, stop_now = event_iteration(inst)
             events.append({"time": float(t), "kind": event_kind})
-            if len(events) > _MAX_EVENTS:
-                raise FMUError(f"{inst.source}: more than {_MAX_EVENTS} events by t = {t:.9g} s (chattering or a "
+            if len(events) > MAX_EVENTS:
+                raise FMUError(f"{inst.source}: more than {MAX_EVENTS} events by t = {t:.9g} s (chattering or a "
                                "Zeno trajectory)")
             if changed and x.size:
                 x = inst.get_states()
