@@ -68,13 +68,15 @@ class SimulationTerminated(SolverFailure):
     """A block asked to end the simulation at :attr:`time` (s) (FMI ``terminateSimulation``).
 
     :attr:`states` holds the grid's states up to and including :attr:`time`
-    (``states[:, :done]``, the rest unset), :attr:`done` how many points.
+    (``states[:, :done]``, the rest unset), :attr:`done` how many points,
+    :attr:`state` the state at :attr:`time`.
     """
 
-    def __init__(self, time: float, reason: str, states: np.ndarray, done: int) -> None:
+    def __init__(self, time: float, reason: str, states: np.ndarray, done: int, state: np.ndarray) -> None:
         super().__init__(time, reason)
         self.states = states
         self.done = done
+        self.state = state
 
 
 def integrate_on_grid(fun: Callable[[float, np.ndarray], np.ndarray], x0, t_grid, method: str = "RK45",
@@ -464,7 +466,7 @@ def _integrate_with_events(fun, x0, t_grid, method, options, bound, progress, mo
             keep(t, lambda s: x, inclusive=True)
             events.terminated = t
             raise SimulationTerminated(t, f"block '{stopper}' asked to end the simulation (terminateSimulation) at "
-                                          f"t = {t:.9g} s", states, done)
+                                          f"t = {t:.9g} s", states, done, x)
     keep(t_end, lambda s: x, inclusive=True)
     if done != t_grid.size:
         raise SolverFailure(t, "the output grid was not reached")
