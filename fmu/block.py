@@ -40,7 +40,7 @@ import numpy as np
 from blocks.contract import Block, BlockContract
 
 from .archive import ExtractionLimits, open_extracted
-from .description import described, real_variables, require_variables, state_variables, unsupported_features
+from .description import described, interface, real_variables, require_variables, state_variables, unsupported_features
 from .errors import FMUError, FMUModelDescriptionError, FMUUnsupportedError
 from .events import FMUEventSource, has_events
 from .instance import FMUInstance
@@ -194,7 +194,9 @@ def load(path, name: str = "plant", start_values: dict | None = None, start_time
     """
     extracted, owned = open_extracted(path, limits=limits, parent=extract_to)
     try:
-        unsupported = unsupported_features(described(extracted), "ModelExchange", state_events=True)
+        md = described(extracted)
+        interface(md, "ModelExchange", extracted.source)        # no Model Exchange: say what it offers, first
+        unsupported = unsupported_features(md, "ModelExchange", state_events=True)
         if unsupported:
             raise FMUUnsupportedError(f"{extracted.source}: uses FMI features that dobkit does not support as "
                                       "ModelExchange: " + "; ".join(unsupported))
