@@ -155,7 +155,8 @@ def load(path, name: str = "plant", start_values: dict | None = None, start_time
     re-initialises and ``terminateSimulation`` are handled by the numpy
     engine (:mod:`fmu.events`: ``blocks.simulate(..., engine="fast")``,
     :func:`fmu.simulate_loop`); the other engines refuse a loop with such a
-    block.  Start values of every type can be set (FMI 3 enumerations as
+    block.  A block with events runs once, from ``start_time``: its discrete
+    states move on with the run, so load it again for another run.  Start values of every type can be set (FMI 3 enumerations as
     Int64), checked against the range of their type first
     (:mod:`fmu.start_values`).  Refused at load, with the feature named
     (:func:`fmu.simulate_fmu` runs the first two on its own):

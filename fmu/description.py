@@ -295,9 +295,9 @@ def unsupported_features(model_description, kind: str, events: bool = False,
                          state_events: bool = False) -> list[str]:
     """What an FMU uses that dobkit's importer does not handle (empty: supported).
 
-    With ``events=False`` (the default: :func:`fmu.load` blocks and the
-    co-simulation master) dobkit couples FMUs through scalar real signals in
-    continuous time.  It does not handle, and so refuses rather than
+    With ``events=False`` (the default: the co-simulation master; :func:`fmu.load`
+    blocks with ``state_events=True``) dobkit couples FMUs through scalar real
+    signals in continuous time.  It does not handle, and so refuses rather than
     silently ignores:
 
     * for Model Exchange: state events (``numberOfEventIndicators`` > 0 in
