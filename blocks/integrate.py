@@ -10,6 +10,19 @@ that step's dense output.  Like a solver event, the check sees the state at
 the ends of steps.  ``solve_ivp`` needs a terminal event function for
 that, and its event handling costs about 40 microseconds per step: 5 % of the
 paper scenario's fast run, for a check that costs 2 microseconds here.
+
+Hybrid blocks (an FMU with event indicators or time events, :mod:`fmu.events`)
+carry an ``event_source`` (:class:`EventSource`); :func:`loop_events` gathers
+those of an interconnection, and ``integrate_on_grid(..., events=...)`` then
+stops at their events: after every accepted step the event indicators are
+evaluated at its end; where one changed sign the first crossing is located by
+bisection on the step's dense output until the bracket is shorter than
+``event_tolerance`` (:func:`locate_crossing`); the solver never steps past an
+announced time event; there the blocks' event updates run, states they
+re-initialise are taken over, and a new solver starts from the state after the
+event.  A block that asks to end the simulation stops the run with
+:class:`SimulationTerminated`, carrying the grid filled so far.  Without
+``events`` nothing of this runs: the loop is the one above, step for step.
 """
 from __future__ import annotations
 
@@ -20,7 +33,8 @@ import numpy as np
 import scipy.integrate
 import scipy.optimize
 
-__all__ = ["SOLVERS", "integrate_on_grid", "DivergenceError", "SolverFailure"]
+__all__ = ["SOLVERS", "integrate_on_grid", "DivergenceError", "SolverFailure", "SimulationTerminated", "MAX_EVENTS",
+           "EventSource", "LoopEvents", "loop_events", "hybrid_blocks", "refuse_hybrid", "locate_crossing"]
 
 #: The :func:`scipy.integrate.solve_ivp` methods, by name.
 SOLVERS = {name: getattr(scipy.integrate, name) for name in ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA")}
@@ -50,10 +64,26 @@ class SolverFailure(RuntimeError):
         self.reason = reason
 
 
+class SimulationTerminated(SolverFailure):
+    """A block asked to end the simulation at :attr:`time` (s) (FMI ``terminateSimulation``).
+
+    :attr:`states` holds the grid's states up to and including :attr:`time`
+    (``states[:, :done]``, the rest unset), :attr:`done` how many points,
+    :attr:`state` the state at :attr:`time`.
+    """
+
+    def __init__(self, time: float, reason: str, states: np.ndarray, done: int, state: np.ndarray) -> None:
+        super().__init__(time, reason)
+        self.states = states
+        self.done = done
+        self.state = state
+
+
 def integrate_on_grid(fun: Callable[[float, np.ndarray], np.ndarray], x0, t_grid, method: str = "RK45",
                       rtol: float = 1e-6, atol: float = 1e-8, max_step: float = np.inf, bound: float = np.inf,
                       progress: Callable[[float], None] | None = None,
-                      first_step: float | None = None, monitor=None) -> tuple[np.ndarray, int]:
+                      first_step: float | None = None, monitor=None, events: LoopEvents | None = None,
+                      event_tolerance: float = 1e-12) -> tuple[np.ndarray, int]:
     """States of ``x' = fun(t, x)`` at the times of ``t_grid``, integrated from ``x0`` at ``t_grid[0]``.
 
     Parameters
@@ -79,6 +109,11 @@ def integrate_on_grid(fun: Callable[[float, np.ndarray], np.ndarray], x0, t_grid
         The job's Monitor: after every step it judges the step budget (raising
         :class:`~blocks.monitor.SimulationError`) and the wall time (raising
         :class:`~blocks.budget.BudgetError`), and takes the progress reports.
+    events : LoopEvents, optional
+        The loop's hybrid blocks (:func:`loop_events`): the run stops at their
+        state and time events and lets them update (see the module docstring).
+    event_tolerance : float
+        With ``events``: length (s) below which a state event's bracket is accepted.
 
     Returns
     -------
@@ -89,6 +124,8 @@ def integrate_on_grid(fun: Callable[[float, np.ndarray], np.ndarray], x0, t_grid
     Raises
     ------
     DivergenceError, SolverFailure
+    SimulationTerminated
+        With ``events``, when a block asks to end the simulation.
     """
     t_grid = np.asarray(t_grid, dtype=float)
     if method not in SOLVERS:
@@ -101,6 +138,10 @@ def integrate_on_grid(fun: Callable[[float, np.ndarray], np.ndarray], x0, t_grid
     if not np.all(np.isfinite(x0)) or not np.all(np.abs(x0) <= bound):
         raise DivergenceError(t0, bound, x0)
     options = {} if first_step is None else {"first_step": min(first_step, t_end - t0, max_step)}
+    if events is not None:
+        return _integrate_with_events(fun, x0, t_grid, method, dict(rtol=rtol, atol=atol, max_step=max_step,
+                                                                    **options), bound, progress, monitor, events,
+                                      float(event_tolerance))
     solver = SOLVERS[method](fun, t0, x0, t_end, vectorized=False, rtol=rtol, atol=atol,
                              max_step=max_step, **options)
     states = np.empty((solver.n, t_grid.size))
@@ -150,3 +191,283 @@ def _crossing_time(solver, bound: float) -> float:
         return t_new
     k = int(np.argmin(inside))
     return float(scipy.optimize.brentq(margin, samples[k - 1], samples[k], xtol=1e-12 * max(1.0, abs(t_new))))
+
+
+# -- hybrid blocks: state and time events -------------------------------------------------------------------
+
+#: More events than this in one run is taken as chattering (a Zeno trajectory).
+MAX_EVENTS = 100_000
+
+
+class EventSource:
+    """What a hybrid block offers the integrator (the interface; :class:`fmu.events.FMUEventSource` implements it).
+
+    Every method is called right after the loop's right-hand side was
+    evaluated at the time and state concerned, so the block's inputs are set;
+    ``x`` is the block's own slice of the loop state.
+
+    Attributes
+    ----------
+    name : str
+        The block's name, for messages.
+    n_indicators : int
+        Number of event indicators (a state event is a change of sign of one).
+    next_event_time : float or None
+        The time event the block has announced (s), if any.
+    """
+
+    name = "block"
+    n_indicators = 0
+    next_event_time: float | None = None
+
+    def begin(self, t: float) -> None:
+        """A run starts at ``t`` (s): raise if the block cannot start one there (e.g. it has run already)."""
+
+    def indicators(self, t: float, x: np.ndarray) -> np.ndarray:
+        """The event indicators at time ``t`` (s) and block state ``x``."""
+        raise NotImplementedError
+
+    def completed_step(self, t: float, x: np.ndarray) -> tuple[bool, bool]:
+        """An integrator step ended at ``t``: ``(does the block want an event now?, does it ask to stop?)``."""
+        return False, False
+
+    def update(self, t: float, x: np.ndarray) -> tuple[np.ndarray | None, bool]:
+        """The block's event update at ``t``: ``(its re-initialised state or None, does it ask to stop?)``."""
+        raise NotImplementedError
+
+
+class LoopEvents:
+    """The hybrid blocks of an interconnection, seen as one: concatenated indicators, the earliest time event.
+
+    Parameters
+    ----------
+    sources : list of (EventSource, slice)
+        Each hybrid block with its slice of the loop state.
+    rhs : callable
+        The loop's right-hand side ``rhs(t, x)``: evaluated before asking the
+        blocks, so that their inputs are those of ``(t, x)``.
+    output : callable, optional
+        ``output(t, x) -> y``, the loop's outputs; with it :meth:`record`
+        keeps them at the grid points as the run passes them (the blocks'
+        discrete states are then those of that time, which a pass over the
+        grid after the run would not see).
+
+    Attributes
+    ----------
+    log : list of dict
+        The events so far: ``{"time": s, "kind": "state" | "time" | "step"}``.
+    terminated : float or None
+        When a block asked to end the simulation (s).
+    outputs : list of numpy.ndarray
+        The outputs recorded by :meth:`record`.
+    """
+
+    def __init__(self, sources: list, rhs: Callable, output: Callable | None = None) -> None:
+        self.sources = list(sources)
+        self.rhs, self.output = rhs, output
+        self.n_indicators = sum(src.n_indicators for src, _ in self.sources)
+        self.log: list[dict] = []
+        self.terminated: float | None = None
+        self.outputs: list[np.ndarray] = []
+
+    @property
+    def names(self) -> str:
+        """The hybrid blocks' names, quoted, for messages."""
+        return ", ".join(f"'{src.name}'" for src, _ in self.sources)
+
+    def begin(self, t: float) -> None:
+        """Tell every block that a run starts at ``t`` (s)."""
+        for src, _ in self.sources:
+            src.begin(t)
+
+    def next_time(self) -> float | None:
+        """The earliest announced time event (s), or None."""
+        times = [src.next_event_time for src, _ in self.sources if src.next_event_time is not None]
+        return min(times) if times else None
+
+    def indicators(self, t: float, x: np.ndarray) -> np.ndarray:
+        """All blocks' event indicators at ``(t, x)`` (loop state)."""
+        self.rhs(t, x)
+        parts = [src.indicators(t, x[part]) for src, part in self.sources if src.n_indicators]
+        return np.concatenate(parts) if parts else np.zeros(0)
+
+    def completed_step(self, t: float, x: np.ndarray) -> tuple[bool, str | None]:
+        """``(does a block want an event at t?, the name of a block asking to stop, or None)``."""
+        self.rhs(t, x)
+        wanted = False
+        for src, part in self.sources:
+            step_event, stop = src.completed_step(t, x[part])
+            if stop:
+                return wanted, src.name
+            wanted = wanted or step_event
+        return wanted, None
+
+    def update(self, t: float, x: np.ndarray, kind: str) -> tuple[np.ndarray, str | None]:
+        """Every block's event update at ``(t, x)``: the state after the event, and who asked to stop (or None)."""
+        self.log.append({"time": float(t), "kind": kind})
+        if len(self.log) > MAX_EVENTS:
+            raise SolverFailure(t, f"more than {MAX_EVENTS} events of {self.names} (chattering or a Zeno "
+                                   "trajectory)")
+        x = np.array(x, dtype=float)
+        self.rhs(t, x)
+        for src, part in self.sources:
+            new, stop = src.update(t, x[part])
+            if new is not None:
+                x[part] = new
+            if stop:
+                return x, src.name
+        return x, None
+
+    def record(self, t: float, x: np.ndarray) -> None:
+        """Keep the loop's outputs at grid time ``t`` (when made with ``output``)."""
+        if self.output is not None:
+            self.outputs.append(np.array(self.output(t, x), dtype=float))
+
+
+def loop_events(system, rhs: Callable, output: Callable | None = None) -> LoopEvents | None:
+    """The :class:`LoopEvents` of an interconnection's hybrid blocks (``event_source`` set), or None if none has one.
+
+    Parameters
+    ----------
+    system : control.InterconnectedSystem or control.NonlinearIOSystem
+        The loop (nested interconnections are searched too).
+    rhs, output : callable
+        As for :class:`LoopEvents`.
+    """
+    sources = list(_event_sources(system, 0))
+    return LoopEvents(sources, rhs, output) if sources else None
+
+
+def hybrid_blocks(system) -> list[str]:
+    """Names of an interconnection's blocks with events (an ``event_source``)."""
+    return [src.name for src, _ in _event_sources(system, 0)]
+
+
+def refuse_hybrid(system, engine: str) -> None:
+    """Raise ``ValueError`` naming the blocks with events when ``engine`` (which cannot stop at events) would run them.
+
+    Parameters
+    ----------
+    system : control.InterconnectedSystem
+    engine : str
+        The engine's name, for the message.
+    """
+    names = hybrid_blocks(system)
+    if names:
+        raise ValueError(f"engine {engine!r} cannot run block(s) {', '.join(repr(n) for n in names)}: they have "
+                         "events (an FMU's event indicators or time events), which only the numpy engine (engine="
+                         "'fast', fmu.simulate_loop) stops at")
+
+
+def _event_sources(system, offset: int):
+    source = getattr(system, "event_source", None)
+    if source is not None:
+        yield source, slice(offset, offset + system.nstates)
+    for block, first in zip(getattr(system, "syslist", ()), getattr(system, "state_offset", ())):
+        yield from _event_sources(block, offset + first)
+
+
+def locate_crossing(indicators_at: Callable[[float], np.ndarray], t0: float, t1: float, above: np.ndarray,
+                    tol: float) -> float:
+    """The right end of a bracket shorter than ``tol`` (s) of the first sign change of any indicator in ``(t0, t1]``.
+
+    ``above`` says which indicators were > 0 at ``t0``; at the returned time
+    at least one has crossed (``z > 0`` became ``z <= 0`` or the other way).
+    """
+    a, b = t0, t1
+    while b - a > tol:
+        mid = 0.5 * (a + b)
+        if mid <= a or mid >= b:    # the bracket is down to adjacent floats
+            break
+        crossed = np.any((indicators_at(mid) > 0) != above)
+        a, b = (a, mid) if crossed else (mid, b)
+    return b
+
+
+def _before(t_grid_value: float, t: float) -> bool:
+    """Whether a grid time lies before ``t`` (s), a rounding error counting as the same time."""
+    return t_grid_value < t - 1e-13 * max(1.0, abs(t))
+
+
+def _integrate_with_events(fun, x0, t_grid, method, options, bound, progress, monitor, events: LoopEvents,
+                           tol: float) -> tuple[np.ndarray, int]:
+    """:func:`integrate_on_grid` with the hybrid blocks' events; a new solver after each event.
+
+    A grid point at an event's time gets the state (and outputs) after the event.
+    """
+    t0, t_end = float(t_grid[0]), float(t_grid[-1])
+    states = np.empty((x0.size, t_grid.size))
+    t, x = t0, np.array(x0, dtype=float)
+    done, nfev = 0, 0
+    last_report = time.monotonic()
+    events.begin(t0)
+
+    def keep(upto_time: float, state_at, inclusive: bool) -> None:
+        nonlocal done
+        while done < t_grid.size and (t_grid[done] <= upto_time if inclusive else _before(t_grid[done], upto_time)):
+            s = float(t_grid[done])
+            states[:, done] = state_at(s)
+            events.record(s, states[:, done])
+            done += 1
+
+    while True:
+        upcoming = events.next_time()
+        if upcoming is not None and _before(upcoming, t - tol):
+            raise SolverFailure(t, f"block(s) {events.names} announced a time event at t = {upcoming:.9g} s, before "
+                                   f"the current time")
+        stop = t_end if upcoming is None else min(t_end, upcoming)
+        above = events.indicators(t, x) > 0 if events.n_indicators else np.zeros(0, dtype=bool)
+        kind, stopper = None, None
+        if stop > t:
+            solver = SOLVERS[method](fun, t, x, stop, vectorized=False, **options)
+            while solver.status == "running":
+                message = solver.step()
+                if solver.status == "failed":
+                    raise SolverFailure(float(solver.t), str(message))
+                if not np.all(np.abs(solver.y) <= bound):
+                    t_cross = _crossing_time(solver, bound)
+                    raise DivergenceError(t_cross, bound, solver.dense_output()(t_cross)
+                                          if np.all(np.isfinite(solver.y)) else solver.y.copy())
+                t_new, dense = float(solver.t), solver.dense_output()
+                if above.size and np.any((events.indicators(t_new, solver.y) > 0) != above):
+                    t_new = locate_crossing(lambda s: events.indicators(s, dense(s)), float(solver.t_old), t_new,
+                                            above, tol)
+                    kind = "state"
+                # a grid point at an event's time is kept after the event
+                keep(t_new, dense, inclusive=kind is None and (upcoming is None or _before(t_new, upcoming)))
+                t, x = t_new, (solver.y.copy() if kind is None else dense(t_new))
+                if monitor is not None:
+                    monitor.check_evaluations(t, nfev + solver.nfev)
+                    monitor.check_time(t)
+                    monitor.report(t)
+                if progress is not None and time.monotonic() - last_report > 0.2:
+                    last_report = time.monotonic()
+                    progress(min(1.0, (t - t0) / (t_end - t0)))
+                if kind is None:
+                    step_event, stopper = events.completed_step(t, x)
+                    if stopper is not None:
+                        break
+                    if step_event:
+                        kind = "step"
+                if kind is not None:
+                    break
+            nfev += solver.nfev
+        if stopper is None and kind is None and upcoming is not None and not _before(t, upcoming):
+            kind = "time"
+        if stopper is None and kind is None:     # t_end reached
+            break
+        if stopper is None:
+            x, stopper = events.update(t, x, kind)
+            again = events.next_time()
+            if stopper is None and again is not None and not _before(t, again):
+                raise SolverFailure(t, f"block(s) {events.names} announced a time event at t = {again:.9g} s after "
+                                       f"their event at t = {t:.9g} s: a time event must lie after the current time")
+        if stopper is not None:
+            keep(t, lambda s: x, inclusive=True)
+            events.terminated = t
+            raise SimulationTerminated(t, f"block '{stopper}' asked to end the simulation (terminateSimulation) at "
+                                          f"t = {t:.9g} s", states, done, x)
+    keep(t_end, lambda s: x, inclusive=True)
+    if done != t_grid.size:
+        raise SolverFailure(t, "the output grid was not reached")
+    return states, nfev

@@ -40,7 +40,7 @@ from .budget import Budget
 from .derived import loop_response
 from .divergence import state_bounds
 from .fastsim import CompiledLoop
-from .integrate import DivergenceError, SolverFailure, integrate_on_grid
+from .integrate import DivergenceError, SolverFailure, integrate_on_grid, loop_events, refuse_hybrid
 from .kernels import arm_constants
 from .kernels import lumped_disturbance as lumped_disturbance_rows
 from .monitor import Monitor, SimulationError
@@ -272,6 +272,8 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
     if not isinstance(observer, bool):
         raise TypeError(f"observer must be True or False, got {observer!r}")
     callable_or_none(progress, "progress")
+    if plant is not None and (s.controller is not None or engine == "python-control"):
+        refuse_hybrid(plant, "python-control" if s.controller is None else "sampled")    # it would skip events
     if s.controller is not None:            # the digital controller: a sampled-data loop
         from .digital_loop import simulate_sampled
         return simulate_sampled(s, observer=observer, plant=plant, progress=progress, engine=engine)
@@ -381,12 +383,16 @@ class _NumpyEngine:
 
     def __init__(self, loop, method: str) -> None:
         self.compiled, self.method = CompiledLoop(loop), method
+        # blocks with events (FMUs): the run stops at them and keeps the outputs as it passes the grid
+        self.events = loop_events(loop, self.compiled.rhs, self.compiled.output)
 
     def integrate(self, x0, t_grid, rtol, atol, max_step, monitor: Monitor):
         return integrate_on_grid(self.compiled.point_rhs, x0, t_grid, self.method, rtol=rtol, atol=atol,
-                                 max_step=max_step, bound=monitor.limits, monitor=monitor)
+                                 max_step=max_step, bound=monitor.limits, monitor=monitor, events=self.events)
 
     def outputs_on_grid(self, t_grid, X):
+        if self.events is not None:
+            return np.array(self.events.outputs).T
         return self.compiled.outputs_on_grid(t_grid, X)
 
 

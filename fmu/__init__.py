@@ -13,6 +13,7 @@
     report = fmu.check_fmu(path)                             # validate, load, run; plant vs Python plant
     study = fmu.cosim_convergence(path, "paper")             # co-simulation error vs h, fitted order
     resp = fmu.simulate_fmu("BouncingBall.fmu", 2.0, 0.01)   # any ME FMU alone: state/time events, FMI 3 arrays
+    resp = fmu.simulate_loop(loop_with_event_fmus, t_grid)   # FMU blocks with events in a loop (numpy engine)
 
 Bad FMUs raise a subclass of :class:`FMUError` (a ``ValueError``) naming what
 is wrong; archives are checked before anything is extracted, into a private
@@ -26,7 +27,8 @@ description checks, supported subset), ``logger`` (FMU log messages to the
 right instance), ``instance`` (one native instance), ``block`` (``load``: ME FMU as a
 block), ``coupling`` (what crosses between the sides within a step),
 ``master`` (fixed-step co-simulation), ``simulate`` (a Model Exchange FMU
-on its own, with events and arrays), ``start_values`` (start values checked by type),
+on its own, with events and arrays), ``events`` (the event iteration; FMU blocks
+with events in a loop of the numpy engine, ``simulate_loop``), ``start_values`` (start values checked by type),
 ``scenario_values`` (scenario -> FMU start values), ``cosim`` (a
 scenario against a plant FMU), ``convergence`` (co-simulation error versus
 step size), ``check`` and ``plant_check``,
@@ -54,6 +56,7 @@ _WHERE = {
     "instance": ("FMUInstance",),
     "master": ("cosimulate_system",),
     "simulate": ("simulate_fmu",),
+    "events": ("simulate_loop",),
 }
 __getattr__, __dir__ = lazy_exports(__name__, _WHERE, globals())
 
@@ -64,4 +67,5 @@ __all__ = [
     "MODEL_IDENTIFIER", "FMUError", "FMUArchiveError", "FMUModelDescriptionError", "FMUVersionError",
     "FMUUnsupportedError", "FMUPlatformError", "FMUMissingVariablesError", "FMUInstantiationError", "FMUStepError",
     "FMUBuildError", "CoSimulationError", "Budget", "BudgetError", "simulate_fmu", "FMUStartValueError",
+    "simulate_loop",
 ]

@@ -19,6 +19,11 @@ in its place; an FMU whose equations divide by an input (a mass, a length)
 would return an error status if that input were set to zero, although no
 output needs it.  Those inputs are set only for the state derivatives.
 
+An FMU with event indicators (state events) or a time event announced at
+initialization carries ``event_source`` (:class:`fmu.events.FMUEventSource`):
+the numpy engine stops at its events and runs its event iteration
+(:mod:`fmu.events`); ``event_source`` is None for an FMU without events.
+
 The system is a :class:`blocks.contract.Block`: its contract declares
 exactly those needed inputs as its feedthrough, and ``close()`` (or a
 ``with`` statement) releases the FMU.  An FMU without continuous states
@@ -35,8 +40,9 @@ import numpy as np
 from blocks.contract import Block, BlockContract
 
 from .archive import ExtractionLimits, open_extracted
-from .description import described, real_variables, require_variables, state_variables
-from .errors import FMUModelDescriptionError
+from .description import described, interface, real_variables, require_variables, state_variables, unsupported_features
+from .errors import FMUError, FMUModelDescriptionError, FMUUnsupportedError
+from .events import FMUEventSource, has_events
 from .instance import FMUInstance
 
 __all__ = ["load", "output_feedthrough", "output_dependencies", "FMUBlock"]
@@ -142,24 +148,27 @@ def load(path, name: str = "plant", start_values: dict | None = None, start_time
 
     Notes
     -----
-    Supported subset: Model Exchange FMUs (FMI 2.0 or 3.0) that are
-    continuous-time systems with scalar Real / Float64 inputs and outputs,
-    with or without continuous states (an FMU without states is a static
-    block).  Start values of every type can be set (FMI 3 enumerations as
+    Supported subset: Model Exchange FMUs (FMI 2.0 or 3.0) with scalar
+    Real / Float64 inputs and outputs, with or without continuous states (an
+    FMU without states is a static block), with or without events: state
+    events (event indicators), time events, event iteration, states the FMU
+    re-initialises and ``terminateSimulation`` are handled by the numpy
+    engine (:mod:`fmu.events`: ``blocks.simulate(..., engine="fast")``,
+    :func:`fmu.simulate_loop`); the other engines refuse a loop with such a
+    block.  A block with events runs once, from ``start_time``: its discrete
+    states move on with the run, so load it again for another run.  Start values of every type can be set (FMI 3 enumerations as
     Int64), checked against the range of their type first
     (:mod:`fmu.start_values`).  Refused at load, with the feature named
-    (:func:`fmu.simulate_fmu` runs the first four on its own):
+    (:func:`fmu.simulate_fmu` runs the first two on its own):
 
-    * state events -- ``numberOfEventIndicators`` > 0 (FMI 2) or
-      ``EventIndicator`` elements (FMI 3);
-    * time events -- a next event time announced at initialization;
     * FMI 3 array variables (``Dimension``) among inputs, outputs or states;
     * inputs or outputs of another type (Integer, Boolean, String, Float32, ...);
     * inputs of discrete variability (settable only at events);
     * FMI 3 clocks.
 
-    Not detected, so do not use them: FMUs that need ``completedIntegratorStep``
-    to request step events, or whose discrete variables change in continuous time.
+    Not detected, so do not use them: FMUs without event indicators or time
+    events that need ``completedIntegratorStep`` to request step events, or
+    whose discrete variables change in continuous time.
 
     The FMU's native code runs in this process: loading runs the shared
     library's constructors, and a crashing FMU ends Python -- load an
@@ -186,6 +195,12 @@ def load(path, name: str = "plant", start_values: dict | None = None, start_time
     """
     extracted, owned = open_extracted(path, limits=limits, parent=extract_to)
     try:
+        md = described(extracted)
+        interface(md, "ModelExchange", extracted.source)        # no Model Exchange: say what it offers, first
+        unsupported = unsupported_features(md, "ModelExchange", state_events=True)
+        if unsupported:
+            raise FMUUnsupportedError(f"{extracted.source}: uses FMI features that dobkit does not support as "
+                                      "ModelExchange: " + "; ".join(unsupported))
         start = dict(start_values or {})
         if scenario is not None:
             start = _scenario_start_values(extracted, scenario) | start
@@ -193,9 +208,13 @@ def load(path, name: str = "plant", start_values: dict | None = None, start_time
         if owned:
             extracted.cleanup()
         raise
+    # checked above; events=True keeps a time event announced at initialization
     inst = FMUInstance(extracted, kind="ModelExchange", start_values=start, name=name, start_time=start_time,
-                       adopt=owned)
+                       adopt=owned, check_interface=False, events=True)
     try:
+        if inst.terminate_requested:
+            raise FMUError(f"{inst.source}: the FMU asked to end the simulation (terminateSimulation) during "
+                           f"initialization at t = {start_time:g} s")
         md = inst.model_description
         state_names = [v.name for v in state_variables(md, inst.source)]
         inputs = [v.name for v in real_variables(md, "input")]
@@ -236,6 +255,7 @@ def load(path, name: str = "plant", start_values: dict | None = None, start_time
     sys = FMUBlock(update if state_names else None, output, contract=BlockContract(
         feedthrough=frozenset(inputs[j] for j in needed)), **signals)
     sys.initial_state = initial_state
+    sys.event_source = FMUEventSource(inst, name, start_time) if has_events(inst) else None
     sys.fmu = inst
     sys.model_description = md
     return sys

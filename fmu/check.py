@@ -15,8 +15,8 @@ only bad arguments and the budget (a run the caller's limits refuse) raise.
   structured convention, yet common and harmless) are *warnings*; the rest
   are errors.
 * ``model_exchange``: whether the FMU loads as a block with :func:`fmu.load`
-  -- and if not, the named reason ``load`` gives (state events, arrays,
-  non-real signals, ...) -- and a short run with the inputs held at their
+  -- and if not, the named reason ``load`` gives (arrays, non-real signals,
+  ...); a block with events is left to the ``simulate_fmu`` stage -- and a short run with the inputs held at their
   start values (SciPy LSODA): every output must stay finite.
 * ``co_simulation``: whether its Co-Simulation part runs a short simulation
   (the inputs at their start values, 100 recorded points) with finite
@@ -127,6 +127,11 @@ def _model_exchange(extracted, md, t_final: float, budget: Budget, deadline: Mon
         return {"offered": True, "loads": False, "refused": str(err), "passed": False}, None
     part = {"offered": True, "loads": True, "states": block.nstates, "inputs": list(block.input_labels),
             "outputs": list(block.output_labels), "feedthrough": sorted(block.contract.feedthrough)}
+    if block.event_source is not None:   # a hybrid block: its run alone is simulate_fmu's, with the same events
+        block.close()
+        return part | {"events": True, "passed": True, "skipped": "loads as a block with events (the numpy engine "
+                       "stops at them: fmu.simulate_loop, blocks.simulate with engine='fast'); the simulate_fmu "
+                       "stage runs it"}, None
     with block:
         u = _start_inputs(md, list(block.input_labels))
         times = np.linspace(0.0, t_final, _POINTS + 1)

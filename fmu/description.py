@@ -291,12 +291,13 @@ def event_indicator_count(model_description, source: str = "FMU") -> int:
     return sum(math.prod(array_shape(u.variable, source)) for u in (model_description.eventIndicators or []))
 
 
-def unsupported_features(model_description, kind: str, events: bool = False) -> list[str]:
+def unsupported_features(model_description, kind: str, events: bool = False,
+                         state_events: bool = False) -> list[str]:
     """What an FMU uses that dobkit's importer does not handle (empty: supported).
 
-    With ``events=False`` (the default: :func:`fmu.load` blocks and the
-    co-simulation master) dobkit couples FMUs through scalar real signals in
-    continuous time.  It does not handle, and so refuses rather than
+    With ``events=False`` (the default: the co-simulation master; :func:`fmu.load`
+    blocks with ``state_events=True``) dobkit couples FMUs through scalar real
+    signals in continuous time.  It does not handle, and so refuses rather than
     silently ignores:
 
     * for Model Exchange: state events (``numberOfEventIndicators`` > 0 in
@@ -319,6 +320,9 @@ def unsupported_features(model_description, kind: str, events: bool = False) -> 
     kind : {"ModelExchange", "CoSimulation"}
     events : bool
         True for the event-handling simulation of :func:`fmu.simulate_fmu`.
+    state_events : bool
+        True for a block of the numpy engine (:func:`fmu.load`): state events
+        accepted, the rest as with ``events=False``.
 
     Returns
     -------
@@ -333,7 +337,7 @@ def unsupported_features(model_description, kind: str, events: bool = False) -> 
         return ", ".join(listed[:limit]) + (f" and {len(listed) - limit} more" if len(listed) > limit else "")
 
     use = "use fmu.simulate_fmu, which handles them"
-    if kind == "ModelExchange" and not events:
+    if kind == "ModelExchange" and not events and not state_events:
         n_events = int(getattr(md, "numberOfEventIndicators", 0) or 0)
         if n_events > 0 or getattr(md, "eventIndicators", None):
             found.append(f"state events (numberOfEventIndicators = {n_events}): event indicators are not "

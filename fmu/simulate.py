@@ -1,7 +1,10 @@
 """Simulate a Model Exchange FMU on its own, events included: :func:`simulate_fmu`.
 
-The FMU's continuous states are integrated by a SciPy solver (DOP853 by
-default) step by step.  After every accepted step:
+The FMU runs as the one hybrid block of a loop, through the event loop of
+:func:`blocks.integrate.integrate_on_grid` that also runs FMU blocks with
+events in a loop of the numpy engine (:mod:`fmu.events`).  Its continuous
+states are integrated by a SciPy solver (DOP853 by default) step by step.
+After every accepted step:
 
 1. the event indicators are evaluated at the step's end; where one changed
    sign (``z > 0`` before, ``z <= 0`` after, or the other way) the first
@@ -12,9 +15,9 @@ default) step by step.  After every accepted step:
    event announced by the last event iteration (the solver never steps past
    it) or a located state event puts the FMU into Event Mode at that time
    and state, where the event iteration (``fmi2NewDiscreteStates`` /
-   ``fmi3UpdateDiscreteStates``) runs until no discrete state needs an
-   update; states the FMU re-initialised are read back and the solver
-   restarts from them;
+   ``fmi3UpdateDiscreteStates``, :func:`fmu.events.event_iteration`) runs
+   until no discrete state needs an update; states the FMU re-initialised
+   are read back and a new solver starts from them;
 3. ``terminateSimulation`` (from the event iteration or from
    ``completedIntegratorStep``) ends the run at that time: the result stops
    there and says so.
@@ -36,17 +39,18 @@ import numpy as np
 from scipy.integrate import BDF, DOP853, LSODA, RK45, Radau
 
 from blocks.budget import Budget
+from blocks.integrate import DivergenceError, LoopEvents, SimulationTerminated, SolverFailure, integrate_on_grid
 from blocks.monitor import Monitor
 
 from .archive import ExtractionLimits
 from .description import array_shape, element_names, state_variables
 from .errors import BudgetError, FMUError
+from .events import FMUEventSource
 from .instance import FMUInstance
 
 __all__ = ["simulate_fmu", "SOLVERS"]
 
 SOLVERS = {"DOP853": DOP853, "RK45": RK45, "LSODA": LSODA, "BDF": BDF, "Radau": Radau}
-_MAX_EVENTS = 100_000
 _NUMERIC_OUTPUTS = ("Real", "Float64", "Float32", "Integer", "Enumeration", "Boolean", "Int8", "UInt8", "Int16",
                     "UInt16", "Int32", "UInt32", "Int64", "UInt64")
 
@@ -148,22 +152,6 @@ class _Model:
         self.at(t, x)
         return self.inst.derivatives()
 
-    def indicators(self, t: float, x: np.ndarray) -> np.ndarray:
-        self.at(t, x)
-        return self.inst.event_indicators()
-
-
-def _locate(model: _Model, state_at, t0: float, t1: float, above: np.ndarray, tol: float) -> float:
-    """The right end of a bracket shorter than ``tol`` of the first sign change of any indicator in ``(t0, t1]``."""
-    a, b = t0, t1
-    while b - a > tol:
-        mid = 0.5 * (a + b)
-        if mid <= a or mid >= b:    # the bracket is down to adjacent floats
-            break
-        crossed = np.any((model.indicators(mid, state_at(mid)) > 0) != above)
-        a, b = (a, mid) if crossed else (mid, b)
-    return b
-
 
 def simulate_fmu(path, t_final: float, output_step: float, inputs: dict | None = None,
                  start_values: dict | None = None, *, start_time: float = 0.0, method: str = "DOP853",
@@ -263,99 +251,55 @@ def simulate_fmu(path, t_final: float, output_step: float, inputs: dict | None =
                                                                 array_shape(inst.variables[n], inst.source))]
         state_vars = state_variables(inst.model_description, inst.source)
         state_labels = [e for v in state_vars for e in element_names(v, array_shape(v, inst.source))]
-        rec_t, rec_y, rec_x, rec_u = [], [], [], []
-        events: list[dict] = []
+        x0 = inst.get_states() if inst.n_states else np.zeros(0)
 
-        def record(s: float, x: np.ndarray) -> None:
-            model.at(s, x)
-            rec_t.append(s)
-            rec_y.append(inst.read(outputs))
-            rec_x.append(np.array(x))
-            rec_u.append(ins.at(s).copy())
-
-        t = start_time
-        x = inst.get_states() if inst.n_states else np.zeros(0)
-        k = 0                                   # next grid point to record
-        terminated = t if inst.terminate_requested else None
-        while terminated is None:
-            stop = t_final if inst.next_event_time is None else min(t_final, inst.next_event_time)
-            if inst.next_event_time is not None and inst.next_event_time < t - event_tolerance:
-                raise FMUError(f"{inst.source}: the FMU announced a time event at t = {inst.next_event_time:.9g} s, "
-                               f"before the current time t = {t:.9g} s")
-            z = model.indicators(t, x) if inst.n_event_indicators else np.zeros(0)
-            above = z > 0
-            solver = (SOLVERS[method](model.rhs, t, x, stop, rtol=rtol, atol=atol, max_step=max_step)
-                      if x.size and stop > t else None)
-            event_kind = None
-            while True:
-                t_old = t
-                if solver is not None and solver.status == "running":
-                    message = solver.step()
-                    if solver.status == "failed":
-                        raise FMUError(f"{inst.source}: the {method} solver failed at t = {solver.t:.9g} s: {message}")
-                    t_new, dense = solver.t, solver.dense_output()
-                    state_at = dense
-                else:       # no states: march on the grid (the indicators may depend on time and inputs)
-                    t_new = min(stop, t_old + max_step) if stop > t_old else t_old
-                    held = x
-                    state_at = lambda s, held=held: held       # noqa: E731
-                    dense = None
-                if z.size and t_new > t_old:
-                    crossed = (model.indicators(t_new, state_at(t_new)) > 0) != above
-                    if np.any(crossed):
-                        t_new = _locate(model, state_at, t_old, t_new, above, event_tolerance)
-                        event_kind = "state"
-                while k < grid.size and grid[k] < t_new - 1e-13 * max(1.0, abs(t_new)):
-                    record(grid[k], state_at(grid[k]))
-                    k += 1
-                t, x = t_new, np.array(state_at(t_new), dtype=float)
-                if model.evaluations > deadline.max_evaluations:
-                    raise BudgetError(f"simulate_fmu of {inst.source}: {model.evaluations} right-hand-side evaluations "
-                                      f"by t = {t:.6g} s, more than the step budget allows ({budget.steps:,} steps, "
-                                      f"{deadline.max_evaluations:,} evaluations): the FMU is stiff (try "
-                                      "method='BDF') or fast there; shorten the run or raise it with --max-steps or "
-                                      "DOBKIT_MAX_STEPS", key="", limit="steps")
+        def rhs(t, x):
+            dx = model.rhs(t, x)
+            if model.evaluations > deadline.max_evaluations:
+                raise BudgetError(f"simulate_fmu of {inst.source}: {model.evaluations} right-hand-side evaluations "
+                                  f"by t = {t:.6g} s, more than the step budget allows ({budget.steps:,} steps, "
+                                  f"{deadline.max_evaluations:,} evaluations): the FMU is stiff (try "
+                                  "method='BDF') or fast there; shorten the run or raise it with --max-steps or "
+                                  "DOBKIT_MAX_STEPS", key="", limit="steps")
+            if model.evaluations % 200 == 0:
                 deadline.check_time(where=f"t = {t:.6g} s of {t_final:g} s")
-                if event_kind is None:
-                    model.at(t, x)
-                    step_event, stop_now = inst.completed_integrator_step()
-                    if stop_now:
-                        terminated = t
-                        break
-                    if step_event:
-                        event_kind = "step"
-                if event_kind is None and inst.next_event_time is not None and t >= inst.next_event_time - 1e-13 * \
-                        max(1.0, abs(t)):
-                    event_kind = "time"
-                if event_kind is not None or t >= stop:
-                    break
-            if terminated is not None:
-                break
-            if event_kind is None:      # t_final reached
-                break
+            return dx
+
+        def observed(t, x):     # outputs and inputs at a grid point, the FMU's discrete states of that time
             model.at(t, x)
-            inst.enter_event_mode()
-            changed = inst.update_discrete_states()
-            events.append({"time": float(t), "kind": event_kind})
-            if len(events) > _MAX_EVENTS:
-                raise FMUError(f"{inst.source}: more than {_MAX_EVENTS} events by t = {t:.9g} s (chattering or a "
-                               "Zeno trajectory)")
-            if changed and x.size:
-                x = inst.get_states()
-            if inst.terminate_requested:
-                terminated = t
-                break
-            inst.enter_continuous_time_mode()
-        # the points at t (after its events): the end, or up to where the FMU stopped
-        end = t if terminated is not None else t_final
-        while k < grid.size and grid[k] <= end + 1e-13 * max(1.0, abs(end)):
-            record(grid[k], x)
-            k += 1
+            return np.concatenate([inst.read(outputs), ins.at(t)])
+
+        # the FMU as the one hybrid block of a loop: blocks.integrate's event loop, as for FMU blocks in a loop
+        events = LoopEvents([(FMUEventSource(inst, inst.model_identifier, start_time), slice(0, x0.size))],
+                            lambda t, x: model.at(t, x), observed)
+        terminated, end_state = (start_time, x0) if inst.terminate_requested else (None, None)
+        try:
+            if terminated is None:
+                states, _ = integrate_on_grid(rhs, x0, grid, method, rtol=rtol, atol=atol, max_step=max_step,
+                                              events=events, event_tolerance=event_tolerance)
+            else:
+                states = np.zeros((x0.size, 0))
+        except SimulationTerminated as stop:
+            states, terminated, end_state = stop.states[:, :stop.done], stop.time, stop.state
+        except DivergenceError as err:
+            raise FMUError(f"{inst.source}: a state became non-finite at t = {err.time:.9g} s") from None
+        except SolverFailure as err:
+            raise FMUError(f"{inst.source}: the {method} solver stopped at t = {err.time:.9g} s: {err.reason}") \
+                from None
+        rec_t = list(grid[:states.shape[1]])
+        rec_x = list(states.T)
+        rows = list(events.outputs)
+        # the FMU stopped between grid points: its last point is where it stopped
         if terminated is not None and (not rec_t or rec_t[-1] < terminated):
-            record(terminated, x)
+            rec_t.append(terminated)
+            rec_x.append(np.array(end_state))
+            rows.append(observed(terminated, end_state))
+        n_out = len(out_labels)
+        rec_y = [r[:n_out] for r in rows]
+        rec_u = [r[n_out:] for r in rows]
         info = {"fmu": str(inst.path), "fmi_version": inst.fmi_version, "model": inst.model_identifier,
                 "method": f"SciPy {method}, rtol {rtol:g}, atol {atol:g}; state events located to "
-                          f"{event_tolerance:g} s", "events": events,
+                          f"{event_tolerance:g} s", "events": events.log,
                 "terminated": None if terminated is None else float(terminated), "rhs_evaluations": model.evaluations}
     resp = ct.TimeResponseData(np.array(rec_t), np.array(rec_y).T if out_labels else np.zeros((0, len(rec_t))),
                                np.array(rec_x).T if state_labels else None,

@@ -109,9 +109,9 @@ def test_array_start_values_are_set_by_element(reference_fmus):  # noqa: F811
         simulate_fmu(reference_fmus(3, "StateSpace"), 1.0, 0.5, start_values={"n": 2})
 
 
-def test_blocks_still_refuse_events_and_name_simulate_fmu(reference_fmus):  # noqa: F811
-    with pytest.raises(FMUUnsupportedError, match=r"state events .*use fmu\.simulate_fmu"):
-        load(reference_fmus(2, "BouncingBall"))
+def test_blocks_take_events_but_refuse_arrays_naming_simulate_fmu(reference_fmus):  # noqa: F811
+    with load(reference_fmus(2, "BouncingBall")) as ball:
+        assert ball.event_source is not None and ball.event_source.n_indicators == 1
     with pytest.raises(FMUUnsupportedError, match=r"array variables .*use fmu\.simulate_fmu"):
         load(reference_fmus(3, "StateSpace"))
 
