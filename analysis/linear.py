@@ -14,6 +14,11 @@ roots of ``s^2 + Kd_i s + Kp_i`` for every joint (the PD error dynamics) and,
 with the observer, the eigenvalues of ``-Y M^-1(q0)`` (the observer error
 dynamics ``e_d' = -Y M^-1 e_d``).
 
+The joint count, names and units come from the scenario's arm model
+(``scenario.nominal``, a :class:`~blocks.arm.ArmModel`).  For an arm model
+without a scenario, :mod:`analysis.arm_linear` linearizes the same loop from the
+model's own derivatives (it agrees with this module on the paper's arm to 1e-10).
+
 Model mismatch: with the nominal masses and inertias scaled by ``a`` the nominal
 inertia is ``M^ = a M``.  Linearizing by hand then gives the characteristic
 polynomial matrix ``s^2 (s M + Y) + (a s M + Y)(s Kd + Kp)`` with the observer
@@ -29,9 +34,11 @@ import numpy as np
 import scipy.linalg
 from scipy.optimize import brentq, linear_sum_assignment
 
-from blocks import closed_loop, external_disturbance, gravity, inertia
+from blocks import closed_loop, external_disturbance
 from blocks.scenario import Scenario
 
+from .arm_linear import arm_analytic_poles
+from .arm_terms import joint_vector
 from .results import JsonResult
 
 __all__ = [
@@ -68,18 +75,19 @@ def hold_scenario(scenario: Scenario, q0, disturbance: dict | None = None, **sec
     Parameters
     ----------
     scenario : Scenario
-    q0 : array_like, shape (4,)
-        Held configuration (rad, rad, m, rad).
+    q0 : array_like, shape (n,)
+        Held configuration (rad, m).
     disturbance : dict, optional
         Keys of the ``[disturbance]`` table to change (merged, as :meth:`Scenario.replace` does).
     **sections : dict
         Further sections to change (merged), e.g. ``gains={"kp": 90.0}``.
     """
-    q0 = _joint_vector(q0, "q0")
+    q0 = _joint_vector(q0, "q0", scenario)
+    zeros = [0.0] * len(q0)
     changes = {
-        "trajectory": {"kind": "joint_sine", "amplitude": [0.0] * 4, "omega": 1.0, "offset": q0.tolist()},
-        "noise": {"q_std": [0.0] * 4, "dq_std": [0.0] * 4},
-        "initial": {"q": q0.tolist(), "dq": [0.0] * 4, "d_hat": [0.0] * 4},
+        "trajectory": {"kind": "joint_sine", "amplitude": zeros, "omega": 1.0, "offset": q0.tolist()},
+        "noise": {"q_std": zeros, "dq_std": zeros},
+        "initial": {"q": q0.tolist(), "dq": zeros, "d_hat": zeros},
     }
     if disturbance is not None:
         changes["disturbance"] = disturbance
@@ -113,11 +121,9 @@ def scale_nominal_inertia(scenario: Scenario, factor: float) -> Scenario:
     return scenario.replace(nominal_scale={k: float(old[k]) * float(factor) for k in INERTIA_PARAMETERS})
 
 
-def _joint_vector(value, name: str) -> np.ndarray:
-    arr = np.asarray(value, dtype=float)
-    if arr.shape != (4,) or not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be 4 finite numbers (rad, rad, m, rad), got {value!r}")
-    return arr
+def _joint_vector(value, name: str, scenario: Scenario) -> np.ndarray:
+    """``value`` as one finite number per joint of the scenario's arm."""
+    return joint_vector(value, name, scenario.nominal.joints)
 
 
 def _block_slices(system) -> dict:
@@ -156,16 +162,17 @@ def equilibrium(loop, t: float = 0.0, inputs=None) -> np.ndarray:
         failure when it merely stops improving on an already exact root.
     """
     s = loop.scenario
+    n = s.nominal.n
     u0 = np.zeros(loop.ninputs) if inputs is None else np.asarray(inputs, dtype=float)
     q_ref, _, _ = s.trajectory.evaluate(t)
     x = np.zeros(loop.nstates)
     slices = _block_slices(loop)
     plant_labels = [b for b in loop.syslist if b.name == "plant"][0].state_labels
-    for i in range(4):
+    for i in range(n):
         x[slices["plant"].start + plant_labels.index(f"q[{i}]")] = q_ref[i]
     if "observer" in slices:
-        d = external_disturbance(t, q_ref, np.zeros(4), s.disturbance, s.robot) \
-            + gravity(q_ref, s.nominal) - gravity(q_ref, s.robot)
+        d = external_disturbance(t, q_ref, np.zeros(n), s.disturbance, s.robot) \
+            + s.nominal.gravity_forces(q_ref) - s.robot.gravity_forces(q_ref)
         x[slices["observer"]] = d
     xeq, _, result = ct.find_operating_point(loop, x, u0, t=t, return_result=True)
     xeq = np.asarray(xeq, dtype=float)
@@ -351,7 +358,8 @@ def loop_modes(lin: ct.StateSpace, loop) -> list[Mode]:
     slices = _block_slices(loop)
     T = np.eye(A.shape[0])
     if "observer" in slices and slices["observer"].stop > slices["observer"].start:
-        rows = [list(lin.output_labels).index(f"d_hat[{i}]") for i in range(4)]
+        n = slices["observer"].stop - slices["observer"].start       # the observer holds z, one per joint
+        rows = [list(lin.output_labels).index(f"d_hat[{i}]") for i in range(n)]
         T[slices["observer"], :] = np.asarray(lin.C)[rows, :]
     A_t = T @ A @ np.linalg.inv(T)
     poles, left, right = scipy.linalg.eig(A_t, left=True, right=True)
@@ -373,17 +381,13 @@ def analytic_poles(scenario: Scenario, q0, observer: bool = True) -> dict:
     Returns
     -------
     dict
-        ``"plant"``: the 8 roots of ``s^2 + Kd_i s + Kp_i`` (i = 1..4) and, with
-        the observer, ``"observer"``: the 4 eigenvalues of ``-Y M^-1(q0)``
+        ``"plant"``: the ``2 n`` roots of ``s^2 + Kd_i s + Kp_i`` (i = 1..n) and, with
+        the observer, ``"observer"``: the ``n`` eigenvalues of ``-Y M^-1(q0)``
         (nominal inertia), all in rad/s.
     """
-    q0 = _joint_vector(q0, "q0")
-    kp, kd = np.diag(scenario.kp), np.diag(scenario.kd)
-    out = {"plant": np.concatenate([np.roots([1.0, kd[i], kp[i]]) for i in range(4)]).astype(complex)}
-    if observer:
-        M = inertia(q0, scenario.nominal)
-        out["observer"] = np.linalg.eigvals(-scenario.observer_gain @ np.linalg.inv(M)).astype(complex)
-    return out
+    q0 = _joint_vector(q0, "q0", scenario)
+    return arm_analytic_poles(scenario.kp, scenario.kd, scenario.observer_gain, scenario.nominal.inertia(q0),
+                              observer)
 
 
 def match_poles(numeric, analytic) -> tuple[np.ndarray, np.ndarray]:
@@ -415,8 +419,8 @@ def operating_point_analysis(scenario: Scenario, q0, t: float = 0.0, label: str 
     ----------
     scenario : Scenario
         Its gains, models and disturbance are used; its trajectory is replaced by ``q0``.
-    q0 : array_like, shape (4,)
-        Held configuration (rad, rad, m, rad).
+    q0 : array_like, shape (n,)
+        Held configuration (rad, m).
     t : float
         Time (s) at which the disturbance is evaluated.
     label : str
@@ -428,7 +432,8 @@ def operating_point_analysis(scenario: Scenario, q0, t: float = 0.0, label: str 
         Poles and modes (slowest first), where the arm rests, the disturbance
         the held arm feels, and the comparison with the analytic split.
     """
-    q0 = _joint_vector(q0, "q0")
+    q0 = _joint_vector(q0, "q0", scenario)
+    n = len(q0)
     held = hold_scenario(scenario, q0)
     out = {"label": str(label), "q0": q0.tolist(), "t_s": float(t)}
     for observer, key in ((True, "with_dob"), (False, "without_dob")):
@@ -439,7 +444,7 @@ def operating_point_analysis(scenario: Scenario, q0, t: float = 0.0, label: str 
         numeric = np.array([m.pole for m in modes])
         plant_slice = _block_slices(loop)["plant"]
         labels = list(loop.state_labels)[plant_slice]
-        q_eq = [float(x_eq[plant_slice][labels.index(f"plant_q[{i}]")]) for i in range(4)]
+        q_eq = [float(x_eq[plant_slice][labels.index(f"plant_q[{i}]")]) for i in range(n)]
         analytic = analytic_poles(held, q0, observer)
         flat = np.concatenate(list(analytic.values()))
         owner = np.concatenate([[name] * len(v) for name, v in analytic.items()])
@@ -456,7 +461,7 @@ def operating_point_analysis(scenario: Scenario, q0, t: float = 0.0, label: str 
             # at rest the estimate equals the lumped disturbance the held arm feels
             y = np.asarray(loop.output(t, x_eq, np.zeros(loop.ninputs)), dtype=float)
             labels_out = list(loop.output_labels)
-            out["disturbance_at_rest"] = [float(y[labels_out.index(f"d_hat[{i}]")]) for i in range(4)]
+            out["disturbance_at_rest"] = [float(y[labels_out.index(f"d_hat[{i}]")]) for i in range(n)]
         out[f"max_rel_error_{key}"] = float(rel.max())
         out[f"attribution_agrees_{key}"] = bool(all(m.block == owner[order[k]] for k, m in enumerate(modes)))
         out[f"analytic_{key}"] = {name: [complex(p) for p in v] for name, v in analytic.items()}
@@ -604,7 +609,7 @@ def stability_boundaries(scenario: Scenario, q0, observer: bool, low: float = 0.
 def mismatch_analysis(scenario: Scenario, q0, factors, low: float = 0.02, high: float = 50.0,
                       points: int = 25) -> MismatchStudy:
     """The pole sweep over ``factors`` and the boundary search over ``[low, high]``, with and without the observer."""
-    q0 = _joint_vector(q0, "q0")
+    q0 = _joint_vector(q0, "q0", scenario)
     loops = {key: MismatchLoop(sweep=mismatch_sweep(scenario, q0, factors, observer),
                                boundaries=stability_boundaries(scenario, q0, observer, low, high, points=points))
              for observer, key in ((True, "with_dob"), (False, "without_dob"))}
@@ -621,11 +626,11 @@ def mismatch_polynomial(M, Y, kp, kd, factor: float, observer: bool = True) -> n
 
     Parameters
     ----------
-    M : array_like, shape (4, 4)
+    M : array_like, shape (n, n)
         True inertia at the operating point.
-    Y : array_like, shape (4, 4)
+    Y : array_like, shape (n, n)
         Observer gain.
-    kp, kd : array_like, shape (4, 4)
+    kp, kd : array_like, shape (n, n)
         Diagonal PD gains.
     factor : float
         ``a`` in ``M^ = a M``.
