@@ -42,10 +42,46 @@ from blocks.arm import ArmModel
 
 from .arm_terms import FD_STEP, acceleration_jacobians, arm_model, joint_matrix, joint_vector
 
-__all__ = ["ArmLoop", "arm_equilibrium", "arm_linearization", "arm_analytic_poles"]
+__all__ = ["ArmLoop", "ScaledArm", "arm_equilibrium", "arm_linearization", "arm_analytic_poles"]
 
 # Newton on the resting position without observer stops when the residual (N m, N) is this small.
 _REST_TOL = 1e-12
+
+
+class ScaledArm(ArmModel):
+    """An arm with every mass and inertia multiplied by ``factor``: ``M``, ``h`` and ``G`` all scale by it.
+
+    Only the joint-last methods are scaled (what the analyses call); the row
+    kernels and their parameters are the base arm's, so engines must not be given it.
+    """
+
+    def __init__(self, base: ArmModel, factor: float):
+        if not (isinstance(factor, (int, float)) and np.isfinite(factor) and factor > 0):
+            raise ValueError(f"inertia scale factor must be a finite number > 0, got {factor!r}")
+        self.base, self.factor = arm_model(base, "base"), float(factor)
+        self.joints, self.kernels, self.tool_kernels = base.joints, base.kernels, base.tool_kernels
+
+    def kernel_params(self):
+        return self.base.kernel_params()
+
+    def tool_params(self):
+        return self.base.tool_params()
+
+    def inertia(self, q):
+        return self.factor * self.base.inertia(q)
+
+    def bias(self, q, dq):
+        return self.factor * self.base.bias(q, dq)
+
+    def gravity_forces(self, q):
+        return self.factor * self.base.gravity_forces(q)
+
+    def forward_dynamics(self, q, dq, tau):
+        # (a M)^-1 (tau - a h) = M^-1 (tau / a - h)
+        return self.base.forward_dynamics(q, dq, np.asarray(tau, dtype=float) / self.factor)
+
+    def inverse_dynamics(self, q, dq, ddq):
+        return self.factor * self.base.inverse_dynamics(q, dq, ddq)
 
 
 @dataclass(frozen=True, eq=False)

@@ -46,7 +46,7 @@ __all__ = [
     "StabilityBoundary", "BoundaryScan", "BoundarySearch", "MismatchLoop", "MismatchStudy", "hold_scenario",
     "first_seconds", "scale_nominal_inertia", "equilibrium", "linearize_loop", "loop_modes", "analytic_poles",
     "match_poles", "operating_point_analysis", "spectral_abscissa", "mismatch_sweep", "stability_boundaries",
-    "mismatch_analysis", "mismatch_polynomial",
+    "mismatch_analysis", "mismatch_polynomial", "boundary_search", "arm_mismatch_analysis",
 ]
 
 # Scaling all of these by ``a`` scales the inertia matrix M(q) (and gravity) by ``a``.
@@ -587,12 +587,21 @@ def stability_boundaries(scenario: Scenario, q0, observer: bool, low: float = 0.
         ``boundaries`` (each with the side on which the loop is stable), the
         ``range`` searched and the ``scan``.
     """
-    if not (0 < low < high) or points < 2:
-        raise ValueError(f"need 0 < low < high and points >= 2, got low={low}, high={high}, points={points}")
-
     def alpha(a):
         return spectral_abscissa(scale_nominal_inertia(scenario, a), q0, observer, t)[0]
 
+    return boundary_search(alpha, low, high, points, rtol)
+
+
+def boundary_search(alpha, low: float = 0.02, high: float = 50.0, points: int = 25,
+                    rtol: float = 1e-6) -> BoundarySearch:
+    """Where ``alpha(a)`` (a spectral abscissa, rad/s, continuous in ``a``) changes sign over ``[low, high]``.
+
+    The scan and Brent refinement of :func:`stability_boundaries`, for any
+    family of loops (for example :func:`arm_mismatch_analysis`).
+    """
+    if not (0 < low < high) or points < 2:
+        raise ValueError(f"need 0 < low < high and points >= 2, got low={low}, high={high}, points={points}")
     grid = np.geomspace(low, high, points)
     values = [alpha(a) for a in grid]
     boundaries = []
@@ -651,3 +660,30 @@ def mismatch_polynomial(M, Y, kp, kd, factor: float, observer: bool = True) -> n
         C[(deg - 1) * n:, k * n:(k + 1) * n] = -coeffs[k]
     B[(deg - 1) * n:, (deg - 1) * n:] = coeffs[-1]
     return scipy.linalg.eigvals(C, B)
+
+
+def arm_mismatch_analysis(arm, kp, kd, Y, q0, factors, d=None, low: float = 0.02, high: float = 50.0,
+                          points: int = 25) -> MismatchStudy:
+    """:func:`mismatch_analysis` for any arm model: the nominal model is ``arm`` with every mass and inertia
+    scaled by ``a`` (:class:`~analysis.arm_linear.ScaledArm`), the loop linearized by
+    :func:`~analysis.arm_linear.arm_linearization` at ``q0`` under the constant disturbance ``d`` (N m, N).
+    """
+    from .arm_linear import ArmLoop, ScaledArm, arm_linearization
+
+    loop = ArmLoop.make(arm, kp, kd, Y, q0, d)
+
+    def poles(a, observer):
+        lin = arm_linearization(loop.arm, loop.kp, loop.kd, loop.Y, loop.q0, loop.d, ScaledArm(loop.arm, a),
+                                observer)
+        return np.linalg.eigvals(np.asarray(lin.A))
+
+    loops = {}
+    for observer, key in ((True, "with_dob"), (False, "without_dob")):
+        factor_list = [float(a) for a in factors]
+        sweep_poles = [poles(a, observer) for a in factor_list]
+        sweep = MismatchSweep(factors=factor_list,
+                              poles=[[complex(z) for z in p[np.argsort(-p.real)]] for p in sweep_poles],
+                              spectral_abscissa=[float(p.real.max()) for p in sweep_poles])
+        search = boundary_search(lambda a, obs=observer: float(poles(a, obs).real.max()), low, high, points)
+        loops[key] = MismatchLoop(sweep=sweep, boundaries=search)
+    return MismatchStudy(q0=loop.q0.tolist(), **loops)

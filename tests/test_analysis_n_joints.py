@@ -131,6 +131,22 @@ def test_mismatched_inertia_gives_the_hand_derived_cubic():
     assert _match(np.linalg.eigvals(lin.A), np.concatenate([cubic, cubic])) < 1e-7
 
 
+def test_mismatch_study_finds_the_routh_boundary():
+    from analysis.linear import arm_mismatch_analysis
+
+    kp, kd, r = 180.0, 36.0, 2.0
+    flat = PlanarTwoLink(g=0.0)
+    q0 = np.array([0.2, 0.9])
+    study = arm_mismatch_analysis(flat, kp, kd, r * planar_M(q0), q0, [0.5, 1.0, 2.0], d=[0.5, -0.3])
+    # Routh on the cubic: stable iff a^2 kd kp + a r (kp + kd^2) + r (r kd - kp) > 0
+    a_star = max(np.roots([kd * kp, r * (kp + kd ** 2), r * (r * kd - kp)]).real)
+    found = study.with_dob.boundaries.boundaries
+    assert len(found) == 1 and found[0].stable_side == "above"
+    assert found[0].factor == pytest.approx(a_star, rel=1e-6)
+    assert study.without_dob.boundaries.boundaries == []         # s^2 + a kd s + a kp: stable for every a > 0
+    assert all(v < 0 for v in study.with_dob.sweep.spectral_abscissa)
+
+
 def test_the_arm_linearization_equals_the_scenario_loops_on_the_paper_arm():
     """Two linearizations written apart: the chain rule on the model and ct.linearize of the Figure-2 loop."""
     from conftest import make_scenario
