@@ -92,7 +92,7 @@ class SampledPoles(JsonResult):
     ----------
     sample_rate_hz : float
     q0 : list of float
-        Held configuration (rad, rad, m, rad).
+        Held configuration (rad or m per joint; the paper arm: rad, rad, m, rad).
     spectral_radius : float
         ``max |z|``; the loop is stable when it is below 1.
     modes : list of SampledMode

@@ -146,7 +146,7 @@ class SimulationCheck(JsonResult):
     time, error_norm : list of float
         Output times (s) and ``|d - d_hat|`` over all joints (N m and N together: a rate, not a quantity to read).
     error_per_joint : list of list of float or None
-        ``|d_i - d_hat_i|`` per output time and joint (N m, N m, N, N m); None in results written before it was kept.
+        ``|d_i - d_hat_i|`` per output time and joint (N m or N per joint); None in results written before it was kept.
     lyapunov_ratio : list of float or None
         ``V(t) / V(0)``; None when ``V(0) = 0`` (no estimation error at the start).
     beta_run_rad_s : float
@@ -155,7 +155,7 @@ class SimulationCheck(JsonResult):
         First time after which the error stays within ``threshold`` of the largest disturbance; None: not within
         the run.
     rms_disturbance_error : list of float
-        Per joint (N m, N m, N, N m).
+        Per joint (N m or N per joint).
     bound_holds : bool or None
         ``V(t) <= V(0) exp(-2 beta_run t)`` on the output grid; None when ``V(0) = 0``.
     threshold : float
@@ -164,7 +164,7 @@ class SimulationCheck(JsonResult):
     disturbance_kind : str or list of str
         The disturbance models of the run.
     f_r : list of float
-        The run's step amplitudes (N m, N m, N, N m).
+        The run's step amplitudes (N m or N per joint).
     """
 
     Y: list[list[float]]

@@ -276,7 +276,7 @@ class OperatingPoint(JsonResult):
     label : str
         What the configuration is (for example "reference at t = 0").
     q0 : list of float
-        Held configuration (rad, rad, m, rad).
+        Held configuration (rad or m per joint; the paper arm: rad, rad, m, rad).
     t_s : float
         Time (s) at which the disturbance is evaluated.
     poles_with_dob, poles_without_dob : list of complex
@@ -284,9 +284,9 @@ class OperatingPoint(JsonResult):
     modes_with_dob, modes_without_dob : list of ModeResult
         The same poles with damping, owner and analytic partner.
     q_equilibrium_with_dob, q_equilibrium_without_dob : list of float
-        Where the held arm rests (rad, rad, m, rad).
+        Where the held arm rests (rad or m per joint; the paper arm: rad, rad, m, rad).
     disturbance_at_rest : list of float
-        The lumped disturbance the held arm feels (N m, N m, N, N m), read from the observer's estimate at rest.
+        The lumped disturbance the held arm feels (N m or N per joint), read from the observer's estimate at rest.
     max_rel_error_with_dob, max_rel_error_without_dob : float
         Largest relative distance of the linearized poles from the analytic split (meaningful on a perfect model).
     attribution_agrees_with_dob, attribution_agrees_without_dob : bool
@@ -549,7 +549,7 @@ class MismatchLoop(JsonResult):
 
 @dataclass(frozen=True)
 class MismatchStudy(JsonResult):
-    """Robustness to inertia mismatch at ``q0`` (rad, rad, m, rad), with and without the observer."""
+    """Robustness to inertia mismatch at ``q0`` (rad or m per joint), with and without the observer."""
 
     q0: list[float]
     with_dob: MismatchLoop

@@ -121,7 +121,7 @@ class StudyRun(JsonResult):
     joints, tool_mm
         The clean run's metrics (see :class:`RunMetrics`).
     torque_noise_rms : list of float or None
-        Observer study only: RMS torque difference between the noisy and the clean short run (N m, N m, N, N m).
+        Observer study only: RMS torque difference between the noisy and the clean short run (N m or N per joint).
     noisy, clean_short : RunMetrics or None
         Observer study only: metrics of the short runs.
     noise_t_final_s : float or None
@@ -145,7 +145,7 @@ class GainGridStudy(JsonResult):
     """Disturbance-step runs over a grid of scalar ``Kp`` (1/s^2) and ``Kd`` (1/s).
 
     ``runs[i][j]`` is the run with ``kp[i]`` and ``kd[j]``.  The experiment: the
-    arm held at ``q_hold`` (rad, rad, m, rad) under the step ``f_r`` (N m, N m,
+    arm held at ``q_hold`` (rad or m per joint; the paper arm: rad, rad, m, rad) under the step ``f_r`` (N m, N m,
     N, N m) for ``t_final_s``; settling band ``settle_fraction`` of the largest
     deviation, checked over the last ``final_window`` of the run.
     """
