@@ -106,6 +106,36 @@ def test_acceleration_jacobians_equal_the_paper_arms_exact_derivatives():
     np.testing.assert_allclose(m_inv, np.linalg.inv(M), rtol=1e-12)
 
 
+def test_central_difference_partials_of_the_planar_arm_and_the_models_exact_hook():
+    p = PLANAR.p
+    q = np.array([[0.3, 1.1], [-1.0, 2.4]])
+    hs = p["m2"] * p["l1"] * p["lc2"] * np.sin(q[:, 1])
+    exact = np.zeros((2, 2, 2, 2))
+    exact[:, 1] = np.stack([np.stack([-2 * hs, -hs], -1), np.stack([-hs, 0 * hs], -1)], -2)   # d/d elbow
+    np.testing.assert_allclose(arm_terms.inertia_partials(PLANAR, q), exact, rtol=0, atol=1e-10)
+
+    class Exact(PlanarTwoLink):
+        def inertia_partials(self, q):          # the model's own derivative is used when it has one
+            return np.full(np.shape(q)[:-1] + (2, 2, 2), 7.0)
+    assert np.all(arm_terms.inertia_partials(Exact(), q) == 7.0)
+    assert np.all(gain_design.inertia_partials(Exact(), q) == 7.0)
+
+
+def test_defaults_follow_the_joints():
+    from analysis.settings import AnalysisSettings
+    from analysis.studies import DEFAULT_NOISE, default_noise
+    from blocks.joints import JointSpace
+
+    settings = AnalysisSettings()
+    assert settings.workspace_points_for(CYL.joints) == (27, 27, 27)
+    assert settings.min_speed_for(CYL.joints) == (0.5, 0.05, 0.05)
+    assert settings.min_speed_for(RobotParameters().joints) == settings.min_speed
+    assert default_noise(CYL.joints)["q_std"] == [2e-4, 2e-5, 2e-5]
+    assert default_noise(RobotParameters().joints) == DEFAULT_NOISE
+    one_sided = JointSpace(names=("a", "b"), kinds=("revolute", "revolute"), limits=((-1.0, math.inf), (-3.0, 2.0)))
+    assert arm_terms.workspace_ranges(one_sided) == ((-1.0, -1.0 + 2 * math.pi), (-3.0, 2.0))
+
+
 # --- linearized error dynamics -------------------------------------------------------------------------------
 @pytest.mark.parametrize("arm, q0, kp, kd, Y, d", CASES, ids=["planar2", "cylinder3"])
 def test_linearized_poles_are_the_computed_torque_and_observer_poles(arm, q0, kp, kd, Y, d):
