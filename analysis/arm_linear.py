@@ -44,7 +44,8 @@ from .arm_terms import FD_STEP, acceleration_jacobians, arm_model, joint_matrix,
 
 __all__ = ["ArmLoop", "ScaledArm", "arm_equilibrium", "arm_linearization", "arm_analytic_poles"]
 
-# Newton on the resting position without observer stops when the residual (N m, N) is this small.
+# Newton on the resting position without observer stops when the residual (N m, N) is this small, relative to
+# the largest force in it.
 _REST_TOL = 1e-12
 
 
@@ -115,7 +116,8 @@ def arm_equilibrium(loop: ArmLoop, observer: bool = True, max_iter: int = 50) ->
     Raises
     ------
     RuntimeError
-        When Newton's method does not bring the resting residual below 1e-12 (N m, N) in ``max_iter`` steps.
+        When Newton's method does not bring the resting residual below 1e-12 times the largest force in it
+        (N m, N) in ``max_iter`` steps: no resting position near ``q0`` (the arm sags away).
     """
     arm, nom = loop.arm, loop.nominal
     if observer:
@@ -127,13 +129,18 @@ def arm_equilibrium(loop: ArmLoop, observer: bool = True, max_iter: int = 50) ->
 
     q = loop.q0.copy()
     n = arm.n
+    # rounding of the residual's terms: relative to the largest of them
+    scale = 1.0 + np.max(np.abs(loop.d)) + np.max(np.abs(arm.gravity_forces(q))) + np.max(np.abs(nom.gravity_forces(q)))
     for _ in range(max_iter):
         r = residual(q)
-        if np.max(np.abs(r)) <= _REST_TOL * (1.0 + np.max(np.abs(loop.d))):
+        if np.max(np.abs(r)) <= _REST_TOL * scale:
             return q, np.zeros(n)
         E = FD_STEP * np.eye(n)
         jac = np.stack([(residual(q + e) - residual(q - e)) / (2 * FD_STEP) for e in E], axis=-1)
-        q = q - np.linalg.solve(jac, r)
+        step = np.linalg.solve(jac, r)
+        q = q - step
+        if np.max(np.abs(step)) <= 1e-14 * (1.0 + np.max(np.abs(q))) and np.max(np.abs(residual(q))) <= 1e-9 * scale:
+            return q, np.zeros(n)           # converged to rounding
     raise RuntimeError(f"no resting position found without observer near q0 = {loop.q0.tolist()} "
                        f"(residual {np.max(np.abs(residual(q))):.3g} N m after {max_iter} Newton steps)")
 

@@ -662,28 +662,45 @@ def mismatch_polynomial(M, Y, kp, kd, factor: float, observer: bool = True) -> n
     return scipy.linalg.eigvals(C, B)
 
 
+# Spectral abscissa (rad/s) given to a loop without a resting position in the arm-model mismatch study.
+_NO_REST_RATE = 1e6
+
+
 def arm_mismatch_analysis(arm, kp, kd, Y, q0, factors, d=None, low: float = 0.02, high: float = 50.0,
                           points: int = 25) -> MismatchStudy:
     """:func:`mismatch_analysis` for any arm model: the nominal model is ``arm`` with every mass and inertia
     scaled by ``a`` (:class:`~analysis.arm_linear.ScaledArm`), the loop linearized by
     :func:`~analysis.arm_linear.arm_linearization` at ``q0`` under the constant disturbance ``d`` (N m, N).
+
+    Without the observer a factor at which the arm has no resting position near
+    ``q0`` (gravity, mis-scaled, pulls it away) has no poles (an empty list) and
+    counts as unstable with a spectral abscissa of 1e6 rad/s.
     """
     from .arm_linear import ArmLoop, ScaledArm, arm_linearization
 
     loop = ArmLoop.make(arm, kp, kd, Y, q0, d)
 
     def poles(a, observer):
-        lin = arm_linearization(loop.arm, loop.kp, loop.kd, loop.Y, loop.q0, loop.d, ScaledArm(loop.arm, a),
-                                observer)
+        """The loop's poles, or None when the arm has no resting position near q0 (without the observer)."""
+        try:
+            lin = arm_linearization(loop.arm, loop.kp, loop.kd, loop.Y, loop.q0, loop.d, ScaledArm(loop.arm, a),
+                                    observer)
+        except RuntimeError:
+            return None
         return np.linalg.eigvals(np.asarray(lin.A))
+
+    def abscissa(p):
+        # no resting position: counted as unstable (a large finite rate keeps Brent's method working)
+        return _NO_REST_RATE if p is None else float(p.real.max())
 
     loops = {}
     for observer, key in ((True, "with_dob"), (False, "without_dob")):
         factor_list = [float(a) for a in factors]
         sweep_poles = [poles(a, observer) for a in factor_list]
         sweep = MismatchSweep(factors=factor_list,
-                              poles=[[complex(z) for z in p[np.argsort(-p.real)]] for p in sweep_poles],
-                              spectral_abscissa=[float(p.real.max()) for p in sweep_poles])
-        search = boundary_search(lambda a, obs=observer: float(poles(a, obs).real.max()), low, high, points)
+                              poles=[[] if p is None else [complex(z) for z in p[np.argsort(-p.real)]]
+                                     for p in sweep_poles],
+                              spectral_abscissa=[abscissa(p) for p in sweep_poles])
+        search = boundary_search(lambda a, obs=observer: abscissa(poles(a, obs)), low, high, points)
         loops[key] = MismatchLoop(sweep=sweep, boundaries=search)
     return MismatchStudy(q0=loop.q0.tolist(), **loops)
