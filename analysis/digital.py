@@ -40,10 +40,12 @@ import scipy.linalg
 from blocks.digital import DigitalController
 from blocks.digital_loop import sampled_initial_state, sampled_loop, simulate_sampled
 from blocks.digital_stability import sampled_stability
+from blocks.joints import RRPR_JOINTS
 from blocks.loop import closed_loop
 from blocks.metrics import signal
 from blocks.scenario import Scenario
 
+from .arm_terms import workspace_ranges
 from .linear import equilibrium, hold_scenario
 from .results import JsonResult
 
@@ -90,7 +92,7 @@ class SampledPoles(JsonResult):
     ----------
     sample_rate_hz : float
     q0 : list of float
-        Held configuration (rad, rad, m, rad).
+        Held configuration (rad or m per joint; the paper arm: rad, rad, m, rad).
     spectral_radius : float
         ``max |z|``; the loop is stable when it is below 1.
     modes : list of SampledMode
@@ -137,7 +139,7 @@ class GainLimitStudy(JsonResult):
     Attributes
     ----------
     observer_gain : list
-        The scenario's gain ``Y`` (4x4), which the factors multiply.
+        The scenario's gain ``Y`` (n x n), which the factors multiply.
     configurations : list
         The held configurations checked (the factors are the smallest over them).
     curves : list of GainLimitCurve
@@ -155,9 +157,9 @@ class QuantizationNoise(JsonResult):
     Attributes
     ----------
     position_resolution : list of float
-        Quantization step per joint (rad, rad, m, rad).
+        Quantization step per joint (rad or m).
     predicted_rms : list of float
-        RMS torque per joint (N m, N m, N, N m) from the linear model.
+        RMS torque per joint (N m or N) from the linear model.
     simulated_rms : list of float or None
         RMS of the torque difference between runs with and without
         quantization (None when not simulated).
@@ -172,7 +174,7 @@ def _held(scenario: Scenario, q0) -> Scenario:
     """The scenario held at ``q0`` under a constant disturbance (the paper's step), with its controller, for
     linearization: the encoders' quantizer is taken as exact (its small-signal gain is 1; what it adds is the
     quantization error, which :func:`quantization_torque_noise` treats as noise)."""
-    return hold_scenario(scenario, q0).with_changes({"controller.position_resolution": [0.0] * 4})
+    return hold_scenario(scenario, q0).with_changes({"controller.position_resolution": [0.0] * scenario.nominal.n})
 
 
 def _operating_state(held: Scenario, loop) -> np.ndarray:
@@ -209,7 +211,8 @@ def _operating_state(held: Scenario, loop) -> np.ndarray:
 
 def _rows_of(loop, prefix: str) -> list[int]:
     names = [n for block in loop.system.syslist for n in block.output_labels]
-    return [names.index(f"{prefix}[{i}]") for i in range(4)]
+    count = sum(1 for name in names if name.startswith(f"{prefix}["))      # one per joint
+    return [names.index(f"{prefix}[{i}]") for i in range(count)]
 
 
 def _linearized_block(block, x, u, period: float, continuous: bool):
@@ -363,6 +366,19 @@ def sampled_poles(scenario: Scenario, q0=None) -> SampledPoles:
                         spectral_radius=float(max(abs(m.z) for m in modes)), modes=modes)
 
 
+# The joint varied by the gain-limit study's default configurations (theta2 for the paper's arm).
+_MOVED = 1
+
+
+def _moved_values(scenario: Scenario) -> tuple[float, ...]:
+    """Values of joint ``_MOVED`` at which the gain-limit study holds the arm by default (rad or m)."""
+    joints = scenario.nominal.joints
+    if joints == RRPR_JOINTS:
+        return (0.3, 1.57, 2.8)
+    lo, hi = workspace_ranges(joints)[min(_MOVED, joints.count - 1)]
+    return tuple(lo + f * (hi - lo) for f in (0.1, 0.5, 0.9))
+
+
 def observer_gain_limit(scenario: Scenario, rates_hz=DEFAULT_RATES_HZ, configurations=None,
                         discretizations=("euler", "zoh"), delays=(0, 1)) -> GainLimitStudy:
     """The largest stable observer gain ``c Y`` against the sample rate (see the module docstring).
@@ -375,13 +391,15 @@ def observer_gain_limit(scenario: Scenario, rates_hz=DEFAULT_RATES_HZ, configura
     rates_hz : sequence of float
         Sample rates (Hz).  A velocity low-pass whose cut-off is not below
         ``NYQUIST_SHARE`` times a rate is capped there for that rate.
-    configurations : sequence of 4-vectors, optional
-        Held configurations; default the path's start and ``theta2`` = 0.3, 1.57 and 2.8 rad there
-        (``M`` depends on ``theta2`` only).
+    configurations : sequence of n-vectors, optional
+        Held configurations; default the path's start and, there, three values of the
+        second joint (the paper's arm: ``theta2`` = 0.3, 1.57 and 2.8 rad, ``M``
+        depending on ``theta2`` only; other arms: 10%, 50% and 90% of its sampled range).
     """
     q_start = np.asarray(scenario.trajectory.evaluate(0.0)[0], dtype=float)
     if configurations is None:
-        configurations = [q_start] + [np.array([q_start[0], t2, q_start[2], q_start[3]]) for t2 in (0.3, 1.57, 2.8)]
+        configurations = [q_start] + [np.where(np.arange(len(q_start)) == min(_MOVED, len(q_start) - 1), v, q_start)
+                                      for v in _moved_values(scenario)]
     configurations = [np.asarray(q, dtype=float) for q in configurations]
     base = scenario.controller if scenario.controller is not None else DigitalController(sample_rate=1.0)
     curves = []
@@ -524,9 +542,9 @@ def _answer(s: Scenario, scale: float, limit: float, noise: QuantizationNoise | 
     text += "; the scenario's gain is stable." if scale > 1 else "; the scenario's gain is NOT stable at this rate."
     if noise is not None:
         worst = int(np.argmax(np.asarray(noise.predicted_rms) / np.maximum(np.abs(gain), 1e-12)))
-        units = ("N m", "N m", "N", "N m")
+        units = s.nominal.joints.force_units
         values = ", ".join(f"{v:.3g} {u}" for v, u in zip(noise.predicted_rms, units))
-        text += f" Encoder quantization adds torque noise of {values} RMS (joints 1-4, linear prediction"
+        text += f" Encoder quantization adds torque noise of {values} RMS (joints 1-{len(units)}, linear prediction"
         if noise.simulated_rms is not None:
             text += f"; simulated {', '.join(f'{v:.3g}' for v in noise.simulated_rms)}"
         text += f"), most on joint {worst + 1}."

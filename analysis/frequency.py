@@ -8,6 +8,9 @@ error ``e[i] = q_ref[i] - q[i]`` and, with the observer, the estimation error
 lumped disturbance minus its estimate).  The loop is linearized at its
 equilibrium with the arm held at ``q0`` (see :mod:`analysis.linear`).
 
+:func:`arm_frequency_analysis` gives the same responses for any arm model
+(:class:`~blocks.arm.ArmModel`, n joints) from :func:`analysis.arm_linear.arm_linearization`.
+
 Closed forms on a perfect model (docs/model.md, "Frozen-configuration transfer
 functions"), for ``W`` the disturbance:
 
@@ -24,20 +27,23 @@ import control as ct
 import numpy as np
 from scipy.optimize import brentq, minimize_scalar
 
-from blocks import build_blocks, inertia
+from blocks import build_blocks
+from blocks.arm import ArmModel
 from blocks.scenario import Scenario
 
+from .arm_linear import ArmLoop, arm_linearization
 from .linear import equilibrium, hold_scenario, linearize_loop
 from .results import JsonResult
 
 __all__ = ["DEFAULT_OMEGA", "ChannelMetrics", "ResponseSet", "FrequencyAnalysis", "disturbance_loop",
-           "frozen_response", "closed_form", "siso_metrics", "frequency_analysis"]
+           "frozen_response", "closed_form", "closed_form_matrices", "siso_metrics", "frequency_analysis",
+           "arm_frequency_analysis"]
 
 DEFAULT_OMEGA = np.logspace(-2, 3, 501)     # rad/s
 
 
-def _names(prefix: str) -> list[str]:
-    return [f"{prefix}[{i}]" for i in range(4)]
+def _names(prefix: str, n: int) -> list[str]:
+    return [f"{prefix}[{i}]" for i in range(n)]
 
 
 def disturbance_loop(scenario: Scenario, observer: bool = True) -> ct.InterconnectedSystem:
@@ -56,19 +62,20 @@ def disturbance_loop(scenario: Scenario, observer: bool = True) -> ct.Interconne
         Inputs ``w[i]`` (N m, N); outputs ``e[i]`` (rad, m) and, with the
         observer, ``e_d[i]`` (N m, N).
     """
+    n = scenario.nominal.n
     blocks = build_blocks(scenario, observer=observer)
     if "sensor" in blocks:
         raise ValueError(f"scenario '{scenario.name}' has measurement noise; remove it (hold_scenario does) "
                          "before building the frequency-response loop")
-    outlist = [[f"trajectory.q_ref[{i}]", f"-plant.q[{i}]"] for i in range(4)]
-    outputs = _names("e")
+    outlist = [[f"trajectory.q_ref[{i}]", f"-plant.q[{i}]"] for i in range(n)]
+    outputs = _names("e", n)
     if observer:
         # plant.tau - controller.tau is w; plus the plant's own tau_dis gives the disturbance the observer sees
         outlist += [[f"plant.tau_dis[{i}]", f"plant.tau[{i}]", f"-controller.tau[{i}]", f"-observer.d_hat[{i}]"]
-                    for i in range(4)]
-        outputs += _names("e_d")
-    loop = ct.interconnect(list(blocks.values()), inplist=[[f"plant.tau[{i}]"] for i in range(4)],
-                           inputs=_names("w"), outlist=outlist, outputs=outputs,
+                    for i in range(n)]
+        outputs += _names("e_d", n)
+    loop = ct.interconnect(list(blocks.values()), inplist=[[f"plant.tau[{i}]"] for i in range(n)],
+                           inputs=_names("w", n), outlist=outlist, outputs=outputs,
                            name="dob_disturbance_loop" if observer else "ctc_disturbance_loop", check_unused=False)
     loop.scenario = scenario
     loop.with_observer = observer
@@ -83,25 +90,31 @@ def frozen_response(scenario: Scenario, q0, observer: bool = True, t: float = 0.
 
 
 def closed_form(scenario: Scenario, q0, omega, observer: bool = True, output: str = "e") -> np.ndarray:
-    """The closed forms of docs/model.md at ``s = j omega``, shape (len(omega), 4, 4), perfect model.
+    """The closed forms of docs/model.md at ``s = j omega``, shape (len(omega), n, n), perfect model.
 
     Parameters
     ----------
     output : {"e", "e_d"}
         Tracking error (rad/(N m), m/N) or estimation error (dimensionless).
     """
-    M = inertia(np.asarray(q0, dtype=float), scenario.nominal)
-    Kp, Kd, Y = scenario.kp, scenario.kd, scenario.observer_gain
+    M = scenario.nominal.inertia(np.asarray(q0, dtype=float))
+    return closed_form_matrices(M, scenario.kp, scenario.kd, scenario.observer_gain, omega, observer, output)
+
+
+def closed_form_matrices(M, kp, kd, Y, omega, observer: bool = True, output: str = "e") -> np.ndarray:
+    """:func:`closed_form` from the matrices: inertia ``M`` and gains ``kp``, ``kd``, ``Y``, all ``n x n``."""
+    if output not in ("e", "e_d"):
+        raise ValueError(f"output must be 'e' or 'e_d', got {output!r}")
+    M, Kp, Kd, Y = (np.asarray(v, dtype=float) for v in (M, kp, kd, Y))
+    eye = np.eye(M.shape[-1])
     out = []
     for w in np.atleast_1d(np.asarray(omega, dtype=float)):
         s = 1j * w
-        pd_inv = np.linalg.inv(s * s * np.eye(4) + s * Kd + Kp)
+        pd_inv = np.linalg.inv(s * s * eye + s * Kd + Kp)
         if output == "e":
             out.append(-pd_inv @ np.linalg.inv(M) if not observer else -s * pd_inv @ np.linalg.inv(s * M + Y))
-        elif output == "e_d":
-            out.append(s * M @ np.linalg.inv(s * M + Y) if observer else np.eye(4, dtype=complex))
         else:
-            raise ValueError(f"output must be 'e' or 'e_d', got {output!r}")
+            out.append(s * M @ np.linalg.inv(s * M + Y) if observer else eye.astype(complex))
     return np.array(out)
 
 
@@ -144,7 +157,7 @@ class ChannelMetrics(JsonResult):
 
 @dataclass(frozen=True)
 class ResponseSet(JsonResult):
-    """The 4 diagonal channels ``w[i] -> y[i]`` of one response.
+    """The n diagonal channels ``w[i] -> y[i]`` of one response.
 
     Attributes
     ----------
@@ -153,7 +166,7 @@ class ResponseSet(JsonResult):
     metrics : list of ChannelMetrics
         Per joint.
     closed_form_max_rel_error : float
-        Largest relative distance from the closed form over the grid, all 16 channels.
+        Largest relative distance from the closed form over the grid, all n^2 channels.
     """
 
     magnitude: list[list[float]]
@@ -163,7 +176,7 @@ class ResponseSet(JsonResult):
 
 @dataclass(frozen=True)
 class FrequencyAnalysis(JsonResult):
-    """Disturbance responses of the loop held at ``q0`` (rad, rad, m, rad) on the grid ``omega_rad_s`` (rad/s).
+    """Disturbance responses of the loop held at ``q0`` (rad, m) on the grid ``omega_rad_s`` (rad/s).
 
     ``units`` gives the gain units of each joint's ``tracking`` and ``estimation`` channel.
     """
@@ -234,6 +247,30 @@ def siso_metrics(sys: ct.StateSpace, out: int, inp: int, omega=DEFAULT_OMEGA) ->
     return ChannelMetrics(dc_gain=dc, hf_gain=hf, peak_gain=peak, peak_rad_s=peak_w, band_3db_rad_s=band, kind=kind)
 
 
+def _gain_units(joints) -> list[str]:
+    """Tracking-channel units per joint: position per generalised force, e.g. ``rad/(N m)``, ``m/N``."""
+    return [f"{p}/({f})" if " " in f else f"{p}/{f}" for p, f in zip(joints.position_units, joints.force_units)]
+
+
+def _response_sets(responses, exact, joints, omega) -> dict:
+    """The :class:`ResponseSet` of each channel from linearized responses and the closed forms."""
+    n = joints.count
+    out = {"units": {"tracking": _gain_units(joints), "estimation": ["1"] * n}}
+    for observer, key in ((True, "with_dob"), (False, "without_dob")):
+        lin = responses[observer]
+        channels = [("tracking", "e", 0)] + ([("estimation", "e_d", n)] if observer else [])
+        for name, output, offset in channels:
+            full = np.moveaxis(np.asarray(lin(1j * omega))[offset:offset + n, :, :], -1, 0)  # (n_omega, n, n)
+            ref = exact(observer, output)
+            scale = np.maximum(np.abs(ref), np.abs(ref).max(axis=(1, 2), keepdims=True) * 1e-9)
+            out[f"{name}_{key}"] = ResponseSet(
+                magnitude=[np.abs(full[:, i, i]).tolist() for i in range(n)],
+                metrics=[siso_metrics(lin, offset + i, i, omega) for i in range(n)],
+                closed_form_max_rel_error=float(np.max(np.abs(full - ref) / scale)),
+            )
+    return out
+
+
 def frequency_analysis(scenario: Scenario, q0, omega=DEFAULT_OMEGA, t: float = 0.0) -> FrequencyAnalysis:
     """Bode magnitudes and per-joint metrics of ``w[i] -> e[i]`` (with/without) and ``w[i] -> e_d[i]``.
 
@@ -245,19 +282,34 @@ def frequency_analysis(scenario: Scenario, q0, omega=DEFAULT_OMEGA, t: float = 0
     """
     q0 = np.asarray(q0, dtype=float)
     omega = np.asarray(omega, dtype=float)
-    out = {"q0": q0.tolist(), "omega_rad_s": omega.tolist(),
-           "units": {"tracking": ["rad/(N m)", "rad/(N m)", "m/N", "rad/(N m)"], "estimation": ["1"] * 4}}
     held = hold_scenario(scenario, q0)
-    for observer, key in ((True, "with_dob"), (False, "without_dob")):
-        lin = frozen_response(scenario, q0, observer, t)
-        channels = [("tracking", "e", 0)] + ([("estimation", "e_d", 4)] if observer else [])
-        for name, output, offset in channels:
-            full = np.moveaxis(np.asarray(lin(1j * omega))[offset:offset + 4, :, :], -1, 0)  # (n_omega, 4, 4)
-            exact = closed_form(held, q0, omega, observer, output)
-            scale = np.maximum(np.abs(exact), np.abs(exact).max(axis=(1, 2), keepdims=True) * 1e-9)
-            out[f"{name}_{key}"] = ResponseSet(
-                magnitude=[np.abs(full[:, i, i]).tolist() for i in range(4)],
-                metrics=[siso_metrics(lin, offset + i, i, omega) for i in range(4)],
-                closed_form_max_rel_error=float(np.max(np.abs(full - exact) / scale)),
-            )
-    return FrequencyAnalysis(**out)
+    responses = {observer: frozen_response(scenario, q0, observer, t) for observer in (True, False)}
+    sets = _response_sets(responses, lambda observer, output: closed_form(held, q0, omega, observer, output),
+                          scenario.nominal.joints, omega)
+    return FrequencyAnalysis(q0=q0.tolist(), omega_rad_s=omega.tolist(), **sets)
+
+
+def arm_frequency_analysis(arm: ArmModel, kp, kd, Y, q0, omega=DEFAULT_OMEGA, d=None,
+                           nominal: ArmModel | None = None) -> FrequencyAnalysis:
+    """:func:`frequency_analysis` for any arm model, from :func:`~analysis.arm_linear.arm_linearization`.
+
+    Parameters
+    ----------
+    arm, nominal : ArmModel
+        True plant and the model of controller and observer (default: the true one).
+    kp, kd, Y : scalar, n numbers or n x n
+        Controller gains (1/s^2, 1/s) and observer gain (kg m^2/s, kg/s).
+    q0 : array_like, shape (n,)
+        Held configuration (rad, m).
+    d : array_like, shape (n,), optional
+        Constant disturbance (N m, N) at which the loop rests.
+    """
+    loop = ArmLoop.make(arm, kp, kd, Y, q0, d, nominal)
+    omega = np.asarray(omega, dtype=float)
+    responses = {observer: arm_linearization(loop.arm, loop.kp, loop.kd, loop.Y, loop.q0, loop.d, loop.nominal,
+                                             observer) for observer in (True, False)}
+    M = loop.nominal.inertia(loop.q0)
+    sets = _response_sets(
+        responses, lambda observer, output: closed_form_matrices(M, loop.kp, loop.kd, loop.Y, omega, observer, output),
+        loop.arm.joints, omega)
+    return FrequencyAnalysis(q0=loop.q0.tolist(), omega_rad_s=omega.tolist(), **sets)

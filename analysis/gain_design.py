@@ -19,12 +19,14 @@ Certificate
     the smallest generalized eigenvalue of ``((Y + Y')/2 - M'/2, M)``.  ``M'`` is
     linear in the joint velocity, so the smallest eigenvalue is a concave
     function of it and its minimum over a box ``|q_j'| <= v_j`` is attained at a
-    vertex: checking the 16 vertices at each configuration of a grid is exact
-    for that grid.  ``dM/dtheta2`` is the analytic
-    :func:`blocks.dynamics.inertia_derivative_theta2`; the other partials
-    ``dM/dq_j`` come from central differences of the inertia function, so a
-    model whose inertia depended on other joints would still be handled (for
-    this arm they are exactly zero).
+    vertex: checking the ``2^n`` vertices at each configuration of a grid is exact
+    for that grid.  For the paper's arm ``dM/dtheta2`` is the analytic
+    :func:`blocks.dynamics.inertia_derivative_theta2` and the other partials
+    (exactly zero) central differences; any other :class:`~blocks.arm.ArmModel`
+    gives its partials through :func:`analysis.arm_terms.inertia_partials`
+    (exact from the model, or central differences).
+
+Everything takes the joint count from the model (``params.n``).
 """
 from __future__ import annotations
 
@@ -34,10 +36,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from blocks import inertia
+from blocks.arm import ArmModel
 from blocks.dynamics import inertia_derivative_theta2
 from blocks.parameters import RobotParameters
 
+from . import arm_terms
 from .bandwidth import BandwidthOverview, observer_modes
 from .results import JsonResult
 
@@ -45,7 +48,7 @@ __all__ = ["GainDesign", "Certificate", "CriticalSpeed", "SimulationCheck", "Obs
            "inertia_partials", "decay_rates", "convergence_certificate", "critical_speed", "lyapunov_function",
            "confirm_by_simulation"]
 
-_FD_STEP = 1e-6   # m or rad; joints other than theta2 (M does not depend on them for this arm)
+_FD_STEP = 1e-6   # m or rad; the paper arm's joints other than theta2 (M does not depend on them)
 
 
 @dataclass(frozen=True, eq=False)
@@ -54,7 +57,7 @@ class GainDesign:
 
     Attributes
     ----------
-    Y, base, M_ref : numpy.ndarray, shape (4, 4)
+    Y, base, M_ref : numpy.ndarray, shape (n, n)
         The gain, the starting gain and the averaged nominal inertia (kg m^2/s for Y and base; kg m^2, kg for M_ref).
     c_per_s : float
         The factor ``c`` (1/s).
@@ -143,7 +146,7 @@ class SimulationCheck(JsonResult):
     time, error_norm : list of float
         Output times (s) and ``|d - d_hat|`` over all joints (N m and N together: a rate, not a quantity to read).
     error_per_joint : list of list of float or None
-        ``|d_i - d_hat_i|`` per output time and joint (N m, N m, N, N m); None in results written before it was kept.
+        ``|d_i - d_hat_i|`` per output time and joint (N m or N per joint); None in results written before it was kept.
     lyapunov_ratio : list of float or None
         ``V(t) / V(0)``; None when ``V(0) = 0`` (no estimation error at the start).
     beta_run_rad_s : float
@@ -152,7 +155,7 @@ class SimulationCheck(JsonResult):
         First time after which the error stays within ``threshold`` of the largest disturbance; None: not within
         the run.
     rms_disturbance_error : list of float
-        Per joint (N m, N m, N, N m).
+        Per joint (N m or N per joint).
     bound_holds : bool or None
         ``V(t) <= V(0) exp(-2 beta_run t)`` on the output grid; None when ``V(0) = 0``.
     threshold : float
@@ -161,7 +164,7 @@ class SimulationCheck(JsonResult):
     disturbance_kind : str or list of str
         The disturbance models of the run.
     f_r : list of float
-        The run's step amplitudes (N m, N m, N, N m).
+        The run's step amplitudes (N m or N per joint).
     """
 
     Y: list[list[float]]
@@ -222,7 +225,7 @@ class ObserverDesign(JsonResult):
     simulation: dict[str, SimulationCheck]
 
 
-def design_observer_gain(params: RobotParameters, target_rad_s: float, q_grid, base=None,
+def design_observer_gain(params: ArmModel, target_rad_s: float, q_grid, base=None,
                          rtol: float = 1e-10) -> GainDesign:
     """Matrix observer gain whose slowest mode is at least ``target_rad_s`` on every configuration of a grid.
 
@@ -231,17 +234,17 @@ def design_observer_gain(params: RobotParameters, target_rad_s: float, q_grid, b
     symmetric positive semidefinite ``base`` every eigenvalue of ``Y M^-1(q)``
     is at least the corresponding one of ``base M^-1(q)`` (Weyl's inequality on
     ``M^-1/2 Y M^-1/2``): the design only makes the observer faster, in every
-    direction.  Without ``base`` all four modes end up near the target.
+    direction.  Without ``base`` all ``n`` modes end up near the target.
 
     Parameters
     ----------
-    params : RobotParameters
+    params : ArmModel
         The nominal model the observer uses.
     target_rad_s : float
         Required smallest decay rate of the observer error (rad/s), > 0.
-    q_grid : array_like, shape (N, 4)
+    q_grid : array_like, shape (N, n)
         Configurations that must meet the target (see :func:`~analysis.bandwidth.workspace_grid`).
-    base : array_like, shape (4, 4), optional
+    base : array_like, shape (n, n), optional
         Gain to start from (for example the scenario's), symmetric positive semidefinite.
     rtol : float
         Relative tolerance of the bisection on ``c``.
@@ -253,14 +256,17 @@ def design_observer_gain(params: RobotParameters, target_rad_s: float, q_grid, b
     """
     if not (isinstance(target_rad_s, (int, float)) and np.isfinite(target_rad_s) and target_rad_s > 0):
         raise ValueError(f"target observer bandwidth must be a finite number > 0 rad/s, got {target_rad_s!r}")
-    q_grid = np.atleast_2d(np.asarray(q_grid, dtype=float))
-    M_ref = inertia(q_grid, params).mean(axis=0)
+    arm = arm_terms.arm_model(params, "params")
+    n = arm.n
+    q_grid = _grid(arm, q_grid)
+    M_ref = arm.inertia(q_grid).mean(axis=0)
     M_ref = (M_ref + M_ref.T) / 2.0
     if base is None:
-        base = np.zeros((4, 4))
+        base = np.zeros((n, n))
     base = np.asarray(base, dtype=float)
-    if base.shape != (4, 4) or not np.allclose(base, base.T) or np.linalg.eigvalsh(base).min() < -1e-12:
-        raise ValueError(f"base gain must be a symmetric positive semidefinite 4x4 matrix, got {base.tolist()!r}")
+    if base.shape != (n, n) or not np.allclose(base, base.T) or np.linalg.eigvalsh(base).min() < -1e-12:
+        raise ValueError(f"base gain must be a symmetric positive semidefinite {n}x{n} matrix, "
+                         f"got {base.tolist()!r}")
 
     def slowest(Y):
         return float(np.real(observer_modes(params, Y, q_grid)[0][:, 0]).min())
@@ -280,40 +286,55 @@ def design_observer_gain(params: RobotParameters, target_rad_s: float, q_grid, b
                       fastest_rad_s=float(np.real(rates[:, -1]).max()))
 
 
-def inertia_partials(params: RobotParameters, q) -> np.ndarray:
-    """``dM/dq_j`` at each configuration, shape (..., 4, 4, 4) (last-but-two axis: j).
+def _grid(arm: ArmModel, q_grid) -> np.ndarray:
+    q_grid = np.atleast_2d(np.asarray(q_grid, dtype=float))
+    if q_grid.shape[-1] != arm.n:
+        raise ValueError(f"q_grid must hold configurations of {arm.n} joints {list(arm.joints.names)} (shape "
+                         f"(N, {arm.n})), got shape {q_grid.shape}")
+    return q_grid
 
-    ``j = 1`` (theta2) is the analytic derivative
-    :func:`~blocks.dynamics.inertia_derivative_theta2`; the other joints
-    use central differences of :func:`~blocks.inertia` (exactly zero for
-    this arm, whose inertia depends on theta2 only, but not assumed to be).
+
+def _vertices(bound: np.ndarray) -> np.ndarray:
+    """The ``2^n`` vertices of the box ``|q_j'| <= bound[j]``."""
+    return np.array(list(itertools.product((-1.0, 1.0), repeat=len(bound)))) * bound
+
+
+def inertia_partials(params: ArmModel, q) -> np.ndarray:
+    """``dM/dq_j`` at each configuration, shape (..., n, n, n) (last-but-two axis: j).
+
+    For the paper's arm ``j = 1`` (theta2) is the analytic derivative
+    :func:`~blocks.dynamics.inertia_derivative_theta2` and the other joints
+    use central differences (exactly zero: its inertia depends on theta2
+    only, but that is not assumed).  Any other model: :func:`analysis.arm_terms.inertia_partials`.
     """
     q = np.asarray(q, dtype=float)
+    if not isinstance(params, RobotParameters):
+        return arm_terms.inertia_partials(arm_terms.arm_model(params, "params"), q)
     parts = []
-    for j in range(4):
+    for j in range(params.n):
         if j == 1:
             parts.append(inertia_derivative_theta2(q, params))
             continue
-        dq = np.zeros(4)
+        dq = np.zeros(params.n)
         dq[j] = _FD_STEP
-        parts.append((inertia(q + dq, params) - inertia(q - dq, params)) / (2 * _FD_STEP))
+        parts.append((params.inertia(q + dq) - params.inertia(q - dq)) / (2 * _FD_STEP))
     return np.stack(parts, axis=-3)
 
 
-def decay_rates(params: RobotParameters, Y, q, dq) -> np.ndarray:
+def decay_rates(params: ArmModel, Y, q, dq) -> np.ndarray:
     """Largest ``beta`` with ``Y + Y' - M'(q, dq) >= 2 beta M(q)`` at each state (rad/s), shape (...).
 
     Parameters
     ----------
-    params : RobotParameters
+    params : ArmModel
         The model the observer uses.
-    Y : array_like, shape (4, 4)
-    q, dq : array_like, shape (..., 4)
+    Y : array_like, shape (n, n)
+    q, dq : array_like, shape (..., n)
         Configurations (rad, m) and joint velocities (rad/s, m/s), broadcast together.
     """
     Y = np.asarray(Y, dtype=float)
     q, dq = np.broadcast_arrays(np.asarray(q, dtype=float), np.asarray(dq, dtype=float))
-    M = inertia(q, params)
+    M = params.inertia(q)
     M_dot = np.einsum("...jab,...j->...ab", inertia_partials(params, q), dq)
     S = (Y + Y.T) / 2.0 - M_dot / 2.0
     L = np.linalg.cholesky(M)
@@ -323,7 +344,7 @@ def decay_rates(params: RobotParameters, Y, q, dq) -> np.ndarray:
     return np.linalg.eigvalsh((K + np.swapaxes(K, -1, -2)) / 2.0)[..., 0]
 
 
-def convergence_certificate(params: RobotParameters, Y, q_grid, speed_bound) -> Certificate:
+def convergence_certificate(params: ArmModel, Y, q_grid, speed_bound) -> Certificate:
     """Smallest certified decay rate of the observer error over a grid and a joint-velocity box.
 
     Certified at the grid's configurations, for a constant or slowly varying
@@ -331,33 +352,35 @@ def convergence_certificate(params: RobotParameters, Y, q_grid, speed_bound) -> 
 
     Parameters
     ----------
-    params : RobotParameters
+    params : ArmModel
         The model the observer uses.
-    Y : array_like, shape (4, 4)
+    Y : array_like, shape (n, n)
         Observer gain.
-    q_grid : array_like, shape (N, 4)
+    q_grid : array_like, shape (N, n)
         Configurations (rad, m).
-    speed_bound : array_like, shape (4,)
+    speed_bound : array_like, shape (n,)
         ``|q_j'| <= speed_bound[j]`` (rad/s, m/s), >= 0.
 
     Returns
     -------
     Certificate
     """
+    arm = arm_terms.arm_model(params, "params")
     bound = np.asarray(speed_bound, dtype=float)
-    if bound.shape != (4,) or not np.all(np.isfinite(bound)) or np.any(bound < 0):
-        raise ValueError(f"speed_bound must be 4 finite numbers >= 0 (rad/s, rad/s, m/s, rad/s), got {speed_bound!r}")
-    q_grid = np.atleast_2d(np.asarray(q_grid, dtype=float))
-    vertices = np.array(list(itertools.product((-1.0, 1.0), repeat=4))) * bound
+    if bound.shape != (arm.n,) or not np.all(np.isfinite(bound)) or np.any(bound < 0):
+        units = ", ".join(arm.joints.velocity_units)
+        raise ValueError(f"speed_bound must be {arm.n} finite numbers >= 0 ({units}), got {speed_bound!r}")
+    q_grid = _grid(arm, q_grid)
+    vertices = _vertices(bound)
     beta = decay_rates(params, Y, q_grid[:, None, :], vertices[None, :, :])
     k, v = np.unravel_index(int(np.argmin(beta)), beta.shape)
-    rest = decay_rates(params, Y, q_grid, np.zeros(4))
+    rest = decay_rates(params, Y, q_grid, np.zeros(arm.n))
     return Certificate(beta_min_rad_s=float(beta[k, v]), holds=bool(beta[k, v] > 0), q_at=q_grid[k].tolist(),
                        dq_at=vertices[v].tolist(), beta_at_rest_min_rad_s=float(rest.min()),
                        speed_bound=bound.tolist(), configurations=int(len(q_grid)))
 
 
-def critical_speed(params: RobotParameters, Y, q_grid, direction) -> CriticalSpeed:
+def critical_speed(params: ArmModel, Y, q_grid, direction) -> CriticalSpeed:
     """Largest ``s`` for which the condition holds (``beta > 0``) on the grid for all ``|q'| <= s * direction``.
 
     ``beta > 0`` exactly when ``S = (Y + Y')/2 - M'/2`` is positive definite.  At a
@@ -370,17 +393,18 @@ def critical_speed(params: RobotParameters, Y, q_grid, direction) -> CriticalSpe
     -------
     CriticalSpeed
     """
+    arm = arm_terms.arm_model(params, "params")
     direction = np.asarray(direction, dtype=float)
-    if direction.shape != (4,) or not np.all(np.isfinite(direction)) or np.any(direction < 0):
-        raise ValueError(f"direction must be 4 finite numbers >= 0, got {direction!r}")
+    if direction.shape != (arm.n,) or not np.all(np.isfinite(direction)) or np.any(direction < 0):
+        raise ValueError(f"direction must be {arm.n} finite numbers >= 0, got {direction!r}")
     Y = np.asarray(Y, dtype=float)
     w, V = np.linalg.eigh((Y + Y.T) / 2.0)
     if w.min() <= 0:
         return CriticalSpeed(speed_factor=0.0, unlimited=False, q_at=None, dq_direction_at=None,
-                             speed_bound=[0.0] * 4)
+                             speed_bound=[0.0] * arm.n)
     Ys_inv_half = V @ np.diag(w ** -0.5) @ V.T
-    q_grid = np.atleast_2d(np.asarray(q_grid, dtype=float))
-    vertices = np.array(list(itertools.product((-1.0, 1.0), repeat=4))) * direction
+    q_grid = _grid(arm, q_grid)
+    vertices = _vertices(direction)
     M_dot = np.einsum("njab,vj->nvab", inertia_partials(params, q_grid), vertices)
     lam = np.linalg.eigvalsh(Ys_inv_half @ (M_dot / 2.0) @ Ys_inv_half)[..., -1]
     if lam.max() <= 0:
@@ -392,10 +416,10 @@ def critical_speed(params: RobotParameters, Y, q_grid, direction) -> CriticalSpe
                          dq_direction_at=vertices[v].tolist(), speed_bound=(s * direction).tolist())
 
 
-def lyapunov_function(params: RobotParameters, Y, q, e_d) -> np.ndarray:
+def lyapunov_function(params: ArmModel, Y, q, e_d) -> np.ndarray:
     """``V = e_d' X' M(q) X e_d`` with ``X = Y^-1`` for states ``q`` and estimation errors ``e_d``, shape (...)."""
     xi = np.linalg.solve(np.asarray(Y, dtype=float), np.asarray(e_d, dtype=float)[..., None])[..., 0]
-    return np.einsum("...i,...ij,...j->...", xi, inertia(q, params), xi)
+    return np.einsum("...i,...ij,...j->...", xi, params.inertia(q), xi)
 
 
 def confirm_by_simulation(scenario, gains, t_final: float | None = None, threshold: float = 0.02,
@@ -407,7 +431,7 @@ def confirm_by_simulation(scenario, gains, t_final: float | None = None, thresho
     scenario : Scenario
         Run on its own path and models, noise removed, with each gain in turn.
     gains : sequence of (str, array_like)
-        Labels and 4x4 (or scalar / 4-vector) observer gains.
+        Labels and n x n (or scalar / n-vector) observer gains.
     t_final : float, optional
         Shorter runs (s): the first ``t_final`` seconds of the same path.
     threshold : float
@@ -430,10 +454,11 @@ def confirm_by_simulation(scenario, gains, t_final: float | None = None, thresho
     from .linear import first_seconds
 
     out = {}
+    n = scenario.nominal.n
     for label, gain in gains:
         Y = np.asarray(gain, dtype=float)
         changes = {"gains": {"observer": Y.tolist() if Y.ndim else float(Y)},
-                   "noise": {"q_std": [0.0] * 4, "dq_std": [0.0] * 4}}
+                   "noise": {"q_std": [0.0] * n, "dq_std": [0.0] * n}}
         if disturbance is not None:
             changes["disturbance"] = disturbance
         variant = first_seconds(scenario, t_final, **changes)

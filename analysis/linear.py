@@ -14,6 +14,11 @@ roots of ``s^2 + Kd_i s + Kp_i`` for every joint (the PD error dynamics) and,
 with the observer, the eigenvalues of ``-Y M^-1(q0)`` (the observer error
 dynamics ``e_d' = -Y M^-1 e_d``).
 
+The joint count, names and units come from the scenario's arm model
+(``scenario.nominal``, a :class:`~blocks.arm.ArmModel`).  For an arm model
+without a scenario, :mod:`analysis.arm_linear` linearizes the same loop from the
+model's own derivatives (it agrees with this module on the paper's arm to 1e-10).
+
 Model mismatch: with the nominal masses and inertias scaled by ``a`` the nominal
 inertia is ``M^ = a M``.  Linearizing by hand then gives the characteristic
 polynomial matrix ``s^2 (s M + Y) + (a s M + Y)(s Kd + Kp)`` with the observer
@@ -29,9 +34,11 @@ import numpy as np
 import scipy.linalg
 from scipy.optimize import brentq, linear_sum_assignment
 
-from blocks import closed_loop, external_disturbance, gravity, inertia
+from blocks import closed_loop, external_disturbance
 from blocks.scenario import Scenario
 
+from .arm_linear import arm_analytic_poles
+from .arm_terms import joint_vector
 from .results import JsonResult
 
 __all__ = [
@@ -39,7 +46,7 @@ __all__ = [
     "StabilityBoundary", "BoundaryScan", "BoundarySearch", "MismatchLoop", "MismatchStudy", "hold_scenario",
     "first_seconds", "scale_nominal_inertia", "equilibrium", "linearize_loop", "loop_modes", "analytic_poles",
     "match_poles", "operating_point_analysis", "spectral_abscissa", "mismatch_sweep", "stability_boundaries",
-    "mismatch_analysis", "mismatch_polynomial",
+    "mismatch_analysis", "mismatch_polynomial", "boundary_search", "arm_mismatch_analysis",
 ]
 
 # Scaling all of these by ``a`` scales the inertia matrix M(q) (and gravity) by ``a``.
@@ -68,18 +75,19 @@ def hold_scenario(scenario: Scenario, q0, disturbance: dict | None = None, **sec
     Parameters
     ----------
     scenario : Scenario
-    q0 : array_like, shape (4,)
-        Held configuration (rad, rad, m, rad).
+    q0 : array_like, shape (n,)
+        Held configuration (rad, m).
     disturbance : dict, optional
         Keys of the ``[disturbance]`` table to change (merged, as :meth:`Scenario.replace` does).
     **sections : dict
         Further sections to change (merged), e.g. ``gains={"kp": 90.0}``.
     """
-    q0 = _joint_vector(q0, "q0")
+    q0 = _joint_vector(q0, "q0", scenario)
+    zeros = [0.0] * len(q0)
     changes = {
-        "trajectory": {"kind": "joint_sine", "amplitude": [0.0] * 4, "omega": 1.0, "offset": q0.tolist()},
-        "noise": {"q_std": [0.0] * 4, "dq_std": [0.0] * 4},
-        "initial": {"q": q0.tolist(), "dq": [0.0] * 4, "d_hat": [0.0] * 4},
+        "trajectory": {"kind": "joint_sine", "amplitude": zeros, "omega": 1.0, "offset": q0.tolist()},
+        "noise": {"q_std": zeros, "dq_std": zeros},
+        "initial": {"q": q0.tolist(), "dq": zeros, "d_hat": zeros},
     }
     if disturbance is not None:
         changes["disturbance"] = disturbance
@@ -113,11 +121,9 @@ def scale_nominal_inertia(scenario: Scenario, factor: float) -> Scenario:
     return scenario.replace(nominal_scale={k: float(old[k]) * float(factor) for k in INERTIA_PARAMETERS})
 
 
-def _joint_vector(value, name: str) -> np.ndarray:
-    arr = np.asarray(value, dtype=float)
-    if arr.shape != (4,) or not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be 4 finite numbers (rad, rad, m, rad), got {value!r}")
-    return arr
+def _joint_vector(value, name: str, scenario: Scenario) -> np.ndarray:
+    """``value`` as one finite number per joint of the scenario's arm."""
+    return joint_vector(value, name, scenario.nominal.joints)
 
 
 def _block_slices(system) -> dict:
@@ -156,16 +162,17 @@ def equilibrium(loop, t: float = 0.0, inputs=None) -> np.ndarray:
         failure when it merely stops improving on an already exact root.
     """
     s = loop.scenario
+    n = s.nominal.n
     u0 = np.zeros(loop.ninputs) if inputs is None else np.asarray(inputs, dtype=float)
     q_ref, _, _ = s.trajectory.evaluate(t)
     x = np.zeros(loop.nstates)
     slices = _block_slices(loop)
     plant_labels = [b for b in loop.syslist if b.name == "plant"][0].state_labels
-    for i in range(4):
+    for i in range(n):
         x[slices["plant"].start + plant_labels.index(f"q[{i}]")] = q_ref[i]
     if "observer" in slices:
-        d = external_disturbance(t, q_ref, np.zeros(4), s.disturbance, s.robot) \
-            + gravity(q_ref, s.nominal) - gravity(q_ref, s.robot)
+        d = external_disturbance(t, q_ref, np.zeros(n), s.disturbance, s.robot) \
+            + s.nominal.gravity_forces(q_ref) - s.robot.gravity_forces(q_ref)
         x[slices["observer"]] = d
     xeq, _, result = ct.find_operating_point(loop, x, u0, t=t, return_result=True)
     xeq = np.asarray(xeq, dtype=float)
@@ -269,7 +276,7 @@ class OperatingPoint(JsonResult):
     label : str
         What the configuration is (for example "reference at t = 0").
     q0 : list of float
-        Held configuration (rad, rad, m, rad).
+        Held configuration (rad or m per joint; the paper arm: rad, rad, m, rad).
     t_s : float
         Time (s) at which the disturbance is evaluated.
     poles_with_dob, poles_without_dob : list of complex
@@ -277,9 +284,9 @@ class OperatingPoint(JsonResult):
     modes_with_dob, modes_without_dob : list of ModeResult
         The same poles with damping, owner and analytic partner.
     q_equilibrium_with_dob, q_equilibrium_without_dob : list of float
-        Where the held arm rests (rad, rad, m, rad).
+        Where the held arm rests (rad or m per joint; the paper arm: rad, rad, m, rad).
     disturbance_at_rest : list of float
-        The lumped disturbance the held arm feels (N m, N m, N, N m), read from the observer's estimate at rest.
+        The lumped disturbance the held arm feels (N m or N per joint), read from the observer's estimate at rest.
     max_rel_error_with_dob, max_rel_error_without_dob : float
         Largest relative distance of the linearized poles from the analytic split (meaningful on a perfect model).
     attribution_agrees_with_dob, attribution_agrees_without_dob : bool
@@ -351,7 +358,8 @@ def loop_modes(lin: ct.StateSpace, loop) -> list[Mode]:
     slices = _block_slices(loop)
     T = np.eye(A.shape[0])
     if "observer" in slices and slices["observer"].stop > slices["observer"].start:
-        rows = [list(lin.output_labels).index(f"d_hat[{i}]") for i in range(4)]
+        n = slices["observer"].stop - slices["observer"].start       # the observer holds z, one per joint
+        rows = [list(lin.output_labels).index(f"d_hat[{i}]") for i in range(n)]
         T[slices["observer"], :] = np.asarray(lin.C)[rows, :]
     A_t = T @ A @ np.linalg.inv(T)
     poles, left, right = scipy.linalg.eig(A_t, left=True, right=True)
@@ -373,17 +381,13 @@ def analytic_poles(scenario: Scenario, q0, observer: bool = True) -> dict:
     Returns
     -------
     dict
-        ``"plant"``: the 8 roots of ``s^2 + Kd_i s + Kp_i`` (i = 1..4) and, with
-        the observer, ``"observer"``: the 4 eigenvalues of ``-Y M^-1(q0)``
+        ``"plant"``: the ``2 n`` roots of ``s^2 + Kd_i s + Kp_i`` (i = 1..n) and, with
+        the observer, ``"observer"``: the ``n`` eigenvalues of ``-Y M^-1(q0)``
         (nominal inertia), all in rad/s.
     """
-    q0 = _joint_vector(q0, "q0")
-    kp, kd = np.diag(scenario.kp), np.diag(scenario.kd)
-    out = {"plant": np.concatenate([np.roots([1.0, kd[i], kp[i]]) for i in range(4)]).astype(complex)}
-    if observer:
-        M = inertia(q0, scenario.nominal)
-        out["observer"] = np.linalg.eigvals(-scenario.observer_gain @ np.linalg.inv(M)).astype(complex)
-    return out
+    q0 = _joint_vector(q0, "q0", scenario)
+    return arm_analytic_poles(scenario.kp, scenario.kd, scenario.observer_gain, scenario.nominal.inertia(q0),
+                              observer)
 
 
 def match_poles(numeric, analytic) -> tuple[np.ndarray, np.ndarray]:
@@ -415,8 +419,8 @@ def operating_point_analysis(scenario: Scenario, q0, t: float = 0.0, label: str 
     ----------
     scenario : Scenario
         Its gains, models and disturbance are used; its trajectory is replaced by ``q0``.
-    q0 : array_like, shape (4,)
-        Held configuration (rad, rad, m, rad).
+    q0 : array_like, shape (n,)
+        Held configuration (rad, m).
     t : float
         Time (s) at which the disturbance is evaluated.
     label : str
@@ -428,7 +432,8 @@ def operating_point_analysis(scenario: Scenario, q0, t: float = 0.0, label: str 
         Poles and modes (slowest first), where the arm rests, the disturbance
         the held arm feels, and the comparison with the analytic split.
     """
-    q0 = _joint_vector(q0, "q0")
+    q0 = _joint_vector(q0, "q0", scenario)
+    n = len(q0)
     held = hold_scenario(scenario, q0)
     out = {"label": str(label), "q0": q0.tolist(), "t_s": float(t)}
     for observer, key in ((True, "with_dob"), (False, "without_dob")):
@@ -439,7 +444,7 @@ def operating_point_analysis(scenario: Scenario, q0, t: float = 0.0, label: str 
         numeric = np.array([m.pole for m in modes])
         plant_slice = _block_slices(loop)["plant"]
         labels = list(loop.state_labels)[plant_slice]
-        q_eq = [float(x_eq[plant_slice][labels.index(f"plant_q[{i}]")]) for i in range(4)]
+        q_eq = [float(x_eq[plant_slice][labels.index(f"plant_q[{i}]")]) for i in range(n)]
         analytic = analytic_poles(held, q0, observer)
         flat = np.concatenate(list(analytic.values()))
         owner = np.concatenate([[name] * len(v) for name, v in analytic.items()])
@@ -456,7 +461,7 @@ def operating_point_analysis(scenario: Scenario, q0, t: float = 0.0, label: str 
             # at rest the estimate equals the lumped disturbance the held arm feels
             y = np.asarray(loop.output(t, x_eq, np.zeros(loop.ninputs)), dtype=float)
             labels_out = list(loop.output_labels)
-            out["disturbance_at_rest"] = [float(y[labels_out.index(f"d_hat[{i}]")]) for i in range(4)]
+            out["disturbance_at_rest"] = [float(y[labels_out.index(f"d_hat[{i}]")]) for i in range(n)]
         out[f"max_rel_error_{key}"] = float(rel.max())
         out[f"attribution_agrees_{key}"] = bool(all(m.block == owner[order[k]] for k, m in enumerate(modes)))
         out[f"analytic_{key}"] = {name: [complex(p) for p in v] for name, v in analytic.items()}
@@ -544,7 +549,7 @@ class MismatchLoop(JsonResult):
 
 @dataclass(frozen=True)
 class MismatchStudy(JsonResult):
-    """Robustness to inertia mismatch at ``q0`` (rad, rad, m, rad), with and without the observer."""
+    """Robustness to inertia mismatch at ``q0`` (rad or m per joint), with and without the observer."""
 
     q0: list[float]
     with_dob: MismatchLoop
@@ -582,12 +587,21 @@ def stability_boundaries(scenario: Scenario, q0, observer: bool, low: float = 0.
         ``boundaries`` (each with the side on which the loop is stable), the
         ``range`` searched and the ``scan``.
     """
-    if not (0 < low < high) or points < 2:
-        raise ValueError(f"need 0 < low < high and points >= 2, got low={low}, high={high}, points={points}")
-
     def alpha(a):
         return spectral_abscissa(scale_nominal_inertia(scenario, a), q0, observer, t)[0]
 
+    return boundary_search(alpha, low, high, points, rtol)
+
+
+def boundary_search(alpha, low: float = 0.02, high: float = 50.0, points: int = 25,
+                    rtol: float = 1e-6) -> BoundarySearch:
+    """Where ``alpha(a)`` (a spectral abscissa, rad/s, continuous in ``a``) changes sign over ``[low, high]``.
+
+    The scan and Brent refinement of :func:`stability_boundaries`, for any
+    family of loops (for example :func:`arm_mismatch_analysis`).
+    """
+    if not (0 < low < high) or points < 2:
+        raise ValueError(f"need 0 < low < high and points >= 2, got low={low}, high={high}, points={points}")
     grid = np.geomspace(low, high, points)
     values = [alpha(a) for a in grid]
     boundaries = []
@@ -604,7 +618,7 @@ def stability_boundaries(scenario: Scenario, q0, observer: bool, low: float = 0.
 def mismatch_analysis(scenario: Scenario, q0, factors, low: float = 0.02, high: float = 50.0,
                       points: int = 25) -> MismatchStudy:
     """The pole sweep over ``factors`` and the boundary search over ``[low, high]``, with and without the observer."""
-    q0 = _joint_vector(q0, "q0")
+    q0 = _joint_vector(q0, "q0", scenario)
     loops = {key: MismatchLoop(sweep=mismatch_sweep(scenario, q0, factors, observer),
                                boundaries=stability_boundaries(scenario, q0, observer, low, high, points=points))
              for observer, key in ((True, "with_dob"), (False, "without_dob"))}
@@ -621,11 +635,11 @@ def mismatch_polynomial(M, Y, kp, kd, factor: float, observer: bool = True) -> n
 
     Parameters
     ----------
-    M : array_like, shape (4, 4)
+    M : array_like, shape (n, n)
         True inertia at the operating point.
-    Y : array_like, shape (4, 4)
+    Y : array_like, shape (n, n)
         Observer gain.
-    kp, kd : array_like, shape (4, 4)
+    kp, kd : array_like, shape (n, n)
         Diagonal PD gains.
     factor : float
         ``a`` in ``M^ = a M``.
@@ -646,3 +660,47 @@ def mismatch_polynomial(M, Y, kp, kd, factor: float, observer: bool = True) -> n
         C[(deg - 1) * n:, k * n:(k + 1) * n] = -coeffs[k]
     B[(deg - 1) * n:, (deg - 1) * n:] = coeffs[-1]
     return scipy.linalg.eigvals(C, B)
+
+
+# Spectral abscissa (rad/s) given to a loop without a resting position in the arm-model mismatch study.
+_NO_REST_RATE = 1e6
+
+
+def arm_mismatch_analysis(arm, kp, kd, Y, q0, factors, d=None, low: float = 0.02, high: float = 50.0,
+                          points: int = 25) -> MismatchStudy:
+    """:func:`mismatch_analysis` for any arm model: the nominal model is ``arm`` with every mass and inertia
+    scaled by ``a`` (:class:`~analysis.arm_linear.ScaledArm`), the loop linearized by
+    :func:`~analysis.arm_linear.arm_linearization` at ``q0`` under the constant disturbance ``d`` (N m, N).
+
+    Without the observer a factor at which the arm has no resting position near
+    ``q0`` (gravity, mis-scaled, pulls it away) has no poles (an empty list) and
+    counts as unstable with a spectral abscissa of 1e6 rad/s.
+    """
+    from .arm_linear import ArmLoop, ScaledArm, arm_linearization
+
+    loop = ArmLoop.make(arm, kp, kd, Y, q0, d)
+
+    def poles(a, observer):
+        """The loop's poles, or None when the arm has no resting position near q0 (without the observer)."""
+        try:
+            lin = arm_linearization(loop.arm, loop.kp, loop.kd, loop.Y, loop.q0, loop.d, ScaledArm(loop.arm, a),
+                                    observer)
+        except RuntimeError:
+            return None
+        return np.linalg.eigvals(np.asarray(lin.A))
+
+    def abscissa(p):
+        # no resting position: counted as unstable (a large finite rate keeps Brent's method working)
+        return _NO_REST_RATE if p is None else float(p.real.max())
+
+    loops = {}
+    for observer, key in ((True, "with_dob"), (False, "without_dob")):
+        factor_list = [float(a) for a in factors]
+        sweep_poles = [poles(a, observer) for a in factor_list]
+        sweep = MismatchSweep(factors=factor_list,
+                              poles=[[] if p is None else [complex(z) for z in p[np.argsort(-p.real)]]
+                                     for p in sweep_poles],
+                              spectral_abscissa=[abscissa(p) for p in sweep_poles])
+        search = boundary_search(lambda a, obs=observer: abscissa(poles(a, obs)), low, high, points)
+        loops[key] = MismatchLoop(sweep=sweep, boundaries=search)
+    return MismatchStudy(q0=loop.q0.tolist(), **loops)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field, fields
 
+from .arm_terms import default_points
 from .bandwidth import DEFAULT_POINTS
 
 __all__ = ["AnalysisSettings", "QUICK_SETTINGS", "preview_differences"]
@@ -25,15 +26,18 @@ class AnalysisSettings:
     speed_margin : float
         The certificate's joint-speed bound is this times the largest reference
         speed of the scenario per joint (rad/s, m/s), at least ``min_speed``.
-    min_speed : 4 floats
-        Floor of that bound (rad/s, rad/s, m/s, rad/s).
+    min_speed : n floats
+        Floor of that bound per joint (rad/s, m/s); the default is the paper arm's, and
+        :meth:`min_speed_for` gives an arm with another joint count 0.5 rad/s per
+        revolute and 0.05 m/s per prismatic joint.
     mismatch_factors : floats
         Nominal/true inertia ratios of the pole sweep.
     boundary_range, boundary_points
         Range and scan size of the stability-boundary search.
-    workspace_points : 4 ints
-        Grid of the observer-bandwidth survey and the gain design
-        (default :data:`analysis.bandwidth.DEFAULT_POINTS`).
+    workspace_points : n ints
+        Grid of the observer-bandwidth survey and the gain design (default
+        :data:`analysis.bandwidth.DEFAULT_POINTS`, the paper arm's; :meth:`workspace_points_for`
+        gives another arm :func:`~analysis.arm_terms.default_points` unless the counts fit its joints).
     kp_values, kd_values, observer_values : floats
         Grids of the gain studies (scalar gains, the same on every joint).
     study_t_final : float
@@ -81,12 +85,27 @@ class AnalysisSettings:
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a finite number > 0 s, got {v!r}")
 
+    def workspace_points_for(self, joints) -> tuple[int, ...]:
+        """The grid's points per joint for an arm with these joints (:class:`blocks.joints.JointSpace`)."""
+        if len(self.workspace_points) == joints.count:
+            return tuple(self.workspace_points)
+        return default_points(joints)
+
+    def min_speed_for(self, joints) -> tuple[float, ...]:
+        """The certificate's speed floor per joint for an arm with these joints (rad/s, m/s)."""
+        if len(self.min_speed) == joints.count:
+            return tuple(self.min_speed)
+        return tuple(_MIN_SPEED_BY_KIND[k] for k in joints.kinds)
+
     def as_dict(self) -> dict:
         """JSON-ready settings (without ``workers``, which does not change results)."""
         out = asdict(self)
         out.pop("workers")
         return out
 
+
+# Speed floor of the certificate by joint kind (rad/s, m/s), for arms other than the paper's.
+_MIN_SPEED_BY_KIND = {"revolute": 0.5, "prismatic": 0.05}
 
 # Small grids and short runs: the same analyses in well under a minute (previews).
 QUICK_SETTINGS = AnalysisSettings(quick=True, mismatch_factors=(0.5, 1.0, 2.0), boundary_points=9,
@@ -104,7 +123,7 @@ def _values(values, unit: str = "") -> str:
 _DESCRIBE = {
     "mismatch_factors": ("inertia-mismatch pole sweep", lambda v: f"{len(v)} factors ({_values(v)})"),
     "boundary_points": ("stability-boundary scan", lambda v: f"{v} points"),
-    "workspace_points": ("workspace grid (theta1 x theta2 x d3 x theta4)", lambda v: " x ".join(str(n) for n in v)),
+    "workspace_points": ("workspace grid (points per joint)", lambda v: " x ".join(str(n) for n in v)),
     "kp_values": ("Kp of the gain study", lambda v: _values(v, "1/s^2")),
     "kd_values": ("Kd of the gain study", lambda v: _values(v, "1/s")),
     "observer_values": ("observer gains Y = v I of the observer study", lambda v: "v = " + _values(v)),

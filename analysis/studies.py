@@ -41,7 +41,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from blocks import SimulationError, closed_loop, forward_kinematics, simulate
+from blocks import SimulationError, closed_loop, simulate
+from blocks.joints import RRPR_JOINTS, JointSpace
 from blocks.metrics import signal
 from blocks.scenario import Scenario
 from blocks.workers import worker_pool
@@ -50,13 +51,22 @@ from .linear import equilibrium, hold_scenario
 from .results import JsonResult, omitted_if_none
 
 __all__ = ["DEFAULT_NOISE", "SETTLE_FRACTION", "FINAL_WINDOW", "SignalMetrics", "RunMetrics", "StudyRun",
-           "GainGridStudy", "ObserverGainStudy", "Studies", "step_scenario", "run_metrics", "signal_metrics",
+           "GainGridStudy", "ObserverGainStudy", "Studies", "default_noise", "step_scenario", "run_metrics", "signal_metrics",
            "gain_grid_study", "observer_gain_study", "settling_definition"]
 
 # Used when the scenario has no [noise] section: an encoder of about 0.01 deg (2e-4 rad, 20 um) and
 # velocities from differentiated positions (5e-3 rad/s, 0.5 mm/s).  Assumed values, not from the paper.
-DEFAULT_NOISE = {"q_std": [2e-4, 2e-4, 2e-5, 2e-4], "dq_std": [5e-3, 5e-3, 5e-4, 5e-3], "seed": 1,
-                 "sample_period": 0.001}
+_NOISE_BY_KIND = {"revolute": (2e-4, 5e-3), "prismatic": (2e-5, 5e-4)}
+
+
+def default_noise(joints: JointSpace) -> dict:
+    """The ``[noise]`` table the studies use when a scenario has none, per joint by its kind (rad or m)."""
+    return {"q_std": [_NOISE_BY_KIND[k][0] for k in joints.kinds],
+            "dq_std": [_NOISE_BY_KIND[k][1] for k in joints.kinds], "seed": 1, "sample_period": 0.001}
+
+
+#: :func:`default_noise` of the paper's arm.
+DEFAULT_NOISE = default_noise(RRPR_JOINTS)
 
 SETTLE_FRACTION = 0.02     # settling band: this fraction of the largest deviation from the final value
 FINAL_WINDOW = 0.1         # "settled" needs the signal inside the band over this last fraction of the run
@@ -111,7 +121,7 @@ class StudyRun(JsonResult):
     joints, tool_mm
         The clean run's metrics (see :class:`RunMetrics`).
     torque_noise_rms : list of float or None
-        Observer study only: RMS torque difference between the noisy and the clean short run (N m, N m, N, N m).
+        Observer study only: RMS torque difference between the noisy and the clean short run (N m or N per joint).
     noisy, clean_short : RunMetrics or None
         Observer study only: metrics of the short runs.
     noise_t_final_s : float or None
@@ -135,7 +145,7 @@ class GainGridStudy(JsonResult):
     """Disturbance-step runs over a grid of scalar ``Kp`` (1/s^2) and ``Kd`` (1/s).
 
     ``runs[i][j]`` is the run with ``kp[i]`` and ``kd[j]``.  The experiment: the
-    arm held at ``q_hold`` (rad, rad, m, rad) under the step ``f_r`` (N m, N m,
+    arm held at ``q_hold`` (rad or m per joint; the paper arm: rad, rad, m, rad) under the step ``f_r`` (N m, N m,
     N, N m) for ``t_final_s``; settling band ``settle_fraction`` of the largest
     deviation, checked over the last ``final_window`` of the run.
     """
@@ -166,7 +176,7 @@ class ObserverGainStudy(JsonResult):
     labels : list of str
         ``"none"`` first (no observer), then one per gain.
     gains : list
-        The gains as given (None for ``"none"``; a number, 4 numbers or 4x4; kg m^2/s).
+        The gains as given (None for ``"none"``; a number, n numbers or n x n; kg m^2/s).
     q_hold, f_r, t_final_s, settle_fraction, final_window
         The experiment, as in :class:`GainGridStudy`.
     noise_t_final_s : float
@@ -238,9 +248,8 @@ def signal_metrics(t, x, final: float | None = None, settle_fraction: float = SE
 
 
 def _tip_error_mm(q_ref, q, robot) -> np.ndarray:
-    """Tool-tip distance (mm) between configurations ``q_ref`` and ``q``, shape (n, 4) each."""
-    return 1e3 * np.linalg.norm(forward_kinematics(q_ref, robot)[..., :3] - forward_kinematics(q, robot)[..., :3],
-                                axis=-1)
+    """Tool-tip distance (mm) between configurations ``q_ref`` and ``q``, shape (samples, n) each."""
+    return 1e3 * np.linalg.norm(robot.tool_position(q_ref) - robot.tool_position(q), axis=-1)
 
 
 def run_metrics(response, final_q=None, settle_fraction: float = SETTLE_FRACTION,
@@ -251,7 +260,7 @@ def run_metrics(response, final_q=None, settle_fraction: float = SETTLE_FRACTION
     ----------
     response : control.TimeResponseData
         From :func:`blocks.simulate` (with ``response.scenario``).
-    final_q : array_like, shape (4,), optional
+    final_q : array_like, shape (n,), optional
         Where the arm comes to rest (a held arm's equilibrium); its errors are
         the final values.  Default: estimated from the end of the run.
     """
@@ -264,8 +273,9 @@ def run_metrics(response, final_q=None, settle_fraction: float = SETTLE_FRACTION
         e_final = q_ref[:, -1] - final_q
         tip_final = float(_tip_error_mm(q_ref[:, -1], final_q, robot))
     else:
-        e_final, tip_final = [None] * 4, None
-    return RunMetrics(joints=[signal_metrics(t, e[i], e_final[i], settle_fraction, final_window) for i in range(4)],
+        e_final, tip_final = [None] * len(e), None
+    return RunMetrics(joints=[signal_metrics(t, e[i], e_final[i], settle_fraction, final_window)
+                              for i in range(len(e))],
                       tool_mm=signal_metrics(t, _tip_error_mm(q_ref.T, q.T, robot), tip_final, settle_fraction,
                                              final_window))
 
@@ -288,11 +298,11 @@ def step_scenario(scenario: Scenario, t_final: float | None = None, **sections) 
 
 
 def _rest(variant: Scenario, observer: bool) -> np.ndarray:
-    """Where the held arm of ``variant`` comes to rest (its loop's equilibrium), shape (4,)."""
+    """Where the held arm of ``variant`` comes to rest (its loop's equilibrium), shape (n,)."""
     loop = closed_loop(variant, observer=observer)
     x_eq = equilibrium(loop, 0.0)
     labels = list(loop.state_labels)
-    return np.array([x_eq[labels.index(f"plant_q[{i}]")] for i in range(4)])
+    return np.array([x_eq[labels.index(f"plant_q[{i}]")] for i in range(variant.nominal.n)])
 
 
 def _run(job) -> StudyRun:
@@ -387,9 +397,9 @@ def observer_gain_study(scenario: Scenario, gains, noise: dict | None = None, t_
     ----------
     scenario : Scenario
     gains : sequence of (str, gain)
-        Labels and observer gains (scalar, 4 numbers or 4x4; kg m^2/s).
+        Labels and observer gains (scalar, n numbers or n x n; kg m^2/s).
     noise : dict, optional
-        A complete ``[noise]`` table (default: the scenario's, else :data:`DEFAULT_NOISE`).
+        A complete ``[noise]`` table (default: the scenario's, else :func:`default_noise` of its arm).
     t_final : float, optional
         Length of the held (clean) runs (s); default the scenario's.
     noise_t_final : float
@@ -404,9 +414,10 @@ def observer_gain_study(scenario: Scenario, gains, noise: dict | None = None, t_
     ObserverGainStudy
         ``noise_t_final_s`` rounded to the output grid; ``slowest_mode_rad_s`` left None.
     """
+    fallback = default_noise(scenario.nominal.joints)
     if noise is None:
-        noise = dict(scenario.data["noise"]) if scenario.noise is not None else dict(DEFAULT_NOISE)
-    noise = {**DEFAULT_NOISE, **noise}
+        noise = dict(scenario.data["noise"]) if scenario.noise is not None else dict(fallback)
+    noise = {**fallback, **noise}
     labels, specs, variants = ["none"], [None], [step_scenario(scenario, t_final)]
     for label, gain in gains:
         g = np.asarray(gain, dtype=float)

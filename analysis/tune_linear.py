@@ -41,8 +41,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg
 
-from blocks import inertia
-from blocks.parameters import RobotParameters
+from blocks.arm import ArmModel
 
 __all__ = ["held_loop_matrices", "loop_poles", "spectral_abscissas", "torque_noise_rms", "inertia_pairs"]
 
@@ -114,7 +113,7 @@ def spectral_abscissas(M, M_nominal, kp, kd, Y) -> np.ndarray:
     return loop_poles(M, M_nominal, kp, kd, Y).real.max(axis=-1)
 
 
-def inertia_pairs(configurations, robots: list[RobotParameters], nominals: list[RobotParameters]) \
+def inertia_pairs(configurations, robots: list[ArmModel], nominals: list[ArmModel]) \
         -> tuple[np.ndarray, np.ndarray]:
     """True and nominal inertia of every (model pair, configuration), each shape (models * configurations, n, n).
 
@@ -127,7 +126,7 @@ def inertia_pairs(configurations, robots: list[RobotParameters], nominals: list[
     for robot, nom in zip(robots, nominals):
         key = (id(robot), id(nom))
         if key not in seen:
-            seen[key] = (inertia(q, robot), inertia(q, nom))
+            seen[key] = (robot.inertia(q), nom.inertia(q))
         true.append(seen[key][0])
         nominal.append(seen[key][1])
     n = q.shape[-1]
@@ -135,7 +134,7 @@ def inertia_pairs(configurations, robots: list[RobotParameters], nominals: list[
 
 
 def torque_noise_rms(M, M_nominal, kp, kd, Y, q_std, dq_std, sample_period: float) -> np.ndarray:
-    """Stationary RMS torque noise at the noise sample instants (N m, N m, N, N m; module docstring).
+    """Stationary RMS torque noise at the noise sample instants (N m or N per joint; module docstring).
 
     Parameters
     ----------

@@ -58,9 +58,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .arm import ArmModel
 from .digital import DigitalController
-from .dynamics import inertia
-from .parameters import RobotParameters
 
 __all__ = ["SampledStability", "held_exponential", "sampled_loop_map", "spectral_radius", "largest_stable_scale",
            "sampled_stability", "path_configurations", "scenario_stability"]
@@ -84,7 +83,7 @@ class SampledStability:
     spectral_radius : float
         Largest ``|z|`` over the configurations, with the given gain.
     q_worst : list of float
-        The configuration of that radius (rad, rad, m, rad).
+        The configuration of that radius (rad, m).
     largest_stable_scale : float
         The factor ``c`` at which the radius reaches 1 (the gain ``c Y`` is
         the largest stable one of this shape); ``inf`` if no limit was found
@@ -261,16 +260,17 @@ def largest_stable_scale(inertias, kp, kd, gain, settings: DigitalController, eq
     return float(lo)
 
 
-def sampled_stability(nominal: RobotParameters, configurations, kp, kd, gain, settings: DigitalController,
+def sampled_stability(nominal: ArmModel, configurations, kp, kd, gain, settings: DigitalController,
                       variant: str = "correct", limit: bool = True) -> SampledStability:
     """The loop's stability over frozen configurations, and the largest stable scale of the observer gain.
 
     Parameters
     ----------
-    nominal : RobotParameters
-        The nominal model (controller and observer; the plant is taken equal to it).
+    nominal : ArmModel
+        The nominal model (controller and observer; the plant is taken equal to it),
+        any arm: ``n`` joints from ``nominal.n``.
     configurations : array_like, shape (N, n)
-        Joint positions (rad, rad, m, rad).  Configurations with equal
+        Joint positions (rad, m).  Configurations with equal
         inertia are checked once.
     kp, kd, gain : array_like, shape (n, n)
         Controller gains (1/s^2, 1/s) and observer gain ``Y``.
@@ -281,8 +281,13 @@ def sampled_stability(nominal: RobotParameters, configurations, kp, kd, gain, se
     limit : bool
         Compute the largest stable scale (a bisection); if False it is ``nan``.
     """
+    if not isinstance(nominal, ArmModel):
+        raise TypeError(f"nominal must be a blocks.arm.ArmModel, got {type(nominal).__name__}")
     q = np.atleast_2d(np.asarray(configurations, dtype=float))
-    M_all = inertia(q, nominal)
+    if q.ndim != 2 or q.shape[-1] != nominal.n or not np.all(np.isfinite(q)):
+        raise ValueError(f"configurations must be finite joint positions of shape (N, {nominal.n}) for the joints "
+                         f"{list(nominal.joints.names)}, got shape {q.shape}")
+    M_all = nominal.inertia(q)
     _, first = np.unique(np.round(M_all.reshape(len(q), -1), 12), axis=0, return_index=True)
     first = np.sort(first)
     q, M = q[first], M_all[first]
