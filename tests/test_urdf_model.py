@@ -221,7 +221,7 @@ def test_unknown_locked_joint_lists_joints(mixed_urdf):
         load_urdf_arm(mixed_urdf, "tip", locked=["slide"], locked_values={"bend": 0.5})
 
 
-@pytest.mark.parametrize("kind", ["floating", "planar"])
+@pytest.mark.parametrize("kind", ["floating", "planar", "spherical"])
 def test_unsupported_joint_type_named(tmp_path, kind):
     path = tmp_path / "float.urdf"
     path.write_text(MIXED.replace('name="spin" type="continuous"', f'name="spin" type="{kind}"'))
@@ -248,3 +248,17 @@ def test_bad_gravity_and_errors_are_value_errors(mixed_urdf):
 
 def test_scope4_is_packaged():
     assert scope4_urdf().is_file()
+
+
+def test_example_names_and_missing_package(monkeypatch):
+    with pytest.raises(ValueError, match=r"'kuka' is unknown; choose from \['panda', 'ur5'\]"):
+        example_urdf("kuka")
+    assert example_urdf("ur5").name == "ur5_robot.urdf" and example_urdf("panda").name == "panda.urdf"
+    from importlib import metadata
+
+    def absent(name):
+        raise metadata.PackageNotFoundError(name)
+
+    monkeypatch.setattr(metadata, "distribution", absent)
+    with pytest.raises(ModuleNotFoundError, match=r"dobkit\[urdf\]"):
+        example_urdf("panda")

@@ -12,7 +12,7 @@ _WHERE = {
     "urdf": ("load_urdf_arm", "UrdfError", "UrdfFileError", "UrdfParseError", "UnknownFrameError",
              "UnknownJointError", "UnsupportedJointError", "InertiaError"),
     "examples": ("example_urdf", "scope4_urdf", "example_arm"),
-    "ik": ("joint_path", "solve_ik", "IKUnreachableError", "JointPath"),
+    "ik": ("joint_path", "solve_ik", "jacobian_rate", "IKUnreachableError", "JointPath"),
 }
 __all__ = sorted(name for names in _WHERE.values() for name in names)
 __getattr__, __dir__ = lazy_exports(__name__, _WHERE, globals())

@@ -33,7 +33,7 @@ import numpy as np
 from ..arm import ArmModel
 from ..kinematics import UnreachableError
 
-__all__ = ["IKUnreachableError", "JointPath", "solve_ik", "joint_path"]
+__all__ = ["IKUnreachableError", "JointPath", "solve_ik", "joint_path", "jacobian_rate"]
 
 
 class IKUnreachableError(UnreachableError):

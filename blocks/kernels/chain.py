@@ -10,24 +10,23 @@ identity rotations) and sums with them are skipped here, at Python level,
 and the traced straight-line code holds only what the arm needs.  Loops run
 over joints (structure), branches are on joint kinds, never on ``q``.
 
-The algorithms work in the base frame ("spatial" coordinates about the base
-origin, Featherstone, *Rigid Body Dynamics Algorithms*, ch. 5 and 6, with
-pinocchio's order of a motion: linear part first):
+The algorithms (Featherstone, *Rigid Body Dynamics Algorithms*, ch. 5 and 6,
+with pinocchio's order of a motion: linear part first) work in the joint
+frames, where each body's inertia is a constant and each joint's motion
+subspace is its fixed axis (one non-zero entry for an axis-aligned joint):
 
-* kinematics: each joint's rotation ``R_i`` and origin ``p_i`` in the base,
-  its motion subspace ``S_i = (p_i x a_i, a_i)`` (revolute) or ``(a_i, 0)``
-  (prismatic), and each body's centre of mass and inertia about it in base
-  axes;
-* ``M(q)``: composite-rigid-body algorithm; in base coordinates a composite
-  inertia is a plain sum, and ``M_ji = S_j . (I^c_i S_i)`` for ``j`` on the
-  path from ``i`` to the base;
+* ``M(q)``: composite-rigid-body algorithm; each composite inertia is
+  carried to the parent's frame, each joint's force for a unit motion to
+  its ancestors' frames;
 * ``h(q, q')`` and ``G(q)``: recursive Newton-Euler with the base
-  accelerating at ``-g``, each body's force from Newton and Euler's
+  accelerating at ``-g``, each body's force from Newton's and Euler's
   equations at its centre of mass;
 * ``M^-1 r``: Cholesky ``M = L L^T`` and two triangular solves (the generic
   n x n solve);
-* the tool point of one frame: its position, its linear Jacobian (base
-  axes, as pinocchio's ``LOCAL_WORLD_ALIGNED``) and ``J' q'``.
+* the tool point of one frame (in base coordinates: the joints' frames
+  composed to the base, ``S_i = (p_i x a_i, a_i)`` about the base origin):
+  its position, its linear Jacobian (base axes, as pinocchio's
+  ``LOCAL_WORLD_ALIGNED``) and ``J' q'``.
 
 Rows are joint-first: ``q[i]`` is a number, an array of a batch or a traced
 symbol.  Units: rad, m, kg, kg m^2, N m, N; gravity in m/s^2.
@@ -211,65 +210,41 @@ def _joint_rotation(axis, c, s) -> Mat:
                        for col in range(3)) for r in range(3))
 
 
+def _local_placement(k: ChainParams, q, i: int) -> tuple:
+    """``(E, r)``: rotation and origin of joint ``i``'s frame in its parent's frame at ``q[i]``."""
+    Rp, tp, axis = k.rotations[i], k.translations[i], k.axes[i]
+    if k.kinds[i] == "revolute":
+        return _matmul(Rp, _joint_rotation(axis, np.cos(q[i]), np.sin(q[i]))), tp
+    return Rp, _vadd(tp, _vscale(_matvec(Rp, axis), q[i]))
+
+
+def _mtvec(E, x) -> Vec:
+    """``E^T x``."""
+    return tuple(_dot((E[0][c], E[1][c], E[2][c]), x) for c in range(3))
+
+
 class _Frames:
-    """Joint frames in the base for the joints asked for (and their ancestors): ``R[i]``, ``p[i]``, ``S[i]``."""
+    """Joint frames in the base for the joints asked for (and their ancestors): ``R[i]``, ``p[i]`` and the
+    motion subspace ``S[i]`` about the base origin (for the tool point)."""
 
     def __init__(self, k: ChainParams, q, joints=None) -> None:
         wanted = set(range(k.n)) if joints is None else {j for i in joints for j in k.support(i)}
         self.R, self.p, self.S = {}, {}, {}
         for i in sorted(wanted):
-            Rp, tp, axis, parent = k.rotations[i], k.translations[i], k.axes[i], k.parents[i]
-            if k.kinds[i] == "revolute":
-                R_loc = _matmul(Rp, _joint_rotation(axis, np.cos(q[i]), np.sin(q[i])))
-                t_loc = tp
-            else:
-                R_loc = Rp
-                t_loc = _vadd(tp, _vscale(_matvec(Rp, axis), q[i]))
-            axis_loc = _matvec(Rp, axis)                     # R_j(q) leaves its own axis unchanged
+            E, r = _local_placement(k, q, i)
+            axis_loc = _matvec(k.rotations[i], k.axes[i])         # R_j(q) leaves its own axis unchanged
+            parent = k.parents[i]
             if parent < 0:
-                R, p, a = R_loc, t_loc, axis_loc
+                R, p, a = E, r, axis_loc
             else:
                 Rl = self.R[parent]
-                R, p, a = _matmul(Rl, R_loc), _vadd(self.p[parent], _matvec(Rl, t_loc)), _matvec(Rl, axis_loc)
+                R, p, a = _matmul(Rl, E), _vadd(self.p[parent], _matvec(Rl, r)), _matvec(Rl, axis_loc)
             self.R[i], self.p[i] = R, p
             self.S[i] = _cross(p, a) + a if k.kinds[i] == "revolute" else a + _ZERO3
 
 
-def _body_inertia(k: ChainParams, fr: _Frames, i: int) -> tuple:
-    """Body ``i`` in the base frame: ``(m, c, Ic)``, its centre of mass ``c`` (m) and its rotational inertia
-    about it ``Ic = R Ic_local R^T`` (kg m^2, 3x3)."""
-    R = fr.R[i]
-    c = _vadd(fr.p[i], _matvec(R, k.coms[i]))
-    T = _matmul(R, k.com_inertias[i])
-    Ic = [[None] * 3 for _ in range(3)]
-    for a in range(3):
-        for b in range(a, 3):
-            Ic[a][b] = Ic[b][a] = _dot(T[a], R[b])
-    return k.masses[i], c, tuple(tuple(r) for r in Ic)
-
-
-def _spatial_inertia(body) -> tuple:
-    """``(m, H = m c, I_O)``: the spatial inertia about the base origin of a body ``(m, c, Ic)``;
-    ``I_O = Ic + m (|c|^2 1 - c c^T)`` (parallel axes)."""
-    m, c, Ic = body
-    H = _vscale(c, m)
-    cHc = _dot(H, c)
-    I = [[None] * 3 for _ in range(3)]
-    for a in range(3):
-        for b in range(a, 3):
-            v = _sub(Ic[a][b], _mul(H[a], c[b]))
-            I[a][b] = I[b][a] = _add(v, cHc) if a == b else v
-    return m, H, tuple(tuple(r) for r in I)
-
-
-def _inertia_times(inertia, V) -> tuple:
-    """Spatial inertia times a motion ``V = (v, w)``: the momentum ``(m v + w x H, I w + H x v)``."""
-    m, H, I = inertia
-    v, w = V[:3], V[3:]
-    return _vadd(_vscale(v, m), _cross(w, H)) + _vadd(_matvec(I, w), _cross(H, v))
-
-
 def _motion_cross(V, W) -> tuple:
+    """``V x W`` of two motions ``(v, w)``."""
     v, w = V[:3], V[3:]
     return _vadd(_cross(w, W[:3]), _cross(v, W[3:])) + _cross(w, W[3:])
 
@@ -278,23 +253,44 @@ def _sadd(a, b) -> tuple:
     return tuple(_add(x, y) for x, y in zip(a, b))
 
 
+def _subspace(k: ChainParams, i: int) -> tuple:
+    """Joint ``i``'s motion subspace in its own frame: ``(0, u)`` (revolute) or ``(u, 0)`` (prismatic)."""
+    u = k.axes[i]
+    return _ZERO3 + u if k.kinds[i] == "revolute" else u + _ZERO3
+
+
+def _along(k: ChainParams, i: int, f, n):
+    """``S_i . (f, n)``: the component of a force ``(f, n)`` in joint ``i``'s frame along its motion."""
+    return _dot(k.axes[i], n) if k.kinds[i] == "revolute" else _dot(k.axes[i], f)
+
+
 # ---------------------------------------------------------------------------------------------------------------
-# The algorithms on lists of values
+# The algorithms on lists of values, in joint frames
 # ---------------------------------------------------------------------------------------------------------------
-def _rnea(k: ChainParams, fr: _Frames, dq, ddq, gravity) -> list:
-    """``tau = M q'' + N q' + G`` (gravity ``gravity``, m/s^2) by recursive Newton-Euler, as a list."""
+def _rnea(k: ChainParams, X: list, dq, ddq, gravity) -> list:
+    """``tau = M q'' + N q' + G`` (gravity ``gravity``, m/s^2) by recursive Newton-Euler, as a list.
+
+    ``X[i] = (E, r)`` are the joints' placements in their parents (:func:`_local_placement`).
+    """
     n = k.n
     V, A, F = {}, {}, {}
-    a0 = tuple(-g for g in gravity) + _ZERO3
     for i in range(n):
+        E, r = X[i]
         parent = k.parents[i]
-        Vl = V[parent] if parent >= 0 else (0.0,) * 6
-        Al = A[parent] if parent >= 0 else a0
-        S = fr.S[i]
-        V[i] = _sadd(Vl, _vscale(S, dq[i]))
-        A[i] = _sadd(_sadd(Al, _vscale(S, ddq[i])), _vscale(_motion_cross(Vl, S), dq[i]))
-        # Newton-Euler about the centre of mass, then the force's moment about the base origin
-        m, c, Ic = _body_inertia(k, fr, i)
+        if parent >= 0:                  # the parent's motion in this frame
+            v, w = V[parent][:3], V[parent][3:]
+            a, dw = A[parent][:3], A[parent][3:]
+            Vx = _mtvec(E, _vadd(v, _cross(w, r))) + _mtvec(E, w)
+            Ax = _mtvec(E, _vadd(a, _cross(dw, r))) + _mtvec(E, dw)
+        else:                            # the base accelerates at -g: gravity on every body
+            Vx = (0.0,) * 6
+            Ax = _mtvec(E, tuple(-g for g in gravity)) + _ZERO3
+        S = _subspace(k, i)
+        Sdq = _vscale(S, dq[i])
+        V[i] = _sadd(Vx, Sdq)
+        A[i] = _sadd(_sadd(Ax, _vscale(S, ddq[i])), _motion_cross(V[i], Sdq))
+        # Newton-Euler about the centre of mass, then the moment about the joint origin
+        m, c, Ic = k.masses[i], k.coms[i], k.com_inertias[i]
         v, w = V[i][:3], V[i][3:]
         a, dw = A[i][:3], A[i][3:]
         v_c = _vadd(v, _cross(w, c))
@@ -303,27 +299,78 @@ def _rnea(k: ChainParams, fr: _Frames, dq, ddq, gravity) -> list:
         F[i] = f + _vadd(n_c, _cross(c, f))
     tau = [0.0] * n
     for i in reversed(range(n)):
-        tau[i] = _dot(fr.S[i], F[i])
-        if k.parents[i] >= 0:
-            F[k.parents[i]] = _sadd(F[k.parents[i]], F[i])
+        f, nm = F[i][:3], F[i][3:]
+        tau[i] = _along(k, i, f, nm)
+        parent = k.parents[i]
+        if parent >= 0:                  # the force on the parent, in its frame
+            E, r = X[i]
+            Ef = _matvec(E, f)
+            F[parent] = _vadd(F[parent][:3], Ef) + _vadd(F[parent][3:], _vadd(_matvec(E, nm), _cross(r, Ef)))
     return tau
 
 
-def _crba(k: ChainParams, fr: _Frames) -> list:
-    """``M(q)`` by the composite-rigid-body algorithm, as nested lists (exact zeros between branches)."""
+def _body_inertia(k: ChainParams, i: int) -> tuple:
+    """Body ``i``'s spatial inertia about its joint origin in its joint frame: ``(m, h = m c, I_O)`` with
+    ``I_O = Ic + m (|c|^2 1 - c c^T)`` (parallel axes); constants."""
+    m, c, Ic = k.masses[i], k.coms[i], k.com_inertias[i]
+    h = _vscale(c, m)
+    ch = _dot(h, c)
+    I = [[None] * 3 for _ in range(3)]
+    for a in range(3):
+        for b in range(a, 3):
+            v = _sub(Ic[a][b], _mul(h[a], c[b]))
+            I[a][b] = I[b][a] = _add(v, ch) if a == b else v
+    return m, h, tuple(tuple(row) for row in I)
+
+
+def _inertia_to_parent(inertia, E, r) -> tuple:
+    """A spatial inertia ``(m, h, I_O)`` of a joint frame expressed in its parent's frame at ``(E, r)``:
+    ``h' = E h + m r``, ``I' = E I_O E^T + (m |r|^2 + 2 r.Eh) 1 - m r r^T - Eh r^T - r Eh^T``."""
+    m, h, I = inertia
+    he = _matvec(E, h)
+    T = _matmul(E, I)
+    diag = _add(_mul(m, _dot(r, r)), _mul(2.0, _dot(r, he)))
+    out = [[None] * 3 for _ in range(3)]
+    for a in range(3):
+        for b in range(a, 3):
+            v = _dot(T[a], E[b])
+            if a == b:
+                v = _add(v, diag)
+            v = _sub(v, _add(_mul(_mul(m, r[a]), r[b]), _add(_mul(he[a], r[b]), _mul(r[a], he[b]))))
+            out[a][b] = out[b][a] = v
+    return m, _vadd(he, _vscale(r, m)), tuple(tuple(row) for row in out)
+
+
+def _crba(k: ChainParams, X: list) -> list:
+    """``M(q)`` by the composite-rigid-body algorithm in joint frames, as nested lists (exact zeros between
+    branches of a tree)."""
     n = k.n
-    composite = [_spatial_inertia(_body_inertia(k, fr, i)) for i in range(n)]
+    composite = [_body_inertia(k, i) for i in range(n)]
     for i in reversed(range(n)):
         parent = k.parents[i]
         if parent >= 0:
-            (m1, H1, I1), (m2, H2, I2) = composite[parent], composite[i]
-            composite[parent] = (_add(m1, m2), _vadd(H1, H2), tuple(_vadd(r1, r2) for r1, r2 in zip(I1, I2)))
+            m2, h2, I2 = _inertia_to_parent(composite[i], *X[i])
+            m1, h1, I1 = composite[parent]
+            composite[parent] = (_add(m1, m2), _vadd(h1, h2), tuple(_vadd(a, b) for a, b in zip(I1, I2)))
     M = [[0.0] * n for _ in range(n)]
     for i in range(n):
-        F = _inertia_times(composite[i], fr.S[i])
-        for j in k.support(i):
-            M[i][j] = M[j][i] = _dot(fr.S[j], F)
+        m, h, I = composite[i]
+        u = k.axes[i]
+        # the composite's force for a unit motion of joint i: (w x h, I w) or (m v, h x v)
+        f, nm = (_cross(u, h), _matvec(I, u)) if k.kinds[i] == "revolute" else (_vscale(u, m), _cross(h, u))
+        M[i][i] = _along(k, i, f, nm)
+        j = i
+        while k.parents[j] >= 0:         # carried to each ancestor's frame
+            E, r = X[j]
+            f = _matvec(E, f)
+            nm = _vadd(_matvec(E, nm), _cross(r, f))
+            j = k.parents[j]
+            M[i][j] = M[j][i] = _along(k, j, f, nm)
     return M
+
+
+def _placements(k: ChainParams, q) -> list:
+    return [_local_placement(k, q, i) for i in range(k.n)]
 
 
 def _cholesky_solve(M, r) -> list:
@@ -376,32 +423,32 @@ def _zeros(n: int) -> list:
 
 def inertia_matrix(k: ChainParams, q) -> np.ndarray:
     """``M(q)`` (kg m^2, kg on prismatic joints), shape ``q.shape[1:] + (n, n)``, by the CRBA."""
-    M = _crba(k, _Frames(k, q))
+    M = _crba(k, _placements(k, q))
     out = _pack(M, (k.n, k.n), q)
     return out if out.ndim == 2 else np.moveaxis(out, (0, 1), (-2, -1))
 
 
 def mass_times(k: ChainParams, q, v) -> np.ndarray:
     """``M(q) v`` (N m, N) for joint rows ``v`` (rad/s^2, m/s^2); rows."""
-    M = _crba(k, _Frames(k, q))
+    M = _crba(k, _placements(k, q))
     return _pack([_dot(M[i], [v[j] for j in range(k.n)]) for i in range(k.n)], (k.n,), q, v)
 
 
 def mass_solve(k: ChainParams, q, r) -> np.ndarray:
     """``M(q)^-1 r`` for a generalised force ``r`` (N m, N): Cholesky of ``M`` and two triangular solves; rows."""
-    x = _cholesky_solve(_crba(k, _Frames(k, q)), [r[i] for i in range(k.n)])
+    x = _cholesky_solve(_crba(k, _placements(k, q)), [r[i] for i in range(k.n)])
     return _pack(x, (k.n,), q, r)
 
 
 def bias_forces(k: ChainParams, q, dq) -> np.ndarray:
     """``h(q, q') = N(q, q') q' + G(q)`` (N m, N) by recursive Newton-Euler; rows."""
-    tau = _rnea(k, _Frames(k, q), [dq[i] for i in range(k.n)], _zeros(k.n), k.gravity)
+    tau = _rnea(k, _placements(k, q), [dq[i] for i in range(k.n)], _zeros(k.n), k.gravity)
     return _pack(tau, (k.n,), q, dq)
 
 
 def gravity_forces(k: ChainParams, q) -> np.ndarray:
     """``G(q)`` (N m, N): the forces that hold the arm still against gravity; rows."""
-    return _pack(_rnea(k, _Frames(k, q), _zeros(k.n), _zeros(k.n), k.gravity), (k.n,), q)
+    return _pack(_rnea(k, _placements(k, q), _zeros(k.n), _zeros(k.n), k.gravity), (k.n,), q)
 
 
 def plant_acceleration(k: ChainParams, q, dq, force) -> np.ndarray:
@@ -415,9 +462,9 @@ def plant_acceleration(k: ChainParams, q, dq, force) -> np.ndarray:
     force : numpy.ndarray
         Total generalised force on the joints (N m, N), rows.
     """
-    fr = _Frames(k, q)
-    h = _rnea(k, fr, [dq[i] for i in range(k.n)], _zeros(k.n), k.gravity)
-    x = _cholesky_solve(_crba(k, fr), [_sub(force[i], h[i]) for i in range(k.n)])
+    X = _placements(k, q)
+    h = _rnea(k, X, [dq[i] for i in range(k.n)], _zeros(k.n), k.gravity)
+    x = _cholesky_solve(_crba(k, X), [_sub(force[i], h[i]) for i in range(k.n)])
     return _pack(x, (k.n,), q, dq, force)
 
 
