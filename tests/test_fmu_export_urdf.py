@@ -80,6 +80,9 @@ def test_model_exchange_derivatives_agree_with_pinocchio(exported, key):
                 M = np.triu(M) + np.triu(M, 1).T
                 ddq_solve = np.linalg.solve(M, tau - pin.nonLinearEffects(model, data, qp, dq))
                 np.testing.assert_array_equal(got[:n], dq)
+                # the kernel the C was generated from, run by numpy: the same operations
+                kernel = arm.kernels.plant_acceleration(arm.kernel_params(), q, dq, tau)
+                np.testing.assert_allclose(got[n:], kernel, rtol=1e-13, atol=1e-13 * max(np.max(np.abs(kernel)), 1))
                 scale = max(np.max(np.abs(ddq)), 1.0)
                 np.testing.assert_allclose(got[n:], ddq, rtol=TOL, atol=TOL * scale)
                 np.testing.assert_allclose(got[n:], ddq_solve, rtol=TOL, atol=TOL * scale)
