@@ -2,7 +2,8 @@
 
 ::
 
-    dobkit fmu export [--scenario S] [--fmi-version 2|3] [--substeps N] --out plant.fmu [--force]
+    dobkit fmu export [--scenario S | --arm scope4|panda|ur5|X.urdf [--tool-frame F] [--locked J1,J2]]
+                      [--fmi-version 2|3] [--substeps N] --out plant.fmu [--force]
     dobkit fmu export-controller --scenario S --out controller.fmu [--fmi-version 2|3] [--force]
     dobkit fmu cosim PLANT.fmu [--scenario S] [--step H] [--coupling zoh|linear] [--out DIR] [--no-figures]
     dobkit fmu convergence PLANT.fmu [--scenario S] [--steps 0.004,0.002,0.001,0.0005] [--coupling ...] [--out DIR]
@@ -85,8 +86,15 @@ def _cmd_export(args) -> int:
         raise ValueError(f"--out {out} is a folder; give the path of the .fmu file to write")
     if out.exists() and not args.force:
         raise ValueError(f"--out {out} exists; refusing to overwrite it (use --force to replace it)")
-    s = load_scenario(args.scenario)
     from fmu.export import export_plant
+    if args.arm is not None:
+        arm = _export_arm(args)
+        path = export_plant(out, params=arm, fmi_version=args.fmi_version, substeps=args.substeps, force=args.force)
+        print(f"wrote {path} (FMI {args.fmi_version}.0, Model Exchange + Co-Simulation, arm {arm.n} joints "
+              f"{list(arm.joints.names)}, {args.substeps} RK4 sub-steps per co-simulation step; disturbance models "
+              "off, settable as start values)")
+        return 0
+    s = load_scenario(args.scenario)
     q_ref0, dq_ref0, _ = s.trajectory.evaluate(0.0)
     q0 = s.initial["q"] if s.initial["q"] is not None else q_ref0
     dq0 = s.initial["dq"] if s.initial["dq"] is not None else dq_ref0
@@ -114,6 +122,25 @@ def _cmd_export_controller(args) -> int:
           f"communication step = sample period {c.period:g} s; reference tabulated to t = "
           f"{s.simulation.t_final:g} s)")
     return 0
+
+
+def _export_arm(args):
+    """The arm of ``fmu export --arm``: an example name or a URDF path with ``--tool-frame``."""
+    from blocks.arms import example_arm, load_urdf_arm
+    from blocks.arms.examples import EXAMPLES
+
+    names = ["scope4", *sorted(EXAMPLES)]
+    if args.arm in names:
+        if args.tool_frame or args.locked:
+            raise ValueError(f"--arm {args.arm} is a built-in example with its own tool frame and locked joints; "
+                             "--tool-frame and --locked go with a URDF path")
+        return example_arm(args.arm)
+    if not args.arm.lower().endswith(".urdf"):
+        raise ValueError(f"--arm must be one of {names} or a path to a .urdf file, got {args.arm!r}")
+    if not args.tool_frame:
+        raise ValueError(f"--arm {args.arm} is a URDF file: give its tool frame with --tool-frame")
+    locked = tuple(j for j in (args.locked or "").split(",") if j)
+    return load_urdf_arm(args.arm, args.tool_frame, locked=locked)
 
 
 def _estimate_line(estimate: dict) -> str:
@@ -331,6 +358,10 @@ def add_fmu_subcommands(subparsers) -> None:
                      help="RK4 steps per co-simulation communication step (default: 4)")
     exp.add_argument("--out", required=True, help="path of the .fmu file to write (an existing file is refused)")
     exp.add_argument("--force", action="store_true", help="replace an existing --out file")
+    exp.add_argument("--arm", default=None,
+                     help="export this arm's plant instead of the scenario's: scope4, panda, ur5 or a .urdf path")
+    exp.add_argument("--tool-frame", default=None, help="tool frame of a --arm URDF file")
+    exp.add_argument("--locked", default=None, help="comma-separated joints of a --arm URDF file to lock")
     exp.set_defaults(func=_cmd_export)
 
     ctl = sub.add_parser("export-controller", help="export the scenario's digital controller ([controller]) as a "

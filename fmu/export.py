@@ -1,7 +1,9 @@
-"""Export the plant (paper Eq. 1, 5-7 with the disturbance models) as an FMU.
+"""Export the plant (paper Eq. 1, 5-7 with the disturbance models, or any arm model) as an FMU.
 
-:func:`export_plant` writes the C model with this export's parameters as
-start values, compiles it with the system C compiler and zips
+:func:`export_plant` generates the plant's maths as C from the same kernels
+the Python blocks and the compiled engine run (:mod:`fmu.generated`, written
+to ``plant_generated.h``), writes the C model with this export's parameters
+as start values, compiles it with the system C compiler and zips
 
 * ``modelDescription.xml`` (FMI 2.0 or 3.0, Model Exchange and Co-Simulation),
 * ``binaries/<platform>/dobkit_plant.so`` (``linux64`` for FMI 2,
@@ -91,7 +93,8 @@ def _build_txt(fmi_version: int, sources: list[str]) -> str:
     return (f"dobkit plant FMU (FMI {fmi_version}.0): rebuild the binary from this folder with any C99 compiler\n\n"
             f"    {shlex.join(cmd)}\n\n"
             f"and place {lib} in binaries/{platform_folder(fmi_version)}/ of the FMU.\n"
-            "plant_config.h holds this export's value references, start values and instantiation token.\n"
+            "plant_config.h holds this export's value references, start values and instantiation token;\n"
+            "plant_generated.h the plant's maths, generated from dobkit's kernels for this arm.\n"
             "The fmi*.h headers are the standard FMI headers (2-clause BSD, Modelica Association Project FMI).\n")
 
 
@@ -105,14 +108,18 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
     path : str or pathlib.Path
         Where to write the ``.fmu`` file (its folder must exist).  An existing
         file is refused unless ``force`` is true.
-    params : RobotParameters, optional
-        True arm parameters (Table 1 by default); start values of the FMU's
-        parameters ``m1`` ... ``d4``.  The FMU derives ``k1..k5`` from them, so
-        changing a Table-1 parameter at simulation time works.
+    params : blocks.arm.ArmModel, optional
+        The true arm: the paper's RRPR by default (:class:`RobotParameters`,
+        Table 1), whose values become the FMU's parameters ``m1`` ... ``d4``
+        with ``k1..k5`` derived from them, so changing a Table-1 parameter at
+        simulation time works; or another arm (a URDF arm of
+        :func:`blocks.arms.load_urdf_arm`), whose geometry is fixed in the C.
     disturbance : DisturbanceSpec, optional
         Disturbance models switched on (``disturbance_paper``,
         ``disturbance_friction``, ``disturbance_tissue``) and their parameters;
-        default: the paper's Eq. 4.
+        default: the paper's Eq. 4 (for another arm: every model off, zero
+        amplitudes, all settable as start values; the tissue model needs the
+        paper's arm).
     fmi_version : {2, 3}
         FMI 2.0 or FMI 3.0.
     substeps : int
@@ -120,11 +127,11 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
         communication step (>= 1).
     cc : str, optional
         C compiler command; default ``$CC``, else ``cc``/``gcc``/``clang``.
-    q0, dq0 : 4 floats, optional
+    q0, dq0 : n floats, optional
         Start values of the joint positions (rad, m) and velocities (rad/s, m/s).
-        By default the arm starts at rest in the regular pose
+        By default the paper's arm starts at rest in the regular pose
         :data:`fmu.scenario_values.DEFAULT_START_Q` (``theta2 = pi/2``, ``d3 = 0.24 m``),
-        not at the singular ``theta2 = 0``.
+        not at the singular ``theta2 = 0``; another arm at rest at ``q = 0``.
     force : bool
         Replace an existing file at ``path`` (as ``dobkit fmu export --force``).
 

@@ -8,9 +8,10 @@ same operations as the numpy kernels and the compiled engine's numba code.
 the input hold, the status codes).
 
 The disturbance switches (``disturbance_paper`` ...) are structure to the
-trace, yet the FMU lets the user flip them before initialization: one
-function is generated for each combination and the C picks one by the
-switches' bit mask.  The numbers the trace lifts (``theta``) are computed from
+trace, yet the FMU lets the user flip them before initialization: ``tau_dis``
+is generated for each combination and the C picks one by the switches' bit
+mask; the dynamics, which the disturbance reaches only through the force
+``u + tau_dis``, are generated once.  The numbers the trace lifts (``theta``) are computed from
 the FMU's tunable parameters by ``plant_theta`` (for the paper's arm the Table-1
 parameters through the traced ``k1..k5`` of Eq. 5-7), so changing a parameter
 at simulation time needs no new code; structure that is frozen in an arm
@@ -21,7 +22,8 @@ Generated (all ``static``, one header per export)::
     N_JOINTS, N_THETA, N_CALCULATED, N_MODEL_COMBOS
     plant_theta(const double *p, double *theta)               theta from the real parameters p[P_*]
     plant_calculated(const double *p, double *out)            calculated parameters (k1..k5)
-    PLANT_UPDATE[mask](t, x, u, theta, dx)                     [dq; q''] of Eq. 1
+    plant_dynamics(t, x, f, theta, dx)                         [dq; q''] of Eq. 1 under the force f
+    plant_update(mask, t, x, u, theta, dx)                     the same with f = u + tau_dis
     PLANT_TAU_DIS[mask](t, x, u, theta, tau_dis)               the acting disturbance
     plant_arm_valid(p, sw, msg, size)                        the arm's own parameter check
 """
@@ -280,31 +282,44 @@ def plant_c(arm, spec: DisturbanceSpec, param_order: list[str], start: dict) -> 
                                  "const double *p, double *out", static=True) if calculated else
                  "static void plant_calculated(const double *p, double *out)\n{\n    (void)p;\n    (void)out;\n}\n")
     functions = 2
-    theta_names: tuple = ()
     rrpr = isinstance(arm, RobotParameters)
+    # the dynamics once: the disturbance enters only through the force u + tau_dis (Eq. 1), so the plant with
+    # models on is this function of u + tau_dis, operation for operation
+    dynamics = trace_block(plant_kernels(arm, _with_kinds(spec, ())), nx, nu, ("update",), ("k", "disturbance"))
+    if list(dynamics.theta) != expected:
+        raise CodegenError("the plant without disturbance models reads other numbers than the export's")
+    theta_names = tuple(dynamics.theta_names)
+    parts.append("/* Eq. 1 under the total force u (N m, N): [dq; M(q)^-1 (u - h(q, dq))] */")
+    parts.append(emit_c_function("plant_dynamics", dynamics.rows["update"], args=_KERNEL_ARGS, static=True))
+    functions += 1
     for mask, kinds in enumerate(_combinations()):
         if not rrpr and any(k in RRPR_ONLY_KINDS for k in kinds):
             continue            # refused at initialization (plant_arm_valid); its slot takes the mask without it
-        kernels = plant_kernels(arm, _with_kinds(spec, kinds))
-        trace = trace_block(kernels, nx, nu, ("update", "output"), ("k", "disturbance"))
+        trace = trace_block(plant_kernels(arm, _with_kinds(spec, kinds)), nx, nu, ("output",),
+                            ("k", "disturbance"))
         if list(trace.theta) != expected:
             raise CodegenError(f"the plant with disturbance models {kinds} reads other numbers than the export's")
-        theta_names = tuple(trace.theta_names)
-        parts.append(f"/* disturbance models: {', '.join(kinds) or 'none'} */")
-        parts.append(emit_c_function(f"plant_update_{mask}", trace.rows["update"], args=_KERNEL_ARGS, static=True))
+        parts.append(f"/* tau_dis of the disturbance models: {', '.join(kinds) or 'none'} */")
         parts.append(emit_c_function(f"plant_tau_dis_{mask}", trace.rows["output"][nx:], args=_KERNEL_ARGS,
                                      static=True))
-        functions += 2
+        functions += 1
     combos = [m if rrpr else _without_rrpr_only(m) for m in range(2 ** len(DISTURBANCE_KINDS))]
     parts += ["typedef void (*PlantKernel)(double, const double *, const double *, const double *, double *);",
-              "static const PlantKernel PLANT_UPDATE[N_MODEL_COMBOS] = {"
-              + ", ".join(f"plant_update_{m}" for m in combos) + "};",
               "static const PlantKernel PLANT_TAU_DIS[N_MODEL_COMBOS] = {"
               + ", ".join(f"plant_tau_dis_{m}" for m in combos) + "};", "",
+              "/* [dq; q''] with the disturbance models of bit mask `mask` (bit j: switch j) acting */",
+              "static void plant_update(int mask, double t, const double *x, const double *u, const double *theta, "
+              "double *dx)\n{\n"
+              "    double tau_dis[N_JOINTS], force[N_JOINTS];\n    int i;\n"
+              "    if (mask == 0) {\n        plant_dynamics(t, x, u, theta, dx);\n        return;\n    }\n"
+              "    PLANT_TAU_DIS[mask](t, x, u, theta, tau_dis);\n"
+              "    for (i = 0; i < N_JOINTS; i++) force[i] = u[i] + tau_dis[i];\n"
+              "    plant_dynamics(t, x, force, theta, dx);\n}\n",
               "/* the arm's own check of its parameters (beyond the ranges of each one) */",
               "static int plant_arm_valid(const double *p, const int *sw, char *msg, unsigned long msg_size)\n{\n"
               + valid + "}\n",
               "#endif", ""]
+    functions += 1
     functions += 1
     return GeneratedPlant(text="\n".join(parts), n_joints=n, n_theta=len(theta_exprs), n_calculated=len(calculated),
                           calculated=tuple(c[:3] for c in calculated), functions=functions,

@@ -59,7 +59,8 @@ def plant_start_values(scenario: Scenario, fmu_variables: set[str] | None, param
     q_ref0, dq_ref0, _ = s.trajectory.evaluate(0.0)
     q0 = s.initial["q"] if s.initial["q"] is not None else q_ref0
     dq0 = s.initial["dq"] if s.initial["dq"] is not None else dq_ref0
-    values = {f"q[{i}]": float(q0[i]) for i in range(JOINTS)} | {f"dq[{i}]": float(dq0[i]) for i in range(JOINTS)}
+    n = s.robot.joints.count
+    values = {f"q[{i}]": float(q0[i]) for i in range(n)} | {f"dq[{i}]": float(dq0[i]) for i in range(n)}
     if parameters == "scenario":
         wanted = plant_parameter_values(s.robot, s.disturbance)
         if fmu_variables is not None:

@@ -239,9 +239,10 @@ def test_generated_header_is_sized_by_the_arm_and_written_once_per_combination()
     reals = [v for v in plant_variables(params, ALL, 4) if v.c_name is not None]
     gen = plant_c(params, ALL, [v.name for v in reals], {v.name: v.start for v in reals})
     assert "#define N_JOINTS 4" in gen.text and gen.n_theta == 27 and gen.n_calculated == 5
-    assert gen.functions == 2 + 2 * 8 + 1
+    assert gen.functions == 2 + 1 + 8 + 2         # theta, calculated; dynamics; tau_dis per combination; update, check
+    assert gen.text.count("static void plant_dynamics(") == 1
     for mask in range(8):
-        assert f"static void plant_update_{mask}(" in gen.text
+        assert f"static void plant_tau_dis_{mask}(" in gen.text
     # no general 4x4 solve, no hand-written inertia matrix: the closed-form kernel's operations
     assert "M[4][4]" not in gen.text and "solve_spd4" not in gen.text
     with pytest.raises(Exception, match="parameter map disagrees"):

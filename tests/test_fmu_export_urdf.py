@@ -80,6 +80,9 @@ def test_model_exchange_derivatives_agree_with_pinocchio(exported, key):
                 M = np.triu(M) + np.triu(M, 1).T
                 ddq_solve = np.linalg.solve(M, tau - pin.nonLinearEffects(model, data, qp, dq))
                 np.testing.assert_array_equal(got[:n], dq)
+                # the kernel the C was generated from, run by numpy: the same operations
+                kernel = arm.kernels.plant_acceleration(arm.kernel_params(), q, dq, tau)
+                np.testing.assert_allclose(got[n:], kernel, rtol=1e-13, atol=1e-13 * max(np.max(np.abs(kernel)), 1))
                 scale = max(np.max(np.abs(ddq)), 1.0)
                 np.testing.assert_allclose(got[n:], ddq, rtol=TOL, atol=TOL * scale)
                 np.testing.assert_allclose(got[n:], ddq_solve, rtol=TOL, atol=TOL * scale)
@@ -124,3 +127,17 @@ def test_the_tissue_model_is_refused_for_a_urdf_arm(exported):
         export_plant("never.fmu", params=arms["scope4"], disturbance=DisturbanceSpec(kinds=("tissue",)))
     with pytest.raises(ValueError, match="q0 must be 7 finite numbers"):
         export_plant("never.fmu", params=arms["panda"], q0=[0.0] * 4)
+
+
+def test_the_command_line_exports_a_urdf_arm(tmp_path, capsys):
+    from blocks.arms import scope4_urdf
+    from dobkit.cli import main
+    out = tmp_path / "scope4.fmu"
+    assert main(["fmu", "export", "--arm", str(scope4_urdf()), "--tool-frame", "tool_tip", "--out", str(out)]) == 0
+    assert "arm 4 joints" in capsys.readouterr().out
+    assert validate_fmu(str(out)) == []
+    assert main(["fmu", "export", "--arm", str(scope4_urdf()), "--out", str(tmp_path / "x.fmu")]) == 2
+    assert "give its tool frame with --tool-frame" in capsys.readouterr().err
+    assert main(["fmu", "export", "--arm", "kuka", "--out", str(tmp_path / "x.fmu")]) == 2
+    assert "--arm must be one of ['scope4', 'panda', 'ur5'] or a path to a .urdf file" in capsys.readouterr().err
+    assert not (tmp_path / "x.fmu").exists()

@@ -3,7 +3,7 @@
 A kernel block's ``update`` and ``output`` (``f(t, x, u, *params) -> rows``)
 are run once on symbols (:func:`trace_block`); :func:`emit_c_function`
 writes the recorded graph as one C99 function, every node once as a
-``const double`` in creation order (a dependency order), with the operations
+``const double``, its operands before it, with the operations
 the numba back end performs: the same operands in the same order, ``cos``,
 ``sin``, ``sqrt``, ``fabs`` ..., a comparison as a 0/1 double.  Compiled
 without ``-ffast-math`` and with ``-ffp-contract=off`` it rounds as the

@@ -38,7 +38,7 @@ int plant_derivatives(const PlantData *d, double t, const double *x, const doubl
     int i;
 
     plant_theta(d->p, theta);
-    PLANT_UPDATE[model_mask(d)](t, x, u, theta, dx);
+    plant_update(model_mask(d), t, x, u, theta, dx);
     for (i = 0; i < NX; i++)
         if (!isfinite(dx[i])) return PLANT_NONFINITE;
     return PLANT_OK;
