@@ -49,11 +49,13 @@ from blocks.batch import Variants, auto_substeps, simulate_batch
 from blocks.batch.schedule import rates_by_source
 from blocks.budget import Budget, BudgetError, Estimate, estimate_batch, largest_batch
 
+from .job_dask import dask_threads, run_on_dask
 from .sweep import json_default, run_schedule
-from .tune import TuneSpec, damping_ratios, overshoots
+from .tune import TuneError, TuneSpec, damping_ratios, overshoots
 from .tune_linear import inertia_pairs, spectral_abscissas, torque_noise_rms
 
-__all__ = ["Evaluation", "Evaluator", "evaluation_estimate", "gains_key", "INFEASIBLE", "MAX_CANDIDATES_PER_BATCH",
+__all__ = ["Evaluation", "Evaluator", "evaluation_estimate", "simulate_candidates", "gains_key", "INFEASIBLE",
+           "MAX_CANDIDATES_PER_BATCH",
            "SIMULATION_GATES", "DAMPING_CONSTRAINTS"]
 
 #: The score of an infeasible candidate starts here (mm; far above any tracking error).
@@ -165,12 +167,14 @@ class Evaluator:
         Called with the number of candidates simulated, after every batch (progress, wall-time budget).
     engine : str
         :func:`blocks.batch.simulate_batch`'s engine.
+    client : distributed.Client, optional
+        Simulate on this Dask cluster (:mod:`analysis.job_dask`), each batch on one worker thread.
     """
 
     def __init__(self, spec: TuneSpec, workers: int = 1, log_rows: dict | None = None,
                  record: Callable[[list[dict]], None] | None = None,
-                 after_batch: Callable[[int], None] | None = None, engine: str = "auto") -> None:
-        self.spec, self.workers, self.engine = spec, int(workers), engine
+                 after_batch: Callable[[int], None] | None = None, engine: str = "auto", client=None) -> None:
+        self.spec, self.workers, self.engine, self.client = spec, int(workers), engine, client
         self.log_rows = dict(log_rows or {})
         self.record, self.after_batch = record, after_batch
         self.history: list[Evaluation] = []          # every evaluation asked for, in order
@@ -315,42 +319,81 @@ class Evaluator:
         return _pow2(auto_substeps(variants, True))
 
     def _simulate(self, pending: list[Evaluation]) -> None:
-        """Run the pending candidates' sets, batched by step; record each batch's rows as it finishes."""
+        """Run the pending candidates' sets, batched by step; record each batch's rows as it finishes (on the
+        Dask cluster of :attr:`client` when there is one, the batches then spread over its workers)."""
         spec = self.spec
         groups: dict[int, list[Evaluation]] = {}
         for ev in pending:
             groups.setdefault(self._substeps(ev.gains), []).append(ev)
         runs = spec.runs
+        threads = dask_threads(self.client) if self.client is not None else 1
+        chunks: list[tuple[int, list[Evaluation]]] = []
         for substeps, evs in sorted(groups.items()):
             size = run_schedule(spec.base, substeps, _noisy(spec))
             fits = largest_batch(spec.budget.memory, steps=size.steps, grid_points=size.grid_points, signals=1,
                                  noise=_noisy(spec), noise_samples=size.noise_samples)
             per_batch = max(1, min(MAX_CANDIDATES_PER_BATCH, fits // runs))
-            for start in range(0, len(evs), per_batch):
-                chunk = evs[start:start + per_batch]
-                records = [rec | ev.gains for ev in chunk for rec in spec.records]
-                t0 = time.perf_counter()
-                result = simulate_batch(None, Variants(spec.base, records), observer=True, metrics=[spec.metric],
-                                        signals=("tau",), substeps=substeps, workers=self.workers,
-                                        engine=self.engine)
-                seconds = (time.perf_counter() - t0) / len(chunk)
-                values = result.metrics[spec.metric].reshape(len(chunk), runs)
-                ok = result.ok.reshape(len(chunk), runs)
-                tau = result.signals["tau"]
-                tau[~result.ok] = 0.0                  # a diverged run's torques are NaN; it counts as diverged
-                peaks = np.abs(tau).max(axis=1).reshape(len(chunk), runs, -1)
-                del result, tau
-                for i, ev in enumerate(chunk):
-                    ev.simulated, ev.substeps, ev.seconds = True, substeps, seconds
-                    ev.values = np.where(ok[i], values[i], np.nan)
-                    ev.diverged = int((~ok[i]).sum())
-                    ev.peak_torque = peaks[i].max(axis=0)
-                    self._known[ev.key] = ev
-                self.simulated_now += len(chunk)
-                if self.record is not None:
-                    self.record([ev.row() for ev in chunk])
-                if self.after_batch is not None:
-                    self.after_batch(len(chunk))
+            if self.client is not None:          # every worker a share of the candidates
+                per_batch = max(1, min(per_batch, math.ceil(len(evs) / threads)))
+            chunks += [(substeps, evs[start:start + per_batch]) for start in range(0, len(evs), per_batch)]
+        payloads = [self._payload(i, substeps, chunk) for i, (substeps, chunk) in enumerate(chunks)]
+        take = lambda done: self._take(chunks[done["chunk"]][1], done)            # noqa: E731
+        if self.client is None:
+            for payload in payloads:
+                take(_simulate_payload(spec.base, payload))
+        else:
+            run_on_dask(self.client, simulate_candidates, iter(payloads), take, threads, TuneError)
+
+    def _payload(self, index: int, substeps: int, chunk: list[Evaluation]) -> dict:
+        """What :func:`simulate_candidates` needs for one chunk of candidates (picklable)."""
+        spec = self.spec
+        return {"chunk": index, "scenario": spec.base.data, "source": spec.base.source,
+                "records": [rec | ev.gains for ev in chunk for rec in spec.records], "candidates": len(chunk),
+                "metric": spec.metric, "substeps": substeps, "engine": self.engine,
+                "workers": 1 if self.client is not None else self.workers}
+
+    def _take(self, chunk: list[Evaluation], done: dict) -> None:
+        """One finished chunk: its evaluations filled in, its rows recorded, the batch reported."""
+        runs = self.spec.runs
+        values = done["values"].reshape(len(chunk), runs)
+        ok = done["ok"].reshape(len(chunk), runs)
+        peaks = done["peaks"].reshape(len(chunk), runs, -1)
+        for i, ev in enumerate(chunk):
+            ev.simulated, ev.substeps, ev.seconds = True, done["substeps"], done["seconds"]
+            ev.values = np.where(ok[i], values[i], np.nan)
+            ev.diverged = int((~ok[i]).sum())
+            ev.peak_torque = peaks[i].max(axis=0)
+            self._known[ev.key] = ev
+        self.simulated_now += len(chunk)
+        if self.record is not None:
+            self.record([ev.row() for ev in chunk])
+        if self.after_batch is not None:
+            self.after_batch(len(chunk))
+
+
+def simulate_candidates(payload: dict) -> dict:
+    """Simulate one chunk of candidates' sets (picklable in and out: run on a Dask worker).
+
+    ``payload``: ``scenario`` (data dict), ``source``, ``records`` (every run of every candidate, candidate by
+    candidate), ``candidates``, ``metric``, ``substeps``, ``engine``, ``workers`` and ``chunk`` (returned as is).
+    Returns ``chunk``, ``values`` (the metric per run, mm), ``ok`` (per run), ``peaks`` (peak ``|tau|`` per run
+    and joint), ``substeps`` and ``seconds`` (per candidate).
+    """
+    from blocks.scenario import scenario_from_dict
+    return _simulate_payload(scenario_from_dict(payload["scenario"], source=payload["source"]), payload)
+
+
+def _simulate_payload(base, payload: dict) -> dict:
+    t0 = time.perf_counter()
+    result = simulate_batch(None, Variants(base, payload["records"]), observer=True, metrics=[payload["metric"]],
+                            signals=("tau",), substeps=payload["substeps"], workers=payload["workers"],
+                            engine=payload["engine"])
+    seconds = (time.perf_counter() - t0) / payload["candidates"]
+    tau = result.signals["tau"]
+    tau[~result.ok] = 0.0                  # a diverged run's torques are NaN; it counts as diverged
+    return {"chunk": payload["chunk"], "values": np.asarray(result.metrics[payload["metric"]], dtype=float),
+            "ok": np.asarray(result.ok, dtype=bool), "peaks": np.abs(tau).max(axis=1),
+            "substeps": payload["substeps"], "seconds": seconds}
 
 
 def _relative_excess(values: np.ndarray, limits: np.ndarray) -> float:

@@ -68,6 +68,7 @@ from blocks.batch import simulate_batch
 from blocks.budget import Budget
 from blocks.progress import ProgressCallback, StageProgress
 
+from .job_dask import dask_client
 from .job_files import JobLog, LogKind, write_lines_atomically
 from .tune import HEADER_PARTS, METRIC_WORDS, TuneError, TuneSpec, damping_for_overshoot, load_tuning
 from .tune_eval import DAMPING_CONSTRAINTS, Evaluation, Evaluator, check_seconds, evaluation_estimate, gains_key
@@ -204,7 +205,8 @@ def _describe(gains: dict) -> str:
 # --------------------------------------------------------------------------------------------
 def run_tune(spec: TuneSpec | str | Path, out_dir: str | Path, workers: int | None = None,
              progress: bool | ProgressCallback = True, restart: bool = False, budget: Budget | None = None,
-             engine: str = "auto", figures: bool = True, compare_unconstrained: bool = False) -> TuneResult:
+             engine: str = "auto", figures: bool = True, compare_unconstrained: bool = False,
+             scheduler: str | None = None, scheduler_timeout: float = 10.0) -> TuneResult:
     """Tune the gains (see the module docstring) and write the results into ``out_dir``.
 
     Parameters
@@ -230,6 +232,15 @@ def run_tune(spec: TuneSpec | str | Path, out_dir: str | Path, workers: int | No
         With a damping (or overshoot) constraint: after the search, run the same search without it (its
         evaluations go to the same log) and measure the constraint's cost against that search's answer,
         rather than against the best of the constrained search's own evaluations.  About doubles the time.
+    scheduler : str, optional
+        Address of a Dask distributed scheduler (``tcp://host:8786``, or a ``LocalCluster``'s
+        ``scheduler_address``): each generation's candidates are simulated in batches spread over its workers
+        (:mod:`analysis.job_dask`); the search, the log and the outputs stay in this process.  A worker lost
+        mid-batch has its batch run again elsewhere by Dask; rows are written only for finished batches, so the
+        log holds every evaluation once, and the result is the one of a local tuning.  Needs
+        ``dask[distributed]``; the connection is made before the output folder is touched.
+    scheduler_timeout : float
+        Seconds to wait for the Dask scheduler to answer.
 
     Returns
     -------
@@ -260,6 +271,9 @@ def run_tune(spec: TuneSpec | str | Path, out_dir: str | Path, workers: int | No
             # the linear check needs no files: an infeasible tuning leaves nothing behind
             evaluator = Evaluator(spec, workers=workers, engine=engine)
             check_linear_feasibility(spec, evaluator)
+            if scheduler is not None:         # connect before writing anything: a failed connection leaves nothing
+                evaluator.client = dask_client(scheduler, scheduler_timeout, TuneError)
+                stack.callback(evaluator.client.close)
             out.mkdir(parents=True, exist_ok=True)
             log = JobLog(out / LOG_NAME, EVALUATION_LOG)
             stack.enter_context(log.lock())
@@ -400,7 +414,7 @@ def _search_without_damping(spec: TuneSpec, evaluator: Evaluator, log: Path, wri
     limits = dataclasses.replace(spec.limits, min_damping_ratio=None, max_overshoot=None, damping_from="off")
     free_spec = dataclasses.replace(spec, limits=limits)
     free = Evaluator(free_spec, workers=evaluator.workers, engine=evaluator.engine, log_rows=read_log(log)[1],
-                     record=writer.write)
+                     record=writer.write, client=evaluator.client)
     search = _Search(free_spec, free, lambda stage, f: report(stage.replace("tuning:", "without damping:"), f),
                      budget, started)
     free.after_batch = search.after_batch

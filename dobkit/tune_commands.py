@@ -87,7 +87,7 @@ def _tune(args: argparse.Namespace, budget: Budget, state: dict) -> int:
           f"{estimate.steps:,} RK4 steps (about {format_bytes(estimate.memory)}); evaluation log "
           f"{out / LOG_NAME}", flush=True)
     result = run_tune(spec, out, workers=args.workers, progress=not args.no_progress, restart=args.restart,
-                      budget=budget, compare_unconstrained=args.compare_unconstrained)
+                      budget=budget, compare_unconstrained=args.compare_unconstrained, scheduler=args.scheduler)
     print(_summary(result, out))
     return 0 if result.feasible else EXIT_INFEASIBLE
 
