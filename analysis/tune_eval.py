@@ -209,6 +209,16 @@ class Evaluator:
         slowest = float(np.linalg.eigvals(Y @ np.linalg.inv(self._M_observer)).real.min())
         return damping_ratios(kp, kd), slowest / float(np.sqrt(kp.max()))
 
+    def error_dynamics(self, gains: dict):
+        """The candidate's linearized error dynamics at the held configuration with the base scenario's true and
+        nominal models (:func:`analysis.tune_response.error_dynamics`): for the step and Bode figures."""
+        from .tune_response import error_dynamics
+        s = self.spec.base
+        kp = gains.get("gains.kp", np.diag(s.kp))
+        kd = gains.get("gains.kd", np.diag(s.kd))
+        Y = gains.get("gains.observer", s.observer_gain)
+        return error_dynamics(*self._hold, kp, kd, Y), (kp, kd)
+
     def linear_violations(self, noise: np.ndarray, abscissa: float, zeta=None, ratio: float | None = None) -> dict:
         """The linear constraints' violations (0: met); the damping and ratio ones when ``zeta``, ``ratio`` given."""
         limits = self.spec.limits

@@ -466,7 +466,9 @@ def _finish(spec: TuneSpec, evaluator: Evaluator, search: _Search, best: Evaluat
     report("tuning: writing results", 0.0)
     write_lines_atomically(out / file_name, [scenario.to_toml()])
     if figures:
-        made = write_figures(result, out / "figures")
+        designs = {label: evaluator.error_dynamics(point.gains) for label, point in
+                   (("base gains", base_point), ("tuned gains", tuned_point))}
+        made = write_figures(result, out / "figures", designs=designs, joints=spec.base.robot.joints)
         result = _replace(result, figures=[TuneFigure(file=p, caption=c) for p, c in made])
     result = _replace(result, seconds=round(time.perf_counter() - started, 3))
     write_lines_atomically(out / RESULT_NAME, [result.to_json()])

@@ -155,12 +155,14 @@ def test_the_result_file_reads_back_and_lists_its_files(problem):
     assert again.tuned.gains == result.tuned.gains and again.definition == result.definition
     assert len(again.history.phase) == again.evaluations["search"] + again.evaluations["polish"] + 1
     assert again.history.phase[0] == "base" and "polish" in again.history.phase
-    assert {f.file for f in again.figures} == {"tune_history.png", "tune_robustness.png", "tune_constraints.png"}
+    assert {f.file for f in again.figures} == {"tune_history.png", "tune_robustness.png", "tune_constraints.png",
+                                               "tune_step.png", "tune_bode.png"}
     for f in again.figures:
         assert (out / "figures" / f.file).is_file() and (out / "figures" / f.file).with_suffix(".svg").is_file()
     section = html_section(out)
     assert section.startswith("<section class='tune'>") and "Gain tuning short-tune" in section
-    assert section.count("data:image/png;base64,") == 3 and "<script" not in section
+    assert section.count("data:image/png;base64,") == 5 and "<script" not in section
+    assert "unit step of its own reference" in section and "|E_j / D_j|" in section
 
 
 @pytest.mark.parametrize("objective", ["worst", "mean"])
