@@ -324,7 +324,7 @@ def _margin(result, key: str) -> str:
         return "-"
     if key in ("torque_noise_rms", "torque_limit"):
         return f"{100 * value:+.3g} % of the limit"
-    if key == "max_overshoot":
+    if key in ("max_overshoot", "sampled_margin"):
         return f"{100 * value:+.3g} % points"
     return f"{value:+.3g}" + (" 1/s" if key == "stability_margin" else "")
 
@@ -355,6 +355,13 @@ def _constraint_rows(result) -> list[list[str]]:
                          _fmt([100 * v for v in overshoots(result.base.damping_ratio)], 3),
                          _fmt([100 * v for v in overshoots(result.tuned.damping_ratio)], 3),
                          _margin(result, "max_overshoot")])
+    sampled = limits.get("sampled_margin")
+    if sampled is not None:
+        def ts(point):
+            loop = point.sampled_loop
+            return "-" if loop is None else f"{_fmt(loop['ts_lambda_max'])} of {_fmt(loop['ts_lambda_limit'])}"
+        rows.append(["sampled loop: Ts lambda_max(Y M^-1) of its stability limit", f"<= {_fmt(1 - sampled)} of it",
+                     ts(result.base), ts(result.tuned), _margin(result, "sampled_margin")])
     ratio = limits.get("min_observer_bandwidth_ratio")
     if ratio is not None:
         rows.append(["slowest observer mode / tracking bandwidth", f">= {_fmt(ratio)}",

@@ -143,7 +143,7 @@ def check_linear_feasibility(spec: TuneSpec, evaluator: Evaluator) -> None:
     """
     limits = spec.limits
     if all(v is None for v in (limits.torque_noise_rms, limits.stability_margin, limits.min_damping_ratio,
-                                limits.max_overshoot, limits.min_observer_bandwidth_ratio)):
+                                limits.max_overshoot, limits.min_observer_bandwidth_ratio, limits.sampled_margin)):
         return
     n = len(spec.parameters)
 
@@ -169,7 +169,7 @@ def check_linear_feasibility(spec: TuneSpec, evaluator: Evaluator) -> None:
     u = found.x if found.fun < best_v else best_u
     gains = spec.gains(u)
     noise, abscissa = evaluator.linear(gains)
-    zeta, ratio = evaluator.design(gains)
+    zeta, ratio, _ = evaluator.design(gains)
     missed = violations(gains)
     misses = []
     if limits.torque_noise_rms is not None and np.any(noise > limits.torque_noise_rms):
@@ -185,6 +185,11 @@ def check_linear_feasibility(spec: TuneSpec, evaluator: Evaluator) -> None:
                 is not None else f">= {damping_for_overshoot(limits.max_overshoot):.3g} (constraints.max_overshoot = "
                 f"{limits.max_overshoot:g})")
         misses.append(f"damping ratios {np.round(zeta, 3).tolist()}, not all {what}")
+    if missed.get("sampled_margin", 0) > 0:
+        sampled = evaluator.sampled_loop(gains)
+        misses.append(f"Ts lambda_max(Y M^-1) = {sampled['ts_lambda_max']:.4g} against the sampled loop's limit "
+                      f"{sampled['ts_lambda_limit']:.4g}, more than {1 - limits.sampled_margin:g} of it "
+                      f"(constraints.sampled_margin = {limits.sampled_margin:g})")
     if missed.get("min_observer_bandwidth_ratio", 0) > 0:
         misses.append(f"observer bandwidth ratio {ratio:.3g}, not >= {limits.min_observer_bandwidth_ratio:g} "
                       "(constraints.min_observer_bandwidth_ratio)")
@@ -372,7 +377,8 @@ def _point(ev: Evaluation, nominal: float | None, evaluator: Evaluator) -> Point
         peak_torque=None if ev.peak_torque is None else [float(v) for v in ev.peak_torque],
         spectral_abscissa=float(ev.spectral_abscissa), violations=dict(ev.violations), feasible=bool(ev.feasible),
         diverged=int(ev.diverged), damping_ratio=[float(v) for v in ev.damping_ratio],
-        bandwidth_ratio=fin(ev.bandwidth_ratio), margins=evaluator.margins(ev))
+        bandwidth_ratio=fin(ev.bandwidth_ratio), margins=evaluator.margins(ev),
+        sampled_loop=evaluator.sampled_loop(ev.gains))
 
 
 def unconstrained_best(evaluator: Evaluator) -> Evaluation | None:
@@ -419,9 +425,9 @@ def _search_without_damping(spec: TuneSpec, evaluator: Evaluator, log: Path, wri
                      budget, started)
     free.after_batch = search.after_batch
     best = search.run()
-    best.violations = evaluator.linear_violations(best.torque_noise_rms, best.spectral_abscissa, best.damping_ratio,
-                                                  best.bandwidth_ratio) | {k: v for k, v in best.violations.items()
-                                                                            if k not in DAMPING_CONSTRAINTS}
+    linear = evaluator.linear_violations(best.torque_noise_rms, best.spectral_abscissa, best.damping_ratio,
+                                         best.bandwidth_ratio, best.sampled_radius)
+    best.violations = linear | {k: v for k, v in best.violations.items() if k not in DAMPING_CONSTRAINTS}
     return best, free.simulated_now
 
 

@@ -225,8 +225,15 @@ def test_cli_export_check_and_cosim(tmp_path, capsys):
     out = tmp_path / "run"
     assert dobkit_main(["fmu", "cosim", str(fmu), "--scenario", str(scenario_file), "--step", "0.005",
                         "--out", str(out), "--no-figures"]) == 0
-    printed = capsys.readouterr().out
+    captured = capsys.readouterr()
+    printed = captured.out
     assert "figures: skipped (--no-figures)" in printed and "h = 0.005 s, linear coupling" in printed
+    # progress on standard error: a line per run where it is not a terminal
+    assert "co-simulation with observer: done, took" in captured.err
+    assert "co-simulation without observer: done, took" in captured.err
+    assert dobkit_main(["fmu", "cosim", str(fmu), "--scenario", str(scenario_file), "--step", "0.005",
+                        "--out", str(tmp_path / "quiet"), "--no-figures", "--no-progress"]) == 0
+    assert "co-simulation" not in capsys.readouterr().err
     assert "estimated coupling error (step doubling over the first 0.1 s, order 2): q " in printed
     text = (out / "metrics.json").read_text()
     metrics = json.loads(text, parse_constant=lambda c: pytest.fail(f"non-strict JSON constant {c}"))
