@@ -108,7 +108,7 @@ from blocks.batch import BATCH_KEYS
 from blocks.budget import Budget
 from blocks.scenario import Scenario, ScenarioError, load_scenario, parse_key
 
-from .job_keys import Key, failing, number, numbers, read_table, read_top, whole
+from .job_keys import Key, failing, number, numbers, read_table, read_top, scenario_value, whole
 from .studies import DEFAULT_NOISE
 from .sweep import SweepError, check_name, json_default, split_changes, sweep_from_dict
 
@@ -607,10 +607,13 @@ def _limits(table: dict, base: Scenario, fail) -> Limits:
         if unknown:
             fail(f"unknown key(s) {[f'constraints.sensor_noise.{k}' for k in unknown]}; allowed: "
                  f"{', '.join(_NOISE_KEYS)}")
+        for k in _NOISE_KEYS:           # the scenario's [noise] values, by its own validator, then the sign
+            if k in given:
+                scenario_value(f"noise.{k}", given[k], f"constraints.sensor_noise.{k}", fail)
         for k in ("q_std", "dq_std"):
             if k in given and not (numbers(given[k], 4) and min(given[k]) >= 0):
                 fail(f"'constraints.sensor_noise.{k}' must be 4 numbers >= 0, got {given[k]!r}")
-        if "sample_period" in given and not (number(given["sample_period"]) and given["sample_period"] > 0):
+        if "sample_period" in given and not given["sample_period"] > 0:
             fail(f"'constraints.sensor_noise.sample_period' must be a number > 0 (s), got {given['sample_period']!r}")
         noise.update(given)
     sensor = {"q_std": [float(v) for v in noise["q_std"]], "dq_std": [float(v) for v in noise["dq_std"]],
