@@ -55,6 +55,7 @@ from .job_dask import dask_threads, run_on_dask
 from .sweep import json_default, run_schedule
 from .tune import TuneError, TuneSpec, damping_ratios, overshoots
 from .tune_linear import inertia_pairs, spectral_abscissas, torque_noise_rms
+from .tune_response import as_gain_matrix, error_dynamics
 
 __all__ = ["Evaluation", "Evaluator", "evaluation_estimate", "measure_evaluation", "time_estimate",
            "simulate_candidates", "gains_key", "INFEASIBLE",
@@ -226,16 +227,11 @@ class Evaluator:
 
     def _observer_matrix(self, gains: dict) -> np.ndarray:
         n = self._M_observer.shape[-1]
-        Y = np.asarray(gains.get("gains.observer", self.spec.base.observer_gain), dtype=float)
-        return Y * np.eye(n) if Y.ndim == 0 else (np.diag(Y) if Y.ndim == 1 else Y)
+        return as_gain_matrix(gains.get("gains.observer", self.spec.base.observer_gain), n)
 
     def _pd_matrices(self, gains: dict) -> tuple[np.ndarray, np.ndarray]:
         s, n = self.spec.base, self._M_observer.shape[-1]
-        out = []
-        for key, base in (("gains.kp", s.kp), ("gains.kd", s.kd)):
-            g = np.asarray(gains.get(key, base), dtype=float)
-            out.append(g * np.eye(n) if g.ndim == 0 else (np.diag(g) if g.ndim == 1 else g))
-        return out[0], out[1]
+        return as_gain_matrix(gains.get("gains.kp", s.kp), n), as_gain_matrix(gains.get("gains.kd", s.kd), n)
 
     def sampled_loop(self, gains: dict) -> dict | None:
         """``Ts lambda_max(Y M^-1)`` of a candidate along the path and the sampled loop's limit on it for its
@@ -253,7 +249,6 @@ class Evaluator:
     def error_dynamics(self, gains: dict):
         """The candidate's linearized error dynamics at the held configuration with the base scenario's true and
         nominal models (:func:`analysis.tune_response.error_dynamics`): for the step and Bode figures."""
-        from .tune_response import error_dynamics
         s = self.spec.base
         kp = gains.get("gains.kp", np.diag(s.kp))
         kd = gains.get("gains.kd", np.diag(s.kd))

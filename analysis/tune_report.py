@@ -32,6 +32,7 @@ import numpy as np
 
 from blocks.joints import RRPR_JOINTS
 
+from .job_figures import new_figure, save_figure
 from .report_html import template_environment
 from .tune import METRIC_WORDS, overshoots
 from .tune_results import read_result
@@ -90,18 +91,11 @@ def evaluations_text(result) -> str:
 
 
 def _save(fig, folder: Path, stem: str) -> str:
-    folder.mkdir(parents=True, exist_ok=True)
-    fig.savefig(folder / f"{stem}.png", dpi=120, metadata={"Software": None})
-    fig.savefig(folder / f"{stem}.svg", metadata={"Date": None, "Creator": None})
+    save_figure(fig, folder / stem)
     return f"{stem}.png"
 
 
-def _figure(size):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-    fig = Figure(figsize=size, layout="constrained")
-    FigureCanvasAgg(fig)
-    return fig
+_figure = new_figure
 
 
 def write_figures(result, folder, designs: dict | None = None, joints=None) -> list[tuple[str, str]]:
@@ -117,18 +111,16 @@ def write_figures(result, folder, designs: dict | None = None, joints=None) -> l
     joints : blocks.joints.JointSpace, optional
         The arm's joints, for those figures' labels (default: the paper's RRPR).
     """
-    import matplotlib
     folder = Path(folder)
     words = METRIC_WORDS.get(result.metric, result.metric)
     out = []
-    with matplotlib.rc_context({"svg.hashsalt": "dobkit"}):
-        out.append(_history(result, folder, words))
-        out.append(_robustness(result, folder, words))
-        out.append(_constraints(result, folder))
-        if designs:
-            joints = RRPR_JOINTS if joints is None else joints
-            out.append(_step(designs, folder, joints))
-            out.append(_bode(designs, folder, joints))
+    out.append(_history(result, folder, words))
+    out.append(_robustness(result, folder, words))
+    out.append(_constraints(result, folder))
+    if designs:
+        joints = RRPR_JOINTS if joints is None else joints
+        out.append(_step(designs, folder, joints))
+        out.append(_bode(designs, folder, joints))
     return out
 
 

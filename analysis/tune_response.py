@@ -26,7 +26,6 @@ removes a constant disturbance).  The tests check these closed forms.
 """
 from __future__ import annotations
 
-import control as ct
 import numpy as np
 
 __all__ = ["error_dynamics", "step_responses", "disturbance_gains", "pd_poles", "as_gain_matrix"]
@@ -44,7 +43,7 @@ def as_gain_matrix(value, n: int) -> np.ndarray:
     raise ValueError(f"a gain must be a number, {n} numbers or a {n} x {n} matrix, got shape {g.shape}")
 
 
-def error_dynamics(M, M_nominal, kp, kd, Y) -> ct.StateSpace:
+def error_dynamics(M, M_nominal, kp, kd, Y):
     """The held, linearized loop (module docstring) as a python-control state space.
 
     Parameters
@@ -62,6 +61,8 @@ def error_dynamics(M, M_nominal, kp, kd, Y) -> ct.StateSpace:
         States ``x[i], v[i], d_hat[i]``; inputs ``r[i]`` (rad, m) then ``d[i]`` (N m, N); outputs ``e[i]``
         (rad, m).
     """
+    import control as ct  # only where a design is drawn: the tuning's evaluations do not need it
+
     M = np.asarray(M, dtype=float)
     Mh = np.asarray(M_nominal, dtype=float)
     n = M.shape[0]
@@ -94,7 +95,7 @@ def pd_poles(kp, kd, n: int) -> np.ndarray:
     return np.stack([(-kd - disc) / 2, (-kd + disc) / 2], axis=1)
 
 
-def step_responses(sys: ct.StateSpace, t) -> np.ndarray:
+def step_responses(sys, t) -> np.ndarray:
     """Joint ``j``'s position after a unit step of its own reference, as a fraction of the step.
 
     Returns
@@ -102,6 +103,8 @@ def step_responses(sys: ct.StateSpace, t) -> np.ndarray:
     numpy.ndarray, shape (n, len(t))
         ``x_j(t) / r_j`` (1 - the tracking error); 1 is reached, the overshoot is above it.
     """
+    import control as ct
+
     n = sys.noutputs
     t = np.asarray(t, dtype=float)
     out = np.empty((n, t.size))
@@ -111,7 +114,7 @@ def step_responses(sys: ct.StateSpace, t) -> np.ndarray:
     return out
 
 
-def disturbance_gains(sys: ct.StateSpace, omega) -> np.ndarray:
+def disturbance_gains(sys, omega) -> np.ndarray:
     """``|E_j / D_j|(j omega)`` per joint: the tracking error per unit of disturbance on the same joint.
 
     Returns

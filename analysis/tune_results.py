@@ -10,6 +10,7 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from .job_figures import JobFigure
 from .results import JsonResult, omitted_if_none
 from .tune import TuneError
 
@@ -94,12 +95,8 @@ class TuneHistory(JsonResult):
     simulated: list[bool]
 
 
-@dataclass(frozen=True)
-class TuneFigure(JsonResult):
-    """A figure of the tuning: its PNG file name (in ``figures/``) and caption."""
-
-    file: str
-    caption: str
+#: A figure of the tuning: its PNG file name (in ``figures/``) and caption (the job figure of both kinds of job).
+TuneFigure = JobFigure
 
 
 @dataclass(frozen=True)
