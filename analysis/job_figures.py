@@ -9,8 +9,8 @@
     listed = JobFigure(file="tune_history.png", caption="...")  # what summary.json / tune.json list
 
 Figures are drawn headless (the Agg canvas, no pyplot state), with a constrained
-layout, and saved without the date and the software version, so that the same
-numbers give the same files.
+layout, and saved by the project's one :func:`analysis.figures.save_figure` (laid
+out once, without dates or tool stamps: the same numbers give the same files).
 """
 from __future__ import annotations
 
@@ -19,12 +19,10 @@ from pathlib import Path
 
 from .results import JsonResult
 
-__all__ = ["JobFigure", "new_figure", "save_figure", "FIGURE_FORMATS", "FIGURE_DPI"]
+__all__ = ["JobFigure", "new_figure", "save_figure", "FIGURE_FORMATS"]
 
 #: The formats every job figure is written in (the reports show the PNG).
 FIGURE_FORMATS = ("png", "svg")
-#: Resolution of the PNG files (dots per inch).
-FIGURE_DPI = 120
 
 
 @dataclass(frozen=True)
@@ -45,15 +43,11 @@ def new_figure(size: tuple[float, float]):
 
 
 def save_figure(fig, stem: Path, formats=FIGURE_FORMATS) -> list[Path]:
-    """Write ``fig`` as ``stem.<format>`` for each format (the folder is made); return the paths written."""
-    import matplotlib
+    """Write ``fig`` as ``stem.<format>`` for each format (the folder is made); return the paths written.
+
+    :func:`analysis.figures.save_figure` writes them: laid out once for every format, without dates or tool
+    stamps (imported here, when a figure is saved, since it loads pyplot).
+    """
+    from .figures import save_figure as save
     stem = Path(stem)
-    stem.parent.mkdir(parents=True, exist_ok=True)
-    metadata = {"png": {"Software": None}, "svg": {"Date": None, "Creator": None}}
-    paths = []
-    with matplotlib.rc_context({"svg.hashsalt": "dobkit"}):
-        for fmt in formats:
-            path = stem.with_suffix(f".{fmt}")
-            fig.savefig(path, dpi=FIGURE_DPI, metadata=metadata.get(fmt))
-            paths.append(path)
-    return paths
+    return save(fig, stem.parent, stem.name, formats)
