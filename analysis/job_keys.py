@@ -8,6 +8,10 @@ value must be, and its default.
 
 Messages name the key as the file spells it (``'search.seed'``), the value given and what is allowed; ``fail``
 raises the job's own error (:class:`analysis.sweep.SweepError`, :class:`analysis.tune.TuneError`).
+
+A job key that holds a scenario value (a tuning's ``constraints.sensor_noise.q_std`` is a ``noise.q_std``) is
+checked by the scenario's own validator (:func:`scenario_value`, through :func:`blocks.scenario.check_value`), so
+that the two files cannot disagree on what the value may be.
 """
 from __future__ import annotations
 
@@ -17,7 +21,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["Key", "read_table", "read_top", "failing", "whole", "number", "numbers", "text", "a_table"]
+__all__ = ["Key", "read_table", "read_top", "failing", "whole", "number", "numbers", "text", "a_table",
+           "scenario_value"]
 
 
 @dataclass(frozen=True)
@@ -82,6 +87,22 @@ def read_table(table: Mapping, keys: Mapping[str | None, Mapping[str, Key]], sec
             fail(f"'{key if section is None else f'{section}.{key}'}' must be {spec.expected}, got {value!r}")
         out[key] = value
     return out
+
+
+def scenario_value(scenario_key: str, value, label: str, fail):
+    """``value`` checked as a scenario file checks ``scenario_key`` (:func:`blocks.scenario.check_value`), the
+    message naming the job file's ``label`` for it; returns the value as the model takes it.
+
+    Examples
+    --------
+    ``scenario_value("noise.q_std", [2e-4] * 4, "constraints.sensor_noise.q_std", fail)``
+    """
+    from blocks.scenario import ScenarioError, check_value
+    try:
+        return check_value(scenario_key, value)
+    except ScenarioError as err:
+        message = str(err).replace(f"'{scenario_key}", f"'{label}")
+        fail(message + ("" if label in message else f" ('{label}', a scenario's '{scenario_key}')"))
 
 
 def failing(error: type[Exception], source: str):

@@ -45,6 +45,7 @@ from blocks.joints import RRPR_JOINTS
 from blocks.metrics import DISTURBANCE_UNITS, JOINT_UNITS
 from blocks.parameters import RobotParameters
 
+from .job_figures import JobFigure, new_figure, save_figure
 from .job_files import differences
 from .report_html import template_environment
 from .results import JsonResult, plain
@@ -237,12 +238,8 @@ class DivergedRun(JsonResult):
     message: str
 
 
-@dataclass(frozen=True)
-class SweepFigure(JsonResult):
-    """One figure of a summary: its PNG file (an SVG beside it) and its caption."""
-
-    file: str
-    caption: str
+#: One figure of a summary: its PNG file (an SVG beside it) and its caption (the job figure of both kinds of job).
+SweepFigure = JobFigure
 
 
 @dataclass(frozen=True)
@@ -541,22 +538,18 @@ def _plain_ticks(axis) -> None:
 
 def _figures(table: _Table, summary: SweepSummary, out: Path, formats) -> list[tuple[list[Path], str]]:
     """Write the histograms and worst-case plots into ``out``; return (files, caption) per figure."""
-    return [(_save(fig, out / stem, formats), caption) for fig, stem, caption in _draw_figures(table, summary)]
+    return [(save_figure(fig, out / stem, formats), caption) for fig, stem, caption in _draw_figures(table, summary)]
 
 
 def _draw_figures(table: _Table, summary: SweepSummary):
     """The summary's figures, one at a time: ``(figure, file stem, caption)``."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
     groups: dict[str, list[str]] = {}
     for column in table.columns:
         groups.setdefault(column.split("[")[0], []).append(column)
     n = table.count
     runs = f"{n} finished run{'s' if n != 1 else ''}"
     for metric, columns in groups.items():
-        fig = Figure(figsize=(max(3.3 * len(columns), 5.0), 3.1), layout="constrained")
-        FigureCanvasAgg(fig)
+        fig = new_figure((max(3.3 * len(columns), 5.0), 3.1))
         axes = fig.subplots(1, len(columns), squeeze=False)
         notes = []
         for ax, column in zip(axes[0], columns):
@@ -583,8 +576,7 @@ def _draw_figures(table: _Table, summary: SweepSummary):
         x, y, mark = x_all[good], y_all[good], mark_all[good]
         xf, xunit = _display_scale(key_unit(key), x)
         yf, yunit = _display_scale(column_unit(wm), y)
-        fig = Figure(figsize=(5.2, 3.6), layout="constrained")
-        FigureCanvasAgg(fig)
+        fig = new_figure((5.2, 3.6))
         ax = fig.subplots()
         ax.scatter(x[~mark] / xf, y[~mark] / yf, s=10, alpha=0.6, color="tab:blue")
         ax.scatter(x[mark] / xf, y[mark] / yf, s=30, color="tab:red")
@@ -608,15 +600,6 @@ def _capital(text: str) -> str:
 def _short(label: str) -> str:
     """An axis label without the notation that makes it too long for a small figure."""
     return label.replace(" |d - d_hat|", "")
-
-
-def _save(fig, stem: Path, formats) -> list[Path]:
-    paths = []
-    for fmt in formats:
-        path = stem.with_suffix(f".{fmt}")
-        fig.savefig(path, dpi=120)
-        paths.append(path)
-    return paths
 
 
 # --------------------------------------------------------------------------------------------

@@ -44,7 +44,6 @@ import os
 import signal
 import threading
 import time
-import warnings
 from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import dataclass, field
@@ -58,6 +57,7 @@ from blocks.progress import ProgressCallback, count_progress
 from blocks.scenario import Scenario, scenario_from_dict
 from blocks.workers import worker_pool
 
+from .job_dask import call_with_notes, dask_client, dask_threads, run_on_dask, take_with_notes
 from .job_files import JobLog, LogKind
 from .sweep import HEADER_PARTS, SweepError, SweepSpec, load_sweep, run_schedule, split_changes
 
@@ -222,45 +222,14 @@ def simulate_chunk(payload: dict) -> list[dict]:
     return rows
 
 
-def _chunk_with_notes(payload: dict) -> tuple[list[dict], list[str]]:
-    """:func:`simulate_chunk` away from the command's process: its rows and the engine notes
-    (:class:`blocks.loop.EngineFallbackWarning`) it would have printed, for the command to print once
-    rather than every worker once.  Other warnings pass as they are."""
-    from blocks.loop import EngineFallbackWarning
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", EngineFallbackWarning)
-        rows = simulate_chunk(payload)
-    notes = []
-    for w in caught:
-        if issubclass(w.category, EngineFallbackWarning):
-            notes.append(str(w.message))
-        else:
-            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    return rows, notes
-
-
 def _chunk_in_worker(payload: dict) -> tuple[list[dict], list[str]]:
-    """:func:`_chunk_with_notes` in a worker process, which leaves Ctrl-C to the process that started it, and ends
+    """:func:`simulate_chunk` in a worker process, with its engine notes
+    (:func:`analysis.job_dask.call_with_notes`); the worker leaves Ctrl-C to the process that started it, and ends
     quietly when the pool is shut down with SIGTERM (the command's own SIGTERM handler is not a worker's)."""
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    return _chunk_with_notes(payload)
-
-
-#: Engine notes this process has printed for its workers (once per command, not once per worker).
-_notes_shown: set[str] = set()
-
-
-def _take_with_notes(result: tuple[list[dict], list[str]], take) -> None:
-    """Print a worker's engine notes that this command has not printed yet, then take its rows."""
-    from blocks.loop import EngineFallbackWarning
-    rows, notes = result
-    for note in notes:
-        if note not in _notes_shown:
-            _notes_shown.add(note)
-            warnings.warn(note, EngineFallbackWarning, stacklevel=2)
-    take(rows)
+    return call_with_notes(simulate_chunk, payload)
 
 
 def _row(run: dict, status: str, metrics: dict, failed_at, seconds: float, engine: str, message: str = "",
@@ -395,7 +364,7 @@ def run_sweep(spec: SweepSpec | str | Path, results: str | Path, scheduler: str 
             outcome.seconds = time.perf_counter() - t0
             return outcome
         # connect before writing anything: a failed connection leaves no results file
-        client = _dask_client(scheduler, scheduler_timeout) if scheduler is not None else None
+        client = dask_client(scheduler, scheduler_timeout, SweepError) if scheduler is not None else None
         writer = log.writer(spec.header()["sweep"])
         bar = count_progress(progress, len(spec.runs), skipped, label="sweep")
 
@@ -414,8 +383,9 @@ def run_sweep(spec: SweepSpec | str | Path, results: str | Path, scheduler: str 
 
         try:
             if client is not None:
-                threads = sum(w.get("nthreads", 1) for w in client.scheduler_info()["workers"].values())
-                _run_dask(client, _payloads(spec, pending, max(1, threads), budget), max(1, threads), take)
+                threads = dask_threads(client)
+                run_on_dask(client, simulate_chunk, _payloads(spec, pending, threads, budget), take, threads,
+                            SweepError)
             else:
                 payloads = _payloads(spec, pending, workers, budget)
                 if workers == 1:
@@ -455,7 +425,7 @@ def _run_processes(payloads: Iterator[dict], workers: int, take) -> None:
         while running:            # keep at most one batch per worker in flight: memory stays bounded
             done, running = wait(running, return_when=FIRST_COMPLETED)
             for fut in done:
-                _take_with_notes(fut.result(), take)
+                take_with_notes(fut.result(), take)
                 nxt = next(payloads, None)
                 if nxt is not None:
                     with _sigint_held():
@@ -477,31 +447,3 @@ def _end_now(pool) -> None:
         pool.shutdown(wait=True, cancel_futures=True)
     except BaseException:         # noqa: BLE001 -- a second Ctrl-C while the threads end: the first one is reported
         pool.shutdown(wait=False, cancel_futures=True)
-
-
-def _dask():
-    try:
-        import distributed
-    except ImportError:
-        raise SweepError("--scheduler needs Dask: pip install 'dask[distributed]' (the 'cluster' extra)") from None
-    return distributed
-
-
-def _dask_client(address: str, timeout: float):
-    distributed = _dask()
-    try:
-        return distributed.Client(address, timeout=f"{timeout}s")
-    except (OSError, TimeoutError, ValueError) as err:
-        raise SweepError(f"cannot reach the Dask scheduler at {address!r}: {err}; nothing was run or written") \
-            from None
-
-
-def _run_dask(client, payloads: Iterator[dict], threads: int, take) -> None:
-    distributed = _dask()
-    futures = distributed.as_completed([client.submit(_chunk_with_notes, p, pure=False)
-                                        for p in itertools.islice(payloads, 2 * threads)])
-    for fut in futures:           # at most two batches per thread in flight: memory stays bounded
-        _take_with_notes(fut.result(), take)
-        nxt = next(payloads, None)
-        if nxt is not None:
-            futures.add(client.submit(_chunk_with_notes, nxt, pure=False))

@@ -25,6 +25,8 @@ over a Monte Carlo set of mismatches and disturbances, and the constraints::
     min_damping_ratio = 0.7      # of the error dynamics, every joint (default 0.7; 0: not constrained) ...
     max_overshoot = 0.05         # ... or instead the largest overshoot of a step (a fraction: 0.05 = 5 %)
     min_observer_bandwidth_ratio = 0.5   # slowest observer mode / tracking bandwidth (default: not constrained)
+    sampled_margin = 0.2         # with a [controller]: Ts lambda_max(Y M^-1) at most (1 - margin) x the sampled
+                                 # loop's limit (default 0.2 with a [controller]; 0: not constrained)
     sensor_noise = {q_std = [2e-4, 2e-4, 2e-5, 2e-4], dq_std = [5e-3, 5e-3, 5e-4, 5e-3], sample_period = 0.001}
                                  # default: the scenario's [noise], else analysis.studies.DEFAULT_NOISE
 
@@ -70,6 +72,18 @@ Constraints (:mod:`analysis.tune_linear` for the linear ones)
     configurations (rad/s, :mod:`analysis.bandwidth`), over the tracking
     bandwidth, the largest natural frequency ``sqrt(kp)`` of the error dynamics
     (rad/s), is at least ``min_observer_bandwidth_ratio``.
+    *Sampled loop* (a scenario with a ``[controller]``): the digital loop's
+    stability rule ``Ts lambda_max(Y M^-1) < limit``, the limit computed for the
+    candidate's ``Kp``, ``Kd`` and the controller's settings along the path by
+    :mod:`blocks.digital_stability` (2 for Euler with measured velocity, less
+    with ``"zoh"``, a velocity difference or a delay); the candidate keeps
+    ``Ts lambda_max`` at most ``(1 - sampled_margin)`` times it (default
+    :data:`DEFAULT_SAMPLED_MARGIN`).  Checked as the sampled map's spectral
+    radius with the observer gain raised by ``1 / (1 - sampled_margin)`` (below
+    1: met), which costs one eigenvalue problem per configuration.  The set
+    itself is simulated with the continuous controller (the batches have no
+    sampling): the digital loop enters the tuning through this constraint, and
+    the tuned scenario file keeps the ``[controller]``.
 
 Everything is validated when the file is read, before anything runs; errors
 name the key.  Running a tuning: :mod:`analysis.tune_runner`.
@@ -94,14 +108,14 @@ from blocks.batch import BATCH_KEYS
 from blocks.budget import Budget
 from blocks.scenario import Scenario, ScenarioError, load_scenario, parse_key
 
-from .job_keys import Key, failing, number, numbers, read_table, read_top, whole
+from .job_keys import Key, failing, number, numbers, read_table, read_top, scenario_value, whole
 from .studies import DEFAULT_NOISE
 from .sweep import SweepError, check_name, json_default, split_changes, sweep_from_dict
 
 __all__ = ["TuneError", "Parameter", "Limits", "TuneSpec", "load_tuning", "tuning_from_dict", "builtin_tunings",
            "with_evaluations", "HEADER_PARTS",
            "TUNABLE", "OBJECTIVES", "TUNE_METRICS", "METRIC_WORDS", "SIGNIFICANT_DIGITS", "STABILITY_CONFIGURATIONS",
-           "DEFAULT_MIN_DAMPING", "damping_ratios", "overshoots", "damping_for_overshoot"]
+           "DEFAULT_MIN_DAMPING", "DEFAULT_SAMPLED_MARGIN", "damping_ratios", "overshoots", "damping_for_overshoot"]
 
 #: The gains a tuning may search.
 TUNABLE = ("gains.kp", "gains.kd", "gains.observer")
@@ -118,6 +132,8 @@ SIGNIFICANT_DIGITS = 6
 STABILITY_CONFIGURATIONS = 5
 #: The damping ratio of the error dynamics every joint must reach unless the tuning file says otherwise.
 DEFAULT_MIN_DAMPING = 0.7
+#: Default fraction of the sampled loop's stability limit kept free, for a scenario with a [controller].
+DEFAULT_SAMPLED_MARGIN = 0.2
 _GAIN_UNITS = {"gains.kp": "1/s^2", "gains.kd": "1/s", "gains.observer": "kg m^2/s"}
 
 
@@ -192,6 +208,10 @@ class Limits:
         Largest step overshoot of the error dynamics, a fraction.
     min_observer_bandwidth_ratio : float or None
         Slowest observer mode over the tracking bandwidth.
+    sampled_margin : float or None
+        With a ``[controller]``: the fraction of the sampled loop's limit on ``Ts lambda_max(Y M^-1)`` kept free.
+    sampled_from : str
+        ``"default"`` (:data:`DEFAULT_SAMPLED_MARGIN`), ``"given"`` or ``"off"``.
     """
 
     torque_noise_rms: np.ndarray | None
@@ -203,15 +223,20 @@ class Limits:
     damping_from: str = "off"
     max_overshoot: float | None = None
     min_observer_bandwidth_ratio: float | None = None
+    sampled_margin: float | None = None
+    sampled_from: str = "off"
 
     def as_dict(self) -> dict:
+        # the sampled margin's keys only where there is one: tunings without a [controller] keep their definition
+        sampled = {} if self.sampled_margin is None else {"sampled_margin": self.sampled_margin,
+                                                           "sampled_from": self.sampled_from}
         return {"torque_noise_rms": None if self.torque_noise_rms is None else self.torque_noise_rms.tolist(),
                 "torque_noise_from": self.torque_noise_from,
                 "torque_limit": None if self.torque_limit is None else self.torque_limit.tolist(),
                 "stability_margin": self.stability_margin, "sensor_noise": self.sensor_noise,
                 "min_damping_ratio": self.min_damping_ratio, "damping_from": self.damping_from,
                 "max_overshoot": self.max_overshoot,
-                "min_observer_bandwidth_ratio": self.min_observer_bandwidth_ratio}
+                "min_observer_bandwidth_ratio": self.min_observer_bandwidth_ratio} | sampled
 
 
 def damping_ratios(kp, kd) -> np.ndarray:
@@ -436,6 +461,9 @@ _KEYS: dict[str | None, dict[str, Key]] = {
                                   f"a number from 0 (not constrained) to 10 (default {DEFAULT_MIN_DAMPING})"),
         "max_overshoot": Key(lambda v: number(v) and 0 < v < 1, "a fraction between 0 and 1 (0.05 = 5 %)"),
         "min_observer_bandwidth_ratio": Key(lambda v: number(v) and v > 0, "a number > 0"),
+        "sampled_margin": Key(lambda v: number(v) and 0 <= v < 1,
+                              f"a fraction from 0 (not constrained) to below 1 (default {DEFAULT_SAMPLED_MARGIN} with "
+                              "a [controller])"),
         "sensor_noise": Key(lambda v: isinstance(v, dict), "a table {q_std = [...], dq_std = [...], sample_period}")},
 }
 _NOISE_KEYS = ("q_std", "dq_std", "sample_period")
@@ -461,9 +489,6 @@ def tuning_from_dict(data: dict, source: str = "<dict>", folder: Path | None = N
         fail(str(err))
     search = _read(top["search"], "search", fail, skip=lambda k: "." in k)
     base, records, draws = _the_set(top, name, source, folder, budget, fail)
-    if base.controller is not None:
-        fail("the scenario has a [controller] (digital) section; tuning simulates the continuous controller in "
-             "batches, so it would tune another loop than the scenario's. Remove [controller] to tune")
     if base.observer_variant != "correct":
         fail(f"the scenario's observer.variant is {base.observer_variant!r}; tuning needs the correct observer "
              "(its constraints use the correct observer's linearization)")
@@ -582,10 +607,13 @@ def _limits(table: dict, base: Scenario, fail) -> Limits:
         if unknown:
             fail(f"unknown key(s) {[f'constraints.sensor_noise.{k}' for k in unknown]}; allowed: "
                  f"{', '.join(_NOISE_KEYS)}")
+        for k in _NOISE_KEYS:           # the scenario's [noise] values, by its own validator, then the sign
+            if k in given:
+                scenario_value(f"noise.{k}", given[k], f"constraints.sensor_noise.{k}", fail)
         for k in ("q_std", "dq_std"):
             if k in given and not (numbers(given[k], 4) and min(given[k]) >= 0):
                 fail(f"'constraints.sensor_noise.{k}' must be 4 numbers >= 0, got {given[k]!r}")
-        if "sample_period" in given and not (number(given["sample_period"]) and given["sample_period"] > 0):
+        if "sample_period" in given and not given["sample_period"] > 0:
             fail(f"'constraints.sensor_noise.sample_period' must be a number > 0 (s), got {given['sample_period']!r}")
         noise.update(given)
     sensor = {"q_std": [float(v) for v in noise["q_std"]], "dq_std": [float(v) for v in noise["dq_std"]],
@@ -617,8 +645,20 @@ def _limits(table: dict, base: Scenario, fail) -> Limits:
         damping = float(table["min_damping_ratio"]) or None
         damping_from = "given" if damping else "off"
     ratio = table["min_observer_bandwidth_ratio"]
+    sampled = table["sampled_margin"]
+    if sampled is not None and base.controller is None:
+        fail(f"'constraints.sampled_margin' ({sampled!r}) needs a scenario with a [controller] (a sampled loop); "
+             f"the scenario '{base.name}' has none")
+    if base.controller is None:
+        sampled, sampled_from = None, "off"
+    elif sampled is None:
+        sampled, sampled_from = DEFAULT_SAMPLED_MARGIN, "default"
+    else:
+        sampled_from = "given" if sampled > 0 else "off"
+        sampled = float(sampled) if sampled > 0 else None
     return Limits(torque_noise_rms=vector(budget), torque_noise_from=source, torque_limit=vector(table["torque_limit"]),
                   stability_margin=None if table["stability_margin"] is None else float(table["stability_margin"]),
                   sensor_noise=sensor, min_damping_ratio=damping, damping_from=damping_from,
                   max_overshoot=None if table["max_overshoot"] is None else float(table["max_overshoot"]),
-                  min_observer_bandwidth_ratio=None if ratio is None else float(ratio))
+                  min_observer_bandwidth_ratio=None if ratio is None else float(ratio), sampled_margin=sampled,
+                  sampled_from=sampled_from)

@@ -32,7 +32,8 @@ Margins (:meth:`Evaluator.margins`, what ``tune.json`` reports per constraint; <
     the joints (a fraction of the budget left); ``stability_margin``:
     ``-abscissa - margin`` (1/s); ``min_damping_ratio``: ``min zeta - zeta_min``;
     ``max_overshoot``: ``limit - largest overshoot``; ``min_observer_bandwidth_ratio``:
-    ``ratio - minimum``.
+    ``ratio - minimum``; ``sampled_margin``: ``1 - Ts lambda_max / limit - margin`` (the
+    fraction of the sampled loop's limit left beyond the required one).
 """
 from __future__ import annotations
 
@@ -48,12 +49,17 @@ from blocks import inertia
 from blocks.batch import Variants, auto_substeps, simulate_batch
 from blocks.batch.schedule import rates_by_source
 from blocks.budget import Budget, BudgetError, Estimate, estimate_batch, largest_batch
+from blocks.digital_stability import largest_stable_scale, spectral_radius
 
+from .job_dask import dask_threads, run_on_dask
 from .sweep import json_default, run_schedule
-from .tune import TuneSpec, damping_ratios, overshoots
+from .tune import TuneError, TuneSpec, damping_ratios, overshoots
 from .tune_linear import inertia_pairs, spectral_abscissas, torque_noise_rms
+from .tune_response import as_gain_matrix, error_dynamics
 
-__all__ = ["Evaluation", "Evaluator", "evaluation_estimate", "gains_key", "INFEASIBLE", "MAX_CANDIDATES_PER_BATCH",
+__all__ = ["Evaluation", "Evaluator", "evaluation_estimate", "measure_evaluation", "time_estimate",
+           "simulate_candidates", "gains_key", "INFEASIBLE",
+           "MAX_CANDIDATES_PER_BATCH",
            "SIMULATION_GATES", "DAMPING_CONSTRAINTS"]
 
 #: The score of an infeasible candidate starts here (mm; far above any tracking error).
@@ -63,7 +69,7 @@ _VIOLATION_CAP = 1e6
 #: Candidates simulated in one batch at most (fewer when the memory budget asks for it).
 MAX_CANDIDATES_PER_BATCH = 16
 #: Linear constraints whose failure spares a candidate its simulation.
-SIMULATION_GATES = ("torque_noise_rms", "stability_margin", "min_observer_bandwidth_ratio")
+SIMULATION_GATES = ("torque_noise_rms", "stability_margin", "min_observer_bandwidth_ratio", "sampled_margin")
 #: The damping constraint, as a minimum ratio or a maximum overshoot (its cost is reported).
 DAMPING_CONSTRAINTS = ("min_damping_ratio", "max_overshoot")
 
@@ -89,6 +95,9 @@ class Evaluation:
         Of the error dynamics per joint, ``kd / (2 sqrt(kp))``.
     bandwidth_ratio : float
         Slowest observer mode over the tracking bandwidth (:mod:`analysis.tune`).
+    sampled_radius : float
+        With a sampled-loop constraint: the sampled map's largest spectral radius along the path with the
+        observer gain raised by ``1 / (1 - sampled_margin)`` (below 1: met); NaN without one.
     simulated : bool
         False when the linear constraints failed and the set was not run.
     values : numpy.ndarray or None
@@ -117,6 +126,7 @@ class Evaluation:
     spectral_abscissa: float
     damping_ratio: np.ndarray = field(default_factory=lambda: np.full(4, np.nan))
     bandwidth_ratio: float = math.nan
+    sampled_radius: float = math.nan
     simulated: bool = False
     values: np.ndarray | None = None
     peak_torque: np.ndarray | None = None
@@ -165,12 +175,14 @@ class Evaluator:
         Called with the number of candidates simulated, after every batch (progress, wall-time budget).
     engine : str
         :func:`blocks.batch.simulate_batch`'s engine.
+    client : distributed.Client, optional
+        Simulate on this Dask cluster (:mod:`analysis.job_dask`), each batch on one worker thread.
     """
 
     def __init__(self, spec: TuneSpec, workers: int = 1, log_rows: dict | None = None,
                  record: Callable[[list[dict]], None] | None = None,
-                 after_batch: Callable[[int], None] | None = None, engine: str = "auto") -> None:
-        self.spec, self.workers, self.engine = spec, int(workers), engine
+                 after_batch: Callable[[int], None] | None = None, engine: str = "auto", client=None) -> None:
+        self.spec, self.workers, self.engine, self.client = spec, int(workers), engine, client
         self.log_rows = dict(log_rows or {})
         self.record, self.after_batch = record, after_batch
         self.history: list[Evaluation] = []          # every evaluation asked for, in order
@@ -182,6 +194,9 @@ class Evaluator:
         self._M, self._M_nominal = inertia_pairs(spec.configurations, robots, nominals)
         self._hold = (inertia(spec.hold, base.robot), inertia(spec.hold, base.nominal))
         self._M_observer = inertia(spec.configurations, base.nominal)       # the base model along the path
+        # the sampled loop's check: the nominal inertia at the path's distinct configurations
+        M = self._M_observer.reshape(len(spec.configurations), -1)
+        self._M_sampled = self._M_observer[np.sort(np.unique(np.round(M, 12), axis=0, return_index=True)[1])]
 
     # -- the linear constraints ------------------------------------------------------------------
     def linear(self, gains: dict) -> tuple[np.ndarray, float]:
@@ -195,18 +210,55 @@ class Evaluator:
         rms = torque_noise_rms(*self._hold, kp, kd, Y, noise["q_std"], noise["dq_std"], noise["sample_period"])
         return rms, abscissa
 
-    def design(self, gains: dict) -> tuple[np.ndarray, float]:
-        """Damping ratio of the error dynamics per joint, and the observer bandwidth ratio, of a candidate."""
+    def design(self, gains: dict) -> tuple[np.ndarray, float, float]:
+        """Damping ratio of the error dynamics per joint, the observer bandwidth ratio and the sampled loop's
+        spectral radius (NaN without a sampled-loop constraint; :attr:`Evaluation.sampled_radius`) of a candidate."""
         s = self.spec.base
         kp = np.broadcast_to(np.asarray(gains.get("gains.kp", np.diag(s.kp)), dtype=float), (4,))
         kd = gains.get("gains.kd", np.diag(s.kd))
-        Y = np.asarray(gains.get("gains.observer", s.observer_gain), dtype=float)
-        Y = Y * np.eye(4) if Y.ndim == 0 else (np.diag(Y) if Y.ndim == 1 else Y)
+        Y = self._observer_matrix(gains)
         slowest = float(np.linalg.eigvals(Y @ np.linalg.inv(self._M_observer)).real.min())
-        return damping_ratios(kp, kd), slowest / float(np.sqrt(kp.max()))
+        radius = math.nan
+        margin = self.spec.limits.sampled_margin
+        if margin is not None:
+            Kp, Kd = self._pd_matrices(gains)
+            radius = float(spectral_radius(self._M_sampled, Kp, Kd, Y / (1.0 - margin), s.controller).max())
+        return damping_ratios(kp, kd), slowest / float(np.sqrt(kp.max())), radius
 
-    def linear_violations(self, noise: np.ndarray, abscissa: float, zeta=None, ratio: float | None = None) -> dict:
-        """The linear constraints' violations (0: met); the damping and ratio ones when ``zeta``, ``ratio`` given."""
+    def _observer_matrix(self, gains: dict) -> np.ndarray:
+        n = self._M_observer.shape[-1]
+        return as_gain_matrix(gains.get("gains.observer", self.spec.base.observer_gain), n)
+
+    def _pd_matrices(self, gains: dict) -> tuple[np.ndarray, np.ndarray]:
+        s, n = self.spec.base, self._M_observer.shape[-1]
+        return as_gain_matrix(gains.get("gains.kp", s.kp), n), as_gain_matrix(gains.get("gains.kd", s.kd), n)
+
+    def sampled_loop(self, gains: dict) -> dict | None:
+        """``Ts lambda_max(Y M^-1)`` of a candidate along the path and the sampled loop's limit on it for its
+        ``Kp``, ``Kd`` (:func:`blocks.digital_stability.largest_stable_scale`: a bisection); None without a
+        sampled-loop constraint."""
+        if self.spec.limits.sampled_margin is None:
+            return None
+        settings = self.spec.base.controller
+        Y = self._observer_matrix(gains)
+        Kp, Kd = self._pd_matrices(gains)
+        ts_lam = settings.period * float(np.abs(np.linalg.eigvals(Y @ np.linalg.inv(self._M_sampled))).max())
+        scale = largest_stable_scale(self._M_sampled, Kp, Kd, Y, settings)
+        return {"ts_lambda_max": ts_lam, "ts_lambda_limit": ts_lam * scale}
+
+    def error_dynamics(self, gains: dict):
+        """The candidate's linearized error dynamics at the held configuration with the base scenario's true and
+        nominal models (:func:`analysis.tune_response.error_dynamics`): for the step and Bode figures."""
+        s = self.spec.base
+        kp = gains.get("gains.kp", np.diag(s.kp))
+        kd = gains.get("gains.kd", np.diag(s.kd))
+        Y = gains.get("gains.observer", s.observer_gain)
+        return error_dynamics(*self._hold, kp, kd, Y), (kp, kd)
+
+    def linear_violations(self, noise: np.ndarray, abscissa: float, zeta=None, ratio: float | None = None,
+                          radius: float | None = None) -> dict:
+        """The linear constraints' violations (0: met); the damping, ratio and sampled-loop ones when ``zeta``,
+        ``ratio``, ``radius`` are given."""
         limits = self.spec.limits
         out = {}
         if limits.torque_noise_rms is not None:
@@ -221,6 +273,9 @@ class Evaluator:
         if ratio is not None and limits.min_observer_bandwidth_ratio is not None:
             out["min_observer_bandwidth_ratio"] = min(_VIOLATION_CAP, max(
                 0.0, limits.min_observer_bandwidth_ratio / ratio - 1.0 if ratio > 0 else _VIOLATION_CAP))
+        if radius is not None and limits.sampled_margin is not None:
+            out["sampled_margin"] = min(_VIOLATION_CAP, max(0.0, radius - 1.0)) if math.isfinite(radius) \
+                else _VIOLATION_CAP
         return out
 
     def margins(self, ev: Evaluation) -> dict:
@@ -238,6 +293,11 @@ class Evaluator:
             out["max_overshoot"] = float(limits.max_overshoot - np.max(overshoots(ev.damping_ratio)))
         if limits.min_observer_bandwidth_ratio is not None:
             out["min_observer_bandwidth_ratio"] = float(ev.bandwidth_ratio - limits.min_observer_bandwidth_ratio)
+        sampled = self.sampled_loop(ev.gains)
+        if sampled is not None:
+            left = 1.0 - sampled["ts_lambda_max"] / sampled["ts_lambda_limit"] if sampled["ts_lambda_limit"] > 0 \
+                else -math.inf
+            out["sampled_margin"] = float(left - limits.sampled_margin)
         return out
 
     # -- evaluations -------------------------------------------------------------------------------
@@ -271,16 +331,16 @@ class Evaluator:
         if known is not None:
             ev = Evaluation(gains=gains, torque_noise_rms=known.torque_noise_rms,
                             spectral_abscissa=known.spectral_abscissa, damping_ratio=known.damping_ratio,
-                            bandwidth_ratio=known.bandwidth_ratio, phase=phase)
+                            bandwidth_ratio=known.bandwidth_ratio, sampled_radius=known.sampled_radius, phase=phase)
             if known.simulated:
                 self._copy(known, ev)
         else:
             noise, abscissa = self.linear(gains)
-            zeta, ratio = self.design(gains)
+            zeta, ratio, radius = self.design(gains)
             ev = Evaluation(gains=gains, torque_noise_rms=noise, spectral_abscissa=abscissa, damping_ratio=zeta,
-                            bandwidth_ratio=ratio, phase=phase)
+                            bandwidth_ratio=ratio, sampled_radius=radius, phase=phase)
         ev.violations = self.linear_violations(ev.torque_noise_rms, ev.spectral_abscissa, ev.damping_ratio,
-                                               ev.bandwidth_ratio)
+                                               ev.bandwidth_ratio, ev.sampled_radius)
         return ev
 
     @staticmethod
@@ -315,42 +375,81 @@ class Evaluator:
         return _pow2(auto_substeps(variants, True))
 
     def _simulate(self, pending: list[Evaluation]) -> None:
-        """Run the pending candidates' sets, batched by step; record each batch's rows as it finishes."""
+        """Run the pending candidates' sets, batched by step; record each batch's rows as it finishes (on the
+        Dask cluster of :attr:`client` when there is one, the batches then spread over its workers)."""
         spec = self.spec
         groups: dict[int, list[Evaluation]] = {}
         for ev in pending:
             groups.setdefault(self._substeps(ev.gains), []).append(ev)
         runs = spec.runs
+        threads = dask_threads(self.client) if self.client is not None else 1
+        chunks: list[tuple[int, list[Evaluation]]] = []
         for substeps, evs in sorted(groups.items()):
             size = run_schedule(spec.base, substeps, _noisy(spec))
             fits = largest_batch(spec.budget.memory, steps=size.steps, grid_points=size.grid_points, signals=1,
                                  noise=_noisy(spec), noise_samples=size.noise_samples)
             per_batch = max(1, min(MAX_CANDIDATES_PER_BATCH, fits // runs))
-            for start in range(0, len(evs), per_batch):
-                chunk = evs[start:start + per_batch]
-                records = [rec | ev.gains for ev in chunk for rec in spec.records]
-                t0 = time.perf_counter()
-                result = simulate_batch(None, Variants(spec.base, records), observer=True, metrics=[spec.metric],
-                                        signals=("tau",), substeps=substeps, workers=self.workers,
-                                        engine=self.engine)
-                seconds = (time.perf_counter() - t0) / len(chunk)
-                values = result.metrics[spec.metric].reshape(len(chunk), runs)
-                ok = result.ok.reshape(len(chunk), runs)
-                tau = result.signals["tau"]
-                tau[~result.ok] = 0.0                  # a diverged run's torques are NaN; it counts as diverged
-                peaks = np.abs(tau).max(axis=1).reshape(len(chunk), runs, -1)
-                del result, tau
-                for i, ev in enumerate(chunk):
-                    ev.simulated, ev.substeps, ev.seconds = True, substeps, seconds
-                    ev.values = np.where(ok[i], values[i], np.nan)
-                    ev.diverged = int((~ok[i]).sum())
-                    ev.peak_torque = peaks[i].max(axis=0)
-                    self._known[ev.key] = ev
-                self.simulated_now += len(chunk)
-                if self.record is not None:
-                    self.record([ev.row() for ev in chunk])
-                if self.after_batch is not None:
-                    self.after_batch(len(chunk))
+            if self.client is not None:          # every worker a share of the candidates
+                per_batch = max(1, min(per_batch, math.ceil(len(evs) / threads)))
+            chunks += [(substeps, evs[start:start + per_batch]) for start in range(0, len(evs), per_batch)]
+        payloads = [self._payload(i, substeps, chunk) for i, (substeps, chunk) in enumerate(chunks)]
+        take = lambda done: self._take(chunks[done["chunk"]][1], done)            # noqa: E731
+        if self.client is None:
+            for payload in payloads:
+                take(_simulate_payload(spec.base, payload))
+        else:
+            run_on_dask(self.client, simulate_candidates, iter(payloads), take, threads, TuneError)
+
+    def _payload(self, index: int, substeps: int, chunk: list[Evaluation]) -> dict:
+        """What :func:`simulate_candidates` needs for one chunk of candidates (picklable)."""
+        spec = self.spec
+        return {"chunk": index, "scenario": spec.base.data, "source": spec.base.source,
+                "records": [rec | ev.gains for ev in chunk for rec in spec.records], "candidates": len(chunk),
+                "metric": spec.metric, "substeps": substeps, "engine": self.engine,
+                "workers": 1 if self.client is not None else self.workers}
+
+    def _take(self, chunk: list[Evaluation], done: dict) -> None:
+        """One finished chunk: its evaluations filled in, its rows recorded, the batch reported."""
+        runs = self.spec.runs
+        values = done["values"].reshape(len(chunk), runs)
+        ok = done["ok"].reshape(len(chunk), runs)
+        peaks = done["peaks"].reshape(len(chunk), runs, -1)
+        for i, ev in enumerate(chunk):
+            ev.simulated, ev.substeps, ev.seconds = True, done["substeps"], done["seconds"]
+            ev.values = np.where(ok[i], values[i], np.nan)
+            ev.diverged = int((~ok[i]).sum())
+            ev.peak_torque = peaks[i].max(axis=0)
+            self._known[ev.key] = ev
+        self.simulated_now += len(chunk)
+        if self.record is not None:
+            self.record([ev.row() for ev in chunk])
+        if self.after_batch is not None:
+            self.after_batch(len(chunk))
+
+
+def simulate_candidates(payload: dict) -> dict:
+    """Simulate one chunk of candidates' sets (picklable in and out: run on a Dask worker).
+
+    ``payload``: ``scenario`` (data dict), ``source``, ``records`` (every run of every candidate, candidate by
+    candidate), ``candidates``, ``metric``, ``substeps``, ``engine``, ``workers`` and ``chunk`` (returned as is).
+    Returns ``chunk``, ``values`` (the metric per run, mm), ``ok`` (per run), ``peaks`` (peak ``|tau|`` per run
+    and joint), ``substeps`` and ``seconds`` (per candidate).
+    """
+    from blocks.scenario import scenario_from_dict
+    return _simulate_payload(scenario_from_dict(payload["scenario"], source=payload["source"]), payload)
+
+
+def _simulate_payload(base, payload: dict) -> dict:
+    t0 = time.perf_counter()
+    result = simulate_batch(None, Variants(base, payload["records"]), observer=True, metrics=[payload["metric"]],
+                            signals=("tau",), substeps=payload["substeps"], workers=payload["workers"],
+                            engine=payload["engine"])
+    seconds = (time.perf_counter() - t0) / payload["candidates"]
+    tau = result.signals["tau"]
+    tau[~result.ok] = 0.0                  # a diverged run's torques are NaN; it counts as diverged
+    return {"chunk": payload["chunk"], "values": np.asarray(result.metrics[payload["metric"]], dtype=float),
+            "ok": np.asarray(result.ok, dtype=bool), "peaks": np.abs(tau).max(axis=1),
+            "substeps": payload["substeps"], "seconds": seconds}
 
 
 def _relative_excess(values: np.ndarray, limits: np.ndarray) -> float:
@@ -391,6 +490,23 @@ def evaluation_estimate(spec: TuneSpec) -> tuple[Estimate, int]:
                               keys={"steps": key, "members": "monte_carlo.runs"}, steps_reason=reason)
     spec.budget.check(estimate, f"{spec.name}: one evaluation ({spec.runs} runs) at the high bounds")
     return estimate, substeps
+
+
+def measure_evaluation(spec: TuneSpec, workers: int = 1, engine: str = "auto", repeats: int = 2) -> Evaluation:
+    """Simulate the base gains' set ``repeats`` times and return the last evaluation: its ``seconds`` is the
+    wall time of one evaluation on this machine (the first also loads or compiles the engine's loop), its
+    ``substeps`` the RK4 steps per output interval it took.  For ``dobkit tune --check``'s time estimate."""
+    ev = None
+    for _ in range(max(1, int(repeats))):
+        ev = Evaluator(spec, workers=workers, engine=engine).evaluate([spec.gains_of_base()], "base", force=True)[0]
+    return ev
+
+
+def time_estimate(spec: TuneSpec, measured: Evaluation) -> float:
+    """The tuning's simulation time (s) from one measured evaluation: ``max_evaluations`` evaluations at its
+    cost.  Candidates that need smaller steps cost more, those the linear constraints refuse (or the log holds)
+    next to nothing: an estimate, not a bound."""
+    return spec.max_evaluations * float(measured.seconds)
 
 
 def check_seconds(budget: Budget, started: float, what: str) -> None:

@@ -12,6 +12,11 @@ Figures (PNG and SVG, in ``figures/`` of the tuning's folder):
 ``tune_constraints``
     Torque noise and peak torque per joint with the base and the tuned gains,
     against the budget and the limit.
+``tune_step``, ``tune_bode`` (when the runner hands over the designs' error dynamics)
+    Each joint's response to a unit step of its own reference, and its
+    disturbance-to-error gain ``|E_j / D_j|`` over frequency, with the base and the
+    tuned gains, from the loop linearized at the tuning's held configuration
+    (:mod:`analysis.tune_response`).
 
 :func:`html_section` renders a tuning folder as one self-contained HTML
 ``<section>`` (template ``tune_section.html``, autoescaped, figures embedded)
@@ -27,13 +32,16 @@ import numpy as np
 
 from blocks.joints import RRPR_JOINTS
 
+from .job_figures import new_figure, save_figure
 from .report_html import template_environment
 from .tune import METRIC_WORDS, overshoots
 from .tune_results import read_result
 
 __all__ = ["write_figures", "html_section", "read_result", "evaluation_counts", "evaluations_text", "FIGURES"]
 
-FIGURES = ("tune_history", "tune_robustness", "tune_constraints")
+FIGURES = ("tune_history", "tune_robustness", "tune_constraints", "tune_step", "tune_bode")
+#: Frequencies of the disturbance-to-error figure (rad/s).
+BODE_OMEGA = np.geomspace(1e-2, 1e3, 300)
 
 
 def evaluation_counts(result) -> dict[str, int]:
@@ -83,31 +91,100 @@ def evaluations_text(result) -> str:
 
 
 def _save(fig, folder: Path, stem: str) -> str:
-    folder.mkdir(parents=True, exist_ok=True)
-    fig.savefig(folder / f"{stem}.png", dpi=120, metadata={"Software": None})
-    fig.savefig(folder / f"{stem}.svg", metadata={"Date": None, "Creator": None})
+    save_figure(fig, folder / stem)
     return f"{stem}.png"
 
 
-def _figure(size):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-    fig = Figure(figsize=size, layout="constrained")
-    FigureCanvasAgg(fig)
-    return fig
+_figure = new_figure
 
 
-def write_figures(result, folder) -> list[tuple[str, str]]:
-    """Write the tuning's figures into ``folder``; return (PNG file name, caption) per figure."""
-    import matplotlib
+def write_figures(result, folder, designs: dict | None = None, joints=None) -> list[tuple[str, str]]:
+    """Write the tuning's figures into ``folder``; return (PNG file name, caption) per figure.
+
+    Parameters
+    ----------
+    result : TuneResult
+    folder : path
+    designs : dict, optional
+        ``{"base gains": (sys, (kp, kd)), "tuned gains": ...}``: each design's linearized error dynamics
+        (:func:`analysis.tune_response.error_dynamics`) and PD gains; with it the step and Bode figures are drawn.
+    joints : blocks.joints.JointSpace, optional
+        The arm's joints, for those figures' labels (default: the paper's RRPR).
+    """
     folder = Path(folder)
     words = METRIC_WORDS.get(result.metric, result.metric)
     out = []
-    with matplotlib.rc_context({"svg.hashsalt": "dobkit"}):
-        out.append(_history(result, folder, words))
-        out.append(_robustness(result, folder, words))
-        out.append(_constraints(result, folder))
+    out.append(_history(result, folder, words))
+    out.append(_robustness(result, folder, words))
+    out.append(_constraints(result, folder))
+    if designs:
+        joints = RRPR_JOINTS if joints is None else joints
+        out.append(_step(designs, folder, joints))
+        out.append(_bode(designs, folder, joints))
     return out
+
+
+_DESIGN_COLOURS = {"base gains": "tab:gray", "tuned gains": "tab:blue"}
+
+
+def _joint_axes(fig, n: int):
+    cols = min(n, 4 if n != 4 else 2)
+    rows = math.ceil(n / cols)
+    axes = np.atleast_1d(fig.subplots(rows, cols, squeeze=False).ravel())
+    for ax in axes[n:]:
+        ax.set_visible(False)
+    return axes[:n]
+
+
+def _step(designs: dict, folder: Path, joints) -> tuple[str, str]:
+    from .tune import damping_ratios
+    from .tune_response import as_gain_matrix, pd_poles, step_responses
+
+    n = joints.count
+    slowest = min(float(np.min(np.abs(pd_poles(kp, kd, n).real))) for _, (kp, kd) in designs.values())
+    t = np.linspace(0.0, float(np.clip(8.0 / max(slowest, 1e-9), 0.1, 20.0)), 600)
+    fig = _figure((7.2, 4.6))
+    axes = _joint_axes(fig, n)
+    for label, (sys, (kp, kd)) in designs.items():
+        x = step_responses(sys, t)
+        zeta = damping_ratios(np.diag(as_gain_matrix(kp, n)), np.diag(as_gain_matrix(kd, n)))
+        for j, ax in enumerate(axes):
+            ax.plot(t, x[j], color=_DESIGN_COLOURS.get(label), lw=1.3,
+                    label=f"{label}: zeta {zeta[j]:.2f}, overshoot {100 * max(0.0, x[j].max() - 1):.1f} %")
+    for j, ax in enumerate(axes):
+        ax.axhline(1.0, color="black", lw=0.6, ls=":")
+        ax.set_title(joints.labels[j], fontsize=9)
+        ax.set_xlabel("time after the step [s]")
+        ax.set_ylabel("position / step [-]")
+        ax.legend(fontsize=6, loc="lower right")
+    caption = ("Each joint's position after a unit step of its own reference, as a fraction of the step, with the "
+               "base and the tuned gains: the loop (computed torque and observer, the scenario's true and nominal "
+               "models) linearized at the tuning's held configuration; above 1 is overshoot.")
+    return _save(fig, folder, "tune_step"), caption
+
+
+def _bode(designs: dict, folder: Path, joints) -> tuple[str, str]:
+    from .tune_response import disturbance_gains
+
+    n = joints.count
+    fig = _figure((7.2, 4.6))
+    axes = _joint_axes(fig, n)
+    for label, (sys, _) in designs.items():
+        gains = disturbance_gains(sys, BODE_OMEGA)
+        for j, ax in enumerate(axes):
+            ax.loglog(BODE_OMEGA, gains[j], color=_DESIGN_COLOURS.get(label), lw=1.3,
+                      label=f"{label}: peak {gains[j].max():.3g} at {BODE_OMEGA[np.argmax(gains[j])]:.3g} rad/s")
+    for j, ax in enumerate(axes):
+        unit = f"{joints.position_units[j]}/({joints.force_units[j]})" if " " in joints.force_units[j] else \
+            f"{joints.position_units[j]}/{joints.force_units[j]}"
+        ax.set_title(joints.labels[j], fontsize=9)
+        ax.set_xlabel("frequency [rad/s]")
+        ax.set_ylabel(f"|E / D| [{unit}]")
+        ax.legend(fontsize=6, loc="lower center")
+    caption = ("Error dynamics over frequency: the tracking error per unit of a sinusoidal disturbance on the same "
+               "joint, |E_j / D_j|, with the base and the tuned gains (the loop linearized at the tuning's held "
+               "configuration); it falls to zero at low frequency, where the observer cancels the disturbance.")
+    return _save(fig, folder, "tune_bode"), caption
 
 
 def _history(result, folder: Path, words: str) -> tuple[str, str]:
@@ -239,7 +316,7 @@ def _margin(result, key: str) -> str:
         return "-"
     if key in ("torque_noise_rms", "torque_limit"):
         return f"{100 * value:+.3g} % of the limit"
-    if key == "max_overshoot":
+    if key in ("max_overshoot", "sampled_margin"):
         return f"{100 * value:+.3g} % points"
     return f"{value:+.3g}" + (" 1/s" if key == "stability_margin" else "")
 
@@ -270,6 +347,13 @@ def _constraint_rows(result) -> list[list[str]]:
                          _fmt([100 * v for v in overshoots(result.base.damping_ratio)], 3),
                          _fmt([100 * v for v in overshoots(result.tuned.damping_ratio)], 3),
                          _margin(result, "max_overshoot")])
+    sampled = limits.get("sampled_margin")
+    if sampled is not None:
+        def ts(point):
+            loop = point.sampled_loop
+            return "-" if loop is None else f"{_fmt(loop['ts_lambda_max'])} of {_fmt(loop['ts_lambda_limit'])}"
+        rows.append(["sampled loop: Ts lambda_max(Y M^-1) of its stability limit", f"<= {_fmt(1 - sampled)} of it",
+                     ts(result.base), ts(result.tuned), _margin(result, "sampled_margin")])
     ratio = limits.get("min_observer_bandwidth_ratio")
     if ratio is not None:
         rows.append(["slowest observer mode / tracking bandwidth", f">= {_fmt(ratio)}",

@@ -10,7 +10,8 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .results import JsonResult
+from .job_figures import JobFigure
+from .results import JsonResult, omitted_if_none
 from .tune import TuneError
 
 __all__ = ["RESULT_NAME", "PointResult", "TuneHistory", "TuneFigure", "TuneResult", "read_result", "objective_text",
@@ -52,6 +53,9 @@ class PointResult(JsonResult):
         Slowest observer mode over the tracking bandwidth (:mod:`analysis.tune`).
     margins : dict of str to float
         Per constraint, by how much it is met (< 0: missed; :mod:`analysis.tune_eval` says in what unit).
+    sampled_loop : dict or None
+        With a sampled-loop constraint: ``ts_lambda_max``, ``Ts lambda_max(Y M^-1)`` along the path, and
+        ``ts_lambda_limit``, the sampled loop's limit on it for these gains (:mod:`blocks.digital_stability`).
     """
 
     gains: dict
@@ -69,6 +73,7 @@ class PointResult(JsonResult):
     damping_ratio: list[float] = field(default_factory=list)
     bandwidth_ratio: float | None = None
     margins: dict[str, float] = field(default_factory=dict)
+    sampled_loop: dict | None = omitted_if_none()
 
 
 @dataclass(frozen=True)
@@ -90,12 +95,8 @@ class TuneHistory(JsonResult):
     simulated: list[bool]
 
 
-@dataclass(frozen=True)
-class TuneFigure(JsonResult):
-    """A figure of the tuning: its PNG file name (in ``figures/``) and caption."""
-
-    file: str
-    caption: str
+#: A figure of the tuning: its PNG file name (in ``figures/``) and caption (the job figure of both kinds of job).
+TuneFigure = JobFigure
 
 
 @dataclass(frozen=True)

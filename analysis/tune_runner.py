@@ -68,6 +68,7 @@ from blocks.batch import simulate_batch
 from blocks.budget import Budget
 from blocks.progress import ProgressCallback, StageProgress
 
+from .job_dask import dask_client
 from .job_files import JobLog, LogKind, write_lines_atomically
 from .tune import HEADER_PARTS, METRIC_WORDS, TuneError, TuneSpec, damping_for_overshoot, load_tuning
 from .tune_eval import DAMPING_CONSTRAINTS, Evaluation, Evaluator, check_seconds, evaluation_estimate, gains_key
@@ -142,7 +143,7 @@ def check_linear_feasibility(spec: TuneSpec, evaluator: Evaluator) -> None:
     """
     limits = spec.limits
     if all(v is None for v in (limits.torque_noise_rms, limits.stability_margin, limits.min_damping_ratio,
-                                limits.max_overshoot, limits.min_observer_bandwidth_ratio)):
+                                limits.max_overshoot, limits.min_observer_bandwidth_ratio, limits.sampled_margin)):
         return
     n = len(spec.parameters)
 
@@ -168,7 +169,7 @@ def check_linear_feasibility(spec: TuneSpec, evaluator: Evaluator) -> None:
     u = found.x if found.fun < best_v else best_u
     gains = spec.gains(u)
     noise, abscissa = evaluator.linear(gains)
-    zeta, ratio = evaluator.design(gains)
+    zeta, ratio, _ = evaluator.design(gains)
     missed = violations(gains)
     misses = []
     if limits.torque_noise_rms is not None and np.any(noise > limits.torque_noise_rms):
@@ -184,6 +185,11 @@ def check_linear_feasibility(spec: TuneSpec, evaluator: Evaluator) -> None:
                 is not None else f">= {damping_for_overshoot(limits.max_overshoot):.3g} (constraints.max_overshoot = "
                 f"{limits.max_overshoot:g})")
         misses.append(f"damping ratios {np.round(zeta, 3).tolist()}, not all {what}")
+    if missed.get("sampled_margin", 0) > 0:
+        sampled = evaluator.sampled_loop(gains)
+        misses.append(f"Ts lambda_max(Y M^-1) = {sampled['ts_lambda_max']:.4g} against the sampled loop's limit "
+                      f"{sampled['ts_lambda_limit']:.4g}, more than {1 - limits.sampled_margin:g} of it "
+                      f"(constraints.sampled_margin = {limits.sampled_margin:g})")
     if missed.get("min_observer_bandwidth_ratio", 0) > 0:
         misses.append(f"observer bandwidth ratio {ratio:.3g}, not >= {limits.min_observer_bandwidth_ratio:g} "
                       "(constraints.min_observer_bandwidth_ratio)")
@@ -204,7 +210,8 @@ def _describe(gains: dict) -> str:
 # --------------------------------------------------------------------------------------------
 def run_tune(spec: TuneSpec | str | Path, out_dir: str | Path, workers: int | None = None,
              progress: bool | ProgressCallback = True, restart: bool = False, budget: Budget | None = None,
-             engine: str = "auto", figures: bool = True, compare_unconstrained: bool = False) -> TuneResult:
+             engine: str = "auto", figures: bool = True, compare_unconstrained: bool = False,
+             scheduler: str | None = None, scheduler_timeout: float = 10.0) -> TuneResult:
     """Tune the gains (see the module docstring) and write the results into ``out_dir``.
 
     Parameters
@@ -230,6 +237,15 @@ def run_tune(spec: TuneSpec | str | Path, out_dir: str | Path, workers: int | No
         With a damping (or overshoot) constraint: after the search, run the same search without it (its
         evaluations go to the same log) and measure the constraint's cost against that search's answer,
         rather than against the best of the constrained search's own evaluations.  About doubles the time.
+    scheduler : str, optional
+        Address of a Dask distributed scheduler (``tcp://host:8786``, or a ``LocalCluster``'s
+        ``scheduler_address``): each generation's candidates are simulated in batches spread over its workers
+        (:mod:`analysis.job_dask`); the search, the log and the outputs stay in this process.  A worker lost
+        mid-batch has its batch run again elsewhere by Dask; rows are written only for finished batches, so the
+        log holds every evaluation once, and the result is the one of a local tuning.  Needs
+        ``dask[distributed]``; the connection is made before the output folder is touched.
+    scheduler_timeout : float
+        Seconds to wait for the Dask scheduler to answer.
 
     Returns
     -------
@@ -260,6 +276,9 @@ def run_tune(spec: TuneSpec | str | Path, out_dir: str | Path, workers: int | No
             # the linear check needs no files: an infeasible tuning leaves nothing behind
             evaluator = Evaluator(spec, workers=workers, engine=engine)
             check_linear_feasibility(spec, evaluator)
+            if scheduler is not None:         # connect before writing anything: a failed connection leaves nothing
+                evaluator.client = dask_client(scheduler, scheduler_timeout, TuneError)
+                stack.callback(evaluator.client.close)
             out.mkdir(parents=True, exist_ok=True)
             log = JobLog(out / LOG_NAME, EVALUATION_LOG)
             stack.enter_context(log.lock())
@@ -358,7 +377,8 @@ def _point(ev: Evaluation, nominal: float | None, evaluator: Evaluator) -> Point
         peak_torque=None if ev.peak_torque is None else [float(v) for v in ev.peak_torque],
         spectral_abscissa=float(ev.spectral_abscissa), violations=dict(ev.violations), feasible=bool(ev.feasible),
         diverged=int(ev.diverged), damping_ratio=[float(v) for v in ev.damping_ratio],
-        bandwidth_ratio=fin(ev.bandwidth_ratio), margins=evaluator.margins(ev))
+        bandwidth_ratio=fin(ev.bandwidth_ratio), margins=evaluator.margins(ev),
+        sampled_loop=evaluator.sampled_loop(ev.gains))
 
 
 def unconstrained_best(evaluator: Evaluator) -> Evaluation | None:
@@ -400,14 +420,14 @@ def _search_without_damping(spec: TuneSpec, evaluator: Evaluator, log: Path, wri
     limits = dataclasses.replace(spec.limits, min_damping_ratio=None, max_overshoot=None, damping_from="off")
     free_spec = dataclasses.replace(spec, limits=limits)
     free = Evaluator(free_spec, workers=evaluator.workers, engine=evaluator.engine, log_rows=read_log(log)[1],
-                     record=writer.write)
+                     record=writer.write, client=evaluator.client)
     search = _Search(free_spec, free, lambda stage, f: report(stage.replace("tuning:", "without damping:"), f),
                      budget, started)
     free.after_batch = search.after_batch
     best = search.run()
-    best.violations = evaluator.linear_violations(best.torque_noise_rms, best.spectral_abscissa, best.damping_ratio,
-                                                  best.bandwidth_ratio) | {k: v for k, v in best.violations.items()
-                                                                            if k not in DAMPING_CONSTRAINTS}
+    linear = evaluator.linear_violations(best.torque_noise_rms, best.spectral_abscissa, best.damping_ratio,
+                                         best.bandwidth_ratio, best.sampled_radius)
+    best.violations = linear | {k: v for k, v in best.violations.items() if k not in DAMPING_CONSTRAINTS}
     return best, free.simulated_now
 
 
@@ -452,7 +472,9 @@ def _finish(spec: TuneSpec, evaluator: Evaluator, search: _Search, best: Evaluat
     report("tuning: writing results", 0.0)
     write_lines_atomically(out / file_name, [scenario.to_toml()])
     if figures:
-        made = write_figures(result, out / "figures")
+        designs = {label: evaluator.error_dynamics(point.gains) for label, point in
+                   (("base gains", base_point), ("tuned gains", tuned_point))}
+        made = write_figures(result, out / "figures", designs=designs, joints=spec.base.robot.joints)
         result = _replace(result, figures=[TuneFigure(file=p, caption=c) for p, c in made])
     result = _replace(result, seconds=round(time.perf_counter() - started, 3))
     write_lines_atomically(out / RESULT_NAME, [result.to_json()])

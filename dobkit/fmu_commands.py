@@ -159,6 +159,7 @@ def _estimate_line(estimate: dict) -> str:
 def _cmd_cosim(args) -> int:
     from analysis.experiment import comparison_metrics, default_out_dir, format_rms_table, staged_output
     from blocks import load_scenario
+    from blocks.progress import StageProgress
     from fmu.archive import extract_fmu
     from fmu.cosim import cosimulate
 
@@ -171,10 +172,14 @@ def _cmd_cosim(args) -> int:
     out = Path(args.out) if args.out is not None else default_out_dir("dobkit-cosim")
     staging = staged_output(out)  # refuses a non-empty folder before any work
     runs = {}
-    with extract_fmu(args.fmu) as extracted:  # once for both runs
+    # one stage per run on standard error (a bar on a terminal, a line per stage and every few seconds elsewhere)
+    display = StageProgress(enabled=not args.no_progress)
+    with display, extract_fmu(args.fmu) as extracted:  # once for both runs
         for key, observer in (("with_dob", True), ("without_dob", False)):
+            stage = f"co-simulation {'with' if observer else 'without'} observer"
             runs[key] = cosimulate(extracted, s, step=args.step, observer=observer, coupling=args.coupling,
-                                   side_substeps=args.side_substeps, parameters=args.parameters, budget=budget)
+                                   side_substeps=args.side_substeps, parameters=args.parameters, budget=budget,
+                                   progress=lambda fraction, stage=stage: display(stage, fraction))
     info = runs["with_dob"].cosim
     # a digital controller's run (coupling "sampled") has no Python-side sub-steps or output derivatives
     metrics = comparison_metrics(s, runs["with_dob"], runs["without_dob"]) | {
@@ -389,6 +394,7 @@ def add_fmu_subcommands(subparsers) -> None:
                      help="set the FMU's plant parameters from the scenario (default) or keep the FMU's own")
     cos.add_argument("--out", default=None, help="output folder (default: a new folder under the current one)")
     cos.add_argument("--no-figures", action="store_true", help="write metrics only")
+    cos.add_argument("--no-progress", action="store_true", help="no progress display on standard error")
     _add_budget(cos)
     cos.set_defaults(func=_cmd_cosim)
 

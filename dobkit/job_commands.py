@@ -23,8 +23,12 @@ def add_job_parser(subparsers, name: str, help: str, description: str, file: str
 
 
 def add_job_flags(parser: argparse.ArgumentParser, workers: str, check: str, restart: str, seconds: str) -> None:
-    """``--workers``, ``--no-progress``, ``--check``, ``--restart`` and the budget flags, with the job's words."""
+    """``--workers``, ``--scheduler``, ``--no-progress``, ``--check``, ``--restart`` and the budget flags, with the
+    job's words."""
     parser.add_argument("--workers", type=whole_number("--workers"), help=workers)
+    parser.add_argument("--scheduler", metavar="ADDRESS",
+                        help="run the batches on the workers of this Dask distributed scheduler (tcp://host:8786) "
+                             "instead of this machine's cores; needs dask[distributed] (the 'cluster' extra)")
     parser.add_argument("--no-progress", action="store_true", help="no progress display")
     parser.add_argument("--check", action="store_true", help=check)
     parser.add_argument("--restart", action="store_true", help=restart)

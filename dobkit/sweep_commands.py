@@ -34,8 +34,6 @@ def add_sweep_subcommand(subparsers) -> argparse.ArgumentParser:
                                      "file); runs already in it are skipped")
     p.add_argument("--summary-dir", help="where summary.md, summary.json and figures go (default: beside the "
                                          "results file, named after it: NAME-results.jsonl -> NAME-summary)")
-    p.add_argument("--scheduler", metavar="ADDRESS",
-                   help="Dask distributed scheduler address (tcp://host:8786); needs dask[distributed]")
     p.add_argument("--summary-only", action="store_true", help="only (re)write the summary of the results file")
     add_job_flags(p, workers="local worker processes (default: all cores)",
                   check="validate the sweep file and every run, print the run count and the estimates, and stop",

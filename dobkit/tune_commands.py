@@ -69,7 +69,7 @@ def tune_command(args: argparse.Namespace) -> int:
 
 def _tune(args: argparse.Namespace, budget: Budget, state: dict) -> int:
     from analysis.tune import load_tuning, with_evaluations
-    from analysis.tune_eval import Evaluator, evaluation_estimate
+    from analysis.tune_eval import Evaluator, evaluation_estimate, measure_evaluation
     from analysis.tune_runner import LOG_NAME, check_linear_feasibility, run_tune
 
     spec = load_tuning(args.tuning_file, budget=budget)
@@ -80,16 +80,71 @@ def _tune(args: argparse.Namespace, budget: Budget, state: dict) -> int:
     if args.check:
         estimate, substeps = evaluation_estimate(spec)
         check_linear_feasibility(spec, Evaluator(spec))
-        print(_check_report(spec, estimate, substeps))
+        print(_check_report(spec, estimate, substeps), flush=True)
+        print(_time_line(spec, measure_evaluation(spec, workers=args.workers or _cores()), substeps, args))
         return 0
     estimate, _ = evaluation_estimate(spec)
     print(f"tuning '{spec.name}': at most {spec.max_evaluations} evaluations, each {spec.runs} runs of at most "
           f"{estimate.steps:,} RK4 steps (about {format_bytes(estimate.memory)}); evaluation log "
           f"{out / LOG_NAME}", flush=True)
-    result = run_tune(spec, out, workers=args.workers, progress=not args.no_progress, restart=args.restart,
-                      budget=budget, compare_unconstrained=args.compare_unconstrained)
+    lines = StageLines() if args.no_progress else None
+    try:
+        result = run_tune(spec, out, workers=args.workers, progress=lines or True, restart=args.restart,
+                          budget=budget, compare_unconstrained=args.compare_unconstrained, scheduler=args.scheduler)
+    finally:
+        if lines is not None:
+            lines.close()
     print(_summary(result, out))
     return 0 if result.feasible else EXIT_INFEASIBLE
+
+
+def _cores() -> int:
+    import os
+    return os.cpu_count() or 1
+
+
+def _time_line(spec, measured, corner_substeps: int, args) -> str:
+    """``--check``'s time estimate: evaluations x the measured cost of one (module :mod:`analysis.tune_eval`)."""
+    from analysis.tune_eval import time_estimate
+    where = (f"here, not on the Dask cluster at {args.scheduler}" if args.scheduler else
+             f"with {args.workers or _cores()} worker thread(s)")
+    steps = ("" if corner_substeps <= measured.substeps else
+             f"; gains near the high bounds need up to {corner_substeps} substeps and cost more")
+    return (f"  time: one evaluation of the base gains took {measured.seconds:.3g} s ({measured.substeps} substep"
+            f"{'s' if measured.substeps != 1 else ''}, {where}): about "
+            f"{_duration(time_estimate(spec, measured))} for {spec.max_evaluations} evaluations at most (candidates "
+            f"the linear constraints refuse are not simulated{steps})")
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+class StageLines:
+    """``--no-progress``: no bars, one line on standard error as each stage of the tuning ends (how long it took),
+    so that a long tuning is not silent."""
+
+    def __init__(self, stream=None) -> None:
+        import sys
+        self.stream = sys.stderr if stream is None else stream
+        self.stage, self.started = None, 0.0
+
+    def __call__(self, stage: str, fraction: float) -> None:
+        import time
+        if stage != self.stage:
+            self.close()
+            self.stage, self.started = stage, time.monotonic()
+
+    def close(self) -> None:
+        import time
+        if self.stage is not None:
+            self.stream.write(f"{self.stage}: done, took {time.monotonic() - self.started:.1f} s\n")
+            self.stream.flush()
+            self.stage = None
 
 
 def _gains_text(gains: dict) -> str:
@@ -132,7 +187,9 @@ _MARGIN_WORDS = {"torque_noise_rms": ("torque noise", "of the budget left", 100.
                  "stability_margin": ("stability margin", "beyond it", 1.0, " 1/s"),
                  "min_damping_ratio": ("damping ratio", "above the minimum", 1.0, ""),
                  "max_overshoot": ("overshoot", "below the maximum", 100.0, " % points"),
-                 "min_observer_bandwidth_ratio": ("observer bandwidth ratio", "above the minimum", 1.0, "")}
+                 "min_observer_bandwidth_ratio": ("observer bandwidth ratio", "above the minimum", 1.0, ""),
+                 "sampled_margin": ("sampled loop", "of its limit free beyond the required share", 100.0,
+                                    " % points")}
 
 
 def constraint_lines(result) -> list[str]:
@@ -152,6 +209,13 @@ def constraint_lines(result) -> list[str]:
                  if limits.get("max_overshoot") is not None else " (not constrained)")
         lines.append(f"  damping ratio of the error dynamics: tuned {_numbers(tuned.damping_ratio)}, base "
                      f"{_numbers(base.damping_ratio)}{bound}")
+    if limits.get("sampled_margin") is not None and tuned.sampled_loop is not None:
+        def ts(point):
+            return "-" if point.sampled_loop is None else (f"{point.sampled_loop['ts_lambda_max']:.4g} (limit "
+                                                           f"{point.sampled_loop['ts_lambda_limit']:.4g})")
+        lines.append(f"  sampled loop, Ts lambda_max(Y M^-1) along the path: tuned {ts(tuned)}, base {ts(base)}; at "
+                     f"most {1 - limits['sampled_margin']:g} of the limit"
+                     + (" (the default)" if limits.get("sampled_from") == "default" else ""))
     if tuned.margins:
         parts = []
         for key, value in tuned.margins.items():
@@ -190,6 +254,11 @@ def _check_report(spec, estimate, substeps: int) -> str:
         lines.append(f"  overshoot of the error dynamics <= {100 * limits.max_overshoot:g} % on every joint")
     if limits.min_observer_bandwidth_ratio is not None:
         lines.append(f"  slowest observer mode / tracking bandwidth >= {limits.min_observer_bandwidth_ratio:g}")
+    if limits.sampled_margin is not None:
+        lines.append(f"  sampled loop ([controller] at {spec.base.controller.sample_rate:g} Hz): Ts lambda_max(Y M^-1) "
+                     f"<= {1 - limits.sampled_margin:g} x its stability limit for each candidate's Kp, Kd"
+                     + (" (the default)" if limits.sampled_from == "default" else "")
+                     + "; the set is simulated with the continuous controller")
     lines.append("  the linear constraints can be met within the bounds")
     lines.append(f"  one evaluation: {spec.runs} runs of at most {estimate.steps:,} RK4 steps ({substeps} substeps at "
                  f"the high bounds), about {format_bytes(estimate.memory)}; at most "

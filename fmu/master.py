@@ -262,7 +262,8 @@ def cosimulate_system(fmu_path, side: ct.NonlinearIOSystem, t_final: float, step
         y_m = y_f[w.meas_src]
         dy_m = np.zeros(len(w.meas_src))
         y_m_prev = None
-        applied = _start_values(fmu, w.fmu_inputs)   # what the FMU inputs hold until the first command
+        # what the FMU inputs hold until the first command: the start values set, else the model description's
+        applied = _start_values(fmu, w.fmu_inputs, start_values or {})
         u = np.empty(len(w.side_in))
         every = max(1, n_steps // 50)
         fallback = None
@@ -390,11 +391,12 @@ class _Growth:
             f"own co-simulation solver being unstable at h = {h:g} s (or a loop unstable at this step): choose a "
             "smaller step, or use the FMU's Model Exchange interface with dobkit's solver; no result is returned")
 
-def _start_values(fmu: FMUInstance, names: list[str]) -> np.ndarray:
-    """Start values of real variables from the model description (0 where none is given)."""
+def _start_values(fmu: FMUInstance, names: list[str], given: dict) -> np.ndarray:
+    """Start values of real variables: the one set (``given``, as ``start_values`` set it before initialization),
+    else the model description's (0 where none is given)."""
     values = []
     for name in names:
-        start = fmu.variables[name].start
+        start = given[name] if name in given else fmu.variables[name].start
         try:
             values.append(float(start) if start is not None else 0.0)
         except (TypeError, ValueError):

@@ -192,6 +192,26 @@ def test_lag_fmu_under_pi_control_follows_the_exact_zoh_recursion(tmp_path):
 
 
 @pytest.mark.needs_cc
+@pytest.mark.parametrize("given", [None, 2.5])
+def test_the_python_side_sees_the_input_start_value_that_was_set(tmp_path, given):
+    """Until the first command the FMU's input holds its start value: the one set by start_values (not the model
+    description's 0) is what a Python side reading that input sees at t = 0, and the lag starts from it."""
+    lag = build_lag(tmp_path / "lag.fmu")
+    command, T, h = 1.0, 0.5, 0.1
+    # outputs the command u = 1 and, as "seen", the value the FMU input u held when the output was computed
+    side = ct.nlsys(None, lambda t, x, u, p: [command, u[1]], inputs=["x", "u"], outputs=["u", "seen"],
+                    name="reader")
+    start = {"T": T} | ({} if given is None else {"u": given})
+    resp = cosimulate_system(lag, side, 3 * h, h, start_values=start, coupling="zoh")
+    seen = resp.outputs[list(resp.output_labels).index("seen")]
+    held = 0.0 if given is None else given
+    np.testing.assert_allclose(seen, [held, command, command, command], rtol=0, atol=0)
+    # the lag x' = (u - x) / T from x = 0 under the command held from t = 0 (the start value never acts)
+    x = resp.outputs[list(resp.output_labels).index("x")]
+    np.testing.assert_allclose(x, command * (1 - np.exp(-resp.time / T)), rtol=0, atol=1e-12)
+
+
+@pytest.mark.needs_cc
 def test_lag_cosimulation_approaches_the_continuous_loop(tmp_path):
     """P control around the lag: the continuous loop is a lag with time constant T / (1 + k)."""
     lag = build_lag(tmp_path / "lag.fmu")
@@ -225,8 +245,15 @@ def test_cli_export_check_and_cosim(tmp_path, capsys):
     out = tmp_path / "run"
     assert dobkit_main(["fmu", "cosim", str(fmu), "--scenario", str(scenario_file), "--step", "0.005",
                         "--out", str(out), "--no-figures"]) == 0
-    printed = capsys.readouterr().out
+    captured = capsys.readouterr()
+    printed = captured.out
     assert "figures: skipped (--no-figures)" in printed and "h = 0.005 s, linear coupling" in printed
+    # progress on standard error: a line per run where it is not a terminal
+    assert "co-simulation with observer: done, took" in captured.err
+    assert "co-simulation without observer: done, took" in captured.err
+    assert dobkit_main(["fmu", "cosim", str(fmu), "--scenario", str(scenario_file), "--step", "0.005",
+                        "--out", str(tmp_path / "quiet"), "--no-figures", "--no-progress"]) == 0
+    assert "co-simulation" not in capsys.readouterr().err
     assert "estimated coupling error (step doubling over the first 0.1 s, order 2): q " in printed
     text = (out / "metrics.json").read_text()
     metrics = json.loads(text, parse_constant=lambda c: pytest.fail(f"non-strict JSON constant {c}"))

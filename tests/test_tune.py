@@ -9,6 +9,7 @@ of the budget: Kp = 400.
 from __future__ import annotations
 
 import json
+import re
 import signal
 import subprocess
 import sys
@@ -155,12 +156,14 @@ def test_the_result_file_reads_back_and_lists_its_files(problem):
     assert again.tuned.gains == result.tuned.gains and again.definition == result.definition
     assert len(again.history.phase) == again.evaluations["search"] + again.evaluations["polish"] + 1
     assert again.history.phase[0] == "base" and "polish" in again.history.phase
-    assert {f.file for f in again.figures} == {"tune_history.png", "tune_robustness.png", "tune_constraints.png"}
+    assert {f.file for f in again.figures} == {"tune_history.png", "tune_robustness.png", "tune_constraints.png",
+                                               "tune_step.png", "tune_bode.png"}
     for f in again.figures:
         assert (out / "figures" / f.file).is_file() and (out / "figures" / f.file).with_suffix(".svg").is_file()
     section = html_section(out)
     assert section.startswith("<section class='tune'>") and "Gain tuning short-tune" in section
-    assert section.count("data:image/png;base64,") == 3 and "<script" not in section
+    assert section.count("data:image/png;base64,") == 5 and "<script" not in section
+    assert "unit step of its own reference" in section and "|E_j / D_j|" in section
 
 
 @pytest.mark.parametrize("objective", ["worst", "mean"])
@@ -450,6 +453,11 @@ def test_the_command_line_reports_bad_files_in_one_line_and_checks(tmp_path):
     assert run.returncode == 0, run.stderr
     assert "valid (definition" in run.stdout and "the linear constraints can be met" in run.stdout
     assert not (tmp_path / "short-tune-results").exists()
+    # the time estimate: the evaluation budget (48) times one evaluation measured on this machine
+    took = re.search(r"one evaluation of the base gains took ([0-9.e+-]+) s \([0-9]+ substeps?", run.stdout)
+    total = re.search(r"about ([0-9]+) s for 48 evaluations at most", run.stdout)
+    assert took and total, run.stdout
+    assert abs(48 * float(took.group(1)) - int(total.group(1))) <= 0.5 + 48 * 0.0005 * float(took.group(1))
     path = write_problem(tmp_path, constraints={"torque_noise_rms": [v / 5 for v in _budget_at(20.0)]})
     run = _dobkit("tune", path, "--no-progress")
     assert run.returncode == 2 and "cannot be met" in run.stderr
@@ -467,6 +475,11 @@ def test_the_command_line_ends_with_status_3_on_an_infeasible_result(tmp_path):
     run = _dobkit("tune", path, "--no-progress", "--workers", "1")
     assert run.returncode == 3, run.stderr
     assert "INFEASIBLE" in run.stdout and (tmp_path / "short-tune-results" / RESULT_NAME).is_file()
+    # --no-progress: no bars, but one line per stage as it ends
+    stages = [line.split(": done, took")[0] for line in run.stderr.splitlines() if ": done, took" in line]
+    assert stages == ["tuning: the base gains", "tuning: differential evolution", "tuning: local polish (Nelder-Mead)",
+                      "tuning: writing results"], run.stderr
+    assert "%|" not in run.stderr
 
 
 def test_ctrl_c_keeps_the_finished_evaluations_and_the_same_command_resumes(tmp_path):

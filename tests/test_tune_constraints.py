@@ -87,7 +87,7 @@ def test_observer_bandwidth_ratio_uses_the_slowest_observer_mode(tmp_path):
     """paper-notes: for Y = 10 I the slowest mode of Y M^-1(q) is 0.848-0.930 rad/s over theta2; the tracking
     bandwidth of Kp = 180 is sqrt(180) rad/s."""
     spec = load_tuning(write_problem(tmp_path, search=KP_KD, scenario='"paper"'))
-    zeta, ratio = Evaluator(spec).design({"gains.kp": 180.0, "gains.kd": 36.0})
+    zeta, ratio, _ = Evaluator(spec).design({"gains.kp": 180.0, "gains.kd": 36.0})
     assert zeta.tolist() == pytest.approx([1.3416] * 4, abs=1e-4)
     slowest = ratio * math.sqrt(180.0)
     assert 0.848 - 1e-3 <= slowest <= 0.930 + 1e-3
