@@ -9,16 +9,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from blocks import forward_kinematics
-
 from .simulation import worse_with_observer_short
-from .text import ZERO_REL, and_words, fmt, join, kinds, mode_text, span, split_caveats, stable_ranges
+from .text import ZERO_REL, and_words, fmt, is_paper_arm, join, kinds, mode_text, span, split_caveats, stable_ranges
 
 __all__ = ["plain_summary"]
 
 
 def _tool_offset_mm(q_a, q_b, robot) -> float:
-    p = forward_kinematics(np.array([q_a, q_b], dtype=float), robot)
+    p = np.asarray(robot.tool_position(np.array([q_a, q_b], dtype=float)))
     return float(1e3 * np.linalg.norm(p[0, :3] - p[1, :3]))
 
 
@@ -45,11 +43,12 @@ def _held_offset(result, scenario) -> str:
     text = ""
     if op.largest_real_part(False) < 0:
         offset = _tool_offset_mm(op.q_equilibrium_without_dob, op.q0, scenario.robot)
-        depth = 1e3 * (op.q_equilibrium_without_dob[2] - op.q0[2])
+        # the paper's arm inserts the tool along joint 3 (d3): that part of the offset is its depth
+        depth = (f" ({fmt(1e3 * (op.q_equilibrium_without_dob[2] - op.q0[2]), 3)} mm of it in depth, along the tool "
+                 "axis)") if is_paper_arm(scenario) else ""
         text += (f"Held still at the start of the path against the disturbance, the tool tip without the observer "
-                 f"settles {fmt(offset, 3)} mm from its target ({fmt(depth, 3)} mm of it in depth, along the tool "
-                 "axis) and stays there as long as the disturbance acts; a larger Kp shrinks that offset and Kd does "
-                 "not change it (it is M^-1 d / Kp).")
+                 f"settles {fmt(offset, 3)} mm from its target{depth} and stays there as long as the disturbance "
+                 "acts; a larger Kp shrinks that offset and Kd does not change it (it is M^-1 d / Kp).")
         scale = offset
     else:
         text += (f"Held still at the start of the path, the loop without the observer is unstable (largest pole real "
@@ -191,7 +190,8 @@ def plain_summary(result, experiment: dict, scenario) -> list[str]:
         The experiment's metrics (see :func:`analysis.report_view.build_view`).
     scenario : Scenario
     """
-    lines = [_tool_tip(experiment), worse_with_observer_short(experiment), _held_offset(result, scenario),
+    lines = [_tool_tip(experiment), worse_with_observer_short(experiment, scenario.robot.joints),
+             _held_offset(result, scenario),
              _speed(result, scenario), _design(result), _noise(result), _robustness(result, scenario),
              _gains(result)]
     return [line for line in lines if line]

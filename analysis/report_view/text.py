@@ -13,13 +13,12 @@ from pathlib import Path
 
 import numpy as np
 
-from blocks.joints import RRPR_JOINTS
-from blocks.metrics import JOINT_UNITS
+from blocks.joints import RRPR_JOINTS, JointSpace
 
 __all__ = ["fmt", "join", "span", "settling", "pole", "Cell", "Table", "Figure", "Paragraph", "figures",
            "joints_text", "mode_text", "value", "kinds", "and_words", "split_caveats", "stable_ranges",
            "stability_text", "gain_text", "matrix_rows", "per_joint", "column", "JOINT_TITLES", "MODE_SHARE",
-           "ZERO_REL"]
+           "ZERO_REL", "is_paper_arm"]
 
 #: How the report names the joints in tables and captions (the same names as the figures).
 JOINT_TITLES = RRPR_JOINTS.labels
@@ -197,9 +196,14 @@ def mode_text(direction) -> str:
     return f"{joints_text(idx)} alone" if len(idx) == 1 else f"{joints_text(idx)} together"
 
 
-def value(x, j: int, digits: int = 3) -> str:
-    """A joint quantity with its unit."""
-    return f"{fmt(x, digits)} {JOINT_UNITS[j]}"
+def value(x, j: int, digits: int = 3, joints: JointSpace = RRPR_JOINTS) -> str:
+    """A position of joint ``j`` with its unit (of ``joints``, default the paper's arm)."""
+    return f"{fmt(x, digits)} {joints.position_units[j]}"
+
+
+def is_paper_arm(scenario) -> bool:
+    """Whether a scenario's arm is the paper's RRPR (then the report's comparisons with the paper apply)."""
+    return getattr(scenario.robot, "joints", None) == RRPR_JOINTS
 
 
 def kinds(kind) -> list[str]:
