@@ -173,7 +173,7 @@ def joint_axes(title: str, joints: JointSpace = RRPR_JOINTS):
         size = ({1: 7.0, 2: 11.0}.get(cols, 1.0 + 4.4 * cols), 1.2 + 2.9 * rows)
         margins = {"left": _MARGIN_IN["left"] / size[0], "right": 1 - _MARGIN_IN["right"] / size[0],
                    "bottom": _MARGIN_IN["bottom"] / size[1], "top": 1 - _MARGIN_IN["top"] / size[1],
-                   "wspace": 0.2, "hspace": 0.18 if rows <= 2 else 0.24}
+                   "wspace": 0.2 if cols <= 2 else 0.3, "hspace": 0.18 if rows <= 2 else 0.24}
     # fixed margins (room for tick labels such as -0.00025 and a unit label): no layout pass per format
     fig, grid = plt.subplots(rows, cols, figsize=size, sharex=True, squeeze=False, gridspec_kw=margins)
     fig.suptitle(title)
