@@ -62,7 +62,8 @@ def loop_response(time, outputs, states, labels: list, state_labels: list | None
     """
     outputs = np.asarray(outputs, dtype=float)
     d = lumped_disturbance_of(outputs, list(labels), scenario) if d is None else d
-    resp = ct.TimeResponseData(time, np.vstack([outputs, d]), states, output_labels=list(labels) + signal_names("d", scenario.robot),
+    resp = ct.TimeResponseData(time, np.vstack([outputs, d]), states,
+                               output_labels=list(labels) + signal_names("d", scenario.robot),
                                state_labels=state_labels if states is not None else None, title=title,
                                sysname=sysname, issiso=False, plot_inputs=False)
     resp.scenario = scenario

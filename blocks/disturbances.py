@@ -41,8 +41,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import kernels
-from .parameters import RobotParameters
 from .arm import ArmModel
+from .parameters import RobotParameters
 from .validation import arm_model, joint_arrays, real_array
 
 __all__ = ["DisturbanceSpec", "DISTURBANCE_KINDS", "external_disturbance",

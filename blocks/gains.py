@@ -10,10 +10,10 @@ Examples
 >>> from blocks.gains import validated_gain
 >>> float(validated_gain(180, "kp")[1, 1])
 180.0
->>> validated_gain([1.0, 2.0], "kd")
+>>> validated_gain(-1, "kd")
 Traceback (most recent call last):
     ...
-blocks.gains.GainError: 'gains.kd' has 2 values; the arm has 4 joints (theta1, theta2, d3, theta4): give a number, 4 numbers or a diagonal 4x4 matrix, got [1.0, 2.0] (shape (2,))
+blocks.gains.GainError: 'gains.kd' must be > 0 on every joint, got -1
 """
 from __future__ import annotations
 
