@@ -73,7 +73,7 @@ class TrackingAccumulator:
 
     Parameters
     ----------
-    kin : numpy.ndarray or tuple
+    kin : numpy.ndarray or object
         The arm's tool parameters (``arm.tool_params()``; the RRPR's kinematic lengths ``[a1, a2, d1, d4]``, m)
         for the tool-tip errors.
     n_points : int
@@ -90,7 +90,7 @@ class TrackingAccumulator:
 
     def __init__(self, kin, n_points: int, metrics=METRICS, members: tuple = (), n_joints: int | None = None,
                  tool_position=None) -> None:
-        if isinstance(kin, np.ndarray) or not isinstance(kin, tuple):
+        if isinstance(kin, (np.ndarray, list)):       # numbers (the RRPR's lengths) get the member axes
             kin = np.asarray(kin, dtype=float)
             kin = kin.reshape(kin.shape + (1,) * (1 + len(members)))
         self.kin = kin

@@ -677,7 +677,7 @@ def _build_disturbance(given: dict, built: dict):
 
 
 def _build_trajectory(given: dict, built: dict):
-    kind = given.get("kind", _SECTIONS["trajectory"].default_kind)
+    kind = given.get("kind", "joint_sine" if _context().arm is not None else _SECTIONS["trajectory"].default_kind)
     kw = {k: v for k, v in given.items() if k != "kind"}
     ctx = _context()
     if kind == "laceration" and ctx.arm is not None:

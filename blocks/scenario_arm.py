@@ -45,7 +45,7 @@ def is_rrpr(arm: ArmModel) -> bool:
 def arm_name(arm: ArmModel, urdf: str | None = None) -> str:
     """How messages name an arm: the URDF file's stem, the arm's ``name``, or its class."""
     if urdf:
-        return Path(urdf).stem
+        return urdf.split(":", 1)[1] if urdf.startswith("example:") else Path(urdf).stem
     return str(getattr(arm, "name", None) or ("rrpr" if is_rrpr(arm) else type(arm).__name__))
 
 
