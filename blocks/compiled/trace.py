@@ -23,11 +23,12 @@ that block's kernel as a compiled function instead (see
 """
 from __future__ import annotations
 
+import hashlib
 import numbers
 
 import numpy as np
 
-__all__ = ["Sym", "SymTable", "TraceError", "Graph", "symbolic_params", "param_structure", "param_values",
+__all__ = ["Sym", "SymTable", "TraceError", "Graph", "Frozen", "symbolic_params", "param_structure", "param_values",
            "param_tables", "is_table", "TABLE_SIZE"]
 
 #: A parameter array larger than this is a table (noise samples), not numbers to trace.
@@ -37,6 +38,30 @@ TABLE_SIZE = 64
 def is_table(value) -> bool:
     """Whether a parameter is a table: an array of more than :data:`TABLE_SIZE` numbers, or not of numbers."""
     return isinstance(value, np.ndarray) and (value.size > TABLE_SIZE or value.dtype.kind not in "fiu")
+
+
+class Frozen:
+    """A parameter that is structure, not numbers: the trace specialises on it and reads no symbol from it.
+
+    A model's geometry (an arm's joint placements, axes and inertias) is
+    kept as plain Python floats in a subclass of this marker, so a traced
+    kernel sees constants: products with exact zeros are skipped at trace
+    time and the generated code carries the numbers as literals.
+    :func:`symbolic_params` returns it unchanged, :func:`param_values` reads
+    no number from it and :func:`param_structure` gives a digest of
+    :meth:`frozen_key`, so two models of different numbers get different
+    code.
+    """
+
+    __slots__ = ()
+
+    def frozen_key(self) -> str:
+        """A text that determines the object exactly (default: its ``repr``, exact for floats)."""
+        return repr(self)
+
+    def frozen_digest(self) -> str:
+        """``TypeName#`` and a hash of :meth:`frozen_key`: what the generated code is specialised on."""
+        return f"{type(self).__name__}#{hashlib.sha256(self.frozen_key().encode()).hexdigest()[:20]}"
 
 
 class TraceError(TypeError):
@@ -293,9 +318,9 @@ def symbolic_params(graph: Graph, params, values: list, tables: list | None = No
     tuples and tuples are converted element by element.  A table (see
     :func:`is_table`) is appended to ``tables`` and becomes a
     :class:`SymTable` of that slot (a 2-D table only); without ``tables`` it
-    cannot be traced.
+    cannot be traced.  A :class:`Frozen` parameter is structure and stays.
     """
-    if isinstance(params, (bool, np.bool_, str, type(None))) or isinstance(params, numbers.Integral):
+    if isinstance(params, (bool, np.bool_, str, type(None), Frozen)) or isinstance(params, numbers.Integral):
         return params
     if isinstance(params, numbers.Real):
         values.append(float(params))
@@ -321,6 +346,8 @@ def symbolic_params(graph: Graph, params, values: list, tables: list | None = No
 
 def param_structure(params) -> str:
     """What the generated code is specialised on: types, shapes and structural values (not the numbers)."""
+    if isinstance(params, Frozen):
+        return params.frozen_digest()
     if isinstance(params, (bool, np.bool_, str, type(None))) or isinstance(params, numbers.Integral):
         return repr(params)
     if isinstance(params, numbers.Real):
@@ -338,7 +365,7 @@ def param_structure(params) -> str:
 def param_values(params, out: list) -> list:
     """The numbers of ``params`` in the order :func:`symbolic_params` reads them (for a new set of values);
     tables are not numbers."""
-    if isinstance(params, (bool, np.bool_, str, type(None))) or isinstance(params, numbers.Integral) \
+    if isinstance(params, (bool, np.bool_, str, type(None), Frozen)) or isinstance(params, numbers.Integral) \
             or is_table(params):
         return out
     if isinstance(params, numbers.Real):

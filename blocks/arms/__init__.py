@@ -1,0 +1,18 @@
+"""Arm models beyond the paper's RRPR: any serial arm from a URDF (pinocchio reads it, dobkit's kernels compute).
+
+``load_urdf_arm(path, tool_frame, locked=(), locked_values=None, gravity=None)`` gives a
+:class:`ChainArm`, an :class:`~blocks.arm.ArmModel`; :func:`scope4_urdf` is the bundled 4-joint surgical arm,
+:func:`example_urdf` finds the UR5 and Panda of ``example-robot-data``; :func:`joint_path` turns a task-space path
+of the tool point into joint references by damped least-squares IK.
+"""
+from ..lazy import lazy_exports
+
+_WHERE = {
+    "chain_model": ("ChainArm",),
+    "urdf": ("load_urdf_arm", "UrdfError", "UrdfFileError", "UrdfParseError", "UnknownFrameError",
+             "UnknownJointError", "UnsupportedJointError", "InertiaError"),
+    "examples": ("example_urdf", "scope4_urdf", "example_arm"),
+    "ik": ("joint_path", "solve_ik", "IKUnreachableError", "JointPath"),
+}
+__all__ = sorted(name for names in _WHERE.values() for name in names)
+__getattr__, __dir__ = lazy_exports(__name__, _WHERE, globals())

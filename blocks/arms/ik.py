@@ -1,0 +1,210 @@
+"""A task-space path of the tool point turned into joint references: damped least squares and exact derivatives.
+
+For each sample of a path ``p(t)`` (m) with its derivatives ``p'``, ``p''``:
+
+* ``q`` by damped least-squares iterations ``q <- q + J^T (J J^T + lambda^2 I)^-1 (p - f(q))``,
+  each projected onto the joints' ranges, warm-started from the previous sample's solution (the first
+  from ``q0``), until the residual ``|p - f(q)|`` stops falling; a residual above ``tol`` refuses
+  the point (time, point, residual);
+* ``q' = J^+ p'`` with ``J^+ = J^T (J J^T)^-1``, the minimum-norm joint velocity (for a square ``J``
+  simply ``J^-1``);
+* ``q'' = d/dt (J^+ p') = J^+ (p'' - J' q') + (I - J^+ J) J'^T (J J^T)^-1 p'``: the exact derivative of
+  that minimum-norm velocity along the motion, so ``q''`` integrates to ``q'``.  The second term lies in
+  the null space of ``J`` and vanishes for a square (non-redundant) ``J``.  ``J'`` is assembled from
+  the arm's ``J'(q, v) v`` by polarisation: ``J'`` is symmetric in its two directions (second
+  derivatives of the tool position), so column ``i`` of ``J'(q, q')`` is
+  ``(c(q' + e_i) - c(q' - e_i)) / 4`` with ``c(v) = J'(q, v) v``, exact up to rounding.
+
+For a square ``J`` (three joints that move the tool point, such as scope4's yaw, pitch and
+insertion; its roll does not move the tip) ``q``, ``q'`` and ``q''`` are one curve exactly.  For a
+redundant arm, the damped iterations move along ``J``'s row space as the minimum-norm velocity does,
+and agree with it to first order in the sample spacing; the null-space drift between samples is not
+controlled (no secondary task).
+
+Joint positions (rad, m), velocities (rad/s, m/s), accelerations (rad/s^2, m/s^2); points in the
+arm's base frame (m).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..arm import ArmModel
+from ..kinematics import UnreachableError
+
+__all__ = ["IKUnreachableError", "JointPath", "solve_ik", "joint_path"]
+
+
+class IKUnreachableError(UnreachableError):
+    """A point of a task-space path is out of reach (or at a singularity, or beyond a joint's range)."""
+
+
+@dataclass(frozen=True)
+class JointPath:
+    """Joint references of a task-space path.
+
+    Attributes
+    ----------
+    t : numpy.ndarray
+        Sample times (s), shape (N,).
+    q, dq, ddq : numpy.ndarray
+        Joint positions, velocities and accelerations, shape (N, n).
+    residual : numpy.ndarray
+        ``|p - f(q)|`` at each sample (m), shape (N,).
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    dq: np.ndarray
+    ddq: np.ndarray
+    residual: np.ndarray
+
+
+def _start(arm: ArmModel, q0) -> np.ndarray:
+    if q0 is None:          # the middle of each finite range, else 0
+        return np.array([0.5 * (lo + hi) if np.isfinite(lo) and np.isfinite(hi) else 0.0
+                         for lo, hi in arm.joints.limits])
+    q0 = np.asarray(q0, dtype=float)
+    if q0.shape != (arm.n,) or not np.all(np.isfinite(q0)):
+        raise ValueError(f"q0 must be {arm.n} finite joint positions ({', '.join(arm.joints.names)}), got {q0!r}")
+    return q0
+
+
+def solve_ik(arm: ArmModel, point, q0=None, *, damping: float = 1e-3, tol: float = 1e-9,
+             max_iter: int = 200, t: float | None = None) -> tuple[np.ndarray, float]:
+    """Joint positions that put the tool point at ``point`` (m), by damped least squares from ``q0``.
+
+    Parameters
+    ----------
+    arm : ArmModel
+    point : array_like, shape (3,)
+        Target in the base frame (m).
+    q0 : array_like, shape (n,), optional
+        Starting joint positions (default: the middle of each joint's range, 0 where unbounded).
+    damping : float
+        ``lambda`` of the damped least-squares step (m); larger is more robust near singularities.
+    tol : float
+        The largest residual accepted (m).
+    max_iter : int
+        Iterations at most.
+    t : float, optional
+        Time of the point on a path, for the error message.
+
+    Returns
+    -------
+    q : numpy.ndarray, shape (n,)
+    residual : float
+        ``|point - f(q)|`` (m).
+
+    Raises
+    ------
+    IKUnreachableError
+        If the residual stays above ``tol`` (the message gives the time, the point and the residual), or the
+        solution leaves a joint's range (the message names the joint).
+    """
+    for name, value in (("damping", damping), ("tol", tol)):
+        if not (np.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be a finite number > 0 (m), got {value!r}")
+    point = np.asarray(point, dtype=float)
+    if point.shape != (3,) or not np.all(np.isfinite(point)):
+        raise ValueError(f"point must be 3 finite coordinates (m), got {point!r}")
+    lo, hi = np.array(arm.joints.limits).T
+    q = np.clip(_start(arm, q0), lo, hi)
+    lam2 = damping * damping
+    err = point - arm.tool_position(q)
+    res = float(np.linalg.norm(err))
+    for _ in range(max_iter):
+        if res <= 1e-3 * tol:
+            break
+        J = arm.tool_jacobian(q)
+        step = J.T @ np.linalg.solve(J @ J.T + lam2 * np.eye(3), err)
+        q_new = np.clip(q + step, lo, hi)        # projected onto the joints' ranges
+        err_new = point - arm.tool_position(q_new)
+        res_new = float(np.linalg.norm(err_new))
+        if not res_new < res:      # no more progress: the closest point (or rounding) is reached
+            break
+        q, err, res = q_new, err_new, res_new
+    when = "" if t is None else f" at t = {t:.6g} s"
+    where = f"({point[0]:.6g}, {point[1]:.6g}, {point[2]:.6g}) m"
+    if res > tol:
+        ends = [name for name, v, a, b in zip(arm.joints.names, q, lo, hi) if v == a or v == b]
+        why = f"; at the end of their ranges: {', '.join(ends)}" if ends else ""
+        raise IKUnreachableError(f"task-space point {where}{when} is not reachable by the tool point: the closest "
+                                 f"solution found misses it by {res:.3g} m (tolerance {tol:.3g} m){why}")
+    outside = arm.joints.outside_limits(q)
+    if outside:
+        raise IKUnreachableError(f"task-space point {where}{when} needs joint positions outside the arm's ranges: "
+                                 f"{outside}")
+    return q, res
+
+
+def jacobian_rate(arm: ArmModel, q, dq) -> np.ndarray:
+    """``J'(q, q')`` (3, n) by polarisation of ``c(v) = J'(q, v) v`` (exact: ``J'`` is symmetric in its directions)."""
+    n = arm.n
+    eye = np.eye(n)
+    plus = arm.tool_acceleration_bias(np.broadcast_to(q, (n, n)), dq + eye)
+    minus = arm.tool_acceleration_bias(np.broadcast_to(q, (n, n)), dq - eye)
+    return ((plus - minus) / 4.0).T
+
+
+def _derivatives(arm: ArmModel, q, dp, ddp, t, min_sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    J = arm.tool_jacobian(q)
+    JJt = J @ J.T
+    sigma = float(np.sqrt(max(np.linalg.eigvalsh(JJt)[0], 0.0)))
+    if sigma < min_sigma:
+        raise IKUnreachableError(f"at t = {t:.6g} s the arm is at a singularity for the tool point (smallest "
+                                 f"singular value of J {sigma:.3g}, below {min_sigma:.3g}); the path's velocity has "
+                                 "no joint velocity")
+    pinv = J.T @ np.linalg.inv(JJt)
+    dq = pinv @ dp
+    Jdot = jacobian_rate(arm, q, dq)
+    ddq = pinv @ (ddp - Jdot @ dq) + (np.eye(arm.n) - pinv @ J) @ (Jdot.T @ np.linalg.solve(JJt, dp))
+    return dq, ddq
+
+
+def joint_path(arm: ArmModel, t, p, dp, ddp, q0=None, *, damping: float = 1e-3, tol: float = 1e-9,
+               max_iter: int = 200, min_sigma: float = 1e-6) -> JointPath:
+    """Joint references ``q, q', q''`` of a sampled task-space path of the tool point.
+
+    Parameters
+    ----------
+    arm : ArmModel
+    t : array_like, shape (N,)
+        Sample times (s), increasing.
+    p, dp, ddp : array_like, shape (N, 3)
+        Tool-point positions (m), velocities (m/s) and accelerations (m/s^2) in the base frame.
+    q0 : array_like, shape (n,), optional
+        Start of the first sample's iterations (default: the middle of the joints' ranges).
+    damping, tol, max_iter
+        See :func:`solve_ik`.
+    min_sigma : float
+        Smallest singular value of ``J`` (m/rad) accepted for the velocity and acceleration.
+
+    Returns
+    -------
+    JointPath
+
+    Raises
+    ------
+    IKUnreachableError
+        At the first sample out of reach, beyond a joint's range or at a singularity (time, point, residual).
+    """
+    t = np.asarray(t, dtype=float)
+    arrays = {}
+    for name, value in (("p", p), ("dp", dp), ("ddp", ddp)):
+        arr = np.asarray(value, dtype=float)
+        if arr.shape != t.shape + (3,) or not np.all(np.isfinite(arr)):
+            raise ValueError(f"{name} must be finite with shape {t.shape + (3,)} (one point per time), "
+                             f"got shape {arr.shape}")
+        arrays[name] = arr
+    if t.ndim != 1 or t.size == 0 or np.any(np.diff(t) <= 0):
+        raise ValueError(f"t must be a non-empty increasing 1-D array of times (s), got shape {t.shape}")
+    N, n = t.size, arm.n
+    q, dq, ddq, res = np.empty((N, n)), np.empty((N, n)), np.empty((N, n)), np.empty(N)
+    guess = q0
+    for k in range(N):
+        q[k], res[k] = solve_ik(arm, arrays["p"][k], guess, damping=damping, tol=tol, max_iter=max_iter, t=t[k])
+        dq[k], ddq[k] = _derivatives(arm, q[k], arrays["dp"][k], arrays["ddp"][k], t[k], min_sigma)
+        guess = q[k]
+    return JointPath(t=t, q=q, dq=dq, ddq=ddq, residual=res)

@@ -1,0 +1,286 @@
+"""Any serial arm from a URDF file: pinocchio reads it, dobkit's kernels do the maths.
+
+:func:`load_urdf_arm` parses the file with pinocchio (``pip install
+"dobkit[urdf]"``), removes the joints the user locks, and copies what the
+dynamics need into a :class:`~blocks.kernels.chain.ChainParams`: each
+moving joint's parent, placement and axis, and the inertia of the body it
+moves (pinocchio merges links on fixed joints into their parent's body).
+Joint names, kinds and limits come from the URDF.
+
+Supported joints: ``revolute``, ``continuous`` (one angle to the user;
+pinocchio's ``(cos, sin)`` pair is converted), ``prismatic`` (axes in any
+direction, negative or unaligned) and ``fixed``.  ``floating`` and
+``planar`` joints are refused by name.  A tree is kept as it is: joints on
+branches off the tool's chain (a gripper's second finger) are joints of the
+model unless locked.
+"""
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+
+from ..joints import JointSpace
+from ..kernels.chain import ChainParams
+from .chain_model import ChainArm
+
+__all__ = ["UrdfError", "UrdfFileError", "UrdfParseError", "UnknownFrameError", "UnknownJointError",
+           "UnsupportedJointError", "InertiaError", "load_urdf_arm", "chain_from_pinocchio"]
+
+
+class UrdfError(ValueError):
+    """A URDF arm cannot be built; the message names the file, joint, frame or value and what is allowed."""
+
+
+class UrdfFileError(UrdfError):
+    """The URDF file does not exist or cannot be read."""
+
+
+class UrdfParseError(UrdfError):
+    """The file is not a URDF robot description pinocchio can read."""
+
+
+class UnknownFrameError(UrdfError):
+    """The tool frame is not a frame of the model (the message lists the frames)."""
+
+
+class UnknownJointError(UrdfError):
+    """A locked joint is not a moving joint of the model (the message lists them), or its value is out of range."""
+
+
+class UnsupportedJointError(UrdfError):
+    """The URDF has a joint of a type dobkit does not model (floating, planar, spherical, ...)."""
+
+
+class InertiaError(UrdfError):
+    """A body has a negative mass or an inertia that is not positive semi-definite, or ``M(q)`` is singular."""
+
+
+# pinocchio joint models of one degree of freedom, by short name: revolute (R*), continuous (RUB*), prismatic (P*)
+_REVOLUTE = {"JointModelRX", "JointModelRY", "JointModelRZ", "JointModelRevoluteUnaligned"}
+_CONTINUOUS = {"JointModelRUBX", "JointModelRUBY", "JointModelRUBZ", "JointModelRevoluteUnboundedUnaligned"}
+_PRISMATIC = {"JointModelPX", "JointModelPY", "JointModelPZ", "JointModelPrismaticUnaligned"}
+_URDF_TYPES = {"revolute", "continuous", "prismatic", "fixed"}
+
+#: Entries of rotations and axes this close to 0 or +-1 are taken as exact, so a trace skips them
+#: (``rpy = pi/2`` gives cos = 6e-17 in floating point).
+SNAP = 1e-14
+
+
+def _pinocchio():
+    try:
+        import pinocchio
+    except ImportError as exc:          # pragma: no cover - the extra is installed where tests run
+        raise ImportError('URDF arms need pinocchio: pip install "dobkit[urdf]"') from exc
+    return pinocchio
+
+
+def _snap(x: float) -> float:
+    x = float(x)
+    if abs(x) < SNAP:
+        return 0.0
+    if abs(abs(x) - 1.0) < SNAP:
+        return math.copysign(1.0, x)
+    return x
+
+
+def _vec(v, snap: bool = False) -> tuple:
+    return tuple(_snap(x) if snap else float(x) for x in np.asarray(v, dtype=float).ravel())
+
+
+def _mat(m, snap: bool = False) -> tuple:
+    return tuple(_vec(row, snap) for row in np.asarray(m, dtype=float))
+
+
+def _read_urdf(path: Path) -> dict:
+    """Joint name -> (URDF type, lower, upper) from the file's XML, checking it is a robot description."""
+    try:
+        root = ET.parse(path).getroot()
+    except ET.ParseError as exc:
+        raise UrdfParseError(f"URDF file {str(path)!r} is not well-formed XML: {exc}") from exc
+    if root.tag != "robot":
+        raise UrdfParseError(f"URDF file {str(path)!r} has root element <{root.tag}>; a URDF's root is <robot>")
+    joints = {}
+    for j in root.iter("joint"):
+        if j.get("name") is None or j.get("type") is None:
+            continue                     # a transmission's <joint> reference, not a joint
+        kind = j.get("type")
+        if kind not in _URDF_TYPES:
+            raise UnsupportedJointError(
+                f"URDF file {str(path)!r}: joint {j.get('name')!r} is of type {kind!r}; dobkit models "
+                f"{sorted(_URDF_TYPES)} joints (lock or remove the others)")
+        limit = j.find("limit")
+        lower = float(limit.get("lower", "-inf")) if limit is not None and kind != "continuous" else -math.inf
+        upper = float(limit.get("upper", "inf")) if limit is not None and kind != "continuous" else math.inf
+        if not lower < upper:            # a URDF without a real range (lower = upper = 0): no limits
+            lower, upper = -math.inf, math.inf
+        joints[j.get("name")] = (kind, lower, upper)
+    return joints
+
+
+def _check_inertia(name: str, mass: float, inertia: np.ndarray) -> None:
+    if not (math.isfinite(mass) and mass >= 0.0) or not np.all(np.isfinite(inertia)):
+        raise InertiaError(f"the body moved by joint {name!r} has mass {mass!r} kg; it must be finite and >= 0")
+    eig = np.linalg.eigvalsh(0.5 * (inertia + inertia.T))
+    scale = max(float(np.max(np.abs(eig))), 1e-300)
+    if eig[0] < -1e-12 * scale:
+        raise InertiaError(f"the body moved by joint {name!r} has a rotational inertia with eigenvalues "
+                           f"{eig.tolist()} kg m^2; it must be positive semi-definite")
+
+
+def chain_from_pinocchio(model, tool_frame: str, gravity=None) -> tuple[ChainParams, tuple, tuple]:
+    """The :class:`ChainParams` of a pinocchio model (fixed base, 1-DOF joints) with the tool at ``tool_frame``.
+
+    Returns
+    -------
+    chain : ChainParams
+    kinds : tuple of str
+        ``"revolute"`` or ``"prismatic"`` per joint.
+    continuous : tuple of bool
+        Whether each joint is continuous (pinocchio's ``(cos, sin)``).
+    """
+    pin = _pinocchio()
+    if not model.existFrame(tool_frame):
+        frames = [f.name for f in model.frames if f.name != "universe"]
+        raise UnknownFrameError(f"tool frame {tool_frame!r} is not a frame of the model; its frames are {frames}")
+    data = model.createData()
+    pin.forwardKinematics(model, data, pin.neutral(model))
+    names, kinds, continuous, parents = [], [], [], []
+    rotations, translations, axes, masses, moments, inertias = [], [], [], [], [], []
+    for j in range(1, model.njoints):
+        name, short = model.names[j], model.joints[j].shortname()
+        if short in _REVOLUTE or short in _CONTINUOUS:
+            kind = "revolute"
+        elif short in _PRISMATIC:
+            kind = "prismatic"
+        else:
+            raise UnsupportedJointError(f"joint {name!r} is a pinocchio {short}; dobkit models revolute, continuous, "
+                                        "prismatic and fixed joints (lock it or remove it)")
+        S = np.asarray(data.joints[j].S).ravel()           # (v, w) in the joint's frame, constant for these joints
+        axis = S[3:] if kind == "revolute" else S[:3]
+        placement = model.jointPlacements[j]
+        inertia = model.inertias[j]
+        m, c, Ic = float(inertia.mass), np.asarray(inertia.lever, float), np.asarray(inertia.inertia, float)
+        _check_inertia(name, m, Ic)
+        I_origin = Ic + m * (float(c @ c) * np.eye(3) - np.outer(c, c))     # parallel axes to the joint origin
+        names.append(name)
+        kinds.append(kind)
+        continuous.append(short in _CONTINUOUS)
+        parents.append(int(model.parents[j]) - 1)
+        rotations.append(_mat(placement.rotation, snap=True))
+        translations.append(_vec(placement.translation))
+        axes.append(_vec(axis / np.linalg.norm(axis), snap=True))
+        masses.append(m)
+        moments.append(_vec(m * c))
+        inertias.append(_mat(I_origin))
+    if gravity is None:
+        g = _vec(model.gravity.linear)
+    else:
+        g = np.asarray(gravity, dtype=float)
+        if g.shape != (3,) or not np.all(np.isfinite(g)):
+            raise UrdfError(f"gravity {gravity!r} must be a finite 3-vector in m/s^2 in the base frame "
+                            "(default (0, 0, -9.81))")
+        g = _vec(g)
+    frame = model.frames[model.getFrameId(tool_frame)]
+    chain = ChainParams(names=tuple(names), kinds=tuple(kinds), parents=tuple(parents), rotations=tuple(rotations),
+                        translations=tuple(translations), axes=tuple(axes), masses=tuple(masses),
+                        first_moments=tuple(moments), inertias=tuple(inertias), gravity=g,
+                        tool_joint=int(frame.parentJoint) - 1, tool_rotation=_mat(frame.placement.rotation, snap=True),
+                        tool_translation=_vec(frame.placement.translation))
+    return chain, tuple(kinds), tuple(continuous)
+
+
+def load_urdf_arm(path, tool_frame: str, locked=(), locked_values=None, gravity=None) -> ChainArm:
+    """An arm model read from a URDF file.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The URDF file (meshes are not read).
+    tool_frame : str
+        A link or joint name of the URDF: the tool point is its origin.
+    locked : sequence of str, optional
+        Joints held fixed (removed from the model): a gripper's fingers, say.
+    locked_values : dict of str to float, optional
+        Position of locked joints (rad, m; an angle for a continuous joint);
+        a locked joint not given here is held at 0.
+    gravity : sequence of 3 floats, optional
+        Gravitational acceleration in the base frame (m/s^2); default the
+        URDF world's ``(0, 0, -9.81)``.
+
+    Returns
+    -------
+    ChainArm
+        With ``pin_model`` set to the reduced pinocchio model.
+
+    Raises
+    ------
+    UrdfError
+        (a ``ValueError``) or one of its subclasses, naming what is wrong: a
+        missing file, a file that is no URDF, an unknown tool frame or
+        locked joint, an unsupported joint type, a locked value out of
+        range, a body of negative mass or inertia, an arm whose ``M(q)`` is
+        singular (a joint that moves no mass).
+
+    Examples
+    --------
+    >>> from blocks.arms import load_urdf_arm, scope4_urdf
+    >>> arm = load_urdf_arm(scope4_urdf(), "tool_tip")
+    >>> arm.joints.names
+    ('yaw', 'pitch', 'insertion', 'roll')
+    """
+    pin = _pinocchio()
+    path = Path(path)
+    if not path.is_file():
+        raise UrdfFileError(f"URDF file {str(path)!r} does not exist (or is not a file)")
+    xml_joints = _read_urdf(path)
+    try:
+        model = pin.buildModelFromUrdf(str(path))
+    except (RuntimeError, ValueError) as exc:
+        raise UrdfParseError(f"pinocchio cannot read URDF file {str(path)!r}: {exc}") from exc
+
+    locked = [locked] if isinstance(locked, str) else list(locked)
+    moving = [model.names[j] for j in range(1, model.njoints)]
+    locked_values = dict(locked_values or {})
+    for name in locked:
+        if name not in moving:
+            raise UnknownJointError(f"locked joint {name!r} is not a moving joint of {str(path)!r}; "
+                                    f"its moving joints are {moving}")
+    extra = sorted(set(locked_values) - set(locked))
+    if extra:
+        raise UnknownJointError(f"locked_values names {extra}, which are not in locked {locked}")
+    q_ref = pin.neutral(model)
+    for name in locked:
+        j = model.getJointId(name)
+        value = float(locked_values.get(name, 0.0))
+        _, lo, hi = xml_joints.get(name, (None, -math.inf, math.inf))
+        if name in locked_values and not (math.isfinite(value) and lo <= value <= hi):
+            raise UnknownJointError(f"locked joint {name!r} at {value!r} is outside its range {lo:g} to {hi:g}")
+        iq = model.joints[j].idx_q
+        if model.joints[j].nq == 2:
+            q_ref[iq:iq + 2] = (math.cos(value), math.sin(value))
+        else:
+            q_ref[iq] = value
+    if locked:
+        model = pin.buildReducedModel(model, [model.getJointId(name) for name in locked], q_ref)
+
+    chain, kinds, continuous = chain_from_pinocchio(model, tool_frame, gravity)
+    limits = tuple(xml_joints.get(name, (None, -math.inf, math.inf))[1:] for name in chain.names)
+    joints = JointSpace(names=chain.names, kinds=kinds, limits=limits)
+    arm = ChainArm(chain, joints, tool_frame, continuous=continuous, source=str(path))
+    arm.pin_model = model
+    _check_positive_definite(arm)
+    return arm
+
+
+def _check_positive_definite(arm: ChainArm) -> None:
+    """``M(q)`` must be positive definite: every joint moves some mass or inertia about its axis."""
+    q = np.array([0.0 if math.isinf(lo) or math.isinf(hi) else 0.5 * (lo + hi) for lo, hi in arm.joints.limits])
+    M = arm.inertia(q)
+    scale = max(float(np.max(np.abs(np.diag(M)))), 1e-300)
+    for i in range(arm.n):                # the leading minors: the first that fails names the joint
+        if np.linalg.eigvalsh(M[:i + 1, :i + 1])[0] <= 1e-12 * scale:
+            raise InertiaError(f"joint {arm.joints.names[i]!r} of {arm.source!r} moves no mass or inertia "
+                               f"(M(q) is singular at q = {q.tolist()}); give its links <inertial> elements")

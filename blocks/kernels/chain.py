@@ -1,0 +1,457 @@
+"""Rigid-body dynamics of any serial (or tree) arm as row kernels: CRBA, RNEA, Cholesky, tool point.
+
+The arm is a :class:`ChainParams`: for every moving joint its parent, the
+placement of its frame in the parent's frame, its axis and the inertia of
+the body it moves (fixed links merged in), all as plain Python floats.
+:class:`ChainParams` is a :class:`~blocks.compiled.trace.Frozen` parameter,
+so when :mod:`blocks.compiled.trace` runs these kernels on symbols the
+geometry stays constants: products with exact zeros (axis-aligned joints,
+identity rotations) and sums with them are skipped here, at Python level,
+and the traced straight-line code holds only what the arm needs.  Loops run
+over joints (structure), branches are on joint kinds, never on ``q``.
+
+The algorithms work in the base frame ("spatial" coordinates about the base
+origin, Featherstone, *Rigid Body Dynamics Algorithms*, ch. 5 and 6, with
+pinocchio's order of a motion: linear part first):
+
+* kinematics: each joint's rotation ``R_i`` and origin ``p_i`` in the base,
+  its motion subspace ``S_i = (p_i x a_i, a_i)`` (revolute) or ``(a_i, 0)``
+  (prismatic), and each body's spatial inertia about the base origin
+  ``(m, H = m c, I_O)``;
+* ``M(q)``: composite-rigid-body algorithm; in base coordinates a composite
+  inertia is a plain sum, and ``M_ji = S_j . (I^c_i S_i)`` for ``j`` on the
+  path from ``i`` to the base;
+* ``h(q, q')`` and ``G(q)``: recursive Newton-Euler with the base
+  accelerating at ``-g``;
+* ``M^-1 r``: Cholesky ``M = L L^T`` and two triangular solves (the generic
+  n x n solve);
+* the tool point of one frame: its position, its linear Jacobian (base
+  axes, as pinocchio's ``LOCAL_WORLD_ALIGNED``) and ``J' q'``.
+
+Rows are joint-first: ``q[i]`` is a number, an array of a batch or a traced
+symbol.  Units: rad, m, kg, kg m^2, N m, N; gravity in m/s^2.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..compiled.trace import Frozen
+
+__all__ = ["ChainParams", "inertia_matrix", "mass_times", "mass_solve", "bias_forces", "gravity_forces",
+           "plant_acceleration", "tool_position", "tool_jacobian", "tool_acceleration_bias"]
+
+Vec = tuple
+Mat = tuple
+
+
+@dataclass(frozen=True, eq=False)
+class ChainParams(Frozen):
+    """The geometry and inertia of an arm of ``n`` moving joints, in joint order (parents first).
+
+    Every number is a Python float (so a trace keeps them as constants);
+    rotations are row-major 3x3 tuples.  Frames follow pinocchio: joint
+    ``i``'s frame sits at ``placement_i`` in its parent's joint frame (the
+    base for ``parent = -1``) and moves by the joint about or along ``axis``
+    (a unit vector in its own frame).
+
+    Attributes
+    ----------
+    names : tuple of str
+        Joint names.
+    kinds : tuple of str
+        ``"revolute"`` or ``"prismatic"``.
+    parents : tuple of int
+        Index of each joint's parent joint, ``-1`` for the base; ``parents[i] < i``.
+    rotations, translations : tuple
+        The joint frames' placements in their parents' frames (3x3, m).
+    axes : tuple of 3-tuples
+        Joint axes in the joint frames (unit).
+    masses : tuple of float
+        Mass of each joint's body (kg).
+    first_moments : tuple of 3-tuples
+        ``m c`` of each body about its joint origin, in its joint frame (kg m).
+    inertias : tuple of 3x3 tuples
+        Rotational inertia of each body about its joint origin, in its joint frame (kg m^2).
+    gravity : 3-tuple
+        Gravitational acceleration in the base frame (m/s^2), ``(0, 0, -9.81)`` for a URDF world.
+    tool_joint : int
+        The joint the tool frame is fixed to (``-1``: the base).
+    tool_rotation, tool_translation : tuple
+        The tool frame's placement in that joint's frame (3x3, m).
+    """
+
+    names: tuple
+    kinds: tuple
+    parents: tuple
+    rotations: tuple
+    translations: tuple
+    axes: tuple
+    masses: tuple
+    first_moments: tuple
+    inertias: tuple
+    gravity: tuple
+    tool_joint: int
+    tool_rotation: tuple
+    tool_translation: tuple
+
+    @property
+    def n(self) -> int:
+        """Number of moving joints."""
+        return len(self.kinds)
+
+    def support(self, i: int) -> list:
+        """Joints from the base to joint ``i`` (inclusive), base first; empty for ``i = -1``."""
+        path = []
+        while i >= 0:
+            path.append(i)
+            i = self.parents[i]
+        return path[::-1]
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Arithmetic that skips exact constant zeros and ones (Python floats), so a trace stays lean
+# ---------------------------------------------------------------------------------------------------------------
+def _const(a, value: float) -> bool:
+    return a.__class__ is float and a == value
+
+
+def _mul(a, b):
+    if a.__class__ is float:
+        if a == 0.0:
+            return 0.0
+        if a == 1.0:
+            return b
+        if a == -1.0:
+            return -b
+    if b.__class__ is float:
+        if b == 0.0:
+            return 0.0
+        if b == 1.0:
+            return a
+        if b == -1.0:
+            return -a
+    return a * b
+
+
+def _add(a, b):
+    if _const(a, 0.0):
+        return b
+    if _const(b, 0.0):
+        return a
+    return a + b
+
+
+def _sub(a, b):
+    if _const(b, 0.0):
+        return a
+    if _const(a, 0.0):
+        return -b
+    return a - b
+
+
+def _sum(terms):
+    out = 0.0
+    for t in terms:
+        out = _add(out, t)
+    return out
+
+
+def _dot(u, v):
+    return _sum(_mul(a, b) for a, b in zip(u, v))
+
+
+def _cross(u, v) -> Vec:
+    return (_sub(_mul(u[1], v[2]), _mul(u[2], v[1])),
+            _sub(_mul(u[2], v[0]), _mul(u[0], v[2])),
+            _sub(_mul(u[0], v[1]), _mul(u[1], v[0])))
+
+
+def _vadd(u, v) -> Vec:
+    return tuple(_add(a, b) for a, b in zip(u, v))
+
+
+def _vscale(u, s) -> Vec:
+    return tuple(_mul(a, s) for a in u)
+
+
+def _matvec(R, v) -> Vec:
+    return tuple(_dot(row, v) for row in R)
+
+
+def _matmul(A, B) -> Mat:
+    return tuple(tuple(_dot(A[r], (B[0][c], B[1][c], B[2][c])) for c in range(3)) for r in range(3))
+
+
+_ZERO3 = (0.0, 0.0, 0.0)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Kinematics: joint frames, motion subspaces and body inertias in the base frame
+# ---------------------------------------------------------------------------------------------------------------
+def _joint_rotation(axis, c, s) -> Mat:
+    """Rotation by the angle of cosine ``c`` and sine ``s`` about the unit ``axis`` (Rodrigues)."""
+    nonzero = [j for j in range(3) if axis[j] != 0.0]
+    if len(nonzero) == 1:                   # about +-x, +-y or +-z: five non-trivial entries
+        k = nonzero[0]
+        ss = _mul(axis[k], s)
+        a, b = (k + 1) % 3, (k + 2) % 3
+        R = [[0.0] * 3 for _ in range(3)]
+        R[k][k] = 1.0
+        R[a][a] = c
+        R[b][b] = c
+        R[a][b] = -ss
+        R[b][a] = ss
+        return tuple(tuple(r) for r in R)
+    t = 1.0 - c
+    ux = ((0.0, -axis[2], axis[1]), (axis[2], 0.0, -axis[0]), (-axis[1], axis[0], 0.0))
+    return tuple(tuple(_add(_add(c if r == col else 0.0, _mul(ux[r][col], s)), _mul(axis[r] * axis[col], t))
+                       for col in range(3)) for r in range(3))
+
+
+class _Frames:
+    """Joint frames in the base for the joints asked for (and their ancestors): ``R[i]``, ``p[i]``, ``S[i]``."""
+
+    def __init__(self, k: ChainParams, q, joints=None) -> None:
+        wanted = set(range(k.n)) if joints is None else {j for i in joints for j in k.support(i)}
+        self.R, self.p, self.S = {}, {}, {}
+        for i in sorted(wanted):
+            Rp, tp, axis, parent = k.rotations[i], k.translations[i], k.axes[i], k.parents[i]
+            if k.kinds[i] == "revolute":
+                R_loc = _matmul(Rp, _joint_rotation(axis, np.cos(q[i]), np.sin(q[i])))
+                t_loc = tp
+            else:
+                R_loc = Rp
+                t_loc = _vadd(tp, _vscale(_matvec(Rp, axis), q[i]))
+            axis_loc = _matvec(Rp, axis)                     # R_j(q) leaves its own axis unchanged
+            if parent < 0:
+                R, p, a = R_loc, t_loc, axis_loc
+            else:
+                Rl = self.R[parent]
+                R, p, a = _matmul(Rl, R_loc), _vadd(self.p[parent], _matvec(Rl, t_loc)), _matvec(Rl, axis_loc)
+            self.R[i], self.p[i] = R, p
+            self.S[i] = _cross(p, a) + a if k.kinds[i] == "revolute" else a + _ZERO3
+
+
+def _body_inertia(k: ChainParams, fr: _Frames, i: int) -> tuple:
+    """Body ``i``'s spatial inertia about the base origin in base axes: ``(m, H, I)``, ``I`` as 3x3."""
+    m, h, Ib = k.masses[i], k.first_moments[i], k.inertias[i]
+    R, p = fr.R[i], fr.p[i]
+    hw = _matvec(R, h)
+    T = _matmul(R, Ib)
+    ph = _dot(p, hw)
+    diag = _add(_mul(m, _dot(p, p)), _mul(2.0, ph))
+    I = [[None] * 3 for _ in range(3)]
+    for a in range(3):
+        for b in range(a, 3):
+            v = _dot(T[a], R[b])                               # (R Ib R^T)_ab
+            if a == b:
+                v = _add(v, diag)
+            v = _sub(v, _add(_mul(_mul(m, p[a]), p[b]), _add(_mul(hw[a], p[b]), _mul(p[a], hw[b]))))
+            I[a][b] = I[b][a] = v
+    return m, _vadd(hw, _vscale(p, m)), tuple(tuple(r) for r in I)
+
+
+def _inertia_times(inertia, V) -> tuple:
+    """Spatial inertia times a motion ``V = (v, w)``: the momentum ``(m v + w x H, I w + H x v)``."""
+    m, H, I = inertia
+    v, w = V[:3], V[3:]
+    return _vadd(_vscale(v, m), _cross(w, H)) + _vadd(_matvec(I, w), _cross(H, v))
+
+
+def _motion_cross(V, W) -> tuple:
+    v, w = V[:3], V[3:]
+    return _vadd(_cross(w, W[:3]), _cross(v, W[3:])) + _cross(w, W[3:])
+
+
+def _force_cross(V, F) -> tuple:
+    v, w = V[:3], V[3:]
+    return _cross(w, F[:3]) + _vadd(_cross(w, F[3:]), _cross(v, F[:3]))
+
+
+def _sadd(a, b) -> tuple:
+    return tuple(_add(x, y) for x, y in zip(a, b))
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The algorithms on lists of values
+# ---------------------------------------------------------------------------------------------------------------
+def _rnea(k: ChainParams, fr: _Frames, dq, ddq, gravity) -> list:
+    """``tau = M q'' + N q' + G`` (gravity ``gravity``, m/s^2) by recursive Newton-Euler, as a list."""
+    n = k.n
+    V, A, F = {}, {}, {}
+    a0 = tuple(-g for g in gravity) + _ZERO3
+    for i in range(n):
+        parent = k.parents[i]
+        Vl = V[parent] if parent >= 0 else (0.0,) * 6
+        Al = A[parent] if parent >= 0 else a0
+        S = fr.S[i]
+        V[i] = _sadd(Vl, _vscale(S, dq[i]))
+        A[i] = _sadd(_sadd(Al, _vscale(S, ddq[i])), _vscale(_motion_cross(Vl, S), dq[i]))
+        inertia = _body_inertia(k, fr, i)
+        F[i] = _sadd(_inertia_times(inertia, A[i]), _force_cross(V[i], _inertia_times(inertia, V[i])))
+    tau = [0.0] * n
+    for i in reversed(range(n)):
+        tau[i] = _dot(fr.S[i], F[i])
+        if k.parents[i] >= 0:
+            F[k.parents[i]] = _sadd(F[k.parents[i]], F[i])
+    return tau
+
+
+def _crba(k: ChainParams, fr: _Frames) -> list:
+    """``M(q)`` by the composite-rigid-body algorithm, as nested lists (exact zeros between branches)."""
+    n = k.n
+    composite = [_body_inertia(k, fr, i) for i in range(n)]
+    for i in reversed(range(n)):
+        parent = k.parents[i]
+        if parent >= 0:
+            (m1, H1, I1), (m2, H2, I2) = composite[parent], composite[i]
+            composite[parent] = (_add(m1, m2), _vadd(H1, H2), tuple(_vadd(r1, r2) for r1, r2 in zip(I1, I2)))
+    M = [[0.0] * n for _ in range(n)]
+    for i in range(n):
+        F = _inertia_times(composite[i], fr.S[i])
+        for j in k.support(i):
+            M[i][j] = M[j][i] = _dot(fr.S[j], F)
+    return M
+
+
+def _cholesky_solve(M, r) -> list:
+    """``M^-1 r`` for a symmetric positive-definite ``M``: ``M = L L^T``, then ``L y = r`` and ``L^T x = y``."""
+    n = len(r)
+    L = [[0.0] * n for _ in range(n)]
+    inv = [0.0] * n
+    for j in range(n):
+        d = _sub(M[j][j], _sum(_mul(L[j][c], L[j][c]) for c in range(j)))
+        L[j][j] = np.sqrt(d)
+        inv[j] = 1.0 / L[j][j]
+        for i in range(j + 1, n):
+            L[i][j] = _mul(_sub(M[i][j], _sum(_mul(L[i][c], L[j][c]) for c in range(j))), inv[j])
+    y = [0.0] * n
+    for i in range(n):
+        y[i] = _mul(_sub(r[i], _sum(_mul(L[i][c], y[c]) for c in range(i))), inv[i])
+    x = [0.0] * n
+    for i in reversed(range(n)):
+        x[i] = _mul(_sub(y[i], _sum(_mul(L[c][i], x[c]) for c in range(i + 1, n))), inv[i])
+    return x
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Rows in, rows out
+# ---------------------------------------------------------------------------------------------------------------
+def _is_traced(*rows) -> bool:
+    return any(isinstance(r, np.ndarray) and r.dtype == object for r in rows)
+
+
+def _pack(values, shape: tuple, *rows) -> np.ndarray:
+    """Nested lists of values as an array of leading shape ``shape`` (object rows stay objects)."""
+    def at(idx):
+        v = values
+        for i in idx:
+            v = v[i]
+        return v
+
+    if _is_traced(*rows):
+        out = np.empty(shape, dtype=object)
+    else:
+        out = np.empty(shape + np.broadcast_shapes(*(np.shape(r)[1:] for r in rows)))
+    for idx in np.ndindex(*shape):
+        out[idx] = at(idx)
+    return out
+
+
+def _zeros(n: int) -> list:
+    return [0.0] * n
+
+
+def inertia_matrix(k: ChainParams, q) -> np.ndarray:
+    """``M(q)`` (kg m^2, kg on prismatic joints), shape ``q.shape[1:] + (n, n)``, by the CRBA."""
+    M = _crba(k, _Frames(k, q))
+    out = _pack(M, (k.n, k.n), q)
+    return out if out.ndim == 2 else np.moveaxis(out, (0, 1), (-2, -1))
+
+
+def mass_times(k: ChainParams, q, v) -> np.ndarray:
+    """``M(q) v`` (N m, N) for joint rows ``v`` (rad/s^2, m/s^2); rows."""
+    M = _crba(k, _Frames(k, q))
+    return _pack([_dot(M[i], [v[j] for j in range(k.n)]) for i in range(k.n)], (k.n,), q, v)
+
+
+def mass_solve(k: ChainParams, q, r) -> np.ndarray:
+    """``M(q)^-1 r`` for a generalised force ``r`` (N m, N): Cholesky of ``M`` and two triangular solves; rows."""
+    x = _cholesky_solve(_crba(k, _Frames(k, q)), [r[i] for i in range(k.n)])
+    return _pack(x, (k.n,), q, r)
+
+
+def bias_forces(k: ChainParams, q, dq) -> np.ndarray:
+    """``h(q, q') = N(q, q') q' + G(q)`` (N m, N) by recursive Newton-Euler; rows."""
+    tau = _rnea(k, _Frames(k, q), [dq[i] for i in range(k.n)], _zeros(k.n), k.gravity)
+    return _pack(tau, (k.n,), q, dq)
+
+
+def gravity_forces(k: ChainParams, q) -> np.ndarray:
+    """``G(q)`` (N m, N): the forces that hold the arm still against gravity; rows."""
+    return _pack(_rnea(k, _Frames(k, q), _zeros(k.n), _zeros(k.n), k.gravity), (k.n,), q)
+
+
+def plant_acceleration(k: ChainParams, q, dq, force) -> np.ndarray:
+    """Joint accelerations ``q'' = M(q)^-1 (force - h(q, q'))`` (rad/s^2, m/s^2); rows.
+
+    Parameters
+    ----------
+    k : ChainParams
+    q, dq : numpy.ndarray
+        Joint positions (rad, m) and velocities (rad/s, m/s), rows.
+    force : numpy.ndarray
+        Total generalised force on the joints (N m, N), rows.
+    """
+    fr = _Frames(k, q)
+    h = _rnea(k, fr, [dq[i] for i in range(k.n)], _zeros(k.n), k.gravity)
+    x = _cholesky_solve(_crba(k, fr), [_sub(force[i], h[i]) for i in range(k.n)])
+    return _pack(x, (k.n,), q, dq, force)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# The tool point
+# ---------------------------------------------------------------------------------------------------------------
+def _tool_point(k: ChainParams, fr: _Frames) -> Vec:
+    j = k.tool_joint
+    if j < 0:
+        return k.tool_translation
+    return _vadd(fr.p[j], _matvec(fr.R[j], k.tool_translation))
+
+
+def tool_position(kin: ChainParams, q) -> np.ndarray:
+    """Position of the tool frame's origin in the base frame (m); rows ``(3,)``."""
+    fr = _Frames(kin, q, [kin.tool_joint] if kin.tool_joint >= 0 else [])
+    return _pack(list(_tool_point(kin, fr)), (3,), q)
+
+
+def tool_jacobian(kin: ChainParams, q) -> np.ndarray:
+    """Linear Jacobian ``dp/dq`` of the tool point in base axes (m/rad, m/m); rows ``(3, n)``."""
+    support = kin.support(kin.tool_joint)
+    fr = _Frames(kin, q, support[-1:])
+    p = _tool_point(kin, fr)
+    J = [[0.0] * kin.n for _ in range(3)]
+    for j in support:
+        S = fr.S[j]
+        col = _vadd(S[:3], _cross(S[3:], p))               # velocity of the point p: v_O + w x p
+        for r in range(3):
+            J[r][j] = col[r]
+    return _pack(J, (3, kin.n), q)
+
+
+def tool_acceleration_bias(kin: ChainParams, q, dq) -> np.ndarray:
+    """``J'(q, q') q'`` (m/s^2): the tool point's classical acceleration at ``q'' = 0``, no gravity; rows ``(3,)``."""
+    support = kin.support(kin.tool_joint)
+    fr = _Frames(kin, q, support[-1:])
+    p = _tool_point(kin, fr)
+    V, A = (0.0,) * 6, (0.0,) * 6
+    for j in support:
+        Sdq = _vscale(fr.S[j], dq[j])
+        A = _sadd(A, _motion_cross(V, Sdq))
+        V = _sadd(V, Sdq)
+    w = V[3:]
+    pdot = _vadd(V[:3], _cross(w, p))
+    acc = _vadd(_vadd(A[:3], _cross(A[3:], p)), _cross(w, pdot))
+    return _pack(list(acc), (3,), q, dq)
