@@ -10,7 +10,20 @@ from __future__ import annotations
 import numpy as np
 
 from .simulation import worse_with_observer_short
-from .text import ZERO_REL, and_words, fmt, is_paper_arm, join, kinds, mode_text, span, split_caveats, stable_ranges
+from .text import (
+    ZERO_REL,
+    and_words,
+    arm_joints,
+    fmt,
+    is_paper_arm,
+    join,
+    kinds,
+    mode_text,
+    span,
+    split_caveats,
+    stable_ranges,
+    units_list,
+)
 
 __all__ = ["plain_summary"]
 
@@ -88,7 +101,7 @@ def _speed(result, scenario) -> str:
     return text
 
 
-def _design(result) -> str | None:
+def _design(result, joints) -> str | None:
     design = result.observer_design
     sim = design.simulation
     base, new = sim.get("scenario gain"), sim.get("designed")
@@ -112,14 +125,14 @@ def _design(result) -> str | None:
     if cert.holds:
         text += (f"; on a perfect model and for slowly varying disturbances its estimation error is certified to "
                  f"decay at {fmt(cert.beta_min_rad_s, 3)} rad/s or faster for joint speeds up to "
-                 f"{join(design.speed_bound, 3)} (rad/s, rad/s, m/s, rad/s).)")
+                 f"{join(design.speed_bound, 3)} ({units_list(joints.velocity_units)}).)")
     else:
-        text += (f"; no decay rate could be certified for joint speeds up to {join(design.speed_bound, 3)} (rad/s, "
-                 f"rad/s, m/s, rad/s): the condition fails at q = [{join(cert.q_at, 3)}].)")
+        text += (f"; no decay rate could be certified for joint speeds up to {join(design.speed_bound, 3)} "
+                 f"({units_list(joints.velocity_units)}): the condition fails at q = [{join(cert.q_at, 3)}].)")
     return text
 
 
-def _noise(result) -> str | None:
+def _noise(result, joints) -> str | None:
     obs = result.studies.observer
     labels, runs = obs.labels, obs.runs
     k_ref = next((k for k, label in enumerate(labels) if label.endswith("(scenario)")), None)
@@ -129,7 +142,7 @@ def _noise(result) -> str | None:
     if not (runs[k_ref].ok and runs[k_new].ok):
         return None
     n_ref, n_new = runs[k_ref].torque_noise_rms, runs[k_new].torque_noise_rms
-    units = "RMS: N m, N m, N, N m"
+    units = "RMS: " + units_list(joints.force_units)
     if all(a > b > 0 for a, b in zip(n_new, n_ref)):
         more = [100 * (a / b - 1) for a, b in zip(n_new, n_ref)]
         return (f"The price of the faster gain is torque noise: with the assumed sensor noise the joint torques jitter "
@@ -190,8 +203,8 @@ def plain_summary(result, experiment: dict, scenario) -> list[str]:
         The experiment's metrics (see :func:`analysis.report_view.build_view`).
     scenario : Scenario
     """
-    lines = [_tool_tip(experiment), worse_with_observer_short(experiment, scenario.robot.joints),
-             _held_offset(result, scenario),
-             _speed(result, scenario), _design(result), _noise(result), _robustness(result, scenario),
+    joints = arm_joints(scenario)
+    lines = [_tool_tip(experiment), worse_with_observer_short(experiment, joints), _held_offset(result, scenario),
+             _speed(result, scenario), _design(result, joints), _noise(result, joints), _robustness(result, scenario),
              _gains(result)]
     return [line for line in lines if line]
