@@ -328,3 +328,47 @@ def test_summary_names_a_worse_joint_of_any_arm_in_its_unit():
     metrics = _metrics(ARMS[2])
     metrics["with_dob"]["rms_position_error"][1] = 0.5          # the prismatic joint, in m
     assert "Joint 2 (p2), RMS error 0.5 m with it" in worse_with_observer_short(metrics, ARMS[2].joints)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Analysis figures and report words for any arm
+
+
+def test_design_figure_groups_the_estimation_error_by_the_arms_units():
+    """|d - d_hat| is drawn once per unit (never N m and N summed), each the norm over that unit's joints."""
+    from analysis.analysis_figures import design_axes
+    from analysis.gain_design import SimulationCheck
+
+    arm = ARMS[7]                   # joints 1, 2, 4-7 revolute (N m), joint 3 prismatic (N)
+    t = np.linspace(0.0, 1.0, 11)
+    err = np.array([[(j + 1) * np.exp(-tk) for j in range(7)] for tk in t])      # (time, joint)
+    run = SimulationCheck(Y=np.eye(7).tolist(), time=t.tolist(), error_norm=np.linalg.norm(err, axis=1).tolist(),
+                          lyapunov_ratio=np.exp(-2 * t).tolist(), beta_run_rad_s=1.0, convergence_time_s=None,
+                          rms_disturbance_error=[0.0] * 7, bound_holds=None, threshold=0.02, largest_disturbance=7.0,
+                          disturbance_kind="step", f_r=[1.0] * 7, error_per_joint=err.tolist())
+    fig = design_axes({"scenario gain": run}, arm.joints)
+    try:
+        panels = [ax for ax in fig.axes if ax.get_ylabel().startswith("|d - d_hat|")]
+        labels = [ax.get_ylabel() for ax in panels]
+        assert labels == ["|d - d_hat|, joints 1, 2, 4, 5, 6, 7 (N m)", "|d - d_hat|, joint 3 (N)"]
+        revolute = np.sqrt(sum((j + 1) ** 2 for j in (0, 1, 3, 4, 5, 6))) * np.exp(-t)
+        np.testing.assert_allclose(panels[0].get_lines()[0].get_ydata(), revolute, rtol=1e-12)
+        np.testing.assert_allclose(panels[1].get_lines()[0].get_ydata(), 3 * np.exp(-t), rtol=1e-12)
+    finally:
+        import matplotlib.pyplot as plt
+        plt.close(fig)
+
+
+def test_report_words_name_the_arms_units():
+    from analysis.analysis_figures import _units_words
+    from analysis.report_view.text import gain_units, mixed_units, units_list
+
+    assert mixed_units(RRPR_JOINTS.force_units) == "N m; N on joint 3"          # what the paper's report says
+    assert gain_units(RRPR_JOINTS) == "kg m^2/s; kg/s on joint 3"
+    assert units_list(RRPR_JOINTS.position_units) == "rad, rad, m, rad"
+    two_prismatic = JointSpace(("a", "b", "c", "d"), ("prismatic", "revolute", "prismatic", "revolute"))
+    assert mixed_units(two_prismatic.force_units) == "N; N m on joints 2 and 4"
+    assert mixed_units(("N m",) * 7) == "N m"
+    assert gain_units(ARMS[7].joints) == "kg m^2/s; kg/s on joint 3"
+    assert _units_words(RRPR_JOINTS) == "N m; N on Joint 3"
+    assert _units_words(ARMS[2].joints) == "N m; N on Joint 2"
