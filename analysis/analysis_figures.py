@@ -4,7 +4,9 @@ Each function takes the typed result of one analysis (see
 :mod:`analysis.results`) and writes
 ``stem.png`` and ``stem.svg`` into a folder with
 :func:`analysis.figures.save_figure` (no dates or tool stamps, fixed SVG
-ids: the same numbers give the same bytes), returning the paths.
+ids: the same numbers give the same bytes), returning the paths.  Per-joint
+figures take the arm's joints (``joints``, a :class:`blocks.joints.JointSpace`;
+default the paper's) for their panels, names and units.
 """
 from __future__ import annotations
 
@@ -17,10 +19,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from blocks.metrics import DISTURBANCE_UNITS  # noqa: E402
+from blocks.joints import RRPR_JOINTS, JointSpace  # noqa: E402
 
 from .bandwidth import BandwidthOverview, BandwidthSurvey  # noqa: E402
-from .figures import JOINT_TITLES, save_figure  # noqa: E402
+from .figures import joint_grid_shape, save_figure  # noqa: E402
 from .frequency import FrequencyAnalysis  # noqa: E402
 from .gain_design import SimulationCheck  # noqa: E402
 from .linear import MismatchStudy, OperatingPoint  # noqa: E402
@@ -119,7 +121,7 @@ def mismatch_figure(mismatch: MismatchStudy, out_dir) -> list[Path]:
 
 
 def bandwidth_figure(survey: BandwidthSurvey, designed: BandwidthOverview | None, pd_slowest: float,
-                     out_dir) -> list[Path]:
+                     out_dir, joints: JointSpace = RRPR_JOINTS) -> list[Path]:
     """Eigenvalues of ``Y M^-1`` along theta2 (log scale) and the slowest mode's direction."""
     theta2 = np.array(survey.theta2)
     eig = np.array(survey.eigenvalues)
@@ -133,7 +135,7 @@ def bandwidth_figure(survey: BandwidthSurvey, designed: BandwidthOverview | None
         d_eig = np.array(designed.eigenvalues)
         for k in range(d_eig.shape[1]):
             ax.plot(theta2, d_eig[:, k], color="black", ls="--", lw=1,
-                    label="designed Y (all 4 modes)" if k == 0 else None)
+                    label=f"designed Y (all {d_eig.shape[1]} modes)" if k == 0 else None)
     # on top of the modes, in black: it may lie on one of them
     ax.axhline(pd_slowest, color="black", ls=":", lw=2, zorder=5, label=f"slowest PD pole {pd_slowest:.3g} rad/s")
     ax.set_yscale("log")
@@ -144,15 +146,15 @@ def bandwidth_figure(survey: BandwidthSurvey, designed: BandwidthOverview | None
             bbox_to_anchor=(0.5, -0.14), ncol=2)
     ax = axes[1]
     direction = np.array(survey.slowest_direction)
-    for j in range(4):
-        ax.plot(theta2, direction[:, j], label=JOINT_TITLES[j])
+    for j in range(direction.shape[1]):
+        ax.plot(theta2, direction[:, j], label=joints.labels[j])
     ax.set_xlabel("theta2 (rad)")
     ax.set_ylabel("component of unit eigenvector (1)")
     _finish(ax, "Direction of the slowest observer mode (disturbance space)", which="major")
     return save_figure(fig, out_dir, "observer_bandwidth")
 
 
-def _error_groups(run: SimulationCheck) -> list[tuple[str, str, np.ndarray]]:
+def _error_groups(run: SimulationCheck, joints: JointSpace = RRPR_JOINTS) -> list[tuple[str, str, np.ndarray]]:
     """``|d - d_hat|`` of a run per unit: (joints in words, unit, norm over those joints per output time).
 
     Torques (N m) and forces (N) are never summed into one number; results written before the per-joint error
@@ -162,23 +164,24 @@ def _error_groups(run: SimulationCheck) -> list[tuple[str, str, np.ndarray]]:
         return [("all joints", "N m and N mixed", np.array(run.error_norm, dtype=float))]
     err = np.array(run.error_per_joint, dtype=float)
     groups = []
-    for unit in dict.fromkeys(DISTURBANCE_UNITS):
-        joints = [j for j, u in enumerate(DISTURBANCE_UNITS) if u == unit]
-        words = ("joint " if len(joints) == 1 else "joints ") + ", ".join(str(j + 1) for j in joints)
-        groups.append((words, unit, np.linalg.norm(err[:, joints], axis=1)))
+    units = joints.force_units
+    for unit in dict.fromkeys(units):
+        same = [j for j, u in enumerate(units) if u == unit]
+        words = ("joint " if len(same) == 1 else "joints ") + ", ".join(str(j + 1) for j in same)
+        groups.append((words, unit, np.linalg.norm(err[:, same], axis=1)))
     return groups
 
 
-def design_figure(confirm: dict[str, SimulationCheck], out_dir) -> list[Path]:
-    """Simulated estimation error (per unit: the revolute joints in N m, the prismatic one in N) and the
+def design_figure(confirm: dict[str, SimulationCheck], out_dir, joints: JointSpace = RRPR_JOINTS) -> list[Path]:
+    """Simulated estimation error (per unit: the revolute joints in N m, prismatic ones in N) and the
     Lyapunov certificate, paper gain against the designed gain."""
-    return save_figure(design_axes(confirm), out_dir, "observer_design")
+    return save_figure(design_axes(confirm, joints), out_dir, "observer_design")
 
 
-def design_axes(confirm: dict[str, SimulationCheck]):
+def design_axes(confirm: dict[str, SimulationCheck], joints: JointSpace = RRPR_JOINTS):
     """The figure of :func:`design_figure`, not yet written (matplotlib Figure)."""
     first = next(iter(confirm.values()))
-    rows = len(_error_groups(first))
+    rows = len(_error_groups(first, joints))
     fig = plt.figure(figsize=(12, 2.6 + 2.0 * rows), constrained_layout=True)
     grid = fig.add_gridspec(rows, 2)
     error_axes = [fig.add_subplot(grid[r, 0]) for r in range(rows)]
@@ -188,7 +191,7 @@ def design_axes(confirm: dict[str, SimulationCheck]):
     for (label, run), color in zip(confirm.items(), colors):
         t = np.array(run.time)
         conv = run.convergence_time_s
-        for r, (ax, (words, unit, err)) in enumerate(zip(error_axes, _error_groups(run))):
+        for r, (ax, (words, unit, err)) in enumerate(zip(error_axes, _error_groups(run, joints))):
             # an error of exactly zero has no place on a log axis: leave it out rather than draw it at 1e-300
             name = (f"{label}: within {100 * run.threshold:g}% after "
                     + (f"{conv:.3g} s" if conv is not None else "- (not within the run)")) if r == 0 else label
@@ -215,15 +218,23 @@ def design_axes(confirm: dict[str, SimulationCheck]):
     return fig
 
 
-def bode_figure(freq: FrequencyAnalysis, out_dir, kind: str = "tracking") -> list[Path]:
-    """Bode magnitude per joint of ``w[i] -> e[i]`` (``kind="tracking"``) or ``w[i] -> e_d[i]`` (``"estimation"``)."""
+def bode_figure(freq: FrequencyAnalysis, out_dir, kind: str = "tracking",
+                joints: JointSpace = RRPR_JOINTS) -> list[Path]:
+    """Bode magnitude per joint of ``w[i] -> e[i]`` (``kind="tracking"``) or ``w[i] -> e_d[i]`` (``"estimation"``),
+    one panel per joint (a 2 x 2 grid for four)."""
     omega = np.array(freq.omega_rad_s)
-    fig, axes = plt.subplots(2, 2, figsize=(12, 7), constrained_layout=True, sharex=True)
+    n = joints.count
+    rows, cols = joint_grid_shape(n)
+    size = (12, 7) if (rows, cols) == (2, 2) else ({1: 7.0, 2: 12.0}.get(cols, 1.0 + 4.4 * cols), 1.2 + 2.9 * rows)
+    fig, grid = plt.subplots(rows, cols, figsize=size, constrained_layout=True, sharex=True, squeeze=False)
+    for ax in grid.flat[n:]:
+        ax.remove()
+    axes = grid.flat[:n]
     units = freq.units[kind]
     curves = [("with_dob", "tab:blue", "-", "with observer")]
     if kind == "tracking":
         curves.append(("without_dob", "tab:red", "--", "without observer"))
-    for i, ax in enumerate(axes.flat):
+    for i, ax in enumerate(axes):
         for key, color, ls, label in curves:
             data = getattr(freq, f"{kind}_{key}")
             mag = np.maximum(np.array(data.magnitude[i]), 1e-300)
@@ -234,14 +245,15 @@ def bode_figure(freq: FrequencyAnalysis, out_dir, kind: str = "tracking") -> lis
             for edge in m.band_3db_rad_s:
                 if edge:
                     ax.axvline(edge, color=color, ls=":", lw=0.8)
-        ax.set_title(JOINT_TITLES[i], fontsize=10)
+        ax.set_title(joints.labels[i], fontsize=10)
         ax.set_ylabel(f"|{'E' if kind == 'tracking' else 'E_d'}/W| (dB re 1 {units[i]})")
         ax.grid(True, alpha=0.3, which="both")
-        if i >= 2:
+        if i + cols >= n:                     # the lowest panel of its column
+            ax.xaxis.set_tick_params(labelbottom=True)
             ax.set_xlabel("frequency (rad/s)")
         if kind == "tracking":
             ax.set_ylim(bottom=max(ax.get_ylim()[0], -200))
-    axes.flat[0].legend(fontsize=8)
+    axes[0].legend(fontsize=8)
     what = "tracking error e = q_ref - q" if kind == "tracking" else "estimation error d - d_hat"
     fig.suptitle(f"Disturbance w[i] on joint i to {what} on joint i (frozen at q0; dotted: -3 dB edges)")
     return save_figure(fig, out_dir, f"frequency_{kind}")
@@ -329,7 +341,7 @@ def gain_study_figure(with_dob: GainGridStudy, without_dob: GainGridStudy, out_d
     return save_figure(gain_study_axes(with_dob, without_dob), out_dir, "study_gains")
 
 
-def observer_study_figure(study: ObserverGainStudy, out_dir) -> list[Path]:
+def observer_study_figure(study: ObserverGainStudy, out_dir, joints: JointSpace = RRPR_JOINTS) -> list[Path]:
     """Trade-off of the observer gain: tool-tip error and torque noise against the slowest observer mode."""
     labels, runs, slowest = study.labels, study.runs, study.slowest_mode_rad_s
     ok = [k for k, r in enumerate(runs) if r.ok and slowest[k] is not None]
@@ -355,9 +367,10 @@ def observer_study_figure(study: ObserverGainStudy, out_dir) -> list[Path]:
     _finish(ax, f"What a faster observer buys (disturbance step, {study.t_final_s:g} s runs)", fontsize=7)
     ax = axes[1]
     noise = np.array([runs[k].torque_noise_rms for k in ok])
-    for j in range(4):
+    n, titles, units = joints.count, joints.labels, joints.force_units
+    for j in range(n):
         ratio = noise[:, j] / base[j] if base is not None else noise[:, j]
-        ax.plot(x, ratio, "o", label=f"{JOINT_TITLES[j]} ({DISTURBANCE_UNITS[j]})")
+        ax.plot(x, ratio, "o", label=f"{titles[j]} ({units[j]})")
     ax.axhline(1.0, color="gray", lw=0.8)
     ax.set_xscale("log")
     ax.set_xlabel("slowest observer mode over the workspace (rad/s)")
@@ -366,14 +379,26 @@ def observer_study_figure(study: ObserverGainStudy, out_dir) -> list[Path]:
     ax = axes[2]
     shown = [0] + ok if runs[0].ok else ok
     width = 0.8 / len(shown)
-    for n, k in enumerate(shown):
-        ax.bar(np.arange(4) + n * width, runs[k].torque_noise_rms, width,
+    for m, k in enumerate(shown):
+        ax.bar(np.arange(n) + m * width, runs[k].torque_noise_rms, width,
                label="no observer" if labels[k] == "none" else labels[k])
-    ax.set_xticks(np.arange(4) + 0.4 - width / 2,
-                  [f"{JOINT_TITLES[j]}\n({DISTURBANCE_UNITS[j]})" for j in range(4)], fontsize=8)
+    ax.set_xticks(np.arange(n) + 0.4 - width / 2,
+                  [f"{titles[j]}\n({units[j]})" for j in range(n)], fontsize=8)
     ax.set_yscale("log")
-    ax.set_ylabel("torque noise RMS (N m; N on Joint 3)")
+    ax.set_ylabel("torque noise RMS (" + _units_words(joints) + ")")
     # the legend below the bars, where it covers none of them
     _finish(ax, "Torque noise per joint", axis="y", fontsize=7, ncol=3, loc="upper center",
             bbox_to_anchor=(0.5, -0.16))
     return save_figure(fig, out_dir, "study_observer")
+
+
+def _units_words(joints: JointSpace) -> str:
+    """The force units of an arm's joints in words: ``N m; N on Joint 3`` for the paper's arm, ``N m`` for an
+    arm of revolute joints only."""
+    units = joints.force_units
+    common = max(dict.fromkeys(units), key=units.count)
+    others = [j for j, u in enumerate(units) if u != common]
+    if not others:
+        return common
+    rest = "; ".join(f"{units[j]} on {joints.labels[j].split(' (')[0]}" for j in others)
+    return f"{common}; {rest}"

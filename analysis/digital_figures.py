@@ -10,7 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from blocks.joints import RRPR_JOINTS  # noqa: E402
+from blocks.joints import RRPR_JOINTS, JointSpace  # noqa: E402
 
 from .digital import DigitalAnalysis  # noqa: E402
 from .figures import save_figure  # noqa: E402
@@ -20,8 +20,11 @@ __all__ = ["digital_figures"]
 _BLOCK_COLORS = {"plant": "tab:blue", "observer": "tab:orange", "encoder": "tab:green", "actuator": "tab:red"}
 
 
-def digital_figures(result: DigitalAnalysis, out_dir) -> list[Path]:
-    """Write ``digital_poles``, ``digital_gain_limit`` and (with encoders) ``digital_quantization``."""
+def digital_figures(result: DigitalAnalysis, out_dir, joints: JointSpace = RRPR_JOINTS) -> list[Path]:
+    """Write ``digital_poles``, ``digital_gain_limit`` and (with encoders) ``digital_quantization``.
+
+    ``joints`` (default: the paper's) names the joints and their force units on the quantization figure.
+    """
     out_dir = Path(out_dir)
     paths = []
     fig, axes = plt.subplots(1, 2, figsize=(12.5, 5.2), constrained_layout=True, gridspec_kw={"width_ratios": [1, 1.3]})
@@ -76,7 +79,7 @@ def digital_figures(result: DigitalAnalysis, out_dir) -> list[Path]:
         ax.bar(x - 0.2, q.predicted_rms, 0.4, label="linear model (white quantization error)")
         if q.simulated_rms is not None:
             ax.bar(x + 0.2, q.simulated_rms, 0.4, label="simulated (with minus without quantization)")
-        ax.set_xticks(x, [f"{lab}\n({u})" for lab, u in zip(RRPR_JOINTS.labels, RRPR_JOINTS.force_units)])
+        ax.set_xticks(x, [f"{lab}\n({u})" for lab, u in zip(joints.labels, joints.force_units)])
         ax.set_yscale("log")
         ax.set_ylabel("RMS torque noise")
         ax.set_title("Torque noise from encoder quantization", fontsize=10)

@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from blocks import Scenario, __version__, load_scenario, simulate
-from blocks.metrics import DISTURBANCE_UNITS, JOINT_UNITS, tracking_metrics
+from blocks.joints import RRPR_JOINTS, JointSpace
+from blocks.metrics import tracking_metrics
 from blocks.outputs import default_out_dir, staged_output
 
 from .figures import paper_figures
@@ -98,14 +99,15 @@ def comparison_metrics(scenario: Scenario, with_dob, without_dob) -> dict:
     Returns
     -------
     dict
-        ``scenario``, ``dobkit_version``, ``units``, ``definitions`` and the
+        ``scenario``, ``dobkit_version``, ``units`` (per joint of the scenario's arm), ``definitions`` and the
         :func:`~blocks.metrics.tracking_metrics` of each run under
         ``with_dob`` and ``without_dob``.
     """
+    joints = scenario.robot.joints
     return {
         "scenario": scenario.name,
         "dobkit_version": __version__,
-        "units": {"position": list(JOINT_UNITS), "disturbance": list(DISTURBANCE_UNITS)},
+        "units": {"position": list(joints.position_units), "disturbance": list(joints.force_units)},
         "definitions": {
             "rms_position_error": "Eq. 13: sqrt(mean((q_ref - q)^2)) over the output grid, per joint",
             "rms_disturbance_error": "Eq. 14: sqrt(mean((d - d_hat)^2)), d = lumped disturbance on the nominal model",
@@ -128,8 +130,19 @@ def _write_timeseries(path: Path, runs: dict) -> None:
         writer.writerows(np.column_stack(columns).tolist())
 
 
-def format_rms_table(metrics: dict) -> str:
-    """The paper's Table 3 layout (both runs, all joints, with units) as plain text."""
+def format_rms_table(metrics: dict, joints: JointSpace | None = None) -> str:
+    """Table 3 (the RMS errors of both runs, every joint, with units) as plain text.
+
+    Parameters
+    ----------
+    metrics : dict
+        What :func:`comparison_metrics` returns (``units`` and the two runs).
+    joints : blocks.joints.JointSpace, optional
+        The arm's joints.  None or the paper's arm: the paper's layout, one column per joint.  Any other
+        arm: one row per joint, ``Joint i (name)`` with the joint's units, so that any number of joints fits.
+    """
+    if joints is not None and joints != RRPR_JOINTS:
+        return _rms_rows(metrics, joints)
     units = metrics["units"]
     width = 37                  # the longest label, "Disturbance tracking, with observer", and two spaces
     head = f"{'RMS error':<{width}}" + "".join(f"{f'Joint {i + 1}':>14}" for i in range(len(units["position"])))
@@ -143,7 +156,32 @@ def format_rms_table(metrics: dict) -> str:
         rows.append(f"{'Disturbance tracking, with observer':<{width}}"
                     + "".join(f"{v:>14.4e}" for v in metrics["with_dob"]["rms_disturbance_error"]))
         rows.append(f"{'':<{width}}" + "".join(f"{'(' + u + ')':>14}" for u in units["disturbance"]))
-    for key, label in (("with_dob", "with observer"), ("without_dob", "without observer")):
-        if "max_tool_position_error_mm" in metrics[key]:
-            rows.append(f"Worst tool-tip error, {label}: {metrics[key]['max_tool_position_error_mm']:.3f} mm")
-    return "\n".join(rows)
+    return "\n".join(rows + _tool_lines(metrics))
+
+
+def _tool_lines(metrics: dict) -> list[str]:
+    return [f"Worst tool-tip error, {label}: {metrics[key]['max_tool_position_error_mm']:.3f} mm"
+            for key, label in (("with_dob", "with observer"), ("without_dob", "without observer"))
+            if "max_tool_position_error_mm" in metrics[key]]
+
+
+def _rms_rows(metrics: dict, joints: JointSpace) -> str:
+    """Table 3 turned: one row per joint (any count), position errors in its position unit, d - d_hat in its force
+    unit."""
+    units = metrics["units"]
+    n = joints.count
+    if len(units["position"]) != n:
+        raise ValueError(f"metrics hold {len(units['position'])} joints, the arm has {n} ({', '.join(joints.names)})")
+    with_dob, without_dob = metrics["with_dob"], metrics["without_dob"]
+    disturbance = with_dob.get("rms_disturbance_error")
+    columns = [("position, with observer", with_dob["rms_position_error"], units["position"]),
+               ("position, without observer", without_dob["rms_position_error"], units["position"])]
+    if disturbance is not None:
+        columns.append(("d - d_hat, with observer", disturbance, units["disturbance"]))
+    width = max(len("RMS error"), *(len(label) for label in joints.labels)) + 2
+    head = f"{'RMS error':<{width}}" + "".join(f"{title:>{max(len(title), 12) + 2}}{'':<5}" for title, _, _ in columns)
+    rows = [head.rstrip(), "-" * len(head.rstrip())]
+    for i, label in enumerate(joints.labels):
+        rows.append((f"{label:<{width}}" + "".join(f"{values[i]:>{max(len(title), 12) + 2}.4e} {unit[i]:<4}"
+                                                     for title, values, unit in columns)).rstrip())
+    return "\n".join(rows + _tool_lines(metrics))

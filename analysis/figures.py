@@ -8,6 +8,11 @@ Each figure is written as PNG (and SVG on request), with labelled axes and units
 * ``fig7_estimation_error``: ``d - d_hat``;
 * ``fig8_task_space``: the tool-tip path in task space (x, y, z) and its error.
 
+The joints (how many, their names and units) come from the arm of the run's
+scenario (:attr:`blocks.arm.ArmModel.joints`): Figures 4-7 have one panel per
+joint, in a grid sized by :func:`joint_grid_shape` (2 x 2 for the paper's four
+joints), each titled ``Joint i (name)`` with the joint's unit on its axis.
+
 Where the time goes (measured on the paper run, CPU seconds for the five
 figures): drawing, not the data.  matplotlib's constrained layout draws a
 figure once more to measure it, before every format it is saved in; SVG costs
@@ -25,12 +30,11 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from blocks.joints import RRPR_JOINTS  # noqa: E402
-from blocks.kinematics import forward_kinematics  # noqa: E402
-from blocks.metrics import DISTURBANCE_UNITS, JOINT_UNITS, signal  # noqa: E402
+from blocks.joints import RRPR_JOINTS, JointSpace  # noqa: E402
 
 __all__ = ["paper_figures", "sampling_words", "save_figure", "convergence_figure", "JOINT_TITLES", "joint_title",
-           "REFERENCE_STYLE", "has_tissue_model", "FIGURE_FORMATS"]
+           "REFERENCE_STYLE", "has_tissue_model", "FIGURE_FORMATS", "joint_grid_shape", "run_joints",
+           "joint_signals", "joint_axes", "position_scale"]
 
 #: The formats a figure may be written in.
 FIGURE_FORMATS = ("png", "svg")
@@ -43,13 +47,47 @@ _COLORS = {"with": "tab:blue", "without": "tab:red", "d_hat": "tab:blue"}
 REFERENCE_STYLE = {"color": "0.72", "lw": 5.0, "solid_capstyle": "butt", "zorder": 1}
 
 
-def joint_title(name: str) -> str:
-    """The person's name of a joint signal: ``"q[2]"`` -> ``"Joint 3 (d3)"``; other names unchanged."""
+def joint_title(name: str, joints: JointSpace = RRPR_JOINTS) -> str:
+    """The person's name of a joint signal: ``"q[2]"`` -> ``"Joint 3 (d3)"``; other names unchanged.
+
+    ``joints`` names the arm's joints (default: the paper's).
+    """
     if name.endswith("]") and "[" in name:
         index = name[name.index("[") + 1:-1]
-        if index.isdigit() and int(index) < len(JOINT_TITLES):
-            return JOINT_TITLES[int(index)]
+        if index.isdigit() and int(index) < joints.count:
+            return joints.labels[int(index)]
     return name
+
+
+def run_joints(resp) -> JointSpace:
+    """The joints of the arm a response ran on (its scenario's ``robot``); the paper's without a scenario."""
+    robot = getattr(getattr(resp, "scenario", None), "robot", None)
+    joints = getattr(robot, "joints", None)
+    return joints if isinstance(joints, JointSpace) else RRPR_JOINTS
+
+
+def joint_signals(resp, prefix: str, n: int) -> np.ndarray:
+    """The joint signals ``prefix[0]`` .. ``prefix[n-1]`` of a response, shape ``(n, len(time))``.
+
+    Raises
+    ------
+    KeyError
+        If the response lacks one of them (the message names the signal and what the response has).
+    """
+    labels = list(resp.output_labels)
+    rows = []
+    for i in range(n):
+        name = f"{prefix}[{i}]"
+        if name not in labels:
+            have = sorted({label.split("[")[0] for label in labels})
+            raise KeyError(f"response has no signal '{name}' (an arm of {n} joints); its signals are {have}")
+        rows.append(labels.index(name))
+    return np.asarray(resp.outputs)[rows]
+
+
+def position_scale(joints: JointSpace, i: int) -> tuple[float, str]:
+    """Factor and unit a figure shows joint ``i``'s position in: prismatic joints in mm, revolute ones in rad."""
+    return (1e3, "mm") if joints.position_units[i] == "m" else (1.0, joints.position_units[i])
 
 
 def has_tissue_model(scenario) -> bool:
@@ -106,25 +144,52 @@ def save_figure(fig, out_dir: Path, stem: str, formats=FIGURE_FORMATS) -> list[P
 
 #: Margins of the 2x2 joint grids (figure fractions), measured to fit the widest tick labels and the titles.
 _GRID_MARGINS = {"left": 0.08, "right": 0.985, "bottom": 0.075, "top": 0.9, "wspace": 0.2, "hspace": 0.18}
+#: The same margins in inches (what the fractions are on the paper's 11 x 7 in figure), for other grid sizes.
+_MARGIN_IN = {"left": 0.88, "right": 0.165, "bottom": 0.525, "top": 0.7}
 
 
-def _joint_grid(title: str):
+def joint_grid_shape(n: int) -> tuple[int, int]:
+    """Rows and columns of a grid with one panel per joint: a single row up to 3 joints, then about square.
+
+    >>> [joint_grid_shape(n) for n in (1, 2, 3, 4, 6, 7)]
+    [(1, 1), (1, 2), (1, 3), (2, 2), (2, 3), (3, 3)]
+    """
+    if int(n) != n or n < 1:
+        raise ValueError(f"joint count must be a whole number >= 1, got {n!r}")
+    cols = n if n <= 3 else int(np.ceil(np.sqrt(n)))
+    return int(np.ceil(n / cols)), cols
+
+
+def joint_axes(title: str, joints: JointSpace = RRPR_JOINTS):
+    """A figure with one panel per joint (titled ``Joint i (name)``, shared time axis), and its panels in order.
+
+    Unused cells of the grid are removed; the panel at the foot of each column carries the time axis label.
+    """
+    n = joints.count
+    rows, cols = joint_grid_shape(n)
+    if (rows, cols) == (2, 2):
+        size, margins = (11, 7), _GRID_MARGINS
+    else:
+        size = ({1: 7.0, 2: 11.0}.get(cols, 1.0 + 4.4 * cols), 1.2 + 2.9 * rows)
+        margins = {"left": _MARGIN_IN["left"] / size[0], "right": 1 - _MARGIN_IN["right"] / size[0],
+                   "bottom": _MARGIN_IN["bottom"] / size[1], "top": 1 - _MARGIN_IN["top"] / size[1],
+                   "wspace": 0.2 if cols <= 2 else 0.3, "hspace": 0.18 if rows <= 2 else 0.24}
     # fixed margins (room for tick labels such as -0.00025 and a unit label): no layout pass per format
-    fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True, gridspec_kw=_GRID_MARGINS)
+    fig, grid = plt.subplots(rows, cols, figsize=size, sharex=True, squeeze=False, gridspec_kw=margins)
     fig.suptitle(title)
-    for i, ax in enumerate(axes.flat):
-        ax.set_title(JOINT_TITLES[i], fontsize=10)
+    cells = list(grid.flat)
+    for ax in cells[n:]:
+        ax.remove()
+    axes = cells[:n]
+    for i, ax in enumerate(axes):
+        ax.set_title(joints.labels[i], fontsize=10)
         ax.grid(True, alpha=0.3)
         # below 1e-3 the axis shows a power of ten above it, so no tick label is wider than the margins allow
         ax.ticklabel_format(axis="y", style="sci", scilimits=(-3, 4), useMathText=True)
-        if i >= 2:
+        if i + cols >= n:                     # the lowest panel of its column
+            ax.xaxis.set_tick_params(labelbottom=True)
             ax.set_xlabel("time (s)")
-    return fig, axes.flat
-
-
-def _scale(i: int) -> tuple[float, str]:
-    """Show the prismatic joint in mm, revolute joints in rad."""
-    return (1e3, "mm") if JOINT_UNITS[i] == "m" else (1.0, "rad")
+    return fig, axes
 
 
 def sampling_words(resp) -> str | None:
@@ -146,19 +211,23 @@ def sampling_words(resp) -> str | None:
     return words
 
 
-def paper_figures(with_dob, without_dob, out_dir, progress=None, formats=FIGURE_FORMATS) -> list[Path]:
+def paper_figures(with_dob, without_dob, out_dir, progress=None, formats=FIGURE_FORMATS,
+                  joints: JointSpace | None = None) -> list[Path]:
     """Write Figures 4-8 comparing a run with and a run without the observer.
 
     Parameters
     ----------
     with_dob, without_dob : control.TimeResponseData
-        Responses of :func:`blocks.simulate` with ``observer=True`` and ``False``.
+        Responses of :func:`blocks.simulate` with ``observer=True`` and ``False``; Figure 8 needs the
+        scenario they carry (its arm's tool point).
     out_dir : str or pathlib.Path
         Folder for the figure files (created if needed).
     progress : callable, optional
         ``progress(fraction)`` after each figure (fraction of the five written).
     formats : sequence of {"png", "svg"}
         The formats of each figure (default both; ``dobkit simulate`` writes PNG unless ``--svg``).
+    joints : blocks.joints.JointSpace, optional
+        The arm's joints (count, names, units); default: those of the runs' scenario (:func:`run_joints`).
 
     Returns
     -------
@@ -171,13 +240,16 @@ def paper_figures(with_dob, without_dob, out_dir, progress=None, formats=FIGURE_
 
     formats = _checked_formats(formats)
     out_dir = Path(out_dir)
+    joints = run_joints(with_dob) if joints is None else joints
+    n, force_units = joints.count, joints.force_units
     t = np.asarray(with_dob.time)
-    q_ref, q_w, q_wo = signal(with_dob, "q_ref"), signal(with_dob, "q"), signal(without_dob, "q")
+    q_ref, q_w = joint_signals(with_dob, "q_ref", n), joint_signals(with_dob, "q", n)
+    q_wo = joint_signals(without_dob, "q", n)
     written = []
 
-    fig, axes = _joint_grid("Figure 4: joint tracking of the laceration path")
+    fig, axes = joint_axes(_tracking_title(with_dob), joints)
     for i, ax in enumerate(axes):
-        k, unit = _scale(i)
+        k, unit = position_scale(joints, i)
         ax.plot(t, k * q_ref[i], **REFERENCE_STYLE, label="reference (grey band)")
         ax.plot(t, k * q_w[i], color=_COLORS["with"], lw=1.2, label="with observer")
         ax.plot(t, k * q_wo[i], color=_COLORS["without"], lw=1.2, ls="--", label="without observer")
@@ -186,9 +258,9 @@ def paper_figures(with_dob, without_dob, out_dir, progress=None, formats=FIGURE_
     written += save_figure(fig, out_dir, "fig4_joint_tracking", formats)
     done(1)
 
-    fig, axes = _joint_grid("Figure 5: position tracking error q_ref - q")
+    fig, axes = joint_axes("Figure 5: position tracking error q_ref - q", joints)
     for i, ax in enumerate(axes):
-        k, unit = _scale(i)
+        k, unit = position_scale(joints, i)
         ax.plot(t, k * (q_ref[i] - q_w[i]), color=_COLORS["with"], label="with observer")
         ax.plot(t, k * (q_ref[i] - q_wo[i]), color=_COLORS["without"], ls="--", label="without observer")
         ax.set_ylabel(f"error ({unit})")
@@ -196,11 +268,11 @@ def paper_figures(with_dob, without_dob, out_dir, progress=None, formats=FIGURE_
     written += save_figure(fig, out_dir, "fig5_tracking_error", formats)
     done(2)
 
-    d, d_hat = signal(with_dob, "d"), signal(with_dob, "d_hat")
-    tau_dis = signal(with_dob, "tau_dis")
+    d, d_hat = joint_signals(with_dob, "d", n), joint_signals(with_dob, "d_hat", n)
+    tau_dis = joint_signals(with_dob, "tau_dis", n)
     sampled = sampling_words(with_dob)
-    fig, axes = _joint_grid("Figure 6: disturbance and its estimate (with observer)" if sampled is None else
-                            "Figure 6: disturbance and its sampled, quantized estimate (with observer)")
+    fig, axes = joint_axes("Figure 6: disturbance and its estimate (with observer)" if sampled is None else
+                           "Figure 6: disturbance and its sampled, quantized estimate (with observer)", joints)
     if sampled is not None:
         fig.suptitle(fig.get_suptitle(), y=0.995)            # room for the line on how it was sampled
         fig.text(0.5, 0.94, sampled, ha="center", va="bottom", fontsize=9)
@@ -213,30 +285,36 @@ def paper_figures(with_dob, without_dob, out_dir, progress=None, formats=FIGURE_
         else:       # a program's output: a value held from each sample instant to the next, not a curve
             ax.step(t, d_hat[i], where="post", color=_COLORS["d_hat"], lw=0.8,
                     label="estimate d_hat, sampled (held)")
-        ax.set_ylabel(f"disturbance ({DISTURBANCE_UNITS[i]})")
+        ax.set_ylabel(f"disturbance ({force_units[i]})")
     axes[0].legend(fontsize=8)
     written += save_figure(fig, out_dir, "fig6_disturbance_estimate", formats)
     done(3)
 
-    fig, axes = _joint_grid("Figure 7: disturbance estimation error d - d_hat")
+    fig, axes = joint_axes("Figure 7: disturbance estimation error d - d_hat", joints)
     for i, ax in enumerate(axes):
         ax.plot(t, d[i] - d_hat[i], color=_COLORS["with"])
-        ax.set_ylabel(f"error ({DISTURBANCE_UNITS[i]})")
+        ax.set_ylabel(f"error ({force_units[i]})")
     written += save_figure(fig, out_dir, "fig7_estimation_error", formats)
     done(4)
 
-    written += _task_space_figure(with_dob, without_dob, out_dir, formats)
+    written += _task_space_figure(with_dob, q_ref, q_w, q_wo, out_dir, formats)
     done(5)
     return written
 
 
-def _task_space_figure(with_dob, without_dob, out_dir: Path, formats) -> list[Path]:
+def _tracking_title(resp) -> str:
+    """Figure 4's title: the paper's laceration path by name, any other path as the scenario's path."""
+    trajectory = getattr(getattr(resp, "scenario", None), "data", {}).get("trajectory", {})
+    kind = trajectory.get("kind") if isinstance(trajectory, dict) else None
+    return "Figure 4: joint tracking of the " + ("laceration path" if kind in (None, "laceration") else
+                                                 f"scenario's path ({kind})")
+
+
+def _task_space_figure(with_dob, q_ref, q_w, q_wo, out_dir: Path, formats) -> list[Path]:
     scenario = with_dob.scenario
-    robot = scenario.robot
+    robot = scenario.robot                  # any arm model: its tool point, in the base frame
     t = np.asarray(with_dob.time)
-    p_ref = 1e3 * forward_kinematics(signal(with_dob, "q_ref").T, robot)[:, :3]
-    p_w = 1e3 * forward_kinematics(signal(with_dob, "q").T, robot)[:, :3]
-    p_wo = 1e3 * forward_kinematics(signal(without_dob, "q").T, robot)[:, :3]
+    p_ref, p_w, p_wo = (1e3 * np.asarray(robot.tool_position(q.T))[:, :3] for q in (q_ref, q_w, q_wo))
     fig = plt.figure(figsize=(13, 7))
     skin = getattr(scenario.trajectory, "skin_height", None)
     title = "Figure 8: tool-tip path in task space"

@@ -26,9 +26,9 @@ from pathlib import Path
 import control as ct
 import numpy as np
 
-from blocks import __version__, forward_kinematics, load_scenario
+from blocks import __version__, load_scenario
 from blocks.gains import validated_gain
-from blocks.metrics import signal
+from blocks.joints import RRPR_JOINTS, JointSpace
 from blocks.outputs import staged_output
 from blocks.progress import ProgressCallback as Progress
 from blocks.scenario import Scenario
@@ -37,6 +37,7 @@ from . import analysis_figures as figs
 from .bandwidth import BandwidthSurvey, along_trajectory, bandwidth_survey, observer_modes, workspace_grid
 from .digital import DigitalAnalysis, digital_analysis
 from .digital_figures import digital_figures
+from .figures import joint_signals
 from .frequency import FrequencyAnalysis, frequency_analysis
 from .gain_design import (
     ObserverDesign,
@@ -284,32 +285,33 @@ def run_analysis(scenario: Scenario | str = "paper", settings: AnalysisSettings 
         studies=Studies(**grids, observer=replace(obs, slowest_mode_rad_s=slowest)), digital=digital)
 
 
-def _figure_writers(result: AnalysisResult) -> list:
+def _figure_writers(result: AnalysisResult, joints: JointSpace) -> list:
     """One ``write(out_dir) -> paths`` per analysis figure, in the report's order."""
     design = result.observer_design
     return [
         lambda out: figs.pole_figure(result.operating_points, out),
         lambda out: figs.mismatch_figure(result.mismatch, out),
         lambda out: figs.bandwidth_figure(result.observer_bandwidth, design.bandwidth_designed,
-                                          result.operating_points[0].pd_slowest_analytic_rad_s(), out),
-        lambda out: figs.design_figure(design.simulation, out),
-        lambda out: figs.bode_figure(result.frequency, out, "tracking"),
-        lambda out: figs.bode_figure(result.frequency, out, "estimation"),
+                                          result.operating_points[0].pd_slowest_analytic_rad_s(), out, joints),
+        lambda out: figs.design_figure(design.simulation, out, joints),
+        lambda out: figs.bode_figure(result.frequency, out, "tracking", joints),
+        lambda out: figs.bode_figure(result.frequency, out, "estimation", joints),
         lambda out: figs.gain_study_figure(result.studies.gains_with_dob, result.studies.gains_without_dob, out),
-        lambda out: figs.observer_study_figure(result.studies.observer, out),
-    ] + ([lambda out: digital_figures(result.digital, out)] if result.digital is not None else [])
+        lambda out: figs.observer_study_figure(result.studies.observer, out, joints),
+    ] + ([lambda out: digital_figures(result.digital, out, joints)] if result.digital is not None else [])
 
 
 #: Number of analysis figures :func:`write_figures` writes (each as PNG and SVG).
 ANALYSIS_FIGURE_COUNT = 8
 
 
-def write_figures(result: AnalysisResult, out_dir, progress=None) -> list[Path]:
+def write_figures(result: AnalysisResult, out_dir, progress=None, joints: JointSpace = RRPR_JOINTS) -> list[Path]:
     """Write every analysis figure of a :func:`run_analysis` result into ``out_dir`` (PNG and SVG).
 
-    ``progress(fraction)``, if given, is called after each figure with the fraction written.
+    ``progress(fraction)``, if given, is called after each figure with the fraction written; ``joints`` are the
+    arm's joints (default: the paper's), which name the per-joint panels.
     """
-    writers = _figure_writers(result)
+    writers = _figure_writers(result, joints)
     files = []
     for k, write in enumerate(writers):
         files += write(out_dir)
@@ -342,12 +344,13 @@ def analyze(scenario: Scenario | str = "paper", out_dir=None, settings: Analysis
     (AnalysisResult, list of pathlib.Path)
         The result (as written to ``analysis.json``, with ``figures`` set) and the files written.
     """
+    s = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     target = Path(out_dir)
     staging = staged_output(target)          # refuses a non-empty folder before any work is done
-    result = run_analysis(scenario, settings, progress)
+    result = run_analysis(s, settings, progress)
     with staging as stage:
         with _stage(progress, "writing figures") as step:
-            result = replace(result, figures=[p.name for p in write_figures(result, stage, step)])
+            result = replace(result, figures=[p.name for p in write_figures(result, stage, step, s.robot.joints)])
         (stage / "analysis.json").write_text(result.to_json())
     return result, sorted(target.iterdir())
 
@@ -367,7 +370,8 @@ def experiment_metrics(experiment) -> dict:
     for key in ("with_dob", "without_dob"):
         run = getattr(experiment, key)
         t = np.asarray(run.time)
-        q_ref, q = signal(run, "q_ref"), signal(run, "q")
+        n = experiment.scenario.robot.n
+        q_ref, q = joint_signals(run, "q_ref", n), joint_signals(run, "q", n)
         metrics[key]["time_of_max_abs_position_error"] = t[np.argmax(np.abs(q_ref - q), axis=1)].tolist()
         metrics["duration_s"] = float(t[-1])
         if skin is not None:
@@ -379,8 +383,8 @@ def experiment_metrics(experiment) -> dict:
 
 
 def _depth_below_mm(q, skin_height: float, robot) -> float:
-    """Largest depth (mm) of the tool tip below the plane z = skin_height over a run's joint positions (4, n)."""
-    z = forward_kinematics(np.asarray(q).T, robot)[:, 2]
+    """Largest depth (mm) of the tool tip below the plane z = skin_height over a run's joint positions (n, m)."""
+    z = np.asarray(robot.tool_position(np.asarray(q).T))[:, 2]
     return float(max(0.0, 1e3 * np.max(skin_height - z)))
 
 
@@ -418,7 +422,8 @@ def write_report(scenario: Scenario | str = "paper", out_dir=None, settings: Ana
         parts = 5 + ANALYSIS_FIGURE_COUNT + 1                # Figures 4-8, the analysis figures, the page
         files = paper_figures(experiment.with_dob, experiment.without_dob, fig_dir,
                               progress=lambda f: step(5 * f / parts))
-        files += write_figures(result, fig_dir, progress=lambda f: step((5 + ANALYSIS_FIGURE_COUNT * f) / parts))
+        files += write_figures(result, fig_dir, progress=lambda f: step((5 + ANALYSIS_FIGURE_COUNT * f) / parts),
+                               joints=s.robot.joints)
         result = replace(result, figures=[f"figures/{p.name}" for p in files])
         (stage / "analysis.json").write_text(result.to_json())
         (stage / "metrics.json").write_text(json_text(metrics))

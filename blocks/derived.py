@@ -15,8 +15,8 @@ from __future__ import annotations
 import control as ct
 import numpy as np
 
-from .kernels import arm_constants
 from .kernels import lumped_disturbance as lumped_disturbance_rows
+from .kernels.bind import bound
 from .systems import signal_names
 
 __all__ = ["lumped_disturbance_of", "loop_response"]
@@ -29,11 +29,12 @@ def lumped_disturbance_of(outputs: np.ndarray, labels: list, scenario) -> np.nda
     true arm is the scenario's ``robot``, the model the scenario's ``nominal``.
     """
     index = {name: k for k, name in enumerate(labels)}
+    arm = scenario.robot
     try:
-        rows = [outputs[[index[n] for n in signal_names(sig)]] for sig in ("q", "dq", "tau", "tau_dis")]
+        rows = [outputs[[index[n] for n in signal_names(sig, arm)]] for sig in ("q", "dq", "tau", "tau_dis")]
     except KeyError as err:
         raise ValueError(f"the run has no output {err.args[0]!r}, which the lumped disturbance needs") from None
-    return lumped_disturbance_rows(arm_constants(scenario.robot), arm_constants(scenario.nominal), *rows)
+    return bound(lumped_disturbance_rows, arm)(arm.kernel_params(), scenario.nominal.kernel_params(), *rows)
 
 
 def loop_response(time, outputs, states, labels: list, state_labels: list | None, scenario, observer: bool,
@@ -61,7 +62,8 @@ def loop_response(time, outputs, states, labels: list, state_labels: list | None
     """
     outputs = np.asarray(outputs, dtype=float)
     d = lumped_disturbance_of(outputs, list(labels), scenario) if d is None else d
-    resp = ct.TimeResponseData(time, np.vstack([outputs, d]), states, output_labels=list(labels) + signal_names("d"),
+    resp = ct.TimeResponseData(time, np.vstack([outputs, d]), states,
+                               output_labels=list(labels) + signal_names("d", scenario.robot),
                                state_labels=state_labels if states is not None else None, title=title,
                                sysname=sysname, issiso=False, plot_inputs=False)
     resp.scenario = scenario

@@ -11,6 +11,9 @@ Models
     Eq. 4, ``f_r * sgn(2 t + 1)``.  For every ``t >= 0`` this is the constant
     step ``+f_r`` (docs/model.md, "Eq. 4 is a constant step"); it is
     implemented as printed.
+``step``
+    The same law under the name it has for any arm: ``f_r`` is one
+    generalised force per joint of the arm (n numbers).
 ``friction``
     Coulomb plus viscous joint friction opposing the joint velocity,
     ``-(F_c tanh(q'/v_s) + F_v q')``.  The sign function is smoothed by
@@ -23,7 +26,12 @@ Models
     ``p > 0`` the tissue pushes it up with ``F_z = max(0, k p - c z')`` (a
     spring-damper that cannot pull) and drags it in the plane with
     ``F_xy = -c_lat v_xy``.  The task-space force maps to the joints through
-    the kinematic Jacobian, ``tau = J^T F``.
+    the kinematic Jacobian, ``tau = J^T F``.  The model is the paper's RRPR's
+    (its tool moves along z with ``d3`` alone); an arm of another model is
+    refused by name (:meth:`DisturbanceSpec.check_arm`).
+
+Per-joint lists (``f_r``, ``coulomb``, ``viscous``) have one entry per joint
+of the arm that the spec acts on; the defaults are the paper's four.
 """
 from __future__ import annotations
 
@@ -33,15 +41,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import kernels
+from .arm import ArmModel
 from .parameters import RobotParameters
-from .validation import joint_arrays, real_array, robot_parameters
+from .validation import arm_model, joint_arrays, real_array
 
 __all__ = ["DisturbanceSpec", "DISTURBANCE_KINDS", "external_disturbance",
            "paper_disturbance", "friction_disturbance", "tissue_disturbance"]
 
-DISTURBANCE_KINDS = ("paper", "friction", "tissue")
+DISTURBANCE_KINDS = ("paper", "step", "friction", "tissue")
+#: Models written for the paper's RRPR only.
+RRPR_ONLY_KINDS = ("tissue",)
 
-_Vec4 = tuple[float, float, float, float]
+_Vec4 = tuple[float, ...]
 
 
 @dataclass(frozen=True)
@@ -51,14 +62,14 @@ class DisturbanceSpec:
     Parameters
     ----------
     kinds : tuple of str
-        Any of ``"paper"``, ``"friction"``, ``"tissue"``; an empty tuple means no
-        external disturbance.  Their torques add up.
-    f_r : 4 floats
-        Eq. 4 amplitudes (N m, N m, N, N m); paper: ``[1.43, 1.6, 1.4, 1.2]``.
-    coulomb : 4 floats
-        Coulomb friction levels ``F_c`` (N m, N m, N, N m).
-    viscous : 4 floats
-        Viscous coefficients ``F_v`` (N m s/rad, N m s/rad, N s/m, N m s/rad).
+        Any of ``"paper"`` (or ``"step"``, the same law), ``"friction"``, ``"tissue"``; an empty
+        tuple means no external disturbance.  Their torques add up.
+    f_r : n floats
+        Eq. 4 amplitudes (N m, N m, N, N m for the RRPR); paper: ``[1.43, 1.6, 1.4, 1.2]``.
+    coulomb : n floats
+        Coulomb friction levels ``F_c`` (N m or N per joint).
+    viscous : n floats
+        Viscous coefficients ``F_v`` (N m s/rad or N s/m per joint).
     friction_velocity : float
         Smoothing velocity ``v_s`` of the Coulomb term (rad/s or m/s), > 0.
     skin_height : float
@@ -87,13 +98,14 @@ class DisturbanceSpec:
         for kind in kinds:
             if kind not in DISTURBANCE_KINDS:
                 raise ValueError(f"disturbance kind {kind!r} is unknown; choose from {list(DISTURBANCE_KINDS)}")
-        if len(set(kinds)) != len(kinds):
-            raise ValueError(f"disturbance kinds {list(kinds)} name a model twice")
+        if len(set(kinds)) != len(kinds) or {"paper", "step"} <= set(kinds):
+            raise ValueError(f"disturbance kinds {list(kinds)} name a model twice ('step' is 'paper' for any arm)")
         object.__setattr__(self, "kinds", kinds)
         for name in ("f_r", "coulomb", "viscous"):
             value = tuple(float(v) for v in np.asarray(getattr(self, name), dtype=float).ravel())
-            if len(value) != 4 or not all(math.isfinite(v) for v in value):
-                raise ValueError(f"disturbance.{name} must be 4 finite numbers, got {getattr(self, name)!r}")
+            if not value or not all(math.isfinite(v) for v in value):
+                raise ValueError(f"disturbance.{name} must be a list of finite numbers (one per joint), got "
+                                 f"{getattr(self, name)!r}")
             if name != "f_r" and any(v < 0 for v in value):
                 raise ValueError(f"disturbance.{name} must be >= 0, got {list(value)}")
             object.__setattr__(self, name, value)
@@ -107,6 +119,34 @@ class DisturbanceSpec:
                 raise ValueError(f"disturbance.{name} must be {'>' if strict else '>='} {lower}, got {value!r}")
             object.__setattr__(self, name, float(value))
 
+    def per_joint(self) -> tuple[str, ...]:
+        """The per-joint lists the acting models read: ``f_r`` (paper, step), ``coulomb`` and ``viscous`` (friction)."""
+        out = ("f_r",) if {"paper", "step"} & set(self.kinds) else ()
+        return out + (("coulomb", "viscous") if "friction" in self.kinds else ())
+
+    def check_arm(self, arm, name: str | None = None) -> None:
+        """Refuse a spec that does not fit ``arm``: a per-joint list of the wrong length, an RRPR-only model.
+
+        Raises
+        ------
+        ValueError
+            Naming ``disturbance.<key>``, its length and the arm's joint count, or the model and the arm.
+        """
+        from .kernels.bind import closed_form
+        label = f"the arm {name!r}" if name else "the arm"
+        n = arm.joints.count
+        for key in self.per_joint():
+            value = getattr(self, key)
+            if len(value) != n:
+                raise ValueError(f"'disturbance.{key}' has {len(value)} values; {label} has {n} joints "
+                                 f"({', '.join(arm.joints.names)}): give one per joint")
+        if not closed_form(arm.kernels, arm.tool_kernels):
+            bad = [k for k in self.kinds if k in RRPR_ONLY_KINDS]
+            if bad:
+                raise ValueError(f"disturbance kind {bad[0]!r} models the paper's RRPR (the skin contact along "
+                                 f"its z through d3); it is not available for {label} ({n} joints): use 'step' "
+                                 "or 'friction'")
+
 
 def _rows(x) -> np.ndarray:
     return np.moveaxis(np.asarray(x, dtype=float), -1, 0)
@@ -119,43 +159,47 @@ def paper_disturbance(t, f_r) -> np.ndarray:
 
 
 def friction_disturbance(dq, coulomb, viscous, friction_velocity: float) -> np.ndarray:
-    """Smoothed Coulomb plus viscous friction ``-(F_c tanh(q'/v_s) + F_v q')``, shape (..., 4)."""
+    """Smoothed Coulomb plus viscous friction ``-(F_c tanh(q'/v_s) + F_v q')``, ``dq``'s shape (..., n)."""
     dq = np.asarray(dq, dtype=float)
     return kernels.friction_disturbance(dq, np.asarray(coulomb, dtype=float), np.asarray(viscous, dtype=float),
                                         friction_velocity)
 
 
 def tissue_disturbance(q, dq, spec: DisturbanceSpec, params: RobotParameters) -> np.ndarray:
-    """Joint forces from the skin spring-damper contact, ``J(q)^T F``, shape (..., 4)."""
+    """Joint forces from the skin spring-damper contact on the paper's RRPR, ``J(q)^T F``, shape (..., 4)."""
     q, dq = np.broadcast_arrays(np.asarray(q, dtype=float), np.asarray(dq, dtype=float))
     rows = kernels.tissue_disturbance(kernels.kinematic_lengths(params), _rows(q), _rows(dq), spec.skin_height,
                                       spec.tissue_stiffness, spec.tissue_damping, spec.tissue_drag)
     return np.moveaxis(rows, 0, -1)
 
 
-def external_disturbance(t, q, dq, spec: DisturbanceSpec, params: RobotParameters) -> np.ndarray:
-    """Total external disturbance ``tau_dis`` of the selected models, shape (..., 4).
+def external_disturbance(t, q, dq, spec: DisturbanceSpec, params: ArmModel) -> np.ndarray:
+    """Total external disturbance ``tau_dis`` of the selected models, shape (..., n).
 
     Parameters
     ----------
     t : float or array_like
         Time (s); broadcasts against the leading shape of ``q``.
-    q, dq : array_like, shape (..., 4)
+    q, dq : array_like, shape (..., n)
         True joint positions and velocities.
     spec : DisturbanceSpec
         Selected models and their parameters.
-    params : RobotParameters
-        True arm parameters (for the tissue contact kinematics).
+    params : ArmModel
+        The true arm (its joint count; the tissue contact's kinematics on the RRPR).
     """
     if not isinstance(spec, DisturbanceSpec):
         raise TypeError(f"spec must be a DisturbanceSpec (scenario.disturbance), got {type(spec).__name__}")
-    q, dq = joint_arrays({"q": q, "dq": dq}, robot_parameters(params).joints)
+    arm = arm_model(params, "params")
+    spec.check_arm(arm)
+    q, dq = joint_arrays({"q": q, "dq": dq}, arm.joints)
     t = real_array(t, "t")
     lead = np.broadcast_shapes(t.shape, q.shape[:-1])
-    q, dq = (np.broadcast_to(a, lead + (4,)) for a in (q, dq))
-    p = kernels.disturbance_params(spec, params)
+    n = arm.joints.count
+    q, dq = (np.broadcast_to(a, lead + (n,)) for a in (q, dq))
+    p = kernels.disturbance_params(spec, arm)
     # per-joint parameters carry one axis per leading axis of the signals (see blocks.kernels)
     extra = (1,) * len(lead)
-    p = p._replace(f_r=p.f_r.reshape((4,) + extra), coulomb=p.coulomb.reshape((4,) + extra),
-                   viscous=p.viscous.reshape((4,) + extra), kin=p.kin.reshape((4,) + extra))
+    p = p._replace(f_r=p.f_r.reshape(p.f_r.shape + extra), coulomb=p.coulomb.reshape(p.coulomb.shape + extra),
+                   viscous=p.viscous.reshape(p.viscous.shape + extra),
+                   kin=p.kin.reshape(p.kin.shape + extra) if isinstance(p.kin, np.ndarray) else p.kin)
     return np.moveaxis(kernels.external_disturbance(np.broadcast_to(t, lead), _rows(q), _rows(dq), p), 0, -1)

@@ -40,8 +40,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .kernels import arm_constants, bias_forces, external_disturbance, mass_times
+from .kernels import bias_forces as _rrpr_bias_forces
 from .kernels import disturbance_params as kernel_disturbance_params
+from .kernels import external_disturbance
+from .kernels import mass_times as _rrpr_mass_times
 
 __all__ = ["StateBounds", "state_bounds", "cached_state_bounds", "signal_bounds", "ReferenceLimits",
            "reference_limits", "force_bounds", "batch_bounds", "Runaway", "POSITION_MARGIN", "VELOCITY_MARGIN",
@@ -162,23 +164,30 @@ def reference_limits(scenario, samples: int = 201) -> ReferenceLimits:
                            tuple(joints.position_units), tuple(joints.velocity_units), tuple(joints.force_units))
 
 
-def force_bounds(k_true: np.ndarray, disturbance, ref: ReferenceLimits) -> np.ndarray:
+def force_bounds(k_true, disturbance, ref: ReferenceLimits, kernels=None) -> np.ndarray:
     """The disturbance estimate's bound per member: ``FORCE_FACTOR`` (largest start force + 1) (N m, N).
 
     Parameters
     ----------
     k_true : numpy.ndarray
-        Arm constants of the true arm, (6,) or (6, N) for N members.
+        Arm constants of the true arm, (6,) or (6, N) for N members (the RRPR's), or ``arm.kernel_params()``
+        of the arm whose row kernels are ``kernels``.
     disturbance : blocks.kernels.DisturbanceParams
         The external disturbance in the same layout (rows, one column per member).
     ref : ReferenceLimits
+    kernels : module, optional
+        The true arm's row kernels (``arm.kernels``); default the paper's RRPR's.
 
     Returns
     -------
     numpy.ndarray
         Shape () for one arm, (N,) for N members.
     """
-    batch = np.ndim(k_true) == 2
+    if kernels is not None:
+        bias_forces, mass_times = kernels.bias_forces, kernels.mass_times
+    else:
+        bias_forces, mass_times = _rrpr_bias_forces, _rrpr_mass_times
+    batch = isinstance(k_true, np.ndarray) and np.ndim(k_true) == 2
     col = (lambda a: np.asarray(a, dtype=float)[:, None]) if batch else (lambda a: np.asarray(a, dtype=float))
     q0, dq0, ddq0 = col(ref.q0), col(ref.dq0), col(ref.ddq0)
     if batch:
@@ -234,7 +243,7 @@ def state_bounds(loop, scenario, samples: int = 201) -> StateBounds:
     s = scenario
     ref = reference_limits(s, samples)
     spec = kernel_disturbance_params(s.disturbance, s.robot)
-    force = float(force_bounds(arm_constants(s.robot), spec, ref))
+    force = float(force_bounds(s.robot.kernel_params(), spec, ref, s.robot.kernels))
     labels = [(block.name, label) for block in loop.syslist for label in block.state_labels]
     return _labelled_bounds(labels, ref, force, np.asarray(s.observer_gain, dtype=float))
 
@@ -284,7 +293,8 @@ def signal_bounds(names, scenario, samples: int = 201) -> StateBounds:
     outputs; other names are judged by growth (:meth:`StateBounds.with_growth`)."""
     s = scenario
     ref = reference_limits(s, samples)
-    force = float(force_bounds(arm_constants(s.robot), kernel_disturbance_params(s.disturbance, s.robot), ref))
+    force = float(force_bounds(s.robot.kernel_params(), kernel_disturbance_params(s.disturbance, s.robot), ref,
+                               s.robot.kernels))
     return _labelled_bounds([("plant", name) for name in names], ref, force, np.asarray(s.observer_gain, dtype=float))
 
 

@@ -10,10 +10,10 @@ Examples
 >>> from blocks.gains import validated_gain
 >>> float(validated_gain(180, "kp")[1, 1])
 180.0
->>> validated_gain([1.0, 2.0], "kd")
+>>> validated_gain(-1, "kd")
 Traceback (most recent call last):
     ...
-blocks.gains.GainError: 'gains.kd' must be a number, 4 numbers or a diagonal 4x4 matrix, got [1.0, 2.0] (shape (2,))
+blocks.gains.GainError: 'gains.kd' must be > 0 on every joint, got -1
 """
 from __future__ import annotations
 
@@ -35,7 +35,7 @@ class GainError(ValueError):
     """A gain is invalid; the message names ``gains.<key>``, the value and what is allowed."""
 
 
-def validated_gain(value, key: str, joints: JointSpace = RRPR_JOINTS) -> np.ndarray:
+def validated_gain(value, key: str, joints: JointSpace = RRPR_JOINTS, arm_name: str | None = None) -> np.ndarray:
     """A gain as the loop uses it: an n x n matrix (n joints), checked and read-only.
 
     Parameters
@@ -49,6 +49,8 @@ def validated_gain(value, key: str, joints: JointSpace = RRPR_JOINTS) -> np.ndar
         ``observer`` the observer gain ``Y`` (kg m^2/s, kg/s on a prismatic joint).
     joints : JointSpace
         The arm's joints (default: the paper's four).
+    arm_name : str, optional
+        The arm's name, for the message on a gain of the wrong size.
 
     Returns
     -------
@@ -70,7 +72,7 @@ def validated_gain(value, key: str, joints: JointSpace = RRPR_JOINTS) -> np.ndar
     full = key == "observer"
     allowed = f"a number, {n} numbers or {'a' if full else 'a diagonal'} {n}x{n} matrix"
     try:
-        matrix = _as_matrix(value, key, n, allowed)
+        matrix = _as_matrix(value, key, joints, allowed, arm_name)
     except RecursionError:
         raise GainError(f"'gains.{key}' must be {allowed}, got lists nested too deeply") from None
     if full:
@@ -90,8 +92,9 @@ def validated_gain(value, key: str, joints: JointSpace = RRPR_JOINTS) -> np.ndar
     return read_only_array(matrix)
 
 
-def _as_matrix(value, key: str, n: int, allowed: str) -> np.ndarray:
+def _as_matrix(value, key: str, joints: JointSpace, allowed: str, arm_name: str | None) -> np.ndarray:
     """A number, an n-vector or an n x n array of finite numbers as a new n x n float array."""
+    n = joints.count
     if _holds_non_numbers(value):
         raise GainError(f"'gains.{key}' must be {allowed}, got {_shown(value)}")
     try:
@@ -108,6 +111,11 @@ def _as_matrix(value, key: str, n: int, allowed: str) -> np.ndarray:
         return np.diag(arr)
     if arr.shape == (n, n):
         return arr
+    if arr.ndim in (1, 2) and arr.shape[0] != n:
+        arm = f"the arm {arm_name!r}" if arm_name else "the arm"
+        given = f"{arr.shape[0]} values" if arr.ndim == 1 else f"{arr.shape[0]}x{arr.shape[1]} entries"
+        raise GainError(f"'gains.{key}' has {given}; {arm} has {n} joints ({', '.join(joints.names)}): give "
+                        f"{allowed}, got {_shown(value)} (shape {arr.shape})")
     raise GainError(f"'gains.{key}' must be {allowed}, got {_shown(value)} (shape {arr.shape})")
 
 

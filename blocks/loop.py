@@ -41,8 +41,8 @@ from .derived import loop_response
 from .divergence import state_bounds
 from .fastsim import CompiledLoop
 from .integrate import DivergenceError, SolverFailure, integrate_on_grid, loop_events, refuse_hybrid
-from .kernels import arm_constants
 from .kernels import lumped_disturbance as lumped_disturbance_rows
+from .kernels.bind import bound
 from .monitor import Monitor, SimulationError
 from .run_limits import estimate_run
 from .scenario import Scenario, load_scenario
@@ -124,14 +124,14 @@ def build_blocks(scenario: Scenario | str = "paper", observer: bool = True, plan
                         f"{type(plant_system).__name__} {plant_system!r}")
     measured = "_meas" if s.noise is not None else ""
     blocks = {
-        "trajectory": trajectory_block(s.trajectory),
+        "trajectory": trajectory_block(s.trajectory, arm=s.robot),
         "controller": controller(s.nominal, s.kp, s.kd, use_observer=observer, measured=measured),
         "plant": plant(s.robot, s.disturbance) if plant_system is None else plant_system,
     }
     if observer:
         blocks["observer"] = observer_block(s.nominal, s.observer_gain, s.observer_variant, measured=measured)
     if s.noise is not None:
-        blocks["sensor"] = sensor(s.noise)
+        blocks["sensor"] = sensor(s.noise, arm=s.robot)
     return blocks
 
 
@@ -158,14 +158,16 @@ def closed_loop(scenario: Scenario | str = "paper", observer: bool = True, plant
     signals = [sig for sig in LOOP_SIGNALS if observer or sig != "d_hat"]
     if "sensor" in blocks:
         signals += ["q_meas", "dq_meas"]
-    outputs = [name for sig in signals for name in signal_names(sig)]
+    arm = s.robot
+    outputs = [name for sig in signals for name in signal_names(sig, arm)]
     plant_sys = blocks["plant"]
-    needed_outputs = signal_names("q") + signal_names("dq") + signal_names("tau_dis")
+    needed_outputs = signal_names("q", arm) + signal_names("dq", arm) + signal_names("tau_dis", arm)
     missing = [n for n in needed_outputs if n not in plant_sys.output_labels]
-    missing += [n for n in signal_names("tau") if n not in plant_sys.input_labels]
+    missing += [n for n in signal_names("tau", arm) if n not in plant_sys.input_labels]
     if missing:
+        last = arm.joints.count - 1
         raise ValueError(f"plant block '{plant_sys.name}' lacks signals the loop needs: {missing} "
-                         "(it must take tau[0..3] and give q, dq and tau_dis[0..3])")
+                         f"(it must take tau[0..{last}] and give q, dq and tau_dis[0..{last}])")
     loop = ct.interconnect(list(blocks.values()), inplist=[], outlist=outputs, outputs=outputs,
                            name="dob_loop" if observer else "ctc_loop", check_unused=False)
     loop.scenario = s
@@ -210,7 +212,7 @@ def lumped_disturbance(q, dq, tau, tau_dis, scenario: Scenario) -> np.ndarray:
 
     ``M^ q'' + N^ q' + G^ = tau + d`` with ``d = tau_dis + (M^ - M) q'' + (N^ - N) q' + (G^ - G)``,
     where ``q''`` is the true acceleration.  With a perfect model ``d = tau_dis``.
-    Arrays of shape (..., 4).  The true model is the scenario's ``robot``: with a
+    Arrays of shape (..., n).  The true model is the scenario's ``robot``: with a
     substituted plant (an FMU) whose parameters differ from the scenario's, ``d``
     is relative to the scenario's robot, not to that plant.
     """
@@ -218,7 +220,8 @@ def lumped_disturbance(q, dq, tau, tau_dis, scenario: Scenario) -> np.ndarray:
         raise TypeError(f"scenario must be a Scenario, got {type(scenario).__name__} {scenario!r:.80}")
     arrays = joint_arrays({"q": q, "dq": dq, "tau": tau, "tau_dis": tau_dis}, scenario.robot.joints)
     rows = [np.moveaxis(a, -1, 0) for a in arrays]
-    d = lumped_disturbance_rows(arm_constants(scenario.robot), arm_constants(scenario.nominal), *rows)
+    arm = scenario.robot
+    d = bound(lumped_disturbance_rows, arm)(arm.kernel_params(), scenario.nominal.kernel_params(), *rows)
     return np.moveaxis(d, 0, -1)
 
 

@@ -1,8 +1,10 @@
 """Tracking metrics of a simulated run: the paper's RMS errors (Eq. 13 and 14) and more.
 
-All metrics are per joint, in the joint's unit (rad for joints 1, 2 and 4, m
-for the prismatic joint 3; N m or N for disturbances), computed over the
-uniform output grid of the response.
+All metrics are per joint, in the joint's unit (rad for a revolute joint, m
+for a prismatic one; N m or N for disturbances: the paper's RRPR has rad,
+rad, m, rad), computed over the uniform output grid of the response.  The
+joint count, names and units are the arm's (``response.scenario.robot.joints``);
+the tool-tip errors use the arm's ``tool_position`` row kernel.
 
 There is no "largest disturbance-estimation error": the observer starts from
 ``d_hat(0) = 0``, so the largest ``|d - d_hat|`` of a run is the disturbance
@@ -16,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from .joints import RRPR_JOINTS
-from .kernels.kinematics import kinematic_lengths, tool_pose
+from .kernels import kinematics as _rrpr_tool
 
 __all__ = ["signal", "tracking_metrics", "rms", "TrackingAccumulator", "METRICS", "OBSERVER_METRICS", "JOINT_UNITS",
            "DISTURBANCE_UNITS", "JOINT_LABELS"]
@@ -34,8 +36,11 @@ JOINT_UNITS = RRPR_JOINTS.position_units
 DISTURBANCE_UNITS = RRPR_JOINTS.force_units
 
 
-def signal(response, prefix: str) -> np.ndarray:
-    """The four joint signals ``prefix[0..3]`` of a response, shape (4, len(time)).
+def signal(response, prefix: str, n: int | None = None) -> np.ndarray:
+    """The joint signals ``prefix[0..n-1]`` of a response, shape (n, len(time)).
+
+    ``n`` defaults to the joint count of the response's scenario's arm (the
+    paper's four without a scenario).
 
     Raises
     ------
@@ -43,8 +48,11 @@ def signal(response, prefix: str) -> np.ndarray:
         If the response has no such signal.
     """
     labels = list(response.output_labels)
+    if n is None:
+        scenario = getattr(response, "scenario", None)
+        n = (scenario.robot.joints if scenario is not None else RRPR_JOINTS).count
     try:
-        rows = [labels.index(f"{prefix}[{i}]") for i in range(4)]
+        rows = [labels.index(f"{prefix}[{i}]") for i in range(n)]
     except ValueError:
         raise KeyError(f"response has no signal '{prefix}[i]'; it has {sorted({l.split('[')[0] for l in labels})}") from None
     return np.asarray(response.outputs)[rows]
@@ -60,25 +68,35 @@ class TrackingAccumulator:
 
     One definition serves a single run (:func:`tracking_metrics`, one chunk)
     and a batch (:func:`blocks.batch.simulate_batch`, chunks of grid points
-    over a member axis).  Signals are rows: ``(4, m, *members)`` for ``m``
+    over a member axis).  Signals are rows: ``(n, m, *members)`` for ``m``
     grid points.
 
     Parameters
     ----------
-    kin : numpy.ndarray
-        Kinematic lengths ``[a1, a2, d1, d4]`` (m) for the tool-tip errors.
+    kin : numpy.ndarray or object
+        The arm's tool parameters (``arm.tool_params()``; the RRPR's kinematic lengths ``[a1, a2, d1, d4]``, m)
+        for the tool-tip errors.
     n_points : int
         Grid points in the whole run (the RMS divides by it).
     metrics : sequence of str
         Which of :data:`METRICS` to keep.
     members : tuple of int
         Shape of the member axes (``()`` for a single run).
+    n_joints : int, optional
+        Joints of the arm (default: the paper's four).
+    tool_position : callable, optional
+        The arm's ``tool_position(kin, q)`` row kernel (default: the RRPR's).
     """
 
-    def __init__(self, kin, n_points: int, metrics=METRICS, members: tuple = ()) -> None:
-        self.kin = np.asarray(kin, dtype=float).reshape((4,) + (1,) * (1 + len(members)))
+    def __init__(self, kin, n_points: int, metrics=METRICS, members: tuple = (), n_joints: int | None = None,
+                 tool_position=None) -> None:
+        if isinstance(kin, (np.ndarray, list)):       # numbers (the RRPR's lengths) get the member axes
+            kin = np.asarray(kin, dtype=float)
+            kin = kin.reshape(kin.shape + (1,) * (1 + len(members)))
+        self.kin = kin
+        self.tool_position = _rrpr_tool.tool_position if tool_position is None else tool_position
         self.n_points, self.metrics = n_points, tuple(metrics)
-        joints = (4,) + tuple(members)
+        joints = (RRPR_JOINTS.count if n_joints is None else n_joints,) + tuple(members)
         self.sum_sq_e, self.max_e, self.final_e = np.zeros(joints), np.zeros(joints), np.zeros(joints)
         self.sum_sq_tool, self.max_tool = np.zeros(members), np.zeros(members)
         self.sum_sq_ed = np.zeros(joints)
@@ -96,7 +114,7 @@ class TrackingAccumulator:
         if last:
             self.final_e[...] = np.abs(e[:, -1])
         if self.wants_tool:
-            diff = tool_pose(self.kin, q_ref)[:3] - tool_pose(self.kin, q)[:3]
+            diff = self.tool_position(self.kin, q_ref) - self.tool_position(self.kin, q)
             dist = np.sqrt(np.sum(diff * diff, axis=0))
             self.sum_sq_tool += np.sum(dist * dist, axis=0)
             np.maximum(self.max_tool, np.max(dist, axis=0), out=self.max_tool)
@@ -105,7 +123,7 @@ class TrackingAccumulator:
             self.sum_sq_ed += np.sum(ed * ed, axis=1)
 
     def result(self) -> dict:
-        """The kept metrics: per joint ``(4, *members)``, tool errors ``members`` (mm)."""
+        """The kept metrics: per joint ``(n, *members)``, tool errors ``members`` (mm)."""
         n = self.n_points
         values = {
             "rms_position_error": np.sqrt(self.sum_sq_e / n),
@@ -125,7 +143,7 @@ def tracking_metrics(response) -> dict:
     -------
     dict
         ``rms_position_error`` (Eq. 13), ``max_abs_position_error`` and
-        ``final_abs_position_error`` per joint (rad, rad, m, rad); with the
+        ``final_abs_position_error`` per joint (the joint's unit: rad or m); with the
         response's scenario, ``max_tool_position_error_mm`` and
         ``rms_tool_position_error_mm`` (tool-tip distance from its reference,
         mm); with the observer also ``rms_disturbance_error`` (Eq. 14,
@@ -136,8 +154,12 @@ def tracking_metrics(response) -> dict:
     observer = "d_hat[0]" in labels
     names = [m for m in METRICS if (scenario is not None or "tool" not in m) and (observer or m not in OBSERVER_METRICS)]
     q_ref, q = signal(response, "q_ref"), signal(response, "q")
-    kin = kinematic_lengths(scenario.robot) if scenario is not None else np.zeros(4)
-    acc = TrackingAccumulator(kin, q.shape[1], names)
+    if scenario is not None:
+        arm = scenario.robot
+        acc = TrackingAccumulator(arm.tool_params(), q.shape[1], names, n_joints=arm.joints.count,
+                                  tool_position=arm.tool_kernels.tool_position)
+    else:                                   # no arm: no tool metrics are kept
+        acc = TrackingAccumulator(np.zeros(1), q.shape[1], names, n_joints=q.shape[0])
     d = d_hat = None
     if observer:
         d = signal(response, "d") if "d[0]" in labels else signal(response, "tau_dis")

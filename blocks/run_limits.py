@@ -27,8 +27,9 @@ import numpy as np
 
 from .budget import Budget, Estimate
 from .scenario import Scenario
+from .scenario_arm import is_rrpr
 
-__all__ = ["estimate_run", "check_run", "EXPLICIT_METHODS", "STABILITY_SPAN"]
+__all__ = ["estimate_run", "check_run", "arm_rates", "EXPLICIT_METHODS", "STABILITY_SPAN"]
 
 #: Methods whose step is limited by the fastest rate (the others are implicit).
 EXPLICIT_METHODS = ("RK45", "RK23", "DOP853")
@@ -57,7 +58,8 @@ def estimate_run(scenario: Scenario, observer: bool = True) -> Estimate:
                            f"one integrator step at least per controller tick: {t_final:g} s at {rate:g} Hz"))
     elif s.simulation.method in EXPLICIT_METHODS:
         with np.errstate(over="ignore", invalid="ignore"):     # gains near 1e308: the rate is inf, said below
-            by_source = rates_by_source(Variants(s, [{}]), observer)
+            by_source = rates_by_source(Variants(s, [{}]), observer) if is_rrpr(s.robot) else \
+                arm_rates(s, observer)
         for key, rates in by_source.items():
             rate = float(rates.max())
             steps = t_final * rate / STABILITY_SPAN
@@ -94,6 +96,29 @@ def estimate_run(scenario: Scenario, observer: bool = True) -> Estimate:
     # a number at all
     steps = int(min(steps, sys.float_info.max))
     return Estimate(memory=sum(parts.values()), steps=steps, parts=parts, keys=keys, reasons=reasons)
+
+
+def arm_rates(s: Scenario, observer: bool = True, samples: int = 9) -> dict[str, np.ndarray]:
+    """Upper estimates (1/s) of a run's fastest rates by the key that sets them, for any arm: the rules of
+    :func:`blocks.batch.schedule.rates_by_source` (PD poles times the model mismatch ``lambda_max(M^-1 M^)``, the
+    observer's ``Y M^-1``, the friction's ``M^-1 (F_c / v_s + F_v)``) with the inertia taken along the reference
+    (``samples`` times over the run) instead of the RRPR's ``cos(theta2) = -1, 0, 1``.  Each value has shape (1,)."""
+    q = np.asarray(s.trajectory.evaluate(np.linspace(0.0, s.simulation.t_final, samples))[0], dtype=float)
+    M, M_hat = s.robot.inertia(q), s.nominal.inertia(q)                                    # (m, n, n)
+    M_inv, M_hat_inv = np.linalg.inv(M), np.linalg.inv(M_hat)
+    mismatch = np.abs(np.linalg.eigvals(M_inv @ M_hat)).max()
+    kp, kd = np.diag(s.kp), np.diag(s.kd)
+    disc = kd ** 2 - 4 * kp
+    pd = np.where(disc >= 0, 0.5 * (kd + np.sqrt(np.abs(disc))), np.sqrt(kp)).max()
+    rates = {"gains.kp": np.array([pd * max(mismatch, 1.0)])}
+    if observer:
+        key = "gains.observer_bandwidth" if "observer_bandwidth" in s.data["gains"] else "gains.observer"
+        rates[key] = np.array([max(np.abs(np.linalg.eigvals(s.observer_gain @ inv)).max() for inv in (M_inv, M_hat_inv))])
+    if "friction" in s.disturbance.kinds:
+        dist = s.disturbance
+        damping = np.asarray(dist.coulomb) / dist.friction_velocity + np.asarray(dist.viscous)
+        rates["disturbance.friction_velocity"] = np.array([np.abs(np.linalg.eigvals(M_inv * damping)).max()])
+    return rates
 
 
 def check_run(scenario: Scenario, observer: bool = True, budget: Budget | None = None) -> Budget:

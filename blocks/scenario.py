@@ -10,10 +10,13 @@ allowed, before anything is simulated.
 Sections and keys (units in brackets)::
 
     name, description                      free text
+    [arm]            a URDF arm instead of the paper's RRPR (blocks.scenario_arm): urdf (relative to the file),
+                     tool_frame, locked, locked_values, gravity [m/s^2], nominal_mass_scale; absent: the RRPR
     [robot]          true plant, any of m1..m4 [kg], l1, l2 [m], I1..I4 [kg m^2], g [m/s^2],
                      a1, a2, d1, d4 [m]; Table 1 by default
     [nominal_scale]  per-parameter factor nominal / true (Eq. 3 internal disturbance), same names, 1 by default
-    [gains]          kp [1/s^2], kd [1/s]: scalar or 4; observer [kg m^2/s]: scalar, 4 or 4x4
+    [gains]          kp [1/s^2], kd [1/s]: scalar or n; observer [kg m^2/s]: scalar, n or n x n, or
+                     observer_bandwidth [rad/s]: Y = omega M^(q0) (one of the two)
     [observer]       variant = "correct" | "paper-eq16"
     [trajectory]     kind = "laceration" | "joint_sine" and that kind's keys (blocks.trajectory);
                      a laceration lasts duration [s] (10 by default) whatever simulation.t_final is,
@@ -28,12 +31,17 @@ Sections and keys (units in brackets)::
 
 Each section is read by one entry of the table ``_SECTIONS``: the keys it
 allows with the check of each value, and how its object is built from them.
+Per-joint lists have one entry per joint of the arm (n = 4 for the RRPR);
+``[robot]``, ``[nominal_scale]``, the laceration path and the tissue model
+are the RRPR's and refused, by name, for another arm.
+
 A scenario is varied by dotted keys, validated like a file::
 
     s = load_scenario("paper").with_changes({"gains.kp": 100, "disturbance.f_r[2]": 1.5})
 """
 from __future__ import annotations
 
+import contextvars
 import dataclasses
 import functools
 import json
@@ -50,12 +58,22 @@ from typing import Any
 
 import numpy as np
 
+from .arm import ArmModel
 from .digital import DISCRETIZATIONS, VELOCITY_SOURCES, DigitalController
 from .disturbances import DISTURBANCE_KINDS, DisturbanceSpec
 from .gains import GAIN_KEYS, OBSERVER_VARIANTS, GainError, validated_gain
 from .joints import RRPR_JOINTS
 from .noise import MeasurementNoise
 from .parameters import ParameterError, RobotParameters
+from .scenario_arm import (
+    ARM_KEYS,
+    arm_name,
+    is_rrpr,
+    joint_sine_defaults,
+    load_arm,
+    observer_gain_from_bandwidth,
+    scaled_nominal,
+)
 from .trajectory import TRAJECTORY_KINDS, JointSine, LacerationPath, check_joint_ranges
 from .validation import number_text, read_only_array
 
@@ -195,19 +213,19 @@ class Scenario:
     data : dict
         The complete settings, defaults filled in; ``to_toml(data)`` writes a
         file that reproduces this run.
-    robot, nominal : RobotParameters
-        True plant and nominal model.
+    robot, nominal : ArmModel
+        True plant and nominal model (:class:`~blocks.parameters.RobotParameters` for the paper's RRPR).
     kp, kd : numpy.ndarray
-        4x4 diagonal controller gains (1/s^2, 1/s).
+        n x n diagonal controller gains (1/s^2, 1/s).
     observer_gain : numpy.ndarray
-        4x4 observer gain ``Y`` (kg m^2/s).
+        n x n observer gain ``Y`` (kg m^2/s, kg/s on a prismatic joint).
     observer_variant : str
     trajectory : LacerationPath or JointSine
     disturbance : DisturbanceSpec
     noise : MeasurementNoise or None
         None when every standard deviation is zero.
     initial : dict
-        ``q``, ``dq``, ``d_hat`` as 4-arrays or None (None: on the reference / zero).
+        ``q``, ``dq``, ``d_hat`` as n-arrays or None (None: on the reference / zero).
     simulation : SimulationSettings
     controller : DigitalController or None
         The digital controller's settings; None for the continuous controller.
@@ -221,8 +239,8 @@ class Scenario:
 
     name: str
     data: dict
-    robot: RobotParameters
-    nominal: RobotParameters
+    robot: ArmModel
+    nominal: ArmModel
     kp: np.ndarray
     kd: np.ndarray
     observer_gain: np.ndarray
@@ -313,7 +331,14 @@ class Scenario:
                 data.setdefault(section, {})[name] = _plain(value)
             else:
                 data[section] = _plain(value)
+        if "arm" not in data and not is_rrpr(self.robot):        # an arm given in Python stays
+            return scenario_from_dict(data, source=self.source, arm=self.robot, nominal=self.nominal)
         return scenario_from_dict(data, source=self.source)
+
+    @property
+    def arm_name(self) -> str:
+        """How messages and outputs name the scenario's arm (the URDF file's stem; ``rrpr`` for the paper's)."""
+        return arm_name(self.robot, self.data.get("arm", {}).get("urdf"))
 
     def replace(self, **sections) -> Scenario:
         """:meth:`with_changes` written by section: ``replace(gains={"kp": 100})`` is
@@ -459,8 +484,9 @@ def _like(default) -> Check:
 
 def _gain(value, key: str):
     """A gain checked by :func:`~blocks.gains.validated_gain`; kept as given (the file's form) for the settings."""
+    ctx = _context()
     try:
-        validated_gain(value, key.split(".", 1)[1])
+        validated_gain(value, key.split(".", 1)[1], ctx.joints, ctx.name)
     except GainError as err:
         raise ScenarioError(str(err)) from None
     return _plain(value)
@@ -487,7 +513,101 @@ def _defaults(cls, skip=()) -> dict[str, Any]:
 GAIN_DEFAULTS = {"kp": 180.0, "kd": 36.0, "observer": 10.0}     # the paper's Kp, Kd and Y = "K3"
 
 
+# --------------------------------------------------------------------------------------------
+# The arm: [arm] (a URDF arm) or the paper's RRPR ([robot], [nominal_scale]); later checks read it
+# --------------------------------------------------------------------------------------------
+@dataclass
+class _ArmContext:
+    """What the checks of one scenario being validated know of its arm (the RRPR until [arm] is read)."""
+
+    joints: Any = RRPR_JOINTS
+    name: str = "rrpr"
+    base: Path | None = None
+    given: tuple | None = None          # (robot, nominal) given in Python
+    arm: Any = None                     # the true arm, when it is not the RRPR
+    nominal: Any = None
+
+
+_ARM_CONTEXT: contextvars.ContextVar = contextvars.ContextVar("scenario_arm")
+
+
+def _context() -> _ArmContext:
+    return _ARM_CONTEXT.get(None) or _ArmContext()
+
+
+def _text(value, key: str) -> str:
+    if not isinstance(value, str) or not value:
+        raise ScenarioError(f"'{key}' must be {ARM_KEYS.get(key.split('.')[-1], 'text')}, got {value!r}")
+    return value
+
+
+def _names(value, key: str) -> tuple[str, ...]:
+    value = [value] if isinstance(value, str) else value
+    if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) and v for v in value):
+        raise ScenarioError(f"'{key}' must be a list of joint names, got {value!r}")
+    return tuple(value)
+
+
+def _numbers(value, key: str) -> tuple[float, ...]:
+    if not isinstance(value, (list, tuple)):
+        raise ScenarioError(f"'{key}' must be a list of numbers, got {value!r}")
+    return tuple(_finite()(v, f"{key}[{i}]") for i, v in enumerate(value))
+
+
+def _gravity(value, key: str):
+    if isinstance(value, (list, tuple)):
+        if len(value) != 3:
+            raise ScenarioError(f"'{key}' must be a number (m/s^2, along -z) or 3 numbers [gx, gy, gz], got {value!r}")
+        return _numbers(value, key)
+    return _finite(0.0)(value, key)
+
+
+def _example_urdf(urdf: str):
+    """``example:NAME``: the URDF of a built-in example arm (scope4, ur5, panda)."""
+    from .arms.examples import example_urdf, scope4_urdf
+    name = urdf.split(":", 1)[1]
+    return scope4_urdf() if name == "scope4" else example_urdf(name)
+
+
+def _build_arm(given: dict, built: dict):
+    ctx = _context()
+    if not given:
+        if ctx.given is None:
+            return None, None
+        robot, nominal = ctx.given
+        ctx.joints, ctx.name, ctx.arm, ctx.nominal = robot.joints, arm_name(robot), robot, nominal
+        return robot, None
+    if ctx.given is not None:
+        raise ScenarioError("[arm] cannot be given with an arm model passed in Python (scenario_from_dict(arm=...))")
+    values = dict(given)
+    if values["urdf"].startswith("example:") if "urdf" in values else False:
+        try:
+            values["urdf"] = str(_example_urdf(values["urdf"]))
+        except (ValueError, ModuleNotFoundError) as err:
+            raise ScenarioError(f"'arm.urdf' = {given['urdf']!r}: {err}") from None
+    arm, name = load_arm(values, ctx.base, ScenarioError)
+    if "urdf" in given and given["urdf"].startswith("example:"):
+        name = given["urdf"].split(":", 1)[1]
+    nominal = scaled_nominal(arm, given.get("nominal_mass_scale", 1.0), ScenarioError)
+    ctx.joints, ctx.name, ctx.arm, ctx.nominal = arm.joints, name, arm, nominal
+    data = {k: _plain(v) for k, v in given.items()}
+    data.setdefault("nominal_mass_scale", 1.0)
+    return arm, data
+
+
+def _not_rrpr_section(section: str, given: dict) -> None:
+    ctx = _context()
+    if given:
+        raise ScenarioError(f"[{section}] ({', '.join(f'{section}.{k}' for k in given)}) describes the paper's RRPR; "
+                            f"the scenario's arm is {ctx.name!r} ({ctx.joints.count} joints, from [arm]): remove "
+                            f"[{section}]" + (" (use 'arm.nominal_mass_scale' for a nominal-model mismatch)"
+                                              if section == "nominal_scale" else ""))
+
+
 def _build_robot(given: dict, built: dict):
+    if _context().arm is not None:
+        _not_rrpr_section("robot", given)
+        return _context().arm, None
     try:
         robot = RobotParameters(**given)
     except ParameterError as err:
@@ -497,6 +617,9 @@ def _build_robot(given: dict, built: dict):
 
 
 def _build_nominal(given: dict, built: dict):
+    if _context().arm is not None:
+        _not_rrpr_section("nominal_scale", given)
+        return _context().nominal, None
     try:
         nominal = built["robot"].scaled(**given)
     except ParameterError as err:
@@ -506,8 +629,14 @@ def _build_nominal(given: dict, built: dict):
 
 
 def _build_gains(given: dict, built: dict):
+    ctx = _context()
+    if "observer" in given and "observer_bandwidth" in given:
+        raise ScenarioError(f"'gains.observer' ({_number_text(given['observer'])}) and 'gains.observer_bandwidth' "
+                            f"({given['observer_bandwidth']!r} rad/s) both set the observer gain Y; give one of them")
     gains = GAIN_DEFAULTS | given
-    return {k: validated_gain(v, k) for k, v in gains.items()}, gains
+    if "observer_bandwidth" in given:          # Y = omega M^(q0) is made once the start q0 is known (_validated)
+        del gains["observer"]
+    return {k: (validated_gain(v, k, ctx.joints, ctx.name) if k in GAIN_KEYS else v) for k, v in gains.items()}, gains
 
 
 def _build_observer(given: dict, built: dict):
@@ -533,18 +662,35 @@ def _build_simulation(given: dict, built: dict):
 
 
 def _build_disturbance(given: dict, built: dict):
-    kinds = given.get("kind", ("paper",))
+    ctx = _context()
+    # Eq. 4's f_r is the RRPR's four numbers: another arm has no external disturbance unless it is given
+    kinds = given.get("kind", ("paper",) if ctx.arm is None else ())
     try:
         spec = DisturbanceSpec(kinds=kinds, **{k: v for k, v in given.items() if k != "kind"})
+        spec.check_arm(built["robot"], ctx.name if ctx.arm is not None else None)
     except ValueError as err:
         raise ScenarioError(f"[disturbance] {err}") from None
-    values = {f: _plain(getattr(spec, f)) for f in _defaults(DisturbanceSpec, skip=("kinds",))}
+    per_joint = ("f_r", "coulomb", "viscous")
+    values = {f: _plain(getattr(spec, f)) for f in _defaults(DisturbanceSpec, skip=("kinds",))
+              if ctx.arm is None or f not in per_joint or f in spec.per_joint() or f in given}
     return spec, {"kind": list(kinds) if kinds else "none"} | values
 
 
 def _build_trajectory(given: dict, built: dict):
-    kind = given.get("kind", _SECTIONS["trajectory"].default_kind)
+    kind = given.get("kind", "joint_sine" if _context().arm is not None else _SECTIONS["trajectory"].default_kind)
     kw = {k: v for k, v in given.items() if k != "kind"}
+    ctx = _context()
+    if kind == "laceration" and ctx.arm is not None:
+        raise ScenarioError(f"'trajectory.kind' = 'laceration' is the paper's RRPR path (closed-form inverse "
+                            f"kinematics of its SCARA); the arm {ctx.name!r} takes kind = 'joint_sine'")
+    if kind == "joint_sine" and ctx.arm is not None:
+        kw = joint_sine_defaults(ctx.arm) | kw
+        n = ctx.joints.count
+        for key in ("amplitude", "offset", "omega"):
+            value = kw[key]
+            if isinstance(value, (list, tuple)) and len(value) != n:
+                raise ScenarioError(f"'trajectory.{key}' has {len(value)} values; the arm {ctx.name!r} has {n} "
+                                    f"joints ({', '.join(ctx.joints.names)}): give one per joint")
     if kind == "laceration":
         # the path keeps its own duration (trajectory.duration, 10 s by default): simulation.t_final only
         # says how much of it is simulated, so a shorter run is the start of the same path
@@ -607,6 +753,13 @@ def _check_phases(path: dict, sim: SimulationSettings) -> None:
 
 
 def _build_noise(given: dict, built: dict):
+    ctx = _context()
+    if ctx.arm is not None:
+        stds = [k for k in ("q_std", "dq_std") if k in given and np.any(np.asarray(given[k], dtype=float) != 0)]
+        if stds:
+            raise ScenarioError(f"'noise.{stds[0]}': measurement noise is not yet available for the arm "
+                                f"{ctx.name!r} (the sensor's noise tables are the RRPR's four joints)")
+        return None, {k: _plain(v) for k, v in given.items() if k in ("seed", "sample_period")}
     t_final = built["simulation"].t_final
     period = given.get("sample_period", MeasurementNoise.sample_period)
     # one number where four are due is refused by MeasurementNoise, by key
@@ -626,6 +779,9 @@ def _build_noise(given: dict, built: dict):
 def _build_controller(given: dict, built: dict):
     if not given:           # absent: the continuous controller, and no [controller] in the settings
         return None, None
+    if _context().arm is not None:
+        raise ScenarioError(f"[controller] (the sampled controller) is not yet available for the arm "
+                            f"{_context().name!r}: remove it to run the continuous controller")
     if "sample_rate" not in given:
         raise ScenarioError("'controller.sample_rate' is required in a [controller] section (Hz)")
     try:
@@ -644,13 +800,24 @@ def _whole(lower: int) -> Check:
     return check
 
 
+def _joint_vector(value, key: str) -> tuple[float, ...]:
+    """One number per joint of the scenario's arm."""
+    ctx = _context()
+    n = ctx.joints.count
+    if isinstance(value, (list, tuple)) and len(value) != n and ctx.name != "rrpr":
+        raise ScenarioError(f"'{key}' has {len(value)} values; the arm {ctx.name!r} has {n} joints "
+                            f"({', '.join(ctx.joints.names)}): give one per joint")
+    return _vector(n)(value, key)
+
+
 def _joint_positions(value, key: str) -> tuple[float, ...]:
     """Joint positions (rad, m) within the joints' ranges (the prismatic joint's stroke)."""
-    q = _vector(RRPR_JOINTS.count)(value, key)
-    for i, (v, (lo, hi)) in enumerate(zip(q, RRPR_JOINTS.limits)):
+    joints = _context().joints
+    q = _joint_vector(value, key)
+    for i, (v, (lo, hi)) in enumerate(zip(q, joints.limits)):
         if not lo <= v <= hi:
-            unit = RRPR_JOINTS.position_units[i]
-            raise ScenarioError(f"'{key}[{i}]' = {v!r} {unit} is outside the range of joint {RRPR_JOINTS.names[i]}, "
+            unit = joints.position_units[i]
+            raise ScenarioError(f"'{key}[{i}]' = {v!r} {unit} is outside the range of joint {joints.names[i]}, "
                                 f"{lo:g} to {hi:g} {unit}")
     return q
 
@@ -686,9 +853,12 @@ _INITIAL_KEYS = ("q", "dq", "d_hat")
 
 #: The sections in the order they are built (later ones use earlier ones' objects).
 _SECTIONS: dict[str, _Section] = {
+    "arm": _Section({"urdf": _text, "tool_frame": _text, "locked": _names, "locked_values": _numbers,
+                     "gravity": _gravity, "nominal_mass_scale": _finite(0.0, strict=True)}, _build_arm),
     "robot": _Section({k: _finite() for k in _ROBOT_KEYS}, _build_robot),
     "nominal_scale": _Section({k: _finite(0.0, strict=True) for k in _ROBOT_KEYS}, _build_nominal),
-    "gains": _Section({k: _gain for k in GAIN_KEYS}, _build_gains),
+    "gains": _Section({k: _gain for k in GAIN_KEYS} | {"observer_bandwidth": _finite(0.0, strict=True)},
+                      _build_gains),
     "observer": _Section({"variant": _one_of(OBSERVER_VARIANTS)}, _build_observer),
     "simulation": _Section({"t_final": _finite(0.0, True), "output_step": _finite(0.0, True),
                             "rtol": _in_range(*RTOL_RANGE), "atol": _in_range(*ATOL_RANGE),
@@ -701,13 +871,13 @@ _SECTIONS: dict[str, _Section] = {
         "joint_sine": {k: _like(d) for k, d in _defaults(JointSine).items()}}, default_kind="laceration"),
     "noise": _Section({k: _like(d) for k, d in _defaults(MeasurementNoise).items() if k in _NOISE_KEYS},
                       _build_noise),
-    "initial": _Section({"q": _joint_positions} | {k: _vector(RRPR_JOINTS.count) for k in _INITIAL_KEYS[1:]},
+    "initial": _Section({"q": _joint_positions} | {k: _joint_vector for k in _INITIAL_KEYS[1:]},
                         _build_initial),
     "controller": _Section({"sample_rate": _finite(0.0, strict=True), "delay": _whole(0),
                             "observer_discretization": _one_of(DISCRETIZATIONS), "velocity": _one_of(VELOCITY_SOURCES),
                             "velocity_cutoff": _finite(0.0, strict=True),
-                            "position_resolution": _vector(RRPR_JOINTS.count),
-                            "torque_limit": _vector(RRPR_JOINTS.count)}, _build_controller),
+                            "position_resolution": _joint_vector,
+                            "torque_limit": _joint_vector}, _build_controller),
 }
 _TOP_KEYS = ("name", "description") + tuple(_SECTIONS)
 _KEY = re.compile(r"(?P<section>[A-Za-z_]\w*)(?:\.(?P<name>\w+))?(?:\[(?P<index>\d+)\])?")
@@ -843,8 +1013,19 @@ def _read_bounded(path: Path) -> bytes:
     return raw
 
 
-def scenario_from_dict(data: Mapping, source: str = "<dict>") -> Scenario:
+def scenario_from_dict(data: Mapping, source: str = "<dict>", arm: ArmModel | None = None,
+                       nominal: ArmModel | None = None) -> Scenario:
     """Validate a scenario given as a nested dictionary (the parsed TOML) and fill in defaults.
+
+    Parameters
+    ----------
+    data : mapping
+        The scenario's sections.
+    source : str
+        Where it came from (a file path: ``arm.urdf`` is relative to its folder).
+    arm, nominal : ArmModel, optional
+        An arm model made in Python (instead of ``[arm]``) and the nominal model the controller and observer use
+        (default: ``arm`` itself); every per-joint value then has ``arm.n`` entries.
 
     Raises
     ------
@@ -852,16 +1033,27 @@ def scenario_from_dict(data: Mapping, source: str = "<dict>") -> Scenario:
         On the first invalid key or value; the message starts with ``source``
         and names the key.
     """
+    if arm is not None and not isinstance(arm, ArmModel):
+        raise TypeError(f"arm must be an arm model (blocks.arm.ArmModel), got {type(arm).__name__} {arm!r:.80}")
+    if nominal is not None and (arm is None or not isinstance(nominal, ArmModel) or nominal.kernels is not arm.kernels
+                                or nominal.joints != arm.joints):
+        raise TypeError("nominal must be an arm model of the same kind and joints as arm (and arm must be given)")
+    given = None if arm is None or is_rrpr(arm) and nominal is None and isinstance(arm, RobotParameters) else \
+        (arm, arm if nominal is None else nominal)
+    base = Path(source).resolve().parent if source.endswith(".toml") else None
+    token = _ARM_CONTEXT.set(_ArmContext(base=base, given=given))
     try:
         return _validated(data, source)
     except ScenarioError as err:
         raise ScenarioError(f"{source}: {err}") from None
     except RecursionError:
         raise ScenarioError(f"{source}: {_TOO_DEEP}") from None
+    finally:
+        _ARM_CONTEXT.reset(token)
 
 
 _TOO_DEEP = ("a value is nested too deeply (lists within lists hundreds of levels deep); a scenario's values are "
-             "numbers, lists of numbers and at most a 4x4 matrix")
+             "numbers, lists of numbers and at most an n x n matrix")
 
 
 def _validated(data: Mapping, source: str) -> Scenario:
@@ -878,19 +1070,33 @@ def _validated(data: Mapping, source: str) -> Scenario:
     out: dict[str, Any] = {"name": name, "description": description}
     for section, spec in _SECTIONS.items():
         table = tables[section]
-        kind = spec.checks["kind"](table.get("kind", spec.default_kind), f"{section}.kind") if spec.by_kind else None
+        default_kind = "joint_sine" if section == "trajectory" and _context().arm is not None else spec.default_kind
+        kind = spec.checks["kind"](table.get("kind", default_kind), f"{section}.kind") if spec.by_kind else None
         checks = spec.checks_for(kind)
         _check_keys(table, checks, section, note=f" for kind = {kind!r}" if kind else "")
         given = {k: checks[k](v, f"{section}.{k}") for k, v in table.items()}
         built[section], out[section] = spec.build(given, built)
         if out[section] is None:            # an optional section that is absent
             del out[section]
+    gains = built["gains"]
+    if "observer_bandwidth" in gains:
+        gains["observer"] = _bandwidth_gain(gains["observer_bandwidth"], built)
     return Scenario(name=name, data=out, robot=built["robot"], nominal=built["nominal_scale"],
-                    kp=built["gains"]["kp"], kd=built["gains"]["kd"], observer_gain=built["gains"]["observer"],
+                    kp=gains["kp"], kd=gains["kd"], observer_gain=gains["observer"],
                     observer_variant=built["observer"], trajectory=built["trajectory"],
                     disturbance=built["disturbance"], noise=built["noise"], initial=built["initial"],
                     simulation=built["simulation"], controller=built["controller"], source=source,
                     user_data=_plain(data))
+
+
+def _bandwidth_gain(omega: float, built: dict) -> np.ndarray:
+    """``Y = omega M^(q0)`` at the start ``q0`` (``initial.q``, else the reference at t = 0), checked as a gain."""
+    q0 = built["initial"]["q"]
+    if q0 is None:
+        q0 = np.asarray(built["trajectory"].evaluate(0.0)[0], dtype=float)
+    ctx = _context()
+    return validated_gain(observer_gain_from_bandwidth(built["nominal_scale"], omega, q0), "observer", ctx.joints,
+                          ctx.name)
 
 
 def _table(data: Mapping, key: str) -> Mapping:

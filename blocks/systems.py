@@ -15,16 +15,24 @@ those kernels with their parameters so that an engine can call them
 directly, over a time grid or over a batch.  The trajectory block is a
 kernel block too when its path has kernels (the paths of
 :mod:`blocks.trajectory` do); it wraps any other path object.
+
+Any arm
+-------
+The factories take any :class:`~blocks.arm.ArmModel` (the paper's
+:class:`~blocks.parameters.RobotParameters` by default where one is
+optional): signal names and sizes come from ``arm.joints``, the numbers from
+``arm.kernel_params()``, and the block kernels are :func:`blocks.kernels.bind.bound`
+to the arm's row kernels (for the RRPR they are the functions below themselves).
 """
 from __future__ import annotations
 
 import numpy as np
 
+from .arm import ArmModel
 from .contract import Block, BlockContract, Kernels, kernel_block
 from .disturbances import DisturbanceSpec
 from .gains import OBSERVER_VARIANTS, validated_gain
 from .kernels import (
-    arm_constants,
     computed_torque,
     disturbance_params,
     external_disturbance,
@@ -32,6 +40,7 @@ from .kernels import (
     observer_rate,
     plant_acceleration,
 )
+from .kernels.bind import bound
 from .kernels.noise import sampled_noise
 from .noise import MeasurementNoise
 from .parameters import RobotParameters
@@ -41,9 +50,16 @@ __all__ = ["plant", "controller", "observer", "trajectory_block", "sensor", "sig
            "observer_update", "observer_output", "sensor_output"]
 
 
-def signal_names(prefix: str, params: RobotParameters | None = None) -> list[str]:
+def signal_names(prefix: str, params: ArmModel | None = None) -> list[str]:
     """The per-joint signal names ``prefix[0]`` .. ``prefix[n-1]`` of an arm (default: the paper's)."""
     return (params or RobotParameters).joints.signal_names(prefix)
+
+
+def _arm(value, name: str) -> ArmModel:
+    if not isinstance(value, ArmModel):
+        raise TypeError(f"{name} must be an arm model (blocks.arm.ArmModel, e.g. blocks.PAPER_PARAMETERS or a URDF "
+                        f"arm), got {type(value).__name__} {value!r:.80}")
+    return value
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -95,7 +111,7 @@ def sensor_output(t, x, u, table, period):
 # --------------------------------------------------------------------------------------------------------------
 # Factories
 # --------------------------------------------------------------------------------------------------------------
-def plant(params: RobotParameters, disturbance: DisturbanceSpec | None = None, name: str = "plant") -> Block:
+def plant(params: ArmModel, disturbance: DisturbanceSpec | None = None, name: str = "plant") -> Block:
     """The true arm, Eq. 1, with the external disturbance models acting inside it.
 
     States ``q[i]``, ``dq[i]``; input ``tau[i]`` (N m, N); outputs ``q[i]``,
@@ -104,22 +120,31 @@ def plant(params: RobotParameters, disturbance: DisturbanceSpec | None = None, n
 
     Parameters
     ----------
-    params : RobotParameters
-        True arm parameters.
+    params : ArmModel
+        The true arm (the paper's :class:`~blocks.parameters.RobotParameters` or any other model).
     disturbance : DisturbanceSpec, optional
-        External disturbance models (default: the paper's Eq. 4).
+        External disturbance models (default: the paper's Eq. 4, for the RRPR only; see
+        :class:`~blocks.disturbances.DisturbanceSpec` for other arms).
+
+    Raises
+    ------
+    ValueError
+        If the disturbance does not fit the arm (a list of the wrong length, a model of the RRPR only).
     """
+    params = _arm(params, "params")
     spec = DisturbanceSpec() if disturbance is None else disturbance
+    spec.check_arm(params)
     states = signal_names("q", params) + signal_names("dq", params)
-    block = kernel_block(Kernels((arm_constants(params), disturbance_params(spec, params)), plant_output, plant_update),
+    block = kernel_block(Kernels((params.kernel_params(), disturbance_params(spec, params)),
+                                 bound(plant_output, params), bound(plant_update, params)),
                          name=name, inputs=signal_names("tau", params), states=states,
                          outputs=states + signal_names("tau_dis", params), state_outputs=zip(states, states))
-    block.robot_parameters = params
+    block.robot_parameters = block.arm = params
     block.disturbance_spec = spec
     return block
 
 
-def controller(nominal: RobotParameters, kp, kd, use_observer: bool = True, measured: str = "",
+def controller(nominal: ArmModel, kp, kd, use_observer: bool = True, measured: str = "",
                name: str = "controller") -> Block:
     """Computed-torque control, Eq. 11, on the nominal model.
 
@@ -129,9 +154,9 @@ def controller(nominal: RobotParameters, kp, kd, use_observer: bool = True, meas
 
     Parameters
     ----------
-    nominal : RobotParameters
+    nominal : ArmModel
         The model the controller believes in.
-    kp, kd : float, 4 floats or diagonal 4x4
+    kp, kd : float, n floats or diagonal n x n
         Proportional (1/s^2) and derivative (1/s) gains, each > 0, scalar or per joint.
     use_observer : bool
         Whether the block takes ``d_hat[i]`` from the observer.
@@ -144,19 +169,21 @@ def controller(nominal: RobotParameters, kp, kd, use_observer: bool = True, meas
     blocks.gains.GainError
         If a gain is not positive, not diagonal or of the wrong shape.
     """
-    Kp, Kd = validated_gain(kp, "kp"), validated_gain(kd, "kd")
+    nominal = _arm(nominal, "nominal")
+    Kp, Kd = validated_gain(kp, "kp", nominal.joints), validated_gain(kd, "kd", nominal.joints)
     inputs = [s for prefix in ("q_ref", "dq_ref", "ddq_ref", "q" + measured, "dq" + measured)
               for s in signal_names(prefix, nominal)]
     if use_observer:
         inputs += signal_names("d_hat", nominal)
     law = controller_output_with_estimate if use_observer else controller_output
-    block = kernel_block(Kernels((arm_constants(nominal), np.diag(Kp).copy(), np.diag(Kd).copy()), law),
+    block = kernel_block(Kernels((nominal.kernel_params(), np.diag(Kp).copy(), np.diag(Kd).copy()),
+                                 bound(law, nominal)),
                          name=name, inputs=inputs, outputs=signal_names("tau", nominal), feedthrough=inputs)
     block.gains = {"kp": Kp, "kd": Kd}
     return block
 
 
-def observer(nominal: RobotParameters, gain, variant: str = "correct", measured: str = "",
+def observer(nominal: ArmModel, gain, variant: str = "correct", measured: str = "",
              name: str = "observer", matrix_gain: bool = False) -> Block:
     """Nonlinear disturbance observer (Chen et al. 2000; Mohammadi et al. 2013).
 
@@ -169,16 +196,16 @@ def observer(nominal: RobotParameters, gain, variant: str = "correct", measured:
 
     Parameters
     ----------
-    nominal : RobotParameters
+    nominal : ArmModel
         The model the observer believes in.
-    gain : float, 4 floats or 4x4
+    gain : float, n floats or n x n
         Observer gain ``Y`` (kg m^2/s and kg/s entries); the paper's "K3 = 10 I".
         ``Y + Y^T`` must be positive definite.
     variant : {"correct", "paper-eq16"}
     measured : str
         Suffix of the measured signals it reads (see :func:`controller`).
     matrix_gain : bool
-        Give the kernels ``Y`` as a 4x4 matrix even when it is diagonal (by
+        Give the kernels ``Y`` as an n x n matrix even when it is diagonal (by
         default a diagonal gain is given by its diagonal, which multiplies
         elementwise); for engines that need one parameter layout for every gain.
 
@@ -191,14 +218,15 @@ def observer(nominal: RobotParameters, gain, variant: str = "correct", measured:
     """
     if variant not in OBSERVER_VARIANTS:
         raise ValueError(f"observer variant {variant!r} is unknown; choose from {list(OBSERVER_VARIANTS)}")
-    Y = validated_gain(gain, "observer")
+    nominal = _arm(nominal, "nominal")
+    Y = validated_gain(gain, "observer", nominal.joints)
     # a diagonal gain multiplies elementwise (see blocks.kernels.laws.gain_times)
     diagonal = np.count_nonzero(Y - np.diag(np.diag(Y))) == 0 and not matrix_gain
     y_param = np.diag(Y).copy() if diagonal else np.array(Y)
     dq_in = signal_names("dq" + measured, nominal)
     inputs = signal_names("tau", nominal) + signal_names("q" + measured, nominal) + dq_in
-    kernels = Kernels((arm_constants(nominal), y_param, 1.0 if variant == "paper-eq16" else 0.0),
-                      observer_output, observer_update)
+    kernels = Kernels((nominal.kernel_params(), y_param, 1.0 if variant == "paper-eq16" else 0.0),
+                      bound(observer_output, nominal), bound(observer_update, nominal))
     block = kernel_block(kernels, name=name, inputs=inputs, states=signal_names("z", nominal),
                          outputs=signal_names("d_hat", nominal), feedthrough=dq_in)
     block.gain = Y
@@ -206,7 +234,7 @@ def observer(nominal: RobotParameters, gain, variant: str = "correct", measured:
     return block
 
 
-def trajectory_block(trajectory, name: str = "trajectory") -> Block:
+def trajectory_block(trajectory, name: str = "trajectory", arm: ArmModel | None = None) -> Block:
     """A source block with outputs ``q_ref[i]``, ``dq_ref[i]``, ``ddq_ref[i]``.
 
     Parameters
@@ -214,13 +242,15 @@ def trajectory_block(trajectory, name: str = "trajectory") -> Block:
     trajectory : object
         A path of :mod:`blocks.trajectory` (the block is then a kernel block
         whose output is the path's reference kernel), or anything with
-        ``evaluate(t) -> (q, dq, ddq)`` returning three 4-vectors for a scalar
+        ``evaluate(t) -> (q, dq, ddq)`` returning three n-vectors for a scalar
         time ``t`` (s).  When such an object also has ``evaluate_stacked(t)``,
-        returning the three side by side with shape ``np.shape(t) + (12,)``
+        returning the three side by side with shape ``np.shape(t) + (3n,)``
         for a scalar or a (T,) array of times, that is used instead and the
         block takes columns.
+    arm : ArmModel, optional
+        The arm whose joints the reference drives (names, n); default the paper's.
     """
-    outputs = signal_names("q_ref") + signal_names("dq_ref") + signal_names("ddq_ref")
+    outputs = signal_names("q_ref", arm) + signal_names("dq_ref", arm) + signal_names("ddq_ref", arm)
     make_kernels = getattr(trajectory, "kernels", None)
     if callable(make_kernels):
         block = kernel_block(make_kernels(), name=name, inputs=[], outputs=outputs)
@@ -240,7 +270,7 @@ def trajectory_block(trajectory, name: str = "trajectory") -> Block:
     return block
 
 
-def sensor(noise, name: str = "sensor") -> Block:
+def sensor(noise, name: str = "sensor", arm: ArmModel | None = None) -> Block:
     """Measurement of ``q``, ``dq`` with additive noise: outputs ``q_meas[i]``, ``dq_meas[i]``.
 
     Parameters
@@ -248,10 +278,12 @@ def sensor(noise, name: str = "sensor") -> Block:
     noise : object
         A :class:`~blocks.noise.MeasurementNoise` (the block is then a kernel
         block), or anything with ``sample(t) -> (n_q, n_dq)`` returning two
-        4-vectors for a scalar time.
+        n-vectors for a scalar time.
+    arm : ArmModel, optional
+        The arm whose joints are measured (names, n); default the paper's.
     """
-    inputs = signal_names("q") + signal_names("dq")
-    outputs = signal_names("q_meas") + signal_names("dq_meas")
+    inputs = signal_names("q", arm) + signal_names("dq", arm)
+    outputs = signal_names("q_meas", arm) + signal_names("dq_meas", arm)
     if isinstance(noise, MeasurementNoise):
         params = (noise.table, noise.sample_period)      # the table is indexed by time, not broadcast
         return kernel_block(Kernels(params, sensor_output, column_params=params), name=name, inputs=inputs,

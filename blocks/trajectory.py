@@ -160,7 +160,7 @@ def laceration_output(t, x, u, g):
 def joint_sine_output(t, x, u, amplitude, omega, offset):
     """Block kernel of :class:`JointSine`: rows ``[q_ref; dq_ref; ddq_ref]`` at time(s) ``t`` (s).
 
-    One time gives (12,); a row of K times with parameters of shape (4, 1) gives (12, K).
+    One time gives (3n,); a row of K times with parameters of shape (n, 1) gives (3n, K).
     """
     phase = omega * t
     return np.concatenate((offset + amplitude * np.sin(phase), amplitude * omega * np.cos(phase),
@@ -364,16 +364,16 @@ class LacerationPath:
 
 @dataclass(frozen=True)
 class JointSine:
-    """``q_ref = offset + amplitude * sin(omega * t)`` per joint, for checks.
+    """``q_ref = offset + amplitude * sin(omega * t)`` per joint, for checks and for any arm.
 
     Parameters
     ----------
-    amplitude : 4 floats
-        Amplitudes (rad, rad, m, rad).
-    omega : float or 4 floats
+    amplitude : n floats
+        Amplitudes, one per joint (rad or m; the defaults are the paper's RRPR's: rad, rad, m, rad).
+    omega : float or n floats
         Angular frequencies (rad/s).
-    offset : 4 floats
-        Offsets (rad, rad, m, rad).
+    offset : n floats
+        Offsets (rad or m), as many as ``amplitude``.
     """
 
     amplitude: tuple[float, ...] = (0.1, 0.1, 0.01, 0.1)
@@ -381,14 +381,23 @@ class JointSine:
     offset: tuple[float, ...] = (0.0, 2.0, 0.24, 0.0)
 
     def __post_init__(self) -> None:
+        amplitude = _finite(self.amplitude, "amplitude")
+        if amplitude.ndim != 1 or amplitude.size == 0:
+            raise ValueError(f"trajectory.amplitude must be a list of numbers (one per joint), got {self.amplitude!r}")
+        n = amplitude.size
         for name in ("amplitude", "omega", "offset"):
             value = _finite(getattr(self, name), name)
             if name == "omega" and value.ndim == 0:
-                value = np.full(4, float(value))
-            if value.shape != (4,):
-                raise ValueError(f"trajectory.{name} must be 4 numbers" + (" or one" if name == "omega" else "")
-                                 + f", got {getattr(self, name)!r}")
+                value = np.full(n, float(value))
+            if value.shape != (n,):
+                raise ValueError(f"trajectory.{name} must be {n} numbers, as many as trajectory.amplitude"
+                                 + (", or one" if name == "omega" else "") + f", got {getattr(self, name)!r}")
             object.__setattr__(self, name, tuple(float(v) for v in value))
+
+    @property
+    def n(self) -> int:
+        """Number of joints the reference drives."""
+        return len(self.amplitude)
 
     def evaluate(self, t):
         """Joint references ``(q_ref, dq_ref, ddq_ref)`` at time(s) ``t`` (s)."""
@@ -398,9 +407,9 @@ class JointSine:
         return c + a * np.sin(phase), a * w * np.cos(phase), -a * w ** 2 * np.sin(phase)
 
     def evaluate_stacked(self, t) -> np.ndarray:
-        """``[q_ref, dq_ref, ddq_ref]`` at time(s) ``t`` (s) in one array, shape ``np.shape(t) + (12,)``."""
+        """``[q_ref, dq_ref, ddq_ref]`` at time(s) ``t`` (s) in one array, shape ``np.shape(t) + (3n,)``."""
         return np.concatenate(self.evaluate(t), axis=-1)
 
     def kernels(self) -> Kernels:
-        """The reference as a block kernel (:func:`joint_sine_output`) with amplitude, omega and offset (4,) each."""
+        """The reference as a block kernel (:func:`joint_sine_output`) with amplitude, omega and offset (n,) each."""
         return Kernels(tuple(np.array(v) for v in (self.amplitude, self.omega, self.offset)), joint_sine_output)

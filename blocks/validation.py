@@ -139,8 +139,23 @@ def robot_parameters(value, name: str = "params") -> RobotParameters:
         Naming the argument and what it got (``blocks.PAPER_PARAMETERS`` is the paper's arm).
     """
     if not isinstance(value, RobotParameters):
-        raise TypeError(f"{name} must be the arm's RobotParameters (blocks.PAPER_PARAMETERS is the paper's arm, "
+        raise TypeError(f"{name} must be the paper's arm, RobotParameters (blocks.PAPER_PARAMETERS is the paper's arm, "
                         f"scenario.robot a scenario's), got {_kind(value)} {value!r:.80}")
+    return value
+
+
+def arm_model(value, name: str = "arm"):
+    """``value`` when it is an arm model (:class:`~blocks.arm.ArmModel`: the paper's RRPR or a URDF arm).
+
+    Raises
+    ------
+    TypeError
+        Naming the argument and what it got.
+    """
+    from .arm import ArmModel
+    if not isinstance(value, ArmModel):
+        raise TypeError(f"{name} must be an arm model (blocks.arm.ArmModel: blocks.PAPER_PARAMETERS is the paper's "
+                        f"arm, scenario.robot a scenario's), got {_kind(value)} {value!r:.80}")
     return value
 
 

@@ -40,13 +40,15 @@ def _cmd_simulate(args) -> int:
                                 figure_formats=formats)
     print(f"scenario: {scenario.name} ({scenario.source}), engine: {result.metrics['engine']}")
     c = scenario.controller
+    joints = scenario.robot.joints
     if c is not None:
         encoders = "exact" if not any(c.position_resolution) else \
-            "resolution " + ", ".join(f"{r:.3g}" for r in c.position_resolution) + " (rad, rad, m, rad)"
+            "resolution " + ", ".join(f"{r:.3g}" for r in c.position_resolution) \
+            + f" ({', '.join(joints.position_units)})"
         velocity = c.velocity if c.velocity_cutoff is None else f"{c.velocity} through a {c.velocity_cutoff:g} Hz low-pass"
         print(f"controller: sampled at {c.sample_rate:g} Hz, {c.observer_discretization} observer update, delay "
               f"{c.delay}, velocity {velocity}, encoders {encoders}")
-    print(format_rms_table(result.metrics))
+    print(format_rms_table(result.metrics, joints))
     figures = "no figures (--no-figures)" if args.no_figures else \
         "Figures 4-8 as " + " and ".join(f.upper() for f in formats)
     print(f"results written to {result.out_dir}: metrics.json, timeseries.csv, scenario.toml, {figures}")

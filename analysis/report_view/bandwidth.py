@@ -36,7 +36,7 @@ def bandwidth_section(result, files: dict) -> BandwidthSection:
                f"{mode_text(at.direction_at_min)}. Largest change of any eigenvalue along each joint axis of "
                f"the grid (rad/s): {sens}.")
     Y = np.array(bw.Y)
-    scalar = np.allclose(Y, Y[0, 0] * np.eye(4))
+    scalar = np.allclose(Y, Y[0, 0] * np.eye(len(Y)))
     spread = scalar and (s.min < 0.99 * Y[0, 0] or fast.max > 1.01 * Y[0, 0])
     reading = ((f"A gain Y = {fmt(Y[0, 0])} I does not give one bandwidth of {fmt(Y[0, 0])} rad/s: " if spread else "")
                + f"the observer's rates are the gain divided by the inertia seen in each modal direction, from "

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .text import Figure, Table, and_words, figures, fmt, join, kinds, span
+from .text import Figure, Table, and_words, arm_joints, figures, fmt, join, kinds, span, units_list
 
 __all__ = ["DesignSection", "design_section"]
 
@@ -28,6 +28,7 @@ class DesignSection:
 
 
 def design_section(result, scenario, files: dict) -> DesignSection:
+    joints = arm_joints(scenario)
     d = result.observer_design
     cd, cs = d.certificate_designed, d.certificate_scenario_gain
     crit_d, crit_s = d.critical_theta2_speed_designed, d.critical_theta2_speed_scenario_gain
@@ -55,7 +56,7 @@ def design_section(result, scenario, files: dict) -> DesignSection:
         if used == own:
             what = f"the scenario's disturbance ({and_words(used) if used else 'none'})"
         else:
-            what = (f"the constant step f_r = [{join(first.f_r, 4)}] (N m, N m, N, N m; the paper's Eq. 4) in "
+            what = (f"the constant step f_r = [{join(first.f_r, 4)}] ({units_list(joints.force_units)}; the paper's Eq. 4) in "
                     f"place of the scenario's disturbance models ({and_words(own) if own else 'none'})"
                     if used == ["paper"] else f"the disturbance {and_words(used) if used else 'none'}")
         setup = (f"Nonlinear simulation of the scenario's path (first {fmt(first.time[-1], 4)} s, noise removed) "
@@ -71,7 +72,7 @@ def design_section(result, scenario, files: dict) -> DesignSection:
         mode_ranges=", ".join(span(lo, hi, 4) for lo, hi in ranges), gain=gain,
         certificate=certificate, simulation_setup=setup,
         simulation=Table.of(["gain", "beta over the visited states (rad/s)", "time to 2% (s)",
-                             "RMS d - d_hat (N m, N m, N, N m)", "V(t) <= V(0) exp(-2 beta t)"], rows,
+                             f"RMS d - d_hat ({units_list(joints.force_units)})", "V(t) <= V(0) exp(-2 beta t)"], rows,
                             "Nonlinear simulation with each gain"),
         figures=figures(files, ("observer_design", "Estimation error and Lyapunov certificate in simulation")))
 

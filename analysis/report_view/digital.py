@@ -5,7 +5,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .text import JOINT_TITLES, Figure, Table, figures, fmt, pole
+from blocks.joints import RRPR_JOINTS, JointSpace
+
+from .text import Figure, Table, figures, fmt, mixed_units, pole, units_list
 
 __all__ = ["DigitalSection", "digital_section"]
 
@@ -24,15 +26,15 @@ class DigitalSection:
     figures: list[Figure]
 
 
-def digital_section(result, files: dict) -> DigitalSection | None:
+def digital_section(result, files: dict, joints: JointSpace = RRPR_JOINTS) -> DigitalSection | None:
     d = result.digital
     if d is None:
         return None
     shown = {"sample_rate": "sample rate (Hz)", "delay": "delay (samples)",
              "observer_discretization": "observer update", "velocity": "velocity estimate",
              "velocity_cutoff": "velocity low-pass cut-off (Hz)",
-             "position_resolution": "encoder resolution (rad, rad, m, rad)",
-             "torque_limit": "torque limit (N m, N m, N, N m; 0 = none)"}
+             "position_resolution": f"encoder resolution ({units_list(joints.position_units)})",
+             "torque_limit": f"torque limit ({units_list(joints.force_units)}; 0 = none)"}
     settings = Table.of(["setting", "value"], [[shown.get(k, k), ", ".join(fmt(x, 4) for x in v)
                                                if isinstance(v, (list, tuple)) else
                                                (fmt(v, 6) if isinstance(v, (int, float)) else str(v))]
@@ -58,19 +60,20 @@ def digital_section(result, files: dict) -> DigitalSection | None:
     quantization = None
     if d.quantization is not None:
         q = d.quantization
-        joints = range(len(q.predicted_rms))
+        rows, titles = range(len(q.predicted_rms)), joints.labels
+        noise_units = mixed_units(joints.force_units)
         if q.simulated_rms is None:       # the quick preview does not simulate it: no column of dashes
             quantization = Table.of(
                 ["joint", "resolution", "torque noise, linear model"],
-                [[JOINT_TITLES[i], fmt(q.position_resolution[i], 4), fmt(q.predicted_rms[i], 3)] for i in joints],
-                "RMS torque noise from encoder quantization (N m; N on joint 3), from the linear model only: the "
+                [[titles[i], fmt(q.position_resolution[i], 4), fmt(q.predicted_rms[i], 3)] for i in rows],
+                f"RMS torque noise from encoder quantization ({noise_units}), from the linear model only: the "
                 "quick preview does not simulate it (the full report does)")
         else:
             quantization = Table.of(
                 ["joint", "resolution", "torque noise, linear model", "torque noise, simulated"],
-                [[JOINT_TITLES[i], fmt(q.position_resolution[i], 4), fmt(q.predicted_rms[i], 3),
-                  fmt(q.simulated_rms[i], 3)] for i in joints],
-                "RMS torque noise from encoder quantization (N m; N on joint 3)")
+                [[titles[i], fmt(q.position_resolution[i], 4), fmt(q.predicted_rms[i], 3),
+                  fmt(q.simulated_rms[i], 3)] for i in rows],
+                f"RMS torque noise from encoder quantization ({noise_units})")
     return DigitalSection(settings=settings, answer=d.answer, poles=poles, gain_limit=gain_limit, rule=rule,
                           rule_text=_rule_text(d), quantization=quantization,
                           figures=figures(files, ("digital_poles", "Poles of the sampled loop"),

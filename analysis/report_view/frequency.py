@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .text import JOINT_TITLES, ZERO_REL, Figure, Table, and_words, figures, fmt, join, split_caveats
+from .text import ZERO_REL, Figure, Table, and_words, arm_joints, figures, fmt, is_paper_arm, join, split_caveats
 
 __all__ = ["FrequencySection", "frequency_section"]
 
@@ -19,26 +19,29 @@ class FrequencySection:
     figures: list[Figure]
 
 
-def _frequency_reading(fr, stable: bool) -> str:
+def _frequency_reading(fr, stable: bool, paper_arm: bool = True) -> str:
     wo, w, est = (fr.tracking_without_dob.metrics, fr.tracking_with_dob.metrics, fr.estimation_with_dob.metrics)
-    dc_w = abs(w[2].dc_gain)
-    zero = stable and dc_w <= ZERO_REL * w[2].peak_gain
-    text = (f"A constant force of 1 N on the prismatic joint leaves {fmt(-1e3 * wo[2].dc_gain, 4)} mm of depth error "
-            "without the observer and " + ("none with it. " if zero else f"{fmt(1e3 * dc_w, 4)} mm with it. "))
+    joints = f"joints 1-{len(w)}"
+    text = ""
+    if paper_arm:               # the paper's joint 3 (d3) sets the tool's depth
+        dc_w = abs(w[2].dc_gain)
+        zero = stable and dc_w <= ZERO_REL * w[2].peak_gain
+        text = (f"A constant force of 1 N on the prismatic joint leaves {fmt(-1e3 * wo[2].dc_gain, 4)} mm of depth "
+                "error without the observer and " + ("none with it. " if zero else f"{fmt(1e3 * dc_w, 4)} mm with it. "))
     if all(m.kind == "band-pass" for m in w):
         text += ("With the observer, disturbances reach the tracking error only in a band around "
-                 f"{', '.join(fmt(m.peak_rad_s, 3) for m in w)} rad/s (joints 1-4; at most "
+                 f"{', '.join(fmt(m.peak_rad_s, 3) for m in w)} rad/s ({joints}; at most "
                  f"{', '.join(fmt(m.peak_gain, 3) for m in w)} per unit disturbance): slower ones are estimated and "
                  "cancelled, faster ones are filtered by the arm's inertia. ")
     else:
         text += ("With the observer the disturbance-to-error responses are " + ", ".join(m.kind for m in w)
-                 + " (joints 1-4). ")
+                 + f" ({joints}). ")
     if all(m.kind == "high-pass" for m in est):
         corners = ", ".join(fmt(m.band_3db_rad_s[0], 3) for m in est)
         text += (f"The estimate follows a disturbance only below {corners}"
-                 " rad/s (joints 1-4; -3 dB), the observer bandwidth seen from each joint.")
+                 f" rad/s ({joints}; -3 dB), the observer bandwidth seen from each joint.")
     else:
-        text += ("The estimation-error responses are " + ", ".join(m.kind for m in est) + " (joints 1-4).")
+        text += ("The estimation-error responses are " + ", ".join(m.kind for m in est) + f" ({joints}).")
     return text
 
 
@@ -53,7 +56,7 @@ def frequency_section(result, scenario, files: dict) -> FrequencySection:
             band = m.band_3db_rad_s
             dc = m.dc_gain if abs(m.dc_gain) > 1e-9 * m.peak_gain else 0.0     # rounding noise shown as 0
             peak_at = "inf" if m.peak_rad_s is None else ("0 (DC)" if m.peak_rad_s == 0 else fmt(m.peak_rad_s, 4))
-            rows.append([title, JOINT_TITLES[i], fr.units[unit_key][i], fmt(dc, 4), fmt(m.peak_gain, 4), peak_at,
+            rows.append([title, arm_joints(scenario).labels[i], fr.units[unit_key][i], fmt(dc, 4), fmt(m.peak_gain, 4), peak_at,
                          m.kind, f"{fmt(band[0], 4)} to {'inf' if band[1] is None else fmt(band[1], 4)}"])
         rows.append([title, "closed form", "", "", "", "", "largest relative difference",
                      fmt(data.closed_form_max_rel_error, 2)])
@@ -73,7 +76,7 @@ def frequency_section(result, scenario, files: dict) -> FrequencySection:
         q0=join(fr.q0, 5),
         responses=Table.of(["response", "joint", "unit", "DC gain", "peak gain", "peak at (rad/s)", "kind",
                             "-3 dB band (rad/s)"], rows, "Per-joint disturbance responses"),
-        closed_forms=closed_forms, reading=_frequency_reading(fr, stable),
+        closed_forms=closed_forms, reading=_frequency_reading(fr, stable, is_paper_arm(scenario)),
         figures=figures(files, ("frequency_tracking", "Disturbance to tracking error, per joint"),
                          ("frequency_estimation", "Disturbance to estimation error, per joint")))
 

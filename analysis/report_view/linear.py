@@ -3,7 +3,20 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .text import Figure, Paragraph, Table, and_words, figures, fmt, join, pole, split_caveats, stability_text
+from .text import (
+    Figure,
+    Paragraph,
+    Table,
+    and_words,
+    arm_joints,
+    figures,
+    fmt,
+    join,
+    pole,
+    split_caveats,
+    stability_text,
+    units_list,
+)
 
 __all__ = ["LinearSection", "linear_section"]
 
@@ -98,7 +111,8 @@ def linear_section(result, scenario, files: dict) -> LinearSection:
         rows.append([op.label, join(op.q0, 4), join(obs, 5), join(pd, 5), fmt(op.max_rel_error_with_dob, 2),
                      fmt(op.max_rel_error_without_dob, 2),
                      "yes" if op.attribution_agrees_with_dob and op.attribution_agrees_without_dob else "no"])
-    points = Table.of(["operating point", "q0 (rad, rad, m, rad)", "observer decay rates (rad/s)",
+    points = Table.of(["operating point", f"q0 ({units_list(arm_joints(scenario).position_units)})",
+                       "observer decay rates (rad/s)",
                        "plant (PD) decay rates (rad/s)", "largest rel. difference, with",
                        "largest rel. difference, without", "attribution agrees"], rows,
                       "All operating points (poles real unless listed below)")

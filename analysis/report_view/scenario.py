@@ -5,9 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from blocks.metrics import DISTURBANCE_UNITS
-
-from .text import Table, and_words, fmt, gain_text, join, kinds, per_joint
+from .text import Table, and_words, arm_joints, fmt, gain_text, gain_units, join, kinds, per_joint, units_list
 
 __all__ = ["ScenarioSection", "scenario_section"]
 
@@ -23,14 +21,14 @@ class ScenarioSection:
     toml: str
 
 
-def _disturbance(data: dict) -> str:
+def _disturbance(data: dict, joints) -> str:
     found = kinds(data["kind"])
     if not found:
         return "none"
     words = []
     for kind in found:
         if kind == "paper":
-            words.append(f"paper: the constant step f_r = {join(data['f_r'])} ({', '.join(DISTURBANCE_UNITS)}; "
+            words.append(f"paper: the constant step f_r = {join(data['f_r'])} ({units_list(joints.force_units)}; "
                          "Eq. 4)")
         else:
             words.append(kind)
@@ -48,17 +46,20 @@ def _noise(s) -> str:
     noise = s.data.get("noise")
     if s.noise is None or not noise or not (np.any(noise["q_std"]) or np.any(noise["dq_std"])):
         return "none"
-    return (f"q: {join(noise['q_std'])} (rad, rad, m, rad); q': {join(noise['dq_std'])} (rad/s, rad/s, m/s, rad/s); "
+    joints = arm_joints(s)
+    return (f"q: {join(noise['q_std'])} ({units_list(joints.position_units)}); q': {join(noise['dq_std'])} "
+            f"({units_list(joints.velocity_units)}); "
             f"seed {noise.get('seed', 0)}")
 
 
 def scenario_section(s, result) -> ScenarioSection:
+    joints = arm_joints(s)
     rows = [["name", s.name], ["source", s.source], ["description", s.data.get("description", "")],
             ["Kp (1/s^2)", per_joint(np.diag(s.kp))], ["Kd (1/s)", per_joint(np.diag(s.kd))],
-            ["observer gain Y (kg m^2/s; kg/s on joint 3)", gain_text(s.observer_gain)],
+            [f"observer gain Y ({gain_units(joints)})", gain_text(s.observer_gain)],
             ["observer variant", _VARIANTS.get(s.observer_variant, s.observer_variant)],
             ["trajectory", _trajectory(s)],
-            ["disturbance", _disturbance(s.data["disturbance"])],
+            ["disturbance", _disturbance(s.data["disturbance"], joints)],
             ["nominal model = true model", "yes" if s.nominal == s.robot else "no (see [nominal_scale])"],
             ["sensor noise (standard deviations)", _noise(s)],
             ["simulated time (s)", fmt(s.simulation.t_final)]]

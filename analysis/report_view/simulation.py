@@ -1,5 +1,9 @@
 """Section 2 of the report: the scenario simulated with and without the observer (Table 3 layout, Figures 4-8).
 
+The joints (count, names, units) are the scenario's arm's.  The paper's arm
+gets the paper's Table 3 layout (one column per joint); any other arm one row
+per joint, which fits any number of joints.
+
 :func:`worse_with_observer` explains, from the numbers, each joint that the
 observer makes worse along the path; :func:`worse_with_observer_short` is the
 summary's one-sentence version of it.
@@ -10,11 +14,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from blocks import inertia
-from blocks.metrics import DISTURBANCE_UNITS, JOINT_UNITS
+from blocks.joints import RRPR_JOINTS, JointSpace
 
 from ..figures import has_tissue_model
-from .text import JOINT_TITLES, Figure, Table, column, figures, fmt, value
+from .text import Figure, Table, column, figures, fmt, is_paper_arm
+from .text import value as _value
 
 __all__ = ["SimulationSection", "simulation_section", "worse_with_observer", "worse_with_observer_short",
            "figure8_caption"]
@@ -28,11 +32,14 @@ class SimulationSection:
     worse: list[str]
     tool: Table | None
     figures: list[Figure]
+    #: What the table is set against: the paper's Table 3 (the paper's arm) or this arm's joints.
+    intro: str = ""
 
 
 def _worse_joints(experiment: dict) -> list[int]:
     w, wo = experiment["with_dob"], experiment["without_dob"]
-    return [j for j in range(4) if w["rms_position_error"][j] > wo["rms_position_error"][j]]
+    return [j for j in range(len(w["rms_position_error"]))
+            if w["rms_position_error"][j] > wo["rms_position_error"][j]]
 
 
 def _is_transient(experiment: dict, j: int) -> bool:
@@ -56,18 +63,24 @@ def worse_with_observer(result, experiment: dict, scenario) -> list[str]:
     """
     if not _worse_joints(experiment):
         return []
+    joints = scenario.robot.joints
+    titles = joints.labels
+
+    def value(x, j):
+        return _value(x, j, joints=joints)
+
     w, wo = experiment["with_dob"], experiment["without_dob"]
     op = result.operating_points[0]
     at = result.observer_bandwidth.along_trajectory
     q0 = np.asarray(op.q0, dtype=float)
     offset = np.asarray(op.q_equilibrium_without_dob, dtype=float) - q0
     d = np.asarray(op.disturbance_at_rest, dtype=float)
-    own = np.abs(np.diag(np.linalg.inv(inertia(q0, scenario.nominal))) * d) / np.diag(scenario.kp)
+    own = np.abs(np.diag(np.linalg.inv(scenario.nominal.inertia(q0))) * d) / np.diag(scenario.kp)
     t_max = w.get("time_of_max_abs_position_error")
     lines = []
     for j in _worse_joints(experiment):
         r_w, r_wo = w["rms_position_error"][j], wo["rms_position_error"][j]
-        text = (f"On {JOINT_TITLES[j]} the observer makes the position error along the path worse: "
+        text = (f"On {titles[j]} the observer makes the position error along the path worse: "
                 f"RMS {value(r_w, j)} with it against {value(r_wo, j)} without.")
         if np.max(np.abs(d)) > 0:
             text += (f" Held at the path's start, the disturbance leaves this joint only {value(abs(offset[j]), j)} "
@@ -91,15 +104,22 @@ def worse_with_observer(result, experiment: dict, scenario) -> list[str]:
     return lines
 
 
-def worse_with_observer_short(experiment: dict) -> str | None:
-    """The summary's sentence on the joints the observer makes worse along the path (None if there are none)."""
+def worse_with_observer_short(experiment: dict, joints: JointSpace = RRPR_JOINTS) -> str | None:
+    """The summary's sentence on the joints the observer makes worse along the path (None if there are none).
+
+    ``joints`` are the arm's (default: the paper's): their names and position units.
+    """
     worse = _worse_joints(experiment)
     if not worse:
         return None
+
+    def value(x, j):
+        return _value(x, j, joints=joints)
+
     w, wo = experiment["with_dob"], experiment["without_dob"]
     parts = []
     for j in worse:
-        part = (f"{JOINT_TITLES[j]}, RMS error {value(w['rms_position_error'][j], j)} with it against "
+        part = (f"{joints.labels[j]}, RMS error {value(w['rms_position_error'][j], j)} with it against "
                 f"{value(wo['rms_position_error'][j], j)} without")
         if _is_transient(experiment, j):
             t = w["time_of_max_abs_position_error"][j]
@@ -131,7 +151,36 @@ def figure8_caption(experiment: dict, scenario) -> str:
     return caption + "."
 
 
+def _table_3_layout(numbers: list, joints: JointSpace) -> Table:
+    """The paper's Table 3 layout: one column per joint, a row of units under the position and the force rows."""
+    n = joints.count
+    # one notation per joint column (a column of 1.613e-04 and 0.0001613 reads as two kinds of number)
+    columns = [column([values[j] for _, values in numbers]) for j in range(n)]
+    text = [[name] + [columns[j][k] for j in range(n)] for k, (name, _) in enumerate(numbers)]
+    rows = text[:4] + [["  units"] + [f"({u})" for u in joints.position_units]]
+    if len(text) > 4:
+        rows += [text[4], ["  units"] + [f"({u})" for u in joints.force_units]]
+    return Table.of(["Table 3 layout"] + list(joints.labels), rows, "Tracking metrics per joint")
+
+
+def _joint_rows(numbers: list, joints: JointSpace) -> Table:
+    """Table 3 turned for any arm: one row per joint with its units, one column per metric."""
+    n = joints.count
+    columns = [column(values) for _, values in numbers]          # one notation per metric column
+    header = ["joint", "position unit"] + [name for name, _ in numbers[:4]]
+    if len(numbers) > 4:
+        header += ["force unit", numbers[4][0]]
+    rows = []
+    for j in range(n):
+        row = [joints.labels[j], joints.position_units[j]] + [columns[k][j] for k in range(4)]
+        if len(numbers) > 4:
+            row += [joints.force_units[j], columns[4][j]]
+        rows.append(row)
+    return Table.of(header, rows, f"Tracking metrics per joint ({n} joints)")
+
+
 def simulation_section(result, experiment: dict, scenario, files: dict) -> SimulationSection:
+    joints = scenario.robot.joints
     w, wo = experiment["with_dob"], experiment["without_dob"]
     numbers = [("RMS position error, with observer", w["rms_position_error"]),
                ("RMS position error, without observer", wo["rms_position_error"]),
@@ -139,12 +188,19 @@ def simulation_section(result, experiment: dict, scenario, files: dict) -> Simul
                ("largest position error, without observer", wo["max_abs_position_error"])]
     if "rms_disturbance_error" in w:
         numbers.append(("RMS disturbance error d - d_hat, with observer", w["rms_disturbance_error"]))
-    # one notation per joint column (a column of 1.613e-04 and 0.0001613 reads as two kinds of number)
-    columns = [column([values[j] for _, values in numbers]) for j in range(len(JOINT_UNITS))]
-    text = [[name] + [columns[j][k] for j in range(len(JOINT_UNITS))] for k, (name, _) in enumerate(numbers)]
-    rows = text[:4] + [["  units"] + [f"({u})" for u in JOINT_UNITS]]
-    if len(text) > 4:
-        rows += [text[4], ["  units"] + [f"({u})" for u in DISTURBANCE_UNITS]]
+    given = {len(values) for _, values in numbers}
+    if given != {joints.count}:
+        raise ValueError(f"the experiment's metrics hold {sorted(given)} joints; the scenario's arm has "
+                         f"{joints.count} ({', '.join(joints.names)})")
+    paper = is_paper_arm(scenario)
+    if paper:
+        intro = ("The nonlinear Figure-2 loop simulated with and without the observer. Table 3 of the paper lists "
+                 "RMS errors (Eq. 13-14) for its own laceration path, which the paper does not give; the table below "
+                 "has the same layout for this scenario's path.")
+    else:
+        intro = (f"The nonlinear Figure-2 loop simulated with and without the observer, for this scenario's arm of "
+                 f"{joints.count} joints: RMS errors as in the paper's Eq. 13-14, one row per joint. The paper's "
+                 "Table 3 is for its own 4-joint arm and is not compared here.")
     tool = None
     if "max_tool_position_error_mm" in w:
         tool = Table.of(["tool tip", "with observer", "without observer"],
@@ -153,7 +209,7 @@ def simulation_section(result, experiment: dict, scenario, files: dict) -> Simul
                          ["RMS position error (mm)", fmt(w["rms_tool_position_error_mm"]),
                           fmt(wo["rms_tool_position_error_mm"])]])
     return SimulationSection(
-        metrics=Table.of(["Table 3 layout"] + list(JOINT_TITLES), rows, "Tracking metrics per joint"),
+        metrics=_table_3_layout(numbers, joints) if paper else _joint_rows(numbers, joints),
         worse=worse_with_observer(result, experiment, scenario), tool=tool,
         figures=figures(files, ("fig4_joint_tracking", "Figure 4: joint tracking, with and without the observer "
                                                        "(the reference is the grey band)"),
@@ -161,4 +217,5 @@ def simulation_section(result, experiment: dict, scenario, files: dict) -> Simul
                         ("fig6_disturbance_estimate", "Figure 6: lumped disturbance d (grey band) and its estimate "
                                                       "d_hat"),
                         ("fig7_estimation_error", "Figure 7: estimation error d - d_hat"),
-                        ("fig8_task_space", figure8_caption(experiment, scenario))))
+                        ("fig8_task_space", figure8_caption(experiment, scenario))),
+        intro=intro)

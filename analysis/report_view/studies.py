@@ -12,11 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from blocks import inertia
-from blocks.metrics import DISTURBANCE_UNITS
-
 from ..studies import settling_definition
-from .text import JOINT_TITLES, Figure, Table, and_words, figures, fmt, join, kinds, settling
+from .text import Figure, Table, and_words, arm_joints, figures, fmt, join, kinds, settling, units_list
 
 __all__ = ["StudiesSection", "studies_section", "observer_reading", "gain_reading", "study_definition"]
 
@@ -40,9 +37,10 @@ def study_definition(st, scenario) -> str:
     own = kinds(scenario.data["disturbance"]["kind"])
     where = ("which is the scenario's own disturbance" if own == ["paper"] else
              f"in place of the scenario's disturbance models ({and_words(own) if own else 'none'})")
+    joints = arm_joints(scenario)
     return (f"Every run holds the arm at the scenario's reference at t = 0, q_hold = [{join(g.q_hold, 4)}] "
-            f"(rad, rad, m, rad), and applies the constant disturbance step f_r = [{join(g.f_r, 4)}] (N m, N m, "
-            f"N, N m; the paper's Eq. 4) from t = 0, {where}, for "
+            f"({units_list(joints.position_units)}), and applies the constant disturbance step f_r = "
+            f"[{join(g.f_r, 4)}] ({units_list(joints.force_units)}; the paper's Eq. 4) from t = 0, {where}, for "
             f"{fmt(g.t_final_s)} s; models, noise-free sensors and solver settings are the scenario's. The arm "
             "starts at rest with d_hat = 0. Final value: the error where the held loop comes to rest (its "
             "equilibrium, computed); steady-state error: its size. "
@@ -110,15 +108,15 @@ def observer_reading(obs, scenario) -> str | None:
     noisiest = max(ok, key=lambda k: max((r for r in _noise_ratios(obs, k) if math.isfinite(r)), default=-math.inf))
     ratio = _noise_ratios(obs, noisiest)
     text += (f" The price is torque noise: with {labels[noisiest]} the torque noise is "
-             f"{join(ratio, 3)} times its value without the observer (joints 1-4)")
+             f"{join(ratio, 3)} times its value without the observer (joints 1-{len(ratio)})")
     if "designed Y" in labels and labels.index("designed Y") in ok and labels.index("designed Y") != noisiest:
         text += f", with the designed Y {join(_noise_ratios(obs, labels.index('designed Y')), 3)} times"
     finite = [r if math.isfinite(r) else -math.inf for r in ratio]
     j = int(np.argmax(finite))
     if finite[j] > 1:
-        M = inertia(np.asarray(obs.q_hold, dtype=float), scenario.nominal)
+        M = scenario.nominal.inertia(np.asarray(obs.q_hold, dtype=float))
         lightest = int(np.argmin(np.diag(M))) == j
-        text += (f". The relative increase is largest on {JOINT_TITLES[j]}"
+        text += (f". The relative increase is largest on {arm_joints(scenario).labels[j]}"
                  + (", the joint with the smallest inertia: the observer adds Y q' velocity noise to the "
                     "controller's M Kd q' noise, and Y / (M Kd) is largest where M is smallest" if lightest else ""))
     return text + "."
@@ -159,6 +157,7 @@ def gain_reading(st) -> str | None:
 
 
 def studies_section(result, scenario, files: dict) -> StudiesSection:
+    joints = arm_joints(scenario)
     st = result.studies
     rows = []
     for study, title in ((st.gains_with_dob, "with"), (st.gains_without_dob, "without")):
@@ -175,8 +174,8 @@ def studies_section(result, scenario, files: dict) -> StudiesSection:
     noise = obs.noise
     noise_setup = (f"Observer gain and measurement noise: the same step experiment ({fmt(obs.t_final_s)} s runs) for "
                    f"each observer gain. Torque noise: runs of the first {fmt(obs.noise_t_final_s)} s with noise on q "
-                   f"of standard deviations {join(noise['q_std'])} (rad, rad, m, rad) and on q' of "
-                   f"{join(noise['dq_std'])} (rad/s, rad/s, m/s, rad/s), sampled every "
+                   f"of standard deviations {join(noise['q_std'])} ({units_list(joints.position_units)}) and on q' of "
+                   f"{join(noise['dq_std'])} ({units_list(joints.velocity_units)}), sampled every "
                    f"{fmt(noise.get('sample_period', 0.001))} s, seed {noise.get('seed', 0)}; torque noise = RMS of the "
                    "torque difference between the noisy and the clean run.")
     rows = []
@@ -193,7 +192,7 @@ def studies_section(result, scenario, files: dict) -> StudiesSection:
                      join(r.torque_noise_rms, 3)])
     observer = Table.of(["observer gain", "slowest mode (rad/s)", "settling time (s)", "peak (mm)", "RMS (mm)",
                          f"RMS, first {fmt(obs.noise_t_final_s)} s (mm)", "same, with noise (mm)",
-                         f"torque noise RMS ({', '.join(DISTURBANCE_UNITS)})"], rows,
+                         f"torque noise RMS ({units_list(joints.force_units)})"], rows,
                         "Observer gain study (tool tip)")
     return StudiesSection(
         definition=study_definition(st, scenario),

@@ -9,16 +9,27 @@ from __future__ import annotations
 
 import numpy as np
 
-from blocks import forward_kinematics
-
 from .simulation import worse_with_observer_short
-from .text import ZERO_REL, and_words, fmt, join, kinds, mode_text, span, split_caveats, stable_ranges
+from .text import (
+    ZERO_REL,
+    and_words,
+    arm_joints,
+    fmt,
+    is_paper_arm,
+    join,
+    kinds,
+    mode_text,
+    span,
+    split_caveats,
+    stable_ranges,
+    units_list,
+)
 
 __all__ = ["plain_summary"]
 
 
 def _tool_offset_mm(q_a, q_b, robot) -> float:
-    p = forward_kinematics(np.array([q_a, q_b], dtype=float), robot)
+    p = np.asarray(robot.tool_position(np.array([q_a, q_b], dtype=float)))
     return float(1e3 * np.linalg.norm(p[0, :3] - p[1, :3]))
 
 
@@ -45,11 +56,12 @@ def _held_offset(result, scenario) -> str:
     text = ""
     if op.largest_real_part(False) < 0:
         offset = _tool_offset_mm(op.q_equilibrium_without_dob, op.q0, scenario.robot)
-        depth = 1e3 * (op.q_equilibrium_without_dob[2] - op.q0[2])
+        # the paper's arm inserts the tool along joint 3 (d3): that part of the offset is its depth
+        depth = (f" ({fmt(1e3 * (op.q_equilibrium_without_dob[2] - op.q0[2]), 3)} mm of it in depth, along the tool "
+                 "axis)") if is_paper_arm(scenario) else ""
         text += (f"Held still at the start of the path against the disturbance, the tool tip without the observer "
-                 f"settles {fmt(offset, 3)} mm from its target ({fmt(depth, 3)} mm of it in depth, along the tool "
-                 "axis) and stays there as long as the disturbance acts; a larger Kp shrinks that offset and Kd does "
-                 "not change it (it is M^-1 d / Kp).")
+                 f"settles {fmt(offset, 3)} mm from its target{depth} and stays there as long as the disturbance "
+                 "acts; a larger Kp shrinks that offset and Kd does not change it (it is M^-1 d / Kp).")
         scale = offset
     else:
         text += (f"Held still at the start of the path, the loop without the observer is unstable (largest pole real "
@@ -89,7 +101,7 @@ def _speed(result, scenario) -> str:
     return text
 
 
-def _design(result) -> str | None:
+def _design(result, joints) -> str | None:
     design = result.observer_design
     sim = design.simulation
     base, new = sim.get("scenario gain"), sim.get("designed")
@@ -113,14 +125,14 @@ def _design(result) -> str | None:
     if cert.holds:
         text += (f"; on a perfect model and for slowly varying disturbances its estimation error is certified to "
                  f"decay at {fmt(cert.beta_min_rad_s, 3)} rad/s or faster for joint speeds up to "
-                 f"{join(design.speed_bound, 3)} (rad/s, rad/s, m/s, rad/s).)")
+                 f"{join(design.speed_bound, 3)} ({units_list(joints.velocity_units)}).)")
     else:
-        text += (f"; no decay rate could be certified for joint speeds up to {join(design.speed_bound, 3)} (rad/s, "
-                 f"rad/s, m/s, rad/s): the condition fails at q = [{join(cert.q_at, 3)}].)")
+        text += (f"; no decay rate could be certified for joint speeds up to {join(design.speed_bound, 3)} "
+                 f"({units_list(joints.velocity_units)}): the condition fails at q = [{join(cert.q_at, 3)}].)")
     return text
 
 
-def _noise(result) -> str | None:
+def _noise(result, joints) -> str | None:
     obs = result.studies.observer
     labels, runs = obs.labels, obs.runs
     k_ref = next((k for k, label in enumerate(labels) if label.endswith("(scenario)")), None)
@@ -130,7 +142,7 @@ def _noise(result) -> str | None:
     if not (runs[k_ref].ok and runs[k_new].ok):
         return None
     n_ref, n_new = runs[k_ref].torque_noise_rms, runs[k_new].torque_noise_rms
-    units = "RMS: N m, N m, N, N m"
+    units = "RMS: " + units_list(joints.force_units)
     if all(a > b > 0 for a, b in zip(n_new, n_ref)):
         more = [100 * (a / b - 1) for a, b in zip(n_new, n_ref)]
         return (f"The price of the faster gain is torque noise: with the assumed sensor noise the joint torques jitter "
@@ -191,7 +203,8 @@ def plain_summary(result, experiment: dict, scenario) -> list[str]:
         The experiment's metrics (see :func:`analysis.report_view.build_view`).
     scenario : Scenario
     """
-    lines = [_tool_tip(experiment), worse_with_observer_short(experiment), _held_offset(result, scenario),
-             _speed(result, scenario), _design(result), _noise(result), _robustness(result, scenario),
+    joints = arm_joints(scenario)
+    lines = [_tool_tip(experiment), worse_with_observer_short(experiment, joints), _held_offset(result, scenario),
+             _speed(result, scenario), _design(result, joints), _noise(result, joints), _robustness(result, scenario),
              _gains(result)]
     return [line for line in lines if line]

@@ -13,13 +13,12 @@ from pathlib import Path
 
 import numpy as np
 
-from blocks.joints import RRPR_JOINTS
-from blocks.metrics import JOINT_UNITS
+from blocks.joints import RRPR_JOINTS, JointSpace
 
 __all__ = ["fmt", "join", "span", "settling", "pole", "Cell", "Table", "Figure", "Paragraph", "figures",
            "joints_text", "mode_text", "value", "kinds", "and_words", "split_caveats", "stable_ranges",
            "stability_text", "gain_text", "matrix_rows", "per_joint", "column", "JOINT_TITLES", "MODE_SHARE",
-           "ZERO_REL"]
+           "ZERO_REL", "is_paper_arm", "units_list", "mixed_units", "gain_units", "arm_joints"]
 
 #: How the report names the joints in tables and captions (the same names as the figures).
 JOINT_TITLES = RRPR_JOINTS.labels
@@ -197,9 +196,47 @@ def mode_text(direction) -> str:
     return f"{joints_text(idx)} alone" if len(idx) == 1 else f"{joints_text(idx)} together"
 
 
-def value(x, j: int, digits: int = 3) -> str:
-    """A joint quantity with its unit."""
-    return f"{fmt(x, digits)} {JOINT_UNITS[j]}"
+def value(x, j: int, digits: int = 3, joints: JointSpace = RRPR_JOINTS) -> str:
+    """A position of joint ``j`` with its unit (of ``joints``, default the paper's arm)."""
+    return f"{fmt(x, digits)} {joints.position_units[j]}"
+
+
+def arm_joints(scenario) -> JointSpace:
+    """The joints of a scenario's arm (the paper's when the scenario has none)."""
+    joints = getattr(getattr(scenario, "robot", None), "joints", None)
+    return joints if isinstance(joints, JointSpace) else RRPR_JOINTS
+
+
+def units_list(units) -> str:
+    """One unit per joint, as a list: ``rad, rad, m, rad``."""
+    return ", ".join(units)
+
+
+def mixed_units(units, word: str = "joint") -> str:
+    """The units of a per-joint quantity in few words: the most common one, then the others by joint.
+
+    Examples
+    --------
+    >>> mixed_units(RRPR_JOINTS.force_units), mixed_units(("N m",) * 6)
+    ('N m; N on joint 3', 'N m')
+    """
+    units = tuple(units)
+    common = max(dict.fromkeys(units), key=units.count)
+    rest = []
+    for unit in dict.fromkeys(u for u in units if u != common):
+        idx = [j + 1 for j, u in enumerate(units) if u == unit]
+        rest.append(f"{unit} on {word}{'s' if len(idx) > 1 else ''} " + and_words([str(j) for j in idx]))
+    return "; ".join([common] + rest)
+
+
+def gain_units(joints: JointSpace) -> str:
+    """Units of the observer gain Y (inertia per second): ``kg m^2/s; kg/s on joint 3`` for the paper's arm."""
+    return mixed_units(["kg m^2/s" if k == "revolute" else "kg/s" for k in joints.kinds])
+
+
+def is_paper_arm(scenario) -> bool:
+    """Whether a scenario's arm is the paper's RRPR (then the report's comparisons with the paper apply)."""
+    return getattr(scenario.robot, "joints", None) == RRPR_JOINTS
 
 
 def kinds(kind) -> list[str]:

@@ -13,7 +13,7 @@ from ..integrate import DivergenceError, SolverFailure, _crossing_time
 from ..plan import make_plan
 from .codegen import CompiledUnavailable, load_module, mark_compiled, program_for
 from .jit import numba_or_none
-from .rows import LOOP_ROWS
+from .rows import loop_rows_of
 
 __all__ = ["CompiledLoopEngine", "unavailable_reason", "METHODS"]
 
@@ -65,7 +65,7 @@ class CompiledLoopEngine:
                                       "pip install \"dobkit[fast]\"")
         self.system = system
         self.plan = make_plan(system)
-        self.program, self.kernels = program_for(self.plan, system, LOOP_ROWS)
+        self.program, self.kernels = program_for(self.plan, system, loop_rows_of(system))
         # this loop's numbers: the traced blocks' into theta, the called kernels' parameters into ext
         self.theta, self.ext = self.program.numbers(self.kernels)
         self.module, cached = load_module(self.program)

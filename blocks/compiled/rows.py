@@ -18,15 +18,18 @@ The groups of the Figure-2 loop, :data:`LOOP_ROWS`:
 ``position_error``
     ``q_ref - q``;
 ``tool_distance``
-    the tool tip's distance from the reference's (m),
-    :func:`~blocks.kernels.tool_pose` at ``q`` against the reference's
-    tool position ``aux[0:3]``, as :class:`blocks.metrics.TrackingAccumulator`
-    computes it;
+    the tool tip's distance from the reference's (m), the arm's
+    ``tool_position`` at ``q`` against the reference's tool position
+    ``aux[0:3]``, as :class:`blocks.metrics.TrackingAccumulator` computes it;
 ``disturbance_error``
     ``d - d_hat``.
 
 The batch accumulates the last three into the tracking metrics inside the
 compiled driver (:mod:`blocks.compiled.batch`).
+
+The groups are written against the model names of :mod:`blocks.kernels.bind`;
+:func:`loop_rows` gives them for an arm (the RRPR's are :data:`LOOP_ROWS`), and
+:func:`loop_rows_of` for an interconnection, from the arm of its plant block.
 """
 from __future__ import annotations
 
@@ -35,9 +38,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..kernels import lumped_disturbance, tool_pose
+from ..kernels import lumped_disturbance
+from ..kernels.bind import bound, closed_form
+from ..kernels.kinematics import tool_position
 
-__all__ = ["RowGroup", "LOOP_ROWS", "TOOL_AUX"]
+__all__ = ["RowGroup", "LOOP_ROWS", "TOOL_AUX", "loop_rows", "loop_rows_of"]
 
 #: Shared values the tool-distance rows read: the reference's tool position x, y, z (m).
 TOOL_AUX = 3
@@ -87,8 +92,8 @@ def _position_error(signals, aux, params):
 
 
 def _tool_distance(signals, aux, params):
-    # the kinematic lengths travel with the plant's disturbance parameters (blocks.kernels.disturbance_params)
-    pose = tool_pose(params["plant"][1].kin, signals["q"])
+    # the arm's tool parameters travel with the plant's disturbance parameters (blocks.kernels.disturbance_params)
+    pose = tool_position(params["plant"][1].kin, signals["q"])
     dx, dy, dz = aux[0] - pose[0], aux[1] - pose[1], aux[2] - pose[2]
     return [np.sqrt(dx * dx + dy * dy + dz * dz)]
 
@@ -104,3 +109,20 @@ LOOP_ROWS = (
     RowGroup("tool_distance", _tool_distance, ("q",), ("plant",), TOOL_AUX),
     RowGroup("disturbance_error", _disturbance_error, ("q", "dq", "tau", "tau_dis", "d_hat"), ("plant", "controller")),
 )
+
+
+def loop_rows(arm) -> tuple:
+    """The row groups of the Figure-2 loop for ``arm`` (an :class:`~blocks.arm.ArmModel` or its two kernel
+    modules): :data:`LOOP_ROWS` with their functions bound to the arm's kernels (:func:`blocks.kernels.bind.bound`)."""
+    return tuple(RowGroup(g.name, bound(g.rows, arm), g.signals, g.blocks, g.aux) for g in LOOP_ROWS)
+
+
+def loop_rows_of(system) -> tuple:
+    """The row groups for an interconnection: those of the arm of its block ``plant`` (:data:`LOOP_ROWS` when
+    that is the paper's RRPR or the loop has no Python plant)."""
+    from ..control_compat import subsystems
+    for block in subsystems(system):
+        arm = getattr(block, "arm", None)
+        if block.name == "plant" and arm is not None and not closed_form(arm.kernels, arm.tool_kernels):
+            return loop_rows(arm)
+    return LOOP_ROWS

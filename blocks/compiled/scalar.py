@@ -28,7 +28,7 @@ from collections.abc import Callable
 import numpy as np
 
 from .codegen import CompiledUnavailable, LoopProgram, program_for
-from .rows import LOOP_ROWS
+from .rows import loop_rows_of
 
 __all__ = ["SCALAR_MATH", "scalar_rhs", "ScalarFunctions"]
 
@@ -115,7 +115,7 @@ def scalar_rhs(plan, system, fallback: Callable) -> Callable | None:
     (:class:`~blocks.compiled.CompiledUnavailable`).
     """
     try:
-        program, kernels = program_for(plan, system, LOOP_ROWS)      # the compiled engine's program too
+        program, kernels = program_for(plan, system, loop_rows_of(system))      # the compiled engine's program too
     except CompiledUnavailable:
         return None
     fns = ScalarFunctions.of(program)

@@ -13,7 +13,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .kinematics import jacobian_entries, kinematic_lengths
+from .kinematics import jacobian_entries
 
 __all__ = ["DisturbanceParams", "disturbance_params", "paper_disturbance", "friction_disturbance",
            "tissue_disturbance", "external_disturbance"]
@@ -22,11 +22,12 @@ __all__ = ["DisturbanceParams", "disturbance_params", "paper_disturbance", "fric
 class DisturbanceParams(NamedTuple):
     """Arrays and numbers of the selected disturbance models, in the kernels' layout.
 
-    ``paper``, ``friction`` and ``tissue`` say which models act; ``f_r``,
-    ``coulomb`` and ``viscous`` are per-joint rows (N m, N; N m s/rad, N s/m),
-    ``friction_velocity`` is ``v_s`` (rad/s, m/s), the tissue numbers are in
-    m, N/m, N s/m and N s/m, and ``kin`` are the kinematic lengths
-    ``[a1, a2, d1, d4]`` (m).
+    ``paper`` (the Eq. 4 step, any arm), ``friction`` and ``tissue`` (the
+    RRPR only) say which models act; ``f_r``, ``coulomb`` and ``viscous`` are
+    per-joint rows (N m, N; N m s/rad, N s/m), ``friction_velocity`` is
+    ``v_s`` (rad/s, m/s), the tissue numbers are in m, N/m, N s/m and N s/m,
+    and ``kin`` are the arm's tool parameters (the RRPR's kinematic lengths
+    ``[a1, a2, d1, d4]``, m).
     """
 
     paper: bool
@@ -44,14 +45,29 @@ class DisturbanceParams(NamedTuple):
 
 
 def disturbance_params(spec, params) -> DisturbanceParams:
-    """The :class:`DisturbanceParams` of a :class:`~blocks.disturbances.DisturbanceSpec` on an arm."""
+    """The :class:`DisturbanceParams` of a :class:`~blocks.disturbances.DisturbanceSpec` on an arm.
+
+    ``kin`` is the arm's tool parameters (``params.tool_params()``; the RRPR's
+    kinematic lengths), read by the tissue contact and by the tool-tip rows
+    of the compiled engine.  For an arm other than the RRPR a per-joint list
+    of a model that does not act is given as n zeros, so that every array
+    has the arm's joint count.
+    """
+    n = params.joints.count
+    acting = spec.per_joint() if hasattr(spec, "per_joint") else ("f_r", "coulomb", "viscous")
+
+    def joint_row(name):
+        value = np.array(getattr(spec, name), dtype=float)
+        return value if name in acting or value.shape == (n,) else np.zeros(n)
+
     return DisturbanceParams(
-        paper="paper" in spec.kinds, friction="friction" in spec.kinds, tissue="tissue" in spec.kinds,
-        f_r=np.array(spec.f_r, dtype=float), coulomb=np.array(spec.coulomb, dtype=float),
-        viscous=np.array(spec.viscous, dtype=float), friction_velocity=float(spec.friction_velocity),
+        paper="paper" in spec.kinds or "step" in spec.kinds, friction="friction" in spec.kinds,
+        tissue="tissue" in spec.kinds,
+        f_r=joint_row("f_r"), coulomb=joint_row("coulomb"), viscous=joint_row("viscous"),
+        friction_velocity=float(spec.friction_velocity),
         skin_height=float(spec.skin_height), tissue_stiffness=float(spec.tissue_stiffness),
         tissue_damping=float(spec.tissue_damping), tissue_drag=float(spec.tissue_drag),
-        kin=kinematic_lengths(params))
+        kin=params.tool_params())
 
 
 def paper_disturbance(t, f_r):

@@ -1,0 +1,130 @@
+"""A scenario's arm: the ``[arm]`` section (a URDF arm) and what follows from the arm for the other sections.
+
+Without ``[arm]`` a scenario is the paper's RRPR (``[robot]``,
+``[nominal_scale]``) exactly as before.  With it::
+
+    [arm]
+    urdf = "scope4.urdf"          # path, relative to the scenario file's folder
+    tool_frame = "tool_tip"       # frame of the tool point (tool-tip errors, task-space paths)
+    locked = ["finger_joint1"]    # optional: joints held fixed
+    locked_values = [0.02]        # optional: their positions (rad, m), one per locked joint; default 0
+    gravity = 9.81                # optional: m/s^2 along -z, or a vector [gx, gy, gz]; default the URDF world's
+    nominal_mass_scale = 1.1      # optional: the controller's and observer's model has every link's mass and
+                                  # inertia times this (Eq. 3's internal disturbance); default 1
+
+Everything per joint in the other sections then has the arm's ``n`` entries
+(``gains.kp``, ``trajectory.amplitude``, ``disturbance.f_r``, ``initial.q``,
+...), and the messages name the key, ``n`` and the arm.  This module holds
+the pieces that need the arm; :mod:`blocks.scenario` calls them.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .arm import ArmModel
+from .kernels.bind import closed_form
+
+__all__ = ["ARM_KEYS", "arm_name", "is_rrpr", "load_arm", "scaled_nominal", "joint_sine_defaults",
+           "observer_gain_from_bandwidth"]
+
+#: The keys of ``[arm]`` and what each takes.
+ARM_KEYS = {"urdf": "a path (text), relative to the scenario file", "tool_frame": "a frame name (text)",
+            "locked": "a list of joint names", "locked_values": "a list of numbers (rad, m), one per locked joint",
+            "gravity": "a number (m/s^2, along -z) or 3 numbers", "nominal_mass_scale": "a number > 0"}
+
+
+def is_rrpr(arm: ArmModel) -> bool:
+    """Whether ``arm`` is the paper's RRPR in closed form (its own sections and paths apply)."""
+    return closed_form(arm.kernels, arm.tool_kernels)
+
+
+def arm_name(arm: ArmModel, urdf: str | None = None) -> str:
+    """How messages name an arm: the URDF file's stem, the arm's ``name``, or its class."""
+    if urdf:
+        return urdf.split(":", 1)[1] if urdf.startswith("example:") else Path(urdf).stem
+    return str(getattr(arm, "name", None) or ("rrpr" if is_rrpr(arm) else type(arm).__name__))
+
+
+def _gravity(value) -> tuple[float, float, float]:
+    g = np.asarray(value, dtype=float)
+    return (0.0, 0.0, -float(g)) if g.ndim == 0 else tuple(float(v) for v in g)
+
+
+def load_arm(given: dict, base: Path | None, error):
+    """The true arm of an ``[arm]`` section (checked values ``given``), and its name.
+
+    Parameters
+    ----------
+    given : dict
+        The section's checked values.
+    base : pathlib.Path or None
+        The folder ``urdf`` is relative to (the scenario file's); None: the working folder.
+    error : type
+        The exception to raise (the scenario's error), with a message naming the key.
+    """
+    for key in ("urdf", "tool_frame"):
+        if key not in given:
+            raise error(f"'arm.{key}' is required in an [arm] section ({ARM_KEYS[key]})")
+    locked = list(given.get("locked", []))
+    values = list(given.get("locked_values", []))
+    if values and len(values) != len(locked):
+        raise error(f"'arm.locked_values' has {len(values)} values for {len(locked)} locked joint(s) {locked}: "
+                    "give one position per locked joint")
+    path = Path(given["urdf"])
+    if not path.is_absolute() and base is not None:
+        path = base / path
+    try:
+        from .arms.urdf import load_urdf_arm
+    except ImportError as err:          # pinocchio is the extra dobkit[urdf]
+        raise error(f"'arm.urdf' needs pinocchio, the optional extra: pip install \"dobkit[urdf]\" ({err})") from None
+    gravity = _gravity(given["gravity"]) if "gravity" in given else None
+    try:
+        arm = load_urdf_arm(path, given["tool_frame"], locked=locked, locked_values=dict(zip(locked, values)),
+                            gravity=gravity)
+    except (ValueError, OSError) as err:
+        raise error(f"[arm] urdf = {given['urdf']!r}: {err}") from None
+    return arm, arm_name(arm, given["urdf"])
+
+
+def scaled_nominal(arm: ArmModel, scale: float, error) -> ArmModel:
+    """The nominal model of ``arm`` with every body's mass, first moment and inertia times ``scale``.
+
+    The dynamics are linear in those parameters, so the nominal ``M``, ``N q'``
+    and ``G`` are ``scale`` times the true ones: the internal disturbance of
+    Eq. 3 is ``(scale - 1) (M q'' + h)``.
+    """
+    if scale == 1.0:
+        return arm
+    chain = getattr(arm, "chain", None)
+    if chain is None or not all(hasattr(chain, f) for f in ("masses", "first_moments", "inertias")):
+        raise error(f"'arm.nominal_mass_scale' needs an arm given by its bodies (a URDF arm), not {arm!r:.80}")
+
+    def times(value):
+        return tuple(times(v) for v in value) if isinstance(value, tuple) else float(value) * scale
+
+    scaled = dataclasses.replace(chain, masses=times(chain.masses), first_moments=times(chain.first_moments),
+                                 inertias=times(chain.inertias))
+    nominal = type(arm)(scaled, arm.joints, arm.tool_frame, continuous=arm.continuous, source=arm.source)
+    nominal.pin_model = None            # the reference model is the true arm's
+    return nominal
+
+
+def joint_sine_defaults(arm: ArmModel) -> dict:
+    """A joint sine that suits ``arm``: 0.1 rad (revolute) or 0.01 m (prismatic) about the middle of each
+    joint's range (0 where a joint turns without end), 1 rad/s."""
+    amplitude, offset = [], []
+    for kind, (lo, hi) in zip(arm.joints.kinds, arm.joints.limits):
+        amplitude.append(0.1 if kind == "revolute" else 0.01)
+        offset.append(0.5 * (lo + hi) if math.isfinite(lo) and math.isfinite(hi) else 0.0)
+    return {"amplitude": tuple(amplitude), "omega": 1.0, "offset": tuple(offset)}
+
+
+def observer_gain_from_bandwidth(nominal: ArmModel, omega: float, q0) -> np.ndarray:
+    """``Y = omega M^(q0)`` (kg m^2/s, kg/s): the observer gain whose error dynamics ``e_d' = -Y M^-1 e_d`` are
+    ``-omega e_d`` at ``q0`` on the nominal model (a first-order filter of bandwidth ``omega`` rad/s per joint)."""
+    M = np.asarray(nominal.inertia(np.asarray(q0, dtype=float)), dtype=float)
+    return omega * 0.5 * (M + M.T)
