@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from blocks import Scenario, __version__, load_scenario, simulate
-from blocks.metrics import DISTURBANCE_UNITS, JOINT_UNITS, tracking_metrics
+from blocks.metrics import tracking_metrics
 from blocks.outputs import default_out_dir, staged_output
 
 from .figures import paper_figures
@@ -105,7 +105,9 @@ def comparison_metrics(scenario: Scenario, with_dob, without_dob) -> dict:
     return {
         "scenario": scenario.name,
         "dobkit_version": __version__,
-        "units": {"position": list(JOINT_UNITS), "disturbance": list(DISTURBANCE_UNITS)},
+        "joints": list(scenario.robot.joints.names),
+        "units": {"position": list(scenario.robot.joints.position_units),
+                  "disturbance": list(scenario.robot.joints.force_units)},
         "definitions": {
             "rms_position_error": "Eq. 13: sqrt(mean((q_ref - q)^2)) over the output grid, per joint",
             "rms_disturbance_error": "Eq. 14: sqrt(mean((d - d_hat)^2)), d = lumped disturbance on the nominal model",

@@ -27,7 +27,8 @@ import numpy as np  # noqa: E402
 
 from blocks.joints import RRPR_JOINTS  # noqa: E402
 from blocks.kinematics import forward_kinematics  # noqa: E402
-from blocks.metrics import DISTURBANCE_UNITS, JOINT_UNITS, signal  # noqa: E402
+from blocks.metrics import signal  # noqa: E402
+from blocks.parameters import RobotParameters  # noqa: E402
 
 __all__ = ["paper_figures", "sampling_words", "save_figure", "convergence_figure", "JOINT_TITLES", "joint_title",
            "REFERENCE_STYLE", "has_tissue_model", "FIGURE_FORMATS"]
@@ -108,23 +109,29 @@ def save_figure(fig, out_dir: Path, stem: str, formats=FIGURE_FORMATS) -> list[P
 _GRID_MARGINS = {"left": 0.08, "right": 0.985, "bottom": 0.075, "top": 0.9, "wspace": 0.2, "hspace": 0.18}
 
 
-def _joint_grid(title: str):
-    # fixed margins (room for tick labels such as -0.00025 and a unit label): no layout pass per format
-    fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True, gridspec_kw=_GRID_MARGINS)
+def _joint_grid(title: str, joints=RRPR_JOINTS):
+    # fixed margins (room for tick labels such as -0.00025 and a unit label): no layout pass per format;
+    # two columns, a row per two joints (the paper's four: 2x2)
+    n = joints.count
+    rows = (n + 1) // 2
+    fig, axes = plt.subplots(rows, 2, figsize=(11, 3.5 * rows), sharex=True, gridspec_kw=_GRID_MARGINS,
+                             squeeze=False)
     fig.suptitle(title)
-    for i, ax in enumerate(axes.flat):
-        ax.set_title(JOINT_TITLES[i], fontsize=10)
+    for ax in axes.flat[n:]:
+        ax.remove()
+    for i, ax in enumerate(axes.flat[:n]):
+        ax.set_title(joints.labels[i], fontsize=10)
         ax.grid(True, alpha=0.3)
         # below 1e-3 the axis shows a power of ten above it, so no tick label is wider than the margins allow
         ax.ticklabel_format(axis="y", style="sci", scilimits=(-3, 4), useMathText=True)
-        if i >= 2:
+        if i >= n - 2:
             ax.set_xlabel("time (s)")
-    return fig, axes.flat
+    return fig, axes.flat[:n]
 
 
-def _scale(i: int) -> tuple[float, str]:
-    """Show the prismatic joint in mm, revolute joints in rad."""
-    return (1e3, "mm") if JOINT_UNITS[i] == "m" else (1.0, "rad")
+def _scale(i: int, joints=RRPR_JOINTS) -> tuple[float, str]:
+    """Show a prismatic joint in mm, revolute joints in rad."""
+    return (1e3, "mm") if joints.position_units[i] == "m" else (1.0, "rad")
 
 
 def sampling_words(resp) -> str | None:
@@ -173,11 +180,13 @@ def paper_figures(with_dob, without_dob, out_dir, progress=None, formats=FIGURE_
     out_dir = Path(out_dir)
     t = np.asarray(with_dob.time)
     q_ref, q_w, q_wo = signal(with_dob, "q_ref"), signal(with_dob, "q"), signal(without_dob, "q")
+    scenario = getattr(with_dob, "scenario", None)
+    joints = scenario.robot.joints if scenario is not None else RRPR_JOINTS
     written = []
 
-    fig, axes = _joint_grid("Figure 4: joint tracking of the laceration path")
+    fig, axes = _joint_grid("Figure 4: joint tracking of the laceration path", joints)
     for i, ax in enumerate(axes):
-        k, unit = _scale(i)
+        k, unit = _scale(i, joints)
         ax.plot(t, k * q_ref[i], **REFERENCE_STYLE, label="reference (grey band)")
         ax.plot(t, k * q_w[i], color=_COLORS["with"], lw=1.2, label="with observer")
         ax.plot(t, k * q_wo[i], color=_COLORS["without"], lw=1.2, ls="--", label="without observer")
@@ -186,9 +195,9 @@ def paper_figures(with_dob, without_dob, out_dir, progress=None, formats=FIGURE_
     written += save_figure(fig, out_dir, "fig4_joint_tracking", formats)
     done(1)
 
-    fig, axes = _joint_grid("Figure 5: position tracking error q_ref - q")
+    fig, axes = _joint_grid("Figure 5: position tracking error q_ref - q", joints)
     for i, ax in enumerate(axes):
-        k, unit = _scale(i)
+        k, unit = _scale(i, joints)
         ax.plot(t, k * (q_ref[i] - q_w[i]), color=_COLORS["with"], label="with observer")
         ax.plot(t, k * (q_ref[i] - q_wo[i]), color=_COLORS["without"], ls="--", label="without observer")
         ax.set_ylabel(f"error ({unit})")
@@ -200,7 +209,7 @@ def paper_figures(with_dob, without_dob, out_dir, progress=None, formats=FIGURE_
     tau_dis = signal(with_dob, "tau_dis")
     sampled = sampling_words(with_dob)
     fig, axes = _joint_grid("Figure 6: disturbance and its estimate (with observer)" if sampled is None else
-                            "Figure 6: disturbance and its sampled, quantized estimate (with observer)")
+                            "Figure 6: disturbance and its sampled, quantized estimate (with observer)", joints)
     if sampled is not None:
         fig.suptitle(fig.get_suptitle(), y=0.995)            # room for the line on how it was sampled
         fig.text(0.5, 0.94, sampled, ha="center", va="bottom", fontsize=9)
@@ -213,15 +222,15 @@ def paper_figures(with_dob, without_dob, out_dir, progress=None, formats=FIGURE_
         else:       # a program's output: a value held from each sample instant to the next, not a curve
             ax.step(t, d_hat[i], where="post", color=_COLORS["d_hat"], lw=0.8,
                     label="estimate d_hat, sampled (held)")
-        ax.set_ylabel(f"disturbance ({DISTURBANCE_UNITS[i]})")
+        ax.set_ylabel(f"disturbance ({joints.force_units[i]})")
     axes[0].legend(fontsize=8)
     written += save_figure(fig, out_dir, "fig6_disturbance_estimate", formats)
     done(3)
 
-    fig, axes = _joint_grid("Figure 7: disturbance estimation error d - d_hat")
+    fig, axes = _joint_grid("Figure 7: disturbance estimation error d - d_hat", joints)
     for i, ax in enumerate(axes):
         ax.plot(t, d[i] - d_hat[i], color=_COLORS["with"])
-        ax.set_ylabel(f"error ({DISTURBANCE_UNITS[i]})")
+        ax.set_ylabel(f"error ({joints.force_units[i]})")
     written += save_figure(fig, out_dir, "fig7_estimation_error", formats)
     done(4)
 
@@ -234,9 +243,13 @@ def _task_space_figure(with_dob, without_dob, out_dir: Path, formats) -> list[Pa
     scenario = with_dob.scenario
     robot = scenario.robot
     t = np.asarray(with_dob.time)
-    p_ref = 1e3 * forward_kinematics(signal(with_dob, "q_ref").T, robot)[:, :3]
-    p_w = 1e3 * forward_kinematics(signal(with_dob, "q").T, robot)[:, :3]
-    p_wo = 1e3 * forward_kinematics(signal(without_dob, "q").T, robot)[:, :3]
+    if isinstance(robot, RobotParameters):
+        p_ref = 1e3 * forward_kinematics(signal(with_dob, "q_ref").T, robot)[:, :3]
+        p_w = 1e3 * forward_kinematics(signal(with_dob, "q").T, robot)[:, :3]
+        p_wo = 1e3 * forward_kinematics(signal(without_dob, "q").T, robot)[:, :3]
+    else:                           # any arm: its tool point (blocks.arm.ArmModel.tool_position)
+        p_ref, p_w, p_wo = (1e3 * robot.tool_position(signal(r, sig).T)
+                            for r, sig in ((with_dob, "q_ref"), (with_dob, "q"), (without_dob, "q")))
     fig = plt.figure(figsize=(13, 7))
     skin = getattr(scenario.trajectory, "skin_height", None)
     title = "Figure 8: tool-tip path in task space"
