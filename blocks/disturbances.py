@@ -109,6 +109,10 @@ class DisturbanceSpec:
             if name != "f_r" and any(v < 0 for v in value):
                 raise ValueError(f"disturbance.{name} must be >= 0, got {list(value)}")
             object.__setattr__(self, name, value)
+        sizes = {name: len(getattr(self, name)) for name in ("f_r", "coulomb", "viscous")}
+        if len(set(sizes.values())) > 1:
+            raise ValueError("the per-joint lists disturbance.f_r, disturbance.coulomb and disturbance.viscous must "
+                             f"have one value per joint each, got {sizes} values (the defaults are the paper's four)")
         for name, lower, strict in (("friction_velocity", 0.0, True), ("tissue_stiffness", 0.0, False),
                                     ("tissue_damping", 0.0, False), ("tissue_drag", 0.0, False),
                                     ("skin_height", -math.inf, False)):

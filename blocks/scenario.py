@@ -665,8 +665,16 @@ def _build_disturbance(given: dict, built: dict):
     ctx = _context()
     # Eq. 4's f_r is the RRPR's four numbers: another arm has no external disturbance unless it is given
     kinds = given.get("kind", ("paper",) if ctx.arm is None else ())
+    lists = {}
+    if ctx.arm is not None:             # the per-joint lists not given: zeros of the arm's n (the defaults are the RRPR's)
+        lists = {k: (0.0,) * ctx.joints.count for k in ("f_r", "coulomb", "viscous") if k not in given}
+        for k in ("f_r", "coulomb", "viscous"):
+            value = given.get(k)
+            if isinstance(value, tuple) and len(value) != ctx.joints.count:
+                raise ScenarioError(f"[disturbance] 'disturbance.{k}' has {len(value)} values; the arm {ctx.name!r} has "
+                                    f"{ctx.joints.count} joints ({', '.join(ctx.joints.names)}): give one per joint")
     try:
-        spec = DisturbanceSpec(kinds=kinds, **{k: v for k, v in given.items() if k != "kind"})
+        spec = DisturbanceSpec(kinds=kinds, **lists, **{k: v for k, v in given.items() if k != "kind"})
         spec.check_arm(built["robot"], ctx.name if ctx.arm is not None else None)
     except ValueError as err:
         raise ScenarioError(f"[disturbance] {err}") from None
