@@ -74,6 +74,7 @@ from .scenario_arm import (
     observer_gain_from_bandwidth,
     scaled_nominal,
 )
+from .tool_path import ToolPath
 from .trajectory import TRAJECTORY_KINDS, JointSine, LacerationPath, check_joint_ranges
 from .validation import number_text, read_only_array
 
@@ -684,6 +685,14 @@ def _build_disturbance(given: dict, built: dict):
     return spec, {"kind": list(kinds) if kinds else "none"} | values
 
 
+def _points(value, key: str) -> tuple:
+    """Two or more points [x, y, z] (m)."""
+    if not isinstance(value, (list, tuple)) or len(value) < 2 or \
+            not all(isinstance(p, (list, tuple)) and len(p) == 3 for p in value):
+        raise ScenarioError(f"'{key}' must be a list of two or more points [x, y, z] (m), got {value!r}")
+    return tuple(tuple(_finite()(v, f"{key}[{i}][{j}]") for j, v in enumerate(p)) for i, p in enumerate(value))
+
+
 def _build_trajectory(given: dict, built: dict):
     kind = given.get("kind", "joint_sine" if _context().arm is not None else _SECTIONS["trajectory"].default_kind)
     kw = {k: v for k, v in given.items() if k != "kind"}
@@ -707,6 +716,11 @@ def _build_trajectory(given: dict, built: dict):
     try:
         if kind == "laceration":
             trajectory = LacerationPath(params=built["robot"], **kw)
+        elif kind == "tool_path":
+            if "waypoints" not in kw:
+                raise ScenarioError("'trajectory.waypoints' is required for kind = 'tool_path' (two or more points "
+                                    "[x, y, z] of the tool point, m, in the arm's base frame)")
+            trajectory = ToolPath(built["robot"], **kw)
         else:
             trajectory = JointSine(**kw)
             _check_sine_ranges(trajectory, built)
@@ -876,7 +890,9 @@ _SECTIONS: dict[str, _Section] = {
                             _build_disturbance),
     "trajectory": _Section({"kind": _one_of(TRAJECTORY_KINDS)}, _build_trajectory, by_kind={
         "laceration": {k: _like(d) for k, d in _defaults(LacerationPath, skip=("params",)).items()},
-        "joint_sine": {k: _like(d) for k, d in _defaults(JointSine).items()}}, default_kind="laceration"),
+        "joint_sine": {k: _like(d) for k, d in _defaults(JointSine).items()},
+        "tool_path": {"waypoints": _points, "duration": _finite(0.0, True), "sample_period": _finite(0.0, True)}},
+        default_kind="laceration"),
     "noise": _Section({k: _like(d) for k, d in _defaults(MeasurementNoise).items() if k in _NOISE_KEYS},
                       _build_noise),
     "initial": _Section({"q": _joint_positions} | {k: _joint_vector for k in _INITIAL_KEYS[1:]},
