@@ -29,6 +29,9 @@ __all__ = ["ToolPath", "tool_path_output", "MAX_PATH_SAMPLES"]
 
 #: Most IK samples a path may ask for (each is an iterative solve).
 MAX_PATH_SAMPLES = 20_000
+# The sample tables of the latest paths: a scenario varied many times solves its IK once.
+_KEPT = 16
+_tables: dict = {}
 
 
 def tool_path_output(t, x, u, table, period):
@@ -102,13 +105,20 @@ class ToolPath:
         object.__setattr__(self, "waypoints", tuple(tuple(float(v) for v in p) for p in points))
         object.__setattr__(self, "duration", float(self.duration))
         object.__setattr__(self, "sample_period", float(self.sample_period))
-        from .arms.ik import joint_path
-        t = self.sample_period * np.arange(samples)
-        p, dp, ddp = self.task_space(t)
-        path = joint_path(self.arm, t, p, dp, ddp, q0=self.q0)
-        table = np.ascontiguousarray(np.vstack([path.q.T, path.dq.T, path.ddq.T]))
-        table.setflags(write=False)
-        object.__setattr__(self, "table", table)
+        key = (id(self.arm), self.waypoints, self.duration, self.sample_period,
+               None if self.q0 is None else tuple(np.asarray(self.q0, dtype=float).tolist()))
+        found = _tables.get(key)
+        if found is None or found[0] is not self.arm:
+            from .arms.ik import joint_path
+            t = self.sample_period * np.arange(samples)
+            p, dp, ddp = self.task_space(t)
+            path = joint_path(self.arm, t, p, dp, ddp, q0=self.q0)
+            table = np.ascontiguousarray(np.vstack([path.q.T, path.dq.T, path.ddq.T]))
+            table.setflags(write=False)
+            found = _tables[key] = (self.arm, table)       # the arm is kept with its table: its id stays its own
+            while len(_tables) > _KEPT:
+                _tables.pop(next(iter(_tables)))
+        object.__setattr__(self, "table", found[1])
 
     @property
     def n(self) -> int:
