@@ -586,12 +586,14 @@ def _build_arm(given: dict, built: dict):
             values["urdf"] = str(_example_urdf(values["urdf"]))
         except (ValueError, ModuleNotFoundError) as err:
             raise ScenarioError(f"'arm.urdf' = {given['urdf']!r}: {err}") from None
-    arm, name = load_arm(values, ctx.base, ScenarioError)
+    arm, name, resolved = load_arm(values, ctx.base, ScenarioError)
     if "urdf" in given and given["urdf"].startswith("example:"):
         name = given["urdf"].split(":", 1)[1]
     nominal = scaled_nominal(arm, given.get("nominal_mass_scale", 1.0), ScenarioError)
     ctx.joints, ctx.name, ctx.arm, ctx.nominal = arm.joints, name, arm, nominal
     data = {k: _plain(v) for k, v in given.items()}
+    if not given["urdf"].startswith("example:"):
+        data["urdf"] = resolved         # the written scenario (scenario.toml of a run) finds the file from anywhere
     data.setdefault("nominal_mass_scale", 1.0)
     return arm, data
 

@@ -55,7 +55,7 @@ def _gravity(value) -> tuple[float, float, float]:
 
 
 def load_arm(given: dict, base: Path | None, error):
-    """The true arm of an ``[arm]`` section (checked values ``given``), and its name.
+    """The true arm of an ``[arm]`` section (checked values ``given``), its name and the URDF file's full path.
 
     Parameters
     ----------
@@ -99,7 +99,7 @@ def load_arm(given: dict, base: Path | None, error):
             _loaded[key] = arm
             while len(_loaded) > _KEPT:
                 _loaded.pop(next(iter(_loaded)))
-    return arm, arm_name(arm, given["urdf"])
+    return arm, arm_name(arm, given["urdf"]), str(path.resolve())
 
 
 # Arms read from unchanged files are read once: a scenario varied many times (a sweep) shares its arm, and two

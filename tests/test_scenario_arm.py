@@ -182,3 +182,23 @@ def test_builtin_urdf_scenarios_load_with_their_joint_counts(name, n):
     assert "observer_bandwidth" in s.data["gains"]
     if name == "panda":
         assert not any("finger" in j for j in s.robot.joints.names)
+
+
+def test_dobkit_simulate_runs_a_urdf_scenario_and_writes_metrics_per_joint(tmp_path):
+    """``dobkit simulate`` on a URDF scenario file: metrics.json has the arm's joint names, units and n values."""
+    import json
+
+    from dobkit.cli import main
+    path = tmp_path / "scope4-short.toml"
+    path.write_text(to_toml({"name": "scope4-short", "arm": {"urdf": "example:scope4", "tool_frame": "tool_tip"},
+                             "gains": {"observer_bandwidth": 10.0},
+                             "disturbance": {"kind": "step", "f_r": [0.05, 0.1, 0.4, 0.00002]},
+                             "simulation": {"t_final": 1.0, "output_step": 0.01}}))
+    out = tmp_path / "out"
+    assert main(["simulate", "--scenario", str(path), "--out", str(out), "--engine", "fast", "--no-figures"]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["joints"] == ["yaw", "pitch", "insertion", "roll"]
+    assert m["units"] == {"position": ["rad", "rad", "m", "rad"], "disturbance": ["N m", "N m", "N", "N m"]}
+    assert all(len(m[run]["rms_position_error"]) == 4 for run in ("with_dob", "without_dob"))
+    # the written scenario runs again to the same settings
+    assert load_scenario(out / "scenario.toml").data["arm"] == load_scenario(path).data["arm"]
