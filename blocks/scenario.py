@@ -60,7 +60,7 @@ import numpy as np
 
 from .arm import ArmModel
 from .digital import DISCRETIZATIONS, VELOCITY_SOURCES, DigitalController
-from .disturbances import DISTURBANCE_KINDS, DisturbanceSpec
+from .disturbances import DISTURBANCE_KINDS, KIND_ALIASES, DisturbanceSpec
 from .gains import GAIN_KEYS, OBSERVER_VARIANTS, GainError, validated_gain
 from .joints import RRPR_JOINTS
 from .noise import MeasurementNoise
@@ -498,9 +498,10 @@ def _disturbance_kinds(value, key: str) -> tuple[str, ...]:
     if not isinstance(kinds, (list, tuple)) or not all(isinstance(k, str) for k in kinds):
         raise ScenarioError(f"'{key}' must be a string or a list of strings, got {value!r}")
     kinds = [k for k in kinds if k != "none"]
-    bad = [k for k in kinds if k not in DISTURBANCE_KINDS]
+    bad = [k for k in kinds if k not in DISTURBANCE_KINDS and k not in KIND_ALIASES]
     if bad:
-        raise ScenarioError(f"'{key}' has unknown kind(s) {bad}; choose from {list(DISTURBANCE_KINDS)} or 'none'")
+        raise ScenarioError(f"'{key}' has unknown kind(s) {bad}; choose from "
+                            f"{list(DISTURBANCE_KINDS) + list(KIND_ALIASES)} or 'none'")
     return tuple(kinds)
 
 
