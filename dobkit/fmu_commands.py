@@ -3,6 +3,7 @@
 ::
 
     dobkit fmu export [--scenario S] [--fmi-version 2|3] [--substeps N] --out plant.fmu [--force]
+    dobkit fmu export-controller --scenario S --out controller.fmu [--fmi-version 2|3] [--force]
     dobkit fmu cosim PLANT.fmu [--scenario S] [--step H] [--coupling zoh|linear] [--out DIR] [--no-figures]
     dobkit fmu convergence PLANT.fmu [--scenario S] [--steps 0.004,0.002,0.001,0.0005] [--coupling ...] [--out DIR]
     dobkit fmu check ANY.fmu [--json]
@@ -93,6 +94,25 @@ def _cmd_export(args) -> int:
                         substeps=args.substeps, q0=q0, dq0=dq0, force=args.force)
     print(f"wrote {path} (FMI {args.fmi_version}.0, Model Exchange + Co-Simulation, scenario {s.name}, "
           f"{args.substeps} RK4 sub-steps per co-simulation step)")
+    return 0
+
+
+def _cmd_export_controller(args) -> int:
+    from blocks.scenario import load_scenario
+
+    out = Path(args.out)
+    if out.is_dir():
+        raise ValueError(f"--out {out} is a folder; give the path of the .fmu file to write")
+    if out.exists() and not args.force:
+        raise ValueError(f"--out {out} exists; refusing to overwrite it (use --force to replace it)")
+    s = load_scenario(args.scenario)
+    from fmu.controller_export import export_controller
+    path = export_controller(out, s, fmi_version=args.fmi_version, force=args.force)
+    c = s.controller
+    print(f"wrote {path} (FMI {args.fmi_version}.0 Co-Simulation, scenario {s.name}: the digital controller at "
+          f"{c.sample_rate:g} Hz, observer {c.observer_discretization}, velocity {c.velocity}, delay {c.delay}; "
+          f"communication step = sample period {c.period:g} s; reference tabulated to t = "
+          f"{s.simulation.t_final:g} s)")
     return 0
 
 
@@ -312,6 +332,16 @@ def add_fmu_subcommands(subparsers) -> None:
     exp.add_argument("--out", required=True, help="path of the .fmu file to write (an existing file is refused)")
     exp.add_argument("--force", action="store_true", help="replace an existing --out file")
     exp.set_defaults(func=_cmd_export)
+
+    ctl = sub.add_parser("export-controller", help="export the scenario's digital controller ([controller]) as a "
+                         "Co-Simulation FMU: inputs q[i], dq[i], outputs tau[i], d_hat[i]; one step per sample")
+    ctl.add_argument("--scenario", required=True, help="scenario name or TOML path with a [controller] section "
+                     "(e.g. paper-digital)")
+    ctl.add_argument("--fmi-version", type=int, choices=(2, 3), default=2,
+                     help="FMI version (default: 2)")
+    ctl.add_argument("--out", required=True, help="path of the .fmu file to write (an existing file is refused)")
+    ctl.add_argument("--force", action="store_true", help="replace an existing --out file")
+    ctl.set_defaults(func=_cmd_export_controller)
 
     cos = sub.add_parser("cosim", help="co-simulate the scenario's controller side against a plant FMU; "
                          "write metrics.json (as 'dobkit simulate', plus the coupling and its error estimate) "

@@ -6,6 +6,7 @@
     import fmu
 
     path = fmu.export_plant("plant.fmu", fmi_version=2)     # C model compiled with the system compiler
+    ctrl = fmu.export_controller("ctrl.fmu", "paper-digital")  # the sampled controller as a Co-Simulation FMU
     plant = fmu.load(path)                                   # Model Exchange FMU -> NonlinearIOSystem
     loop = blocks.closed_loop("paper", plant=plant)          # drop-in for the Python plant
     resp = fmu.cosimulate(path, "paper", step=1e-3)          # Co-Simulation against the Python controller side
@@ -30,7 +31,8 @@ on its own, with events and arrays), ``start_values`` (start values checked by t
 scenario against a plant FMU), ``convergence`` (co-simulation error versus
 step size), ``check`` and ``plant_check``,
 ``export`` / ``variables`` / ``modeldescription`` / ``build`` / ``package``
-(the plant FMU), ``c/`` (the plant's C code).
+(the plant FMU), ``controller_export`` / ``controller_variables`` / ``controller_tick`` (the controller FMU),
+``c/`` (the FMI layers and the C the kernels' trace does not write).
 The command line (``dobkit fmu ...``) lives in :mod:`dobkit.fmu_commands`.
 """
 from blocks.lazy import lazy_exports
@@ -42,6 +44,7 @@ _WHERE = {
     "block": ("FMUBlock", "load"),
     "check": ("check_fmu",),
     "convergence": ("cosim_convergence",),
+    "controller_export": ("export_controller",),
     "cosim": ("controller_side", "cosimulate"),
     "description": ("require_variables",),
     "errors": ("Budget", "BudgetError", "CoSimulationError", "FMUArchiveError", "FMUBuildError", "FMUError",

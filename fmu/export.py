@@ -34,6 +34,7 @@ from blocks.disturbances import DisturbanceSpec
 from blocks.parameters import RobotParameters
 
 from .build import COMPILE_FLAGS, platform_folder, shared_library_suffix
+from .generated import GENERATED_HEADER, arm_disturbance, plant_c
 from .modeldescription import build_description_xml, model_description_xml
 from .package import package_fmu
 from .scenario_values import DEFAULT_START_Q
@@ -64,16 +65,16 @@ def _check_args(fmi_version, substeps) -> None:
                          f"got {substeps!r}")
 
 
-def _joint_vector(value, name: str):
-    """None, or 4 finite floats; raises ValueError naming the argument otherwise."""
+def _joint_vector(value, name: str, n: int):
+    """None, or n finite floats (one per joint); raises ValueError naming the argument otherwise."""
     if value is None:
         return None
     try:
         items = [float(v) for v in value]
     except (TypeError, ValueError):
-        raise ValueError(f"{name} must be 4 finite numbers (one per joint), got {value!r}") from None
-    if len(items) != 4 or not all(math.isfinite(v) for v in items):
-        raise ValueError(f"{name} must be 4 finite numbers (one per joint), got {value!r}")
+        raise ValueError(f"{name} must be {n} finite numbers (one per joint), got {value!r}") from None
+    if len(items) != n or not all(math.isfinite(v) for v in items):
+        raise ValueError(f"{name} must be {n} finite numbers (one per joint), got {value!r}")
     return items
 
 
@@ -153,10 +154,12 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
     >>> plant.fmu.close()
     """
     _check_args(fmi_version, substeps)
-    q0, dq0 = _joint_vector(q0, "q0"), _joint_vector(dq0, "dq0")
-    q0 = list(DEFAULT_START_Q) if q0 is None else q0
     params = RobotParameters() if params is None else params
-    disturbance = DisturbanceSpec() if disturbance is None else disturbance
+    n = params.joints.count
+    q0, dq0 = _joint_vector(q0, "q0", n), _joint_vector(dq0, "dq0", n)
+    if q0 is None:
+        q0 = list(DEFAULT_START_Q) if isinstance(params, RobotParameters) else [0.0] * n
+    disturbance = arm_disturbance(params, disturbance)
     path = Path(path)
     if path.is_dir():
         raise IsADirectoryError(f"path {str(path)!r} is a folder; give the path of the .fmu file to write")
@@ -166,8 +169,15 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
     variables = plant_variables(params, disturbance, substeps, q0=q0, dq0=dq0)
     sources = plant_source_files(fmi_version)
     c_texts = {name: _read_c(name) for name in list(_MODEL_HEADERS) + sources}
-    description = ("4-DOF RRPR surgical arm (Verma, Chauhan & Gupta 2019, Eq. 1, 5-7) with external "
-                   "disturbance models; exported by dobkit")
+    reals = [v for v in variables if v.c_name is not None]
+    generated = plant_c(params, disturbance, [v.name for v in reals], {v.name: v.start for v in reals})
+    c_texts[GENERATED_HEADER] = generated.text
+    if isinstance(params, RobotParameters):
+        description = ("4-DOF RRPR surgical arm (Verma, Chauhan & Gupta 2019, Eq. 1, 5-7) with external "
+                       "disturbance models; exported by dobkit")
+    else:
+        description = (f"{n}-joint arm ({', '.join(params.joints.names)}; tool {getattr(params, 'tool_frame', '?')}) "
+                       "with external disturbance models; exported by dobkit")
     tool = "fmu.export"
 
     def xml_for(token: str) -> str:

@@ -9,7 +9,7 @@ Value references are unique across types (required by FMI 3, allowed by
 FMI 2) and laid out in blocks::
 
     0        time
-    1..8     q[0..3], dq[0..3]          continuous states, outputs
+    1..      q[0..n-1], dq[0..n-1]      continuous states, outputs (n joints of the arm; below n = 4)
     9..16    der(q[i]), der(dq[i])      state derivatives
     17..20   tau[0..3]                  inputs
     21..24   tau_dis[0..3]              outputs
@@ -28,8 +28,7 @@ from blocks.parameters import RobotParameters
 
 __all__ = ["Variable", "UNITS", "plant_variables", "plant_parameter_values", "config_header", "JOINT_UNITS"]
 
-JOINTS = RRPR_JOINTS.count
-_PRISMATIC = 2  # joint 3 (index 2) is the prismatic stage
+JOINTS = RRPR_JOINTS.count      # the paper's arm (kept for importers; the table takes n from the arm)
 
 # FMI unit name -> exponents of the SI base units (and rad)
 UNITS: dict[str, dict[str, int]] = {
@@ -111,9 +110,10 @@ class Variable:
     nonnegative: bool = False
 
 
-def _joint_unit(kind: str, i: int) -> str:
+def _joint_unit(kind: str, i: int, joints=RRPR_JOINTS) -> str:
+    """The unit of a per-joint quantity on joint ``i``, by the joint's kind (revolute or prismatic)."""
     revolute, prismatic = JOINT_UNITS[kind]
-    return prismatic if i == _PRISMATIC else revolute
+    return prismatic if joints.kinds[i] == "prismatic" else revolute
 
 
 def plant_variables(params: RobotParameters, disturbance: DisturbanceSpec, substeps: int,
@@ -122,17 +122,23 @@ def plant_variables(params: RobotParameters, disturbance: DisturbanceSpec, subst
 
     Parameters
     ----------
-    params : RobotParameters
-        True arm parameters; their values become the parameters' start values.
-    disturbance : DisturbanceSpec
-        Selected disturbance models and their parameters (start values).
+    params : blocks.arm.ArmModel
+        The true arm.  For the paper's arm (RobotParameters) its Table-1 values
+        become tunable parameters with k1..k5 calculated from them; another
+        arm's geometry is frozen in the generated C and only its joint count
+        and kinds shape the table.
+    disturbance : DisturbanceSpec or namespace
+        Selected disturbance models and their parameters (start values), one
+        entry per joint (see :func:`fmu.generated.arm_disturbance`).
     substeps : int
         Start value of ``n_substeps`` (RK4 steps per Co-Simulation step), >= 1.
-    q0, dq0 : 4 floats, optional
+    q0, dq0 : n floats, optional
         Start values of the states (rad, m; rad/s, m/s); zero by default.
     """
-    q0 = [0.0] * JOINTS if q0 is None else [float(v) for v in q0]
-    dq0 = [0.0] * JOINTS if dq0 is None else [float(v) for v in dq0]
+    joints = params.joints
+    n = joints.count
+    q0 = [0.0] * n if q0 is None else [float(v) for v in q0]
+    dq0 = [0.0] * n if dq0 is None else [float(v) for v in dq0]
     rows: list[Variable] = []
 
     def add(**kw) -> None:
@@ -141,26 +147,28 @@ def plant_variables(params: RobotParameters, disturbance: DisturbanceSpec, subst
     add(name="time", type="Real", causality="independent", variability="continuous", initial=None, start=None,
         unit="s", description="simulation time")
     for sig, x0, kind, text in (("q", q0, "q", "joint position"), ("dq", dq0, "dq", "joint velocity")):
-        for i in range(JOINTS):
+        for i in range(n):
             add(name=f"{sig}[{i}]", type="Real", causality="output", variability="continuous", initial="exact",
-                start=x0[i], unit=_joint_unit(kind, i), description=f"{text} {i + 1} (state)")
+                start=x0[i], unit=_joint_unit(kind, i, joints), description=f"{text} {i + 1} (state)")
     for sig, kind in (("q", "dq"), ("dq", "ddq")):
-        for i in range(JOINTS):
+        for i in range(n):
             add(name=f"der({sig}[{i}])", type="Real", causality="local", variability="continuous",
-                initial="calculated", start=None, unit=_joint_unit(kind, i),
+                initial="calculated", start=None, unit=_joint_unit(kind, i, joints),
                 description=f"time derivative of {sig}[{i}]", derivative_of=f"{sig}[{i}]")
-    for i in range(JOINTS):
+    for i in range(n):
         add(name=f"tau[{i}]", type="Real", causality="input", variability="continuous", initial=None, start=0.0,
-            unit=_joint_unit("force", i), description=f"actuator force of joint {i + 1}")
-    for i in range(JOINTS):
+            unit=_joint_unit("force", i, joints), description=f"actuator force of joint {i + 1}")
+    for i in range(n):
         add(name=f"tau_dis[{i}]", type="Real", causality="output", variability="continuous",
-            initial="calculated", start=None, unit=_joint_unit("force", i),
+            initial="calculated", start=None, unit=_joint_unit("force", i, joints),
             description=f"external disturbance on joint {i + 1} (sum of the selected models)")
-    for name, unit in (("k1", "kg.m2"), ("k2", "kg.m2"), ("k3", "kg.m2"), ("k4", "kg"), ("k5", "kg.m2")):
+    rrpr = isinstance(params, RobotParameters)       # another arm's geometry is frozen in the generated C
+    for name, unit in ((("k1", "kg.m2"), ("k2", "kg.m2"), ("k3", "kg.m2"), ("k4", "kg"), ("k5", "kg.m2"))
+                       if rrpr else ()):
         add(name=name, type="Real", causality="calculatedParameter", variability="fixed", initial="calculated",
             start=None, unit=unit, description=f"inertia constant {name} of Eq. 5-7, from Table 1")
 
-    for name in RobotParameters.names():
+    for name in RobotParameters.names() if rrpr else ():
         unit = RobotParameters.unit(name)
         add(name=name, type="Real", causality="parameter", variability="fixed", initial="exact",
             start=float(getattr(params, name)), unit=_ROBOT_UNITS[unit], description=_ROBOT_DESCRIPTIONS[name],
@@ -170,9 +178,9 @@ def plant_variables(params: RobotParameters, disturbance: DisturbanceSpec, subst
             ("f_r", d.f_r, "force", "Eq. 4 step amplitude", False),
             ("coulomb", d.coulomb, "force", "Coulomb friction level", True),
             ("viscous", d.viscous, "viscous", "viscous friction coefficient", True)):
-        for i in range(JOINTS):
+        for i in range(n):
             add(name=f"{base}[{i}]", type="Real", causality="parameter", variability="fixed", initial="exact",
-                start=float(values[i]), unit=_joint_unit(kind, i), description=f"{text}, joint {i + 1}",
+                start=float(values[i]), unit=_joint_unit(kind, i, joints), description=f"{text}, joint {i + 1}",
                 c_name=f"{base}_{i}", nonnegative=nonneg)
     # friction_velocity scales rad/s on revolute joints and m/s on the prismatic one: no single unit
     add(name="friction_velocity", type="Real", causality="parameter", variability="fixed", initial="exact",
@@ -239,14 +247,21 @@ def config_header(variables: list[Variable], token: str) -> str:
     def vr(name: str) -> int:
         return by_name[name].vr
 
+    n = sum(1 for v in variables if v.causality == "input")     # one torque per joint
+    calculated = [v for v in variables if v.causality == "calculatedParameter"]
+    if [v.vr for v in calculated] != list(range(calculated[0].vr, calculated[0].vr + len(calculated))) \
+            if calculated else False:
+        raise AssertionError("calculated parameters must have consecutive value references")
+
     lines = [
         "/* plant_config.h: written by fmu.export for one export; do not edit. */",
         "#ifndef DOBKIT_PLANT_CONFIG_H", "#define DOBKIT_PLANT_CONFIG_H", "",
         f'#define PLANT_TOKEN "{token}"', "",
-        "#define NX 8", "#define NU 4", f"#define N_VARIABLES {len(variables)}",
+        f"#define NX {2 * n}", f"#define NU {n}", f"#define N_VARIABLES {len(variables)}",
         f"#define VR_TIME {vr('time')}", f"#define VR_Q {vr('q[0]')}", f"#define VR_DQ {vr('dq[0]')}",
         f"#define VR_DER_Q {vr('der(q[0])')}", f"#define VR_TAU {vr('tau[0]')}",
-        f"#define VR_TAU_DIS {vr('tau_dis[0]')}", f"#define VR_K {vr('k1')}",
+        f"#define VR_TAU_DIS {vr('tau_dis[0]')}", f"#define VR_K {calculated[0].vr if calculated else 0}",
+        f"#define N_CALCULATED_PARAMS {len(calculated)}",
         f"#define VR_PARAM {first_param}", f"#define N_PARAMS {len(params)}",
         f"#define VR_N_SUBSTEPS {vr('n_substeps')}", f"#define VR_SWITCH {vr('disturbance_paper')}",
         "#define N_SWITCHES 3", "#define SW_PAPER 0", "#define SW_FRICTION 1", "#define SW_TISSUE 2", "",
@@ -263,7 +278,7 @@ def config_header(variables: list[Variable], token: str) -> str:
         "#define PARAM_NONNEGATIVE {" + ", ".join(str(int(v.nonnegative)) for v in params) + "}",
         "#define START_PARAMS {" + ", ".join(_c_double(v.start) for v in params) + "}",
         "#define START_X {" + ", ".join(_c_double(by_name[f"{s}[{i}]"].start)
-                                        for s in ("q", "dq") for i in range(JOINTS)) + "}",
+                                        for s in ("q", "dq") for i in range(n)) + "}",
         f"#define START_N_SUBSTEPS {int(by_name['n_substeps'].start)}",
         "#define START_SWITCHES {" + ", ".join(str(int(bool(by_name[f"disturbance_{k}"].start)))
                                                for k in ("paper", "friction", "tissue")) + "}",
@@ -271,7 +286,7 @@ def config_header(variables: list[Variable], token: str) -> str:
         "", "#endif", "",
     ]
     # the C code relies on this block layout
-    expected = {"VR_DQ": vr("q[0]") + 4, "VR_DER_Q": vr("q[0]") + 8, "VR_N_SUBSTEPS": first_param + len(params),
+    expected = {"VR_DQ": vr("q[0]") + n, "VR_DER_Q": vr("q[0]") + 2 * n, "VR_N_SUBSTEPS": first_param + len(params),
                 "VR_SWITCH": first_param + len(params) + 1}
     actual = {"VR_DQ": vr("dq[0]"), "VR_DER_Q": vr("der(q[0])"), "VR_N_SUBSTEPS": vr("n_substeps"),
               "VR_SWITCH": vr("disturbance_paper")}

@@ -39,7 +39,8 @@ def _cases() -> list:
         tests = _examples(name)
         if not tests:
             continue
-        builds = any("export_plant" in ex.source for t in tests for ex in t.examples)
+        builds = any(word in ex.source for t in tests for ex in t.examples
+                     for word in ("export_plant", "export_controller"))
         cases.append(pytest.param(name, id=name, marks=[pytest.mark.needs_cc] if builds else []))
     return cases
 

@@ -65,7 +65,7 @@ _PRISMATIC = {"JointModelPX", "JointModelPY", "JointModelPZ", "JointModelPrismat
 _URDF_TYPES = {"revolute", "continuous", "prismatic", "fixed"}
 
 #: Entries of rotations and axes this close to 0 or +-1 are taken as exact, so a trace skips them
-#: (``rpy = pi/2`` gives cos = 6e-17 in floating point).
+#: (``rpy = pi/2`` gives cos = 6e-17 in floating point); so are inertia entries this small relative to the largest.
 SNAP = 1e-14
 
 
@@ -86,12 +86,14 @@ def _snap(x: float) -> float:
     return x
 
 
-def _vec(v, snap: bool = False) -> tuple:
-    return tuple(_snap(x) if snap else float(x) for x in np.asarray(v, dtype=float).ravel())
+def _vec(v, snap: bool = False, snap_below: float = 0.0) -> tuple:
+    return tuple(_snap(x) if snap else (0.0 if abs(x) < snap_below else float(x))
+                 for x in np.asarray(v, dtype=float).ravel())
 
 
-def _mat(m, snap: bool = False) -> tuple:
-    return tuple(_vec(row, snap) for row in np.asarray(m, dtype=float))
+def _mat(m, snap: bool = False, snap_below: float = 0.0) -> tuple:
+    """Rows as tuples; ``snap`` takes entries near 0 and +-1 as exact, ``snap_below`` zeroes smaller entries."""
+    return tuple(_vec(row, snap, snap_below) for row in np.asarray(m, dtype=float))
 
 
 def _read_urdf(path: Path) -> dict:
@@ -148,7 +150,7 @@ def chain_from_pinocchio(model, tool_frame: str, gravity=None) -> tuple[ChainPar
     data = model.createData()
     pin.forwardKinematics(model, data, pin.neutral(model))
     names, kinds, continuous, parents = [], [], [], []
-    rotations, translations, axes, masses, moments, inertias = [], [], [], [], [], []
+    rotations, translations, axes, masses, coms, inertias = [], [], [], [], [], []
     for j in range(1, model.njoints):
         name, short = model.names[j], model.joints[j].shortname()
         if short in _REVOLUTE or short in _CONTINUOUS:
@@ -164,7 +166,6 @@ def chain_from_pinocchio(model, tool_frame: str, gravity=None) -> tuple[ChainPar
         inertia = model.inertias[j]
         m, c, Ic = float(inertia.mass), np.asarray(inertia.lever, float), np.asarray(inertia.inertia, float)
         _check_inertia(name, m, Ic)
-        I_origin = Ic + m * (float(c @ c) * np.eye(3) - np.outer(c, c))     # parallel axes to the joint origin
         names.append(name)
         kinds.append(kind)
         continuous.append(short in _CONTINUOUS)
@@ -173,8 +174,8 @@ def chain_from_pinocchio(model, tool_frame: str, gravity=None) -> tuple[ChainPar
         translations.append(_vec(placement.translation))
         axes.append(_vec(axis / np.linalg.norm(axis), snap=True))
         masses.append(m)
-        moments.append(_vec(m * c))
-        inertias.append(_mat(I_origin))
+        coms.append(_vec(c))
+        inertias.append(_mat(Ic, snap_below=SNAP * float(np.max(np.abs(Ic)))))
     if gravity is None:
         g = _vec(model.gravity.linear)
     else:
@@ -186,7 +187,7 @@ def chain_from_pinocchio(model, tool_frame: str, gravity=None) -> tuple[ChainPar
     frame = model.frames[model.getFrameId(tool_frame)]
     chain = ChainParams(names=tuple(names), kinds=tuple(kinds), parents=tuple(parents), rotations=tuple(rotations),
                         translations=tuple(translations), axes=tuple(axes), masses=tuple(masses),
-                        first_moments=tuple(moments), inertias=tuple(inertias), gravity=g,
+                        coms=tuple(coms), com_inertias=tuple(inertias), gravity=g,
                         tool_joint=int(frame.parentJoint) - 1, tool_rotation=_mat(frame.placement.rotation, snap=True),
                         tool_translation=_vec(frame.placement.translation))
     return chain, tuple(kinds), tuple(continuous)

@@ -16,13 +16,14 @@ pinocchio's order of a motion: linear part first):
 
 * kinematics: each joint's rotation ``R_i`` and origin ``p_i`` in the base,
   its motion subspace ``S_i = (p_i x a_i, a_i)`` (revolute) or ``(a_i, 0)``
-  (prismatic), and each body's spatial inertia about the base origin
-  ``(m, H = m c, I_O)``;
+  (prismatic), and each body's centre of mass and inertia about it in base
+  axes;
 * ``M(q)``: composite-rigid-body algorithm; in base coordinates a composite
   inertia is a plain sum, and ``M_ji = S_j . (I^c_i S_i)`` for ``j`` on the
   path from ``i`` to the base;
 * ``h(q, q')`` and ``G(q)``: recursive Newton-Euler with the base
-  accelerating at ``-g``;
+  accelerating at ``-g``, each body's force from Newton and Euler's
+  equations at its centre of mass;
 * ``M^-1 r``: Cholesky ``M = L L^T`` and two triangular solves (the generic
   n x n solve);
 * the tool point of one frame: its position, its linear Jacobian (base
@@ -70,10 +71,10 @@ class ChainParams(Frozen):
         Joint axes in the joint frames (unit).
     masses : tuple of float
         Mass of each joint's body (kg).
-    first_moments : tuple of 3-tuples
-        ``m c`` of each body about its joint origin, in its joint frame (kg m).
-    inertias : tuple of 3x3 tuples
-        Rotational inertia of each body about its joint origin, in its joint frame (kg m^2).
+    coms : tuple of 3-tuples
+        Centre of mass of each body in its joint frame (m).
+    com_inertias : tuple of 3x3 tuples
+        Rotational inertia of each body about its centre of mass, in its joint frame (kg m^2).
     gravity : 3-tuple
         Gravitational acceleration in the base frame (m/s^2), ``(0, 0, -9.81)`` for a URDF world.
     tool_joint : int
@@ -89,8 +90,8 @@ class ChainParams(Frozen):
     translations: tuple
     axes: tuple
     masses: tuple
-    first_moments: tuple
-    inertias: tuple
+    coms: tuple
+    com_inertias: tuple
     gravity: tuple
     tool_joint: int
     tool_rotation: tuple
@@ -235,22 +236,30 @@ class _Frames:
 
 
 def _body_inertia(k: ChainParams, fr: _Frames, i: int) -> tuple:
-    """Body ``i``'s spatial inertia about the base origin in base axes: ``(m, H, I)``, ``I`` as 3x3."""
-    m, h, Ib = k.masses[i], k.first_moments[i], k.inertias[i]
-    R, p = fr.R[i], fr.p[i]
-    hw = _matvec(R, h)
-    T = _matmul(R, Ib)
-    ph = _dot(p, hw)
-    diag = _add(_mul(m, _dot(p, p)), _mul(2.0, ph))
+    """Body ``i`` in the base frame: ``(m, c, Ic)``, its centre of mass ``c`` (m) and its rotational inertia
+    about it ``Ic = R Ic_local R^T`` (kg m^2, 3x3)."""
+    R = fr.R[i]
+    c = _vadd(fr.p[i], _matvec(R, k.coms[i]))
+    T = _matmul(R, k.com_inertias[i])
+    Ic = [[None] * 3 for _ in range(3)]
+    for a in range(3):
+        for b in range(a, 3):
+            Ic[a][b] = Ic[b][a] = _dot(T[a], R[b])
+    return k.masses[i], c, tuple(tuple(r) for r in Ic)
+
+
+def _spatial_inertia(body) -> tuple:
+    """``(m, H = m c, I_O)``: the spatial inertia about the base origin of a body ``(m, c, Ic)``;
+    ``I_O = Ic + m (|c|^2 1 - c c^T)`` (parallel axes)."""
+    m, c, Ic = body
+    H = _vscale(c, m)
+    cHc = _dot(H, c)
     I = [[None] * 3 for _ in range(3)]
     for a in range(3):
         for b in range(a, 3):
-            v = _dot(T[a], R[b])                               # (R Ib R^T)_ab
-            if a == b:
-                v = _add(v, diag)
-            v = _sub(v, _add(_mul(_mul(m, p[a]), p[b]), _add(_mul(hw[a], p[b]), _mul(p[a], hw[b]))))
-            I[a][b] = I[b][a] = v
-    return m, _vadd(hw, _vscale(p, m)), tuple(tuple(r) for r in I)
+            v = _sub(Ic[a][b], _mul(H[a], c[b]))
+            I[a][b] = I[b][a] = _add(v, cHc) if a == b else v
+    return m, H, tuple(tuple(r) for r in I)
 
 
 def _inertia_times(inertia, V) -> tuple:
@@ -263,11 +272,6 @@ def _inertia_times(inertia, V) -> tuple:
 def _motion_cross(V, W) -> tuple:
     v, w = V[:3], V[3:]
     return _vadd(_cross(w, W[:3]), _cross(v, W[3:])) + _cross(w, W[3:])
-
-
-def _force_cross(V, F) -> tuple:
-    v, w = V[:3], V[3:]
-    return _cross(w, F[:3]) + _vadd(_cross(w, F[3:]), _cross(v, F[:3]))
 
 
 def _sadd(a, b) -> tuple:
@@ -289,8 +293,14 @@ def _rnea(k: ChainParams, fr: _Frames, dq, ddq, gravity) -> list:
         S = fr.S[i]
         V[i] = _sadd(Vl, _vscale(S, dq[i]))
         A[i] = _sadd(_sadd(Al, _vscale(S, ddq[i])), _vscale(_motion_cross(Vl, S), dq[i]))
-        inertia = _body_inertia(k, fr, i)
-        F[i] = _sadd(_inertia_times(inertia, A[i]), _force_cross(V[i], _inertia_times(inertia, V[i])))
+        # Newton-Euler about the centre of mass, then the force's moment about the base origin
+        m, c, Ic = _body_inertia(k, fr, i)
+        v, w = V[i][:3], V[i][3:]
+        a, dw = A[i][:3], A[i][3:]
+        v_c = _vadd(v, _cross(w, c))
+        f = _vscale(_vadd(_vadd(a, _cross(dw, c)), _cross(w, v_c)), m)
+        n_c = _vadd(_matvec(Ic, dw), _cross(w, _matvec(Ic, w)))
+        F[i] = f + _vadd(n_c, _cross(c, f))
     tau = [0.0] * n
     for i in reversed(range(n)):
         tau[i] = _dot(fr.S[i], F[i])
@@ -302,7 +312,7 @@ def _rnea(k: ChainParams, fr: _Frames, dq, ddq, gravity) -> list:
 def _crba(k: ChainParams, fr: _Frames) -> list:
     """``M(q)`` by the composite-rigid-body algorithm, as nested lists (exact zeros between branches)."""
     n = k.n
-    composite = [_body_inertia(k, fr, i) for i in range(n)]
+    composite = [_spatial_inertia(_body_inertia(k, fr, i)) for i in range(n)]
     for i in reversed(range(n)):
         parent = k.parents[i]
         if parent >= 0:

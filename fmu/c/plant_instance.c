@@ -123,19 +123,15 @@ int plant_get_real(PlantInstance *inst, unsigned vr, double *value)
         *value = buf[vr - VR_DER_Q];
     } else if (is_input(vr)) {
         *value = inst->d.u[vr - VR_TAU];
-    } else if (vr >= VR_TAU_DIS && vr < VR_TAU_DIS + 4) {
+    } else if (vr >= VR_TAU_DIS && vr < VR_TAU_DIS + NU) {
         plant_disturbance(&inst->d, inst->d.time, inst->d.x, buf);
         *value = buf[vr - VR_TAU_DIS];
-    } else if (vr >= VR_K && vr < VR_K + 5) {
-        PlantConstants k;
-        plant_constants(inst->d.p, &k);
-        switch (vr - VR_K) {
-            case 0: *value = k.k1; break;
-            case 1: *value = k.k2; break;
-            case 2: *value = k.k3; break;
-            case 3: *value = k.k4; break;
-            default: *value = k.k5; break;
-        }
+#if N_CALCULATED_PARAMS > 0
+    } else if (vr >= VR_K && vr < VR_K + N_CALCULATED_PARAMS) {
+        double k[N_CALCULATED_PARAMS];
+        plant_calculated_parameters(inst->d.p, k);
+        *value = k[vr - VR_K];
+#endif
     } else if (is_param(vr)) {
         *value = inst->d.p[vr - VR_PARAM];
     } else {

@@ -1,139 +1,44 @@
 /*
- * dobkit plant model: rigid-body dynamics of the RRPR arm and its external
- * disturbances.  See plant_model.h.  Pure C99 and libm, no FMI.
+ * dobkit plant model: the arm's dynamics and its external disturbances, around the maths that
+ * fmu.generated writes into plant_generated.h from the same kernels the Python blocks and the compiled
+ * engine run.  This file keeps what is not maths: the model switches, RK4 stepping, the input hold,
+ * output derivatives and the parameter checks.  See plant_model.h.  Pure C99 and libm, no FMI.
  */
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
 
 #include "plant_model.h"
+#include "plant_generated.h"
 
-void plant_constants(const double *p, PlantConstants *k)
+/* The bit mask of the switched-on disturbance models: bit j is switch j (SW_*), as fmu.generated numbers them. */
+static int model_mask(const PlantData *d)
 {
-    const double l1 = p[P_l1], l2 = p[P_l2];
-    const double m34 = p[P_m3] + p[P_m4];
-    /* Eq. 5: S1, S2 and k1..k5 from Table 1 (l1, l2 are centre-of-mass distances) */
-    const double s1 = p[P_m2] * (l2 * l2 + 4.0 * l1 * l1);
-    const double s2 = m34 * (4.0 * l1 * l1 + 4.0 * l2 * l2);
-    k->k1 = p[P_I1] + p[P_I2] + p[P_I3] + p[P_I4] + p[P_m1] * l1 * l1 + s1 + s2;
-    k->k2 = 2.0 * (2.0 * l1 * l2 * p[P_m2] + 4.0 * l1 * l2 * m34);
-    k->k3 = p[P_I2] + p[P_I3] + p[P_I4] + p[P_m2] * l2 * l2 + 4.0 * l2 * l2 * m34;
-    k->k4 = m34;
-    k->k5 = p[P_I4];
+    int j, mask = 0;
+    for (j = 0; j < N_SWITCHES; j++)
+        if (d->sw[j]) mask |= 1 << j;
+    return mask;
 }
 
-static double sign_of(double v)
+void plant_calculated_parameters(const double *p, double *out)
 {
-    return (double)((v > 0.0) - (v < 0.0));
+    plant_calculated(p, out);
 }
 
 void plant_disturbance(const PlantData *d, double t, const double *x, double *tau_dis)
 {
-    const double *p = d->p;
-    const double *q = x, *dq = x + 4;
-    int i;
-
-    for (i = 0; i < 4; i++) tau_dis[i] = 0.0;
-
-    if (d->sw[SW_PAPER]) {
-        /* Eq. 4 as printed: f_r sgn(2t + 1), a constant step for t >= 0 */
-        const double s = sign_of(2.0 * t + 1.0);
-        for (i = 0; i < 4; i++) tau_dis[i] += p[P_f_r + i] * s;
-    }
-
-    if (d->sw[SW_FRICTION]) {
-        /* tanh keeps the right-hand side smooth for adaptive solvers */
-        const double vs = p[P_friction_velocity];
-        for (i = 0; i < 4; i++)
-            tau_dis[i] -= p[P_coulomb + i] * tanh(dq[i] / vs) + p[P_viscous + i] * dq[i];
-    }
-
-    if (d->sw[SW_TISSUE]) {
-        const double a1 = p[P_a1], a2 = p[P_a2];
-        const double s1 = sin(q[0]), c1 = cos(q[0]);
-        const double s12 = sin(q[0] + q[1]), c12 = cos(q[0] + q[1]);
-        /* rows x and y of the kinematic Jacobian (Eq. 8, corrected) */
-        const double jx0 = -a1 * s1 - a2 * s12, jx1 = -a2 * s12;
-        const double jy0 = a1 * c1 + a2 * c12, jy1 = a2 * c12;
-        const double vx = jx0 * dq[0] + jx1 * dq[1];
-        const double vy = jy0 * dq[0] + jy1 * dq[1];
-        const double vz = -dq[2];
-        const double z = p[P_d1] - q[2] - p[P_d4];
-        const double depth = p[P_skin_height] - z;
-        if (depth > 0.0) {
-            /* a spring-damper that pushes but cannot pull, plus in-plane drag */
-            double fz = p[P_tissue_stiffness] * depth - p[P_tissue_damping] * vz;
-            const double fx = -p[P_tissue_drag] * vx, fy = -p[P_tissue_drag] * vy;
-            if (fz < 0.0) fz = 0.0;
-            /* tau = J^T F; the z row of J is [0, 0, -1, 0], the roll row carries no force */
-            tau_dis[0] += jx0 * fx + jy0 * fy;
-            tau_dis[1] += jx1 * fx + jy1 * fy;
-            tau_dis[2] += -fz;
-        }
-    }
-}
-
-/* Solve A y = b for a symmetric positive definite 4x4 A by Cholesky; 0 if not positive definite. */
-static int solve_spd4(double A[4][4], const double *b, double *y)
-{
-    double L[4][4] = {{0.0}};
-    double w[4];
-    int i, j, k;
-
-    for (j = 0; j < 4; j++) {
-        double s = A[j][j];
-        for (k = 0; k < j; k++) s -= L[j][k] * L[j][k];
-        if (!(s > 0.0)) return 0;
-        L[j][j] = sqrt(s);
-        for (i = j + 1; i < 4; i++) {
-            double r = A[i][j];
-            for (k = 0; k < j; k++) r -= L[i][k] * L[j][k];
-            L[i][j] = r / L[j][j];
-        }
-    }
-    for (i = 0; i < 4; i++) {
-        double s = b[i];
-        for (k = 0; k < i; k++) s -= L[i][k] * w[k];
-        w[i] = s / L[i][i];
-    }
-    for (i = 3; i >= 0; i--) {
-        double s = w[i];
-        for (k = i + 1; k < 4; k++) s -= L[k][i] * y[k];
-        y[i] = s / L[i][i];
-    }
-    return 1;
+    double theta[N_THETA];
+    plant_theta(d->p, theta);
+    PLANT_TAU_DIS[model_mask(d)](t, x, d->u, theta, tau_dis);
 }
 
 int plant_derivatives(const PlantData *d, double t, const double *x, const double *u, double *dx)
 {
-    PlantConstants k;
-    double M[4][4], rhs[4], tau_dis[4], N[4];
-    const double *dq = x + 4;
-    const double c2 = cos(x[1]), s2 = sin(x[1]);
+    double theta[N_THETA];
     int i;
 
-    plant_constants(d->p, &k);
-    memset(M, 0, sizeof M);
-    /* Eq. 5 */
-    M[0][0] = k.k1 + k.k2 * c2;
-    M[0][1] = M[1][0] = k.k3 + 0.5 * k.k2 * c2;
-    M[1][1] = k.k3;
-    M[2][2] = k.k4;
-    M[0][3] = M[3][0] = -k.k5;
-    M[1][3] = M[3][1] = -k.k5;
-    M[3][3] = k.k5;
-    /* Eq. 6: the Coriolis and centrifugal vector N(q, q') q' */
-    N[0] = -k.k2 * s2 * dq[1] * (dq[0] + 0.5 * dq[1]);
-    N[1] = 0.5 * k.k2 * s2 * dq[0] * dq[0];
-    N[2] = 0.0;
-    N[3] = 0.0;
-
-    plant_disturbance(d, t, x, tau_dis);
-    for (i = 0; i < 4; i++) rhs[i] = u[i] + tau_dis[i] - N[i];
-    rhs[2] -= -k.k4 * d->p[P_g]; /* Eq. 7: G = [0, 0, -k4 g, 0] */
-
-    for (i = 0; i < 4; i++) dx[i] = dq[i];
-    if (!solve_spd4(M, rhs, dx + 4)) return PLANT_NOT_PD;
+    plant_theta(d->p, theta);
+    PLANT_UPDATE[model_mask(d)](t, x, u, theta, dx);
     for (i = 0; i < NX; i++)
         if (!isfinite(dx[i])) return PLANT_NONFINITE;
     return PLANT_OK;
@@ -190,17 +95,17 @@ int plant_rk4(PlantData *d, double h, int n, int *bad_index, PlantInputUpdate up
 
 int plant_output_derivative(const PlantData *d, unsigned vr, double *value)
 {
-    double dx[NX], xp[NX], xm[NX], fp[4], fm[4];
+    double dx[NX], xp[NX], xm[NX], fp[NU], fm[NU];
     int i, rc;
 
-    if (vr >= VR_Q && vr < VR_Q + 4) {
-        *value = d->x[4 + (vr - VR_Q)];
+    if (vr >= VR_Q && vr < VR_Q + N_JOINTS) {
+        *value = d->x[N_JOINTS + (vr - VR_Q)];
         return PLANT_OK;
     }
-    if (!((vr >= VR_DQ && vr < VR_DQ + 4) || (vr >= VR_TAU_DIS && vr < VR_TAU_DIS + 4))) return -1;
+    if (!((vr >= VR_DQ && vr < VR_DQ + N_JOINTS) || (vr >= VR_TAU_DIS && vr < VR_TAU_DIS + NU))) return -1;
     if ((rc = plant_derivatives(d, d->time, d->x, d->u, dx)) != PLANT_OK) return rc;
     if (vr < VR_TAU_DIS) {
-        *value = dx[4 + (vr - VR_DQ)];
+        *value = dx[N_JOINTS + (vr - VR_DQ)];
         return PLANT_OK;
     }
     {
@@ -222,8 +127,6 @@ int plant_parameters_valid(const PlantData *d, char *msg, unsigned long msg_size
     static const char *const names[N_PARAMS] = PARAM_NAMES;
     static const int positive[N_PARAMS] = PARAM_POSITIVE;
     static const int nonnegative[N_PARAMS] = PARAM_NONNEGATIVE;
-    PlantConstants k;
-    double margin;
     int i;
 
     for (i = 0; i < N_PARAMS; i++) {
@@ -245,15 +148,6 @@ int plant_parameters_valid(const PlantData *d, char *msg, unsigned long msg_size
         snprintf(msg, msg_size, "parameter n_substeps must be >= 1, got %d", d->n_substeps);
         return 0;
     }
-    /* M(q) positive definite for every theta2 (docs/model.md, "Inertia matrix") */
-    plant_constants(d->p, &k);
-    margin = (k.k1 - k.k3) * (k.k3 - k.k5) - 0.25 * k.k2 * k.k2;
-    if (!(k.k1 > k.k3 && k.k3 > k.k5 && margin > 0.0)) {
-        snprintf(msg, msg_size,
-                 "parameters give an inertia matrix that is not positive definite for every theta2 "
-                 "(k1=%g, k2=%g, k3=%g, k5=%g kg m^2; need k1 > k3 > k5 and (k1-k3)(k3-k5) > k2^2/4)",
-                 k.k1, k.k2, k.k3, k.k5);
-        return 0;
-    }
-    return 1;
+    /* the arm's own conditions (for the paper's arm: M(q) positive definite for every theta2) */
+    return plant_arm_valid(d->p, d->sw, msg, msg_size);
 }

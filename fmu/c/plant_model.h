@@ -1,12 +1,11 @@
 /*
- * dobkit plant model: the 4-DOF RRPR arm of Verma, Chauhan & Gupta (2019)
+ * dobkit plant model: an arm of n joints (the paper's 4-DOF RRPR of Verma, Chauhan & Gupta 2019 first)
  *
  *     M(q) q'' + N(q, q') q' + G(q) = tau + tau_dis
  *
- * with q = [theta1 (rad), theta2 (rad), d3 (m, positive downwards), theta4 (rad)]
- * and the external disturbance tau_dis the sum of the selected models
- * (paper Eq. 4 step, smoothed Coulomb + viscous friction, skin contact).
- * The same maths as blocks/dynamics.py and disturbances.py.
+ * with q the joint positions (rad, m) and the external disturbance tau_dis the sum of the selected
+ * models (paper Eq. 4 step, smoothed Coulomb + viscous friction, skin contact).  The maths is generated
+ * per export into plant_generated.h (fmu.generated) from the kernels of blocks/kernels.
  *
  * This file knows nothing about FMI.  The variable layout (value references,
  * parameter indices, start values) comes from plant_config.h, which dobkit
@@ -20,23 +19,19 @@
 /* Everything that defines the model's behaviour: saved and restored as the FMU state. */
 typedef struct {
     double time;              /* s */
-    double x[NX];             /* q[0..3], dq[0..3] */
-    double u[NU];             /* tau[0..3]: N m, N m, N, N m */
+    double x[NX];             /* q[0..n-1], dq[0..n-1] */
+    double u[NU];             /* tau[0..n-1]: N m (revolute), N (prismatic) */
     double du[NU];            /* their time derivatives over the coming step (FMI 2 input derivatives), per s */
     double p[N_PARAMS];       /* real parameters, indexed by P_* */
     int n_substeps;           /* RK4 sub-steps per co-simulation step */
     int sw[N_SWITCHES];       /* disturbance model switches, indexed by SW_* */
 } PlantData;
 
-/* The lumped inertia constants of the paper's Eq. 5-7. */
-typedef struct {
-    double k1, k2, k3, k4, k5;
-} PlantConstants;
-
 /* Model-level result codes (the FMI layer maps them to statuses). */
 enum { PLANT_OK = 0, PLANT_NOT_PD = 1, PLANT_NONFINITE = 2 };
 
-void plant_constants(const double *p, PlantConstants *k);
+/* The calculated parameters (for the paper's arm k1..k5 of Eq. 5-7) from the real parameters p. */
+void plant_calculated_parameters(const double *p, double *out);
 
 /* External disturbance tau_dis at time t and state x. */
 void plant_disturbance(const PlantData *d, double t, const double *x, double *tau_dis);

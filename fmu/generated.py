@@ -1,0 +1,333 @@
+"""The plant FMU's maths, generated from the plant block's kernels (:mod:`blocks.compiled.c_backend`).
+
+:func:`plant_c` traces the plant block of :func:`blocks.systems.plant` --
+the arm's ``plant_acceleration`` and the external disturbance models -- and
+writes ``plant_generated.h``: the state derivative and ``tau_dis`` as C, the
+same operations as the numpy kernels and the compiled engine's numba code.
+``plant_model.c`` includes it and keeps only what is not maths (RK4 stepping,
+the input hold, the status codes).
+
+The disturbance switches (``disturbance_paper`` ...) are structure to the
+trace, yet the FMU lets the user flip them before initialization: one
+function is generated for each combination and the C picks one by the
+switches' bit mask.  The numbers the trace lifts (``theta``) are computed from
+the FMU's tunable parameters by ``plant_theta`` (for the paper's arm the Table-1
+parameters through the traced ``k1..k5`` of Eq. 5-7), so changing a parameter
+at simulation time needs no new code; structure that is frozen in an arm
+(a URDF arm's geometry) would stay a constant in the text.
+
+Generated (all ``static``, one header per export)::
+
+    N_JOINTS, N_THETA, N_CALCULATED, N_MODEL_COMBOS
+    plant_theta(const double *p, double *theta)               theta from the real parameters p[P_*]
+    plant_calculated(const double *p, double *out)            calculated parameters (k1..k5)
+    PLANT_UPDATE[mask](t, x, u, theta, dx)                     [dq; q''] of Eq. 1
+    PLANT_TAU_DIS[mask](t, x, u, theta, tau_dis)               the acting disturbance
+    plant_arm_valid(p, sw, msg, size)                        the arm's own parameter check
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from types import SimpleNamespace
+
+import numpy as np
+
+from blocks.compiled.c_backend import C_PRELUDE, CodegenError, emit_c_function, trace_block
+from blocks.compiled.trace import Graph, Sym, param_values
+from blocks.contract import Kernels, contract_of
+from blocks.disturbances import DISTURBANCE_KINDS, DisturbanceSpec
+from blocks.kernels.disturbance import DisturbanceParams, external_disturbance
+from blocks.parameters import RobotParameters
+from blocks.systems import plant as plant_block
+
+__all__ = ["GeneratedPlant", "plant_c", "plant_kernels", "arm_disturbance", "GENERATED_HEADER"]
+
+#: The file name of the generated maths inside the FMU's ``sources/``.
+GENERATED_HEADER = "plant_generated.h"
+
+_KERNEL_ARGS = "double t, const double *x, const double *u, const double *theta, double *out"
+
+
+@dataclass(frozen=True)
+class GeneratedPlant:
+    """The generated C of one plant export and what it is made of.
+
+    Attributes
+    ----------
+    text : str
+        The header ``plant_generated.h``.
+    n_joints, n_theta, n_calculated : int
+        Joints of the arm, numbers the code reads, calculated parameters.
+    calculated : tuple of (name, unit, description)
+        The calculated parameters ``plant_calculated`` gives (k1..k5 for the paper's arm).
+    functions : int
+        C functions in the text.
+    theta_names : tuple of str
+        What each entry of ``theta`` is.
+    """
+
+    text: str
+    n_joints: int
+    n_theta: int
+    n_calculated: int
+    calculated: tuple
+    functions: int
+    theta_names: tuple
+
+
+# --------------------------------------------------------------------------------------------------------------
+# The plant's kernels for any arm
+# --------------------------------------------------------------------------------------------------------------
+#: Disturbance models that need the paper's arm (the tissue contact uses its planar Jacobian, Eq. 8).
+RRPR_ONLY_KINDS = ("tissue",)
+
+
+def arm_disturbance(arm, disturbance: DisturbanceSpec | None):
+    """The disturbance settings of a plant export, per joint of ``arm``.
+
+    For the paper's arm: the :class:`~blocks.disturbances.DisturbanceSpec`
+    itself (default: Eq. 4).  For another arm: its per-joint vectors must have
+    one entry per joint; without one, every model is off and the amplitudes
+    are zero (start values the user sets on the FMU).  The tissue model needs
+    the paper's kinematics and is refused by name for other arms.
+
+    Raises
+    ------
+    ValueError
+        On vectors of the wrong length or the tissue model on another arm.
+    """
+    if isinstance(arm, RobotParameters):
+        return DisturbanceSpec() if disturbance is None else disturbance
+    n = arm.joints.count
+    base = DisturbanceSpec()
+    if disturbance is None:
+        return SimpleNamespace(kinds=(), f_r=(0.0,) * n, coulomb=(0.0,) * n, viscous=(0.0,) * n,
+                               friction_velocity=base.friction_velocity, skin_height=base.skin_height,
+                               tissue_stiffness=base.tissue_stiffness, tissue_damping=base.tissue_damping,
+                               tissue_drag=base.tissue_drag)
+    bad = [k for k in disturbance.kinds if k in RRPR_ONLY_KINDS]
+    if bad:
+        raise ValueError(f"disturbance models {bad} need the paper's arm kinematics; the arm {arm!r} has none "
+                         f"(choose from {[k for k in DISTURBANCE_KINDS if k not in RRPR_ONLY_KINDS]})")
+    for name in ("f_r", "coulomb", "viscous"):
+        if len(getattr(disturbance, name)) != n:
+            raise ValueError(f"disturbance.{name} has {len(getattr(disturbance, name))} entries; the arm has {n} "
+                             "joints")
+    return disturbance
+
+
+def _disturbance_params(d, tissue_kin) -> DisturbanceParams:
+    return DisturbanceParams(
+        paper="paper" in d.kinds, friction="friction" in d.kinds, tissue="tissue" in d.kinds,
+        f_r=np.array(d.f_r, dtype=float), coulomb=np.array(d.coulomb, dtype=float),
+        viscous=np.array(d.viscous, dtype=float), friction_velocity=float(d.friction_velocity),
+        skin_height=float(d.skin_height), tissue_stiffness=float(d.tissue_stiffness),
+        tissue_damping=float(d.tissue_damping), tissue_drag=float(d.tissue_drag), kin=tissue_kin)
+
+
+def plant_kernels(arm, d) -> Kernels:
+    """The plant's kernels: ``update`` gives ``[dq; q'']`` of Eq. 1, ``output`` ``[q; dq; tau_dis]``.
+
+    The paper's arm uses the plant block's own kernels (:func:`blocks.systems.plant`); another arm its
+    row kernel ``plant_acceleration`` with the disturbance kernels of :mod:`blocks.kernels.disturbance`,
+    its geometry a frozen parameter (constants in the generated code).
+    """
+    if isinstance(arm, RobotParameters):
+        return contract_of(plant_block(arm, d)).kernels
+    rows = arm.kernels
+
+    def update(t, x, u, k, dist):
+        n = x.shape[0] // 2
+        q, dq = x[:n], x[n:]
+        return np.concatenate((dq, rows.plant_acceleration(k, q, dq, u + external_disturbance(t, q, dq, dist))))
+
+    def output(t, x, u, k, dist):
+        n = x.shape[0] // 2
+        return np.concatenate((x, external_disturbance(t, x[:n], x[n:], dist)))
+
+    return Kernels((arm.kernel_params(), _disturbance_params(d, np.zeros(0))), output, update)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# The arm's parameter map: theta (what the trace lifted) as expressions of the FMU's real parameters
+# --------------------------------------------------------------------------------------------------------------
+class _Namespace:
+    def __init__(self, **values) -> None:
+        self.__dict__.update(values)
+
+
+def _rrpr_map(graph: Graph, p: dict) -> tuple[list, list, list, str]:
+    """The paper's arm: k1..k5 of Eq. 5-7 traced from Table 1 (the Python property, run on symbols)."""
+    names = RobotParameters.names()
+    c = RobotParameters.constants.func(_Namespace(**{n: p[n] for n in names}))
+    arm = [c.k1, c.k2, c.k3, c.k4, c.k5, c.g]
+    kin = [p["a1"], p["a2"], p["d1"], p["d4"]]
+    units = {"k1": "kg.m2", "k2": "kg.m2", "k3": "kg.m2", "k4": "kg", "k5": "kg.m2"}
+    calculated = [(n, units[n], f"inertia constant {n} of Eq. 5-7, from Table 1", getattr(c, n))
+                  for n in ("k1", "k2", "k3", "k4", "k5")]
+    # M(q) positive definite for every theta2 (docs/model.md, "Inertia matrix")
+    valid = r"""    double k[N_CALCULATED];
+    double margin;
+    (void)sw;
+    plant_calculated(p, k);
+    margin = (k[0] - k[2]) * (k[2] - k[4]) - 0.25 * k[1] * k[1];
+    if (!(k[0] > k[2] && k[2] > k[4] && margin > 0.0)) {
+        snprintf(msg, msg_size,
+                 "parameters give an inertia matrix that is not positive definite for every theta2 "
+                 "(k1=%g, k2=%g, k3=%g, k5=%g kg m^2; need k1 > k3 > k5 and (k1-k3)(k3-k5) > k2^2/4)",
+                 k[0], k[1], k[2], k[4]);
+        return 0;
+    }
+    return 1;
+"""
+    return arm, kin, calculated, valid
+
+
+def _theta_expressions(arm, spec: DisturbanceSpec, params, p: dict, graph: Graph) -> tuple[list, list, str]:
+    """theta as expressions of ``p`` in the order the plant block's trace reads them; calculated; validity."""
+    if isinstance(arm, RobotParameters):
+        arm_theta, kin, calculated, valid = _rrpr_map(graph, p)
+    else:
+        # geometry and inertias are frozen (literals in the code): only the disturbance numbers are tunable
+        arm_theta, kin, calculated = [], [], []
+        valid = """    (void)p;
+    if (sw[SW_TISSUE]) {
+        snprintf(msg, msg_size, "disturbance_tissue needs the paper's arm kinematics; this arm has none "
+                 "(set disturbance_tissue false)");
+        return 0;
+    }
+    return 1;
+"""
+    theta = list(arm_theta)
+    dist = params[1]
+    for name in DisturbanceParams._fields:
+        value = getattr(dist, name)
+        if isinstance(value, (bool, np.bool_)):
+            continue
+        if name == "kin":
+            theta += kin                # the tissue model's lengths (none for an arm without it)
+        elif isinstance(value, np.ndarray):
+            theta += [p[f"{name}[{i}]"] for i in range(value.size)]
+        else:
+            theta.append(p[name])
+    return theta, calculated, valid
+
+
+def _evaluate(expr, values: dict) -> float:
+    """A traced expression of the parameters on numbers, with Python floats (for the export's self-check)."""
+    if not isinstance(expr, Sym):
+        return float(expr)
+    if expr.op == "const":
+        return float(expr.args[0])
+    if expr.op == "leaf":
+        return values[expr.args[1]]
+    if expr.op == "bin" and expr.args[0] in "+-*/":
+        a, b = (_evaluate(v, values) for v in expr.args[1:])
+        return {"+": a + b, "-": a - b, "*": a * b, "/": a / b}[expr.args[0]]
+    if expr.op == "call" and expr.args[0] == "negative":
+        return -_evaluate(expr.args[1], values)
+    raise CodegenError(f"a parameter expression uses {expr.op} {expr.args[0]!r}, which the export cannot check")
+
+
+# --------------------------------------------------------------------------------------------------------------
+# The header
+# --------------------------------------------------------------------------------------------------------------
+def plant_c(arm, spec: DisturbanceSpec, param_order: list[str], start: dict) -> GeneratedPlant:
+    """Generate ``plant_generated.h`` for an arm and its disturbance models.
+
+    Parameters
+    ----------
+    arm : blocks.arm.ArmModel
+        The true arm (its joint count sizes everything).
+    spec : DisturbanceSpec
+        Disturbance parameters; every combination of the models is generated.
+    param_order : list of str
+        The FMU's real parameters in ``PlantData.p`` order (their variable names).
+    start : dict
+        Their start values, to check that ``plant_theta`` gives the trace's numbers.
+
+    Raises
+    ------
+    CodegenError
+        If the arm has no parameter map, a kernel cannot be traced, or the
+        generated parameter map disagrees with the block's own numbers.
+    """
+    n = arm.joints.count
+    nx, nu = 2 * n, n
+    graph = Graph()
+    p = {name: graph.leaf("p", j) for j, name in enumerate(param_order)}
+    base = plant_kernels(arm, spec)
+    theta_exprs, calculated, valid = _theta_expressions(arm, spec, base.params, p, graph)
+    expected = param_values(base.params, [])
+    if len(theta_exprs) != len(expected):
+        raise CodegenError(f"the parameter map gives {len(theta_exprs)} numbers, the plant's trace reads "
+                           f"{len(expected)}")
+    got = [_evaluate(e, {j: float(start[name]) for j, name in enumerate(param_order)}) for e in theta_exprs]
+    bad = [j for j, (a, b) in enumerate(zip(got, expected)) if not abs(a - b) <= 1e-15 * max(abs(b), 1.0)]
+    if bad:
+        raise CodegenError(f"the parameter map disagrees with the plant's numbers at theta{bad}")
+
+    parts = [f"/* {GENERATED_HEADER}: the plant's maths for one export, generated by fmu.generated from the "
+             "kernels of blocks; do not edit. */",
+             "#ifndef DOBKIT_PLANT_GENERATED_H", "#define DOBKIT_PLANT_GENERATED_H", "", "#include <stdio.h>",
+             C_PRELUDE, f"#define N_JOINTS {n}", f"#define N_THETA {len(theta_exprs)}",
+             f"#define N_CALCULATED {len(calculated)}", f"#define N_MODEL_COMBOS {2 ** len(DISTURBANCE_KINDS)}",
+             "#if NX != 2 * N_JOINTS || NU != N_JOINTS", "#error plant_config.h and plant_generated.h disagree",
+             "#endif", ""]
+    leaves = {"p": "p[{i}]"}
+    parts.append(emit_c_function("plant_theta", theta_exprs, leaves, "const double *p, double *out", static=True))
+    parts.append(emit_c_function("plant_calculated", [c[3] for c in calculated] or [], leaves,
+                                 "const double *p, double *out", static=True) if calculated else
+                 "static void plant_calculated(const double *p, double *out)\n{\n    (void)p;\n    (void)out;\n}\n")
+    functions = 2
+    theta_names: tuple = ()
+    rrpr = isinstance(arm, RobotParameters)
+    for mask, kinds in enumerate(_combinations()):
+        if not rrpr and any(k in RRPR_ONLY_KINDS for k in kinds):
+            continue            # refused at initialization (plant_arm_valid); its slot takes the mask without it
+        kernels = plant_kernels(arm, _with_kinds(spec, kinds))
+        trace = trace_block(kernels, nx, nu, ("update", "output"), ("k", "disturbance"))
+        if list(trace.theta) != expected:
+            raise CodegenError(f"the plant with disturbance models {kinds} reads other numbers than the export's")
+        theta_names = tuple(trace.theta_names)
+        parts.append(f"/* disturbance models: {', '.join(kinds) or 'none'} */")
+        parts.append(emit_c_function(f"plant_update_{mask}", trace.rows["update"], args=_KERNEL_ARGS, static=True))
+        parts.append(emit_c_function(f"plant_tau_dis_{mask}", trace.rows["output"][nx:], args=_KERNEL_ARGS,
+                                     static=True))
+        functions += 2
+    combos = [m if rrpr else _without_rrpr_only(m) for m in range(2 ** len(DISTURBANCE_KINDS))]
+    parts += ["typedef void (*PlantKernel)(double, const double *, const double *, const double *, double *);",
+              "static const PlantKernel PLANT_UPDATE[N_MODEL_COMBOS] = {"
+              + ", ".join(f"plant_update_{m}" for m in combos) + "};",
+              "static const PlantKernel PLANT_TAU_DIS[N_MODEL_COMBOS] = {"
+              + ", ".join(f"plant_tau_dis_{m}" for m in combos) + "};", "",
+              "/* the arm's own check of its parameters (beyond the ranges of each one) */",
+              "static int plant_arm_valid(const double *p, const int *sw, char *msg, unsigned long msg_size)\n{\n"
+              + valid + "}\n",
+              "#endif", ""]
+    functions += 1
+    return GeneratedPlant(text="\n".join(parts), n_joints=n, n_theta=len(theta_exprs), n_calculated=len(calculated),
+                          calculated=tuple(c[:3] for c in calculated), functions=functions,
+                          theta_names=theta_names)
+
+
+def _with_kinds(spec, kinds: tuple):
+    if isinstance(spec, DisturbanceSpec):
+        return replace(spec, kinds=kinds)
+    return SimpleNamespace(**(vars(spec) | {"kinds": kinds}))
+
+
+def _without_rrpr_only(mask: int) -> int:
+    for j, kind in enumerate(DISTURBANCE_KINDS):
+        if kind in RRPR_ONLY_KINDS:
+            mask &= ~(1 << j)
+    return mask
+
+
+def _combinations() -> list[tuple]:
+    """Every subset of the disturbance models, the subset of bit mask m at index m (bit j: DISTURBANCE_KINDS[j])."""
+    kinds = tuple(DISTURBANCE_KINDS)
+    out = []
+    for mask in range(2 ** len(kinds)):
+        out.append(tuple(k for j, k in enumerate(kinds) if mask >> j & 1))
+    return out
