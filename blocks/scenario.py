@@ -487,7 +487,7 @@ def _gain(value, key: str):
     """A gain checked by :func:`~blocks.gains.validated_gain`; kept as given (the file's form) for the settings."""
     ctx = _context()
     try:
-        validated_gain(value, key.split(".", 1)[1], ctx.joints, ctx.name)
+        validated_gain(value, key.split(".", 1)[1], ctx.joints, ctx.arm_label)
     except GainError as err:
         raise ScenarioError(str(err)) from None
     return _plain(value)
@@ -528,6 +528,11 @@ class _ArmContext:
     given: tuple | None = None          # (robot, nominal) given in Python
     arm: Any = None                     # the true arm, when it is not the RRPR
     nominal: Any = None
+
+    @property
+    def arm_label(self) -> str | None:
+        """The arm's name for messages, None for the paper's RRPR (its messages stay as they were)."""
+        return None if self.arm is None else self.name
 
 
 _ARM_CONTEXT: contextvars.ContextVar = contextvars.ContextVar("scenario_arm")
@@ -640,7 +645,8 @@ def _build_gains(given: dict, built: dict):
     gains = GAIN_DEFAULTS | given
     if "observer_bandwidth" in given:          # Y = omega M^(q0) is made once the start q0 is known (_validated)
         del gains["observer"]
-    return {k: (validated_gain(v, k, ctx.joints, ctx.name) if k in GAIN_KEYS else v) for k, v in gains.items()}, gains
+    return {k: (validated_gain(v, k, ctx.joints, ctx.arm_label) if k in GAIN_KEYS else v) for k, v in gains.items()}, \
+        gains
 
 
 def _build_observer(given: dict, built: dict):
@@ -1123,7 +1129,7 @@ def _bandwidth_gain(omega: float, built: dict) -> np.ndarray:
         q0 = np.asarray(built["trajectory"].evaluate(0.0)[0], dtype=float)
     ctx = _context()
     return validated_gain(observer_gain_from_bandwidth(built["nominal_scale"], omega, q0), "observer", ctx.joints,
-                          ctx.name)
+                          ctx.arm_label)
 
 
 def _table(data: Mapping, key: str) -> Mapping:

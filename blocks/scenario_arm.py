@@ -110,7 +110,7 @@ _scaled: dict = {}
 
 
 def scaled_nominal(arm: ArmModel, scale: float, error) -> ArmModel:
-    """The nominal model of ``arm`` with every body's mass, first moment and inertia times ``scale``.
+    """The nominal model of ``arm`` with every body's mass and inertia times ``scale`` (centres of mass kept).
 
     The dynamics are linear in those parameters, so the nominal ``M``, ``N q'``
     and ``G`` are ``scale`` times the true ones: the internal disturbance of
@@ -122,14 +122,15 @@ def scaled_nominal(arm: ArmModel, scale: float, error) -> ArmModel:
     if found is not None and found[0] is arm:
         return found[1]
     chain = getattr(arm, "chain", None)
-    if chain is None or not all(hasattr(chain, f) for f in ("masses", "first_moments", "inertias")):
+    # the body parameters that scale with the mass: masses, inertias, first moments (centres of mass do not)
+    fields = [f for f in ("masses", "first_moments", "inertias", "com_inertias") if hasattr(chain, f)]
+    if chain is None or "masses" not in fields or len(fields) < 2:
         raise error(f"'arm.nominal_mass_scale' needs an arm given by its bodies (a URDF arm), not {arm!r:.80}")
 
     def times(value):
         return tuple(times(v) for v in value) if isinstance(value, tuple) else float(value) * scale
 
-    scaled = dataclasses.replace(chain, masses=times(chain.masses), first_moments=times(chain.first_moments),
-                                 inertias=times(chain.inertias))
+    scaled = dataclasses.replace(chain, **{f: times(getattr(chain, f)) for f in fields})
     nominal = type(arm)(scaled, arm.joints, arm.tool_frame, continuous=arm.continuous, source=arm.source)
     nominal.pin_model = None            # the reference model is the true arm's
     _scaled[(id(arm), scale)] = (arm, nominal)
