@@ -107,6 +107,7 @@ def comparison_metrics(scenario: Scenario, with_dob, without_dob) -> dict:
     return {
         "scenario": scenario.name,
         "dobkit_version": __version__,
+        "joints": list(joints.names),
         "units": {"position": list(joints.position_units), "disturbance": list(joints.force_units)},
         "definitions": {
             "rms_position_error": "Eq. 13: sqrt(mean((q_ref - q)^2)) over the output grid, per joint",

@@ -45,10 +45,12 @@ from .arm import ArmModel
 from .parameters import RobotParameters
 from .validation import arm_model, joint_arrays, real_array
 
-__all__ = ["DisturbanceSpec", "DISTURBANCE_KINDS", "external_disturbance",
+__all__ = ["DisturbanceSpec", "DISTURBANCE_KINDS", "KIND_ALIASES", "RRPR_ONLY_KINDS", "external_disturbance",
            "paper_disturbance", "friction_disturbance", "tissue_disturbance"]
 
-DISTURBANCE_KINDS = ("paper", "step", "friction", "tissue")
+DISTURBANCE_KINDS = ("paper", "friction", "tissue")
+#: Other names of a model: ``step`` is Eq. 4 under the name it has for any arm.
+KIND_ALIASES = {"step": "paper"}
 #: Models written for the paper's RRPR only.
 RRPR_ONLY_KINDS = ("tissue",)
 
@@ -62,7 +64,7 @@ class DisturbanceSpec:
     Parameters
     ----------
     kinds : tuple of str
-        Any of ``"paper"`` (or ``"step"``, the same law), ``"friction"``, ``"tissue"``; an empty
+        Any of ``"paper"`` (or ``"step"``, the same law, kept as ``"paper"``), ``"friction"``, ``"tissue"``; an empty
         tuple means no external disturbance.  Their torques add up.
     f_r : n floats
         Eq. 4 amplitudes (N m, N m, N, N m for the RRPR); paper: ``[1.43, 1.6, 1.4, 1.2]``.
@@ -96,10 +98,12 @@ class DisturbanceSpec:
     def __post_init__(self) -> None:
         kinds = tuple(self.kinds)
         for kind in kinds:
-            if kind not in DISTURBANCE_KINDS:
-                raise ValueError(f"disturbance kind {kind!r} is unknown; choose from {list(DISTURBANCE_KINDS)}")
-        if len(set(kinds)) != len(kinds) or {"paper", "step"} <= set(kinds):
+            if kind not in DISTURBANCE_KINDS and kind not in KIND_ALIASES:
+                raise ValueError(f"disturbance kind {kind!r} is unknown; choose from "
+                                 f"{list(DISTURBANCE_KINDS) + list(KIND_ALIASES)}")
+        if len({KIND_ALIASES.get(k, k) for k in kinds}) != len(kinds):
             raise ValueError(f"disturbance kinds {list(kinds)} name a model twice ('step' is 'paper' for any arm)")
+        kinds = tuple(KIND_ALIASES.get(k, k) for k in kinds)
         object.__setattr__(self, "kinds", kinds)
         for name in ("f_r", "coulomb", "viscous"):
             value = tuple(float(v) for v in np.asarray(getattr(self, name), dtype=float).ravel())
@@ -109,6 +113,10 @@ class DisturbanceSpec:
             if name != "f_r" and any(v < 0 for v in value):
                 raise ValueError(f"disturbance.{name} must be >= 0, got {list(value)}")
             object.__setattr__(self, name, value)
+        sizes = {name: len(getattr(self, name)) for name in ("f_r", "coulomb", "viscous")}
+        if len(set(sizes.values())) > 1:
+            raise ValueError("the per-joint lists disturbance.f_r, disturbance.coulomb and disturbance.viscous must "
+                             f"have one value per joint each, got {sizes} values (the defaults are the paper's four)")
         for name, lower, strict in (("friction_velocity", 0.0, True), ("tissue_stiffness", 0.0, False),
                                     ("tissue_damping", 0.0, False), ("tissue_drag", 0.0, False),
                                     ("skin_height", -math.inf, False)):
@@ -121,7 +129,7 @@ class DisturbanceSpec:
 
     def per_joint(self) -> tuple[str, ...]:
         """The per-joint lists the acting models read: ``f_r`` (paper, step), ``coulomb`` and ``viscous`` (friction)."""
-        out = ("f_r",) if {"paper", "step"} & set(self.kinds) else ()
+        out = ("f_r",) if "paper" in self.kinds else ()
         return out + (("coulomb", "viscous") if "friction" in self.kinds else ())
 
     def check_arm(self, arm, name: str | None = None) -> None:

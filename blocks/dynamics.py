@@ -1,8 +1,13 @@
-"""Rigid-body dynamics of the RRPR arm: ``M(q) q'' + N(q, q') q' + G(q) = tau``.
+"""Rigid-body dynamics ``M(q) q'' + N(q, q') q' + G(q) = tau`` of the RRPR arm, and of any arm model.
 
 All functions are vectorised: ``q`` and ``dq`` may carry any leading batch
-shape ``(..., 4)``; matrices come back as ``(..., 4, 4)``.  Joint order is
+shape ``(..., n)``; matrices come back as ``(..., n, n)``.  For the paper's
+RRPR (n = 4) the joint order is
 ``[theta1 (rad), theta2 (rad), d3 (m, positive downwards), theta4 (rad)]``.
+:func:`inertia`, :func:`gravity`, :func:`forward_dynamics`,
+:func:`inverse_dynamics` and :func:`kinetic_energy` take any
+:class:`~blocks.arm.ArmModel` (its row kernels); the others are the RRPR's
+closed form (Eq. 6's matrix, ``dM/dtheta2``, its potential energy).
 
 The formulas are those of :mod:`blocks.kernels` (joint rows first); these
 functions present them in the joint-last layout that analysis code and users
@@ -14,9 +19,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kernels import arm_constants, bias_forces, coriolis_forces, inertia_matrix, mass_solve, mass_times
+from .kernels import arm_constants, coriolis_forces
 from .parameters import RobotParameters
-from .validation import joint_array, joint_arrays, robot_parameters
+from .validation import arm_model, joint_array, joint_arrays, robot_parameters
 
 __all__ = [
     "inertia", "inertia_derivative_theta2", "coriolis_vector", "coriolis_matrix", "gravity",
@@ -24,9 +29,9 @@ __all__ = [
 ]
 
 
-def _checked(params, **arrays) -> list[np.ndarray]:
+def _checked(params, any_arm: bool = False, **arrays) -> list[np.ndarray]:
     """The arguments of a public function checked once (:mod:`blocks.validation`): the joint arrays, broadcast."""
-    joints = robot_parameters(params).joints
+    joints = (arm_model(params, "params") if any_arm else robot_parameters(params)).joints
     if len(arrays) == 1:
         (name, value), = arrays.items()
         return [joint_array(value, name, joints)]
@@ -57,8 +62,8 @@ def inertia(q, params: RobotParameters) -> np.ndarray:
     numpy.ndarray, shape (..., 4, 4)
         Symmetric positive definite inertia matrix.
     """
-    q, = _checked(params, q=q)
-    return inertia_matrix(arm_constants(params), _rows(q))
+    q, = _checked(params, True, q=q)
+    return params.kernels.inertia_matrix(params.kernel_params(), _rows(q))
 
 
 def inertia_derivative_theta2(q, params: RobotParameters) -> np.ndarray:
@@ -97,9 +102,9 @@ def coriolis_matrix(q, dq, params: RobotParameters) -> np.ndarray:
 
 def gravity(q, params: RobotParameters) -> np.ndarray:
     """Gravity vector ``G(q)`` of Eq. 7 (``d3`` positive downwards), shape (..., 4)."""
-    q, = _checked(params, q=q)
+    q, = _checked(params, True, q=q)
     # N q' vanishes at q' = 0, leaving G
-    return _joint_last(bias_forces(arm_constants(params), _rows(q), np.zeros_like(_rows(q))))
+    return _joint_last(params.kernels.bias_forces(params.kernel_params(), _rows(q), np.zeros_like(_rows(q))))
 
 
 def forward_dynamics(q, dq, tau, params: RobotParameters) -> np.ndarray:
@@ -112,25 +117,25 @@ def forward_dynamics(q, dq, tau, params: RobotParameters) -> np.ndarray:
     tau : array_like, shape (..., 4)
         Total generalised force on each joint (N m, N for joint 3).
     """
-    q, dq, tau = _checked(params, q=q, dq=dq, tau=tau)
-    k = arm_constants(params)
-    force = _rows(tau) - bias_forces(k, _rows(q), _rows(dq))
-    return _joint_last(mass_solve(k, _rows(q), force))
+    q, dq, tau = _checked(params, True, q=q, dq=dq, tau=tau)
+    k, kern = params.kernel_params(), params.kernels
+    force = _rows(tau) - kern.bias_forces(k, _rows(q), _rows(dq))
+    return _joint_last(kern.mass_solve(k, _rows(q), force))
 
 
 def inverse_dynamics(q, dq, ddq, params: RobotParameters) -> np.ndarray:
     """Generalised forces ``M q'' + N q' + G`` that produce ``ddq``, shape (..., 4)."""
-    q, dq, ddq = _checked(params, q=q, dq=dq, ddq=ddq)
-    k = arm_constants(params)
-    rows = mass_times(k, _rows(q), _rows(ddq)) + bias_forces(k, _rows(q), _rows(dq))
+    q, dq, ddq = _checked(params, True, q=q, dq=dq, ddq=ddq)
+    k, kern = params.kernel_params(), params.kernels
+    rows = kern.mass_times(k, _rows(q), _rows(ddq)) + kern.bias_forces(k, _rows(q), _rows(dq))
     return _joint_last(rows)
 
 
 def kinetic_energy(q, dq, params: RobotParameters) -> np.ndarray:
     """Kinetic energy ``0.5 q'^T M(q) q'`` in J, shape (...)."""
-    q, dq = _checked(params, q=q, dq=dq)
+    q, dq = _checked(params, True, q=q, dq=dq)
     rows = _rows(dq)
-    return 0.5 * np.sum(rows * mass_times(arm_constants(params), _rows(q), rows), axis=0)
+    return 0.5 * np.sum(rows * params.kernels.mass_times(params.kernel_params(), _rows(q), rows), axis=0)
 
 
 def potential_energy(q, params: RobotParameters) -> np.ndarray:

@@ -60,7 +60,7 @@ import numpy as np
 
 from .arm import ArmModel
 from .digital import DISCRETIZATIONS, VELOCITY_SOURCES, DigitalController
-from .disturbances import DISTURBANCE_KINDS, DisturbanceSpec
+from .disturbances import DISTURBANCE_KINDS, KIND_ALIASES, DisturbanceSpec
 from .gains import GAIN_KEYS, OBSERVER_VARIANTS, GainError, validated_gain
 from .joints import RRPR_JOINTS
 from .noise import MeasurementNoise
@@ -74,6 +74,7 @@ from .scenario_arm import (
     observer_gain_from_bandwidth,
     scaled_nominal,
 )
+from .tool_path import ToolPath
 from .trajectory import TRAJECTORY_KINDS, JointSine, LacerationPath, check_joint_ranges
 from .validation import number_text, read_only_array
 
@@ -486,7 +487,7 @@ def _gain(value, key: str):
     """A gain checked by :func:`~blocks.gains.validated_gain`; kept as given (the file's form) for the settings."""
     ctx = _context()
     try:
-        validated_gain(value, key.split(".", 1)[1], ctx.joints, ctx.name)
+        validated_gain(value, key.split(".", 1)[1], ctx.joints, ctx.arm_label)
     except GainError as err:
         raise ScenarioError(str(err)) from None
     return _plain(value)
@@ -497,9 +498,10 @@ def _disturbance_kinds(value, key: str) -> tuple[str, ...]:
     if not isinstance(kinds, (list, tuple)) or not all(isinstance(k, str) for k in kinds):
         raise ScenarioError(f"'{key}' must be a string or a list of strings, got {value!r}")
     kinds = [k for k in kinds if k != "none"]
-    bad = [k for k in kinds if k not in DISTURBANCE_KINDS]
+    bad = [k for k in kinds if k not in DISTURBANCE_KINDS and k not in KIND_ALIASES]
     if bad:
-        raise ScenarioError(f"'{key}' has unknown kind(s) {bad}; choose from {list(DISTURBANCE_KINDS)} or 'none'")
+        raise ScenarioError(f"'{key}' has unknown kind(s) {bad}; choose from "
+                            f"{list(DISTURBANCE_KINDS) + list(KIND_ALIASES)} or 'none'")
     return tuple(kinds)
 
 
@@ -526,6 +528,11 @@ class _ArmContext:
     given: tuple | None = None          # (robot, nominal) given in Python
     arm: Any = None                     # the true arm, when it is not the RRPR
     nominal: Any = None
+
+    @property
+    def arm_label(self) -> str | None:
+        """The arm's name for messages, None for the paper's RRPR (its messages stay as they were)."""
+        return None if self.arm is None else self.name
 
 
 _ARM_CONTEXT: contextvars.ContextVar = contextvars.ContextVar("scenario_arm")
@@ -585,12 +592,14 @@ def _build_arm(given: dict, built: dict):
             values["urdf"] = str(_example_urdf(values["urdf"]))
         except (ValueError, ModuleNotFoundError) as err:
             raise ScenarioError(f"'arm.urdf' = {given['urdf']!r}: {err}") from None
-    arm, name = load_arm(values, ctx.base, ScenarioError)
+    arm, name, resolved = load_arm(values, ctx.base, ScenarioError)
     if "urdf" in given and given["urdf"].startswith("example:"):
         name = given["urdf"].split(":", 1)[1]
     nominal = scaled_nominal(arm, given.get("nominal_mass_scale", 1.0), ScenarioError)
     ctx.joints, ctx.name, ctx.arm, ctx.nominal = arm.joints, name, arm, nominal
     data = {k: _plain(v) for k, v in given.items()}
+    if not given["urdf"].startswith("example:"):
+        data["urdf"] = resolved         # the written scenario (scenario.toml of a run) finds the file from anywhere
     data.setdefault("nominal_mass_scale", 1.0)
     return arm, data
 
@@ -636,7 +645,8 @@ def _build_gains(given: dict, built: dict):
     gains = GAIN_DEFAULTS | given
     if "observer_bandwidth" in given:          # Y = omega M^(q0) is made once the start q0 is known (_validated)
         del gains["observer"]
-    return {k: (validated_gain(v, k, ctx.joints, ctx.name) if k in GAIN_KEYS else v) for k, v in gains.items()}, gains
+    return {k: (validated_gain(v, k, ctx.joints, ctx.arm_label) if k in GAIN_KEYS else v) for k, v in gains.items()}, \
+        gains
 
 
 def _build_observer(given: dict, built: dict):
@@ -665,8 +675,16 @@ def _build_disturbance(given: dict, built: dict):
     ctx = _context()
     # Eq. 4's f_r is the RRPR's four numbers: another arm has no external disturbance unless it is given
     kinds = given.get("kind", ("paper",) if ctx.arm is None else ())
+    lists = {}
+    if ctx.arm is not None:             # the per-joint lists not given: zeros of the arm's n (the defaults are the RRPR's)
+        lists = {k: (0.0,) * ctx.joints.count for k in ("f_r", "coulomb", "viscous") if k not in given}
+        for k in ("f_r", "coulomb", "viscous"):
+            value = given.get(k)
+            if isinstance(value, tuple) and len(value) != ctx.joints.count:
+                raise ScenarioError(f"[disturbance] 'disturbance.{k}' has {len(value)} values; the arm {ctx.name!r} has "
+                                    f"{ctx.joints.count} joints ({', '.join(ctx.joints.names)}): give one per joint")
     try:
-        spec = DisturbanceSpec(kinds=kinds, **{k: v for k, v in given.items() if k != "kind"})
+        spec = DisturbanceSpec(kinds=kinds, **lists, **{k: v for k, v in given.items() if k != "kind"})
         spec.check_arm(built["robot"], ctx.name if ctx.arm is not None else None)
     except ValueError as err:
         raise ScenarioError(f"[disturbance] {err}") from None
@@ -674,6 +692,14 @@ def _build_disturbance(given: dict, built: dict):
     values = {f: _plain(getattr(spec, f)) for f in _defaults(DisturbanceSpec, skip=("kinds",))
               if ctx.arm is None or f not in per_joint or f in spec.per_joint() or f in given}
     return spec, {"kind": list(kinds) if kinds else "none"} | values
+
+
+def _points(value, key: str) -> tuple:
+    """Two or more points [x, y, z] (m)."""
+    if not isinstance(value, (list, tuple)) or len(value) < 2 or \
+            not all(isinstance(p, (list, tuple)) and len(p) == 3 for p in value):
+        raise ScenarioError(f"'{key}' must be a list of two or more points [x, y, z] (m), got {value!r}")
+    return tuple(tuple(_finite()(v, f"{key}[{i}][{j}]") for j, v in enumerate(p)) for i, p in enumerate(value))
 
 
 def _build_trajectory(given: dict, built: dict):
@@ -699,6 +725,11 @@ def _build_trajectory(given: dict, built: dict):
     try:
         if kind == "laceration":
             trajectory = LacerationPath(params=built["robot"], **kw)
+        elif kind == "tool_path":
+            if "waypoints" not in kw:
+                raise ScenarioError("'trajectory.waypoints' is required for kind = 'tool_path' (two or more points "
+                                    "[x, y, z] of the tool point, m, in the arm's base frame)")
+            trajectory = ToolPath(built["robot"], **kw)
         else:
             trajectory = JointSine(**kw)
             _check_sine_ranges(trajectory, built)
@@ -868,7 +899,9 @@ _SECTIONS: dict[str, _Section] = {
                             _build_disturbance),
     "trajectory": _Section({"kind": _one_of(TRAJECTORY_KINDS)}, _build_trajectory, by_kind={
         "laceration": {k: _like(d) for k, d in _defaults(LacerationPath, skip=("params",)).items()},
-        "joint_sine": {k: _like(d) for k, d in _defaults(JointSine).items()}}, default_kind="laceration"),
+        "joint_sine": {k: _like(d) for k, d in _defaults(JointSine).items()},
+        "tool_path": {"waypoints": _points, "duration": _finite(0.0, True), "sample_period": _finite(0.0, True)}},
+        default_kind="laceration"),
     "noise": _Section({k: _like(d) for k, d in _defaults(MeasurementNoise).items() if k in _NOISE_KEYS},
                       _build_noise),
     "initial": _Section({"q": _joint_positions} | {k: _joint_vector for k in _INITIAL_KEYS[1:]},
@@ -1096,7 +1129,7 @@ def _bandwidth_gain(omega: float, built: dict) -> np.ndarray:
         q0 = np.asarray(built["trajectory"].evaluate(0.0)[0], dtype=float)
     ctx = _context()
     return validated_gain(observer_gain_from_bandwidth(built["nominal_scale"], omega, q0), "observer", ctx.joints,
-                          ctx.name)
+                          ctx.arm_label)
 
 
 def _table(data: Mapping, key: str) -> Mapping:

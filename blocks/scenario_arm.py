@@ -55,7 +55,7 @@ def _gravity(value) -> tuple[float, float, float]:
 
 
 def load_arm(given: dict, base: Path | None, error):
-    """The true arm of an ``[arm]`` section (checked values ``given``), and its name.
+    """The true arm of an ``[arm]`` section (checked values ``given``), its name and the URDF file's full path.
 
     Parameters
     ----------
@@ -83,15 +83,34 @@ def load_arm(given: dict, base: Path | None, error):
         raise error(f"'arm.urdf' needs pinocchio, the optional extra: pip install \"dobkit[urdf]\" ({err})") from None
     gravity = _gravity(given["gravity"]) if "gravity" in given else None
     try:
-        arm = load_urdf_arm(path, given["tool_frame"], locked=locked, locked_values=dict(zip(locked, values)),
-                            gravity=gravity)
-    except (ValueError, OSError) as err:
-        raise error(f"[arm] urdf = {given['urdf']!r}: {err}") from None
-    return arm, arm_name(arm, given["urdf"])
+        stat = path.stat()
+        key = (str(path.resolve()), stat.st_mtime_ns, stat.st_size, given["tool_frame"], tuple(locked), tuple(values),
+               gravity)
+    except OSError:
+        key = None
+    arm = _loaded.get(key) if key is not None else None
+    if arm is None:
+        try:
+            arm = load_urdf_arm(path, given["tool_frame"], locked=locked, locked_values=dict(zip(locked, values)),
+                                gravity=gravity)
+        except (ValueError, OSError) as err:
+            raise error(f"[arm] urdf = {given['urdf']!r}: {err}") from None
+        if key is not None:
+            _loaded[key] = arm
+            while len(_loaded) > _KEPT:
+                _loaded.pop(next(iter(_loaded)))
+    return arm, arm_name(arm, given["urdf"]), str(path.resolve())
+
+
+# Arms read from unchanged files are read once: a scenario varied many times (a sweep) shares its arm, and two
+# loads of one scenario are equal (an arm compares by identity).
+_KEPT = 16
+_loaded: dict = {}
+_scaled: dict = {}
 
 
 def scaled_nominal(arm: ArmModel, scale: float, error) -> ArmModel:
-    """The nominal model of ``arm`` with every body's mass, first moment and inertia times ``scale``.
+    """The nominal model of ``arm`` with every body's mass and inertia times ``scale`` (centres of mass kept).
 
     The dynamics are linear in those parameters, so the nominal ``M``, ``N q'``
     and ``G`` are ``scale`` times the true ones: the internal disturbance of
@@ -99,17 +118,24 @@ def scaled_nominal(arm: ArmModel, scale: float, error) -> ArmModel:
     """
     if scale == 1.0:
         return arm
+    found = _scaled.get((id(arm), scale))
+    if found is not None and found[0] is arm:
+        return found[1]
     chain = getattr(arm, "chain", None)
-    if chain is None or not all(hasattr(chain, f) for f in ("masses", "first_moments", "inertias")):
+    # the body parameters that scale with the mass: masses, inertias, first moments (centres of mass do not)
+    fields = [f for f in ("masses", "first_moments", "inertias", "com_inertias") if hasattr(chain, f)]
+    if chain is None or "masses" not in fields or len(fields) < 2:
         raise error(f"'arm.nominal_mass_scale' needs an arm given by its bodies (a URDF arm), not {arm!r:.80}")
 
     def times(value):
         return tuple(times(v) for v in value) if isinstance(value, tuple) else float(value) * scale
 
-    scaled = dataclasses.replace(chain, masses=times(chain.masses), first_moments=times(chain.first_moments),
-                                 inertias=times(chain.inertias))
+    scaled = dataclasses.replace(chain, **{f: times(getattr(chain, f)) for f in fields})
     nominal = type(arm)(scaled, arm.joints, arm.tool_frame, continuous=arm.continuous, source=arm.source)
     nominal.pin_model = None            # the reference model is the true arm's
+    _scaled[(id(arm), scale)] = (arm, nominal)
+    while len(_scaled) > _KEPT:
+        _scaled.pop(next(iter(_scaled)))
     return nominal
 
 

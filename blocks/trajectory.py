@@ -48,7 +48,9 @@ from .parameters import RobotParameters
 __all__ = ["LacerationPath", "JointSine", "TRAJECTORY_KINDS", "check_joint_ranges", "smoothstep5", "bump6",
            "laceration_pose", "laceration_rows", "laceration_reference", "laceration_output", "joint_sine_output"]
 
-TRAJECTORY_KINDS = ("laceration", "joint_sine")
+#: The kinds of reference: the RRPR's laceration path, joint sines (any arm), a tool-point path (any arm,
+#: :mod:`blocks.tool_path`).
+TRAJECTORY_KINDS = ("laceration", "joint_sine", "tool_path")
 
 
 def smoothstep5(tau: float):

@@ -10,16 +10,19 @@ and the tests check it against an independent reference, as they check these.
 Layout
 ------
 Signals are *rows*: a joint vector is an array whose first axis is the joint,
-shape ``(4,)`` for one point or ``(4, K)`` for ``K`` columns (grid times or
-batch members).  A row ``q[1]`` is then a scalar or a ``(K,)`` array and the
+shape ``(n,)`` for one point or ``(n, K)`` for ``K`` columns (grid times or
+batch members); n is the arm's (4 for the paper's RRPR).  A row ``q[1]`` is then a scalar or a ``(K,)`` array and the
 same formula serves both.
 
 Parameters follow the signals: an array parameter is indexed by its first
 axes (``k[1]``, ``kp[i]``, ``Y[i, j]``) and, for column signals, carries a
 trailing axis of length 1 (shared by every column) or ``K`` (one value per
 column, as in a batch).  :func:`column_params` adds the shared trailing axis.
-Arm constants are the vector ``k = [k1, k2, k3, k4, k5, g]`` of
-:func:`arm_constants`; kinematic lengths are ``kin = [a1, a2, d1, d4]``.
+For the paper's RRPR the arm constants are the vector ``k = [k1, k2, k3,
+k4, k5, g]`` of :func:`arm_constants` and the kinematic lengths ``kin = [a1,
+a2, d1, d4]``; another arm gives its own ``k = arm.kernel_params()`` and
+``kin = arm.tool_params()``, and the laws and block kernels run on its row
+kernels through :func:`blocks.kernels.bind.bound` (one source for every arm).
 
 The functions use only the part of numpy that numba compiles: no ``einsum``,
 no ellipsis indexing, no keyword-heavy calls.

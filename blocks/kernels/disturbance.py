@@ -61,7 +61,7 @@ def disturbance_params(spec, params) -> DisturbanceParams:
         return value if name in acting or value.shape == (n,) else np.zeros(n)
 
     return DisturbanceParams(
-        paper="paper" in spec.kinds or "step" in spec.kinds, friction="friction" in spec.kinds,
+        paper="paper" in spec.kinds, friction="friction" in spec.kinds,
         tissue="tissue" in spec.kinds,
         f_r=joint_row("f_r"), coulomb=joint_row("coulomb"), viscous=joint_row("viscous"),
         friction_velocity=float(spec.friction_velocity),

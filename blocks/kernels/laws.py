@@ -13,6 +13,10 @@ Mohammadi et al. 2013)::
 so that ``d_hat' = Y M^-1 (d - d_hat)`` on a perfect model.  The paper's
 printed Eq. 16 has an extra ``- Y q'`` in ``z'``; ``eq16_weight = 1`` adds
 it (to show its bias), ``0`` is the correct law.  See ``docs/model.md``.
+
+The laws are written against the model names ``mass_times``, ``mass_solve``,
+``bias_forces`` and ``plant_acceleration``, which here are the paper's RRPR
+kernels; :func:`blocks.kernels.bind.bound` gives copies for any other arm.
 """
 from __future__ import annotations
 
@@ -24,9 +28,9 @@ __all__ = ["gain_times", "computed_torque", "observer_estimate", "observer_rate"
 def gain_times(gain, v):
     """``Y v`` for a gain given by its diagonal (same number of axes as ``v``) or as a full matrix (one more).
 
-    In the one-point layout a diagonal gain is ``(4,)`` and a full one
-    ``(4, 4)``; with column signals ``(4, K)`` they are ``(4, 1 or K)`` and
-    ``(4, 4, 1 or K)``.
+    In the one-point layout a diagonal gain is ``(n,)`` and a full one
+    ``(n, n)``; with column signals ``(n, K)`` they are ``(n, 1 or K)`` and
+    ``(n, n, 1 or K)``.
     """
     if gain.ndim == v.ndim:
         return gain * v
@@ -34,7 +38,7 @@ def gain_times(gain, v):
 
 
 def computed_torque(k, kp, kd, q, dq, q_ref, dq_ref, ddq_ref, d_hat):
-    """Eq. 11: joint torques (N m; N on joint 3) on the nominal model ``k``.
+    """Eq. 11: joint torques (N m; N on a prismatic joint) on the nominal model ``k``.
 
     Parameters
     ----------
