@@ -83,6 +83,30 @@ def test_tissue_contact_members_match_to_the_contact_tolerance(short):
         np.testing.assert_allclose(result.signals["q"][i], signal(single, "q").T, atol=batch.STATE_ATOL_CONTACT)
 
 
+@pytest.mark.parametrize("engine", ["fast", "compiled"])
+def test_keys_only_the_plan_carries_vary_within_a_batch(short, engine):
+    # The tissue's stiffness and damping reach only the plant's kernel parameters; the batch hand-wired to
+    # BATCH_KEYS refused them.  Each member must still be its own single run.
+    s = short.replace(simulation={"t_final": 1.0}, disturbance={"kind": ["paper", "tissue"]})
+    records = [{"disturbance.tissue_stiffness": 50.0, "gains.kp": 150.0},
+               {"disturbance.tissue_damping": 20.0, "disturbance.tissue_drag": 0.5}, {}]
+    assert {"disturbance.tissue_stiffness", "disturbance.tissue_damping"} <= batch.BATCH_KEYS
+    result = simulate_batch(s, records, signals=("q", "tau_dis"), engine=engine)
+    assert result.ok.all()
+    for i in range(len(records)):
+        single = blocks.simulate(result.variants.scenario(i))
+        np.testing.assert_allclose(result.signals["q"][i], signal(single, "q").T, atol=batch.STATE_ATOL_CONTACT)
+    # the members really differ where the tissue acts (else the keys were ignored)
+    assert np.abs(result.signals["tau_dis"][0] - result.signals["tau_dis"][2]).max() > 1e-3
+
+
+def test_a_shared_key_is_refused_with_the_reason(short):
+    with pytest.raises(ScenarioError) as err:
+        Variants(short, [{"robot.a1": 0.3}])
+    assert "robot.a1" in str(err.value) and "kinematic lengths" in str(err.value)
+    assert "robot.a1" not in batch.BATCH_KEYS and "robot.m1" in batch.BATCH_KEYS
+
+
 def test_all_signals_match_the_single_run(short):
     result = simulate_batch(short, [{"nominal_scale.m2": 1.2}], signals=batch.SIGNALS)
     single = blocks.simulate(result.variants.scenario(0))
