@@ -16,7 +16,6 @@ the compiled batch reads each member's numbers for the traced blocks from
 """
 from __future__ import annotations
 
-import dataclasses
 import numbers
 
 import control as ct
@@ -46,7 +45,12 @@ def member_scenario(v, i: int, noisy: bool = False):
         shape = next(nz.table.shape for nz in v.noises if nz is not None)
         object.__setattr__(zero, "_samples", np.zeros(shape))
         fields["noise"] = zero
-    return dataclasses.replace(v.base, **fields)
+    # the base's checked settings with the member's model objects (not a new validated scenario: the
+    # member's values were checked by Variants, and the view only makes blocks)
+    view = object.__new__(type(v.base))
+    view.__dict__.update(v.base.__dict__)
+    view.__dict__.update(fields)
+    return view
 
 
 def _matrix_observer(blocks: dict, s) -> dict:

@@ -791,7 +791,10 @@ def sampled_program(hybrid) -> LoopProgram:
              f"def loop_output_count():\n    return {n_out}\n\n\n"
              f"def loop_signal_count():\n    return {plan.nsignals}\n\n\n"
              f"def loop_row_count():\n    return 1\n\n\n")
-    source = "\n".join(f.text() for f in (fn_src, fn_tick, fn_rhs, fn_out)) + "\n" + member_ext + sizes
+    # the derivative dp_step integrates (blocks/compiled/dopri.py): this one replaces the template's
+    step_rhs = ("def step_rhs(t, x, theta, ext, src, work, aux, out):\n"
+                "    sampled_rhs(t, x, theta, src, ext, work, aux, out)\n\n\n")
+    source = "\n".join(f.text() for f in (fn_src, fn_tick, fn_rhs, fn_out)) + "\n" + step_rhs + member_ext + sizes
     structure = "sampled\n" + structure_of(plan, kernels, list(system.output_labels)) + \
         "\n" + ",".join(sorted(discrete)) + "|" + ",".join(sorted(between))
     return LoopProgram(source=source, theta=np.array(b.theta, dtype=float), theta_slices=b.theta_slices,
