@@ -207,6 +207,23 @@ def dense_coefficients(K, y, y_old, Q):
             Q[i, m] = acc
 
 
+def bounded_step(t, t_bound, h_abs, max_step, rtol, atol, y, f, theta, ext, aux, src, work, K, y_new, f_new, y_stage,
+                 err, out, y_old, Q, bound, state):
+    """``dp_step`` as a driver takes it: its right-hand-side calls added to ``state[S_NFEV]``, the accepted
+    step's dense coefficients (``y_old``, ``Q``) and its end checked against each state's ``bound`` (NaN fails
+    too).  Returns ``RUNNING``, ``STEP_TOO_SMALL`` or ``DIVERGED``."""
+    ok = dp_step(t, t_bound, h_abs, max_step, rtol, atol, y, f, theta, ext, aux, src, work, K, y_new, f_new, y_stage,
+                 err, out)
+    state[S_NFEV] += out[3]
+    if not ok:
+        return STEP_TOO_SMALL
+    dense_coefficients(K, y, y_old, Q)
+    for i in range(y.shape[0]):
+        if not abs(y_new[i]) <= bound[i]:
+            return DIVERGED
+    return RUNNING
+
+
 def dopri_run(t_grid, theta, ext, rtol, atol, max_step, bound, max_steps, state, y, f, K, Q, y_old, X):
     """Advance the integration by at most ``max_steps`` accepted steps; return a status code.
 
@@ -242,23 +259,16 @@ def dopri_run(t_grid, theta, ext, rtol, atol, max_step, bound, max_steps, state,
     n_grid = t_grid.shape[0]
     steps = 0
     while t < t_bound and steps < max_steps:
-        ok = dp_step(t, t_bound, h_abs, max_step, rtol, atol, y, f, theta, ext, aux, src, work, K, y_new, f_new,
-                     y_stage, err, out)
-        state[S_NFEV] += out[3]
-        if not ok:
+        code = bounded_step(t, t_bound, h_abs, max_step, rtol, atol, y, f, theta, ext, aux, src, work, K, y_new,
+                            f_new, y_stage, err, out, y_old, Q, bound, state)
+        if code == STEP_TOO_SMALL:
             state[S_T] = t
             return STEP_TOO_SMALL
         t_new = out[0]
         h_abs = out[1]
         h = out[2]
-        # the step from t to t_new is accepted: its dense output
-        dense_coefficients(K, y, y_old, Q)
-        finite = True
-        for i in range(n):
-            if not abs(y_new[i]) <= bound[i]:           # each state's own bound (NaN fails too)
-                finite = False
         state[S_T_OLD] = t
-        if not finite:
+        if code == DIVERGED:
             for i in range(n):
                 y[i] = y_new[i]
             state[S_T] = t_new
@@ -499,10 +509,9 @@ def sampled_ticks(t_grid, base_period, n_ticks, k_stop, theta, ext, rtol, atol, 
             t = t0
             h = 0.0
             while t < t1:
-                ok = dp_step(t, t1, h_abs, max_step, rtol, atol, x, f, theta, ext, held, src, work, K, y_new,
-                             f_new, y_stage, err, out)
-                state[S_NFEV] += out[3]
-                if not ok:
+                code = bounded_step(t, t1, h_abs, max_step, rtol, atol, x, f, theta, ext, held, src, work, K, y_new,
+                                    f_new, y_stage, err, out, y_old, Q, bound, state)
+                if code == STEP_TOO_SMALL:
                     state[S_T] = t
                     state[S_TICK] = k
                     state[S_DONE] = g
@@ -510,12 +519,7 @@ def sampled_ticks(t_grid, base_period, n_ticks, k_stop, theta, ext, rtol, atol, 
                 t_new = out[0]
                 h_abs = out[1]
                 h = out[2]
-                dense_coefficients(K, x, y_old, Q)
-                finite = True
-                for i in range(n):
-                    if not abs(y_new[i]) <= bound[i]:
-                        finite = False
-                if not finite:
+                if code == DIVERGED:
                     for i in range(n):
                         x[i] = y_new[i]
                     state[S_T_OLD] = t
