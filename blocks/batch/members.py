@@ -185,7 +185,8 @@ class MemberLoop:
     @property
     def gain(self) -> np.ndarray:
         """The observer gains over the members: diagonals (n, N) or matrices (n, n, N)."""
-        y = self.columns["observer"][1] if self.observer else self.v.y_diag
+        v = self.v
+        y = self.columns["observer"][1] if self.observer else (v.y_diag if v.y_diag is not None else v.y_full)
         return np.array(np.broadcast_to(y, np.shape(y)[:-1] + (self.n,)))
 
     # -- start and sources ----------------------------------------------------------------------------------------
