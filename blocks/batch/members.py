@@ -127,8 +127,6 @@ class MemberLoop:
         Its evaluation plan.
     member_params : dict of str to list
         Each block's kernel parameters, one tuple per member (the one-point layout).
-    columns : dict of str to tuple
-        Each block's parameters over the members (the column layout, trailing member axis).
     sources : tuple of blocks.plan.BlockStep
         Blocks without inputs or states (the reference), shared by all members.
 
@@ -151,7 +149,7 @@ class MemberLoop:
         made = [build_blocks(s, observer=observer) for s in self.scenarios]
         if matrix:
             made = [_matrix_observer(b, s) for b, s in zip(made, self.scenarios)]
-        self.member_params, self.columns = {}, {}
+        self.member_params, self._kernels0, self._columns = {}, {}, {}
         for step in plan.steps:
             kernels = [contract_of(b[step.name]).kernels for b in made]
             if not step.kernel or any(k is None or k.output is not step.output or k.update is not step.update
@@ -159,7 +157,7 @@ class MemberLoop:
                 raise ValueError(f"block '{step.name}' has no kernels or differs in structure between members; "
                                  f"a batch evaluates one plan for all members")
             self.member_params[step.name] = [k.params for k in kernels]
-            self.columns[step.name] = _stacked(step.name, "params", [k.params for k in kernels], kernels[0].columns())
+            self._kernels0[step.name] = kernels[0]
         self.sources = tuple(s for s in plan.steps if s.x.stop == s.x.start and _size(s.gather) == 0)
         names = {s.name for s in self.sources}
         self._rhs_steps = tuple(s for s in plan.rhs_steps if s.name not in names)
@@ -176,17 +174,26 @@ class MemberLoop:
         self.kin = kinematic_lengths(v.base.robot)          # the tool point is the shared arm's
         self.nx = plan.nstates
 
+    def column_params(self, name: str) -> tuple:
+        """Block ``name``'s parameters over the members: the column layout, a trailing member axis where the
+        members differ (stacked on first use; the compiled batch reads :attr:`member_params` instead)."""
+        found = self._columns.get(name)
+        if found is None:
+            found = self._columns[name] = _stacked(name, "params", self.member_params[name],
+                                                   self._kernels0[name].columns())
+        return found
+
     # -- what the divergence bounds read (blocks.divergence.batch_bounds) -------------------------------------
     @property
     def disturbance(self):
         """The external disturbance's parameters over the members (the plant's)."""
-        return self.columns["plant"][1]
+        return self.column_params("plant")[1]
 
     @property
     def gain(self) -> np.ndarray:
         """The observer gains over the members: diagonals (n, N) or matrices (n, n, N)."""
         v = self.v
-        y = self.columns["observer"][1] if self.observer else (v.y_diag if v.y_diag is not None else v.y_full)
+        y = self.column_params("observer")[1] if self.observer else (v.y_diag if v.y_diag is not None else v.y_full)
         return np.array(np.broadcast_to(y, np.shape(y)[:-1] + (self.n,)))
 
     # -- start and sources ----------------------------------------------------------------------------------------
@@ -198,7 +205,7 @@ class MemberLoop:
         """The shared sources' outputs at ``times``: shape (len(times), rows, 1)."""
         times = np.asarray(times, dtype=float)
         rows = [np.asarray(s.output(times, np.zeros((0, times.size)), np.zeros((0, times.size)),
-                                    *self.columns[s.name]), dtype=float).reshape(-1, times.size)
+                                    *self.column_params(s.name)), dtype=float).reshape(-1, times.size)
                 for s in self.sources]
         table = np.vstack(rows) if rows else np.zeros((0, times.size))
         return np.ascontiguousarray(table.T[:, :, None])
@@ -215,10 +222,10 @@ class MemberLoop:
         y[plan.copy_y] = x[plan.copy_x]
         y[self._source_rows] = src
         for s in (self._all_steps if record is not None else self._rhs_steps):
-            y[s.y] = s.output(t, x[s.x], y[s.gather], *self.columns[s.name])
+            y[s.y] = s.output(t, x[s.x], y[s.gather], *self.column_params(s.name))
         dx = np.empty_like(x)
         for s in plan.updates:
-            dx[s.x] = s.update(t, x[s.x], y[s.gather], *self.columns[s.name])
+            dx[s.x] = s.update(t, x[s.x], y[s.gather], *self.column_params(s.name))
         if record is not None:
             record.update({name: y[rows] for name, rows in self.signal_rows.items()})
             record.setdefault("q_meas", record["q"])
