@@ -63,10 +63,14 @@ def main(argv=None) -> int:
     parser.add_argument("--before", required=True, help="the source tree before the change")
     parser.add_argument("--after", default=".", help="the source tree after the change")
     parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--cache-before", help="numba cache folder of the tree before (default: one in TMPDIR)")
+    parser.add_argument("--cache-after", help="numba cache folder of the tree after (default: one in TMPDIR)")
     parser.add_argument("--json", help="also write the figures to this JSON file")
     args = parser.parse_args(argv)
     trees = {"before": os.path.abspath(args.before), "after": os.path.abspath(args.after)}
-    caches = {name: os.path.join(os.environ.get("TMPDIR", "/tmp"), f"dobkit-bench-cache-{name}") for name in trees}
+    tmp = os.environ.get("TMPDIR", "/tmp")
+    caches = {"before": args.cache_before or os.path.join(tmp, "dobkit-bench-cache-before"),
+              "after": args.cache_after or os.path.join(tmp, "dobkit-bench-cache-after")}
     times: dict = {name: {} for name in trees}
     loads = []
     for _ in range(args.rounds):
