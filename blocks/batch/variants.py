@@ -120,11 +120,11 @@ class Variants:
             whole = self.base.expand(record)
         except ScenarioError as err:
             raise ScenarioError(f"variant {i}: {err}") from None
-        for key in whole:
-            reason = shared_reason(key)
-            if reason is not None:
-                raise ScenarioError(f"variant {i}: key {key!r} (value {whole[key]!r:.60}) cannot vary within a "
-                                    f"batch: {reason}; vary it between batches (a sweep does)")
+        bad = sorted(key for key in whole if shared_reason(key) is not None)
+        if bad:
+            why = "; ".join(f"{key} = {whole[key]!r:.40}: {shared_reason(key)}" for key in bad)
+            raise ScenarioError(f"variant {i}: key(s) {bad} cannot vary within a batch ({why}); vary them between "
+                                f"batches (a sweep does)")
         sections: dict[str, dict] = {}
         for key, value in whole.items():
             section, name, _ = parse_key(key)
