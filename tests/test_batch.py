@@ -233,3 +233,30 @@ def test_full_paper_runs_match_single_runs_and_a_tight_reference():
                                        engine="fast"), "q").T
         np.testing.assert_allclose(result.signals["q"][i], single, rtol=0, atol=batch.STATE_ATOL, err_msg=f"member {i}")
         np.testing.assert_allclose(result.signals["q"][i], tight, rtol=0, atol=batch.STATE_ERROR, err_msg=f"member {i}")
+
+
+def test_member_blocks_made_without_python_control_carry_the_blocks_numbers(short):
+    # The batch makes each member's blocks inside kernels_only (no python-control system each): the same
+    # kernels and parameters as the real blocks of that member's single run.
+    from blocks.contract import contract_of, kernels_only
+    from blocks.loop import build_blocks
+    s = short.with_changes({"gains.kp": 150.0, "noise.q_std": [1e-4] * 4, "observer.variant": "paper-eq16"})
+    real = build_blocks(s)
+    with kernels_only():
+        light = build_blocks(s)
+    assert set(light) == set(real) and not any(hasattr(b, "input_labels") for b in light.values())
+    for name, block in real.items():
+        a, b = contract_of(block), contract_of(light[name])
+        assert (a.feedthrough, a.state_outputs, a.kernels.output, a.kernels.update) == \
+            (b.feedthrough, b.state_outputs, b.kernels.output, b.kernels.update)
+        _assert_same_params(a.kernels.params, b.kernels.params, name)
+    assert hasattr(build_blocks(s)["plant"], "input_labels")        # the mode ends with its context
+
+
+def _assert_same_params(x, y, where):
+    if isinstance(x, tuple):
+        assert isinstance(y, tuple) and len(x) == len(y), where
+        for i, (a, b) in enumerate(zip(x, y)):
+            _assert_same_params(a, b, f"{where}[{i}]")
+    else:
+        np.testing.assert_array_equal(x, y, err_msg=where)

@@ -21,7 +21,7 @@ import numbers
 import control as ct
 import numpy as np
 
-from ..contract import contract_of
+from ..contract import contract_of, kernels_only
 from ..kernels import kinematic_lengths, lumped_disturbance
 from ..loop import _prepared, build_blocks, closed_loop, initial_state
 from ..noise import MeasurementNoise
@@ -146,9 +146,10 @@ class MemberLoop:
         noisy = "sensor" in plan.order
         matrix = observer and v.y_diag is None
         self.scenarios = [member_scenario(v, i, noisy) for i in range(self.n)]
-        made = [build_blocks(s, observer=observer) for s in self.scenarios]
-        if matrix:
-            made = [_matrix_observer(b, s) for b, s in zip(made, self.scenarios)]
+        with kernels_only():            # the members' kernels and numbers; no python-control system each
+            made = [build_blocks(s, observer=observer) for s in self.scenarios]
+            if matrix:
+                made = [_matrix_observer(b, s) for b, s in zip(made, self.scenarios)]
         self.member_params, self._kernels0, self._columns = {}, {}, {}
         for step in plan.steps:
             kernels = [contract_of(b[step.name]).kernels for b in made]
