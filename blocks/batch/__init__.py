@@ -60,6 +60,9 @@ as ``workers > 1`` does for its slices) give every member identical numbers.
 
 Cost
 ----
+Before integrating, each member's blocks are made once, as its single run
+makes them but without python-control systems
+(:func:`blocks.contract.kernels_only`): about 0.2 ms of CPU per member.
 Only what is asked for is kept: metrics are accumulated at the output grid
 points while integrating (the first RK4 stage of a step that starts on the grid
 is exactly the loop at that grid point), and full signals are stored only when
