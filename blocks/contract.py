@@ -22,14 +22,16 @@ nothing else promised.
 """
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass
 
 import control as ct
 
 from .bound_kernels import Kernels  # defined apart: a path or a scenario holds one without python-control
 
-__all__ = ["Kernels", "BlockContract", "Block", "ContractError", "contract_of", "kernel_block"]
+__all__ = ["Kernels", "BlockContract", "Block", "ContractError", "contract_of", "kernel_block", "kernels_only"]
 
 
 class ContractError(ValueError):
@@ -147,6 +149,9 @@ def kernel_block(kernels: Kernels, *, name: str, inputs, outputs, states=(), fee
         0 for a continuous block, or the sample period (s) of a discrete one,
         whose update gives the next state (python-control's convention).
     """
+    if _KERNELS_ONLY.get():
+        return KernelsOnly(name, BlockContract(feedthrough=frozenset(feedthrough), state_outputs=tuple(state_outputs),
+                                               columnwise=True, kernels=kernels))
     params = kernels.params
     output, update = kernels.output, kernels.update
     outfcn = None if output is None else (lambda t, x, u, _p: output(t, x, u, *params))
@@ -157,3 +162,31 @@ def kernel_block(kernels: Kernels, *, name: str, inputs, outputs, states=(), fee
     if states:      # python-control refuses a state count of 0 without an update function
         signals["states"] = list(states)
     return Block(updfcn, outfcn, contract=contract, **signals)
+
+
+# Whether kernel_block makes only the contract (see kernels_only); per thread and task, not per process
+_KERNELS_ONLY: ContextVar[bool] = ContextVar("dobkit_kernels_only", default=False)
+
+
+class KernelsOnly:
+    """What :func:`kernel_block` makes inside :func:`kernels_only`: the block's name and contract (its kernels
+    and their parameters), without a python-control system."""
+
+    def __init__(self, name: str, contract: BlockContract) -> None:
+        self.name, self.contract = name, contract
+
+
+@contextmanager
+def kernels_only() -> Iterator[None]:
+    """Within this context :func:`kernel_block` returns :class:`KernelsOnly` stand-ins instead of blocks.
+
+    For engines that need only a block's numbers, made exactly as the block's
+    factory makes them, many times over: a batch makes every member's blocks
+    this way (:mod:`blocks.batch.members`), where building a python-control
+    system per member would cost more than integrating it.
+    """
+    token = _KERNELS_ONLY.set(True)
+    try:
+        yield
+    finally:
+        _KERNELS_ONLY.reset(token)

@@ -268,7 +268,7 @@ def cached_state_bounds(loop, scenario) -> StateBounds:
 
 
 def batch_bounds(batch_loop, labels=None) -> StateBounds:
-    """Per-member bounds (nstates, N) of a batch (:class:`blocks.batch.simulate._BatchLoop`).
+    """Per-member bounds (nstates, N) of a batch (:class:`blocks.batch.members.MemberLoop`).
 
     ``labels`` are ``(block, label)`` pairs in the engine's state order; by
     default the numpy batch's rows ``q; dq; z``.

@@ -83,6 +83,30 @@ def test_tissue_contact_members_match_to_the_contact_tolerance(short):
         np.testing.assert_allclose(result.signals["q"][i], signal(single, "q").T, atol=batch.STATE_ATOL_CONTACT)
 
 
+@pytest.mark.parametrize("engine", ["fast", "compiled"])
+def test_keys_only_the_plan_carries_vary_within_a_batch(short, engine):
+    # The tissue's stiffness and damping reach only the plant's kernel parameters; the batch hand-wired to
+    # BATCH_KEYS refused them.  Each member must still be its own single run.
+    s = short.replace(simulation={"t_final": 1.0}, disturbance={"kind": ["paper", "tissue"]})
+    records = [{"disturbance.tissue_stiffness": 50.0, "gains.kp": 150.0},
+               {"disturbance.tissue_damping": 20.0, "disturbance.tissue_drag": 0.5}, {}]
+    assert {"disturbance.tissue_stiffness", "disturbance.tissue_damping"} <= batch.BATCH_KEYS
+    result = simulate_batch(s, records, signals=("q", "tau_dis"), engine=engine)
+    assert result.ok.all()
+    for i in range(len(records)):
+        single = blocks.simulate(result.variants.scenario(i))
+        np.testing.assert_allclose(result.signals["q"][i], signal(single, "q").T, atol=batch.STATE_ATOL_CONTACT)
+    # the members really differ where the tissue acts (else the keys were ignored)
+    assert np.abs(result.signals["tau_dis"][0] - result.signals["tau_dis"][2]).max() > 1e-3
+
+
+def test_a_shared_key_is_refused_with_the_reason(short):
+    with pytest.raises(ScenarioError) as err:
+        Variants(short, [{"robot.a1": 0.3}])
+    assert "robot.a1" in str(err.value) and "kinematic lengths" in str(err.value)
+    assert "robot.a1" not in batch.BATCH_KEYS and "robot.m1" in batch.BATCH_KEYS
+
+
 def test_all_signals_match_the_single_run(short):
     result = simulate_batch(short, [{"nominal_scale.m2": 1.2}], signals=batch.SIGNALS)
     single = blocks.simulate(result.variants.scenario(0))
@@ -209,3 +233,30 @@ def test_full_paper_runs_match_single_runs_and_a_tight_reference():
                                        engine="fast"), "q").T
         np.testing.assert_allclose(result.signals["q"][i], single, rtol=0, atol=batch.STATE_ATOL, err_msg=f"member {i}")
         np.testing.assert_allclose(result.signals["q"][i], tight, rtol=0, atol=batch.STATE_ERROR, err_msg=f"member {i}")
+
+
+def test_member_blocks_made_without_python_control_carry_the_blocks_numbers(short):
+    # The batch makes each member's blocks inside kernels_only (no python-control system each): the same
+    # kernels and parameters as the real blocks of that member's single run.
+    from blocks.contract import contract_of, kernels_only
+    from blocks.loop import build_blocks
+    s = short.with_changes({"gains.kp": 150.0, "noise.q_std": [1e-4] * 4, "observer.variant": "paper-eq16"})
+    real = build_blocks(s)
+    with kernels_only():
+        light = build_blocks(s)
+    assert set(light) == set(real) and not any(hasattr(b, "input_labels") for b in light.values())
+    for name, block in real.items():
+        a, b = contract_of(block), contract_of(light[name])
+        assert (a.feedthrough, a.state_outputs, a.kernels.output, a.kernels.update) == \
+            (b.feedthrough, b.state_outputs, b.kernels.output, b.kernels.update)
+        _assert_same_params(a.kernels.params, b.kernels.params, name)
+    assert hasattr(build_blocks(s)["plant"], "input_labels")        # the mode ends with its context
+
+
+def _assert_same_params(x, y, where):
+    if isinstance(x, tuple):
+        assert isinstance(y, tuple) and len(x) == len(y), where
+        for i, (a, b) in enumerate(zip(x, y)):
+            _assert_same_params(a, b, f"{where}[{i}]")
+    else:
+        np.testing.assert_array_equal(x, y, err_msg=where)

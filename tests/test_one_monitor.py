@@ -200,13 +200,13 @@ def test_the_wall_time_budget_stops_a_sampled_run(monkeypatch):
 def test_each_batch_member_is_judged_on_its_own_bounds_as_its_single_run_would_be():
     """Members differ in their disturbance and gain, so their disturbance-estimate bounds differ: each member's
     column equals the bounds of its own scenario run alone."""
-    from blocks.batch.simulate import _BatchLoop
+    from blocks.batch.members import MemberLoop
     from blocks.batch.variants import Variants
     from blocks.divergence import batch_bounds, state_bounds
     from blocks.loop import closed_loop
     records = [{}, {"disturbance.f_r": [0.0, 0.0, 300.0, 0.0]}, {"gains.observer": 50.0}]
     v = Variants(PAPER.with_changes(SHORT), records)
-    got = batch_bounds(_BatchLoop(v, observer=True))
+    got = batch_bounds(MemberLoop(v, observer=True))
     for m in range(len(records)):
         single = state_bounds(closed_loop(v.scenario(m)), v.scenario(m))
         np.testing.assert_allclose(got.bounds[:, m], single.bounds, rtol=1e-12)

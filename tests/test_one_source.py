@@ -13,7 +13,7 @@ import reference_arm as ref
 import blocks
 from blocks import kernels
 from blocks.batch import Variants
-from blocks.batch.simulate import _BatchLoop
+from blocks.batch.members import MemberLoop
 from blocks.disturbances import DisturbanceSpec
 from blocks.parameters import PAPER_PARAMETERS, RobotParameters
 from blocks.systems import controller, observer, plant
@@ -103,7 +103,8 @@ def test_batch_engine_matches_the_reference_member_by_member():
                {"gains.observer": [[10, 1, 0, 0], [1, 10, 0, 0], [0, 0, 10, 0], [0, 0, 0, 10]],
                 "disturbance.coulomb": [0.2, 0.1, 0.3, 0.0]}]
     v = Variants(base, records)
-    loop = _BatchLoop(v, observer=True)
+    loop = MemberLoop(v, observer=True)
+    assert [label for _, label in loop.state_labels] == [f"{s}[{i}]" for s in ("q", "dq", "z") for i in range(4)]
     rng = np.random.default_rng(7)
     x = np.empty((12, len(v)))
     states = [_random_state(rng) for _ in range(len(v))]
@@ -111,7 +112,7 @@ def test_batch_engine_matches_the_reference_member_by_member():
         x[:4, i], x[4:8, i], x[8:, i] = q, dq, rng.uniform(-1, 1, 4)
     refs = [rng.uniform(-1, 1, (4, 1)) for _ in range(3)]
     t = 1.3
-    dx = loop.rhs(t, x, refs, None)
+    dx = loop.rhs(t, x, np.vstack(refs))        # the reference is the loop's one source: q_ref; dq_ref; ddq_ref
     for i in range(len(v)):
         s = v.scenario(i)
         q, dq, z = x[:4, i], x[4:8, i], x[8:, i]

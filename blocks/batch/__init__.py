@@ -3,10 +3,14 @@
 A batch is a base :class:`~blocks.scenario.Scenario` and N *variants*,
 each a mapping from dotted scenario keys (``"gains.kp"``, ``"nominal_scale.m1"``,
 ``"disturbance.f_r"``, ``"noise.seed"``, ...; see :data:`BATCH_KEYS`) to that
-member's value.  Everything else -- trajectory, disturbance kinds, tissue
-contact, solver grid -- is shared, so the reference is evaluated once per
-right-hand-side call for the whole batch, and per-member parameters are arrays
-with a member axis.
+member's value.  A batch is the loop's plan over a member axis
+(:mod:`blocks.batch.members`): each member's blocks are made as its single run
+makes them and their kernel parameters stacked per member, so every key that
+reaches only some block's numbers may vary (:data:`BATCH_KEYS`, computed);
+what shapes the shared part -- the trajectory, the kinematic lengths it is
+solved for, the disturbance kinds, the noise sample period, the solver grid
+(:data:`SHARED_KEYS`, :data:`SHARED_SECTIONS`) -- is refused with the reason.
+The reference is evaluated once for the whole batch.
 
 ::
 
@@ -56,6 +60,9 @@ as ``workers > 1`` does for its slices) give every member identical numbers.
 
 Cost
 ----
+Before integrating, each member's blocks are made once, as its single run
+makes them but without python-control systems
+(:func:`blocks.contract.kernels_only`): about 0.2 ms of CPU per member.
 Only what is asked for is kept: metrics are accumulated at the output grid
 points while integrating (the first RK4 stage of a step that starts on the grid
 is exactly the loop at that grid point), and full signals are stored only when
@@ -77,9 +84,10 @@ from .simulate import (
                        BatchResult,
                        simulate_batch,
 )
-from .variants import BATCH_KEYS, Variants
+from .variants import BATCH_KEYS, SHARED_KEYS, SHARED_SECTIONS, Variants, shared_reason
 
-__all__ = ["BATCH_KEYS", "METRICS", "SIGNALS", "STATE_ATOL", "STATE_ATOL_CONTACT", "STATE_ERROR", "METRIC_RTOL",
+__all__ = ["BATCH_KEYS", "SHARED_KEYS", "SHARED_SECTIONS", "shared_reason",
+           "METRICS", "SIGNALS", "STATE_ATOL", "STATE_ATOL_CONTACT", "STATE_ERROR", "METRIC_RTOL",
            "METRIC_ATOL",
            "Variants", "BatchResult", "simulate_batch", "step_schedule",
            "auto_substeps", "noise_breakpoints", "fastest_rate"]

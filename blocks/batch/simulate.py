@@ -7,23 +7,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..divergence import batch_bounds
-from ..kernels import (
-    DisturbanceParams,
-    arm_constants,
-    computed_torque,
-    external_disturbance,
-    gain_times,
-    kinematic_lengths,
-    lumped_disturbance,
-    observer_estimate,
-    observer_rate,
-    plant_acceleration,
-)
 from ..metrics import METRICS, OBSERVER_METRICS, TrackingAccumulator
 from ..monitor import Monitor
 from ..scenario import Scenario, load_scenario
 from ..steppers import rk4_step
 from ..workers import worker_pool
+from .members import MemberLoop
 from .schedule import auto_substeps, batch_schedule
 from .variants import Variants
 
@@ -31,7 +20,7 @@ __all__ = ["METRICS", "SIGNALS", "STATE_ATOL", "STATE_ATOL_CONTACT", "STATE_ERRO
            "BatchResult", "simulate_batch"]
 
 
-#: Signals that can be kept on the output grid, each (members, times, 4).
+#: Signals that can be kept on the output grid, each (members, times, joints).
 SIGNALS = ("q", "dq", "q_ref", "dq_ref", "ddq_ref", "tau", "d_hat", "tau_dis", "d", "q_meas", "dq_meas")
 
 #: Stated agreement of a batch member with its single run (see :mod:`blocks.batch`):
@@ -57,10 +46,10 @@ class BatchResult:
     time : numpy.ndarray
         The output grid (s).
     metrics : dict of str to numpy.ndarray
-        Each asked-for metric, shape (N, 4) per joint or (N,) (see :data:`METRICS`);
+        Each asked-for metric, shape (N, n) per joint or (N,) (see :data:`METRICS`);
         NaN for members that diverged.
     signals : dict of str to numpy.ndarray
-        Each asked-for signal on the grid, shape (N, len(time), 4).
+        Each asked-for signal on the grid, shape (N, len(time), n) for n joints.
     failed_at : numpy.ndarray
         Time (s) at which each member diverged, NaN if it did not.
     failures : dict of int to str
@@ -95,85 +84,6 @@ class BatchResult:
         return {name: (value[i].tolist() if value.ndim > 1 else float(value[i])) for name, value in self.metrics.items()}
 
 
-# --------------------------------------------------------------------------------------------
-# The batched loop
-# --------------------------------------------------------------------------------------------
-class _BatchLoop:
-    """The Figure-2 loop over a member axis: states (nx, N), rows q, dq and z (observer).
-
-    The right-hand side calls the kernels of :mod:`blocks.kernels` with
-    per-member parameters as rows ``(..., N)``; the shared reference is a
-    column ``(4, 1)`` that broadcasts over the members.
-    """
-
-    def __init__(self, variants: Variants, observer: bool) -> None:
-        v = variants
-        self.v, self.observer, self.n = v, observer, len(v)
-        self.joints = v.base.robot.joints.count
-        self.k_true = np.stack([arm_constants(p) for p in v.robots], axis=1)          # (6, N)
-        self.k_nominal = np.stack([arm_constants(p) for p in v.nominals], axis=1)
-        self.kp, self.kd = v.kp, v.kd                                                   # (4, N)
-        self.gain = v.y_diag if v.y_diag is not None else v.y_full                      # (4, N) or (4, 4, N)
-        self.eq16_weight = v.extra                                                      # (N,)
-        d, base = v.disturbance, v.base.disturbance
-        self.disturbance = DisturbanceParams(
-            paper="paper" in base.kinds, friction="friction" in base.kinds, tissue="tissue" in base.kinds,
-            f_r=d.f_r.T.copy(), coulomb=d.coulomb.T.copy(), viscous=d.viscous.T.copy(),
-            friction_velocity=d.friction_velocity[:, 0].copy(), skin_height=base.skin_height,
-            tissue_stiffness=base.tissue_stiffness, tissue_damping=base.tissue_damping,
-            tissue_drag=base.tissue_drag, kin=kinematic_lengths(v.base.robot)[:, None])
-        self.kin = kinematic_lengths(v.base.robot)          # a1, a2, d1, d4 are shared by the batch
-        self.has_noise = any(nz is not None for nz in v.noises)
-        self.nx = (3 if observer else 2) * self.joints
-
-    def noise_table(self, times: np.ndarray) -> np.ndarray | None:
-        """Noise ``[n_q; n_dq]`` of every member at ``times``: shape (len(times), 8, N), or None."""
-        if not self.has_noise:
-            return None
-        n = self.joints
-        table = np.zeros((times.size, 2 * n, self.n))
-        for i, noise in enumerate(self.v.noises):
-            if noise is not None:
-                n_q, n_dq = noise.sample(times)
-                table[:, :n, i], table[:, n:, i] = n_q, n_dq
-        return table
-
-    def initial_state(self, ref0, noise0) -> np.ndarray:
-        n = self.joints
-        q_ref0, dq_ref0 = ref0[0][:, 0], ref0[1][:, 0]
-        x0 = np.zeros((self.nx, self.n))
-        d_hat0 = np.zeros((n, self.n))
-        for i, init in enumerate(self.v.initial):
-            x0[:n, i] = init["q"] if init["q"] is not None else q_ref0
-            x0[n:2 * n, i] = init["dq"] if init["dq"] is not None else dq_ref0
-            if init["d_hat"] is not None:
-                d_hat0[:, i] = init["d_hat"]
-        if self.observer:
-            dq_meas0 = x0[n:2 * n] + (noise0[n:] if noise0 is not None else 0.0)
-            x0[2 * n:] = d_hat0 - gain_times(self.gain, dq_meas0)     # d_hat = Y dq + z
-        return x0
-
-    def rhs(self, t: float, x: np.ndarray, ref, noise, record: dict | None = None) -> np.ndarray:
-        """State derivative (nx, N) at time ``t`` with reference ``ref = (q_ref, dq_ref, ddq_ref)`` (4, 1) each.
-
-        With ``record`` (a dict) the loop's signals at this point are stored in it.
-        """
-        n = self.joints
-        q, dq = x[:n], x[n:2 * n]
-        q_m, dq_m = (q, dq) if noise is None else (q + noise[:n], dq + noise[n:])
-        d_hat = observer_estimate(self.gain, dq_m, x[2 * n:]) if self.observer else 0.0
-        tau = computed_torque(self.k_nominal, self.kp, self.kd, q_m, dq_m, ref[0], ref[1], ref[2], d_hat)
-        tau_dis = external_disturbance(t, q, dq, self.disturbance)
-        dx = np.empty_like(x)
-        dx[:n] = dq
-        dx[n:2 * n] = plant_acceleration(self.k_true, q, dq, tau + tau_dis)
-        if self.observer:
-            dx[2 * n:] = observer_rate(self.k_nominal, self.gain, self.eq16_weight, q_m, dq_m, tau, x[2 * n:])
-        if record is not None:
-            record.update(q=q, dq=dq, tau=tau, tau_dis=tau_dis, q_meas=q_m, dq_meas=dq_m, d_hat=d_hat)
-        return dx
-
-
 class _Accumulator:
     """Running metrics (:class:`blocks.metrics.TrackingAccumulator`) and kept signals at the output grid points.
 
@@ -182,7 +92,7 @@ class _Accumulator:
     rather than once per grid point.
     """
 
-    def __init__(self, loop: _BatchLoop, metrics, signals, n_grid: int, ref_grid, block: int = 64) -> None:
+    def __init__(self, loop: MemberLoop, metrics, signals, n_grid: int, ref_grid, block: int = 64) -> None:
         self.loop, self.signals, self.n_grid = loop, tuple(signals), n_grid
         self.ref_grid = [np.asarray(a) for a in ref_grid]                                  # each (n_grid, 4)
         n, J = loop.n, loop.joints
@@ -201,9 +111,7 @@ class _Accumulator:
         """Buffer the signals of grid point ``k``."""
         j = len(self.index)
         if "d" in self.buf:
-            loop = self.loop
-            sig["d"] = lumped_disturbance(loop.k_true, loop.k_nominal, sig["q"], sig["dq"], sig["tau"],
-                                          sig["tau_dis"])
+            sig["d"] = self.loop.lumped(sig["q"], sig["dq"], sig["tau"], sig["tau_dis"])
         for name, store in self.buf.items():
             store[j] = sig[name]
         self.index.append(k)
@@ -321,28 +229,25 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
         engine = select_engine(engine, batch_unavailable_reason(v))
     if engine == "compiled":
         times, grid_index = _schedule if _schedule is not None else batch_schedule(v, substeps, breakpoints)
-        values, kept, failed_at, failures = run_compiled_batch(v, _BatchLoop(v, observer), observer, metrics,
+        values, kept, failed_at, failures = run_compiled_batch(v, MemberLoop(v, observer), observer, metrics,
                                                                tuple(signals), times, grid_index, workers)
         return BatchResult(variants=v, observer=observer, time=s.simulation.time_grid, metrics=values, signals=kept,
                            failed_at=failed_at, steps=times.size - 1, substeps=int(substeps), failures=failures)
     if workers > 1 and len(v) > 1:
         return _simulate_in_processes(v, observer, metrics, tuple(signals), substeps, workers,
                                       batch_schedule(v, substeps, breakpoints))
-    loop = _BatchLoop(v, observer)
+    loop = MemberLoop(v, observer)
     sim = s.simulation
     times, grid_index = _schedule if _schedule is not None else batch_schedule(v, substeps, breakpoints)
     mids = 0.5 * (times[:-1] + times[1:])
-    # The reference is shared: evaluate it once at every step end and mid point, as columns (4, 1).
-    refs = [np.asarray(a)[..., None] for a in s.trajectory.evaluate(times)]      # each (T, 4, 1)
-    refs_mid = [np.asarray(a)[..., None] for a in s.trajectory.evaluate(mids)]
-    noise_at = loop.noise_table(times)
-    noise_mid = loop.noise_table(mids)
+    # The sources (the reference) are shared: evaluated once at every step end and mid point, as columns.
+    src_at, src_mid = loop.source_table(times), loop.source_table(mids)
     n_grid = int(grid_index.max()) + 1
-    ref_grid = [a[grid_index >= 0, :, 0] for a in refs]
+    ref_grid = [np.asarray(a) for a in s.trajectory.evaluate(times[grid_index >= 0])]
     acc = _Accumulator(loop, metrics, signals, n_grid, ref_grid)
 
-    x = loop.initial_state([r[0] for r in refs], None if noise_at is None else noise_at[0])
-    monitor = Monitor(f"batch of scenario '{s.name}'", batch_bounds(loop), x)
+    x = loop.initial_state()
+    monitor = Monitor(f"batch of scenario '{s.name}'", batch_bounds(loop, loop.state_labels), x)
     failed_at = np.full(loop.n, np.nan)
     failures: dict[int, str] = {}
 
@@ -351,25 +256,21 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
         for m in np.flatnonzero(np.isnan(failed_at) & ~np.isnan(now)):
             failures[int(m)] = f"t = {t:.6g} s: {monitor.member_reason(int(m), x[:, m])}"
         return now
-    pick = (lambda tab, k: None) if noise_at is None else (lambda tab, k: tab[k])
     with np.errstate(all="ignore"):      # a diverging member must not stop the others
         for k in range(times.size - 1):
             t0, t1 = times[k], times[k + 1]
-            h = t1 - t0
-            ref0, refm, ref1 = [r[k] for r in refs], [r[k] for r in refs_mid], [r[k + 1] for r in refs]
             sig = {} if grid_index[k] >= 0 else None
-            k1 = loop.rhs(t0, x, ref0, pick(noise_at, k), sig)
+            k1 = loop.rhs(t0, x, src_at[k], sig)
             if sig is not None:
                 failed_at = judge(t0, x, failed_at)
                 acc.add(grid_index[k], sig)
-            x = rk4_step(loop.rhs, t0, x, h, mid=(refm, pick(noise_mid, k)), end=(ref1, pick(noise_at, k + 1)),
-                         k1=k1)
+            x = rk4_step(loop.rhs, t0, x, t1 - t0, mid=(src_mid[k],), end=(src_at[k + 1],), k1=k1)
             bad = ~np.isnan(failed_at)
             if bad.any():
                 x[:, bad] = 0.0         # park diverged members at a harmless finite state
         sig = {}
         k = times.size - 1
-        loop.rhs(times[k], x, [r[k] for r in refs], pick(noise_at, k), sig)
+        loop.rhs(times[k], x, src_at[k], sig)
         failed_at = judge(times[k], x, failed_at)
         acc.add(grid_index[k], sig)
     values, kept = acc.result(~np.isnan(failed_at))

@@ -17,24 +17,49 @@ import numpy as np
 
 from ..disturbances import DisturbanceSpec
 from ..gains import GainError, validated_gain
-from ..joints import RRPR_JOINTS
 from ..noise import MeasurementNoise
 from ..parameters import ParameterError, RobotParameters
 from ..scenario import Scenario, ScenarioError, check_value, load_scenario, parse_key
 
-__all__ = ["BATCH_KEYS", "Variants"]
+__all__ = ["BATCH_KEYS", "SHARED_KEYS", "SHARED_SECTIONS", "Variants", "shared_reason"]
 
-_DYNAMIC = ("m1", "m2", "m3", "m4", "l1", "l2", "I1", "I2", "I3", "I4", "g")
+#: Keys that shape what the members of a batch share, each with the reason.  The reference is evaluated once for
+#: the whole batch, and the laceration path is solved for the arm's kinematic lengths and the skin plane; the
+#: disturbance kinds choose the plant's terms; the noise sample period and the solver settings set the shared
+#: step schedule; a digital controller is not a continuous batch.  Every other key reaches only the numbers of
+#: some block's kernels, which a batch stacks per member (:mod:`blocks.batch.members`).
+SHARED_KEYS = {
+    **{f"robot.{k}": "the reference path is solved for the arm's kinematic lengths" for k in ("a1", "a2", "d1", "d4")},
+    "disturbance.kind": "the disturbance kinds choose the terms the plant evaluates",
+    "disturbance.skin_height": "the reference path runs on the skin plane",
+    "noise.sample_period": "the noise sample times join the shared step schedule",
+}
+#: Sections shared whole by the members of a batch.
+SHARED_SECTIONS = {"trajectory": "the reference is evaluated once for the whole batch",
+                   "simulation": "the members share one step schedule and output grid",
+                   "controller": "a batch integrates the continuous loop; a digital controller runs alone",
+                   "name": "the batch has one base scenario", "description": "the batch has one base scenario"}
 
-#: Dotted scenario keys that may differ between the members of one batch (an element
-#: key such as ``"disturbance.f_r[2]"`` may too, when its list's key is here).  The kinematic
-#: lengths (a1, a2, d1, d4), the trajectory, the disturbance kinds, tissue contact, the
-#: noise sample period and the solver settings shape the shared part and may not.
-BATCH_KEYS = frozenset(
-    [f"robot.{k}" for k in _DYNAMIC] + [f"nominal_scale.{k}" for k in _DYNAMIC]
-    + ["gains.kp", "gains.kd", "gains.observer", "observer.variant",
-       "disturbance.f_r", "disturbance.coulomb", "disturbance.viscous", "disturbance.friction_velocity",
-       "noise.q_std", "noise.dq_std", "noise.seed", "initial.q", "initial.dq", "initial.d_hat"])
+
+def shared_reason(key: str) -> str | None:
+    """Why a dotted key cannot vary within a batch, or None when it may (an element key ``"disturbance.f_r[2]"``
+    as its list's key)."""
+    section, name, _ = parse_key(key)
+    if section in SHARED_SECTIONS:
+        return SHARED_SECTIONS[section]
+    return SHARED_KEYS.get(f"{section}.{name}")
+
+
+def _batch_keys() -> frozenset:
+    from ..scenario import _SECTIONS  # the scenario's table of keys, read, never changed
+    keys = {f"{section}.{name}" for section, spec in _SECTIONS.items() for name in spec.checks_for("laceration")}
+    return frozenset(k for k in keys if shared_reason(k) is None)
+
+
+#: Dotted scenario keys that may differ between the members of one batch (an element key such as
+#: ``"disturbance.f_r[2]"`` may too, when its list's key is here): every key but those that shape the shared
+#: part (:data:`SHARED_KEYS`, :data:`SHARED_SECTIONS`), computed from the scenario's keys.
+BATCH_KEYS = _batch_keys()
 
 
 @dataclass(frozen=True)
@@ -95,10 +120,11 @@ class Variants:
             whole = self.base.expand(record)
         except ScenarioError as err:
             raise ScenarioError(f"variant {i}: {err}") from None
-        bad = sorted(set(whole) - BATCH_KEYS)
+        bad = sorted(key for key in whole if shared_reason(key) is not None)
         if bad:
-            raise ScenarioError(f"variant {i}: key(s) {bad} cannot vary within a batch; "
-                                f"batchable keys: {sorted(BATCH_KEYS)}")
+            why = "; ".join(f"{key} = {whole[key]!r:.40}: {shared_reason(key)}" for key in bad)
+            raise ScenarioError(f"variant {i}: key(s) {bad} cannot vary within a batch ({why}); vary them between "
+                                f"batches (a sweep does)")
         sections: dict[str, dict] = {}
         for key, value in whole.items():
             section, name, _ = parse_key(key)
@@ -112,7 +138,7 @@ class Variants:
     def _build(self, members: list[dict[str, dict]]) -> None:
         s = self.base
         base_robot, base_scale, base_noise = dict(s.data["robot"]), dict(s.data["nominal_scale"]), dict(s.data["noise"])
-        robots, nominals, kp, kd, ys, extra, specs, noises, initial = [], [], [], [], [], [], [], [], []
+        robots, nominals, kp, kd, ys, extra, specs, noises, initial, fields = [], [], [], [], [], [], [], [], [], []
         memo: dict = {}
         for i, sec in enumerate(members):
             key = ("robot", _freeze(sec.get("robot")), _freeze(sec.get("nominal_scale")))
@@ -137,7 +163,12 @@ class Variants:
             specs.append(self._spec(sec.get("disturbance"), i, memo))
             noises.append(self._noise(sec.get("noise"), base_noise, i))
             initial.append(dict(s.initial) | {k: np.array(v) for k, v in sec.get("initial", {}).items()})
+            fields.append({"robot": robot, "nominal": nominal, "kp": gains.get("kp", s.kp),
+                            "kd": gains.get("kd", s.kd), "observer_gain": ys[-1], "observer_variant": variant,
+                            "disturbance": specs[-1], "noise": noises[-1], "initial": initial[-1]})
         self.robots, self.nominals = robots, nominals
+        #: Each member's model objects by the name of the :class:`~blocks.scenario.Scenario` field they replace.
+        self.members = fields
         self.kp, self.kd = np.array(kp).T, np.array(kd).T                    # (4, N), 1/s^2 and 1/s
         Y = np.array(ys)                                                     # (N, 4, 4)
         self.y_diag = Y.diagonal(axis1=1, axis2=2).T.copy() if not np.any(Y - _diag_part(Y)) else None
@@ -225,4 +256,4 @@ def _show(record: Mapping, prefixes) -> dict:
 
 
 def _diag_part(Y: np.ndarray) -> np.ndarray:
-    return Y * np.eye(RRPR_JOINTS.count)
+    return Y * np.eye(Y.shape[-1])

@@ -2,9 +2,9 @@
 
 Every member runs the same generated right-hand side as a single compiled
 run (:mod:`blocks.compiled.codegen`), with its own parameter vector
-``theta``: the rows of the traced blocks' parameters are filled from the
-batch's per-member arrays (:class:`blocks.batch.simulate._BatchLoop`), the
-rest (the reference's) from the base loop.  The reference is evaluated once
+``theta``: the traced blocks' numbers read from each member's own block
+parameters (:class:`blocks.batch.members.MemberLoop`: the member's blocks made
+as its single run makes them), the reference's from the shared loop.  The reference is evaluated once
 at every step time and mid point, shared by all members.  Members with
 their own measurement noise read their own noise table (``member_ext``).
 Members run in parallel over ``workers`` threads (numba ``prange``).
@@ -21,18 +21,16 @@ stored unless asked for, and nothing is allocated per step.
 """
 from __future__ import annotations
 
-import control as ct
 import numpy as np
 
 from ..divergence import batch_bounds
 from ..kernels import tool_pose
-from ..loop import _prepared, closed_loop
 from ..monitor import Monitor
-from ..systems import observer as observer_block
 from ..systems import signal_names
 from .codegen import CompiledUnavailable
 from .engine import CompiledLoopEngine
 from .jit import numba_or_none
+from .trace import param_values
 
 __all__ = ["batch_unavailable_reason", "run_compiled_batch", "NOISE_CHUNK"]
 
@@ -72,51 +70,31 @@ def _param_rows(params, n: int) -> np.ndarray:
     return np.vstack(rows) if rows else np.zeros((0, n))
 
 
-def _with_matrix_observer_gain(loop):
-    """The same loop with an observer whose kernels take ``Y`` as a 4x4 matrix (one layout for every member)."""
-    s = loop.scenario
-    parts = [observer_block(s.nominal, s.observer_gain, s.observer_variant, matrix_gain=True,
-                            measured="_meas" if s.noise is not None else "") if b.name == "observer" else b
-             for b in loop.syslist]
-    outputs = list(loop.output_labels)
-    matrix_loop = ct.interconnect(parts, inplist=[], outlist=outputs, outputs=outputs, name=loop.name,
-                                  check_unused=False)
-    matrix_loop.scenario, matrix_loop.with_observer = s, loop.with_observer
-    return matrix_loop
-
-
-def _loop_for(v, batch_loop, observer: bool):
-    """The loop whose structure every member shares: the base's, with a sensor when any member has noise, and
-    with a matrix observer gain when any member's gain is not diagonal."""
-    noisy = [i for i, nz in enumerate(v.noises) if nz is not None]
-    if noisy and v.base.noise is None:
-        loop = closed_loop(v.scenario(noisy[0]), observer=observer)
-    else:
-        loop = _prepared(v.base, observer).loop
-    if observer and batch_loop.gain.ndim == 3:      # some member's Y is not diagonal: trace Y as a matrix
-        loop = _with_matrix_observer_gain(loop)
-    return loop
-
-
-def _member_theta(engine, batch_loop, N: int) -> np.ndarray:
-    """Every member's ``theta`` (N, p): the traced blocks' rows from the batch's per-member arrays."""
-    program, plan = engine.program, engine.plan
-    per_block = {"plant": (batch_loop.k_true, batch_loop.disturbance),
-                 "controller": (batch_loop.k_nominal, batch_loop.kp, batch_loop.kd),
-                 "observer": (batch_loop.k_nominal, batch_loop.gain, batch_loop.eq16_weight)}
-    theta = np.repeat(engine.theta[None, :], N, axis=0)
-    for name, params in per_block.items():
-        if name not in plan.order:
-            continue
-        if name not in program.traced:
-            raise CompiledUnavailable(f"block '{name}' is called, not traced, so its parameters cannot vary per member")
-        rows = _param_rows(params, N)
-        sl = program.theta_slices[name]
-        if rows.shape[0] != sl.stop - sl.start:
-            raise CompiledUnavailable(f"block '{name}': the batch's parameters do not match the loop's "
-                                      f"({rows.shape[0]} numbers per member, the loop has {sl.stop - sl.start})")
-        theta[:, sl] = rows.T
+def _member_theta(engine, members) -> np.ndarray:
+    """Every member's ``theta`` (N, p): the traced blocks' numbers read from each member's own kernel parameters
+    (:attr:`blocks.batch.members.MemberLoop.member_params`), in the order the program reads them."""
+    program = engine.program
+    theta = np.repeat(engine.theta[None, :], members.n, axis=0)
+    for name, sl in program.theta_slices.items():
+        if name in program.sources:
+            continue                            # a shared source (the reference): the loop's own numbers
+        params = members.member_params[name]
+        for m, p in enumerate(params):
+            values = param_values(p, [])
+            if len(values) != sl.stop - sl.start:
+                raise CompiledUnavailable(f"block '{name}': member {m}'s parameters do not match the loop's "
+                                          f"({len(values)} numbers, the loop has {sl.stop - sl.start})")
+            theta[m, sl] = values
+    for name in members.plan.order:
+        if name not in program.theta_slices and name not in program.sources and \
+                any(not _same_params(p, members.member_params[name][0]) for p in members.member_params[name]):
+            raise CompiledUnavailable(f"block '{name}' is called, not traced, so its parameters cannot vary "
+                                      f"per member")
     return np.ascontiguousarray(theta)
+
+
+def _same_params(a, b) -> bool:
+    return param_values(a, []) == param_values(b, [])
 
 
 def _noise_tables(v, engine) -> tuple[list, np.ndarray | None]:
@@ -138,7 +116,7 @@ def _noise_tables(v, engine) -> tuple[list, np.ndarray | None]:
     return members, np.zeros(loop_table.shape)
 
 
-def run_compiled_batch(v, batch_loop, observer: bool, metrics: tuple, signals: tuple, times, grid_index,
+def run_compiled_batch(v, members, observer: bool, metrics: tuple, signals: tuple, times, grid_index,
                        workers: int = 1):
     """Integrate the members of ``v`` compiled; return ``(metrics, signals, failed_at, failures)`` as the numpy
     batch does (``failures``: member -> which signal left which bound, the rule of :mod:`blocks.divergence`).
@@ -146,8 +124,8 @@ def run_compiled_batch(v, batch_loop, observer: bool, metrics: tuple, signals: t
     Parameters
     ----------
     v : Variants
-    batch_loop : blocks.batch.simulate._BatchLoop
-        The members' parameter arrays and start states.
+    members : blocks.batch.members.MemberLoop
+        The shared loop, each member's block parameters and start states.
     observer : bool
     metrics, signals : tuple of str
     times, grid_index : numpy.ndarray
@@ -159,13 +137,13 @@ def run_compiled_batch(v, batch_loop, observer: bool, metrics: tuple, signals: t
     if reason is not None:
         raise CompiledUnavailable(f"engine='compiled' cannot run this batch: {reason}")
     numba = numba_or_none()
-    loop = _loop_for(v, batch_loop, observer)
+    loop = members.loop
     engine = CompiledLoopEngine(loop)
     if engine._announce:
         engine.warm()
     program, module, plan = engine.program, engine.module, engine.plan
-    n, N = batch_loop.joints, batch_loop.n
-    theta = _member_theta(engine, batch_loop, N)
+    n, N = members.joints, members.n
+    theta = _member_theta(engine, members)
 
     # the shared reference at step times and mid points
     times = np.ascontiguousarray(times, dtype=float)
@@ -178,22 +156,11 @@ def run_compiled_batch(v, batch_loop, observer: bool, metrics: tuple, signals: t
     on_grid = grid_index >= 0
     n_grid = int(grid_index.max()) + 1
 
-    # start states in the loop's state order
-    if "trajectory" in program.sources:
-        ref0 = [r[:, None] for r in np.split(src_at[0, :3 * n], 3)]
-    else:
-        q0, dq0, _ = v.base.trajectory.evaluate(0.0)
-        ref0 = [np.asarray(q0)[:, None], np.asarray(dq0)[:, None]]
-    noise0 = batch_loop.noise_table(times[:1])
-    x_rows = batch_loop.initial_state(ref0, None if noise0 is None else noise0[0])     # rows [q; dq; z], (nx, N)
-    X0 = np.zeros((N, plan.nstates))
-    steps = {s.name: s for s in plan.steps}
-    X0[:, steps["plant"].x] = x_rows[:2 * n].T
-    if observer:
-        X0[:, steps["observer"].x] = x_rows[2 * n:3 * n].T
+    # start states in the loop's state order, as each member's single run starts
+    X0 = np.ascontiguousarray(members.initial_state().T)
     # each member's bounds in the loop's state order (the interconnection's: blocks in order, their own labels)
     labels = [(block.name, label) for block in loop.syslist for label in block.state_labels]
-    monitor = Monitor(f"batch of scenario '{v.base.name}'", batch_bounds(batch_loop, labels), X0.T)
+    monitor = Monitor(f"batch of scenario '{v.base.name}'", batch_bounds(members, labels), X0.T)
     bound = np.ascontiguousarray(monitor.limits.T)                          # (N, nstates)
     failed_x = np.zeros((N, plan.nstates))
 
@@ -205,7 +172,7 @@ def run_compiled_batch(v, batch_loop, observer: bool, metrics: tuple, signals: t
     aux = np.zeros((n_grid, max(program.n_aux, 1)))
     if "tool_distance" in groups and any("tool" in m for m in metrics):
         q_ref_grid = src_at[on_grid, :n].T                                  # (4, n_grid)
-        aux[:, :3] = tool_pose(batch_loop.kin[:, None], q_ref_grid)[:3].T
+        aux[:, :3] = tool_pose(members.kin[:, None], q_ref_grid)[:3].T
 
     # the outputs (and rows) to keep at the grid points; without a sensor the measured signals are the true ones
     labels = list(loop.output_labels)

@@ -451,6 +451,50 @@ def structure_of(plan, kernels: dict, labels: list, groups: tuple = ()) -> str:
     return "\n".join(parts)
 
 
+def _sources_function(b: _Builder) -> _Function:
+    """``loop_sources``: the source blocks' outputs into ``src``."""
+    fn = _Function(b, "loop_sources", "t, theta, ext, work, src")
+    for step in b.source_steps:
+        for r, v in enumerate(b.block_rows(fn, step, "output", {})):
+            fn.assign(f"src[{b.src_offset[step.name] + r}]", v)
+    return fn
+
+
+def _with_sources(b: _Builder, signals: dict) -> dict:
+    """``signals`` with the source blocks' outputs read from ``src``."""
+    for step in b.source_steps:
+        for r in range(step.y.stop - step.y.start):
+            signals[step.y.start + r] = b.graph.leaf("src", b.src_offset[step.name] + r)
+    return signals
+
+
+def _output_pass(b: _Builder, fn: _Function, signals: dict, skip=()) -> dict:
+    """Every block's outputs in plan order into ``fn``, but the sources' and those of the blocks in ``skip``
+    (evaluated already, or held): the signals."""
+    for step in b.plan.steps:
+        if _is_source(step) or step.name in skip:
+            continue
+        for r, v in enumerate(b.block_rows(fn, step, "output", signals)):
+            signals[step.y.start + r] = v
+    return signals
+
+
+def _assign_outputs(fn: _Function, plan, signals: dict) -> None:
+    """The interconnection's outputs ``y[r]`` from the signals."""
+    for r, j in enumerate(plan.out_index):
+        fn.assign(f"y[{r}]", signals[int(j)])
+
+
+def _member_ext(b: _Builder) -> tuple[tuple, str]:
+    """Which ``ext`` entries are tables, and the text of ``member_ext``, which puts member ``j``'s tables in
+    their place (for a batch whose members have their own)."""
+    tables = tuple(e for e, p in enumerate(b.ext) if is_table(p))
+    if not tables:
+        return tables, "def member_ext(ext, tables, j):\n    return ext\n\n\n"
+    parts = [f"tables[{tables.index(e)}][j]" if e in tables else f"ext[{e}]" for e in range(len(b.ext))]
+    return tables, f"def member_ext(ext, tables, j):\n    return ({', '.join(parts)},)\n\n\n"
+
+
 def loop_program(plan, system, groups: tuple = ()) -> LoopProgram:
     """Trace the blocks of ``plan`` (of the interconnection ``system``) and generate the loop's functions.
 
@@ -479,19 +523,10 @@ def loop_program(plan, system, groups: tuple = ()) -> LoopProgram:
     n_aux = max((gr.aux for gr in groups), default=0)
     aux = b._leaves("aux", range(n_aux))
 
-    # loop_sources: the source blocks' outputs into src
-    fn_src = _Function(b, "loop_sources", "t, theta, ext, work, src")
-    for step in b.source_steps:
-        rows = b.block_rows(fn_src, step, "output", {})
-        for r, v in enumerate(rows):
-            fn_src.assign(f"src[{b.src_offset[step.name] + r}]", v)
+    fn_src = _sources_function(b)
 
     def signals_with_sources() -> dict:
-        signals = {}
-        for step in b.source_steps:
-            for r in range(step.y.stop - step.y.start):
-                signals[step.y.start + r] = g.leaf("src", b.src_offset[step.name] + r)
-        return signals
+        return _with_sources(b, {})
 
     def rhs(fn: _Function) -> dict:
         """The right-hand side into ``fn``: outputs it needs, then every update; the signals it evaluated."""
@@ -509,21 +544,13 @@ def loop_program(plan, system, groups: tuple = ()) -> LoopProgram:
         return signals
 
     def outputs(fn: _Function, signals: dict, skip=()) -> dict:
-        """Every block's outputs not evaluated yet (the blocks in ``skip`` were): the signals."""
-        for step in plan.steps:
-            if _is_source(step) or step.name in skip:
-                continue
-            for r, v in enumerate(b.block_rows(fn, step, "output", signals)):
-                signals[step.y.start + r] = v
-        return signals
+        return _output_pass(b, fn, signals, skip)
 
     fn_rhs = _Function(b, "loop_rhs", "t, x, theta, src, ext, work, dx")
     rhs(fn_rhs)
 
     fn_out = _Function(b, "loop_outputs", "t, x, theta, src, ext, work, y")
-    signals = outputs(fn_out, signals_with_sources())
-    for r, j in enumerate(plan.out_index):
-        fn_out.assign(f"y[{r}]", signals[int(j)])
+    _assign_outputs(fn_out, plan, outputs(fn_out, signals_with_sources()))
 
     # the same with the row groups beside them, which share their terms
     fn_rhs_rows = _Function(b, "loop_rhs_rows", "t, x, theta, src, ext, work, aux, flags, dx, rows")
@@ -536,17 +563,11 @@ def loop_program(plan, system, groups: tuple = ()) -> LoopProgram:
 
     fn_out_rows = _Function(b, "loop_outputs_rows", "t, x, theta, src, ext, work, aux, flags, y, rows")
     signals = outputs(fn_out_rows, signals_with_sources())
-    for r, j in enumerate(plan.out_index):
-        fn_out_rows.assign(f"y[{r}]", signals[int(j)])
+    _assign_outputs(fn_out_rows, plan, signals)
     if groups and _emit_row_groups(fn_out_rows, b, groups, _by_signal(labels, plan, signals), aux) != sizes:
         raise TraceError("a row group gave different row counts beside the right-hand side and the outputs")
 
-    tables = tuple(e for e, p in enumerate(b.ext) if is_table(p))
-    if tables:
-        parts = [f"tables[{tables.index(e)}][j]" if e in tables else f"ext[{e}]" for e in range(len(b.ext))]
-        member_ext = f"def member_ext(ext, tables, j):\n    return ({', '.join(parts)},)\n\n\n"
-    else:
-        member_ext = "def member_ext(ext, tables, j):\n    return ext\n\n\n"
+    tables, member_ext = _member_ext(b)
 
     n_out = len(plan.out_index)
     row_groups, offset = {}, 0
@@ -718,15 +739,9 @@ def sampled_program(hybrid) -> LoopProgram:
     held = lambda: {j: g.leaf("aux", j) for j in range(plan.nsignals)}      # noqa: E731
 
     def with_sources(signals: dict) -> dict:
-        for step in b.source_steps:
-            for r in range(step.y.stop - step.y.start):
-                signals[step.y.start + r] = g.leaf("src", b.src_offset[step.name] + r)
-        return signals
+        return _with_sources(b, signals)
 
-    fn_src = _Function(b, "loop_sources", "t, theta, ext, work, src")
-    for step in b.source_steps:
-        for r, v in enumerate(b.block_rows(fn_src, step, "output", {})):
-            fn_src.assign(f"src[{b.src_offset[step.name] + r}]", v)
+    fn_src = _sources_function(b)
 
     # the tick: every output in plan order, then the sampled blocks' updates
     fn_tick = _Function(b, "sampled_tick", "t, x, theta, src, ext, work, aux, held, xn")
@@ -770,28 +785,19 @@ def sampled_program(hybrid) -> LoopProgram:
 
     # outputs at a time between ticks
     fn_out = _Function(b, "sampled_outputs", "t, x, theta, src, ext, work, aux, y")
-    signals = with_sources(held())
-    for step in plan.steps:
-        if _is_source(step) or step.name in discrete:
-            continue
-        for r, v in enumerate(b.block_rows(fn_out, step, "output", signals)):
-            signals[step.y.start + r] = v
-    for r, j in enumerate(plan.out_index):
-        fn_out.assign(f"y[{r}]", signals[int(j)])
+    _assign_outputs(fn_out, plan, _output_pass(b, fn_out, with_sources(held()), skip=discrete))
 
-    tables = tuple(e for e, p in enumerate(b.ext) if is_table(p))
-    if tables:
-        parts = [f"tables[{tables.index(e)}][j]" if e in tables else f"ext[{e}]" for e in range(len(b.ext))]
-        member_ext = f"def member_ext(ext, tables, j):\n    return ({', '.join(parts)},)\n\n\n"
-    else:
-        member_ext = "def member_ext(ext, tables, j):\n    return ext\n\n\n"
+    tables, member_ext = _member_ext(b)
     n_out = len(plan.out_index)
     sizes = (f"def loop_source_count():\n    return {max(b.n_src, 1)}\n\n\n"
              f"def loop_work_size():\n    return {max(b.work, 1)}\n\n\n"
              f"def loop_output_count():\n    return {n_out}\n\n\n"
              f"def loop_signal_count():\n    return {plan.nsignals}\n\n\n"
              f"def loop_row_count():\n    return 1\n\n\n")
-    source = "\n".join(f.text() for f in (fn_src, fn_tick, fn_rhs, fn_out)) + "\n" + member_ext + sizes
+    # the derivative dp_step integrates (blocks/compiled/dopri.py): this one replaces the template's
+    step_rhs = ("def step_rhs(t, x, theta, ext, src, work, aux, out):\n"
+                "    sampled_rhs(t, x, theta, src, ext, work, aux, out)\n\n\n")
+    source = "\n".join(f.text() for f in (fn_src, fn_tick, fn_rhs, fn_out)) + "\n" + step_rhs + member_ext + sizes
     structure = "sampled\n" + structure_of(plan, kernels, list(system.output_labels)) + \
         "\n" + ",".join(sorted(discrete)) + "|" + ",".join(sorted(between))
     return LoopProgram(source=source, theta=np.array(b.theta, dtype=float), theta_slices=b.theta_slices,

@@ -6,11 +6,13 @@ places its text before the generated functions of one loop
 ``loop_outputs_rows``, ``member_ext``) and compiles the whole with numba
 (each loop structure gets its own module, cached on disk).
 
-``dopri_run`` is the Dormand-Prince 5(4) pair with the step-size control of
-:class:`scipy.integrate.RK45` (same tableau, error norm, safety factor 0.9,
+``dp_step`` is one step of the Dormand-Prince 5(4) pair with the step-size
+control of :class:`scipy.integrate.RK45` (same tableau, error norm, safety factor 0.9,
 step factors 0.2 to 10, no growth right after a rejected step, initial step
-of Hairer, Norsett and Wanner II.4, ``max_step``) and its quartic dense
-output, which gives the states on the output grid as
+of Hairer, Norsett and Wanner II.4, ``max_step``), written once: the
+continuous driver ``dopri_run`` and the sampled driver ``sampled_ticks``
+both step through it, each integrating the module's ``step_rhs``.  Its
+quartic dense output gives the states on the output grid as
 :func:`blocks.integrate.integrate_on_grid` does.  Each accepted step is
 checked against the divergence bound.  ``grid_outputs`` evaluates the
 outputs (and row groups) on the grid afterwards.  ``rk4_batch`` is the
@@ -111,6 +113,117 @@ def dense_into(Q, y_old, h, t_old, t, out, k):
         out[i, k] = h * (Q[i, 0] * p0 + Q[i, 1] * p1 + Q[i, 2] * p2 + Q[i, 3] * p3) + y_old[i]
 
 
+def step_rhs(t, x, theta, ext, src, work, aux, out):
+    """The state derivative the Dormand-Prince step integrates: the continuous loop's (sources, then its
+    right-hand side).  A sampled program defines its own ``step_rhs`` after this text (the sampled outputs
+    held in ``aux``), which replaces this one in its module."""
+    loop_derivative(t, x, theta, ext, src, work, out)
+
+
+def dp_step(t, t_bound, h_abs, max_step, rtol, atol, y, f, theta, ext, aux, src, work, K, y_new, f_new, y_stage,
+            err, out):
+    """One accepted Dormand-Prince 5(4) step of ``x' = step_rhs`` from ``t`` towards ``t_bound`` with the step
+    control of :class:`scipy.integrate.RK45`; False when the step became too small.
+
+    Every driver (``dopri_run``, ``sampled_ticks``) steps through this one
+    function.  ``f`` is the derivative at ``(t, y)``; ``K`` gets the stages
+    (``K[0] = f``), ``y_new``/``f_new`` the step's end, and ``out``
+    ``[t_new, next h_abs, h, right-hand-side calls]``.
+    """
+    n = y.shape[0]
+    min_step = 10.0 * abs(np.nextafter(t, np.inf) - t)
+    if h_abs > max_step:
+        h_abs = max_step
+    elif h_abs < min_step:
+        h_abs = min_step
+    accepted = False
+    rejected = False
+    h = 0.0
+    t_new = t
+    nfev = 0
+    while not accepted:
+        if h_abs < min_step:
+            out[3] = nfev
+            return False
+        h = h_abs
+        t_new = t + h
+        if t_new - t_bound > 0:
+            t_new = t_bound
+        h = t_new - t
+        h_abs = abs(h)
+        # stages: K[0] = f, K[s] = f(t + c_s h, y + h sum_j a_sj K[j]), as scipy's rk_step
+        for i in range(n):
+            K[0, i] = f[i]
+        for s in range(1, 6):
+            for i in range(n):
+                acc = 0.0
+                for j in range(s):
+                    acc += K[j, i] * DP_A[s, j]
+                y_stage[i] = y[i] + acc * h
+            step_rhs(t + DP_C[s] * h, y_stage, theta, ext, src, work, aux, K[s])
+        for i in range(n):
+            acc = 0.0
+            for j in range(6):
+                acc += K[j, i] * DP_B[j]
+            y_new[i] = y[i] + h * acc
+        step_rhs(t + h, y_new, theta, ext, src, work, aux, f_new)
+        for i in range(n):
+            K[6, i] = f_new[i]
+        nfev += 6
+        for i in range(n):
+            acc = 0.0
+            for j in range(7):
+                acc += K[j, i] * DP_E[j]
+            scale = atol + max(abs(y[i]), abs(y_new[i])) * rtol
+            err[i] = acc * h / scale
+        error_norm = rms_norm(err)
+        if error_norm < 1.0:
+            if error_norm == 0.0:
+                factor = MAX_FACTOR
+            else:
+                factor = min(MAX_FACTOR, SAFETY * error_norm ** ERROR_EXPONENT)
+            if rejected:
+                factor = min(1.0, factor)
+            h_abs *= factor
+            accepted = True
+        else:
+            h_abs *= max(MIN_FACTOR, SAFETY * error_norm ** ERROR_EXPONENT)
+            rejected = True
+    out[0] = t_new
+    out[1] = h_abs
+    out[2] = h
+    out[3] = nfev
+    return True
+
+
+def dense_coefficients(K, y, y_old, Q):
+    """The accepted step's quartic interpolant, ``Q = K^T P`` (as scipy's RkDenseOutput), and its start ``y_old``."""
+    for i in range(y.shape[0]):
+        y_old[i] = y[i]
+        for m in range(4):
+            acc = 0.0
+            for j in range(7):
+                acc += K[j, i] * DP_P[j, m]
+            Q[i, m] = acc
+
+
+def bounded_step(t, t_bound, h_abs, max_step, rtol, atol, y, f, theta, ext, aux, src, work, K, y_new, f_new, y_stage,
+                 err, out, y_old, Q, bound, state):
+    """``dp_step`` as a driver takes it: its right-hand-side calls added to ``state[S_NFEV]``, the accepted
+    step's dense coefficients (``y_old``, ``Q``) and its end checked against each state's ``bound`` (NaN fails
+    too).  Returns ``RUNNING``, ``STEP_TOO_SMALL`` or ``DIVERGED``."""
+    ok = dp_step(t, t_bound, h_abs, max_step, rtol, atol, y, f, theta, ext, aux, src, work, K, y_new, f_new, y_stage,
+                 err, out)
+    state[S_NFEV] += out[3]
+    if not ok:
+        return STEP_TOO_SMALL
+    dense_coefficients(K, y, y_old, Q)
+    for i in range(y.shape[0]):
+        if not abs(y_new[i]) <= bound[i]:
+            return DIVERGED
+    return RUNNING
+
+
 def dopri_run(t_grid, theta, ext, rtol, atol, max_step, bound, max_steps, state, y, f, K, Q, y_old, X):
     """Advance the integration by at most ``max_steps`` accepted steps; return a status code.
 
@@ -128,6 +241,8 @@ def dopri_run(t_grid, theta, ext, rtol, atol, max_step, bound, max_steps, state,
     f_new = np.empty(n)
     y_stage = np.empty(n)
     err = np.empty(n)
+    aux = np.empty(1)           # a continuous loop holds no sampled outputs
+    out = np.zeros(4)
     if state[S_STARTED] == 0.0:
         t = t_grid[0]
         loop_derivative(t, y, theta, ext, src, work, f)
@@ -144,81 +259,16 @@ def dopri_run(t_grid, theta, ext, rtol, atol, max_step, bound, max_steps, state,
     n_grid = t_grid.shape[0]
     steps = 0
     while t < t_bound and steps < max_steps:
-        min_step = 10.0 * abs(np.nextafter(t, np.inf) - t)
-        if h_abs > max_step:
-            h_abs = max_step
-        elif h_abs < min_step:
-            h_abs = min_step
-        accepted = False
-        rejected = False
-        h = 0.0
-        t_new = t
-        while not accepted:
-            if h_abs < min_step:
-                state[S_T] = t
-                return STEP_TOO_SMALL
-            h = h_abs
-            t_new = t + h
-            if t_new - t_bound > 0:
-                t_new = t_bound
-            h = t_new - t
-            h_abs = abs(h)
-            # stages: K[0] = f, K[s] = f(t + c_s h, y + h sum_j a_sj K[j]), as scipy's rk_step
-            for i in range(n):
-                K[0, i] = f[i]
-            for s in range(1, 6):
-                for i in range(n):
-                    acc = 0.0
-                    for j in range(s):
-                        acc += K[j, i] * DP_A[s, j]
-                    y_stage[i] = y[i] + acc * h
-                loop_derivative(t + DP_C[s] * h, y_stage, theta, ext, src, work, K[s])
-            for i in range(n):
-                acc = 0.0
-                for j in range(6):
-                    acc += K[j, i] * DP_B[j]
-                y_new[i] = y[i] + h * acc
-            loop_derivative(t + h, y_new, theta, ext, src, work, f_new)
-            for i in range(n):
-                K[6, i] = f_new[i]
-            state[S_NFEV] += 6.0
-            for i in range(n):
-                acc = 0.0
-                for j in range(7):
-                    acc += K[j, i] * DP_E[j]
-                scale = atol + max(abs(y[i]), abs(y_new[i])) * rtol
-                err[i] = acc * h / scale
-            error_norm = rms_norm(err)
-            if error_norm < 1.0:
-                if error_norm == 0.0:
-                    factor = MAX_FACTOR
-                else:
-                    factor = min(MAX_FACTOR, SAFETY * error_norm ** ERROR_EXPONENT)
-                if rejected:
-                    factor = min(1.0, factor)
-                h_abs *= factor
-                accepted = True
-            else:
-                h_abs *= max(MIN_FACTOR, SAFETY * error_norm ** ERROR_EXPONENT)
-                rejected = True
-        # the step from t to t_new is accepted: its dense output, Q = K^T P
-        for i in range(n):
-            y_old[i] = y[i]
-            for m in range(4):
-                acc = 0.0
-                for j in range(7):
-                    acc += K[j, i] * DP_P[j, m]
-                Q[i, m] = acc
-        largest = 0.0
-        finite = True
-        for i in range(n):
-            v = abs(y_new[i])
-            if not v <= bound[i]:           # each state's own bound (NaN fails too)
-                finite = False
-            if v > largest:
-                largest = v
+        code = bounded_step(t, t_bound, h_abs, max_step, rtol, atol, y, f, theta, ext, aux, src, work, K, y_new,
+                            f_new, y_stage, err, out, y_old, Q, bound, state)
+        if code == STEP_TOO_SMALL:
+            state[S_T] = t
+            return STEP_TOO_SMALL
+        t_new = out[0]
+        h_abs = out[1]
+        h = out[2]
         state[S_T_OLD] = t
-        if not finite:
+        if code == DIVERGED:
             for i in range(n):
                 y[i] = y_new[i]
             state[S_T] = t_new
@@ -353,87 +403,15 @@ def rk4_batch(times, grid_index, src_at, src_mid, aux, X0, theta, ext, tables, t
 # ------------------------------------------------------------------------------------------------------------
 # The sampled-data loop (blocks.hybrid.HybridSystem.simulate), compiled: at each tick the sampled blocks'
 # outputs and updates (sampled_tick), then the continuous states integrated to the next tick with the sampled
-# outputs held (sampled_rhs), Dormand-Prince restarted at every tick with first step = the interval, as
-# blocks.integrate.integrate_on_grid does there.  Generated functions: blocks.compiled.codegen.sampled_program.
+# outputs held (step_rhs, which a sampled program defines as its sampled_rhs), by the same dp_step as dopri_run,
+# restarted at every tick with first step = the interval, as blocks.integrate.integrate_on_grid does there.
+# Generated functions: blocks.compiled.codegen.sampled_program.
 # ------------------------------------------------------------------------------------------------------------
 # Status of sampled_ticks beside RUNNING, FINISHED, DIVERGED (a step), STEP_TOO_SMALL: a tick's update diverged
 TICK_DIVERGED = 4
 # Slot of sampled_ticks' state vector holding the next tick (the others as dopri_run's: S_T, S_NFEV, S_DONE,
 # S_T_OLD; S_DONE is the next grid point to fill)
 S_TICK = 1
-
-
-def held_step(t, t_bound, h_abs, max_step, rtol, atol, y, f, theta, ext, aux, src, work, K, y_new, f_new,
-              y_stage, err, out):
-    """One accepted Dormand-Prince step of ``x' = sampled_rhs`` from ``t`` towards ``t_bound``, with the step
-    control of :class:`scipy.integrate.RK45` (as ``dopri_run``); False when the step became too small.
-
-    ``K`` holds the stages (``K[0] = f`` on entry), ``y_new``/``f_new`` the
-    step's end; ``out`` gets ``[t_new, next h_abs, h, right-hand-side calls]``.
-    """
-    n = y.shape[0]
-    min_step = 10.0 * abs(np.nextafter(t, np.inf) - t)
-    if h_abs > max_step:
-        h_abs = max_step
-    elif h_abs < min_step:
-        h_abs = min_step
-    accepted = False
-    rejected = False
-    h = 0.0
-    t_new = t
-    nfev = 0
-    while not accepted:
-        if h_abs < min_step:
-            out[3] = nfev
-            return False
-        h = h_abs
-        t_new = t + h
-        if t_new - t_bound > 0:
-            t_new = t_bound
-        h = t_new - t
-        h_abs = abs(h)
-        for i in range(n):
-            K[0, i] = f[i]
-        for s in range(1, 6):
-            for i in range(n):
-                acc = 0.0
-                for j in range(s):
-                    acc += K[j, i] * DP_A[s, j]
-                y_stage[i] = y[i] + acc * h
-            sampled_rhs(t + DP_C[s] * h, y_stage, theta, src, ext, work, aux, K[s])
-        for i in range(n):
-            acc = 0.0
-            for j in range(6):
-                acc += K[j, i] * DP_B[j]
-            y_new[i] = y[i] + h * acc
-        sampled_rhs(t + h, y_new, theta, src, ext, work, aux, f_new)
-        for i in range(n):
-            K[6, i] = f_new[i]
-        nfev += 6
-        for i in range(n):
-            acc = 0.0
-            for j in range(7):
-                acc += K[j, i] * DP_E[j]
-            scale = atol + max(abs(y[i]), abs(y_new[i])) * rtol
-            err[i] = acc * h / scale
-        error_norm = rms_norm(err)
-        if error_norm < 1.0:
-            if error_norm == 0.0:
-                factor = MAX_FACTOR
-            else:
-                factor = min(MAX_FACTOR, SAFETY * error_norm ** ERROR_EXPONENT)
-            if rejected:
-                factor = min(1.0, factor)
-            h_abs *= factor
-            accepted = True
-        else:
-            h_abs *= max(MIN_FACTOR, SAFETY * error_norm ** ERROR_EXPONENT)
-            rejected = True
-    out[0] = t_new
-    out[1] = h_abs
-    out[2] = h
-    out[3] = nfev
-    return True
 
 
 def dense_row(Q, y_old, h, t_old, t, out):
@@ -445,6 +423,21 @@ def dense_row(Q, y_old, h, t_old, t, out):
     p3 = p2 * x
     for i in range(y_old.shape[0]):
         out[i] = h * (Q[i, 0] * p0 + Q[i, 1] * p1 + Q[i, 2] * p2 + Q[i, 3] * p3) + y_old[i]
+
+
+def sampled_grid_point(g, t, x, theta, ext, held, src, work, store, X, Y, yg, err_a, err_b, sum_sq):
+    """The loop's outputs at grid point ``g`` (time ``t``, states ``x``, the sampled outputs ``held``): into rows
+    ``X[g]``, ``Y[g]`` when ``store``, and ``(y[err_a[c]] - y[err_b[c]])^2`` added to ``sum_sq[c]``."""
+    loop_sources(t, theta, ext, work, src)
+    sampled_outputs(t, x, theta, src, ext, work, held, yg)
+    if store:
+        for i in range(x.shape[0]):
+            X[g, i] = x[i]
+        for i in range(yg.shape[0]):
+            Y[g, i] = yg[i]
+    for c in range(err_a.shape[0]):
+        e = yg[err_a[c]] - yg[err_b[c]]
+        sum_sq[c] += e * e
 
 
 def sampled_ticks(t_grid, base_period, n_ticks, k_stop, theta, ext, rtol, atol, max_step, bound, state, x, held,
@@ -479,7 +472,6 @@ def sampled_ticks(t_grid, base_period, n_ticks, k_stop, theta, ext, rtol, atol, 
     out = np.zeros(4)
     k = int(state[S_TICK])
     g = int(state[S_DONE])
-    n_err = err_a.shape[0]
     while k <= n_ticks and k < k_stop:
         t0 = k * base_period
         if k < n_ticks:
@@ -511,16 +503,15 @@ def sampled_ticks(t_grid, base_period, n_ticks, k_stop, theta, ext, rtol, atol, 
         else:
             upto = n_grid
         if t1 > t0:
-            sampled_rhs(t0, x, theta, src, ext, work, held, f)
+            step_rhs(t0, x, theta, ext, src, work, held, f)
             state[S_NFEV] += 1.0
             h_abs = min(t1 - t0, max_step)
             t = t0
             h = 0.0
             while t < t1:
-                ok = held_step(t, t1, h_abs, max_step, rtol, atol, x, f, theta, ext, held, src, work, K, y_new,
-                               f_new, y_stage, err, out)
-                state[S_NFEV] += out[3]
-                if not ok:
+                code = bounded_step(t, t1, h_abs, max_step, rtol, atol, x, f, theta, ext, held, src, work, K, y_new,
+                                    f_new, y_stage, err, out, y_old, Q, bound, state)
+                if code == STEP_TOO_SMALL:
                     state[S_T] = t
                     state[S_TICK] = k
                     state[S_DONE] = g
@@ -528,18 +519,7 @@ def sampled_ticks(t_grid, base_period, n_ticks, k_stop, theta, ext, rtol, atol, 
                 t_new = out[0]
                 h_abs = out[1]
                 h = out[2]
-                for i in range(n):
-                    y_old[i] = x[i]
-                    for m in range(4):
-                        acc = 0.0
-                        for j in range(7):
-                            acc += K[j, i] * DP_P[j, m]
-                        Q[i, m] = acc
-                finite = True
-                for i in range(n):
-                    if not abs(y_new[i]) <= bound[i]:
-                        finite = False
-                if not finite:
+                if code == DIVERGED:
                     for i in range(n):
                         x[i] = y_new[i]
                     state[S_T_OLD] = t
@@ -549,16 +529,8 @@ def sampled_ticks(t_grid, base_period, n_ticks, k_stop, theta, ext, rtol, atol, 
                     return DIVERGED
                 while g < upto and t_grid[g] <= t_new:
                     dense_row(Q, y_old, h, t, t_grid[g], xg)
-                    loop_sources(t_grid[g], theta, ext, work, src)
-                    sampled_outputs(t_grid[g], xg, theta, src, ext, work, held, yg)
-                    if store:
-                        for i in range(n):
-                            X[g, i] = xg[i]
-                        for i in range(yg.shape[0]):
-                            Y[g, i] = yg[i]
-                    for c in range(n_err):
-                        e = yg[err_a[c]] - yg[err_b[c]]
-                        sum_sq[c] += e * e
+                    sampled_grid_point(g, t_grid[g], xg, theta, ext, held, src, work, store, X, Y, yg, err_a, err_b,
+                                       sum_sq)
                     g += 1
                 for i in range(n):
                     x[i] = y_new[i]
@@ -571,16 +543,8 @@ def sampled_ticks(t_grid, base_period, n_ticks, k_stop, theta, ext, rtol, atol, 
                 x[i] = xn[i]
         else:
             while g < upto:
-                loop_sources(t_grid[g], theta, ext, work, src)
-                sampled_outputs(t_grid[g], x, theta, src, ext, work, held, yg)
-                if store:
-                    for i in range(n):
-                        X[g, i] = x[i]
-                    for i in range(yg.shape[0]):
-                        Y[g, i] = yg[i]
-                for c in range(n_err):
-                    e = yg[err_a[c]] - yg[err_b[c]]
-                    sum_sq[c] += e * e
+                sampled_grid_point(g, t_grid[g], x, theta, ext, held, src, work, store, X, Y, yg, err_a, err_b,
+                                   sum_sq)
                 g += 1
         k += 1
     state[S_TICK] = k

@@ -1,0 +1,244 @@
+"""A batch as the loop's plan over a member axis: one plan, N sets of block parameters.
+
+Every member of a batch shares the loop's structure -- its blocks, their
+kernels and the evaluation order :func:`blocks.plan.make_plan` derives -- and
+the shared sources (the reference).  What differs between members are the
+numbers the blocks' kernels take.  Each member's blocks are made from the
+member's model objects exactly as a single run makes them
+(:func:`blocks.loop.build_blocks` on the member's scenario), and their
+parameters are stacked on a trailing member axis: the column layout the
+kernels take (see :mod:`blocks.kernels`).  So any key that reaches a block's
+parameters may vary within a batch, and nothing here names a key.
+
+:class:`MemberLoop` evaluates the plan on rows ``(n, N)`` for the numpy batch;
+the compiled batch reads each member's numbers for the traced blocks from
+:attr:`MemberLoop.member_params` (:mod:`blocks.compiled.batch`).
+"""
+from __future__ import annotations
+
+import numbers
+
+import control as ct
+import numpy as np
+
+from ..contract import contract_of, kernels_only
+from ..kernels import kinematic_lengths, lumped_disturbance
+from ..loop import _prepared, build_blocks, closed_loop, initial_state
+from ..noise import MeasurementNoise
+from ..plan import make_plan
+from ..systems import observer as observer_block
+
+__all__ = ["MemberLoop", "member_scenario", "shared_loop"]
+
+
+def member_scenario(v, i: int, noisy: bool = False):
+    """Member ``i`` of the variants ``v`` as a scenario holding its model objects (not its ``data``), for
+    making its blocks.  With ``noisy`` a member without noise gets a zero noise, so that its loop has the
+    batch's sensor (adding zero changes no number)."""
+    fields = dict(v.members[i])
+    if noisy and fields["noise"] is None:
+        settings = v.base.data["noise"]
+        n = v.base.robot.joints.count
+        zero = MeasurementNoise(q_std=(0.0,) * n, dq_std=(0.0,) * n, seed=int(settings["seed"]),
+                                sample_period=float(settings["sample_period"]), t_final=v.base.simulation.t_final)
+        # zero samples at the batch's sample instants (a disabled noise keeps none): the members' tables align
+        shape = next(nz.table.shape for nz in v.noises if nz is not None)
+        object.__setattr__(zero, "_samples", np.zeros(shape))
+        fields["noise"] = zero
+    # the base's checked settings with the member's model objects (not a new validated scenario: the
+    # member's values were checked by Variants, and the view only makes blocks)
+    view = object.__new__(type(v.base))
+    view.__dict__.update(v.base.__dict__)
+    view.__dict__.update(fields)
+    return view
+
+
+def _matrix_observer(blocks: dict, s) -> dict:
+    """The blocks with an observer whose kernels take ``Y`` as a matrix (one layout for every member)."""
+    out = dict(blocks)
+    out["observer"] = observer_block(s.nominal, s.observer_gain, s.observer_variant, matrix_gain=True,
+                                     measured="_meas" if s.noise is not None else "")
+    return out
+
+
+def shared_loop(v, observer: bool) -> ct.InterconnectedSystem:
+    """The loop whose structure every member shares: the base's, with a sensor when any member has noise and
+    an observer taking ``Y`` as a matrix when any member's gain is not diagonal."""
+    noisy = [i for i, nz in enumerate(v.noises) if nz is not None]
+    if noisy and v.base.noise is None:
+        loop = closed_loop(v.scenario(noisy[0]), observer=observer)
+    else:
+        loop = _prepared(v.base, observer).loop
+    if observer and v.y_diag is None:
+        s = loop.scenario
+        parts = list(_matrix_observer({b.name: b for b in loop.syslist}, s).values())
+        outputs = list(loop.output_labels)
+        matrix_loop = ct.interconnect(parts, inplist=[], outlist=outputs, outputs=outputs, name=loop.name,
+                                      check_unused=False)
+        matrix_loop.scenario, matrix_loop.with_observer = s, loop.with_observer
+        loop = matrix_loop
+    return loop
+
+
+def _same(a, b) -> bool:
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return np.shape(a) == np.shape(b) and np.array_equal(a, b)
+    if isinstance(a, tuple) and isinstance(b, tuple):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    return type(a) is type(b) and a == b
+
+
+def _stacked(block: str, where: str, values: list, column_value):
+    """The members' values of one parameter in the column layout: the block's own column value when all
+    members agree, else stacked on a trailing member axis."""
+    first = values[0]
+    if all(_same(first, other) for other in values[1:]):
+        return column_value
+    if isinstance(first, tuple):
+        fields = getattr(first, "_fields", None)
+        parts = [_stacked(block, f"{where}.{fields[j]}" if fields else f"{where}[{j}]", [v[j] for v in values],
+                          column_value[j]) for j in range(len(first))]
+        return type(first)(*parts) if fields else tuple(parts)
+    if isinstance(first, (bool, np.bool_, str, type(None))) or not isinstance(first, (np.ndarray, numbers.Real)):
+        differing = sorted({repr(v) for v in values})[:3]
+        raise ValueError(f"block '{block}': its parameter {where} differs between members ({', '.join(differing)}) "
+                         f"and shapes the loop; the members of one batch must share it")
+    shapes = {np.shape(v) for v in values}
+    if len(shapes) > 1:
+        raise ValueError(f"block '{block}': its parameter {where} has different shapes in different members "
+                         f"{sorted(shapes)}; the members of one batch must share its shape")
+    return np.stack([np.asarray(v, dtype=float) for v in values], axis=-1)
+
+
+class MemberLoop:
+    """The loop's plan evaluated for the N members of a batch at once: states ``(nstates, N)``.
+
+    Parameters
+    ----------
+    variants : blocks.batch.Variants
+    observer : bool
+        With or without the disturbance observer.
+
+    Attributes
+    ----------
+    loop : control.InterconnectedSystem
+        The shared structure (see :func:`shared_loop`).
+    plan : blocks.plan.LoopPlan
+        Its evaluation plan.
+    member_params : dict of str to list
+        Each block's kernel parameters, one tuple per member (the one-point layout).
+    sources : tuple of blocks.plan.BlockStep
+        Blocks without inputs or states (the reference), shared by all members.
+
+    Raises
+    ------
+    ValueError
+        If a block has no kernels, or the members' blocks differ in structure (naming the block and the
+        parameter).
+    """
+
+    def __init__(self, variants, observer: bool) -> None:
+        v = self.v = variants
+        self.observer, self.n = observer, len(v)
+        self.joints = v.base.robot.joints.count
+        self.loop = shared_loop(v, observer)
+        self.plan = plan = make_plan(self.loop)
+        noisy = "sensor" in plan.order
+        matrix = observer and v.y_diag is None
+        self.scenarios = [member_scenario(v, i, noisy) for i in range(self.n)]
+        with kernels_only():            # the members' kernels and numbers; no python-control system each
+            made = [build_blocks(s, observer=observer) for s in self.scenarios]
+            if matrix:
+                made = [_matrix_observer(b, s) for b, s in zip(made, self.scenarios)]
+        self.member_params, self._kernels0, self._columns = {}, {}, {}
+        for step in plan.steps:
+            kernels = [contract_of(b[step.name]).kernels for b in made]
+            if not step.kernel or any(k is None or k.output is not step.output or k.update is not step.update
+                                      for k in kernels):
+                raise ValueError(f"block '{step.name}' has no kernels or differs in structure between members; "
+                                 f"a batch evaluates one plan for all members")
+            self.member_params[step.name] = [k.params for k in kernels]
+            self._kernels0[step.name] = kernels[0]
+        self.sources = tuple(s for s in plan.steps if s.x.stop == s.x.start and _size(s.gather) == 0)
+        names = {s.name for s in self.sources}
+        self._rhs_steps = tuple(s for s in plan.rhs_steps if s.name not in names)
+        self._all_steps = tuple(s for s in plan.steps if s.name not in names)
+        self._source_rows = np.concatenate([np.arange(s.y.start, s.y.stop) for s in self.sources]) \
+            if self.sources else np.zeros(0, dtype=int)
+        labels = list(self.loop.output_labels)
+        self.signal_rows = {}
+        for label, row in zip(labels, plan.out_index):
+            self.signal_rows.setdefault(label.split("[")[0], []).append(int(row))
+        self.state_labels = [(block.name, label) for block in self.loop.syslist for label in block.state_labels]
+        self.k_true = np.stack([r.kernel_params() for r in v.robots], axis=-1)            # (k, N)
+        self.k_nominal = np.stack([r.kernel_params() for r in v.nominals], axis=-1)
+        self.kin = kinematic_lengths(v.base.robot)          # the tool point is the shared arm's
+        self.nx = plan.nstates
+
+    def column_params(self, name: str) -> tuple:
+        """Block ``name``'s parameters over the members: the column layout, a trailing member axis where the
+        members differ (stacked on first use; the compiled batch reads :attr:`member_params` instead)."""
+        found = self._columns.get(name)
+        if found is None:
+            found = self._columns[name] = _stacked(name, "params", self.member_params[name],
+                                                   self._kernels0[name].columns())
+        return found
+
+    # -- what the divergence bounds read (blocks.divergence.batch_bounds) -------------------------------------
+    @property
+    def disturbance(self):
+        """The external disturbance's parameters over the members (the plant's)."""
+        return self.column_params("plant")[1]
+
+    @property
+    def gain(self) -> np.ndarray:
+        """The observer gains over the members: diagonals (n, N) or matrices (n, n, N)."""
+        v = self.v
+        y = self.column_params("observer")[1] if self.observer else (v.y_diag if v.y_diag is not None else v.y_full)
+        return np.array(np.broadcast_to(y, np.shape(y)[:-1] + (self.n,)))
+
+    # -- start and sources ----------------------------------------------------------------------------------------
+    def initial_state(self) -> np.ndarray:
+        """Every member's start state (nstates, N), as a single run of that member starts."""
+        return np.column_stack([initial_state(self.loop, s) for s in self.scenarios])
+
+    def source_table(self, times: np.ndarray) -> np.ndarray:
+        """The shared sources' outputs at ``times``: shape (len(times), rows, 1)."""
+        times = np.asarray(times, dtype=float)
+        rows = [np.asarray(s.output(times, np.zeros((0, times.size)), np.zeros((0, times.size)),
+                                    *self.column_params(s.name)), dtype=float).reshape(-1, times.size)
+                for s in self.sources]
+        table = np.vstack(rows) if rows else np.zeros((0, times.size))
+        return np.ascontiguousarray(table.T[:, :, None])
+
+    # -- the right-hand side ---------------------------------------------------------------------------------------
+    def rhs(self, t: float, x: np.ndarray, src: np.ndarray, record: dict | None = None) -> np.ndarray:
+        """State derivative (nstates, N) at time ``t`` with the sources' outputs ``src`` (rows, 1) there.
+
+        With ``record`` (a dict) every block's outputs are evaluated and the
+        loop's output signals stored in it by name, rows (n, N).
+        """
+        plan = self.plan
+        y = np.empty((plan.nsignals, self.n))
+        y[plan.copy_y] = x[plan.copy_x]
+        y[self._source_rows] = src
+        for s in (self._all_steps if record is not None else self._rhs_steps):
+            y[s.y] = s.output(t, x[s.x], y[s.gather], *self.column_params(s.name))
+        dx = np.empty_like(x)
+        for s in plan.updates:
+            dx[s.x] = s.update(t, x[s.x], y[s.gather], *self.column_params(s.name))
+        if record is not None:
+            record.update({name: y[rows] for name, rows in self.signal_rows.items()})
+            record.setdefault("q_meas", record["q"])
+            record.setdefault("dq_meas", record["dq"])
+        return dx
+
+    def lumped(self, q, dq, tau, tau_dis) -> np.ndarray:
+        """The lumped disturbance ``d`` (n, ...) of every member (Eq. 2-3, relative to its nominal model)."""
+        return lumped_disturbance(self.k_true, self.k_nominal, q, dq, tau, tau_dis)
+
+
+def _size(gather) -> int:
+    if isinstance(gather, slice):
+        return gather.stop - gather.start
+    return int(np.size(gather))
