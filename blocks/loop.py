@@ -287,7 +287,8 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
     budget = Budget.from_env()
     budget.check(run.estimate(), f"scenario '{s.name}' ({sim.method})")
     if engine in ("auto", "compiled"):
-        engine = select_engine(engine, run.compiled_reason(sim.method))
+        engine = select_engine(engine, run.auto_reason(sim.method) if engine == "auto"
+                               else run.compiled_reason(sim.method))
     monitor = Monitor(f"scenario '{s.name}'", run.bounds(), run.x0, budget, sim.t_final, progress, sim.method)
     with_d = False
     if engine == "compiled":
@@ -349,6 +350,12 @@ class _Prepared:
             from .compiled import unavailable_reason
             self._reasons[method] = unavailable_reason(self.loop, method)
         return self._reasons[method]
+
+    def auto_reason(self, method: str) -> str | None:
+        """Why ``engine="auto"`` runs numpy (None: compiled): the compiled engine cannot run the loop, or its
+        generated code is too long to compile now (:data:`blocks.compiled.engine.AUTO_COMPILE_LINES`)."""
+        reason = self.compiled_reason(method)
+        return reason if reason is not None else self.compiled_engine().auto_reason()
 
     def compiled_engine(self):
         if self._compiled is None:

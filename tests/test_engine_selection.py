@@ -174,3 +174,26 @@ def test_the_command_line_says_which_engine_in_one_note_line(tmp_path):
     assert notes == ["dobkit simulate: note: engine='auto' uses the numpy engine: numba is not installed "
                      "(it comes with the optional extra: pip install \"dobkit[fast]\")"]
     assert "simulate(" not in run.stderr
+
+
+@pytest.mark.skipif(not HAVE_NUMBA, reason="needs numba")
+def test_auto_compiles_a_loop_only_when_its_code_is_short_enough_or_already_cached(monkeypatch):
+    """The rule of ``AUTO_COMPILE_LINES``, at both sides of the limit, for a loop not yet compiled and a cached one."""
+    import blocks.compiled.engine as engine_module
+    from blocks.loop import _prepared
+
+    s = SHORT.replace(name="auto-compile-limit")
+    compiled = _prepared(s, True).compiled_engine()
+    lines = compiled.generated_lines
+    assert lines == compiled.program.source.count("\n") + 1 > 100
+    monkeypatch.setattr(compiled, "_announce", True)                     # as if never compiled here
+    monkeypatch.setattr(engine_module, "AUTO_COMPILE_LINES", lines)
+    assert compiled.auto_reason() is None                                # at the limit: compiled
+    monkeypatch.setattr(engine_module, "AUTO_COMPILE_LINES", lines - 1)
+    reason = compiled.auto_reason()
+    assert f"{lines} lines" in reason and f"more than {lines - 1}" in reason and "--engine compiled" in reason
+    with pytest.warns(EngineFallbackWarning, match=f"{lines} lines"):
+        auto = blocks.simulate(s)                                        # one line over: numpy, saying why
+    np.testing.assert_array_equal(auto.states, blocks.simulate(s, engine="fast").states)
+    monkeypatch.setattr(compiled, "_announce", False)                    # cached: compiled, whatever its length
+    assert compiled.auto_reason() is None

@@ -15,7 +15,7 @@ from .codegen import CompiledUnavailable, load_module, mark_compiled, program_fo
 from .jit import numba_or_none
 from .rows import loop_rows_of
 
-__all__ = ["CompiledLoopEngine", "unavailable_reason", "METHODS"]
+__all__ = ["AUTO_COMPILE_LINES", "CompiledLoopEngine", "unavailable_reason", "METHODS"]
 
 #: The solver methods the compiled engine implements (with scipy's step control).
 METHODS = ("RK45",)
@@ -40,6 +40,13 @@ def unavailable_reason(system, method: str = "RK45") -> str | None:
             return (f"block '{block.name}' has no kernels (a user's own python-control system or an FMU), "
                     f"so the loop cannot be compiled")
     return None
+
+
+#: ``engine="auto"`` compiles a loop whose generated functions hold at most this many lines; a longer one runs on
+#: numpy until it has been compiled once (``engine="compiled"``) and is in the cache.  numba's compile time grows
+#: faster than the code: the paper's loop (about 2,300 lines) and the 4-joint URDF arm scope4 (about 3,700) compile
+#: in seconds, the 7-joint Panda (about 15,000 lines of straight-line dynamics) takes many minutes.
+AUTO_COMPILE_LINES = 6000
 
 
 class CompiledLoopEngine:
@@ -76,6 +83,25 @@ class CompiledLoopEngine:
     def row_groups(self) -> dict:
         """The row groups this loop has (:mod:`blocks.compiled.rows`): name -> (flag index, rows)."""
         return self.program.row_groups
+
+    @property
+    def cached(self) -> bool:
+        """Whether this loop structure's compiled code is in the cache (a run starts without compiling)."""
+        return not self._announce
+
+    @property
+    def generated_lines(self) -> int:
+        """Lines of the generated loop functions (what numba compiles for this loop)."""
+        return self.program.source.count("\n") + 1
+
+    def auto_reason(self) -> str | None:
+        """Why ``engine="auto"`` should not compile this loop now (None: it may): see :data:`AUTO_COMPILE_LINES`."""
+        lines = self.generated_lines
+        if self.cached or lines <= AUTO_COMPILE_LINES:
+            return None
+        return (f"this loop's generated code has {lines} lines (more than {AUTO_COMPILE_LINES}, the most 'auto' "
+                f"compiles: numba would take minutes); run it once with engine='compiled' (--engine compiled) to "
+                f"compile and cache it, after which 'auto' uses it")
 
     # -- compiling -------------------------------------------------------------------------------------
     def _first_call(self, fn: Callable[[], object]):
