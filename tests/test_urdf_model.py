@@ -262,3 +262,28 @@ def test_example_names_and_missing_package(monkeypatch):
     monkeypatch.setattr(metadata, "distribution", absent)
     with pytest.raises(ModuleNotFoundError, match=r"dobkit\[urdf\]"):
         example_urdf("panda")
+
+
+def _chain_urdf(path, n: int) -> str:
+    """A serial chain of ``n`` revolute joints about z, each link 1 kg with a unit inertia, as a URDF file."""
+    links = ['<link name="base"/>']
+    for i in range(n):
+        parent = "base" if i == 0 else f"l{i - 1}"
+        links.append(f'<link name="l{i}"><inertial><origin xyz="0.1 0 0"/><mass value="1"/>'
+                     '<inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" ixz="0" iyz="0"/></inertial></link>'
+                     f'<joint name="j{i}" type="revolute"><parent link="{parent}"/><child link="l{i}"/>'
+                     '<origin xyz="0.2 0 0"/><axis xyz="0 0 1"/>'
+                     '<limit lower="-3" upper="3" effort="10" velocity="1"/></joint>')
+    path.write_text('<robot name="chain">' + "".join(links) + "</robot>")
+    return str(path)
+
+
+def test_the_joint_count_limit_at_both_sides_and_locking_brings_an_arm_under_it(tmp_path):
+    from blocks.arms.urdf import MAX_JOINTS, UnsupportedJointError
+
+    at_limit = load_urdf_arm(_chain_urdf(tmp_path / "at.urdf", MAX_JOINTS), f"l{MAX_JOINTS - 1}")
+    assert at_limit.n == MAX_JOINTS
+    over = _chain_urdf(tmp_path / "over.urdf", MAX_JOINTS + 1)
+    with pytest.raises(UnsupportedJointError, match=f"{MAX_JOINTS + 1} moving joints .* at most {MAX_JOINTS}"):
+        load_urdf_arm(over, f"l{MAX_JOINTS}")
+    assert load_urdf_arm(over, f"l{MAX_JOINTS}", locked=["j0"]).n == MAX_JOINTS

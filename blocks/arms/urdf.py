@@ -30,6 +30,11 @@ __all__ = ["UrdfError", "UrdfFileError", "UrdfParseError", "UnknownFrameError", 
            "UnsupportedJointError", "InertiaError", "load_urdf_arm", "chain_from_pinocchio"]
 
 
+#: The most moving joints an arm may have (serial arms have 4 to 9; beyond a few dozen the dynamics' cost per
+#: evaluation, which grows as n^2, and the length of the traced code make a run impractical).
+MAX_JOINTS = 32
+
+
 class UrdfError(ValueError):
     """A URDF arm cannot be built; the message names the file, joint, frame or value and what is allowed."""
 
@@ -266,6 +271,12 @@ def load_urdf_arm(path, tool_frame: str, locked=(), locked_values=None, gravity=
             q_ref[iq] = value
     if locked:
         model = pin.buildReducedModel(model, [model.getJointId(name) for name in locked], q_ref)
+    moving = [model.names[j] for j in range(1, model.njoints)]
+    if len(moving) > MAX_JOINTS:
+        raise UnsupportedJointError(
+            f"URDF file {str(path)!r} has {len(moving)} moving joints after locking {len(locked)}; dobkit takes at "
+            f"most {MAX_JOINTS} (a serial arm's dynamics grow as n^2 per evaluation, and the traced code with them): "
+            f"lock the joints the study does not move with 'locked'")
 
     chain, kinds, continuous = chain_from_pinocchio(model, tool_frame, gravity)
     limits = tuple(xml_joints.get(name, (None, -math.inf, math.inf))[1:] for name in chain.names)
