@@ -20,6 +20,11 @@ them with the semantics of a sampled-data system (as Simulink does):
   outputs held; the solver is restarted at every tick and never steps
   across one.
 
+The ticks are scheduled time events of the numpy engine's one integrator
+(:class:`blocks.sampling.TickSource` for
+:func:`blocks.integrate.integrate_on_grid`), the mechanism that also stops
+at an FMU's events; this module has no loop of its own.
+
 A discrete block's own functions are those of python-control
 (``updfcn`` gives the next state), so a user's discrete block works the
 same way as the built-in sampled controller of :mod:`blocks.digital`.

@@ -23,6 +23,15 @@ re-initialise are taken over, and a new solver starts from the state after the
 event.  A block that asks to end the simulation stops the run with
 :class:`SimulationTerminated`, carrying the grid filled so far.  Without
 ``events`` nothing of this runs: the loop is the one above, step for step.
+
+The ticks of a sampled diagram are events of the same kind
+(:class:`blocks.sampling.TickSource`): a block whose time events are a fixed
+schedule (``scheduled``) is neither logged nor counted as chattering, one
+that reads no inputs set by the loop's right-hand side (``needs_inputs``
+false) costs no extra evaluation of it, one whose times are exact
+(``time_rtol = 0``) keeps a grid point a rounding error before its event in
+the interval before, and each block updates only at the events it is ``due``
+at.  A state beyond ``bound`` after an event's update stops the run there.
 """
 from __future__ import annotations
 
@@ -104,7 +113,9 @@ def integrate_on_grid(fun: Callable[[float, np.ndarray], np.ndarray], x0, t_grid
     progress : callable, optional
         Called with the fraction done (0 to 1), at most every 0.2 s of wall time.
     first_step : float, optional
-        The first step to try (s); by default the solver's own estimate.
+        The first step to try (s); by default the solver's own estimate.  With
+        ``events`` it is the first step of every solver (after every event),
+        at most the span to the next announced event (``math.inf``: that span).
     monitor : blocks.monitor.Monitor, optional
         The job's Monitor: after every step it judges the step budget (raising
         :class:`~blocks.monitor.SimulationError`) and the wall time (raising
