@@ -20,6 +20,11 @@ them with the semantics of a sampled-data system (as Simulink does):
   outputs held; the solver is restarted at every tick and never steps
   across one.
 
+The ticks are scheduled time events of the numpy engine's one integrator
+(:class:`blocks.sampling.TickSource` for
+:func:`blocks.integrate.integrate_on_grid`), the mechanism that also stops
+at an FMU's events; this module has no loop of its own.
+
 A discrete block's own functions are those of python-control
 (``updfcn`` gives the next state), so a user's discrete block works the
 same way as the built-in sampled controller of :mod:`blocks.digital`.
@@ -33,8 +38,9 @@ from collections.abc import Callable
 import control as ct
 import numpy as np
 
-from .integrate import DivergenceError, SolverFailure, integrate_on_grid
+from .integrate import DivergenceError, LoopEvents, SolverFailure, integrate_on_grid
 from .plan import LoopPlan, make_plan, settle
+from .sampling import TickSource
 
 __all__ = ["HybridSystem", "HybridError"]
 
@@ -205,9 +211,13 @@ class HybridSystem:
         return rhs
 
     def outputs_between_ticks(self, t: np.ndarray, X: np.ndarray, held: np.ndarray) -> np.ndarray:
-        """The diagram's outputs at times ``t`` (T,) within one tick interval, states ``X`` (nstates, T)."""
+        """The diagram's outputs at times ``t`` (T,), states ``X`` (nstates, T) and held outputs ``held``.
+
+        ``held`` is the discrete blocks' held outputs, (nsignals,) within one tick interval or (nsignals, T)
+        at each time.
+        """
         plan = self.plan
-        Y = np.repeat(held[:, None], t.size, axis=1)
+        Y = np.array(held, dtype=float) if np.ndim(held) == 2 else np.repeat(held[:, None], t.size, axis=1)
 
         def one_pass(Y):
             for s in plan.steps:
@@ -250,59 +260,24 @@ class HybridSystem:
         t_grid = np.asarray(t_grid, dtype=float)
         if t_grid[0] != 0.0:
             raise ValueError("a hybrid run starts at t = 0")
-        Tb = self.base_period
-        n_ticks = int(math.floor(t_grid[-1] / Tb * (1 + 1e-12)))
-        x = np.asarray(x0, dtype=float).copy()
-        held = np.zeros(self.plan.nsignals)
-        states = np.empty((self.nstates, t_grid.size))
-        outputs = np.empty((len(self.output_labels), t_grid.size))
-        g = 0                                   # next grid point to fill
-        last_report = -1.0
+        ticks = TickSource(self, float(t_grid[-1]))
+        # the held outputs are kept at every grid point; the diagram's outputs follow from them after the run
+        events = LoopEvents([(ticks, slice(0, self.nstates))], ticks.rhs, ticks.snapshot)
         if monitor is not None:
             bound = monitor.limits
-        evaluations = 0
-        for k in range(n_ticks + 1):
-            t0 = k * Tb
-            t1 = min((k + 1) * Tb, t_grid[-1]) if k < n_ticks else t_grid[-1]
-            y = self.tick_outputs(k, x, held)
-            x_after = self.tick_updates(k, x, y)
-            if monitor is not None:
-                monitor.check(t0, x_after)
-            # grid points in [t0, t1): the continuous state is continuous, discrete ones are the updated
-            upto = int(np.searchsorted(t_grid, t1 if k < n_ticks else np.inf, side="left"))
-            if t1 > t0:
-                inside = t_grid[g:upto]
-                times = np.unique(np.concatenate(([t0], inside, [t1])))
-                try:
-                    X, nfev = integrate_on_grid(self.continuous_rhs(held), x_after, times, method, rtol=rtol,
-                                                atol=atol, max_step=max_step, bound=bound, first_step=t1 - t0)
-                except DivergenceError as err:
-                    if monitor is None:
-                        raise
-                    raise monitor.diverged(err.time, err.state) from None
-                evaluations += nfev
-                if monitor is not None:
-                    monitor.check_evaluations(t1, evaluations)
-                pick = np.searchsorted(times, inside)
-                states[:, g:upto] = X[:, pick]
-                x = X[:, -1]
-            else:
-                pick = np.zeros(upto - g, dtype=int)
-                X = x_after[:, None]
-                states[:, g:upto] = X[:, pick]
-                x = x_after
-            if upto > g:
-                outputs[:, g:upto] = self.outputs_between_ticks(t_grid[g:upto], states[:, g:upto], held)
-                g = upto
-            if monitor is not None:
-                monitor.check_time(t1)
-                monitor.report(t1)
-            if progress is not None and t_grid[-1] > 0 and (t1 / t_grid[-1] - last_report) >= 0.05:
-                last_report = t1 / t_grid[-1]
-                progress(min(1.0, last_report))
-        if g != t_grid.size:
-            raise SolverFailure(float(t_grid[g]), "the output grid was not reached")
-        return states, outputs
+        try:
+            # a tick's interval is tried in one step first, as the solver's first step after every tick
+            states, _ = integrate_on_grid(ticks.rhs, x0, t_grid, method, rtol=rtol, atol=atol, max_step=max_step,
+                                          bound=bound, progress=progress, first_step=math.inf, monitor=monitor,
+                                          events=events)
+        except DivergenceError as err:
+            if monitor is None:
+                raise
+            raise monitor.diverged(err.time, err.state) from None
+        if progress is not None:
+            progress(1.0)
+        held = np.array(events.outputs).T
+        return states, self.outputs_between_ticks(t_grid, states, held)
 
 
 __all__ += ["DivergenceError", "SolverFailure"]

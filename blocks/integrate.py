@@ -23,6 +23,15 @@ re-initialise are taken over, and a new solver starts from the state after the
 event.  A block that asks to end the simulation stops the run with
 :class:`SimulationTerminated`, carrying the grid filled so far.  Without
 ``events`` nothing of this runs: the loop is the one above, step for step.
+
+The ticks of a sampled diagram are events of the same kind
+(:class:`blocks.sampling.TickSource`): a block whose time events are a fixed
+schedule (``scheduled``) is neither logged nor counted as chattering, one
+that reads no inputs set by the loop's right-hand side (``needs_inputs``
+false) costs no extra evaluation of it, one whose times are exact
+(``time_rtol = 0``) keeps a grid point a rounding error before its event in
+the interval before, and each block updates only at the events it is ``due``
+at.  A state beyond ``bound`` after an event's update stops the run there.
 """
 from __future__ import annotations
 
@@ -104,7 +113,9 @@ def integrate_on_grid(fun: Callable[[float, np.ndarray], np.ndarray], x0, t_grid
     progress : callable, optional
         Called with the fraction done (0 to 1), at most every 0.2 s of wall time.
     first_step : float, optional
-        The first step to try (s); by default the solver's own estimate.
+        The first step to try (s); by default the solver's own estimate.  With
+        ``events`` it is the first step of every solver (after every event),
+        at most the span to the next announced event (``math.inf``: that span).
     monitor : blocks.monitor.Monitor, optional
         The job's Monitor: after every step it judges the step budget (raising
         :class:`~blocks.monitor.SimulationError`) and the wall time (raising
@@ -219,6 +230,21 @@ class EventSource:
     name = "block"
     n_indicators = 0
     next_event_time: float | None = None
+    #: Whether its methods read inputs that the loop's right-hand side sets (an FMU's): the rhs is then
+    #: evaluated at ``(t, x)`` before they are called.
+    needs_inputs = True
+    #: Whether its time events are a fixed schedule (sample ticks): they are neither logged nor counted
+    #: against :data:`MAX_EVENTS`.
+    scheduled = False
+    #: Relative tolerance (of the time) within which a grid point counts as at an event's time rather than before.
+    time_rtol = 1e-13
+
+    def due(self, t: float, kind: str) -> bool:
+        """Whether the block updates at an event of ``kind`` (``"state"``, ``"time"``, ``"step"``) at ``t`` (s).
+
+        An FMU takes part in every event of the loop; a block sampled at ticks only in its own.
+        """
+        return True
 
     def begin(self, t: float) -> None:
         """A run starts at ``t`` (s): raise if the block cannot start one there (e.g. it has run already)."""
@@ -266,6 +292,8 @@ class LoopEvents:
         self.sources = list(sources)
         self.rhs, self.output = rhs, output
         self.n_indicators = sum(src.n_indicators for src, _ in self.sources)
+        self._inputs = any(src.needs_inputs for src, _ in self.sources)
+        self.time_rtol = min((src.time_rtol for src, _ in self.sources), default=1e-13)
         self.log: list[dict] = []
         self.terminated: float | None = None
         self.outputs: list[np.ndarray] = []
@@ -287,13 +315,15 @@ class LoopEvents:
 
     def indicators(self, t: float, x: np.ndarray) -> np.ndarray:
         """All blocks' event indicators at ``(t, x)`` (loop state)."""
-        self.rhs(t, x)
+        if self._inputs:
+            self.rhs(t, x)
         parts = [src.indicators(t, x[part]) for src, part in self.sources if src.n_indicators]
         return np.concatenate(parts) if parts else np.zeros(0)
 
     def completed_step(self, t: float, x: np.ndarray) -> tuple[bool, str | None]:
         """``(does a block want an event at t?, the name of a block asking to stop, or None)``."""
-        self.rhs(t, x)
+        if self._inputs:
+            self.rhs(t, x)
         wanted = False
         for src, part in self.sources:
             step_event, stop = src.completed_step(t, x[part])
@@ -304,13 +334,16 @@ class LoopEvents:
 
     def update(self, t: float, x: np.ndarray, kind: str) -> tuple[np.ndarray, str | None]:
         """Every block's event update at ``(t, x)``: the state after the event, and who asked to stop (or None)."""
-        self.log.append({"time": float(t), "kind": kind})
-        if len(self.log) > MAX_EVENTS:
-            raise SolverFailure(t, f"more than {MAX_EVENTS} events of {self.names} (chattering or a Zeno "
-                                   "trajectory)")
+        due = [(src, part) for src, part in self.sources if src.due(t, kind)]
+        if any(not src.scheduled for src, _ in due):
+            self.log.append({"time": float(t), "kind": kind})
+            if len(self.log) > MAX_EVENTS:
+                raise SolverFailure(t, f"more than {MAX_EVENTS} events of {self.names} (chattering or a Zeno "
+                                       "trajectory)")
         x = np.array(x, dtype=float)
-        self.rhs(t, x)
-        for src, part in self.sources:
+        if any(src.needs_inputs for src, _ in due):
+            self.rhs(t, x)
+        for src, part in due:
             new, stop = src.update(t, x[part])
             if new is not None:
                 x[part] = new
@@ -384,9 +417,9 @@ def locate_crossing(indicators_at: Callable[[float], np.ndarray], t0: float, t1:
     return b
 
 
-def _before(t_grid_value: float, t: float) -> bool:
-    """Whether a grid time lies before ``t`` (s), a rounding error counting as the same time."""
-    return t_grid_value < t - 1e-13 * max(1.0, abs(t))
+def _before(t_grid_value: float, t: float, rtol: float = 1e-13) -> bool:
+    """Whether a grid time lies before ``t`` (s), a difference within ``rtol`` counting as the same time."""
+    return t_grid_value < t - rtol * max(1.0, abs(t))
 
 
 def _integrate_with_events(fun, x0, t_grid, method, options, bound, progress, monitor, events: LoopEvents,
@@ -400,11 +433,12 @@ def _integrate_with_events(fun, x0, t_grid, method, options, bound, progress, mo
     t, x = t0, np.array(x0, dtype=float)
     done, nfev = 0, 0
     last_report = time.monotonic()
+    rtol = events.time_rtol
     events.begin(t0)
 
     def keep(upto_time: float, state_at, inclusive: bool) -> None:
         nonlocal done
-        while done < t_grid.size and (t_grid[done] <= upto_time if inclusive else _before(t_grid[done], upto_time)):
+        while done < t_grid.size and (t_grid[done] <= upto_time if inclusive else _before(t_grid[done], upto_time, rtol)):
             s = float(t_grid[done])
             states[:, done] = state_at(s)
             events.record(s, states[:, done])
@@ -412,14 +446,17 @@ def _integrate_with_events(fun, x0, t_grid, method, options, bound, progress, mo
 
     while True:
         upcoming = events.next_time()
-        if upcoming is not None and _before(upcoming, t - tol):
+        if upcoming is not None and _before(upcoming, t - tol, rtol):
             raise SolverFailure(t, f"block(s) {events.names} announced a time event at t = {upcoming:.9g} s, before "
                                    f"the current time")
         stop = t_end if upcoming is None else min(t_end, upcoming)
         above = events.indicators(t, x) > 0 if events.n_indicators else np.zeros(0, dtype=bool)
         kind, stopper = None, None
         if stop > t:
-            solver = SOLVERS[method](fun, t, x, stop, vectorized=False, **options)
+            interval = options
+            if "first_step" in options:       # at most the span to the next event (a tick's interval, say)
+                interval = dict(options, first_step=min(options["first_step"], stop - t))
+            solver = SOLVERS[method](fun, t, x, stop, vectorized=False, **interval)
             while solver.status == "running":
                 message = solver.step()
                 if solver.status == "failed":
@@ -434,7 +471,7 @@ def _integrate_with_events(fun, x0, t_grid, method, options, bound, progress, mo
                                             above, tol)
                     kind = "state"
                 # a grid point at an event's time is kept after the event
-                keep(t_new, dense, inclusive=kind is None and (upcoming is None or _before(t_new, upcoming)))
+                keep(t_new, dense, inclusive=kind is None and (upcoming is None or _before(t_new, upcoming, rtol)))
                 t, x = t_new, (solver.y.copy() if kind is None else dense(t_new))
                 if monitor is not None:
                     monitor.check_evaluations(t, nfev + solver.nfev)
@@ -452,14 +489,16 @@ def _integrate_with_events(fun, x0, t_grid, method, options, bound, progress, mo
                 if kind is not None:
                     break
             nfev += solver.nfev
-        if stopper is None and kind is None and upcoming is not None and not _before(t, upcoming):
+        if stopper is None and kind is None and upcoming is not None and not _before(t, upcoming, rtol):
             kind = "time"
         if stopper is None and kind is None:     # t_end reached
             break
         if stopper is None:
             x, stopper = events.update(t, x, kind)
+            if not np.all(np.abs(x) <= bound):       # an update (a tick's, a re-initialisation) diverged
+                raise DivergenceError(t, bound, x)
             again = events.next_time()
-            if stopper is None and again is not None and not _before(t, again):
+            if stopper is None and again is not None and not _before(t, again, rtol):
                 raise SolverFailure(t, f"block(s) {events.names} announced a time event at t = {again:.9g} s after "
                                        f"their event at t = {t:.9g} s: a time event must lie after the current time")
         if stopper is not None:
