@@ -842,7 +842,7 @@ def _joint_vector(value, key: str) -> tuple[float, ...]:
 def _joint_setting(value, key: str):
     """A per-joint setting: one number for every joint (kept as given) or one per joint of the scenario's arm."""
     if isinstance(value, (int, float)) and not isinstance(value, bool):
-        return _finite()(value, key)
+        return _finite(0.0)(value, key)
     return _joint_vector(value, key)
 
 
