@@ -173,7 +173,7 @@ def _per_joint(value, name: str, joints: JointSpace, units) -> tuple[float, ...]
         arr = np.full(n, float(arr))
     if arr.shape != (n,) or not np.all(np.isfinite(arr)) or np.any(arr < 0) or \
             any(isinstance(v, (bool, np.bool_)) for v in flags):
-        joint_list = "" if joints is RRPR_JOINTS else f", one per joint of {list(joints.names)} or one for all"
+        joint_list = "" if joints == RRPR_JOINTS else f", one per joint of {list(joints.names)} or one for all"
         raise ValueError(f"'controller.{name}' must be {n} finite numbers >= 0 ({', '.join(units)}){joint_list}, "
                          f"got {value!r}")
     return tuple(float(v) for v in arr)

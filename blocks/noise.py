@@ -66,7 +66,7 @@ class MeasurementNoise:
             if value.ndim == 0 and not isinstance(given, bool):
                 value = np.full(n, float(value))
             if value.shape != (n,) or not np.all(np.isfinite(value)) or np.any(value < 0):
-                if self.joints is RRPR_JOINTS:          # the paper's message, as before
+                if self.joints == RRPR_JOINTS:          # the paper's message, as before
                     raise ValueError(f"noise.{name} must be 4 finite numbers >= 0, got {given!r}")
                 raise ValueError(f"noise.{name} must be a number or {n} finite numbers >= 0 ({', '.join(units)}), "
                                  f"one per joint of {list(self.joints.names)}, got {given!r}")
