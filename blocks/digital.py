@@ -33,6 +33,13 @@ computed from the loop's linearized one-sample map by
 :mod:`blocks.digital_stability`, which the pre-run check uses.  See
 ``docs/model.md``, "Digital observer".
 
+Any arm: the settings carry the arm's joints (``DigitalController(...,
+joints=arm.joints)``; a scenario's ``[controller]`` takes them from its arm),
+so the per-joint settings are one number for every joint or one per joint,
+in the joints' units; the controller and observer blocks take the nominal
+arm and run the laws :func:`blocks.kernels.bind.bound` to its row kernels
+(for the paper's RRPR the laws themselves: its numbers do not change).
+
 The blocks are python-control discrete-time systems (``dt = Ts``) and run
 in a :class:`~blocks.hybrid.HybridSystem` with the continuous plant::
 
