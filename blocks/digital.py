@@ -33,6 +33,13 @@ computed from the loop's linearized one-sample map by
 :mod:`blocks.digital_stability`, which the pre-run check uses.  See
 ``docs/model.md``, "Digital observer".
 
+Any arm: the settings carry the arm's joints (``DigitalController(...,
+joints=arm.joints)``; a scenario's ``[controller]`` takes them from its arm),
+so the per-joint settings are one number for every joint or one per joint,
+in the joints' units; the controller and observer blocks take the nominal
+arm and run the laws :func:`blocks.kernels.bind.bound` to its row kernels
+(for the paper's RRPR the laws themselves: its numbers do not change).
+
 The blocks are python-control discrete-time systems (``dt = Ts``) and run
 in a :class:`~blocks.hybrid.HybridSystem` with the continuous plant::
 
@@ -44,17 +51,19 @@ in a :class:`~blocks.hybrid.HybridSystem` with the continuous plant::
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 # The block factories import python-control's side (contract, systems) when called, so that a scenario
 # holding a DigitalController loads without python-control.
+from .arm import ArmModel
 from .bound_kernels import Kernels
 from .gains import OBSERVER_VARIANTS, validated_gain
-from .kernels import arm_constants, observer_estimate, observer_rate
+from .joints import RRPR_JOINTS, JointSpace
+from .kernels import observer_estimate, observer_rate
+from .kernels.bind import bound
 from .kernels.expm import expm_small
-from .parameters import RobotParameters
 
 __all__ = ["DigitalController", "DISCRETIZATIONS", "VELOCITY_SOURCES", "encoder", "digital_controller", "actuator",
            "digital_observer"]
@@ -80,10 +89,14 @@ class DigitalController:
     velocity_cutoff : float, optional
         Cut-off (Hz) of the first-order low-pass on the difference, below the
         Nyquist frequency ``sample_rate / 2``; only with ``"difference"``.
-    position_resolution : 4 floats
-        Encoder quantization step per joint (rad, rad, m, rad), >= 0; 0 = exact.
-    torque_limit : 4 floats
-        Saturation per joint (N m, N m, N, N m), >= 0; 0 = none.
+    position_resolution : float or n floats
+        Encoder quantization step (rad; m on a prismatic joint), >= 0; 0 = exact.
+        One number for every joint or one per joint; stored as n numbers.
+    torque_limit : float or n floats
+        Saturation (N m; N on a prismatic joint), >= 0; 0 = none.  One number or one per joint.
+    joints : JointSpace
+        The joints of the arm the controller runs (n, names, units); default the paper's RRPR.
+        Take it from the arm: ``DigitalController(1000.0, joints=arm.joints)``.
     """
 
     sample_rate: float
@@ -91,10 +104,13 @@ class DigitalController:
     observer_discretization: str = "euler"
     velocity: str = "measured"
     velocity_cutoff: float | None = None
-    position_resolution: tuple = (0.0, 0.0, 0.0, 0.0)
-    torque_limit: tuple = (0.0, 0.0, 0.0, 0.0)
+    position_resolution: tuple | float = 0.0
+    torque_limit: tuple | float = 0.0
+    joints: JointSpace = field(default=RRPR_JOINTS, repr=False)
 
     def __post_init__(self) -> None:
+        if not isinstance(self.joints, JointSpace):
+            raise TypeError(f"'joints' must be a blocks.joints.JointSpace (an arm's .joints), got {self.joints!r:.80}")
         rate = self.sample_rate
         if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not math.isfinite(rate) or rate <= 0:
             raise ValueError(f"'controller.sample_rate' must be a finite number of Hz > 0, got {rate!r}")
@@ -119,16 +135,27 @@ class DigitalController:
                 raise ValueError(f"'controller.velocity_cutoff' ({fc:g} Hz) must be below the Nyquist frequency "
                                  f"sample_rate / 2 = {rate / 2:g} Hz")
             object.__setattr__(self, "velocity_cutoff", float(fc))
-        for name, unit in (("position_resolution", "rad, rad, m, rad"), ("torque_limit", "N m, N m, N, N m")):
-            value = getattr(self, name)
-            try:
-                arr = np.asarray(value, dtype=float)
-            except (TypeError, ValueError):
-                arr = np.array([np.nan])
-            if arr.shape != (4,) or not np.all(np.isfinite(arr)) or np.any(arr < 0) or \
-                    any(isinstance(v, bool) for v in np.ravel(np.asarray(value, dtype=object))):
-                raise ValueError(f"'controller.{name}' must be 4 finite numbers >= 0 ({unit}), got {value!r}")
-            object.__setattr__(self, name, tuple(float(v) for v in arr))
+        for name, units in (("position_resolution", self.joints.position_units),
+                            ("torque_limit", self.joints.force_units)):
+            object.__setattr__(self, name, _per_joint(getattr(self, name), name, self.joints, units))
+
+    @property
+    def n(self) -> int:
+        """The number of joints."""
+        return self.joints.count
+
+    def check_arm(self, arm: ArmModel) -> None:
+        """Refuse an arm whose joints are not the ones these settings were made for.
+
+        Raises
+        ------
+        ValueError
+            Naming the two joint lists.
+        """
+        if arm.joints.names != self.joints.names or arm.joints.kinds != self.joints.kinds:
+            raise ValueError(f"the controller settings are for the {self.n} joints {list(self.joints.names)}, but "
+                             f"the arm has the {arm.n} joints {list(arm.joints.names)}: make them with "
+                             "DigitalController(..., joints=arm.joints)")
 
     @property
     def period(self) -> float:
@@ -139,6 +166,24 @@ class DigitalController:
     def filter_pole(self) -> float:
         """``a = exp(-2 pi f_c Ts)`` of the velocity low-pass (0: no filter)."""
         return 0.0 if self.velocity_cutoff is None else math.exp(-2 * math.pi * self.velocity_cutoff * self.period)
+
+
+def _per_joint(value, name: str, joints: JointSpace, units) -> tuple[float, ...]:
+    """``value`` (a number or one per joint) as n floats >= 0, or a ValueError naming the key, n and the joints."""
+    n = joints.count
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        arr = np.array([np.nan])
+    flags = np.ravel(np.asarray(value, dtype=object)) if arr.ndim <= 1 else ()
+    if arr.ndim == 0:
+        arr = np.full(n, float(arr))
+    if arr.shape != (n,) or not np.all(np.isfinite(arr)) or np.any(arr < 0) or \
+            any(isinstance(v, (bool, np.bool_)) for v in flags):
+        joint_list = "" if joints == RRPR_JOINTS else f", one per joint of {list(joints.names)} or one for all"
+        raise ValueError(f"'controller.{name}' must be {n} finite numbers >= 0 ({', '.join(units)}){joint_list}, "
+                         f"got {value!r}")
+    return tuple(float(v) for v in arr)
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -228,67 +273,113 @@ def observer_sampled_output(t, z, u, k, gain, eq16_weight, period):
 # Factories
 # --------------------------------------------------------------------------------------------------------------
 def encoder(settings: DigitalController, measured: str = "", name: str = "encoder"):
-    """Sampled positions ``q_s[i]`` and velocity estimate ``dq_s[i]`` from ``q[i]``, ``dq[i]`` (or ``*_meas``)."""
+    """Sampled positions ``q_s[i]`` and velocity estimate ``dq_s[i]`` from ``q[i]``, ``dq[i]`` (or ``*_meas``).
+
+    The joints (n, names) are those of ``settings.joints``.
+    """
     from .contract import kernel_block
-    from .systems import signal_names
+    names = settings.joints.signal_names
     res = np.array(settings.position_resolution)
     steps = tuple(bool(r > 0) for r in res)         # which joints quantize: structure, not numbers
-    inputs = signal_names("q" + measured) + signal_names("dq" + measured)
-    outputs = signal_names("q_s") + signal_names("dq_s")
+    inputs = names("q" + measured) + names("dq" + measured)
+    outputs = names("q_s") + names("dq_s")
     if settings.velocity == "measured":
         return kernel_block(Kernels((res, steps), encoder_measured_output, column_params=(res, steps)), name=name,
                             inputs=inputs, outputs=outputs, feedthrough=inputs, dt=settings.period)
     params = (res, steps, settings.period, settings.filter_pole)
     return kernel_block(Kernels(params, encoder_difference_output, encoder_difference_update, column_params=params),
                         name=name, inputs=inputs, outputs=outputs, dt=settings.period,
-                        states=signal_names("q_prev") + signal_names("v_prev"),
-                        feedthrough=signal_names("q" + measured))
+                        states=names("q_prev") + names("v_prev"), feedthrough=names("q" + measured))
 
 
-def digital_controller(nominal: RobotParameters, kp, kd, settings: DigitalController, use_observer: bool = True,
+def _nominal_arm(nominal, settings: DigitalController) -> ArmModel:
+    if not isinstance(nominal, ArmModel):
+        raise TypeError(f"nominal must be an arm model (blocks.arm.ArmModel, e.g. blocks.PAPER_PARAMETERS or a URDF "
+                        f"arm), got {type(nominal).__name__} {nominal!r:.80}")
+    settings.check_arm(nominal)
+    return nominal
+
+
+def digital_controller(nominal: ArmModel, kp, kd, settings: DigitalController, use_observer: bool = True,
                        name: str = "controller"):
-    """Eq. 11 at each sample, from the sampled signals; output the command ``tau_cmd[i]``."""
+    """Eq. 11 at each sample, from the sampled signals; output the command ``tau_cmd[i]``.
+
+    Parameters
+    ----------
+    nominal : ArmModel
+        The model the controller believes in (any arm; its joints must be ``settings.joints``).
+    kp, kd : float, n floats or diagonal n x n
+        Proportional (1/s^2) and derivative (1/s) gains.
+    settings : DigitalController
+    use_observer : bool
+        Whether the block takes ``d_hat[i]``.
+
+    Raises
+    ------
+    ValueError
+        If ``settings`` were made for other joints than the arm's.
+    """
     from .contract import kernel_block
-    from .systems import controller_output, controller_output_with_estimate, signal_names
-    Kp, Kd = validated_gain(kp, "kp"), validated_gain(kd, "kd")
-    inputs = [s for prefix in ("q_ref", "dq_ref", "ddq_ref", "q_s", "dq_s") for s in signal_names(prefix)]
+    from .systems import controller_output, controller_output_with_estimate
+    nominal = _nominal_arm(nominal, settings)
+    names = nominal.joints.signal_names
+    Kp, Kd = validated_gain(kp, "kp", nominal.joints), validated_gain(kd, "kd", nominal.joints)
+    inputs = [s for prefix in ("q_ref", "dq_ref", "ddq_ref", "q_s", "dq_s") for s in names(prefix)]
     if use_observer:
-        inputs += signal_names("d_hat")
+        inputs += names("d_hat")
     law = controller_output_with_estimate if use_observer else controller_output
-    block = kernel_block(Kernels((arm_constants(nominal), np.diag(Kp).copy(), np.diag(Kd).copy()), law), name=name,
-                         inputs=inputs, outputs=signal_names("tau_cmd"), feedthrough=inputs, dt=settings.period)
+    block = kernel_block(Kernels((nominal.kernel_params(), np.diag(Kp).copy(), np.diag(Kd).copy()),
+                                 bound(law, nominal)), name=name,
+                         inputs=inputs, outputs=names("tau_cmd"), feedthrough=inputs, dt=settings.period)
     block.gains = {"kp": Kp, "kd": Kd}
     return block
 
 
 def actuator(settings: DigitalController, name: str = "actuator"):
-    """Delay by ``settings.delay`` samples and saturate: ``tau_cmd[i]`` -> applied ``tau[i]``."""
+    """Delay by ``settings.delay`` samples and saturate: ``tau_cmd[i]`` -> applied ``tau[i]`` (joints of
+    ``settings.joints``)."""
     from .contract import kernel_block
-    from .systems import signal_names
+    names = settings.joints.signal_names
     limit = np.array([v if v > 0 else np.inf for v in settings.torque_limit])
     n, d = limit.size, settings.delay
     params = (limit, n)
-    inputs = signal_names("tau_cmd")
+    inputs = names("tau_cmd")
     states = [f"buffer{j}[{i}]" for j in range(d) for i in range(n)]
     return kernel_block(Kernels(params, actuator_output, actuator_update if d else None, column_params=params),
-                        name=name, inputs=inputs, outputs=signal_names("tau"), states=states,
+                        name=name, inputs=inputs, outputs=names("tau"), states=states,
                         feedthrough=() if d else inputs, dt=settings.period)
 
 
-def digital_observer(nominal: RobotParameters, gain, settings: DigitalController, variant: str = "correct",
+def digital_observer(nominal: ArmModel, gain, settings: DigitalController, variant: str = "correct",
                      name: str = "observer"):
-    """The observer sampled at ``settings.period``: inputs ``tau[i]`` (applied), ``q_s[i]``, ``dq_s[i]``."""
+    """The observer sampled at ``settings.period``: inputs ``tau[i]`` (applied), ``q_s[i]``, ``dq_s[i]``.
+
+    Parameters
+    ----------
+    nominal : ArmModel
+        The model the observer believes in (its joints must be ``settings.joints``).
+    gain : float, n floats or n x n
+        Observer gain ``Y`` (kg m^2/s; kg/s on a prismatic joint).
+    settings : DigitalController
+    variant : {"correct", "paper-eq16"}
+
+    Raises
+    ------
+    ValueError
+        If the variant is unknown or ``settings`` were made for other joints than the arm's.
+    """
     from .contract import kernel_block
-    from .systems import signal_names
     if variant not in OBSERVER_VARIANTS:
         raise ValueError(f"observer variant {variant!r} is unknown; choose from {list(OBSERVER_VARIANTS)}")
-    Y = validated_gain(gain, "observer")
+    nominal = _nominal_arm(nominal, settings)
+    names = nominal.joints.signal_names
+    Y = validated_gain(gain, "observer", nominal.joints)
     y_param = np.diag(Y).copy() if np.count_nonzero(Y - np.diag(np.diag(Y))) == 0 else np.array(Y)
     update = observer_zoh_update if settings.observer_discretization == "zoh" else observer_euler_update
-    params = (arm_constants(nominal), y_param, 1.0 if variant == "paper-eq16" else 0.0, settings.period)
-    inputs = signal_names("tau") + signal_names("q_s") + signal_names("dq_s")
-    block = kernel_block(Kernels(params, observer_sampled_output, update), name=name, inputs=inputs,
-                         states=signal_names("z"), outputs=signal_names("d_hat"), feedthrough=signal_names("dq_s"),
+    params = (nominal.kernel_params(), y_param, 1.0 if variant == "paper-eq16" else 0.0, settings.period)
+    inputs = names("tau") + names("q_s") + names("dq_s")
+    block = kernel_block(Kernels(params, bound(observer_sampled_output, nominal), bound(update, nominal)), name=name,
+                         inputs=inputs, states=names("z"), outputs=names("d_hat"), feedthrough=names("dq_s"),
                          dt=settings.period)
     block.gain = Y
     return block

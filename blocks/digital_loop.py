@@ -52,17 +52,18 @@ def sampled_loop(scenario, observer: bool = True, plant_system=None) -> HybridSy
     if not isinstance(settings, DigitalController):
         raise ValueError(f"scenario '{s.name}' has no [controller] section: it describes a continuous controller")
     measured = "_meas" if s.noise is not None else ""
-    blocks = [trajectory_block(s.trajectory), plant(s.robot, s.disturbance) if plant_system is None else plant_system,
+    blocks = [trajectory_block(s.trajectory, arm=s.robot),
+              plant(s.robot, s.disturbance) if plant_system is None else plant_system,
               encoder(settings, measured=measured),
               digital_controller(s.nominal, s.kp, s.kd, settings, use_observer=observer), actuator(settings)]
     if observer:
         blocks.append(digital_observer(s.nominal, s.observer_gain, settings, s.observer_variant))
     if s.noise is not None:
-        blocks.append(sensor(s.noise))
+        blocks.append(sensor(s.noise, arm=s.robot))
     signals = [sig for sig in SAMPLED_SIGNALS if observer or sig != "d_hat"]
     if s.noise is not None:
         signals += ["q_meas", "dq_meas"]
-    outputs = [n for sig in signals for n in signal_names(sig)]
+    outputs = [n for sig in signals for n in signal_names(sig, s.robot)]
     loop = HybridSystem(blocks, outlist=outputs, name="digital_dob_loop" if observer else "digital_ctc_loop")
     loop.scenario = s
     loop.with_observer = observer
@@ -110,7 +111,7 @@ def sampled_initial_state(loop: HybridSystem, scenario) -> np.ndarray:
 def _signal(loop: HybridSystem, y: np.ndarray, prefix: str) -> np.ndarray:
     """The block outputs ``prefix[i]`` from the vector of all block outputs."""
     names = [name for block in loop.system.syslist for name in block.output_labels]
-    return np.array([y[names.index(n)] for n in signal_names(prefix)])
+    return np.array([y[names.index(n)] for n in signal_names(prefix, loop.scenario.robot)])
 
 
 def check_observer_rate(scenario, samples: int = 201) -> None:

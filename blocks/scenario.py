@@ -22,12 +22,13 @@ Sections and keys (units in brackets)::
                      a laceration lasts duration [s] (10 by default) whatever simulation.t_final is,
                      and stitches the skin plane disturbance.skin_height [m]
     [disturbance]    kind = "paper" | "friction" | "tissue" | a list of them | "none", and their keys
-    [noise]          q_std [rad, m], dq_std [rad/s, m/s] (4 each), seed, sample_period [s]
+    [noise]          q_std [rad, m], dq_std [rad/s, m/s] (a number or n each), seed, sample_period [s]
     [initial]        q, dq (4 each; default: on the reference), d_hat (4; default 0)
     [simulation]     t_final [s], output_step [s], rtol, atol, method, max_step [s]
     [controller]     the digital controller (blocks.digital): sample_rate [Hz], delay [samples],
                      observer_discretization, velocity, velocity_cutoff [Hz], position_resolution
-                     [rad, m] (4), torque_limit [N m, N] (4); absent: the continuous controller
+                     [rad, m] (a number or n), torque_limit [N m, N] (a number or n); absent: the
+                     continuous controller
 
 Each section is read by one entry of the table ``_SECTIONS``: the keys it
 allows with the check of each value, and how its object is built from them.
@@ -785,15 +786,9 @@ def _check_phases(path: dict, sim: SimulationSettings) -> None:
 
 def _build_noise(given: dict, built: dict):
     ctx = _context()
-    if ctx.arm is not None:
-        stds = [k for k in ("q_std", "dq_std") if k in given and np.any(np.asarray(given[k], dtype=float) != 0)]
-        if stds:
-            raise ScenarioError(f"'noise.{stds[0]}': measurement noise is not yet available for the arm "
-                                f"{ctx.name!r} (the sensor's noise tables are the RRPR's four joints)")
-        return None, {k: _plain(v) for k, v in given.items() if k in ("seed", "sample_period")}
     t_final = built["simulation"].t_final
     period = given.get("sample_period", MeasurementNoise.sample_period)
-    # one number where four are due is refused by MeasurementNoise, by key
+    # a list of the wrong length or a negative value is refused by MeasurementNoise, by key
     stds = tuple(np.atleast_1d(given.get("q_std", ()))) + tuple(np.atleast_1d(given.get("dq_std", ())))
     if period > 0 and period < MIN_TIME_STEP:
         raise ScenarioError(f"'noise.sample_period' ({period:g} s) must be at least {MIN_TIME_STEP:g} s")
@@ -801,25 +796,28 @@ def _build_noise(given: dict, built: dict):
         raise ScenarioError(f"'noise.sample_period' ({period} s) asks for {t_final / period:.3g} noise samples "
                             f"over {t_final} s; at most {MAX_NOISE_SAMPLES:,} are allowed")
     try:
-        noise = MeasurementNoise(t_final=t_final, **given)
+        noise = MeasurementNoise(t_final=t_final, joints=ctx.joints, **given)
     except ValueError as err:
-        raise ScenarioError(f"[noise] {err}") from None
+        raise ScenarioError(f"[noise] {err}{_for_arm(ctx)}") from None
     return (noise if noise.enabled else None), {k: _plain(getattr(noise, k)) for k in _NOISE_KEYS}
+
+
+def _for_arm(ctx) -> str:
+    """`` (arm 'NAME', n joints)`` for messages about another arm than the paper's RRPR (whose stay as they were)."""
+    return "" if ctx.arm is None else f" (arm {ctx.name!r}, {ctx.joints.count} joints)"
 
 
 def _build_controller(given: dict, built: dict):
     if not given:           # absent: the continuous controller, and no [controller] in the settings
         return None, None
-    if _context().arm is not None:
-        raise ScenarioError(f"[controller] (the sampled controller) is not yet available for the arm "
-                            f"{_context().name!r}: remove it to run the continuous controller")
+    ctx = _context()
     if "sample_rate" not in given:
         raise ScenarioError("'controller.sample_rate' is required in a [controller] section (Hz)")
     try:
-        controller = DigitalController(**given)
+        controller = DigitalController(**given, joints=ctx.joints)
     except ValueError as err:
-        raise ScenarioError(str(err)) from None
-    values = {k: _plain(v) for k, v in dataclasses.asdict(controller).items() if v is not None}
+        raise ScenarioError(f"{err}{_for_arm(ctx)}") from None
+    values = {k: _plain(getattr(controller, k)) for k in _CONTROLLER_KEYS if getattr(controller, k) is not None}
     return controller, values
 
 
@@ -839,6 +837,13 @@ def _joint_vector(value, key: str) -> tuple[float, ...]:
         raise ScenarioError(f"'{key}' has {len(value)} values; the arm {ctx.name!r} has {n} joints "
                             f"({', '.join(ctx.joints.names)}): give one per joint")
     return _vector(n)(value, key)
+
+
+def _joint_setting(value, key: str):
+    """A per-joint setting: one number for every joint (kept as given) or one per joint of the scenario's arm."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return _finite(0.0)(value, key)
+    return _joint_vector(value, key)
 
 
 def _joint_positions(value, key: str) -> tuple[float, ...]:
@@ -880,6 +885,7 @@ class _Section:
 
 _ROBOT_KEYS = RobotParameters.names()
 _NOISE_KEYS = ("q_std", "dq_std", "seed", "sample_period")
+_CONTROLLER_KEYS = tuple(f.name for f in dataclasses.fields(DigitalController) if f.name != "joints")
 _INITIAL_KEYS = ("q", "dq", "d_hat")
 
 #: The sections in the order they are built (later ones use earlier ones' objects).
@@ -902,15 +908,17 @@ _SECTIONS: dict[str, _Section] = {
         "joint_sine": {k: _like(d) for k, d in _defaults(JointSine).items()},
         "tool_path": {"waypoints": _points, "duration": _finite(0.0, True), "sample_period": _finite(0.0, True)}},
         default_kind="laceration"),
-    "noise": _Section({k: _like(d) for k, d in _defaults(MeasurementNoise).items() if k in _NOISE_KEYS},
+    # q_std, dq_std: a number (every joint) or one per joint, as their tuple form says
+    "noise": _Section({k: _like((d,) if k.endswith("_std") else d) for k, d in _defaults(MeasurementNoise).items()
+                       if k in _NOISE_KEYS},
                       _build_noise),
     "initial": _Section({"q": _joint_positions} | {k: _joint_vector for k in _INITIAL_KEYS[1:]},
                         _build_initial),
     "controller": _Section({"sample_rate": _finite(0.0, strict=True), "delay": _whole(0),
                             "observer_discretization": _one_of(DISCRETIZATIONS), "velocity": _one_of(VELOCITY_SOURCES),
                             "velocity_cutoff": _finite(0.0, strict=True),
-                            "position_resolution": _joint_vector,
-                            "torque_limit": _joint_vector}, _build_controller),
+                            "position_resolution": _joint_setting,
+                            "torque_limit": _joint_setting}, _build_controller),
 }
 _TOP_KEYS = ("name", "description") + tuple(_SECTIONS)
 _KEY = re.compile(r"(?P<section>[A-Za-z_]\w*)(?:\.(?P<name>\w+))?(?:\[(?P<index>\d+)\])?")

@@ -126,14 +126,18 @@ def test_disturbance_step_takes_n_values():
     ({"trajectory": {"kind": "laceration"}}, "'laceration' is the paper's RRPR path"),
     ({"robot": {"m1": 5.0}}, r"\[robot\] \(robot.m1\) describes the paper's RRPR"),
     ({"nominal_scale": {"m1": 1.1}}, "arm.nominal_mass_scale"),
-    ({"controller": {"sample_rate": 1000.0}}, r"\[controller\].*not yet available for the arm 'scope4'"),
-    ({"noise": {"q_std": [1e-4] * 4}}, "'noise.q_std'"),
 ])
 def test_rrpr_only_sections_are_refused_for_another_arm_and_kept_for_the_rrpr(data, fragment):
     with pytest.raises(ScenarioError, match=fragment):
         scenario_from_dict({"arm": SCOPE4} | data)
-    if "controller" not in data and "noise" not in data:
-        scenario_from_dict(data)                    # the paper's RRPR takes them
+    scenario_from_dict(data)                    # the paper's RRPR takes them
+
+
+def test_controller_and_noise_are_taken_for_another_arm():
+    # (tests/test_arm_digital.py runs them)
+    s = scenario_from_dict({"arm": SCOPE4, "controller": {"sample_rate": 1000.0}, "noise": {"q_std": [1e-4] * 4}})
+    assert s.controller.joints == s.robot.joints and s.controller.torque_limit == (0.0,) * 4
+    assert s.noise.q_std == (1e-4,) * 4 and s.noise.table.shape[0] == 8
 
 
 def test_observer_bandwidth_gives_y_equal_omega_times_the_nominal_inertia_at_the_start():

@@ -202,7 +202,7 @@ class Variants:
         try:
             noise = MeasurementNoise(q_std=tuple(settings["q_std"]), dq_std=tuple(settings["dq_std"]),
                                      seed=settings["seed"], sample_period=settings["sample_period"],
-                                     t_final=self.base.simulation.t_final)
+                                     t_final=self.base.simulation.t_final, joints=self.base.robot.joints)
         except ValueError as err:
             raise ScenarioError(f"variant {i}: {err}") from None
         return noise if noise.enabled else None
