@@ -182,8 +182,12 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
         ``compiled`` runs the loop's generated module for every member in
         parallel (:mod:`blocks.compiled.batch`; needs ``dobkit[fast]``);
         ``fast`` the numpy batch over a member axis; ``auto`` takes
-        ``compiled`` when it can run the batch (numba installed) and says
-        once why when it cannot.  Both integrate the same RK4 schedule and
+        ``compiled`` when it can run the batch (numba installed; members
+        sharing one generated code, so for a URDF arm one
+        ``arm.nominal_mass_scale``) and the loop's generated code is short
+        enough to compile now or already cached (the rule of single runs,
+        :data:`blocks.compiled.engine.AUTO_COMPILE_LINES`), and says once
+        why when it does not.  Both integrate the same RK4 schedule and
         agree to rounding (the compiled batch accumulates the metrics in its
         driver; members with their own noise read their own noise table).
 
@@ -224,20 +228,27 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
 
     s = v.base
     substeps = auto_substeps(v, observer) if substeps is None else substeps
+    members, compiled = None, None
     if engine != "fast":
-        from ..compiled.batch import batch_unavailable_reason, run_compiled_batch
+        from ..compiled.batch import auto_batch_reason, batch_unavailable_reason, run_compiled_batch
         from ..loop import select_engine
-        engine = select_engine(engine, batch_unavailable_reason(v))
+        reason = batch_unavailable_reason(v)
+        if reason is None and engine == "auto":
+            # the rule of single runs: a loop whose generated code is too long to compile now runs on numpy
+            members = MemberLoop(v, observer)
+            reason, compiled = auto_batch_reason(members)
+        engine = select_engine(engine, reason)
     if engine == "compiled":
         times, grid_index = _schedule if _schedule is not None else batch_schedule(v, substeps, breakpoints)
-        values, kept, failed_at, failures = run_compiled_batch(v, MemberLoop(v, observer), observer, metrics,
-                                                               tuple(signals), times, grid_index, workers)
+        members = MemberLoop(v, observer) if members is None else members
+        values, kept, failed_at, failures = run_compiled_batch(v, members, observer, metrics, tuple(signals), times,
+                                                               grid_index, workers, compiled)
         return BatchResult(variants=v, observer=observer, time=s.simulation.time_grid, metrics=values, signals=kept,
                            failed_at=failed_at, steps=times.size - 1, substeps=int(substeps), failures=failures)
     if workers > 1 and len(v) > 1:
         return _simulate_in_processes(v, observer, metrics, tuple(signals), substeps, workers,
                                       batch_schedule(v, substeps, breakpoints))
-    loop = MemberLoop(v, observer)
+    loop = MemberLoop(v, observer) if members is None else members
     sim = s.simulation
     times, grid_index = _schedule if _schedule is not None else batch_schedule(v, substeps, breakpoints)
     mids = 0.5 * (times[:-1] + times[1:])
