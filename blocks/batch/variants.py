@@ -154,6 +154,7 @@ class Variants:
         made as its single run makes them (the arm is read once and shared; equal records share a scenario)."""
         s = self.base
         memo: dict = {}
+        nominals: dict = {}
         fields, ys, extra = [], [], []
         for i, record in enumerate(self.records):
             try:
@@ -168,7 +169,13 @@ class Variants:
                 except ScenarioError as err:
                     raise ScenarioError(f"variant {i}: {err}") from None
             m = memo[key]
-            fields.append({"robot": m.robot, "nominal": m.nominal, "kp": m.kp, "kd": m.kd,
+            # the arm's structure keys cannot vary: the true arm is the base's own object (also after a
+            # scenario crossed a process boundary, where a newly read arm would be another object), and a
+            # member with the base's nominal scale has the base's nominal arm
+            scale = m.data["arm"].get("nominal_mass_scale")
+            nominal = s.nominal if scale == s.data["arm"].get("nominal_mass_scale") else \
+                nominals.setdefault(scale, m.nominal)
+            fields.append({"robot": s.robot, "nominal": nominal, "kp": m.kp, "kd": m.kd,
                            "observer_gain": m.observer_gain, "observer_variant": m.observer_variant,
                            "disturbance": m.disturbance, "noise": m.noise, "initial": m.initial})
             ys.append(np.asarray(m.observer_gain, dtype=float))

@@ -23,8 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..divergence import batch_bounds
 from ..batch.members import is_rrpr_kernels
+from ..divergence import batch_bounds
 from ..kernels import tool_pose
 from ..monitor import Monitor
 from ..systems import signal_names
@@ -211,8 +211,8 @@ def run_compiled_batch(v, members, observer: bool, metrics: tuple, signals: tupl
     # the outputs (and rows) to keep at the grid points; without a sensor the measured signals are the true ones
     labels = list(loop.output_labels)
     alias = {} if "q_meas[0]" in labels else {"q_meas": "q", "dq_meas": "dq"}
-    keep = np.array([labels.index(x) for name in signals if name != "d" for x in signal_names(alias.get(name, name))],
-                    dtype=np.int64)
+    keep = np.array([labels.index(x) for name in signals if name != "d"
+                     for x in signal_names(alias.get(name, name), members.arm)], dtype=np.int64)
     keep_rows = np.arange(groups["d"][1].start, groups["d"][1].stop, dtype=np.int64) if "d" in signals else \
         np.zeros(0, dtype=np.int64)
     if "d" in signals:
