@@ -19,7 +19,7 @@ The reference is evaluated once for the whole batch.
     base = load_scenario("paper")
     variants = [{"gains.kp": kp, "nominal_scale.m1": s} for kp in (100, 180) for s in (0.8, 1.2)]
     result = simulate_batch(base, variants)
-    result.metrics["rms_position_error"]          # shape (4 members, 4 joints)
+    result.metrics["rms_position_error"]          # shape (4 members, n joints): n = 4 for the paper's arm
 
 Accuracy
 --------

@@ -41,12 +41,12 @@ def rates_by_source(variants: Variants, observer: bool = True) -> dict[str, np.n
     mismatch ``lambda_max(M^-1 M^)``; ``"gains.observer"``: the observer's
     ``Y M^-1`` on the true and nominal inertia; ``"disturbance.friction_velocity"``:
     the friction's ``M^-1 (F_c / v_s + F_v)``.  Inertia is taken at
-    ``cos(theta2) = -1, 0, 1``.  Each value has shape (N,).
+    ``cos(theta2) = -1, 0, 1`` for the paper's RRPR (its inertia depends on
+    theta2 alone), and at :data:`INERTIA_SAMPLES` points of the reference for
+    another arm.  Each value has shape (N,).
     """
-    c2 = np.array([-1.0, 0.0, 1.0])
-    q = np.zeros((3, variants.base.robot.joints.count))
-    q[:, 1] = np.arccos(c2)
-    M = _inertia_of_each(q, variants.robots)                        # (N, 3, 4, 4)
+    q = _inertia_configurations(variants)
+    M = _inertia_of_each(q, variants.robots)                        # (N, m, n, n)
     M_hat = _inertia_of_each(q, variants.nominals)
     M_inv, M_hat_inv = np.linalg.inv(M), np.linalg.inv(M_hat)
     mismatch = np.abs(np.linalg.eigvals(M_inv @ M_hat)).max(axis=(1, 2))                  # (N,)
