@@ -58,6 +58,21 @@ member's numbers depend on its batch only through that schedule: batches run
 with the same ``substeps`` and ``breakpoints`` (as the sweep runner does, and
 as ``workers > 1`` does for its slices) give every member identical numbers.
 
+Any arm
+-------
+A scenario with ``[arm]`` (a URDF arm, :mod:`blocks.arms`) batches too: its
+members are made from their own validated scenarios
+(:meth:`Scenario.with_changes <blocks.scenario.Scenario.with_changes>`, about
+3 ms of CPU each), so per-joint values have the arm's n entries and the
+observer gain from ``gains.observer_bandwidth`` is the single run's;
+``arm.nominal_mass_scale`` may vary (the numpy batch evaluates the members in
+groups of equal nominal arms; the compiled batch, whose generated code holds
+the arm's model as constants, runs one nominal arm and says so), the arm's
+other keys may not (:data:`SHARED_KEYS`).  ``engine="auto"`` compiles a batch
+by the rule of single runs (:data:`blocks.compiled.engine.AUTO_COMPILE_LINES`).
+The numpy batch of a URDF arm does its kernels' arithmetic in Python per
+element (seconds per member-independent 10 s run): prefer the compiled one.
+
 Cost
 ----
 Before integrating, each member's blocks are made once, as its single run
