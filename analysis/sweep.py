@@ -16,7 +16,7 @@ A sweep file (TOML) names a base scenario, the values to vary and what to keep::
     seed = 1
     [monte_carlo.distributions]
     "nominal_scale.m1" = {kind = "uniform", low = 0.8, high = 1.2}
-    "disturbance.f_r[2]" = {kind = "normal", mean = 1.4, std = 0.2}    # [i]: one element of a 4-vector
+    "disturbance.f_r[2]" = {kind = "normal", mean = 1.4, std = 0.2}    # [i]: one element of an n-vector
     "robot.m3" = {kind = "lognormal", mean = -1.77, sigma = 0.1}        # exp(normal(mean, sigma))
     "noise.seed" = {kind = "choice", values = [1, 2, 3]}                # optional weights = [...]
 
@@ -420,7 +420,7 @@ def sweep_from_dict(data: dict, source: str = "<dict>", folder: Path | None = No
             fail(f"'{key}' is both in [grid] and in {label}; vary it in one place")
         distributions[key] = _distribution(spec, label, fail)
     outputs = _read(top["outputs"], "outputs", fail)
-    metrics, worst_metric = _outputs(outputs, top["observer"], fail)
+    metrics, worst_metric = _outputs(outputs, top["observer"], fail, base.robot.joints.count)
     batch = _read(top["batch"], "batch", fail)
     if not grid and not distributions:
         fail("the sweep varies nothing: give a [grid] or [monte_carlo.distributions]")
@@ -484,8 +484,9 @@ def _grid(grid: dict, base: Scenario, fail) -> dict:
     return grid
 
 
-def _outputs(outputs: dict, observer: bool, fail) -> tuple[list, str]:
-    """The kept metrics (default: all that apply) and the column that ranks the worst runs."""
+def _outputs(outputs: dict, observer: bool, fail, joints: int) -> tuple[list, str]:
+    """The kept metrics (default: all that apply) and the column that ranks the worst runs (per-joint metrics
+    have one column per joint of the base scenario's arm)."""
     applicable = tuple(m for m in METRICS if observer or m not in _OBSERVER_METRICS)
     metrics = outputs["metrics"] if outputs["metrics"] is not None else list(applicable)
     for m in metrics:
@@ -493,7 +494,7 @@ def _outputs(outputs: dict, observer: bool, fail) -> tuple[list, str]:
             fail(f"'outputs.metrics' names an unknown metric {m!r}; choose from {list(METRICS)}")
         if m not in applicable:
             fail(f"'outputs.metrics' asks for {m!r}, which needs the observer (observer = true)")
-    columns = [f"{m}[{j}]" if m in _PER_JOINT else m for m in metrics for j in range(4 if m in _PER_JOINT else 1)]
+    columns = [f"{m}[{j}]" if m in _PER_JOINT else m for m in metrics for j in range(joints if m in _PER_JOINT else 1)]
     worst = outputs["worst_metric"]
     if worst is None:
         worst = "max_tool_position_error_mm" if "max_tool_position_error_mm" in metrics else columns[0]
@@ -681,12 +682,15 @@ def _without_noise(base: Scenario) -> Scenario:
     """The scenario with noise off: the step does not depend on it, and noise tables cost memory."""
     if base.noise is None:
         return base
-    return base.with_changes({"noise.q_std": [0.0] * 4, "noise.dq_std": [0.0] * 4})
+    n = base.robot.joints.count
+    return base.with_changes({"noise.q_std": [0.0] * n, "noise.dq_std": [0.0] * n})
 
 
 def _noise_samples(base: Scenario) -> int:
-    sim = base.simulation
-    return int(math.ceil(sim.t_final / base.data["noise"]["sample_period"])) + 2
+    period = base.data["noise"].get("sample_period")
+    if period is None:          # an arm without measurement noise (a URDF arm's scenario has no [noise] keys)
+        return 0
+    return int(math.ceil(base.simulation.t_final / period)) + 2
 
 
 @dataclass(frozen=True)

@@ -275,8 +275,11 @@ def batch_bounds(batch_loop, labels=None) -> StateBounds:
     """
     b = batch_loop
     ref = reference_limits(b.v.base)
-    force = force_bounds(b.k_true, b.disturbance, ref)                                   # (N,)
     n = b.joints
+    if isinstance(b.k_true, np.ndarray):        # the RRPR's constants, one column per member
+        force = force_bounds(b.k_true, b.disturbance, ref)                               # (N,)
+    else:                                       # another arm: the members share the true arm, not its numbers' layout
+        force = _shared_arm_force_bounds(b.k_true, b.arm.kernels, b.disturbance, ref, b.n)
     if labels is None:
         labels = [("plant", f"q[{i}]") for i in range(n)] + [("plant", f"dq[{i}]") for i in range(n)]
         if b.observer:
@@ -286,6 +289,16 @@ def batch_bounds(batch_loop, labels=None) -> StateBounds:
         eye = np.eye(n)[:, :, None]
         gain = eye * gain[None, :, :]
     return _labelled_bounds(labels, ref, force, gain)
+
+
+def _shared_arm_force_bounds(k, kernels, disturbance, ref: ReferenceLimits, members: int) -> np.ndarray:
+    """:func:`force_bounds` of ``members`` members sharing one arm (``k``, its row kernels) whose disturbances
+    differ: the arm's terms at the reference's start once, each member's disturbance beside them (N,)."""
+    q0, dq0, ddq0 = (np.repeat(np.asarray(a, dtype=float)[:, None], members, axis=1) for a in (ref.q0, ref.dq0, ref.ddq0))
+    gravity_only = kernels.bias_forces(k, q0, np.zeros_like(dq0))
+    inverse = kernels.mass_times(k, q0, ddq0) + kernels.bias_forces(k, q0, dq0)
+    forces = np.abs(external_disturbance(0.0, q0, dq0, disturbance)) + np.abs(gravity_only) + np.abs(inverse)
+    return FORCE_FACTOR * (forces.max(axis=0) + 1.0)
 
 
 def signal_bounds(names, scenario, samples: int = 201) -> StateBounds:

@@ -19,7 +19,7 @@ The reference is evaluated once for the whole batch.
     base = load_scenario("paper")
     variants = [{"gains.kp": kp, "nominal_scale.m1": s} for kp in (100, 180) for s in (0.8, 1.2)]
     result = simulate_batch(base, variants)
-    result.metrics["rms_position_error"]          # shape (4 members, 4 joints)
+    result.metrics["rms_position_error"]          # shape (4 members, n joints): n = 4 for the paper's arm
 
 Accuracy
 --------
@@ -57,6 +57,21 @@ All members share one step schedule, the finest any of them needs, so a
 member's numbers depend on its batch only through that schedule: batches run
 with the same ``substeps`` and ``breakpoints`` (as the sweep runner does, and
 as ``workers > 1`` does for its slices) give every member identical numbers.
+
+Any arm
+-------
+A scenario with ``[arm]`` (a URDF arm, :mod:`blocks.arms`) batches too: its
+members are made from their own validated scenarios
+(:meth:`Scenario.with_changes <blocks.scenario.Scenario.with_changes>`, about
+3 ms of CPU each), so per-joint values have the arm's n entries and the
+observer gain from ``gains.observer_bandwidth`` is the single run's;
+``arm.nominal_mass_scale`` may vary (the numpy batch evaluates the members in
+groups of equal nominal arms; the compiled batch, whose generated code holds
+the arm's model as constants, runs one nominal arm and says so), the arm's
+other keys may not (:data:`SHARED_KEYS`).  ``engine="auto"`` compiles a batch
+by the rule of single runs (:data:`blocks.compiled.engine.AUTO_COMPILE_LINES`).
+The numpy batch of a URDF arm does its kernels' arithmetic in Python per
+element (seconds per member-independent 10 s run): prefer the compiled one.
 
 Cost
 ----

@@ -22,7 +22,8 @@ import control as ct
 import numpy as np
 
 from ..contract import contract_of, kernels_only
-from ..kernels import kinematic_lengths, lumped_disturbance
+from ..kernels import lumped_disturbance
+from ..kernels.bind import bound
 from ..loop import _prepared, build_blocks, closed_loop, initial_state
 from ..noise import MeasurementNoise
 from ..plan import make_plan
@@ -88,17 +89,32 @@ def _same(a, b) -> bool:
     return type(a) is type(b) and a == b
 
 
-def _stacked(block: str, where: str, values: list, column_value):
+def _is_object(value) -> bool:
+    """Whether a parameter is an object the kernels read as structure (a URDF arm's ChainParams), not numbers."""
+    return not isinstance(value, (tuple, np.ndarray, numbers.Real, bool, np.bool_, str, type(None)))
+
+
+def _object_key(params) -> tuple:
+    """Identities of the structure objects in one member's parameters: members with equal keys can share a call."""
+    if isinstance(params, tuple):
+        return tuple(k for p in params for k in _object_key(p))
+    return (id(params),) if _is_object(params) else ()
+
+
+def _stacked(block: str, where: str, values: list, column_value, objects_first: bool = False):
     """The members' values of one parameter in the column layout: the block's own column value when all
-    members agree, else stacked on a trailing member axis."""
+    members agree, else stacked on a trailing member axis.  With ``objects_first`` a structure object that
+    differs between members is taken from the first (for reading the numbers beside it)."""
     first = values[0]
     if all(_same(first, other) for other in values[1:]):
         return column_value
     if isinstance(first, tuple):
         fields = getattr(first, "_fields", None)
         parts = [_stacked(block, f"{where}.{fields[j]}" if fields else f"{where}[{j}]", [v[j] for v in values],
-                          column_value[j]) for j in range(len(first))]
+                          column_value[j], objects_first) for j in range(len(first))]
         return type(first)(*parts) if fields else tuple(parts)
+    if objects_first and _is_object(first):
+        return column_value
     if isinstance(first, (bool, np.bool_, str, type(None))) or not isinstance(first, (np.ndarray, numbers.Real)):
         differing = sorted({repr(v) for v in values})[:3]
         raise ValueError(f"block '{block}': its parameter {where} differs between members ({', '.join(differing)}) "
@@ -150,15 +166,24 @@ class MemberLoop:
             made = [build_blocks(s, observer=observer) for s in self.scenarios]
             if matrix:
                 made = [_matrix_observer(b, s) for b, s in zip(made, self.scenarios)]
-        self.member_params, self._kernels0, self._columns = {}, {}, {}
+        self.member_params, self._kernels0, self._columns, self._groups = {}, {}, {}, {}
         for step in plan.steps:
             kernels = [contract_of(b[step.name]).kernels for b in made]
             if not step.kernel or any(k is None or k.output is not step.output or k.update is not step.update
                                       for k in kernels):
                 raise ValueError(f"block '{step.name}' has no kernels or differs in structure between members; "
                                  f"a batch evaluates one plan for all members")
-            self.member_params[step.name] = [k.params for k in kernels]
+            self.member_params[step.name] = params = [k.params for k in kernels]
             self._kernels0[step.name] = kernels[0]
+            # members whose blocks hold different structure objects (the nominal URDF arm of another
+            # arm.nominal_mass_scale) are evaluated in groups, each group's numbers stacked as usual
+            keys: dict = {}
+            for m, p in enumerate(params):
+                keys.setdefault(_object_key(p), []).append(m)
+            if len(keys) > 1:
+                self._groups[step.name] = [
+                    (np.array(idx), _stacked(step.name, "params", [params[m] for m in idx], kernels[idx[0]].columns()))
+                    for idx in keys.values()]
         self.sources = tuple(s for s in plan.steps if s.x.stop == s.x.start and _size(s.gather) == 0)
         names = {s.name for s in self.sources}
         self._rhs_steps = tuple(s for s in plan.rhs_steps if s.name not in names)
@@ -170,9 +195,23 @@ class MemberLoop:
         for label, row in zip(labels, plan.out_index):
             self.signal_rows.setdefault(label.split("[")[0], []).append(int(row))
         self.state_labels = [(block.name, label) for block in self.loop.syslist for label in block.state_labels]
-        self.k_true = np.stack([r.kernel_params() for r in v.robots], axis=-1)            # (k, N)
-        self.k_nominal = np.stack([r.kernel_params() for r in v.nominals], axis=-1)
-        self.kin = kinematic_lengths(v.base.robot)          # the tool point is the shared arm's
+        arm = self.arm = v.base.robot
+        if is_rrpr_kernels(arm):
+            self.k_true = np.stack([r.kernel_params() for r in v.robots], axis=-1)            # (k, N)
+            self.k_nominal = np.stack([r.kernel_params() for r in v.nominals], axis=-1)
+            self._lumped = [(slice(None), self.k_nominal)]
+        else:
+            # structure objects are not stacked: the true arm is the members' shared one (its keys cannot vary
+            # within a batch), the nominal arms are taken group by group
+            if any(r is not arm for r in v.robots):
+                raise ValueError("the members of a batch of a URDF arm must share the true arm")
+            self.k_true = arm.kernel_params()
+            groups: dict = {}
+            for m, nominal in enumerate(v.nominals):
+                groups.setdefault(id(nominal), (nominal, []))[1].append(m)
+            self._lumped = [(np.array(idx), nominal.kernel_params()) for nominal, idx in groups.values()]
+        self._lumped_rows = bound(lumped_disturbance, arm)
+        self.kin = arm.tool_params()                        # the tool point is the shared arm's
         self.nx = plan.nstates
 
     def column_params(self, name: str) -> tuple:
@@ -181,7 +220,7 @@ class MemberLoop:
         found = self._columns.get(name)
         if found is None:
             found = self._columns[name] = _stacked(name, "params", self.member_params[name],
-                                                   self._kernels0[name].columns())
+                                                   self._kernels0[name].columns(), objects_first=name in self._groups)
         return found
 
     # -- what the divergence bounds read (blocks.divergence.batch_bounds) -------------------------------------
@@ -222,11 +261,22 @@ class MemberLoop:
         y = np.empty((plan.nsignals, self.n))
         y[plan.copy_y] = x[plan.copy_x]
         y[self._source_rows] = src
+        groups = self._groups
         for s in (self._all_steps if record is not None else self._rhs_steps):
-            y[s.y] = s.output(t, x[s.x], y[s.gather], *self.column_params(s.name))
+            if s.name in groups:
+                out = y[s.y]
+                for idx, params in groups[s.name]:
+                    out[:, idx] = s.output(t, x[s.x][:, idx], y[s.gather][:, idx], *params)
+            else:
+                y[s.y] = s.output(t, x[s.x], y[s.gather], *self.column_params(s.name))
         dx = np.empty_like(x)
         for s in plan.updates:
-            dx[s.x] = s.update(t, x[s.x], y[s.gather], *self.column_params(s.name))
+            if s.name in groups:
+                rate = dx[s.x]
+                for idx, params in groups[s.name]:
+                    rate[:, idx] = s.update(t, x[s.x][:, idx], y[s.gather][:, idx], *params)
+            else:
+                dx[s.x] = s.update(t, x[s.x], y[s.gather], *self.column_params(s.name))
         if record is not None:
             record.update({name: y[rows] for name, rows in self.signal_rows.items()})
             record.setdefault("q_meas", record["q"])
@@ -234,8 +284,20 @@ class MemberLoop:
         return dx
 
     def lumped(self, q, dq, tau, tau_dis) -> np.ndarray:
-        """The lumped disturbance ``d`` (n, ...) of every member (Eq. 2-3, relative to its nominal model)."""
-        return lumped_disturbance(self.k_true, self.k_nominal, q, dq, tau, tau_dis)
+        """The lumped disturbance ``d`` (n, ..., N) of every member (Eq. 2-3, relative to its nominal model)."""
+        if len(self._lumped) == 1:
+            return self._lumped_rows(self.k_true, self._lumped[0][1], q, dq, tau, tau_dis)
+        d = np.empty(np.broadcast_shapes(np.shape(q), np.shape(tau)))
+        for idx, k_nominal in self._lumped:
+            d[..., idx] = self._lumped_rows(self.k_true, k_nominal, q[..., idx], dq[..., idx], tau[..., idx],
+                                            tau_dis[..., idx])
+        return d
+
+
+def is_rrpr_kernels(arm) -> bool:
+    """Whether ``arm`` computes with the paper's RRPR closed-form kernels (its constants stack per member)."""
+    from ..kernels.bind import closed_form
+    return closed_form(arm.kernels, arm.tool_kernels)
 
 
 def _size(gather) -> int:

@@ -7,10 +7,11 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 
 from ..scenario import Scenario
+from .members import is_rrpr_kernels
 from .variants import Variants
 
 __all__ = ["step_schedule", "auto_substeps", "fastest_rate", "rates_by_source", "noise_breakpoints", "batch_schedule",
-           "STEP_LAMBDA", "STEPS_PER_PHASE", "TISSUE_STEP"]
+           "STEP_LAMBDA", "STEPS_PER_PHASE", "TISSUE_STEP", "INERTIA_SAMPLES"]
 
 
 def _trajectory_breakpoints(trajectory, t_final: float) -> list[float]:
@@ -40,27 +41,27 @@ def rates_by_source(variants: Variants, observer: bool = True) -> dict[str, np.n
     mismatch ``lambda_max(M^-1 M^)``; ``"gains.observer"``: the observer's
     ``Y M^-1`` on the true and nominal inertia; ``"disturbance.friction_velocity"``:
     the friction's ``M^-1 (F_c / v_s + F_v)``.  Inertia is taken at
-    ``cos(theta2) = -1, 0, 1``.  Each value has shape (N,).
+    ``cos(theta2) = -1, 0, 1`` for the paper's RRPR (its inertia depends on
+    theta2 alone), and at :data:`INERTIA_SAMPLES` points of the reference for
+    another arm.  Each value has shape (N,).
     """
-    c2 = np.array([-1.0, 0.0, 1.0])
-    q = np.zeros((3, variants.base.robot.joints.count))
-    q[:, 1] = np.arccos(c2)
-    M = _inertia_of_each(q, variants.robots)                        # (N, 3, 4, 4)
+    q = _inertia_configurations(variants)
+    M = _inertia_of_each(q, variants.robots)                        # (N, m, n, n)
     M_hat = _inertia_of_each(q, variants.nominals)
     M_inv, M_hat_inv = np.linalg.inv(M), np.linalg.inv(M_hat)
     mismatch = np.abs(np.linalg.eigvals(M_inv @ M_hat)).max(axis=(1, 2))                  # (N,)
-    kp, kd = variants.kp.T, variants.kd.T                                                   # (N, 4)
+    kp, kd = variants.kp.T, variants.kd.T                                                   # (N, n)
     disc = kd ** 2 - 4 * kp
     pd = np.where(disc >= 0, 0.5 * (kd + np.sqrt(np.abs(disc))), np.sqrt(kp)).max(axis=1)
     rates = {"gains.kp": pd * np.maximum(mismatch, 1.0)}
     if observer:
         Y = variants.y_full.transpose(2, 0, 1) if variants.y_full is not None else \
-            np.apply_along_axis(np.diag, 1, variants.y_diag.T)                             # (N, 4, 4)
+            np.apply_along_axis(np.diag, 1, variants.y_diag.T)                             # (N, n, n)
         rates["gains.observer"] = np.max([np.abs(np.linalg.eigvals(Y[:, None] @ inv)).max(axis=(1, 2))
                                           for inv in (M_inv, M_hat_inv)], axis=0)
     if "friction" in variants.base.disturbance.kinds:
         dist = variants.disturbance
-        damping = dist.coulomb / dist.friction_velocity + dist.viscous                      # (N, 4)
+        damping = dist.coulomb / dist.friction_velocity + dist.viscous                      # (N, n)
         D = np.apply_along_axis(np.diag, 1, damping)
         rates["disturbance.friction_velocity"] = np.abs(np.linalg.eigvals(M_inv @ D[:, None])).max(axis=(1, 2))
     return rates
@@ -71,15 +72,34 @@ def fastest_rate(variants: Variants, observer: bool = True) -> float:
     return float(max(r.max() for r in rates_by_source(variants, observer).values()))
 
 
+#: Points of the reference at which a non-RRPR arm's inertia is sampled for the step-size rule.
+INERTIA_SAMPLES = 9
+
+
+def _inertia_configurations(variants: Variants) -> np.ndarray:
+    """Joint positions (m, n) where the step-size rule takes the inertia."""
+    s = variants.base
+    if is_rrpr_kernels(s.robot):
+        c2 = np.array([-1.0, 0.0, 1.0])
+        q = np.zeros((3, s.robot.joints.count))
+        q[:, 1] = np.arccos(c2)
+        return q
+    times = np.linspace(0.0, s.simulation.t_final, INERTIA_SAMPLES)
+    return np.asarray(s.trajectory.evaluate(times)[0], dtype=float).reshape(times.size, -1)
+
+
 def _inertia_of_each(q: np.ndarray, arms: list) -> np.ndarray:
-    """``M(q)`` of every arm at the configurations ``q`` (m, 4): (len(arms), m, 4, 4), the numbers of
+    """``M(q)`` of every arm at the configurations ``q`` (m, n): (len(arms), m, n, n), the numbers of
     :func:`blocks.dynamics.inertia`, computed once per distinct arm (members often share one) and for all at once."""
-    from ..kernels import arm_constants, inertia_matrix
     unique: dict[int, object] = {}
     for arm in arms:
         unique.setdefault(id(arm), arm)
-    k = np.stack([arm_constants(a) for a in unique.values()], axis=1)[:, :, None]          # (6, U, 1)
-    M = inertia_matrix(k, q.T[:, None, :])                                       # (U, m, 4, 4)
+    if all(is_rrpr_kernels(a) for a in unique.values()):
+        from ..kernels import arm_constants, inertia_matrix
+        k = np.stack([arm_constants(a) for a in unique.values()], axis=1)[:, :, None]      # (6, U, 1)
+        M = inertia_matrix(k, q.T[:, None, :])                                   # (U, m, n, n)
+    else:                       # any arm through its own row kernel, joint-first rows (n, m)
+        M = np.stack([a.kernels.inertia_matrix(a.kernel_params(), q.T) for a in unique.values()])
     index = {key: i for i, key in enumerate(unique)}
     return M[[index[id(a)] for a in arms]]
 

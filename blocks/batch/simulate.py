@@ -88,15 +88,16 @@ class _Accumulator:
     """Running metrics (:class:`blocks.metrics.TrackingAccumulator`) and kept signals at the output grid points.
 
     The signals are buffered and handed over every ``block`` points, so that
-    the reductions and the forward kinematics run over (4, block, N) arrays
+    the reductions and the forward kinematics run over (joints, block, N) arrays
     rather than once per grid point.
     """
 
     def __init__(self, loop: MemberLoop, metrics, signals, n_grid: int, ref_grid, block: int = 64) -> None:
         self.loop, self.signals, self.n_grid = loop, tuple(signals), n_grid
-        self.ref_grid = [np.asarray(a) for a in ref_grid]                                  # each (n_grid, 4)
+        self.ref_grid = [np.asarray(a) for a in ref_grid]                                  # each (n_grid, joints)
         n, J = loop.n, loop.joints
-        self.tracking = TrackingAccumulator(loop.kin, n_grid, metrics, members=(n,))
+        self.tracking = TrackingAccumulator(loop.kin, n_grid, metrics, members=(n,), n_joints=J,
+                                            tool_position=loop.arm.tool_kernels.tool_position)
         self.want_d = self.tracking.wants_disturbance or "d" in self.signals
         self.kept = {name: np.empty((n_grid, J, n)) for name in self.signals}
         vectors = {"q"} | {name for name in self.signals if name not in ("q_ref", "dq_ref", "ddq_ref")}
@@ -122,8 +123,8 @@ class _Accumulator:
         if not self.index:
             return
         ks, m = np.array(self.index), len(self.index)
-        rows = {name: np.moveaxis(store[:m], 0, 1) for name, store in self.buf.items()}      # (4, m, N)
-        q_ref = self.ref_grid[0][ks].T[:, :, None]                                           # (4, m, 1)
+        rows = {name: np.moveaxis(store[:m], 0, 1) for name, store in self.buf.items()}      # (joints, m, N)
+        q_ref = self.ref_grid[0][ks].T[:, :, None]                                           # (joints, m, 1)
         self.tracking.add(q_ref, rows["q"], rows.get("d"), rows.get("d_hat"), last=ks[-1] == self.n_grid - 1)
         for name, store in self.kept.items():
             if name in ("q_ref", "dq_ref", "ddq_ref"):
@@ -136,10 +137,10 @@ class _Accumulator:
         self.flush()
         out = {}
         for name, value in self.tracking.result().items():
-            value = value.T.copy()                      # members first: (N, 4) or (N,)
+            value = value.T.copy()                      # members first: (N, joints) or (N,)
             value[failed] = np.nan
             out[name] = value
-        kept = {name: np.moveaxis(store, 2, 0) for name, store in self.kept.items()}   # (N, T, 4)
+        kept = {name: np.moveaxis(store, 2, 0) for name, store in self.kept.items()}   # (N, T, joints)
         for store in kept.values():
             store[failed] = np.nan
         return out, kept
@@ -164,7 +165,7 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
         (the disturbance-estimate metrics need the observer).
     signals : sequence of str
         Signals to keep on the output grid (see :data:`SIGNALS`); none by
-        default, since they dominate memory (8 bytes x 4 x grid points x N each).
+        default, since they dominate memory (8 bytes x n joints x grid points x N each).
     substeps : int, optional
         RK4 steps per output interval; the error falls as ``substeps**-4``.
         Default: :func:`auto_substeps` (1 on the paper scenario).
@@ -181,8 +182,12 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
         ``compiled`` runs the loop's generated module for every member in
         parallel (:mod:`blocks.compiled.batch`; needs ``dobkit[fast]``);
         ``fast`` the numpy batch over a member axis; ``auto`` takes
-        ``compiled`` when it can run the batch (numba installed) and says
-        once why when it cannot.  Both integrate the same RK4 schedule and
+        ``compiled`` when it can run the batch (numba installed; members
+        sharing one generated code, so for a URDF arm one
+        ``arm.nominal_mass_scale``) and the loop's generated code is short
+        enough to compile now or already cached (the rule of single runs,
+        :data:`blocks.compiled.engine.AUTO_COMPILE_LINES`), and says once
+        why when it does not.  Both integrate the same RK4 schedule and
         agree to rounding (the compiled batch accumulates the metrics in its
         driver; members with their own noise read their own noise table).
 
@@ -223,20 +228,27 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
 
     s = v.base
     substeps = auto_substeps(v, observer) if substeps is None else substeps
+    members, compiled = None, None
     if engine != "fast":
-        from ..compiled.batch import batch_unavailable_reason, run_compiled_batch
+        from ..compiled.batch import auto_batch_reason, batch_unavailable_reason, run_compiled_batch
         from ..loop import select_engine
-        engine = select_engine(engine, batch_unavailable_reason(v))
+        reason = batch_unavailable_reason(v)
+        if reason is None and engine == "auto":
+            # the rule of single runs: a loop whose generated code is too long to compile now runs on numpy
+            members = MemberLoop(v, observer)
+            reason, compiled = auto_batch_reason(members)
+        engine = select_engine(engine, reason)
     if engine == "compiled":
         times, grid_index = _schedule if _schedule is not None else batch_schedule(v, substeps, breakpoints)
-        values, kept, failed_at, failures = run_compiled_batch(v, MemberLoop(v, observer), observer, metrics,
-                                                               tuple(signals), times, grid_index, workers)
+        members = MemberLoop(v, observer) if members is None else members
+        values, kept, failed_at, failures = run_compiled_batch(v, members, observer, metrics, tuple(signals), times,
+                                                               grid_index, workers, compiled)
         return BatchResult(variants=v, observer=observer, time=s.simulation.time_grid, metrics=values, signals=kept,
                            failed_at=failed_at, steps=times.size - 1, substeps=int(substeps), failures=failures)
     if workers > 1 and len(v) > 1:
         return _simulate_in_processes(v, observer, metrics, tuple(signals), substeps, workers,
                                       batch_schedule(v, substeps, breakpoints))
-    loop = MemberLoop(v, observer)
+    loop = MemberLoop(v, observer) if members is None else members
     sim = s.simulation
     times, grid_index = _schedule if _schedule is not None else batch_schedule(v, substeps, breakpoints)
     mids = 0.5 * (times[:-1] + times[1:])

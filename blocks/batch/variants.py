@@ -20,6 +20,7 @@ from ..gains import GainError, validated_gain
 from ..noise import MeasurementNoise
 from ..parameters import ParameterError, RobotParameters
 from ..scenario import Scenario, ScenarioError, check_value, load_scenario, parse_key
+from ..scenario_arm import is_rrpr
 
 __all__ = ["BATCH_KEYS", "SHARED_KEYS", "SHARED_SECTIONS", "Variants", "shared_reason"]
 
@@ -33,6 +34,9 @@ SHARED_KEYS = {
     "disturbance.kind": "the disturbance kinds choose the terms the plant evaluates",
     "disturbance.skin_height": "the reference path runs on the skin plane",
     "noise.sample_period": "the noise sample times join the shared step schedule",
+    # a URDF arm ([arm]): its structure is the loop's; only the nominal model's mass scale reaches block numbers
+    **{f"arm.{k}": "the arm's joints, frames and gravity are the loop's structure, shared by all members"
+       for k in ("urdf", "tool_frame", "locked", "locked_values", "gravity")},
 }
 #: Sections shared whole by the members of a batch.
 SHARED_SECTIONS = {"trajectory": "the reference is evaluated once for the whole batch",
@@ -64,7 +68,7 @@ BATCH_KEYS = _batch_keys()
 
 @dataclass(frozen=True)
 class _BatchedDisturbance:
-    """:class:`DisturbanceSpec` with per-member arrays, (N, 4) and (N, 1), for :func:`external_disturbance`."""
+    """:class:`DisturbanceSpec` with per-member arrays, (N, n) and (N, 1), for :func:`external_disturbance`."""
 
     kinds: tuple
     f_r: np.ndarray
@@ -90,7 +94,9 @@ class Variants:
         ``{"gains.kp": [100, 180, 250]}`` (all the same length).  Keys are in
         :data:`BATCH_KEYS`, or elements of those lists (``"disturbance.f_r[2]"``);
         values are what the scenario file takes there (``"gains.kp"``: a number
-        or 4; ``"disturbance.f_r"``: 4 numbers; ...).
+        or n, the arm's joint count; ``"disturbance.f_r"``: n numbers; ...).
+        For an arm from ``[arm]`` (a URDF arm) ``arm.nominal_mass_scale`` may
+        vary, the arm's other keys may not.
 
     Raises
     ------
@@ -104,7 +110,10 @@ class Variants:
         self.records = _as_records(records)
         if not self.records:
             raise ScenarioError("a batch needs at least one variant, got none")
-        self._build([self._checked(i, rec) for i, rec in enumerate(self.records)])
+        if is_rrpr(self.base.robot):
+            self._build([self._checked(i, rec) for i, rec in enumerate(self.records)])
+        else:
+            self._build_from_scenarios()
 
     def __len__(self) -> int:
         return len(self.records)
@@ -120,11 +129,7 @@ class Variants:
             whole = self.base.expand(record)
         except ScenarioError as err:
             raise ScenarioError(f"variant {i}: {err}") from None
-        bad = sorted(key for key in whole if shared_reason(key) is not None)
-        if bad:
-            why = "; ".join(f"{key} = {whole[key]!r:.40}: {shared_reason(key)}" for key in bad)
-            raise ScenarioError(f"variant {i}: key(s) {bad} cannot vary within a batch ({why}); vary them between "
-                                f"batches (a sweep does)")
+        self._refuse_shared(i, whole)
         sections: dict[str, dict] = {}
         for key, value in whole.items():
             section, name, _ = parse_key(key)
@@ -134,6 +139,70 @@ class Variants:
             except (ScenarioError, GainError) as err:
                 raise ScenarioError(f"variant {i}: {err}") from None
         return sections
+
+    def _refuse_shared(self, i: int, whole: Mapping) -> None:
+        bad = sorted(key for key in whole if shared_reason(key) is not None)
+        if bad:
+            why = "; ".join(f"{key} = {whole[key]!r:.40}: {shared_reason(key)}" for key in bad)
+            raise ScenarioError(f"variant {i}: key(s) {bad} cannot vary within a batch ({why}); vary them between "
+                                f"batches (a sweep does)")
+
+    def _build_from_scenarios(self) -> None:
+        """Members of a scenario whose arm is not the paper's RRPR (an ``[arm]``): each member's model objects
+        are those of its own validated scenario (:meth:`Scenario.with_changes`), so every per-joint check, the
+        observer gain from ``gains.observer_bandwidth`` and the nominal arm of ``arm.nominal_mass_scale`` are
+        made as its single run makes them (the arm is read once and shared; equal records share a scenario)."""
+        s = self.base
+        memo: dict = {}
+        nominals: dict = {}
+        fields, ys, extra = [], [], []
+        for i, record in enumerate(self.records):
+            try:
+                whole = s.expand(record)
+            except ScenarioError as err:
+                raise ScenarioError(f"variant {i}: {err}") from None
+            self._refuse_shared(i, whole)
+            key = _freeze(record)
+            if key not in memo:
+                try:
+                    memo[key] = s.with_changes(record)
+                except ScenarioError as err:
+                    raise ScenarioError(f"variant {i}: {err}") from None
+            m = memo[key]
+            # the arm's structure keys cannot vary: the true arm is the base's own object (also after a
+            # scenario crossed a process boundary, where a newly read arm would be another object), and a
+            # member with the base's nominal scale has the base's nominal arm
+            scale = m.data["arm"].get("nominal_mass_scale")
+            nominal = s.nominal if scale == s.data["arm"].get("nominal_mass_scale") else \
+                nominals.setdefault(scale, m.nominal)
+            fields.append({"robot": s.robot, "nominal": nominal, "kp": m.kp, "kd": m.kd,
+                           "observer_gain": m.observer_gain, "observer_variant": m.observer_variant,
+                           "disturbance": m.disturbance, "noise": m.noise, "initial": m.initial})
+            ys.append(np.asarray(m.observer_gain, dtype=float))
+            extra.append(1.0 if m.observer_variant == "paper-eq16" else 0.0)
+        self._stack(fields, ys, extra)
+
+    def _stack(self, fields: list[dict], ys: list, extra: list) -> None:
+        """The members' model objects (:attr:`members`) and their numbers over a trailing member axis."""
+        s = self.base
+        specs = [f["disturbance"] for f in fields]
+        self.robots, self.nominals = [f["robot"] for f in fields], [f["nominal"] for f in fields]
+        #: Each member's model objects by the name of the :class:`~blocks.scenario.Scenario` field they replace.
+        self.members = fields
+        self.kp = np.array([np.diag(f["kp"]) for f in fields]).T                 # (n, N), 1/s^2
+        self.kd = np.array([np.diag(f["kd"]) for f in fields]).T                 # (n, N), 1/s
+        Y = np.array(ys)                                                     # (N, n, n)
+        self.y_diag = Y.diagonal(axis1=1, axis2=2).T.copy() if not np.any(Y - _diag_part(Y)) else None
+        self.y_full = None if self.y_diag is not None else np.moveaxis(Y, 0, -1).copy()   # (n, n, N)
+        self.extra = np.array(extra)
+        self.disturbance = _BatchedDisturbance(
+            kinds=s.disturbance.kinds, f_r=np.array([sp.f_r for sp in specs]),
+            coulomb=np.array([sp.coulomb for sp in specs]), viscous=np.array([sp.viscous for sp in specs]),
+            friction_velocity=np.array([[sp.friction_velocity] for sp in specs]), skin_height=s.disturbance.skin_height,
+            tissue_stiffness=s.disturbance.tissue_stiffness, tissue_damping=s.disturbance.tissue_damping,
+            tissue_drag=s.disturbance.tissue_drag)
+        self.noises = [f["noise"] for f in fields]
+        self.initial = [f["initial"] for f in fields]
 
     def _build(self, members: list[dict[str, dict]]) -> None:
         s = self.base
@@ -166,22 +235,7 @@ class Variants:
             fields.append({"robot": robot, "nominal": nominal, "kp": gains.get("kp", s.kp),
                             "kd": gains.get("kd", s.kd), "observer_gain": ys[-1], "observer_variant": variant,
                             "disturbance": specs[-1], "noise": noises[-1], "initial": initial[-1]})
-        self.robots, self.nominals = robots, nominals
-        #: Each member's model objects by the name of the :class:`~blocks.scenario.Scenario` field they replace.
-        self.members = fields
-        self.kp, self.kd = np.array(kp).T, np.array(kd).T                    # (4, N), 1/s^2 and 1/s
-        Y = np.array(ys)                                                     # (N, 4, 4)
-        self.y_diag = Y.diagonal(axis1=1, axis2=2).T.copy() if not np.any(Y - _diag_part(Y)) else None
-        self.y_full = None if self.y_diag is not None else np.moveaxis(Y, 0, -1).copy()   # (4, 4, N)
-        self.extra = np.array(extra)
-        self.disturbance = _BatchedDisturbance(
-            kinds=s.disturbance.kinds, f_r=np.array([sp.f_r for sp in specs]),
-            coulomb=np.array([sp.coulomb for sp in specs]), viscous=np.array([sp.viscous for sp in specs]),
-            friction_velocity=np.array([[sp.friction_velocity] for sp in specs]), skin_height=s.disturbance.skin_height,
-            tissue_stiffness=s.disturbance.tissue_stiffness, tissue_damping=s.disturbance.tissue_damping,
-            tissue_drag=s.disturbance.tissue_drag)
-        self.noises = noises
-        self.initial = initial
+        self._stack(fields, ys, extra)
 
     def _spec(self, overrides, i: int, memo: dict) -> DisturbanceSpec:
         base = self.base.disturbance

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..batch.members import is_rrpr_kernels
 from ..divergence import batch_bounds
 from ..kernels import tool_pose
 from ..monitor import Monitor
@@ -30,9 +31,9 @@ from ..systems import signal_names
 from .codegen import CompiledUnavailable
 from .engine import CompiledLoopEngine
 from .jit import numba_or_none
-from .trace import param_values
+from .trace import Frozen, param_values
 
-__all__ = ["batch_unavailable_reason", "run_compiled_batch", "NOISE_CHUNK"]
+__all__ = ["batch_unavailable_reason", "auto_batch_reason", "run_compiled_batch", "NOISE_CHUNK"]
 
 #: Members integrated in one call when members have their own noise tables (each about 0.6 MB per 10 s at 1 kHz).
 NOISE_CHUNK = 128
@@ -44,10 +45,15 @@ _GROUP_OF = {"rms_position_error": "position_error", "max_abs_position_error": "
              "max_abs_disturbance_error": "disturbance_error"}
 
 
-def batch_unavailable_reason(variants) -> str | None:
+def batch_unavailable_reason(v) -> str | None:
     """Why the compiled batch cannot run these variants, or None when it can."""
     if numba_or_none() is None:
         return "numba is not installed (it comes with the optional extra: pip install \"dobkit[fast]\")"
+    if not is_rrpr_kernels(v.base.robot) and len({id(n) for n in v.nominals}) > 1:
+        scales = sorted({float(v.scenario(i).data["arm"]["nominal_mass_scale"]) for i in range(len(v))})
+        return (f"'arm.nominal_mass_scale' differs between members ({', '.join(f'{x:g}' for x in scales[:4])}): a "
+                f"URDF arm's model is generated into the loop's code as constants, so each nominal arm is a loop "
+                f"of its own; the numpy batch runs them together (or vary the scale between batches)")
     return None
 
 
@@ -85,12 +91,24 @@ def _member_theta(engine, members) -> np.ndarray:
                 raise CompiledUnavailable(f"block '{name}': member {m}'s parameters do not match the loop's "
                                           f"({len(values)} numbers, the loop has {sl.stop - sl.start})")
             theta[m, sl] = values
+    for name in program.theta_slices:
+        if name not in program.sources and \
+                len({_object_ids(p) for p in members.member_params[name]}) > 1:
+            raise CompiledUnavailable(f"block '{name}': its model (a URDF arm's structure, generated as constants) "
+                                      f"differs between members, so one generated code cannot run them all")
     for name in members.plan.order:
         if name not in program.theta_slices and name not in program.sources and \
                 any(not _same_params(p, members.member_params[name][0]) for p in members.member_params[name]):
             raise CompiledUnavailable(f"block '{name}' is called, not traced, so its parameters cannot vary "
                                       f"per member")
     return np.ascontiguousarray(theta)
+
+
+def _object_ids(params) -> tuple:
+    """Identities of the structure objects (generated as constants, not read from ``theta``) in parameters."""
+    if isinstance(params, tuple):
+        return tuple(i for p in params for i in _object_ids(p))
+    return (id(params),) if isinstance(params, Frozen) else ()
 
 
 def _same_params(a, b) -> bool:
@@ -116,8 +134,19 @@ def _noise_tables(v, engine) -> tuple[list, np.ndarray | None]:
     return members, np.zeros(loop_table.shape)
 
 
+def auto_batch_reason(members) -> tuple[str | None, CompiledLoopEngine | None]:
+    """Why ``engine="auto"`` runs a batch on numpy (None: compiled), by the rule of single runs: the loop's
+    generated code is longer than :data:`blocks.compiled.engine.AUTO_COMPILE_LINES` and not yet compiled; and the
+    engine made for the question (None when it could not be made)."""
+    try:
+        engine = CompiledLoopEngine(members.loop)
+    except CompiledUnavailable as err:
+        return str(err), None
+    return engine.auto_reason(), engine
+
+
 def run_compiled_batch(v, members, observer: bool, metrics: tuple, signals: tuple, times, grid_index,
-                       workers: int = 1):
+                       workers: int = 1, engine: CompiledLoopEngine | None = None):
     """Integrate the members of ``v`` compiled; return ``(metrics, signals, failed_at, failures)`` as the numpy
     batch does (``failures``: member -> which signal left which bound, the rule of :mod:`blocks.divergence`).
 
@@ -132,13 +161,15 @@ def run_compiled_batch(v, members, observer: bool, metrics: tuple, signals: tupl
         The step schedule (see :func:`blocks.batch.step_schedule`).
     workers : int
         Threads to run members on.
+    engine : CompiledLoopEngine, optional
+        The shared loop's engine, when already made (:func:`auto_batch_reason`).
     """
     reason = batch_unavailable_reason(v)
     if reason is not None:
         raise CompiledUnavailable(f"engine='compiled' cannot run this batch: {reason}")
     numba = numba_or_none()
     loop = members.loop
-    engine = CompiledLoopEngine(loop)
+    engine = CompiledLoopEngine(loop) if engine is None else engine
     if engine._announce:
         engine.warm()
     program, module, plan = engine.program, engine.module, engine.plan
@@ -171,14 +202,17 @@ def run_compiled_batch(v, members, observer: bool, metrics: tuple, signals: tupl
         flags[groups[_GROUP_OF[name]][0]] = 1
     aux = np.zeros((n_grid, max(program.n_aux, 1)))
     if "tool_distance" in groups and any("tool" in m for m in metrics):
-        q_ref_grid = src_at[on_grid, :n].T                                  # (4, n_grid)
-        aux[:, :3] = tool_pose(members.kin[:, None], q_ref_grid)[:3].T
+        q_ref_grid = src_at[on_grid, :n].T                                  # (joints, n_grid)
+        if is_rrpr_kernels(members.arm):
+            aux[:, :3] = tool_pose(members.kin[:, None], q_ref_grid)[:3].T
+        else:
+            aux[:, :3] = members.arm.tool_kernels.tool_position(members.kin, q_ref_grid).T
 
     # the outputs (and rows) to keep at the grid points; without a sensor the measured signals are the true ones
     labels = list(loop.output_labels)
     alias = {} if "q_meas[0]" in labels else {"q_meas": "q", "dq_meas": "dq"}
-    keep = np.array([labels.index(x) for name in signals if name != "d" for x in signal_names(alias.get(name, name))],
-                    dtype=np.int64)
+    keep = np.array([labels.index(x) for name in signals if name != "d"
+                     for x in signal_names(alias.get(name, name), members.arm)], dtype=np.int64)
     keep_rows = np.arange(groups["d"][1].start, groups["d"][1].stop, dtype=np.int64) if "d" in signals else \
         np.zeros(0, dtype=np.int64)
     if "d" in signals:

@@ -1,0 +1,171 @@
+"""The compiled closed loop of a URDF arm against a lean pinocchio + numpy loop of the same closed loop.
+
+    PYTHONPATH=. python benchmarks/bench_urdf_loop.py [--arms scope4 panda] [--rounds 3] [--no-percall]
+
+The loop is the DOB loop of Figure 2 on a URDF arm: the plant (the true arm), computed torque and the
+disturbance observer on the nominal arm (``arm.nominal_mass_scale``), the scenario's joint sines and Eq. 4
+step, over the scenario's 10 s (built-in ``scope4`` and ``panda``).  Two ways to run it:
+
+* ``dobkit compiled``: ``blocks.simulate(scenario, engine="compiled")``, the generated, numba-compiled loop
+  (RK45 at the scenario's tolerances), setup and outputs included; the fastest of ``--rounds`` runs after a
+  first run, which compiles the loop (or loads it from the cache: printed, and timed separately); and the
+  fastest run of a scenario not run before (Kp changed by 1e-9 relative: its loop is prepared anew, the
+  compiled code reused), which is what each run of a sweep pays;
+* ``lean pinocchio + numpy``: written here as an expert would write it without dobkit: ``scipy`` ``solve_ivp``
+  (RK45, the same tolerances and output grid) on a right-hand side that calls ``pin.crba`` and
+  ``pin.nonLinearEffects`` on the nominal model (a copy of the URDF model with every body's mass and inertia
+  scaled), ``pin.aba`` on the true one, and numpy for the laws (computed torque, the observer's
+  ``z' = -Y M^-1 (tau + d_hat - h)``, ``d_hat = Y q' + z``).  One run (it takes seconds to minutes).
+
+Times are CPU times (``time.process_time``), as in the other benchmarks here.  The ratio is compiled / lean
+(target <= 0.05, issue 18); the two runs' positions on the output grid are compared
+(largest difference, rad or m) as a check that they are the same loop.  With ``--percall`` (default) the per-call rows of
+``bench_urdf_kernels.py`` follow: M (CRBA) and h (RNEA) of dobkit's traced kernels in a numba loop beside
+pinocchio's own per-call time.  The Panda's loop is about 15,000 generated lines: its first compile takes
+many minutes on a small machine.  No assertion: these are timings.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _timing import table  # noqa: E402
+
+
+def _clock() -> float:
+    """CPU time of this process (s): waiting for a core on a shared machine does not inflate it."""
+    return time.process_time()
+
+
+def _scaled_model(model, scale: float):
+    """A copy of a pinocchio model with every body's mass and rotational inertia times ``scale``."""
+    import pinocchio as pin
+    nominal = model.copy()
+    for i in range(1, nominal.njoints):
+        body = nominal.inertias[i]
+        nominal.inertias[i] = pin.Inertia(body.mass * scale, body.lever.copy(), body.inertia * scale)
+    return nominal
+
+
+def lean_loop(scenario):
+    """The DOB loop of ``scenario`` with pinocchio and numpy under ``solve_ivp``: (run, final q (n,), rhs calls)."""
+    import pinocchio as pin
+    from scipy.integrate import solve_ivp
+
+    s = scenario
+    arm = s.robot
+    n = arm.n
+    true_model = arm.pin_model
+    nominal_model = _scaled_model(true_model, float(s.data["arm"]["nominal_mass_scale"]))
+    true_data, nominal_data = true_model.createData(), nominal_model.createData()
+    tr = s.data["trajectory"]
+    amp, omega, offset = (np.array(tr[k], dtype=float) for k in ("amplitude", "omega", "offset"))
+    kp, kd = np.diag(s.kp).copy(), np.diag(s.kd).copy()
+    Y = np.asarray(s.observer_gain, dtype=float)
+    f_r = np.array(s.data["disturbance"]["f_r"], dtype=float)
+    continuous = np.array(arm.continuous)
+    sim = s.simulation
+
+    def configuration(q):
+        if not continuous.any():
+            return q
+        return arm.pinocchio_configuration(q)
+
+    def rhs(t, x):
+        q, dq, z = x[:n], x[n:2 * n], x[2 * n:]
+        sin, cos = np.sin(omega * t), np.cos(omega * t)
+        q_ref, dq_ref, ddq_ref = offset + amp * sin, amp * omega * cos, -amp * omega ** 2 * sin
+        qc = configuration(q)
+        M = pin.crba(nominal_model, nominal_data, qc)
+        M = np.triu(M) + np.triu(M, 1).T                    # pinocchio fills the upper triangle
+        h = pin.nonLinearEffects(nominal_model, nominal_data, qc, dq)
+        d_hat = Y @ dq + z
+        tau = M @ (ddq_ref + kd * (dq_ref - dq) + kp * (q_ref - q)) + h - d_hat
+        ddq = pin.aba(true_model, true_data, qc, dq, tau + f_r)
+        dz = -Y @ np.linalg.solve(M, tau + d_hat - h)
+        return np.concatenate((dq, ddq, dz))
+
+    q0, dq0 = offset.copy(), amp * omega
+    x0 = np.concatenate((q0, dq0, -Y @ dq0))
+    t_eval = sim.time_grid
+
+    def run():
+        return solve_ivp(rhs, (0.0, sim.t_final), x0, method="RK45", t_eval=t_eval, rtol=sim.rtol, atol=sim.atol)
+    return run
+
+
+def bench_arm(name: str, rounds: int) -> tuple[list, dict]:
+    from blocks import load_scenario, simulate
+    from blocks.compiled.engine import CompiledLoopEngine
+    from blocks.loop import _prepared
+    from blocks.metrics import signal
+
+    s = load_scenario(name)
+    engine = CompiledLoopEngine(_prepared(s, True).loop)
+    cached, lines = engine.cached, engine.generated_lines
+    t0 = _clock()
+    first = simulate(s, engine="compiled")
+    first_s = _clock() - t0
+    best = fresh = np.inf
+    for r in range(rounds):
+        t0 = _clock()
+        res = simulate(s, engine="compiled")
+        best = min(best, _clock() - t0)
+        # a scenario not run before (its loop prepared anew, the compiled code reused): what a sweep pays per run
+        other = s.with_changes({"gains.kp": float(s.kp[0, 0]) * (1.0 + 1e-9 * (r + 1))})
+        t0 = _clock()
+        simulate(other, engine="compiled")
+        fresh = min(fresh, _clock() - t0)
+    assert np.array_equal(signal(first, "q"), signal(res, "q"))
+
+    run = lean_loop(s)
+    t0 = _clock()
+    lean = run()
+    lean_s = _clock() - t0
+    if not lean.success:
+        raise RuntimeError(f"{name}: the lean loop failed: {lean.message}")
+    diff = float(np.max(np.abs(lean.y[:s.robot.n] - signal(res, "q"))))
+    ratio = best / lean_s
+    row = [name, str(s.robot.n), f"{lines:,}", "loaded from cache" if cached else "compiled",
+           f"{first_s:.1f}", f"{best:.3f}", f"{fresh:.3f}", f"{lean_s:.2f}", f"{lean.nfev:,}", f"{ratio:.4f}",
+           f"{fresh / lean_s:.4f}", f"{diff:.1e}"]
+    info = {"arm": name, "joints": s.robot.n, "generated_lines": lines, "first_run_s": first_s,
+            "first_run_compiled": not cached, "compiled_s": best, "compiled_new_scenario_s": fresh, "lean_s": lean_s,
+            "lean_rhs_calls": lean.nfev, "ratio": ratio, "ratio_new_scenario": fresh / lean_s,
+            "max_q_difference": diff}
+    return [row], info
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--arms", nargs="+", default=["scope4", "panda"])
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--percall", action=argparse.BooleanOptionalAction, default=True,
+                        help="also the per-call rows of bench_urdf_kernels.py (M and h beside pinocchio)")
+    parser.add_argument("--calls", type=int, default=20000, help="calls per round of the per-call rows")
+    args = parser.parse_args(argv)
+    rows = []
+    for name in args.arms:
+        rows.extend(bench_arm(name, args.rounds)[0])
+    print(table(["arm", "n", "generated lines", "first run", "first run (s)", "compiled (s)",
+                 "compiled, new scenario (s)", "lean (s)", "lean rhs calls", "compiled / lean",
+                 "new scenario / lean", "max q diff"], rows))
+    if args.percall:
+        from bench_urdf_kernels import bench_arm as percall
+        per = []
+        for name in args.arms:
+            per.extend(percall(name, args.calls, 5)[0])
+        print()
+        print(table(["arm", "kernel", "statements", "dobkit numba, in a numba loop (ns)",
+                     "dobkit numba, from Python (ns)", "pinocchio, from Python (ns)",
+                     "dobkit numpy kernel, from Python (ns)", "compile (s)"], per))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,214 @@
+"""Batches and sweeps of URDF arms: each member equals its own single run, the compiled batch equals the numpy
+batch, the arm's structure keys are refused by name, and the arm crosses process boundaries (sweep workers)."""
+from __future__ import annotations
+
+import pickle
+import warnings
+
+import numpy as np
+import pytest
+
+pin = pytest.importorskip("pinocchio")
+
+from blocks import load_scenario, simulate  # noqa: E402
+from blocks.batch import Variants, simulate_batch  # noqa: E402
+from blocks.batch.schedule import _inertia_configurations, _inertia_of_each  # noqa: E402
+from blocks.compiled import numba_or_none  # noqa: E402
+from blocks.metrics import signal, tracking_metrics  # noqa: E402
+from blocks.scenario import ScenarioError  # noqa: E402
+
+#: Stated agreement of a member with its single run (rad, m): the single run's RK45 at rtol 1e-6 errs by less.
+MEMBER_ATOL = 1e-6
+
+#: A pitch joint, then a slide on an unaligned axis (the small arm of tests/test_urdf_loop.py).
+TWO_JOINTS = """<?xml version="1.0"?>
+<robot name="two">
+  <link name="base"/>
+  <joint name="pitch" type="revolute"><parent link="base"/><child link="arm"/><origin xyz="0 0 0.3" rpy="0 0 0"/>
+    <axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="10" velocity="2"/></joint>
+  <link name="arm"><inertial><origin xyz="0.1 0 0.02"/><mass value="1.2"/>
+    <inertia ixx="0.004" ixy="0" ixz="0" iyy="0.01" iyz="0" izz="0.009"/></inertial></link>
+  <joint name="slide" type="prismatic"><parent link="arm"/><child link="rod"/><origin xyz="0.2 0 0" rpy="0 0.3 0"/>
+    <axis xyz="0.8 0 -0.6"/><limit lower="-0.1" upper="0.2" effort="10" velocity="1"/></joint>
+  <link name="rod"><inertial><origin xyz="0 0 -0.05"/><mass value="0.3"/>
+    <inertia ixx="0.001" ixy="0" ixz="0" iyy="0.001" iyz="0" izz="0.0001"/></inertial></link>
+</robot>
+"""
+
+TWO_SCENARIO = """name = "two"
+[arm]
+urdf = "two.urdf"
+tool_frame = "rod"
+nominal_mass_scale = 1.1
+[gains]
+kp = 100
+kd = 20
+observer = [5.0, 2.0]
+[trajectory]
+kind = "joint_sine"
+amplitude = [0.2, 0.03]
+omega = [2.0, 3.0]
+offset = [0.1, 0.05]
+[disturbance]
+kind = "step"
+f_r = [0.3, 0.5]
+[simulation]
+t_final = 0.6
+output_step = 0.005
+"""
+
+
+@pytest.fixture(scope="module")
+def two(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("two")
+    (folder / "two.urdf").write_text(TWO_JOINTS)
+    (folder / "two.toml").write_text(TWO_SCENARIO)
+    return load_scenario(str(folder / "two.toml"))
+
+
+@pytest.fixture(scope="module")
+def scope4():
+    return load_scenario("scope4").with_changes({"simulation.t_final": 0.4})
+
+
+def _assert_members_match_single_runs(base, records, result):
+    for i, record in enumerate(records):
+        single = simulate(base.with_changes(record), engine="fast")
+        q = signal(single, "q")                                              # (n, T)
+        np.testing.assert_allclose(result.signals["q"][i].T, q, rtol=0, atol=MEMBER_ATOL,
+                                   err_msg=f"member {i} {record}")
+        expected = tracking_metrics(single)
+        for name, value in expected.items():
+            got = result.metrics[name][i]
+            # the tool errors are in mm: 1e-6 rad or m of joint error moves the tool by far less than 1e-3 mm
+            atol = 1e-3 if "tool" in name else MEMBER_ATOL
+            np.testing.assert_allclose(got, value, rtol=1e-3, atol=atol, err_msg=f"member {i} {name}")
+
+
+TWO_RECORDS = [{"gains.kp": 60}, {"gains.kd": [12, 30]}, {"gains.observer": [9.0, 1.0]},
+               {"disturbance.f_r": [0.0, 1.0]}, {"arm.nominal_mass_scale": 0.9},
+               {"gains.kp": 140, "arm.nominal_mass_scale": 1.3}]
+
+
+def test_two_link_members_match_their_single_runs(two):
+    result = simulate_batch(two, TWO_RECORDS, engine="fast", signals=("q",))
+    assert result.ok.all()
+    assert result.metrics["rms_position_error"].shape == (len(TWO_RECORDS), 2)
+    _assert_members_match_single_runs(two, TWO_RECORDS, result)
+    # the nominal-scale members really differ: a heavier model changes the disturbance estimate
+    assert abs(result.metrics["rms_disturbance_error"][4, 0] - result.metrics["rms_disturbance_error"][0, 0]) > 1e-6
+
+
+def test_scope4_members_match_their_single_runs(scope4):
+    records = [{"gains.kp": 150}, {"gains.observer_bandwidth": 20.0}, {"disturbance.f_r[2]": 0.8},
+               {"arm.nominal_mass_scale": 1.2}]
+    result = simulate_batch(scope4, records, engine="fast", signals=("q",))
+    assert result.metrics["rms_position_error"].shape == (4, 4)
+    _assert_members_match_single_runs(scope4, records, result)
+
+
+@pytest.mark.parametrize("record, key", [({"arm.urdf": "other.urdf"}, "arm.urdf"),
+                                         ({"arm.tool_frame": "arm"}, "arm.tool_frame"),
+                                         ({"arm.gravity": 3.0}, "arm.gravity"),
+                                         ({"arm.locked": ["pitch"]}, "arm.locked")])
+def test_the_arms_structure_keys_are_refused_by_name(two, record, key):
+    with pytest.raises(ScenarioError, match=rf"variant 0: key\(s\) \['{key}'\] cannot vary within a batch"):
+        Variants(two, [record])
+
+
+def test_rrpr_keys_and_wrong_lengths_are_refused_for_a_urdf_arm(two):
+    with pytest.raises(ScenarioError, match=r"variant 0: .*\[robot\].*'two'"):
+        Variants(two, [{"robot.m1": 2.0}])
+    with pytest.raises(ScenarioError, match=r"variant 1: .*disturbance.f_r"):
+        Variants(two, [{"gains.kp": 50}, {"disturbance.f_r": [1.0, 2.0, 3.0, 4.0]}])
+
+
+def test_step_rule_inertia_is_pinocchios(two):
+    v = Variants(two, [{"gains.kp": 50}])
+    q = _inertia_configurations(v)
+    assert q.shape == (9, 2)
+    M = _inertia_of_each(q, [two.robot])[0]
+    model = two.robot.pin_model
+    data = model.createData()
+    for qi, Mi in zip(q, M):
+        np.testing.assert_allclose(Mi, pin.crba(model, data, qi), rtol=0, atol=1e-12)
+
+
+def test_arm_and_variants_pickle_and_processes_give_the_single_process_result(two):
+    arm = pickle.loads(pickle.dumps(two.robot))
+    q, dq = np.array([0.3, 0.07]), np.array([-0.4, 0.2])
+    np.testing.assert_array_equal(arm.inertia(q), two.robot.inertia(q))
+    np.testing.assert_array_equal(arm.bias(q, dq), two.robot.bias(q, dq))
+    v = pickle.loads(pickle.dumps(Variants(two, TWO_RECORDS)))
+    one = simulate_batch(None, v, engine="fast")
+    two_processes = simulate_batch(None, v, engine="fast", workers=2)
+    for name, value in one.metrics.items():
+        np.testing.assert_array_equal(two_processes.metrics[name], value, err_msg=name)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(numba_or_none() is None, reason="the compiled batch needs numba")
+def test_compiled_batch_equals_the_numpy_batch(two):
+    records = [r for r in TWO_RECORDS if "arm.nominal_mass_scale" not in r]
+    fast = simulate_batch(two, records, engine="fast", signals=("q", "d"))
+    compiled = simulate_batch(two, records, engine="compiled", signals=("q", "d"))
+    for name, value in fast.metrics.items():
+        np.testing.assert_allclose(compiled.metrics[name], value, rtol=1e-9, atol=1e-12, err_msg=name)
+    np.testing.assert_allclose(compiled.signals["q"], fast.signals["q"], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(compiled.signals["d"], fast.signals["d"], rtol=0, atol=1e-9)
+
+
+@pytest.mark.skipif(numba_or_none() is None, reason="the compiled batch needs numba")
+def test_members_with_different_nominal_arms_are_not_compiled_together(two):
+    from blocks.compiled import CompiledUnavailable
+    records = [{"arm.nominal_mass_scale": 1.0}, {"arm.nominal_mass_scale": 1.2}]
+    with pytest.raises(CompiledUnavailable, match=r"'arm.nominal_mass_scale' differs between members \(1, 1.2\)"):
+        simulate_batch(two, records, engine="compiled")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = simulate_batch(two, records, engine="auto")
+    assert any("arm.nominal_mass_scale" in str(w.message) for w in caught)
+    assert result.ok.all()
+
+
+SWEEP = """scenario = "two.toml"
+[grid]
+"gains.kp" = [80, 120]
+"arm.nominal_mass_scale" = [1.0, 1.2]
+[monte_carlo]
+runs = 2
+seed = 3
+[monte_carlo.distributions]
+"disturbance.f_r[1]" = {kind = "uniform", low = 0.2, high = 0.8}
+"""
+
+
+def test_a_sweep_of_a_urdf_arm_equals_a_direct_batch_in_worker_processes(two, tmp_path):
+    from analysis.sweep import load_sweep
+    from analysis.sweep_runner import read_results, run_sweep
+    folder = tmp_path
+    (folder / "two.urdf").write_text(TWO_JOINTS)
+    (folder / "two.toml").write_text(TWO_SCENARIO)
+    (folder / "s.toml").write_text(SWEEP)
+    spec = load_sweep(folder / "s.toml")
+    assert len(spec.runs) == 8
+    outcome = run_sweep(spec, folder / "r.jsonl", workers=2, progress=False)
+    assert (outcome.ran, outcome.diverged) == (8, 0)
+    _, rows = read_results(folder / "r.jsonl")
+    rows = sorted(rows, key=lambda r: r["index"])
+    base_fr = two.disturbance.f_r
+    records = [{"gains.kp": r.values["gains.kp"], "arm.nominal_mass_scale": r.values["arm.nominal_mass_scale"],
+                "disturbance.f_r": [base_fr[0], r.values["disturbance.f_r[1]"]]} for r in spec.runs]
+    # each run on the step its batch of the sweep took (the sweep gives each run its own, rounded up)
+    substeps = spec.plan.substeps
+    direct = {int(k): simulate_batch(spec.base, [r for r, m in zip(records, substeps) if m == k],
+                                     metrics=spec.metrics, engine="fast", substeps=int(k))
+              for k in set(substeps.tolist())}
+    position = {i: int(np.sum(substeps[:i] == substeps[i])) for i in range(len(records))}
+    for i, row in enumerate(rows):
+        assert row["status"] == "ok"
+        assert len(row["metrics"]["rms_position_error"]) == 2            # the arm's joints, not the paper's four
+        expected = direct[int(substeps[i])]
+        for name, value in row["metrics"].items():
+            np.testing.assert_allclose(value, expected.metrics[name][position[i]], rtol=1e-9, atol=1e-12,
+                                       err_msg=name)
