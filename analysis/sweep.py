@@ -629,8 +629,9 @@ def _plan_group(spec: SweepSpec, base: Scenario, members: np.ndarray, plan: RunP
     runs = spec.runs
     samples = _noise_samples(base)
     # a chunk's variants hold their noise samples: keep a chunk within the budget even if every run is noisy
-    per_member = estimate_batch(2, steps=0, grid_points=0, noise=True, noise_samples=samples).memory - \
-        estimate_batch(1, steps=0, grid_points=0, noise=True, noise_samples=samples).memory
+    n = base.robot.n
+    per_member = estimate_batch(2, steps=0, grid_points=0, noise=True, noise_samples=samples, joints=n).memory - \
+        estimate_batch(1, steps=0, grid_points=0, noise=True, noise_samples=samples, joints=n).memory
     chunk = max(1, min(spec.batch_size, int(spec.budget.memory // max(1, 2 * per_member))))
     quiet = _without_noise(base)
     memo: dict[str, int] = {}
@@ -751,7 +752,8 @@ def _run_estimate(spec: SweepSpec, base: Scenario, quiet: Scenario, record: dict
     else:
         key, reason = _step_cause(quiet, record, spec.observer, n_grid, substeps)
     return estimate_batch(1, steps=size.steps, grid_points=size.grid_points, noise=noisy,
-                          noise_samples=size.noise_samples, keys={"steps": key}, steps_reason=reason)
+                          noise_samples=size.noise_samples, keys={"steps": key}, steps_reason=reason,
+                          joints=quiet.robot.n)
 
 
 def _step_cause(quiet: Scenario, record: dict, observer: bool, n_grid: int, substeps: int) -> tuple[str, str]:

@@ -43,9 +43,10 @@ STEP_BYTES = 1024
 MEMBER_BYTES = 32 * 1024
 #: Bytes per member and step with measurement noise: the noise at step ends and mid points (measured: about 200).
 NOISE_STEP_BYTES = 256
-#: Bytes per member and noise sample: the drawn samples (8 numbers) and their temporaries.
+#: Bytes per member and noise sample of a 4-joint arm: the drawn samples (8 numbers) and their temporaries
+#: (scaled by n / 4 for an arm of n joints).
 NOISE_SAMPLE_BYTES = 192
-#: Bytes per member, grid point and kept signal (4 numbers).
+#: Bytes per member, grid point and kept signal of a 4-joint arm (4 numbers; scaled by n / 4).
 SIGNAL_POINT_BYTES = 32
 #: Bytes a batch needs whatever its size (scenario, kernels' small tables).
 BASE_BYTES = 1024 * 1024
@@ -279,7 +280,7 @@ def schedule_steps(t_final: float, output_step: float, substeps: int, breakpoint
 
 def estimate_batch(members: int, steps: int, grid_points: int, signals: int = 0, noise: bool = False,
                    noise_samples: int = 0, keys: Mapping[str, str] | None = None,
-                   steps_reason: str = "") -> Estimate:
+                   steps_reason: str = "", joints: int = 4) -> Estimate:
     """Peak memory and steps of a fixed-step batch (:func:`blocks.batch.simulate_batch`).
 
     Parameters
@@ -300,19 +301,23 @@ def estimate_batch(members: int, steps: int, grid_points: int, signals: int = 0,
         The key that drives each part: ``"steps"``, ``"members"``, ``"noise"`` (samples) and ``"signals"``.
     steps_reason : str
         How the step count comes about, for the message.
+    joints : int
+        The arm's joint count n: noise samples and kept signals hold n (2n) numbers.
 
     Returns
     -------
     Estimate
     """
+    per_joint = max(1, int(joints)) / 4.0
     keys = {"steps": "", "members": "batch.size", "noise": "noise.sample_period",
             "signals": "simulation.output_step"} | dict(keys or {})
     members, steps = int(members), int(steps)
     parts = {
         "the step schedule": BASE_BYTES + STEP_BYTES * steps + members * NOISE_STEP_BYTES * steps * bool(noise),
         "the members' states": members * MEMBER_BYTES,
-        "the noise samples": (NOISE_BASE_BYTES + members * NOISE_SAMPLE_BYTES * int(noise_samples)) * bool(noise),
-        "the kept signals": members * SIGNAL_POINT_BYTES * int(grid_points) * int(signals),
+        "the noise samples": (NOISE_BASE_BYTES + int(members * NOISE_SAMPLE_BYTES * per_joint * int(noise_samples)))
+        * bool(noise),
+        "the kept signals": int(members * SIGNAL_POINT_BYTES * per_joint * int(grid_points) * int(signals)),
     }
     reasons = {"the step schedule": f"{steps:.3g} steps" + (f" with noise for {members} runs" if noise else ""),
                "the members' states": f"{members} runs",

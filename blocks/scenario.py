@@ -23,7 +23,7 @@ Sections and keys (units in brackets)::
                      and stitches the skin plane disturbance.skin_height [m]
     [disturbance]    kind = "paper" | "friction" | "tissue" | a list of them | "none", and their keys
     [noise]          q_std [rad, m], dq_std [rad/s, m/s] (a number or n each), seed, sample_period [s]
-    [initial]        q, dq (4 each; default: on the reference), d_hat (4; default 0)
+    [initial]        q, dq (n each; default: on the reference), d_hat (n; default 0)
     [simulation]     t_final [s], output_step [s], rtol, atol, method, max_step [s]
     [controller]     the digital controller (blocks.digital): sample_rate [Hz], delay [samples],
                      observer_discretization, velocity, velocity_cutoff [Hz], position_resolution

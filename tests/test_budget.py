@@ -12,6 +12,8 @@ from blocks.batch import Variants, simulate_batch, step_schedule
 from blocks.budget import (
     DEFAULT_MEMORY,
     DEFAULT_STEPS,
+    NOISE_SAMPLE_BYTES,
+    SIGNAL_POINT_BYTES,
     Budget,
     BudgetError,
     estimate_batch,
@@ -117,3 +119,12 @@ def test_a_schedule_with_many_breakpoints_takes_memory_in_proportion():
     kept = [b for b in short if np.min(np.abs(np.array(grid) - b)) > 1e-9]
     np.testing.assert_array_equal(times, np.union1d(grid, kept))
     assert list(times[grid_index >= 0]) == list(times[np.isin(times, grid)])
+
+
+def test_a_batch_estimate_scales_its_per_joint_parts_with_the_arm():
+    """Noise samples and kept signals hold n (2n) numbers: a 7-joint arm needs 7/4 of the 4-joint parts."""
+    four = estimate_batch(10, steps=0, grid_points=1001, signals=3, noise=True, noise_samples=5001)
+    seven = estimate_batch(10, steps=0, grid_points=1001, signals=3, noise=True, noise_samples=5001, joints=7)
+    grow = seven.memory - four.memory
+    per_joint_parts = (10 * NOISE_SAMPLE_BYTES * 5001 + 10 * SIGNAL_POINT_BYTES * 1001 * 3) * (7 / 4 - 1)
+    assert abs(grow - per_joint_parts) <= 2
