@@ -86,15 +86,16 @@ def _cmd_export(args) -> int:
         raise ValueError(f"--out {out} is a folder; give the path of the .fmu file to write")
     if out.exists() and not args.force:
         raise ValueError(f"--out {out} exists; refusing to overwrite it (use --force to replace it)")
-    from fmu.export import export_plant
     if args.arm is not None:
         arm = _export_arm(args)
+        from fmu.export import export_plant
         path = export_plant(out, params=arm, fmi_version=args.fmi_version, substeps=args.substeps, force=args.force)
         print(f"wrote {path} (FMI {args.fmi_version}.0, Model Exchange + Co-Simulation, arm {arm.n} joints "
               f"{list(arm.joints.names)}, {args.substeps} RK4 sub-steps per co-simulation step; disturbance models "
               "off, settable as start values)")
         return 0
-    s = load_scenario(args.scenario)
+    s = load_scenario(args.scenario)        # a bad scenario is refused before the exporter's heavy imports
+    from fmu.export import export_plant
     q_ref0, dq_ref0, _ = s.trajectory.evaluate(0.0)
     q0 = s.initial["q"] if s.initial["q"] is not None else q_ref0
     dq0 = s.initial["dq"] if s.initial["dq"] is not None else dq_ref0
