@@ -30,15 +30,16 @@ from blocks import __version__, load_scenario
 from blocks.gains import validated_gain
 from blocks.joints import RRPR_JOINTS, JointSpace
 from blocks.outputs import staged_output
+from blocks.parameters import RobotParameters
 from blocks.progress import ProgressCallback as Progress
-from blocks.scenario import Scenario
+from blocks.scenario import Scenario, scenario_from_dict
 
 from . import analysis_figures as figs
 from .bandwidth import BandwidthSurvey, along_trajectory, bandwidth_survey, observer_modes, workspace_grid
 from .digital import DigitalAnalysis, digital_analysis
 from .digital_figures import digital_figures
 from .figures import joint_signals
-from .frequency import FrequencyAnalysis, frequency_analysis
+from .frequency import FrequencyAnalysis, arm_frequency_analysis, frequency_analysis
 from .gain_design import (
     ObserverDesign,
     confirm_by_simulation,
@@ -50,6 +51,7 @@ from .linear import (
     MismatchLoop,
     MismatchStudy,
     OperatingPoint,
+    arm_mismatch_analysis,
     mismatch_sweep,
     operating_point_analysis,
     stability_boundaries,
@@ -180,6 +182,47 @@ def observer_gains(scenario_gain, values, designed) -> list[tuple[str, np.ndarra
     return gains
 
 
+def _is_paper_arm(s: Scenario) -> bool:
+    """Whether the scenario's arm is the paper's RRPR in closed form (its own mismatch and frequency routes)."""
+    return isinstance(s.robot, RobotParameters) and isinstance(s.nominal, RobotParameters)
+
+
+def _explicit_observer_gain(s: Scenario) -> Scenario:
+    """The scenario with ``gains.observer_bandwidth`` (``Y = omega M^(q0)``) written out as its matrix ``Y``.
+
+    The studies and the design check give other observer gains by ``gains.observer``; a scenario cannot have
+    both keys, and its own gain is the matrix made at its start, which the held runs keep.
+    """
+    gains = s.user_data.get("gains", {})
+    if "observer_bandwidth" not in gains:
+        return s
+    data = copy.deepcopy(dict(s.user_data))
+    data["gains"] = {k: v for k, v in data["gains"].items() if k != "observer_bandwidth"}
+    data["gains"]["observer"] = np.asarray(s.observer_gain, dtype=float).tolist()
+    if "arm" in data or _is_paper_arm(s):
+        return scenario_from_dict(data, source=s.source)
+    return scenario_from_dict(data, source=s.source, arm=s.robot, nominal=s.nominal)
+
+
+def _rest_disturbance(s: Scenario) -> np.ndarray:
+    """The constant disturbance (N m, N) on the held arm at rest: the Eq. 4 step ``f_r`` when the scenario has it
+    (friction is zero at rest), else zero."""
+    dist = s.disturbance
+    return np.asarray(dist.f_r, dtype=float) if "paper" in dist.kinds else np.zeros(s.robot.n)
+
+
+def _paper_mismatch(s: Scenario, q_start, settings: AnalysisSettings, step) -> MismatchStudy:
+    """The paper arm's mismatch study on the scenario's own loop (the nominal parameters scaled)."""
+    loops = {}
+    for k, (observer, key) in enumerate(((True, "with_dob"), (False, "without_dob"))):
+        sweep = mismatch_sweep(s, q_start, settings.mismatch_factors, observer)
+        step((2 * k + 1) / 4)
+        loops[key] = MismatchLoop(sweep=sweep, boundaries=stability_boundaries(
+            s, q_start, observer, *settings.boundary_range, points=settings.boundary_points))
+        step((2 * k + 2) / 4)
+    return MismatchStudy(q0=q_start.tolist(), **loops)
+
+
 def run_analysis(scenario: Scenario | str = "paper", settings: AnalysisSettings = AnalysisSettings(),
                  progress: Progress | None = None) -> AnalysisResult:
     """Every analysis of the issue "Analysis and reports".
@@ -196,49 +239,59 @@ def run_analysis(scenario: Scenario | str = "paper", settings: AnalysisSettings 
     AnalysisResult
     """
     s = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
-    q_grid, _ = workspace_grid(settings.workspace_points)
+    paper = _is_paper_arm(s)
+    joints = s.nominal.joints
+    points = settings.workspace_points if paper else settings.workspace_points_for(joints)
+    q_grid, _ = workspace_grid(points) if paper else workspace_grid(points, arm=s.nominal)
     info = ScenarioInfo(name=s.name, source=s.source, description=s.data.get("description", ""), toml=s.to_toml(),
                         perfect_model=s.nominal == s.robot)
+    s = _explicit_observer_gain(s)
 
     with _stage(progress, "observer bandwidth"):
-        survey = replace(bandwidth_survey(s, points=settings.workspace_points), along_trajectory=along_trajectory(s))
+        survey = replace(bandwidth_survey(s, points=points), along_trajectory=along_trajectory(s))
+    slice_index = list(joints.names).index(survey.slice_joint_name)
 
     with _stage(progress, "linearized loop") as step:
         q_start = np.asarray(s.trajectory.evaluate(0.0)[0], dtype=float)
         q_mid = np.asarray(s.trajectory.evaluate(s.simulation.t_final / 2.0)[0], dtype=float)
-        points = [("reference at t = 0", q_start), ("reference at mid-run", q_mid),
-                  ("slowest observer mode (workspace)", np.array(survey.slowest_rad_s.q_at_min)),
-                  ("slowest observer mode at its fastest (workspace)", np.array(survey.slowest_rad_s.q_at_max))]
+        points_of_interest = [("reference at t = 0", q_start), ("reference at mid-run", q_mid),
+                              ("slowest observer mode (workspace)", np.array(survey.slowest_rad_s.q_at_min)),
+                              ("slowest observer mode at its fastest (workspace)",
+                               np.array(survey.slowest_rad_s.q_at_max))]
         operating_points = []
-        for label, q in points:
+        for label, q in points_of_interest:
             operating_points.append(operating_point_analysis(s, q, label=label))
-            step(len(operating_points) / len(points))
+            step(len(operating_points) / len(points_of_interest))
 
     with _stage(progress, "inertia mismatch") as step:
-        loops = {}
-        for k, (observer, key) in enumerate(((True, "with_dob"), (False, "without_dob"))):
-            sweep = mismatch_sweep(s, q_start, settings.mismatch_factors, observer)
-            step((2 * k + 1) / 4)
-            loops[key] = MismatchLoop(sweep=sweep, boundaries=stability_boundaries(
-                s, q_start, observer, *settings.boundary_range, points=settings.boundary_points))
-            step((2 * k + 2) / 4)
-        mismatch = MismatchStudy(q0=q_start.tolist(), **loops)
+        if paper:
+            mismatch = _paper_mismatch(s, q_start, settings, step)
+        else:
+            mismatch = arm_mismatch_analysis(s.robot, s.kp, s.kd, s.observer_gain, q_start,
+                                             settings.mismatch_factors, d=_rest_disturbance(s),
+                                             low=settings.boundary_range[0], high=settings.boundary_range[1],
+                                             points=settings.boundary_points)
 
     with _stage(progress, "observer gain design") as step:
         t_ref = np.linspace(0.0, s.simulation.t_final, 2001)
         speed = np.max(np.abs(s.trajectory.evaluate(t_ref)[1]), axis=0)
-        bound = np.maximum(settings.speed_margin * speed, settings.min_speed)
+        min_speed = settings.min_speed if paper else settings.min_speed_for(joints)
+        bound = np.maximum(settings.speed_margin * speed, min_speed)
         Y_s = s.observer_gain
         # lift the scenario's gain when it is symmetric positive semidefinite (then no mode gets slower)
         base = Y_s if np.allclose(Y_s, Y_s.T) and np.linalg.eigvalsh((Y_s + Y_s.T) / 2).min() >= 0 else None
         design = design_observer_gain(s.nominal, settings.observer_target_rad_s, q_grid, base=base)
         Y_design = design.Y
         step(0.2)
+        # the critical speed along the slice joint (theta2 for the paper's arm)
+        direction = np.eye(joints.count)[slice_index]
         certificates = {}
         for k, (key, Y) in enumerate((("designed", Y_design), ("scenario_gain", s.observer_gain))):
             certificates[f"certificate_{key}"] = convergence_certificate(s.nominal, Y, q_grid, bound)
-            certificates[f"critical_theta2_speed_{key}"] = critical_speed(s.nominal, Y, q_grid, [0, 1, 0, 0])
+            certificates[f"critical_theta2_speed_{key}"] = critical_speed(s.nominal, Y, q_grid, direction)
             step(0.2 + 0.35 * (k + 1))
+        designed_survey = (bandwidth_survey(s, Y=Y_design, points=points) if paper else
+                           bandwidth_survey(s, Y=Y_design, points=points, slice_joint=slice_index))
         designed = dict(
             target_rad_s=settings.observer_target_rad_s, base_is_scenario_gain=base is not None,
             Y=Y_design.tolist(), base=design.base.tolist(), M_ref=design.M_ref.tolist(), c_per_s=design.c_per_s,
@@ -248,7 +301,7 @@ def run_analysis(scenario: Scenario | str = "paper", settings: AnalysisSettings 
             certificate_scenario_gain=certificates["certificate_scenario_gain"],
             critical_theta2_speed_designed=certificates["critical_theta2_speed_designed"],
             critical_theta2_speed_scenario_gain=certificates["critical_theta2_speed_scenario_gain"],
-            bandwidth_designed=bandwidth_survey(s, Y=Y_design, points=settings.workspace_points).overview(),
+            bandwidth_designed=designed_survey.overview(),
         )
     with _stage(progress, "observer gain design: simulation"):
         simulation = confirm_by_simulation(
@@ -257,7 +310,9 @@ def run_analysis(scenario: Scenario | str = "paper", settings: AnalysisSettings 
     observer_design = ObserverDesign(**designed, simulation=simulation)
 
     with _stage(progress, "frequency responses"):
-        frequency = frequency_analysis(s, q_start)
+        frequency = (frequency_analysis(s, q_start) if paper else
+                     arm_frequency_analysis(s.robot, s.kp, s.kd, s.observer_gain, q_start, d=_rest_disturbance(s),
+                                            nominal=s.nominal))
 
     grids = {}
     for observer, key in ((True, "gains_with_dob"), (False, "gains_without_dob")):
