@@ -324,7 +324,7 @@ def run_analysis(scenario: Scenario | str = "paper", settings: AnalysisSettings 
         obs = observer_gain_study(s, gains, t_final=settings.study_t_final, noise_t_final=settings.noise_t_final,
                                   workers=settings.workers, progress=step)
         slowest = [None] + [
-            float(np.real(observer_modes(s.nominal, validated_gain(g, "observer"),
+            float(np.real(observer_modes(s.nominal, validated_gain(g, "observer", joints),
                                          q_grid)[0][:, 0]).min())
             for _, g in gains]
     digital = None

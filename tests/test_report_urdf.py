@@ -85,3 +85,32 @@ def test_the_analyses_take_the_arm_route(analysis_json):
     direction = np.eye(n)[list(load_scenario("scope4").robot.joints.names).index(
         analysis_json["observer_bandwidth"]["slice_joint"])]
     assert crit["unlimited"] or np.allclose(np.abs(crit["dq_direction_at"]), direction)
+
+
+def test_the_report_names_the_slice_joint_and_the_arm_joints(analysis_json, tmp_path):
+    from analysis.report import AnalysisResult
+    from analysis.report_view.bandwidth import bandwidth_section
+    from analysis.report_view.design import design_section
+
+    s = load_scenario("scope4")
+    result = AnalysisResult.from_json(json.dumps(analysis_json))
+    along = result.observer_bandwidth.slice_joint
+    png = tmp_path / "observer_bandwidth.png"
+    png.write_bytes(b"\x89PNG")
+    bw = bandwidth_section(result, {"observer_bandwidth": png}, s)
+    assert "(yaw, pitch, insertion, roll)" in bw.slowest and "theta" not in bw.slowest
+    assert bw.figures[0].caption == f"Observer modes along {along} and the slowest mode's direction"
+    design = design_section(result, s, {})
+    labels = [row[0].text for row in design.certificate.rows]
+    unit = s.robot.joints.velocity_units[list(s.robot.joints.names).index(along)]
+    assert f"largest |{along}'| keeping beta > 0 ({unit})" in labels
+    assert "speed bound (rad/s, rad/s, m/s, rad/s)" in labels                    # yaw, pitch, insertion, roll
+    assert design.gain_units == "kg m^2/s; kg/s on joint 3"
+
+
+def test_a_quick_preview_keeps_a_seven_joint_grid_small():
+    from analysis.settings import QUICK_SETTINGS, AnalysisSettings
+
+    joints = pytest.importorskip("example_robot_data") and load_scenario("panda").robot.joints
+    assert QUICK_SETTINGS.workspace_points_for(joints) == (3,) * 7           # 2187 configurations
+    assert AnalysisSettings().workspace_points_for(joints) == (4,) * 7       # the full grid: 16384
