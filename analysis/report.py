@@ -63,7 +63,7 @@ from .settings import QUICK_SETTINGS, AnalysisSettings
 from .studies import Studies, gain_grid_study, observer_gain_study
 
 __all__ = ["AnalysisSettings", "QUICK_SETTINGS", "ScenarioInfo", "AnalysisResult", "run_analysis", "write_figures",
-           "gain_label", "observer_gains", "ANALYSIS_FIGURE_COUNT",
+           "gain_label", "observer_gains", "bandwidth_gains", "ANALYSIS_FIGURE_COUNT",
            "analyze", "write_report", "plain_summary", "render_html", "json_text", "experiment_metrics"]
 
 # The design check and the studies replace the scenario's disturbance models by the constant step f_r (Eq. 4,
@@ -178,6 +178,33 @@ def observer_gains(scenario_gain, values, designed) -> list[tuple[str, np.ndarra
         # a scenario gain v I takes its place among the others by v; any other gain comes first
         at = sum(1 for v in values if v < d[0]) if scalar else 0
         gains.insert(at, (f"{gain_label(Y_s)} (scenario)", Y_s))
+    gains.append(("designed Y", np.asarray(designed, dtype=float)))
+    return gains
+
+
+def bandwidth_gains(scenario_gain, values, designed, M0) -> list[tuple[str, np.ndarray]]:
+    """The observer study's gains for an arm other than the paper's: ``Y = v M^(q0)`` for each ``v`` (rad/s).
+
+    A gain ``v I`` means a rate of ``v`` divided by each joint's inertia, which on an arm with a light wrist joint
+    makes that joint's observer mode far faster than any solver step; ``v M^(q0)`` gives every mode the rate
+    ``v`` at the held configuration (the scenario's ``observer_bandwidth``).  The scenario's gain is marked
+    "(scenario)" (in its place by ``v`` when it is ``v M^(q0)``, first otherwise), the designed gain last.
+
+    Examples
+    --------
+    >>> M0 = np.diag([2.0, 1e-6])
+    >>> [label for label, _ in bandwidth_gains(10 * M0, (3.0, 30.0), np.eye(2), M0)]
+    ['Y = 3 M^(q0)', 'Y = 10 M^(q0) (scenario)', 'Y = 30 M^(q0)', 'designed Y']
+    """
+    Y_s, M0 = np.asarray(scenario_gain, dtype=float), np.asarray(M0, dtype=float)
+    gains = [(f"Y = {v:g} M^(q0)" + (" (scenario)" if np.allclose(v * M0, Y_s, rtol=1e-12, atol=0) else ""),
+              float(v) * M0) for v in values]
+    if not any(label.endswith("(scenario)") for label, _ in gains):
+        # the scenario's own v when its gain is v M^(q0), for its place among the others
+        v = float(np.trace(Y_s @ np.linalg.inv(M0))) / len(M0)
+        own = np.allclose(v * M0, Y_s, rtol=1e-12, atol=0)
+        at = sum(1 for w in values if w < v) if own else 0
+        gains.insert(at, ((f"Y = {v:g} M^(q0)" if own else gain_label(Y_s)) + " (scenario)", Y_s))
     gains.append(("designed Y", np.asarray(designed, dtype=float)))
     return gains
 
@@ -320,7 +347,8 @@ def run_analysis(scenario: Scenario | str = "paper", settings: AnalysisSettings 
             grids[key] = gain_grid_study(s, settings.kp_values, settings.kd_values, observer, settings.study_t_final,
                                          settings.workers, progress=step)
     with _stage(progress, "observer gain and noise study") as step:
-        gains = observer_gains(s.observer_gain, settings.observer_values, Y_design)
+        gains = (observer_gains(s.observer_gain, settings.observer_values, Y_design) if paper else
+                 bandwidth_gains(s.observer_gain, settings.observer_values, Y_design, s.nominal.inertia(q_start)))
         obs = observer_gain_study(s, gains, t_final=settings.study_t_final, noise_t_final=settings.noise_t_final,
                                   workers=settings.workers, progress=step)
         slowest = [None] + [
