@@ -252,7 +252,21 @@ def _paper_mismatch(s: Scenario, q_start, settings: AnalysisSettings, step) -> M
 
 def run_analysis(scenario: Scenario | str = "paper", settings: AnalysisSettings = AnalysisSettings(),
                  progress: Progress | None = None) -> AnalysisResult:
-    """Every analysis of the issue "Analysis and reports".
+    """Every analysis of the issue "Analysis and reports", for any arm model.
+
+    The paper's RRPR keeps its own routes (its survey ranges, the mismatch study
+    on the scenario's loop with the nominal parameters scaled, the closed-form
+    frequency check, ``Y = v I`` in the observer study).  Any other arm (a URDF
+    arm) takes the arm route: the workspace grid within its joint limits
+    (:meth:`AnalysisSettings.workspace_points_for`), the slice and the critical
+    speed along the joint the observer modes change most along, the mismatch
+    study by :func:`~analysis.linear.arm_mismatch_analysis` (``M^ = a M``), the
+    frequency responses by :func:`~analysis.frequency.arm_frequency_analysis`
+    (both held at the reference at t = 0 under the Eq. 4 step, when the
+    scenario has it), the observer study with ``Y = v M^(q0)``
+    (:func:`bandwidth_gains`), and no torque-noise runs when the arm takes no
+    ``[noise]`` table.  JSON keys keep their names (``theta2`` is the slice's
+    values, ``critical_theta2_speed_*`` the critical speed along the slice joint).
 
     Parameters
     ----------
