@@ -146,8 +146,12 @@ _DESCRIBE = {
 }
 
 
-def preview_differences(settings: AnalysisSettings, full: AnalysisSettings | None = None) -> list[str]:
+def preview_differences(settings: AnalysisSettings, full: AnalysisSettings | None = None,
+                        joints=None) -> list[str]:
     """How ``settings`` differ from the full analysis, one phrase per setting: "what: this (full: that)".
+
+    With ``joints`` (:class:`blocks.joints.JointSpace`) the workspace grid is the one used on that arm
+    (:meth:`AnalysisSettings.workspace_points_for`).
 
     Examples
     --------
@@ -160,6 +164,8 @@ def preview_differences(settings: AnalysisSettings, full: AnalysisSettings | Non
         if f.name not in _DESCRIBE:
             continue
         mine, theirs = getattr(settings, f.name), getattr(full, f.name)
+        if f.name == "workspace_points" and joints is not None:
+            mine, theirs = settings.workspace_points_for(joints), full.workspace_points_for(joints)
         if mine != theirs:
             what, show = _DESCRIBE[f.name]
             out.append(f"{what}: {show(mine)} (full: {show(theirs)})")

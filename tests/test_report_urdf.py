@@ -109,7 +109,7 @@ def test_the_report_names_the_slice_joint_and_the_arm_joints(analysis_json, tmp_
 
 
 def test_a_quick_preview_keeps_a_seven_joint_grid_small():
-    from analysis.settings import QUICK_SETTINGS, AnalysisSettings
+    from analysis.settings import QUICK_SETTINGS, AnalysisSettings, preview_differences
 
     try:
         joints = load_scenario("panda").robot.joints
@@ -117,3 +117,6 @@ def test_a_quick_preview_keeps_a_seven_joint_grid_small():
         pytest.skip(str(err))
     assert QUICK_SETTINGS.workspace_points_for(joints) == (3,) * 7           # 2187 configurations
     assert AnalysisSettings().workspace_points_for(joints) == (4,) * 7       # the full grid: 16384
+    # and the preview lists the grid the arm gets, not the paper arm's
+    assert ("workspace grid (points per joint): 3 x 3 x 3 x 3 x 3 x 3 x 3 (full: 4 x 4 x 4 x 4 x 4 x 4 x 4)"
+            in preview_differences(QUICK_SETTINGS, joints=joints))

@@ -89,7 +89,7 @@ def _header(result, scenario) -> Header:
         return Header(title=f"dobkit analysis report, quick preview: scenario '{scenario.name}'",
                       regenerate=regenerate_command(scenario.source, settings),
                       full_command=regenerate_command(scenario.source, settings, quick=False),
-                      preview=preview_differences(settings) + _left_out(result))
+                      preview=preview_differences(settings, joints=arm_joints(scenario)) + _left_out(result))
     return Header(title=f"dobkit analysis report: scenario '{scenario.name}'",
                   regenerate=regenerate_command(scenario.source, settings), full_command=None, preview=None)
 
