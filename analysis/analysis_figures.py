@@ -122,8 +122,13 @@ def mismatch_figure(mismatch: MismatchStudy, out_dir) -> list[Path]:
 
 def bandwidth_figure(survey: BandwidthSurvey, designed: BandwidthOverview | None, pd_slowest: float,
                      out_dir, joints: JointSpace = RRPR_JOINTS) -> list[Path]:
-    """Eigenvalues of ``Y M^-1`` along theta2 (log scale) and the slowest mode's direction."""
-    theta2 = np.array(survey.theta2)
+    """Eigenvalues of ``Y M^-1`` along the survey's slice joint (log scale) and the slowest mode's direction.
+
+    The slice joint (theta2 for the paper's arm) is named, with its unit, from ``joints``.
+    """
+    theta2 = np.array(survey.theta2)            # the slice's values (the key keeps the paper arm's name)
+    along = survey.slice_joint_name
+    unit = joints.position_units[list(joints.names).index(along)] if along in joints.names else "rad"
     eig = np.array(survey.eigenvalues)
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.8), constrained_layout=True)
     ax = axes[0]
@@ -139,16 +144,16 @@ def bandwidth_figure(survey: BandwidthSurvey, designed: BandwidthOverview | None
     # on top of the modes, in black: it may lie on one of them
     ax.axhline(pd_slowest, color="black", ls=":", lw=2, zorder=5, label=f"slowest PD pole {pd_slowest:.3g} rad/s")
     ax.set_yscale("log")
-    ax.set_xlabel("theta2 (rad)")
+    ax.set_xlabel(f"{along} ({unit})")
     ax.set_ylabel("observer mode decay rate (rad/s)")
     # the legend below the axes, where it covers no curve
-    _finish(ax, "Eigenvalues of Y M^-1(q) along theta2 (solid: scenario gain Y)", loc="upper center",
+    _finish(ax, f"Eigenvalues of Y M^-1(q) along {along} (solid: scenario gain Y)", loc="upper center",
             bbox_to_anchor=(0.5, -0.14), ncol=2)
     ax = axes[1]
     direction = np.array(survey.slowest_direction)
     for j in range(direction.shape[1]):
         ax.plot(theta2, direction[:, j], label=joints.labels[j])
-    ax.set_xlabel("theta2 (rad)")
+    ax.set_xlabel(f"{along} ({unit})")
     ax.set_ylabel("component of unit eigenvector (1)")
     _finish(ax, "Direction of the slowest observer mode (disturbance space)", which="major")
     return save_figure(fig, out_dir, "observer_bandwidth")
@@ -365,6 +370,12 @@ def observer_study_figure(study: ObserverGainStudy, out_dir, joints: JointSpace 
     ax.set_xlabel("slowest observer mode over the workspace (rad/s)")
     ax.set_ylabel("tool-tip error (mm)")
     _finish(ax, f"What a faster observer buys (disturbance step, {study.t_final_s:g} s runs)", fontsize=7)
+    if study.noise is None:                  # the arm takes no [noise] table: the cost panels say so
+        for ax in axes[1:]:
+            ax.axis("off")
+            ax.text(0.5, 0.5, "torque noise not measured:\nthis arm takes no [noise] table", ha="center",
+                    va="center", transform=ax.transAxes)
+        return save_figure(fig, out_dir, "study_observer")
     ax = axes[1]
     noise = np.array([runs[k].torque_noise_rms for k in ok])
     n, titles, units = joints.count, joints.labels, joints.force_units

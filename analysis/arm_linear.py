@@ -117,7 +117,8 @@ def arm_equilibrium(loop: ArmLoop, observer: bool = True, max_iter: int = 50) ->
     ------
     RuntimeError
         When Newton's method does not bring the resting residual below 1e-12 times the largest force in it
-        (N m, N) in ``max_iter`` steps: no resting position near ``q0`` (the arm sags away).
+        (N m, N) in ``max_iter`` steps, or meets a singular Jacobian: no resting position near ``q0`` (the arm
+        sags away).
     """
     arm, nom = loop.arm, loop.nominal
     if observer:
@@ -125,7 +126,9 @@ def arm_equilibrium(loop: ArmLoop, observer: bool = True, max_iter: int = 50) ->
         return loop.q0.copy(), d_hat
 
     def residual(q):
-        return nom.inertia(q) @ loop.kp @ (loop.q0 - q) + nom.gravity_forces(q) - arm.gravity_forces(q) + loop.d
+        # q: (n,) or a batch (k, n) of configurations (one call for all of a Jacobian's columns)
+        pd = np.einsum("...ab,...b->...a", nom.inertia(q), (loop.q0 - q) @ loop.kp.T)
+        return pd + nom.gravity_forces(q) - arm.gravity_forces(q) + loop.d
 
     q = loop.q0.copy()
     n = arm.n
@@ -136,8 +139,11 @@ def arm_equilibrium(loop: ArmLoop, observer: bool = True, max_iter: int = 50) ->
         if np.max(np.abs(r)) <= _REST_TOL * scale:
             return q, np.zeros(n)
         E = FD_STEP * np.eye(n)
-        jac = np.stack([(residual(q + e) - residual(q - e)) / (2 * FD_STEP) for e in E], axis=-1)
-        step = np.linalg.solve(jac, r)
+        jac = ((residual(q + E) - residual(q - E)) / (2 * FD_STEP)).T       # column k: along joint k
+        try:
+            step = np.linalg.solve(jac, r)
+        except np.linalg.LinAlgError:       # Newton has wandered where the residual is flat: no rest near q0
+            break
         q = q - step
         if np.max(np.abs(step)) <= 1e-14 * (1.0 + np.max(np.abs(q))) and np.max(np.abs(residual(q))) <= 1e-9 * scale:
             return q, np.zeros(n)           # converged to rounding

@@ -333,9 +333,11 @@ def decay_rates(params: ArmModel, Y, q, dq) -> np.ndarray:
         Configurations (rad, m) and joint velocities (rad/s, m/s), broadcast together.
     """
     Y = np.asarray(Y, dtype=float)
-    q, dq = np.broadcast_arrays(np.asarray(q, dtype=float), np.asarray(dq, dtype=float))
+    q, dq = np.asarray(q, dtype=float), np.asarray(dq, dtype=float)
+    # M and dM/dq at q's own shape (a grid against velocity vertices shares them), then broadcast with dq
     M = params.inertia(q)
     M_dot = np.einsum("...jab,...j->...ab", inertia_partials(params, q), dq)
+    M = np.broadcast_to(M, M_dot.shape)
     S = (Y + Y.T) / 2.0 - M_dot / 2.0
     L = np.linalg.cholesky(M)
     # beta = lambda_min(L^-1 S L^-T), the smallest generalized eigenvalue of (S, M)

@@ -30,15 +30,16 @@ from blocks import __version__, load_scenario
 from blocks.gains import validated_gain
 from blocks.joints import RRPR_JOINTS, JointSpace
 from blocks.outputs import staged_output
+from blocks.parameters import RobotParameters
 from blocks.progress import ProgressCallback as Progress
-from blocks.scenario import Scenario
+from blocks.scenario import Scenario, scenario_from_dict
 
 from . import analysis_figures as figs
 from .bandwidth import BandwidthSurvey, along_trajectory, bandwidth_survey, observer_modes, workspace_grid
 from .digital import DigitalAnalysis, digital_analysis
 from .digital_figures import digital_figures
 from .figures import joint_signals
-from .frequency import FrequencyAnalysis, frequency_analysis
+from .frequency import FrequencyAnalysis, arm_frequency_analysis, frequency_analysis
 from .gain_design import (
     ObserverDesign,
     confirm_by_simulation,
@@ -50,6 +51,7 @@ from .linear import (
     MismatchLoop,
     MismatchStudy,
     OperatingPoint,
+    arm_mismatch_analysis,
     mismatch_sweep,
     operating_point_analysis,
     stability_boundaries,
@@ -61,7 +63,7 @@ from .settings import QUICK_SETTINGS, AnalysisSettings
 from .studies import Studies, gain_grid_study, observer_gain_study
 
 __all__ = ["AnalysisSettings", "QUICK_SETTINGS", "ScenarioInfo", "AnalysisResult", "run_analysis", "write_figures",
-           "gain_label", "observer_gains", "ANALYSIS_FIGURE_COUNT",
+           "gain_label", "observer_gains", "bandwidth_gains", "ANALYSIS_FIGURE_COUNT",
            "analyze", "write_report", "plain_summary", "render_html", "json_text", "experiment_metrics"]
 
 # The design check and the studies replace the scenario's disturbance models by the constant step f_r (Eq. 4,
@@ -180,9 +182,91 @@ def observer_gains(scenario_gain, values, designed) -> list[tuple[str, np.ndarra
     return gains
 
 
+def bandwidth_gains(scenario_gain, values, designed, M0) -> list[tuple[str, np.ndarray]]:
+    """The observer study's gains for an arm other than the paper's: ``Y = v M^(q0)`` for each ``v`` (rad/s).
+
+    A gain ``v I`` means a rate of ``v`` divided by each joint's inertia, which on an arm with a light wrist joint
+    makes that joint's observer mode far faster than any solver step; ``v M^(q0)`` gives every mode the rate
+    ``v`` at the held configuration (the scenario's ``observer_bandwidth``).  The scenario's gain is marked
+    "(scenario)" (in its place by ``v`` when it is ``v M^(q0)``, first otherwise), the designed gain last.
+
+    Examples
+    --------
+    >>> M0 = np.diag([2.0, 1e-6])
+    >>> [label for label, _ in bandwidth_gains(10 * M0, (3.0, 30.0), np.eye(2), M0)]
+    ['Y = 3 M^(q0)', 'Y = 10 M^(q0) (scenario)', 'Y = 30 M^(q0)', 'designed Y']
+    """
+    Y_s, M0 = np.asarray(scenario_gain, dtype=float), np.asarray(M0, dtype=float)
+    gains = [(f"Y = {v:g} M^(q0)" + (" (scenario)" if np.allclose(v * M0, Y_s, rtol=1e-12, atol=0) else ""),
+              float(v) * M0) for v in values]
+    if not any(label.endswith("(scenario)") for label, _ in gains):
+        # the scenario's own v when its gain is v M^(q0), for its place among the others
+        v = float(np.trace(Y_s @ np.linalg.inv(M0))) / len(M0)
+        own = np.allclose(v * M0, Y_s, rtol=1e-12, atol=0)
+        at = sum(1 for w in values if w < v) if own else 0
+        gains.insert(at, ((f"Y = {v:g} M^(q0)" if own else gain_label(Y_s)) + " (scenario)", Y_s))
+    gains.append(("designed Y", np.asarray(designed, dtype=float)))
+    return gains
+
+
+def _is_paper_arm(s: Scenario) -> bool:
+    """Whether the scenario's arm is the paper's RRPR in closed form (its own mismatch and frequency routes)."""
+    return isinstance(s.robot, RobotParameters) and isinstance(s.nominal, RobotParameters)
+
+
+def _explicit_observer_gain(s: Scenario) -> Scenario:
+    """The scenario with ``gains.observer_bandwidth`` (``Y = omega M^(q0)``) written out as its matrix ``Y``.
+
+    The studies and the design check give other observer gains by ``gains.observer``; a scenario cannot have
+    both keys, and its own gain is the matrix made at its start, which the held runs keep.
+    """
+    gains = s.user_data.get("gains", {})
+    if "observer_bandwidth" not in gains:
+        return s
+    data = copy.deepcopy(dict(s.user_data))
+    data["gains"] = {k: v for k, v in data["gains"].items() if k != "observer_bandwidth"}
+    data["gains"]["observer"] = np.asarray(s.observer_gain, dtype=float).tolist()
+    if "arm" in data or _is_paper_arm(s):
+        return scenario_from_dict(data, source=s.source)
+    return scenario_from_dict(data, source=s.source, arm=s.robot, nominal=s.nominal)
+
+
+def _rest_disturbance(s: Scenario) -> np.ndarray:
+    """The constant disturbance (N m, N) on the held arm at rest: the Eq. 4 step ``f_r`` when the scenario has it
+    (friction is zero at rest), else zero."""
+    dist = s.disturbance
+    return np.asarray(dist.f_r, dtype=float) if "paper" in dist.kinds else np.zeros(s.robot.n)
+
+
+def _paper_mismatch(s: Scenario, q_start, settings: AnalysisSettings, step) -> MismatchStudy:
+    """The paper arm's mismatch study on the scenario's own loop (the nominal parameters scaled)."""
+    loops = {}
+    for k, (observer, key) in enumerate(((True, "with_dob"), (False, "without_dob"))):
+        sweep = mismatch_sweep(s, q_start, settings.mismatch_factors, observer)
+        step((2 * k + 1) / 4)
+        loops[key] = MismatchLoop(sweep=sweep, boundaries=stability_boundaries(
+            s, q_start, observer, *settings.boundary_range, points=settings.boundary_points))
+        step((2 * k + 2) / 4)
+    return MismatchStudy(q0=q_start.tolist(), **loops)
+
+
 def run_analysis(scenario: Scenario | str = "paper", settings: AnalysisSettings = AnalysisSettings(),
                  progress: Progress | None = None) -> AnalysisResult:
-    """Every analysis of the issue "Analysis and reports".
+    """Every analysis of the issue "Analysis and reports", for any arm model.
+
+    The paper's RRPR keeps its own routes (its survey ranges, the mismatch study
+    on the scenario's loop with the nominal parameters scaled, the closed-form
+    frequency check, ``Y = v I`` in the observer study).  Any other arm (a URDF
+    arm) takes the arm route: the workspace grid within its joint limits
+    (:meth:`AnalysisSettings.workspace_points_for`), the slice and the critical
+    speed along the joint the observer modes change most along, the mismatch
+    study by :func:`~analysis.linear.arm_mismatch_analysis` (``M^ = a M``), the
+    frequency responses by :func:`~analysis.frequency.arm_frequency_analysis`
+    (both held at the reference at t = 0 under the Eq. 4 step, when the
+    scenario has it), the observer study with ``Y = v M^(q0)``
+    (:func:`bandwidth_gains`), and no torque-noise runs when the arm takes no
+    ``[noise]`` table.  JSON keys keep their names (``theta2`` is the slice's
+    values, ``critical_theta2_speed_*`` the critical speed along the slice joint).
 
     Parameters
     ----------
@@ -196,49 +280,59 @@ def run_analysis(scenario: Scenario | str = "paper", settings: AnalysisSettings 
     AnalysisResult
     """
     s = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
-    q_grid, _ = workspace_grid(settings.workspace_points)
+    paper = _is_paper_arm(s)
+    joints = s.nominal.joints
+    points = settings.workspace_points if paper else settings.workspace_points_for(joints)
+    q_grid, _ = workspace_grid(points) if paper else workspace_grid(points, arm=s.nominal)
     info = ScenarioInfo(name=s.name, source=s.source, description=s.data.get("description", ""), toml=s.to_toml(),
                         perfect_model=s.nominal == s.robot)
+    s = _explicit_observer_gain(s)
 
     with _stage(progress, "observer bandwidth"):
-        survey = replace(bandwidth_survey(s, points=settings.workspace_points), along_trajectory=along_trajectory(s))
+        survey = replace(bandwidth_survey(s, points=points), along_trajectory=along_trajectory(s))
+    slice_index = list(joints.names).index(survey.slice_joint_name)
 
     with _stage(progress, "linearized loop") as step:
         q_start = np.asarray(s.trajectory.evaluate(0.0)[0], dtype=float)
         q_mid = np.asarray(s.trajectory.evaluate(s.simulation.t_final / 2.0)[0], dtype=float)
-        points = [("reference at t = 0", q_start), ("reference at mid-run", q_mid),
-                  ("slowest observer mode (workspace)", np.array(survey.slowest_rad_s.q_at_min)),
-                  ("slowest observer mode at its fastest (workspace)", np.array(survey.slowest_rad_s.q_at_max))]
+        points_of_interest = [("reference at t = 0", q_start), ("reference at mid-run", q_mid),
+                              ("slowest observer mode (workspace)", np.array(survey.slowest_rad_s.q_at_min)),
+                              ("slowest observer mode at its fastest (workspace)",
+                               np.array(survey.slowest_rad_s.q_at_max))]
         operating_points = []
-        for label, q in points:
+        for label, q in points_of_interest:
             operating_points.append(operating_point_analysis(s, q, label=label))
-            step(len(operating_points) / len(points))
+            step(len(operating_points) / len(points_of_interest))
 
     with _stage(progress, "inertia mismatch") as step:
-        loops = {}
-        for k, (observer, key) in enumerate(((True, "with_dob"), (False, "without_dob"))):
-            sweep = mismatch_sweep(s, q_start, settings.mismatch_factors, observer)
-            step((2 * k + 1) / 4)
-            loops[key] = MismatchLoop(sweep=sweep, boundaries=stability_boundaries(
-                s, q_start, observer, *settings.boundary_range, points=settings.boundary_points))
-            step((2 * k + 2) / 4)
-        mismatch = MismatchStudy(q0=q_start.tolist(), **loops)
+        if paper:
+            mismatch = _paper_mismatch(s, q_start, settings, step)
+        else:
+            mismatch = arm_mismatch_analysis(s.robot, s.kp, s.kd, s.observer_gain, q_start,
+                                             settings.mismatch_factors, d=_rest_disturbance(s),
+                                             low=settings.boundary_range[0], high=settings.boundary_range[1],
+                                             points=settings.boundary_points)
 
     with _stage(progress, "observer gain design") as step:
         t_ref = np.linspace(0.0, s.simulation.t_final, 2001)
         speed = np.max(np.abs(s.trajectory.evaluate(t_ref)[1]), axis=0)
-        bound = np.maximum(settings.speed_margin * speed, settings.min_speed)
+        min_speed = settings.min_speed if paper else settings.min_speed_for(joints)
+        bound = np.maximum(settings.speed_margin * speed, min_speed)
         Y_s = s.observer_gain
         # lift the scenario's gain when it is symmetric positive semidefinite (then no mode gets slower)
         base = Y_s if np.allclose(Y_s, Y_s.T) and np.linalg.eigvalsh((Y_s + Y_s.T) / 2).min() >= 0 else None
         design = design_observer_gain(s.nominal, settings.observer_target_rad_s, q_grid, base=base)
         Y_design = design.Y
         step(0.2)
+        # the critical speed along the slice joint (theta2 for the paper's arm)
+        direction = np.eye(joints.count)[slice_index]
         certificates = {}
         for k, (key, Y) in enumerate((("designed", Y_design), ("scenario_gain", s.observer_gain))):
             certificates[f"certificate_{key}"] = convergence_certificate(s.nominal, Y, q_grid, bound)
-            certificates[f"critical_theta2_speed_{key}"] = critical_speed(s.nominal, Y, q_grid, [0, 1, 0, 0])
+            certificates[f"critical_theta2_speed_{key}"] = critical_speed(s.nominal, Y, q_grid, direction)
             step(0.2 + 0.35 * (k + 1))
+        designed_survey = (bandwidth_survey(s, Y=Y_design, points=points) if paper else
+                           bandwidth_survey(s, Y=Y_design, points=points, slice_joint=slice_index))
         designed = dict(
             target_rad_s=settings.observer_target_rad_s, base_is_scenario_gain=base is not None,
             Y=Y_design.tolist(), base=design.base.tolist(), M_ref=design.M_ref.tolist(), c_per_s=design.c_per_s,
@@ -248,7 +342,7 @@ def run_analysis(scenario: Scenario | str = "paper", settings: AnalysisSettings 
             certificate_scenario_gain=certificates["certificate_scenario_gain"],
             critical_theta2_speed_designed=certificates["critical_theta2_speed_designed"],
             critical_theta2_speed_scenario_gain=certificates["critical_theta2_speed_scenario_gain"],
-            bandwidth_designed=bandwidth_survey(s, Y=Y_design, points=settings.workspace_points).overview(),
+            bandwidth_designed=designed_survey.overview(),
         )
     with _stage(progress, "observer gain design: simulation"):
         simulation = confirm_by_simulation(
@@ -257,7 +351,9 @@ def run_analysis(scenario: Scenario | str = "paper", settings: AnalysisSettings 
     observer_design = ObserverDesign(**designed, simulation=simulation)
 
     with _stage(progress, "frequency responses"):
-        frequency = frequency_analysis(s, q_start)
+        frequency = (frequency_analysis(s, q_start) if paper else
+                     arm_frequency_analysis(s.robot, s.kp, s.kd, s.observer_gain, q_start, d=_rest_disturbance(s),
+                                            nominal=s.nominal))
 
     grids = {}
     for observer, key in ((True, "gains_with_dob"), (False, "gains_without_dob")):
@@ -265,11 +361,12 @@ def run_analysis(scenario: Scenario | str = "paper", settings: AnalysisSettings 
             grids[key] = gain_grid_study(s, settings.kp_values, settings.kd_values, observer, settings.study_t_final,
                                          settings.workers, progress=step)
     with _stage(progress, "observer gain and noise study") as step:
-        gains = observer_gains(s.observer_gain, settings.observer_values, Y_design)
+        gains = (observer_gains(s.observer_gain, settings.observer_values, Y_design) if paper else
+                 bandwidth_gains(s.observer_gain, settings.observer_values, Y_design, s.nominal.inertia(q_start)))
         obs = observer_gain_study(s, gains, t_final=settings.study_t_final, noise_t_final=settings.noise_t_final,
                                   workers=settings.workers, progress=step)
         slowest = [None] + [
-            float(np.real(observer_modes(s.nominal, validated_gain(g, "observer"),
+            float(np.real(observer_modes(s.nominal, validated_gain(g, "observer", joints),
                                          q_grid)[0][:, 0]).min())
             for _, g in gains]
     digital = None

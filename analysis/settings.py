@@ -86,9 +86,16 @@ class AnalysisSettings:
                 raise ValueError(f"{name} must be a finite number > 0 s, got {v!r}")
 
     def workspace_points_for(self, joints) -> tuple[int, ...]:
-        """The grid's points per joint for an arm with these joints (:class:`blocks.joints.JointSpace`)."""
+        """The grid's points per joint for an arm with these joints (:class:`blocks.joints.JointSpace`).
+
+        The settings' own counts when there is one per joint; otherwise the arm's
+        :func:`~analysis.arm_terms.default_points`, or in a quick preview
+        :data:`QUICK_POINTS_PER_JOINT` on every joint (3^7 = 2187 configurations for a 7-joint arm).
+        """
         if len(self.workspace_points) == joints.count:
             return tuple(self.workspace_points)
+        if self.quick:
+            return (QUICK_POINTS_PER_JOINT,) * joints.count
         return default_points(joints)
 
     def min_speed_for(self, joints) -> tuple[float, ...]:
@@ -103,6 +110,10 @@ class AnalysisSettings:
         out.pop("workers")
         return out
 
+
+#: Points per joint of a quick preview's workspace grid on an arm its own counts do not fit: the certificate checks
+#: every grid point at each of the 2^n vertices of the speed box, so the grid must stay small for 6 or 7 joints.
+QUICK_POINTS_PER_JOINT = 3
 
 # Speed floor of the certificate by joint kind (rad/s, m/s), for arms other than the paper's.
 _MIN_SPEED_BY_KIND = {"revolute": 0.5, "prismatic": 0.05}
@@ -135,8 +146,12 @@ _DESCRIBE = {
 }
 
 
-def preview_differences(settings: AnalysisSettings, full: AnalysisSettings | None = None) -> list[str]:
+def preview_differences(settings: AnalysisSettings, full: AnalysisSettings | None = None,
+                        joints=None) -> list[str]:
     """How ``settings`` differ from the full analysis, one phrase per setting: "what: this (full: that)".
+
+    With ``joints`` (:class:`blocks.joints.JointSpace`) the workspace grid is the one used on that arm
+    (:meth:`AnalysisSettings.workspace_points_for`).
 
     Examples
     --------
@@ -149,6 +164,8 @@ def preview_differences(settings: AnalysisSettings, full: AnalysisSettings | Non
         if f.name not in _DESCRIBE:
             continue
         mine, theirs = getattr(settings, f.name), getattr(full, f.name)
+        if f.name == "workspace_points" and joints is not None:
+            mine, theirs = settings.workspace_points_for(joints), full.workspace_points_for(joints)
         if mine != theirs:
             what, show = _DESCRIBE[f.name]
             out.append(f"{what}: {show(mine)} (full: {show(theirs)})")

@@ -44,7 +44,7 @@ import numpy as np
 from blocks import SimulationError, closed_loop, simulate
 from blocks.joints import RRPR_JOINTS, JointSpace
 from blocks.metrics import signal
-from blocks.scenario import Scenario
+from blocks.scenario import Scenario, ScenarioError
 from blocks.workers import worker_pool
 
 from .linear import equilibrium, hold_scenario
@@ -171,8 +171,9 @@ class ObserverGainStudy(JsonResult):
 
     Attributes
     ----------
-    noise : dict
-        The ``[noise]`` table of the noisy runs.
+    noise : dict or None
+        The ``[noise]`` table of the noisy runs; None when the scenario's arm takes no ``[noise]`` table
+        (then no noisy runs are made and ``noise_unavailable`` says why).
     labels : list of str
         ``"none"`` first (no observer), then one per gain.
     gains : list
@@ -185,9 +186,11 @@ class ObserverGainStudy(JsonResult):
         Per label.
     slowest_mode_rad_s : list of (float or None) or None
         Per label, the slowest observer mode over the workspace (rad/s; None for ``"none"``), when computed.
+    noise_unavailable : str or None
+        Why the torque noise was not measured (left out of the JSON when it was).
     """
 
-    noise: dict
+    noise: dict | None
     labels: list[str]
     gains: list
     q_hold: list[float]
@@ -198,6 +201,7 @@ class ObserverGainStudy(JsonResult):
     noise_t_final_s: float
     runs: list[StudyRun]
     slowest_mode_rad_s: list[float | None] | None = omitted_if_none()
+    noise_unavailable: str | None = omitted_if_none()
 
 
 @dataclass(frozen=True)
@@ -426,6 +430,12 @@ def observer_gain_study(scenario: Scenario, gains, noise: dict | None = None, t_
         variants.append(step_scenario(scenario, t_final, gains={"observer": g.tolist() if g.ndim else float(g)}))
     step = variants[0].simulation.output_step
     noise_t_final = min(max(round(float(noise_t_final) / step), 1) * step, variants[0].simulation.t_final)
-    jobs = [(v, k > 0, noise, noise_t_final) for k, v in enumerate(variants)]
-    return ObserverGainStudy(noise=noise, labels=labels, gains=specs, **_describe(variants[0]),
-                             noise_t_final_s=float(noise_t_final), runs=_map(jobs, workers, progress))
+    unavailable = None
+    try:                                     # some arms take no [noise] table yet: then clean runs only
+        variants[0].replace(noise=noise)
+    except ScenarioError as err:
+        unavailable = str(err)
+    jobs = [(v, k > 0, None if unavailable else noise, noise_t_final) for k, v in enumerate(variants)]
+    return ObserverGainStudy(noise=None if unavailable else noise, labels=labels, gains=specs,
+                             **_describe(variants[0]), noise_t_final_s=float(noise_t_final),
+                             runs=_map(jobs, workers, progress), noise_unavailable=unavailable)

@@ -27,7 +27,7 @@ from .scenario import ScenarioSection, scenario_section
 from .simulation import SimulationSection, simulation_section, worse_with_observer
 from .studies import StudiesSection, studies_section
 from .summary import plain_summary
-from .text import Figure, Paragraph, Table, arm_joints, fmt, split_caveats, stability_text
+from .text import Figure, Paragraph, Table, arm_joints, fmt, is_paper_arm, split_caveats, stability_text
 
 __all__ = ["ReportView", "Header", "Table", "Figure", "Paragraph", "build_view", "plain_summary", "worse_with_observer",
            "stability_text", "split_caveats", "fmt", "regenerate_command", "SECTIONS"]
@@ -89,7 +89,7 @@ def _header(result, scenario) -> Header:
         return Header(title=f"dobkit analysis report, quick preview: scenario '{scenario.name}'",
                       regenerate=regenerate_command(scenario.source, settings),
                       full_command=regenerate_command(scenario.source, settings, quick=False),
-                      preview=preview_differences(settings) + _left_out(result))
+                      preview=preview_differences(settings, joints=arm_joints(scenario)) + _left_out(result))
     return Header(title=f"dobkit analysis report: scenario '{scenario.name}'",
                   regenerate=regenerate_command(scenario.source, settings), full_command=None, preview=None)
 
@@ -123,7 +123,10 @@ def build_view(result, experiment: dict, scenario, figure_files: dict,
     extra_sections : tuple of str
         Ready-made HTML sections appended at the end (for example a sweep summary).
     """
-    contents = list(SECTIONS) + ([DIGITAL_SECTION] if result.digital is not None else []) \
+    sections = SECTIONS if is_paper_arm(scenario) else tuple(
+        (key, "2. Simulation of the scenario (Figures 4-8, Table 3 layout)")
+        if key == "simulation" else (key, title) for key, title in SECTIONS)
+    contents = list(sections) + ([DIGITAL_SECTION] if result.digital is not None else []) \
         + ([("sweeps", "Sweep summaries")] if extra_sections else [])
     return ReportView(
         scenario_name=scenario.name, header=_header(result, scenario), dobkit_version=result.dobkit_version,
@@ -132,7 +135,7 @@ def build_view(result, experiment: dict, scenario, figure_files: dict,
         scenario=scenario_section(scenario, result),
         simulation=simulation_section(result, experiment, scenario, figure_files),
         linear=linear_section(result, scenario, figure_files),
-        bandwidth=bandwidth_section(result, figure_files),
+        bandwidth=bandwidth_section(result, figure_files, scenario),
         design=design_section(result, scenario, figure_files),
         frequency=frequency_section(result, scenario, figure_files),
         studies=studies_section(result, scenario, figure_files),

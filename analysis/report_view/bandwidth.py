@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .text import Figure, Table, figures, fmt, join, mode_text
+from .text import Figure, Table, arm_joints, figures, fmt, join, mode_text
 
 __all__ = ["BandwidthSection", "bandwidth_section"]
 
@@ -21,8 +21,10 @@ class BandwidthSection:
     figures: list[Figure]
 
 
-def bandwidth_section(result, files: dict) -> BandwidthSection:
+def bandwidth_section(result, files: dict, scenario=None) -> BandwidthSection:
+    """The section's tables and statements; the joints named as the scenario's arm names them (default the paper's)."""
     bw = result.observer_bandwidth
+    joints = arm_joints(scenario)
     s = bw.slowest_rad_s
     fast = bw.fastest_rad_s
     rows = [[f"mode {k + 1}", fmt(lo, 4), fmt(hi, 4), fmt(1 / hi, 3), fmt(1 / lo, 3)] for k, (lo, hi) in
@@ -32,7 +34,7 @@ def bandwidth_section(result, files: dict) -> BandwidthSection:
     slowest = (f"Slowest mode: {fmt(s.min, 4)} rad/s at q = [{join(s.q_at_min, 4)}], {fmt(s.max, 4)} rad/s "
                f"at q = [{join(s.q_at_max, 4)}]. Along the scenario's path it is {fmt(at.min, 4)} to "
                f"{fmt(at.max, 4)} rad/s; its direction in disturbance space there is "
-               f"[{join(at.direction_at_min, 3)}] (theta1, theta2, d3, theta4): it moves "
+               f"[{join(at.direction_at_min, 3)}] ({', '.join(joints.names)}): it moves "
                f"{mode_text(at.direction_at_min)}. Largest change of any eigenvalue along each joint axis of "
                f"the grid (rad/s): {sens}.")
     Y = np.array(bw.Y)
@@ -49,5 +51,6 @@ def bandwidth_section(result, files: dict) -> BandwidthSection:
         modes=Table.of(["mode", "min (rad/s)", "max (rad/s)", "time constant min (s)", "time constant max (s)"], rows,
                        "Eigenvalues of Y M^-1(q) over the workspace"),
         slowest=slowest, reading=reading,
-        figures=figures(files, ("observer_bandwidth", "Observer modes along theta2 and the slowest mode's direction")))
+        figures=figures(files, ("observer_bandwidth",
+                                f"Observer modes along {bw.slice_joint_name} and the slowest mode's direction")))
 

@@ -3,7 +3,20 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .text import Figure, Table, and_words, arm_joints, figures, fmt, join, kinds, span, units_list
+from .text import (
+    Figure,
+    Table,
+    and_words,
+    arm_joints,
+    figures,
+    fmt,
+    gain_units,
+    is_paper_arm,
+    join,
+    kinds,
+    span,
+    units_list,
+)
 
 __all__ = ["DesignSection", "design_section"]
 
@@ -25,6 +38,7 @@ class DesignSection:
     simulation_setup: str | None
     simulation: Table
     figures: list[Figure]
+    gain_units: str = "kg m^2/s, kg/s for joint 3"
 
 
 def design_section(result, scenario, files: dict) -> DesignSection:
@@ -33,17 +47,20 @@ def design_section(result, scenario, files: dict) -> DesignSection:
     cd, cs = d.certificate_designed, d.certificate_scenario_gain
     crit_d, crit_s = d.critical_theta2_speed_designed, d.critical_theta2_speed_scenario_gain
     ranges = d.bandwidth_designed.ranges_rad_s
+    # the critical speed runs along the bandwidth survey's slice joint (theta2 for the paper's arm)
+    along = result.observer_bandwidth.slice_joint_name
+    unit = joints.velocity_units[list(joints.names).index(along)] if along in joints.names else "rad/s"
     gain = Table.of([""] + [f"col {j + 1}" for j in range(len(d.Y))],
                     [[f"row {i + 1}"] + [fmt(v, 5) for v in row] for i, row in enumerate(d.Y)])
     certificate = Table.of(
         ["", "scenario gain", "designed gain"],
-        [["speed bound (rad/s, rad/s, m/s, rad/s)", join(d.speed_bound, 3), join(d.speed_bound, 3)],
+        [[f"speed bound ({units_list(joints.velocity_units)})", join(d.speed_bound, 3), join(d.speed_bound, 3)],
          ["certificate beta_min (rad/s)", fmt(cs.beta_min_rad_s, 5), fmt(cd.beta_min_rad_s, 5)],
          ["  reached at q", join(cs.q_at, 4), join(cd.q_at, 4)],
          ["  and q'", join(cs.dq_at, 3), join(cd.dq_at, 3)],
          ["condition holds", "yes" if cs.holds else "no", "yes" if cd.holds else "no"],
          ["beta at rest, min (rad/s)", fmt(cs.beta_at_rest_min_rad_s, 5), fmt(cd.beta_at_rest_min_rad_s, 5)],
-         ["largest |theta2'| keeping beta > 0 (rad/s)",
+         [f"largest |{along}'| keeping beta > 0 ({unit})",
           "unlimited" if crit_s.unlimited else fmt(crit_s.speed_factor, 5),
           "unlimited" if crit_d.unlimited else fmt(crit_d.speed_factor, 5)]],
         "Convergence certificate")
@@ -74,5 +91,6 @@ def design_section(result, scenario, files: dict) -> DesignSection:
         simulation=Table.of(["gain", "beta over the visited states (rad/s)", "time to 2% (s)",
                              f"RMS d - d_hat ({units_list(joints.force_units)})", "V(t) <= V(0) exp(-2 beta t)"], rows,
                             "Nonlinear simulation with each gain"),
-        figures=figures(files, ("observer_design", "Estimation error and Lyapunov certificate in simulation")))
+        figures=figures(files, ("observer_design", "Estimation error and Lyapunov certificate in simulation")),
+        gain_units="kg m^2/s, kg/s for joint 3" if is_paper_arm(scenario) else gain_units(joints))
 

@@ -103,7 +103,7 @@ def observer_reading(obs, scenario) -> str | None:
                          f"although {'its slowest mode is' if len(beat) == 1 else 'their slowest modes are'} slower "
                          f"({join([slowest[k] for k in beat], 3)} against {fmt(slowest[kd], 3)} rad/s): the slowest "
                          "observer mode alone does not set the peak.")
-    if not runs[0].ok:
+    if not runs[0].ok or runs[0].torque_noise_rms is None:          # no noise measured: nothing to weigh
         return text
     noisiest = max(ok, key=lambda k: max((r for r in _noise_ratios(obs, k) if math.isfinite(r)), default=-math.inf))
     ratio = _noise_ratios(obs, noisiest)
@@ -172,12 +172,16 @@ def studies_section(result, scenario, files: dict) -> StudiesSection:
                       "RMS (mm)"], rows, "Kp x Kd study (tool tip)")
     obs = st.observer
     noise = obs.noise
-    noise_setup = (f"Observer gain and measurement noise: the same step experiment ({fmt(obs.t_final_s)} s runs) for "
-                   f"each observer gain. Torque noise: runs of the first {fmt(obs.noise_t_final_s)} s with noise on q "
-                   f"of standard deviations {join(noise['q_std'])} ({units_list(joints.position_units)}) and on q' of "
-                   f"{join(noise['dq_std'])} ({units_list(joints.velocity_units)}), sampled every "
-                   f"{fmt(noise.get('sample_period', 0.001))} s, seed {noise.get('seed', 0)}; torque noise = RMS of the "
-                   "torque difference between the noisy and the clean run.")
+    if noise is None:
+        noise_setup = (f"Observer gain: the same step experiment ({fmt(obs.t_final_s)} s runs) for each observer "
+                       f"gain. Torque noise was not measured: {obs.noise_unavailable or 'no [noise] table'}.")
+    else:
+        noise_setup = (f"Observer gain and measurement noise: the same step experiment ({fmt(obs.t_final_s)} s runs) "
+                       f"for each observer gain. Torque noise: runs of the first {fmt(obs.noise_t_final_s)} s with "
+                       f"noise on q of standard deviations {join(noise['q_std'])} ({units_list(joints.position_units)}) "
+                       f"and on q' of {join(noise['dq_std'])} ({units_list(joints.velocity_units)}), sampled every "
+                       f"{fmt(noise.get('sample_period', 0.001))} s, seed {noise.get('seed', 0)}; torque noise = RMS "
+                       "of the torque difference between the noisy and the clean run.")
     rows = []
     for k, label in enumerate(obs.labels):
         r = obs.runs[k]
@@ -187,9 +191,11 @@ def studies_section(result, scenario, files: dict) -> StudiesSection:
             continue
         m = r.tool_mm
         slow = obs.slowest_mode_rad_s[k] if obs.slowest_mode_rad_s else None
+        noisy = (["not measured"] * 3 if r.torque_noise_rms is None else
+                 [fmt(r.clean_short.tool_mm.rms_error, 3), fmt(r.noisy.tool_mm.rms_error, 3),
+                  join(r.torque_noise_rms, 3)])
         rows.append([shown, fmt(slow, 4), settling(m.settling_time_s), fmt(m.peak_error, 3),
-                     fmt(m.rms_error, 3), fmt(r.clean_short.tool_mm.rms_error, 3), fmt(r.noisy.tool_mm.rms_error, 3),
-                     join(r.torque_noise_rms, 3)])
+                     fmt(m.rms_error, 3)] + noisy)
     observer = Table.of(["observer gain", "slowest mode (rad/s)", "settling time (s)", "peak (mm)", "RMS (mm)",
                          f"RMS, first {fmt(obs.noise_t_final_s)} s (mm)", "same, with noise (mm)",
                          f"torque noise RMS ({units_list(joints.force_units)})"], rows,

@@ -139,7 +139,7 @@ def _noise(result, joints) -> str | None:
     if "designed Y" not in labels or k_ref is None:
         return None
     k_new = labels.index("designed Y")
-    if not (runs[k_ref].ok and runs[k_new].ok):
+    if not (runs[k_ref].ok and runs[k_new].ok) or runs[k_ref].torque_noise_rms is None:
         return None
     n_ref, n_new = runs[k_ref].torque_noise_rms, runs[k_new].torque_noise_rms
     units = "RMS: " + units_list(joints.force_units)
