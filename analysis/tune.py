@@ -458,6 +458,11 @@ def load_tuning(name_or_path: str | Path, budget: Budget | None = None) -> TuneS
     return tuning_from_dict(data, source=source, folder=folder, budget=budget)
 
 
+def _positive(v) -> bool:
+    """A number > 0 or a non-empty list of numbers > 0."""
+    return (number(v) and v > 0) or (isinstance(v, list) and bool(v) and numbers(v, len(v)) and min(v) > 0)
+
+
 #: The settings of a tuning file by table (None: the top level); gain bounds in [search] are checked apart.
 _KEYS: dict[str | None, dict[str, Key]] = {
     None: {"name": Key(lambda v: isinstance(v, str), "a plain file name"),
@@ -473,11 +478,9 @@ _KEYS: dict[str | None, dict[str, Key]] = {
                "max_evaluations": Key(whole(1), "a whole number >= 1", 400),
                "polish_evaluations": Key(whole(0), "a whole number >= 0")},
     "constraints": {
-        "torque_noise_rms": Key(lambda v: v == "base" or (number(v) and v > 0) or
-                                 (numbers(v, 4) and min(v) > 0),
-                                 '"base", a number > 0 or 4 numbers > 0 (N m, N m, N, N m)'),
-        "torque_limit": Key(lambda v: (number(v) and v > 0) or (numbers(v, 4) and min(v) > 0),
-                             "a number > 0 or 4 numbers > 0 (N m, N m, N, N m)"),
+        # per joint of the base scenario's arm: sized and worded for it by _constraint_keys
+        "torque_noise_rms": Key(lambda v: v == "base" or _positive(v), '"base", a number > 0 or one number > 0 per joint'),
+        "torque_limit": Key(_positive, "a number > 0 or one number > 0 per joint"),
         "stability_margin": Key(lambda v: number(v) and v >= 0, "a number >= 0 (1/s)"),
         "min_damping_ratio": Key(lambda v: number(v) and 0 <= v <= 10,
                                   f"a number from 0 (not constrained) to 10 (default {DEFAULT_MIN_DAMPING})"),
