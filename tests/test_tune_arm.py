@@ -144,6 +144,26 @@ def test_a_six_joint_arm_sizes_the_per_joint_keys():
         tuning_from_dict(data)
 
 
+def test_a_ur5_tuning_runs_on_six_joints(tmp_path):
+    text = (resources.files("blocks") / "scenarios" / "ur5.toml").read_text(encoding="utf-8")
+    assert "t_final = 10.0" in text
+    (tmp_path / "ur5-short.toml").write_text(text.replace("t_final = 10.0", "t_final = 0.3")
+                                             .replace("output_step = 0.005", "output_step = 0.01"))
+    data = _tuning()
+    data["scenario"] = "ur5-short.toml"
+    data["search"]["gains.kd"] = [[5, 80]] * 6
+    data["constraints"] = {"torque_noise_rms": "base", "torque_limit": [150, 150, 150, 28, 28, 28],
+                           "sensor_noise": {"q_std": [1e-4] * 6, "dq_std": [1e-3] * 6, "sample_period": 0.001}}
+    spec = tuning_from_dict(data, source=str(tmp_path / "t.toml"), folder=tmp_path)
+    result = run_tune(spec, tmp_path / "out", workers=1, progress=False, engine="fast")
+    names = list(load_scenario("ur5").robot.joints.names)
+    assert result.joints == names and result.force_units == ["N m"] * 6
+    assert len(result.tuned.torque_noise_rms) == len(result.tuned.peak_torque) == 6
+    # the base gains kp = 180, kd = 36: zeta = 36 / (2 sqrt(180)) on every joint
+    np.testing.assert_allclose(result.base.damping_ratio, np.full(6, 36 / (2 * math.sqrt(180))), rtol=1e-12)
+    assert "torque noise RMS [N m, N m, N m, N m, N m, N m]" in html_section(tmp_path / "out")
+
+
 def test_damping_ratios_take_the_joint_count():
     # kd / (2 sqrt(kp)) = 0.5 for kp = 100, kd = 10, on each of six joints
     np.testing.assert_allclose(damping_ratios(100.0, 10.0, 6), np.full(6, 0.5))
