@@ -92,7 +92,7 @@ class Evaluation:
     spectral_abscissa : float
         Largest real part of the linearized loop's poles over configurations and models (1/s).
     damping_ratio : numpy.ndarray
-        Of the error dynamics per joint, ``kd / (2 sqrt(kp))`` (empty when not computed).
+        Of the error dynamics per joint, ``kd / (2 sqrt(kp))`` (one NaN, for any arm, when not computed).
     bandwidth_ratio : float
         Slowest observer mode over the tracking bandwidth (:mod:`analysis.tune`).
     sampled_radius : float
@@ -124,7 +124,7 @@ class Evaluation:
     gains: dict
     torque_noise_rms: np.ndarray
     spectral_abscissa: float
-    damping_ratio: np.ndarray = field(default_factory=lambda: np.empty(0))
+    damping_ratio: np.ndarray = field(default_factory=lambda: np.full(1, np.nan))
     bandwidth_ratio: float = math.nan
     sampled_radius: float = math.nan
     simulated: bool = False
