@@ -23,6 +23,7 @@ from blocks import load_scenario, simulate
 from blocks.batch import METRIC_ATOL, METRIC_RTOL
 from blocks.joints import JointSpace
 from blocks.metrics import tracking_metrics
+from dobkit.tune_commands import constraint_lines
 
 SCOPE4_NAMES = ["yaw", "pitch", "insertion", "roll"]
 SCOPE4_FORCE_UNITS = ["N m", "N m", "N", "N m"]
@@ -162,6 +163,9 @@ def test_a_ur5_tuning_runs_on_six_joints(tmp_path):
     # the base gains kp = 180, kd = 36: zeta = 36 / (2 sqrt(180)) on every joint
     np.testing.assert_allclose(result.base.damping_ratio, np.full(6, 36 / (2 * math.sqrt(180))), rtol=1e-12)
     assert "torque noise RMS [N m, N m, N m, N m, N m, N m]" in html_section(tmp_path / "out")
+    lines = "\n".join(constraint_lines(result))            # what `dobkit tune` prints
+    assert "torque noise RMS [N m, N m, N m, N m, N m, N m]: tuned [" in lines
+    assert "peak torque [N m, N m, N m, N m, N m, N m]: tuned [" in lines
 
 
 def test_damping_ratios_take_the_joint_count():
