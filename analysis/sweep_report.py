@@ -22,6 +22,13 @@ listed.  The summary folder is written in a temporary folder beside it and
 moved into place when complete, so it is never half old, half new.  Figures
 take any data: constant, one value, NaN and infinite values (those are
 counted, not drawn).
+
+Per-joint columns and keys (``rms_position_error[2]``, ``disturbance.f_r[2]``)
+are named and given units from the sweep's base scenario's arm
+(``scenario.robot.joints``): ``Joint 3 (d3)``, m, N for the paper's RRPR,
+``Joint 3 (insertion)`` for the built-in ``scope4``.  The arm's joints are kept
+in ``summary.json`` (:attr:`SweepSummary.joints`), so that the report labels
+them the same way.
 """
 from __future__ import annotations
 
@@ -41,15 +48,14 @@ from pathlib import Path
 
 import numpy as np
 
-from blocks.joints import RRPR_JOINTS
-from blocks.metrics import DISTURBANCE_UNITS, JOINT_UNITS
+from blocks.joints import RRPR_JOINTS, JointSpace
 from blocks.parameters import RobotParameters
 
 from .job_figures import JobFigure, new_figure, save_figure
 from .job_files import differences
 from .report_html import template_environment
 from .results import JsonResult, plain
-from .sweep import HEADER_PARTS, SweepError, SweepSpec
+from .sweep import HEADER_PARTS, SweepError, SweepSpec, json_default
 from .sweep_runner import ResultsFile, read_header
 
 __all__ = ["RunCounts", "ColumnStatistics", "WorstRun", "DivergedRun", "SweepFigure", "SweepSummary", "summarize",
@@ -99,28 +105,33 @@ def _joint(column: str) -> int | None:
     return int(found.group(1)) if found else None
 
 
-def column_label(column: str) -> str:
-    """A metric column for people: ``RMS position error, Joint 3 (d3)``, ``peak tool-tip error``."""
+def column_label(column: str, joints: JointSpace = RRPR_JOINTS) -> str:
+    """A metric column for people: ``RMS position error, Joint 3 (d3)``, ``peak tool-tip error``.
+
+    ``joints``: the arm whose joints the column's index counts (default: the paper's RRPR).
+    """
     j = _joint(column)
     name = metric_name(column.split("[")[0])
     if j is None:
         return name
-    joint = RRPR_JOINTS.labels[j] if j < RRPR_JOINTS.count else f"joint {j + 1}"
+    joint = joints.labels[j] if j < joints.count else f"joint {j + 1}"
     return f"{name}, {joint}"
 
 
-def column_unit(column: str) -> str:
-    """Unit of a metric column: the joint's unit, N m / N for disturbances, mm for the tool."""
+def column_unit(column: str, joints: JointSpace = RRPR_JOINTS) -> str:
+    """Unit of a metric column: the joint's position unit (rad, m), its force unit (N m, N) for disturbances, mm
+    for the tool; ``joints`` as in :func:`column_label`."""
     if column.endswith("_mm"):
         return "mm"
     j = _joint(column)
-    if j is not None and j < RRPR_JOINTS.count:
-        return (DISTURBANCE_UNITS if "disturbance" in column else JOINT_UNITS)[j]
+    if j is not None and j < joints.count:
+        return (joints.force_units if "disturbance" in column else joints.position_units)[j]
     return ""
 
 
-def key_name(key: str) -> str:
-    """A swept scenario key for people: ``disturbance.f_r[2]`` -> ``Eq. 4 amplitude f_r, Joint 3 (d3)``."""
+def key_name(key: str, joints: JointSpace = RRPR_JOINTS) -> str:
+    """A swept scenario key for people: ``disturbance.f_r[2]`` -> ``Eq. 4 amplitude f_r, Joint 3 (d3)``;
+    ``joints`` as in :func:`column_label`."""
     section, _, rest = key.partition(".")
     name, _, index = rest.partition("[")
     base = f"{section}.{name}"
@@ -135,25 +146,57 @@ def key_name(key: str) -> str:
         index = ""
     if index:
         j = int(index.rstrip("]"))
-        text += f", {RRPR_JOINTS.labels[j] if j < RRPR_JOINTS.count else f'element {j}'}"
+        text += f", {joints.labels[j] if j < joints.count else f'element {j}'}"
     return text
 
 
-def key_unit(key: str) -> str:
-    """Unit of a swept scenario value, for axis labels."""
+def key_unit(key: str, joints: JointSpace = RRPR_JOINTS) -> str:
+    """Unit of a swept scenario value, for axis labels; ``joints`` as in :func:`column_label`."""
     section, _, name = key.partition(".")
     name, _, index = name.partition("[")
-    if index and f"{section}.{name}" in ("disturbance.f_r", "disturbance.coulomb"):
-        return DISTURBANCE_UNITS[int(index.rstrip("]"))]
-    if index and f"{section}.{name}" in ("noise.q_std", "initial.q"):
-        return JOINT_UNITS[int(index.rstrip("]"))]
-    if section == "robot" and name in RobotParameters.names():
+    j = int(index.rstrip("]")) if index else None
+    if j is not None and j < joints.count and f"{section}.{name}" in ("disturbance.f_r", "disturbance.coulomb"):
+        return joints.force_units[j]
+    if j is not None and j < joints.count and f"{section}.{name}" in ("noise.q_std", "initial.q"):
+        return joints.position_units[j]
+    if section == "robot" and joints == RRPR_JOINTS and name in RobotParameters.names():
         return RobotParameters.unit(name)
+    force, position, velocity = (" or ".join(dict.fromkeys(u)) for u in
+                                 (joints.force_units, joints.position_units, joints.velocity_units))
     units = {"nominal_scale": "factor", "gains.kp": "1/s^2", "gains.kd": "1/s", "gains.observer": "kg m^2/s",
-             "disturbance.f_r": "N m or N", "disturbance.coulomb": "N m or N", "noise.q_std": "rad or m",
-             "noise.dq_std": "rad/s or m/s", "trajectory.duration": "s", "simulation.t_final": "s",
+             "disturbance.f_r": force, "disturbance.coulomb": force, "noise.q_std": position,
+             "noise.dq_std": velocity, "trajectory.duration": "s", "simulation.t_final": "s",
              "simulation.output_step": "s", "noise.sample_period": "s"}
     return units.get(section, units.get(f"{section}.{name}", ""))
+
+
+def _arm_joints(record: dict | None) -> JointSpace:
+    """The joints kept in a summary (:attr:`SweepSummary.joints`); the paper's RRPR when it keeps none."""
+    if not record:
+        return RRPR_JOINTS
+    return JointSpace(names=tuple(record["names"]), kinds=tuple(record["kinds"]))
+
+
+def _joints_record(joints: JointSpace) -> dict:
+    return {"names": list(joints.names), "kinds": list(joints.kinds)}
+
+
+def _joints_of_header(header: dict) -> JointSpace:
+    """The arm of a results file's sweep read without its sweep file: the built-in scenario the header names when
+    its values are the ones the sweep ran (the hash in the header), else the paper's RRPR."""
+    import hashlib
+    import json
+
+    from blocks.scenario import ScenarioError, builtin_scenarios, load_scenario
+    name = header.get("scenario")
+    if not isinstance(name, str) or name not in builtin_scenarios():
+        return RRPR_JOINTS
+    try:
+        base = load_scenario(name)
+    except (ScenarioError, OSError, ImportError):
+        return RRPR_JOINTS
+    digest = hashlib.sha256(json.dumps(base.data, sort_keys=True, default=json_default).encode()).hexdigest()[:16]
+    return base.robot.joints if digest == header.get("scenario_values") else RRPR_JOINTS
 
 
 def _with_unit(text: str, unit: str) -> str:
@@ -269,6 +312,9 @@ class SweepSummary(JsonResult):
         Lines of the results file left out as unusable, and rows of other runs left out.
     figures : list of SweepFigure
         The figures written with this summary (by :func:`write_summary`).
+    joints : dict
+        The base scenario's arm's joints, ``{"names": [...], "kinds": [...]}`` (revolute or prismatic), which name
+        the per-joint columns and give their units; empty in a summary written before it was kept (the RRPR).
     """
 
     sweep: dict
@@ -282,6 +328,12 @@ class SweepSummary(JsonResult):
     definition: str = ""
     problems: list[str] = dataclasses.field(default_factory=list)
     figures: list[SweepFigure] = dataclasses.field(default_factory=list)
+    joints: dict = dataclasses.field(default_factory=dict)
+
+    @property
+    def arm_joints(self) -> JointSpace:
+        """:attr:`joints` as a :class:`blocks.joints.JointSpace` (the paper's RRPR when none is kept)."""
+        return _arm_joints(self.joints)
 
     def as_dict(self) -> dict:
         """JSON-ready dict; each worst run holds its value under the worst metric's name."""
@@ -307,6 +359,7 @@ class _Table:
     """The usable rows of the current runs as columns: metric values and swept scalar values per ok run."""
 
     header: dict
+    joints: JointSpace = RRPR_JOINTS                 # the base scenario's arm
     count: int = 0                                   # ok runs
     index: array = dataclasses.field(default_factory=lambda: array("q"))
     columns: dict = dataclasses.field(default_factory=dict)      # column -> array('d')
@@ -377,7 +430,8 @@ def _load(results, spec: SweepSpec | None) -> tuple[_Table, str]:
         header = spec.header()["sweep"]
     worst_metric = header.get("worst_metric")
     worst_count = int(header.get("worst_count", 5) or 5)
-    table = _Table(header=header)
+    joints = spec.base.robot.joints if spec is not None else _joints_of_header(header)
+    table = _Table(header=header, joints=joints)
     seen: set = set()
     other = repeated = 0
     for row in rows:
@@ -448,7 +502,7 @@ def _summary(table: _Table, name: str) -> SweepSummary:
         mean, std = float(np.mean(w)) * top, float(np.std(w, ddof=1)) * top if v.size > 1 else 0.0
         stats[column] = ColumnStatistics(count=int(v.size), mean=mean, std=std, min=float(v.min()), p5=q05,
                                          median=q50, p95=q95, max=float(v.max()),
-                                         unit=column_unit(column), not_finite=int(values.size - v.size))
+                                         unit=column_unit(column, table.joints), not_finite=int(values.size - v.size))
     worst_metric = header.get("worst_metric")
     worst = [WorstRun(run_id=row["run_id"], index=row["index"], values=row["values"], value=value)
              for value, _, row in sorted(table.worst, key=lambda item: (-item[0], -item[1]))]
@@ -472,7 +526,7 @@ def _summary(table: _Table, name: str) -> SweepSummary:
                             failed_at=r.get("failed_at") if isinstance(r.get("failed_at"), (int, float)) else None,
                             message=str(r.get("message", ""))) for r in table.failed],
         influence=influence, results=name, definition=str(header.get("definition", "")),
-        problems=list(table.problems))
+        problems=list(table.problems), joints=_joints_record(table.joints))
 
 
 def _ranks(x: np.ndarray) -> np.ndarray:
@@ -546,7 +600,7 @@ def _draw_figures(table: _Table, summary: SweepSummary):
     groups: dict[str, list[str]] = {}
     for column in table.columns:
         groups.setdefault(column.split("[")[0], []).append(column)
-    n = table.count
+    n, joints = table.count, table.joints
     runs = f"{n} finished run{'s' if n != 1 else ''}"
     for metric, columns in groups.items():
         fig = new_figure((max(3.3 * len(columns), 5.0), 3.1))
@@ -554,8 +608,8 @@ def _draw_figures(table: _Table, summary: SweepSummary):
         notes = []
         for ax, column in zip(axes[0], columns):
             j = _joint(column)
-            label = RRPR_JOINTS.labels[j] if j is not None and j < RRPR_JOINTS.count else _capital(metric_name(metric))
-            note = _histogram(ax, table.array(table.columns[column]), column_unit(column), label)
+            label = joints.labels[j] if j is not None and j < joints.count else _capital(metric_name(metric))
+            note = _histogram(ax, table.array(table.columns[column]), column_unit(column, joints), label)
             if note:
                 notes.append(f"{label}: {note}")
         fig.suptitle(_capital(f"{metric_name(metric)} over {n} run{'s' if n != 1 else ''}"), fontsize=11)
@@ -574,21 +628,21 @@ def _draw_figures(table: _Table, summary: SweepSummary):
         x_all = table.array(table.values[key])
         good = np.isfinite(x_all) & np.isfinite(y_all)
         x, y, mark = x_all[good], y_all[good], mark_all[good]
-        xf, xunit = _display_scale(key_unit(key), x)
-        yf, yunit = _display_scale(column_unit(wm), y)
+        xf, xunit = _display_scale(key_unit(key, joints), x)
+        yf, yunit = _display_scale(column_unit(wm, joints), y)
         fig = new_figure((5.2, 3.6))
         ax = fig.subplots()
         ax.scatter(x[~mark] / xf, y[~mark] / yf, s=10, alpha=0.6, color="tab:blue")
         ax.scatter(x[mark] / xf, y[mark] / yf, s=30, color="tab:red")
-        ax.set_xlabel(_with_unit(_capital(key_name(key)), xunit))
-        ax.set_ylabel(_with_unit(_capital(_short(column_label(wm))), yunit))
+        ax.set_xlabel(_with_unit(_capital(key_name(key, joints)), xunit))
+        ax.set_ylabel(_with_unit(_capital(_short(column_label(wm, joints))), yunit))
         _plain_ticks(ax.xaxis)
         _plain_ticks(ax.yaxis)
         # the key in the title rather than a legend, which would hide points
         ax.set_title(f"red: the {int(mark.sum())} worst runs; rank correlation {r:+.2f}", fontsize=9)
         safe = key.replace(".", "_").replace("[", "_").replace("]", "")
-        caption = (f"{_capital(column_label(wm))} against the {key_name(key)} ({key}), one point per finished run; "
-                   f"red: the {int(mark.sum())} worst. Spearman rank correlation {r:+.2f}.")
+        caption = (f"{_capital(column_label(wm, joints))} against the {key_name(key, joints)} ({key}), one point "
+                   f"per finished run; red: the {int(mark.sum())} worst. Spearman rank correlation {r:+.2f}.")
         yield fig, f"worst_vs_{safe}", caption
 
 
@@ -710,42 +764,43 @@ _STATISTICS = ("mean", "std", "min", "p5", "median", "p95", "max")
 def _view(summary: SweepSummary) -> dict:
     """The summary's numbers and names as the texts the Markdown and HTML templates lay out."""
     sw, wm = summary.sweep, summary.worst_metric
+    joints = summary.arm_joints
     keys = list(dict.fromkeys(k for w in summary.worst for k in w.values))
     mc = sw.get("monte_carlo") or {}
     statistics = []
     for column, st in summary.statistics.items():
         factor, unit = _table_scale(st.unit)
         numbers = [_fmt(getattr(st, k) / factor) for k in _STATISTICS]
-        statistics.append((_capital(column_label(column)), unit, numbers, st.count, st.not_finite))
-    worst_factor, worst_unit = _table_scale(column_unit(wm) if wm else "")
+        statistics.append((_capital(column_label(column, joints)), unit, numbers, st.count, st.not_finite))
+    worst_factor, worst_unit = _table_scale(column_unit(wm, joints) if wm else "")
     worst = [(w.index, [_fmt(w.values.get(k, "")) for k in keys], _fmt(w.value / worst_factor)) for w in summary.worst]
-    failed = [(f.index, [(k, key_name(k), _fmt(v)) for k, v in f.values.items()],
+    failed = [(f.index, [(k, key_name(k, joints), _fmt(v)) for k, v in f.values.items()],
                None if f.failed_at is None else f"{f.failed_at:.4g}", f.message) for f in summary.failed]
     return {
         "name": str(sw.get("name", "?")), "description": str(sw.get("description", "") or ""),
         "scenario": str(sw.get("scenario", "?")), "engine": str(sw.get("engine", "?")),
         "observer": "with" if sw.get("observer", True) else "without",
         "counts": summary.counts, "results": summary.results, "definition": summary.definition,
-        "grid": [(k, key_name(k), _fmt(v)) for k, v in (sw.get("grid") or {}).items()],
+        "grid": [(k, key_name(k, joints), _fmt(v)) for k, v in (sw.get("grid") or {}).items()],
         "monte_carlo": None if not mc.get("distributions") else {
             "runs": mc.get("runs"), "seed": mc.get("seed"),
-            "distributions": [(k, key_name(k), d.get("kind", "?"), [(p, _fmt(v)) for p, v in d.items() if p != "kind"])
+            "distributions": [(k, key_name(k, joints), d.get("kind", "?"), [(p, _fmt(v)) for p, v in d.items() if p != "kind"])
                               for k, d in mc["distributions"].items()]},
         "statistics": statistics,
         "statistics_rows": [[label, unit] + values + [count] for label, unit, values, count, _ in statistics],
         "not_finite": "; ".join(f"{label}: {nf} run{'s' if nf != 1 else ''}" for label, _, _, _, nf in statistics
                                 if nf),
-        "worst_metric": wm, "worst_label": column_label(wm) if wm else "", "worst_unit": worst_unit,
-        "worst_keys": [(k, key_name(k), key_unit(k)) for k in keys], "worst": worst,
-        "worst_header": ["run"] + [_with_unit(key_name(k), key_unit(k)) for k in keys]
-        + [_with_unit(column_label(wm), worst_unit) if wm else ""],
+        "worst_metric": wm, "worst_label": column_label(wm, joints) if wm else "", "worst_unit": worst_unit,
+        "worst_keys": [(k, key_name(k, joints), key_unit(k, joints)) for k in keys], "worst": worst,
+        "worst_header": ["run"] + [_with_unit(key_name(k, joints), key_unit(k, joints)) for k in keys]
+        + [_with_unit(column_label(wm, joints), worst_unit) if wm else ""],
         "worst_rows": [[index] + values + [value] for index, values, value in worst],
         "failed": failed, "failed_more": summary.counts.diverged - len(summary.failed),
         "failed_rows": [[index, ", ".join(f"{name} = {v}" for _, name, v in values), at or "?", message]
                         for index, values, at, message in failed],
-        "influence": [(k, key_name(k), f"{v:+.2f}")
+        "influence": [(k, key_name(k, joints), f"{v:+.2f}")
                       for k, v in sorted(summary.influence.items(), key=lambda kv: -abs(kv[1]))],
-        "influence_rows": [[key_name(k), k, f"{v:+.2f}"]
+        "influence_rows": [[key_name(k, joints), k, f"{v:+.2f}"]
                            for k, v in sorted(summary.influence.items(), key=lambda kv: -abs(kv[1]))],
         "problems": summary.problems[:20], "problems_more": max(0, len(summary.problems) - 20),
     }

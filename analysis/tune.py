@@ -19,8 +19,8 @@ over a Monte Carlo set of mismatches and disturbances, and the constraints::
     polish_evaluations = 80      # of those, for the local polish (default a fifth, at most 100; 0: none)
 
     [constraints]                # every one optional
-    torque_noise_rms = "base"    # N m (N): a number, 4 numbers, or "base": the base scenario's gains' own noise
-    torque_limit = 40            # N m (N): a number or 4; peak |tau| over every run of the set
+    torque_noise_rms = "base"    # N m (N): a number, n numbers, or "base": the base scenario's gains' own noise
+    torque_limit = 40            # N m (N): a number or n; peak |tau| over every run of the set
     stability_margin = 0.5       # 1/s: the linearized loop's poles have real parts <= -margin
     min_damping_ratio = 0.7      # of the error dynamics, every joint (default 0.7; 0: not constrained) ...
     max_overshoot = 0.05         # ... or instead the largest overshoot of a step (a fraction: 0.05 = 5 %)
@@ -29,6 +29,12 @@ over a Monte Carlo set of mismatches and disturbances, and the constraints::
                                  # loop's limit (default 0.2 with a [controller]; 0: not constrained)
     sensor_noise = {q_std = [2e-4, 2e-4, 2e-5, 2e-4], dq_std = [5e-3, 5e-3, 5e-4, 5e-3], sample_period = 0.001}
                                  # default: the scenario's [noise], else analysis.studies.DEFAULT_NOISE
+
+Per-joint values (the bounds of a per-joint gain, ``torque_noise_rms``,
+``torque_limit``, ``q_std``, ``dq_std``) have one entry per joint of the base
+scenario's arm, in its joint order and units (``scenario.robot.joints``): n = 4
+(rad, rad, m, rad; N m, N m, N, N m) for the paper's RRPR, the URDF's joints for
+a URDF arm.
 
     [monte_carlo]                # the mismatch / disturbance set, exactly as in sweep files (analysis.sweep)
     runs = 64
@@ -106,6 +112,7 @@ import numpy as np
 
 from blocks.batch import BATCH_KEYS
 from blocks.budget import Budget
+from blocks.joints import RRPR_JOINTS
 from blocks.scenario import Scenario, ScenarioError, load_scenario, parse_key
 
 from .job_keys import Key, failing, number, numbers, read_table, read_top, scenario_value, whole
@@ -191,15 +198,15 @@ class Limits:
     Attributes
     ----------
     torque_noise_rms : numpy.ndarray or None
-        Per joint (N m, N m, N, N m).
+        Per joint of the arm (N m for a revolute joint, N for a prismatic one).
     torque_noise_from : str
         ``"base"`` (the base gains' own noise) or ``"given"``.
     torque_limit : numpy.ndarray or None
-        Peak ``|tau|`` per joint (N m, N m, N, N m).
+        Peak ``|tau|`` per joint (N m or N).
     stability_margin : float or None
         1/s.
     sensor_noise : dict
-        ``q_std``, ``dq_std`` (4 numbers each) and ``sample_period`` (s) of the torque-noise constraint.
+        ``q_std``, ``dq_std`` (n numbers each) and ``sample_period`` (s) of the torque-noise constraint.
     min_damping_ratio : float or None
         Of the error dynamics, every joint (module docstring); None with ``max_overshoot`` or when switched off.
     damping_from : str
@@ -239,11 +246,16 @@ class Limits:
                 "min_observer_bandwidth_ratio": self.min_observer_bandwidth_ratio} | sampled
 
 
-def damping_ratios(kp, kd) -> np.ndarray:
-    """``zeta = kd / (2 sqrt(kp))`` per joint of ``e'' + kd e' + kp e = 0`` (kp 1/s^2, kd 1/s; scalars or 4)."""
-    kp = np.broadcast_to(np.asarray(kp, dtype=float), (4,))
-    kd = np.broadcast_to(np.asarray(kd, dtype=float), (4,))
-    return kd / (2.0 * np.sqrt(kp))
+def damping_ratios(kp, kd, n: int | None = None) -> np.ndarray:
+    """``zeta = kd / (2 sqrt(kp))`` per joint of ``e'' + kd e' + kp e = 0`` (kp 1/s^2, kd 1/s).
+
+    ``kp`` and ``kd`` are scalars or one value per joint; ``n`` (the arm's joint count) sizes the result when both
+    are scalars (default: the length of whichever is a vector, else 4, the paper's RRPR).
+    """
+    kp, kd = np.asarray(kp, dtype=float), np.asarray(kd, dtype=float)
+    if n is None:
+        n = max(kp.size if kp.ndim else 0, kd.size if kd.ndim else 0) or RRPR_JOINTS.count
+    return np.broadcast_to(kd, (n,)) / (2.0 * np.sqrt(np.broadcast_to(kp, (n,))))
 
 
 def overshoots(zeta) -> np.ndarray:
@@ -275,8 +287,8 @@ class TuneSpec:
         The ``[monte_carlo]`` table as validated (runs, seed, distributions), for the header.
     limits : Limits
     hold : numpy.ndarray
-        Where the torque noise is computed: the path's reference at t = 0 (rad, rad, m, rad).
-    configurations : numpy.ndarray, shape (STABILITY_CONFIGURATIONS, 4)
+        Where the torque noise is computed: the path's reference at t = 0 (the arm's position units).
+    configurations : numpy.ndarray, shape (STABILITY_CONFIGURATIONS, n)
         Where the stability margin is checked.
     definition : str
         Hash of everything that decides which gains are evaluated and what an evaluation gives (not the name,
@@ -301,6 +313,16 @@ class TuneSpec:
     configurations: np.ndarray
     definition: str = ""
     budget: Budget = field(default_factory=Budget)
+
+    @property
+    def joints(self):
+        """The base scenario's arm's joints (:class:`blocks.joints.JointSpace`): names, kinds, units."""
+        return self.base.robot.joints
+
+    @property
+    def n(self) -> int:
+        """Joints of the base scenario's arm."""
+        return self.joints.count
 
     @property
     def runs(self) -> int:
@@ -329,7 +351,7 @@ class TuneSpec:
         return out
 
     def base_diagonal(self, key: str) -> list[float]:
-        """The base scenario's diagonal of a gain (4 numbers)."""
+        """The base scenario's diagonal of a gain (n numbers)."""
         matrix = {"gains.kp": self.base.kp, "gains.kd": self.base.kd, "gains.observer": self.base.observer_gain}[key]
         return [float(v) for v in np.diag(matrix)]
 
@@ -343,7 +365,7 @@ class TuneSpec:
         point = self.base_point()
         if point is not None:
             gains = self.gains(point)
-            if all(np.array_equal(np.broadcast_to(np.asarray(v, dtype=float), (4,)), self.base_diagonal(k))
+            if all(np.array_equal(np.broadcast_to(np.asarray(v, dtype=float), (self.n,)), self.base_diagonal(k))
                    for k, v in gains.items()):
                 return gains
         return self.base_gains()
@@ -436,6 +458,11 @@ def load_tuning(name_or_path: str | Path, budget: Budget | None = None) -> TuneS
     return tuning_from_dict(data, source=source, folder=folder, budget=budget)
 
 
+def _positive(v) -> bool:
+    """A number > 0 or a non-empty list of numbers > 0."""
+    return (number(v) and v > 0) or (isinstance(v, list) and bool(v) and numbers(v, len(v)) and min(v) > 0)
+
+
 #: The settings of a tuning file by table (None: the top level); gain bounds in [search] are checked apart.
 _KEYS: dict[str | None, dict[str, Key]] = {
     None: {"name": Key(lambda v: isinstance(v, str), "a plain file name"),
@@ -451,11 +478,9 @@ _KEYS: dict[str | None, dict[str, Key]] = {
                "max_evaluations": Key(whole(1), "a whole number >= 1", 400),
                "polish_evaluations": Key(whole(0), "a whole number >= 0")},
     "constraints": {
-        "torque_noise_rms": Key(lambda v: v == "base" or (number(v) and v > 0) or
-                                 (numbers(v, 4) and min(v) > 0),
-                                 '"base", a number > 0 or 4 numbers > 0 (N m, N m, N, N m)'),
-        "torque_limit": Key(lambda v: (number(v) and v > 0) or (numbers(v, 4) and min(v) > 0),
-                             "a number > 0 or 4 numbers > 0 (N m, N m, N, N m)"),
+        # per joint of the base scenario's arm: sized and worded for it by _constraint_keys
+        "torque_noise_rms": Key(lambda v: v == "base" or _positive(v), '"base", a number > 0 or one number > 0 per joint'),
+        "torque_limit": Key(_positive, "a number > 0 or one number > 0 per joint"),
         "stability_margin": Key(lambda v: number(v) and v >= 0, "a number >= 0 (1/s)"),
         "min_damping_ratio": Key(lambda v: number(v) and 0 <= v <= 10,
                                   f"a number from 0 (not constrained) to 10 (default {DEFAULT_MIN_DAMPING})"),
@@ -469,10 +494,40 @@ _KEYS: dict[str | None, dict[str, Key]] = {
 _NOISE_KEYS = ("q_std", "dq_std", "sample_period")
 
 
-def _read(table: dict, section: str | None, fail, skip: Callable[[str], bool] = lambda k: False) -> dict:
-    """The keys of one table checked against :data:`_KEYS` (:func:`analysis.job_keys.read_table`)."""
+def _one_per_joint(base: Scenario, what: str = "numbers > 0", units: tuple[str, ...] | None = None) -> str:
+    """How a message asks for one value per joint of the base scenario's arm: ``"4 numbers > 0 (N m, N m, N, N m)"``
+    for the paper's RRPR (its messages as they were), with the arm's name and joints for any other arm."""
+    joints = base.robot.joints
+    units = joints.force_units if units is None else units
+    words = f"{joints.count} {what} ({', '.join(units)})"
+    if joints == RRPR_JOINTS:
+        return words
+    return f"{words}, one per joint of the arm {base.arm_name!r} ({', '.join(joints.names)})"
+
+
+def _force_units(base: Scenario) -> str:
+    """The base arm's force units for a message: ``"N m"`` for the paper's RRPR (as it was), else one per joint."""
+    joints = base.robot.joints
+    return "N m" if joints == RRPR_JOINTS else ", ".join(joints.force_units)
+
+
+def _constraint_keys(base: Scenario) -> dict:
+    """:data:`_KEYS` with the per-joint constraints sized and worded for the base scenario's arm."""
+    n = base.robot.joints.count
+    per_joint = _one_per_joint(base)
+    keys = dict(_KEYS["constraints"])
+    keys["torque_noise_rms"] = Key(lambda v: v == "base" or (number(v) and v > 0) or (numbers(v, n) and min(v) > 0),
+                                   f'"base", a number > 0 or {per_joint}')
+    keys["torque_limit"] = Key(lambda v: (number(v) and v > 0) or (numbers(v, n) and min(v) > 0),
+                               f"a number > 0 or {per_joint}")
+    return _KEYS | {"constraints": keys}
+
+
+def _read(table: dict, section: str | None, fail, skip: Callable[[str], bool] = lambda k: False,
+          keys: dict | None = None) -> dict:
+    """The keys of one table checked against ``keys`` (default :data:`_KEYS`; :func:`analysis.job_keys.read_table`)."""
     also = f" and the gains {list(TUNABLE)} with their bounds" if section == "search" else ""
-    return read_table(table, _KEYS, section, fail, skip=skip, also=also)
+    return read_table(table, _KEYS if keys is None else keys, section, fail, skip=skip, also=also)
 
 
 def tuning_from_dict(data: dict, source: str = "<dict>", folder: Path | None = None,
@@ -492,12 +547,12 @@ def tuning_from_dict(data: dict, source: str = "<dict>", folder: Path | None = N
     if base.observer_variant != "correct":
         fail(f"the scenario's observer.variant is {base.observer_variant!r}; tuning needs the correct observer "
              "(its constraints use the correct observer's linearization)")
-    parameters = _parameters({k: v for k, v in top["search"].items() if "." in k}, fail)
+    parameters = _parameters({k: v for k, v in top["search"].items() if "." in k}, base, fail)
     drawn = [k for k in draws.get("distributions", {}) if parse_key(k)[0] == "gains" and
              f"gains.{parse_key(k)[1]}" in {p.key for p in parameters}]
     if drawn:
         fail(f"monte_carlo.distributions.\"{drawn[0]}\" draws a gain that [search] tunes; tune it or draw it")
-    limits = _limits(_read(top["constraints"], "constraints", fail), base, fail)
+    limits = _limits(_read(top["constraints"], "constraints", fail, keys=_constraint_keys(base)), base, fail)
     max_ev = search["max_evaluations"]
     polish = search["polish_evaluations"]
     if polish is None:
@@ -569,7 +624,7 @@ def _the_set(top: dict, name: str, source: str, folder: Path | None, budget: Bud
     return spec.base, records, draws
 
 
-def _parameters(bounds: dict, fail) -> list[Parameter]:
+def _parameters(bounds: dict, base: Scenario, fail) -> list[Parameter]:
     if not bounds:
         fail(f"[search] names no gain to tune; give bounds for at least one of {list(TUNABLE)}, e.g. "
              "\"gains.kp\" = [50, 1000]")
@@ -579,13 +634,17 @@ def _parameters(bounds: dict, fail) -> list[Parameter]:
         if key not in TUNABLE:
             fail(f"{label} is not a tunable gain; tunable: {list(TUNABLE)} (a gain left out keeps the scenario's "
                  "value)")
-        per_joint = isinstance(value, list) and len(value) == 4 and all(isinstance(v, list) for v in value)
+        n = base.robot.joints.count
+        per_joint = isinstance(value, list) and len(value) == n and all(isinstance(v, list) for v in value)
+        if isinstance(value, list) and len(value) not in (2, n) and value and all(isinstance(v, list) for v in value):
+            fail(f"{label} gives {len(value)} bounds [low, high]; the arm {base.arm_name!r} has {n} joints "
+                 f"({', '.join(base.robot.joints.names)}): give one [low, high] for every joint or {n} of them")
         pairs = value if per_joint else [value]
         for j, pair in enumerate(pairs):
             where = f"{label}[{j}]" if per_joint else label
             if not (isinstance(pair, list) and len(pair) == 2 and all(map(number, pair))):
                 fail(f"{where} must be bounds [low, high] (two numbers)"
-                     + ("" if per_joint else ", or four of them [[low, high], ...] for one gain per joint")
+                     + ("" if per_joint else f", or {n} of them [[low, high], ...] for one gain per joint")
                      + f", got {pair!r}")
             low, high = float(pair[0]), float(pair[1])
             if low == high:
@@ -607,12 +666,17 @@ def _limits(table: dict, base: Scenario, fail) -> Limits:
         if unknown:
             fail(f"unknown key(s) {[f'constraints.sensor_noise.{k}' for k in unknown]}; allowed: "
                  f"{', '.join(_NOISE_KEYS)}")
+        joints = base.robot.joints
+        rrpr = joints == RRPR_JOINTS
         for k in _NOISE_KEYS:           # the scenario's [noise] values, by its own validator, then the sign
-            if k in given:
+            # (out of a scenario the validator sizes per-joint lists for the RRPR: another arm's are checked below)
+            if k in given and (rrpr or k == "sample_period"):
                 scenario_value(f"noise.{k}", given[k], f"constraints.sensor_noise.{k}", fail)
         for k in ("q_std", "dq_std"):
-            if k in given and not (numbers(given[k], 4) and min(given[k]) >= 0):
-                fail(f"'constraints.sensor_noise.{k}' must be 4 numbers >= 0, got {given[k]!r}")
+            if k in given and not (numbers(given[k], joints.count) and min(given[k]) >= 0):
+                units = joints.position_units if k == "q_std" else joints.velocity_units
+                allowed = "4 numbers >= 0" if rrpr else _one_per_joint(base, "numbers >= 0", units)
+                fail(f"'constraints.sensor_noise.{k}' must be {allowed}, got {given[k]!r}")
         if "sample_period" in given and not given["sample_period"] > 0:
             fail(f"'constraints.sensor_noise.sample_period' must be a number > 0 (s), got {given['sample_period']!r}")
         noise.update(given)
@@ -621,7 +685,8 @@ def _limits(table: dict, base: Scenario, fail) -> Limits:
     if table["torque_noise_rms"] is not None and not any(sensor["q_std"] + sensor["dq_std"]):
         fail("'constraints.torque_noise_rms' is given but the sensor noise is zero on every joint; give "
              "constraints.sensor_noise")
-    vector = lambda v: None if v is None else np.broadcast_to(np.asarray(v, dtype=float), (4,)).copy()  # noqa: E731
+    n = base.robot.joints.count
+    vector = lambda v: None if v is None else np.broadcast_to(np.asarray(v, dtype=float), (n,)).copy()  # noqa: E731
     budget = table["torque_noise_rms"]
     source = "base" if budget == "base" else "given"
     if budget == "base":
@@ -633,7 +698,7 @@ def _limits(table: dict, base: Scenario, fail) -> Limits:
                                   base.observer_gain, sensor["q_std"], sensor["dq_std"], sensor["sample_period"])
         if not np.all(np.isfinite(budget)):
             fail("'constraints.torque_noise_rms' = \"base\": the base scenario's own gains do not give a stable "
-                 "held loop, so they set no torque-noise budget; give numbers (N m)")
+                 f"held loop, so they set no torque-noise budget; give numbers ({_force_units(base)})")
     if table["max_overshoot"] is not None and table["min_damping_ratio"] is not None:
         fail(f"'constraints.min_damping_ratio' ({table['min_damping_ratio']!r}) and 'constraints.max_overshoot' "
              f"({table['max_overshoot']!r}) state one constraint twice; give one of them")

@@ -88,11 +88,11 @@ class Evaluation:
     gains : dict
         Scenario changes (``"gains.kp"`` -> value).
     torque_noise_rms : numpy.ndarray
-        Linear torque noise per joint (N m, N m, N, N m).
+        Linear torque noise per joint of the arm (N m for a revolute joint, N for a prismatic one).
     spectral_abscissa : float
         Largest real part of the linearized loop's poles over configurations and models (1/s).
     damping_ratio : numpy.ndarray
-        Of the error dynamics per joint, ``kd / (2 sqrt(kp))``.
+        Of the error dynamics per joint, ``kd / (2 sqrt(kp))`` (one NaN, for any arm, when not computed).
     bandwidth_ratio : float
         Slowest observer mode over the tracking bandwidth (:mod:`analysis.tune`).
     sampled_radius : float
@@ -103,7 +103,7 @@ class Evaluation:
     values : numpy.ndarray or None
         The metric of each run of the set (mm; NaN for a diverged run).
     peak_torque : numpy.ndarray or None
-        Peak ``|tau|`` per joint over the set (N m, N m, N, N m).
+        Peak ``|tau|`` per joint over the set (N m or N).
     diverged : int
         Runs of the set that diverged.
     substeps : int
@@ -124,7 +124,7 @@ class Evaluation:
     gains: dict
     torque_noise_rms: np.ndarray
     spectral_abscissa: float
-    damping_ratio: np.ndarray = field(default_factory=lambda: np.full(4, np.nan))
+    damping_ratio: np.ndarray = field(default_factory=lambda: np.full(1, np.nan))
     bandwidth_ratio: float = math.nan
     sampled_radius: float = math.nan
     simulated: bool = False
@@ -214,7 +214,7 @@ class Evaluator:
         """Damping ratio of the error dynamics per joint, the observer bandwidth ratio and the sampled loop's
         spectral radius (NaN without a sampled-loop constraint; :attr:`Evaluation.sampled_radius`) of a candidate."""
         s = self.spec.base
-        kp = np.broadcast_to(np.asarray(gains.get("gains.kp", np.diag(s.kp)), dtype=float), (4,))
+        kp = np.broadcast_to(np.asarray(gains.get("gains.kp", np.diag(s.kp)), dtype=float), (self.spec.n,))
         kd = gains.get("gains.kd", np.diag(s.kd))
         Y = self._observer_matrix(gains)
         slowest = float(np.linalg.eigvals(Y @ np.linalg.inv(self._M_observer)).real.min())
@@ -223,7 +223,7 @@ class Evaluator:
         if margin is not None:
             Kp, Kd = self._pd_matrices(gains)
             radius = float(spectral_radius(self._M_sampled, Kp, Kd, Y / (1.0 - margin), s.controller).max())
-        return damping_ratios(kp, kd), slowest / float(np.sqrt(kp.max())), radius
+        return damping_ratios(kp, kd, self.spec.n), slowest / float(np.sqrt(kp.max())), radius
 
     def _observer_matrix(self, gains: dict) -> np.ndarray:
         n = self._M_observer.shape[-1]
@@ -269,7 +269,7 @@ class Evaluator:
             out["min_damping_ratio"] = min(_VIOLATION_CAP, max(0.0, limits.min_damping_ratio / float(np.min(zeta))
                                                               - 1.0))
         if zeta is not None and limits.max_overshoot is not None:
-            out["max_overshoot"] = _relative_excess(overshoots(zeta), np.full(4, limits.max_overshoot))
+            out["max_overshoot"] = _relative_excess(overshoots(zeta), np.full(np.shape(zeta), limits.max_overshoot))
         if ratio is not None and limits.min_observer_bandwidth_ratio is not None:
             out["min_observer_bandwidth_ratio"] = min(_VIOLATION_CAP, max(
                 0.0, limits.min_observer_bandwidth_ratio / ratio - 1.0 if ratio > 0 else _VIOLATION_CAP))

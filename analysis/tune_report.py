@@ -257,7 +257,7 @@ def _robustness(result, folder: Path, words: str) -> tuple[str, str]:
 def _constraints(result, folder: Path) -> tuple[str, str]:
     fig = _figure((7.2, 3.4))
     left, right = fig.subplots(1, 2)
-    joints = np.arange(RRPR_JOINTS.count)
+    joints = np.arange(len(result.joints))
     width = 0.38
     handles = {}
     for ax, attr, limit_key, title in ((left, "torque_noise_rms", "torque_noise_rms", "torque noise (RMS)"),
@@ -271,16 +271,31 @@ def _constraints(result, folder: Path) -> tuple[str, str]:
         limit = result.limits.get(limit_key)
         if limit is not None:
             handles["budget / limit"] = ax.scatter(joints, limit, marker="_", s=400, color="tab:red", zorder=3)
-        ax.set_xticks(joints, list(RRPR_JOINTS.names))
-        ax.set_ylabel(f"{title} [N m; N]")
+        ax.set_xticks(joints, list(result.joints))
+        ax.set_ylabel(f"{title} [{'; '.join(dict.fromkeys(result.force_units))}]")
     noise = np.array([v for p in (result.base, result.tuned) for v in p.torque_noise_rms], dtype=float)
     if np.any(np.isfinite(noise) & (noise > 0)):
-        left.set_yscale("log")          # joint 3 (N, light) is two decades below the others
+        left.set_yscale("log")          # a light joint (the RRPR's d3) is decades below the others
     fig.legend(list(handles.values()), list(handles), loc="outside upper center", ncol=len(handles), fontsize=8)
-    caption = ("Constraints per joint (N m; N for the prismatic joint d3): the torque noise that the sensor noise "
+    caption = (f"Constraints per joint ({_units_phrase(result)}): the torque noise that the sensor noise "
                "causes (linearized held loop) and the peak torque over every run of the set, with the base and "
                "the tuned gains; red: the budget and the limit where the tuning sets them.")
     return _save(fig, folder, "tune_constraints"), caption
+
+
+def _units_phrase(result) -> str:
+    """The force units of the result's arm in words: ``"N m; N for the prismatic joint d3"`` for the RRPR."""
+    prismatic = [name for name, unit in zip(result.joints, result.force_units) if unit == "N"]
+    revolute = len(prismatic) < len(result.joints)
+    if not prismatic:
+        return "N m"
+    words = f"the prismatic joint{'s' if len(prismatic) > 1 else ''} {', '.join(prismatic)}"
+    return f"N m; N for {words}" if revolute else "N"
+
+
+def _force_label(result) -> str:
+    """``"[N m, N m, N, N m]"``: the unit of each joint's torque or force, in joint order."""
+    return f"[{', '.join(result.force_units)}]"
 
 
 # --------------------------------------------------------------------------------------------
@@ -303,7 +318,8 @@ def _gain_rows(result) -> list[list[str]]:
         base, tuned = result.base.gains.get(key), result.tuned.gains.get(key)
         if joint:
             j = int(joint.rstrip("]"))
-            base = base[j] if isinstance(base, list) and len(base) == 4 and not isinstance(base[0], list) else base
+            base = base[j] if isinstance(base, list) and len(base) == len(result.joints) and \
+                not isinstance(base[0], list) else base
             tuned = tuned[j] if isinstance(tuned, list) else tuned
         rows.append([name, unit, f"{_fmt(bounds[0])} to {_fmt(bounds[1])}", _fmt(base, 6), _fmt(tuned, 6)])
     return rows
@@ -325,11 +341,11 @@ def _constraint_rows(result) -> list[list[str]]:
     limits, rows = result.limits, []
     if limits.get("torque_noise_rms") is not None:
         source = " (the base gains' own)" if limits.get("torque_noise_from") == "base" else ""
-        rows.append(["torque noise RMS [N m, N m, N, N m]", _fmt(limits["torque_noise_rms"]) + source,
+        rows.append([f"torque noise RMS {_force_label(result)}", _fmt(limits["torque_noise_rms"]) + source,
                      _fmt(result.base.torque_noise_rms), _fmt(result.tuned.torque_noise_rms),
                      _margin(result, "torque_noise_rms")])
     if limits.get("torque_limit") is not None:
-        rows.append(["peak |torque| [N m, N m, N, N m]", _fmt(limits["torque_limit"]), _fmt(result.base.peak_torque),
+        rows.append([f"peak |torque| {_force_label(result)}", _fmt(limits["torque_limit"]), _fmt(result.base.peak_torque),
                      _fmt(result.tuned.peak_torque), _margin(result, "torque_limit")])
     margin = limits.get("stability_margin")
     rows.append(["slowest pole, real part [1/s]", "-" if margin is None else f"<= {_fmt(-margin)}",

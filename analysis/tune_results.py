@@ -10,6 +10,8 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from blocks.joints import RRPR_JOINTS
+
 from .job_figures import JobFigure
 from .results import JsonResult, omitted_if_none
 from .tune import TuneError
@@ -27,7 +29,7 @@ class PointResult(JsonResult):
     Attributes
     ----------
     gains : dict
-        The tuned keys' values as the scenario file holds them (a number, or 4 for a diagonal).
+        The tuned keys' values as the scenario file holds them (a number, or n for a diagonal).
     objective : float or None
         Worst or mean of the metric over the set (mm); None when a run diverged or the set was not run.
     worst, mean : float or None
@@ -37,9 +39,9 @@ class PointResult(JsonResult):
     nominal : float or None
         The metric of the scenario itself with these gains, without the set's changes (mm).
     torque_noise_rms : list of float
-        Linear torque noise per joint (N m, N m, N, N m).
+        Linear torque noise per joint (:attr:`TuneResult.force_units`).
     peak_torque : list of float or None
-        Peak ``|tau|`` per joint over the set (N m, N m, N, N m).
+        Peak ``|tau|`` per joint over the set (:attr:`TuneResult.force_units`).
     spectral_abscissa : float
         Largest real part of the linearized loop's poles (1/s).
     violations : dict of str to float
@@ -145,6 +147,12 @@ class TuneResult(JsonResult):
         ``"evaluations"``: the best of the constrained search's own evaluations (the search was steered by the
         constraint, so the optimum without it may be lower and the cost larger); ``"search"``: the answer of the
         same search run without the constraint (``compare_unconstrained``).
+    joints : list of str
+        The base scenario's arm's joint names, in the order of every per-joint list (the paper's RRPR in a
+        ``tune.json`` written before the arm was recorded).
+    force_units : list of str
+        Unit of each joint's torque or force (``"N m"``, ``"N"``): of the torque noise, the peak torque and
+        their limits.
     """
 
     name: str
@@ -172,6 +180,8 @@ class TuneResult(JsonResult):
     unconstrained: PointResult | None = None
     damping_cost: float | None = None
     unconstrained_from: str | None = None
+    joints: list[str] = field(default_factory=lambda: list(RRPR_JOINTS.names))
+    force_units: list[str] = field(default_factory=lambda: list(RRPR_JOINTS.force_units))
 
 
 def read_result(folder):

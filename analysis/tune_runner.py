@@ -66,6 +66,7 @@ from scipy.stats import qmc
 
 from blocks.batch import simulate_batch
 from blocks.budget import Budget
+from blocks.joints import RRPR_JOINTS
 from blocks.progress import ProgressCallback, StageProgress
 
 from .job_dask import dask_client
@@ -174,8 +175,11 @@ def check_linear_feasibility(spec: TuneSpec, evaluator: Evaluator) -> None:
     misses = []
     if limits.torque_noise_rms is not None and np.any(noise > limits.torque_noise_rms):
         j = int(np.argmax(noise / limits.torque_noise_rms))
+        rrpr = spec.joints == RRPR_JOINTS       # the paper's message as it was; any other arm's units and names
+        unit = "N m" if rrpr else f"({', '.join(spec.joints.force_units)})"
+        joint = f"joint {j + 1}" if rrpr else f"joint {j + 1}, {spec.joints.names[j]},"
         misses.append(f"torque noise {numbers_text(noise)} against the budget "
-                      f"{numbers_text(limits.torque_noise_rms, 'N m')} (joint {j + 1} "
+                      f"{numbers_text(limits.torque_noise_rms, unit)} ({joint} "
                       f"{excess_text(noise[j], limits.torque_noise_rms[j])})")
     if limits.stability_margin is not None and abscissa > -limits.stability_margin:
         misses.append(f"slowest pole at {abscissa:.4g} 1/s, not <= -{limits.stability_margin:g} 1/s "
@@ -468,7 +472,7 @@ def _finish(spec: TuneSpec, evaluator: Evaluator, search: _Search, best: Evaluat
         tuned=tuned_point, feasible=bool(best.feasible), message=message, history=history, evaluations=counts,
         seconds=0.0, scenario_file=file_name, log_problems=list(problems), unconstrained=free_point,
         damping_cost=cost, unconstrained_from=None if free is None else "evaluations" if searched is None
-        else "search")
+        else "search", joints=list(spec.joints.names), force_units=list(spec.joints.force_units))
     report("tuning: writing results", 0.0)
     write_lines_atomically(out / file_name, [scenario.to_toml()])
     if figures:

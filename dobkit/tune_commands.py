@@ -155,10 +155,9 @@ def _gains_text(gains: dict) -> str:
     return ", ".join(f"{k} = {fmt(v)}" for k, v in gains.items())
 
 
-def _force_units() -> str:
-    """Per joint, the unit of its torque or force (N for the prismatic joint d3): "N m, N m, N, N m"."""
-    from blocks.joints import RRPR_JOINTS
-    return ", ".join(RRPR_JOINTS.force_units)
+def _force_units(units) -> str:
+    """Per joint of the tuning's arm, the unit of its torque or force: "N m, N m, N, N m" for the paper's RRPR."""
+    return ", ".join(units)
 
 
 def _numbers(values) -> str:
@@ -197,10 +196,10 @@ def constraint_lines(result) -> list[str]:
     limits, tuned, base = result.limits, result.tuned, result.base
     lines = []
     if limits.get("torque_noise_rms") is not None:
-        lines.append(f"  torque noise RMS [{_force_units()}]: tuned {_numbers(tuned.torque_noise_rms)}, base "
+        lines.append(f"  torque noise RMS [{_force_units(result.force_units)}]: tuned {_numbers(tuned.torque_noise_rms)}, base "
                      f"{_numbers(base.torque_noise_rms)}, budget {_numbers(limits['torque_noise_rms'])}")
     if limits.get("torque_limit") is not None:
-        lines.append(f"  peak torque [{_force_units()}]: tuned {_numbers(tuned.peak_torque)}, limit "
+        lines.append(f"  peak torque [{_force_units(result.force_units)}]: tuned {_numbers(tuned.peak_torque)}, limit "
                      f"{_numbers(limits['torque_limit'])}")
     if tuned.damping_ratio:
         minimum = limits.get("min_damping_ratio")
@@ -241,10 +240,10 @@ def _check_report(spec, estimate, substeps: int) -> str:
              f"  differential evolution: population {spec.population}, {spec.generations} generations after the "
              f"first; polish: {spec.polish_evaluations} evaluations; at most {spec.max_evaluations} in all"]
     if limits.torque_noise_rms is not None:
-        lines.append(f"  torque noise budget [{_force_units()}]: {_numbers(limits.torque_noise_rms)}"
+        lines.append(f"  torque noise budget [{_force_units(spec.joints.force_units)}]: {_numbers(limits.torque_noise_rms)}"
                      + (" (the base gains' own)" if limits.torque_noise_from == "base" else ""))
     if limits.torque_limit is not None:
-        lines.append(f"  torque limit [{_force_units()}]: {_numbers(limits.torque_limit)}")
+        lines.append(f"  torque limit [{_force_units(spec.joints.force_units)}]: {_numbers(limits.torque_limit)}")
     if limits.stability_margin is not None:
         lines.append(f"  stability margin: poles at real part <= -{limits.stability_margin:g} 1/s")
     if limits.min_damping_ratio is not None:
