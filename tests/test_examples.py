@@ -21,7 +21,8 @@ from conftest import PAPER_K, PAPER_KD, PAPER_KP, PAPER_Y
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
-SCRIPTS = ["wire_blocks_by_hand", "linearize_and_bode", "small_sweep", "fmu_cosimulation", "digital_controller"]
+SCRIPTS = ["wire_blocks_by_hand", "linearize_and_bode", "small_sweep", "fmu_cosimulation", "digital_controller",
+           "urdf_arm"]
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
@@ -67,6 +68,8 @@ def _floats(pattern: str, text: str) -> list[float]:
 
 def _check_numbers(name: str, stdout: str) -> None:
     """What a script prints, against values derived by hand from the paper's constants."""
+    if name == "urdf_arm":
+        _check_urdf_arm(stdout)
     if name == "linearize_and_bode":
         line = re.search(r"poles with the observer:\s*\[([^\]]*)\]", stdout, re.S)
         assert line, stdout
@@ -88,3 +91,22 @@ def _check_numbers(name: str, stdout: str) -> None:
     elif name == "small_sweep":
         errors = [float(v) for v in re.findall(r"RMS tool-tip error ([\d.]+) mm", stdout)]
         assert len(errors) == 6 and all(a > b for a, b in zip(errors, errors[1:])), errors
+
+
+def _check_urdf_arm(stdout: str) -> None:
+    """scope4's observer gain against pinocchio's own inertia of the URDF (Y = 10 rad/s x 1.05 M(q0)), and the
+    observer removing the constant disturbance's offset on every joint."""
+    pin = pytest.importorskip("pinocchio")
+    from blocks.arms import scope4_urdf
+
+    model = pin.buildModelFromUrdf(str(scope4_urdf()))
+    q0 = np.array(_floats(r"q0: \[\s*([-\d.e+]+)\s+([-\d.e+]+)\s+([-\d.e+]+)\s+([-\d.e+]+)\s*\]", stdout))
+    M = pin.crba(model, model.createData(), q0)
+    expected = 10.0 * 1.05 * np.diag(M)            # observer_bandwidth 10 rad/s, nominal_mass_scale 1.05
+    got = _floats(r"observer gain diagonal: \[\s*([-\d.e+]+)\s+([-\d.e+]+)\s+([-\d.e+]+)\s+([-\d.e+]+)\s*\]",
+                  stdout)
+    np.testing.assert_allclose(got, expected, rtol=1e-8)
+    late = re.findall(r"(\w+) ([-\d.e+]+) / ([-\d.e+]+)", stdout.split("late RMS error")[1])
+    assert [name for name, _, _ in late] == ["yaw", "pitch", "insertion", "roll"]
+    for name, with_dob, without in late:
+        assert float(with_dob) < float(without) / 50, (name, with_dob, without)
