@@ -7,16 +7,19 @@ BSD, Modelica Association).
 """
 from __future__ import annotations
 
+import hashlib
 import os
 import shlex
 import shutil
 import subprocess
 import sys
+import uuid
 from pathlib import Path
 
 from .errors import FMUBuildError
 
-__all__ = ["find_compiler", "fmi_header_dir", "compile_shared_library", "platform_folder", "FMI_HEADERS",
+__all__ = ["instantiation_token", "rebuild_command",
+           "find_compiler", "fmi_header_dir", "compile_shared_library", "platform_folder", "FMI_HEADERS",
            "COMPILE_FLAGS"]
 
 FMI_HEADERS = {
@@ -30,6 +33,22 @@ COMPILE_FLAGS = ("-shared", "-fPIC", "-O2", "-std=c99", "-ffp-contract=off", "-D
                  "-fvisibility=hidden", "-Wall", "-Wextra")
 
 _CANDIDATES = ("cc", "gcc", "clang")
+
+
+def instantiation_token(kind: str, fmi_version: int, texts: list[str]) -> str:
+    """The GUID / instantiationToken of an export: a hash of ``kind`` (``"plant"``, ``"controller"``), the FMI
+    version and ``texts`` (its sources and variable table), so the same export gives the same token."""
+    digest = hashlib.sha256(f"dobkit-{kind}-fmi{fmi_version}".encode())
+    for text in texts:
+        digest.update(b"\0" + text.encode("utf-8"))
+    return "{" + str(uuid.UUID(hex=digest.hexdigest()[:32])) + "}"
+
+
+def rebuild_command(identifier: str, sources: list[str]) -> tuple[str, str]:
+    """The shared library's file name and the compile command (as one shell line) that rebuilds it from an
+    FMU's ``sources/`` folder, for its ``BUILD.txt``."""
+    lib = identifier + shared_library_suffix()
+    return lib, shlex.join(["cc"] + list(COMPILE_FLAGS) + ["-I."] + sources + ["-o", lib, "-lm"])
 
 
 def find_compiler(cc: str | None = None) -> list[str]:

@@ -35,16 +35,13 @@ side and is refused here.
 """
 from __future__ import annotations
 
-import hashlib
 import math
-import shlex
-import uuid
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
-from .build import COMPILE_FLAGS, shared_library_suffix
+from .build import instantiation_token, rebuild_command
 from .controller_tick import TickCode, trace_tick
 from .controller_variables import controller_description_xml, controller_variables
 from .modeldescription import build_description_xml
@@ -124,18 +121,11 @@ def _config_header(code: TickCode, variables, token: str, period: float, ticks: 
     return "\n".join(lines)
 
 
-def _token(fmi_version: int, texts: list[str]) -> str:
-    digest = hashlib.sha256(f"dobkit-controller-fmi{fmi_version}".encode())
-    for text in texts:
-        digest.update(b"\0" + text.encode("utf-8"))
-    return "{" + str(uuid.UUID(hex=digest.hexdigest()[:32])) + "}"
-
 
 def _build_txt(fmi_version: int, sources: list[str]) -> str:
-    lib = CONTROLLER_IDENTIFIER + shared_library_suffix()
-    cmd = ["cc"] + list(COMPILE_FLAGS) + ["-I."] + sources + ["-o", lib, "-lm"]
+    lib, cmd = rebuild_command(CONTROLLER_IDENTIFIER, sources)
     return (f"dobkit controller FMU (FMI {fmi_version}.0 Co-Simulation): rebuild the binary from this folder "
-            f"with any C99 compiler\n\n    {shlex.join(cmd)}\n\nand place {lib} in binaries/<platform>/ of the FMU.\n"
+            f"with any C99 compiler\n\n    {cmd}\n\nand place {lib} in binaries/<platform>/ of the FMU.\n"
             "controller_tick.c is generated from dobkit's sampled-controller kernels, controller_reference.c holds\n"
             "the reference table and controller_config.h this export's value references, gains and token.\n"
             f"The fmi{fmi_version}*.h headers are the standard FMI headers (2-clause BSD, Modelica Association "
@@ -227,7 +217,7 @@ def export_controller(path, scenario, fmi_version: int = 2, cc: str | None = Non
         return controller_description_xml(variables, CONTROLLER_IDENTIFIER, token, sources, description, tool,
                                           stop_time=(ticks - 1) * period, step=period, fmi_version=fmi_version)
 
-    token = _token(fmi_version, [texts[n] for n in sorted(texts)]
+    token = instantiation_token("controller", fmi_version, [texts[n] for n in sorted(texts)]
                    + [_config_header(code, variables, _TOKEN_PLACEHOLDER, period, ticks), xml_for(_TOKEN_PLACEHOLDER)])
     texts["controller_config.h"] = _config_header(code, variables, token, period, ticks)
     extra = {"sources/BUILD.txt": _build_txt(fmi_version, sources)}

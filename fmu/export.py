@@ -25,17 +25,14 @@ outputs' first derivatives are available (see :mod:`fmu.coupling`).
 """
 from __future__ import annotations
 
-import hashlib
 import math
-import shlex
-import uuid
 from importlib import resources
 from pathlib import Path
 
 from blocks.disturbances import DisturbanceSpec
 from blocks.parameters import RobotParameters
 
-from .build import COMPILE_FLAGS, platform_folder, shared_library_suffix
+from .build import instantiation_token, platform_folder, rebuild_command
 from .generated import GENERATED_HEADER, arm_disturbance, plant_c
 from .modeldescription import build_description_xml, model_description_xml
 from .package import package_fmu
@@ -80,18 +77,11 @@ def _joint_vector(value, name: str, n: int):
     return items
 
 
-def _token(fmi_version: int, texts: list[str]) -> str:
-    digest = hashlib.sha256(f"dobkit-plant-fmi{fmi_version}".encode())
-    for text in texts:
-        digest.update(b"\0" + text.encode("utf-8"))
-    return "{" + str(uuid.UUID(hex=digest.hexdigest()[:32])) + "}"
-
 
 def _build_txt(fmi_version: int, sources: list[str]) -> str:
-    lib = MODEL_IDENTIFIER + shared_library_suffix()
-    cmd = ["cc"] + list(COMPILE_FLAGS) + ["-I."] + sources + ["-o", lib, "-lm"]
+    lib, cmd = rebuild_command(MODEL_IDENTIFIER, sources)
     return (f"dobkit plant FMU (FMI {fmi_version}.0): rebuild the binary from this folder with any C99 compiler\n\n"
-            f"    {shlex.join(cmd)}\n\n"
+            f"    {cmd}\n\n"
             f"and place {lib} in binaries/{platform_folder(fmi_version)}/ of the FMU.\n"
             "plant_config.h holds this export's value references, start values and instantiation token;\n"
             "plant_generated.h the plant's maths, generated from dobkit's kernels for this arm.\n"
@@ -190,7 +180,7 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
     def xml_for(token: str) -> str:
         return model_description_xml(variables, fmi_version, MODEL_IDENTIFIER, token, sources, description, tool)
 
-    token = _token(fmi_version, [c_texts[n] for n in sorted(c_texts)]
+    token = instantiation_token("plant", fmi_version, [c_texts[n] for n in sorted(c_texts)]
                    + [config_header(variables, _TOKEN_PLACEHOLDER), xml_for(_TOKEN_PLACEHOLDER)])
     header = config_header(variables, token)
     xml = xml_for(token)
