@@ -158,7 +158,7 @@ def _estimate_line(estimate: dict) -> str:
 
 
 def _cmd_cosim(args) -> int:
-    from analysis.experiment import comparison_metrics, default_out_dir, format_rms_table, staged_output
+    from analysis.simulation.experiment import comparison_metrics, default_out_dir, format_rms_table, staged_output
     from blocks import load_scenario
     from blocks.progress import StageProgress
     from fmu.archive import extract_fmu
@@ -194,7 +194,7 @@ def _cmd_cosim(args) -> int:
         (stage / "metrics.json").write_text(strict_json(metrics))
         (stage / "scenario.toml").write_text(s.to_toml())
         if not args.no_figures:
-            from analysis.figures import paper_figures
+            from analysis.simulation.figures import paper_figures
             written = paper_figures(runs["with_dob"], runs["without_dob"], stage)
             figures_note = f"figures: {len(written)} files (PNG and SVG)"
     coupling = ("the digital controller's samples as communication points" if info["coupling"] == "sampled"
@@ -209,8 +209,8 @@ def _cmd_cosim(args) -> int:
 
 
 def _cmd_convergence(args) -> int:
-    from analysis.experiment import default_out_dir, staged_output
-    from analysis.figures import convergence_figure
+    from analysis.simulation.experiment import default_out_dir, staged_output
+    from analysis.simulation.figures import convergence_figure
     from blocks import load_scenario
     from fmu.convergence import cosim_convergence
 

@@ -1,4 +1,4 @@
-"""The ``dobkit tune`` command: a thin layer over :mod:`~analysis.tune` and :mod:`~analysis.tune_runner`.
+"""The ``dobkit tune`` command: a thin layer over :mod:`~analysis.tune.spec` and :mod:`~analysis.tune.runner`.
 
 Exit status: 0 tuned (the gains meet every constraint); 3 finished without a
 feasible point (the outputs are written, the best infeasible point named as
@@ -33,7 +33,7 @@ def add_tune_subcommand(subparsers) -> argparse.ArgumentParser:
                     "otherwise): differential evolution, then a Nelder-Mead polish. Every evaluation goes to "
                     "OUT/evaluations.jsonl as it finishes; the same command resumes a stopped tuning. Writes "
                     "OUT/tune.json, the tuned scenario OUT/<scenario>-tuned.toml and figures.",
-        file="tuning_file", file_help="tuning file (TOML; see analysis.tune) or a built-in name (paper-tune)")
+        file="tuning_file", file_help="tuning file (TOML; see analysis.tune.spec) or a built-in name (paper-tune)")
     p.add_argument("--out", help="output folder, which also holds the evaluation log (default: NAME-results beside "
                                  "the tuning file, or in the current folder for a built-in one)")
     p.add_argument("--max-evaluations", type=whole_number("--max-evaluations"),
@@ -62,15 +62,15 @@ def default_out_dir(spec) -> Path:
 
 def tune_command(args: argparse.Namespace) -> int:
     """Handle ``dobkit tune``; see the module docstring for the exit status."""
-    from analysis.tune import TuneError
+    from analysis.tune.spec import TuneError
 
     return run_job("tune", args, _tune, (TuneError,), "evaluation", "out")
 
 
 def _tune(args: argparse.Namespace, budget: Budget, state: dict) -> int:
-    from analysis.tune import load_tuning, with_evaluations
-    from analysis.tune_eval import Evaluator, evaluation_estimate, measure_evaluation
-    from analysis.tune_runner import LOG_NAME, check_linear_feasibility, run_tune
+    from analysis.tune.evaluate import Evaluator, evaluation_estimate, measure_evaluation
+    from analysis.tune.runner import LOG_NAME, check_linear_feasibility, run_tune
+    from analysis.tune.spec import load_tuning, with_evaluations
 
     spec = load_tuning(args.tuning_file, budget=budget)
     if args.max_evaluations is not None:
@@ -104,8 +104,8 @@ def _cores() -> int:
 
 
 def _time_line(spec, measured, corner_substeps: int, args) -> str:
-    """``--check``'s time estimate: evaluations x the measured cost of one (module :mod:`analysis.tune_eval`)."""
-    from analysis.tune_eval import time_estimate
+    """``--check``'s time estimate: evaluations x the measured cost of one (module :mod:`analysis.tune.evaluate`)."""
+    from analysis.tune.evaluate import time_estimate
     where = (f"here, not on the Dask cluster at {args.scheduler}" if args.scheduler else
              f"with {args.workers or _cores()} worker thread(s)")
     steps = ("" if corner_substeps <= measured.substeps else
@@ -165,7 +165,7 @@ def _numbers(values) -> str:
 
 
 def _summary(result, out: Path) -> str:
-    from analysis.tune_report import evaluations_text
+    from analysis.tune.report import evaluations_text
     lines = [f"tuning '{result.name}': {evaluations_text(result)}; {result.seconds:.1f} s",
              result.message,
              f"  tuned gains: {_gains_text(result.tuned.gains)}{'' if result.feasible else ' (INFEASIBLE)'}",
@@ -180,7 +180,7 @@ def _summary(result, out: Path) -> str:
     return "\n".join(lines)
 
 
-#: Each constraint as stdout names it, with the unit of its margin (analysis.tune_eval, "Margins").
+#: Each constraint as stdout names it, with the unit of its margin (analysis.tune.evaluate, "Margins").
 _MARGIN_WORDS = {"torque_noise_rms": ("torque noise", "of the budget left", 100.0, "%"),
                  "torque_limit": ("peak torque", "below the limit", 100.0, "%"),
                  "stability_margin": ("stability margin", "beyond it", 1.0, " 1/s"),

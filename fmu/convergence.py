@@ -13,7 +13,7 @@ order is the least-squares slope of ``log(error)`` against ``log(h)``,
 common to the four joints (each joint keeps its own intercept, so their
 different units do not matter), and per joint.
 
-:func:`analysis.figures.convergence_figure` plots the result.
+:func:`analysis.simulation.figures.convergence_figure` plots the result.
 """
 from __future__ import annotations
 

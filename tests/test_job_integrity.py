@@ -1,4 +1,4 @@
-"""The job logs' integrity (analysis.job_files): a checksum per row, conflicting repeats refused naming both
+"""The job logs' integrity (analysis.jobs.files): a checksum per row, conflicting repeats refused naming both
 lines, bytes that are not UTF-8 named with the remedy, and Ctrl-C on a sweep with worker processes in one line."""
 from __future__ import annotations
 
@@ -14,13 +14,13 @@ from pathlib import Path
 import pytest
 from sweep_files import run_sweep_command, write_short_scenario, write_sweep
 
-from analysis.job_files import JobLog, row_line
-from analysis.sweep import SweepError, load_sweep
-from analysis.sweep_report import summarize
-from analysis.sweep_runner import RESULTS_LOG, read_results, run_sweep
-from analysis.tune import TuneError
-from analysis.tune_eval import gains_key
-from analysis.tune_runner import EVALUATION_LOG, read_log
+from analysis.jobs.files import JobLog, row_line
+from analysis.sweep.runner import RESULTS_LOG, read_results, run_sweep
+from analysis.sweep.spec import SweepError, load_sweep
+from analysis.sweep.summary import summarize
+from analysis.tune.evaluate import gains_key
+from analysis.tune.runner import EVALUATION_LOG, read_log
+from analysis.tune.spec import TuneError
 
 ROOT = Path(__file__).resolve().parents[1]
 GRID = '[grid]\n"gains.kp" = [{}]\n[outputs]\nmetrics = ["rms_position_error", "max_tool_position_error_mm"]\n'
