@@ -74,6 +74,7 @@ from .scenario_arm import (
     load_arm,
     observer_gain_from_bandwidth,
     scaled_nominal,
+    skin_height_default,
 )
 from .tool_path import ToolPath
 from .trajectory import TRAJECTORY_KINDS, JointSine, LacerationPath, check_joint_ranges
@@ -1122,6 +1123,12 @@ def _validated(data: Mapping, source: str) -> Scenario:
     gains = built["gains"]
     if "observer_bandwidth" in gains:
         gains["observer"] = _bandwidth_gain(gains["observer_bandwidth"], built)
+    if _context().arm is not None and "skin_height" not in tables["disturbance"] \
+            and "tissue" in built["disturbance"].kinds:
+        # the default plane is the RRPR's: another arm's skin goes through its tool point at the reference's start
+        skin = skin_height_default(built["robot"], built["trajectory"].evaluate(0.0)[0])
+        built["disturbance"] = dataclasses.replace(built["disturbance"], skin_height=skin)
+        out["disturbance"] = dict(out["disturbance"], skin_height=skin)
     return Scenario(name=name, data=out, robot=built["robot"], nominal=built["nominal_scale"],
                     kp=gains["kp"], kd=gains["kd"], observer_gain=gains["observer"],
                     observer_variant=built["observer"], trajectory=built["trajectory"],
