@@ -33,8 +33,10 @@ Sections and keys (units in brackets)::
 Each section is read by one entry of the table ``_SECTIONS``: the keys it
 allows with the check of each value, and how its object is built from them.
 Per-joint lists have one entry per joint of the arm (n = 4 for the RRPR);
-``[robot]``, ``[nominal_scale]``, the laceration path and the tissue model
-are the RRPR's and refused, by name, for another arm.
+``[robot]``, ``[nominal_scale]`` and the laceration path are the RRPR's and
+refused, by name, for another arm; the tissue model acts on any arm, and for
+another arm ``disturbance.skin_height`` defaults to the tool height at the
+reference's start (written into the scenario's data).
 
 A scenario is varied by dotted keys, validated like a file::
 
