@@ -44,6 +44,7 @@ from .kernels import bias_forces as _rrpr_bias_forces
 from .kernels import disturbance_params as kernel_disturbance_params
 from .kernels import external_disturbance
 from .kernels import mass_times as _rrpr_mass_times
+from .kernels.bind import bound
 
 __all__ = ["StateBounds", "state_bounds", "cached_state_bounds", "signal_bounds", "ReferenceLimits",
            "reference_limits", "force_bounds", "batch_bounds", "Runaway", "POSITION_MARGIN", "VELOCITY_MARGIN",
@@ -164,7 +165,7 @@ def reference_limits(scenario, samples: int = 201) -> ReferenceLimits:
                            tuple(joints.position_units), tuple(joints.velocity_units), tuple(joints.force_units))
 
 
-def force_bounds(k_true, disturbance, ref: ReferenceLimits, kernels=None) -> np.ndarray:
+def force_bounds(k_true, disturbance, ref: ReferenceLimits, kernels=None, tool_kernels=None) -> np.ndarray:
     """The disturbance estimate's bound per member: ``FORCE_FACTOR`` (largest start force + 1) (N m, N).
 
     Parameters
@@ -177,6 +178,8 @@ def force_bounds(k_true, disturbance, ref: ReferenceLimits, kernels=None) -> np.
     ref : ReferenceLimits
     kernels : module, optional
         The true arm's row kernels (``arm.kernels``); default the paper's RRPR's.
+    tool_kernels : module, optional
+        The true arm's tool kernels (``arm.tool_kernels``, the tissue contact's tool point); default the RRPR's.
 
     Returns
     -------
@@ -194,8 +197,18 @@ def force_bounds(k_true, disturbance, ref: ReferenceLimits, kernels=None) -> np.
         q0, dq0, ddq0 = (np.repeat(a, np.shape(k_true)[1], axis=1) for a in (q0, dq0, ddq0))
     gravity_only = bias_forces(k_true, q0, np.zeros_like(dq0))
     inverse = mass_times(k_true, q0, ddq0) + bias_forces(k_true, q0, dq0)
-    forces = np.abs(external_disturbance(0.0, q0, dq0, disturbance)) + np.abs(gravity_only) + np.abs(inverse)
+    external = _external_disturbance(kernels, tool_kernels)
+    forces = np.abs(external(0.0, q0, dq0, disturbance)) + np.abs(gravity_only) + np.abs(inverse)
     return FORCE_FACTOR * (forces.max(axis=0) + 1.0)
+
+
+def _external_disturbance(kernels, tool_kernels):
+    """The disturbance kernel for the arm of these row-kernel modules (the RRPR's when not given)."""
+    if kernels is None:
+        return external_disturbance
+    if tool_kernels is None:
+        from .kernels import kinematics as tool_kernels
+    return bound(external_disturbance, (kernels, tool_kernels))
 
 
 def _bound_of(block: str, label: str, ref: ReferenceLimits, force, gain):
@@ -243,7 +256,7 @@ def state_bounds(loop, scenario, samples: int = 201) -> StateBounds:
     s = scenario
     ref = reference_limits(s, samples)
     spec = kernel_disturbance_params(s.disturbance, s.robot)
-    force = float(force_bounds(s.robot.kernel_params(), spec, ref, s.robot.kernels))
+    force = float(force_bounds(s.robot.kernel_params(), spec, ref, s.robot.kernels, s.robot.tool_kernels))
     labels = [(block.name, label) for block in loop.syslist for label in block.state_labels]
     return _labelled_bounds(labels, ref, force, np.asarray(s.observer_gain, dtype=float))
 
@@ -279,7 +292,7 @@ def batch_bounds(batch_loop, labels=None) -> StateBounds:
     if isinstance(b.k_true, np.ndarray):        # the RRPR's constants, one column per member
         force = force_bounds(b.k_true, b.disturbance, ref)                               # (N,)
     else:                                       # another arm: the members share the true arm, not its numbers' layout
-        force = _shared_arm_force_bounds(b.k_true, b.arm.kernels, b.disturbance, ref, b.n)
+        force = _shared_arm_force_bounds(b.k_true, b.arm, b.disturbance, ref, b.n)
     if labels is None:
         labels = [("plant", f"q[{i}]") for i in range(n)] + [("plant", f"dq[{i}]") for i in range(n)]
         if b.observer:
@@ -291,13 +304,15 @@ def batch_bounds(batch_loop, labels=None) -> StateBounds:
     return _labelled_bounds(labels, ref, force, gain)
 
 
-def _shared_arm_force_bounds(k, kernels, disturbance, ref: ReferenceLimits, members: int) -> np.ndarray:
+def _shared_arm_force_bounds(k, arm, disturbance, ref: ReferenceLimits, members: int) -> np.ndarray:
     """:func:`force_bounds` of ``members`` members sharing one arm (``k``, its row kernels) whose disturbances
     differ: the arm's terms at the reference's start once, each member's disturbance beside them (N,)."""
     q0, dq0, ddq0 = (np.repeat(np.asarray(a, dtype=float)[:, None], members, axis=1) for a in (ref.q0, ref.dq0, ref.ddq0))
+    kernels = arm.kernels
     gravity_only = kernels.bias_forces(k, q0, np.zeros_like(dq0))
     inverse = kernels.mass_times(k, q0, ddq0) + kernels.bias_forces(k, q0, dq0)
-    forces = np.abs(external_disturbance(0.0, q0, dq0, disturbance)) + np.abs(gravity_only) + np.abs(inverse)
+    external = _external_disturbance(kernels, arm.tool_kernels)
+    forces = np.abs(external(0.0, q0, dq0, disturbance)) + np.abs(gravity_only) + np.abs(inverse)
     return FORCE_FACTOR * (forces.max(axis=0) + 1.0)
 
 
@@ -307,7 +322,7 @@ def signal_bounds(names, scenario, samples: int = 201) -> StateBounds:
     s = scenario
     ref = reference_limits(s, samples)
     force = float(force_bounds(s.robot.kernel_params(), kernel_disturbance_params(s.disturbance, s.robot), ref,
-                               s.robot.kernels))
+                               s.robot.kernels, s.robot.tool_kernels))
     return _labelled_bounds([("plant", name) for name in names], ref, force, np.asarray(s.observer_gain, dtype=float))
 
 

@@ -108,8 +108,8 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
         Disturbance models switched on (``disturbance_paper``,
         ``disturbance_friction``, ``disturbance_tissue``) and their parameters;
         default: the paper's Eq. 4 (for another arm: every model off, zero
-        amplitudes, all settable as start values; the tissue model needs the
-        paper's arm).
+        amplitudes, all settable as start values, and the skin plane through the
+        tool point at ``q0``).
     fmi_version : {2, 3}
         FMI 2.0 or FMI 3.0.
     substeps : int
@@ -156,7 +156,7 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
     q0, dq0 = _joint_vector(q0, "q0", n), _joint_vector(dq0, "dq0", n)
     if q0 is None:
         q0 = list(DEFAULT_START_Q) if isinstance(params, RobotParameters) else [0.0] * n
-    disturbance = arm_disturbance(params, disturbance)
+    disturbance = arm_disturbance(params, disturbance, q0)
     path = Path(path)
     if path.is_dir():
         raise IsADirectoryError(f"path {str(path)!r} is a folder; give the path of the .fmu file to write")
