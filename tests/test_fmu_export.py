@@ -275,7 +275,9 @@ def test_fmu_state_can_be_saved_and_restored(fmus):
 @pytest.mark.parametrize("version", [2, 3])
 @pytest.mark.needs_cc
 def test_check_fmu_reports_validation_and_both_comparisons(fmus, version):
-    report = check_fmu(fmus[version], t_final=0.5)
+    # 0.15 s: with zero torque (the me_vs_cs runs) d3 reaches its end stop at 0.177 s, an impact RK4 at 0.01 s
+    # resolves only to about 1 % (tests/test_fmu_end_stops.py)
+    report = check_fmu(fmus[version], t_final=0.15)
     assert report["passed"] and report["validation"] == {"problems": [], "errors": [], "warnings": [],
                                                          "passed": True}
     assert report["fmi_version"] == f"{version}.0" and report["interfaces"] == ["ModelExchange", "CoSimulation"]
