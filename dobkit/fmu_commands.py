@@ -92,7 +92,7 @@ def _cmd_export(args) -> int:
         path = export_plant(out, params=arm, fmi_version=args.fmi_version, substeps=args.substeps, force=args.force)
         print(f"wrote {path} (FMI {args.fmi_version}.0, Model Exchange + Co-Simulation, arm {arm.n} joints "
               f"{list(arm.joints.names)}, {args.substeps} RK4 sub-steps per co-simulation step; disturbance models "
-              "off, settable as start values)")
+              f"off, settable as start values; {_stops_phrase(arm.joints)})")
         return 0
     s = load_scenario(args.scenario)        # a bad scenario is refused before the exporter's heavy imports
     from fmu.export import export_plant
@@ -102,8 +102,14 @@ def _cmd_export(args) -> int:
     path = export_plant(out, params=s.robot, disturbance=s.disturbance, fmi_version=args.fmi_version,
                         substeps=args.substeps, q0=q0, dq0=dq0, force=args.force)
     print(f"wrote {path} (FMI {args.fmi_version}.0, Model Exchange + Co-Simulation, scenario {s.name}, "
-          f"{args.substeps} RK4 sub-steps per co-simulation step)")
+          f"{args.substeps} RK4 sub-steps per co-simulation step; {_stops_phrase(s.robot.joints)})")
     return 0
+
+
+def _stops_phrase(joints) -> str:
+    """Which joints' ranges the exported plant enforces with end stops (docs/plant-fmu.md)."""
+    bounded = [name for name, (lo, hi) in zip(joints.names, joints.limits) if math.isfinite(lo) or math.isfinite(hi)]
+    return f"end stops at the range of {', '.join(bounded)}" if bounded else "no joint has a range: no end stops"
 
 
 def _cmd_export_controller(args) -> int:

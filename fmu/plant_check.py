@@ -90,25 +90,27 @@ def _middle(arm) -> np.ndarray:
 def arm_torque(arm) -> tuple[np.ndarray, Callable]:
     """The initial state and the torque law ``tau(t, x)`` (N m, N) of another arm's comparison.
 
-    ``tau = G(q) + Kp (q_c(t) - q) - Kd q'`` with ``q_c(t) = q_m + a sin(3 t + i)``
-    around the middle ``q_m`` of the ranges, ``a`` a tenth of each range (at
-    most 0.2 rad or m), ``Kp = M_ii(q_m) 10^2``, ``Kd = 2 M_ii(q_m) 10``
-    (critically damped at 10 rad/s): every joint moves, none leaves its range.
-    The arm starts at ``q_m`` with the commanded velocity.
+    ``tau = G(q) + M(q_m) (w^2 (q_c(t) - q) + 2 w (q_c'(t) - q'))`` with
+    ``q_c(t) = q_m + a sin(3 t + i)`` around the middle ``q_m`` of the ranges,
+    ``a`` a tenth of each range (at most 0.2 rad or m), ``w = 10 rad/s``: with
+    the whole inertia matrix (not its diagonal) every joint, light or heavy,
+    follows critically damped at about 10 rad/s -- slow against a 0.01 s
+    held step -- so every joint moves and none leaves its range.  The arm
+    starts on ``q_c(0)`` with its velocity.
     """
     q_m = _middle(arm)
     span = np.array([hi - lo if math.isfinite(hi - lo) else 2.0 * _SINE_MAX for lo, hi in arm.joints.limits])
     amp = np.minimum(_SINE_SHARE * span, _SINE_MAX)
     phase = np.arange(arm.n, dtype=float)
-    m = np.diag(arm.inertia(q_m))
-    kp, kd = m * _PD_FREQUENCY ** 2, 2.0 * m * _PD_FREQUENCY
+    m = arm.inertia(q_m)
+    kp, kd = _PD_FREQUENCY ** 2, 2.0 * _PD_FREQUENCY
     w = _SINE_FREQUENCY
 
     def torque(t, x):
         q, dq = x[:arm.n], x[arm.n:]
         q_c = q_m + amp * np.sin(w * t + phase)
         dq_c = amp * w * np.cos(w * t + phase)
-        return arm.gravity_forces(q) + kp * (q_c - q) + kd * (dq_c - dq)
+        return arm.gravity_forces(q) + m @ (kp * (q_c - q) + kd * (dq_c - dq))
 
     x0 = np.concatenate((q_m + amp * np.sin(phase), amp * w * np.cos(phase)))
     return x0, torque

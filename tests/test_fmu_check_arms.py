@@ -91,8 +91,10 @@ def test_check_fails_a_scope4_with_a_heavier_insertion_stage(scope4, tmp_path):
     assert "the FMU is not this arm's plant, or its parameters differ" in plant["why"]
 
 
-def test_the_command_line_checks_urdf_and_paper_fmus_against_an_arm(scope4, tmp_path, capsys):
-    _, path = scope4
+def test_the_command_line_checks_urdf_and_paper_fmus_against_an_arm(tmp_path, capsys):
+    path = tmp_path / "scope4.fmu"
+    assert dobkit_main(["fmu", "export", "--arm", "scope4", "--out", str(path)]) == 0
+    assert "end stops at the range of yaw, pitch, insertion, roll" in capsys.readouterr().out
     assert dobkit_main(["fmu", "check", str(path), "--t-final", "0.2"]) == 0
     out = capsys.readouterr().out
     assert "comparison with the Python plant of the 4-joint arm ['yaw', 'pitch', 'insertion', 'roll']" in out
@@ -107,3 +109,15 @@ def test_the_command_line_checks_urdf_and_paper_fmus_against_an_arm(scope4, tmp_
     assert dobkit_main(["fmu", "check", str(changed), "--t-final", "0.2", "--arm", "rrpr"]) == 1
     out = capsys.readouterr().out
     assert "Model Exchange differs from the paper's RRPR arm by" in out
+
+
+@pytest.mark.slow
+def test_check_compares_a_panda_fmu_with_its_arm(tmp_path):
+    """Seven joints, wrist inertias of a few 1e-3 kg m^2: the PD law on the whole M keeps the light joints calm."""
+    arm = example_arm("panda")
+    report = check_fmu(export_plant(tmp_path / "panda.fmu", params=arm), t_final=0.5)
+    plant = report["plant_comparison"]
+    assert plant["passed"], plant
+    assert plant["joints"] == [f"panda_joint{i}" for i in range(1, 8)]
+    assert plant["model_exchange"]["max_abs_error"] < 1e-9 and plant["co_simulation"]["max_abs_error"] < 1e-6
+    assert plant["end_stops"]["passed"] and len(plant["end_stops"]["states"]) == 7 * 4
