@@ -237,7 +237,9 @@ def plant_parameter_values(params: RobotParameters, disturbance: DisturbanceSpec
     >>> values["m1"], values["coulomb[2]"], values["disturbance_friction"], values["disturbance_paper"]
     (5.58, 0.5, True, False)
     """
-    values: dict = {name: float(getattr(params, name)) for name in RobotParameters.names()}
+    # another arm's geometry is constants in the C: only the paper's arm has Table-1 parameters
+    names = RobotParameters.names() if isinstance(params, RobotParameters) else ()
+    values: dict = {name: float(getattr(params, name)) for name in names}
     for base in ("f_r", "coulomb", "viscous"):
         for i, v in enumerate(getattr(disturbance, base)):
             values[f"{base}[{i}]"] = float(v)
