@@ -375,8 +375,10 @@ def _reference(extracted, md, arm):
                           "the arm (check_fmu(arm=...), dobkit fmu check --arm) to compare it"), None
     try:
         return plant_reference(md, arm), None, None
-    except (KeyError, ValueError, TypeError) as err:
+    except (KeyError, TypeError) as err:
         return None, f"not a dobkit plant FMU (no usable parameter {err})", None
+    except ValueError as err:           # a plant FMU whose settings the arm's Python plant cannot take
+        return None, f"no Python plant to compare with: {err}", None
 
 
 def check_fmu(path, t_final: float = 1.0, tolerance: float = 1e-6, cs_step: float = 0.01,

@@ -159,15 +159,15 @@ def _joint_count(model_description) -> int:
     return sum(1 for v in model_description.modelVariables if v.causality == "input" and v.name.startswith("tau["))
 
 
-def _spec_from(start: dict, n: int, base: type = DisturbanceSpec):
+def _spec_from(start: dict, n: int) -> DisturbanceSpec:
     def num(name):
         return float(start[name])
 
     kinds = tuple(k for k in DISTURBANCE_KINDS if str(start[f"disturbance_{k}"]).lower() in ("true", "1"))
-    return base(kinds=kinds,
-                **{b: tuple(num(f"{b}[{i}]") for i in range(n)) for b in ("f_r", "coulomb", "viscous")},
-                **{name: num(name) for name in ("friction_velocity", "skin_height", "tissue_stiffness",
-                                                "tissue_damping", "tissue_drag")})
+    return DisturbanceSpec(kinds=kinds,
+                           **{b: tuple(num(f"{b}[{i}]") for i in range(n)) for b in ("f_r", "coulomb", "viscous")},
+                           **{name: num(name) for name in ("friction_velocity", "skin_height", "tissue_stiffness",
+                                                           "tissue_damping", "tissue_drag")})
 
 
 def plant_from_description(model_description) -> tuple[RobotParameters, DisturbanceSpec]:
@@ -253,8 +253,8 @@ def check_arm_matches(model_description, arm, name: str) -> None:
     n = _joint_count(model_description)
     joints = arm.joints
     if n != joints.count:
-        raise FMUError(f"the FMU has {n} joints (inputs tau[0..{n - 1}]); {name} has {joints.count} "
-                       f"({', '.join(joints.names)}): the FMU is not this arm's plant")
+        raise FMUError(f"the FMU has {n} joints (inputs tau[0..{n - 1}]); {name} has {joints.count}: the FMU is "
+                       "not this arm's plant")
     by_name = {v.name: v for v in model_description.modelVariables}
     for i in range(n):
         v = by_name.get(f"q[{i}]")
