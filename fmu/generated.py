@@ -89,7 +89,7 @@ def arm_disturbance(arm, disturbance: DisturbanceSpec | None, q0=None):
     one entry per joint; without one, every model is off and the amplitudes
     are zero (start values the user sets on the FMU), and the skin plane of
     the tissue contact goes through the tool point at the start pose ``q0``
-    (default ``q = 0``), as a scenario of that arm places it.
+    (default: the export's start pose), as a scenario of that arm places it.
 
     Raises
     ------
