@@ -11,38 +11,107 @@ once a batch has finished, no row is lost or written twice.
 Engine notes (:class:`blocks.loop.EngineFallbackWarning`) raised on a worker
 come back with the result and are printed once per command, not once per
 worker.
+
+The scheduler is an address (``tcp://host:8786``) or ``local[:N]``: a Dask
+``LocalCluster`` of N worker processes (default: one per core) started on
+127.0.0.1 for the job and closed when it ends, however it ends.
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import itertools
+import logging
+import os
+import signal
+import threading
 import warnings
 from collections.abc import Callable, Iterator
 
-__all__ = ["dask_client", "dask_threads", "run_on_dask", "call_with_notes", "take_with_notes"]
+__all__ = ["dask_session", "local_workers", "dask_threads", "run_on_dask", "call_with_notes", "take_with_notes",
+           "LOCAL"]
+
+#: The scheduler "address" that starts a cluster on this machine for the job: ``local`` or ``local:N``.
+LOCAL = "local"
 
 
-def _distributed(error: type[Exception]):
+def _distributed(error: type[Exception], address: str = ""):
     try:
         import distributed
     except ImportError:
-        raise error("--scheduler needs Dask: pip install 'dask[distributed]' (the 'cluster' extra)") from None
+        raise error(f"--scheduler {address or 'ADDRESS'} needs Dask: pip install 'dobkit[cluster]' (the 'cluster' "
+                    "extra, dask[distributed])") from None
     return distributed
 
 
-def dask_client(address: str, timeout: float, error: type[Exception]):
-    """A Dask client of the scheduler at ``address`` (``tcp://host:8786``).
+def local_workers(address: str, error: type[Exception] = ValueError) -> int | None:
+    """The worker processes ``local[:N]`` asks for (``local``: one per core), or None for another address.
 
     Raises
     ------
     error
-        When Dask is not installed, or the scheduler does not answer within ``timeout`` seconds.
+        When N is not a whole number >= 1.
+
+    Examples
+    --------
+    >>> local_workers("local:3"), local_workers("tcp://127.0.0.1:8786")
+    (3, None)
     """
-    distributed = _distributed(error)
+    if address != LOCAL and not address.startswith(LOCAL + ":"):
+        return None
+    count = address[len(LOCAL) + 1:] if address != LOCAL else str(os.cpu_count() or 1)
+    if not (count.isdigit() and int(count) >= 1):
+        raise error(f"--scheduler {address!r}: the number of local worker processes must be a whole number >= 1 "
+                    "(local or local:N, e.g. local:2)")
+    return int(count)
+
+
+@contextlib.contextmanager
+def _sigint_blocked():
+    """Threads and processes started here inherit a blocked Ctrl-C (the cluster's event loop, its worker
+    processes and those that replace a lost one): Ctrl-C reaches this process alone, which ends the job and
+    closes the cluster.  Blocked, not ignored: one that arrives meanwhile is delivered right after."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
-        return distributed.Client(address, timeout=f"{timeout}s")
-    except (OSError, TimeoutError, ValueError) as err:
-        raise error(f"cannot reach the Dask scheduler at {address!r}: {err}; nothing was run or written") from None
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+@contextlib.contextmanager
+def dask_session(address: str, timeout: float, error: type[Exception]):
+    """A Dask client of the scheduler at ``address`` (``tcp://host:8786``), or of a ``LocalCluster`` started
+    here for ``local[:N]`` (N worker processes of one thread on 127.0.0.1, no dashboard); the client, and the
+    cluster it started, are closed when the ``with`` block ends, on an error or Ctrl-C too.
+
+    Raises
+    ------
+    error
+        When Dask is not installed (naming the ``cluster`` extra), ``local:N`` is not a whole number >= 1, or the
+        scheduler does not answer within ``timeout`` seconds.
+    """
+    workers = local_workers(address, error)
+    distributed = _distributed(error, address)
+    with contextlib.ExitStack() as stack:
+        if workers is not None:
+            with _sigint_blocked():
+                cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                                   host="127.0.0.1", dashboard_address=None,
+                                                   silence_logs=logging.CRITICAL)
+            stack.callback(cluster.close)
+            target = cluster
+        else:
+            target = address
+        try:
+            client = distributed.Client(target, timeout=f"{timeout}s")
+        except (OSError, TimeoutError, ValueError) as err:
+            raise error(f"cannot reach the Dask scheduler at {address!r}: {err}; nothing was run or written") \
+                from None
+        stack.callback(client.close)
+        yield client
 
 
 def dask_threads(client) -> int:

@@ -51,7 +51,7 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.jobs.cluster import call_with_notes, dask_client, dask_threads, run_on_dask, take_with_notes
+from analysis.jobs.cluster import call_with_notes, dask_session, dask_threads, run_on_dask, take_with_notes
 from analysis.jobs.files import JobLog, LogKind
 from analysis.sweep.spec import HEADER_PARTS, SweepError, SweepSpec, load_sweep, run_schedule, split_changes
 from blocks.batch import Variants, simulate_batch
@@ -312,7 +312,9 @@ def run_sweep(spec: SweepSpec | str | Path, results: str | Path, scheduler: str 
     results : path
         The JSON-lines results file; runs whose id it already holds are skipped.
     scheduler : str, optional
-        Address of a Dask distributed scheduler (``tcp://host:8786``); the
+        Address of a Dask distributed scheduler (``tcp://host:8786``), or
+        ``local[:N]`` to start a cluster of N worker processes (default: one
+        per core) on 127.0.0.1 for this sweep and close it at the end; the
         batches run on its workers.  Needs ``dask[distributed]``.  The
         connection is made before the results file is touched.
     workers : int, optional
@@ -363,9 +365,14 @@ def run_sweep(spec: SweepSpec | str | Path, results: str | Path, scheduler: str 
             outcome.seconds = time.perf_counter() - t0
             return outcome
         # connect before writing anything: a failed connection leaves no results file
-        client = dask_client(scheduler, scheduler_timeout, SweepError) if scheduler is not None else None
-        writer = log.writer(spec.header()["sweep"])
-        bar = count_progress(progress, len(spec.runs), skipped, label="sweep")
+        session = contextlib.ExitStack()
+        client = session.enter_context(dask_session(scheduler, scheduler_timeout, SweepError)) \
+            if scheduler is not None else None
+        with contextlib.ExitStack() as opening:        # the cluster closed if the results file cannot be opened
+            opening.push(session)
+            writer = log.writer(spec.header()["sweep"])
+            bar = count_progress(progress, len(spec.runs), skipped, label="sweep")
+            opening.pop_all()
 
         def take(new_rows: list[dict]) -> None:
             writer.write(new_rows)
@@ -395,8 +402,7 @@ def run_sweep(spec: SweepSpec | str | Path, results: str | Path, scheduler: str 
         finally:
             writer.close()
             bar.close()
-            if client is not None:
-                client.close()
+            session.close()
     outcome.seconds = time.perf_counter() - t0
     return outcome
 

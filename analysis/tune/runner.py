@@ -66,7 +66,7 @@ import numpy as np
 from scipy.optimize import differential_evolution, minimize
 from scipy.stats import qmc
 
-from analysis.jobs.cluster import dask_client
+from analysis.jobs.cluster import dask_session
 from analysis.jobs.files import JobLog, LogKind, write_lines_atomically
 from analysis.tune.costs import constraint_costs as measure_costs
 from analysis.tune.costs import costed_constraints, without
@@ -247,10 +247,12 @@ def run_tune(spec: TuneSpec | str | Path, out_dir: str | Path, workers: int | No
         rather than against the best of the constrained search's own evaluations.  About doubles the time.
     scheduler : str, optional
         Address of a Dask distributed scheduler (``tcp://host:8786``, or a ``LocalCluster``'s
-        ``scheduler_address``): each generation's candidates are simulated in batches spread over its workers
-        (:mod:`analysis.jobs.cluster`); the search, the log and the outputs stay in this process.  A worker lost
-        mid-batch has its batch run again elsewhere by Dask; rows are written only for finished batches, so the
-        log holds every evaluation once, and the result is the one of a local tuning.  Needs
+        ``scheduler_address``), or ``local[:N]`` to start a cluster of N worker processes (default: one per core)
+        on 127.0.0.1 for this tuning and close it at the end: each generation's candidates are simulated in
+        batches spread over its workers (:mod:`analysis.jobs.cluster`); the search, the log and the outputs
+        stay in this process.  A worker lost mid-batch has its batch run again elsewhere by Dask; rows are
+        written only for finished batches, so the log holds every evaluation once, and the result is the one of
+        a local tuning.  Needs
         ``dask[distributed]``; the connection is made before the output folder is touched.
     scheduler_timeout : float
         Seconds to wait for the Dask scheduler to answer.
@@ -290,8 +292,7 @@ def run_tune(spec: TuneSpec | str | Path, out_dir: str | Path, workers: int | No
             evaluator = Evaluator(spec, workers=workers, engine=engine)
             check_linear_feasibility(spec, evaluator)
             if scheduler is not None:         # connect before writing anything: a failed connection leaves nothing
-                evaluator.client = dask_client(scheduler, scheduler_timeout, TuneError)
-                stack.callback(evaluator.client.close)
+                evaluator.client = stack.enter_context(dask_session(scheduler, scheduler_timeout, TuneError))
             out.mkdir(parents=True, exist_ok=True)
             log = JobLog(out / LOG_NAME, EVALUATION_LOG)
             stack.enter_context(log.lock())
