@@ -147,9 +147,18 @@ def _rows_in(results: Path) -> int:
         return 0
 
 
+#: Runs of the Ctrl-C sweep and the simulated seconds of each (a tenth of a second of CPU or more per run): what
+#: is left after the first row is minutes of work for two workers, not the moment it takes to send the signal.
+CTRL_C_RUNS, CTRL_C_T_FINAL = 1000, 120.0
+
+
 @pytest.mark.slow
-def test_ctrl_c_on_a_sweep_with_two_workers_says_one_line(tmp_path, short_file):
-    runs = 400          # far more than can finish between the first row and the interrupt
+def test_ctrl_c_on_a_sweep_with_two_workers_says_one_line(tmp_path):
+    """Ctrl-C once the results file shows its first row.  The sweep cannot end first: its thousand runs of two
+    simulated minutes (batches of one) leave two workers minutes of work after the first row, however loaded the
+    machine, where the signal follows the row within one poll of the file."""
+    write_short_scenario(tmp_path, t_final=CTRL_C_T_FINAL)
+    runs = CTRL_C_RUNS
     path = write_sweep(tmp_path, GRID.format(", ".join(str(100 + 0.5 * i) for i in range(runs)))
                        + "[batch]\nsize = 1\n")
     results = tmp_path / "s-results.jsonl"
@@ -164,6 +173,8 @@ def test_ctrl_c_on_a_sweep_with_two_workers_says_one_line(tmp_path, short_file):
             assert proc.poll() is None, proc.communicate()
             assert time.monotonic() < deadline, "no row was written"
             time.sleep(0.02)
+        assert proc.poll() is None and _rows_in(results) < runs, \
+            f"the sweep ended before the interrupt ({_rows_in(results)} of {runs} rows): make its runs longer"
         os.killpg(proc.pid, signal.SIGINT)
         out, err = proc.communicate(timeout=120)
     finally:
