@@ -23,10 +23,10 @@ import functools
 import itertools
 import logging
 import os
-import signal
-import threading
 import warnings
 from collections.abc import Callable, Iterator
+
+from analysis.jobs.interrupts import sigint_held
 
 __all__ = ["dask_session", "local_workers", "dask_threads", "run_on_dask", "call_with_notes", "take_with_notes",
            "LOCAL"]
@@ -67,21 +67,6 @@ def local_workers(address: str, error: type[Exception] = ValueError) -> int | No
 
 
 @contextlib.contextmanager
-def _sigint_blocked():
-    """Threads and processes started here inherit a blocked Ctrl-C (the cluster's event loop, its worker
-    processes and those that replace a lost one): Ctrl-C reaches this process alone, which ends the job and
-    closes the cluster.  Blocked, not ignored: one that arrives meanwhile is delivered right after."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
-
-
-@contextlib.contextmanager
 def dask_session(address: str, timeout: float, error: type[Exception]):
     """A Dask client of the scheduler at ``address`` (``tcp://host:8786``), or of a ``LocalCluster`` started
     here for ``local[:N]`` (N worker processes of one thread on 127.0.0.1, no dashboard); the client, and the
@@ -97,7 +82,7 @@ def dask_session(address: str, timeout: float, error: type[Exception]):
     distributed = _distributed(error, address)
     with contextlib.ExitStack() as stack:
         if workers is not None:
-            with _sigint_blocked():
+            with sigint_held():        # the cluster's loop thread and worker processes leave Ctrl-C to us
                 cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                                    host="127.0.0.1", dashboard_address=None,
                                                    silence_logs=logging.CRITICAL)

@@ -53,6 +53,7 @@ import numpy as np
 
 from analysis.jobs.cluster import call_with_notes, dask_session, dask_threads, run_on_dask, take_with_notes
 from analysis.jobs.files import JobLog, LogKind
+from analysis.jobs.interrupts import sigint_held
 from analysis.sweep.spec import HEADER_PARTS, SweepError, SweepSpec, load_sweep, run_schedule, split_changes
 from blocks.batch import Variants, simulate_batch
 from blocks.budget import Budget, BudgetError, largest_batch
@@ -407,25 +408,10 @@ def run_sweep(spec: SweepSpec | str | Path, results: str | Path, scheduler: str 
     return outcome
 
 
-@contextlib.contextmanager
-def _sigint_held():
-    """Worker processes started here inherit a blocked Ctrl-C: the terminal sends it to the whole process
-    group, and the process that started them handles it (ends them, keeps whole rows, says one line).
-    Blocked, not ignored: a Ctrl-C that arrives while a worker starts reaches this process right after."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
-
-
 def _run_processes(payloads: Iterator[dict], workers: int, take) -> None:
     pool = worker_pool(workers)
     try:
-        with _sigint_held():
+        with sigint_held():
             running = {pool.submit(_chunk_in_worker, p) for p in itertools.islice(payloads, workers)}
         while running:            # keep at most one batch per worker in flight: memory stays bounded
             done, running = wait(running, return_when=FIRST_COMPLETED)
@@ -433,7 +419,7 @@ def _run_processes(payloads: Iterator[dict], workers: int, take) -> None:
                 take_with_notes(fut.result(), take)
                 nxt = next(payloads, None)
                 if nxt is not None:
-                    with _sigint_held():
+                    with sigint_held():
                         running.add(pool.submit(_chunk_in_worker, nxt))
     except BaseException:
         _end_now(pool)
