@@ -85,7 +85,10 @@ def dask_session(address: str, timeout: float, error: type[Exception]):
             with sigint_held():        # the cluster's loop thread and worker processes leave Ctrl-C to us
                 cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                                    host="127.0.0.1", dashboard_address=None,
-                                                   silence_logs=logging.CRITICAL)
+                                                   silence_logs=logging.CRITICAL,
+                                                   preload=["analysis.jobs.interrupts"],
+                                                   # its health page on a free port, not 8787 (maybe in use)
+                                                   scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
             stack.callback(cluster.close)
             target = cluster
         else:

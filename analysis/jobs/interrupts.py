@@ -5,6 +5,10 @@ A terminal sends Ctrl-C to the whole process group.  A job's worker processes
 that only the process that started them handles it: it ends them, keeps every
 finished row and says one line.  Blocked, not ignored: a Ctrl-C that arrives
 while they start reaches that process right after.
+
+The worker processes of a local Dask cluster are started anew (spawned), so
+they do not keep a blocked mask: :func:`dask_setup`, their preload, makes them
+ignore Ctrl-C instead.
 """
 from __future__ import annotations
 
@@ -12,7 +16,7 @@ import contextlib
 import signal
 import threading
 
-__all__ = ["sigint_held"]
+__all__ = ["sigint_held", "dask_setup"]
 
 
 @contextlib.contextmanager
@@ -27,3 +31,10 @@ def sigint_held():
         yield
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+def dask_setup(worker) -> None:
+    """Preload of a local Dask cluster's worker processes (``--scheduler local[:N]``): Ctrl-C is left to the job's
+    process, which ends the job in one line and closes the cluster (otherwise each worker prints a traceback)."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
