@@ -252,8 +252,7 @@ def run_tune(spec: TuneSpec | str | Path, out_dir: str | Path, workers: int | No
         batches spread over its workers (:mod:`analysis.jobs.cluster`); the search, the log and the outputs
         stay in this process.  A worker lost mid-batch has its batch run again elsewhere by Dask; rows are
         written only for finished batches, so the log holds every evaluation once, and the result is the one of
-        a local tuning.  Needs
-        ``dask[distributed]``; the connection is made before the output folder is touched.
+        a local tuning.  Needs ``dask[distributed]``; the connection is made before the output folder is touched.
     scheduler_timeout : float
         Seconds to wait for the Dask scheduler to answer.
     constraint_costs : bool
