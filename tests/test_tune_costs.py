@@ -138,3 +138,24 @@ def test_dropping_a_constraint_that_has_no_cost_is_refused_by_name(costed):
     with pytest.raises(ValueError, match=r"'stability_margin' has no cost to measure; allowed: min_damping_ratio"):
         without(load_tuning(path).limits, "stability_margin")
     assert set(COSTED) >= set(costed_constraints(load_tuning(path).limits))
+
+
+def test_the_sampled_margin_of_a_controller_binds_where_a_larger_observer_gain_would_lower_the_error(tmp_path):
+    """test_tune_sampled's problem: Y alone, 100 Hz Euler controller, the margin 0.2 allows Y <= 40 (closed form
+    Ts lambda_max(Y M^-1) = 0.01 Y / 0.25 against the limit 2).  The search without the margin simulates the
+    larger gains its own search refused, and the margin there is the closed form's."""
+    from test_tune_sampled import EDGE, _spec
+    spec = _spec(tmp_path)
+    result = run_tune(spec, tmp_path / "out", workers=1, progress=False, figures=False, constraint_costs=True)
+    costs = _by_key(result)
+    assert list(costs) == ["min_damping_ratio", "sampled_margin"]
+    sampled = costs["sampled_margin"]
+    assert result.feasible and 0.95 * EDGE <= result.tuned.gains["gains.observer"] <= EDGE
+    assert sampled.binds and sampled.cost > 0 and sampled.simulated > 0
+    y = sampled.gains["gains.observer"]
+    assert y > EDGE and sampled.margin_there == pytest.approx(1 - 0.01 * y / 0.25 / 2 - 0.2, abs=1e-6)
+    assert sampled.cost == pytest.approx(result.tuned.objective - sampled.objective, rel=1e-12)
+    # Kp and Kd are not searched: the damping ratio is the paper's 1.342 for every candidate, never broken
+    damping = costs["min_damping_ratio"]
+    assert damping.cost == 0.0 and not damping.binds and damping.simulated == 0
+    assert damping.margin == pytest.approx(36 / (2 * math.sqrt(180)) - 0.7, rel=1e-9)
