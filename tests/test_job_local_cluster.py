@@ -10,17 +10,12 @@ from __future__ import annotations
 
 import json
 import os
-import signal
-import subprocess
 import sys
-import time
-from pathlib import Path
 
 import psutil
 import pytest
 from sweep_files import run_sweep_command, write_short_scenario, write_sweep
-from test_job_integrity import CTRL_C_RUNS, CTRL_C_T_FINAL, _rows_in
-from test_job_integrity import GRID as METRICS_GRID
+from test_job_integrity import CTRL_C_RUNS, interrupted_sweep
 from test_sweep import _assert_same_rows
 from test_tune import write_problem
 
@@ -33,7 +28,6 @@ from dobkit.cli import main
 
 pytest.importorskip("distributed")
 
-ROOT = Path(__file__).resolve().parents[1]
 
 GRID = '[grid]\n"gains.kp" = [100, 140, 180, 220]\n[batch]\nsize = 1\n[outputs]\nmetrics = ["rms_position_error"]\n'
 SHORT_SEARCH = {'"gains.kp"': [20, 2000], "seed": 3, "population": 6, "max_evaluations": 24, "polish_evaluations": 6}
@@ -133,31 +127,11 @@ def test_without_dask_the_error_names_the_cluster_extra(tmp_path, monkeypatch):
 def test_ctrl_c_on_a_sweep_on_a_local_cluster_says_one_line_and_ends_the_cluster(tmp_path):
     """A terminal's Ctrl-C reaches the whole process group: the command and the cluster's processes.  The command
     says one line and closes the cluster; the workers, which ignore Ctrl-C, print nothing."""
-    write_short_scenario(tmp_path, t_final=CTRL_C_T_FINAL)        # minutes of work left after the first row
-    path = write_sweep(tmp_path, METRICS_GRID.format(", ".join(str(100 + 0.5 * i) for i in range(CTRL_C_RUNS)))
-                       + "[batch]\nsize = 1\n")
-    results = tmp_path / "s-results.jsonl"
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    proc = subprocess.Popen([sys.executable, "-m", "dobkit", "sweep", str(path), "--scheduler", "local:2",
-                             "--no-progress"], env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, start_new_session=True)
-    try:
-        deadline = time.monotonic() + 600
-        while _rows_in(results) < 1:                # the signal when the results file shows its first row
-            assert proc.poll() is None, proc.communicate()
-            assert time.monotonic() < deadline, "no row was written"
-            time.sleep(0.02)
-        started = psutil.Process(proc.pid).children(recursive=True)
-        assert len(started) >= 2 and _rows_in(results) < CTRL_C_RUNS
-        os.killpg(proc.pid, signal.SIGINT)
-        out, err = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
-    assert proc.returncode == 130, (out, err)
+    code, err, started, results = interrupted_sweep(tmp_path, "--scheduler", "local:2")
+    assert code == 130, err
     assert err.splitlines() == [f"dobkit sweep: interrupted; every finished run is kept in {results}, and the same "
                                 "command resumes"], err
+    assert len(started) >= 2                          # the cluster's two worker processes at least
     gone, alive = psutil.wait_procs([p for p in started if p.is_running()], timeout=30)
     assert not alive, f"cluster processes left running: {[p.pid for p in alive]}"
     assert 1 <= len(_log_ids(results, "run_id")) < CTRL_C_RUNS
