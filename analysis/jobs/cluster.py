@@ -11,38 +11,95 @@ once a batch has finished, no row is lost or written twice.
 Engine notes (:class:`blocks.loop.EngineFallbackWarning`) raised on a worker
 come back with the result and are printed once per command, not once per
 worker.
+
+The scheduler is an address (``tcp://host:8786``) or ``local[:N]``: a Dask
+``LocalCluster`` of N worker processes (default: one per core) started on
+127.0.0.1 for the job and closed when it ends, however it ends.
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import itertools
+import logging
+import os
 import warnings
 from collections.abc import Callable, Iterator
 
-__all__ = ["dask_client", "dask_threads", "run_on_dask", "call_with_notes", "take_with_notes"]
+from analysis.jobs.interrupts import sigint_held
+
+__all__ = ["dask_session", "local_workers", "dask_threads", "run_on_dask", "call_with_notes", "take_with_notes",
+           "LOCAL"]
+
+#: The scheduler "address" that starts a cluster on this machine for the job: ``local`` or ``local:N``.
+LOCAL = "local"
 
 
-def _distributed(error: type[Exception]):
+def _distributed(error: type[Exception], address: str = ""):
     try:
         import distributed
     except ImportError:
-        raise error("--scheduler needs Dask: pip install 'dask[distributed]' (the 'cluster' extra)") from None
+        raise error(f"--scheduler {address or 'ADDRESS'} needs Dask: pip install 'dobkit[cluster]' (the 'cluster' "
+                    "extra, dask[distributed])") from None
     return distributed
 
 
-def dask_client(address: str, timeout: float, error: type[Exception]):
-    """A Dask client of the scheduler at ``address`` (``tcp://host:8786``).
+def local_workers(address: str, error: type[Exception] = ValueError) -> int | None:
+    """The worker processes ``local[:N]`` asks for (``local``: one per core), or None for another address.
 
     Raises
     ------
     error
-        When Dask is not installed, or the scheduler does not answer within ``timeout`` seconds.
+        When N is not a whole number >= 1.
+
+    Examples
+    --------
+    >>> local_workers("local:3"), local_workers("tcp://127.0.0.1:8786")
+    (3, None)
     """
-    distributed = _distributed(error)
-    try:
-        return distributed.Client(address, timeout=f"{timeout}s")
-    except (OSError, TimeoutError, ValueError) as err:
-        raise error(f"cannot reach the Dask scheduler at {address!r}: {err}; nothing was run or written") from None
+    if address != LOCAL and not address.startswith(LOCAL + ":"):
+        return None
+    count = address[len(LOCAL) + 1:] if address != LOCAL else str(os.cpu_count() or 1)
+    if not (count.isdigit() and int(count) >= 1):
+        raise error(f"--scheduler {address!r}: the number of local worker processes must be a whole number >= 1 "
+                    "(local or local:N, e.g. local:2)")
+    return int(count)
+
+
+@contextlib.contextmanager
+def dask_session(address: str, timeout: float, error: type[Exception]):
+    """A Dask client of the scheduler at ``address`` (``tcp://host:8786``), or of a ``LocalCluster`` started
+    here for ``local[:N]`` (N worker processes of one thread on 127.0.0.1, no dashboard); the client, and the
+    cluster it started, are closed when the ``with`` block ends, on an error or Ctrl-C too.
+
+    Raises
+    ------
+    error
+        When Dask is not installed (naming the ``cluster`` extra), ``local:N`` is not a whole number >= 1, or the
+        scheduler does not answer within ``timeout`` seconds.
+    """
+    workers = local_workers(address, error)
+    distributed = _distributed(error, address)
+    with contextlib.ExitStack() as stack:
+        if workers is not None:
+            with sigint_held():        # the cluster's loop thread and worker processes leave Ctrl-C to us
+                cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                                   host="127.0.0.1", dashboard_address=None,
+                                                   silence_logs=logging.CRITICAL,
+                                                   preload=["analysis.jobs.interrupts"],
+                                                   # its health page on a free port, not 8787 (maybe in use)
+                                                   scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
+            stack.callback(cluster.close)
+            target = cluster
+        else:
+            target = address
+        try:
+            client = distributed.Client(target, timeout=f"{timeout}s")
+        except (OSError, TimeoutError, ValueError) as err:
+            raise error(f"cannot reach the Dask scheduler at {address!r}: {err}; nothing was run or written") \
+                from None
+        stack.callback(client.close)
+        yield client
 
 
 def dask_threads(client) -> int:

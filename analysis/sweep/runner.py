@@ -51,8 +51,9 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.jobs.cluster import call_with_notes, dask_client, dask_threads, run_on_dask, take_with_notes
+from analysis.jobs.cluster import call_with_notes, dask_session, dask_threads, run_on_dask, take_with_notes
 from analysis.jobs.files import JobLog, LogKind
+from analysis.jobs.interrupts import sigint_held
 from analysis.sweep.spec import HEADER_PARTS, SweepError, SweepSpec, load_sweep, run_schedule, split_changes
 from blocks.batch import Variants, simulate_batch
 from blocks.budget import Budget, BudgetError, largest_batch
@@ -312,7 +313,9 @@ def run_sweep(spec: SweepSpec | str | Path, results: str | Path, scheduler: str 
     results : path
         The JSON-lines results file; runs whose id it already holds are skipped.
     scheduler : str, optional
-        Address of a Dask distributed scheduler (``tcp://host:8786``); the
+        Address of a Dask distributed scheduler (``tcp://host:8786``), or
+        ``local[:N]`` to start a cluster of N worker processes (default: one
+        per core) on 127.0.0.1 for this sweep and close it at the end; the
         batches run on its workers.  Needs ``dask[distributed]``.  The
         connection is made before the results file is touched.
     workers : int, optional
@@ -363,9 +366,14 @@ def run_sweep(spec: SweepSpec | str | Path, results: str | Path, scheduler: str 
             outcome.seconds = time.perf_counter() - t0
             return outcome
         # connect before writing anything: a failed connection leaves no results file
-        client = dask_client(scheduler, scheduler_timeout, SweepError) if scheduler is not None else None
-        writer = log.writer(spec.header()["sweep"])
-        bar = count_progress(progress, len(spec.runs), skipped, label="sweep")
+        session = contextlib.ExitStack()
+        client = session.enter_context(dask_session(scheduler, scheduler_timeout, SweepError)) \
+            if scheduler is not None else None
+        with contextlib.ExitStack() as opening:        # the cluster closed if the results file cannot be opened
+            opening.push(session)
+            writer = log.writer(spec.header()["sweep"])
+            bar = count_progress(progress, len(spec.runs), skipped, label="sweep")
+            opening.pop_all()
 
         def take(new_rows: list[dict]) -> None:
             writer.write(new_rows)
@@ -395,31 +403,15 @@ def run_sweep(spec: SweepSpec | str | Path, results: str | Path, scheduler: str 
         finally:
             writer.close()
             bar.close()
-            if client is not None:
-                client.close()
+            session.close()
     outcome.seconds = time.perf_counter() - t0
     return outcome
-
-
-@contextlib.contextmanager
-def _sigint_held():
-    """Worker processes started here inherit a blocked Ctrl-C: the terminal sends it to the whole process
-    group, and the process that started them handles it (ends them, keeps whole rows, says one line).
-    Blocked, not ignored: a Ctrl-C that arrives while a worker starts reaches this process right after."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def _run_processes(payloads: Iterator[dict], workers: int, take) -> None:
     pool = worker_pool(workers)
     try:
-        with _sigint_held():
+        with sigint_held():
             running = {pool.submit(_chunk_in_worker, p) for p in itertools.islice(payloads, workers)}
         while running:            # keep at most one batch per worker in flight: memory stays bounded
             done, running = wait(running, return_when=FIRST_COMPLETED)
@@ -427,7 +419,7 @@ def _run_processes(payloads: Iterator[dict], workers: int, take) -> None:
                 take_with_notes(fut.result(), take)
                 nxt = next(payloads, None)
                 if nxt is not None:
-                    with _sigint_held():
+                    with sigint_held():
                         running.add(pool.submit(_chunk_in_worker, nxt))
     except BaseException:
         _end_now(pool)

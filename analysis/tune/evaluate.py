@@ -37,6 +37,7 @@ Margins (:meth:`Evaluator.margins`, what ``tune.json`` reports per constraint; <
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
@@ -299,6 +300,18 @@ class Evaluator:
             out["sampled_margin"] = float(left - limits.sampled_margin)
         return out
 
+    def judged(self, ev: Evaluation) -> Evaluation:
+        """A copy of an evaluation of this tuning made under other constraints (a search with one of them
+        dropped), with this evaluator's violations, feasibility and score.  The sampled loop's radius, which a
+        search without that constraint does not compute, is computed here."""
+        out = dataclasses.replace(ev, violations={})
+        if self.spec.limits.sampled_margin is not None and not math.isfinite(out.sampled_radius):
+            out.sampled_radius = self.design(out.gains)[2]
+        out.violations = self.linear_violations(out.torque_noise_rms, out.spectral_abscissa, out.damping_ratio,
+                                                out.bandwidth_ratio, out.sampled_radius)
+        self._finish(out)
+        return out
+
     # -- evaluations -------------------------------------------------------------------------------
     def evaluate(self, candidates: list[dict], phase: str, force: bool = False) -> list[Evaluation]:
         """Evaluate candidates (gains dicts) in order; ``force`` simulates them even when the linear constraints
@@ -501,11 +514,12 @@ def measure_evaluation(spec: TuneSpec, workers: int = 1, engine: str = "auto", r
     return ev
 
 
-def time_estimate(spec: TuneSpec, measured: Evaluation) -> float:
+def time_estimate(spec: TuneSpec, measured: Evaluation, searches: int = 1) -> float:
     """The tuning's simulation time (s) from one measured evaluation: ``max_evaluations`` evaluations at its
-    cost.  Candidates that need smaller steps cost more, those the linear constraints refuse (or the log holds)
-    next to nothing: an estimate, not a bound."""
-    return spec.max_evaluations * float(measured.seconds)
+    cost for each of ``searches`` searches (:func:`analysis.tune.costs.search_count`).  Candidates that need
+    smaller steps cost more, those the linear constraints refuse (or the log holds, as it holds much of a search
+    without one constraint) next to nothing: an estimate, not a bound."""
+    return int(searches) * spec.max_evaluations * float(measured.seconds)
 
 
 def check_seconds(budget: Budget, started: float, what: str) -> None:

@@ -393,6 +393,38 @@ def _damping_cost(result) -> str:
             f"{_fmt(cost)} mm.{note}")
 
 
+#: Each costed constraint as the report names it.
+_COST_NAMES = {"min_damping_ratio": "damping ratio of the error dynamics", "max_overshoot": "step overshoot",
+               "min_observer_bandwidth_ratio": "observer bandwidth ratio", "sampled_margin": "sampled loop margin",
+               "torque_noise_rms": "torque-noise budget"}
+
+
+def _cost_rows(result) -> list[list[str]]:
+    """One row per constraint searched without (``--constraint-costs``): margin, binds, objective and cost."""
+    rows = []
+    for c in result.constraint_costs or []:
+        rows.append([_COST_NAMES.get(c.constraint, c.constraint), _margin(result, c.constraint),
+                     "yes" if c.binds else "no", _fmt(c.objective), _fmt(c.cost),
+                     _fmt_gains(c.gains) if c.binds else "-"])
+    return rows
+
+
+def _cost_note(result) -> str:
+    """The sentence above the costs table: how they were measured, and the reference."""
+    costs = result.constraint_costs
+    if costs is None:
+        return ""
+    if not costs:
+        return "The tuning has none of the constraints whose cost is measured."
+    words = METRIC_WORDS.get(result.metric, result.metric)
+    reference = costs[0].reference
+    if reference is None:
+        return "No evaluation met every constraint, so what each costs is not known."
+    return (f"The same search was run again without each constraint in turn. With every constraint on, the lowest "
+            f"{result.objective} {words} found is {_fmt(reference)} mm; without one, the lowest among the gains that "
+            "meet every other constraint; the difference is what that constraint costs (0 where it does not bind).")
+
+
 def _fmt_gains(gains: dict) -> str:
     return ", ".join(f"{k} = {_fmt(v, 6)}" for k, v in gains.items())
 
@@ -415,5 +447,7 @@ def html_section(folder) -> str:
             "constraint_rows": _constraint_rows(result),
             "base_objective": _fmt(result.base.objective), "tuned_objective": _fmt(result.tuned.objective),
             "base_nominal": _fmt(result.base.nominal), "tuned_nominal": _fmt(result.tuned.nominal),
-            "evaluations": evaluations_text(result), "damping_cost": _damping_cost(result)}
+            "evaluations": evaluations_text(result),
+            "damping_cost": "" if result.constraint_costs is not None else _damping_cost(result),
+            "cost_note": _cost_note(result), "cost_rows": _cost_rows(result)}
     return template_environment().get_template("tune_section.html").render(v=view, figures=figures)

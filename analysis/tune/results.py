@@ -15,8 +15,8 @@ from analysis.results import JsonResult, omitted_if_none
 from analysis.tune.spec import TuneError
 from blocks.joints import RRPR_JOINTS
 
-__all__ = ["RESULT_NAME", "PointResult", "TuneHistory", "TuneFigure", "TuneResult", "read_result", "objective_text",
-           "numbers_text", "excess_text"]
+__all__ = ["RESULT_NAME", "PointResult", "TuneHistory", "TuneFigure", "ConstraintCost", "TuneResult", "read_result",
+           "objective_text", "numbers_text", "excess_text"]
 
 RESULT_NAME = "tune.json"
 
@@ -101,6 +101,48 @@ TuneFigure = JobFigure
 
 
 @dataclass(frozen=True)
+class ConstraintCost(JsonResult):
+    """What one constraint costs in the objective: the tuning's search run again with it dropped
+    (:mod:`analysis.tune.costs`).
+
+    Attributes
+    ----------
+    constraint : str
+        Its key in ``[constraints]``: ``"min_damping_ratio"`` (or ``"max_overshoot"``),
+        ``"min_observer_bandwidth_ratio"``, ``"sampled_margin"`` or ``"torque_noise_rms"``.
+    margin : float or None
+        The tuned gains' margin on it (:attr:`PointResult.margins`; < 0: missed).
+    binds : bool
+        Whether gains that break this constraint alone reach a lower objective than every evaluation that meets
+        them all (then ``cost > 0``).
+    cost : float or None
+        ``reference - objective`` (mm; >= 0, exactly 0 when it does not bind); None when no evaluation met every
+        constraint.
+    objective : float or None
+        The lowest objective of the evaluations that meet every other constraint, with it dropped (mm).
+    reference : float or None
+        The lowest objective of the evaluations that meet every constraint (mm): the tuned gains' own, unless a
+        search without one constraint found better gains that meet them all.
+    gains : dict
+        The gains of ``objective``.
+    margin_there : float or None
+        Those gains' margin on the dropped constraint (< 0: they break it).
+    simulated : int
+        Candidates the search without it simulated that no earlier search of the tuning had.
+    """
+
+    constraint: str
+    margin: float | None
+    binds: bool
+    cost: float | None
+    objective: float | None
+    reference: float | None
+    gains: dict
+    margin_there: float | None
+    simulated: int
+
+
+@dataclass(frozen=True)
 class TuneResult(JsonResult):
     """What a tuning found (``tune.json``).
 
@@ -152,6 +194,9 @@ class TuneResult(JsonResult):
     force_units : list of str
         Unit of each joint's torque or force (``"N m"``, ``"N"``): of the torque noise, the peak torque and
         their limits.
+    constraint_costs : list of ConstraintCost or None
+        With ``constraint_costs``: what each active constraint of :data:`analysis.tune.costs.COSTED` costs, in
+        that order; None (and left out of the file) without.
     """
 
     name: str
@@ -181,6 +226,7 @@ class TuneResult(JsonResult):
     unconstrained_from: str | None = None
     joints: list[str] = field(default_factory=lambda: list(RRPR_JOINTS.names))
     force_units: list[str] = field(default_factory=lambda: list(RRPR_JOINTS.force_units))
+    constraint_costs: list[ConstraintCost] | None = omitted_if_none()
 
 
 def read_result(folder):

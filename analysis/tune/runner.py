@@ -49,7 +49,9 @@ Outputs (written when the search ends)
     its margin (:meth:`analysis.tune.evaluate.Evaluator.margins`), and with a
     damping constraint, what it costs: the tuned objective against the best
     evaluation of the same search that meets every other constraint
-    (:func:`unconstrained_best`).
+    (:func:`unconstrained_best`).  With ``constraint_costs`` the search is run
+    again without each active constraint in turn, and each one's cost is
+    reported (:mod:`analysis.tune.costs`).
 """
 from __future__ import annotations
 
@@ -64,8 +66,10 @@ import numpy as np
 from scipy.optimize import differential_evolution, minimize
 from scipy.stats import qmc
 
-from analysis.jobs.cluster import dask_client
+from analysis.jobs.cluster import dask_session
 from analysis.jobs.files import JobLog, LogKind, write_lines_atomically
+from analysis.tune.costs import constraint_costs as measure_costs
+from analysis.tune.costs import costed_constraints, without
 from analysis.tune.evaluate import DAMPING_CONSTRAINTS, Evaluation, Evaluator, check_seconds, evaluation_estimate, gains_key
 from analysis.tune.results import (
     RESULT_NAME,
@@ -214,7 +218,8 @@ def _describe(gains: dict) -> str:
 def run_tune(spec: TuneSpec | str | Path, out_dir: str | Path, workers: int | None = None,
              progress: bool | ProgressCallback = True, restart: bool = False, budget: Budget | None = None,
              engine: str = "auto", figures: bool = True, compare_unconstrained: bool = False,
-             scheduler: str | None = None, scheduler_timeout: float = 10.0) -> TuneResult:
+             scheduler: str | None = None, scheduler_timeout: float = 10.0,
+             constraint_costs: bool = False) -> TuneResult:
     """Tune the gains (see the module docstring) and write the results into ``out_dir``.
 
     Parameters
@@ -242,13 +247,19 @@ def run_tune(spec: TuneSpec | str | Path, out_dir: str | Path, workers: int | No
         rather than against the best of the constrained search's own evaluations.  About doubles the time.
     scheduler : str, optional
         Address of a Dask distributed scheduler (``tcp://host:8786``, or a ``LocalCluster``'s
-        ``scheduler_address``): each generation's candidates are simulated in batches spread over its workers
-        (:mod:`analysis.jobs.cluster`); the search, the log and the outputs stay in this process.  A worker lost
-        mid-batch has its batch run again elsewhere by Dask; rows are written only for finished batches, so the
-        log holds every evaluation once, and the result is the one of a local tuning.  Needs
-        ``dask[distributed]``; the connection is made before the output folder is touched.
+        ``scheduler_address``), or ``local[:N]`` to start a cluster of N worker processes (default: one per core)
+        on 127.0.0.1 for this tuning and close it at the end: each generation's candidates are simulated in
+        batches spread over its workers (:mod:`analysis.jobs.cluster`); the search, the log and the outputs
+        stay in this process.  A worker lost mid-batch has its batch run again elsewhere by Dask; rows are
+        written only for finished batches, so the log holds every evaluation once, and the result is the one of
+        a local tuning.  Needs ``dask[distributed]``; the connection is made before the output folder is touched.
     scheduler_timeout : float
         Seconds to wait for the Dask scheduler to answer.
+    constraint_costs : bool
+        After the search, run the same search once without each active constraint of
+        :data:`analysis.tune.costs.COSTED` (their evaluations go to the same log) and report what each costs
+        (:attr:`TuneResult.constraint_costs`); the search without the damping constraint also serves as
+        ``compare_unconstrained``'s.  Up to five times the time, less where the log holds the candidates.
 
     Returns
     -------
@@ -280,8 +291,7 @@ def run_tune(spec: TuneSpec | str | Path, out_dir: str | Path, workers: int | No
             evaluator = Evaluator(spec, workers=workers, engine=engine)
             check_linear_feasibility(spec, evaluator)
             if scheduler is not None:         # connect before writing anything: a failed connection leaves nothing
-                evaluator.client = dask_client(scheduler, scheduler_timeout, TuneError)
-                stack.callback(evaluator.client.close)
+                evaluator.client = stack.enter_context(dask_session(scheduler, scheduler_timeout, TuneError))
             out.mkdir(parents=True, exist_ok=True)
             log = JobLog(out / LOG_NAME, EVALUATION_LOG)
             stack.enter_context(log.lock())
@@ -293,10 +303,14 @@ def run_tune(spec: TuneSpec | str | Path, out_dir: str | Path, workers: int | No
             evaluator.log_rows, evaluator.record = rows, writer.write
             evaluator.after_batch = search.after_batch
             result = search.run()
-            free = None
-            if compare_unconstrained and _damping_constrained(spec):
-                free = _search_without_damping(spec, evaluator, log.path, writer, report, budget, started)
-            result = _finish(spec, evaluator, search, result, out, started, figures, report, problems, free)
+            dropped = costed_constraints(spec.limits) if constraint_costs else \
+                [k for k in DAMPING_CONSTRAINTS if compare_unconstrained and getattr(spec.limits, k) is not None]
+            searched = {key: _search_without(spec, key, evaluator, log.path, writer, report, budget, started)
+                        for key in dropped}
+            free = next(((ev, count) for key, (ev, count, _) in searched.items() if key in DAMPING_CONSTRAINTS),
+                        None)
+            result = _finish(spec, evaluator, search, result, out, started, figures, report, problems, free,
+                             searched if constraint_costs else None)
     finally:
         if display is not None:
             display.close()
@@ -412,30 +426,32 @@ def nominal_metric(scenario, metric: str, workers: int = 1, engine: str = "auto"
     return value if math.isfinite(value) else None
 
 
-def _damping_constrained(spec: TuneSpec) -> bool:
-    return spec.limits.min_damping_ratio is not None or spec.limits.max_overshoot is not None
+#: How the progress display names a search without one constraint.
+_WITHOUT_WORDS = {"min_damping_ratio": "without damping", "max_overshoot": "without damping",
+                  "min_observer_bandwidth_ratio": "without the bandwidth ratio",
+                  "sampled_margin": "without the sampled margin", "torque_noise_rms": "without the noise budget"}
 
 
-def _search_without_damping(spec: TuneSpec, evaluator: Evaluator, log: Path, writer, report, budget: Budget,
-                            started: float) -> tuple[Evaluation, int]:
-    """The same search without the damping constraint: its answer and the candidates it simulated.  An
-    evaluation's row does not depend on the constraints, so the two searches share the log's rows."""
-    limits = dataclasses.replace(spec.limits, min_damping_ratio=None, max_overshoot=None, damping_from="off")
-    free_spec = dataclasses.replace(spec, limits=limits)
+def _search_without(spec: TuneSpec, key: str, evaluator: Evaluator, log: Path, writer, report, budget: Budget,
+                    started: float) -> tuple[Evaluation, int, list[Evaluation]]:
+    """The same search without the constraint ``key`` (:func:`analysis.tune.costs.without`): its answer (with
+    the violations of every constraint, its feasibility without that one), the candidates it simulated and its
+    evaluations.  An evaluation's row does not depend on the constraints, so the searches share the log's rows."""
+    free_spec = dataclasses.replace(spec, limits=without(spec.limits, key))
     free = Evaluator(free_spec, workers=evaluator.workers, engine=evaluator.engine, log_rows=read_log(log)[1],
                      record=writer.write, client=evaluator.client)
-    search = _Search(free_spec, free, lambda stage, f: report(stage.replace("tuning:", "without damping:"), f),
+    words = _WITHOUT_WORDS[key]
+    search = _Search(free_spec, free, lambda stage, f: report(stage.replace("tuning:", f"{words}:"), f),
                      budget, started)
     free.after_batch = search.after_batch
     best = search.run()
-    linear = evaluator.linear_violations(best.torque_noise_rms, best.spectral_abscissa, best.damping_ratio,
-                                         best.bandwidth_ratio, best.sampled_radius)
-    best.violations = linear | {k: v for k, v in best.violations.items() if k not in DAMPING_CONSTRAINTS}
-    return best, free.simulated_now
+    best.violations = evaluator.judged(best).violations
+    return best, free.simulated_now, free.history
 
 
 def _finish(spec: TuneSpec, evaluator: Evaluator, search: _Search, best: Evaluation, out: Path, started: float,
-            figures: bool, report, problems: list[str], searched: tuple[Evaluation, int] | None = None) -> TuneResult:
+            figures: bool, report, problems: list[str], searched: tuple[Evaluation, int] | None = None,
+            without_each: dict | None = None) -> TuneResult:
     from analysis.tune.report import write_figures
 
     base = search.base
@@ -456,6 +472,10 @@ def _finish(spec: TuneSpec, evaluator: Evaluator, search: _Search, best: Evaluat
               "from_log": len({e.key for e in evaluator.history if e.from_log}),
               "linear_only": sum(not e.simulated for e in evaluator.history),
               "unconstrained_simulated": 0 if searched is None else searched[1]}
+    costs = None
+    if without_each is not None:
+        costs = measure_costs(evaluator, [evaluator.history] + [h for _, _, h in without_each.values()],
+                              {key: count for key, (_, count, _) in without_each.items()}, tuned_point.margins)
     message = _message(spec, base_point, tuned_point)
     history = TuneHistory(phase=[e.phase for e in evaluator.history],
                           objective=[e.objective if e.simulated and math.isfinite(e.objective) else None
@@ -471,7 +491,8 @@ def _finish(spec: TuneSpec, evaluator: Evaluator, search: _Search, best: Evaluat
         tuned=tuned_point, feasible=bool(best.feasible), message=message, history=history, evaluations=counts,
         seconds=0.0, scenario_file=file_name, log_problems=list(problems), unconstrained=free_point,
         damping_cost=cost, unconstrained_from=None if free is None else "evaluations" if searched is None
-        else "search", joints=list(spec.joints.names), force_units=list(spec.joints.force_units))
+        else "search", joints=list(spec.joints.names), force_units=list(spec.joints.force_units),
+        constraint_costs=costs)
     report("tuning: writing results", 0.0)
     write_lines_atomically(out / file_name, [scenario.to_toml()])
     if figures:
