@@ -34,6 +34,7 @@ from scipy.integrate import solve_ivp  # noqa: E402
 
 from blocks.arm_derivatives import gravity_slopes  # noqa: E402
 from blocks.arms import load_urdf_arm  # noqa: E402
+from blocks.arms.examples import scope4_urdf  # noqa: E402
 from blocks.digital import DigitalController  # noqa: E402
 from blocks.digital_stability import largest_stable_scale, sampled_loop_map, sampled_stability  # noqa: E402
 
@@ -83,8 +84,9 @@ class ReferenceLoop:
     position and estimate (difference velocity) and the commands not yet applied (oldest first).
     """
 
-    def __init__(self, true, nominal, q0, d, Y, rate, method="euler", velocity="measured", cutoff=None, delay=0):
-        self.true, self.nominal = true, nominal
+    def __init__(self, true, nominal, q0, d, Y, rate, method="euler", velocity="measured", cutoff=None, delay=0,
+                 kp=KP, kd=KD):
+        self.true, self.nominal, self.kp, self.kd = true, nominal, kp, kd
         self.dt, self.dn = true.createData(), nominal.createData()
         self.q0, self.d, self.Y = np.asarray(q0, float), np.asarray(d, float), np.asarray(Y, float)
         self.Ts, self.method, self.diff, self.delay = 1.0 / rate, method, velocity == "difference", delay
@@ -109,7 +111,7 @@ class ReferenceLoop:
         Ts = self.Ts
         w = self.pole * w_prev + (1 - self.pole) * (q - p) / Ts if self.diff else v
         d_hat = self.Y @ w + z
-        command = (_mass(self.nominal, self.dn, q) @ (KP * (self.q0 - q) - KD * w)
+        command = (_mass(self.nominal, self.dn, q) @ (self.kp * (self.q0 - q) - self.kd * w)
                    + pin.nonLinearEffects(self.nominal, self.dn, q, w) - d_hat)
         tau = buffer[0] if self.delay else command
         if self.method == "euler":
@@ -232,3 +234,79 @@ def test_the_package_map_is_the_finite_difference_jacobian(two_link):
     assert mine.size == theirs.size
     for z in theirs:
         assert np.min(np.abs(mine - z)) < 1e-5
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# scope4 and the report's digital section of scope4-digital
+# ----------------------------------------------------------------------------------------------------------------
+# scope4-digital.toml's numbers, written again here: the reference must not read them from the code
+S4_RATE, S4_BANDWIDTH, S4_MASS_SCALE, S4_KP, S4_KD = 1000.0, 10.0, 1.05, 180.0, 36.0
+S4_Q0 = np.array([0.0, 0.1, 0.1, 0.0])                   # the path's start: its offset
+S4_F_R = np.array([0.05, 0.1, 0.4, 0.00002])             # N m, N m, N, N m
+
+
+def _scope4_models():
+    """The true arm from the URDF, and the nominal one with every body's mass and rotational inertia x 1.05."""
+    true = pin.buildModelFromUrdf(str(scope4_urdf()))
+    nominal = pin.buildModelFromUrdf(str(scope4_urdf()))
+    for i in range(1, nominal.njoints):
+        body = nominal.inertias[i]
+        nominal.inertias[i] = pin.Inertia(body.mass * S4_MASS_SCALE, body.lever.copy(), body.inertia * S4_MASS_SCALE)
+    return true, nominal
+
+
+def test_scope4_pitch_joint_radius_and_limit_match_the_reference():
+    model = pin.buildModelFromUrdf(str(scope4_urdf()))
+    arm = load_urdf_arm(scope4_urdf(), "tool_tip")
+    q = np.array([0.2, 0.7, 0.15, 0.3])                   # pitched: gravity's slope on the pitch joint is not zero
+    assert np.max(np.abs(gravity_slopes(arm, q))) > 0.1
+    Y = 40.0 * arm.inertia(q)
+    settings = _settings(arm, 100.0, "zoh", "difference", 20.0, 0)
+    verdict = sampled_stability(arm, [q], KP * np.eye(4), KD * np.eye(4), Y, settings)
+
+    def reference(scale):
+        return ReferenceLoop(model, model, q, np.zeros(4), scale * Y, 100.0, "zoh", "difference", 20.0, 0)
+    assert verdict.spectral_radius == pytest.approx(reference(1.0).radius(), abs=1e-7)
+    c = verdict.largest_stable_scale
+    assert reference((1 - BRACKET) * c).radius() < 1.0 < reference((1 + BRACKET) * c).radius()
+
+
+@pytest.fixture(scope="module")
+def scope4_digital():
+    from analysis.linear.digital import digital_analysis
+    from blocks.scenario import load_scenario
+    s = load_scenario("scope4-digital")
+    return s, digital_analysis(s, rates_hz=(S4_RATE,), simulate_noise=False)
+
+
+def test_scope4_digital_poles_are_the_sampled_loops(scope4_digital):
+    """The report's z-plane poles at the path's start: the true arm (5 % lighter than the nominal) held at q0 under
+    the step f_r, every eigenvalue of the reference's one-sample map among them."""
+    s, result = scope4_digital
+    true, nominal = _scope4_models()
+    assert s.controller.sample_rate == S4_RATE and s.controller.observer_discretization == "euler"
+    assert s.controller.velocity == "measured" and s.controller.delay == 0
+    Y = S4_BANDWIDTH * _mass(nominal, nominal.createData(), S4_Q0)
+    ref = ReferenceLoop(true, nominal, S4_Q0, S4_F_R, Y, S4_RATE, kp=S4_KP, kd=S4_KD)
+    theirs = ref.eigenvalues()
+    mine = np.array([m.z for m in result.poles.modes])
+    np.testing.assert_allclose(result.poles.q0, S4_Q0, rtol=0, atol=1e-15)
+    assert result.poles.spectral_radius == pytest.approx(np.abs(theirs).max(), abs=1e-7)
+    for z in theirs:
+        assert np.min(np.abs(mine - z)) < 1e-6
+
+
+def test_scope4_digital_gain_limit_is_the_loops(scope4_digital):
+    """The report's answer "the observer gain may be raised up to c times": at the configurations it checks, the
+    loop on the nominal model is stable at 0.999 c and unstable at 1.001 c (at one of them)."""
+    s, result = scope4_digital
+    _, nominal = _scope4_models()
+    Y = S4_BANDWIDTH * _mass(nominal, nominal.createData(), S4_Q0)
+    np.testing.assert_allclose(result.gain_limit.observer_gain, Y, rtol=1e-12, atol=1e-15)
+    c = result.largest_stable_scale
+    assert f"{c:.3g} times" in result.answer
+
+    def worst(scale):
+        return max(ReferenceLoop(nominal, nominal, q, S4_F_R, scale * Y, S4_RATE, kp=S4_KP, kd=S4_KD).radius()
+                   for q in result.gain_limit.configurations)
+    assert worst((1 - BRACKET) * c) < 1.0 < worst((1 + BRACKET) * c)
