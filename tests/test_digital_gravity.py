@@ -310,3 +310,19 @@ def test_scope4_digital_gain_limit_is_the_loops(scope4_digital):
         return max(ReferenceLoop(nominal, nominal, q, S4_F_R, scale * Y, S4_RATE, kp=S4_KP, kd=S4_KD).radius()
                    for q in result.gain_limit.configurations)
     assert worst((1 - BRACKET) * c) < 1.0 < worst((1 + BRACKET) * c)
+
+
+def test_scope4_digital_section_shows_those_numbers(scope4_digital):
+    """The report's section 8 for scope4-digital: the radius, the rule and the limit are the ones checked above,
+    and its words say that gravity's slope is in the map."""
+    from types import SimpleNamespace
+
+    from analysis.report.view.digital import digital_section
+    from analysis.report.view.text import fmt
+    s, result = scope4_digital
+    section = digital_section(SimpleNamespace(digital=result), {}, s.robot.joints)
+    assert f"max |z| = {fmt(result.poles.spectral_radius, 6)}" in section.poles.caption
+    assert f"Ts lambda_max(Y M^-1) < {fmt(result.ts_lambda_limit, 5)}" in section.rule_text
+    assert "dG/dq" in section.rule_text
+    rate_row = next(r for r in section.gain_limit.rows if r[0].text == fmt(S4_RATE, 5))
+    assert fmt(result.largest_stable_scale, 4) in [c.text for c in rate_row]
