@@ -109,3 +109,11 @@ def test_urdf_scenario_keys_have_units():
     assert key_unit("arm.nominal_mass_scale", joints) == "factor"
     assert key_unit("gains.observer[2]", joints) == "kg/s" and key_unit("gains.observer[1]", joints) == "kg m^2/s"
     assert key_unit("gains.observer", joints) == "kg m^2/s or kg/s"
+
+
+def test_the_paper_arm_read_back_from_a_header_keeps_its_robot_units():
+    from analysis.sweep.spec import joints_record
+    from blocks.joints import RRPR_JOINTS
+    joints = summarize.__globals__["_joints_of_header"]({"joints": joints_record(RRPR_JOINTS), "scenario": "x.toml"})
+    assert joints is RRPR_JOINTS
+    assert key_unit("robot.m3", joints) == "kg" and key_unit("gains.observer", joints) == "kg m^2/s"
