@@ -63,3 +63,16 @@ def test_the_frequency_reading_speaks_of_the_arms_own_prismatic_joint():
     # no prismatic joint: no such sentence
     arm = JointSpace(names=("a", "b"), kinds=("revolute", "revolute"))
     assert not _reading(arm, 0).startswith("A constant force")
+
+
+def test_the_report_header_of_a_urdf_quick_preview_says_v_times_the_inertia():
+    """The header the report page shows (its quick-preview list), made from the scenario."""
+    pytest.importorskip("pinocchio")
+    from types import SimpleNamespace
+
+    from analysis.report.view import _header
+    for name, words in (("scope4", "Y = v M^(q0)"), ("paper", "Y = v I")):
+        s = load_scenario(name)
+        header = _header(SimpleNamespace(settings=QUICK_SETTINGS, digital=None), s)
+        phrase = _observer_phrase(header.preview)
+        assert phrase.startswith(f"observer gains {words} of the observer study")
