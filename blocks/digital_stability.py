@@ -6,12 +6,13 @@ This is the one computation of the digital loop's stability
 (:func:`analysis.linear.digital.observer_gain_limit`) both call it.
 
 The loop is linearized at rest at a frozen configuration ``q`` on the
-nominal model (perfect model, constant disturbance), where computed torque
-leaves each joint a double integrator ``q'' = M^-1 tau``: the Coriolis
-terms are quadratic in ``q'`` and the inertia's slope multiplies a residual
-that is zero at rest, so neither enters.  Gravity's slope ``dG/dq`` is left
-out (zero for the paper's arm, whose gravity is constant).  In deviations
-from rest, with ``A = -Y M^-1`` and the state
+nominal model (perfect model, constant disturbance): the Coriolis terms are
+quadratic in ``q'`` and the inertia's slope multiplies a residual that is
+zero at rest, so neither enters; gravity's slope ``S = dG/dq``
+(:func:`blocks.arm_derivatives.gravity_slopes`) does, because the plant
+feels ``G(q(t))`` through the sample while the controller and the observer
+evaluate it at the sampled ``q_k``.  In deviations from rest, with
+``A = -Y M^-1`` and the state
 ``x = [q, v, z, p, w_prev, b_0 .. b_{d-1}]`` (positions, velocities, the
 observer's ``z``; the encoder's previous position and velocity estimate
 with ``velocity = "difference"``; the ``d`` buffered commands, oldest
@@ -19,21 +20,26 @@ first), a sample reads
 
 * velocity estimate ``w = v`` (measured) or
   ``w = a w_prev + (1 - a) (q - p) / Ts`` (difference, ``a`` the low-pass pole),
-* estimate ``d_hat = Y w + z``, command ``c = -M (Kp q + Kd w) - d_hat``,
+* estimate ``d_hat = Y w + z``, command ``c = -M (Kp q + Kd w) + S q - d_hat``,
   applied torque ``tau = c`` (delay 0) or ``b_0``,
-* plant, held torque, exact: ``q+ = q + Ts v + Ts^2 / 2 M^-1 tau``,
-  ``v+ = v + Ts M^-1 tau``,
-* observer, ``z' = A (tau + Y w + z) - w16 Y w`` (``w16`` = 1 for the paper's
+* plant ``q'' = M^-1 (tau - S q)`` under the held torque, exact:
+  ``[q+, v+] = e^{F Ts} [q, v] + (int_0^Ts e^{F s} ds) [0, M^-1 tau]`` with
+  ``F = [[0, I], [-M^-1 S, 0]]``; without gravity's slope (``S = 0``, the
+  paper's arm) ``q+ = q + Ts v + Ts^2 / 2 M^-1 tau``, ``v+ = v + Ts M^-1 tau``,
+* observer, ``z' = A (tau + Y w + z - S q) - w16 Y w`` (``w16`` = 1 for the paper's
   printed Eq. 16, else 0) by forward Euler, ``z+ = z + Ts z'``, or exactly with
   ``tau``, ``w`` held (``"zoh"``): ``z+ = e^{A Ts} z + (int_0^Ts e^{A s} ds) (z' - A z)``,
 * ``p+ = q``, ``w_prev+ = w``, ``b+ = [b_1 .. b_{d-1}, c]``.
 
 The loop is stable at ``q`` when the map's spectral radius is below 1.
-Only forward Euler with measured velocity has a closed form: the
-estimate's error then obeys ``e+ = (I + Ts A) e`` whatever the torque, the
-map is block-triangular and the limit is ``Ts lambda_max(Y M^-1) < 2``
-(for real eigenvalues), with or without a delay as long as the delayed PD
-loop is stable.  With ``"zoh"`` or a velocity difference the error and the
+Only forward Euler with measured velocity has a closed form: without
+gravity's slope the estimate's error obeys ``e+ = (I + Ts A) e`` whatever
+the torque, the map is block-triangular and the limit is
+``Ts lambda_max(Y M^-1) < 2`` (for real eigenvalues), with or without a
+delay as long as the delayed PD loop is stable.  Gravity's slope couples
+the error to the motion within the sample (by ``Y M^-1 S`` times the
+position's change over it, of order ``Ts^2``), which moves that limit
+slightly, either way.  With ``"zoh"`` or a velocity difference the error and the
 tracking couple and the limit is lower, and a delay lowers it further:
 for ``Kp = 180``, ``Kd = 36`` the zoh loop with measured velocity loses
 stability at ``Ts lambda_max = 1.9795`` at 1 kHz and ``1.7899`` at 100 Hz
@@ -58,6 +64,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import arm_derivatives
 from .arm import ArmModel
 from .digital import DigitalController
 
@@ -136,7 +143,8 @@ def held_exponential(A, period: float) -> tuple[np.ndarray, np.ndarray]:
     return total[..., :n, :n], total[..., :n, n:]
 
 
-def sampled_loop_map(inertias, kp, kd, gain, settings: DigitalController, eq16_weight: float = 0.0) -> np.ndarray:
+def sampled_loop_map(inertias, kp, kd, gain, settings: DigitalController, eq16_weight: float = 0.0,
+                     gravity_slopes=None) -> np.ndarray:
     """The linearized loop's one-sample map ``x_{k+1} = Phi x_k`` at frozen inertias (see the module docstring).
 
     Parameters
@@ -151,6 +159,9 @@ def sampled_loop_map(inertias, kp, kd, gain, settings: DigitalController, eq16_w
         Rate, observer discretization, velocity source and filter, delay.
     eq16_weight : float
         1 for the paper's printed Eq. 16 (an extra ``- Y q'``), 0 for the correct law.
+    gravity_slopes : array_like, shape (..., n, n), optional
+        ``dG/dq`` at each configuration (N m/rad, N/m; :func:`blocks.arm_derivatives.gravity_slopes`).
+        None or all zero: the closed-form double integrator (the paper's arm, whose gravity is constant).
 
     Returns
     -------
@@ -179,15 +190,27 @@ def sampled_loop_map(inertias, kp, kd, gain, settings: DigitalController, eq16_w
     else:
         W = V
     d_hat = Y @ W + Z
+    S = None if gravity_slopes is None or not np.any(gravity_slopes) else np.asarray(gravity_slopes, dtype=float)
     command = -M @ (Kp @ Q + Kd @ W) - d_hat                       # (..., n, m)
+    if S is not None:
+        command = command + S @ Q                                   # the controller's h(q_k): gravity at q_k
     tau = command if delay == 0 else np.broadcast_to(unit(blocks_ - delay), command.shape)
     Minv = np.linalg.inv(M)
     accel = Minv @ tau
     Phi = np.zeros(batch + (m, m))
-    Phi[..., 0:n, :] = Q + Ts * V + 0.5 * Ts ** 2 * accel
-    Phi[..., n:2 * n, :] = V + Ts * accel
+    if S is None:
+        Phi[..., 0:n, :] = Q + Ts * V + 0.5 * Ts ** 2 * accel
+        Phi[..., n:2 * n, :] = V + Ts * accel
+    else:
+        # the plant between samples, [q, v]' = F [q, v] + [0, M^-1 tau], with tau held: its exact step
+        F = np.zeros(batch + (2 * n, 2 * n))
+        F[..., :n, n:] = eye
+        F[..., n:, :n] = -Minv @ S
+        step, integral = held_exponential(F, Ts)
+        Phi[..., 0:2 * n, :] = step @ np.concatenate([Q, V]) + integral[..., :, n:] @ accel
     A = -Y @ Minv
-    rate = A @ (tau + Y @ W + Z) - eq16_weight * (Y @ W)               # z' as a row map of x
+    residual = tau + Y @ W + Z if S is None else tau + Y @ W + Z - S @ Q     # the observer's h(q_k) too
+    rate = A @ residual - eq16_weight * (Y @ W)                        # z' as a row map of x
     if method == "euler":
         Phi[..., 2 * n:3 * n, :] = Z + Ts * rate
     else:
@@ -204,14 +227,15 @@ def sampled_loop_map(inertias, kp, kd, gain, settings: DigitalController, eq16_w
     return Phi
 
 
-def spectral_radius(inertias, kp, kd, gain, settings: DigitalController, eq16_weight: float = 0.0) -> np.ndarray:
+def spectral_radius(inertias, kp, kd, gain, settings: DigitalController, eq16_weight: float = 0.0,
+                    gravity_slopes=None) -> np.ndarray:
     """``max |z|`` of :func:`sampled_loop_map` at each configuration, shape ``inertias.shape[:-2]``."""
-    Phi = sampled_loop_map(inertias, kp, kd, gain, settings, eq16_weight)
+    Phi = sampled_loop_map(inertias, kp, kd, gain, settings, eq16_weight, gravity_slopes)
     return np.abs(np.linalg.eigvals(Phi)).max(axis=-1)
 
 
 def largest_stable_scale(inertias, kp, kd, gain, settings: DigitalController, eq16_weight: float = 0.0,
-                         rtol: float = SCALE_RTOL) -> float:
+                         rtol: float = SCALE_RTOL, gravity_slopes=None) -> float:
     """The largest ``c`` with the loop stable (radius < 1) at every configuration with observer gain ``c Y``.
 
     Bisection in ``log c`` on the largest spectral radius over the
@@ -219,6 +243,8 @@ def largest_stable_scale(inertias, kp, kd, gain, settings: DigitalController, eq
     result is the stable end of the last bracket, within ``rtol`` below the
     limit.  Once a bracket's unstable end is found, only the configurations
     unstable there are kept (the others' limits lie above it).
+
+    ``gravity_slopes``: ``dG/dq`` per configuration, as in :func:`sampled_loop_map`.
 
     Returns
     -------
@@ -228,12 +254,14 @@ def largest_stable_scale(inertias, kp, kd, gain, settings: DigitalController, eq
     """
     M = np.asarray(inertias, dtype=float)
     M = M.reshape((-1,) + M.shape[-2:])
+    S = None if gravity_slopes is None else np.asarray(gravity_slopes, dtype=float).reshape(M.shape)
     Y = np.asarray(gain, dtype=float)
     active = np.arange(len(M))
 
     def unstable(c: float) -> np.ndarray:
         """The active configurations where the gain ``c Y`` is unstable."""
-        return active[spectral_radius(M[active], kp, kd, c * Y, settings, eq16_weight) >= 1.0]
+        radii = spectral_radius(M[active], kp, kd, c * Y, settings, eq16_weight, None if S is None else S[active])
+        return active[radii >= 1.0]
     lam = np.abs(np.linalg.eigvals(Y @ np.linalg.inv(M))).max()
     guess = 2.0 / (settings.period * lam)
     lo, hi = guess, guess
@@ -268,10 +296,11 @@ def sampled_stability(nominal: ArmModel, configurations, kp, kd, gain, settings:
     ----------
     nominal : ArmModel
         The nominal model (controller and observer; the plant is taken equal to it),
-        any arm: ``n`` joints from ``nominal.n``.
+        any arm: ``n`` joints from ``nominal.n``; its gravity slope ``dG/dq`` at each configuration
+        enters the map (:func:`sampled_loop_map`).
     configurations : array_like, shape (N, n)
         Joint positions (rad, m).  Configurations with equal
-        inertia are checked once.
+        inertia and gravity slope are checked once.
     kp, kd, gain : array_like, shape (n, n)
         Controller gains (1/s^2, 1/s) and observer gain ``Y``.
     settings : DigitalController
@@ -288,15 +317,19 @@ def sampled_stability(nominal: ArmModel, configurations, kp, kd, gain, settings:
         raise ValueError(f"configurations must be finite joint positions of shape (N, {nominal.n}) for the joints "
                          f"{list(nominal.joints.names)}, got shape {q.shape}")
     M_all = nominal.inertia(q)
-    _, first = np.unique(np.round(M_all.reshape(len(q), -1), 12), axis=0, return_index=True)
+    S_all = arm_derivatives.gravity_slopes(nominal, q)
+    key = M_all.reshape(len(q), -1)
+    if np.any(S_all):                       # configurations differing only in gravity's slope are not one
+        key = np.concatenate([key, S_all.reshape(len(q), -1)], axis=1)
+    _, first = np.unique(np.round(key, 12), axis=0, return_index=True)
     first = np.sort(first)
-    q, M = q[first], M_all[first]
+    q, M, S = q[first], M_all[first], (S_all[first] if np.any(S_all) else None)
     weight = 1.0 if variant == "paper-eq16" else 0.0
     Y = np.asarray(gain, dtype=float)
-    radii = spectral_radius(M, kp, kd, Y, settings, weight)
+    radii = spectral_radius(M, kp, kd, Y, settings, weight, S)
     worst = int(np.argmax(radii))
     ts_lam = settings.period * float(np.abs(np.linalg.eigvals(Y @ np.linalg.inv(M))).max())
-    scale = largest_stable_scale(M, kp, kd, Y, settings, weight) if limit else math.nan
+    scale = largest_stable_scale(M, kp, kd, Y, settings, weight, gravity_slopes=S) if limit else math.nan
     return SampledStability(stable=bool(radii.max() < 1.0), spectral_radius=float(radii[worst]),
                             q_worst=q[worst].tolist(), largest_stable_scale=scale, ts_lambda_max=ts_lam,
                             ts_lambda_limit=ts_lam * scale)

@@ -1,7 +1,8 @@
 """Reference trajectories: a suturing path on the skin (task space, via inverse kinematics) and joint sines.
 
 Both kinds expose ``evaluate(t) -> (q_ref, dq_ref, ddq_ref)`` for a scalar or
-an array of times (s); the arrays have shape ``(4,)`` or ``(len(t), 4)``.
+an array of times (s); the arrays have shape ``(n,)`` or ``(len(t), n)`` for the arm's ``n``
+joints (the laceration path is the paper's RRPR's: ``n = 4``).
 
 The laceration path
 -------------------

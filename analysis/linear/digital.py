@@ -17,11 +17,12 @@ the loop's one-sample map ``x_{k+1} = A x_k + B w_k``.
   discretizations and delays 0 and 1, the smallest over a set of
   configurations.  It is computed by :mod:`blocks.digital_stability`, the
   one computation the pre-run check also uses (its one-sample map is the
-  same linearization written out; a test checks the two agree).  Only
-  forward Euler with measured velocity reaches ``2 / (Ts lambda_max(Y M^-1))``
-  exactly (with or without a delay); zoh and a velocity difference stay
-  below it, lower still with a delay
-  (``docs/model.md``, "Digital observer").
+  same linearization written out, gravity's slope ``dG/dq`` included; a
+  test checks the two agree).  Only forward Euler with measured velocity
+  reaches ``2 / (Ts lambda_max(Y M^-1))`` exactly (with or without a delay)
+  on an arm whose gravity is constant (the paper's); gravity's slope moves
+  it slightly; zoh and a velocity difference stay below it, lower still
+  with a delay (``docs/model.md``, "Digital observer").
 * :func:`quantization_torque_noise`: the RMS torque that encoder quantization
   causes, predicted from ``A, B`` with the quantization error as white noise of
   variance ``res^2 / 12`` entering the encoder, and measured by simulation
@@ -526,7 +527,10 @@ def _answer(s: Scenario, scale: float, limit: float, noise: QuantizationNoise | 
     c = s.controller
     Y = np.asarray(s.observer_gain)
     gain = np.diag(Y)
-    if np.allclose(Y, gain[0] * np.eye(len(gain))):
+    bandwidth = s.user_data.get("gains", {}).get("observer_bandwidth")
+    if bandwidth is not None:                       # the scenario's own words: Y = omega M^(q0)
+        shown = f"{float(bandwidth):g} M^(q0)"
+    elif np.allclose(Y, gain[0] * np.eye(len(gain))):
         shown = f"{gain[0]:g} I"
     elif np.allclose(Y, np.diag(gain)):
         shown = "diag(" + ", ".join(f"{g:g}" for g in gain) + ")"

@@ -12,7 +12,7 @@ from dataclasses import asdict, dataclass, field, fields
 from analysis.linear.arm_terms import default_points
 from analysis.linear.bandwidth import DEFAULT_POINTS
 
-__all__ = ["AnalysisSettings", "QUICK_SETTINGS", "preview_differences"]
+__all__ = ["AnalysisSettings", "QUICK_SETTINGS", "OBSERVER_STUDY_GAINS", "observer_study_gains", "preview_differences"]
 
 
 @dataclass(frozen=True)
@@ -137,7 +137,7 @@ _DESCRIBE = {
     "workspace_points": ("workspace grid (points per joint)", lambda v: " x ".join(str(n) for n in v)),
     "kp_values": ("Kp of the gain study", lambda v: _values(v, "1/s^2")),
     "kd_values": ("Kd of the gain study", lambda v: _values(v, "1/s")),
-    "observer_values": ("observer gains Y = v I of the observer study", lambda v: "v = " + _values(v)),
+    "observer_values": ("observer gains {form} of the observer study", lambda v: "v = " + _values(v)),
     "study_t_final": ("length of the study runs", lambda v: f"{v:g} s"),
     "design_t_final": ("length of the design check's runs",
                        lambda v: "the whole path" if v is None else f"{v:g} s"),
@@ -146,12 +146,27 @@ _DESCRIBE = {
 }
 
 
+#: How the observer study makes its gains from the values ``v``: on the paper's arm, and on any other arm.
+OBSERVER_STUDY_GAINS = {True: "Y = v I", False: "Y = v M^(q0)"}
+
+
+def observer_study_gains(scenario) -> str:
+    """How the observer study of ``scenario`` makes its gains from the values ``v`` (the words of
+    :data:`OBSERVER_STUDY_GAINS`): ``Y = v I`` on the paper's RRPR in closed form
+    (:func:`analysis.report.build.observer_gains`), ``Y = v M^(q0)`` with ``v`` in rad/s on any other arm
+    (:func:`analysis.report.build.bandwidth_gains`), the rule :func:`analysis.report.build.run_analysis` follows."""
+    from blocks.parameters import RobotParameters
+    paper = isinstance(scenario.robot, RobotParameters) and isinstance(scenario.nominal, RobotParameters)
+    return OBSERVER_STUDY_GAINS[paper]
+
+
 def preview_differences(settings: AnalysisSettings, full: AnalysisSettings | None = None,
-                        joints=None) -> list[str]:
+                        joints=None, observer_gains: str = OBSERVER_STUDY_GAINS[True]) -> list[str]:
     """How ``settings`` differ from the full analysis, one phrase per setting: "what: this (full: that)".
 
     With ``joints`` (:class:`blocks.joints.JointSpace`) the workspace grid is the one used on that arm
-    (:meth:`AnalysisSettings.workspace_points_for`).
+    (:meth:`AnalysisSettings.workspace_points_for`); ``observer_gains`` says how the observer study makes its
+    gains (:func:`observer_study_gains` of the scenario).
 
     Examples
     --------
@@ -168,5 +183,10 @@ def preview_differences(settings: AnalysisSettings, full: AnalysisSettings | Non
             mine, theirs = settings.workspace_points_for(joints), full.workspace_points_for(joints)
         if mine != theirs:
             what, show = _DESCRIBE[f.name]
+            if f.name == "observer_values":
+                what = what.format(form=observer_gains)
+                unit = " rad/s" if "M^(q0)" in observer_gains else ""
+                out.append(f"{what}: {show(mine)}{unit} (full: {show(theirs)}{unit})")
+                continue
             out.append(f"{what}: {show(mine)} (full: {show(theirs)})")
     return out

@@ -315,7 +315,16 @@ class SweepSpec:
                                           "distributions": {k: {"kind": d.kind} | d.params
                                                             for k, d in self.distributions.items()}},
                           "metrics": list(self.metrics), "worst_metric": self.worst_metric,
-                          "worst_count": self.worst_count, "runs": len(self.runs)}}
+                          "worst_count": self.worst_count, "runs": len(self.runs),
+                          "joints": joints_record(self.base.robot.joints)}}
+
+
+def joints_record(joints) -> dict:
+    """The base scenario's arm's joints as the results header keeps them: names and kinds (which rebuild the
+    :class:`~blocks.joints.JointSpace` that names the per-joint columns), and their units, for a person reading
+    the file.  A presentation entry: it is not part of the definition (the base scenario's values are)."""
+    return {"names": list(joints.names), "kinds": list(joints.kinds), "position_units": list(joints.position_units),
+            "force_units": list(joints.force_units)}
 
 
 #: The results-file header entries that decide runs and rows, in words (see :func:`analysis.jobs.files.differences`).

@@ -82,7 +82,8 @@ _KEY_NAMES = {
     "noise.dq_std": "velocity noise (std)", "noise.seed": "noise seed", "noise.sample_period": "noise sample period",
     "trajectory.stitches": "stitches", "trajectory.duration": "path duration", "simulation.t_final": "simulated time",
     "simulation.output_step": "output step", "initial.q": "initial position", "initial.dq": "initial velocity",
-    "initial.d_hat": "initial estimate d_hat",
+    "initial.d_hat": "initial estimate d_hat", "gains.observer_bandwidth": "observer bandwidth",
+    "arm.nominal_mass_scale": "nominal-model mass scale", "arm.gravity": "gravity",
 }
 # SI prefixes for axes: values are shown in a unit that puts the largest near 1..1000, never with an offset.
 _PREFIXED = {"m": "m", "rad": "rad", "N m": "N m", "N": "N", "mm": "m", "rad/s": "rad/s", "m/s": "m/s"}
@@ -160,9 +161,16 @@ def key_unit(key: str, joints: JointSpace = RRPR_JOINTS) -> str:
         return joints.position_units[j]
     if section == "robot" and joints == RRPR_JOINTS and name in RobotParameters.names():
         return RobotParameters.unit(name)
-    force, position, velocity = (" or ".join(dict.fromkeys(u)) for u in
-                                 (joints.force_units, joints.position_units, joints.velocity_units))
-    units = {"nominal_scale": "factor", "gains.kp": "1/s^2", "gains.kd": "1/s", "gains.observer": "kg m^2/s",
+    # Y's unit per joint kind (kg m^2/s on a revolute joint, kg/s on a prismatic one); the paper's arm keeps its
+    # one word
+    gain_units = tuple("kg m^2/s" if u == "rad" else "kg/s" for u in joints.position_units)
+    if j is not None and j < joints.count and f"{section}.{name}" == "gains.observer" and joints != RRPR_JOINTS:
+        return gain_units[j]
+    force, position, velocity, gain = (" or ".join(dict.fromkeys(u)) for u in
+                                       (joints.force_units, joints.position_units, joints.velocity_units, gain_units))
+    units = {"nominal_scale": "factor", "gains.kp": "1/s^2", "gains.kd": "1/s",
+             "gains.observer": "kg m^2/s" if joints == RRPR_JOINTS else gain,
+             "gains.observer_bandwidth": "rad/s", "arm.nominal_mass_scale": "factor", "arm.gravity": "m/s^2",
              "disturbance.f_r": force, "disturbance.coulomb": force, "noise.q_std": position,
              "noise.dq_std": velocity, "trajectory.duration": "s", "simulation.t_final": "s",
              "simulation.output_step": "s", "noise.sample_period": "s"}
@@ -173,7 +181,9 @@ def _arm_joints(record: dict | None) -> JointSpace:
     """The joints kept in a summary (:attr:`SweepSummary.joints`); the paper's RRPR when it keeps none."""
     if not record:
         return RRPR_JOINTS
-    return JointSpace(names=tuple(record["names"]), kinds=tuple(record["kinds"]))
+    joints = JointSpace(names=tuple(record["names"]), kinds=tuple(record["kinds"]))
+    # the paper's arm keeps its own joint space (with d3's stroke), which decides its robot.* units
+    return RRPR_JOINTS if (joints.names, joints.kinds) == (RRPR_JOINTS.names, RRPR_JOINTS.kinds) else joints
 
 
 def _joints_record(joints: JointSpace) -> dict:
@@ -181,12 +191,20 @@ def _joints_record(joints: JointSpace) -> dict:
 
 
 def _joints_of_header(header: dict) -> JointSpace:
-    """The arm of a results file's sweep read without its sweep file: the built-in scenario the header names when
-    its values are the ones the sweep ran (the hash in the header), else the paper's RRPR."""
+    """The arm of a results file's sweep read without its sweep file: the joints its header keeps
+    (:func:`analysis.sweep.spec.joints_record`); for a file written before the header kept them, the built-in
+    scenario the header names when its values are the ones the sweep ran (the hash in the header), else the
+    paper's RRPR."""
     import hashlib
     import json
 
     from blocks.scenario import ScenarioError, builtin_scenarios, load_scenario
+    kept = header.get("joints")
+    if isinstance(kept, dict):
+        try:
+            return _arm_joints(kept)
+        except (KeyError, TypeError, ValueError):        # a hand-edited header: fall back to what it names
+            pass
     name = header.get("scenario")
     if not isinstance(name, str) or name not in builtin_scenarios():
         return RRPR_JOINTS

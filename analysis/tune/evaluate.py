@@ -499,7 +499,8 @@ def evaluation_estimate(spec: TuneSpec) -> tuple[Estimate, int]:
               f"bounds is {rates[source]:.3g} 1/s ({source})")
     estimate = estimate_batch(spec.runs, steps=size.steps, grid_points=size.grid_points, signals=1,
                               noise=_noisy(spec), noise_samples=size.noise_samples,
-                              keys={"steps": key, "members": "monte_carlo.runs"}, steps_reason=reason)
+                              keys={"steps": key, "members": "monte_carlo.runs"}, steps_reason=reason,
+                              joints=spec.base.robot.n)
     spec.budget.check(estimate, f"{spec.name}: one evaluation ({spec.runs} runs) at the high bounds")
     return estimate, substeps
 

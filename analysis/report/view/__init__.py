@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from analysis.report.settings import AnalysisSettings, preview_differences
+from analysis.report.settings import AnalysisSettings, observer_study_gains, preview_differences
 
 from .bandwidth import BandwidthSection, bandwidth_section
 from .design import DesignSection, design_section
@@ -90,7 +90,8 @@ def _header(result, scenario) -> Header:
         return Header(title=f"dobkit analysis report, quick preview: scenario '{scenario.name}'",
                       regenerate=regenerate_command(scenario.source, settings),
                       full_command=regenerate_command(scenario.source, settings, quick=False),
-                      preview=preview_differences(settings, joints=arm_joints(scenario)) + _left_out(result))
+                      preview=preview_differences(settings, joints=arm_joints(scenario),
+                                                  observer_gains=observer_study_gains(scenario)) + _left_out(result))
     return Header(title=f"dobkit analysis report: scenario '{scenario.name}'",
                   regenerate=regenerate_command(scenario.source, settings), full_command=None, preview=None)
 

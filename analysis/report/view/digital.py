@@ -75,13 +75,13 @@ def digital_section(result, files: dict, joints: JointSpace = RRPR_JOINTS) -> Di
                   fmt(q.simulated_rms[i], 3)] for i in rows],
                 f"RMS torque noise from encoder quantization ({noise_units})")
     return DigitalSection(settings=settings, answer=d.answer, poles=poles, gain_limit=gain_limit, rule=rule,
-                          rule_text=_rule_text(d), quantization=quantization,
+                          rule_text=_rule_text(d, joints), quantization=quantization,
                           figures=figures(files, ("digital_poles", "Poles of the sampled loop"),
                                           ("digital_gain_limit", "How fast the observer may be at each sample rate"),
                                           ("digital_quantization", "Torque noise from encoder quantization")))
 
 
-def _rule_text(d) -> str:
+def _rule_text(d, joints: JointSpace = RRPR_JOINTS) -> str:
     """How the limits were computed, with the scenario's own numbers (none of them written by hand)."""
     c = d.settings
     own = f"{c.get('observer_discretization', 'euler')} update, {c.get('velocity', 'measured')} velocity"
@@ -95,4 +95,9 @@ def _rule_text(d) -> str:
             f"rule is Ts lambda_max(Y M^-1) < {fmt(d.ts_lambda_limit, 5)}. Only forward Euler with measured "
             f"velocity has the closed form 2 (the column 2 / (Ts lambda_max)): its estimate's error obeys "
             f"e[k+1] = (I - Ts Y M^-1) e[k] whatever the torque, delayed or not; zoh and a velocity estimate "
-            f"couple the estimate with the tracking and lower the limit, and a delay lowers theirs further.")
+            f"couple the estimate with the tracking and lower the limit, and a delay lowers theirs further."
+            + ("" if joints == RRPR_JOINTS else
+               " On this arm gravity varies with the configuration: its slope dG/dq, felt by the arm through the "
+               "sample but seen by the controller and the observer at the sampled position, enters the map at each "
+               "configuration; it couples Euler's estimate with the motion too, so its limit may differ slightly "
+               "from 2."))

@@ -3,7 +3,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .text import ZERO_REL, Figure, Table, and_words, arm_joints, figures, fmt, is_paper_arm, join, split_caveats
+from blocks.joints import RRPR_JOINTS, JointSpace
+
+from .text import ZERO_REL, Figure, Table, and_words, arm_joints, figures, fmt, join, split_caveats
 
 __all__ = ["FrequencySection", "frequency_section"]
 
@@ -19,15 +21,18 @@ class FrequencySection:
     figures: list[Figure]
 
 
-def _frequency_reading(fr, stable: bool, paper_arm: bool = True) -> str:
+def _frequency_reading(fr, stable: bool, arm: JointSpace = RRPR_JOINTS) -> str:
     wo, w, est = (fr.tracking_without_dob.metrics, fr.tracking_with_dob.metrics, fr.estimation_with_dob.metrics)
     joints = f"joints 1-{len(w)}"
     text = ""
-    if paper_arm:               # the paper's joint 3 (d3) sets the tool's depth
-        dc_w = abs(w[2].dc_gain)
-        zero = stable and dc_w <= ZERO_REL * w[2].peak_gain
-        text = (f"A constant force of 1 N on the prismatic joint leaves {fmt(-1e3 * wo[2].dc_gain, 4)} mm of depth "
-                "error without the observer and " + ("none with it. " if zero else f"{fmt(1e3 * dc_w, 4)} mm with it. "))
+    if "prismatic" in arm.kinds:            # the first prismatic joint (the paper's d3 sets the tool's depth)
+        j = arm.kinds.index("prismatic")
+        dc_w = abs(w[j].dc_gain)
+        zero = stable and dc_w <= ZERO_REL * w[j].peak_gain
+        where = ("the prismatic joint", "depth error") if arm == RRPR_JOINTS else \
+            (f"the prismatic joint {arm.labels[j]}", "error on it")
+        text = (f"A constant force of 1 N on {where[0]} leaves {fmt(-1e3 * wo[j].dc_gain, 4)} mm of {where[1]} "
+                "without the observer and " + ("none with it. " if zero else f"{fmt(1e3 * dc_w, 4)} mm with it. "))
     if all(m.kind == "band-pass" for m in w):
         text += ("With the observer, disturbances reach the tracking error only in a band around "
                  f"{', '.join(fmt(m.peak_rad_s, 3) for m in w)} rad/s ({joints}; at most "
@@ -76,7 +81,7 @@ def frequency_section(result, scenario, files: dict) -> FrequencySection:
         q0=join(fr.q0, 5),
         responses=Table.of(["response", "joint", "unit", "DC gain", "peak gain", "peak at (rad/s)", "kind",
                             "-3 dB band (rad/s)"], rows, "Per-joint disturbance responses"),
-        closed_forms=closed_forms, reading=_frequency_reading(fr, stable, is_paper_arm(scenario)),
+        closed_forms=closed_forms, reading=_frequency_reading(fr, stable, arm_joints(scenario)),
         figures=figures(files, ("frequency_tracking", "Disturbance to tracking error, per joint"),
                          ("frequency_estimation", "Disturbance to estimation error, per joint")))
 

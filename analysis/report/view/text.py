@@ -92,7 +92,7 @@ def pole(p: complex) -> str:
 
 
 def per_joint(values, digits: int = 4) -> str:
-    """Four joint values: '180 (every joint)' when they are equal, else 'a, b, c, d (joints 1-4)'."""
+    """One value per joint: '180 (every joint)' when they are equal, else 'a, b, c, d (joints 1-4)' (n joints)."""
     values = [float(v) for v in values]
     if all(v == values[0] for v in values):
         return f"{fmt(values[0], digits)} (every joint)"
