@@ -8,7 +8,7 @@ key that drives it::
 
     from blocks.budget import Budget, estimate_batch
     budget = Budget.from_env(memory="8G")           # flags > DOBKIT_MAX_* variables > defaults
-    need = estimate_batch(members=250, steps=12_000, grid_points=2_001, noise=True, noise_samples=10_001)
+    need = estimate_batch(members=250, steps=12_000, grid_points=2_001, noise=True, noise_samples=10_001, joints=4)
     budget.check(need, "a batch of 250 runs")       # BudgetError (a ValueError) when over
 
 Memory is what the job allocates for its data (arrays, tables, rows), on top
@@ -27,7 +27,7 @@ from dataclasses import dataclass, field, replace
 
 __all__ = ["Budget", "BudgetError", "Estimate", "estimate_batch", "largest_batch", "schedule_steps", "parse_size",
            "format_bytes", "DEFAULT_MEMORY", "DEFAULT_STEPS", "ENVIRONMENT", "STEP_BYTES", "MEMBER_BYTES",
-           "NOISE_STEP_BYTES", "NOISE_SAMPLE_BYTES", "NOISE_BASE_BYTES", "SIGNAL_POINT_BYTES", "BASE_BYTES"]
+           "NOISE_STEP_BYTES", "NOISE_SAMPLE_BYTES_PER_JOINT", "NOISE_BASE_BYTES", "SIGNAL_POINT_BYTES_PER_JOINT", "BASE_BYTES"]
 
 #: Default memory budget (bytes): 4 GiB.
 DEFAULT_MEMORY = 4 * 2 ** 30
@@ -43,11 +43,11 @@ STEP_BYTES = 1024
 MEMBER_BYTES = 32 * 1024
 #: Bytes per member and step with measurement noise: the noise at step ends and mid points (measured: about 200).
 NOISE_STEP_BYTES = 256
-#: Bytes per member and noise sample of a 4-joint arm: the drawn samples (8 numbers) and their temporaries
-#: (scaled by n / 4 for an arm of n joints).
-NOISE_SAMPLE_BYTES = 192
-#: Bytes per member, grid point and kept signal of a 4-joint arm (4 numbers; scaled by n / 4).
-SIGNAL_POINT_BYTES = 32
+#: Bytes per member, noise sample and joint: the drawn samples (2 numbers a joint) and their temporaries
+#: (measured on the paper's arm: 192 for its joints).
+NOISE_SAMPLE_BYTES_PER_JOINT = 48
+#: Bytes per member, grid point, kept signal and joint (one number).
+SIGNAL_POINT_BYTES_PER_JOINT = 8
 #: Bytes a batch needs whatever its size (scenario, kernels' small tables).
 BASE_BYTES = 1024 * 1024
 #: Bytes a batch with measurement noise needs whatever its size (the compiled batch's noise tables and driver
@@ -280,7 +280,7 @@ def schedule_steps(t_final: float, output_step: float, substeps: int, breakpoint
 
 def estimate_batch(members: int, steps: int, grid_points: int, signals: int = 0, noise: bool = False,
                    noise_samples: int = 0, keys: Mapping[str, str] | None = None,
-                   steps_reason: str = "", joints: int = 4) -> Estimate:
+                   steps_reason: str = "", *, joints: int) -> Estimate:
     """Peak memory and steps of a fixed-step batch (:func:`blocks.batch.simulate_batch`).
 
     Parameters
@@ -308,16 +308,16 @@ def estimate_batch(members: int, steps: int, grid_points: int, signals: int = 0,
     -------
     Estimate
     """
-    per_joint = max(1, int(joints)) / 4.0
+    joints = max(1, int(joints))
     keys = {"steps": "", "members": "batch.size", "noise": "noise.sample_period",
             "signals": "simulation.output_step"} | dict(keys or {})
     members, steps = int(members), int(steps)
     parts = {
         "the step schedule": BASE_BYTES + STEP_BYTES * steps + members * NOISE_STEP_BYTES * steps * bool(noise),
         "the members' states": members * MEMBER_BYTES,
-        "the noise samples": (NOISE_BASE_BYTES + int(members * NOISE_SAMPLE_BYTES * per_joint * int(noise_samples)))
+        "the noise samples": (NOISE_BASE_BYTES + members * NOISE_SAMPLE_BYTES_PER_JOINT * joints * int(noise_samples))
         * bool(noise),
-        "the kept signals": int(members * SIGNAL_POINT_BYTES * per_joint * int(grid_points) * int(signals)),
+        "the kept signals": members * SIGNAL_POINT_BYTES_PER_JOINT * joints * int(grid_points) * int(signals),
     }
     reasons = {"the step schedule": f"{steps:.3g} steps" + (f" with noise for {members} runs" if noise else ""),
                "the members' states": f"{members} runs",

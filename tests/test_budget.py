@@ -12,8 +12,8 @@ from blocks.batch import Variants, simulate_batch, step_schedule
 from blocks.budget import (
     DEFAULT_MEMORY,
     DEFAULT_STEPS,
-    NOISE_SAMPLE_BYTES,
-    SIGNAL_POINT_BYTES,
+    NOISE_SAMPLE_BYTES_PER_JOINT,
+    SIGNAL_POINT_BYTES_PER_JOINT,
     Budget,
     BudgetError,
     estimate_batch,
@@ -57,22 +57,22 @@ def test_flags_override_variables_which_override_defaults():
 
 def test_over_budget_names_the_estimate_and_the_key():
     need = estimate_batch(1, steps=5_000_000, grid_points=2001, keys={"steps": "gains.observer"},
-                          steps_reason="2000 output intervals x 2500 substeps")
+                          steps_reason="2000 output intervals x 2500 substeps", joints=4)
     with pytest.raises(BudgetError) as err:
         Budget(steps=2_000_000).check(need, "run 3")
     assert err.value.key == "gains.observer" and err.value.limit == "steps"
     assert "run 3" in str(err.value) and "5e+06" in str(err.value) and "2e+06" in str(err.value)
     assert "--max-steps" in str(err.value)
     noisy = estimate_batch(1, steps=1000, grid_points=101, noise=True, noise_samples=10 ** 8,
-                           keys={"steps": "x"})
+                           keys={"steps": "x"}, joints=4)
     with pytest.raises(BudgetError) as err:
         Budget().check(noisy, "run 0")
     assert err.value.key == "noise.sample_period" and err.value.limit == "memory" and "--max-memory" in str(err.value)
-    Budget().check(estimate_batch(250, steps=12_000, grid_points=2001, noise=True, noise_samples=10_002), "a batch")
+    Budget().check(estimate_batch(250, steps=12_000, grid_points=2001, noise=True, noise_samples=10_002, joints=4), "a batch")
 
 
 def test_largest_batch_is_the_largest_that_fits():
-    kwargs = dict(steps=20_000, grid_points=2001, noise=True, noise_samples=10_002)
+    kwargs = dict(steps=20_000, grid_points=2001, noise=True, noise_samples=10_002, joints=4)
     memory = 300 * 1024 ** 2
     n = largest_batch(memory, **kwargs)
     assert n >= 1
@@ -100,7 +100,7 @@ def test_the_estimate_bounds_what_a_batch_allocates(members, noise, substeps):
     samples = int(np.ceil(sim.t_final / base.data["noise"]["sample_period"])) + 2
     steps = schedule_steps(sim.t_final, sim.output_step, substeps, breakpoints=samples if noise else 0)
     need = estimate_batch(members, steps=steps, grid_points=int(round(sim.t_final / sim.output_step)) + 1,
-                          noise=noise, noise_samples=samples)
+                          noise=noise, noise_samples=samples, joints=4)
     run = lambda: simulate_batch(None, Variants(base, records), substeps=substeps)   # noqa: E731
     run()                       # the compiled engine's first call compiles: code, not the batch's data
     measured = _peak(run)
@@ -123,8 +123,8 @@ def test_a_schedule_with_many_breakpoints_takes_memory_in_proportion():
 
 def test_a_batch_estimate_scales_its_per_joint_parts_with_the_arm():
     """Noise samples and kept signals hold n (2n) numbers: a 7-joint arm needs 7/4 of the 4-joint parts."""
-    four = estimate_batch(10, steps=0, grid_points=1001, signals=3, noise=True, noise_samples=5001)
+    four = estimate_batch(10, steps=0, grid_points=1001, signals=3, noise=True, noise_samples=5001, joints=4)
     seven = estimate_batch(10, steps=0, grid_points=1001, signals=3, noise=True, noise_samples=5001, joints=7)
     grow = seven.memory - four.memory
-    per_joint_parts = (10 * NOISE_SAMPLE_BYTES * 5001 + 10 * SIGNAL_POINT_BYTES * 1001 * 3) * (7 / 4 - 1)
+    per_joint_parts = (10 * NOISE_SAMPLE_BYTES_PER_JOINT * 5001 + 10 * SIGNAL_POINT_BYTES_PER_JOINT * 1001 * 3) * 3
     assert abs(grow - per_joint_parts) <= 2

@@ -172,7 +172,7 @@ def test_batches_shrink_to_fit_the_memory_budget_without_changing_any_number(tmp
     roomy = load_sweep(_write(tmp_path, text, name="roomy"))
     n_grid = 40
     steps = roomy.plan.largest.steps
-    three = estimate_batch(3, steps=steps, grid_points=n_grid + 1).memory
+    three = estimate_batch(3, steps=steps, grid_points=n_grid + 1, joints=4).memory
     tight = load_sweep(_write(tmp_path, text, name="tight"), budget=Budget(memory=three))
     sizes = []
     run_sweep(tight, tmp_path / "tight.jsonl", workers=1, progress=False, on_rows=lambda rows: sizes.append(len(rows)))

@@ -272,7 +272,7 @@ def _payloads(spec: SweepSpec, pending: np.ndarray, workers: int, budget: Budget
         if spec.engine == "batch":
             schedule = run_schedule(base, substeps, noisy)
             fits = largest_batch(share.memory, steps=schedule.steps, grid_points=schedule.grid_points, noise=noisy,
-                                 noise_samples=schedule.noise_samples)
+                                 noise_samples=schedule.noise_samples, joints=base.robot.n)
             if fits < 1:
                 raise BudgetError(f"{spec.name}: one run of {schedule.steps:.3g} steps does not fit in the memory "
                                   f"budget of {workers} workers running at a time ({share.memory / 2 ** 20:.0f} MiB "

@@ -399,7 +399,7 @@ class Evaluator:
         for substeps, evs in sorted(groups.items()):
             size = run_schedule(spec.base, substeps, _noisy(spec))
             fits = largest_batch(spec.budget.memory, steps=size.steps, grid_points=size.grid_points, signals=1,
-                                 noise=_noisy(spec), noise_samples=size.noise_samples)
+                                 noise=_noisy(spec), noise_samples=size.noise_samples, joints=spec.base.robot.n)
             per_batch = max(1, min(MAX_CANDIDATES_PER_BATCH, fits // runs))
             if self.client is not None:          # every worker a share of the candidates
                 per_batch = max(1, min(per_batch, math.ceil(len(evs) / threads)))
