@@ -47,18 +47,18 @@ def _no_cycle_collection():
             gc.enable()
 
 
+@_no_cycle_collection()
 def _cmd_simulate(args) -> int:
     from blocks.scenario import load_scenario
 
     scenario = load_scenario(args.scenario)      # a bad scenario is refused before the heavy imports below
-    with _no_cycle_collection():
-        from analysis.simulation.experiment import default_out_dir, format_rms_table, run_experiment
+    from analysis.simulation.experiment import default_out_dir, format_rms_table, run_experiment
 
-        out = args.out if args.out is not None else default_out_dir()
-        formats = ("png", "svg") if args.svg else ("png",)
-        with StageProgress() as progress:
-            result = run_experiment(scenario, out, progress=progress, figures=not args.no_figures,
-                                    engine=args.engine, figure_formats=formats)
+    out = args.out if args.out is not None else default_out_dir()
+    formats = ("png", "svg") if args.svg else ("png",)
+    with StageProgress() as progress:
+        result = run_experiment(scenario, out, progress=progress, figures=not args.no_figures, engine=args.engine,
+                                figure_formats=formats)
     print(f"scenario: {scenario.name} ({scenario.source}), engine: {result.metrics['engine']}")
     c = scenario.controller
     joints = scenario.robot.joints

@@ -85,7 +85,7 @@ def run_experiment(scenario: Scenario | str = "paper", out_dir: Path | str | Non
             if figures:
                 if progress:
                     progress("writing figures", 0.0)
-                from analysis.simulation.figures import paper_figures   # matplotlib's setup only when drawing
+                from analysis.simulation.figures import paper_figures  # matplotlib's setup only when drawing
 
                 paper_figures(runs["with_dob"], runs["without_dob"], stage, formats=figure_formats)
         files = sorted(target.iterdir())
