@@ -121,8 +121,19 @@ def _warnings_as_notes(command: str):
 
 
 def main(argv=None) -> int:
-    """Entry point of the ``dobkit`` console script; returns the exit status (SIGTERM: as Ctrl-C, 143)."""
-    return run_with_signals(_main, argv)
+    """Entry point of the ``dobkit`` console script; returns the exit status (SIGTERM: as Ctrl-C, 143).
+
+    ``argv`` None: the program's own command line (the ``dobkit`` script, ``python -m dobkit``), after which the
+    process ends: everything the command made is then frozen (:func:`gc.freeze`), so that the interpreter's
+    shutdown frees it by reference counts instead of walking the millions of objects python-control, scipy,
+    matplotlib and numba create for garbage cycles (0.8 s of CPU after ``dobkit simulate``, 0.06 s frozen).
+    Exit handlers still run (staged folders, extracted FMUs); only cycles left at exit are not collected.
+    A list ``argv`` (a caller in Python) leaves the collector as it was.
+    """
+    status = run_with_signals(_main, argv)
+    if argv is None:
+        gc.freeze()
+    return status
 
 
 def _main(argv=None) -> int:

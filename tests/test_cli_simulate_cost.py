@@ -153,3 +153,17 @@ def test_the_command_runs_without_the_cycle_collector_and_restores_it(short_runs
     finally:
         gc.callbacks.remove(count)
         gc.enable() if was else gc.disable()
+
+
+def test_only_the_program_freezes_what_it_made_before_it_exits(monkeypatch, tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[simulation]\nt_final = -1\n")
+    command = ["simulate", "--scenario", str(bad), "--out", str(tmp_path / "never")]
+    frozen = gc.get_freeze_count()
+    try:
+        assert main(command) == 2 and gc.get_freeze_count() == frozen          # a caller in Python: untouched
+        monkeypatch.setattr(sys, "argv", ["dobkit", *command])
+        assert main() == 2 and gc.get_freeze_count() > frozen                # the program: frozen for its exit
+        assert "t_final" in capsys.readouterr().err
+    finally:
+        gc.unfreeze()
