@@ -28,6 +28,10 @@ __all__ = ["main"]
 SIMULATE_ENGINES = ("auto", "compiled", "fast", "python-control")
 
 
+#: True while :func:`main` runs as the program (the process ends after the command; see :func:`main`).
+_exit_follows = False
+
+
 @contextlib.contextmanager
 def _no_cycle_collection():
     """Python's cycle collector off for a short command, restored afterwards.
@@ -43,6 +47,8 @@ def _no_cycle_collection():
     try:
         yield
     finally:
+        if _exit_follows:
+            gc.freeze()     # before the collector is back: else its first act is a full walk of all of it
         if enabled:
             gc.enable()
 
@@ -130,7 +136,12 @@ def main(argv=None) -> int:
     Exit handlers still run (staged folders, extracted FMUs); only cycles left at exit are not collected.
     A list ``argv`` (a caller in Python) leaves the collector as it was.
     """
-    status = run_with_signals(_main, argv)
+    global _exit_follows
+    _exit_follows = argv is None
+    try:
+        status = run_with_signals(_main, argv)
+    finally:
+        _exit_follows = False
     if argv is None:
         gc.freeze()
     return status
