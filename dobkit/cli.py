@@ -38,8 +38,9 @@ def _no_cycle_collection():
 
     Importing python-control (scipy, matplotlib) and numba and drawing five figures allocate millions of objects
     that live until the process ends; the collector walked them again and again, about a sixth of ``dobkit
-    simulate``'s CPU.  Almost none of them are garbage cycles (the command's peak memory is the same within
-    1 %); reference counting still frees everything else at once.  The state is restored so that callers of
+    simulate``'s CPU.  Almost none of them are garbage cycles: a run leaves 70-110 objects in cycles whatever its
+    length, with every engine, and the command's peak memory is 296 MB against 293 MB with the collector on;
+    reference counting still frees everything else at once.  The state is restored so that callers of
     :func:`main` from Python keep their own.
     """
     enabled = gc.isenabled()
