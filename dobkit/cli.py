@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import gc
 import sys
 import warnings
 
@@ -27,6 +28,33 @@ __all__ = ["main"]
 SIMULATE_ENGINES = ("auto", "compiled", "fast", "python-control")
 
 
+#: True while :func:`main` runs as the program (the process ends after the command; see :func:`main`).
+_exit_follows = False
+
+
+@contextlib.contextmanager
+def _no_cycle_collection():
+    """Python's cycle collector off for a short command, restored afterwards.
+
+    Importing python-control (scipy, matplotlib) and numba and drawing five figures allocate millions of objects
+    that live until the process ends; the collector walked them again and again, about a sixth of ``dobkit
+    simulate``'s CPU.  Almost none of them are garbage cycles: a run leaves 70-110 objects in cycles whatever its
+    length, with every engine, and the command's peak memory is 296 MB against 293 MB with the collector on;
+    reference counting still frees everything else at once.  The state is restored so that callers of
+    :func:`main` from Python keep their own.
+    """
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if _exit_follows:
+            gc.freeze()     # before the collector is back: else its first act is a full walk of all of it
+        if enabled:
+            gc.enable()
+
+
+@_no_cycle_collection()
 def _cmd_simulate(args) -> int:
     from blocks.scenario import load_scenario
 
@@ -100,8 +128,24 @@ def _warnings_as_notes(command: str):
 
 
 def main(argv=None) -> int:
-    """Entry point of the ``dobkit`` console script; returns the exit status (SIGTERM: as Ctrl-C, 143)."""
-    return run_with_signals(_main, argv)
+    """Entry point of the ``dobkit`` console script; returns the exit status (SIGTERM: as Ctrl-C, 143).
+
+    ``argv`` None: the program's own command line (the ``dobkit`` script, ``python -m dobkit``), after which the
+    process ends: everything the command made is then frozen (:func:`gc.freeze`), so that the interpreter's
+    shutdown frees it by reference counts instead of walking the millions of objects python-control, scipy,
+    matplotlib and numba create for garbage cycles (0.8 s of CPU after ``dobkit simulate``, 0.06 s frozen).
+    Exit handlers still run (staged folders, extracted FMUs); only cycles left at exit are not collected.
+    A list ``argv`` (a caller in Python) leaves the collector as it was.
+    """
+    global _exit_follows
+    _exit_follows = argv is None
+    try:
+        status = run_with_signals(_main, argv)
+    finally:
+        _exit_follows = False
+    if argv is None:
+        gc.freeze()
+    return status
 
 
 def _main(argv=None) -> int:

@@ -21,7 +21,6 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.simulation.figures import paper_figures
 from blocks import Scenario, __version__, load_scenario, simulate
 from blocks.joints import RRPR_JOINTS, JointSpace
 from blocks.metrics import tracking_metrics
@@ -86,6 +85,8 @@ def run_experiment(scenario: Scenario | str = "paper", out_dir: Path | str | Non
             if figures:
                 if progress:
                     progress("writing figures", 0.0)
+                from analysis.simulation.figures import paper_figures  # matplotlib's setup only when drawing
+
                 paper_figures(runs["with_dob"], runs["without_dob"], stage, formats=figure_formats)
         files = sorted(target.iterdir())
     return ExperimentResult(s, runs["with_dob"], runs["without_dob"], metrics, Path(out_dir) if out_dir else None,
@@ -121,13 +122,12 @@ def _write_timeseries(path: Path, runs: dict) -> None:
     first = next(iter(runs.values()))
     columns, header = [np.asarray(first.time)], ["time_s"]
     for key, resp in runs.items():
-        for k, label in enumerate(resp.output_labels):
-            header.append(f"{key}.{label}")
-            columns.append(np.asarray(resp.outputs)[k])
+        header += [f"{key}.{label}" for label in resp.output_labels]
+        columns += list(np.asarray(resp.outputs))
     with path.open("w", newline="") as fh:
-        writer = csv.writer(fh)
-        writer.writerow(header)
-        writer.writerows(np.column_stack(columns).tolist())
+        csv.writer(fh).writerow(header)
+        # the rows as csv.writer writes floats (repr, comma, CRLF; a float never needs quotes), a third faster
+        fh.write("".join(",".join(map(repr, row)) + "\r\n" for row in np.column_stack(columns).tolist()))
 
 
 def format_rms_table(metrics: dict, joints: JointSpace | None = None) -> str:
