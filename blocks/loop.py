@@ -29,7 +29,6 @@ first fallback for each reason is reported once per process with an
 """
 from __future__ import annotations
 
-import warnings
 from collections import OrderedDict
 from collections.abc import Callable
 
@@ -39,6 +38,7 @@ import numpy as np
 from .budget import Budget
 from .derived import loop_response
 from .divergence import state_bounds
+from .engine_choice import ENGINES, EngineFallbackWarning, select_engine
 from .fastsim import CompiledLoop
 from .integrate import DivergenceError, SolverFailure, integrate_on_grid, loop_events, refuse_hybrid
 from .kernels import lumped_disturbance as lumped_disturbance_rows
@@ -53,45 +53,8 @@ from .validation import callable_or_none, joint_arrays
 __all__ = ["build_blocks", "closed_loop", "initial_state", "simulate", "SimulationError", "lumped_disturbance",
            "LOOP_SIGNALS", "ENGINES", "EngineFallbackWarning", "select_engine"]
 
-#: Engines of :func:`simulate`.
-ENGINES = ("auto", "compiled", "fast", "python-control")
 
 LOOP_SIGNALS = ("q", "dq", "q_ref", "dq_ref", "ddq_ref", "tau", "d_hat", "tau_dis")
-
-
-class EngineFallbackWarning(UserWarning):
-    """``engine="auto"`` runs the numpy engine because the compiled one cannot run this loop (the message says why)."""
-
-
-_fallbacks_reported: set[str] = set()
-
-
-def select_engine(engine: str, reason: str | None) -> str:
-    """The engine to run for a requested ``engine``, given why the compiled one cannot run (None: it can).
-
-    ``"auto"`` becomes ``"compiled"`` or ``"fast"``; a fallback is reported
-    once per reason and process (:class:`EngineFallbackWarning`).
-
-    Raises
-    ------
-    ValueError
-        If ``engine`` is not one of :data:`ENGINES`.
-    blocks.compiled.CompiledUnavailable
-        If ``engine="compiled"`` and ``reason`` is not None; the message is the reason.
-    """
-    if engine not in ENGINES:
-        raise ValueError(f"engine must be one of {list(ENGINES)}, got {engine!r}")
-    if engine == "compiled" and reason is not None:
-        from .compiled import CompiledUnavailable
-        raise CompiledUnavailable(f"engine='compiled' cannot run: {reason}")
-    if engine != "auto":
-        return engine
-    if reason is None:
-        return "compiled"
-    if reason not in _fallbacks_reported:
-        _fallbacks_reported.add(reason)
-        warnings.warn(f"engine='auto' uses the numpy engine: {reason}", EngineFallbackWarning, stacklevel=3)
-    return "fast"
 
 
 def _as_scenario(scenario) -> Scenario:

@@ -181,7 +181,7 @@ def export_controller(path, scenario, fmi_version: int = 2, cc: str | None = Non
     >>> export_controller("controller.fmu", s).name     # inputs q[i], dq[i]; outputs tau[i], d_hat[i]
     'controller.fmu'
     """
-    from blocks.digital_loop import sampled_loop
+    from blocks.sampled_blocks import sampled_loop
     from blocks.scenario import Scenario, load_scenario
     if isinstance(fmi_version, bool) or fmi_version not in (2, 3):
         raise ValueError(f"fmi_version must be 2 or 3, got {fmi_version!r}")

@@ -20,9 +20,9 @@ import numpy as np
 
 from blocks.budget import Budget
 from blocks.derived import loop_response
-from blocks.digital_loop import sampled_initial_state, sampled_loop
 from blocks.divergence import signal_bounds
 from blocks.monitor import Monitor
+from blocks.sampled_blocks import sampled_initial_state, sampled_loop
 from blocks.scenario import Scenario
 from blocks.systems import signal_names
 

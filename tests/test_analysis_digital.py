@@ -68,8 +68,8 @@ def test_the_stability_computation_is_the_linearization_of_the_blocks(changes):
     hybrid loop's own blocks numerically (control.linearize, control's ZOH of the plant): same moduli of the
     eigenvalues at 100 Hz with the gain 4 Y (near the limits)."""
     from analysis.linear.digital import _held, _operating_state
-    from blocks.digital_loop import sampled_loop
     from blocks.digital_stability import sampled_loop_map
+    from blocks.sampled_blocks import sampled_loop
     s = _paper(HELD | {"controller.sample_rate": 100.0, "gains.observer": 40.0} | changes)
     held = _held(s, Q0)
     loop = sampled_loop(held)
@@ -82,7 +82,7 @@ def test_the_stability_computation_is_the_linearization_of_the_blocks(changes):
 
 def test_the_gain_limit_agrees_with_simulation():
     """Just below the limit the sampled loop settles; just above it grows (Y = c 10 I at 1 kHz, c_max ~ 50)."""
-    from blocks.digital_loop import sampled_initial_state, sampled_loop
+    from blocks.sampled_blocks import sampled_initial_state, sampled_loop
     limit = observer_gain_limit(_paper(HELD | {"controller.sample_rate": 1000.0}), rates_hz=(1000.0,),
                                 configurations=[Q0], discretizations=("euler",), delays=(0,)).curves[0]
     c = limit.largest_scale[0]
@@ -103,7 +103,7 @@ def test_the_linear_map_holds_the_plant_discretized_exactly():
     import scipy.linalg
     s = _paper(HELD | {"controller.sample_rate": 500.0, "disturbance.kind": "none"})
     from analysis.linear.digital import _held, _operating_state
-    from blocks.digital_loop import sampled_loop
+    from blocks.sampled_blocks import sampled_loop
     held = _held(s, Q0)
     loop = sampled_loop(held, observer=False)
     A, _, _ = linear_sampled_loop(loop, _operating_state(held, loop))

@@ -18,11 +18,11 @@ import pytest
 import blocks
 from blocks.compiled import CompiledUnavailable, numba_or_none
 from blocks.contract import Kernels, kernel_block
-from blocks.digital_loop import sampled_initial_state, sampled_loop
 from blocks.hybrid import HybridSystem
 from blocks.integrate import DivergenceError
 from blocks.loop import EngineFallbackWarning, SimulationError
 from blocks.metrics import signal
+from blocks.sampled_blocks import sampled_initial_state, sampled_loop
 
 pytestmark = pytest.mark.skipif(numba_or_none() is None, reason="the compiled engine needs numba")
 
@@ -241,8 +241,8 @@ def test_fast_runs_the_numpy_hybrid_engine(monkeypatch):
 
 
 def test_a_solver_the_compiled_engine_lacks_is_named(monkeypatch):
-    import blocks.loop
-    monkeypatch.setattr(blocks.loop, "_fallbacks_reported", set())
+    import blocks.engine_choice
+    monkeypatch.setattr(blocks.engine_choice, "_fallbacks_reported", set())
     s = CASES["euler-difference-delay0"].with_changes({"simulation.method": "RK23", "simulation.t_final": 0.02,
                                                       "trajectory.duration": 10.0})
     with pytest.raises(CompiledUnavailable, match="'RK23'"):

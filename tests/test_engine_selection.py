@@ -45,7 +45,7 @@ SHORT = blocks.load_scenario("paper").replace(simulation={"t_final": 0.2})
 @pytest.fixture(autouse=True)
 def fresh_fallback_reports(monkeypatch):
     """Each test starts as a new process would: no fallback reported yet (they are reported once per process)."""
-    monkeypatch.setattr("blocks.loop._fallbacks_reported", set())
+    monkeypatch.setattr("blocks.engine_choice._fallbacks_reported", set())
 
 
 def test_numba_is_hidden_when_asked():

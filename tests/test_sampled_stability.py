@@ -24,9 +24,9 @@ import scipy.linalg
 
 import blocks
 from blocks.digital import DigitalController
-from blocks.digital_loop import sampled_initial_state, sampled_loop
 from blocks.digital_stability import held_exponential, sampled_stability, scenario_stability, spectral_radius
 from blocks.metrics import signal
+from blocks.sampled_blocks import sampled_initial_state, sampled_loop
 from blocks.scenario import ScenarioError
 from dobkit.cli import main
 

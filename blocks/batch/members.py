@@ -23,7 +23,7 @@ import numpy as np
 
 from ..contract import contract_of, kernels_only
 from ..kernels import lumped_disturbance
-from ..kernels.bind import bound
+from ..kernels.bind import bound, is_rrpr_kernels
 from ..loop import _prepared, build_blocks, closed_loop, initial_state
 from ..noise import MeasurementNoise
 from ..plan import make_plan
@@ -292,12 +292,6 @@ class MemberLoop:
             d[..., idx] = self._lumped_rows(self.k_true, k_nominal, q[..., idx], dq[..., idx], tau[..., idx],
                                             tau_dis[..., idx])
         return d
-
-
-def is_rrpr_kernels(arm) -> bool:
-    """Whether ``arm`` computes with the paper's RRPR closed-form kernels (its constants stack per member)."""
-    from ..kernels.bind import closed_form
-    return closed_form(arm.kernels, arm.tool_kernels)
 
 
 def _size(gather) -> int:

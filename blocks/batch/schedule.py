@@ -6,8 +6,8 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
+from ..kernels.bind import is_rrpr_kernels
 from ..scenario import Scenario
-from .members import is_rrpr_kernels
 from .variants import Variants
 
 __all__ = ["step_schedule", "auto_substeps", "fastest_rate", "rates_by_source", "noise_breakpoints", "batch_schedule",

@@ -231,7 +231,7 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
     members, compiled = None, None
     if engine != "fast":
         from ..compiled.batch import auto_batch_reason, batch_unavailable_reason, run_compiled_batch
-        from ..loop import select_engine
+        from ..engine_choice import select_engine
         reason = batch_unavailable_reason(v)
         if reason is None and engine == "auto":
             # the rule of single runs: a loop whose generated code is too long to compile now runs on numpy

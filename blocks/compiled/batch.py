@@ -23,9 +23,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..batch.members import is_rrpr_kernels
 from ..divergence import batch_bounds
 from ..kernels import tool_pose
+from ..kernels.bind import is_rrpr_kernels
 from ..monitor import Monitor
 from ..systems import signal_names
 from .codegen import CompiledUnavailable

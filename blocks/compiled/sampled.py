@@ -246,7 +246,7 @@ def simulate_sampled_batch(scenario, seeds: Sequence[int] | None = None, variant
     CompiledUnavailable
         If the loop cannot be compiled (numba missing, a solver other than RK45).
     """
-    from ..digital_loop import sampled_initial_state, sampled_loop
+    from ..sampled_blocks import sampled_initial_state, sampled_loop
     from ..systems import signal_names
     s = scenario
     if (seeds is None) == (variants is None):

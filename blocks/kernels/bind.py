@@ -30,7 +30,7 @@ import types
 from . import arm as _rrpr
 from . import kinematics as _rrpr_tool
 
-__all__ = ["MODEL_NAMES", "TOOL_NAMES", "bound", "closed_form"]
+__all__ = ["MODEL_NAMES", "TOOL_NAMES", "bound", "closed_form", "is_rrpr_kernels"]
 
 #: Names of the dynamics row kernels a law may call (see :mod:`blocks.arm`).
 MODEL_NAMES = ("inertia_matrix", "mass_times", "mass_solve", "bias_forces", "gravity_forces", "plant_acceleration")
@@ -45,6 +45,11 @@ _RRPR_ONLY = {id(v) for k, v in vars(_rrpr).items() if isinstance(v, types.Funct
 def closed_form(kernels: types.ModuleType, tool_kernels: types.ModuleType | None = None) -> bool:
     """Whether the kernel modules are the paper's RRPR ones (then :func:`bound` returns originals)."""
     return kernels is _rrpr and tool_kernels in (None, _rrpr_tool)
+
+
+def is_rrpr_kernels(arm) -> bool:
+    """Whether ``arm`` computes with the paper's RRPR closed-form kernels (its constants stack per member)."""
+    return closed_form(arm.kernels, arm.tool_kernels)
 
 
 def _modules_of(arm) -> tuple[types.ModuleType, types.ModuleType]:
