@@ -35,6 +35,7 @@ co-simulation.
 """
 from __future__ import annotations
 
+import sys
 from collections import OrderedDict
 from dataclasses import dataclass, replace
 
@@ -198,6 +199,16 @@ def force_bounds(k_true, disturbance, ref: ReferenceLimits, kernels=None) -> np.
     return FORCE_FACTOR * (forces.max(axis=0) + 1.0)
 
 
+def evaluation_kernels(arm):
+    """The row kernels to evaluate ``arm``'s dynamics with before a run (force bounds, step estimate): compiled for
+    a chain arm in a process that has loaded numba (:func:`blocks.compiled.arm_terms.row_kernels`: the same numbers
+    in microseconds instead of milliseconds), else ``arm.kernels``."""
+    if "numba" not in sys.modules:     # nothing compiled is at hand: the numpy kernels cost less than loading it
+        return arm.kernels
+    from .compiled.arm_terms import row_kernels
+    return row_kernels(arm)
+
+
 def _bound_of(block: str, label: str, ref: ReferenceLimits, force, gain):
     """The bound of one state by its block and label: (bound, name, unit, reason); ``inf`` if not physical."""
     n = ref.position.size
@@ -243,7 +254,7 @@ def state_bounds(loop, scenario, samples: int = 201) -> StateBounds:
     s = scenario
     ref = reference_limits(s, samples)
     spec = kernel_disturbance_params(s.disturbance, s.robot)
-    force = float(force_bounds(s.robot.kernel_params(), spec, ref, s.robot.kernels))
+    force = float(force_bounds(s.robot.kernel_params(), spec, ref, evaluation_kernels(s.robot)))
     labels = [(block.name, label) for block in loop.syslist for label in block.state_labels]
     return _labelled_bounds(labels, ref, force, np.asarray(s.observer_gain, dtype=float))
 
@@ -279,7 +290,7 @@ def batch_bounds(batch_loop, labels=None) -> StateBounds:
     if isinstance(b.k_true, np.ndarray):        # the RRPR's constants, one column per member
         force = force_bounds(b.k_true, b.disturbance, ref)                               # (N,)
     else:                                       # another arm: the members share the true arm, not its numbers' layout
-        force = _shared_arm_force_bounds(b.k_true, b.arm.kernels, b.disturbance, ref, b.n)
+        force = _shared_arm_force_bounds(b.k_true, evaluation_kernels(b.arm), b.disturbance, ref, b.n)
     if labels is None:
         labels = [("plant", f"q[{i}]") for i in range(n)] + [("plant", f"dq[{i}]") for i in range(n)]
         if b.observer:
@@ -307,7 +318,7 @@ def signal_bounds(names, scenario, samples: int = 201) -> StateBounds:
     s = scenario
     ref = reference_limits(s, samples)
     force = float(force_bounds(s.robot.kernel_params(), kernel_disturbance_params(s.disturbance, s.robot), ref,
-                               s.robot.kernels))
+                               evaluation_kernels(s.robot)))
     return _labelled_bounds([("plant", name) for name in names], ref, force, np.asarray(s.observer_gain, dtype=float))
 
 

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import hashlib
 import numbers
+import weakref
 
 import numpy as np
 
@@ -60,8 +61,23 @@ class Frozen:
         return repr(self)
 
     def frozen_digest(self) -> str:
-        """``TypeName#`` and a hash of :meth:`frozen_key`: what the generated code is specialised on."""
-        return f"{type(self).__name__}#{hashlib.sha256(self.frozen_key().encode()).hexdigest()[:20]}"
+        """``TypeName#`` and a hash of :meth:`frozen_key`: what the generated code is specialised on (kept per
+        object: the ``repr`` of a 7-joint arm takes milliseconds, and every run's structure key asks for it)."""
+        try:
+            found = _digests.get(self)
+        except TypeError:               # not weakly referenceable: computed each time
+            found = None
+        if found is None:
+            found = f"{type(self).__name__}#{hashlib.sha256(self.frozen_key().encode()).hexdigest()[:20]}"
+            try:
+                _digests[self] = found
+            except TypeError:
+                pass
+        return found
+
+
+# Digests of Frozen parameters (immutable by contract), by object
+_digests: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 class TraceError(TypeError):
