@@ -123,6 +123,7 @@ class CompiledRowKernels:
         m = int(np.prod(columns, dtype=int))
         X = np.empty((m, n * len(rows)))
         for i, r in enumerate(rows):
+            r = r.reshape(r.shape + (1,) * (len(columns) + 1 - r.ndim))      # a single state beside columns
             X[:, i * n:(i + 1) * n] = np.broadcast_to(r, (n,) + columns).reshape(n, m).T
         found = self._fns.get(name)
         if found is None:
