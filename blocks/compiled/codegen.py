@@ -61,7 +61,7 @@ from ..contract import contract_of
 from ..control_compat import subsystems
 from .cache import ModuleCache, cache_dir, guard_dispatcher
 from .jit import jit_kernel, kernel_sources, numba_or_none
-from .trace import Graph, Sym, TraceError, is_table, param_structure, param_tables, param_values, symbolic_params
+from .trace import Callee, Graph, Sym, TraceError, is_table, param_structure, param_tables, param_values, symbolic_params
 
 __all__ = ["CompiledUnavailable", "LoopProgram", "loop_program", "program_for", "cache_dir", "load_module"]
 
@@ -184,7 +184,7 @@ class _Builder:
 
     def __init__(self, plan, kernels: dict) -> None:
         self.plan, self.kernels = plan, kernels
-        self.graph = Graph()
+        self.graph = Graph(calls=True)        # an arm's M and h as functions called where needed (chain arms)
         self.theta: list[float] = []
         self.theta_slices: dict[str, slice] = {}
         self.sym_params: dict[str, tuple] = {}
@@ -366,6 +366,11 @@ class _Function:
                 return f"ext[{index}].shape[1]"
             raise CompiledUnavailable(f"the generated code would read {kind!r} {index!r}: a block uses an input "
                                       "its contract says does not feed through")
+        if node.op == "fcall":                  # a function of the module (an arm's M or h): a tuple of outputs
+            return f"{node.args[0]}(({', '.join(self.value(a) for a in node.args[1:])},))"
+        if node.op == "fout":
+            call, j = node.args
+            return f"{self.value(call)}[{j}]"
         if node.op == "lookup":                 # a table read at a whole-valued float index
             slot, row, at = node.args
             return f"ext[{slot}][{row}, int({self.value(at)})]"
@@ -399,8 +404,10 @@ class _Function:
 
 
 def _operands(node: Sym) -> list:
-    if node.op in ("bin", "call"):
+    if node.op in ("bin", "call", "fcall"):
         return [a for a in node.args[1:] if isinstance(a, Sym)]
+    if node.op == "fout":
+        return [node.args[0]]
     if node.op == "lookup":
         return [node.args[2]]
     return []
@@ -483,6 +490,19 @@ def _assign_outputs(fn: _Function, plan, signals: dict) -> None:
     """The interconnection's outputs ``y[r]`` from the signals."""
     for r, j in enumerate(plan.out_index):
         fn.assign(f"y[{r}]", signals[int(j)])
+
+
+def _callee_functions(b: _Builder) -> str:
+    """The text of the functions the generated code calls (:class:`~blocks.compiled.trace.Callee`: an arm's M, h),
+    each ``name(x) -> tuple`` of its outputs that are not constants."""
+    texts = []
+    for callee in b.graph.callees.values():
+        _, outputs = callee.traced
+        fn = _Function(None, callee.name, "x")
+        values = [fn.value(v) for v in outputs if Callee.constant(v) is None]
+        fn.emit(f"return ({', '.join(values)},)")
+        texts.append(fn.text())
+    return "".join(t + "\n" for t in texts)
 
 
 def _member_ext(b: _Builder) -> tuple[tuple, str]:
@@ -578,7 +598,8 @@ def loop_program(plan, system, groups: tuple = ()) -> LoopProgram:
              f"def loop_work_size():\n    return {max(b.work, 1)}\n\n\n"
              f"def loop_output_count():\n    return {n_out}\n\n\n"
              f"def loop_row_count():\n    return {max(offset, 1)}\n\n\n")
-    source = "\n".join(f.text() for f in (fn_src, fn_rhs, fn_out, fn_rhs_rows, fn_out_rows)) + "\n" + member_ext + sizes
+    source = _callee_functions(b) + "\n".join(f.text() for f in (fn_src, fn_rhs, fn_out, fn_rhs_rows, fn_out_rows)) \
+        + "\n" + member_ext + sizes
     return LoopProgram(source=source, theta=np.array(b.theta, dtype=float), theta_slices=b.theta_slices,
                        ext=tuple(b.ext), ext_slices=b.ext_slices, traced=b.traced, called=b.called,
                        sources=[s.name for s in b.source_steps], n_src=b.n_src, n_work=max(b.work, 1), n_out=n_out,
@@ -797,7 +818,8 @@ def sampled_program(hybrid) -> LoopProgram:
     # the derivative dp_step integrates (blocks/compiled/dopri.py): this one replaces the template's
     step_rhs = ("def step_rhs(t, x, theta, ext, src, work, aux, out):\n"
                 "    sampled_rhs(t, x, theta, src, ext, work, aux, out)\n\n\n")
-    source = "\n".join(f.text() for f in (fn_src, fn_tick, fn_rhs, fn_out)) + "\n" + step_rhs + member_ext + sizes
+    source = _callee_functions(b) + "\n".join(f.text() for f in (fn_src, fn_tick, fn_rhs, fn_out)) + "\n" + step_rhs \
+        + member_ext + sizes
     structure = "sampled\n" + structure_of(plan, kernels, list(system.output_labels)) + \
         "\n" + ",".join(sorted(discrete)) + "|" + ",".join(sorted(between))
     return LoopProgram(source=source, theta=np.array(b.theta, dtype=float), theta_slices=b.theta_slices,
