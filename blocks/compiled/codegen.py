@@ -20,6 +20,12 @@ source of these functions:
     the called kernels' parameters with every table (a noise table) taken
     from row ``j`` of ``tables``, for a batch whose members have their own.
 
+An arm's ``M(q)`` and ``h(q, q')`` (a chain arm's: :mod:`blocks.kernels.chain`)
+are functions of the module, ``arm_inertia_<arm>(x)`` and ``arm_bias_<arm>(x)``
+returning tuples, called by the functions below where they need them
+(:class:`~blocks.compiled.trace.Callee`): numba compiles each once instead of
+four inlined copies.
+
 A block's kernels are traced (:mod:`blocks.compiled.trace`) into scalar
 statements when they can be: then the generated code has no array
 temporaries, and a term two blocks compute alike is computed once.  A

@@ -30,6 +30,12 @@ subspace is its fixed axis (one non-zero entry for an axis-aligned joint):
 
 Rows are joint-first: ``q[i]`` is a number, an array of a batch or a traced
 symbol.  Units: rad, m, kg, kg m^2, N m, N; gravity in m/s^2.
+
+Traced on a graph that asks for calls (the compiled engine's,
+:class:`blocks.compiled.trace.Graph` with ``calls``), ``M(q)``, ``h(q, q')``
+and ``G(q)`` are recorded as calls of one generated function per arm and
+term (:class:`~blocks.compiled.trace.Callee`) instead of their statements,
+so a loop that needs them in several functions compiles them once.
 """
 from __future__ import annotations
 
