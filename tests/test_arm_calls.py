@@ -104,3 +104,36 @@ def test_exact_zeros_of_a_tree_stay_constants():
     returned = text.split("return (", 1)[1].split(")", 1)[0].rstrip(",").split(", ")
     assert len(returned) == n * (n + 1) // 2 - len(constants)
     assert callee.n_in == 2 * n - sum(1 for kind in arm.joints.kinds if kind == "prismatic")
+
+
+@pytest.mark.parametrize("name", ["scope4", "panda"])
+def test_a_loop_with_called_dynamics_computes_the_same_derivative(name, monkeypatch):
+    """The whole generated loop with ``ARM_CALLS`` (its M and h functions in the module, called by the loop's
+    functions), run by Python on floats (the ``fast`` engine's right-hand side): the derivative of the inlined loop,
+    bit for bit, at random states; and half the generated lines or less."""
+    from blocks import load_scenario
+    from blocks.compiled import codegen
+    from blocks.compiled.rows import loop_rows_of
+    from blocks.compiled.scalar import scalar_rhs
+    from blocks.loop import closed_loop
+    from blocks.plan import make_plan
+
+    s = load_scenario(name)
+    loop = closed_loop(s)
+    plan = make_plan(loop)
+
+    def unused(t, x):
+        raise AssertionError("float arithmetic raised")
+
+    inlined = scalar_rhs(plan, loop, unused)
+    lines_inlined = codegen.program_for(plan, loop, loop_rows_of(loop))[0].source.count("\n")
+    monkeypatch.setattr(codegen, "ARM_CALLS", True)
+    called = scalar_rhs(plan, loop, unused)
+    program = codegen.program_for(plan, loop, loop_rows_of(loop))[0]
+    assert program.source.count("def arm_inertia_") == 2 and program.source.count("def arm_bias_") == 2
+    assert program.source.count("\n") < 0.7 * lines_inlined
+    rng = np.random.default_rng(5)
+    for _ in range(5):
+        x = rng.uniform(-1.0, 1.0, plan.nstates)
+        t = float(rng.uniform(0.0, 10.0))
+        np.testing.assert_array_equal(called(t, x), inlined(t, x))

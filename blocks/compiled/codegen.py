@@ -20,11 +20,12 @@ source of these functions:
     the called kernels' parameters with every table (a noise table) taken
     from row ``j`` of ``tables``, for a batch whose members have their own.
 
-An arm's ``M(q)`` and ``h(q, q')`` (a chain arm's: :mod:`blocks.kernels.chain`)
-are functions of the module, ``arm_inertia_<arm>(x)`` and ``arm_bias_<arm>(x)``
-returning tuples, called by the functions below where they need them
-(:class:`~blocks.compiled.trace.Callee`): numba compiles each once instead of
-four inlined copies.
+With :data:`ARM_CALLS` set, an arm's ``M(q)`` and ``h(q, q')`` (a chain
+arm's: :mod:`blocks.kernels.chain`) are functions of the module,
+``arm_inertia_<arm>(x)`` and ``arm_bias_<arm>(x)`` returning tuples, called
+by the functions below where they need them
+(:class:`~blocks.compiled.trace.Callee`): numba compiles each once instead
+of four inlined copies (less than half the compile time, runs 10-20 % slower).
 
 A block's kernels are traced (:mod:`blocks.compiled.trace`) into scalar
 statements when they can be: then the generated code has no array
@@ -70,6 +71,15 @@ from .jit import jit_kernel, kernel_sources, numba_or_none
 from .trace import Callee, Graph, Sym, TraceError, is_table, param_structure, param_tables, param_values, symbolic_params
 
 __all__ = ["CompiledUnavailable", "LoopProgram", "loop_program", "program_for", "cache_dir", "load_module"]
+
+
+#: Generate a chain arm's ``M(q)`` and ``h(q, q')`` as functions of the module, called where needed, instead of
+#: inlining them in every function (see :class:`~blocks.compiled.trace.Callee`).  Measured on the 2-core machine
+#: (CPU s of a cold compile; best cached run): the Panda's loop 14,250 -> 7,670 lines, compile 58.6 -> 24.5 s,
+#: run 6.5 -> 7.6 ms (+15-20 %, in the Dormand-Prince steps and the grid pass); scope4 3,023 -> 1,981 lines,
+#: compile 11.9 -> 11.3 s, run +10-15 %; the numbers are the same to the last bit.  Off: a run must not get slower
+#: by more than a few percent; set it True before a loop is first traced to trade run time for compile time.
+ARM_CALLS = False
 
 
 class CompiledUnavailable(RuntimeError):
@@ -190,7 +200,7 @@ class _Builder:
 
     def __init__(self, plan, kernels: dict) -> None:
         self.plan, self.kernels = plan, kernels
-        self.graph = Graph(calls=True)        # an arm's M and h as functions called where needed (chain arms)
+        self.graph = Graph(calls=ARM_CALLS)   # an arm's M and h as functions called where needed (chain arms)
         self.theta: list[float] = []
         self.theta_slices: dict[str, slice] = {}
         self.sym_params: dict[str, tuple] = {}
@@ -461,6 +471,8 @@ def structure_of(plan, kernels: dict, labels: list, groups: tuple = ()) -> str:
     parts.append(f"{plan.copy_y!r}|{plan.copy_x!r}|{plan.out_index.tolist()}|{plan.direct}")
     parts.append(",".join(labels))
     parts.append(",".join(f"{g.name}:{g.rows.__module__}.{g.rows.__qualname__}" for g in groups))
+    if ARM_CALLS:                   # another text for the same loop (absent when off: the cache keys stay as they were)
+        parts.append("arm M and h called")
     return "\n".join(parts)
 
 
