@@ -20,14 +20,16 @@ so a later process only loads it.  The numbers are the numpy kernels' up to
 the rounding of ``sin``/``cos`` (the traced statements are the kernels' own
 operations in their order; ``fastmath`` is off).
 
-:func:`row_kernels` gives the compiled kernels only in a process that has
-loaded numba already (it ran, or chose between, compiled engines): importing
-numba and loading compiled code (about 1 s) costs more than the numpy
-kernels' few milliseconds of a single run, but a process that runs a loop
-many times -- a sweep, a tuning, a benchmark -- saves them on every run
-after the first.  Otherwise, without numba, and for the paper's RRPR (its
-closed form is cheap in numpy, and its numbers stay exactly as they are), it
-gives the arm's own kernel module.
+:func:`row_kernels` gives the compiled kernels only where they pay: in a
+process that has loaded numba already (it ran, or chose between, compiled
+engines) and asks for the same arm's kernels again and again
+(:data:`COMPILE_AFTER` times: a sweep, a tuning, a benchmark).  Importing
+numba, compiling an arm's kernels (1-3 s each for the Panda, once per
+machine) or loading them (50-300 ms per process) costs more than the numpy
+kernels' few milliseconds of one run, not more than those of many.
+Otherwise, without numba, and for the paper's RRPR (its closed form is cheap
+in numpy, and its numbers stay exactly as they are), it gives the arm's own
+kernel module.
 """
 from __future__ import annotations
 
@@ -46,8 +48,12 @@ __all__ = ["COMPILED_NAMES", "CompiledRowKernels", "row_kernels"]
 #: The row kernels compiled here, by name, with the number of row arguments each takes after ``k``.
 COMPILED_NAMES = {"inertia_matrix": 1, "mass_times": 2, "bias_forces": 2, "gravity_forces": 1}
 
+#: An arm's kernels are compiled (or loaded) at its request after this many in the process (about two a run).
+COMPILE_AFTER = 8
+
 _made: dict = {}           # (id(kernels module), id(k)) -> CompiledRowKernels (which keeps both alive)
 _MADE_KEPT = 32
+_asked: dict = {}          # (id(kernels module), id(k)) -> [k, requests so far] (k kept: its id stays its own)
 _functions: dict = {}      # (kernels module name, kernel name, frozen digest of k) -> (numba dispatcher, outputs)
 
 
@@ -161,7 +167,8 @@ def row_kernels(arm, compiled: bool | None = None):
     arm : blocks.arm.ArmModel
     compiled : bool, optional
         True: compiled whenever numba is installed; False: the numpy kernels; None (default): compiled when this
-        process has loaded numba already (see the module docstring).
+        process has loaded numba already and asked for this arm's kernels more than :data:`COMPILE_AFTER` times
+        (see the module docstring).
 
     Returns
     -------
@@ -173,15 +180,26 @@ def row_kernels(arm, compiled: bool | None = None):
     from .trace import Frozen
 
     kernels, k = arm.kernels, arm.kernel_params()
+    key = (id(kernels), id(k))
+    found = _made.get(key)
     if compiled is None:
-        compiled = "numba" in sys.modules
+        compiled = found is not None or ("numba" in sys.modules and _requests(key, k) > COMPILE_AFTER)
     if not compiled or closed_form(kernels) or not isinstance(k, Frozen) or numba_or_none() is None \
             or any(not hasattr(kernels, name) for name in COMPILED_NAMES):
         return kernels
-    key = (id(kernels), id(k))
-    found = _made.get(key)
     if found is None:
         found = _made[key] = CompiledRowKernels(kernels, k)
         while len(_made) > _MADE_KEPT:
             _made.pop(next(iter(_made)))
     return found
+
+
+def _requests(key: tuple, k) -> int:
+    """Count one more request for the arm of ``key`` (parameters ``k``); the count so far."""
+    entry = _asked.get(key)
+    if entry is None or entry[0] is not k:
+        entry = _asked[key] = [k, 0]
+        while len(_asked) > 4 * _MADE_KEPT:
+            _asked.pop(next(iter(_asked)))
+    entry[1] += 1
+    return entry[1]
