@@ -21,9 +21,10 @@ step, over the scenario's 10 s (built-in ``scope4`` and ``panda``).  Two ways to
 A second table times what each run does before it integrates that depends on the arm (the step estimate
 ``blocks.run_limits.estimate_run`` and the loop's divergence bounds ``blocks.divergence.state_bounds``: M along the
 reference for the true and the nominal arm, G and ``M q'' + h`` at its start) two ways: with the arm's numpy row
-kernels (what a process without numba loaded uses) and with its compiled row kernels
-(:mod:`blocks.compiled.arm_terms`, what a run after the first uses where numba is loaded, as in the "new scenario"
-column); the mean of ``--rounds`` x 10 calls after one call that traces and compiles or loads them.
+kernels (what a one-off run, or a process without numba loaded, uses) and with its compiled row kernels
+(:mod:`blocks.compiled.arm_terms`, what the runs of a process that runs the arm again and again use, as in the
+"new scenario" column); the mean of ``--rounds`` x 10 calls after one call (here they are compiled or loaded
+already: the runs above asked for them).
 
 Times are CPU times (``time.process_time``), as in the other benchmarks here.  The ratio is compiled / lean
 (target <= 0.05, issue 18); the two runs' positions on the output grid are compared
