@@ -3,7 +3,7 @@
     PYTHONPATH=. python benchmarks/bench_figures.py [--repeats 3] [--json out.json]
 
 The paper scenario is simulated once with and once without the observer
-(``engine="fast"``: no numba needed); then :func:`analysis.figures.paper_figures`
+(``engine="fast"``: no numba needed); then :func:`analysis.simulation.figures.paper_figures`
 writes the five figures into a temporary folder, each format set in turn,
 ``--repeats`` times.  The table gives the fastest CPU and wall time of each.
 For scale it also times one fast-engine run of the scenario.
@@ -21,7 +21,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from _timing import table, time_interleaved  # noqa: E402
 
 import blocks  # noqa: E402
-from analysis.figures import paper_figures  # noqa: E402
+from analysis.simulation.figures import paper_figures  # noqa: E402
 
 
 def main(argv=None) -> int:

@@ -2,7 +2,7 @@
 
     PYTHONPATH=. python benchmarks/bench_tune.py [--max-evaluations 400] [--workers 2] [--json out.json]
 
-Timed: :func:`analysis.tune_runner.run_tune` of the built-in ``paper-tune`` (64
+Timed: :func:`analysis.tune.runner.run_tune` of the built-in ``paper-tune`` (64
 mismatched runs of the paper's 10 s scenario per evaluation, differential
 evolution and the polish, every constraint, the evaluation log; no figures)
 in a fresh folder.  Then the lean baseline, written here without the tuner:
@@ -28,8 +28,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from analysis.tune import load_tuning, with_evaluations
-from analysis.tune_runner import LOG_NAME, run_tune
+from analysis.tune.runner import LOG_NAME, run_tune
+from analysis.tune.spec import load_tuning, with_evaluations
 from blocks.batch import Variants, simulate_batch
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))     # _timing, run from anywhere

@@ -3,7 +3,7 @@
 This is the one computation of the digital loop's stability
 (:mod:`blocks.digital`): the pre-run check
 (:func:`blocks.digital_loop.check_observer_rate`) and the analysis
-(:func:`analysis.digital.observer_gain_limit`) both call it.
+(:func:`analysis.linear.digital.observer_gain_limit`) both call it.
 
 The loop is linearized at rest at a frozen configuration ``q`` on the
 nominal model (perfect model, constant disturbance), where computed torque

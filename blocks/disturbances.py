@@ -26,9 +26,15 @@ Models
     ``p > 0`` the tissue pushes it up with ``F_z = max(0, k p - c z')`` (a
     spring-damper that cannot pull) and drags it in the plane with
     ``F_xy = -c_lat v_xy``.  The task-space force maps to the joints through
-    the kinematic Jacobian, ``tau = J^T F``.  The model is the paper's RRPR's
-    (its tool moves along z with ``d3`` alone); an arm of another model is
-    refused by name (:meth:`DisturbanceSpec.check_arm`).
+    the tool point's linear Jacobian, ``tau = J(q)^T F`` with the tool
+    velocity ``v = J(q) q'``.  Any arm: the tool point and its Jacobian are
+    the arm's (``tool_position``, ``tool_jacobian`` of its tool kernels; on
+    the paper's RRPR its tool moves along z with ``d3`` alone).  The default
+    plane is the RRPR's (the tool height at ``d3 = 0.24 m``); a scenario of
+    another arm (``[arm]``) that does not set ``disturbance.skin_height``
+    puts the skin through the tool point at the reference's start,
+    ``z_tool(q_ref(0))`` (:func:`blocks.scenario_arm.skin_height_default`),
+    so the tissue acts wherever the tool goes below where it starts.
 
 Per-joint lists (``f_r``, ``coulomb``, ``viscous``) have one entry per joint
 of the arm that the spec acts on; the defaults are the paper's four.
@@ -42,7 +48,7 @@ import numpy as np
 
 from . import kernels
 from .arm import ArmModel
-from .parameters import RobotParameters
+from .kernels.bind import bound
 from .validation import arm_model, joint_arrays, real_array
 
 __all__ = ["DisturbanceSpec", "DISTURBANCE_KINDS", "KIND_ALIASES", "RRPR_ONLY_KINDS", "external_disturbance",
@@ -51,8 +57,8 @@ __all__ = ["DisturbanceSpec", "DISTURBANCE_KINDS", "KIND_ALIASES", "RRPR_ONLY_KI
 DISTURBANCE_KINDS = ("paper", "friction", "tissue")
 #: Other names of a model: ``step`` is Eq. 4 under the name it has for any arm.
 KIND_ALIASES = {"step": "paper"}
-#: Models written for the paper's RRPR only.
-RRPR_ONLY_KINDS = ("tissue",)
+#: Models written for the paper's RRPR only: none (the tissue contact works through any arm's tool kernels).
+RRPR_ONLY_KINDS: tuple[str, ...] = ()
 
 _Vec4 = tuple[float, ...]
 
@@ -76,7 +82,9 @@ class DisturbanceSpec:
         Smoothing velocity ``v_s`` of the Coulomb term (rad/s or m/s), > 0.
     skin_height : float
         Height of the skin plane in the base frame (m).  The default is the
-        tool height at ``d3 = 0.24 m`` (Table 1's link-3 offset).
+        RRPR's tool height at ``d3 = 0.24 m`` (Table 1's link-3 offset); for
+        another arm give the plane (a scenario of a URDF arm defaults it to
+        the tool height at the reference's start).
     tissue_stiffness : float
         Normal stiffness of the tissue ``k`` (N/m), >= 0.
     tissue_damping : float
@@ -133,7 +141,8 @@ class DisturbanceSpec:
         return out + (("coulomb", "viscous") if "friction" in self.kinds else ())
 
     def check_arm(self, arm, name: str | None = None) -> None:
-        """Refuse a spec that does not fit ``arm``: a per-joint list of the wrong length, an RRPR-only model.
+        """Refuse a spec that does not fit ``arm``: a per-joint list of the wrong length, an RRPR-only model
+        (:data:`RRPR_ONLY_KINDS`, none today).
 
         Raises
         ------
@@ -151,9 +160,9 @@ class DisturbanceSpec:
         if not closed_form(arm.kernels, arm.tool_kernels):
             bad = [k for k in self.kinds if k in RRPR_ONLY_KINDS]
             if bad:
-                raise ValueError(f"disturbance kind {bad[0]!r} models the paper's RRPR (the skin contact along "
-                                 f"its z through d3); it is not available for {label} ({n} joints): use 'step' "
-                                 "or 'friction'")
+                raise ValueError(f"disturbance kind {bad[0]!r} models the paper's RRPR only; it is not available "
+                                 f"for {label} ({n} joints): choose from "
+                                 f"{[k for k in DISTURBANCE_KINDS if k not in RRPR_ONLY_KINDS]}")
 
 
 def _rows(x) -> np.ndarray:
@@ -173,12 +182,26 @@ def friction_disturbance(dq, coulomb, viscous, friction_velocity: float) -> np.n
                                         friction_velocity)
 
 
-def tissue_disturbance(q, dq, spec: DisturbanceSpec, params: RobotParameters) -> np.ndarray:
-    """Joint forces from the skin spring-damper contact on the paper's RRPR, ``J(q)^T F``, shape (..., 4)."""
-    q, dq = np.broadcast_arrays(np.asarray(q, dtype=float), np.asarray(dq, dtype=float))
-    rows = kernels.tissue_disturbance(kernels.kinematic_lengths(params), _rows(q), _rows(dq), spec.skin_height,
-                                      spec.tissue_stiffness, spec.tissue_damping, spec.tissue_drag)
-    return np.moveaxis(rows, 0, -1)
+def tissue_disturbance(q, dq, spec: DisturbanceSpec, params: ArmModel) -> np.ndarray:
+    """Joint forces of the skin spring-damper contact, ``J(q)^T F`` (N m, N), shape (..., n).
+
+    Parameters
+    ----------
+    q, dq : array_like, shape (..., n)
+        Joint positions (rad, m) and velocities (rad/s, m/s).
+    spec : DisturbanceSpec
+        The plane ``skin_height`` (m) and the tissue's ``tissue_stiffness`` (N/m), ``tissue_damping`` and
+        ``tissue_drag`` (N s/m).
+    params : ArmModel
+        The arm: its tool point and linear Jacobian (the paper's RRPR or any other model).
+    """
+    arm = arm_model(params, "params")
+    q, dq = joint_arrays({"q": q, "dq": dq}, arm.joints)
+    q, dq = np.broadcast_arrays(q, dq)
+    kernel = bound(kernels.tissue_disturbance, arm)
+    rows = kernel(arm.tool_params(), _rows(q), _rows(dq), spec.skin_height, spec.tissue_stiffness,
+                  spec.tissue_damping, spec.tissue_drag)
+    return np.moveaxis(np.asarray(rows, dtype=float), 0, -1)
 
 
 def external_disturbance(t, q, dq, spec: DisturbanceSpec, params: ArmModel) -> np.ndarray:
@@ -193,7 +216,7 @@ def external_disturbance(t, q, dq, spec: DisturbanceSpec, params: ArmModel) -> n
     spec : DisturbanceSpec
         Selected models and their parameters.
     params : ArmModel
-        The true arm (its joint count; the tissue contact's kinematics on the RRPR).
+        The true arm (its joint count; its tool point for the tissue contact).
     """
     if not isinstance(spec, DisturbanceSpec):
         raise TypeError(f"spec must be a DisturbanceSpec (scenario.disturbance), got {type(spec).__name__}")
@@ -210,4 +233,5 @@ def external_disturbance(t, q, dq, spec: DisturbanceSpec, params: ArmModel) -> n
     p = p._replace(f_r=p.f_r.reshape(p.f_r.shape + extra), coulomb=p.coulomb.reshape(p.coulomb.shape + extra),
                    viscous=p.viscous.reshape(p.viscous.shape + extra),
                    kin=p.kin.reshape(p.kin.shape + extra) if isinstance(p.kin, np.ndarray) else p.kin)
-    return np.moveaxis(kernels.external_disturbance(np.broadcast_to(t, lead), _rows(q), _rows(dq), p), 0, -1)
+    kernel = bound(kernels.external_disturbance, arm)
+    return np.moveaxis(kernel(np.broadcast_to(t, lead), _rows(q), _rows(dq), p), 0, -1)

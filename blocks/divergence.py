@@ -45,6 +45,7 @@ from .kernels import bias_forces as _rrpr_bias_forces
 from .kernels import disturbance_params as kernel_disturbance_params
 from .kernels import external_disturbance
 from .kernels import mass_times as _rrpr_mass_times
+from .kernels.bind import bound
 
 __all__ = ["StateBounds", "state_bounds", "cached_state_bounds", "signal_bounds", "ReferenceLimits",
            "reference_limits", "force_bounds", "batch_bounds", "Runaway", "POSITION_MARGIN", "VELOCITY_MARGIN",
@@ -165,7 +166,8 @@ def reference_limits(scenario, samples: int = 201) -> ReferenceLimits:
                            tuple(joints.position_units), tuple(joints.velocity_units), tuple(joints.force_units))
 
 
-def force_bounds(k_true, disturbance, ref: ReferenceLimits, kernels=None) -> np.ndarray:
+def force_bounds(k_true, disturbance, ref: ReferenceLimits, kernels=None, tool_kernels=None,
+                 terms=None) -> np.ndarray:
     """The disturbance estimate's bound per member: ``FORCE_FACTOR`` (largest start force + 1) (N m, N).
 
     Parameters
@@ -178,14 +180,20 @@ def force_bounds(k_true, disturbance, ref: ReferenceLimits, kernels=None) -> np.
     ref : ReferenceLimits
     kernels : module, optional
         The true arm's row kernels (``arm.kernels``); default the paper's RRPR's.
+    tool_kernels : module, optional
+        The true arm's tool kernels (``arm.tool_kernels``, the tissue contact's tool point); default the RRPR's.
+    terms : optional
+        Row kernels that evaluate ``G`` and ``M q'' + h`` of the arm of ``kernels`` (default ``kernels``):
+        :func:`evaluation_kernels`, the same numbers in microseconds where that pays.
 
     Returns
     -------
     numpy.ndarray
         Shape () for one arm, (N,) for N members.
     """
-    if kernels is not None:
-        bias_forces, mass_times = kernels.bias_forces, kernels.mass_times
+    if terms is not None or kernels is not None:
+        terms = kernels if terms is None else terms
+        bias_forces, mass_times = terms.bias_forces, terms.mass_times
     else:
         bias_forces, mass_times = _rrpr_bias_forces, _rrpr_mass_times
     batch = isinstance(k_true, np.ndarray) and np.ndim(k_true) == 2
@@ -195,18 +203,28 @@ def force_bounds(k_true, disturbance, ref: ReferenceLimits, kernels=None) -> np.
         q0, dq0, ddq0 = (np.repeat(a, np.shape(k_true)[1], axis=1) for a in (q0, dq0, ddq0))
     gravity_only = bias_forces(k_true, q0, np.zeros_like(dq0))
     inverse = mass_times(k_true, q0, ddq0) + bias_forces(k_true, q0, dq0)
-    forces = np.abs(external_disturbance(0.0, q0, dq0, disturbance)) + np.abs(gravity_only) + np.abs(inverse)
+    external = _external_disturbance(kernels, tool_kernels)
+    forces = np.abs(external(0.0, q0, dq0, disturbance)) + np.abs(gravity_only) + np.abs(inverse)
     return FORCE_FACTOR * (forces.max(axis=0) + 1.0)
 
 
 def evaluation_kernels(arm):
     """The row kernels to evaluate ``arm``'s dynamics with before a run (force bounds, step estimate): compiled for
-    a chain arm in a process that has loaded numba (:func:`blocks.compiled.arm_terms.row_kernels`: the same numbers
-    in microseconds instead of milliseconds), else ``arm.kernels``."""
+    a chain arm where that pays (:func:`blocks.compiled.arm_terms.row_kernels`: a process that has loaded numba and
+    runs the arm again and again; the same numbers in microseconds instead of milliseconds), else ``arm.kernels``."""
     if "numba" not in sys.modules:     # nothing compiled is at hand: the numpy kernels cost less than loading it
         return arm.kernels
     from .compiled.arm_terms import row_kernels
     return row_kernels(arm)
+
+
+def _external_disturbance(kernels, tool_kernels):
+    """The disturbance kernel for the arm of these row-kernel modules (the RRPR's when not given)."""
+    if kernels is None:
+        return external_disturbance
+    if tool_kernels is None:
+        from .kernels import kinematics as tool_kernels
+    return bound(external_disturbance, (kernels, tool_kernels))
 
 
 def _bound_of(block: str, label: str, ref: ReferenceLimits, force, gain):
@@ -254,7 +272,8 @@ def state_bounds(loop, scenario, samples: int = 201) -> StateBounds:
     s = scenario
     ref = reference_limits(s, samples)
     spec = kernel_disturbance_params(s.disturbance, s.robot)
-    force = float(force_bounds(s.robot.kernel_params(), spec, ref, evaluation_kernels(s.robot)))
+    force = float(force_bounds(s.robot.kernel_params(), spec, ref, s.robot.kernels, s.robot.tool_kernels,
+                               evaluation_kernels(s.robot)))
     labels = [(block.name, label) for block in loop.syslist for label in block.state_labels]
     return _labelled_bounds(labels, ref, force, np.asarray(s.observer_gain, dtype=float))
 
@@ -290,7 +309,7 @@ def batch_bounds(batch_loop, labels=None) -> StateBounds:
     if isinstance(b.k_true, np.ndarray):        # the RRPR's constants, one column per member
         force = force_bounds(b.k_true, b.disturbance, ref)                               # (N,)
     else:                                       # another arm: the members share the true arm, not its numbers' layout
-        force = _shared_arm_force_bounds(b.k_true, evaluation_kernels(b.arm), b.disturbance, ref, b.n)
+        force = _shared_arm_force_bounds(b.k_true, b.arm, b.disturbance, ref, b.n)
     if labels is None:
         labels = [("plant", f"q[{i}]") for i in range(n)] + [("plant", f"dq[{i}]") for i in range(n)]
         if b.observer:
@@ -302,13 +321,15 @@ def batch_bounds(batch_loop, labels=None) -> StateBounds:
     return _labelled_bounds(labels, ref, force, gain)
 
 
-def _shared_arm_force_bounds(k, kernels, disturbance, ref: ReferenceLimits, members: int) -> np.ndarray:
+def _shared_arm_force_bounds(k, arm, disturbance, ref: ReferenceLimits, members: int) -> np.ndarray:
     """:func:`force_bounds` of ``members`` members sharing one arm (``k``, its row kernels) whose disturbances
     differ: the arm's terms at the reference's start once, each member's disturbance beside them (N,)."""
     q0, dq0, ddq0 = (np.repeat(np.asarray(a, dtype=float)[:, None], members, axis=1) for a in (ref.q0, ref.dq0, ref.ddq0))
-    gravity_only = kernels.bias_forces(k, q0, np.zeros_like(dq0))
-    inverse = kernels.mass_times(k, q0, ddq0) + kernels.bias_forces(k, q0, dq0)
-    forces = np.abs(external_disturbance(0.0, q0, dq0, disturbance)) + np.abs(gravity_only) + np.abs(inverse)
+    kernels, terms = arm.kernels, evaluation_kernels(arm)
+    gravity_only = terms.bias_forces(k, q0, np.zeros_like(dq0))
+    inverse = terms.mass_times(k, q0, ddq0) + terms.bias_forces(k, q0, dq0)
+    external = _external_disturbance(kernels, arm.tool_kernels)
+    forces = np.abs(external(0.0, q0, dq0, disturbance)) + np.abs(gravity_only) + np.abs(inverse)
     return FORCE_FACTOR * (forces.max(axis=0) + 1.0)
 
 
@@ -318,7 +339,7 @@ def signal_bounds(names, scenario, samples: int = 201) -> StateBounds:
     s = scenario
     ref = reference_limits(s, samples)
     force = float(force_bounds(s.robot.kernel_params(), kernel_disturbance_params(s.disturbance, s.robot), ref,
-                               evaluation_kernels(s.robot)))
+                               s.robot.kernels, s.robot.tool_kernels, evaluation_kernels(s.robot)))
     return _labelled_bounds([("plant", name) for name in names], ref, force, np.asarray(s.observer_gain, dtype=float))
 
 

@@ -33,8 +33,10 @@ Sections and keys (units in brackets)::
 Each section is read by one entry of the table ``_SECTIONS``: the keys it
 allows with the check of each value, and how its object is built from them.
 Per-joint lists have one entry per joint of the arm (n = 4 for the RRPR);
-``[robot]``, ``[nominal_scale]``, the laceration path and the tissue model
-are the RRPR's and refused, by name, for another arm.
+``[robot]``, ``[nominal_scale]`` and the laceration path are the RRPR's and
+refused, by name, for another arm; the tissue model acts on any arm, and for
+another arm ``disturbance.skin_height`` defaults to the tool height at the
+reference's start (written into the scenario's data).
 
 A scenario is varied by dotted keys, validated like a file::
 
@@ -74,6 +76,7 @@ from .scenario_arm import (
     load_arm,
     observer_gain_from_bandwidth,
     scaled_nominal,
+    skin_height_default,
 )
 from .tool_path import ToolPath
 from .trajectory import TRAJECTORY_KINDS, JointSine, LacerationPath, check_joint_ranges
@@ -1122,6 +1125,12 @@ def _validated(data: Mapping, source: str) -> Scenario:
     gains = built["gains"]
     if "observer_bandwidth" in gains:
         gains["observer"] = _bandwidth_gain(gains["observer_bandwidth"], built)
+    if _context().arm is not None and "skin_height" not in tables["disturbance"] \
+            and "tissue" in built["disturbance"].kinds:
+        # the default plane is the RRPR's: another arm's skin goes through its tool point at the reference's start
+        skin = skin_height_default(built["robot"], built["trajectory"].evaluate(0.0)[0])
+        built["disturbance"] = dataclasses.replace(built["disturbance"], skin_height=skin)
+        out["disturbance"] = dict(out["disturbance"], skin_height=skin)
     return Scenario(name=name, data=out, robot=built["robot"], nominal=built["nominal_scale"],
                     kp=gains["kp"], kd=gains["kd"], observer_gain=gains["observer"],
                     observer_variant=built["observer"], trajectory=built["trajectory"],

@@ -14,7 +14,11 @@ Without ``[arm]`` a scenario is the paper's RRPR (``[robot]``,
 
 Everything per joint in the other sections then has the arm's ``n`` entries
 (``gains.kp``, ``trajectory.amplitude``, ``disturbance.f_r``, ``initial.q``,
-...), and the messages name the key, ``n`` and the arm.  This module holds
+...), and the messages name the key, ``n`` and the arm.  The tissue contact
+(``disturbance.kind = "tissue"``) works for any arm; its plane
+``disturbance.skin_height`` defaults to the RRPR's, so for another arm a
+scenario that does not set it puts the skin through the tool point at the
+reference's start (:func:`skin_height_default`).  This module holds
 the pieces that need the arm; :mod:`blocks.scenario` calls them.
 """
 from __future__ import annotations
@@ -29,7 +33,7 @@ from .arm import ArmModel
 from .kernels.bind import closed_form
 
 __all__ = ["ARM_KEYS", "arm_name", "is_rrpr", "load_arm", "scaled_nominal", "joint_sine_defaults",
-           "observer_gain_from_bandwidth"]
+           "observer_gain_from_bandwidth", "skin_height_default"]
 
 #: The keys of ``[arm]`` and what each takes.
 ARM_KEYS = {"urdf": "a path (text), relative to the scenario file", "tool_frame": "a frame name (text)",
@@ -154,3 +158,13 @@ def observer_gain_from_bandwidth(nominal: ArmModel, omega: float, q0) -> np.ndar
     ``-omega e_d`` at ``q0`` on the nominal model (a first-order filter of bandwidth ``omega`` rad/s per joint)."""
     M = np.asarray(nominal.inertia(np.asarray(q0, dtype=float)), dtype=float)
     return omega * 0.5 * (M + M.T)
+
+
+def skin_height_default(arm: ArmModel, q0) -> float:
+    """The skin plane of the tissue contact for an arm that does not set ``disturbance.skin_height``: the tool
+    point's height (m, base frame) at the reference's start ``q0``.
+
+    The tool then starts on the skin, and the tissue resists wherever the motion takes it lower.  The start of the
+    reference (not ``initial.q``) is used because the members of a batch share it, as they share the plane.
+    """
+    return float(np.asarray(arm.tool_position(np.asarray(q0, dtype=float)), dtype=float)[2])

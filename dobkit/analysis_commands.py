@@ -1,4 +1,4 @@
-"""``dobkit analyze`` and ``dobkit report``: the analyses of :mod:`analysis.report` from the command line.
+"""``dobkit analyze`` and ``dobkit report``: the analyses of :mod:`analysis.report.build` from the command line.
 
 Registered on the main ``dobkit`` parser by :func:`add_analysis_subcommands`.
 """
@@ -33,7 +33,7 @@ def _add_common(parser: argparse.ArgumentParser, prefix: str) -> None:
 
 
 def _settings(args):
-    from analysis.report import QUICK_SETTINGS, AnalysisSettings
+    from analysis.report.build import QUICK_SETTINGS, AnalysisSettings
 
     settings = QUICK_SETTINGS if args.quick else AnalysisSettings()
     jobs = args.jobs if args.jobs is not None else (os.cpu_count() or 1)
@@ -48,7 +48,7 @@ def _cmd_analyze(args) -> int:
     from blocks.scenario import load_scenario
 
     scenario = load_scenario(args.scenario)      # a bad scenario is refused before the heavy imports below
-    from analysis.report import analyze
+    from analysis.report.build import analyze
 
     out = args.out if args.out is not None else default_out_dir(ANALYSIS_PREFIX)
     with StageProgress() as progress:
@@ -70,7 +70,7 @@ def _cmd_report(args) -> int:
     from blocks.scenario import load_scenario
 
     scenario = load_scenario(args.scenario)      # a bad scenario is refused before the heavy imports below
-    from analysis.report import write_report
+    from analysis.report.build import write_report
 
     out = args.out if args.out is not None else default_out_dir(REPORT_PREFIX)
     with StageProgress() as progress:

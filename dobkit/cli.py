@@ -31,7 +31,7 @@ def _cmd_simulate(args) -> int:
     from blocks.scenario import load_scenario
 
     scenario = load_scenario(args.scenario)      # a bad scenario is refused before the heavy imports below
-    from analysis.experiment import default_out_dir, format_rms_table, run_experiment
+    from analysis.simulation.experiment import default_out_dir, format_rms_table, run_experiment
 
     out = args.out if args.out is not None else default_out_dir()
     formats = ("png", "svg") if args.svg else ("png",)

@@ -7,7 +7,7 @@
     dobkit fmu export-controller --scenario S --out controller.fmu [--fmi-version 2|3] [--force]
     dobkit fmu cosim PLANT.fmu [--scenario S] [--step H] [--coupling zoh|linear] [--out DIR] [--no-figures]
     dobkit fmu convergence PLANT.fmu [--scenario S] [--steps 0.004,0.002,0.001,0.0005] [--coupling ...] [--out DIR]
-    dobkit fmu check ANY.fmu [--json]
+    dobkit fmu check ANY.fmu [--arm rrpr|scope4|panda|ur5|X.urdf [--tool-frame F] [--locked J1,J2]] [--json]
 
 Each is a thin layer over :func:`fmu.export_plant`,
 :func:`fmu.cosimulate`, :func:`fmu.cosim_convergence` and
@@ -92,7 +92,7 @@ def _cmd_export(args) -> int:
         path = export_plant(out, params=arm, fmi_version=args.fmi_version, substeps=args.substeps, force=args.force)
         print(f"wrote {path} (FMI {args.fmi_version}.0, Model Exchange + Co-Simulation, arm {arm.n} joints "
               f"{list(arm.joints.names)}, {args.substeps} RK4 sub-steps per co-simulation step; disturbance models "
-              "off, settable as start values)")
+              f"off, settable as start values; {_stops_phrase(arm.joints)})")
         return 0
     s = load_scenario(args.scenario)        # a bad scenario is refused before the exporter's heavy imports
     from fmu.export import export_plant
@@ -102,8 +102,14 @@ def _cmd_export(args) -> int:
     path = export_plant(out, params=s.robot, disturbance=s.disturbance, fmi_version=args.fmi_version,
                         substeps=args.substeps, q0=q0, dq0=dq0, force=args.force)
     print(f"wrote {path} (FMI {args.fmi_version}.0, Model Exchange + Co-Simulation, scenario {s.name}, "
-          f"{args.substeps} RK4 sub-steps per co-simulation step)")
+          f"{args.substeps} RK4 sub-steps per co-simulation step; {_stops_phrase(s.robot.joints)})")
     return 0
+
+
+def _stops_phrase(joints) -> str:
+    """Which joints' ranges the exported plant enforces with end stops (docs/plant-fmu.md)."""
+    bounded = [name for name, (lo, hi) in zip(joints.names, joints.limits) if math.isfinite(lo) or math.isfinite(hi)]
+    return f"end stops at the range of {', '.join(bounded)}" if bounded else "no joint has a range: no end stops"
 
 
 def _cmd_export_controller(args) -> int:
@@ -158,7 +164,7 @@ def _estimate_line(estimate: dict) -> str:
 
 
 def _cmd_cosim(args) -> int:
-    from analysis.experiment import comparison_metrics, default_out_dir, format_rms_table, staged_output
+    from analysis.simulation.experiment import comparison_metrics, default_out_dir, format_rms_table, staged_output
     from blocks import load_scenario
     from blocks.progress import StageProgress
     from fmu.archive import extract_fmu
@@ -194,7 +200,7 @@ def _cmd_cosim(args) -> int:
         (stage / "metrics.json").write_text(strict_json(metrics))
         (stage / "scenario.toml").write_text(s.to_toml())
         if not args.no_figures:
-            from analysis.figures import paper_figures
+            from analysis.simulation.figures import paper_figures
             written = paper_figures(runs["with_dob"], runs["without_dob"], stage)
             figures_note = f"figures: {len(written)} files (PNG and SVG)"
     coupling = ("the digital controller's samples as communication points" if info["coupling"] == "sampled"
@@ -209,8 +215,8 @@ def _cmd_cosim(args) -> int:
 
 
 def _cmd_convergence(args) -> int:
-    from analysis.experiment import default_out_dir, staged_output
-    from analysis.figures import convergence_figure
+    from analysis.simulation.experiment import default_out_dir, staged_output
+    from analysis.simulation.figures import convergence_figure
     from blocks import load_scenario
     from fmu.convergence import cosim_convergence
 
@@ -324,12 +330,21 @@ def _print_check(report: dict) -> None:
         print(f"  comparison with the Python plant: skipped ({plant['skipped']})")
     elif "error" in plant:
         print(_stage_line(report, "plant_comparison"))
+    if "arm" in plant:
+        print(f"  comparison with the Python plant of {plant['arm']}:")
     for key, label in (("model_exchange", "Model Exchange vs Python plant"),
                        ("co_simulation", "Co-Simulation vs exact ZOH solution")):
         part = plant.get(key)
         if part is not None:
             print(f"  {label}: max |error| {part['max_abs_error']:.3e} (tolerance {part['tolerance']:g}) "
                   f"{_verdict(part['passed'])}")
+            if part.get("why"):
+                print(f"    {part['why']}")
+    stops = plant.get("end_stops")
+    if stops is not None:
+        print(f"  end stops ({len(stops['states'])} states beyond the joint ranges) vs their definition: max "
+              f"relative error {stops['max_rel_error']:.3e} (tolerance {stops['tolerance']:g}) "
+              f"{_verdict(stops['passed'])}")
     if "unusable" in report:
         print(f"  {report['unusable']}")
     print(_verdict(report["passed"]))
@@ -338,8 +353,14 @@ def _print_check(report: dict) -> None:
 def _cmd_check(args) -> int:
     from fmu.check import check_fmu
 
+    arm = None
+    if args.arm == "rrpr":
+        from blocks.parameters import RobotParameters
+        arm = RobotParameters()
+    elif args.arm is not None:
+        arm = _export_arm(args)
     report = check_fmu(args.fmu, t_final=args.t_final, tolerance=args.tolerance, cs_step=args.cs_step,
-                       me_cs_tolerance=args.me_cs_tolerance, budget=_budget(args))
+                       me_cs_tolerance=args.me_cs_tolerance, budget=_budget(args), arm=arm)
     if args.json:
         print(strict_json(report), end="")
     else:
@@ -430,5 +451,11 @@ def add_fmu_subcommands(subparsers) -> None:
                      help="largest allowed Model Exchange / Co-Simulation difference, relative to max(1, max|y|) "
                           "(default: 1e-4)")
     chk.add_argument("--json", action="store_true", help="print the full report as (strict) JSON")
+    chk.add_argument("--arm", default=None,
+                     help="hold a dobkit plant FMU against this arm: rrpr (the paper's, Table 1), scope4, panda, "
+                          "ur5 or a .urdf path (default: the FMU's own Table-1 values, or the arm its export "
+                          "recorded in it)")
+    chk.add_argument("--tool-frame", default=None, help="tool frame of a --arm URDF file")
+    chk.add_argument("--locked", default=None, help="comma-separated joints of a --arm URDF file to lock")
     _add_budget(chk)
     chk.set_defaults(func=_cmd_check)

@@ -28,7 +28,9 @@ def add_job_flags(parser: argparse.ArgumentParser, workers: str, check: str, res
     parser.add_argument("--workers", type=whole_number("--workers"), help=workers)
     parser.add_argument("--scheduler", metavar="ADDRESS",
                         help="run the batches on the workers of this Dask distributed scheduler (tcp://host:8786) "
-                             "instead of this machine's cores; needs dask[distributed] (the 'cluster' extra)")
+                             "instead of this machine's cores, or start one here with local[:N] (N worker "
+                             "processes on 127.0.0.1, default one per core; closed when the command ends); needs "
+                             "dask[distributed] (the 'cluster' extra)")
     parser.add_argument("--no-progress", action="store_true", help="no progress display")
     parser.add_argument("--check", action="store_true", help=check)
     parser.add_argument("--restart", action="store_true", help=restart)

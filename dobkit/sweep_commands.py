@@ -1,5 +1,5 @@
-"""The ``dobkit sweep`` command: a thin layer over :mod:`~analysis.sweep`, :mod:`~analysis.sweep_runner`
-and :mod:`~analysis.sweep_report`.
+"""The ``dobkit sweep`` command: a thin layer over :mod:`~analysis.sweep.spec`, :mod:`~analysis.sweep.runner`
+and :mod:`~analysis.sweep.summary`.
 
 Wire it into the console script's parser with::
 
@@ -29,7 +29,7 @@ def add_sweep_subcommand(subparsers) -> argparse.ArgumentParser:
         description="Run every run of a sweep file that the results file does not hold yet, batched on this "
                     "machine's cores or on a Dask cluster, then write summary statistics and plots. Before "
                     "anything runs, the sweep's memory and each run's step count are estimated and checked "
-                    "against a budget.", file="sweep_file", file_help="sweep file (TOML); see analysis.sweep")
+                    "against a budget.", file="sweep_file", file_help="sweep file (TOML); see analysis.sweep.spec")
     p.add_argument("--results", help="JSON-lines results file (default: <sweep name>-results.jsonl beside the sweep "
                                      "file); runs already in it are skipped")
     p.add_argument("--summary-dir", help="where summary.md, summary.json and figures go (default: beside the "
@@ -54,15 +54,15 @@ def default_summary_dir(results: Path) -> Path:
 
 def sweep_command(args: argparse.Namespace) -> int:
     """Handle ``dobkit sweep``; 0 on success, 2 on a bad sweep file or budget, 1 on other failures, 130 on Ctrl-C."""
-    from analysis.sweep import SweepError
+    from analysis.sweep.spec import SweepError
 
     return run_job("sweep", args, _sweep, (SweepError,), "run", "results")
 
 
 def _sweep(args: argparse.Namespace, budget: Budget, state: dict) -> int:
-    from analysis.sweep import load_sweep
-    from analysis.sweep_report import write_summary
-    from analysis.sweep_runner import run_sweep
+    from analysis.sweep.runner import run_sweep
+    from analysis.sweep.spec import load_sweep
+    from analysis.sweep.summary import write_summary
 
     spec = load_sweep(args.sweep_file, budget=budget, progress=not args.no_progress)
     folder = Path(args.sweep_file).parent

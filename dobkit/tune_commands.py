@@ -1,4 +1,4 @@
-"""The ``dobkit tune`` command: a thin layer over :mod:`~analysis.tune` and :mod:`~analysis.tune_runner`.
+"""The ``dobkit tune`` command: a thin layer over :mod:`~analysis.tune.spec` and :mod:`~analysis.tune.runner`.
 
 Exit status: 0 tuned (the gains meet every constraint); 3 finished without a
 feasible point (the outputs are written, the best infeasible point named as
@@ -33,7 +33,7 @@ def add_tune_subcommand(subparsers) -> argparse.ArgumentParser:
                     "otherwise): differential evolution, then a Nelder-Mead polish. Every evaluation goes to "
                     "OUT/evaluations.jsonl as it finishes; the same command resumes a stopped tuning. Writes "
                     "OUT/tune.json, the tuned scenario OUT/<scenario>-tuned.toml and figures.",
-        file="tuning_file", file_help="tuning file (TOML; see analysis.tune) or a built-in name (paper-tune)")
+        file="tuning_file", file_help="tuning file (TOML; see analysis.tune.spec) or a built-in name (paper-tune)")
     p.add_argument("--out", help="output folder, which also holds the evaluation log (default: NAME-results beside "
                                  "the tuning file, or in the current folder for a built-in one)")
     p.add_argument("--max-evaluations", type=whole_number("--max-evaluations"),
@@ -43,6 +43,12 @@ def add_tune_subcommand(subparsers) -> argparse.ArgumentParser:
                    help="with a damping (or overshoot) constraint, also run the same search without it and say what "
                         "the constraint costs against that search's answer (about doubles the time; without it the "
                         "cost is measured against the constrained search's own evaluations)")
+    p.add_argument("--constraint-costs", action="store_true",
+                   help="after the tuning, run the same search again without each active constraint in turn (the "
+                        "damping or overshoot, the observer bandwidth ratio, the sampled loop's margin, the "
+                        "torque-noise budget) and say for each its margin, whether it binds and what it costs in the "
+                        "objective (mm); up to 1 + that many times the time, less where the log holds the "
+                        "candidates")
     add_job_flags(p, workers="threads of each batch (default: all cores)",
                   check="validate the file, check that the linear constraints can be met, print the estimates, "
                         "and stop",
@@ -62,15 +68,15 @@ def default_out_dir(spec) -> Path:
 
 def tune_command(args: argparse.Namespace) -> int:
     """Handle ``dobkit tune``; see the module docstring for the exit status."""
-    from analysis.tune import TuneError
+    from analysis.tune.spec import TuneError
 
     return run_job("tune", args, _tune, (TuneError,), "evaluation", "out")
 
 
 def _tune(args: argparse.Namespace, budget: Budget, state: dict) -> int:
-    from analysis.tune import load_tuning, with_evaluations
-    from analysis.tune_eval import Evaluator, evaluation_estimate, measure_evaluation
-    from analysis.tune_runner import LOG_NAME, check_linear_feasibility, run_tune
+    from analysis.tune.evaluate import Evaluator, evaluation_estimate, measure_evaluation
+    from analysis.tune.runner import LOG_NAME, check_linear_feasibility, run_tune
+    from analysis.tune.spec import load_tuning, with_evaluations
 
     spec = load_tuning(args.tuning_file, budget=budget)
     if args.max_evaluations is not None:
@@ -82,6 +88,8 @@ def _tune(args: argparse.Namespace, budget: Budget, state: dict) -> int:
         check_linear_feasibility(spec, Evaluator(spec))
         print(_check_report(spec, estimate, substeps), flush=True)
         print(_time_line(spec, measure_evaluation(spec, workers=args.workers or _cores()), substeps, args))
+        if getattr(args, "constraint_costs", False) or getattr(args, "compare_unconstrained", False):
+            print(_searches_line(spec, args))
         return 0
     estimate, _ = evaluation_estimate(spec)
     print(f"tuning '{spec.name}': at most {spec.max_evaluations} evaluations, each {spec.runs} runs of at most "
@@ -90,7 +98,8 @@ def _tune(args: argparse.Namespace, budget: Budget, state: dict) -> int:
     lines = StageLines() if args.no_progress else None
     try:
         result = run_tune(spec, out, workers=args.workers, progress=lines or True, restart=args.restart,
-                          budget=budget, compare_unconstrained=args.compare_unconstrained, scheduler=args.scheduler)
+                          budget=budget, compare_unconstrained=args.compare_unconstrained, scheduler=args.scheduler,
+                          constraint_costs=args.constraint_costs)
     finally:
         if lines is not None:
             lines.close()
@@ -104,16 +113,34 @@ def _cores() -> int:
 
 
 def _time_line(spec, measured, corner_substeps: int, args) -> str:
-    """``--check``'s time estimate: evaluations x the measured cost of one (module :mod:`analysis.tune_eval`)."""
-    from analysis.tune_eval import time_estimate
+    """``--check``'s time estimate: searches x evaluations x the measured cost of one (module
+    :mod:`analysis.tune.evaluate`; the searches of :func:`analysis.tune.costs.search_count`)."""
+    from analysis.tune.costs import search_count
+    from analysis.tune.evaluate import time_estimate
+    searches = search_count(spec, getattr(args, "constraint_costs", False),
+                            getattr(args, "compare_unconstrained", False))
+    what = (f"{spec.max_evaluations} evaluations at most" if searches == 1 else
+            f"{searches} searches of at most {spec.max_evaluations} evaluations each")
     where = (f"here, not on the Dask cluster at {args.scheduler}" if args.scheduler else
              f"with {args.workers or _cores()} worker thread(s)")
     steps = ("" if corner_substeps <= measured.substeps else
              f"; gains near the high bounds need up to {corner_substeps} substeps and cost more")
     return (f"  time: one evaluation of the base gains took {measured.seconds:.3g} s ({measured.substeps} substep"
             f"{'s' if measured.substeps != 1 else ''}, {where}): about "
-            f"{_duration(time_estimate(spec, measured))} for {spec.max_evaluations} evaluations at most (candidates "
-            f"the linear constraints refuse are not simulated{steps})")
+            f"{_duration(time_estimate(spec, measured, searches))} for {what} (candidates the linear constraints "
+            f"refuse are not simulated{steps})")
+
+
+def _searches_line(spec, args) -> str:
+    """``--check``'s line on the searches after the tuning's own (``--constraint-costs``, ``--compare-unconstrained``)."""
+    from analysis.tune.costs import costed_constraints
+    keys = costed_constraints(spec.limits) if args.constraint_costs else \
+        [k for k in ("min_damping_ratio", "max_overshoot") if getattr(spec.limits, k) is not None]
+    if not keys:
+        return "  no constraint to search without: only the tuning's own search runs"
+    names = ", ".join(_MARGIN_WORDS[k][0] for k in keys)
+    return (f"  then {len(keys)} more search{'es' if len(keys) != 1 else ''}, one without each of: {names} (their "
+            "candidates that the evaluation log already holds are not simulated again, so they take less)")
 
 
 def _duration(seconds: float) -> str:
@@ -165,7 +192,7 @@ def _numbers(values) -> str:
 
 
 def _summary(result, out: Path) -> str:
-    from analysis.tune_report import evaluations_text
+    from analysis.tune.report import evaluations_text
     lines = [f"tuning '{result.name}': {evaluations_text(result)}; {result.seconds:.1f} s",
              result.message,
              f"  tuned gains: {_gains_text(result.tuned.gains)}{'' if result.feasible else ' (INFEASIBLE)'}",
@@ -180,7 +207,7 @@ def _summary(result, out: Path) -> str:
     return "\n".join(lines)
 
 
-#: Each constraint as stdout names it, with the unit of its margin (analysis.tune_eval, "Margins").
+#: Each constraint as stdout names it, with the unit of its margin (analysis.tune.evaluate, "Margins").
 _MARGIN_WORDS = {"torque_noise_rms": ("torque noise", "of the budget left", 100.0, "%"),
                  "torque_limit": ("peak torque", "below the limit", 100.0, "%"),
                  "stability_margin": ("stability margin", "beyond it", 1.0, " 1/s"),
@@ -223,12 +250,36 @@ def constraint_lines(result) -> list[str]:
                          f"{name} MISSED by {-scale * value:.3g}{unit}")
         lines.append("  margins of the tuned gains: " + "; ".join(parts))
     free, cost = result.unconstrained, result.damping_cost
+    if result.constraint_costs is not None:
+        return lines + cost_lines(result)
     if free is not None and cost is not None:
         how = ("the same search without it reached" if result.unconstrained_from == "search" else
                "the best of this search's own evaluations without it (a lower bound of the cost; "
                "--compare-unconstrained runs the search without it) reached")
         lines.append(f"  the damping constraint costs {cost:.4g} mm: {how} {free.objective:.4g} mm (damping ratio "
                      f"{_numbers(free.damping_ratio)}, {_gains_text(free.gains)})")
+    return lines
+
+
+def cost_lines(result) -> list[str]:
+    """Lines on what each constraint costs (``--constraint-costs``): its margin, whether it binds, the cost."""
+    costs = result.constraint_costs
+    if not costs:
+        return ["  what each constraint costs: the tuning has none of the damping, observer bandwidth ratio, sampled "
+                "margin or torque-noise constraints"]
+    if costs[0].reference is None:
+        return ["  what each constraint costs: not known, as no evaluation met every constraint"]
+    lines = [f"  what each constraint costs (the same search run again without it; the best with every constraint "
+             f"on: {costs[0].reference:.4g} mm):"]
+    for c in costs:
+        name, words, scale, unit = _MARGIN_WORDS.get(c.constraint, (c.constraint, "margin", 1.0, ""))
+        margin = "-" if c.margin is None else f"{scale * c.margin:+.3g}{unit} {words}"
+        if c.binds:
+            there = "" if c.margin_there is None else f", {name} margin there {scale * c.margin_there:+.3g}{unit}"
+            lines.append(f"    {name}: margin {margin}; binds: without it {c.objective:.4g} mm, it costs "
+                         f"{c.cost:.4g} mm ({_gains_text(c.gains)}{there})")
+        else:
+            lines.append(f"    {name}: margin {margin}; does not bind: costs 0 mm")
     return lines
 
 

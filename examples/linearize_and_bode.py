@@ -1,7 +1,7 @@
 """Linearize the Figure-2 loop and draw its disturbance rejection as a Bode plot.
 
 The arm is held at the start of the paper's path (a constant reference) under
-the paper's constant disturbance.  ``analysis.frequency.frozen_response`` adds
+the paper's constant disturbance.  ``analysis.linear.frequency.frozen_response`` adds
 an input torque ``w[i]`` at the plant, finds the loop's equilibrium with
 ``control.find_operating_point`` and linearizes the interconnection itself
 with ``control.linearize``.  Its poles are the PD error dynamics, roots of
@@ -24,7 +24,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 import blocks  # noqa: E402
-from analysis.frequency import closed_form, frozen_response  # noqa: E402
+from analysis.linear.frequency import closed_form, frozen_response  # noqa: E402
 
 out_dir = Path(os.environ.get("DOBKIT_EXAMPLES_OUT", "."))
 out_dir.mkdir(parents=True, exist_ok=True)

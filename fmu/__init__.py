@@ -33,7 +33,8 @@ with events in a loop of the numpy engine, ``simulate_loop``), ``start_values`` 
 scenario against a plant FMU), ``convergence`` (co-simulation error versus
 step size), ``check`` and ``plant_check``,
 ``export`` / ``variables`` / ``modeldescription`` / ``build`` / ``package``
-(the plant FMU), ``controller_export`` / ``controller_variables`` / ``controller_tick`` (the controller FMU),
+(the plant FMU), ``end_stops`` (its joint ranges' stops), ``arm_record`` (the arm recorded in it),
+``controller_export`` / ``controller_variables`` / ``controller_tick`` (the controller FMU),
 ``c/`` (the FMI layers and the C the kernels' trace does not write).
 The command line (``dobkit fmu ...``) lives in :mod:`dobkit.fmu_commands`.
 """

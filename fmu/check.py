@@ -30,7 +30,12 @@ only bad arguments and the budget (a run the caller's limits refuse) raise.
   itself); a comparison of outputs that do not move (zero against zero) is
   flagged as trivial and not applicable.
 * ``plant_comparison``: for the dobkit plant FMU only, Model Exchange and
-  Co-Simulation against the native Python plant (:mod:`fmu.plant_check`).
+  Co-Simulation against the native Python plant of its arm, and its end stops
+  against their definition (:mod:`fmu.plant_check`).  The arm is the
+  paper's (from the FMU's Table-1 parameters), the one recorded in the FMU
+  by its export (``resources/dobkit_arm.json``, any other arm), or the one
+  the caller gives (``arm=``; ``dobkit fmu check --arm``); an FMU whose
+  joints are not the arm's fails by name.
 
 ``passed`` is true when the validation has no error, the FMU offers Model
 Exchange or Co-Simulation (else ``unusable`` says what it offers), and every
@@ -68,10 +73,14 @@ from .errors import BudgetError, FMUError, FMUModelDescriptionError, FMUUnsuppor
 from .instance import FMUInstance
 from .plant_check import (
     CHECK_INITIAL_STATE,
+    arm_name,
+    check_arm_matches,
     check_torque,
     compare_co_simulation,
+    compare_end_stops,
     compare_model_exchange,
     plant_from_description,
+    plant_reference,
     worst,
 )
 
@@ -346,9 +355,35 @@ def _not_applicable(report: dict, after: str, why: str) -> None:
         report[name] = {"skipped": why}
 
 
+def _reference(extracted, md, arm):
+    """(PlantReference, None, None) for a dobkit plant FMU, (None, why not, None) for another FMU, or
+    (None, None, why it fails) for a plant FMU that is not the given arm's."""
+    from .arm_record import ARM_RECORD, arm_from_record
+
+    names = {v.name for v in md.modelVariables}
+    if arm is not None and "disturbance_paper" in names:
+        try:
+            check_arm_matches(md, arm, arm_name(arm))
+        except FMUError as err:
+            return None, None, str(err)
+    if arm is None and "m1" not in names:
+        record = extracted.root / ARM_RECORD
+        if record.is_file():
+            arm = arm_from_record(record.read_text(encoding="utf-8"))
+        elif "disturbance_paper" in names and "tau[0]" in names:
+            return None, ("a dobkit plant FMU of an arm that is not recorded in it (no " + ARM_RECORD + "): give "
+                          "the arm (check_fmu(arm=...), dobkit fmu check --arm) to compare it"), None
+    try:
+        return plant_reference(md, arm), None, None
+    except (KeyError, TypeError) as err:
+        return None, f"not a dobkit plant FMU (no usable parameter {err})", None
+    except ValueError as err:           # a plant FMU whose settings the arm's Python plant cannot take
+        return None, f"no Python plant to compare with: {err}", None
+
+
 def check_fmu(path, t_final: float = 1.0, tolerance: float = 1e-6, cs_step: float = 0.01,
               cs_tolerance: float = 1e-6, me_cs_tolerance: float = 1e-4, budget: Budget | None = None,
-              limits: ExtractionLimits | None = None) -> dict:
+              limits: ExtractionLimits | None = None, arm=None) -> dict:
     """Validate an FMU, load and run what it offers, and compare the plant FMU with the Python plant.
 
     Parameters
@@ -370,6 +405,10 @@ def check_fmu(path, t_final: float = 1.0, tolerance: float = 1e-6, cs_step: floa
         (:meth:`blocks.budget.Budget.from_env`); the step counts are estimated first.
     limits : ExtractionLimits, optional
         Archive size limits.
+    arm : blocks.arm.ArmModel, optional
+        The arm to hold a dobkit plant FMU against (its joint count, names,
+        units, ranges and dynamics).  Default: the paper's arm with the FMU's
+        Table-1 values, or the arm the export recorded in the FMU.
 
     Returns
     -------
@@ -418,12 +457,7 @@ def check_fmu(path, t_final: float = 1.0, tolerance: float = 1e-6, cs_step: floa
         report["model_description"] = {"passed": True, "why": f"FMI {md.fmiVersion}, {len(md.modelVariables)} "
                                                                "variables"}
         report.update(fmi_version=md.fmiVersion, model=md.modelName, interfaces=offered_interfaces(md))
-        try:
-            robot, spec = plant_from_description(md)
-        except (KeyError, ValueError, TypeError) as err:
-            plant, plant_reason = None, f"not a dobkit plant FMU (no usable parameter {err})"
-        else:
-            plant, plant_reason = (robot, spec), None
+        plant, plant_reason, mismatch = _reference(extracted, md, arm)
         if md.coSimulation is not None:     # estimates first: refuse before running anything
             budget.check_steps(_grid(t_final, cs_step)[0], "the Co-Simulation run of the check",
                                f"t_final = {t_final:g} s (--t-final) / step {cs_step:g} s")
@@ -455,18 +489,28 @@ def check_fmu(path, t_final: float = 1.0, tolerance: float = 1e-6, cs_step: floa
             me_out = ref_out
         report["co_simulation"] = _guarded(co_simulation)
         report["me_vs_cs"] = _guarded(lambda: _me_vs_cs(me_out, cs_out, ref_out, me_cs_tolerance, cs_step))
-        if plant is None:
+        if mismatch is not None:
+            report["plant_comparison"] = {"passed": False, "error": mismatch}
+        elif plant is None:
             report["plant_comparison"] = {"skipped": plant_reason}
         else:
             def compare():
-                comparison = {}
+                comparison = {"arm": plant.name, "joints": list(plant.arm.joints.names)}
+                check_arm_matches(md, plant.arm, plant.name)
                 if md.modelExchange is not None and report["model_exchange"].get("loads"):
-                    comparison["model_exchange"] = compare_model_exchange(extracted, *plant, t_final, tolerance,
-                                                                          budget, deadline)
+                    comparison["model_exchange"] = compare_model_exchange(extracted, plant, t_final, tolerance,
+                                                                          budget, deadline, md)
+                    stops = compare_end_stops(extracted, plant, md)
+                    if "skipped" not in stops:
+                        comparison["end_stops"] = stops
                 if md.coSimulation is not None and report["co_simulation"].get("runs"):
-                    comparison["co_simulation"] = compare_co_simulation(extracted, *plant, t_final, cs_step,
-                                                                        cs_tolerance, deadline)
-                comparison["passed"] = all(c["passed"] for c in comparison.values())
+                    comparison["co_simulation"] = compare_co_simulation(extracted, plant, t_final, cs_step,
+                                                                        cs_tolerance, deadline, md)
+                parts = [c for c in comparison.values() if isinstance(c, dict)]
+                comparison["passed"] = all(c["passed"] for c in parts)
+                failed = [c["why"] for c in parts if not c["passed"] and c.get("why")]
+                if failed:
+                    comparison["why"] = "; ".join(failed)
                 return comparison
             report["plant_comparison"] = _guarded(compare)
     usable = md.modelExchange is not None or md.coSimulation is not None

@@ -13,7 +13,7 @@ order is the least-squares slope of ``log(error)`` against ``log(h)``,
 common to the four joints (each joint keeps its own intercept, so their
 different units do not matter), and per joint.
 
-:func:`analysis.figures.convergence_figure` plots the result.
+:func:`analysis.simulation.figures.convergence_figure` plots the result.
 """
 from __future__ import annotations
 
@@ -22,7 +22,6 @@ from collections.abc import Callable
 import numpy as np
 
 from blocks.budget import Budget
-from blocks.joints import RRPR_JOINTS
 from blocks.monitor import Monitor
 from blocks.scenario import Scenario, load_scenario
 
@@ -34,8 +33,6 @@ __all__ = ["cosim_convergence", "fit_order", "DEFAULT_STEPS", "REFERENCE"]
 DEFAULT_STEPS = (0.004, 0.002, 0.001, 0.0005)
 # the monolithic reference: tight enough that its error is negligible next to h = 0.5 ms coupling errors
 REFERENCE = {"method": "DOP853", "rtol": 1e-10, "atol": 1e-12}
-JOINTS = RRPR_JOINTS.count
-_UNITS = ("rad", "rad", "m", "rad")
 
 
 def fit_order(steps, errors) -> tuple[float, list[float]]:
@@ -158,10 +155,11 @@ def cosim_convergence(fmu_path, scenario: Scenario | str = "paper", steps=DEFAUL
     ref = simulate(s.replace(simulation=dict(REFERENCE)), observer=observer,
                    progress=lambda f: report("monolithic reference", f))
     labels = list(ref.output_labels)
-    rows = [labels.index(f"q[{i}]") for i in range(JOINTS)]
+    names = s.robot.joints.signal_names("q")
+    rows = [labels.index(name) for name in names]
     q_ref = np.asarray(ref.outputs)[rows]
 
-    errors = np.empty((len(steps), JOINTS))
+    errors = np.empty((len(steps), len(names)))
     extracted, owned = open_extracted(fmu_path, limits=limits, parent=extract_to)
     try:
         for k, h in enumerate(steps):
@@ -172,14 +170,13 @@ def cosim_convergence(fmu_path, scenario: Scenario | str = "paper", steps=DEFAUL
                               progress=lambda f, st=stage: report(st, f))
             if resp.time.shape != ref.time.shape or np.max(np.abs(resp.time - ref.time)) > 1e-9:
                 raise CoSimulationError(f"h = {h:g} s: the co-simulation grid differs from the reference grid")
-            got = np.asarray(resp.outputs)[[list(resp.output_labels).index(f"q[{i}]") for i in range(JOINTS)]]
+            got = np.asarray(resp.outputs)[[list(resp.output_labels).index(name) for name in names]]
             errors[k] = np.max(np.abs(got - q_ref), axis=1)
             info = resp.cosim
     finally:
         if owned:
             extracted.cleanup()
     order, per_joint = fit_order(steps, errors)
-    names = [f"q[{i}]" for i in range(JOINTS)]
     return {
         "scenario": s.name,
         "fmu": info["fmu"],
@@ -191,7 +188,7 @@ def cosim_convergence(fmu_path, scenario: Scenario | str = "paper", steps=DEFAUL
         "output_step": grid,
         "steps": steps,
         "errors": {n: errors[:, i].tolist() for i, n in enumerate(names)},
-        "units": dict(zip(names, _UNITS)),
+        "units": dict(zip(names, s.robot.joints.position_units)),
         "order": order,
         "order_per_joint": dict(zip(names, per_joint)),
         "reference": dict(REFERENCE, engine="blocks.simulate (monolithic Python loop)"),

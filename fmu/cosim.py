@@ -42,7 +42,6 @@ import numpy as np
 from blocks.budget import Budget
 from blocks.derived import loop_response
 from blocks.divergence import signal_bounds
-from blocks.joints import RRPR_JOINTS
 from blocks.loop import LOOP_SIGNALS, build_blocks, initial_state
 from blocks.scenario import Scenario, load_scenario
 
@@ -55,11 +54,10 @@ from .scenario_values import plant_start_values
 
 __all__ = ["cosimulate", "controller_side", "CoSimulationError"]
 
-JOINTS = RRPR_JOINTS.count
 
-
-def _names(prefix: str) -> list[str]:
-    return [f"{prefix}[{i}]" for i in range(JOINTS)]
+def _names(prefix: str, n: int) -> list[str]:
+    """``prefix[0]`` ... ``prefix[n-1]``: a per-joint signal of an arm of ``n`` joints."""
+    return [f"{prefix}[{i}]" for i in range(n)]
 
 
 def controller_side(scenario: Scenario, observer: bool = True) -> ct.InterconnectedSystem:
@@ -74,8 +72,9 @@ def controller_side(scenario: Scenario, observer: bool = True) -> ct.Interconnec
     the applied torque comes back.
     """
     blocks = build_blocks(scenario, observer=observer)
+    n = scenario.robot.joints.count
     side = [b for key, b in blocks.items() if key != "plant"]
-    external = _names("q") + _names("dq") + (_names("tau") if observer else [])
+    external = _names("q", n) + _names("dq", n) + (_names("tau", n) if observer else [])
     sources = {label: b for b in side for label in b.output_labels}
     connections, consumers = [], {name: [] for name in external}
     for b in side:
@@ -90,18 +89,18 @@ def controller_side(scenario: Scenario, observer: bool = True) -> ct.Interconnec
     signals = ["q_ref", "dq_ref", "ddq_ref", "tau"] + (["d_hat"] if observer else [])
     if "sensor" in blocks:
         signals += ["q_meas", "dq_meas"]
-    outputs = [n for sig in signals for n in _names(sig)]
-    return ct.interconnect(side, connections=connections, inplist=[consumers[n] for n in inputs], inputs=inputs,
-                           outlist=[f"{sources[n].name}.{n}" for n in outputs], outputs=outputs,
+    outputs = [name for sig in signals for name in _names(sig, n)]
+    return ct.interconnect(side, connections=connections, inplist=[consumers[name] for name in inputs], inputs=inputs,
+                           outlist=[f"{sources[name].name}.{name}" for name in outputs], outputs=outputs,
                            name="controller_side", check_unused=False)
 
 
-def _plant_variables(extracted) -> set[str]:
-    """Names of the FMU's variables, after checking it has the plant's signals (before instantiating it)."""
+def _plant_variables(extracted, n: int) -> set[str]:
+    """Names of the FMU's variables, after checking it has the plant's signals of ``n`` joints (before instantiating)."""
     md = described(extracted)
     source = f"{extracted.source} (as the plant of the loop)"
-    require_variables(md, _names("q") + _names("dq") + _names("tau_dis"), causality="output", source=source)
-    require_variables(md, _names("tau"), causality="input", source=source)
+    require_variables(md, _names("q", n) + _names("dq", n) + _names("tau_dis", n), causality="output", source=source)
+    require_variables(md, _names("tau", n), causality="input", source=source)
     return {v.name for v in md.modelVariables}
 
 
@@ -199,7 +198,7 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
                                     f"samples themselves, not {coupling!r}")
         extracted, owned = open_extracted(fmu_path, limits=limits, parent=extract_to)
         try:
-            start = plant_start_values(s, _plant_variables(extracted), parameters)
+            start = plant_start_values(s, _plant_variables(extracted, s.robot.joints.count), parameters)
             resp = cosimulate_sampled(extracted, s, step, t_end, observer=observer, start_values=start,
                                       output_step=s.simulation.output_step, budget=budget, progress=progress)
         finally:
@@ -214,11 +213,12 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
     side_x0 = initial_state(side, s)
     extracted, owned = open_extracted(fmu_path, limits=limits, parent=extract_to)
     try:
-        start = plant_start_values(s, _plant_variables(extracted), parameters)
+        start = plant_start_values(s, _plant_variables(extracted, s.robot.joints.count), parameters)
         run = dict(side_x0=side_x0, start_values=start, side_substeps=side_substeps, coupling=coupling,
                    budget=budget, bounds=lambda names: signal_bounds(names, s))
         raw = cosimulate_system(extracted, side, t_end, step, record_every=record_every, progress=progress, **run)
-        estimate = (_step_doubling(extracted, side, t_end, step, raw.cosim["coupling"], run) if error_estimate
+        estimate = (_step_doubling(extracted, side, t_end, step, raw.cosim["coupling"], run, s.robot.joints)
+                    if error_estimate
                     else {"skipped": "not asked for (error_estimate=False)"})
     finally:
         if owned:
@@ -228,7 +228,7 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
     signals = [sig for sig in LOOP_SIGNALS if observer or sig != "d_hat"]
     if s.noise is not None:
         signals += ["q_meas", "dq_meas"]
-    wanted = [n for sig in signals for n in _names(sig)]
+    wanted = [name for sig in signals for name in _names(sig, s.robot.joints.count)]
     absent = [n for n in wanted if n not in labels]
     if absent:
         raise CoSimulationError(f"the co-simulation did not produce signal(s) {absent}")
@@ -241,7 +241,7 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
     return resp
 
 
-def _step_doubling(extracted, side, t_end: float, step: float, coupling: str, run: dict) -> dict:
+def _step_doubling(extracted, side, t_end: float, step: float, coupling: str, run: dict, joints) -> dict:
     """Coupling error estimate: runs at ``h`` and ``2 h`` over the first seconds, ``|y_h - y_2h| / (2^p - 1)``."""
     p = _ORDER[coupling]
     n = int(np.floor(min(ESTIMATE_TIME, t_end) / (2 * step) + 1e-9))
@@ -255,12 +255,11 @@ def _step_doubling(extracted, side, t_end: float, step: float, coupling: str, ru
                           f"max |y(h) - y(2h)| / (2^p - 1) with p = {p} ({coupling} coupling)",
                 "t_final": span, "order": p, "units": {}}
     for sig in ("q", "d_hat", "tau"):
-        names = [n for n in _names(sig) if n in labels]
+        names = [name for name in _names(sig, joints.count) if name in labels]
         if not names:
             continue
         rows = [labels.index(n) for n in names]
         gap = np.abs(np.asarray(fine.outputs)[rows] - np.asarray(coarse.outputs)[rows]).max(axis=1) / (2 ** p - 1)
         estimate[sig] = dict(zip(names, gap.tolist()))
-        estimate["units"][sig] = {"q": ["rad", "rad", "m", "rad"], "d_hat": ["N m", "N m", "N", "N m"],
-                                  "tau": ["N m", "N m", "N", "N m"]}[sig]
+        estimate["units"][sig] = list(joints.position_units if sig == "q" else joints.force_units)
     return estimate

@@ -10,7 +10,10 @@ as start values, compiles it with the system C compiler and zips
   ``x86_64-linux`` for FMI 3),
 * ``sources/``: every C file and header needed to rebuild the binary, the
   standard FMI headers (with their BSD notice), ``BUILD.txt`` with the compile
-  command and, for FMI 3, ``buildDescription.xml``.
+  command and, for FMI 3, ``buildDescription.xml``;
+* for an arm other than the paper's, ``resources/dobkit_arm.json``: its joints
+  and geometry (:mod:`fmu.arm_record`), from which ``dobkit fmu check``
+  rebuilds the arm to compare the FMU with.
 
 The GUID / instantiationToken is a hash of the C sources, the variable table
 and the FMI version: the same export gives the same token, any change gives a
@@ -22,6 +25,18 @@ Co-Simulation integrates with the classical fourth-order Runge-Kutta method,
 slopes the importer sets (FMI 2 ``fmi2SetRealInputDerivatives``) or the
 values it gives when asked during the step (FMI 3 intermediate update); the
 outputs' first derivatives are available (see :mod:`fmu.coupling`).
+
+Joint ranges: each joint position ``q[i]`` carries its joint's range as the
+FMI ``min`` / ``max`` attributes (rad, m; from the arm's
+:class:`~blocks.joints.JointSpace`: the RRPR's slide ``d3`` 0 to 0.48 m, a URDF
+joint's ``<limit lower upper>``, none for a continuous joint), and the model
+enforces them with an end stop at each finite end: a critically damped
+spring-damper (``stop_stiffness[i]``, ``stop_damping[i]``, start values from
+the arm's inertia for a 200 rad/s stop, :mod:`fmu.end_stops`) that adds to
+the joint's force beyond the range and is exactly zero inside it.  With zero
+torque (the disturbance models off) the RRPR's slide falls onto its stop and
+rests 0.245 mm beyond 0.48 m (``(m3 + m4) g / k``), where it fell without
+bound before.
 """
 from __future__ import annotations
 
@@ -32,11 +47,13 @@ from pathlib import Path
 from blocks.disturbances import DisturbanceSpec
 from blocks.parameters import RobotParameters
 
+from .arm_record import ARM_RECORD, arm_record
 from .build import instantiation_token, platform_folder, rebuild_command
+from .end_stops import end_stops as arm_end_stops
 from .generated import GENERATED_HEADER, arm_disturbance, plant_c
 from .modeldescription import build_description_xml, model_description_xml
 from .package import package_fmu
-from .scenario_values import DEFAULT_START_Q
+from .scenario_values import DEFAULT_START_Q, default_start_q
 from .variables import config_header, plant_variables
 
 __all__ = ["export_plant", "MODEL_IDENTIFIER", "plant_source_files"]
@@ -90,7 +107,7 @@ def _build_txt(fmi_version: int, sources: list[str]) -> str:
 
 def export_plant(path, params: RobotParameters | None = None, disturbance: DisturbanceSpec | None = None,
                  fmi_version: int = 2, substeps: int = 4, cc: str | None = None, q0=None, dq0=None,
-                 force: bool = False) -> Path:
+                 force: bool = False, end_stops: bool = True) -> Path:
     """Export the plant as an FMU (Model Exchange and Co-Simulation in one archive).
 
     Parameters
@@ -108,8 +125,8 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
         Disturbance models switched on (``disturbance_paper``,
         ``disturbance_friction``, ``disturbance_tissue``) and their parameters;
         default: the paper's Eq. 4 (for another arm: every model off, zero
-        amplitudes, all settable as start values; the tissue model needs the
-        paper's arm).
+        amplitudes, all settable as start values, and the skin plane through the
+        tool point at ``q0``).
     fmi_version : {2, 3}
         FMI 2.0 or FMI 3.0.
     substeps : int
@@ -121,9 +138,22 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
         Start values of the joint positions (rad, m) and velocities (rad/s, m/s).
         By default the paper's arm starts at rest in the regular pose
         :data:`fmu.scenario_values.DEFAULT_START_Q` (``theta2 = pi/2``, ``d3 = 0.24 m``),
-        not at the singular ``theta2 = 0``; another arm at rest at ``q = 0``.
+        not at the singular ``theta2 = 0``; another arm at rest at ``q = 0``, or, for
+        a joint whose range excludes 0, at the middle of its range
+        (:func:`fmu.scenario_values.default_start_q`).  Every ``q0`` must lie in
+        the joint ranges.
     force : bool
         Replace an existing file at ``path`` (as ``dobkit fmu export --force``).
+    end_stops : bool
+        Enforce the joint ranges with end stops (default).  The ranges are the
+        ``min`` / ``max`` of ``q[i]`` either way; each bounded joint ``i`` gets
+        the parameters ``stop_stiffness[i]`` (N m/rad, N/m) and
+        ``stop_damping[i]`` (N m s/rad, N s/m), set from the arm's smallest
+        effective inertia ``m_i`` over its range for a natural frequency
+        ``w = 200 rad/s`` and critical damping: ``k = m_i w^2``,
+        ``c = 2 m_i w`` (stable for RK4 sub-steps up to 13.9 ms; see
+        :mod:`fmu.end_stops`).  Inside the ranges the FMU gives the same
+        numbers, bit for bit, as one exported with ``end_stops=False``.
 
     Returns
     -------
@@ -135,7 +165,7 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
     FMUBuildError
         If no C compiler is available or compilation fails.
     ValueError
-        On an invalid ``fmi_version``, ``substeps``, ``q0`` or ``dq0``.
+        On an invalid ``fmi_version``, ``substeps``, ``q0`` or ``dq0`` (a ``q0`` outside a joint's range).
     FileExistsError
         If ``path`` exists and ``force`` is false (nothing is compiled).
 
@@ -155,15 +185,19 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
     n = params.joints.count
     q0, dq0 = _joint_vector(q0, "q0", n), _joint_vector(dq0, "dq0", n)
     if q0 is None:
-        q0 = list(DEFAULT_START_Q) if isinstance(params, RobotParameters) else [0.0] * n
-    disturbance = arm_disturbance(params, disturbance)
+        q0 = list(DEFAULT_START_Q) if isinstance(params, RobotParameters) else default_start_q(params)
+    outside = params.joints.outside_limits(q0)
+    if outside:
+        raise ValueError(f"q0 = {q0}: {outside}; give a start pose inside the joint ranges")
+    disturbance = arm_disturbance(params, disturbance, q0)
     path = Path(path)
     if path.is_dir():
         raise IsADirectoryError(f"path {str(path)!r} is a folder; give the path of the .fmu file to write")
     if path.exists() and not force:
         raise FileExistsError(f"path {str(path)!r} exists; refusing to overwrite it (pass force=True to replace it)")
 
-    variables = plant_variables(params, disturbance, substeps, q0=q0, dq0=dq0)
+    stops = arm_end_stops(params, q0) if end_stops else []
+    variables = plant_variables(params, disturbance, substeps, q0=q0, dq0=dq0, stops=stops)
     sources = plant_source_files(fmi_version)
     c_texts = {name: _read_c(name) for name in list(_MODEL_HEADERS) + sources}
     reals = [v for v in variables if v.c_name is not None]
@@ -180,13 +214,16 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
     def xml_for(token: str) -> str:
         return model_description_xml(variables, fmi_version, MODEL_IDENTIFIER, token, sources, description, tool)
 
+    record = arm_record(params)
     token = instantiation_token("plant", fmi_version, [c_texts[n] for n in sorted(c_texts)]
-                   + [config_header(variables, _TOKEN_PLACEHOLDER), xml_for(_TOKEN_PLACEHOLDER)])
+                   + [config_header(variables, _TOKEN_PLACEHOLDER), xml_for(_TOKEN_PLACEHOLDER), record or ""])
     header = config_header(variables, token)
     xml = xml_for(token)
 
     texts = dict(c_texts, **{"plant_config.h": header})
     extra = {"sources/BUILD.txt": _build_txt(fmi_version, sources)}
+    if record is not None:
+        extra[ARM_RECORD] = record        # the arm for ``dobkit fmu check`` (its numbers are constants in the C)
     if fmi_version == 3:
         extra["sources/buildDescription.xml"] = build_description_xml(MODEL_IDENTIFIER, sources)
     package_fmu(path, xml, texts, sources, MODEL_IDENTIFIER, fmi_version, extra_files=extra, cc=cc)

@@ -37,7 +37,8 @@ import numpy as np
 from blocks.compiled.c_backend import C_PRELUDE, CodegenError, emit_c_function, trace_block
 from blocks.compiled.trace import Graph, Sym, param_values
 from blocks.contract import Kernels, contract_of
-from blocks.disturbances import DISTURBANCE_KINDS, DisturbanceSpec
+from blocks.disturbances import DISTURBANCE_KINDS, RRPR_ONLY_KINDS, DisturbanceSpec
+from blocks.kernels.bind import bound
 from blocks.kernels.disturbance import DisturbanceParams, external_disturbance
 from blocks.parameters import RobotParameters
 from blocks.systems import plant as plant_block
@@ -80,36 +81,35 @@ class GeneratedPlant:
 # --------------------------------------------------------------------------------------------------------------
 # The plant's kernels for any arm
 # --------------------------------------------------------------------------------------------------------------
-#: Disturbance models that need the paper's arm (the tissue contact uses its planar Jacobian, Eq. 8).
-RRPR_ONLY_KINDS = ("tissue",)
-
-
-def arm_disturbance(arm, disturbance: DisturbanceSpec | None):
+def arm_disturbance(arm, disturbance: DisturbanceSpec | None, q0=None):
     """The disturbance settings of a plant export, per joint of ``arm``.
 
     For the paper's arm: the :class:`~blocks.disturbances.DisturbanceSpec`
     itself (default: Eq. 4).  For another arm: its per-joint vectors must have
     one entry per joint; without one, every model is off and the amplitudes
-    are zero (start values the user sets on the FMU).  The tissue model needs
-    the paper's kinematics and is refused by name for other arms.
+    are zero (start values the user sets on the FMU), and the skin plane of
+    the tissue contact goes through the tool point at the start pose ``q0``
+    (default: the export's start pose), as a scenario of that arm places it.
 
     Raises
     ------
     ValueError
-        On vectors of the wrong length or the tissue model on another arm.
+        On vectors of the wrong length or a model of the paper's arm only (none today) on another arm.
     """
     if isinstance(arm, RobotParameters):
         return DisturbanceSpec() if disturbance is None else disturbance
     n = arm.joints.count
     base = DisturbanceSpec()
     if disturbance is None:
+        start = np.zeros(n) if q0 is None else np.asarray(q0, dtype=float)
+        skin = float(arm.tool_position(start)[2])
         return SimpleNamespace(kinds=(), f_r=(0.0,) * n, coulomb=(0.0,) * n, viscous=(0.0,) * n,
-                               friction_velocity=base.friction_velocity, skin_height=base.skin_height,
+                               friction_velocity=base.friction_velocity, skin_height=skin,
                                tissue_stiffness=base.tissue_stiffness, tissue_damping=base.tissue_damping,
                                tissue_drag=base.tissue_drag)
     bad = [k for k in disturbance.kinds if k in RRPR_ONLY_KINDS]
     if bad:
-        raise ValueError(f"disturbance models {bad} need the paper's arm kinematics; the arm {arm!r} has none "
+        raise ValueError(f"disturbance models {bad} need the paper's arm; the arm {arm!r} is another "
                          f"(choose from {[k for k in DISTURBANCE_KINDS if k not in RRPR_ONLY_KINDS]})")
     for name in ("f_r", "coulomb", "viscous"):
         if len(getattr(disturbance, name)) != n:
@@ -131,23 +131,27 @@ def plant_kernels(arm, d) -> Kernels:
     """The plant's kernels: ``update`` gives ``[dq; q'']`` of Eq. 1, ``output`` ``[q; dq; tau_dis]``.
 
     The paper's arm uses the plant block's own kernels (:func:`blocks.systems.plant`); another arm its
-    row kernel ``plant_acceleration`` with the disturbance kernels of :mod:`blocks.kernels.disturbance`,
-    its geometry a frozen parameter (constants in the generated code).
+    row kernel ``plant_acceleration`` with the disturbance kernels of :mod:`blocks.kernels.disturbance`
+    bound to its tool kernels (the tissue contact's tool point), its geometry a frozen parameter (constants
+    in the generated code).
     """
     if isinstance(arm, RobotParameters):
         return contract_of(plant_block(arm, d)).kernels
     rows = arm.kernels
+    external_disturbance_of_arm = bound(external_disturbance, arm)
 
     def update(t, x, u, k, dist):
         n = x.shape[0] // 2
         q, dq = x[:n], x[n:]
-        return np.concatenate((dq, rows.plant_acceleration(k, q, dq, u + external_disturbance(t, q, dq, dist))))
+        return np.concatenate((dq, rows.plant_acceleration(k, q, dq,
+                                                           u + external_disturbance_of_arm(t, q, dq, dist))))
 
     def output(t, x, u, k, dist):
         n = x.shape[0] // 2
-        return np.concatenate((x, external_disturbance(t, x[:n], x[n:], dist)))
+        return np.concatenate((x, external_disturbance_of_arm(t, x[:n], x[n:], dist)))
 
-    return Kernels((arm.kernel_params(), _disturbance_params(d, np.zeros(0))), output, update)
+    # the tool parameters are frozen (structure, like the dynamics'): the trace reads no number from them
+    return Kernels((arm.kernel_params(), _disturbance_params(d, arm.tool_params())), output, update)
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -190,14 +194,13 @@ def _theta_expressions(arm, spec: DisturbanceSpec, params, p: dict, graph: Graph
     if isinstance(arm, RobotParameters):
         arm_theta, kin, calculated, valid = _rrpr_map(graph, p)
     else:
-        # geometry and inertias are frozen (literals in the code): only the disturbance numbers are tunable
+        # geometry, inertias and the tool point are frozen (literals in the code): only the disturbance numbers
+        # are tunable
         arm_theta, kin, calculated = [], [], []
         valid = """    (void)p;
-    if (sw[SW_TISSUE]) {
-        snprintf(msg, msg_size, "disturbance_tissue needs the paper's arm kinematics; this arm has none "
-                 "(set disturbance_tissue false)");
-        return 0;
-    }
+    (void)sw;
+    (void)msg;
+    (void)msg_size;
     return 1;
 """
     theta = list(arm_theta)
@@ -207,7 +210,7 @@ def _theta_expressions(arm, spec: DisturbanceSpec, params, p: dict, graph: Graph
         if isinstance(value, (bool, np.bool_)):
             continue
         if name == "kin":
-            theta += kin                # the tissue model's lengths (none for an arm without it)
+            theta += kin                # the tissue model's lengths (none for an arm whose tool point is frozen)
         elif isinstance(value, np.ndarray):
             theta += [p[f"{name}[{i}]"] for i in range(value.size)]
         else:

@@ -128,6 +128,10 @@ def _type_attrs(v: Variable, by_name: dict[str, Variable], fmi_version: int) -> 
         attrs["min"] = "0"  # strictly > 0 is checked by the FMU itself
     if v.nonnegative:
         attrs["min"] = "0"
+    if v.min is not None:
+        attrs["min"] = _fmt(float(v.min))     # a joint's range: where its end stop begins
+    if v.max is not None:
+        attrs["max"] = _fmt(float(v.max))
     if v.derivative_of is not None:
         state = by_name[v.derivative_of]
         # FMI 2 refers to the state by its 1-based index, FMI 3 by value reference

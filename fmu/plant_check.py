@@ -1,17 +1,40 @@
-"""The dobkit plant FMU against the native Python plant (part of :func:`fmu.check_fmu`).
+"""The dobkit plant FMU against the native Python plant of its arm (part of :func:`fmu.check_fmu`).
+
+The arm is the paper's RRPR (built from the FMU's own Table-1 start values)
+or any other arm model (a URDF arm: given by the caller, or rebuilt from the
+record the export wrote into the FMU, :mod:`fmu.arm_record`).  Joint count,
+names and units come from the arm; an FMU of another joint count, joint
+kinds or joint ranges is refused by name before anything runs.
 
 * Model Exchange: the FMU loaded with :func:`fmu.load` and the Python plant
-  :func:`blocks.systems.plant` -- built from the FMU's own parameter start
-  values -- integrated side by side with SciPy (DOP853, tight tolerances)
-  under the same torque input from the same initial state; the largest
-  differences of states and ``tau_dis``.
+  integrated side by side with SciPy (DOP853, tight tolerances) under the
+  same torque from the same initial state; the largest differences of states
+  and ``tau_dis``.  The reference is the plant block :func:`blocks.systems.plant`
+  for the paper's arm and, for another arm, its own ``forward_dynamics``
+  under ``tau + tau_dis`` (the disturbance models of
+  :func:`blocks.kernels.disturbance.external_disturbance`).
 * Co-Simulation: the FMU's own fixed-step integration against the Python
   plant integrated exactly under the same piecewise-constant torque.
+* End stops (Model Exchange): the FMU's state derivative at states beyond each
+  bounded joint's range against the reference with the stop force of
+  :mod:`fmu.end_stops` written here from its definition.
+
+The two runs compare the arm's dynamics: the Python plant has no end stops,
+so they run with the FMU's stops off (``stop_stiffness[i] = stop_damping[i]
+= 0``; inside the ranges that changes no number), and the stops are
+checked on their own.  The torque: for the paper's arm the fixed test
+input :func:`check_torque`; for another arm a PD law with gravity
+compensation around the middle of the joint ranges (:func:`arm_torque`),
+which keeps every joint inside its range.
 
 Every difference is a NaN-propagating maximum: a NaN anywhere fails the
 comparison (Python's ``max(x, nan)`` is ``x``; numpy's is ``nan``).
 """
 from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.integrate import solve_ivp
@@ -19,7 +42,7 @@ from scipy.integrate import solve_ivp
 from blocks.budget import Budget
 from blocks.control_compat import fast_dynamics, fast_output
 from blocks.disturbances import DISTURBANCE_KINDS, DisturbanceSpec
-from blocks.joints import RRPR_JOINTS
+from blocks.kernels.disturbance import DisturbanceParams, external_disturbance
 from blocks.monitor import Monitor
 from blocks.parameters import RobotParameters
 from blocks.systems import plant as python_plant
@@ -28,13 +51,17 @@ from .block import load
 from .errors import FMUError
 from .instance import FMUInstance
 
-__all__ = ["check_torque", "plant_from_description", "compare_model_exchange", "compare_co_simulation",
-           "CHECK_INITIAL_STATE", "worst"]
+__all__ = ["check_torque", "arm_torque", "plant_from_description", "plant_reference", "PlantReference",
+           "check_arm_matches", "arm_name", "compare_model_exchange", "compare_co_simulation", "compare_end_stops",
+           "CHECK_INITIAL_STATE", "worst", "stop_parameters"]
 
-JOINTS = RRPR_JOINTS.count
-# A generic configuration away from the singular theta2 = 0, pi, already moving (rad, m; rad/s, m/s).
+# The paper's arm: a generic configuration away from the singular theta2 = 0, pi, already moving (rad, m; rad/s, m/s).
 CHECK_INITIAL_STATE = np.array([0.3, 1.2, 0.05, 0.2, 0.4, -0.3, 0.0, 0.2])
-STATES = [f"q[{i}]" for i in range(JOINTS)] + [f"dq[{i}]" for i in range(JOINTS)]
+
+# Another arm: the PD law of arm_torque -- natural frequency (rad/s), amplitude of the commanded sine (a fraction
+# of the range, at most 0.2 rad or m) and its frequency (rad/s)
+_PD_FREQUENCY = 10.0
+_SINE_SHARE, _SINE_MAX, _SINE_FREQUENCY = 0.1, 0.2, 3.0
 
 
 def worst(*arrays) -> float:
@@ -44,88 +71,342 @@ def worst(*arrays) -> float:
 
 
 def check_torque(t, params: RobotParameters) -> np.ndarray:
-    """The deterministic test input (N m, N m, N, N m): sines plus gravity compensation on joint 3."""
+    """The paper arm's test input (N m, N m, N, N m): sines plus gravity compensation on joint 3."""
     return np.array([2.0 * np.sin(3.0 * t), 1.5 * np.cos(2.0 * t),
                      -(params.m3 + params.m4) * params.g + 0.5 * np.sin(5.0 * t), 0.3 * np.sin(t)])
 
 
+def _middle(arm) -> np.ndarray:
+    """The middle of each joint's range (0 for an open range, the finite end plus 0.5 for a half-open one)."""
+    def mid(lo: float, hi: float) -> float:
+        if math.isfinite(lo) and math.isfinite(hi):
+            return 0.5 * (lo + hi)
+        if math.isfinite(lo) or math.isfinite(hi):
+            return lo + 0.5 if math.isfinite(lo) else hi - 0.5
+        return 0.0
+    return np.array([mid(lo, hi) for lo, hi in arm.joints.limits])
+
+
+def arm_torque(arm) -> tuple[np.ndarray, Callable]:
+    """The initial state and the torque law ``tau(t, x)`` (N m, N) of another arm's comparison.
+
+    ``tau = G(q) + M(q_m) (w^2 (q_c(t) - q) + 2 w (q_c'(t) - q'))`` with
+    ``q_c(t) = q_m + a sin(3 t + i)`` around the middle ``q_m`` of the ranges,
+    ``a`` a tenth of each range (at most 0.2 rad or m), ``w = 10 rad/s``: with
+    the whole inertia matrix (not its diagonal) every joint, light or heavy,
+    follows critically damped at about 10 rad/s -- slow against a 0.01 s
+    held step -- so every joint moves and none leaves its range.  The arm
+    starts on ``q_c(0)`` with its velocity.
+    """
+    q_m = _middle(arm)
+    span = np.array([hi - lo if math.isfinite(hi - lo) else 2.0 * _SINE_MAX for lo, hi in arm.joints.limits])
+    amp = np.minimum(_SINE_SHARE * span, _SINE_MAX)
+    phase = np.arange(arm.n, dtype=float)
+    m = arm.inertia(q_m)
+    kp, kd = _PD_FREQUENCY ** 2, 2.0 * _PD_FREQUENCY
+    w = _SINE_FREQUENCY
+
+    def torque(t, x):
+        q, dq = x[:arm.n], x[arm.n:]
+        q_c = q_m + amp * np.sin(w * t + phase)
+        dq_c = amp * w * np.cos(w * t + phase)
+        return arm.gravity_forces(q) + m @ (kp * (q_c - q) + kd * (dq_c - dq))
+
+    x0 = np.concatenate((q_m + amp * np.sin(phase), amp * w * np.cos(phase)))
+    return x0, torque
+
+
+@dataclass
+class PlantReference:
+    """What the comparison needs of the Python side.
+
+    Attributes
+    ----------
+    arm : blocks.arm.ArmModel
+    spec : DisturbanceSpec or namespace
+        The disturbance models and their parameters (the FMU's start values).
+    name : str
+        How the report names the arm.
+    x0 : numpy.ndarray
+        Initial state ``[q; q']``.
+    torque : callable
+        ``torque(t, x)`` -> the input (N m, N).
+    derivatives : callable
+        ``derivatives(t, x, u)`` -> ``[q'; q'']`` of the plant without end stops.
+    disturbance : callable
+        ``disturbance(t, x, u)`` -> ``tau_dis`` (N m, N).
+    """
+
+    arm: object
+    spec: object
+    name: str
+    x0: np.ndarray
+    torque: Callable
+    derivatives: Callable
+    disturbance: Callable
+
+    @property
+    def states(self) -> list[str]:
+        n = self.arm.n
+        return [f"q[{i}]" for i in range(n)] + [f"dq[{i}]" for i in range(n)]
+
+
+def _start_values(model_description) -> dict:
+    return {v.name: v.start for v in model_description.modelVariables}
+
+
+def _joint_count(model_description) -> int:
+    return sum(1 for v in model_description.modelVariables if v.causality == "input" and v.name.startswith("tau["))
+
+
+def _spec_from(start: dict, n: int) -> DisturbanceSpec:
+    def num(name):
+        return float(start[name])
+
+    kinds = tuple(k for k in DISTURBANCE_KINDS if str(start[f"disturbance_{k}"]).lower() in ("true", "1"))
+    return DisturbanceSpec(kinds=kinds,
+                           **{b: tuple(num(f"{b}[{i}]") for i in range(n)) for b in ("f_r", "coulomb", "viscous")},
+                           **{name: num(name) for name in ("friction_velocity", "skin_height", "tissue_stiffness",
+                                                           "tissue_damping", "tissue_drag")})
+
+
 def plant_from_description(model_description) -> tuple[RobotParameters, DisturbanceSpec]:
-    """The Python parameter objects matching the FMU's parameter start values.
+    """The paper arm's Python parameter objects matching the FMU's parameter start values.
 
     Raises
     ------
     KeyError
         If the FMU lacks one of the plant's parameters.
     """
-    start = {v.name: v.start for v in model_description.modelVariables}
-
-    def num(name):
-        return float(start[name])
-
-    robot = RobotParameters(**{name: num(name) for name in RobotParameters.names()})
-    kinds = tuple(k for k in DISTURBANCE_KINDS if str(start[f"disturbance_{k}"]).lower() in ("true", "1"))
-    spec = DisturbanceSpec(
-        kinds=kinds,
-        **{base: tuple(num(f"{base}[{i}]") for i in range(JOINTS)) for base in ("f_r", "coulomb", "viscous")},
-        **{name: num(name)
-           for name in ("friction_velocity", "skin_height", "tissue_stiffness", "tissue_damping", "tissue_drag")})
-    return robot, spec
+    start = _start_values(model_description)
+    robot = RobotParameters(**{name: float(start[name]) for name in RobotParameters.names()})
+    return robot, _spec_from(start, robot.joints.count)
 
 
-def compare_model_exchange(extracted, robot, spec, t_final: float, tolerance: float, budget: Budget,
-                           deadline: Monitor) -> dict:
-    """Model Exchange FMU against the Python plant under :func:`check_torque` (see the module docstring)."""
-    x0 = CHECK_INITIAL_STATE
-    fmu = load(extracted, name="fmu_plant", start_values=dict(zip(STATES, x0)))
+def plant_reference(model_description, arm=None) -> PlantReference:
+    """The Python side of the comparison for a dobkit plant FMU.
+
+    Parameters
+    ----------
+    model_description : fmpy.model_description.ModelDescription
+    arm : blocks.arm.ArmModel, optional
+        The arm to hold the FMU against.  Default: the paper's arm with the
+        FMU's Table-1 start values (an FMU without them: KeyError).  A
+        :class:`RobotParameters` given here is compared with its own values,
+        not the FMU's.
+
+    Raises
+    ------
+    KeyError
+        If the FMU lacks a parameter of the plant (not a dobkit plant FMU).
+    """
+    start = _start_values(model_description)
+    from_fmu = arm is None
+    if arm is None:
+        arm, spec = plant_from_description(model_description)
+    else:
+        spec = _spec_from(start, arm.n)
+    if isinstance(arm, RobotParameters):
+        py = python_plant(arm, spec)
+        rhs, out, n = fast_dynamics(py), fast_output(py), arm.n
+        return PlantReference(arm=arm, spec=spec, name=arm_name(arm) + (" (Table 1 values of the FMU)" if from_fmu
+                                                                        else ""), x0=CHECK_INITIAL_STATE.copy(),
+                              torque=lambda t, x: check_torque(t, arm), derivatives=rhs,
+                              disturbance=lambda t, x, u: np.asarray(out(t, x, u))[2 * n:3 * n])
+    if "tissue" in spec.kinds:
+        raise ValueError("the FMU has disturbance_tissue switched on; the tissue model needs the paper's arm")
+    params = DisturbanceParams(
+        paper="paper" in spec.kinds, friction="friction" in spec.kinds, tissue=False,
+        f_r=np.array(spec.f_r), coulomb=np.array(spec.coulomb), viscous=np.array(spec.viscous),
+        friction_velocity=spec.friction_velocity, skin_height=spec.skin_height,
+        tissue_stiffness=spec.tissue_stiffness, tissue_damping=spec.tissue_damping, tissue_drag=spec.tissue_drag,
+        kin=np.zeros(0))
+    n = arm.n
+
+    def disturbance(t, x, u=None):
+        return external_disturbance(t, x[:n], x[n:], params)
+
+    def derivatives(t, x, u):
+        return np.concatenate((x[n:], arm.forward_dynamics(x[:n], x[n:], np.asarray(u) + disturbance(t, x))))
+
+    x0, torque = arm_torque(arm)
+    return PlantReference(arm=arm, spec=spec, name=arm_name(arm), x0=x0, torque=torque, derivatives=derivatives,
+                          disturbance=disturbance)
+
+
+def arm_name(arm) -> str:
+    """How a report names an arm: ``the paper's RRPR arm`` or ``the 4-joint arm ['yaw', ...] from <file>``."""
+    if isinstance(arm, RobotParameters):
+        return "the paper's RRPR arm"
+    source = getattr(arm, "source", None)
+    return f"the {arm.n}-joint arm {list(arm.joints.names)}" + (f" from {source}" if source else "")
+
+
+def check_arm_matches(model_description, arm, name: str) -> None:
+    """Refuse, by name, an FMU whose joints are not the arm's: count, kinds (units of ``q[i]``), ranges.
+
+    Raises
+    ------
+    FMUError
+        Naming the first difference.
+    """
+    n = _joint_count(model_description)
+    joints = arm.joints
+    if n != joints.count:
+        raise FMUError(f"the FMU has {n} joints (inputs tau[0..{n - 1}]); {name} has {joints.count}: the FMU is "
+                       "not this arm's plant")
+    by_name = {v.name: v for v in model_description.modelVariables}
+    for i in range(n):
+        v = by_name.get(f"q[{i}]")
+        if v is None:
+            raise FMUError(f"the FMU has no variable q[{i}]: it is not a dobkit plant FMU")
+        unit = joints.position_units[i]
+        if v.unit is not None and v.unit != unit:
+            raise FMUError(f"q[{i}] of the FMU is in {v.unit}; joint {i + 1} ({joints.names[i]}) of {name} is "
+                           f"{joints.kinds[i]} ({unit}): the FMU is not this arm's plant")
+        lo, hi = joints.limits[i]
+        fmu_lo = -math.inf if v.min is None else float(v.min)
+        fmu_hi = math.inf if v.max is None else float(v.max)
+        if (fmu_lo, fmu_hi) != (lo, hi) and not (v.min is None and v.max is None):
+            raise FMUError(f"q[{i}] of the FMU ranges from {fmu_lo:g} to {fmu_hi:g} {unit}; joint {joints.names[i]} "
+                           f"of {name} from {lo:g} to {hi:g} {unit}: the FMU is not this arm's plant")
+
+
+def stop_parameters(model_description) -> dict:
+    """``stop_stiffness[i]`` and ``stop_damping[i]`` of the FMU -> their start values (empty without end stops)."""
+    return {v.name: float(v.start) for v in model_description.modelVariables
+            if v.name.startswith(("stop_stiffness[", "stop_damping["))}
+
+
+def _stops_off(model_description) -> dict:
+    return {name: 0.0 for name in stop_parameters(model_description)}
+
+
+def compare_model_exchange(extracted, ref: PlantReference, t_final: float, tolerance: float, budget: Budget,
+                           deadline: Monitor, model_description=None) -> dict:
+    """Model Exchange FMU against the Python plant (see the module docstring)."""
+    x0, states, n = ref.x0, ref.states, ref.arm.n
+    off = _stops_off(model_description) if model_description is not None else {}
+    fmu = load(extracted, name="fmu_plant", start_values=dict(zip(states, x0)) | off)
     try:
-        py = python_plant(robot, spec)
         t_eval = np.linspace(0.0, t_final, 101)
+        labels = list(fmu.output_labels)
+        dis = [labels.index(f"tau_dis[{i}]") for i in range(n)]
+        sides = {"fmu": (fast_dynamics(fmu), lambda t, x, u, out=fast_output(fmu): np.asarray(out(t, x, u))[dis]),
+                 "python": (ref.derivatives, ref.disturbance)}
         runs = {}
-        for key, sys in (("fmu", fmu), ("python", py)):
-            rhs = deadline.counted(lambda t, x, f=fast_dynamics(sys): f(t, x, check_torque(t, robot)),
+        for key, (f, tau_dis) in sides.items():
+            rhs = deadline.counted(lambda t, x, f=f: f(t, x, ref.torque(t, x)),
                                    f"the Model Exchange comparison ({key} plant)")
             sol = solve_ivp(rhs, (0.0, t_final), x0, method="DOP853", t_eval=t_eval, rtol=1e-11, atol=1e-12)
             if not sol.success:
                 raise FMUError(f"{key} plant: the reference integration failed: {sol.message}")
-            out = fast_output(sys)
-            outs = np.column_stack([out(t, sol.y[:, k], check_torque(t, robot)) for k, t in enumerate(t_eval)])
+            outs = np.column_stack([tau_dis(t, sol.y[:, k], ref.torque(t, sol.y[:, k]))
+                                    for k, t in enumerate(t_eval)])
             runs[key] = (sol.y, outs)
-        labels = list(fmu.output_labels)
-        dis = [labels.index(f"tau_dis[{i}]") for i in range(JOINTS)]
         state_err = np.abs(runs["fmu"][0] - runs["python"][0]).max(axis=1)
-        dis_err = np.abs(runs["fmu"][1][dis] - runs["python"][1][8:12]).max(axis=1)
+        dis_err = np.abs(runs["fmu"][1] - runs["python"][1]).max(axis=1)
     finally:
         fmu.close()
     largest = worst(state_err, dis_err)
-    return {"t_final": t_final, "max_abs_error": largest, "tolerance": tolerance,
+    part = {"t_final": t_final, "max_abs_error": largest, "tolerance": tolerance,
             "passed": bool(largest <= tolerance),
-            "max_abs_error_per_state": dict(zip(STATES, state_err.tolist())),
+            "max_abs_error_per_state": dict(zip(states, state_err.tolist())),
             "max_abs_error_tau_dis": dis_err.tolist(),
-            "method": "SciPy DOP853, rtol 1e-11, atol 1e-12, on both; same torque input and initial state"}
+            "method": "SciPy DOP853, rtol 1e-11, atol 1e-12, on both; same torque law and initial state"
+                      + ("; the FMU's end stops off" if off else "")}
+    if not part["passed"]:
+        part["why"] = (f"Model Exchange differs from {ref.name} by {largest:.3g} (tolerance {tolerance:g}): the FMU "
+                       "is not this arm's plant, or its parameters differ")
+    return part
 
 
-def compare_co_simulation(extracted, robot, spec, t_final: float, step: float, tolerance: float,
-                          deadline: Monitor) -> dict:
+def compare_co_simulation(extracted, ref: PlantReference, t_final: float, step: float, tolerance: float,
+                          deadline: Monitor, model_description=None) -> dict:
     """Co-Simulation FMU against the Python plant integrated exactly under the same held torque."""
-    x0 = CHECK_INITIAL_STATE
-    py = python_plant(robot, spec)
-    n = max(1, int(round(t_final / step)))
+    x0, states, n = ref.x0, ref.states, ref.arm.n
+    off = _stops_off(model_description) if model_description is not None else {}
+    steps = max(1, int(round(t_final / step)))
     x_ref = x0.copy()
-    with FMUInstance(extracted, kind="CoSimulation", start_values=dict(zip(STATES, x0))) as fmu:
-        in_vr = fmu.value_references([f"tau[{i}]" for i in range(JOINTS)])
-        out_vr = fmu.value_references(STATES)
+    with FMUInstance(extracted, kind="CoSimulation", start_values=dict(zip(states, x0)) | off) as fmu:
+        in_vr = fmu.value_references([f"tau[{i}]" for i in range(n)])
+        out_vr = fmu.value_references(states)
         substeps = fmu.get_integer("n_substeps")
-        for k in range(n):
-            t, u = k * step, check_torque(k * step, robot)
+        for k in range(steps):
+            t = k * step
+            u = ref.torque(t, x_ref)
             fmu.set_real(in_vr, u)
             fmu.do_step(t, step)
-            sol = solve_ivp(lambda tt, x: fast_dynamics(py)(tt, x, u), (t, t + step), x_ref, method="DOP853",
+            sol = solve_ivp(lambda tt, x: ref.derivatives(tt, x, u), (t, t + step), x_ref, method="DOP853",
                             rtol=1e-12, atol=1e-13)
             x_ref = sol.y[:, -1]
             if k % 100 == 0:
                 deadline.check_time(where=f"Co-Simulation comparison at t = {t:.6g} s")
         x_fmu = fmu.get_real(out_vr)
     err = worst(x_fmu - x_ref)
-    return {"t_final": n * step, "step": step, "n_substeps": substeps, "max_abs_error": err, "tolerance": tolerance,
-            "passed": bool(err <= tolerance),
-            "method": "torque held over each step; reference SciPy DOP853 rtol 1e-12 per step"}
+    part = {"t_final": steps * step, "step": step, "n_substeps": substeps, "max_abs_error": err,
+            "tolerance": tolerance, "passed": bool(err <= tolerance),
+            "method": "torque held over each step; reference SciPy DOP853 rtol 1e-12 per step"
+                      + ("; the FMU's end stops off" if off else "")}
+    if not part["passed"]:
+        part["why"] = (f"Co-Simulation differs from {ref.name} by {err:.3g} after {steps * step:g} s (tolerance "
+                       f"{tolerance:g})")
+    return part
+
+
+def _stop_force(q: float, dq: float, lo: float, hi: float, k: float, c: float) -> float:
+    """The end-stop law of :mod:`fmu.end_stops`, written again from its definition."""
+    if q > hi:
+        return min(0.0, -k * (q - hi) - c * dq)
+    if q < lo:
+        return max(0.0, k * (lo - q) - c * dq)
+    return 0.0
+
+
+def compare_end_stops(extracted, ref: PlantReference, model_description, tolerance: float = 1e-9) -> dict:
+    """The FMU's state derivative beyond each bounded joint's range against the reference plus the stop force.
+
+    At each finite end of each bounded joint: 2 % of the range (or 0.01 rad, m) beyond it, moving outwards
+    (the stop pushes back) and inwards at twice ``k depth / c`` (the damper outpulls the spring: the stop
+    lets go), with the other joints at the comparison's
+    initial state and the torque of its law.  ``max_rel_error`` is relative to ``max(1, max |q''|)``.
+    """
+    stops = stop_parameters(model_description)
+    arm, n = ref.arm, ref.arm.n
+    joints = [i for i in range(n) if f"stop_stiffness[{i}]" in stops]
+    if not joints:
+        return {"skipped": "the FMU has no end stops"}
+    rows, largest = [], 0.0
+    with FMUInstance(extracted, kind="ModelExchange") as fmu:
+        taus = fmu.value_references([f"tau[{i}]" for i in range(n)])
+        for i in joints:
+            lo, hi = arm.joints.limits[i]
+            k, c = stops[f"stop_stiffness[{i}]"], stops[f"stop_damping[{i}]"]
+            depth = 0.02 * (hi - lo) if math.isfinite(hi - lo) else 0.01
+            for end, sign in ((hi, 1.0), (lo, -1.0)):
+                if not math.isfinite(end):
+                    continue
+                # outwards: pushed back; inwards twice as fast as the damper takes to outpull the spring: let go
+                for speed in (0.5, -2.0 * k * depth / c if c > 0 else -2.0):
+                    x = ref.x0.copy()
+                    x[i], x[n + i] = end + sign * depth, sign * speed
+                    u = ref.torque(0.0, x)
+                    fmu.set_time(0.0)
+                    fmu.set_states(x)
+                    fmu.set_real(taus, u)
+                    got = fmu.derivatives()
+                    push = np.zeros(n)
+                    push[i] = _stop_force(x[i], x[n + i], lo, hi, k, c)
+                    want = ref.derivatives(0.0, x, u + push)
+                    scale = max(1.0, float(np.max(np.abs(want[n:]))))
+                    err = worst(got - want) / scale
+                    largest = max(largest, err) if not math.isnan(err) else math.nan
+                    rows.append({"joint": arm.joints.names[i], "q": float(x[i]), "dq": float(x[n + i]),
+                                 "stop_force": float(push[i]), "max_rel_error": err})
+    passed = bool(largest <= tolerance)
+    part = {"max_rel_error": largest, "tolerance": tolerance, "passed": passed, "states": rows,
+            "method": "Model Exchange derivatives beyond the ranges vs the reference under tau + the stop force "
+                      "min(0, -k (q - upper) - c q') / max(0, k (lower - q) - c q')"}
+    if not passed:
+        part["why"] = f"the end stops differ from their definition by {largest:.3g} (relative; tolerance {tolerance:g})"
+    return part

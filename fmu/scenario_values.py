@@ -14,7 +14,7 @@ from blocks.scenario import Scenario
 
 from .variables import plant_parameter_values
 
-__all__ = ["plant_start_values", "JOINTS", "DEFAULT_START_Q"]
+__all__ = ["plant_start_values", "JOINTS", "DEFAULT_START_Q", "default_start_q"]
 
 JOINTS = RRPR_JOINTS.count
 
@@ -23,6 +23,19 @@ JOINTS = RRPR_JOINTS.count
 #: determinant a1 a2 sin(theta2) vanishes) and the tool slide at Table 1's d3 = 0.24 m.  An export from a
 #: scenario (``dobkit fmu export``) starts where the scenario does.
 DEFAULT_START_Q = (0.0, math.pi / 2, 0.24, 0.0)
+
+
+def default_start_q(arm) -> list[float]:
+    """Start pose of another arm's plant FMU exported without one (rad, m): each joint at 0, or at the middle
+    of its range when the range excludes 0 (the Panda's elbow, -3.07 to -0.07 rad, starts at -1.57 rad)."""
+    def start(lo: float, hi: float) -> float:
+        if lo <= 0.0 <= hi:
+            return 0.0
+        if math.isfinite(lo) and math.isfinite(hi):
+            return 0.5 * (lo + hi)
+        return lo if math.isfinite(lo) else hi       # a range open on one side: its finite end
+
+    return [start(lo, hi) for lo, hi in arm.joints.limits]
 
 
 def plant_start_values(scenario: Scenario, fmu_variables: set[str] | None, parameters: str = "scenario",

@@ -9,17 +9,20 @@ Value references are unique across types (required by FMI 3, allowed by
 FMI 2) and laid out in blocks::
 
     0        time
-    1..      q[0..n-1], dq[0..n-1]      continuous states, outputs (n joints of the arm; below n = 4)
+    1..      q[0..n-1], dq[0..n-1]      continuous states, outputs (n joints of the arm; below n = 4);
+                                        q[i] carries the joint's range as min/max
     9..16    der(q[i]), der(dq[i])      state derivatives
     17..20   tau[0..3]                  inputs
     21..24   tau_dis[0..3]              outputs
     25..29   k1..k5                     calculated parameters (Eq. 5-7)
     30..61   Table-1 and disturbance parameters
-    62       n_substeps                 Co-Simulation RK4 sub-steps per step
-    63..65   disturbance_paper, disturbance_friction, disturbance_tissue
+    62..63   stop_stiffness[2], stop_damping[2]   end stop of each bounded joint (:mod:`fmu.end_stops`)
+    64       n_substeps                 Co-Simulation RK4 sub-steps per step
+    65..67   disturbance_paper, disturbance_friction, disturbance_tissue
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from blocks.disturbances import DisturbanceSpec
@@ -46,12 +49,13 @@ UNITS: dict[str, dict[str, int]] = {
     "N/m": {"kg": 1, "s": -2},
     "N.s/m": {"kg": 1, "s": -1},
     "N.m.s/rad": {"kg": 1, "m": 2, "s": -1, "rad": -1},
+    "N.m/rad": {"kg": 1, "m": 2, "s": -2, "rad": -1},
 }
 
 # Units per joint for each per-joint quantity (revolute, revolute, prismatic, revolute)
 JOINT_UNITS = {
     "q": ("rad", "m"), "dq": ("rad/s", "m/s"), "ddq": ("rad/s2", "m/s2"),
-    "force": ("N.m", "N"), "viscous": ("N.m.s/rad", "N.s/m"),
+    "force": ("N.m", "N"), "viscous": ("N.m.s/rad", "N.s/m"), "stiffness": ("N.m/rad", "N/m"),
 }
 
 _ROBOT_UNITS = {"kg": "kg", "m": "m", "kg m^2": "kg.m2", "m/s^2": "m/s2"}
@@ -93,6 +97,8 @@ class Variable:
         Index name in the C code (``P_<c_name>``) for real parameters.
     positive, nonnegative : bool
         Range the FMU checks when it leaves initialization mode.
+    min, max : float or None
+        FMI ``min`` / ``max`` attributes (None: not written): a joint position's range.
     """
 
     name: str
@@ -108,6 +114,8 @@ class Variable:
     c_name: str | None = None
     positive: bool = False
     nonnegative: bool = False
+    min: float | None = None
+    max: float | None = None
 
 
 def _joint_unit(kind: str, i: int, joints=RRPR_JOINTS) -> str:
@@ -117,7 +125,7 @@ def _joint_unit(kind: str, i: int, joints=RRPR_JOINTS) -> str:
 
 
 def plant_variables(params: RobotParameters, disturbance: DisturbanceSpec, substeps: int,
-                    q0=None, dq0=None) -> list[Variable]:
+                    q0=None, dq0=None, stops=()) -> list[Variable]:
     """The variable table of the plant FMU, ordered by value reference.
 
     Parameters
@@ -134,6 +142,9 @@ def plant_variables(params: RobotParameters, disturbance: DisturbanceSpec, subst
         Start value of ``n_substeps`` (RK4 steps per Co-Simulation step), >= 1.
     q0, dq0 : n floats, optional
         Start values of the states (rad, m; rad/s, m/s); zero by default.
+    stops : sequence of fmu.end_stops.EndStop
+        End stops: each adds ``stop_stiffness[i]`` and ``stop_damping[i]`` with its values as start values.
+        The joint ranges (``min`` / ``max`` of ``q[i]``) come from ``params.joints`` with or without them.
     """
     joints = params.joints
     n = joints.count
@@ -148,8 +159,13 @@ def plant_variables(params: RobotParameters, disturbance: DisturbanceSpec, subst
         unit="s", description="simulation time")
     for sig, x0, kind, text in (("q", q0, "q", "joint position"), ("dq", dq0, "dq", "joint velocity")):
         for i in range(n):
+            lo, hi = joints.limits[i] if sig == "q" else (-math.inf, math.inf)
+            rng = f", range {lo:g} to {hi:g} {joints.position_units[i]}" if sig == "q" and (
+                math.isfinite(lo) or math.isfinite(hi)) else ""
             add(name=f"{sig}[{i}]", type="Real", causality="output", variability="continuous", initial="exact",
-                start=x0[i], unit=_joint_unit(kind, i, joints), description=f"{text} {i + 1} (state)")
+                start=x0[i], unit=_joint_unit(kind, i, joints),
+                description=f"{text} {i + 1}, {joints.names[i]} (state{rng})",
+                min=lo if math.isfinite(lo) else None, max=hi if math.isfinite(hi) else None)
     for sig, kind in (("q", "dq"), ("dq", "ddq")):
         for i in range(n):
             add(name=f"der({sig}[{i}])", type="Real", causality="local", variability="continuous",
@@ -194,6 +210,14 @@ def plant_variables(params: RobotParameters, disturbance: DisturbanceSpec, subst
             ("tissue_drag", "N.s/m", "in-plane viscous drag below the skin", True)):
         add(name=name, type="Real", causality="parameter", variability="fixed", initial="exact",
             start=float(getattr(d, name)), unit=unit, description=text, c_name=name, nonnegative=nonneg)
+    for stop in stops:
+        i = stop.joint
+        add(name=f"stop_stiffness[{i}]", type="Real", causality="parameter", variability="fixed", initial="exact",
+            start=float(stop.stiffness), unit=_joint_unit("stiffness", i, joints), c_name=f"stop_stiffness_{i}",
+            nonnegative=True, description=f"end-stop stiffness of {joints.names[i]} beyond its range")
+        add(name=f"stop_damping[{i}]", type="Real", causality="parameter", variability="fixed", initial="exact",
+            start=float(stop.damping), unit=_joint_unit("viscous", i, joints), c_name=f"stop_damping_{i}",
+            nonnegative=True, description=f"end-stop damping of {joints.names[i]} beyond its range")
     add(name="n_substeps", type="Integer", causality="parameter", variability="fixed", initial="exact",
         start=int(substeps), unit=None,
         description="Co-Simulation: classical RK4 steps per communication step")
@@ -213,7 +237,9 @@ def plant_parameter_values(params: RobotParameters, disturbance: DisturbanceSpec
     >>> values["m1"], values["coulomb[2]"], values["disturbance_friction"], values["disturbance_paper"]
     (5.58, 0.5, True, False)
     """
-    values: dict = {name: float(getattr(params, name)) for name in RobotParameters.names()}
+    # another arm's geometry is constants in the C: only the paper's arm has Table-1 parameters
+    names = RobotParameters.names() if isinstance(params, RobotParameters) else ()
+    values: dict = {name: float(getattr(params, name)) for name in names}
     for base in ("f_r", "coulomb", "viscous"):
         for i, v in enumerate(getattr(disturbance, base)):
             values[f"{base}[{i}]"] = float(v)
@@ -226,6 +252,33 @@ def plant_parameter_values(params: RobotParameters, disturbance: DisturbanceSpec
 
 def _c_double(value: float) -> str:
     return repr(float(value))
+
+
+def _stop_lines(variables: list[Variable], n: int) -> list[str]:
+    """``plant_config.h`` lines of the end stops: the bounded joints, their ranges and parameter indices.
+
+    A stop acts on the joint ``q[i]`` whose ``stop_stiffness[i]`` is in the table, between the ``min`` and
+    ``max`` of ``q[i]`` (an open side: no stop there).
+    """
+    by_name = {v.name: v for v in variables}
+    joints = [i for i in range(n) if f"stop_stiffness[{i}]" in by_name]
+    lines = ["", "/* end stops (fmu.end_stops): joint, range (an open side has HAS_* 0), parameter indices */",
+             f"#define N_STOPS {len(joints)}"]
+    if not joints:
+        return lines
+    q = [by_name[f"q[{i}]"] for i in joints]
+
+    def row(values) -> str:
+        return "{" + ", ".join(values) + "}"
+
+    lines += [f"#define STOP_JOINT {row(str(i) for i in joints)}",
+              f"#define STOP_HAS_LOWER {row(str(int(v.min is not None)) for v in q)}",
+              f"#define STOP_HAS_UPPER {row(str(int(v.max is not None)) for v in q)}",
+              f"#define STOP_LOWER {row(_c_double(v.min if v.min is not None else 0.0) for v in q)}",
+              f"#define STOP_UPPER {row(_c_double(v.max if v.max is not None else 0.0) for v in q)}",
+              f"#define STOP_STIFFNESS {row(f'P_stop_stiffness_{i}' for i in joints)}",
+              f"#define STOP_DAMPING {row(f'P_stop_damping_{i}' for i in joints)}"]
+    return lines
 
 
 def config_header(variables: list[Variable], token: str) -> str:
@@ -271,6 +324,7 @@ def config_header(variables: list[Variable], token: str) -> str:
         lines.append(f"#define P_{v.c_name} {k}")
     for base in ("f_r", "coulomb", "viscous"):
         lines.append(f"#define P_{base} P_{base}_0")
+    lines += _stop_lines(variables, n)
     lines += [
         "",
         "#define PARAM_NAMES {" + ", ".join(f'"{v.name}"' for v in params) + "}",

@@ -10,14 +10,14 @@ import numpy as np
 import pytest
 
 import blocks
-from analysis.digital import (
+from analysis.linear.digital import (
     digital_analysis,
     linear_sampled_loop,
     observer_gain_limit,
     quantization_torque_noise,
     sampled_poles,
 )
-from analysis.digital_figures import digital_figures
+from analysis.linear.digital_figures import digital_figures
 
 Q0 = np.array([0.3, 1.2, 0.1, 0.2])
 HELD = {"trajectory.kind": "joint_sine", "trajectory.amplitude": [0.0] * 4, "trajectory.offset": Q0.tolist()}
@@ -67,7 +67,7 @@ def test_the_stability_computation_is_the_linearization_of_the_blocks(changes):
     """blocks.digital_stability writes the linearized one-sample map out; linear_sampled_loop linearizes the
     hybrid loop's own blocks numerically (control.linearize, control's ZOH of the plant): same moduli of the
     eigenvalues at 100 Hz with the gain 4 Y (near the limits)."""
-    from analysis.digital import _held, _operating_state
+    from analysis.linear.digital import _held, _operating_state
     from blocks.digital_loop import sampled_loop
     from blocks.digital_stability import sampled_loop_map
     s = _paper(HELD | {"controller.sample_rate": 100.0, "gains.observer": 40.0} | changes)
@@ -102,7 +102,7 @@ def test_the_linear_map_holds_the_plant_discretized_exactly():
     Kd dq, per joint, exactly."""
     import scipy.linalg
     s = _paper(HELD | {"controller.sample_rate": 500.0, "disturbance.kind": "none"})
-    from analysis.digital import _held, _operating_state
+    from analysis.linear.digital import _held, _operating_state
     from blocks.digital_loop import sampled_loop
     held = _held(s, Q0)
     loop = sampled_loop(held, observer=False)
@@ -143,8 +143,8 @@ def test_digital_analysis_answers_in_numbers_and_draws(tmp_path):
 
 def test_a_report_of_a_digital_scenario_has_the_digital_section(tmp_path):
     """A tiny analysis (small grids, short runs) of a 1 kHz scenario: the section, its numbers and figures."""
-    from analysis.report import write_report
-    from analysis.settings import AnalysisSettings
+    from analysis.report.build import write_report
+    from analysis.report.settings import AnalysisSettings
     s = _paper({"controller.sample_rate": 1000.0, "simulation.t_final": 1.0, "trajectory.duration": 10.0,
                 "controller.position_resolution": [1e-4, 1e-4, 1e-6, 1e-4]})
     tiny = AnalysisSettings(quick=True, mismatch_factors=(1.0,), boundary_points=3, workspace_points=(2, 5, 2, 2),
@@ -156,7 +156,7 @@ def test_a_report_of_a_digital_scenario_has_the_digital_section(tmp_path):
     assert result["digital"]["largest_stable_scale"] == pytest.approx(50.0, rel=0.01)     # 2 f / lambda_max, f = 1 kHz
     assert f"{result['digital']['largest_stable_scale']:.3g} times" in page
     # the rule the section states is the computed one, not prose
-    from analysis.report_view.text import fmt
+    from analysis.report.view.text import fmt
     assert f"the rule is Ts lambda_max(Y M^-1) &lt; {fmt(result['digital']['ts_lambda_limit'], 5)}." in page
     assert "lambda_max(Y M^-1) &lt; 2 for both" not in page
     assert (tmp_path / "report" / "figures" / "digital_gain_limit.png").exists()

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from conftest import PAPER_FR, PAPER_K, make_scenario, reference_inertia
 
-from analysis import frequency
+from analysis.linear import frequency
 
 Q0 = np.array([0.3, 2.0, 0.24, 0.1])
 OMEGA = np.logspace(-2, 3, 41)

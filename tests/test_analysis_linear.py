@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from conftest import PAPER_FR, PAPER_K, hold_trajectory, make_scenario, reference_inertia
 
-from analysis import linear
+from analysis.linear import loop as linear
 
 Q0 = np.array([0.3, 2.0, 0.24, 0.1])
 

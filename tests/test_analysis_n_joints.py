@@ -26,9 +26,9 @@ import pytest
 from conftest import PAPER_K, reference_inertia
 from small_arms import Cylindrical, PlanarTwoLink
 
-from analysis import arm_terms, bandwidth, gain_design
-from analysis.arm_linear import arm_linearization
-from analysis.frequency import arm_frequency_analysis
+from analysis.linear import arm_terms, bandwidth, gain_design
+from analysis.linear.arm_linear import arm_linearization
+from analysis.linear.frequency import arm_frequency_analysis
 from blocks.digital import DigitalController
 from blocks.digital_stability import sampled_stability
 from blocks.parameters import RobotParameters
@@ -121,8 +121,8 @@ def test_central_difference_partials_of_the_planar_arm_and_the_models_exact_hook
 
 
 def test_defaults_follow_the_joints():
-    from analysis.settings import AnalysisSettings
-    from analysis.studies import DEFAULT_NOISE, default_noise
+    from analysis.report.settings import AnalysisSettings
+    from analysis.simulation.studies import DEFAULT_NOISE, default_noise
     from blocks.joints import JointSpace
 
     settings = AnalysisSettings()
@@ -161,7 +161,7 @@ def test_mismatched_inertia_gives_the_hand_derived_cubic():
 
 
 def test_mismatch_study_finds_the_routh_boundary():
-    from analysis.linear import arm_mismatch_analysis
+    from analysis.linear.loop import arm_mismatch_analysis
 
     kp, kd, r = 180.0, 36.0, 2.0
     flat = PlanarTwoLink(g=0.0)
@@ -180,7 +180,7 @@ def test_the_arm_linearization_equals_the_scenario_loops_on_the_paper_arm():
     """Two linearizations written apart: the chain rule on the model and ct.linearize of the Figure-2 loop."""
     from conftest import make_scenario
 
-    from analysis import linear
+    from analysis.linear import loop as linear
 
     s = make_scenario(nominal_scale={k: 1.3 for k in linear.INERTIA_PARAMETERS})
     q0 = np.array([0.3, 2.0, 0.24, 0.1])

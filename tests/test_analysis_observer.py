@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from conftest import PAPER_K, make_scenario, reference_inertia
 
-from analysis import bandwidth, gain_design
+from analysis.linear import bandwidth, gain_design
 
 
 @pytest.fixture(scope="module")

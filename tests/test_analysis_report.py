@@ -24,10 +24,9 @@ import pytest
 from conftest import PAPER_FR, reference_inertia
 from conftest import SHORT_SCENARIO_TOML as SHORT
 
-from analysis import gain_design
-from analysis.bandwidth import workspace_grid
-from analysis.experiment import run_experiment
-from analysis.report import (
+from analysis.linear import gain_design
+from analysis.linear.bandwidth import workspace_grid
+from analysis.report.build import (
     AnalysisResult,
     AnalysisSettings,
     experiment_metrics,
@@ -36,7 +35,8 @@ from analysis.report import (
     run_analysis,
     write_report,
 )
-from analysis.report_view import worse_with_observer
+from analysis.report.view import worse_with_observer
+from analysis.simulation.experiment import run_experiment
 from blocks import builtin_scenarios, load_scenario
 from dobkit import analysis_commands as analysis_cli
 from dobkit.cli import main
@@ -499,7 +499,7 @@ def test_the_observer_reading_compares_every_gain_tried(report_data):
 def test_settling_time_has_one_wording_in_the_readme_and_the_report(report_data):
     from test_readme import README
 
-    from analysis.studies import settling_definition
+    from analysis.simulation.studies import settling_definition
     page, _, _ = report_data
     definition = settling_definition()
     assert definition in " ".join(README.read_text(encoding="utf-8").split())      # line breaks aside
@@ -531,7 +531,7 @@ def test_long_steps_report_how_far_they_have_got(reported):
 
 
 def test_figures_name_the_joints_as_a_person_reads_them(tmp_path):
-    from analysis.figures import convergence_figure
+    from analysis.simulation.figures import convergence_figure
     from blocks.joints import RRPR_JOINTS
     h = [0.004, 0.002, 0.001]
     study = {"steps": h, "errors": {f"q[{i}]": [(i + 1) * x for x in h] for i in range(4)},

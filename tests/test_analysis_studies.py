@@ -19,7 +19,7 @@ import pytest
 import scipy.signal
 from conftest import PAPER_FR, PAPER_K, hold_trajectory, make_scenario
 
-from analysis import studies
+from analysis.simulation import studies
 from blocks import MeasurementNoise
 
 

@@ -117,8 +117,8 @@ def test_force_bound_equals_the_numpy_way_and_pinocchio(scenario, monkeypatch):
     ref = reference_limits(s)
     spec = disturbance_params(s.disturbance, arm)
     k = arm.kernel_params()
-    new = force_bounds(k, spec, ref, row_kernels(arm, compiled=True))
-    old = force_bounds(k, spec, ref, arm.kernels)
+    new = force_bounds(k, spec, ref, arm.kernels, arm.tool_kernels, terms=row_kernels(arm, compiled=True))
+    old = force_bounds(k, spec, ref, arm.kernels, arm.tool_kernels)
     assert new == pytest.approx(float(old), rel=1e-12)
     # FORCE_FACTOR (largest of |f_r| + |G| + |M q''_ref + h| at the reference's start, + 1), with pinocchio
     model = arm.pin_model

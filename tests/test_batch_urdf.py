@@ -184,8 +184,8 @@ seed = 3
 
 
 def test_a_sweep_of_a_urdf_arm_equals_a_direct_batch_in_worker_processes(two, tmp_path):
-    from analysis.sweep import load_sweep
-    from analysis.sweep_runner import read_results, run_sweep
+    from analysis.sweep.runner import read_results, run_sweep
+    from analysis.sweep.spec import load_sweep
     folder = tmp_path
     (folder / "two.urdf").write_text(TWO_JOINTS)
     (folder / "two.toml").write_text(TWO_SCENARIO)

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from conftest import SHORT_SCENARIO_TOML as SHORT
 
-from analysis.sweep import load_sweep
-from analysis.sweep_runner import run_sweep
+from analysis.sweep.runner import run_sweep
+from analysis.sweep.spec import load_sweep
 from blocks import load_scenario, progress
 from dobkit import cli
 from dobkit.cli import main

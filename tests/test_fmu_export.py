@@ -28,6 +28,8 @@ STATES = [f"q[{i}]" for i in range(4)] + [f"dq[{i}]" for i in range(4)]
 X0 = np.array([0.3, 1.1, 0.05, 0.2, 0.5, -0.4, 0.1, 0.3])
 PLATFORM = {2: fmpy.platform, 3: fmpy.platform_tuple}     # binaries/ folder names, as fmpy looks for them
 LIBRARY = "dobkit_plant" + fmpy.sharedLibraryExtension
+# the end stop of d3 switched off: runs that push the slide past its 0.48 m stroke compare the arm's dynamics alone
+NO_STOPS = {"stop_stiffness[2]": 0.0, "stop_damping[2]": 0.0}
 
 
 def torque(t):
@@ -144,7 +146,7 @@ def test_model_exchange_matches_python_plant(fmus, version, kinds):
     spec = DisturbanceSpec(kinds=kinds, skin_height=0.12 - 0.048 - 0.271)
     push = np.array([0.0, 0.0, 3.0, 0.0])
     start = dict(zip(STATES, X0)) | {f"disturbance_{k}": k in kinds for k in ("paper", "friction", "tissue")} \
-        | {"skin_height": spec.skin_height}
+        | {"skin_height": spec.skin_height} | NO_STOPS
     fmu = load(fmus[version], start_values=start)
     py = python_plant(RobotParameters(), spec)
     t_eval = np.linspace(0.0, 1.0, 51)
@@ -177,10 +179,10 @@ def test_changed_table1_parameter_changes_the_dynamics(fmus):
 @pytest.mark.needs_cc
 def test_fmpy_simulates_both_interfaces(fmus, version):
     # zero torque from rest: joint 3 is decoupled, q3'' = (f_r3 + k4 g) / k4, so d3(t) = d3(0) + 7.7 t^2 (m),
-    # d3(0) = 0.24 m in the default start pose (Table 1's d3)
+    # d3(0) = 0.24 m in the default start pose (Table 1's d3), until it reaches its end stop at 0.48 m (t = 0.177 s)
     a = (PAPER_FR[2] + PAPER_K["k4"] * PAPER_G) / PAPER_K["k4"]
     for fmi_type, tol in (("ModelExchange", 1e-5), ("CoSimulation", 1e-10)):
-        res = fmpy.simulate_fmu(str(fmus[version]), fmi_type=fmi_type, stop_time=0.5, output_interval=0.01,
+        res = fmpy.simulate_fmu(str(fmus[version]), fmi_type=fmi_type, stop_time=0.17, output_interval=0.01,
                                 relative_tolerance=1e-8, output=["q[2]", "tau_dis[0]"])
         np.testing.assert_allclose(res["q[2]"], 0.24 + 0.5 * a * res["time"] ** 2, atol=tol)
         np.testing.assert_allclose(res["tau_dis[0]"], PAPER_FR[0], atol=1e-12)
@@ -197,7 +199,8 @@ def test_co_simulation_error_falls_16_fold_per_halved_substep(fmus):
                           rtol=1e-13, atol=1e-14).y[:, -1]
     errors = []
     for substeps in (1, 2, 4):
-        with FMUInstance(fmus[2], "CoSimulation", start_values=dict(zip(STATES, X0)) | {"n_substeps": substeps}) as f:
+        with FMUInstance(fmus[2], "CoSimulation", start_values=dict(zip(STATES, X0)) | {"n_substeps": substeps}
+                         | NO_STOPS) as f:        # d3 passes 0.48 m at t = 0.8 s
             tau_vr, x_vr = f.value_references([f"tau[{i}]" for i in range(4)]), f.value_references(STATES)
             for k in range(n_steps):
                 f.set_real(tau_vr, torque(k * h))
@@ -272,7 +275,9 @@ def test_fmu_state_can_be_saved_and_restored(fmus):
 @pytest.mark.parametrize("version", [2, 3])
 @pytest.mark.needs_cc
 def test_check_fmu_reports_validation_and_both_comparisons(fmus, version):
-    report = check_fmu(fmus[version], t_final=0.5)
+    # 0.15 s: with zero torque (the me_vs_cs runs) d3 reaches its end stop at 0.177 s, an impact RK4 at 0.01 s
+    # resolves only to about 1 % (tests/test_fmu_end_stops.py)
+    report = check_fmu(fmus[version], t_final=0.15)
     assert report["passed"] and report["validation"] == {"problems": [], "errors": [], "warnings": [],
                                                          "passed": True}
     assert report["fmi_version"] == f"{version}.0" and report["interfaces"] == ["ModelExchange", "CoSimulation"]

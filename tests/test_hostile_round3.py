@@ -410,9 +410,9 @@ def _tuning(folder: Path, constraints: str, search: str = "population = 5\nmax_e
 
 
 def test_an_infeasible_tunings_file_stdout_and_result_give_the_same_objective(tmp_path):
-    from analysis.tune import load_tuning
-    from analysis.tune_results import objective_text
-    from analysis.tune_runner import run_tune
+    from analysis.tune.results import objective_text
+    from analysis.tune.runner import run_tune
+    from analysis.tune.spec import load_tuning
     result = run_tune(load_tuning(_tuning(tmp_path, "torque_limit = 1.0")), tmp_path / "out", workers=1,
                       progress=False)
     assert not result.feasible and result.tuned.diverged == 0
@@ -426,8 +426,8 @@ def test_an_infeasible_tunings_file_stdout_and_result_give_the_same_objective(tm
 
 
 def test_a_tiny_torque_noise_budget_is_printed_with_significant_digits(tmp_path):
-    from analysis.tune import TuneError, load_tuning
-    from analysis.tune_runner import run_tune
+    from analysis.tune.runner import run_tune
+    from analysis.tune.spec import TuneError, load_tuning
     with pytest.raises(TuneError) as err:
         run_tune(load_tuning(_tuning(tmp_path, "torque_noise_rms = 1e-9")), tmp_path / "out", workers=1,
                  progress=False)

@@ -1,4 +1,4 @@
-"""Sweeps and tunings on a Dask cluster that loses a worker mid-batch (analysis.job_dask).
+"""Sweeps and tunings on a Dask cluster that loses a worker mid-batch (analysis.jobs.cluster).
 
 One LocalCluster of two worker processes on 127.0.0.1 serves the module.  In each test a thread waits until a
 worker is simulating a batch and kills its process (SIGKILL: no clean shutdown); Dask runs the lost batch again
@@ -21,10 +21,10 @@ from test_sweep import _assert_same_rows, _sweep
 from test_tune import write_problem
 
 import blocks
-from analysis.sweep import load_sweep
-from analysis.sweep_runner import run_sweep
-from analysis.tune import TuneError, load_tuning
-from analysis.tune_runner import LOG_NAME, read_log, run_tune
+from analysis.sweep.runner import run_sweep
+from analysis.sweep.spec import load_sweep
+from analysis.tune.runner import LOG_NAME, read_log, run_tune
+from analysis.tune.spec import TuneError, load_tuning
 
 distributed = pytest.importorskip("distributed")
 

@@ -1,4 +1,4 @@
-"""The job logs' integrity (analysis.job_files): a checksum per row, conflicting repeats refused naming both
+"""The job logs' integrity (analysis.jobs.files): a checksum per row, conflicting repeats refused naming both
 lines, bytes that are not UTF-8 named with the remedy, and Ctrl-C on a sweep with worker processes in one line."""
 from __future__ import annotations
 
@@ -14,13 +14,13 @@ from pathlib import Path
 import pytest
 from sweep_files import run_sweep_command, write_short_scenario, write_sweep
 
-from analysis.job_files import JobLog, row_line
-from analysis.sweep import SweepError, load_sweep
-from analysis.sweep_report import summarize
-from analysis.sweep_runner import RESULTS_LOG, read_results, run_sweep
-from analysis.tune import TuneError
-from analysis.tune_eval import gains_key
-from analysis.tune_runner import EVALUATION_LOG, read_log
+from analysis.jobs.files import JobLog, row_line
+from analysis.sweep.runner import RESULTS_LOG, read_results, run_sweep
+from analysis.sweep.spec import SweepError, load_sweep
+from analysis.sweep.summary import summarize
+from analysis.tune.evaluate import gains_key
+from analysis.tune.runner import EVALUATION_LOG, read_log
+from analysis.tune.spec import TuneError
 
 ROOT = Path(__file__).resolve().parents[1]
 GRID = '[grid]\n"gains.kp" = [{}]\n[outputs]\nmetrics = ["rms_position_error", "max_tool_position_error_mm"]\n'
@@ -147,15 +147,26 @@ def _rows_in(results: Path) -> int:
         return 0
 
 
-@pytest.mark.slow
-def test_ctrl_c_on_a_sweep_with_two_workers_says_one_line(tmp_path, short_file):
-    runs = 400          # far more than can finish between the first row and the interrupt
-    path = write_sweep(tmp_path, GRID.format(", ".join(str(100 + 0.5 * i) for i in range(runs)))
+#: Runs of the Ctrl-C sweep and the simulated seconds of each (a tenth of a second of CPU or more per run): what
+#: is left after the first row is minutes of work for two workers, not the moment it takes to send the signal.
+CTRL_C_RUNS, CTRL_C_T_FINAL = 1000, 120.0
+
+
+def interrupted_sweep(tmp_path: Path, *flags: str) -> tuple[int, str, list, Path]:
+    """``dobkit sweep --no-progress FLAGS`` of :data:`CTRL_C_RUNS` long runs, in a session of its own, sent Ctrl-C
+    (SIGINT to its process group, as a terminal sends it) once the results file shows its first row.
+
+    Returns the exit status, standard error, the processes it had started by then (psutil) and the results file.
+    The sweep cannot end first: its runs of two simulated minutes (batches of one) leave minutes of work after the
+    first row, however loaded the machine, where the signal follows the row within one poll of the file.
+    """
+    import psutil
+    write_short_scenario(tmp_path, t_final=CTRL_C_T_FINAL)
+    path = write_sweep(tmp_path, GRID.format(", ".join(str(100 + 0.5 * i) for i in range(CTRL_C_RUNS)))
                        + "[batch]\nsize = 1\n")
     results = tmp_path / "s-results.jsonl"
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    # a session of its own: Ctrl-C on a terminal reaches the whole process group, the workers included
-    proc = subprocess.Popen([sys.executable, "-m", "dobkit", "sweep", str(path), "--workers", "2", "--no-progress"],
+    proc = subprocess.Popen([sys.executable, "-m", "dobkit", "sweep", str(path), "--no-progress", *flags],
                             env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True)
     try:
@@ -164,13 +175,23 @@ def test_ctrl_c_on_a_sweep_with_two_workers_says_one_line(tmp_path, short_file):
             assert proc.poll() is None, proc.communicate()
             assert time.monotonic() < deadline, "no row was written"
             time.sleep(0.02)
+        started = psutil.Process(proc.pid).children(recursive=True)
+        assert proc.poll() is None and _rows_in(results) < CTRL_C_RUNS, \
+            f"the sweep ended before the interrupt ({_rows_in(results)} of {CTRL_C_RUNS} rows): make its runs longer"
         os.killpg(proc.pid, signal.SIGINT)
-        out, err = proc.communicate(timeout=120)
+        _, err = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
-    assert proc.returncode == 130, (out, err)
+    return proc.returncode, err, started, results
+
+
+@pytest.mark.slow
+def test_ctrl_c_on_a_sweep_with_two_workers_says_one_line(tmp_path):
+    code, err, _, results = interrupted_sweep(tmp_path, "--workers", "2")
+    runs = CTRL_C_RUNS
+    assert code == 130, err
     lines = [line for line in err.splitlines() if not line.startswith("dobkit: compil")]
     assert lines == [f"dobkit sweep: interrupted; every finished run is kept in {results}, and the same command "
                      "resumes"], err

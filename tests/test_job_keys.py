@@ -1,10 +1,10 @@
-"""Job files check the scenario values they hold with the scenario's own validator (analysis.job_keys)."""
+"""Job files check the scenario values they hold with the scenario's own validator (analysis.jobs.keys)."""
 from __future__ import annotations
 
 import pytest
 from test_tune import write_problem
 
-from analysis.tune import TuneError, load_tuning
+from analysis.tune.spec import TuneError, load_tuning
 from blocks.scenario import ScenarioError, scenario_from_dict
 
 

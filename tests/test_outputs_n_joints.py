@@ -21,9 +21,9 @@ import control as ct
 import numpy as np
 import pytest
 
-from analysis import figures
-from analysis.experiment import format_rms_table
-from analysis.report_view.simulation import simulation_section, worse_with_observer_short
+from analysis.report.view.simulation import simulation_section, worse_with_observer_short
+from analysis.simulation import figures
+from analysis.simulation.experiment import format_rms_table
 from blocks.arm import ArmModel
 from blocks.joints import RRPR_JOINTS, JointSpace
 
@@ -336,8 +336,8 @@ def test_summary_names_a_worse_joint_of_any_arm_in_its_unit():
 
 def test_design_figure_groups_the_estimation_error_by_the_arms_units():
     """|d - d_hat| is drawn once per unit (never N m and N summed), each the norm over that unit's joints."""
-    from analysis.analysis_figures import design_axes
-    from analysis.gain_design import SimulationCheck
+    from analysis.linear.figures import design_axes
+    from analysis.linear.gain_design import SimulationCheck
 
     arm = ARMS[7]                   # joints 1, 2, 4-7 revolute (N m), joint 3 prismatic (N)
     t = np.linspace(0.0, 1.0, 11)
@@ -360,8 +360,8 @@ def test_design_figure_groups_the_estimation_error_by_the_arms_units():
 
 
 def test_report_words_name_the_arms_units():
-    from analysis.analysis_figures import _units_words
-    from analysis.report_view.text import gain_units, mixed_units, units_list
+    from analysis.linear.figures import _units_words
+    from analysis.report.view.text import gain_units, mixed_units, units_list
 
     assert mixed_units(RRPR_JOINTS.force_units) == "N m; N on joint 3"          # what the paper's report says
     assert gain_units(RRPR_JOINTS) == "kg m^2/s; kg/s on joint 3"

@@ -14,8 +14,8 @@ import pytest
 from conftest import PAPER_Y, reference_inertia
 
 import blocks
-from analysis.bandwidth import along_trajectory, bandwidth_survey
-from analysis.linear import analytic_poles, operating_point_analysis, scale_nominal_inertia
+from analysis.linear.bandwidth import along_trajectory, bandwidth_survey
+from analysis.linear.loop import analytic_poles, operating_point_analysis, scale_nominal_inertia
 
 Q0 = np.array([0.3, 1.2, 0.1, 0.2])
 

@@ -22,7 +22,7 @@ import pytest
 from conftest import L1, L2
 
 import blocks
-from analysis.sweep_report import summarize
+from analysis.sweep.summary import summarize
 from blocks.batch import simulate_batch
 from blocks.metrics import METRICS, TrackingAccumulator, tracking_metrics
 

@@ -20,7 +20,7 @@ import pytest
 from conftest import reference_fk
 
 import blocks
-from analysis.studies import run_metrics
+from analysis.simulation.studies import run_metrics
 from blocks.batch import simulate_batch
 from blocks.metrics import signal, tracking_metrics
 

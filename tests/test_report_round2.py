@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis.tune_report import evaluations_text, html_section, write_figures
-from analysis.tune_results import PointResult, TuneFigure, TuneHistory, TuneResult
+from analysis.tune.report import evaluations_text, html_section, write_figures
+from analysis.tune.results import PointResult, TuneFigure, TuneHistory, TuneResult
 from dobkit.tune_commands import _summary, constraint_lines
 
 
@@ -74,7 +74,7 @@ def test_tune_output_gives_the_prismatic_joint_newtons():
 def test_readme_joint1_offset_is_the_rest_pose_the_report_computes():
     """Without the observer, at rest ``Kp e = M(q)^-1 d`` (perfect model, computed torque): the rest pose is
     the fixed point ``q = q0 + M(q)^-1 d / Kp``, solved here by iteration with the arm's inertia alone."""
-    from analysis.linear import operating_point_analysis
+    from analysis.linear.loop import operating_point_analysis
     from blocks import inertia
     from blocks.scenario import load_scenario
 
@@ -112,10 +112,10 @@ def _quantized_paper():
 def test_quick_digital_report_says_the_noise_was_not_simulated():
     from types import SimpleNamespace
 
-    from analysis.digital import digital_analysis
-    from analysis.report_view import _header
-    from analysis.report_view.digital import digital_section
-    from analysis.settings import QUICK_SETTINGS
+    from analysis.linear.digital import digital_analysis
+    from analysis.report.settings import QUICK_SETTINGS
+    from analysis.report.view import _header
+    from analysis.report.view.digital import digital_section
 
     scenario, q0 = _quantized_paper()
     analysis = digital_analysis(scenario, rates_hz=(1000.0,), configurations=[np.array(q0)], simulate_noise=False)
@@ -135,8 +135,8 @@ def test_quick_digital_report_says_the_noise_was_not_simulated():
 def test_gain_study_zero_panel_says_zero_to_rounding():
     import matplotlib.pyplot as plt
 
-    from analysis.analysis_figures import gain_study_axes
-    from analysis.studies import gain_grid_study
+    from analysis.linear.figures import gain_study_axes
+    from analysis.simulation.studies import gain_grid_study
     from blocks.scenario import load_scenario
 
     scenario = load_scenario("paper")
@@ -165,7 +165,7 @@ def test_gain_study_zero_panel_says_zero_to_rounding():
 # --------------------------------------------------------------------------------------------
 def _figure6(monkeypatch, tmp_path, with_dob, without_dob) -> dict:
     """Fig. 6's suptitle, texts and estimate lines as paper_figures drew them (recorded before it is written)."""
-    from analysis import figures
+    from analysis.simulation import figures
 
     seen = {}
     real = figures.save_figure
@@ -220,7 +220,7 @@ def test_continuous_figure6_keeps_its_curve_and_title(monkeypatch, tmp_path):
 # Table 3: one notation per column
 # --------------------------------------------------------------------------------------------
 def test_table3_uses_one_notation_per_joint_column():
-    from analysis.report_view.simulation import simulation_section
+    from analysis.report.view.simulation import simulation_section
     from blocks.scenario import load_scenario
 
     # the README's Table 3 magnitudes (every joint better with the observer, so no explanation is asked for)
@@ -250,8 +250,8 @@ def test_table3_uses_one_notation_per_joint_column():
 def test_design_figure_separates_torques_and_forces():
     import matplotlib.pyplot as plt
 
-    from analysis.analysis_figures import design_axes
-    from analysis.gain_design import confirm_by_simulation
+    from analysis.linear.figures import design_axes
+    from analysis.linear.gain_design import confirm_by_simulation
     from blocks.metrics import signal
     from blocks.scenario import load_scenario
 
@@ -266,7 +266,7 @@ def test_design_figure_separates_torques_and_forces():
         assert not any("N m, N" in label or "mixed" in label for label in labels)
         # the prismatic panel's curve is joint 3's own error, from an independent run of the same variant
         import blocks
-        from analysis.linear import first_seconds
+        from analysis.linear.loop import first_seconds
         variant = first_seconds(scenario, 0.3, gains={"observer": np.asarray(scenario.observer_gain).tolist()},
                                 noise={"q_std": [0.0] * 4, "dq_std": [0.0] * 4}, disturbance={"kind": "paper"})
         again = blocks.simulate(variant, observer=True)
@@ -288,7 +288,7 @@ def test_design_figure_separates_torques_and_forces():
 # The sweep summary: lengths in mm with significant digits, never pm
 # --------------------------------------------------------------------------------------------
 def test_sweep_summary_gives_tiny_lengths_in_mm():
-    from analysis import sweep_report
+    from analysis.sweep import summary as sweep_report
 
     n = 12
     # joint 3 (d3, m) rests 353.8 pm off: the issue's number
@@ -322,7 +322,7 @@ def test_sweep_prints_the_engine_note_once_for_all_workers(tmp_path, capfd):
     import warnings
 
     import blocks
-    from analysis.sweep_runner import run_sweep
+    from analysis.sweep.runner import run_sweep
     from blocks.loop import EngineFallbackWarning
 
     # RK23 is a solver the compiled engine does not have: engine='auto' falls back to numpy in every worker
@@ -343,7 +343,7 @@ def test_sweep_prints_the_engine_note_once_for_all_workers(tmp_path, capfd):
 
 def test_the_printed_rms_table_keeps_its_columns_aligned():
     """Every number ends under its 'Joint i' heading, whichever label its row has (the longest is 35 characters)."""
-    from analysis.experiment import format_rms_table
+    from analysis.simulation.experiment import format_rms_table
     row = {"rms_position_error": [1.6112e-04, 2.3299e-04, 3.7777e-04, 3.5417e-04],
            "rms_disturbance_error": [0.34, 0.25, 0.055, 0.096], "max_tool_position_error_mm": 2.913}
     metrics = {"units": {"position": ["rad", "rad", "m", "rad"], "disturbance": ["N m", "N m", "N", "N m"]},

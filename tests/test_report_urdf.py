@@ -88,9 +88,9 @@ def test_the_analyses_take_the_arm_route(analysis_json):
 
 
 def test_the_report_names_the_slice_joint_and_the_arm_joints(analysis_json, tmp_path):
-    from analysis.report import AnalysisResult
-    from analysis.report_view.bandwidth import bandwidth_section
-    from analysis.report_view.design import design_section
+    from analysis.report.build import AnalysisResult
+    from analysis.report.view.bandwidth import bandwidth_section
+    from analysis.report.view.design import design_section
 
     s = load_scenario("scope4")
     result = AnalysisResult.from_json(json.dumps(analysis_json))
@@ -109,7 +109,7 @@ def test_the_report_names_the_slice_joint_and_the_arm_joints(analysis_json, tmp_
 
 
 def test_a_quick_preview_keeps_a_seven_joint_grid_small():
-    from analysis.settings import QUICK_SETTINGS, AnalysisSettings, preview_differences
+    from analysis.report.settings import QUICK_SETTINGS, AnalysisSettings, preview_differences
 
     try:
         joints = load_scenario("panda").robot.joints

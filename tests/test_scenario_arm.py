@@ -122,7 +122,6 @@ def test_disturbance_step_takes_n_values():
 
 
 @pytest.mark.parametrize("data, fragment", [
-    ({"disturbance": {"kind": "tissue"}}, "'tissue' models the paper's RRPR"),
     ({"trajectory": {"kind": "laceration"}}, "'laceration' is the paper's RRPR path"),
     ({"robot": {"m1": 5.0}}, r"\[robot\] \(robot.m1\) describes the paper's RRPR"),
     ({"nominal_scale": {"m1": 1.1}}, "arm.nominal_mass_scale"),
@@ -131,6 +130,17 @@ def test_rrpr_only_sections_are_refused_for_another_arm_and_kept_for_the_rrpr(da
     with pytest.raises(ScenarioError, match=fragment):
         scenario_from_dict({"arm": SCOPE4} | data)
     scenario_from_dict(data)                    # the paper's RRPR takes them
+
+
+def test_the_tissue_contact_is_taken_for_another_arm_with_its_skin_at_the_start():
+    # the refusal is gone (tests/test_tissue_any_arm.py checks the forces): the plane defaults to the tool
+    # height at the reference's start, and a given plane is kept
+    s = scenario_from_dict({"arm": SCOPE4, "disturbance": {"kind": "tissue"}})
+    z0 = s.robot.tool_position(s.trajectory.evaluate(0.0)[0])[2]
+    assert s.disturbance.kinds == ("tissue",) and s.disturbance.skin_height == z0
+    assert s.data["disturbance"]["skin_height"] == z0
+    given = scenario_from_dict({"arm": SCOPE4, "disturbance": {"kind": "tissue", "skin_height": -0.2}})
+    assert given.disturbance.skin_height == -0.2
 
 
 def test_controller_and_noise_are_taken_for_another_arm():

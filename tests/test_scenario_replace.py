@@ -10,7 +10,7 @@ import pytest
 from conftest import PAPER_FR, paper_toml_dict
 
 import blocks.scenario
-from analysis.experiment import run_experiment
+from analysis.simulation.experiment import run_experiment
 from blocks import ScenarioError, load_scenario, scenario_from_dict
 from blocks.batch import Variants
 from blocks.noise import MeasurementNoise

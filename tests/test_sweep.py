@@ -15,10 +15,10 @@ import pytest
 from conftest import PAPER_FR
 
 import blocks
-from analysis import sweep
-from analysis.sweep import SweepError, load_sweep, sweep_from_dict
-from analysis.sweep_report import html_section, summarize, write_summary
-from analysis.sweep_runner import read_results, run_sweep
+from analysis.sweep import spec as sweep
+from analysis.sweep.runner import read_results, run_sweep
+from analysis.sweep.spec import SweepError, load_sweep, sweep_from_dict
+from analysis.sweep.summary import html_section, summarize, write_summary
 from blocks.batch import METRIC_ATOL, METRIC_RTOL, simulate_batch
 from blocks.progress import CountProgress
 from dobkit.sweep_commands import add_sweep_subcommand
@@ -114,7 +114,7 @@ def test_a_killed_sweep_resumes_without_redoing_or_losing_runs(tmp_path, scenari
 size = 1
 """)
     results = tmp_path / "r.jsonl"
-    code = ("from analysis.sweep_runner import run_sweep; "
+    code = ("from analysis.sweep.runner import run_sweep; "
             f"run_sweep({str(path)!r}, {str(results)!r}, workers=1, progress=False)")
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     proc = subprocess.Popen([sys.executable, "-c", code], env=env)

@@ -17,8 +17,8 @@ import pytest
 from sweep_files import run_sweep_command, write_short_scenario, write_sweep
 
 import blocks
-from analysis.sweep import RunList, SweepError, load_sweep, sweep_from_dict
-from analysis.sweep_runner import read_results, run_sweep
+from analysis.sweep.runner import read_results, run_sweep
+from analysis.sweep.spec import RunList, SweepError, load_sweep, sweep_from_dict
 from blocks.batch import simulate_batch
 from blocks.budget import Budget, BudgetError, estimate_batch
 
@@ -200,7 +200,7 @@ def test_running_out_of_memory_says_what_to_lower(tmp_path):
     (tmp_path / "short.toml").write_text(scenario.to_toml(), encoding="utf-8")
     _write(tmp_path, '[monte_carlo]\nruns = 2000\n[monte_carlo.distributions]\n'
                      '"noise.seed" = {kind = "choice", values = [1, 2, 3, 4, 5, 6, 7]}\n[batch]\nsize = 2000\n')
-    code = ("import resource, sys\nfrom dobkit.cli import main\nimport analysis.sweep_report, analysis.sweep_runner\n"
+    code = ("import resource, sys\nfrom dobkit.cli import main\nimport analysis.sweep.summary, analysis.sweep.runner\n"
             "vm = int([l for l in open('/proc/self/status') if l.startswith('VmSize')][0].split()[1]) * 1024\n"
             "resource.setrlimit(resource.RLIMIT_AS, (vm + 400 * 2 ** 20, resource.RLIM_INFINITY))\n"
             "sys.exit(main(['sweep', 's.toml', '--workers', '1', '--no-progress', '--max-memory', '100G']))\n")
@@ -229,9 +229,9 @@ def test_the_wall_time_budget_stops_between_batches_keeping_the_finished_runs(tm
 def test_a_run_costs_the_sweep_less_than_its_stated_bookkeeping(tmp_path):
     """SWEEP_RUN_BYTES (the sweep-size check) bounds what each run adds to finding the pending runs and to the
     summary, measured with tracemalloc over a results file with every metric."""
-    from analysis.sweep import SWEEP_RUN_BYTES
-    from analysis.sweep_report import summarize
-    from analysis.sweep_runner import ResultsFile, read_header
+    from analysis.sweep.runner import ResultsFile, read_header
+    from analysis.sweep.spec import SWEEP_RUN_BYTES
+    from analysis.sweep.summary import summarize
     from blocks.batch import METRICS
     rng = np.random.default_rng(0)
     peaks = {}

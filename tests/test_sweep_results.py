@@ -13,10 +13,10 @@ from pathlib import Path
 import pytest
 from sweep_files import run_sweep_command, write_short_scenario, write_sweep
 
-from analysis.job_files import row_line
-from analysis.sweep import SweepError, load_sweep
-from analysis.sweep_report import summarize, write_summary
-from analysis.sweep_runner import read_results, run_sweep
+from analysis.jobs.files import row_line
+from analysis.sweep.runner import read_results, run_sweep
+from analysis.sweep.spec import SweepError, load_sweep
+from analysis.sweep.summary import summarize, write_summary
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -101,7 +101,7 @@ def test_a_second_sweep_on_one_results_file_says_who_holds_it(tmp_path, short_fi
     path = _write(tmp_path, GRID.format(", ".join(str(100 + 10 * i) for i in range(12))) + "[batch]\nsize = 1\n")
     results, marker = tmp_path / "r.jsonl", tmp_path / "first-batch-written"
     # the first sweep holds the file after its first batch (it says so in the marker) until it is killed
-    code = ("import time; from pathlib import Path; from analysis.sweep_runner import run_sweep; "
+    code = ("import time; from pathlib import Path; from analysis.sweep.runner import run_sweep; "
             f"held = lambda rows: (Path({str(marker)!r}).write_text('1'), time.sleep(3600)); "
             f"run_sweep({str(path)!r}, {str(results)!r}, workers=1, progress=False, on_rows=held)")
     proc = subprocess.Popen([sys.executable, "-c", code], env=_env())
@@ -183,7 +183,7 @@ _HELD_AFTER_FIRST_BATCH = """
 import signal, sys, time
 from pathlib import Path
 signal.signal(signal.SIGINT, signal.default_int_handler)   # as at a terminal, even if started with Ctrl-C ignored
-import analysis.sweep_runner as runner
+import analysis.sweep.runner as runner
 from dobkit.cli import main
 marker, run_sweep = Path(sys.argv[1]), runner.run_sweep
 

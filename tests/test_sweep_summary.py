@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from sweep_files import run_sweep_command, write_short_scenario, write_sweep
 
-from analysis import sweep_report
-from analysis.sweep import SweepError, load_sweep
-from analysis.sweep_report import html_section, summarize, write_summary
-from analysis.sweep_runner import run_sweep
+from analysis.sweep import summary as sweep_report
+from analysis.sweep.runner import run_sweep
+from analysis.sweep.spec import SweepError, load_sweep
+from analysis.sweep.summary import html_section, summarize, write_summary
 
 ULP = np.finfo(float).eps
 

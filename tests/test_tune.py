@@ -1,4 +1,4 @@
-"""Gain tuning (analysis.tune, analysis.tune_runner): a problem whose optimum is known, resuming, reproducing.
+"""Gain tuning (analysis.tune.spec, analysis.tune.runner): a problem whose optimum is known, resuming, reproducing.
 
 The small problem: one gain (Kp, the same on every joint) on a one-second joint-sine scenario, the worst RMS
 tool-tip error over three runs with the nominal m1 off by -15 %, 0 and +15 %, and a torque-noise budget equal to
@@ -20,11 +20,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis.job_files import row_line
-from analysis.tune import TuneError, load_tuning, tuning_from_dict
-from analysis.tune_linear import torque_noise_rms
-from analysis.tune_report import html_section
-from analysis.tune_runner import LOG_NAME, RESULT_NAME, TuneResult, read_log, run_tune
+from analysis.jobs.files import row_line
+from analysis.tune.linear import torque_noise_rms
+from analysis.tune.report import html_section
+from analysis.tune.runner import LOG_NAME, RESULT_NAME, TuneResult, read_log, run_tune
+from analysis.tune.spec import TuneError, load_tuning, tuning_from_dict
 from blocks import inertia, load_scenario, simulate
 from blocks.batch import METRIC_ATOL, METRIC_RTOL, simulate_batch
 from blocks.budget import Budget, BudgetError
@@ -168,7 +168,7 @@ def test_the_result_file_reads_back_and_lists_its_files(problem):
 
 @pytest.mark.parametrize("objective", ["worst", "mean"])
 def test_an_evaluation_is_the_set_simulated_directly(tmp_path, objective):
-    from analysis.tune_eval import Evaluator
+    from analysis.tune.evaluate import Evaluator
     spec = load_tuning(write_problem(tmp_path, objective=f'"{objective}"'))
     gains = {"gains.kp": 250.0}
     ev = Evaluator(spec, workers=1).evaluate([gains], "search")[0]
@@ -229,7 +229,7 @@ def test_a_second_tuning_on_one_folder_says_who_holds_it(problem, tmp_path):
     path, _, whole = problem
     out = tmp_path / "out"
     # a second process holds the folder's evaluation log (the lock a running tuning takes), then is killed
-    holder = ("import sys, time; from pathlib import Path; from analysis.job_files import exclusive_lock; "
+    holder = ("import sys, time; from pathlib import Path; from analysis.jobs.files import exclusive_lock; "
               f"lock = exclusive_lock(Path({str(out / LOG_NAME)!r}), RuntimeError, 'log', 'tuning', 'x'); "
               "lock.__enter__(); print('held', flush=True); time.sleep(300)")
     proc = subprocess.Popen([sys.executable, "-c", holder], stdout=subprocess.PIPE, text=True)

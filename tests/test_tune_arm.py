@@ -13,12 +13,12 @@ from importlib import resources
 import numpy as np
 import pytest
 
-from analysis.sweep import load_sweep
-from analysis.sweep_report import column_label, column_unit, key_name, key_unit, summarize, write_summary
-from analysis.sweep_runner import run_sweep
-from analysis.tune import TuneError, damping_ratios, tuning_from_dict
-from analysis.tune_report import html_section
-from analysis.tune_runner import RESULT_NAME, run_tune
+from analysis.sweep.runner import run_sweep
+from analysis.sweep.spec import load_sweep
+from analysis.sweep.summary import column_label, column_unit, key_name, key_unit, summarize, write_summary
+from analysis.tune.report import html_section
+from analysis.tune.runner import RESULT_NAME, run_tune
+from analysis.tune.spec import TuneError, damping_ratios, tuning_from_dict
 from blocks import load_scenario, simulate
 from blocks.batch import METRIC_ATOL, METRIC_RTOL
 from blocks.joints import JointSpace

@@ -10,10 +10,10 @@ import pytest
 import scipy.signal
 from test_tune import KP_EDGE, NOISE, _budget_at, load_scenario_text, write_problem
 
-from analysis.tune import DEFAULT_MIN_DAMPING, TuneError, damping_for_overshoot, damping_ratios, load_tuning, overshoots
-from analysis.tune_eval import Evaluator
-from analysis.tune_report import html_section
-from analysis.tune_runner import RESULT_NAME, run_tune
+from analysis.tune.evaluate import Evaluator
+from analysis.tune.report import html_section
+from analysis.tune.runner import RESULT_NAME, run_tune
+from analysis.tune.spec import DEFAULT_MIN_DAMPING, TuneError, damping_for_overshoot, damping_ratios, load_tuning, overshoots
 from blocks import inertia, load_scenario
 from blocks.batch import simulate_batch
 from dobkit.cli import main

@@ -1,9 +1,9 @@
-"""The hand-linearized held loop of gain tuning (analysis.tune_linear) against independent references.
+"""The hand-linearized held loop of gain tuning (analysis.tune.linear) against independent references.
 
 * Perfect model: the poles are the roots of ``s^2 + Kd_i s + Kp_i`` and the eigenvalues of ``-Y M^-1(q0)``
   (docs/model.md), with M from ``conftest.reference_inertia`` (Eq. 5).
 * Model mismatch: the poles equal those of the python-control linearization of the real nonlinear loop
-  (:func:`analysis.linear.spectral_abscissa`), which knows nothing of the hand derivation.
+  (:func:`analysis.linear.loop.spectral_abscissa`), which knows nothing of the hand derivation.
 * Torque noise: the stationary value equals ``rms(tau_noisy - tau_clean)`` of nonlinear simulations of the held
   arm with the measurement noise of :class:`blocks.noise.MeasurementNoise`, sampled at the noise's sample instants.
 """
@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from conftest import make_scenario, reference_inertia
 
-from analysis import linear
-from analysis.studies import step_scenario
-from analysis.tune_linear import held_loop_matrices, loop_poles, spectral_abscissas, torque_noise_rms
+from analysis.linear import loop as linear
+from analysis.simulation.studies import step_scenario
+from analysis.tune.linear import held_loop_matrices, loop_poles, spectral_abscissas, torque_noise_rms
 from blocks import inertia, load_scenario, simulate
 from blocks.metrics import signal
 

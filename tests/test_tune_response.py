@@ -1,4 +1,4 @@
-"""The linearized error dynamics of a gain design (analysis.tune_response) against closed forms.
+"""The linearized error dynamics of a gain design (analysis.tune.response) against closed forms.
 
 With a perfect model the computed-torque loop's error obeys ``e'' + Kd e' + Kp e = M^-1 (d_hat - d)``
 (paper-notes): poles at the roots of ``s^2 + Kd s + Kp`` (-6 and -30 for the paper's Kp = 180, Kd = 36) and at
@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from analysis.tune import damping_ratios, overshoots
-from analysis.tune_linear import loop_poles
-from analysis.tune_response import disturbance_gains, error_dynamics, pd_poles, step_responses
+from analysis.tune.linear import loop_poles
+from analysis.tune.response import disturbance_gains, error_dynamics, pd_poles, step_responses
+from analysis.tune.spec import damping_ratios, overshoots
 from blocks import inertia, load_scenario
 
 Q0 = np.array([0.3, 1.2, 0.2, 0.1])

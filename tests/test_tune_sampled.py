@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from test_tune import BASE_TOML
 
-from analysis.tune import DEFAULT_SAMPLED_MARGIN, TuneError, load_tuning
-from analysis.tune_eval import Evaluation, Evaluator
-from analysis.tune_runner import run_tune
+from analysis.tune.evaluate import Evaluation, Evaluator
+from analysis.tune.runner import run_tune
+from analysis.tune.spec import DEFAULT_SAMPLED_MARGIN, TuneError, load_tuning
 
 CONTROLLER = "[controller]\nsample_rate = 100.0\n"
 TUNING = """

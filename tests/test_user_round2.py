@@ -271,7 +271,7 @@ def test_export_replaces_with_force_and_starts_in_a_regular_pose(tmp_path):
 
 
 def test_figure_formats_are_checked(short_toml, tmp_path):
-    from analysis.figures import paper_figures
+    from analysis.simulation.figures import paper_figures
 
     resp = blocks.simulate(load_scenario(short_toml), engine="fast")
     with pytest.raises(ValueError, match=r"figure formats must be one or more of \['png', 'svg'\], got \('jpg',\)"):

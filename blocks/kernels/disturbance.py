@@ -6,6 +6,12 @@
 tool up with ``F_z = max(0, k p - c z')`` (``p`` the depth) and drags it in
 the plane with ``-c_lat v_xy``; the joints feel ``J(q)^T F``.
 The models are described for users in :mod:`blocks.disturbances`.
+
+The tissue contact is written against the tool-point row kernels
+``tool_position`` and ``tool_jacobian`` (the names of
+:data:`blocks.kernels.bind.TOOL_NAMES`): here they are the paper's RRPR's,
+and :func:`blocks.kernels.bind.bound` gives a copy that calls another arm's
+(a URDF arm's chain kernels), so one source serves every arm.
 """
 from __future__ import annotations
 
@@ -13,7 +19,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .kinematics import jacobian_entries
+from .kinematics import tool_jacobian, tool_position
 
 __all__ = ["DisturbanceParams", "disturbance_params", "paper_disturbance", "friction_disturbance",
            "tissue_disturbance", "external_disturbance"]
@@ -22,12 +28,12 @@ __all__ = ["DisturbanceParams", "disturbance_params", "paper_disturbance", "fric
 class DisturbanceParams(NamedTuple):
     """Arrays and numbers of the selected disturbance models, in the kernels' layout.
 
-    ``paper`` (the Eq. 4 step, any arm), ``friction`` and ``tissue`` (the
-    RRPR only) say which models act; ``f_r``, ``coulomb`` and ``viscous`` are
+    ``paper`` (the Eq. 4 step), ``friction`` and ``tissue`` say which
+    models act (each for any arm); ``f_r``, ``coulomb`` and ``viscous`` are
     per-joint rows (N m, N; N m s/rad, N s/m), ``friction_velocity`` is
     ``v_s`` (rad/s, m/s), the tissue numbers are in m, N/m, N s/m and N s/m,
-    and ``kin`` are the arm's tool parameters (the RRPR's kinematic lengths
-    ``[a1, a2, d1, d4]``, m).
+    and ``kin`` are the arm's tool parameters (``arm.tool_params()``: the
+    RRPR's kinematic lengths ``[a1, a2, d1, d4]``, m, or a URDF arm's chain).
     """
 
     paper: bool
@@ -80,21 +86,44 @@ def friction_disturbance(dq, coulomb, viscous, friction_velocity):
     return -(coulomb * np.tanh(dq / friction_velocity) + viscous * dq)
 
 
+def _structural_zero(a) -> bool:
+    """Whether a Jacobian entry is a constant zero of the arm's structure (a Python number, as the RRPR's
+    object-array zeros and a chain's skipped terms are in a trace), whose product a trace need not carry."""
+    return (a.__class__ is float or a.__class__ is int) and a == 0
+
+
+def _jacobian_times(J, x, r: int):
+    """Row ``r`` of ``J x``: ``sum_j J[r, j] x[j]``, leaving out structural zeros (same numbers: ``y + 0 x = y``
+    for finite ``x``)."""
+    out = 0.0
+    for j in range(x.shape[0]):
+        if not _structural_zero(J[r, j]):
+            out = out + J[r, j] * x[j]
+    return out
+
+
 def tissue_disturbance(kin, q, dq, skin_height, stiffness, damping, drag):
-    """Joint forces ``J(q)^T F`` of the skin contact (see the module docstring); ``dq``'s shape."""
-    j00, j01, j10, j11 = jacobian_entries(kin, q)
-    depth = skin_height - (kin[2] - q[2] - kin[3])
+    """Joint forces ``J(q)^T F`` of the skin contact (see the module docstring); ``dq``'s shape.
+
+    ``J`` is the tool point's linear Jacobian (``tool_jacobian``), the depth
+    ``skin_height - z`` is read from ``tool_position``; ``F = (-c_lat v_x,
+    -c_lat v_y, max(0, k p - c v_z))`` with ``v = J q'`` while ``p > 0``,
+    zero above the skin.
+    """
+    J = tool_jacobian(kin, q)
+    depth = skin_height - tool_position(kin, q)[2]
     inside = depth > 0.0
-    vx = j00 * dq[0] + j01 * dq[1]
-    vy = j10 * dq[0] + j11 * dq[1]
-    fz = np.maximum(0.0, stiffness * depth + damping * dq[2]) * inside      # tool velocity z' = -d3'
+    vx, vy, vz = _jacobian_times(J, dq, 0), _jacobian_times(J, dq, 1), _jacobian_times(J, dq, 2)
+    fz = np.maximum(0.0, stiffness * depth - damping * vz) * inside          # a spring-damper that cannot pull
     fx = -drag * vx * inside
     fy = -drag * vy * inside
     out = np.empty_like(dq)
-    out[0] = j00 * fx + j10 * fy
-    out[1] = j01 * fx + j11 * fy
-    out[2] = -fz
-    out[3] = 0.0
+    for j in range(dq.shape[0]):
+        tau = 0.0
+        for r, f in ((0, fx), (1, fy), (2, fz)):
+            if not _structural_zero(J[r, j]):
+                tau = tau + J[r, j] * f
+        out[j] = tau
     return out
 
 

@@ -32,12 +32,56 @@ void plant_disturbance(const PlantData *d, double t, const double *x, double *ta
     PLANT_TAU_DIS[model_mask(d)](t, x, d->u, theta, tau_dis);
 }
 
+int plant_end_stops(const PlantData *d, const double *x, double *f)
+{
+#if N_STOPS > 0
+    static const int joint[N_STOPS] = STOP_JOINT;
+    static const int has_lower[N_STOPS] = STOP_HAS_LOWER;
+    static const int has_upper[N_STOPS] = STOP_HAS_UPPER;
+    static const double lower[N_STOPS] = STOP_LOWER;
+    static const double upper[N_STOPS] = STOP_UPPER;
+    static const int stiffness[N_STOPS] = STOP_STIFFNESS;
+    static const int damping[N_STOPS] = STOP_DAMPING;
+    int s, i, acting = 0;
+
+    for (i = 0; i < NU; i++) f[i] = 0.0;
+    for (s = 0; s < N_STOPS; s++) {
+        const int j = joint[s];
+        const double q = x[j], dq = x[N_JOINTS + j], k = d->p[stiffness[s]], c = d->p[damping[s]];
+        double force;
+        if (has_upper[s] && q > upper[s]) {
+            force = -k * (q - upper[s]) - c * dq;
+            if (force > 0.0) force = 0.0;        /* a stop pushes; it never pulls a leaving joint back */
+        } else if (has_lower[s] && q < lower[s]) {
+            force = k * (lower[s] - q) - c * dq;
+            if (force < 0.0) force = 0.0;
+        } else {
+            continue;
+        }
+        f[j] = force;
+        acting = 1;
+    }
+    return acting;
+#else
+    int i;
+    (void)d;
+    (void)x;
+    for (i = 0; i < NU; i++) f[i] = 0.0;
+    return 0;
+#endif
+}
+
 int plant_derivatives(const PlantData *d, double t, const double *x, const double *u, double *dx)
 {
-    double theta[N_THETA];
+    double theta[N_THETA], stop[NU], force[NU];
     int i;
 
     plant_theta(d->p, theta);
+    /* inside every range no stop acts and the arm's dynamics run on u itself, operation for operation */
+    if (plant_end_stops(d, x, stop)) {
+        for (i = 0; i < NU; i++) force[i] = u[i] + stop[i];
+        u = force;
+    }
     plant_update(model_mask(d), t, x, u, theta, dx);
     for (i = 0; i < NX; i++)
         if (!isfinite(dx[i])) return PLANT_NONFINITE;

@@ -4,7 +4,8 @@
  *     M(q) q'' + N(q, q') q' + G(q) = tau + tau_dis
  *
  * with q the joint positions (rad, m) and the external disturbance tau_dis the sum of the selected
- * models (paper Eq. 4 step, smoothed Coulomb + viscous friction, skin contact).  The maths is generated
+ * models (paper Eq. 4 step, smoothed Coulomb + viscous friction, skin contact); beyond a joint's range
+ * an end stop's force adds to tau.  The maths is generated
  * per export into plant_generated.h (fmu.generated) from the kernels of blocks/kernels.
  *
  * This file knows nothing about FMI.  The variable layout (value references,
@@ -36,7 +37,13 @@ void plant_calculated_parameters(const double *p, double *out);
 /* External disturbance tau_dis at time t and state x. */
 void plant_disturbance(const PlantData *d, double t, const double *x, double *tau_dis);
 
-/* State derivative dx = [dq, M^-1 (u + tau_dis - N q' - G)]; returns a PLANT_* code. */
+/*
+ * End-stop forces f (N m, N) at state x: a spring-damper beyond each bounded joint's range that pushes,
+ * never pulls (fmu/end_stops.py); zero inside.  Returns 1 if any joint is beyond its range, else 0.
+ */
+int plant_end_stops(const PlantData *d, const double *x, double *f);
+
+/* State derivative dx = [dq, M^-1 (u + f_stop + tau_dis - N q' - G)]; returns a PLANT_* code. */
 int plant_derivatives(const PlantData *d, double t, const double *x, const double *u, double *dx);
 
 /*
