@@ -15,14 +15,25 @@ step, over the scenario's 10 s (built-in ``scope4`` and ``panda``).  Two ways to
   (RK45, the same tolerances and output grid) on a right-hand side that calls ``pin.crba`` and
   ``pin.nonLinearEffects`` on the nominal model (a copy of the URDF model with every body's mass and inertia
   scaled), ``pin.aba`` on the true one, and numpy for the laws (computed torque, the observer's
-  ``z' = -Y M^-1 (tau + d_hat - h)``, ``d_hat = Y q' + z``).  One run (it takes seconds to minutes).
+  ``z' = -Y M^-1 (tau + d_hat - h)``, ``d_hat = Y q' + z``).  The fastest of ``--rounds`` runs, as for the
+  compiled run (one run varies by half on a shared machine).
+
+A second table times what each run does before it integrates that depends on the arm (the step estimate
+``blocks.run_limits.estimate_run`` and the loop's divergence bounds ``blocks.divergence.state_bounds``: M along the
+reference for the true and the nominal arm, G and ``M q'' + h`` at its start) two ways: with the arm's numpy row
+kernels (what a one-off run, or a process without numba loaded, uses) and with its compiled row kernels
+(:mod:`blocks.compiled.arm_terms`, what the runs of a process that runs the arm again and again use, as in the
+"new scenario" column); the mean of ``--rounds`` x 10 calls after one call (here they are compiled or loaded
+already: the runs above asked for them).
 
 Times are CPU times (``time.process_time``), as in the other benchmarks here.  The ratio is compiled / lean
 (target <= 0.05, issue 18); the two runs' positions on the output grid are compared
 (largest difference, rad or m) as a check that they are the same loop.  With ``--percall`` (default) the per-call rows of
 ``bench_urdf_kernels.py`` follow: M (CRBA) and h (RNEA) of dobkit's traced kernels in a numba loop beside
-pinocchio's own per-call time.  The Panda's loop is about 15,000 generated lines: its first compile takes
-many minutes on a small machine.  No assertion: these are timings.
+pinocchio's own per-call time.  The Panda's loop is about 14,000 generated lines: its first compile takes about a
+minute of CPU, many minutes of wall time on a loaded small machine (with ``blocks.compiled.codegen.ARM_CALLS``
+about 7,700 lines and half the CPU, each arm's M and h one function called where needed).  No assertion: these
+are timings.
 """
 from __future__ import annotations
 
@@ -124,9 +135,11 @@ def bench_arm(name: str, rounds: int) -> tuple[list, dict]:
     assert np.array_equal(signal(first, "q"), signal(res, "q"))
 
     run = lean_loop(s)
-    t0 = _clock()
-    lean = run()
-    lean_s = _clock() - t0
+    lean_s = np.inf
+    for _ in range(max(rounds, 1)):
+        t0 = _clock()
+        lean = run()
+        lean_s = min(lean_s, _clock() - t0)
     if not lean.success:
         raise RuntimeError(f"{name}: the lean loop failed: {lean.message}")
     diff = float(np.max(np.abs(lean.y[:s.robot.n] - signal(res, "q"))))
@@ -139,6 +152,42 @@ def bench_arm(name: str, rounds: int) -> tuple[list, dict]:
             "lean_rhs_calls": lean.nfev, "ratio": ratio, "ratio_new_scenario": fresh / lean_s,
             "max_q_difference": diff}
     return [row], info
+
+
+def bench_before_run(name: str, rounds: int) -> tuple[list, dict]:
+    """The step estimate and the divergence bounds of scenario ``name`` with numpy and with compiled row kernels."""
+    from unittest import mock
+
+    from blocks import load_scenario
+    from blocks.divergence import state_bounds
+    from blocks.loop import closed_loop
+    from blocks.run_limits import estimate_run
+
+    s = load_scenario(name)
+    loop = closed_loop(s)
+
+    def both():
+        return estimate_run(s), state_bounds(loop, s)
+
+    def timed():
+        t0 = _clock()
+        first = both()
+        first_s = _clock() - t0
+        t0 = _clock()
+        for _ in range(10 * rounds):
+            both()
+        return first, first_s, (_clock() - t0) / (10 * rounds)
+
+    import numba  # noqa: F401  (loaded: the compiled row kernels are used)
+    compiled, compiled_first, compiled_s = timed()
+    with mock.patch.dict(sys.modules):
+        del sys.modules["numba"]             # as in a process that has not loaded numba: the numpy row kernels
+        numpy_way, _, numpy_s = timed()
+    same = compiled[0].steps == numpy_way[0].steps and np.array_equal(compiled[1].bounds, numpy_way[1].bounds)
+    row = [name, f"{numpy_s * 1e3:.2f}", f"{compiled_s * 1e3:.3f}", f"{compiled_first:.2f}", f"{numpy_s / compiled_s:.0f}x",
+           "equal" if same else "differ"]
+    return [row], {"arm": name, "numpy_ms": numpy_s * 1e3, "compiled_ms": compiled_s * 1e3,
+                   "compiled_first_s": compiled_first, "equal": same}
 
 
 def main(argv=None) -> int:
@@ -155,6 +204,12 @@ def main(argv=None) -> int:
     print(table(["arm", "n", "generated lines", "first run", "first run (s)", "compiled (s)",
                  "compiled, new scenario (s)", "lean (s)", "lean rhs calls", "compiled / lean",
                  "new scenario / lean", "max q diff"], rows))
+    before = []
+    for name in args.arms:
+        before.extend(bench_before_run(name, args.rounds)[0])
+    print()
+    print(table(["arm", "estimate + bounds, numpy kernels (ms)", "compiled kernels (ms)",
+                 "compiled kernels, first call (s)", "saved", "steps and bounds"], before))
     if args.percall:
         from bench_urdf_kernels import bench_arm as percall
         per = []

@@ -35,6 +35,7 @@ co-simulation.
 """
 from __future__ import annotations
 
+import sys
 from collections import OrderedDict
 from dataclasses import dataclass, replace
 
@@ -165,7 +166,8 @@ def reference_limits(scenario, samples: int = 201) -> ReferenceLimits:
                            tuple(joints.position_units), tuple(joints.velocity_units), tuple(joints.force_units))
 
 
-def force_bounds(k_true, disturbance, ref: ReferenceLimits, kernels=None, tool_kernels=None) -> np.ndarray:
+def force_bounds(k_true, disturbance, ref: ReferenceLimits, kernels=None, tool_kernels=None,
+                 terms=None) -> np.ndarray:
     """The disturbance estimate's bound per member: ``FORCE_FACTOR`` (largest start force + 1) (N m, N).
 
     Parameters
@@ -180,14 +182,18 @@ def force_bounds(k_true, disturbance, ref: ReferenceLimits, kernels=None, tool_k
         The true arm's row kernels (``arm.kernels``); default the paper's RRPR's.
     tool_kernels : module, optional
         The true arm's tool kernels (``arm.tool_kernels``, the tissue contact's tool point); default the RRPR's.
+    terms : optional
+        Row kernels that evaluate ``G`` and ``M q'' + h`` of the arm of ``kernels`` (default ``kernels``):
+        :func:`evaluation_kernels`, the same numbers in microseconds where that pays.
 
     Returns
     -------
     numpy.ndarray
         Shape () for one arm, (N,) for N members.
     """
-    if kernels is not None:
-        bias_forces, mass_times = kernels.bias_forces, kernels.mass_times
+    if terms is not None or kernels is not None:
+        terms = kernels if terms is None else terms
+        bias_forces, mass_times = terms.bias_forces, terms.mass_times
     else:
         bias_forces, mass_times = _rrpr_bias_forces, _rrpr_mass_times
     batch = isinstance(k_true, np.ndarray) and np.ndim(k_true) == 2
@@ -200,6 +206,16 @@ def force_bounds(k_true, disturbance, ref: ReferenceLimits, kernels=None, tool_k
     external = _external_disturbance(kernels, tool_kernels)
     forces = np.abs(external(0.0, q0, dq0, disturbance)) + np.abs(gravity_only) + np.abs(inverse)
     return FORCE_FACTOR * (forces.max(axis=0) + 1.0)
+
+
+def evaluation_kernels(arm):
+    """The row kernels to evaluate ``arm``'s dynamics with before a run (force bounds, step estimate): compiled for
+    a chain arm where that pays (:func:`blocks.compiled.arm_terms.row_kernels`: a process that has loaded numba and
+    runs the arm again and again; the same numbers in microseconds instead of milliseconds), else ``arm.kernels``."""
+    if "numba" not in sys.modules:     # nothing compiled is at hand: the numpy kernels cost less than loading it
+        return arm.kernels
+    from .compiled.arm_terms import row_kernels
+    return row_kernels(arm)
 
 
 def _external_disturbance(kernels, tool_kernels):
@@ -256,7 +272,8 @@ def state_bounds(loop, scenario, samples: int = 201) -> StateBounds:
     s = scenario
     ref = reference_limits(s, samples)
     spec = kernel_disturbance_params(s.disturbance, s.robot)
-    force = float(force_bounds(s.robot.kernel_params(), spec, ref, s.robot.kernels, s.robot.tool_kernels))
+    force = float(force_bounds(s.robot.kernel_params(), spec, ref, s.robot.kernels, s.robot.tool_kernels,
+                               evaluation_kernels(s.robot)))
     labels = [(block.name, label) for block in loop.syslist for label in block.state_labels]
     return _labelled_bounds(labels, ref, force, np.asarray(s.observer_gain, dtype=float))
 
@@ -308,9 +325,9 @@ def _shared_arm_force_bounds(k, arm, disturbance, ref: ReferenceLimits, members:
     """:func:`force_bounds` of ``members`` members sharing one arm (``k``, its row kernels) whose disturbances
     differ: the arm's terms at the reference's start once, each member's disturbance beside them (N,)."""
     q0, dq0, ddq0 = (np.repeat(np.asarray(a, dtype=float)[:, None], members, axis=1) for a in (ref.q0, ref.dq0, ref.ddq0))
-    kernels = arm.kernels
-    gravity_only = kernels.bias_forces(k, q0, np.zeros_like(dq0))
-    inverse = kernels.mass_times(k, q0, ddq0) + kernels.bias_forces(k, q0, dq0)
+    kernels, terms = arm.kernels, evaluation_kernels(arm)
+    gravity_only = terms.bias_forces(k, q0, np.zeros_like(dq0))
+    inverse = terms.mass_times(k, q0, ddq0) + terms.bias_forces(k, q0, dq0)
     external = _external_disturbance(kernels, arm.tool_kernels)
     forces = np.abs(external(0.0, q0, dq0, disturbance)) + np.abs(gravity_only) + np.abs(inverse)
     return FORCE_FACTOR * (forces.max(axis=0) + 1.0)
@@ -322,7 +339,7 @@ def signal_bounds(names, scenario, samples: int = 201) -> StateBounds:
     s = scenario
     ref = reference_limits(s, samples)
     force = float(force_bounds(s.robot.kernel_params(), kernel_disturbance_params(s.disturbance, s.robot), ref,
-                               s.robot.kernels, s.robot.tool_kernels))
+                               s.robot.kernels, s.robot.tool_kernels, evaluation_kernels(s.robot)))
     return _labelled_bounds([("plant", name) for name in names], ref, force, np.asarray(s.observer_gain, dtype=float))
 
 

@@ -104,7 +104,7 @@ def arm_rates(s: Scenario, observer: bool = True, samples: int = 9) -> dict[str,
     observer's ``Y M^-1``, the friction's ``M^-1 (F_c / v_s + F_v)``) with the inertia taken along the reference
     (``samples`` times over the run) instead of the RRPR's ``cos(theta2) = -1, 0, 1``.  Each value has shape (1,)."""
     q = np.asarray(s.trajectory.evaluate(np.linspace(0.0, s.simulation.t_final, samples))[0], dtype=float)
-    M, M_hat = s.robot.inertia(q), s.nominal.inertia(q)                                    # (m, n, n)
+    M, M_hat = _inertia_along(s.robot, q), _inertia_along(s.nominal, q)                    # (m, n, n)
     M_inv, M_hat_inv = np.linalg.inv(M), np.linalg.inv(M_hat)
     mismatch = np.abs(np.linalg.eigvals(M_inv @ M_hat)).max()
     kp, kd = np.diag(s.kp), np.diag(s.kd)
@@ -119,6 +119,16 @@ def arm_rates(s: Scenario, observer: bool = True, samples: int = 9) -> dict[str,
         damping = np.asarray(dist.coulomb) / dist.friction_velocity + np.asarray(dist.viscous)
         rates["disturbance.friction_velocity"] = np.array([np.abs(np.linalg.eigvals(M_inv * damping)).max()])
     return rates
+
+
+def _inertia_along(arm, q: np.ndarray) -> np.ndarray:
+    """``M`` of ``arm`` at the states ``q`` (m, n) in one call, shape (m, n, n): compiled for a chain arm where
+    that pays (:func:`blocks.divergence.evaluation_kernels`), else ``arm.inertia``."""
+    from .divergence import evaluation_kernels
+    kernels = evaluation_kernels(arm)
+    if kernels is arm.kernels:
+        return arm.inertia(q)
+    return np.asarray(kernels.inertia_matrix(arm.kernel_params(), q.T))
 
 
 def check_run(scenario: Scenario, observer: bool = True, budget: Budget | None = None) -> Budget:

@@ -25,6 +25,9 @@ def scope4_urdf() -> Path:
     return Path(str(files("blocks.arms") / "data" / "scope4.urdf"))
 
 
+_found: dict = {}
+
+
 def example_urdf(name: str) -> Path:
     """Path of an example arm's URDF shipped by ``example-robot-data``: ``"ur5"`` or ``"panda"``.
 
@@ -43,10 +46,17 @@ def example_urdf(name: str) -> Path:
         raise ModuleNotFoundError(f"the example arm {name!r} comes from example-robot-data, which is not installed: "
                                   'pip install "dobkit[urdf]"') from None
     suffix = "example-robot-data/robots/" + EXAMPLES[name][0]
+    # the installed-file record is a thousand entries to parse (10 ms): read once per installed version, since every
+    # scenario of an example arm (each member of a sweep) asks again
+    key = (name, str(dist.locate_file("")), dist.version)
+    path = _found.get(key)
+    if path is not None and path.is_file():
+        return path
     for f in dist.files or ():
         if str(f).replace("\\", "/").endswith(suffix):
             path = Path(str(dist.locate_file(f)))
             if path.is_file():
+                _found[key] = path
                 return path
     raise ModuleNotFoundError(f"example-robot-data {dist.version} is installed but has no {suffix}; "
                               'reinstall it: pip install --force-reinstall "dobkit[urdf]"')

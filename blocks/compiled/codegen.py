@@ -20,6 +20,13 @@ source of these functions:
     the called kernels' parameters with every table (a noise table) taken
     from row ``j`` of ``tables``, for a batch whose members have their own.
 
+With :data:`ARM_CALLS` set, an arm's ``M(q)`` and ``h(q, q')`` (a chain
+arm's: :mod:`blocks.kernels.chain`) are functions of the module,
+``arm_inertia_<arm>(x)`` and ``arm_bias_<arm>(x)`` returning tuples, called
+by the functions below where they need them
+(:class:`~blocks.compiled.trace.Callee`): numba compiles each once instead
+of four inlined copies (less than half the compile time, runs 10-20 % slower).
+
 A block's kernels are traced (:mod:`blocks.compiled.trace`) into scalar
 statements when they can be: then the generated code has no array
 temporaries, and a term two blocks compute alike is computed once.  A
@@ -61,9 +68,18 @@ from ..contract import contract_of
 from ..control_compat import subsystems
 from .cache import ModuleCache, cache_dir, guard_dispatcher
 from .jit import jit_kernel, kernel_sources, numba_or_none
-from .trace import Graph, Sym, TraceError, is_table, param_structure, param_tables, param_values, symbolic_params
+from .trace import Callee, Graph, Sym, TraceError, is_table, param_structure, param_tables, param_values, symbolic_params
 
 __all__ = ["CompiledUnavailable", "LoopProgram", "loop_program", "program_for", "cache_dir", "load_module"]
+
+
+#: Generate a chain arm's ``M(q)`` and ``h(q, q')`` as functions of the module, called where needed, instead of
+#: inlining them in every function (see :class:`~blocks.compiled.trace.Callee`).  Measured on the 2-core machine
+#: (CPU s of a cold compile; best cached run): the Panda's loop 14,250 -> 7,670 lines, compile 58.6 -> 24.5 s,
+#: run 6.5 -> 7.6 ms (+15-20 %, in the Dormand-Prince steps and the grid pass); scope4 3,023 -> 1,981 lines,
+#: compile 11.9 -> 11.3 s, run +10-15 %; the numbers are the same to the last bit.  Off: a run must not get slower
+#: by more than a few percent; set it True before a loop is first traced to trade run time for compile time.
+ARM_CALLS = False
 
 
 class CompiledUnavailable(RuntimeError):
@@ -184,7 +200,7 @@ class _Builder:
 
     def __init__(self, plan, kernels: dict) -> None:
         self.plan, self.kernels = plan, kernels
-        self.graph = Graph()
+        self.graph = Graph(calls=ARM_CALLS)   # an arm's M and h as functions called where needed (chain arms)
         self.theta: list[float] = []
         self.theta_slices: dict[str, slice] = {}
         self.sym_params: dict[str, tuple] = {}
@@ -366,6 +382,11 @@ class _Function:
                 return f"ext[{index}].shape[1]"
             raise CompiledUnavailable(f"the generated code would read {kind!r} {index!r}: a block uses an input "
                                       "its contract says does not feed through")
+        if node.op == "fcall":                  # a function of the module (an arm's M or h): a tuple of outputs
+            return f"{node.args[0]}(({', '.join(self.value(a) for a in node.args[1:])},))"
+        if node.op == "fout":
+            call, j = node.args
+            return f"{self.value(call)}[{j}]"
         if node.op == "lookup":                 # a table read at a whole-valued float index
             slot, row, at = node.args
             return f"ext[{slot}][{row}, int({self.value(at)})]"
@@ -399,8 +420,10 @@ class _Function:
 
 
 def _operands(node: Sym) -> list:
-    if node.op in ("bin", "call"):
+    if node.op in ("bin", "call", "fcall"):
         return [a for a in node.args[1:] if isinstance(a, Sym)]
+    if node.op == "fout":
+        return [node.args[0]]
     if node.op == "lookup":
         return [node.args[2]]
     return []
@@ -448,6 +471,8 @@ def structure_of(plan, kernels: dict, labels: list, groups: tuple = ()) -> str:
     parts.append(f"{plan.copy_y!r}|{plan.copy_x!r}|{plan.out_index.tolist()}|{plan.direct}")
     parts.append(",".join(labels))
     parts.append(",".join(f"{g.name}:{g.rows.__module__}.{g.rows.__qualname__}" for g in groups))
+    if ARM_CALLS:                   # another text for the same loop (absent when off: the cache keys stay as they were)
+        parts.append("arm M and h called")
     return "\n".join(parts)
 
 
@@ -483,6 +508,19 @@ def _assign_outputs(fn: _Function, plan, signals: dict) -> None:
     """The interconnection's outputs ``y[r]`` from the signals."""
     for r, j in enumerate(plan.out_index):
         fn.assign(f"y[{r}]", signals[int(j)])
+
+
+def _callee_functions(b: _Builder) -> str:
+    """The text of the functions the generated code calls (:class:`~blocks.compiled.trace.Callee`: an arm's M, h),
+    each ``name(x) -> tuple`` of its outputs that are not constants."""
+    texts = []
+    for callee in b.graph.callees.values():
+        _, outputs = callee.traced
+        fn = _Function(None, callee.name, "x")
+        values = [fn.value(v) for v in outputs if Callee.constant(v) is None]
+        fn.emit(f"return ({', '.join(values)},)")
+        texts.append(fn.text())
+    return "".join(t + "\n" for t in texts)
 
 
 def _member_ext(b: _Builder) -> tuple[tuple, str]:
@@ -578,7 +616,8 @@ def loop_program(plan, system, groups: tuple = ()) -> LoopProgram:
              f"def loop_work_size():\n    return {max(b.work, 1)}\n\n\n"
              f"def loop_output_count():\n    return {n_out}\n\n\n"
              f"def loop_row_count():\n    return {max(offset, 1)}\n\n\n")
-    source = "\n".join(f.text() for f in (fn_src, fn_rhs, fn_out, fn_rhs_rows, fn_out_rows)) + "\n" + member_ext + sizes
+    source = _callee_functions(b) + "\n".join(f.text() for f in (fn_src, fn_rhs, fn_out, fn_rhs_rows, fn_out_rows)) \
+        + "\n" + member_ext + sizes
     return LoopProgram(source=source, theta=np.array(b.theta, dtype=float), theta_slices=b.theta_slices,
                        ext=tuple(b.ext), ext_slices=b.ext_slices, traced=b.traced, called=b.called,
                        sources=[s.name for s in b.source_steps], n_src=b.n_src, n_work=max(b.work, 1), n_out=n_out,
@@ -797,7 +836,8 @@ def sampled_program(hybrid) -> LoopProgram:
     # the derivative dp_step integrates (blocks/compiled/dopri.py): this one replaces the template's
     step_rhs = ("def step_rhs(t, x, theta, ext, src, work, aux, out):\n"
                 "    sampled_rhs(t, x, theta, src, ext, work, aux, out)\n\n\n")
-    source = "\n".join(f.text() for f in (fn_src, fn_tick, fn_rhs, fn_out)) + "\n" + step_rhs + member_ext + sizes
+    source = _callee_functions(b) + "\n".join(f.text() for f in (fn_src, fn_tick, fn_rhs, fn_out)) + "\n" + step_rhs \
+        + member_ext + sizes
     structure = "sampled\n" + structure_of(plan, kernels, list(system.output_labels)) + \
         "\n" + ",".join(sorted(discrete)) + "|" + ",".join(sorted(between))
     return LoopProgram(source=source, theta=np.array(b.theta, dtype=float), theta_slices=b.theta_slices,

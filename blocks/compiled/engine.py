@@ -44,8 +44,9 @@ def unavailable_reason(system, method: str = "RK45") -> str | None:
 
 #: ``engine="auto"`` compiles a loop whose generated functions hold at most this many lines; a longer one runs on
 #: numpy until it has been compiled once (``engine="compiled"``) and is in the cache.  numba's compile time grows
-#: faster than the code: the paper's loop (about 2,300 lines) and the 4-joint URDF arm scope4 (about 3,700) compile
-#: in seconds, the 7-joint Panda (about 15,000 lines of straight-line dynamics) takes many minutes.
+#: faster than the code: the paper's loop (about 1,100 lines) and the 4-joint URDF arm scope4 (about 3,000) compile
+#: in seconds of CPU, the 7-joint Panda (about 14,000 lines of straight-line dynamics) in about a minute of CPU, many
+#: minutes of wall time on a loaded small machine (half that with :data:`blocks.compiled.codegen.ARM_CALLS`).
 AUTO_COMPILE_LINES = 6000
 
 

@@ -25,10 +25,11 @@ from __future__ import annotations
 
 import hashlib
 import numbers
+import weakref
 
 import numpy as np
 
-__all__ = ["Sym", "SymTable", "TraceError", "Graph", "Frozen", "symbolic_params", "param_structure", "param_values",
+__all__ = ["Sym", "SymTable", "TraceError", "Graph", "Callee", "Frozen", "symbolic_params", "param_structure", "param_values",
            "param_tables", "is_table", "TABLE_SIZE"]
 
 #: A parameter array larger than this is a table (noise samples), not numbers to trace.
@@ -60,8 +61,23 @@ class Frozen:
         return repr(self)
 
     def frozen_digest(self) -> str:
-        """``TypeName#`` and a hash of :meth:`frozen_key`: what the generated code is specialised on."""
-        return f"{type(self).__name__}#{hashlib.sha256(self.frozen_key().encode()).hexdigest()[:20]}"
+        """``TypeName#`` and a hash of :meth:`frozen_key`: what the generated code is specialised on (kept per
+        object: the ``repr`` of a 7-joint arm takes milliseconds, and every run's structure key asks for it)."""
+        try:
+            found = _digests.get(self)
+        except TypeError:               # not weakly referenceable: computed each time
+            found = None
+        if found is None:
+            found = f"{type(self).__name__}#{hashlib.sha256(self.frozen_key().encode()).hexdigest()[:20]}"
+            try:
+                _digests[self] = found
+            except TypeError:
+                pass
+        return found
+
+
+# Digests of Frozen parameters (immutable by contract), by object
+_digests: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 class TraceError(TypeError):
@@ -75,11 +91,76 @@ _CALLS = {"cos", "sin", "tan", "tanh", "sqrt", "exp", "sign", "floor", "absolute
           "arctan2", "square", "rint"}
 
 
-class Graph:
-    """The nodes of one trace: every expression once, in creation order (which is a dependency order)."""
+class Callee:
+    """A function the generated code calls instead of inlining its statements (an arm's ``M(q)`` or ``h(q, q')``).
 
-    def __init__(self) -> None:
+    Parameters
+    ----------
+    name : str
+        Its name in the generated module (unique for what it computes: the arm's digest is part of it).
+    n_in : int
+        Number of scalar inputs (the generated function takes them as one tuple ``x``).
+    body : callable
+        ``body(x) -> list``: its outputs as expressions of the symbols ``x`` (a list of ``n_in``), or numbers.
+
+    Its body is traced once, on its own graph (:attr:`traced`).  Outputs that
+    are constants there (exact zeros of a tree's inertia matrix, say) are not
+    returned by the generated function: a call gives them to the caller as
+    Python floats, so the caller's trace still skips them.
+    """
+
+    def __init__(self, name: str, n_in: int, body) -> None:
+        self.name, self.n_in, self.body = name, n_in, body
+        self._traced = None
+
+    @property
+    def traced(self) -> tuple:
+        """``(graph, outputs)``: the body traced on ``x[0] ... x[n_in - 1]``."""
+        if self._traced is None:
+            graph = Graph()
+            x = [graph.leaf("x", i) for i in range(self.n_in)]
+            self._traced = graph, list(self.body(x))
+        return self._traced
+
+    @staticmethod
+    def constant(value):
+        """The number an output is when it is a constant, else None."""
+        if isinstance(value, Sym):
+            return value.args[0] if value.op == "const" else None
+        return float(value)
+
+
+class Graph:
+    """The nodes of one trace: every expression once, in creation order (which is a dependency order).
+
+    With ``calls`` set, model kernels that offer it (:mod:`blocks.kernels.chain`) record a call of a
+    :class:`Callee` (:meth:`call`) instead of their statements; the callees used are in :attr:`callees`.
+    """
+
+    def __init__(self, calls: bool = False) -> None:
         self.nodes: dict[tuple, Sym] = {}
+        self.calls = calls
+        self.callees: dict[str, Callee] = {}
+
+    def call(self, callee: Callee, args) -> list:
+        """The outputs of ``callee`` on ``args`` (numbers or symbols of this graph): a symbol per output it
+        returns, a Python float per constant output.  Equal calls are one node (computed once)."""
+        if len(args) != callee.n_in:
+            raise TraceError(f"{callee.name} takes {callee.n_in} inputs, not {len(args)}")
+        known = self.callees.setdefault(callee.name, callee)
+        if known is not callee and known.n_in != callee.n_in:
+            raise TraceError(f"two different functions are named {callee.name}")
+        wrapped = tuple(a if isinstance(a, Sym) else self.const(float(a)) for a in args)
+        node = self.node("fcall", (callee.name,) + wrapped)
+        out, j = [], 0
+        for value in callee.traced[1]:
+            c = Callee.constant(value)
+            if c is not None:
+                out.append(float(c))
+            else:
+                out.append(self.node("fout", (node, j)))
+                j += 1
+        return out
 
     def node(self, op: str, args: tuple) -> Sym:
         key = (op,) + tuple(a if isinstance(a, Sym) else ("c", a) for a in args)

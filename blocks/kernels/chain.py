@@ -30,6 +30,12 @@ subspace is its fixed axis (one non-zero entry for an axis-aligned joint):
 
 Rows are joint-first: ``q[i]`` is a number, an array of a batch or a traced
 symbol.  Units: rad, m, kg, kg m^2, N m, N; gravity in m/s^2.
+
+Traced on a graph that asks for calls (the compiled engine's,
+:class:`blocks.compiled.trace.Graph` with ``calls``), ``M(q)``, ``h(q, q')``
+and ``G(q)`` are recorded as calls of one generated function per arm and
+term (:class:`~blocks.compiled.trace.Callee`) instead of their statements,
+so a loop that needs them in several functions compiles them once.
 """
 from __future__ import annotations
 
@@ -37,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..compiled.trace import Frozen
+from ..compiled.trace import Callee, Frozen, Sym
 
 __all__ = ["ChainParams", "inertia_matrix", "mass_times", "mass_solve", "bias_forces", "gravity_forces",
            "plant_acceleration", "tool_position", "tool_jacobian", "tool_acceleration_bias"]
@@ -210,12 +216,14 @@ def _joint_rotation(axis, c, s) -> Mat:
                        for col in range(3)) for r in range(3))
 
 
-def _local_placement(k: ChainParams, q, i: int) -> tuple:
-    """``(E, r)``: rotation and origin of joint ``i``'s frame in its parent's frame at ``q[i]``."""
+def _local_placement(k: ChainParams, q, i: int, given=None) -> tuple:
+    """``(E, r)``: rotation and origin of joint ``i``'s frame in its parent's frame at ``q[i]`` (or at what
+    ``given`` says: ``(cos q_i, sin q_i)`` of a revolute joint, ``q_i`` of a prismatic one)."""
     Rp, tp, axis = k.rotations[i], k.translations[i], k.axes[i]
     if k.kinds[i] == "revolute":
-        return _matmul(Rp, _joint_rotation(axis, np.cos(q[i]), np.sin(q[i]))), tp
-    return Rp, _vadd(tp, _vscale(_matvec(Rp, axis), q[i]))
+        c, s = (np.cos(q[i]), np.sin(q[i])) if given is None else given
+        return _matmul(Rp, _joint_rotation(axis, c, s)), tp
+    return Rp, _vadd(tp, _vscale(_matvec(Rp, axis), q[i] if given is None else given))
 
 
 def _mtvec(E, x) -> Vec:
@@ -421,34 +429,130 @@ def _zeros(n: int) -> list:
     return [0.0] * n
 
 
+# ---------------------------------------------------------------------------------------------------------------
+# Traced on a graph that asks for calls (blocks.compiled.trace.Graph.calls): M, h and G as functions
+# ---------------------------------------------------------------------------------------------------------------
+# A loop's generated code needs the same arm's M(q) and h(q, q') in several functions (right-hand side, outputs and
+# their row versions); inlined, the Panda's dynamics are written out four times (about 15,000 lines for numba to
+# compile).  Traced this way each is one function of the generated module, compiled once and called where needed;
+# the caller computes cos q_i and sin q_i once for the true and the nominal arm, and the Cholesky solve stays inline
+# (it is small, and it skips the exact zeros of a tree's M as before).  The numbers are the same operations.
+def _calls_graph(*rows):
+    """The trace's graph when it asks for calls, else None (numbers, or a trace that inlines)."""
+    for r in rows:
+        if isinstance(r, np.ndarray) and r.dtype == object:
+            for v in r.ravel():
+                if isinstance(v, Sym):
+                    return v.graph if v.graph.calls else None
+    return None
+
+
+def _joint_inputs(k: ChainParams, q) -> list:
+    """What the joints' placements need: ``cos q_i, sin q_i`` of a revolute joint, ``q_i`` of a prismatic one."""
+    out = []
+    for i in range(k.n):
+        out += [np.cos(q[i]), np.sin(q[i])] if k.kinds[i] == "revolute" else [q[i]]
+    return out
+
+
+def _placements_of(k: ChainParams, x) -> list:
+    """The placements from :func:`_joint_inputs` ``x``."""
+    X, j = [], 0
+    for i in range(k.n):
+        if k.kinds[i] == "revolute":
+            X.append(_local_placement(k, None, i, (x[j], x[j + 1])))
+            j += 2
+        else:
+            X.append(_local_placement(k, None, i, x[j]))
+            j += 1
+    return X
+
+
+_callees: dict = {}
+
+
+def _callee(k: ChainParams, kind: str) -> Callee:
+    """The generated function ``arm_<kind>_<digest>`` of arm ``k``: ``inertia`` (the lower triangle of ``M`` by
+    rows), ``bias`` (``h``; inputs then ``q'``) or ``gravity`` (``G``)."""
+    key = (k.frozen_digest(), kind)
+    found = _callees.get(key)
+    if found is not None:
+        return found
+    m = sum(2 if kind_i == "revolute" else 1 for kind_i in k.kinds)
+    n = k.n
+    if kind == "inertia":
+        def body(x):
+            M = _crba(k, _placements_of(k, x))
+            return [M[i][j] for i in range(n) for j in range(i + 1)]
+        n_in = m
+    elif kind == "bias":
+        def body(x):
+            return _rnea(k, _placements_of(k, x), list(x[m:]), _zeros(n), k.gravity)
+        n_in = m + n
+    else:
+        def body(x):
+            return _rnea(k, _placements_of(k, x), _zeros(n), _zeros(n), k.gravity)
+        n_in = m
+    found = _callees[key] = Callee(f"arm_{kind}_{key[0].partition('#')[2]}", n_in, body)
+    return found
+
+
+def _inertia(k: ChainParams, q) -> list:
+    """``M(q)`` as nested lists: the CRBA, or a call of the arm's ``inertia`` function."""
+    graph = _calls_graph(q)
+    if graph is None:
+        return _crba(k, _placements(k, q))
+    values = iter(graph.call(_callee(k, "inertia"), _joint_inputs(k, q)))
+    M = [[0.0] * k.n for _ in range(k.n)]
+    for i in range(k.n):
+        for j in range(i + 1):
+            M[i][j] = M[j][i] = next(values)
+    return M
+
+
+def _bias(k: ChainParams, q, dq) -> list:
+    """``h(q, q')`` as a list: the RNEA, or a call of the arm's ``bias`` function."""
+    graph = _calls_graph(q, dq)
+    if graph is None:
+        return _rnea(k, _placements(k, q), [dq[i] for i in range(k.n)], _zeros(k.n), k.gravity)
+    return graph.call(_callee(k, "bias"), _joint_inputs(k, q) + [dq[i] for i in range(k.n)])
+
+
+def _gravity(k: ChainParams, q) -> list:
+    """``G(q)`` as a list: the RNEA at rest, or a call of the arm's ``gravity`` function."""
+    graph = _calls_graph(q)
+    if graph is None:
+        return _rnea(k, _placements(k, q), _zeros(k.n), _zeros(k.n), k.gravity)
+    return graph.call(_callee(k, "gravity"), _joint_inputs(k, q))
+
+
 def inertia_matrix(k: ChainParams, q) -> np.ndarray:
     """``M(q)`` (kg m^2, kg on prismatic joints), shape ``q.shape[1:] + (n, n)``, by the CRBA."""
-    M = _crba(k, _placements(k, q))
+    M = _inertia(k, q)
     out = _pack(M, (k.n, k.n), q)
     return out if out.ndim == 2 else np.moveaxis(out, (0, 1), (-2, -1))
 
 
 def mass_times(k: ChainParams, q, v) -> np.ndarray:
     """``M(q) v`` (N m, N) for joint rows ``v`` (rad/s^2, m/s^2); rows."""
-    M = _crba(k, _placements(k, q))
+    M = _inertia(k, q)
     return _pack([_dot(M[i], [v[j] for j in range(k.n)]) for i in range(k.n)], (k.n,), q, v)
 
 
 def mass_solve(k: ChainParams, q, r) -> np.ndarray:
     """``M(q)^-1 r`` for a generalised force ``r`` (N m, N): Cholesky of ``M`` and two triangular solves; rows."""
-    x = _cholesky_solve(_crba(k, _placements(k, q)), [r[i] for i in range(k.n)])
+    x = _cholesky_solve(_inertia(k, q), [r[i] for i in range(k.n)])
     return _pack(x, (k.n,), q, r)
 
 
 def bias_forces(k: ChainParams, q, dq) -> np.ndarray:
     """``h(q, q') = N(q, q') q' + G(q)`` (N m, N) by recursive Newton-Euler; rows."""
-    tau = _rnea(k, _placements(k, q), [dq[i] for i in range(k.n)], _zeros(k.n), k.gravity)
-    return _pack(tau, (k.n,), q, dq)
+    return _pack(_bias(k, q, dq), (k.n,), q, dq)
 
 
 def gravity_forces(k: ChainParams, q) -> np.ndarray:
     """``G(q)`` (N m, N): the forces that hold the arm still against gravity; rows."""
-    return _pack(_rnea(k, _placements(k, q), _zeros(k.n), _zeros(k.n), k.gravity), (k.n,), q)
+    return _pack(_gravity(k, q), (k.n,), q)
 
 
 def plant_acceleration(k: ChainParams, q, dq, force) -> np.ndarray:
@@ -462,9 +566,13 @@ def plant_acceleration(k: ChainParams, q, dq, force) -> np.ndarray:
     force : numpy.ndarray
         Total generalised force on the joints (N m, N), rows.
     """
-    X = _placements(k, q)
-    h = _rnea(k, X, [dq[i] for i in range(k.n)], _zeros(k.n), k.gravity)
-    x = _cholesky_solve(_crba(k, X), [_sub(force[i], h[i]) for i in range(k.n)])
+    if _calls_graph(q, dq, force) is not None:
+        h, M = _bias(k, q, dq), _inertia(k, q)
+    else:                                       # one set of placements for both
+        X = _placements(k, q)
+        h = _rnea(k, X, [dq[i] for i in range(k.n)], _zeros(k.n), k.gravity)
+        M = _crba(k, X)
+    x = _cholesky_solve(M, [_sub(force[i], h[i]) for i in range(k.n)])
     return _pack(x, (k.n,), q, dq, force)
 
 
