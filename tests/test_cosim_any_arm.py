@@ -37,6 +37,6 @@ def test_a_six_joint_arm_co_simulates_within_its_coupling_error(tmp_path):
     predicted = np.array([estimate["q"][name] for name in names])
     assert np.all(error > 0)                                    # a real co-simulation, not the same loop
     assert np.all(error <= 3.0 * predicted + 1e-9), (error, predicted)
-    assert predicted.max() < 1e-5                               # first-order ZOH at 1 ms, a slow start
+    assert predicted.max() < 1e-5                               # the linear coupling (second order) at 1 ms
     assert estimate["units"]["q"] == list(joints.position_units)
     assert estimate["units"]["tau"] == list(joints.force_units)
