@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .build import instantiation_token, rebuild_command
+from .build import instantiation_token, rebuild_command, shared_layer_files
 from .controller_tick import TickCode, trace_tick
 from .controller_variables import controller_description_xml, controller_variables
 from .modeldescription import build_description_xml
@@ -201,9 +201,10 @@ def export_controller(path, scenario, fmi_version: int = 2, cc: str | None = Non
     theta = code.theta
     variables = controller_variables(s.robot.joints.kinds, theta[code.gains["kp"]], theta[code.gains["kd"]],
                                      theta[code.gains["Y"]], code.y_full, period, (ticks - 1) * period)
-    fixed = [f"fmi{fmi_version}_controller.c"] + list(_FIXED_SOURCES)
+    shared_sources, shared_headers = shared_layer_files(fmi_version)
+    fixed = [f"fmi{fmi_version}_controller.c"] + list(_FIXED_SOURCES) + shared_sources
     sources = fixed + list(_GENERATED_SOURCES)
-    texts = {name: _read_c(name) for name in fixed + list(_HEADERS)}
+    texts = {name: _read_c(name) for name in fixed + list(_HEADERS) + shared_headers}
     texts["controller_tick.c"] = code.source
     texts["controller_reference.c"] = ("/* controller_reference.c: the reference [q_ref; dq_ref; ddq_ref] at each "
                                        f"tick of {period!r} s; written by fmu.controller_export. */\n"
