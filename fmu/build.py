@@ -37,7 +37,7 @@ _CANDIDATES = ("cc", "gcc", "clang")
 # C files under fmu/c shared by the plant and the controller FMU layers of each FMI version: (sources, headers).
 _SHARED_LAYER_FILES = {
     2: (("fmi_log.c", "fmi2_common.c"), ("fmi_log.h", "fmi2_common.h")),
-    3: (("fmi_log.c",), ("fmi_log.h",)),
+    3: (("fmi3_common.c",), ("fmi3_common.h",)),
 }
 
 

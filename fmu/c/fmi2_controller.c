@@ -173,9 +173,24 @@ fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
 
 /* ---- FMU state and derivatives: not offered ------------------------------------------ */
 
-fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *s) { (void)s; return fmi2_layer_refuse(c, "fmi2GetFMUstate"); }
-fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate s) { (void)s; return fmi2_layer_refuse(c, "fmi2SetFMUstate"); }
-fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *s) { (void)s; return fmi2_layer_refuse(c, "fmi2FreeFMUstate"); }
+fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *s)
+{
+    (void)s;
+    return fmi2_layer_refuse(c, "fmi2GetFMUstate");
+}
+
+fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate s)
+{
+    (void)s;
+    return fmi2_layer_refuse(c, "fmi2SetFMUstate");
+}
+
+fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *s)
+{
+    (void)s;
+    return fmi2_layer_refuse(c, "fmi2FreeFMUstate");
+}
+
 
 fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate s, size_t *size)
 {
@@ -276,7 +291,8 @@ fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReferenc
     (void)order;
     (void)value;
     CHECK(c);
-    return nvr == 0 ? fmi2OK : fmi2_layer_refuse(c, "fmi2GetRealOutputDerivatives (the outputs are held between samples)");
+    if (nvr == 0) return fmi2OK;
+    return fmi2_layer_refuse(c, "fmi2GetRealOutputDerivatives (the outputs are held between samples)");
 }
 
 fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2Real communicationStepSize,
