@@ -59,8 +59,8 @@ from .variables import config_header, plant_variables
 __all__ = ["export_plant", "MODEL_IDENTIFIER", "plant_source_files"]
 
 MODEL_IDENTIFIER = "dobkit_plant"
-_MODEL_SOURCES = ("plant_model.c", "plant_instance.c")
-_MODEL_HEADERS = ("plant_model.h", "plant_instance.h")
+_MODEL_SOURCES = ("plant_model.c", "plant_instance.c", "plant_state.c")
+_MODEL_HEADERS = ("plant_model.h", "plant_instance.h", "plant_state.h")
 _TOKEN_PLACEHOLDER = "{00000000-0000-0000-0000-000000000000}"
 
 

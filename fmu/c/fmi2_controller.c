@@ -12,9 +12,7 @@
  * Every function of the standard header is defined; Model Exchange and FMU-state functions log why
  * they are refused and return fmi2Error.
  */
-#include <stdio.h>
 #include <stdlib.h>
-#include <string.h>
 
 #include "fmi2Functions.h"
 #include "fmi2_common.h"

@@ -12,26 +12,18 @@
  */
 #include <stdio.h>
 #include <stdlib.h>
-#include <string.h>
 
 #include "fmi2Functions.h"
 #include "fmi2_common.h"
 #include "plant_instance.h"
+#include "plant_state.h"
 
 typedef struct {
     PlantInstance core;           /* first member: a PlantInstance* is a Fmi2Plant* */
     fmi2CallbackFunctions cb;
 } Fmi2Plant;
 
-/* A saved FMU state: the model data and the mode it was in.  The same bytes are its serialized form,
- * so a deserialized state is checked field by field before use (plant_state_valid). */
-typedef struct {
-    char magic[8];
-    PlantData d;
-    int mode;             /* a PlantMode; stored as int so that any stored value can be range-checked */
-} SavedState;
-
-static const char STATE_MAGIC[8] = "dobkit2";
+const char PLANT_STATE_MAGIC[8] = "dobkit2";   /* the tag of this binary's saved states (plant_state.c) */
 
 static void emit2(PlantInstance *inst, int status, const char *category, const char *message)
 {
@@ -191,103 +183,42 @@ fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
 
 /* ---- FMU state ----------------------------------------------------------- */
 
-static int is_saved_state(const void *p)
-{
-    return p != NULL && memcmp(((const SavedState *)p)->magic, STATE_MAGIC, sizeof STATE_MAGIC) == 0;
-}
-
 fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate)
 {
-    SavedState *s;
     CHECK(c);
-    if (!FMUstate) return fmi2Error;
-    /* a non-NULL *FMUstate must be one of ours to be overwritten in place */
-    if (*FMUstate && !is_saved_state(*FMUstate)) {
-        plant_log(INST(c), ST_ERROR, "logStatusError",
-                  "fmi2GetFMUstate: *FMUstate is neither NULL nor a state of this FMU");
-        return fmi2Error;
-    }
-    s = *FMUstate ? (SavedState *)*FMUstate : (SavedState *)calloc(1, sizeof *s);
-    if (!s) return fmi2Error;
-    memcpy(s->magic, STATE_MAGIC, sizeof s->magic);
-    s->d = INST(c)->d;
-    s->mode = (int)INST(c)->mode;
-    *FMUstate = s;
-    return fmi2OK;
+    return (fmi2Status)plant_state_save(INST(c), FMUstate, "fmi2GetFMUstate", "FMUstate");
 }
 
 fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate)
 {
-    const SavedState *s = (const SavedState *)FMUstate;
     CHECK(c);
-    if (!is_saved_state(s)) {
-        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi2SetFMUstate: not a state of this FMU");
-        return fmi2Error;
-    }
-    return (fmi2Status)plant_restore(INST(c), &s->d, s->mode, "fmi2SetFMUstate");
+    return (fmi2Status)plant_state_load(INST(c), FMUstate, "fmi2SetFMUstate");
 }
 
 fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate)
 {
     CHECK(c);
-    if (FMUstate) {
-        free(*FMUstate);
-        *FMUstate = NULL;
-    }
+    plant_state_free(FMUstate);
     return fmi2OK;
 }
 
 fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate FMUstate, size_t *size)
 {
     CHECK(c);
-    if (!size || !is_saved_state(FMUstate)) {
-        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi2SerializedFMUstateSize: not a state of this FMU");
-        return fmi2Error;
-    }
-    *size = sizeof(SavedState);
-    return fmi2OK;
+    return (fmi2Status)plant_state_size(INST(c), FMUstate, size, "fmi2SerializedFMUstateSize");
 }
 
 fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byte serializedState[], size_t size)
 {
     CHECK(c);
-    if (!is_saved_state(FMUstate)) {
-        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi2SerializeFMUstate: not a state of this FMU");
-        return fmi2Error;
-    }
-    if (!serializedState || size != sizeof(SavedState)) {
-        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi2SerializeFMUstate: buffer of %lu bytes, need %lu",
-                  (unsigned long)size, (unsigned long)sizeof(SavedState));
-        return fmi2Error;
-    }
-    memcpy(serializedState, FMUstate, sizeof(SavedState));
-    return fmi2OK;
+    return (fmi2Status)plant_state_serialize(INST(c), FMUstate, serializedState, size, "fmi2SerializeFMUstate");
 }
 
-/* *FMUstate is output only: always a new allocation (a caller's old value is neither read nor freed). */
 fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedState[], size_t size,
                                    fmi2FMUstate *FMUstate)
 {
-    SavedState tmp, *s;
-    char msg[512];
     CHECK(c);
-    if (!FMUstate) return fmi2Error;
-    if (!serializedState || size != sizeof(SavedState) ||
-        memcmp(serializedState, STATE_MAGIC, sizeof STATE_MAGIC) != 0) {
-        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi2DeSerializeFMUstate: not a serialized state of "
-                  "this FMU (%lu bytes)", (unsigned long)size);
-        return fmi2Error;
-    }
-    memcpy(&tmp, serializedState, sizeof tmp);   /* the byte buffer may be unaligned */
-    if (!plant_state_valid(INST(c), &tmp.d, tmp.mode, msg, sizeof msg)) {
-        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi2DeSerializeFMUstate: invalid FMU state: %s", msg);
-        return fmi2Error;
-    }
-    s = (SavedState *)calloc(1, sizeof *s);
-    if (!s) return fmi2Error;
-    *s = tmp;
-    *FMUstate = s;
-    return fmi2OK;
+    return (fmi2Status)plant_state_deserialize(INST(c), serializedState, size, FMUstate, "fmi2DeSerializeFMUstate");
 }
 
 /* ---- Model Exchange ------------------------------------------------------ */

@@ -30,6 +30,15 @@ fmi3Status fmi3_check_scalar(fmi3Instance c, size_t nvr, size_t nValues, const c
     return fmi3Error;
 }
 
+void fmi3_step_done(fmi3Float64 time, fmi3Boolean *eventHandlingNeeded, fmi3Boolean *terminateSimulation,
+                    fmi3Boolean *earlyReturn, fmi3Float64 *lastSuccessfulTime)
+{
+    if (eventHandlingNeeded) *eventHandlingNeeded = fmi3False;
+    if (terminateSimulation) *terminateSimulation = fmi3False;
+    if (earlyReturn) *earlyReturn = fmi3False;
+    if (lastSuccessfulTime) *lastSuccessfulTime = time;
+}
+
 /* ---- common functions ------------------------------------------------------------ */
 
 const char *fmi3GetVersion(void) { return fmi3Version; }
@@ -74,6 +83,13 @@ fmi3Status fmi3ActivateModelPartition(fmi3Instance c, fmi3ValueReference clockRe
     (void)clockReference;
     (void)activationTime;
     return fmi3_layer_refuse(c, "fmi3ActivateModelPartition (Scheduled Execution)");
+}
+
+fmi3Status fmi3GetNumberOfEventIndicators(fmi3Instance c, size_t *nEventIndicators)
+{
+    FMI3_CHECK(c);
+    *nEventIndicators = 0;   /* neither FMU has events */
+    return fmi3OK;
 }
 
 /* ---- values: Float64 (both FMUs), other types the layer has ----------------------- */

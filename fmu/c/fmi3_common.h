@@ -21,6 +21,11 @@ int fmi3_token_matches(fmi3InstanceEnvironment env, fmi3LogMessageCallback log, 
 /* fmi3OK if nValues equals nvr (every variable is a scalar); otherwise log why and fmi3Error. */
 fmi3Status fmi3_check_scalar(fmi3Instance c, size_t nvr, size_t nValues, const char *function);
 
+/* Fill the optional outputs of fmi3DoStep for a step that ended at `time` (s) without an event, a request
+ * to terminate or an early return (neither FMU has events). */
+void fmi3_step_done(fmi3Float64 time, fmi3Boolean *eventHandlingNeeded, fmi3Boolean *terminateSimulation,
+                    fmi3Boolean *earlyReturn, fmi3Float64 *lastSuccessfulTime);
+
 /* Defines `name`, a getter (constness empty) or setter (constness const) of a type the FMU has no
  * variables of: an empty request succeeds, any other is refused with `why` after the function name. */
 #define FMI3_NO_SUCH_TYPE(name, ctype, constness, why)                                                   \

@@ -9,9 +9,7 @@
  * Every function of the standard header is defined; those the FMU does not support log why and
  * return fmi3Error.
  */
-#include <stdio.h>
 #include <stdlib.h>
-#include <string.h>
 
 #include "fmi3Functions.h"
 #include "fmi3_common.h"
@@ -253,13 +251,6 @@ fmi3Status fmi3GetNominalsOfContinuousStates(fmi3Instance c, fmi3Float64 x[], si
     return fmi3_layer_refuse(c, "fmi3GetNominalsOfContinuousStates");
 }
 
-fmi3Status fmi3GetNumberOfEventIndicators(fmi3Instance c, size_t *nEventIndicators)
-{
-    CHECK(c);
-    *nEventIndicators = 0;
-    return fmi3OK;
-}
-
 fmi3Status fmi3GetNumberOfContinuousStates(fmi3Instance c, size_t *nContinuousStates)
 {
     CHECK(c);
@@ -295,10 +286,7 @@ fmi3Status fmi3DoStep(fmi3Instance c, fmi3Float64 currentCommunicationPoint, fmi
     (void)noSetFMUStatePriorToCurrentPoint;
     CHECK(c);
     status = ctrl_do_step(C(c), currentCommunicationPoint, communicationStepSize);
-    if (eventHandlingNeeded) *eventHandlingNeeded = fmi3False;
-    if (terminateSimulation) *terminateSimulation = fmi3False;
-    if (earlyReturn) *earlyReturn = fmi3False;
-    if (lastSuccessfulTime) *lastSuccessfulTime = ctrl_time(C(c));
+    fmi3_step_done(ctrl_time(C(c)), eventHandlingNeeded, terminateSimulation, earlyReturn, lastSuccessfulTime);
     return (fmi3Status)status;
 }
 

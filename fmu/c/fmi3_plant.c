@@ -12,13 +12,12 @@
  * fmi3GetOutputDerivatives gives the first derivatives of the outputs
  * (maxOutputDerivativeOrder 1).
  */
-#include <stdio.h>
 #include <stdlib.h>
-#include <string.h>
 
 #include "fmi3Functions.h"
 #include "fmi3_common.h"
 #include "plant_instance.h"
+#include "plant_state.h"
 
 typedef struct {
     PlantInstance core;           /* first member: a PlantInstance* is a Fmi3Plant* */
@@ -27,15 +26,7 @@ typedef struct {
     fmi3IntermediateUpdateCallback intermediate;   /* NULL: inputs are held over a step */
 } Fmi3Plant;
 
-/* A saved FMU state: the model data and the mode it was in.  The same bytes are its serialized form,
- * so a deserialized state is checked field by field before use (plant_state_valid). */
-typedef struct {
-    char magic[8];
-    PlantData d;
-    int mode;             /* a PlantMode; stored as int so that any stored value can be range-checked */
-} SavedState;
-
-static const char STATE_MAGIC[8] = "dobkit3";
+const char PLANT_STATE_MAGIC[8] = "dobkit3";   /* the tag of this binary's saved states (plant_state.c) */
 
 static void emit3(PlantInstance *inst, int status, const char *category, const char *message)
 {
@@ -227,103 +218,42 @@ fmi3Status fmi3SetBoolean(fmi3Instance c, const fmi3ValueReference vr[], size_t 
 
 /* ---- FMU state ----------------------------------------------------------- */
 
-static int is_saved_state(const void *p)
-{
-    return p != NULL && memcmp(((const SavedState *)p)->magic, STATE_MAGIC, sizeof STATE_MAGIC) == 0;
-}
-
 fmi3Status fmi3GetFMUState(fmi3Instance c, fmi3FMUState *FMUState)
 {
-    SavedState *s;
     CHECK(c);
-    if (!FMUState) return fmi3Error;
-    /* a non-NULL *FMUState must be one of ours to be overwritten in place */
-    if (*FMUState && !is_saved_state(*FMUState)) {
-        plant_log(INST(c), ST_ERROR, "logStatusError",
-                  "fmi3GetFMUState: *FMUState is neither NULL nor a state of this FMU");
-        return fmi3Error;
-    }
-    s = *FMUState ? (SavedState *)*FMUState : (SavedState *)calloc(1, sizeof *s);
-    if (!s) return fmi3Error;
-    memcpy(s->magic, STATE_MAGIC, sizeof s->magic);
-    s->d = INST(c)->d;
-    s->mode = (int)INST(c)->mode;
-    *FMUState = s;
-    return fmi3OK;
+    return (fmi3Status)plant_state_save(INST(c), FMUState, "fmi3GetFMUState", "FMUState");
 }
 
 fmi3Status fmi3SetFMUState(fmi3Instance c, fmi3FMUState FMUState)
 {
-    const SavedState *s = (const SavedState *)FMUState;
     CHECK(c);
-    if (!is_saved_state(s)) {
-        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi3SetFMUState: not a state of this FMU");
-        return fmi3Error;
-    }
-    return (fmi3Status)plant_restore(INST(c), &s->d, s->mode, "fmi3SetFMUState");
+    return (fmi3Status)plant_state_load(INST(c), FMUState, "fmi3SetFMUState");
 }
 
 fmi3Status fmi3FreeFMUState(fmi3Instance c, fmi3FMUState *FMUState)
 {
     CHECK(c);
-    if (FMUState) {
-        free(*FMUState);
-        *FMUState = NULL;
-    }
+    plant_state_free(FMUState);
     return fmi3OK;
 }
 
 fmi3Status fmi3SerializedFMUStateSize(fmi3Instance c, fmi3FMUState FMUState, size_t *size)
 {
     CHECK(c);
-    if (!size || !is_saved_state(FMUState)) {
-        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi3SerializedFMUStateSize: not a state of this FMU");
-        return fmi3Error;
-    }
-    *size = sizeof(SavedState);
-    return fmi3OK;
+    return (fmi3Status)plant_state_size(INST(c), FMUState, size, "fmi3SerializedFMUStateSize");
 }
 
 fmi3Status fmi3SerializeFMUState(fmi3Instance c, fmi3FMUState FMUState, fmi3Byte serializedState[], size_t size)
 {
     CHECK(c);
-    if (!is_saved_state(FMUState)) {
-        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi3SerializeFMUState: not a state of this FMU");
-        return fmi3Error;
-    }
-    if (!serializedState || size != sizeof(SavedState)) {
-        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi3SerializeFMUState: buffer of %lu bytes, need %lu",
-                  (unsigned long)size, (unsigned long)sizeof(SavedState));
-        return fmi3Error;
-    }
-    memcpy(serializedState, FMUState, sizeof(SavedState));
-    return fmi3OK;
+    return (fmi3Status)plant_state_serialize(INST(c), FMUState, serializedState, size, "fmi3SerializeFMUState");
 }
 
-/* *FMUState is output only: always a new allocation (a caller's old value is neither read nor freed). */
 fmi3Status fmi3DeserializeFMUState(fmi3Instance c, const fmi3Byte serializedState[], size_t size,
                                    fmi3FMUState *FMUState)
 {
-    SavedState tmp, *s;
-    char msg[512];
     CHECK(c);
-    if (!FMUState) return fmi3Error;
-    if (!serializedState || size != sizeof(SavedState) ||
-        memcmp(serializedState, STATE_MAGIC, sizeof STATE_MAGIC) != 0) {
-        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi3DeserializeFMUState: not a serialized state of "
-                  "this FMU (%lu bytes)", (unsigned long)size);
-        return fmi3Error;
-    }
-    memcpy(&tmp, serializedState, sizeof tmp);   /* the byte buffer may be unaligned */
-    if (!plant_state_valid(INST(c), &tmp.d, tmp.mode, msg, sizeof msg)) {
-        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi3DeserializeFMUState: invalid FMU state: %s", msg);
-        return fmi3Error;
-    }
-    s = (SavedState *)calloc(1, sizeof *s);
-    if (!s) return fmi3Error;
-    *s = tmp;
-    *FMUState = s;
-    return fmi3OK;
+    return (fmi3Status)plant_state_deserialize(INST(c), serializedState, size, FMUState, "fmi3DeserializeFMUState");
 }
 
 /* ---- partial derivatives, configuration, clocks: not provided ----------- */
@@ -424,13 +354,6 @@ fmi3Status fmi3GetNominalsOfContinuousStates(fmi3Instance c, fmi3Float64 nominal
     return (fmi3Status)plant_get_nominals(INST(c), nominals, nContinuousStates);
 }
 
-fmi3Status fmi3GetNumberOfEventIndicators(fmi3Instance c, size_t *nEventIndicators)
-{
-    CHECK(c);
-    *nEventIndicators = 0;
-    return fmi3OK;
-}
-
 fmi3Status fmi3GetNumberOfContinuousStates(fmi3Instance c, size_t *nContinuousStates)
 {
     CHECK(c);
@@ -470,10 +393,7 @@ fmi3Status fmi3DoStep(fmi3Instance c, fmi3Float64 currentCommunicationPoint, fmi
     CHECK(c);
     if (!INST(c)->cosim) return fmi3_layer_refuse(c, "fmi3DoStep on a Model Exchange instance");
     status = (fmi3Status)plant_do_step(INST(c), currentCommunicationPoint, communicationStepSize);
-    if (eventHandlingNeeded) *eventHandlingNeeded = fmi3False;
-    if (terminateSimulation) *terminateSimulation = fmi3False;
-    if (earlyReturn) *earlyReturn = fmi3False;
-    if (lastSuccessfulTime) *lastSuccessfulTime = INST(c)->d.time;
+    fmi3_step_done(INST(c)->d.time, eventHandlingNeeded, terminateSimulation, earlyReturn, lastSuccessfulTime);
     return status;
 }
 
