@@ -23,8 +23,10 @@ couple to a plant:
 The C of a tick is generated from the sampled-controller kernels through the
 trace the compiled engine uses (:mod:`fmu.controller_tick`); the FMI layer
 (``fmu/c/fmi2_controller.c``, ``fmi3_controller.c`` over one instance core,
-``controller_core.c``) and the matrix exponential of the ``zoh``
-update (``fmu/c/controller_expm.c``) are fixed C.
+``controller_core.c``, with the entry points it shares with the plant FMU in
+``fmi2_common.c`` / ``fmi3_common.c``, see :func:`fmu.build.shared_layer_files`)
+and the matrix exponential of the ``zoh`` update (``fmu/c/controller_expm.c``)
+are fixed C.
 
 The reference is a table, one row ``[q_ref; dq_ref; ddq_ref]`` per tick from
 ``t = 0`` to the scenario's ``simulation.t_final``, computed by the

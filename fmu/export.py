@@ -8,7 +8,9 @@ as start values, compiles it with the system C compiler and zips
 * ``modelDescription.xml`` (FMI 2.0 or 3.0, Model Exchange and Co-Simulation),
 * ``binaries/<platform>/dobkit_plant.so`` (``linux64`` for FMI 2,
   ``x86_64-linux`` for FMI 3),
-* ``sources/``: every C file and header needed to rebuild the binary, the
+* ``sources/``: every C file and header needed to rebuild the binary (the
+  model, the FMI layer and the entry points it shares with the controller FMU,
+  :func:`fmu.build.shared_layer_files`), the
   standard FMI headers (with their BSD notice), ``BUILD.txt`` with the compile
   command and, for FMI 3, ``buildDescription.xml``;
 * for an arm other than the paper's, ``resources/dobkit_arm.json``: its joints
