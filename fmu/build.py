@@ -18,7 +18,7 @@ from pathlib import Path
 
 from .errors import FMUBuildError
 
-__all__ = ["instantiation_token", "rebuild_command",
+__all__ = ["instantiation_token", "rebuild_command", "shared_layer_files",
            "find_compiler", "fmi_header_dir", "compile_shared_library", "platform_folder", "FMI_HEADERS",
            "COMPILE_FLAGS"]
 
@@ -33,6 +33,21 @@ COMPILE_FLAGS = ("-shared", "-fPIC", "-O2", "-std=c99", "-ffp-contract=off", "-D
                  "-fvisibility=hidden", "-Wall", "-Wextra")
 
 _CANDIDATES = ("cc", "gcc", "clang")
+
+# C files under fmu/c shared by the plant and the controller FMU layers of each FMI version: (sources, headers).
+_SHARED_LAYER_FILES = {
+    2: (("fmi_log.c", "fmi2_common.c"), ("fmi_log.h", "fmi2_common.h")),
+    3: (("fmi3_common.c",), ("fmi3_common.h",)),
+}
+
+
+def shared_layer_files(fmi_version: int) -> tuple[list[str], list[str]]:
+    """The C sources and headers (names under ``fmu/c``) that the plant and the controller FMU of
+    ``fmi_version`` (2 or 3) both compile: the FMI entry points and log helpers they have in common."""
+    if fmi_version not in _SHARED_LAYER_FILES:
+        raise ValueError(f"fmi_version {fmi_version!r} is not supported; use 2 or 3")
+    sources, headers = _SHARED_LAYER_FILES[fmi_version]
+    return list(sources), list(headers)
 
 
 def instantiation_token(kind: str, fmi_version: int, texts: list[str]) -> str:

@@ -23,8 +23,10 @@ couple to a plant:
 The C of a tick is generated from the sampled-controller kernels through the
 trace the compiled engine uses (:mod:`fmu.controller_tick`); the FMI layer
 (``fmu/c/fmi2_controller.c``, ``fmi3_controller.c`` over one instance core,
-``controller_core.c``) and the matrix exponential of the ``zoh``
-update (``fmu/c/controller_expm.c``) are fixed C.
+``controller_core.c``, with the entry points it shares with the plant FMU in
+``fmi2_common.c`` / ``fmi3_common.c``, see :func:`fmu.build.shared_layer_files`)
+and the matrix exponential of the ``zoh`` update (``fmu/c/controller_expm.c``)
+are fixed C.
 
 The reference is a table, one row ``[q_ref; dq_ref; ddq_ref]`` per tick from
 ``t = 0`` to the scenario's ``simulation.t_final``, computed by the
@@ -41,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .build import instantiation_token, rebuild_command
+from .build import instantiation_token, rebuild_command, shared_layer_files
 from .controller_tick import TickCode, trace_tick
 from .controller_variables import controller_description_xml, controller_variables
 from .modeldescription import build_description_xml
@@ -201,9 +203,10 @@ def export_controller(path, scenario, fmi_version: int = 2, cc: str | None = Non
     theta = code.theta
     variables = controller_variables(s.robot.joints.kinds, theta[code.gains["kp"]], theta[code.gains["kd"]],
                                      theta[code.gains["Y"]], code.y_full, period, (ticks - 1) * period)
-    fixed = [f"fmi{fmi_version}_controller.c"] + list(_FIXED_SOURCES)
+    shared_sources, shared_headers = shared_layer_files(fmi_version)
+    fixed = [f"fmi{fmi_version}_controller.c"] + list(_FIXED_SOURCES) + shared_sources
     sources = fixed + list(_GENERATED_SOURCES)
-    texts = {name: _read_c(name) for name in fixed + list(_HEADERS)}
+    texts = {name: _read_c(name) for name in fixed + list(_HEADERS) + shared_headers}
     texts["controller_tick.c"] = code.source
     texts["controller_reference.c"] = ("/* controller_reference.c: the reference [q_ref; dq_ref; ddq_ref] at each "
                                        f"tick of {period!r} s; written by fmu.controller_export. */\n"

@@ -8,7 +8,9 @@ as start values, compiles it with the system C compiler and zips
 * ``modelDescription.xml`` (FMI 2.0 or 3.0, Model Exchange and Co-Simulation),
 * ``binaries/<platform>/dobkit_plant.so`` (``linux64`` for FMI 2,
   ``x86_64-linux`` for FMI 3),
-* ``sources/``: every C file and header needed to rebuild the binary, the
+* ``sources/``: every C file and header needed to rebuild the binary (the
+  model, the FMI layer and the entry points it shares with the controller FMU,
+  :func:`fmu.build.shared_layer_files`), the
   standard FMI headers (with their BSD notice), ``BUILD.txt`` with the compile
   command and, for FMI 3, ``buildDescription.xml``;
 * for an arm other than the paper's, ``resources/dobkit_arm.json``: its joints
@@ -48,7 +50,7 @@ from blocks.disturbances import DisturbanceSpec
 from blocks.parameters import RobotParameters
 
 from .arm_record import ARM_RECORD, arm_record
-from .build import instantiation_token, platform_folder, rebuild_command
+from .build import instantiation_token, platform_folder, rebuild_command, shared_layer_files
 from .end_stops import end_stops as arm_end_stops
 from .generated import GENERATED_HEADER, arm_disturbance, plant_c
 from .modeldescription import build_description_xml, model_description_xml
@@ -59,14 +61,14 @@ from .variables import config_header, plant_variables
 __all__ = ["export_plant", "MODEL_IDENTIFIER", "plant_source_files"]
 
 MODEL_IDENTIFIER = "dobkit_plant"
-_MODEL_SOURCES = ("plant_model.c", "plant_instance.c")
-_MODEL_HEADERS = ("plant_model.h", "plant_instance.h")
+_MODEL_SOURCES = ("plant_model.c", "plant_instance.c", "plant_state.c")
+_MODEL_HEADERS = ("plant_model.h", "plant_instance.h", "plant_state.h")
 _TOKEN_PLACEHOLDER = "{00000000-0000-0000-0000-000000000000}"
 
 
 def plant_source_files(fmi_version: int) -> list[str]:
     """Names of the C files compiled for an FMI version (all under ``fmu/c``)."""
-    return list(_MODEL_SOURCES) + [f"fmi{fmi_version}_plant.c"]
+    return list(_MODEL_SOURCES) + [f"fmi{fmi_version}_plant.c"] + shared_layer_files(fmi_version)[0]
 
 
 def _read_c(name: str) -> str:
@@ -199,7 +201,8 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
     stops = arm_end_stops(params, q0) if end_stops else []
     variables = plant_variables(params, disturbance, substeps, q0=q0, dq0=dq0, stops=stops)
     sources = plant_source_files(fmi_version)
-    c_texts = {name: _read_c(name) for name in list(_MODEL_HEADERS) + sources}
+    headers = list(_MODEL_HEADERS) + shared_layer_files(fmi_version)[1]
+    c_texts = {name: _read_c(name) for name in headers + sources}
     reals = [v for v in variables if v.c_name is not None]
     generated = plant_c(params, disturbance, [v.name for v in reals], {v.name: v.start for v in reals})
     c_texts[GENERATED_HEADER] = generated.text

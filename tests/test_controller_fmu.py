@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import csv
 import json
+import zipfile
 
 import numpy as np
 import pytest
@@ -151,6 +152,27 @@ def test_fmpy_validates_the_fmu_and_its_variables_are_as_declared(made, key, ver
             assert (v.causality, v.variability, float(v.start)) == ("parameter", "tunable", value)
     assert float(by["sample_period"].start) == 1e-3
     assert float(by["reference_end"].start) == pytest.approx(_T_FINAL, abs=1e-12)
+
+
+@pytest.mark.parametrize("key, version", [("euler", 2), ("euler-fmi3", 3)], ids=["FMI 2", "FMI 3"])
+def test_the_shipped_sources_with_the_shared_fmi_layer_rebuild_the_whole_api(made, key, version, tmp_path):
+    import ctypes
+    import re
+    from pathlib import Path
+
+    import fmpy
+    from test_fmu_export import rebuild_from_sources
+
+    path = made["controllers"][key]
+    with zipfile.ZipFile(path) as zf:
+        names = set(zf.namelist())
+    assert {f"sources/fmi{version}_controller.c", f"sources/fmi{version}_common.c",
+            f"sources/fmi{version}_common.h"} <= names
+    header = (Path(fmpy.__file__).parent / "c-code" / f"fmi{version}Functions.h").read_text()
+    declared = re.findall(rf"FMI{version}_Export\s+\w+TYPE\s+(\w+);", header)
+    assert len(declared) == (44 if version == 2 else 75)
+    dll = ctypes.CDLL(str(rebuild_from_sources(path, tmp_path)))
+    assert [name for name in declared if not hasattr(dll, name)] == []
 
 
 @pytest.mark.slow

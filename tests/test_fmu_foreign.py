@@ -188,9 +188,9 @@ def test_nan_outputs_fail_the_check_and_its_json_is_strict(tmp_path, capsys):
     code = sources["plant_instance.c"].decode()
     assert "*value = buf[vr - VR_TAU_DIS];" in code
     sources["plant_instance.c"] = code.replace("*value = buf[vr - VR_TAU_DIS];", "*value = NAN;")
+    from fmu.export import plant_source_files
     from fmu.package import package_fmu
-    bad = package_fmu(tmp_path / "nan.fmu", xml, sources, ["plant_model.c", "plant_instance.c", "fmi2_plant.c"],
-                      "dobkit_plant", 2)
+    bad = package_fmu(tmp_path / "nan.fmu", xml, sources, plant_source_files(2), "dobkit_plant", 2)
     report = check_fmu(bad, t_final=0.2)
     assert report["plant_comparison"]["model_exchange"]["passed"] is False
     assert np.isnan(report["plant_comparison"]["model_exchange"]["max_abs_error"])

@@ -12,11 +12,10 @@
  * Every function of the standard header is defined; Model Exchange and FMU-state functions log why
  * they are refused and return fmi2Error.
  */
-#include <stdio.h>
 #include <stdlib.h>
-#include <string.h>
 
 #include "fmi2Functions.h"
+#include "fmi2_common.h"
 #include "controller_core.h"
 
 typedef struct {
@@ -27,76 +26,51 @@ typedef struct {
 static void emit2(void *ctx, int status, const char *category, const char *message)
 {
     Fmi2Ctrl *c = (Fmi2Ctrl *)ctx;
-    char safe[2100];
-    size_t i, j = 0;
-    if (!c->cb.logger) return;
-    for (i = 0; message[i] && j + 2 < sizeof safe; i++) {   /* the logger reads a printf format: escape '%' */
-        if (message[i] == '%') safe[j++] = '%';
-        safe[j++] = message[i];
-    }
-    safe[j] = '\0';
-    c->cb.logger(c->cb.componentEnvironment, c->core.name, (fmi2Status)status, category, safe);
+    fmi2_log(&c->cb, c->core.name, (fmi2Status)status, category, message);
 }
 
 #define C(p) ((CtrlCore *)(p))
-#define CHECK(p) do { if (!(p)) return fmi2Error; } while (0)
+#define CHECK(p) FMI2_CHECK(p)
 
-static fmi2Status refuse(fmi2Component c, const char *function)
+fmi2Status fmi2_layer_refuse(fmi2Component c, const char *function)
 {
     if (c) ctrl_log(C(c), CTRL_ERROR, "%s is not supported by this FMU (Co-Simulation only, no FMU state)",
                     function);
     return fmi2Error;
 }
 
-/* ---- common functions --------------------------------------------------------- */
+/* ---- hooks of the shared entry points (fmi2_common.c) ---------------------------------- */
 
-const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
+void fmi2_layer_set_logging(fmi2Component c, int on) { C(c)->logging_on = on; }
 
-const char *fmi2GetVersion(void) { return fmi2Version; }
-
-fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t nCategories,
-                               const fmi2String categories[])
+int fmi2_layer_get_real(fmi2Component c, fmi2ValueReference vr, fmi2Real *value)
 {
-    (void)nCategories;
-    (void)categories;
-    CHECK(c);
-    C(c)->logging_on = loggingOn ? 1 : 0;
-    return fmi2OK;
+    return ctrl_get_real(C(c), vr, value) != CTRL_OK;
 }
 
-/* Log through the importer's callbacks before an instance exists. */
-static void early_log(const fmi2CallbackFunctions *functions, fmi2String instanceName, const char *message)
+int fmi2_layer_set_real(fmi2Component c, fmi2ValueReference vr, fmi2Real value)
 {
-    char safe[2100];
-    size_t i, j = 0;
-    if (!functions->logger) return;
-    for (i = 0; message[i] && j + 2 < sizeof safe; i++) {
-        if (message[i] == '%') safe[j++] = '%';
-        safe[j++] = message[i];
-    }
-    safe[j] = '\0';
-    functions->logger(functions->componentEnvironment, instanceName, fmi2Error, "logStatusError", safe);
+    return ctrl_set_real(C(c), vr, value) != CTRL_OK;
 }
+
+int fmi2_layer_failed(fmi2Component c) { return C(c)->mode == CTRL_FAILED; }
+
+fmi2Real fmi2_layer_time(fmi2Component c) { return ctrl_time(C(c)); }
+
+/* ---- life cycle --------------------------------------------------------------------- */
 
 fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
                               fmi2String fmuResourceLocation, const fmi2CallbackFunctions *functions,
                               fmi2Boolean visible, fmi2Boolean loggingOn)
 {
     Fmi2Ctrl *c;
-    char message[1024];
     (void)fmuResourceLocation;
     (void)visible;
     if (!functions) return NULL;
-    if (!fmuGUID || strcmp(fmuGUID, CTRL_TOKEN) != 0) {
-        snprintf(message, sizeof message, "GUID mismatch: the importer passed '%s' but this binary was built for "
-                 "'%s'; the model description and the binary are not of one export",
-                 fmuGUID ? fmuGUID : "(null)", CTRL_TOKEN);
-        early_log(functions, instanceName, message);
-        return NULL;
-    }
+    if (!fmi2_token_matches(functions, instanceName, fmuGUID, CTRL_TOKEN)) return NULL;
     if (fmuType != fmi2CoSimulation) {
-        early_log(functions, instanceName, "this controller FMU is Co-Simulation only (a sampled program has no "
-                  "continuous states); Model Exchange was requested");
+        fmi2_log(functions, instanceName, fmi2Error, "logStatusError", "this controller FMU is Co-Simulation "
+                 "only (a sampled program has no continuous states); Model Exchange was requested");
         return NULL;
     }
     c = (Fmi2Ctrl *)calloc(1, sizeof *c);
@@ -105,8 +79,6 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     ctrl_init(&c->core, instanceName, loggingOn ? 1 : 0, emit2, c);
     return c;
 }
-
-void fmi2FreeInstance(fmi2Component c) { free(c); }
 
 fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fmi2Real tolerance,
                                fmi2Real startTime, fmi2Boolean stopTimeDefined, fmi2Real stopTime)
@@ -146,24 +118,6 @@ fmi2Status fmi2Reset(fmi2Component c)
 }
 
 /* ---- values --------------------------------------------------------------------- */
-
-fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[])
-{
-    size_t i;
-    CHECK(c);
-    for (i = 0; i < nvr; i++)
-        if (ctrl_get_real(C(c), vr[i], &value[i]) != CTRL_OK) return fmi2Error;
-    return fmi2OK;
-}
-
-fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[])
-{
-    size_t i;
-    CHECK(c);
-    for (i = 0; i < nvr; i++)
-        if (ctrl_set_real(C(c), vr[i], value[i]) != CTRL_OK) return fmi2Error;
-    return fmi2OK;
-}
 
 static fmi2Status no_values(fmi2Component c, size_t nvr, const char *function)
 {
@@ -217,15 +171,30 @@ fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
 
 /* ---- FMU state and derivatives: not offered ------------------------------------------ */
 
-fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *s) { (void)s; return refuse(c, "fmi2GetFMUstate"); }
-fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate s) { (void)s; return refuse(c, "fmi2SetFMUstate"); }
-fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *s) { (void)s; return refuse(c, "fmi2FreeFMUstate"); }
+fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *s)
+{
+    (void)s;
+    return fmi2_layer_refuse(c, "fmi2GetFMUstate");
+}
+
+fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate s)
+{
+    (void)s;
+    return fmi2_layer_refuse(c, "fmi2SetFMUstate");
+}
+
+fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *s)
+{
+    (void)s;
+    return fmi2_layer_refuse(c, "fmi2FreeFMUstate");
+}
+
 
 fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate s, size_t *size)
 {
     (void)s;
     (void)size;
-    return refuse(c, "fmi2SerializedFMUstateSize");
+    return fmi2_layer_refuse(c, "fmi2SerializedFMUstateSize");
 }
 
 fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate s, fmi2Byte b[], size_t size)
@@ -233,7 +202,7 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate s, fmi2Byte b[], 
     (void)s;
     (void)b;
     (void)size;
-    return refuse(c, "fmi2SerializeFMUstate");
+    return fmi2_layer_refuse(c, "fmi2SerializeFMUstate");
 }
 
 fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte b[], size_t size, fmi2FMUstate *s)
@@ -241,77 +210,64 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte b[], size_t s
     (void)b;
     (void)size;
     (void)s;
-    return refuse(c, "fmi2DeSerializeFMUstate");
-}
-
-fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference u[], size_t nu,
-                                        const fmi2ValueReference k[], size_t nk, const fmi2Real dk[],
-                                        fmi2Real du[])
-{
-    (void)u;
-    (void)nu;
-    (void)k;
-    (void)nk;
-    (void)dk;
-    (void)du;
-    return refuse(c, "fmi2GetDirectionalDerivative");
+    return fmi2_layer_refuse(c, "fmi2DeSerializeFMUstate");
 }
 
 /* ---- Model Exchange: not offered ------------------------------------------------------ */
 
-fmi2Status fmi2EnterEventMode(fmi2Component c) { return refuse(c, "fmi2EnterEventMode"); }
+fmi2Status fmi2EnterEventMode(fmi2Component c) { return fmi2_layer_refuse(c, "fmi2EnterEventMode"); }
 
 fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *e)
 {
     (void)e;
-    return refuse(c, "fmi2NewDiscreteStates");
+    return fmi2_layer_refuse(c, "fmi2NewDiscreteStates");
 }
 
-fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) { return refuse(c, "fmi2EnterContinuousTimeMode"); }
+fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) { return fmi2_layer_refuse(c, "fmi2EnterContinuousTimeMode"); }
 
 fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean n, fmi2Boolean *e, fmi2Boolean *t)
 {
     (void)n;
     (void)e;
     (void)t;
-    return refuse(c, "fmi2CompletedIntegratorStep");
+    return fmi2_layer_refuse(c, "fmi2CompletedIntegratorStep");
 }
 
-fmi2Status fmi2SetTime(fmi2Component c, fmi2Real t) { (void)t; return refuse(c, "fmi2SetTime"); }
+fmi2Status fmi2SetTime(fmi2Component c, fmi2Real t) { (void)t; return fmi2_layer_refuse(c, "fmi2SetTime"); }
 
 fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t nx)
 {
     (void)x;
     (void)nx;
-    return refuse(c, "fmi2SetContinuousStates");
+    return fmi2_layer_refuse(c, "fmi2SetContinuousStates");
 }
 
 fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real d[], size_t nx)
 {
     (void)d;
     (void)nx;
-    return refuse(c, "fmi2GetDerivatives");
+    return fmi2_layer_refuse(c, "fmi2GetDerivatives");
 }
 
 fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real e[], size_t ni)
 {
     (void)e;
     (void)ni;
-    return refuse(c, "fmi2GetEventIndicators");
+    return fmi2_layer_refuse(c, "fmi2GetEventIndicators");
 }
 
 fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t nx)
 {
     (void)x;
     (void)nx;
-    return refuse(c, "fmi2GetContinuousStates");
+    return fmi2_layer_refuse(c, "fmi2GetContinuousStates");
 }
 
 fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x[], size_t nx)
 {
     (void)x;
     (void)nx;
-    return refuse(c, "fmi2GetNominalsOfContinuousStates");
+    return fmi2_layer_refuse(c, "fmi2GetNominalsOfContinuousStates");
 }
 
 /* ---- Co-Simulation ---------------------------------------------------------------------- */
@@ -323,7 +279,7 @@ fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference
     (void)order;
     (void)value;
     CHECK(c);
-    return nvr == 0 ? fmi2OK : refuse(c, "fmi2SetRealInputDerivatives (the controller samples its inputs)");
+    return nvr == 0 ? fmi2OK : fmi2_layer_refuse(c, "fmi2SetRealInputDerivatives (the controller samples its inputs)");
 }
 
 fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
@@ -333,7 +289,8 @@ fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReferenc
     (void)order;
     (void)value;
     CHECK(c);
-    return nvr == 0 ? fmi2OK : refuse(c, "fmi2GetRealOutputDerivatives (the outputs are held between samples)");
+    if (nvr == 0) return fmi2OK;
+    return fmi2_layer_refuse(c, "fmi2GetRealOutputDerivatives (the outputs are held between samples)");
 }
 
 fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2Real communicationStepSize,
@@ -342,50 +299,4 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2R
     (void)noSetFMUStatePriorToCurrentPoint;
     CHECK(c);
     return (fmi2Status)ctrl_do_step(C(c), currentCommunicationPoint, communicationStepSize);
-}
-
-fmi2Status fmi2CancelStep(fmi2Component c) { return refuse(c, "fmi2CancelStep (doStep never returns pending)"); }
-
-fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value)
-{
-    CHECK(c);
-    if (s == fmi2DoStepStatus) {
-        *value = C(c)->mode == CTRL_FAILED ? fmi2Error : fmi2OK;
-        return fmi2OK;
-    }
-    return refuse(c, "fmi2GetStatus for this status kind");
-}
-
-fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value)
-{
-    CHECK(c);
-    if (s == fmi2LastSuccessfulTime) {
-        *value = ctrl_time(C(c));
-        return fmi2OK;
-    }
-    return refuse(c, "fmi2GetRealStatus for this status kind");
-}
-
-fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value)
-{
-    (void)s;
-    (void)value;
-    return refuse(c, "fmi2GetIntegerStatus");
-}
-
-fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value)
-{
-    CHECK(c);
-    if (s == fmi2Terminated) {
-        *value = fmi2False;
-        return fmi2OK;
-    }
-    return refuse(c, "fmi2GetBooleanStatus for this status kind");
-}
-
-fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value)
-{
-    (void)s;
-    (void)value;
-    return refuse(c, "fmi2GetStringStatus");
 }

@@ -12,81 +12,53 @@
  */
 #include <stdio.h>
 #include <stdlib.h>
-#include <string.h>
 
 #include "fmi2Functions.h"
+#include "fmi2_common.h"
 #include "plant_instance.h"
+#include "plant_state.h"
 
 typedef struct {
     PlantInstance core;           /* first member: a PlantInstance* is a Fmi2Plant* */
     fmi2CallbackFunctions cb;
 } Fmi2Plant;
 
-/* A saved FMU state: the model data and the mode it was in.  The same bytes are its serialized form,
- * so a deserialized state is checked field by field before use (plant_state_valid). */
-typedef struct {
-    char magic[8];
-    PlantData d;
-    int mode;             /* a PlantMode; stored as int so that any stored value can be range-checked */
-} SavedState;
-
-static const char STATE_MAGIC[8] = "dobkit2";
+const char PLANT_STATE_MAGIC[8] = "dobkit2";   /* the tag of this binary's saved states (plant_state.c) */
 
 static void emit2(PlantInstance *inst, int status, const char *category, const char *message)
 {
     Fmi2Plant *c = (Fmi2Plant *)inst;
-    char safe[2048];
-    size_t i, j = 0;
-
-    if (!c->cb.logger) return;
-    /* the logger treats the message as a printf format: escape '%' */
-    for (i = 0; message[i] && j + 2 < sizeof safe; i++) {
-        if (message[i] == '%') safe[j++] = '%';
-        safe[j++] = message[i];
-    }
-    safe[j] = '\0';
-    c->cb.logger(c->cb.componentEnvironment, inst->name, (fmi2Status)status, category, safe);
+    fmi2_log(&c->cb, inst->name, (fmi2Status)status, category, message);
 }
 
 #define INST(c) ((PlantInstance *)(c))
-#define CHECK(c) do { if (!(c)) return fmi2Error; } while (0)
+#define CHECK(c) FMI2_CHECK(c)
 
-static fmi2Status unsupported(fmi2Component c, const char *function)
+fmi2Status fmi2_layer_refuse(fmi2Component c, const char *function)
 {
     if (c) plant_log(INST(c), ST_ERROR, "logStatusError", "%s is not supported by this FMU", function);
     return fmi2Error;
 }
 
-/* ---- common functions ---------------------------------------------------- */
+/* ---- hooks of the shared entry points (fmi2_common.c) ----------------- */
 
-const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
+void fmi2_layer_set_logging(fmi2Component c, int on) { INST(c)->logging_on = on; }
 
-const char *fmi2GetVersion(void) { return fmi2Version; }
-
-fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t nCategories,
-                               const fmi2String categories[])
+int fmi2_layer_get_real(fmi2Component c, fmi2ValueReference vr, fmi2Real *value)
 {
-    (void)nCategories;
-    (void)categories;
-    CHECK(c);
-    INST(c)->logging_on = loggingOn ? 1 : 0;
-    return fmi2OK;
+    return plant_get_real(INST(c), vr, value) != ST_OK;
 }
 
-/* Log through the importer's callbacks before an instance exists. */
-static void early_log(const fmi2CallbackFunctions *functions, fmi2String instanceName, const char *message)
+int fmi2_layer_set_real(fmi2Component c, fmi2ValueReference vr, fmi2Real value)
 {
-    char safe[2048];
-    size_t i, j = 0;
-
-    if (!functions->logger) return;
-    for (i = 0; message[i] && j + 2 < sizeof safe; i++) {
-        if (message[i] == '%') safe[j++] = '%';
-        safe[j++] = message[i];
-    }
-    safe[j] = '\0';
-    functions->logger(functions->componentEnvironment, instanceName, fmi2Error, "logStatusError", safe);
+    return plant_set_real(INST(c), vr, value) != ST_OK;
 }
+
+int fmi2_layer_failed(fmi2Component c) { return INST(c)->mode == MODE_FAILED; }
+
+fmi2Real fmi2_layer_time(fmi2Component c) { return INST(c)->d.time; }
+
+/* ---- life cycle ---------------------------------------------------------- */
 
 fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
                               fmi2String fmuResourceLocation, const fmi2CallbackFunctions *functions,
@@ -98,17 +70,10 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     (void)visible;
 
     if (!functions) return NULL;
-    if (!fmuGUID || strcmp(fmuGUID, PLANT_TOKEN) != 0) {
-        snprintf(message, sizeof message,
-                 "GUID mismatch: the importer passed '%s' (from modelDescription.xml) but this binary was built "
-                 "for '%s'; the model description and the binary do not belong to the same export",
-                 fmuGUID ? fmuGUID : "(null)", PLANT_TOKEN);
-        early_log(functions, instanceName, message);
-        return NULL;
-    }
+    if (!fmi2_token_matches(functions, instanceName, fmuGUID, PLANT_TOKEN)) return NULL;
     if (fmuType != fmi2ModelExchange && fmuType != fmi2CoSimulation) {
         snprintf(message, sizeof message, "unknown fmuType %d", (int)fmuType);
-        early_log(functions, instanceName, message);
+        fmi2_log(functions, instanceName, fmi2Error, "logStatusError", message);
         return NULL;
     }
     c = (Fmi2Plant *)calloc(1, sizeof *c);
@@ -116,11 +81,6 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     c->cb = *functions;
     plant_instance_init(&c->core, instanceName, fmuType == fmi2CoSimulation, loggingOn ? 1 : 0, emit2, c);
     return c;
-}
-
-void fmi2FreeInstance(fmi2Component c)
-{
-    free(c);
 }
 
 fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fmi2Real tolerance,
@@ -166,15 +126,6 @@ fmi2Status fmi2Reset(fmi2Component c)
 
 /* ---- getting and setting values ----------------------------------------- */
 
-fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[])
-{
-    size_t i;
-    CHECK(c);
-    for (i = 0; i < nvr; i++)
-        if (plant_get_real(INST(c), vr[i], &value[i]) != ST_OK) return fmi2Error;
-    return fmi2OK;
-}
-
 fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Integer value[])
 {
     size_t i;
@@ -201,16 +152,7 @@ fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
     (void)vr;
     (void)value;
     CHECK(c);
-    return nvr == 0 ? fmi2OK : unsupported(c, "fmi2GetString (the model has no string variables)");
-}
-
-fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[])
-{
-    size_t i;
-    CHECK(c);
-    for (i = 0; i < nvr; i++)
-        if (plant_set_real(INST(c), vr[i], value[i]) != ST_OK) return fmi2Error;
-    return fmi2OK;
+    return nvr == 0 ? fmi2OK : fmi2_layer_refuse(c, "fmi2GetString (the model has no string variables)");
 }
 
 fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Integer value[])
@@ -236,121 +178,47 @@ fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
     (void)vr;
     (void)value;
     CHECK(c);
-    return nvr == 0 ? fmi2OK : unsupported(c, "fmi2SetString (the model has no string variables)");
+    return nvr == 0 ? fmi2OK : fmi2_layer_refuse(c, "fmi2SetString (the model has no string variables)");
 }
 
 /* ---- FMU state ----------------------------------------------------------- */
 
-static int is_saved_state(const void *p)
-{
-    return p != NULL && memcmp(((const SavedState *)p)->magic, STATE_MAGIC, sizeof STATE_MAGIC) == 0;
-}
-
 fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate)
 {
-    SavedState *s;
     CHECK(c);
-    if (!FMUstate) return fmi2Error;
-    /* a non-NULL *FMUstate must be one of ours to be overwritten in place */
-    if (*FMUstate && !is_saved_state(*FMUstate)) {
-        plant_log(INST(c), ST_ERROR, "logStatusError",
-                  "fmi2GetFMUstate: *FMUstate is neither NULL nor a state of this FMU");
-        return fmi2Error;
-    }
-    s = *FMUstate ? (SavedState *)*FMUstate : (SavedState *)calloc(1, sizeof *s);
-    if (!s) return fmi2Error;
-    memcpy(s->magic, STATE_MAGIC, sizeof s->magic);
-    s->d = INST(c)->d;
-    s->mode = (int)INST(c)->mode;
-    *FMUstate = s;
-    return fmi2OK;
+    return (fmi2Status)plant_state_save(INST(c), FMUstate, "fmi2GetFMUstate", "FMUstate");
 }
 
 fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate)
 {
-    const SavedState *s = (const SavedState *)FMUstate;
     CHECK(c);
-    if (!is_saved_state(s)) {
-        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi2SetFMUstate: not a state of this FMU");
-        return fmi2Error;
-    }
-    return (fmi2Status)plant_restore(INST(c), &s->d, s->mode, "fmi2SetFMUstate");
+    return (fmi2Status)plant_state_load(INST(c), FMUstate, "fmi2SetFMUstate");
 }
 
 fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate)
 {
     CHECK(c);
-    if (FMUstate) {
-        free(*FMUstate);
-        *FMUstate = NULL;
-    }
+    plant_state_free(FMUstate);
     return fmi2OK;
 }
 
 fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate FMUstate, size_t *size)
 {
     CHECK(c);
-    if (!size || !is_saved_state(FMUstate)) {
-        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi2SerializedFMUstateSize: not a state of this FMU");
-        return fmi2Error;
-    }
-    *size = sizeof(SavedState);
-    return fmi2OK;
+    return (fmi2Status)plant_state_size(INST(c), FMUstate, size, "fmi2SerializedFMUstateSize");
 }
 
 fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byte serializedState[], size_t size)
 {
     CHECK(c);
-    if (!is_saved_state(FMUstate)) {
-        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi2SerializeFMUstate: not a state of this FMU");
-        return fmi2Error;
-    }
-    if (!serializedState || size != sizeof(SavedState)) {
-        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi2SerializeFMUstate: buffer of %lu bytes, need %lu",
-                  (unsigned long)size, (unsigned long)sizeof(SavedState));
-        return fmi2Error;
-    }
-    memcpy(serializedState, FMUstate, sizeof(SavedState));
-    return fmi2OK;
+    return (fmi2Status)plant_state_serialize(INST(c), FMUstate, serializedState, size, "fmi2SerializeFMUstate");
 }
 
-/* *FMUstate is output only: always a new allocation (a caller's old value is neither read nor freed). */
 fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedState[], size_t size,
                                    fmi2FMUstate *FMUstate)
 {
-    SavedState tmp, *s;
-    char msg[512];
     CHECK(c);
-    if (!FMUstate) return fmi2Error;
-    if (!serializedState || size != sizeof(SavedState) ||
-        memcmp(serializedState, STATE_MAGIC, sizeof STATE_MAGIC) != 0) {
-        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi2DeSerializeFMUstate: not a serialized state of "
-                  "this FMU (%lu bytes)", (unsigned long)size);
-        return fmi2Error;
-    }
-    memcpy(&tmp, serializedState, sizeof tmp);   /* the byte buffer may be unaligned */
-    if (!plant_state_valid(INST(c), &tmp.d, tmp.mode, msg, sizeof msg)) {
-        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi2DeSerializeFMUstate: invalid FMU state: %s", msg);
-        return fmi2Error;
-    }
-    s = (SavedState *)calloc(1, sizeof *s);
-    if (!s) return fmi2Error;
-    *s = tmp;
-    *FMUstate = s;
-    return fmi2OK;
-}
-
-fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference vUnknown_ref[],
-                                        size_t nUnknown, const fmi2ValueReference vKnown_ref[], size_t nKnown,
-                                        const fmi2Real dvKnown[], fmi2Real dvUnknown[])
-{
-    (void)vUnknown_ref;
-    (void)nUnknown;
-    (void)vKnown_ref;
-    (void)nKnown;
-    (void)dvKnown;
-    (void)dvUnknown;
-    return unsupported(c, "fmi2GetDirectionalDerivative");
+    return (fmi2Status)plant_state_deserialize(INST(c), serializedState, size, FMUstate, "fmi2DeSerializeFMUstate");
 }
 
 /* ---- Model Exchange ------------------------------------------------------ */
@@ -455,7 +323,7 @@ fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference
 {
     size_t i;
     CHECK(c);
-    if (!INST(c)->cosim) return unsupported(c, "fmi2SetRealInputDerivatives on a Model Exchange instance");
+    if (!INST(c)->cosim) return fmi2_layer_refuse(c, "fmi2SetRealInputDerivatives on a Model Exchange instance");
     for (i = 0; i < nvr; i++)
         if (plant_set_input_derivative(INST(c), vr[i], order[i], value[i]) != ST_OK) return fmi2Error;
     return fmi2OK;
@@ -466,7 +334,7 @@ fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReferenc
 {
     size_t i;
     CHECK(c);
-    if (!INST(c)->cosim) return unsupported(c, "fmi2GetRealOutputDerivatives on a Model Exchange instance");
+    if (!INST(c)->cosim) return fmi2_layer_refuse(c, "fmi2GetRealOutputDerivatives on a Model Exchange instance");
     for (i = 0; i < nvr; i++)
         if (plant_get_output_derivative(INST(c), vr[i], order[i], &value[i]) != ST_OK) return fmi2Error;
     return fmi2OK;
@@ -482,53 +350,4 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2R
         return fmi2Error;
     }
     return (fmi2Status)plant_do_step(INST(c), currentCommunicationPoint, communicationStepSize);
-}
-
-fmi2Status fmi2CancelStep(fmi2Component c)
-{
-    return unsupported(c, "fmi2CancelStep (doStep never returns fmi2Pending)");
-}
-
-fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value)
-{
-    CHECK(c);
-    if (s == fmi2DoStepStatus) {
-        *value = INST(c)->mode == MODE_FAILED ? fmi2Error : fmi2OK;
-        return fmi2OK;
-    }
-    return unsupported(c, "fmi2GetStatus for this status kind");
-}
-
-fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value)
-{
-    CHECK(c);
-    if (s == fmi2LastSuccessfulTime) {
-        *value = INST(c)->d.time;
-        return fmi2OK;
-    }
-    return unsupported(c, "fmi2GetRealStatus for this status kind");
-}
-
-fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value)
-{
-    (void)s;
-    (void)value;
-    return unsupported(c, "fmi2GetIntegerStatus");
-}
-
-fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value)
-{
-    CHECK(c);
-    if (s == fmi2Terminated) {
-        *value = fmi2False;
-        return fmi2OK;
-    }
-    return unsupported(c, "fmi2GetBooleanStatus for this status kind");
-}
-
-fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value)
-{
-    (void)s;
-    (void)value;
-    return unsupported(c, "fmi2GetStringStatus");
 }

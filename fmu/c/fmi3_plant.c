@@ -12,12 +12,12 @@
  * fmi3GetOutputDerivatives gives the first derivatives of the outputs
  * (maxOutputDerivativeOrder 1).
  */
-#include <stdio.h>
 #include <stdlib.h>
-#include <string.h>
 
 #include "fmi3Functions.h"
+#include "fmi3_common.h"
 #include "plant_instance.h"
+#include "plant_state.h"
 
 typedef struct {
     PlantInstance core;           /* first member: a PlantInstance* is a Fmi3Plant* */
@@ -26,15 +26,7 @@ typedef struct {
     fmi3IntermediateUpdateCallback intermediate;   /* NULL: inputs are held over a step */
 } Fmi3Plant;
 
-/* A saved FMU state: the model data and the mode it was in.  The same bytes are its serialized form,
- * so a deserialized state is checked field by field before use (plant_state_valid). */
-typedef struct {
-    char magic[8];
-    PlantData d;
-    int mode;             /* a PlantMode; stored as int so that any stored value can be range-checked */
-} SavedState;
-
-static const char STATE_MAGIC[8] = "dobkit3";
+const char PLANT_STATE_MAGIC[8] = "dobkit3";   /* the tag of this binary's saved states (plant_state.c) */
 
 static void emit3(PlantInstance *inst, int status, const char *category, const char *message)
 {
@@ -43,7 +35,7 @@ static void emit3(PlantInstance *inst, int status, const char *category, const c
 }
 
 #define INST(c) ((PlantInstance *)(c))
-#define CHECK(c) do { if (!(c)) return fmi3Error; } while (0)
+#define CHECK(c) FMI3_CHECK(c)
 
 /* During a step, before each Runge-Kutta stage at a new time: the importer may set the inputs tau[i]
  * (declared intermediateUpdate) for that time. */
@@ -55,41 +47,39 @@ static void ask_for_inputs(void *ctx, double t)
     c->intermediate(c->env, t, fmi3True, fmi3False, fmi3False, fmi3False, &early, &early_time);
 }
 
-static fmi3Status unsupported(fmi3Instance c, const char *function)
+fmi3Status fmi3_layer_refuse(fmi3Instance c, const char *function)
 {
     if (c) plant_log(INST(c), ST_ERROR, "logStatusError", "%s is not supported by this FMU", function);
     return fmi3Error;
 }
 
-/* ---- common functions ---------------------------------------------------- */
+/* ---- hooks of the shared entry points (fmi3_common.c) ----------------- */
 
-const char *fmi3GetVersion(void) { return fmi3Version; }
-
-fmi3Status fmi3SetDebugLogging(fmi3Instance c, fmi3Boolean loggingOn, size_t nCategories,
-                               const fmi3String categories[])
+void fmi3_layer_error(fmi3Instance c, const char *message)
 {
-    (void)nCategories;
-    (void)categories;
-    CHECK(c);
-    INST(c)->logging_on = loggingOn ? 1 : 0;
-    return fmi3OK;
+    plant_log(INST(c), ST_ERROR, "logStatusError", "%s", message);
 }
+
+void fmi3_layer_set_logging(fmi3Instance c, int on) { INST(c)->logging_on = on; }
+
+int fmi3_layer_get_real(fmi3Instance c, fmi3ValueReference vr, fmi3Float64 *value)
+{
+    return plant_get_real(INST(c), vr, value) != ST_OK;
+}
+
+int fmi3_layer_set_real(fmi3Instance c, fmi3ValueReference vr, fmi3Float64 value)
+{
+    return plant_set_real(INST(c), vr, value) != ST_OK;
+}
+
+/* ---- life cycle ---------------------------------------------------------- */
 
 static fmi3Instance instantiate(fmi3String instanceName, fmi3String instantiationToken, fmi3Boolean loggingOn,
                                 fmi3InstanceEnvironment env, fmi3LogMessageCallback log, int cosim,
                                 fmi3IntermediateUpdateCallback intermediate)
 {
     Fmi3Plant *c;
-    char message[1024];
-
-    if (!instantiationToken || strcmp(instantiationToken, PLANT_TOKEN) != 0) {
-        snprintf(message, sizeof message,
-                 "instantiationToken mismatch: the importer passed '%s' (from modelDescription.xml) but this "
-                 "binary was built for '%s'; the model description and the binary do not belong to the same "
-                 "export", instantiationToken ? instantiationToken : "(null)", PLANT_TOKEN);
-        if (log) log(env, fmi3Error, "logStatusError", message);
-        return NULL;
-    }
+    if (!fmi3_token_matches(env, log, instantiationToken, PLANT_TOKEN)) return NULL;
     c = (Fmi3Plant *)calloc(1, sizeof *c);
     if (!c) return NULL;
     c->env = env;
@@ -127,33 +117,6 @@ fmi3Instance fmi3InstantiateCoSimulation(fmi3String instanceName, fmi3String ins
     (void)nRequiredIntermediateVariables;
     return instantiate(instanceName, instantiationToken, loggingOn, instanceEnvironment, logMessage, 1,
                        intermediateUpdate);
-}
-
-fmi3Instance fmi3InstantiateScheduledExecution(fmi3String instanceName, fmi3String instantiationToken,
-                                               fmi3String resourcePath, fmi3Boolean visible,
-                                               fmi3Boolean loggingOn, fmi3InstanceEnvironment instanceEnvironment,
-                                               fmi3LogMessageCallback logMessage,
-                                               fmi3ClockUpdateCallback clockUpdate,
-                                               fmi3LockPreemptionCallback lockPreemption,
-                                               fmi3UnlockPreemptionCallback unlockPreemption)
-{
-    (void)instanceName;
-    (void)instantiationToken;
-    (void)resourcePath;
-    (void)visible;
-    (void)loggingOn;
-    (void)clockUpdate;
-    (void)lockPreemption;
-    (void)unlockPreemption;
-    if (logMessage)
-        logMessage(instanceEnvironment, fmi3Error, "logStatusError",
-                   "Scheduled Execution is not supported by this FMU");
-    return NULL;
-}
-
-void fmi3FreeInstance(fmi3Instance c)
-{
-    free(c);
 }
 
 fmi3Status fmi3EnterInitializationMode(fmi3Instance c, fmi3Boolean toleranceDefined, fmi3Float64 tolerance,
@@ -201,43 +164,13 @@ fmi3Status fmi3Reset(fmi3Instance c)
 
 /* ---- getting and setting values ----------------------------------------- */
 
-static fmi3Status check_scalar(fmi3Instance c, size_t nvr, size_t nValues, const char *function)
-{
-    if (nvr == nValues) return fmi3OK;
-    plant_log(INST(c), ST_ERROR, "logStatusError", "%s: all variables are scalars, so nValues (%lu) must equal "
-              "nValueReferences (%lu)", function, (unsigned long)nValues, (unsigned long)nvr);
-    return fmi3Error;
-}
-
-fmi3Status fmi3GetFloat64(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, fmi3Float64 values[],
-                          size_t nValues)
-{
-    size_t i;
-    CHECK(c);
-    if (check_scalar(c, nvr, nValues, "fmi3GetFloat64") != fmi3OK) return fmi3Error;
-    for (i = 0; i < nvr; i++)
-        if (plant_get_real(INST(c), vr[i], &values[i]) != ST_OK) return fmi3Error;
-    return fmi3OK;
-}
-
-fmi3Status fmi3SetFloat64(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, const fmi3Float64 values[],
-                          size_t nValues)
-{
-    size_t i;
-    CHECK(c);
-    if (check_scalar(c, nvr, nValues, "fmi3SetFloat64") != fmi3OK) return fmi3Error;
-    for (i = 0; i < nvr; i++)
-        if (plant_set_real(INST(c), vr[i], values[i]) != ST_OK) return fmi3Error;
-    return fmi3OK;
-}
-
 fmi3Status fmi3GetInt32(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, fmi3Int32 values[],
                         size_t nValues)
 {
     size_t i;
     int v;
     CHECK(c);
-    if (check_scalar(c, nvr, nValues, "fmi3GetInt32") != fmi3OK) return fmi3Error;
+    if (fmi3_check_scalar(c, nvr, nValues, "fmi3GetInt32") != fmi3OK) return fmi3Error;
     for (i = 0; i < nvr; i++) {
         if (plant_get_integer(INST(c), vr[i], &v) != ST_OK) return fmi3Error;
         values[i] = (fmi3Int32)v;
@@ -250,7 +183,7 @@ fmi3Status fmi3SetInt32(fmi3Instance c, const fmi3ValueReference vr[], size_t nv
 {
     size_t i;
     CHECK(c);
-    if (check_scalar(c, nvr, nValues, "fmi3SetInt32") != fmi3OK) return fmi3Error;
+    if (fmi3_check_scalar(c, nvr, nValues, "fmi3SetInt32") != fmi3OK) return fmi3Error;
     for (i = 0; i < nvr; i++)
         if (plant_set_integer(INST(c), vr[i], (int)values[i]) != ST_OK) return fmi3Error;
     return fmi3OK;
@@ -262,7 +195,7 @@ fmi3Status fmi3GetBoolean(fmi3Instance c, const fmi3ValueReference vr[], size_t 
     size_t i;
     int v;
     CHECK(c);
-    if (check_scalar(c, nvr, nValues, "fmi3GetBoolean") != fmi3OK) return fmi3Error;
+    if (fmi3_check_scalar(c, nvr, nValues, "fmi3GetBoolean") != fmi3OK) return fmi3Error;
     for (i = 0; i < nvr; i++) {
         if (plant_get_boolean(INST(c), vr[i], &v) != ST_OK) return fmi3Error;
         values[i] = v ? fmi3True : fmi3False;
@@ -275,293 +208,55 @@ fmi3Status fmi3SetBoolean(fmi3Instance c, const fmi3ValueReference vr[], size_t 
 {
     size_t i;
     CHECK(c);
-    if (check_scalar(c, nvr, nValues, "fmi3SetBoolean") != fmi3OK) return fmi3Error;
+    if (fmi3_check_scalar(c, nvr, nValues, "fmi3SetBoolean") != fmi3OK) return fmi3Error;
     for (i = 0; i < nvr; i++)
         if (plant_set_boolean(INST(c), vr[i], values[i] ? 1 : 0) != ST_OK) return fmi3Error;
     return fmi3OK;
 }
 
-/* The model has no variables of these types: an empty request succeeds, any other is an error. */
-#define NO_SUCH_TYPE(name, ctype, constness)                                                          \
-    fmi3Status name(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, constness ctype values[], \
-                    size_t nValues)                                                                    \
-    {                                                                                                  \
-        (void)vr;                                                                                      \
-        (void)values;                                                                                  \
-        (void)nValues;                                                                                 \
-        CHECK(c);                                                                                      \
-        return nvr == 0 ? fmi3OK : unsupported(c, #name " (the model has no variables of this type)"); \
-    }
-
-#define NOCONST
-NO_SUCH_TYPE(fmi3GetFloat32, fmi3Float32, NOCONST)
-NO_SUCH_TYPE(fmi3GetInt8, fmi3Int8, NOCONST)
-NO_SUCH_TYPE(fmi3GetUInt8, fmi3UInt8, NOCONST)
-NO_SUCH_TYPE(fmi3GetInt16, fmi3Int16, NOCONST)
-NO_SUCH_TYPE(fmi3GetUInt16, fmi3UInt16, NOCONST)
-NO_SUCH_TYPE(fmi3GetUInt32, fmi3UInt32, NOCONST)
-NO_SUCH_TYPE(fmi3GetInt64, fmi3Int64, NOCONST)
-NO_SUCH_TYPE(fmi3GetUInt64, fmi3UInt64, NOCONST)
-NO_SUCH_TYPE(fmi3GetString, fmi3String, NOCONST)
-NO_SUCH_TYPE(fmi3SetFloat32, fmi3Float32, const)
-NO_SUCH_TYPE(fmi3SetInt8, fmi3Int8, const)
-NO_SUCH_TYPE(fmi3SetUInt8, fmi3UInt8, const)
-NO_SUCH_TYPE(fmi3SetInt16, fmi3Int16, const)
-NO_SUCH_TYPE(fmi3SetUInt16, fmi3UInt16, const)
-NO_SUCH_TYPE(fmi3SetUInt32, fmi3UInt32, const)
-NO_SUCH_TYPE(fmi3SetInt64, fmi3Int64, const)
-NO_SUCH_TYPE(fmi3SetUInt64, fmi3UInt64, const)
-NO_SUCH_TYPE(fmi3SetString, fmi3String, const)
-
-fmi3Status fmi3GetBinary(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, size_t valueSizes[],
-                         fmi3Binary values[], size_t nValues)
-{
-    (void)vr;
-    (void)valueSizes;
-    (void)values;
-    (void)nValues;
-    CHECK(c);
-    return nvr == 0 ? fmi3OK : unsupported(c, "fmi3GetBinary (the model has no binary variables)");
-}
-
-fmi3Status fmi3SetBinary(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, const size_t valueSizes[],
-                         const fmi3Binary values[], size_t nValues)
-{
-    (void)vr;
-    (void)valueSizes;
-    (void)values;
-    (void)nValues;
-    CHECK(c);
-    return nvr == 0 ? fmi3OK : unsupported(c, "fmi3SetBinary (the model has no binary variables)");
-}
-
-fmi3Status fmi3GetClock(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, fmi3Clock values[])
-{
-    (void)vr;
-    (void)values;
-    CHECK(c);
-    return nvr == 0 ? fmi3OK : unsupported(c, "fmi3GetClock (the model has no clocks)");
-}
-
-fmi3Status fmi3SetClock(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, const fmi3Clock values[])
-{
-    (void)vr;
-    (void)values;
-    CHECK(c);
-    return nvr == 0 ? fmi3OK : unsupported(c, "fmi3SetClock (the model has no clocks)");
-}
-
 /* ---- variable dependencies (given in modelDescription.xml only) --------- */
-
-fmi3Status fmi3GetNumberOfVariableDependencies(fmi3Instance c, fmi3ValueReference valueReference,
-                                               size_t *nDependencies)
-{
-    (void)valueReference;
-    (void)nDependencies;
-    return unsupported(c, "fmi3GetNumberOfVariableDependencies (see ModelStructure in modelDescription.xml)");
-}
-
-fmi3Status fmi3GetVariableDependencies(fmi3Instance c, fmi3ValueReference dependent,
-                                       size_t elementIndicesOfDependent[], fmi3ValueReference independents[],
-                                       size_t elementIndicesOfIndependents[],
-                                       fmi3DependencyKind dependencyKinds[], size_t nDependencies)
-{
-    (void)dependent;
-    (void)elementIndicesOfDependent;
-    (void)independents;
-    (void)elementIndicesOfIndependents;
-    (void)dependencyKinds;
-    (void)nDependencies;
-    return unsupported(c, "fmi3GetVariableDependencies (see ModelStructure in modelDescription.xml)");
-}
 
 /* ---- FMU state ----------------------------------------------------------- */
 
-static int is_saved_state(const void *p)
-{
-    return p != NULL && memcmp(((const SavedState *)p)->magic, STATE_MAGIC, sizeof STATE_MAGIC) == 0;
-}
-
 fmi3Status fmi3GetFMUState(fmi3Instance c, fmi3FMUState *FMUState)
 {
-    SavedState *s;
     CHECK(c);
-    if (!FMUState) return fmi3Error;
-    /* a non-NULL *FMUState must be one of ours to be overwritten in place */
-    if (*FMUState && !is_saved_state(*FMUState)) {
-        plant_log(INST(c), ST_ERROR, "logStatusError",
-                  "fmi3GetFMUState: *FMUState is neither NULL nor a state of this FMU");
-        return fmi3Error;
-    }
-    s = *FMUState ? (SavedState *)*FMUState : (SavedState *)calloc(1, sizeof *s);
-    if (!s) return fmi3Error;
-    memcpy(s->magic, STATE_MAGIC, sizeof s->magic);
-    s->d = INST(c)->d;
-    s->mode = (int)INST(c)->mode;
-    *FMUState = s;
-    return fmi3OK;
+    return (fmi3Status)plant_state_save(INST(c), FMUState, "fmi3GetFMUState", "FMUState");
 }
 
 fmi3Status fmi3SetFMUState(fmi3Instance c, fmi3FMUState FMUState)
 {
-    const SavedState *s = (const SavedState *)FMUState;
     CHECK(c);
-    if (!is_saved_state(s)) {
-        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi3SetFMUState: not a state of this FMU");
-        return fmi3Error;
-    }
-    return (fmi3Status)plant_restore(INST(c), &s->d, s->mode, "fmi3SetFMUState");
+    return (fmi3Status)plant_state_load(INST(c), FMUState, "fmi3SetFMUState");
 }
 
 fmi3Status fmi3FreeFMUState(fmi3Instance c, fmi3FMUState *FMUState)
 {
     CHECK(c);
-    if (FMUState) {
-        free(*FMUState);
-        *FMUState = NULL;
-    }
+    plant_state_free(FMUState);
     return fmi3OK;
 }
 
 fmi3Status fmi3SerializedFMUStateSize(fmi3Instance c, fmi3FMUState FMUState, size_t *size)
 {
     CHECK(c);
-    if (!size || !is_saved_state(FMUState)) {
-        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi3SerializedFMUStateSize: not a state of this FMU");
-        return fmi3Error;
-    }
-    *size = sizeof(SavedState);
-    return fmi3OK;
+    return (fmi3Status)plant_state_size(INST(c), FMUState, size, "fmi3SerializedFMUStateSize");
 }
 
 fmi3Status fmi3SerializeFMUState(fmi3Instance c, fmi3FMUState FMUState, fmi3Byte serializedState[], size_t size)
 {
     CHECK(c);
-    if (!is_saved_state(FMUState)) {
-        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi3SerializeFMUState: not a state of this FMU");
-        return fmi3Error;
-    }
-    if (!serializedState || size != sizeof(SavedState)) {
-        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi3SerializeFMUState: buffer of %lu bytes, need %lu",
-                  (unsigned long)size, (unsigned long)sizeof(SavedState));
-        return fmi3Error;
-    }
-    memcpy(serializedState, FMUState, sizeof(SavedState));
-    return fmi3OK;
+    return (fmi3Status)plant_state_serialize(INST(c), FMUState, serializedState, size, "fmi3SerializeFMUState");
 }
 
-/* *FMUState is output only: always a new allocation (a caller's old value is neither read nor freed). */
 fmi3Status fmi3DeserializeFMUState(fmi3Instance c, const fmi3Byte serializedState[], size_t size,
                                    fmi3FMUState *FMUState)
 {
-    SavedState tmp, *s;
-    char msg[512];
     CHECK(c);
-    if (!FMUState) return fmi3Error;
-    if (!serializedState || size != sizeof(SavedState) ||
-        memcmp(serializedState, STATE_MAGIC, sizeof STATE_MAGIC) != 0) {
-        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi3DeserializeFMUState: not a serialized state of "
-                  "this FMU (%lu bytes)", (unsigned long)size);
-        return fmi3Error;
-    }
-    memcpy(&tmp, serializedState, sizeof tmp);   /* the byte buffer may be unaligned */
-    if (!plant_state_valid(INST(c), &tmp.d, tmp.mode, msg, sizeof msg)) {
-        plant_log(INST(c), ST_ERROR, "logStatusError", "fmi3DeserializeFMUState: invalid FMU state: %s", msg);
-        return fmi3Error;
-    }
-    s = (SavedState *)calloc(1, sizeof *s);
-    if (!s) return fmi3Error;
-    *s = tmp;
-    *FMUState = s;
-    return fmi3OK;
+    return (fmi3Status)plant_state_deserialize(INST(c), serializedState, size, FMUState, "fmi3DeserializeFMUState");
 }
 
 /* ---- partial derivatives, configuration, clocks: not provided ----------- */
-
-fmi3Status fmi3GetDirectionalDerivative(fmi3Instance c, const fmi3ValueReference unknowns[], size_t nUnknowns,
-                                        const fmi3ValueReference knowns[], size_t nKnowns,
-                                        const fmi3Float64 seed[], size_t nSeed, fmi3Float64 sensitivity[],
-                                        size_t nSensitivity)
-{
-    (void)unknowns; (void)nUnknowns; (void)knowns; (void)nKnowns;
-    (void)seed; (void)nSeed; (void)sensitivity; (void)nSensitivity;
-    return unsupported(c, "fmi3GetDirectionalDerivative");
-}
-
-fmi3Status fmi3GetAdjointDerivative(fmi3Instance c, const fmi3ValueReference unknowns[], size_t nUnknowns,
-                                    const fmi3ValueReference knowns[], size_t nKnowns, const fmi3Float64 seed[],
-                                    size_t nSeed, fmi3Float64 sensitivity[], size_t nSensitivity)
-{
-    (void)unknowns; (void)nUnknowns; (void)knowns; (void)nKnowns;
-    (void)seed; (void)nSeed; (void)sensitivity; (void)nSensitivity;
-    return unsupported(c, "fmi3GetAdjointDerivative");
-}
-
-fmi3Status fmi3EnterConfigurationMode(fmi3Instance c)
-{
-    return unsupported(c, "fmi3EnterConfigurationMode (the model has no structural parameters)");
-}
-
-fmi3Status fmi3ExitConfigurationMode(fmi3Instance c)
-{
-    return unsupported(c, "fmi3ExitConfigurationMode (the model has no structural parameters)");
-}
-
-fmi3Status fmi3GetIntervalDecimal(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr,
-                                  fmi3Float64 intervals[], fmi3IntervalQualifier qualifiers[])
-{
-    (void)vr; (void)nvr; (void)intervals; (void)qualifiers;
-    return unsupported(c, "fmi3GetIntervalDecimal (the model has no clocks)");
-}
-
-fmi3Status fmi3GetIntervalFraction(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr,
-                                   fmi3UInt64 counters[], fmi3UInt64 resolutions[],
-                                   fmi3IntervalQualifier qualifiers[])
-{
-    (void)vr; (void)nvr; (void)counters; (void)resolutions; (void)qualifiers;
-    return unsupported(c, "fmi3GetIntervalFraction (the model has no clocks)");
-}
-
-fmi3Status fmi3GetShiftDecimal(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, fmi3Float64 shifts[])
-{
-    (void)vr; (void)nvr; (void)shifts;
-    return unsupported(c, "fmi3GetShiftDecimal (the model has no clocks)");
-}
-
-fmi3Status fmi3GetShiftFraction(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr,
-                                fmi3UInt64 counters[], fmi3UInt64 resolutions[])
-{
-    (void)vr; (void)nvr; (void)counters; (void)resolutions;
-    return unsupported(c, "fmi3GetShiftFraction (the model has no clocks)");
-}
-
-fmi3Status fmi3SetIntervalDecimal(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr,
-                                  const fmi3Float64 intervals[])
-{
-    (void)vr; (void)nvr; (void)intervals;
-    return unsupported(c, "fmi3SetIntervalDecimal (the model has no clocks)");
-}
-
-fmi3Status fmi3SetIntervalFraction(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr,
-                                   const fmi3UInt64 counters[], const fmi3UInt64 resolutions[])
-{
-    (void)vr; (void)nvr; (void)counters; (void)resolutions;
-    return unsupported(c, "fmi3SetIntervalFraction (the model has no clocks)");
-}
-
-fmi3Status fmi3SetShiftDecimal(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr,
-                               const fmi3Float64 shifts[])
-{
-    (void)vr; (void)nvr; (void)shifts;
-    return unsupported(c, "fmi3SetShiftDecimal (the model has no clocks)");
-}
-
-fmi3Status fmi3SetShiftFraction(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr,
-                                const fmi3UInt64 counters[], const fmi3UInt64 resolutions[])
-{
-    (void)vr; (void)nvr; (void)counters; (void)resolutions;
-    return unsupported(c, "fmi3SetShiftFraction (the model has no clocks)");
-}
 
 fmi3Status fmi3EvaluateDiscreteStates(fmi3Instance c)
 {
@@ -659,13 +354,6 @@ fmi3Status fmi3GetNominalsOfContinuousStates(fmi3Instance c, fmi3Float64 nominal
     return (fmi3Status)plant_get_nominals(INST(c), nominals, nContinuousStates);
 }
 
-fmi3Status fmi3GetNumberOfEventIndicators(fmi3Instance c, size_t *nEventIndicators)
-{
-    CHECK(c);
-    *nEventIndicators = 0;
-    return fmi3OK;
-}
-
 fmi3Status fmi3GetNumberOfContinuousStates(fmi3Instance c, size_t *nContinuousStates)
 {
     CHECK(c);
@@ -678,7 +366,7 @@ fmi3Status fmi3GetNumberOfContinuousStates(fmi3Instance c, size_t *nContinuousSt
 fmi3Status fmi3EnterStepMode(fmi3Instance c)
 {
     CHECK(c);
-    if (!INST(c)->cosim) return unsupported(c, "fmi3EnterStepMode on a Model Exchange instance");
+    if (!INST(c)->cosim) return fmi3_layer_refuse(c, "fmi3EnterStepMode on a Model Exchange instance");
     if (plant_allowed(INST(c), "fmi3EnterStepMode", IN(MODE_EVENT) | IN(MODE_STEP)) != ST_OK) return fmi3Error;
     INST(c)->mode = MODE_STEP;
     return fmi3OK;
@@ -689,8 +377,8 @@ fmi3Status fmi3GetOutputDerivatives(fmi3Instance c, const fmi3ValueReference vr[
 {
     size_t i;
     CHECK(c);
-    if (!INST(c)->cosim) return unsupported(c, "fmi3GetOutputDerivatives on a Model Exchange instance");
-    if (check_scalar(c, nvr, nValues, "fmi3GetOutputDerivatives") != fmi3OK) return fmi3Error;
+    if (!INST(c)->cosim) return fmi3_layer_refuse(c, "fmi3GetOutputDerivatives on a Model Exchange instance");
+    if (fmi3_check_scalar(c, nvr, nValues, "fmi3GetOutputDerivatives") != fmi3OK) return fmi3Error;
     for (i = 0; i < nvr; i++)
         if (plant_get_output_derivative(INST(c), vr[i], (int)orders[i], &values[i]) != ST_OK) return fmi3Error;
     return fmi3OK;
@@ -703,19 +391,9 @@ fmi3Status fmi3DoStep(fmi3Instance c, fmi3Float64 currentCommunicationPoint, fmi
     fmi3Status status;
     (void)noSetFMUStatePriorToCurrentPoint;
     CHECK(c);
-    if (!INST(c)->cosim) return unsupported(c, "fmi3DoStep on a Model Exchange instance");
+    if (!INST(c)->cosim) return fmi3_layer_refuse(c, "fmi3DoStep on a Model Exchange instance");
     status = (fmi3Status)plant_do_step(INST(c), currentCommunicationPoint, communicationStepSize);
-    if (eventHandlingNeeded) *eventHandlingNeeded = fmi3False;
-    if (terminateSimulation) *terminateSimulation = fmi3False;
-    if (earlyReturn) *earlyReturn = fmi3False;
-    if (lastSuccessfulTime) *lastSuccessfulTime = INST(c)->d.time;
+    fmi3_step_done(INST(c)->d.time, eventHandlingNeeded, terminateSimulation, earlyReturn, lastSuccessfulTime);
     return status;
 }
 
-fmi3Status fmi3ActivateModelPartition(fmi3Instance c, fmi3ValueReference clockReference,
-                                      fmi3Float64 activationTime)
-{
-    (void)clockReference;
-    (void)activationTime;
-    return unsupported(c, "fmi3ActivateModelPartition (Scheduled Execution)");
-}
