@@ -190,3 +190,20 @@ def test_a_kernel_that_fills_a_float_array_is_refused_by_name():
     no C, and the message says which function and why."""
     with pytest.raises(CodegenError, match="update kernel cannot be traced into C: .*Python number"):
         system_c(_sampled_blocks()["observer_zoh"])
+
+
+def test_a_traced_result_of_the_wrong_length_or_with_an_unset_row_is_refused_by_both_back_ends():
+    """Both back ends read a kernel's traced rows through one function; it names what returned them."""
+    import numpy as np
+
+    from blocks.compiled.c_backend import CodegenError
+    from blocks.compiled.trace import TraceError, result_rows
+
+    assert result_rows(np.array([1.0, 2.0]), 2) == [1.0, 2.0]
+    assert result_rows(np.array([[1.0], [2.0], [3.0]]), None) == [1.0, 2.0, 3.0]
+    with pytest.raises(TraceError, match="a kernel returned 3 rows where 2 were expected"):
+        result_rows(np.zeros(3), 2)
+    unset = np.empty(2, dtype=object)
+    unset[0] = 1.0
+    with pytest.raises(CodegenError, match="the block's update left a row unset"):
+        result_rows(unset, 2, "the block's update", CodegenError)

@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .trace import Graph, Sym, TraceError, symbolic_params
+from .trace import Graph, Sym, TraceError, result_rows, symbolic_params
 
 __all__ = ["CodegenError", "KernelTrace", "CProgram", "C_ARGS", "C_PRELUDE", "C_FLAGS", "trace_block",
            "emit_c_function", "block_c", "system_c", "theta_names"]
@@ -132,18 +132,6 @@ def _leaves(graph: Graph, kind: str, n: int) -> np.ndarray:
     return out
 
 
-def _rows(value, n: int | None, what: str) -> list:
-    arr = np.asarray(value, dtype=object).ravel()
-    if n is not None and arr.size != n:
-        raise CodegenError(f"the block's {what} returned {arr.size} rows where {n} were expected")
-    out = []
-    for v in arr:
-        if v is None:
-            raise CodegenError(f"the block's {what} left a row unset")
-        out.append(v)
-    return out
-
-
 def theta_names(params, names=None) -> list[str]:
     """What each number :func:`~blocks.compiled.trace.symbolic_params` lifts from ``params`` is, in its order.
 
@@ -213,7 +201,7 @@ def trace_block(kernels, n_x: int, n_u: int, which=("update", "output"), param_n
             value = getattr(kernels, w)(t, x, u, *sym)
         except TraceError as err:
             raise CodegenError(f"the block's {w} kernel cannot be traced into C: {err}") from None
-        rows[w] = _rows(value, n_x if w == "update" else None, w)
+        rows[w] = result_rows(value, n_x if w == "update" else None, f"the block's {w}", CodegenError)
     return KernelTrace(graph=graph, rows=rows, theta=np.array(theta, dtype=float),
                        theta_names=theta_names(kernels.params, param_names))
 

@@ -68,7 +68,18 @@ from ..contract import contract_of
 from ..control_compat import subsystems
 from .cache import ModuleCache, cache_dir, guard_dispatcher
 from .jit import jit_kernel, kernel_sources, numba_or_none
-from .trace import Callee, Graph, Sym, TraceError, is_table, param_structure, param_tables, param_values, symbolic_params
+from .trace import (
+    Callee,
+    Graph,
+    Sym,
+    TraceError,
+    is_table,
+    param_structure,
+    param_tables,
+    param_values,
+    result_rows,
+    symbolic_params,
+)
 
 __all__ = ["CompiledUnavailable", "LoopProgram", "loop_program", "program_for", "cache_dir", "load_module"]
 
@@ -229,9 +240,9 @@ class _Builder:
             u = self._leaves("trial", range(_gather_size(step)))
             t = self.graph.leaf("t", 0)
             if k.output is not None:
-                _rows(k.output(t, x, u, *sym), step.y.stop - step.y.start)
+                result_rows(k.output(t, x, u, *sym), step.y.stop - step.y.start)
             if k.update is not None and step.x.stop > step.x.start:
-                _rows(k.update(t, x, u, *sym), step.x.stop - step.x.start)
+                result_rows(k.update(t, x, u, *sym), step.x.stop - step.x.start)
         except (TraceError, TypeError, AttributeError, IndexError, ValueError):
             del self.theta[start:]
             del self.ext[e0:]
@@ -264,7 +275,7 @@ class _Builder:
             u = np.empty(len(u_syms), dtype=object)
             for i, s in enumerate(u_syms):
                 u[i] = s
-            return _rows(fn(self.graph.leaf("t", 0), x, u, *self.sym_params[step.name]), n_rows)
+            return result_rows(fn(self.graph.leaf("t", 0), x, u, *self.sym_params[step.name]), n_rows)
         # a called kernel: inputs into the work buffer, the kernel, its rows read back
         name = f"K_{step.name}_{which}"
         self.kernel_names[name] = fn
@@ -287,19 +298,6 @@ def _gather_list(step) -> list:
 
 def _gather_size(step) -> int:
     return len(_gather_list(step))
-
-
-def _rows(value, n: int | None) -> list:
-    """A kernel's result as ``n`` expressions (numbers become constants); any count when ``n`` is None."""
-    arr = np.asarray(value, dtype=object).ravel()
-    if n is not None and arr.size != n:
-        raise TraceError(f"a kernel returned {arr.size} rows where {n} were expected")
-    out = []
-    for v in arr:
-        if v is None:
-            raise TraceError("a kernel left a row unset")
-        out.append(v)
-    return out
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -451,7 +449,7 @@ def _emit_row_groups(fn: _Function, b: _Builder, groups: tuple, by_signal: dict,
     """Each group's rows into ``rows``, guarded by its flag; the groups' row counts."""
     offset, sizes = 0, []
     for gi, group in enumerate(groups):
-        rows = _rows(group.rows(by_signal, aux, b.sym_params), None)
+        rows = result_rows(group.rows(by_signal, aux, b.sym_params), None)
         with fn.guarded(f"flags[{gi}] != 0"):
             for r, v in enumerate(rows):
                 fn.assign(f"rows[{offset + r}]", v)

@@ -29,8 +29,8 @@ import weakref
 
 import numpy as np
 
-__all__ = ["Sym", "SymTable", "TraceError", "Graph", "Callee", "Frozen", "symbolic_params", "param_structure", "param_values",
-           "param_tables", "is_table", "TABLE_SIZE"]
+__all__ = ["Sym", "SymTable", "TraceError", "Graph", "Callee", "Frozen", "result_rows", "symbolic_params",
+           "param_structure", "param_values", "param_tables", "is_table", "TABLE_SIZE"]
 
 #: A parameter array larger than this is a table (noise samples), not numbers to trace.
 TABLE_SIZE = 64
@@ -390,6 +390,22 @@ def _as_objects(a):
 # ----------------------------------------------------------------------------------------------------------
 # Parameters: numbers become symbols read from one flat vector; flags and shapes stay as they are
 # ----------------------------------------------------------------------------------------------------------
+def result_rows(value, n: int | None, what: str = "a kernel", error: type = TraceError) -> list:
+    """A traced result as a list of ``n`` expressions (any count when ``n`` is None), for either back end.
+
+    Raises ``error`` naming ``what`` when the count differs or a row was left unset (``None``).
+    """
+    arr = np.asarray(value, dtype=object).ravel()
+    if n is not None and arr.size != n:
+        raise error(f"{what} returned {arr.size} rows where {n} were expected")
+    out = []
+    for v in arr:
+        if v is None:
+            raise error(f"{what} left a row unset")
+        out.append(v)
+    return out
+
+
 def symbolic_params(graph: Graph, params, values: list, tables: list | None = None):
     """``params`` with every number replaced by a symbol ``theta[j]`` and its value appended to ``values``.
 
