@@ -116,7 +116,7 @@ def _time_line(spec, measured, corner_substeps: int, args) -> str:
     """``--check``'s time estimate: searches x evaluations x the measured cost of one (module
     :mod:`analysis.tune.evaluate`; the searches of :func:`analysis.tune.costs.search_count`)."""
     from analysis.tune.costs import search_count
-    from analysis.tune.evaluate import time_estimate
+    from analysis.tune.evaluate import time_bound, time_estimate
     searches = search_count(spec, getattr(args, "constraint_costs", False),
                             getattr(args, "compare_unconstrained", False))
     what = (f"{spec.max_evaluations} evaluations at most" if searches == 1 else
@@ -124,7 +124,8 @@ def _time_line(spec, measured, corner_substeps: int, args) -> str:
     where = (f"here, not on the Dask cluster at {args.scheduler}" if args.scheduler else
              f"with {args.workers or _cores()} worker thread(s)")
     steps = ("" if corner_substeps <= measured.substeps else
-             f"; gains near the high bounds need up to {corner_substeps} substeps and cost more")
+             f"; gains near the high bounds need up to {corner_substeps} substeps: at most about "
+             f"{_duration(time_bound(spec, measured, searches, corner_substeps))} if every candidate needed them")
     return (f"  time: one evaluation of the base gains took {measured.seconds:.3g} s ({measured.substeps} substep"
             f"{'s' if measured.substeps != 1 else ''}, {where}): about "
             f"{_duration(time_estimate(spec, measured, searches))} for {what} (candidates the linear constraints "

@@ -159,3 +159,17 @@ def test_the_sampled_margin_of_a_controller_binds_where_a_larger_observer_gain_w
     damping = costs["min_damping_ratio"]
     assert damping.cost == 0.0 and not damping.binds and damping.simulated == 0
     assert damping.margin == pytest.approx(36 / (2 * math.sqrt(180)) - 0.7, rel=1e-9)
+
+
+def test_the_time_bound_scales_the_estimate_by_the_high_bounds_substeps_and_never_falls_below_it():
+    """An evaluation's cost grows with its RK4 steps: the bound is the estimate times corner / measured substeps."""
+    from types import SimpleNamespace
+
+    from analysis.tune.evaluate import time_bound, time_estimate
+
+    spec = SimpleNamespace(max_evaluations=48)
+    measured = SimpleNamespace(seconds=0.5, substeps=2)
+    assert time_estimate(spec, measured, 3) == 3 * 48 * 0.5
+    assert time_bound(spec, measured, 3, 16) == 3 * 48 * 0.5 * 8        # gains at the high bounds: 8x the steps
+    assert time_bound(spec, measured, 3, 2) == time_estimate(spec, measured, 3)
+    assert time_bound(spec, measured, 3, 1) == time_estimate(spec, measured, 3)   # never below the estimate

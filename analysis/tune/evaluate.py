@@ -523,6 +523,14 @@ def time_estimate(spec: TuneSpec, measured: Evaluation, searches: int = 1) -> fl
     return int(searches) * spec.max_evaluations * float(measured.seconds)
 
 
+def time_bound(spec: TuneSpec, measured: Evaluation, searches: int, corner_substeps: int) -> float:
+    """The tuning's simulation time (s) if every evaluation needed ``corner_substeps`` RK4 steps per output
+    interval, as gains at the high bounds do: :func:`time_estimate` scaled by ``corner_substeps / substeps``
+    (an evaluation's cost grows with its steps), never below it."""
+    scale = max(1.0, int(corner_substeps) / max(1, int(measured.substeps)))
+    return time_estimate(spec, measured, searches) * scale
+
+
 def check_seconds(budget: Budget, started: float, what: str) -> None:
     """Raise :class:`~blocks.budget.BudgetError` when the wall-time budget has run out."""
     if budget.seconds is not None and time.perf_counter() - started > budget.seconds:
