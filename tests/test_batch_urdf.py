@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pickle
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,20 +21,8 @@ from blocks.scenario import ScenarioError  # noqa: E402
 #: Stated agreement of a member with its single run (rad, m): the single run's RK45 at rtol 1e-6 errs by less.
 MEMBER_ATOL = 1e-6
 
-#: A pitch joint, then a slide on an unaligned axis (the small arm of tests/test_urdf_loop.py).
-TWO_JOINTS = """<?xml version="1.0"?>
-<robot name="two">
-  <link name="base"/>
-  <joint name="pitch" type="revolute"><parent link="base"/><child link="arm"/><origin xyz="0 0 0.3" rpy="0 0 0"/>
-    <axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="10" velocity="2"/></joint>
-  <link name="arm"><inertial><origin xyz="0.1 0 0.02"/><mass value="1.2"/>
-    <inertia ixx="0.004" ixy="0" ixz="0" iyy="0.01" iyz="0" izz="0.009"/></inertial></link>
-  <joint name="slide" type="prismatic"><parent link="arm"/><child link="rod"/><origin xyz="0.2 0 0" rpy="0 0.3 0"/>
-    <axis xyz="0.8 0 -0.6"/><limit lower="-0.1" upper="0.2" effort="10" velocity="1"/></joint>
-  <link name="rod"><inertial><origin xyz="0 0 -0.05"/><mass value="0.3"/>
-    <inertia ixx="0.001" ixy="0" ixz="0" iyy="0.001" iyz="0" izz="0.0001"/></inertial></link>
-</robot>
-"""
+#: A pitch joint, then a slide on an unaligned axis (tests/small_arms/two_joints.urdf, also in tests/test_urdf_loop.py).
+TWO_JOINTS = (Path(__file__).parent / "small_arms" / "two_joints.urdf").read_text()
 
 TWO_SCENARIO = """name = "two"
 [arm]

@@ -2,6 +2,8 @@
 and the run equals an independent loop written here with pinocchio (ABA and generalized gravity) and scipy."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -52,19 +54,7 @@ def _loop(arm, q_ref):
 
 #: A small arm keeps the run short: a pitch joint, then a slide on an unaligned axis.  (scope4 runs the same
 #: way, but its roll joint turns 1.4e-6 kg m^2, so this fixed-gain PD loop is stiff: 18 million RK45 steps.)
-TWO_JOINTS = """<?xml version="1.0"?>
-<robot name="two">
-  <link name="base"/>
-  <joint name="pitch" type="revolute"><parent link="base"/><child link="arm"/><origin xyz="0 0 0.3" rpy="0 0 0"/>
-    <axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="10" velocity="2"/></joint>
-  <link name="arm"><inertial><origin xyz="0.1 0 0.02"/><mass value="1.2"/>
-    <inertia ixx="0.004" ixy="0" ixz="0" iyy="0.01" iyz="0" izz="0.009"/></inertial></link>
-  <joint name="slide" type="prismatic"><parent link="arm"/><child link="rod"/><origin xyz="0.2 0 0" rpy="0 0.3 0"/>
-    <axis xyz="0.8 0 -0.6"/><limit lower="-0.1" upper="0.2" effort="10" velocity="1"/></joint>
-  <link name="rod"><inertial><origin xyz="0 0 -0.05"/><mass value="0.3"/>
-    <inertia ixx="0.001" ixy="0" ixz="0" iyy="0.001" iyz="0" izz="0.0001"/></inertial></link>
-</robot>
-"""
+TWO_JOINTS = (Path(__file__).parent / "small_arms" / "two_joints.urdf").read_text()
 
 
 def test_compiled_chain_plant_equals_a_pinocchio_loop(tmp_path):
