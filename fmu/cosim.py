@@ -55,10 +55,6 @@ from .scenario_values import plant_start_values
 __all__ = ["cosimulate", "controller_side", "CoSimulationError"]
 
 
-def _names(prefix: str, n: int) -> list[str]:
-    """``prefix[0]`` ... ``prefix[n-1]``: a per-joint signal of an arm of ``n`` joints."""
-    return [f"{prefix}[{i}]" for i in range(n)]
-
 
 def controller_side(scenario: Scenario, observer: bool = True) -> ct.InterconnectedSystem:
     """Trajectory, controller, observer (and sensor) of a scenario, as the Python side of a co-simulation.
@@ -72,9 +68,9 @@ def controller_side(scenario: Scenario, observer: bool = True) -> ct.Interconnec
     the applied torque comes back.
     """
     blocks = build_blocks(scenario, observer=observer)
-    n = scenario.robot.joints.count
+    names = scenario.robot.joints.signal_names
     side = [b for key, b in blocks.items() if key != "plant"]
-    external = _names("q", n) + _names("dq", n) + (_names("tau", n) if observer else [])
+    external = names("q") + names("dq") + (names("tau") if observer else [])
     sources = {label: b for b in side for label in b.output_labels}
     connections, consumers = [], {name: [] for name in external}
     for b in side:
@@ -89,18 +85,19 @@ def controller_side(scenario: Scenario, observer: bool = True) -> ct.Interconnec
     signals = ["q_ref", "dq_ref", "ddq_ref", "tau"] + (["d_hat"] if observer else [])
     if "sensor" in blocks:
         signals += ["q_meas", "dq_meas"]
-    outputs = [name for sig in signals for name in _names(sig, n)]
+    outputs = [name for sig in signals for name in names(sig)]
     return ct.interconnect(side, connections=connections, inplist=[consumers[name] for name in inputs], inputs=inputs,
                            outlist=[f"{sources[name].name}.{name}" for name in outputs], outputs=outputs,
                            name="controller_side", check_unused=False)
 
 
-def _plant_variables(extracted, n: int) -> set[str]:
-    """Names of the FMU's variables, after checking it has the plant's signals of ``n`` joints (before instantiating)."""
+def _plant_variables(extracted, joints) -> set[str]:
+    """Names of the FMU's variables, after checking it has the plant's signals of ``joints`` (before instantiating)."""
     md = described(extracted)
     source = f"{extracted.source} (as the plant of the loop)"
-    require_variables(md, _names("q", n) + _names("dq", n) + _names("tau_dis", n), causality="output", source=source)
-    require_variables(md, _names("tau", n), causality="input", source=source)
+    names = joints.signal_names
+    require_variables(md, names("q") + names("dq") + names("tau_dis"), causality="output", source=source)
+    require_variables(md, names("tau"), causality="input", source=source)
     return {v.name for v in md.modelVariables}
 
 
@@ -198,7 +195,7 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
                                     f"samples themselves, not {coupling!r}")
         extracted, owned = open_extracted(fmu_path, limits=limits, parent=extract_to)
         try:
-            start = plant_start_values(s, _plant_variables(extracted, s.robot.joints.count), parameters)
+            start = plant_start_values(s, _plant_variables(extracted, s.robot.joints), parameters)
             resp = cosimulate_sampled(extracted, s, step, t_end, observer=observer, start_values=start,
                                       output_step=s.simulation.output_step, budget=budget, progress=progress)
         finally:
@@ -213,7 +210,7 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
     side_x0 = initial_state(side, s)
     extracted, owned = open_extracted(fmu_path, limits=limits, parent=extract_to)
     try:
-        start = plant_start_values(s, _plant_variables(extracted, s.robot.joints.count), parameters)
+        start = plant_start_values(s, _plant_variables(extracted, s.robot.joints), parameters)
         run = dict(side_x0=side_x0, start_values=start, side_substeps=side_substeps, coupling=coupling,
                    budget=budget, bounds=lambda names: signal_bounds(names, s))
         raw = cosimulate_system(extracted, side, t_end, step, record_every=record_every, progress=progress, **run)
@@ -228,7 +225,7 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
     signals = [sig for sig in LOOP_SIGNALS if observer or sig != "d_hat"]
     if s.noise is not None:
         signals += ["q_meas", "dq_meas"]
-    wanted = [name for sig in signals for name in _names(sig, s.robot.joints.count)]
+    wanted = [name for sig in signals for name in s.robot.joints.signal_names(sig)]
     absent = [n for n in wanted if n not in labels]
     if absent:
         raise CoSimulationError(f"the co-simulation did not produce signal(s) {absent}")
@@ -255,7 +252,7 @@ def _step_doubling(extracted, side, t_end: float, step: float, coupling: str, ru
                           f"max |y(h) - y(2h)| / (2^p - 1) with p = {p} ({coupling} coupling)",
                 "t_final": span, "order": p, "units": {}}
     for sig in ("q", "d_hat", "tau"):
-        names = [name for name in _names(sig, joints.count) if name in labels]
+        names = [name for name in joints.signal_names(sig) if name in labels]
         if not names:
             continue
         rows = [labels.index(n) for n in names]
