@@ -22,7 +22,7 @@ A second table times what each run does before it integrates that depends on the
 ``blocks.run_limits.estimate_run`` and the loop's divergence bounds ``blocks.divergence.state_bounds``: M along the
 reference for the true and the nominal arm, G and ``M q'' + h`` at its start) two ways: with the arm's numpy row
 kernels (what a one-off run, or a process without numba loaded, uses) and with its compiled row kernels
-(:mod:`blocks.compiled.arm_terms`, what the runs of a process that runs the arm again and again use, as in the
+(:mod:`blocks.compiled.row_kernels`, what the runs of a process that runs the arm again and again use, as in the
 "new scenario" column); the mean of ``--rounds`` x 10 calls after one call (here they are compiled or loaded
 already: the runs above asked for them).
 
@@ -180,15 +180,15 @@ def bench_before_run(name: str, rounds: int) -> tuple[list, dict]:
 
     import numba  # noqa: F401  (loaded: the compiled row kernels are used)
 
-    from blocks.compiled import arm_terms
+    from blocks.compiled import row_kernels as compiled_row_kernels
 
     # a scenario loaded here is a new arm object: without this, its first COMPILE_AFTER requests would take the
     # numpy kernels and the compile (or cache load) would land inside the timed calls
-    saved, arm_terms.COMPILE_AFTER = arm_terms.COMPILE_AFTER, 0
+    saved, compiled_row_kernels.COMPILE_AFTER = compiled_row_kernels.COMPILE_AFTER, 0
     try:
         compiled, compiled_first, compiled_s = timed()
     finally:
-        arm_terms.COMPILE_AFTER = saved
+        compiled_row_kernels.COMPILE_AFTER = saved
     with mock.patch.dict(sys.modules):
         del sys.modules["numba"]             # as in a process that has not loaded numba: the numpy row kernels
         numpy_way, _, numpy_s = timed()

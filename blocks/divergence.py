@@ -210,11 +210,11 @@ def force_bounds(k_true, disturbance, ref: ReferenceLimits, kernels=None, tool_k
 
 def evaluation_kernels(arm):
     """The row kernels to evaluate ``arm``'s dynamics with before a run (force bounds, step estimate): compiled for
-    a chain arm where that pays (:func:`blocks.compiled.arm_terms.row_kernels`: a process that has loaded numba and
+    a chain arm where that pays (:func:`blocks.compiled.row_kernels.row_kernels`: a process that has loaded numba and
     runs the arm again and again; the same numbers in microseconds instead of milliseconds), else ``arm.kernels``."""
     if "numba" not in sys.modules:     # nothing compiled is at hand: the numpy kernels cost less than loading it
         return arm.kernels
-    from .compiled.arm_terms import row_kernels
+    from .compiled.row_kernels import row_kernels
     return row_kernels(arm)
 
 

@@ -1,4 +1,4 @@
-"""A URDF arm's M and h before a run, compiled (blocks.compiled.arm_terms): the step estimate and the force bounds.
+"""A URDF arm's M and h before a run, compiled (blocks.compiled.row_kernels): the step estimate and the force bounds.
 
 The compiled row kernels must give the numpy kernels' numbers (to 1e-12), the step estimate's rates and the
 divergence bounds must be those of the numpy kernels, and all of them must agree with pinocchio (``pin.crba``,
@@ -15,8 +15,8 @@ pin = pytest.importorskip("pinocchio")
 numba = pytest.importorskip("numba")
 
 from blocks import load_scenario  # noqa: E402
-from blocks.compiled import arm_terms  # noqa: E402
-from blocks.compiled.arm_terms import CompiledRowKernels, row_kernels  # noqa: E402
+from blocks.compiled import row_kernels as compiled_row_kernels  # noqa: E402
+from blocks.compiled.row_kernels import CompiledRowKernels, row_kernels  # noqa: E402
 from blocks.divergence import FORCE_FACTOR, evaluation_kernels, force_bounds, reference_limits, state_bounds  # noqa: E402
 from blocks.kernels import disturbance_params  # noqa: E402
 from blocks.loop import closed_loop  # noqa: E402
@@ -87,7 +87,7 @@ def test_compiled_kernels_agree_with_pinocchio(scenario):
 
 def test_rates_equal_the_numpy_way_and_pinocchio(scenario, monkeypatch):
     s = scenario
-    monkeypatch.setattr(arm_terms, "COMPILE_AFTER", 0)                     # compiled from the first request
+    monkeypatch.setattr(compiled_row_kernels, "COMPILE_AFTER", 0)                     # compiled from the first request
     assert isinstance(evaluation_kernels(s.robot), CompiledRowKernels)     # numba is loaded in this process
     new = arm_rates(s)
     old = _numpy_way(monkeypatch, arm_rates, s)
@@ -128,7 +128,7 @@ def test_force_bound_equals_the_numpy_way_and_pinocchio(scenario, monkeypatch):
               + np.abs(pin.rnea(model, data, qp, ref.dq0, ref.ddq0)))
     assert new == pytest.approx(FORCE_FACTOR * (forces.max() + 1.0), rel=1e-10)
     # the loop's state bounds: the same array either way
-    monkeypatch.setattr(arm_terms, "COMPILE_AFTER", 0)
+    monkeypatch.setattr(compiled_row_kernels, "COMPILE_AFTER", 0)
     loop = closed_loop(s)
     bounds_new = state_bounds(loop, s)
     bounds_old = _numpy_way(monkeypatch, state_bounds, loop, s)
@@ -140,9 +140,9 @@ def test_compiled_only_after_repeated_requests(monkeypatch):
     """A one-off run keeps the numpy kernels (compiling would cost more than it saves); a process that asks for
     the same arm's kernels again and again gets the compiled ones."""
     arm = load_scenario("ur5").robot
-    monkeypatch.setattr(arm_terms, "COMPILE_AFTER", 3)
-    monkeypatch.setattr(arm_terms, "_asked", {})            # as in a new process
-    monkeypatch.setattr(arm_terms, "_made", {})
+    monkeypatch.setattr(compiled_row_kernels, "COMPILE_AFTER", 3)
+    monkeypatch.setattr(compiled_row_kernels, "_asked", {})            # as in a new process
+    monkeypatch.setattr(compiled_row_kernels, "_made", {})
     got = [evaluation_kernels(arm) for _ in range(5)]
     assert [g is arm.kernels for g in got] == [True, True, True, False, False]
     assert isinstance(got[-1], CompiledRowKernels) and got[-1] is got[-2]
