@@ -135,3 +135,16 @@ def test_ctrl_c_on_a_sweep_on_a_local_cluster_says_one_line_and_ends_the_cluster
     gone, alive = psutil.wait_procs([p for p in started if p.is_running()], timeout=30)
     assert not alive, f"cluster processes left running: {[p.pid for p in alive]}"
     assert 1 <= len(_log_ids(results, "run_id")) < CTRL_C_RUNS
+
+
+def test_a_local_cluster_larger_than_the_machine_is_refused_at_its_limit(monkeypatch):
+    """local:N is taken up to MAX_LOCAL_WORKERS_PER_CORE per core and refused one above, naming both."""
+    from analysis.jobs.cluster import MAX_LOCAL_WORKERS_PER_CORE
+
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)
+    most = 2 * MAX_LOCAL_WORKERS_PER_CORE
+    assert local_workers(f"local:{most}") == most
+    with pytest.raises(SweepError, match=rf"{most + 1} local worker processes on 2 core\(s\); at most {most}"):
+        local_workers(f"local:{most + 1}", SweepError)
+    with pytest.raises(SweepError, match=rf"at most {most} "):
+        local_workers("local:100000", SweepError)

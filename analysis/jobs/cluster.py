@@ -29,10 +29,13 @@ from collections.abc import Callable, Iterator
 from analysis.jobs.interrupts import sigint_held
 
 __all__ = ["dask_session", "local_workers", "dask_threads", "run_on_dask", "call_with_notes", "take_with_notes",
-           "LOCAL"]
+           "LOCAL", "MAX_LOCAL_WORKERS_PER_CORE"]
 
 #: The scheduler "address" that starts a cluster on this machine for the job: ``local`` or ``local:N``.
 LOCAL = "local"
+#: Local worker processes per core at most: each worker imports the whole stack (a few hundred MB), and more
+#: processes than cores only wait for them, so ``local:100000`` is refused rather than started.
+MAX_LOCAL_WORKERS_PER_CORE = 4
 
 
 def _distributed(error: type[Exception], address: str = ""):
@@ -63,6 +66,11 @@ def local_workers(address: str, error: type[Exception] = ValueError) -> int | No
     if not (count.isdigit() and int(count) >= 1):
         raise error(f"--scheduler {address!r}: the number of local worker processes must be a whole number >= 1 "
                     "(local or local:N, e.g. local:2)")
+    most = MAX_LOCAL_WORKERS_PER_CORE * (os.cpu_count() or 1)
+    if int(count) > most:
+        raise error(f"--scheduler {address!r}: {int(count)} local worker processes on {os.cpu_count() or 1} core(s); "
+                    f"at most {most} ({MAX_LOCAL_WORKERS_PER_CORE} per core: each imports the whole stack, and more "
+                    "processes than cores only wait for them)")
     return int(count)
 
 
