@@ -197,3 +197,23 @@ def test_inside_the_ranges_the_stops_change_no_bit(rrpr, scope4):
     assert arm.joints.outside_limits(with_stops[:200, :n]) is None
     assert np.max(np.abs(with_stops[:200] - x0)) > 0.01                 # it moved
     assert np.array_equal(with_stops, without)
+
+
+@pytest.mark.parametrize("margin, stable", [(0.97, True), (1.03, False)])
+def test_the_stop_is_stable_for_rk4_sub_steps_up_to_2_785_over_its_frequency(tmp_path, margin, stable):
+    """fmu/end_stops.py: classical RK4 meets the negative real axis at |lambda dt| = 2.785, and the stop's double
+    eigenvalue is -w (critical damping, w = 200 rad/s), so a sub-step up to 2.785 / w = 13.9 ms is stable.  The
+    paper's slide is decoupled with a constant inertia (k4), so the bound is exact for it: released 1 mm into its
+    stop at 0.97 x that step it settles where the spring carries its weight; at 1.03 x the contact rings up."""
+    plant = export_plant(tmp_path / "one_substep.fmu", substeps=1)
+    h = margin * 2.785 / STOP_W
+    k = float(_variables(plant)["stop_stiffness[2]"].start)
+    rest = D3_RANGE[1] + PAPER_K["k4"] * PAPER_G / k
+    res = fmpy.simulate_fmu(str(plant), fmi_type="CoSimulation", stop_time=300 * h, output_interval=h,
+                            start_values={"disturbance_paper": False, "q[2]": D3_RANGE[1] + 1e-3},
+                            output=["q[2]"])
+    late = np.abs(res["q[2]"][-100:] - rest)
+    if stable:
+        assert late.max() < 1e-9
+    else:
+        assert late.max() > 1e-4          # rings at the size of the release, not settling
