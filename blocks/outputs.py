@@ -1,10 +1,13 @@
 """Output folders: default names, and reserved staging so that a failed or concurrent run leaves nothing mixed."""
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import shutil
+import signal
 import tempfile
+import threading
 import weakref
 from datetime import datetime
 from pathlib import Path
@@ -71,8 +74,19 @@ def _umask() -> int:
     return mask
 
 
+def _discard_stages(target: Path) -> None:
+    """Remove every staging folder in ``target``: the caller holds its reservation, so they are its own."""
+    for stage in target.glob(".partial-*"):
+        shutil.rmtree(stage, ignore_errors=True)
+
+
 def _release(lock: Path, created: Path | None) -> None:
-    """Undo a reservation that was not used: the lock file, and the folder if this run made it (and it is empty)."""
+    """Undo a reservation that was not used: the lock file, and the folder if this run made it (and it is empty).
+
+    Staging folders go first: a Ctrl-C or SIGTERM may have come after one was
+    made and before its name was kept (inside ``mkdtemp``).
+    """
+    _discard_stages(lock.parent)
     lock.unlink(missing_ok=True)
     if created is not None:
         try:
@@ -115,9 +129,8 @@ class staged_output:
             if pid is not None and _pid_alive(pid):
                 raise FileExistsError(f"output folder '{target}' is being written by another dobkit run (process "
                                       f"{pid}); choose another --out")
-            lock.unlink(missing_ok=True)        # left by a run that was killed
-            for stale in target.glob(".partial-*"):
-                shutil.rmtree(stale, ignore_errors=True)
+            _discard_stages(target)             # left by a run that was killed
+            lock.unlink(missing_ok=True)
         if target.exists() and any(target.iterdir()):
             raise FileExistsError(f"output folder '{target}' exists and is not empty; choose a new --out")
         created = None
@@ -151,10 +164,12 @@ class staged_output:
     def __enter__(self) -> Path:
         try:
             self.stage = Path(tempfile.mkdtemp(prefix=".partial-", dir=self.target))
-        except OSError as err:
+            self.stage.chmod(0o777 & ~_umask())
+        except BaseException as err:        # also Ctrl-C or SIGTERM: `__exit__` runs only once this returns
             self._release()
-            raise file_error(err, self.target, "output folder") from None
-        self.stage.chmod(0o777 & ~_umask())
+            if isinstance(err, OSError):
+                raise file_error(err, self.target, "output folder") from None
+            raise
         return self.stage
 
     def __exit__(self, exc_type, exc, tb) -> None:
@@ -166,19 +181,44 @@ class staged_output:
                 raise file_error(exc, self.target, "output folder", "free space or choose another --out; nothing "
                                  "was kept") from None
             return
-        try:
-            for entry in sorted(self.stage.iterdir()):
-                os.replace(entry, self.target / entry.name)
-            self.stage.rmdir()
-        except OSError as err:
-            kept = self.target / f"results-not-moved-{datetime.now():%Y%m%d-%H%M%S}"
-            self.stage.rename(kept)
-            self._lock.unlink(missing_ok=True)
-            self._release.detach()
-            raise OSError(f"the results could not be moved into '{self.target}' ({err}); they are complete in "
-                          f"'{kept}'") from None
-        self._lock.unlink(missing_ok=True)
-        self._release.detach()
+        # a Ctrl-C or SIGTERM now waits for the last file: the folder then holds all results, not some
+        with _interrupts_held():
+            try:
+                for entry in sorted(self.stage.iterdir()):
+                    os.replace(entry, self.target / entry.name)
+                self.stage.rmdir()
+            except OSError as err:
+                kept = self.target / f"results-not-moved-{datetime.now():%Y%m%d-%H%M%S}"
+                self.stage.rename(kept)
+                raise OSError(f"the results could not be moved into '{self.target}' ({err}); they are complete "
+                              f"in '{kept}'") from None
+            finally:
+                self._lock.unlink(missing_ok=True)
+                self._release.detach()
+
+
+@contextlib.contextmanager
+def _interrupts_held():
+    """Hold SIGINT and SIGTERM back while the body runs, then deliver the first that came.
+
+    The handlers are swapped for one that only records the signal; at the end
+    the previous handlers come back and a recorded signal is raised again, so
+    it ends the command as it would have, once the body is whole.  Outside the
+    main thread (where Python does not handle signals) the body runs as it is.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    received: list[int] = []
+    names = (signal.SIGINT, signal.SIGTERM)
+    previous = {signum: signal.signal(signum, lambda signum, frame: received.append(signum)) for signum in names}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        if received:
+            signal.raise_signal(received[0])
 
 
 def _inside(filename, folder: Path) -> bool:

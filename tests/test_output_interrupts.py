@@ -1,0 +1,91 @@
+"""Ctrl-C or SIGTERM at each moment of writing an output folder: nothing partial is left, nothing whole is lost.
+
+The command-line test (tests/test_hostile_round3.py) sends SIGTERM once the
+staging folder exists, which lands in one of these windows by chance; here
+each window is hit on purpose.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import tempfile
+from pathlib import Path
+
+import pytest
+
+from blocks.outputs import staged_output
+
+
+def _names(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir())
+
+
+@pytest.mark.parametrize("made", ["folder made, name not yet returned", "folder made, permissions not yet set"])
+def test_an_interrupt_while_the_staging_folder_is_made_leaves_the_folder_as_it_was(tmp_path, monkeypatch, made):
+    target = tmp_path / "out"
+    target.mkdir()                                     # the user's empty folder stays, empty
+    staging = staged_output(target)
+    assert _names(target) == [".dobkit-writing"]
+    if made.startswith("folder made, name"):
+        real = tempfile.mkdtemp
+
+        def mkdtemp(**kwargs):
+            real(**kwargs)                             # the folder exists; its name is lost with the interrupt
+            raise KeyboardInterrupt
+        monkeypatch.setattr(tempfile, "mkdtemp", mkdtemp)
+    else:
+        def chmod(self, mode):
+            raise KeyboardInterrupt
+        monkeypatch.setattr(Path, "chmod", chmod)
+    with pytest.raises(KeyboardInterrupt):
+        with staging:
+            pytest.fail("the body must not run")
+    assert _names(target) == []
+
+
+def test_an_interrupt_while_a_folder_it_made_is_reserved_removes_that_folder(tmp_path, monkeypatch):
+    target = tmp_path / "new" / "out"
+    staging = staged_output(target)
+    monkeypatch.setattr(Path, "chmod", lambda self, mode: (_ for _ in ()).throw(KeyboardInterrupt()))
+    with pytest.raises(KeyboardInterrupt):
+        with staging:
+            pass
+    assert not target.exists()
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_while_the_results_are_moved_in_waits_for_the_last_file(tmp_path, monkeypatch, signum):
+    target = tmp_path / "out"
+    raised: list[type] = []
+
+    def terminate(got, frame):
+        raise KeyboardInterrupt(f"signal {got}")
+    previous = signal.signal(signal.SIGTERM, terminate)     # what dobkit.signals installs while a command runs
+    real_replace, moved = os.replace, []
+
+    def replace(src, dst):
+        if not moved:
+            os.kill(os.getpid(), signum)               # arrives between the first file and the rest
+        real_replace(src, dst)
+        moved.append(Path(dst).name)
+    monkeypatch.setattr(os, "replace", replace)
+    try:
+        with pytest.raises(KeyboardInterrupt) as caught:
+            with staged_output(target) as stage:
+                for name in ("a.json", "b.csv", "c.png"):
+                    (stage / name).write_text(name)
+        raised.append(type(caught.value))
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert moved == ["a.json", "b.csv", "c.png"]       # every file, then the interrupt
+    assert _names(target) == ["a.json", "b.csv", "c.png"]      # no lock, no staging folder
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    assert signal.getsignal(signal.SIGTERM) is previous
+
+
+def test_without_a_signal_the_handlers_are_the_callers_after_the_move(tmp_path):
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    with staged_output(tmp_path / "out") as stage:
+        (stage / "metrics.json").write_text("{}")
+    assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before
+    assert _names(tmp_path / "out") == ["metrics.json"]
