@@ -1,25 +1,35 @@
-"""A task-space path of the tool point turned into joint references: damped least squares and exact derivatives.
+"""A task-space path of the tool point turned into joint references ``q, q', q''`` for any arm.
 
-For each sample of a path ``p(t)`` (m) with its derivatives ``p'``, ``p''``:
+The first sample's ``q`` comes from damped least-squares iterations
+``q <- q + J^T (J J^T + lambda^2 I)^-1 (p - f(q))`` (:func:`solve_ik`), each projected onto the joints'
+ranges, from ``q0`` until the residual ``|p - f(q)|`` stops falling; a residual above ``tol`` refuses the
+point (time, point, residual).  The rest of the path depends on how many joints move the tool point
+(:func:`~blocks.arms.resolved_rate.moving_joints`: a roll about an axis through the point does not):
 
-* ``q`` by damped least-squares iterations ``q <- q + J^T (J J^T + lambda^2 I)^-1 (p - f(q))``,
-  each projected onto the joints' ranges, warm-started from the previous sample's solution (the first
-  from ``q0``), until the residual ``|p - f(q)|`` stops falling; a residual above ``tol`` refuses
-  the point (time, point, residual);
-* ``q' = J^+ p'`` with ``J^+ = J^T (J J^T)^-1``, the minimum-norm joint velocity (for a square ``J``
-  simply ``J^-1``);
-* ``q'' = d/dt (J^+ p') = J^+ (p'' - J' q') + (I - J^+ J) J'^T (J J^T)^-1 p'``: the exact derivative of
-  that minimum-norm velocity along the motion, so ``q''`` integrates to ``q'``.  The second term lies in
-  the null space of ``J`` and vanishes for a square (non-redundant) ``J``.  ``J'`` is assembled from
-  the arm's ``J'(q, v) v`` by polarisation: ``J'`` is symmetric in its two directions (second
-  derivatives of the tool position), so column ``i`` of ``J'(q, q')`` is
-  ``(c(q' + e_i) - c(q' - e_i)) / 4`` with ``c(v) = J'(q, v) v``, exact up to rounding.
+**At most three (a square** ``J`` **: scope4's yaw, pitch and insertion), method** ``"dls"``.  Every sample
+is solved the same way, warm-started from the previous one, and
 
-For a square ``J`` (three joints that move the tool point, such as scope4's yaw, pitch and
-insertion; its roll does not move the tip) ``q``, ``q'`` and ``q''`` are one curve exactly.  For a
-redundant arm, the damped iterations move along ``J``'s row space as the minimum-norm velocity does,
-and agree with it to first order in the sample spacing; the null-space drift between samples is not
-controlled (no secondary task).
+* ``q' = J^+ p'`` with ``J^+ = J^T (J J^T)^-1`` (``J^-1`` on the joints that move the point);
+* ``q'' = d/dt (J^+ p') = J^+ (p'' - J' q') + (I - J^+ J) J'^T (J J^T)^-1 p'``, its exact derivative
+  along the motion (the second term lies in the null space of ``J`` and vanishes here).
+
+``q``, ``q'`` and ``q''`` are one curve exactly: the inverse is unique.
+
+**More than three (a redundant arm: the UR5, the Panda), method** ``"resolved_rate"``.  Solving each sample
+on its own would not give one curve: the fibre ``f(q) = p`` has a null-space direction, the iterations move
+along ``J``'s row space and agree with ``J^+ p'`` only to first order in the sample spacing, and the posture
+drifts a fixed amount on every round of a closed path.  Instead ``q(t)`` integrates the resolved-rate law
+``q' = J^+ (p' + K_p (p - f(q))) + (I - J^+ J) K_n (q_rest - q)`` (8th-order Runge-Kutta with error
+control), ``q'`` is that right-hand side and ``q''`` its exact time derivative; the task-space feedback
+``K_p`` (``task_gain``, 1/s) holds the tool point on the path, the null-space term ``K_n``
+(``posture_gain``, 1/s) pulls toward ``rest`` (default: the first sample's solution) so the null-space
+motion stays bounded.  See :mod:`blocks.arms.resolved_rate`.  A sample whose residual exceeds ``tol`` is
+refused by time, point and residual, one beyond a joint's range by time, point and joint; this law does
+not slide along a joint's end as the projected iterations do (another ``q0`` or ``rest`` may help).
+
+``J'`` is assembled from the arm's ``J'(q, v) v`` by polarisation: ``J'`` is symmetric in its two
+directions (second derivatives of the tool position), so column ``i`` of ``J'(q, q')`` is
+``(c(q' + e_i) - c(q' - e_i)) / 4`` with ``c(v) = J'(q, v) v``, exact up to rounding.
 
 Joint positions (rad, m), velocities (rad/s, m/s), accelerations (rad/s^2, m/s^2); points in the
 arm's base frame (m).
