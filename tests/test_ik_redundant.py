@@ -207,6 +207,10 @@ def test_unreachable_point_and_joint_range_are_refused_by_name():
     with pytest.raises(IKUnreachableError, match=r"task-space point \(.*\) m at t = .* s is not reachable.*misses "
                                                  r"it by"):
         joint_path(ur5, t, p, dp, ddp, q0=q0)
+    # a reachable point where J's smallest singular value (about 0.25 m/rad) is below the asked minimum
+    with pytest.raises(IKUnreachableError, match=r"at t = 0 s \(point .*\) the arm is at a singularity for the tool "
+                                                 r"point \(smallest singular value of J 0.2\d+, below 1\)"):
+        joint_path(ur5, t[:3], p[:3], dp[:3], ddp[:3], q0=q0, min_sigma=1.0)
     # the Panda's hand carried 5.5 rad around its base: joint 1 (range +-2.8973 rad) runs out first
     panda = example_arm("panda")
     q0 = np.array(ARMS["panda"][0])

@@ -302,7 +302,7 @@ def _integrated(arm: ArmModel, t, arrays, first, *, damping, tol, max_iter, min_
     except SingularJacobian as err:
         k = err.sample
         solve_ik(arm, p[k], err.q, damping=damping, tol=tol, max_iter=max_iter, t=t[k])
-        raise IKUnreachableError(f"between t = {t[max(k - 1, 0)]:.6g} s and {t[k]:.6g} s (point {_where(p[k])}) the "
-                                 f"arm is at a singularity for the tool point ({err}); the path's velocity has no "
-                                 "joint velocity") from None
+        when = f"at t = {t[k]:.6g} s" if k == 0 else f"between t = {t[k - 1]:.6g} s and {t[k]:.6g} s"
+        raise IKUnreachableError(f"{when} (point {_where(p[k])}) the arm is at a singularity for the tool point "
+                                 f"({err}); the path's velocity has no joint velocity") from None
     return JointPath(t=t, q=q, dq=dq, ddq=ddq, residual=res, method="resolved_rate")
