@@ -14,11 +14,19 @@ from the first sample's IK solution, with ``J = df/dq`` the tool point's Jacobia
 * ``(I - J^+ J) K_n (q_rest - q)`` moves only in the null space of ``J`` (the tool point does not feel
   it) and pulls the posture toward ``q_rest`` (default: the first sample's solution) with the rate
   ``K_n`` (1/s: ``posture_gain``).  Without it the minimum-norm motion of a closed path does not close:
-  the posture drifts by a fixed amount on every loop.  With it the null-space motion stays bounded.
+  the posture drifts by a fixed amount on every loop.  With it the null-space motion stays bounded
+  (the UR5 on a 5 cm circle, ten loops: 1.2e-3 rad from the start, settled after three loops, against
+  1.0e-2 rad and growing without it and 9.6e-3 rad by per-sample least squares).
+
+:func:`blocks.arms.ik.joint_path` takes ``K_p = 10`` and ``K_n = 1`` per s by default: fast enough to
+correct the start's residual within the first samples, slow enough (against samples 0.05 s apart) to
+keep the law non-stiff for the explicit integrator.
 
 ``q`` comes from an 8th-order Runge-Kutta integrator with error control (``scipy``'s DOP853, ``rtol``,
 ``atol``) run sample interval by sample interval; between two samples ``p, p'`` are the quintic Hermite
-polynomial of the samples' ``p, p', p''`` (exact for a quintic path such as one smoothstep segment).  At
+polynomial of the samples' ``p, p', p''`` (exact for a quintic path such as the ``tool_path`` kind's
+smoothstep segments when samples fall on the segment ends).  Each interval costs about 25 evaluations of
+``f`` and ``J`` (two DOP853 steps for samples 0.05 s apart), some five times the per-sample least squares.  At
 each sample ``q' = F(t, q)`` exactly and ``q''`` is its exact time derivative along the motion,
 
     q'' = dJ^+ v + J^+ v' + dP z + P z',      v = p' + K_p e,  z = K_n (q_rest - q),  P = I - J^+ J,
