@@ -294,8 +294,9 @@ def _integrated(arm: ArmModel, t, arrays, first, *, damping, tol, max_iter, min_
         outside = arm.joints.outside_limits(q)
         if outside:
             raise IKUnreachableError(f"task-space point {_where(p[k])} at t = {t[k]:.6g} s needs joint positions "
-                                     f"outside the arm's ranges: {outside} (the posture term pulls toward rest: "
-                                     "another q0 or rest may keep the joints in range)")
+                                     f"outside the arm's ranges: {outside} (the resolved-rate law does not slide "
+                                     "along a joint's end as per-sample least squares does: another q0 or rest, or "
+                                     "method='dls', may keep the joints in range)")
 
     try:
         q, dq, ddq = integrate_path(law, t, p, dp, ddp, first[0], rtol=rtol, atol=atol, check=check)
