@@ -123,6 +123,7 @@ def test_rates_are_the_time_derivatives_of_the_positions(case):
     assert np.abs(old_h - 4 * old_h2).max() > 0.1 * np.abs(old_h).max()
 
 
+@pytest.mark.slow
 def test_null_space_motion_stays_bounded_over_ten_loops(case):
     """Ten loops of the circle: at the loop ends the tool point is at the same place, so the change of q between
     them is null-space motion.  It settles (the posture term); the least-squares references drift by the same
@@ -152,6 +153,7 @@ def _smoothstep_path(waypoints, duration, t):
     return w[k] + s[:, None] * (w[k + 1] - w[k])
 
 
+@pytest.mark.slow
 def test_closed_loop_on_the_new_references_tracks_better_and_keeps_its_posture():
     """The UR5 scenario of a user: five rounds of a four-point loop from the default start, the loop (numpy
     engine, with the observer) on the new references and on the least-squares ones.  With the new ones the
