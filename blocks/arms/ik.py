@@ -206,7 +206,7 @@ def _where(point) -> str:
 
 def joint_path(arm: ArmModel, t, p, dp, ddp, q0=None, *, damping: float = 1e-3, tol: float = 1e-9,
                max_iter: int = 200, min_sigma: float = 1e-6, method: str = "auto", task_gain: float = 10.0,
-               posture_gain: float = 1.0, rest=None, rtol: float = 1e-10, atol: float = 1e-12) -> JointPath:
+               posture_gain: float = 1.0, rest=None, rtol: float = 1e-9, atol: float = 1e-11) -> JointPath:
     """Joint references ``q, q', q''`` of a sampled task-space path of the tool point.
 
     Parameters

@@ -25,8 +25,11 @@ keep the law non-stiff for the explicit integrator.
 ``q`` comes from an 8th-order Runge-Kutta integrator with error control (``scipy``'s DOP853, ``rtol``,
 ``atol``) run sample interval by sample interval; between two samples ``p, p'`` are the quintic Hermite
 polynomial of the samples' ``p, p', p''`` (exact for a quintic path such as the ``tool_path`` kind's
-smoothstep segments when samples fall on the segment ends).  Each interval costs about 25 evaluations of
-``f`` and ``J`` (two DOP853 steps for samples 0.05 s apart), some five times the per-sample least squares.  At
+smoothstep segments when samples fall on the segment ends).  Each interval starts with the step the error
+control last proposed, so a smooth path takes one DOP853 step (13 evaluations of ``f`` and ``J``) per sample
+0.01 to 0.05 s apart, two where it bends harder: some three to five times the cost of per-sample least
+squares.  The default tolerances (``rtol = 1e-9``, ``atol = 1e-11`` rad) leave the task-space residual near
+1e-11 m, far below the quintic interpolation between samples (1e-6 rad at 0.05 s).  At
 each sample ``q' = F(t, q)`` exactly and ``q''`` is its exact time derivative along the motion,
 
     q'' = dJ^+ v + J^+ v' + dP z + P z',      v = p' + K_p e,  z = K_n (q_rest - q),  P = I - J^+ J,
@@ -164,11 +167,12 @@ def integrate_path(law: ResolvedRate, t, p, dp, ddp, q_start, *, rtol: float, at
         Carrying the sample index ``k`` (``err.sample``) where ``J`` became singular (in the interval up to it,
         or at it) and the last joint positions reached (``err.q``).
     """
-    from scipy.integrate import solve_ivp
+    from scipy.integrate import DOP853
 
     N, n = t.size, law.arm.n
     q, dq, ddq = np.empty((N, n)), np.empty((N, n)), np.empty((N, n))
     q[0] = q_start
+    step = np.inf               # the controller's last proposal starts the next interval: no step search per sample
     for k in range(N):
         if k > 0:
             h = t[k] - t[k - 1]
@@ -179,13 +183,16 @@ def integrate_path(law: ResolvedRate, t, p, dp, ddp, q_start, *, rtol: float, at
                 return law.rate(qk, point, velocity)
 
             try:
-                sol = solve_ivp(rhs, (t[k - 1], t[k]), q[k - 1], method="DOP853", rtol=rtol, atol=atol)
-                if sol.status != 0:
-                    raise SingularJacobian(f"the integrator stopped: {sol.message}")
+                solver = DOP853(rhs, t[k - 1], q[k - 1], t[k], rtol=rtol, atol=atol, first_step=min(step, h))
+                while solver.status == "running":
+                    solver.step()
+                if solver.status != "finished":
+                    raise SingularJacobian(f"the integrator stopped: {solver.message}")
             except SingularJacobian as err:
                 err.sample, err.q = k, q[k - 1].copy()
                 raise
-            q[k] = sol.y[:, -1]
+            q[k] = solver.y
+            step = solver.h_abs
         check(k, q[k])
         try:
             dq[k], ddq[k] = law.rates(q[k], p[k], dp[k], ddp[k])
