@@ -213,19 +213,53 @@ def test_unreachable_point_and_joint_range_are_refused_by_name():
     with pytest.raises(IKUnreachableError, match=r"at t = 0 s \(point .*\) the arm is at a singularity for the tool "
                                                  r"point \(smallest singular value of J 0.2\d+, below 1\)"):
         joint_path(ur5, t[:3], p[:3], dp[:3], ddp[:3], q0=q0, min_sigma=1.0)
-    # the Panda's hand carried 5.5 rad around its base: joint 1 (range +-2.8973 rad) runs out first
-    panda = example_arm("panda")
-    q0 = np.array(ARMS["panda"][0])
-    c = panda.tool_position(q0)
-    radius, height, rate = np.hypot(c[0], c[1]), c[2], 5.5 / 2.0
-    t = np.linspace(0.0, 2.0, 41)
-    a = rate * t
-    p = np.stack([radius * np.cos(a), radius * np.sin(a), np.full_like(t, height)], -1)
-    dp = np.stack([-radius * rate * np.sin(a), radius * rate * np.cos(a), 0 * t], -1)
-    ddp = np.stack([-radius * rate ** 2 * np.cos(a), -radius * rate ** 2 * np.sin(a), 0 * t], -1)
+    # the Panda's hand carried 6.5 rad around its base: joints 1 and 3 (+-2.8973 rad each) cannot both turn so far
     with pytest.raises(IKUnreachableError, match=r"at t = .* s needs joint positions outside the arm's ranges: "
                                                  r"panda_joint1 reaches"):
-        joint_path(panda, t, p, dp, ddp, q0=q0)
+        joint_path(example_arm("panda"), *_arc_around_the_base(6.5), q0=np.array(ARMS["panda"][0]))
+
+
+def _arc_at(t, angle, duration=2.0):
+    """The Panda's hand at its start height and radius, carried ``angle`` rad around the base z axis in
+    ``duration`` s at a constant rate: p, p', p'' at times t (s), written out by hand."""
+    c = example_arm("panda").tool_position(np.array(ARMS["panda"][0]))
+    radius, height, rate = np.hypot(c[0], c[1]), c[2], angle / duration
+    a = rate * np.asarray(t, dtype=float)
+    return (np.stack([radius * np.cos(a), radius * np.sin(a), np.full_like(a, height)], -1),
+            np.stack([-radius * rate * np.sin(a), radius * rate * np.cos(a), 0 * a], -1),
+            np.stack([-radius * rate ** 2 * np.cos(a), -radius * rate ** 2 * np.sin(a), 0 * a], -1))
+
+
+def _arc_around_the_base(angle, duration=2.0, samples=41):
+    t = np.linspace(0.0, duration, samples)
+    return (t, *_arc_at(t, angle, duration))
+
+
+def test_the_null_space_term_turns_a_joint_back_from_its_end():
+    """5.5 rad around the base: joint 1 alone would leave its range (refused with limit_gain = 0); the push back
+    within the last tenth of the range hands the turn to joint 3.  While it acts q'' is still the derivative of q'
+    (central differences of a dense evaluation, order h^2) and the hand stays on the arc (pinocchio)."""
+    panda = example_arm("panda")
+    q0 = np.array(ARMS["panda"][0])
+    with pytest.raises(IKUnreachableError, match="panda_joint1 reaches"):
+        joint_path(panda, *_arc_around_the_base(5.5), q0=q0, limit_gain=0.0)
+    t, p, dp, ddp = _arc_around_the_base(5.5)
+    ref = joint_path(panda, t, p, dp, ddp, q0=q0)
+    lo, hi = np.array(panda.joints.limits).T
+    assert np.all(ref.q >= lo) and np.all(ref.q <= hi)
+    inner = hi[0] - 0.1 * (hi[0] - lo[0])
+    assert ref.q[:, 0].max() > inner                          # the push acted: joint 1 went into its margin
+    for k in range(t.size):
+        assert np.linalg.norm(_pin_tool(panda, "panda_hand", ref.q[k])[0] - p[k]) < TOL
+    # derivatives where the push acts: a window around the sample deepest in joint 1's margin
+    k = int(np.argmax(ref.q[:, 0]))
+    errors = []
+    for h in (0.004, 0.002):
+        tw = t[k] + h * np.arange(-2, 3)
+        window = joint_path(panda, tw, *_arc_at(tw, 5.5), q0=ref.q[k], rest=q0)
+        assert window.q[2, 0] > inner
+        errors.append(np.abs((window.dq[3] - window.dq[1]) / (2 * h) - window.ddq[2]).max())
+    assert 3.5 < errors[0] / errors[1] < 4.5, errors
 
 
 def test_bad_options_name_themselves():

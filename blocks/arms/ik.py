@@ -24,8 +24,9 @@ control), ``q'`` is that right-hand side and ``q''`` its exact time derivative; 
 ``K_p`` (``task_gain``, 1/s) holds the tool point on the path, the null-space term ``K_n``
 (``posture_gain``, 1/s) pulls toward ``rest`` (default: the first sample's solution) so the null-space
 motion stays bounded.  See :mod:`blocks.arms.resolved_rate`.  A sample whose residual exceeds ``tol`` is
-refused by time, point and residual, one beyond a joint's range by time, point and joint; this law does
-not slide along a joint's end as the projected iterations do (another ``q0`` or ``rest`` may help).
+refused by time, point and residual, one beyond a joint's range by time, point and joint.  Within the
+last tenth of a joint's range the null-space term also pushes the joint back (``limit_gain``, 1/s), which
+does what the projected iterations' sliding along a joint's end does, without breaking the curve.
 
 ``J'`` is assembled from the arm's ``J'(q, v) v`` by polarisation: ``J'`` is symmetric in its two
 directions (second derivatives of the tool position), so column ``i`` of ``J'(q, q')`` is
@@ -181,11 +182,12 @@ def _derivatives(arm: ArmModel, q, dp, ddp, t, min_sigma: float) -> tuple[np.nda
 _METHODS = ("auto", "dls", "resolved_rate")
 
 
-def _check_options(arm: ArmModel, method, task_gain, posture_gain, rest, rtol, atol):
+def _check_options(arm: ArmModel, method, task_gain, posture_gain, limit_gain, rest, rtol, atol):
     if method not in _METHODS:
         raise ValueError(f"method must be one of {', '.join(map(repr, _METHODS))}, got {method!r}")
     for name, value, unit, low in (("task_gain", task_gain, "1/s", 0.0), ("posture_gain", posture_gain, "1/s", 0.0),
-                                   ("rtol", rtol, "", None), ("atol", atol, "rad, m", None)):
+                                   ("limit_gain", limit_gain, "1/s", 0.0), ("rtol", rtol, "", None),
+                                   ("atol", atol, "rad, m", None)):
         ok = isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(value) and \
             (value >= low if low is not None else value > 0)
         if not ok:
@@ -206,7 +208,8 @@ def _where(point) -> str:
 
 def joint_path(arm: ArmModel, t, p, dp, ddp, q0=None, *, damping: float = 1e-3, tol: float = 1e-9,
                max_iter: int = 200, min_sigma: float = 1e-6, method: str = "auto", task_gain: float = 10.0,
-               posture_gain: float = 1.0, rest=None, rtol: float = 1e-9, atol: float = 1e-11) -> JointPath:
+               posture_gain: float = 1.0, rest=None, limit_gain: float = 10.0, rtol: float = 1e-9,
+               atol: float = 1e-11) -> JointPath:
     """Joint references ``q, q', q''`` of a sampled task-space path of the tool point.
 
     Parameters
@@ -236,6 +239,10 @@ def joint_path(arm: ArmModel, t, p, dp, ddp, q0=None, *, damping: float = 1e-3, 
         motion (which drifts on closed paths).
     rest : array_like, shape (n,), optional
         Posture (rad, m) the null-space term pulls toward (default: the first sample's solution).
+    limit_gain : float
+        ``K_l`` (1/s) of ``"resolved_rate"``: within the last tenth of a joint's range
+        (:data:`~blocks.arms.resolved_rate.LIMIT_MARGIN`) the null-space term pushes the joint back, at up to
+        ``K_l`` times a tenth of the range per s at the end itself; 0 turns it off.
     rtol, atol : float
         Relative and absolute (rad, m) tolerances of the ``"resolved_rate"`` integrator (DOP853).
 
@@ -258,14 +265,15 @@ def joint_path(arm: ArmModel, t, p, dp, ddp, q0=None, *, damping: float = 1e-3, 
         arrays[name] = arr
     if t.ndim != 1 or t.size == 0 or np.any(np.diff(t) <= 0):
         raise ValueError(f"t must be a non-empty increasing 1-D array of times (s), got shape {t.shape}")
-    rest = _check_options(arm, method, task_gain, posture_gain, rest, rtol, atol)
+    rest = _check_options(arm, method, task_gain, posture_gain, limit_gain, rest, rtol, atol)
     N, n = t.size, arm.n
     first = solve_ik(arm, arrays["p"][0], q0, damping=damping, tol=tol, max_iter=max_iter, t=t[0])
     if method == "auto":
         method = "resolved_rate" if int(np.count_nonzero(moving_joints(arm, first[0]))) > 3 else "dls"
     if method == "resolved_rate":
         return _integrated(arm, t, arrays, first, damping=damping, tol=tol, max_iter=max_iter, min_sigma=min_sigma,
-                           task_gain=task_gain, posture_gain=posture_gain, rest=rest, rtol=rtol, atol=atol)
+                           task_gain=task_gain, posture_gain=posture_gain, limit_gain=limit_gain, rest=rest,
+                           rtol=rtol, atol=atol)
     q, dq, ddq, res = np.empty((N, n)), np.empty((N, n)), np.empty((N, n)), np.empty(N)
     guess = q0
     for k in range(N):
@@ -277,10 +285,10 @@ def joint_path(arm: ArmModel, t, p, dp, ddp, q0=None, *, damping: float = 1e-3, 
 
 
 def _integrated(arm: ArmModel, t, arrays, first, *, damping, tol, max_iter, min_sigma, task_gain, posture_gain,
-                rest, rtol, atol) -> JointPath:
+                limit_gain, rest, rtol, atol) -> JointPath:
     """``method="resolved_rate"`` of :func:`joint_path`: the integrated law, refusals by time, point and joint."""
     p, dp, ddp = arrays["p"], arrays["dp"], arrays["ddp"]
-    law = ResolvedRate(arm, task_gain, posture_gain, first[0] if rest is None else rest, min_sigma)
+    law = ResolvedRate(arm, task_gain, posture_gain, first[0] if rest is None else rest, min_sigma, limit_gain)
     res = np.empty(t.size)
 
     def check(k, q):
@@ -294,9 +302,9 @@ def _integrated(arm: ArmModel, t, arrays, first, *, damping, tol, max_iter, min_
         outside = arm.joints.outside_limits(q)
         if outside:
             raise IKUnreachableError(f"task-space point {_where(p[k])} at t = {t[k]:.6g} s needs joint positions "
-                                     f"outside the arm's ranges: {outside} (the resolved-rate law does not slide "
-                                     "along a joint's end as per-sample least squares does: another q0 or rest, or "
-                                     "method='dls', may keep the joints in range)")
+                                     f"outside the arm's ranges: {outside} (the null-space push back from the "
+                                     "ends, limit_gain, could not hold it: another q0 or rest, or method='dls', "
+                                     "may keep the joints in range)")
 
     try:
         q, dq, ddq = integrate_path(law, t, p, dp, ddp, first[0], rtol=rtol, atol=atol, check=check)

@@ -3,7 +3,7 @@
 For an arm with more joints moving the tool point than the point's three coordinates (the UR5, the Panda),
 the joint positions along a path ``p(t)`` (m) are the solution of
 
-    q' = F(t, q) = J^+ (p' + K_p (p - f(q))) + (I - J^+ J) K_n (q_rest - q)
+    q' = F(t, q) = J^+ (p' + K_p (p - f(q))) + (I - J^+ J) z(q),      z(q) = K_n (q_rest - q) (+ limits)
 
 from the first sample's IK solution, with ``J = df/dq`` the tool point's Jacobian and
 ``J^+ = J^T (J J^T)^-1``:
@@ -11,16 +11,21 @@ from the first sample's IK solution, with ``J = df/dq`` the tool point's Jacobia
 * ``J^+ (p' + K_p e)`` moves the tool point along the path; the feedback ``K_p e`` on the task-space
   error ``e = p - f(q)`` (``K_p``, 1/s: ``task_gain``) makes ``e' = -K_p e``, so rounding and integration
   errors decay instead of adding up;
-* ``(I - J^+ J) K_n (q_rest - q)`` moves only in the null space of ``J`` (the tool point does not feel
+* ``(I - J^+ J) z`` moves only in the null space of ``J`` (the tool point does not feel
   it) and pulls the posture toward ``q_rest`` (default: the first sample's solution) with the rate
   ``K_n`` (1/s: ``posture_gain``).  Without it the minimum-norm motion of a closed path does not close:
   the posture drifts by a fixed amount on every loop.  With it the null-space motion stays bounded
   (the UR5 on a 5 cm circle, ten loops: 1.2e-3 rad from the start, settled within five loops, against
-  1.0e-2 rad and growing without it and 9.6e-3 rad by per-sample least squares).
+  1.0e-2 rad and growing without it and 9.6e-3 rad by per-sample least squares).  Within the last
+  tenth of a joint's range (``LIMIT_MARGIN``) ``z`` also pushes the joint back, by ``K_l m d^2`` with
+  ``d`` the depth into that margin ``m`` as a fraction of it (``K_l``, 1/s: ``limit_gain``): a term that
+  is continuous with its first derivative, so ``q''`` stays exact.  A Panda carrying its hand 5.5 rad
+  around its base needs it: without it joint 1 leaves its range (+-2.897 rad) after 5.2 rad; with it
+  joint 3 takes over and joint 1 stays below 2.89 rad.
 
-:func:`blocks.arms.ik.joint_path` takes ``K_p = 10`` and ``K_n = 1`` per s by default: fast enough to
-correct the start's residual within the first samples, slow enough (against samples 0.05 s apart) to
-keep the law non-stiff for the explicit integrator.
+:func:`blocks.arms.ik.joint_path` takes ``K_p = 10``, ``K_n = 1`` and ``K_l = 10`` per s by default: fast
+enough to correct the start's residual within the first samples and to turn a joint back within its
+margin, slow enough (against samples 0.05 s apart) to keep the law non-stiff for the explicit integrator.
 
 ``q`` comes from an 8th-order Runge-Kutta integrator with error control (``scipy``'s DOP853, ``rtol``,
 ``atol``) run sample interval by sample interval; between two samples ``p, p'`` are the quintic Hermite
@@ -32,9 +37,9 @@ squares.  The default tolerances (``rtol = 1e-9``, ``atol = 1e-11`` rad) leave t
 1e-11 m, far below the quintic interpolation between samples (1e-6 rad at 0.05 s).  At
 each sample ``q' = F(t, q)`` exactly and ``q''`` is its exact time derivative along the motion,
 
-    q'' = dJ^+ v + J^+ v' + dP z + P z',      v = p' + K_p e,  z = K_n (q_rest - q),  P = I - J^+ J,
+    q'' = dJ^+ v + J^+ v' + dP z + P z',      v = p' + K_p e,  z = z(q),  P = I - J^+ J,
     dJ^+ = P J'^T (J J^T)^-1 - J^+ J' J^+,    dP = -(dJ^+ J + J^+ J'),
-    v' = p'' + K_p (p' - J q'),               z' = -K_n q',
+    v' = p'' + K_p (p' - J q'),               z' = (dz/dq) q'  (= -K_n q' away from the joints' ends),
 
 with ``J' = J'(q, q')`` (:func:`blocks.arms.ik.jacobian_rate`).  So ``q``, ``q'`` and ``q''`` are one
 curve to the integrator's accuracy, and ``J q' = p'``, ``J q'' + J' q' = p''`` hold up to terms in ``e``.
@@ -48,7 +53,10 @@ import numpy as np
 
 from ..arm import ArmModel
 
-__all__ = ["ResolvedRate", "moving_joints", "integrate_path"]
+__all__ = ["ResolvedRate", "moving_joints", "integrate_path", "LIMIT_MARGIN"]
+
+#: The part of a joint's range at either end (a fraction of the range) where the null-space term pushes back.
+LIMIT_MARGIN = 0.1
 
 
 class SingularJacobian(ArithmeticError):
@@ -99,12 +107,34 @@ class ResolvedRate:
         Smallest singular value of ``J`` (m/rad) accepted; below it :class:`SingularJacobian` is raised.
     """
 
-    def __init__(self, arm: ArmModel, task_gain: float, posture_gain: float, rest, min_sigma: float) -> None:
+    def __init__(self, arm: ArmModel, task_gain: float, posture_gain: float, rest, min_sigma: float,
+                 limit_gain: float = 0.0) -> None:
         self.arm = arm
         self.kp = float(task_gain)
         self.kn = float(posture_gain)
+        self.kl = float(limit_gain)
         self.rest = np.asarray(rest, dtype=float)
         self.min_sigma = float(min_sigma)
+        lo, hi = np.array(arm.joints.limits, dtype=float).T
+        bounded = np.isfinite(lo) & np.isfinite(hi)
+        width = LIMIT_MARGIN * (np.where(bounded, hi, 1.0) - np.where(bounded, lo, 0.0))
+        self.margin = np.where(bounded, width, np.inf)            # inf: an unbounded joint is never near an end
+        self.inner_lo = np.where(bounded, np.where(bounded, lo, 0.0) + width, -np.inf)
+        self.inner_hi = np.where(bounded, np.where(bounded, hi, 0.0) - width, np.inf)
+
+    def posture(self, q) -> tuple[np.ndarray, np.ndarray]:
+        """The null-space term's ``z(q)`` (rad/s, m/s) and the diagonal of ``dz/dq`` (1/s).
+
+        ``z = K_n (q_rest - q)`` plus, within ``LIMIT_MARGIN`` of a joint's range from either end, a push
+        back ``K_l m (d_lo^2 - d_hi^2)`` with ``d`` the depth into the margin ``m`` as a fraction of it
+        (continuous with its derivative, so ``q''`` stays exact and continuous).
+        """
+        into_hi = np.maximum(q - self.inner_hi, 0.0) / self.margin
+        into_lo = np.maximum(self.inner_lo - q, 0.0) / self.margin
+        m = np.where(np.isfinite(self.margin), self.margin, 0.0)
+        z = self.kn * (self.rest - q) + self.kl * m * (into_lo ** 2 - into_hi ** 2)
+        slope = -self.kn - 2.0 * self.kl * (into_lo + into_hi)
+        return z, slope
 
     def _terms(self, q):
         J = self.arm.tool_jacobian(q)
@@ -120,7 +150,7 @@ class ResolvedRate:
         """``q' = F`` (rad/s, m/s) at joint positions ``q`` on the path point ``p`` (m) moving at ``dp`` (m/s)."""
         J, _, pinv = self._terms(q)
         v = dp + self.kp * (p - self.arm.tool_position(q))
-        z = self.kn * (self.rest - q)
+        z = self.posture(q)[0]
         return pinv @ v + z - pinv @ (J @ z)
 
     def rates(self, q, p, dp, ddp) -> tuple[np.ndarray, np.ndarray]:
@@ -131,13 +161,13 @@ class ResolvedRate:
         P = np.eye(self.arm.n) - pinv @ J
         e = p - self.arm.tool_position(q)
         v = dp + self.kp * e
-        z = self.kn * (self.rest - q)
+        z, slope = self.posture(q)
         dq = pinv @ v + P @ z
         Jd = jacobian_rate(self.arm, q, dq)
         dpinv = P @ np.linalg.solve(JJt, Jd).T - pinv @ Jd @ pinv   # d/dt J^T (J J^T)^-1
         dP = -(dpinv @ J + pinv @ Jd)
         dv = ddp + self.kp * (dp - J @ dq)
-        dz = -self.kn * dq
+        dz = slope * dq
         ddq = dpinv @ v + pinv @ dv + dP @ z + P @ dz
         return dq, ddq
 
