@@ -4,8 +4,9 @@ The tool point (``arm.tool_kernels.tool_position``) moves through
 ``waypoints`` (m, base frame), one segment of equal length in time per pair,
 each a quintic smoothstep that starts and ends at rest (so the path is C2);
 after ``duration`` it holds the last point.  Joint references come from
-:func:`blocks.arms.ik.joint_path` (damped least-squares IK, the
-minimum-norm ``q'`` and its exact derivative ``q''``) at samples every
+:func:`blocks.arms.ik.joint_path` (damped least-squares IK for a square
+Jacobian, the integrated resolved-rate law for a redundant arm; ``q''``
+the exact derivative of ``q'``) at samples every
 ``sample_period`` s; between samples each joint follows the quintic Hermite
 polynomial through the two samples' ``q, q', q''``, so the reference is C2
 and its rates are the exact derivatives of its positions.  A point out of

@@ -3,7 +3,8 @@
 ``load_urdf_arm(path, tool_frame, locked=(), locked_values=None, gravity=None)`` gives a
 :class:`ChainArm`, an :class:`~blocks.arm.ArmModel`; :func:`scope4_urdf` is the bundled 4-joint surgical arm,
 :func:`example_urdf` finds the UR5 and Panda of ``example-robot-data``; :func:`joint_path` turns a task-space path
-of the tool point into joint references by damped least-squares IK.
+of the tool point into joint references (damped least-squares IK when at most three joints move the point, the
+integrated resolved-rate law of :mod:`~blocks.arms.resolved_rate` for a redundant arm).
 """
 from ..lazy import lazy_exports
 

@@ -1,25 +1,36 @@
-"""A task-space path of the tool point turned into joint references: damped least squares and exact derivatives.
+"""A task-space path of the tool point turned into joint references ``q, q', q''`` for any arm.
 
-For each sample of a path ``p(t)`` (m) with its derivatives ``p'``, ``p''``:
+The first sample's ``q`` comes from damped least-squares iterations
+``q <- q + J^T (J J^T + lambda^2 I)^-1 (p - f(q))`` (:func:`solve_ik`), each projected onto the joints'
+ranges, from ``q0`` until the residual ``|p - f(q)|`` stops falling; a residual above ``tol`` refuses the
+point (time, point, residual).  The rest of the path depends on how many joints move the tool point
+(:func:`~blocks.arms.resolved_rate.moving_joints`: a roll about an axis through the point does not):
 
-* ``q`` by damped least-squares iterations ``q <- q + J^T (J J^T + lambda^2 I)^-1 (p - f(q))``,
-  each projected onto the joints' ranges, warm-started from the previous sample's solution (the first
-  from ``q0``), until the residual ``|p - f(q)|`` stops falling; a residual above ``tol`` refuses
-  the point (time, point, residual);
-* ``q' = J^+ p'`` with ``J^+ = J^T (J J^T)^-1``, the minimum-norm joint velocity (for a square ``J``
-  simply ``J^-1``);
-* ``q'' = d/dt (J^+ p') = J^+ (p'' - J' q') + (I - J^+ J) J'^T (J J^T)^-1 p'``: the exact derivative of
-  that minimum-norm velocity along the motion, so ``q''`` integrates to ``q'``.  The second term lies in
-  the null space of ``J`` and vanishes for a square (non-redundant) ``J``.  ``J'`` is assembled from
-  the arm's ``J'(q, v) v`` by polarisation: ``J'`` is symmetric in its two directions (second
-  derivatives of the tool position), so column ``i`` of ``J'(q, q')`` is
-  ``(c(q' + e_i) - c(q' - e_i)) / 4`` with ``c(v) = J'(q, v) v``, exact up to rounding.
+**At most three (a square** ``J`` **: scope4's yaw, pitch and insertion), method** ``"dls"``.  Every sample
+is solved the same way, warm-started from the previous one, and
 
-For a square ``J`` (three joints that move the tool point, such as scope4's yaw, pitch and
-insertion; its roll does not move the tip) ``q``, ``q'`` and ``q''`` are one curve exactly.  For a
-redundant arm, the damped iterations move along ``J``'s row space as the minimum-norm velocity does,
-and agree with it to first order in the sample spacing; the null-space drift between samples is not
-controlled (no secondary task).
+* ``q' = J^+ p'`` with ``J^+ = J^T (J J^T)^-1`` (``J^-1`` on the joints that move the point);
+* ``q'' = d/dt (J^+ p') = J^+ (p'' - J' q') + (I - J^+ J) J'^T (J J^T)^-1 p'``, its exact derivative
+  along the motion (the second term lies in the null space of ``J`` and vanishes here).
+
+``q``, ``q'`` and ``q''`` are one curve exactly: the inverse is unique.
+
+**More than three (a redundant arm: the UR5, the Panda), method** ``"resolved_rate"``.  Solving each sample
+on its own would not give one curve: the fibre ``f(q) = p`` has a null-space direction, the iterations move
+along ``J``'s row space and agree with ``J^+ p'`` only to first order in the sample spacing, and the posture
+drifts a fixed amount on every round of a closed path.  Instead ``q(t)`` integrates the resolved-rate law
+``q' = J^+ (p' + K_p (p - f(q))) + (I - J^+ J) K_n (q_rest - q)`` (8th-order Runge-Kutta with error
+control), ``q'`` is that right-hand side and ``q''`` its exact time derivative; the task-space feedback
+``K_p`` (``task_gain``, 1/s) holds the tool point on the path, the null-space term ``K_n``
+(``posture_gain``, 1/s) pulls toward ``rest`` (default: the first sample's solution) so the null-space
+motion stays bounded.  See :mod:`blocks.arms.resolved_rate`.  A sample whose residual exceeds ``tol`` is
+refused by time, point and residual, one beyond a joint's range by time, point and joint.  Within the
+last tenth of a joint's range the null-space term also pushes the joint back (``limit_gain``, 1/s), which
+does what the projected iterations' sliding along a joint's end does, without breaking the curve.
+
+``J'`` is assembled from the arm's ``J'(q, v) v`` by polarisation: ``J'`` is symmetric in its two
+directions (second derivatives of the tool position), so column ``i`` of ``J'(q, q')`` is
+``(c(q' + e_i) - c(q' - e_i)) / 4`` with ``c(v) = J'(q, v) v``, exact up to rounding.
 
 Joint positions (rad, m), velocities (rad/s, m/s), accelerations (rad/s^2, m/s^2); points in the
 arm's base frame (m).
@@ -32,6 +43,7 @@ import numpy as np
 
 from ..arm import ArmModel
 from ..kinematics import UnreachableError
+from .resolved_rate import ResolvedRate, SingularJacobian, integrate_path, moving_joints
 
 __all__ = ["IKUnreachableError", "JointPath", "solve_ik", "joint_path", "jacobian_rate"]
 
@@ -52,6 +64,9 @@ class JointPath:
         Joint positions, velocities and accelerations, shape (N, n).
     residual : numpy.ndarray
         ``|p - f(q)|`` at each sample (m), shape (N,).
+    method : str
+        How ``q`` was found: ``"dls"`` (damped least squares per sample) or ``"resolved_rate"`` (the
+        integrated resolved-rate law).
     """
 
     t: np.ndarray
@@ -59,6 +74,7 @@ class JointPath:
     dq: np.ndarray
     ddq: np.ndarray
     residual: np.ndarray
+    method: str = "dls"
 
 
 def _start(arm: ArmModel, q0) -> np.ndarray:
@@ -163,8 +179,37 @@ def _derivatives(arm: ArmModel, q, dp, ddp, t, min_sigma: float) -> tuple[np.nda
     return dq, ddq
 
 
+_METHODS = ("auto", "dls", "resolved_rate")
+
+
+def _check_options(arm: ArmModel, method, task_gain, posture_gain, limit_gain, rest, rtol, atol):
+    if method not in _METHODS:
+        raise ValueError(f"method must be one of {', '.join(map(repr, _METHODS))}, got {method!r}")
+    for name, value, unit, low in (("task_gain", task_gain, "1/s", 0.0), ("posture_gain", posture_gain, "1/s", 0.0),
+                                   ("limit_gain", limit_gain, "1/s", 0.0), ("rtol", rtol, "", None),
+                                   ("atol", atol, "rad, m", None)):
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(value) and \
+            (value >= low if low is not None else value > 0)
+        if not ok:
+            allowed = f">= {low:g}" if low is not None else "> 0"
+            units = f" ({unit})" if unit else ""
+            raise ValueError(f"{name} must be a finite number {allowed}{units}, got {value!r}")
+    if rest is not None:
+        rest = np.asarray(rest, dtype=float)
+        if rest.shape != (arm.n,) or not np.all(np.isfinite(rest)):
+            raise ValueError(f"rest must be {arm.n} finite joint positions ({', '.join(arm.joints.names)}), "
+                             f"got {rest!r}")
+    return rest
+
+
+def _where(point) -> str:
+    return f"({point[0]:.6g}, {point[1]:.6g}, {point[2]:.6g}) m"
+
+
 def joint_path(arm: ArmModel, t, p, dp, ddp, q0=None, *, damping: float = 1e-3, tol: float = 1e-9,
-               max_iter: int = 200, min_sigma: float = 1e-6) -> JointPath:
+               max_iter: int = 200, min_sigma: float = 1e-6, method: str = "auto", task_gain: float = 10.0,
+               posture_gain: float = 1.0, rest=None, limit_gain: float = 10.0, rtol: float = 1e-9,
+               atol: float = 1e-11) -> JointPath:
     """Joint references ``q, q', q''`` of a sampled task-space path of the tool point.
 
     Parameters
@@ -177,9 +222,29 @@ def joint_path(arm: ArmModel, t, p, dp, ddp, q0=None, *, damping: float = 1e-3, 
     q0 : array_like, shape (n,), optional
         Start of the first sample's iterations (default: the middle of the joints' ranges).
     damping, tol, max_iter
-        See :func:`solve_ik`.
+        See :func:`solve_ik`; ``tol`` (m) also bounds the residual of every sample of ``"resolved_rate"``.
     min_sigma : float
         Smallest singular value of ``J`` (m/rad) accepted for the velocity and acceleration.
+    method : {"auto", "dls", "resolved_rate"}
+        ``"dls"``: damped least squares at every sample, ``q' = J^+ p'`` (one curve exactly when at most
+        three joints move the tool point; for more, the null space drifts).  ``"resolved_rate"``: the
+        integrated resolved-rate law of :mod:`blocks.arms.resolved_rate` (one curve to the integrator's
+        accuracy, bounded null-space motion).  ``"auto"`` (default): ``"resolved_rate"`` when more than
+        three joints move the tool point at the first sample (:func:`~blocks.arms.resolved_rate.moving_joints`),
+        else ``"dls"``.
+    task_gain : float
+        ``K_p`` (1/s) of ``"resolved_rate"``: a task-space error decays as ``exp(-K_p t)``.
+    posture_gain : float
+        ``K_n`` (1/s) of ``"resolved_rate"``: the null-space pull toward ``rest``; 0 gives the minimum-norm
+        motion (which drifts on closed paths).
+    rest : array_like, shape (n,), optional
+        Posture (rad, m) the null-space term pulls toward (default: the first sample's solution).
+    limit_gain : float
+        ``K_l`` (1/s) of ``"resolved_rate"``: within the last tenth of a joint's range
+        (:data:`~blocks.arms.resolved_rate.LIMIT_MARGIN`) the null-space term pushes the joint back, at up to
+        ``K_l`` times a tenth of the range per s at the end itself; 0 turns it off.
+    rtol, atol : float
+        Relative and absolute (rad, m) tolerances of the ``"resolved_rate"`` integrator (DOP853).
 
     Returns
     -------
@@ -200,11 +265,53 @@ def joint_path(arm: ArmModel, t, p, dp, ddp, q0=None, *, damping: float = 1e-3, 
         arrays[name] = arr
     if t.ndim != 1 or t.size == 0 or np.any(np.diff(t) <= 0):
         raise ValueError(f"t must be a non-empty increasing 1-D array of times (s), got shape {t.shape}")
+    rest = _check_options(arm, method, task_gain, posture_gain, limit_gain, rest, rtol, atol)
     N, n = t.size, arm.n
+    first = solve_ik(arm, arrays["p"][0], q0, damping=damping, tol=tol, max_iter=max_iter, t=t[0])
+    if method == "auto":
+        method = "resolved_rate" if int(np.count_nonzero(moving_joints(arm, first[0]))) > 3 else "dls"
+    if method == "resolved_rate":
+        return _integrated(arm, t, arrays, first, damping=damping, tol=tol, max_iter=max_iter, min_sigma=min_sigma,
+                           task_gain=task_gain, posture_gain=posture_gain, limit_gain=limit_gain, rest=rest,
+                           rtol=rtol, atol=atol)
     q, dq, ddq, res = np.empty((N, n)), np.empty((N, n)), np.empty((N, n)), np.empty(N)
     guess = q0
     for k in range(N):
-        q[k], res[k] = solve_ik(arm, arrays["p"][k], guess, damping=damping, tol=tol, max_iter=max_iter, t=t[k])
+        q[k], res[k] = first if k == 0 else solve_ik(arm, arrays["p"][k], guess, damping=damping, tol=tol,
+                                                     max_iter=max_iter, t=t[k])
         dq[k], ddq[k] = _derivatives(arm, q[k], arrays["dp"][k], arrays["ddp"][k], t[k], min_sigma)
         guess = q[k]
-    return JointPath(t=t, q=q, dq=dq, ddq=ddq, residual=res)
+    return JointPath(t=t, q=q, dq=dq, ddq=ddq, residual=res, method="dls")
+
+
+def _integrated(arm: ArmModel, t, arrays, first, *, damping, tol, max_iter, min_sigma, task_gain, posture_gain,
+                limit_gain, rest, rtol, atol) -> JointPath:
+    """``method="resolved_rate"`` of :func:`joint_path`: the integrated law, refusals by time, point and joint."""
+    p, dp, ddp = arrays["p"], arrays["dp"], arrays["ddp"]
+    law = ResolvedRate(arm, task_gain, posture_gain, first[0] if rest is None else rest, min_sigma, limit_gain)
+    res = np.empty(t.size)
+
+    def check(k, q):
+        res[k] = float(np.linalg.norm(p[k] - arm.tool_position(q)))
+        if res[k] > tol:
+            # an unreachable point is refused as solve_ik refuses it; a reachable one the integration lost
+            solve_ik(arm, p[k], q, damping=damping, tol=tol, max_iter=max_iter, t=t[k])
+            raise IKUnreachableError(f"task-space point {_where(p[k])} at t = {t[k]:.6g} s: the resolved-rate "
+                                     f"integration misses it by {res[k]:.3g} m (tolerance {tol:.3g} m); a smaller "
+                                     "rtol or a larger task_gain keeps it on the path")
+        outside = arm.joints.outside_limits(q)
+        if outside:
+            raise IKUnreachableError(f"task-space point {_where(p[k])} at t = {t[k]:.6g} s needs joint positions "
+                                     f"outside the arm's ranges: {outside} (the null-space push back from the "
+                                     "ends, limit_gain, could not hold it: another q0 or rest, or method='dls', "
+                                     "may keep the joints in range)")
+
+    try:
+        q, dq, ddq = integrate_path(law, t, p, dp, ddp, first[0], rtol=rtol, atol=atol, check=check)
+    except SingularJacobian as err:
+        k = err.sample
+        solve_ik(arm, p[k], err.q, damping=damping, tol=tol, max_iter=max_iter, t=t[k])
+        when = f"at t = {t[k]:.6g} s" if k == 0 else f"between t = {t[k - 1]:.6g} s and {t[k]:.6g} s"
+        raise IKUnreachableError(f"{when} (point {_where(p[k])}) the arm is at a singularity for the tool point "
+                                 f"({err}); the path's velocity has no joint velocity") from None
+    return JointPath(t=t, q=q, dq=dq, ddq=ddq, residual=res, method="resolved_rate")
