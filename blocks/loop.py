@@ -46,6 +46,7 @@ from .kernels.bind import bound
 from .monitor import Monitor, SimulationError
 from .run_limits import estimate_run
 from .scenario import Scenario, load_scenario
+from .structure import StructureCache, blocks_structure
 from .systems import controller, plant, sensor, signal_names, trajectory_block
 from .systems import observer as observer_block
 from .validation import callable_or_none, joint_arrays
@@ -131,10 +132,56 @@ def closed_loop(scenario: Scenario | str = "paper", observer: bool = True, plant
         last = arm.joints.count - 1
         raise ValueError(f"plant block '{plant_sys.name}' lacks signals the loop needs: {missing} "
                          f"(it must take tau[0..{last}] and give q, dq and tau_dis[0..{last}])")
-    loop = ct.interconnect(list(blocks.values()), inplist=[], outlist=outputs, outputs=outputs,
-                           name="dob_loop" if observer else "ctc_loop", check_unused=False)
+    loop = _interconnect(list(blocks.values()), outputs, "dob_loop" if observer else "ctc_loop")
     loop.scenario = s
     loop.with_observer = observer
+    return loop
+
+
+class _Wiring:
+    """What :func:`control.interconnect` derived for one loop structure: its connection matrices (read-only) and
+    signal names.  No block, function or number: the loops made from it take those from their own blocks."""
+
+    def __init__(self, loop: ct.InterconnectedSystem) -> None:
+        self.maps = []
+        for m in (loop.connect_map, loop.input_map, loop.output_map):
+            m = np.array(m, dtype=float)
+            m.setflags(write=False)
+            self.maps.append(m)
+        self.outputs, self.states = tuple(loop.output_labels), tuple(loop.state_labels)
+        self.connection_type = loop.connection_type
+
+    def loop(self, blocks: list, name: str) -> ct.InterconnectedSystem:
+        """The interconnection of ``blocks`` (a loop of this structure) made without matching signal names again:
+        python-control's constructor with the names and matrices ``interconnect`` found."""
+        loop = ct.InterconnectedSystem(blocks, connections=[], inplist=[], outlist=[], inputs=[],
+                                       outputs=list(self.outputs), states=list(self.states), name=name,
+                                       connection_type=self.connection_type)
+        connect_map, input_map, output_map = (m.copy() for m in self.maps)   # the loop's own, as interconnect's are
+        loop.set_connect_map(connect_map)
+        loop.set_input_map(input_map)
+        loop.set_output_map(output_map)
+        return loop
+
+
+#: Wirings kept for reuse (distinct loop structures: observer on/off, noise, arm, disturbance kind, path kind...).
+WIRINGS_KEPT = 32
+#: The kept wirings by loop structure (see :func:`_interconnect`).
+WIRINGS = StructureCache(WIRINGS_KEPT)
+
+
+def _interconnect(blocks: list, outputs: list, name: str) -> ct.InterconnectedSystem:
+    """``control.interconnect`` of ``blocks`` by signal name with outputs ``outputs``, or the same interconnection
+    made from the wiring of a loop of the same structure built before in this process (see
+    :mod:`blocks.structure`): only numbers differ, and those are in ``blocks``."""
+    parts = blocks_structure(blocks)
+    key = None if parts is None else (parts, tuple(outputs), name)
+    wiring = WIRINGS.get(key) if key is not None else None
+    if wiring is not None:
+        return wiring.loop(blocks, name)
+    loop = ct.interconnect(blocks, inplist=[], outlist=outputs, outputs=outputs, name=name, check_unused=False)
+    if key is not None:
+        WIRINGS.put(key, _Wiring(loop))
     return loop
 
 
