@@ -26,6 +26,14 @@ engines, which give the same numbers to solver tolerance:
 every block has kernels and the solver is RK45, and ``fast`` otherwise; the
 first fallback for each reason is reported once per process with an
 :class:`EngineFallbackWarning` that says why.
+
+A loop whose structure was built before in this process (same arm model,
+blocks, signal names, kernels and parameter layouts; other numbers: gains,
+disturbance size, noise, ``t_final``) is not wired again: :func:`closed_loop`
+makes its interconnection from the kept wiring (:data:`WIRINGS`) and
+:func:`blocks.plan.make_plan` its plan from the kept plan, each with the new
+loop's own blocks, so only the numbers are new (see :mod:`blocks.structure`).
+:func:`clear_reuse` forgets what is kept.
 """
 from __future__ import annotations
 
@@ -52,7 +60,7 @@ from .systems import observer as observer_block
 from .validation import callable_or_none, joint_arrays
 
 __all__ = ["build_blocks", "closed_loop", "initial_state", "simulate", "SimulationError", "lumped_disturbance",
-           "LOOP_SIGNALS", "ENGINES", "EngineFallbackWarning", "select_engine"]
+           "LOOP_SIGNALS", "ENGINES", "EngineFallbackWarning", "select_engine", "clear_reuse", "WIRINGS"]
 
 
 LOOP_SIGNALS = ("q", "dq", "q_ref", "dq_ref", "ddq_ref", "tau", "d_hat", "tau_dis")
@@ -183,6 +191,17 @@ def _interconnect(blocks: list, outputs: list, name: str) -> ct.InterconnectedSy
     if key is not None:
         WIRINGS.put(key, _Wiring(loop))
     return loop
+
+
+def clear_reuse() -> None:
+    """Forget the loop structures and prepared runs this process keeps (:data:`WIRINGS`,
+    :data:`blocks.plan.PLANS`, the latest scenarios' prepared runs): the next loop of each structure is built
+    afresh.  Compiled code (kept per structure by :mod:`blocks.compiled`) stays."""
+    from .plan import PLANS
+    WIRINGS.clear()
+    PLANS.clear()
+    _prepared_runs.clear()
+    _last_prepared[0] = None
 
 
 def initial_state(loop: ct.InterconnectedSystem, scenario: Scenario | None = None) -> np.ndarray:
