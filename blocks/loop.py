@@ -399,12 +399,29 @@ _prepared_runs: OrderedDict = OrderedDict()
 _last_prepared: list = [None]
 
 
+class _RunKey:
+    """``(scenario, observer)`` as a key whose hash is computed once (a scenario's hash serialises its data, and a
+    new scenario's key is hashed to look it up and again to keep it)."""
+
+    __slots__ = ("scenario", "observer", "_hash")
+
+    def __init__(self, s: Scenario, observer: bool) -> None:
+        self.scenario, self.observer, self._hash = s, observer, hash((s, observer))
+
+    def __hash__(self) -> int:
+        return self._hash
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, _RunKey) and self.observer == other.observer and \
+            (self.scenario is other.scenario or self.scenario == other.scenario)
+
+
 def _prepared(s: Scenario, observer: bool) -> _Prepared:
     """The :class:`_Prepared` run of ``s`` with the Python plant, made once and kept for the latest scenarios."""
     last = _last_prepared[0]
     if last is not None and last.scenario is s and last.observer == observer:
         return last
-    key = (s, observer)
+    key = _RunKey(s, observer)
     run = _prepared_runs.get(key)
     if run is None:
         run = _Prepared(s, observer)
