@@ -380,3 +380,21 @@ def test_structure_cache_refuses_a_bad_capacity():
         StructureCache(0)
     with pytest.raises(ValueError, match=r"capacity must be a whole number >= 1, got 2.5"):
         StructureCache(2.5)
+
+
+def test_remembered_layouts_do_not_keep_blocks_alive():
+    """The parameter layouts remembered per block go with their blocks (a sweep leaves nothing behind)."""
+    import gc
+
+    from blocks import structure
+    base = _paper()
+    gc.collect()
+    before = len(structure._layouts)
+    for k in range(5):
+        loop = closed_loop(base.with_changes({"gains.kp": 120.0 + k}))
+        make_plan(loop)
+    assert len(structure._layouts) >= before + len(loop.syslist)
+    del loop
+    clear_reuse()
+    gc.collect()
+    assert len(structure._layouts) == before
