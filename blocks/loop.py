@@ -134,8 +134,9 @@ def closed_loop(scenario: Scenario | str = "paper", observer: bool = True, plant
     outputs = [name for sig in signals for name in signal_names(sig, arm)]
     plant_sys = blocks["plant"]
     needed_outputs = signal_names("q", arm) + signal_names("dq", arm) + signal_names("tau_dis", arm)
-    missing = [n for n in needed_outputs if n not in plant_sys.output_labels]
-    missing += [n for n in signal_names("tau", arm) if n not in plant_sys.input_labels]
+    plant_outputs, plant_inputs = set(plant_sys.output_labels), set(plant_sys.input_labels)
+    missing = [n for n in needed_outputs if n not in plant_outputs]
+    missing += [n for n in signal_names("tau", arm) if n not in plant_inputs]
     if missing:
         last = arm.joints.count - 1
         raise ValueError(f"plant block '{plant_sys.name}' lacks signals the loop needs: {missing} "
