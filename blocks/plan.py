@@ -40,7 +40,8 @@ from .structure import StructureCache, blocks_structure
 
 __all__ = ["AlgebraicLoopError", "BlockStep", "LoopPlan", "make_plan", "settle", "PLANS", "PLANS_KEPT"]
 
-#: Plans kept for reuse (distinct loop structures; a structure is a few kB: names, slices, index arrays).
+#: Plans kept for reuse: distinct loop structures, each its index arrays and connection matrices twice (in the plan
+#: and in its key), about 0.18 MB for the Panda's loop, 60 kB for the paper's.
 PLANS_KEPT = 32
 #: The kept plans by loop structure, without parameters (see :func:`make_plan`).
 PLANS = StructureCache(PLANS_KEPT)
@@ -242,8 +243,8 @@ def _checked_state_copies(block, step: BlockStep) -> dict[int, int]:
 def make_plan(system, params: dict | None = None) -> LoopPlan:
     """The evaluation plan of ``system`` (a :class:`control.InterconnectedSystem`).
 
-    When every block has kernels and a loop of the same structure was
-    planned before in this process, that plan is reused with this loop's
+    When every block has kernels (and no python-control ``params``) and a
+    loop of the same structure was planned before in this process, that plan is reused with this loop's
     kernels and parameters (see the module docstring); the plan is the one
     planning afresh would give.
 
