@@ -398,3 +398,19 @@ def test_remembered_layouts_do_not_keep_blocks_alive():
     clear_reuse()
     gc.collect()
     assert len(structure._layouts) == before
+
+
+def test_threads_building_one_structure_get_their_own_numbers():
+    """Scenarios of one structure simulated from several threads at once give each its own numbers (those of a run
+    with nothing kept) and keep one structure."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    base = _paper().with_changes({"simulation.t_final": 0.2})
+    scenarios = [base.with_changes({"gains.kp": 100.0 + 20 * k, "disturbance.f_r[2]": 0.5 + 0.1 * k})
+                 for k in range(6)]
+    with ThreadPoolExecutor(max_workers=3) as pool:
+        together = list(pool.map(lambda s: blocks.simulate(s, engine="fast"), scenarios))
+    assert _kept() == (1, 1)
+    for s, resp in zip(scenarios, together):
+        clear_reuse()
+        _assert_same_bits(resp, blocks.simulate(s, engine="fast"))
