@@ -271,6 +271,7 @@ def make_plan(system, params: dict | None = None) -> LoopPlan:
     if key is not None:
         kept = PLANS.get(key)
         if kept is not None:
+            # the blocks' state copies were checked when the structure was first planned: same functions, same names
             return _with_kernels(kept, blocks)
     plan = _new_plan(system, params, blocks, C, B, O)
     if key is not None:
