@@ -10,7 +10,10 @@ step, over the scenario's 10 s (built-in ``scope4`` and ``panda``).  Two ways to
   (RK45 at the scenario's tolerances), setup and outputs included; the fastest of ``--rounds`` runs after a
   first run, which compiles the loop (or loads it from the cache: printed, and timed separately); and the
   fastest run of a scenario not run before (Kp changed by 1e-9 relative: its loop is prepared anew, the
-  compiled code reused), which is what each run of a sweep pays;
+  compiled code reused), which is what each run of a sweep pays, two ways: with the loop's wiring and plan
+  reused from the scenario of the same structure run just before (what a process does), and with nothing kept
+  (``blocks.loop.WIRINGS`` and ``blocks.plan.PLANS`` cleared first: ``control.interconnect`` and ``make_plan``
+  run again, as before they were kept);
 * ``lean pinocchio + numpy``: written here as an expert would write it without dobkit: ``scipy`` ``solve_ivp``
   (RK45, the same tolerances and output grid) on a right-hand side that calls ``pin.crba`` and
   ``pin.nonLinearEffects`` on the nominal model (a copy of the URDF model with every body's mass and inertia
@@ -113,8 +116,9 @@ def lean_loop(scenario):
 def bench_arm(name: str, rounds: int) -> tuple[list, dict]:
     from blocks import load_scenario, simulate
     from blocks.compiled.engine import CompiledLoopEngine
-    from blocks.loop import _prepared
+    from blocks.loop import WIRINGS, _prepared
     from blocks.metrics import signal
+    from blocks.plan import PLANS
 
     s = load_scenario(name)
     engine = CompiledLoopEngine(_prepared(s, True).loop)
@@ -122,13 +126,20 @@ def bench_arm(name: str, rounds: int) -> tuple[list, dict]:
     t0 = _clock()
     first = simulate(s, engine="compiled")
     first_s = _clock() - t0
-    best = fresh = np.inf
+    best = fresh = unkept = np.inf
     for r in range(rounds):
         t0 = _clock()
         res = simulate(s, engine="compiled")
         best = min(best, _clock() - t0)
-        # a scenario not run before (its loop prepared anew, the compiled code reused): what a sweep pays per run
-        other = s.with_changes({"gains.kp": float(s.kp[0, 0]) * (1.0 + 1e-9 * (r + 1))})
+        # a scenario not run before (its loop prepared anew, the compiled code reused): what a sweep pays per run,
+        # first with no structure kept (wired and planned again), then reusing the structure that run kept
+        kp = float(s.kp[0, 0])
+        unreused, other = (s.with_changes({"gains.kp": kp * (1.0 + 1e-9 * (2 * r + k + 1))}) for k in range(2))
+        WIRINGS.clear()
+        PLANS.clear()
+        t0 = _clock()
+        simulate(unreused, engine="compiled")
+        unkept = min(unkept, _clock() - t0)
         t0 = _clock()
         simulate(other, engine="compiled")
         fresh = min(fresh, _clock() - t0)
@@ -145,11 +156,12 @@ def bench_arm(name: str, rounds: int) -> tuple[list, dict]:
     diff = float(np.max(np.abs(lean.y[:s.robot.n] - signal(res, "q"))))
     ratio = best / lean_s
     row = [name, str(s.robot.n), f"{lines:,}", "loaded from cache" if cached else "compiled",
-           f"{first_s:.1f}", f"{best:.3f}", f"{fresh:.3f}", f"{lean_s:.2f}", f"{lean.nfev:,}", f"{ratio:.4f}",
-           f"{fresh / lean_s:.4f}", f"{diff:.1e}"]
+           f"{first_s:.1f}", f"{best * 1e3:.2f}", f"{fresh * 1e3:.2f}", f"{unkept * 1e3:.2f}", f"{lean_s:.3f}",
+           f"{lean.nfev:,}", f"{ratio:.4f}", f"{fresh / lean_s:.4f}", f"{unkept / lean_s:.4f}", f"{diff:.1e}"]
     info = {"arm": name, "joints": s.robot.n, "generated_lines": lines, "first_run_s": first_s,
-            "first_run_compiled": not cached, "compiled_s": best, "compiled_new_scenario_s": fresh, "lean_s": lean_s,
-            "lean_rhs_calls": lean.nfev, "ratio": ratio, "ratio_new_scenario": fresh / lean_s,
+            "first_run_compiled": not cached, "compiled_s": best, "compiled_new_scenario_s": fresh,
+            "compiled_new_scenario_nothing_kept_s": unkept, "lean_s": lean_s, "lean_rhs_calls": lean.nfev,
+            "ratio": ratio, "ratio_new_scenario": fresh / lean_s, "ratio_new_scenario_nothing_kept": unkept / lean_s,
             "max_q_difference": diff}
     return [row], info
 
@@ -199,6 +211,10 @@ def bench_before_run(name: str, rounds: int) -> tuple[list, dict]:
                    "compiled_first_s": compiled_first, "equal": same}
 
 
+def _load(values) -> str:
+    return " ".join(f"{v:.2f}" for v in values)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--arms", nargs="+", default=["scope4", "panda"])
@@ -207,12 +223,15 @@ def main(argv=None) -> int:
                         help="also the per-call rows of bench_urdf_kernels.py (M and h beside pinocchio)")
     parser.add_argument("--calls", type=int, default=20000, help="calls per round of the per-call rows")
     args = parser.parse_args(argv)
+    load_start = os.getloadavg()
     rows = []
     for name in args.arms:
         rows.extend(bench_arm(name, args.rounds)[0])
-    print(table(["arm", "n", "generated lines", "first run", "first run (s)", "compiled (s)",
-                 "compiled, new scenario (s)", "lean (s)", "lean rhs calls", "compiled / lean",
-                 "new scenario / lean", "max q diff"], rows))
+    print(f"load average (1, 5, 15 min) {_load(load_start)} at the start, {_load(os.getloadavg())} now, on "
+          f"{os.cpu_count()} cores")
+    print(table(["arm", "n", "generated lines", "first run", "first run (s)", "compiled (ms)",
+                 "new scenario (ms)", "new scenario, nothing kept (ms)", "lean (s)", "lean rhs calls",
+                 "compiled / lean", "new scenario / lean", "nothing kept / lean", "max q diff"], rows))
     before = []
     for name in args.arms:
         before.extend(bench_before_run(name, args.rounds)[0])

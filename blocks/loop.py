@@ -26,6 +26,14 @@ engines, which give the same numbers to solver tolerance:
 every block has kernels and the solver is RK45, and ``fast`` otherwise; the
 first fallback for each reason is reported once per process with an
 :class:`EngineFallbackWarning` that says why.
+
+A loop whose structure was built before in this process (same arm model,
+blocks, signal names, kernels and parameter layouts; other numbers: gains,
+disturbance size, noise, ``t_final``) is not wired again: :func:`closed_loop`
+makes its interconnection from the kept wiring (:data:`WIRINGS`) and
+:func:`blocks.plan.make_plan` its plan from the kept plan, each with the new
+loop's own blocks, so only the numbers are new (see :mod:`blocks.structure`).
+:func:`clear_reuse` forgets what is kept.
 """
 from __future__ import annotations
 
@@ -46,12 +54,13 @@ from .kernels.bind import bound
 from .monitor import Monitor, SimulationError
 from .run_limits import estimate_run
 from .scenario import Scenario, load_scenario
+from .structure import StructureCache, blocks_structure
 from .systems import controller, plant, sensor, signal_names, trajectory_block
 from .systems import observer as observer_block
 from .validation import callable_or_none, joint_arrays
 
 __all__ = ["build_blocks", "closed_loop", "initial_state", "simulate", "SimulationError", "lumped_disturbance",
-           "LOOP_SIGNALS", "ENGINES", "EngineFallbackWarning", "select_engine"]
+           "LOOP_SIGNALS", "ENGINES", "EngineFallbackWarning", "select_engine", "clear_reuse", "WIRINGS"]
 
 
 LOOP_SIGNALS = ("q", "dq", "q_ref", "dq_ref", "ddq_ref", "tau", "d_hat", "tau_dis")
@@ -125,17 +134,76 @@ def closed_loop(scenario: Scenario | str = "paper", observer: bool = True, plant
     outputs = [name for sig in signals for name in signal_names(sig, arm)]
     plant_sys = blocks["plant"]
     needed_outputs = signal_names("q", arm) + signal_names("dq", arm) + signal_names("tau_dis", arm)
-    missing = [n for n in needed_outputs if n not in plant_sys.output_labels]
-    missing += [n for n in signal_names("tau", arm) if n not in plant_sys.input_labels]
+    plant_outputs, plant_inputs = set(plant_sys.output_labels), set(plant_sys.input_labels)
+    missing = [n for n in needed_outputs if n not in plant_outputs]
+    missing += [n for n in signal_names("tau", arm) if n not in plant_inputs]
     if missing:
         last = arm.joints.count - 1
         raise ValueError(f"plant block '{plant_sys.name}' lacks signals the loop needs: {missing} "
                          f"(it must take tau[0..{last}] and give q, dq and tau_dis[0..{last}])")
-    loop = ct.interconnect(list(blocks.values()), inplist=[], outlist=outputs, outputs=outputs,
-                           name="dob_loop" if observer else "ctc_loop", check_unused=False)
+    loop = _interconnect(list(blocks.values()), outputs, "dob_loop" if observer else "ctc_loop")
     loop.scenario = s
     loop.with_observer = observer
     return loop
+
+
+class _Wiring:
+    """What :func:`control.interconnect` derived for one loop structure: its connection matrices (read-only) and
+    signal names.  No block, function or number: the loops made from it take those from their own blocks."""
+
+    def __init__(self, loop: ct.InterconnectedSystem) -> None:
+        self.maps = []
+        for m in (loop.connect_map, loop.input_map, loop.output_map):
+            m = np.array(m, dtype=float)
+            m.setflags(write=False)
+            self.maps.append(m)
+        self.outputs, self.states = tuple(loop.output_labels), tuple(loop.state_labels)
+        self.connection_type = loop.connection_type
+
+    def loop(self, blocks: list, name: str) -> ct.InterconnectedSystem:
+        """The interconnection of ``blocks`` (a loop of this structure) made without matching signal names again:
+        python-control's constructor with the names and matrices ``interconnect`` found."""
+        loop = ct.InterconnectedSystem(blocks, connections=[], inplist=[], outlist=[], inputs=[],
+                                       outputs=list(self.outputs), states=list(self.states), name=name,
+                                       connection_type=self.connection_type)
+        connect_map, input_map, output_map = (m.copy() for m in self.maps)   # the loop's own, as interconnect's are
+        loop.set_connect_map(connect_map)
+        loop.set_input_map(input_map)
+        loop.set_output_map(output_map)
+        return loop
+
+
+#: Wirings kept for reuse: distinct loop structures (observer on/off, noise, arm, disturbance kind, path kind...),
+#: each its three connection matrices, about 90 kB for the Panda's loop, 30 kB for the paper's.
+WIRINGS_KEPT = 32
+#: The kept wirings by loop structure (see :func:`_interconnect`).
+WIRINGS = StructureCache(WIRINGS_KEPT)
+
+
+def _interconnect(blocks: list, outputs: list, name: str) -> ct.InterconnectedSystem:
+    """``control.interconnect`` of ``blocks`` by signal name with outputs ``outputs``, or the same interconnection
+    made from the wiring of a loop of the same structure built before in this process (see
+    :mod:`blocks.structure`): only numbers differ, and those are in ``blocks``."""
+    parts = blocks_structure(blocks)
+    key = None if parts is None else (parts, tuple(outputs), name)
+    wiring = WIRINGS.get(key) if key is not None else None
+    if wiring is not None:
+        return wiring.loop(blocks, name)
+    loop = ct.interconnect(blocks, inplist=[], outlist=outputs, outputs=outputs, name=name, check_unused=False)
+    if key is not None:
+        WIRINGS.put(key, _Wiring(loop))
+    return loop
+
+
+def clear_reuse() -> None:
+    """Forget the loop structures and prepared runs this process keeps (:data:`WIRINGS`,
+    :data:`blocks.plan.PLANS`, the latest scenarios' prepared runs): the next loop of each structure is built
+    afresh.  Compiled code (kept per structure by :mod:`blocks.compiled`) stays."""
+    from .plan import PLANS
+    WIRINGS.clear()
+    PLANS.clear()
+    _prepared_runs.clear()
+    _last_prepared[0] = None
 
 
 def initial_state(loop: ct.InterconnectedSystem, scenario: Scenario | None = None) -> np.ndarray:
@@ -333,12 +401,29 @@ _prepared_runs: OrderedDict = OrderedDict()
 _last_prepared: list = [None]
 
 
+class _RunKey:
+    """``(scenario, observer)`` as a key whose hash is computed once (a scenario's hash serialises its data, and a
+    new scenario's key is hashed to look it up and again to keep it)."""
+
+    __slots__ = ("scenario", "observer", "_hash")
+
+    def __init__(self, s: Scenario, observer: bool) -> None:
+        self.scenario, self.observer, self._hash = s, observer, hash((s, observer))
+
+    def __hash__(self) -> int:
+        return self._hash
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, _RunKey) and self.observer == other.observer and \
+            (self.scenario is other.scenario or self.scenario == other.scenario)
+
+
 def _prepared(s: Scenario, observer: bool) -> _Prepared:
     """The :class:`_Prepared` run of ``s`` with the Python plant, made once and kept for the latest scenarios."""
     last = _last_prepared[0]
     if last is not None and last.scenario is s and last.observer == observer:
         return last
-    key = (s, observer)
+    key = _RunKey(s, observer)
     run = _prepared_runs.get(key)
     if run is None:
         run = _Prepared(s, observer)
