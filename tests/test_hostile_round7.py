@@ -6,8 +6,11 @@ docs/hostile-inputs.md, "Round 7", lists each case with its test.  The URDF file
 """
 from __future__ import annotations
 
+import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -184,3 +187,60 @@ def test_an_exported_arm_whose_bodies_differ_from_the_scenarios_is_refused_unles
     ref = blocks.simulate(same, engine="fast")
     got = cosimulate(plant_fmus["scope4"], same, step=1e-3, error_estimate=False)
     np.testing.assert_allclose(got.outputs[:4], ref.outputs[:4], atol=1e-6)
+
+
+# --------------------------------------------------------------------------------------------
+# Interrupts: no process or file of the command outlives it, and an interrupt is never called an error
+# --------------------------------------------------------------------------------------------
+def _processes_mentioning(text: str) -> list[str]:
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                line = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode("utf-8", "replace")
+            except OSError:
+                continue
+            if text in line:
+                found.append(line[:120])
+    return found
+
+
+@pytest.mark.skipif(not Path("/proc/self/cmdline").exists(), reason="needs /proc to see the compiler's processes")
+def test_sigterm_while_the_fmu_is_compiled_leaves_no_compiler_process_or_temporary_file(tmp_path):
+    # the compiler's driver was killed, its cc1 ran on and left /tmp/cc*.s and cc*.o behind after "interrupted;
+    # nothing partial was written"
+    temp = tmp_path / "tmp"
+    temp.mkdir()
+    env = dict(os.environ, TMPDIR=str(temp))
+    proc = subprocess.Popen([sys.executable, "-m", "dobkit", "fmu", "export", "--arm", "scope4", "--out", "x.fmu"],
+                            cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 300
+    while not any("cc1" in p for p in _processes_mentioning(str(temp))):
+        assert proc.poll() is None and time.monotonic() < deadline, "the compiler never ran"
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143, err
+    assert err.strip().splitlines()[-1] == "dobkit fmu: interrupted; nothing partial was written"
+    time.sleep(1.0)                                    # what outlived the command has had time to write
+    assert _processes_mentioning(str(temp)) == []
+    assert sorted(p.name for p in temp.iterdir()) == []
+    assert not (tmp_path / "x.fmu").exists()
+
+
+def test_an_interrupt_while_a_module_makes_its_classes_is_not_reported_as_an_error(monkeypatch, capsys):
+    # SIGTERM during `import scipy...` ended `dobkit fmu export` with "error: Error calling __set_name__ on
+    # 'cached_property' instance 'nodes_and_weights' in 'GaussLegendreQuadrature'" and exit 2 (Python 3.11 wraps
+    # an exception of __set_name__ in RuntimeError)
+    import dobkit.cli
+
+    class Descriptor:
+        def __set_name__(self, owner, name):
+            raise KeyboardInterrupt("received signal SIGTERM")
+
+    def command(args):
+        type("Quadrature", (), {"nodes_and_weights": Descriptor()})     # what an import does when it makes a class
+        return 0
+    monkeypatch.setattr(dobkit.cli, "_cmd_simulate", command)
+    assert dobkit.cli.main(["simulate"]) == 130
+    assert capsys.readouterr().err.strip() == "dobkit simulate: interrupted; nothing partial was written"
