@@ -86,6 +86,8 @@ def _cmd_export(args) -> int:
         raise ValueError(f"--out {out} is a folder; give the path of the .fmu file to write")
     if out.exists() and not args.force:
         raise ValueError(f"--out {out} exists; refusing to overwrite it (use --force to replace it)")
+    _arm_flags_alone(args, scenario=args.scenario is not None)
+    args.scenario = args.scenario or "paper"
     if args.arm is not None:
         arm = _export_arm(args)
         from fmu.export import export_plant
@@ -129,6 +131,18 @@ def _cmd_export_controller(args) -> int:
           f"communication step = sample period {c.period:g} s; reference tabulated to t = "
           f"{s.simulation.t_final:g} s)")
     return 0
+
+
+def _arm_flags_alone(args, scenario: bool = False) -> None:
+    """Refuse flags that would be ignored: ``--tool-frame``/``--locked`` without a URDF ``--arm``, and ``--arm``
+    beside ``--scenario`` (each names the plant)."""
+    if args.arm is not None and scenario:
+        raise ValueError(f"--arm {args.arm} and --scenario {args.scenario} both name the plant to export; give one "
+                         "(--scenario exports that scenario's true plant, --arm an arm's plant)")
+    if (args.tool_frame or args.locked) and (args.arm is None or args.arm == "rrpr"):
+        given = " and ".join(f for f, v in (("--tool-frame", args.tool_frame), ("--locked", args.locked)) if v)
+        raise ValueError(f"{given} {'go' if ' and ' in given else 'goes'} with --arm X.urdf (a URDF file's tool frame "
+                         f"and locked joints); got {'--arm ' + args.arm if args.arm else 'no --arm'}")
 
 
 def _export_arm(args):
@@ -353,6 +367,7 @@ def _print_check(report: dict) -> None:
 def _cmd_check(args) -> int:
     from fmu.check import check_fmu
 
+    _arm_flags_alone(args)
     arm = None
     if args.arm == "rrpr":
         from blocks.parameters import RobotParameters
@@ -379,7 +394,7 @@ def add_fmu_subcommands(subparsers) -> None:
     sub = fmu.add_subparsers(dest="fmu_command", required=True)
 
     exp = sub.add_parser("export", help="export the scenario's true plant as an FMU (ME + CS)")
-    exp.add_argument("--scenario", default="paper", help="scenario name or TOML path (default: paper)")
+    exp.add_argument("--scenario", default=None, help="scenario name or TOML path (default: paper)")
     exp.add_argument("--fmi-version", type=int, choices=(2, 3), default=2, help="FMI version (default: 2)")
     exp.add_argument("--substeps", type=int, default=4,
                      help="RK4 steps per co-simulation communication step (default: 4)")

@@ -244,3 +244,50 @@ def test_an_interrupt_while_a_module_makes_its_classes_is_not_reported_as_an_err
     monkeypatch.setattr(dobkit.cli, "_cmd_simulate", command)
     assert dobkit.cli.main(["simulate"]) == 130
     assert capsys.readouterr().err.strip() == "dobkit simulate: interrupted; nothing partial was written"
+
+
+def test_an_interrupted_job_says_nothing_was_written_when_its_log_was_not_made(tmp_path, capsys):
+    # "every finished run is kept in s-results.jsonl, and the same command resumes" with no such file
+    import argparse
+
+    from dobkit.job_commands import run_job
+    args = argparse.Namespace(max_memory=None, max_steps=None, max_seconds=None)
+    results = tmp_path / "s-results.jsonl"
+
+    def body(args, budget, state):
+        state["results"] = results
+        raise KeyboardInterrupt
+    assert run_job("sweep", args, body, (), "run", "results") == 130
+    assert capsys.readouterr().err.strip() == "dobkit sweep: interrupted before any run finished; nothing was written"
+    results.write_text("{}\n")
+    assert run_job("sweep", args, body, (), "run", "results") == 130
+    assert f"every finished run is kept in {results}" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------------------------
+# Flags: what would be ignored, or read as a number Python cannot convert
+# --------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("argv, says", [
+    (["fmu", "export", "--tool-frame", "tip", "--out", "x.fmu"], "--tool-frame goes with --arm X.urdf"),
+    (["fmu", "export", "--locked", "a,b", "--out", "x.fmu"], "--locked goes with --arm X.urdf"),
+    (["fmu", "export", "--arm", "scope4", "--scenario", "paper", "--out", "x.fmu"],
+     "--arm scope4 and --scenario paper both name the plant to export; give one"),
+    (["fmu", "check", "x.fmu", "--arm", "rrpr", "--tool-frame", "tip"], "--tool-frame goes with --arm X.urdf"),
+])
+def test_fmu_flags_that_would_be_ignored_are_refused(tmp_path, monkeypatch, capsys, argv, says):
+    # `fmu export --tool-frame tip` exported the paper's plant, the flag ignored; `--arm X --scenario Y` exported X
+    from dobkit.cli import main
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("dobkit fmu: error: ") and says in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "x.fmu").exists()
+
+
+@pytest.mark.parametrize("address", ["local:\u00b2", "local:\u0663"])
+def test_a_local_worker_count_in_other_digits_is_refused_naming_the_flag(address):
+    # 'local:²' passed str.isdigit and failed in int(): "invalid literal for int() with base 10: '²'"
+    from analysis.jobs.cluster import local_workers
+    with pytest.raises(ValueError, match=r"--scheduler 'local:.': the number of local worker processes must be a "
+                                         r"whole number >= 1"):
+        local_workers(address)
