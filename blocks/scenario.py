@@ -328,6 +328,11 @@ class Scenario:
         except ScenarioError as err:
             raise ScenarioError(f"{self.source}: {err}") from None
         data = _plain(self.user_data)
+        urdf = data.get("arm", {}).get("urdf")
+        if isinstance(urdf, str) and not urdf.startswith("example:") and "arm.urdf" not in whole:
+            # the file this scenario read: a relative path given in Python is relative to the working folder of
+            # then, not of now (os.chdir between the two made the same scenario's change fail: "does not exist")
+            data["arm"]["urdf"] = self.data["arm"]["urdf"]
         if "trajectory.kind" in whole and whole["trajectory.kind"] != self.data["trajectory"]["kind"]:
             data["trajectory"] = {}         # each kind has its own keys
         for key, value in whole.items():

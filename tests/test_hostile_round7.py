@@ -394,3 +394,22 @@ def test_an_interrupt_as_the_summarys_staging_folder_is_made_leaves_nothing_of_i
     files = write_summary((SUMMARY_HEADER, SUMMARY_ROWS), out, formats=("png",))
     assert files["json"] == out / "summary.json" and files["json"].is_file()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s-summary"]
+
+
+def test_a_scenario_with_a_relative_urdf_path_changes_after_the_working_folder_does(tmp_path, monkeypatch):
+    # scenario_from_dict with urdf = "arm.urdf" read the file; after os.chdir, with_changes read the user's data
+    # again, relative to the new folder: "URDF file 'arm.urdf' does not exist"
+    import blocks
+    _urdf(tmp_path, TWO)
+    data = {"arm": {"urdf": "arm.urdf", "tool_frame": "rod"}, "gains": {"kp": 180, "kd": 36, "observer_bandwidth": 10.0},
+            "trajectory": {"kind": "joint_sine"}, "simulation": {"t_final": 0.1, "output_step": 0.01}}
+    monkeypatch.chdir(tmp_path)
+    s = blocks.scenario_from_dict(data)
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    changed = s.with_changes({"gains.kp": 100})
+    assert changed.robot is s.robot and float(changed.kp[0, 0]) == 100.0
+    assert changed.data["arm"]["urdf"] == str(tmp_path / "arm.urdf")
+    with pytest.raises(blocks.ScenarioError, match=r"URDF file .*other.urdf' does not exist"):
+        s.with_changes({"arm.urdf": "other.urdf"})      # a path given now is relative to the folder of now
