@@ -413,3 +413,21 @@ def test_a_scenario_with_a_relative_urdf_path_changes_after_the_working_folder_d
     assert changed.data["arm"]["urdf"] == str(tmp_path / "arm.urdf")
     with pytest.raises(blocks.ScenarioError, match=r"URDF file .*other.urdf' does not exist"):
         s.with_changes({"arm.urdf": "other.urdf"})      # a path given now is relative to the folder of now
+
+
+DRAWS = '[monte_carlo.distributions]\n"disturbance.f_r[0]" = {kind = "uniform", low = 0.01, high = 0.1}\n'
+
+
+def test_tuning_y_of_a_scenario_that_sets_the_observer_bandwidth_is_refused_when_the_file_is_read(tmp_path):
+    # scope4 gives Y as 'gains.observer_bandwidth': every candidate of a search over gains.observer was refused,
+    # the first as "variant 0: ... 'gains.observer' (50.0) and 'gains.observer_bandwidth' (10.0 rad/s) both set ..."
+    from analysis.tune.spec import TuneError, load_tuning
+    path = tmp_path / "t.toml"
+    path.write_text('scenario = "scope4"\n[search]\n"gains.kp" = [50, 400]\n"gains.observer" = [1, 50]\n'
+                    '[monte_carlo]\nruns = 2\n' + DRAWS, encoding="utf-8")
+    with pytest.raises(TuneError, match=r"search.\"gains.observer\" tunes Y, which the scenario 'scope4' sets through "
+                                        r"'gains.observer_bandwidth' \(10 rad/s"):
+        load_tuning(path)
+    path.write_text('scenario = "scope4"\n[search]\n"gains.kp" = [50, 400]\n[monte_carlo]\nruns = 2\n' + DRAWS,
+                    encoding="utf-8")
+    assert [p.key for p in load_tuning(path).parameters] == ["gains.kp"]

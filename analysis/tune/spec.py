@@ -633,6 +633,12 @@ def _parameters(bounds: dict, base: Scenario, fail) -> list[Parameter]:
         if key not in TUNABLE:
             fail(f"{label} is not a tunable gain; tunable: {list(TUNABLE)} (a gain left out keeps the scenario's "
                  "value)")
+        bandwidth = base.data["gains"].get("observer_bandwidth")
+        if key == "gains.observer" and bandwidth is not None:
+            # every candidate would give both and be refused ("variant 0: ... both set the observer gain Y")
+            fail(f"{label} tunes Y, which the scenario {base.name!r} sets through 'gains.observer_bandwidth' "
+                 f"({bandwidth:g} rad/s, Y = bandwidth x M(q0)); remove that key from the scenario to tune Y "
+                 "directly, or leave gains.observer out of [search]")
         n = base.robot.joints.count
         per_joint = isinstance(value, list) and len(value) == n and all(isinstance(v, list) for v in value)
         if isinstance(value, list) and len(value) not in (2, n) and value and all(isinstance(v, list) for v in value):
