@@ -457,9 +457,11 @@ def add_fmu_subcommands(subparsers) -> None:
                          "not), compare its interfaces, and compare the plant FMU with the Python plant; runs "
                          "the FMU's native code: check untrusted FMUs in a sandbox")
     chk.add_argument("fmu", help="the .fmu file")
-    chk.add_argument("--t-final", type=_positive_float, default=1.0, help="length of the runs in s (default: 1)")
-    chk.add_argument("--cs-step", type=_positive_float, default=0.01,
-                     help="communication step of the Co-Simulation runs in s (default: 0.01)")
+    chk.add_argument("--t-final", type=_positive_float, default=None,
+                     help="length of the runs in s (default: 1, or the FMU's default stop time when earlier)")
+    chk.add_argument("--cs-step", type=_positive_float, default=None,
+                     help="communication step of the Co-Simulation runs in s (default: 0.01, or the FMU's default "
+                          "step size when it cannot vary its step, as a sampled controller)")
     chk.add_argument("--tolerance", type=_positive_float, default=1e-6,
                      help="largest allowed difference to the Python plant (default: 1e-6)")
     chk.add_argument("--me-cs-tolerance", type=_positive_float, default=1e-4,
