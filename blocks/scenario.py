@@ -1009,6 +1009,9 @@ def load_scenario(name_or_path: str | Path = "paper") -> Scenario:
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
+        if str(source).lower().endswith(".urdf") or text.lstrip().startswith("<"):
+            raise ScenarioError(f"{source} is an XML or URDF file, not a scenario (TOML); a URDF arm is named in a "
+                                "scenario's [arm] section: urdf = \"...\", tool_frame = \"...\"") from None
         raise ScenarioError(f"{source}: not valid TOML: {err}") from None
     except RecursionError:              # tomllib reads nested arrays recursively
         raise ScenarioError(f"{source}: {_TOO_DEEP}") from None

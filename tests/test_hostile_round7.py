@@ -449,3 +449,13 @@ def test_fmu_check_steps_a_sampled_controller_fmu_by_its_own_sample_period(tmp_p
     assert run["t_final"] == 0.2 and report["passed"]                                   # the table's end
     explicit = check_fmu(path, cs_step=0.01)                   # a step the user asks for is still the user's
     assert not explicit["passed"] and "every step must be one sample" in explicit["co_simulation"]["error"]
+
+
+def test_a_urdf_given_as_the_scenario_says_where_a_urdf_goes(tmp_path):
+    # `dobkit simulate --scenario arm.urdf` said "not valid TOML: Invalid statement (at line 1, column 1)"
+    _urdf(tmp_path, TWO)
+    done = _dobkit("simulate", "--scenario", "arm.urdf", "--no-figures", cwd=tmp_path)
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert done.stderr.strip() == ("dobkit simulate: error: arm.urdf is an XML or URDF file, not a scenario (TOML); a "
+                                   "URDF arm is named in a scenario's [arm] section: urdf = \"...\", tool_frame = "
+                                   "\"...\"")
