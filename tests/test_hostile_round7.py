@@ -459,3 +459,19 @@ def test_a_urdf_given_as_the_scenario_says_where_a_urdf_goes(tmp_path):
     assert done.stderr.strip() == ("dobkit simulate: error: arm.urdf is an XML or URDF file, not a scenario (TOML); a "
                                    "URDF arm is named in a scenario's [arm] section: urdf = \"...\", tool_frame = "
                                    "\"...\"")
+
+
+def test_an_interrupted_tunings_progress_says_its_stage_stopped(tuned, monkeypatch, capsys):
+    # "tuning: writing results: done, took 2.6 s" was printed above "dobkit tune: interrupted"
+    import analysis.tune.report
+    from analysis.tune.runner import run_tune
+    path, out = tuned
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(analysis.tune.report, "write_figures", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        run_tune(path, out, workers=1, progress=True, engine="fast")
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines[-1].startswith("tuning: writing results: stopped after ")
+    assert not any(line.startswith("tuning: writing results: done") for line in lines)

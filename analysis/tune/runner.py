@@ -313,6 +313,11 @@ def run_tune(spec: TuneSpec | str | Path, out_dir: str | Path, workers: int | No
                         None)
             result = _finish(spec, evaluator, search, result, out, started, figures, report, problems, free,
                              searched if constraint_costs else None)
+    except BaseException:
+        if display is not None:         # an interrupted or failed stage says "stopped after", not "done"
+            display.close(failed=True)
+            display = None
+        raise
     finally:
         if display is not None:
             display.close()
