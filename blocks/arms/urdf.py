@@ -25,6 +25,7 @@ import math
 import os
 import sys
 import tempfile
+import threading
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -409,26 +410,30 @@ def load_urdf_arm(path, tool_frame: str, locked=(), locked_values=None, gravity=
 def _stderr_kept():
     """Capture what native code writes to file descriptor 2 while the body runs; yields a function giving its
     ``Error:`` lines (urdfdom's reasons for refusing a file), without the source locations."""
-    kept = tempfile.TemporaryFile()
-    saved = None
-    try:
-        sys.stderr.flush()
-        saved = os.dup(2)
-        os.dup2(kept.fileno(), 2)
-    except (OSError, ValueError):       # no usable descriptor 2 (an embedded interpreter): leave it alone
-        saved = None
-
     def said() -> list[str]:
         kept.seek(0)
         lines = kept.read().decode("utf-8", "replace").splitlines()
         return [line.split("Error:", 1)[1].strip() for line in lines if line.lstrip().startswith("Error:")]
-    try:
-        yield said
-    finally:
-        if saved is not None:
-            os.dup2(saved, 2)
-            os.close(saved)
-        kept.close()
+
+    # descriptor 2 is the process's: one redirection at a time, and always restored (an interrupt included)
+    with _STDERR_LOCK, tempfile.TemporaryFile() as kept:
+        saved = None
+        try:
+            try:
+                if sys.stderr is not None:
+                    sys.stderr.flush()
+                saved = os.dup(2)
+                os.dup2(kept.fileno(), 2)
+            except (OSError, ValueError, AttributeError):   # no usable descriptor 2 (an embedded interpreter)
+                pass
+            yield said
+        finally:
+            if saved is not None:
+                os.dup2(saved, 2)
+                os.close(saved)
+
+
+_STDERR_LOCK = threading.Lock()
 
 
 def _check_positive_definite(arm: ChainArm) -> None:
