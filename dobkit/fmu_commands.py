@@ -160,8 +160,19 @@ def _export_arm(args):
         raise ValueError(f"--arm must be one of {names} or a path to a .urdf file, got {args.arm!r}")
     if not args.tool_frame:
         raise ValueError(f"--arm {args.arm} is a URDF file: give its tool frame with --tool-frame")
-    locked = tuple(j for j in (args.locked or "").split(",") if j)
-    return load_urdf_arm(args.arm, args.tool_frame, locked=locked)
+    locked, values = [], {}
+    for entry in (j.strip() for j in (args.locked or "").split(",")):
+        if not entry:
+            continue
+        name, _, value = entry.partition("=")
+        locked.append(name.strip())
+        if value:                       # NAME=VALUE: held there (rad, m), else at 0
+            try:
+                values[name.strip()] = float(value)
+            except ValueError:
+                raise ValueError(f"--locked {entry!r}: the position after '=' must be a number (rad, m), got "
+                                 f"{value!r}") from None
+    return load_urdf_arm(args.arm, args.tool_frame, locked=locked, locked_values=values)
 
 
 def _estimate_line(estimate: dict) -> str:
@@ -403,7 +414,8 @@ def add_fmu_subcommands(subparsers) -> None:
     exp.add_argument("--arm", default=None,
                      help="export this arm's plant instead of the scenario's: scope4, panda, ur5 or a .urdf path")
     exp.add_argument("--tool-frame", default=None, help="tool frame of a --arm URDF file")
-    exp.add_argument("--locked", default=None, help="comma-separated joints of a --arm URDF file to lock")
+    exp.add_argument("--locked", default=None,
+                     help="comma-separated joints of a --arm URDF file to lock, each held at 0 or NAME=VALUE (rad, m)")
     exp.set_defaults(func=_cmd_export)
 
     ctl = sub.add_parser("export-controller", help="export the scenario's digital controller ([controller]) as a "
@@ -473,6 +485,7 @@ def add_fmu_subcommands(subparsers) -> None:
                           "ur5 or a .urdf path (default: the FMU's own Table-1 values, or the arm its export "
                           "recorded in it)")
     chk.add_argument("--tool-frame", default=None, help="tool frame of a --arm URDF file")
-    chk.add_argument("--locked", default=None, help="comma-separated joints of a --arm URDF file to lock")
+    chk.add_argument("--locked", default=None,
+                     help="comma-separated joints of a --arm URDF file to lock, each held at 0 or NAME=VALUE (rad, m)")
     _add_budget(chk)
     chk.set_defaults(func=_cmd_check)

@@ -120,8 +120,9 @@ def test_locking_twice_everything_or_outside_the_range_by_default_is_named(tmp_p
         load_urdf_arm(path, "arm", locked=["pitch", "slide"])       # "joint names () and kinds () must be ..."
     # a joint whose range excludes 0, locked without a value, was held at 0, outside its range
     shifted = _urdf(tmp_path, _changed('lower="-0.1" upper="0.2"', 'lower="0.05" upper="0.2"'), "shifted.urdf")
-    with pytest.raises(UnknownJointError, match=r"'slide' at 0.0 \(the default; give its position in locked_values\)"
-                                                r" is outside its range 0.05 to 0.2"):
+    with pytest.raises(UnknownJointError, match=r"'slide' at 0.0 \(the default; give its position: arm.locked_values, "
+                                                r"or --locked NAME=VALUE on the command line\) is outside its range "
+                                                r"0.05 to 0.2"):
         load_urdf_arm(shifted, "arm", locked=["slide"])
     arm = load_urdf_arm(shifted, "arm", locked=["slide"], locked_values={"slide": 0.1})
     assert arm.n == 1
@@ -475,3 +476,30 @@ def test_an_interrupted_tunings_progress_says_its_stage_stopped(tuned, monkeypat
     lines = capsys.readouterr().err.strip().splitlines()
     assert lines[-1].startswith("tuning: writing results: stopped after ")
     assert not any(line.startswith("tuning: writing results: done") for line in lines)
+
+
+def test_fmu_export_locks_a_joint_at_a_position_given_on_the_command_line(tmp_path, capsys):
+    # --locked took names only: a joint whose range excludes 0 could not be locked from the command line
+    from dobkit.cli import main
+    path = _urdf(tmp_path, _changed('lower="-0.1" upper="0.2"', 'lower="0.05" upper="0.2"'))
+    out = tmp_path / "x.fmu"
+    assert main(["fmu", "export", "--arm", str(path), "--tool-frame", "arm", "--locked", "slide", "--out",
+                 str(out)]) == 2
+    assert "--locked NAME=VALUE" in capsys.readouterr().err and not out.exists()
+    assert main(["fmu", "export", "--arm", str(path), "--tool-frame", "arm", "--locked", "slide=x", "--out",
+                 str(out)]) == 2
+    assert "--locked 'slide=x': the position after '=' must be a number" in capsys.readouterr().err
+    assert main(["fmu", "export", "--arm", str(path), "--tool-frame", "arm", "--locked", "slide=0.1", "--out",
+                 str(out)]) == 0
+    assert "arm 1 joints ['pitch']" in capsys.readouterr().out
+    # the record in the FMU is the arm with the slide held at 0.1 m: the rod's centre of mass then sits 0.1 m
+    # further along the slide's axis (0.8, 0, -0.6) in the arm's frame, so the pitch inertia is pinocchio's
+    import zipfile
+
+    from fmu.arm_record import ARM_RECORD, arm_from_record
+    recorded = arm_from_record(zipfile.ZipFile(out).read(ARM_RECORD).decode("utf-8"))
+    reference = load_urdf_arm(path, "arm", locked=["slide"], locked_values={"slide": 0.1})
+    model = reference.pin_model
+    data = model.createData()
+    q = np.array([0.3])
+    np.testing.assert_allclose(recorded.inertia(q), pin.crba(model, data, q), rtol=1e-12)

@@ -380,7 +380,8 @@ def load_urdf_arm(path, tool_frame: str, locked=(), locked_values=None, gravity=
         value = float(locked_values.get(name, 0.0))
         _, lo, hi = xml_joints.get(name, (None, -math.inf, math.inf))
         if not (math.isfinite(value) and lo <= value <= hi):
-            given = "" if name in locked_values else " (the default; give its position in locked_values)"
+            given = "" if name in locked_values else (" (the default; give its position: arm.locked_values, or "
+                                                      "--locked NAME=VALUE on the command line)")
             raise UnknownJointError(f"locked joint {name!r} at {value!r}{given} is outside its range {lo:g} to "
                                     f"{hi:g}")
         iq = model.joints[j].idx_q
