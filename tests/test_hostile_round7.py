@@ -503,3 +503,68 @@ def test_fmu_export_locks_a_joint_at_a_position_given_on_the_command_line(tmp_pa
     data = model.createData()
     q = np.array([0.3])
     np.testing.assert_allclose(recorded.inertia(q), pin.crba(model, data, q), rtol=1e-12)
+
+
+# --------------------------------------------------------------------------------------------
+# Arms of other joint counts than the paper's 4: one joint, six joints
+# --------------------------------------------------------------------------------------------
+def test_tuning_a_six_joint_arm_without_a_noise_section_takes_the_arms_own_default_noise(tmp_path):
+    # the paper's 4-joint default sensor noise was taken for any arm: tuning the UR5 (or the Panda) stopped with
+    # "matmul: Input operand 1 has a mismatch in its core dimension 0 ... (size 8 is different from 12)"
+    import blocks
+    from analysis.simulation.studies import default_noise
+    from analysis.tune.evaluate import Evaluator
+    from analysis.tune.linear import torque_noise_rms
+    from analysis.tune.runner import check_linear_feasibility
+    from analysis.tune.spec import load_tuning
+    ur5 = blocks.load_scenario("ur5").with_changes({"simulation.t_final": 0.2})
+    assert ur5.noise is None
+    (tmp_path / "ur5.toml").write_text(ur5.to_toml(), encoding="utf-8")
+    path = tmp_path / "t.toml"
+    path.write_text('scenario = "ur5.toml"\n[search]\n"gains.kp" = [50, 400]\n[monte_carlo]\nruns = 2\n' + DRAWS,
+                    encoding="utf-8")
+    spec = load_tuning(path)
+    expected = default_noise(ur5.robot.joints)            # six revolute joints: the revolute default six times
+    assert spec.limits.sensor_noise["q_std"] == expected["q_std"] and len(expected["q_std"]) == 6
+    assert len(set(expected["q_std"])) == 1 and len(set(expected["dq_std"])) == 1
+    check_linear_feasibility(spec, Evaluator(spec, workers=1, engine="fast"))      # the matmul error was here
+    q0 = np.asarray(ur5.trajectory.evaluate(0.0)[0])
+    M, M_hat = ur5.robot.inertia(q0), ur5.nominal.inertia(q0)
+    rms = torque_noise_rms(M, M_hat, ur5.kp, ur5.kd, ur5.observer_gain, expected["q_std"], expected["dq_std"], 0.001)
+    assert rms.shape == (6,) and np.all(np.isfinite(rms)) and np.all(rms > 0)
+
+
+def test_a_one_joint_arm_is_analysed(tmp_path):
+    # `dobkit analyze` of a one-joint arm: "error: f(a) and f(b) must have different signs" (the mismatch search
+    # re-evaluated its bracket's ends one ulp off, where a loop without a resting position jumps), then an
+    # IndexError traceback (python-control squeezes the SISO response of the loop without the observer)
+    import blocks
+    from analysis.report.build import run_analysis
+    one = TWO.replace('<joint name="slide"', '<joint name="slide_unused"').split('<joint name="slide_unused"')[0]
+    one += '<joint name="tip_joint" type="fixed"><parent link="arm"/><child link="tip"/><origin xyz="0.3 0 0"/>' \
+           '</joint><link name="tip"/></robot>\n'
+    _urdf(tmp_path, one)
+    s = blocks.scenario_from_dict({"arm": {"urdf": str(tmp_path / "arm.urdf"), "tool_frame": "tip",
+                                           "nominal_mass_scale": 1.05},
+                                   "gains": {"kp": 180, "kd": 36, "observer_bandwidth": 10.0},
+                                   "trajectory": {"kind": "joint_sine", "amplitude": [0.3], "omega": [1.0],
+                                                  "offset": [0.1]},
+                                   "disturbance": {"kind": "step", "f_r": [0.1]},
+                                   "simulation": {"t_final": 0.5, "output_step": 0.01}})
+    assert s.robot.n == 1
+    result = run_analysis(s)
+    f = result.frequency
+    # without the observer, w -> e is 1 / (M s^2 + M^ kd s + M^ kp + gravity's stiffness); at 1000 rad/s the
+    # gravity term (about 0.06 N m/rad) is 3e-6 of M w^2, so the magnitude there is pinocchio's M and the gains'
+    model = s.robot.pin_model
+    M = float(pin.crba(model, model.createData(), np.asarray(f.q0))[0, 0])
+    w = np.asarray(f.omega_rad_s)
+    expected = 1.0 / abs(-M * w ** 2 + 1j * 1.05 * M * 36.0 * w + 1.05 * M * 180.0)
+    assert w[-1] == 1000.0 and len(f.tracking_without_dob.magnitude) == 1
+    assert f.tracking_without_dob.magnitude[0][-1] == pytest.approx(expected[-1], rel=1e-4)
+    assert len(f.tracking_with_dob.magnitude) == 1 and len(f.estimation_with_dob.magnitude) == 1
+    without = result.mismatch.without_dob.boundaries
+    scan = without.scan
+    for boundary in without.boundaries:                     # each boundary lies between scan points of both signs
+        k = np.searchsorted(scan.factors, boundary.factor)
+        assert (scan.spectral_abscissa[k - 1] < 0) != (scan.spectral_abscissa[k] < 0)
