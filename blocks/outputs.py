@@ -12,7 +12,7 @@ import weakref
 from datetime import datetime
 from pathlib import Path
 
-__all__ = ["default_out_dir", "staged_output", "file_error", "DISK_ERRORS"]
+__all__ = ["default_out_dir", "staged_output", "file_error", "interrupts_held", "DISK_ERRORS"]
 
 #: Why a write fails for reasons of the file system rather than of the file, in words.
 DISK_ERRORS = {errno.EROFS: "the file system is read-only", errno.ENOSPC: "the disk is full (no space left)",
@@ -219,6 +219,10 @@ def _interrupts_held():
             signal.signal(signum, handler)
         if received:
             signal.raise_signal(received[0])
+
+
+#: For other writers that move whole results into place (a tuning's files).
+interrupts_held = _interrupts_held
 
 
 def _inside(filename, folder: Path) -> bool:

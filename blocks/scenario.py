@@ -328,6 +328,11 @@ class Scenario:
         except ScenarioError as err:
             raise ScenarioError(f"{self.source}: {err}") from None
         data = _plain(self.user_data)
+        urdf = data.get("arm", {}).get("urdf")
+        if isinstance(urdf, str) and not urdf.startswith("example:") and "arm.urdf" not in whole:
+            # the file this scenario read: a relative path given in Python is relative to the working folder of
+            # then, not of now (os.chdir between the two made the same scenario's change fail: "does not exist")
+            data["arm"]["urdf"] = self.data["arm"]["urdf"]
         if "trajectory.kind" in whole and whole["trajectory.kind"] != self.data["trajectory"]["kind"]:
             data["trajectory"] = {}         # each kind has its own keys
         for key, value in whole.items():
@@ -1004,6 +1009,9 @@ def load_scenario(name_or_path: str | Path = "paper") -> Scenario:
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
+        if str(source).lower().endswith(".urdf") or text.lstrip().startswith("<"):
+            raise ScenarioError(f"{source} is an XML or URDF file, not a scenario (TOML); a URDF arm is named in a "
+                                "scenario's [arm] section: urdf = \"...\", tool_frame = \"...\"") from None
         raise ScenarioError(f"{source}: not valid TOML: {err}") from None
     except RecursionError:              # tomllib reads nested arrays recursively
         raise ScenarioError(f"{source}: {_TOO_DEEP}") from None

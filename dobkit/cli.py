@@ -148,6 +148,17 @@ def main(argv=None) -> int:
     return status
 
 
+def _interrupt_within(err: BaseException) -> bool:
+    """Whether ``err`` was caused by a Ctrl-C or SIGTERM (a :class:`KeyboardInterrupt` in its chain)."""
+    seen = set()
+    while err is not None and id(err) not in seen:
+        if isinstance(err, KeyboardInterrupt):
+            return True
+        seen.add(id(err))
+        err = err.__cause__ or err.__context__
+    return False
+
+
 def _main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -155,6 +166,11 @@ def _main(argv=None) -> int:
         with _warnings_as_notes(args.command):
             return int(args.func(args) or 0)
     except (ValueError, OSError, RuntimeError, TypeError) as err:
+        if _interrupt_within(err):
+            # Python 3.11 wraps an exception of a descriptor's __set_name__ (a class made while a module is
+            # imported) in RuntimeError: Ctrl-C or SIGTERM then, not an error
+            print(f"dobkit {args.command}: interrupted; nothing partial was written", file=sys.stderr)
+            return 130
         # Expected failures (bad scenario, unreachable path, diverging run, bad FMU, unwritable folder): one line.
         print(f"dobkit {args.command}: error: {err}", file=sys.stderr)
         return 2

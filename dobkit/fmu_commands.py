@@ -86,6 +86,8 @@ def _cmd_export(args) -> int:
         raise ValueError(f"--out {out} is a folder; give the path of the .fmu file to write")
     if out.exists() and not args.force:
         raise ValueError(f"--out {out} exists; refusing to overwrite it (use --force to replace it)")
+    _arm_flags_alone(args, scenario=args.scenario is not None)
+    args.scenario = args.scenario or "paper"
     if args.arm is not None:
         arm = _export_arm(args)
         from fmu.export import export_plant
@@ -131,6 +133,18 @@ def _cmd_export_controller(args) -> int:
     return 0
 
 
+def _arm_flags_alone(args, scenario: bool = False) -> None:
+    """Refuse flags that would be ignored: ``--tool-frame``/``--locked`` without a URDF ``--arm``, and ``--arm``
+    beside ``--scenario`` (each names the plant)."""
+    if args.arm is not None and scenario:
+        raise ValueError(f"--arm {args.arm} and --scenario {args.scenario} both name the plant to export; give one "
+                         "(--scenario exports that scenario's true plant, --arm an arm's plant)")
+    if (args.tool_frame or args.locked) and (args.arm is None or args.arm == "rrpr"):
+        given = " and ".join(f for f, v in (("--tool-frame", args.tool_frame), ("--locked", args.locked)) if v)
+        raise ValueError(f"{given} {'go' if ' and ' in given else 'goes'} with --arm X.urdf (a URDF file's tool frame "
+                         f"and locked joints); got {'--arm ' + args.arm if args.arm else 'no --arm'}")
+
+
 def _export_arm(args):
     """The arm of ``fmu export --arm``: an example name or a URDF path with ``--tool-frame``."""
     from blocks.arms import example_arm, load_urdf_arm
@@ -146,8 +160,19 @@ def _export_arm(args):
         raise ValueError(f"--arm must be one of {names} or a path to a .urdf file, got {args.arm!r}")
     if not args.tool_frame:
         raise ValueError(f"--arm {args.arm} is a URDF file: give its tool frame with --tool-frame")
-    locked = tuple(j for j in (args.locked or "").split(",") if j)
-    return load_urdf_arm(args.arm, args.tool_frame, locked=locked)
+    locked, values = [], {}
+    for entry in (j.strip() for j in (args.locked or "").split(",")):
+        if not entry:
+            continue
+        name, _, value = entry.partition("=")
+        locked.append(name.strip())
+        if value:                       # NAME=VALUE: held there (rad, m), else at 0
+            try:
+                values[name.strip()] = float(value)
+            except ValueError:
+                raise ValueError(f"--locked {entry!r}: the position after '=' must be a number (rad, m), got "
+                                 f"{value!r}") from None
+    return load_urdf_arm(args.arm, args.tool_frame, locked=locked, locked_values=values)
 
 
 def _estimate_line(estimate: dict) -> str:
@@ -353,6 +378,7 @@ def _print_check(report: dict) -> None:
 def _cmd_check(args) -> int:
     from fmu.check import check_fmu
 
+    _arm_flags_alone(args)
     arm = None
     if args.arm == "rrpr":
         from blocks.parameters import RobotParameters
@@ -379,7 +405,7 @@ def add_fmu_subcommands(subparsers) -> None:
     sub = fmu.add_subparsers(dest="fmu_command", required=True)
 
     exp = sub.add_parser("export", help="export the scenario's true plant as an FMU (ME + CS)")
-    exp.add_argument("--scenario", default="paper", help="scenario name or TOML path (default: paper)")
+    exp.add_argument("--scenario", default=None, help="scenario name or TOML path (default: paper)")
     exp.add_argument("--fmi-version", type=int, choices=(2, 3), default=2, help="FMI version (default: 2)")
     exp.add_argument("--substeps", type=int, default=4,
                      help="RK4 steps per co-simulation communication step (default: 4)")
@@ -388,7 +414,8 @@ def add_fmu_subcommands(subparsers) -> None:
     exp.add_argument("--arm", default=None,
                      help="export this arm's plant instead of the scenario's: scope4, panda, ur5 or a .urdf path")
     exp.add_argument("--tool-frame", default=None, help="tool frame of a --arm URDF file")
-    exp.add_argument("--locked", default=None, help="comma-separated joints of a --arm URDF file to lock")
+    exp.add_argument("--locked", default=None,
+                     help="comma-separated joints of a --arm URDF file to lock, each held at 0 or NAME=VALUE (rad, m)")
     exp.set_defaults(func=_cmd_export)
 
     ctl = sub.add_parser("export-controller", help="export the scenario's digital controller ([controller]) as a "
@@ -442,9 +469,11 @@ def add_fmu_subcommands(subparsers) -> None:
                          "not), compare its interfaces, and compare the plant FMU with the Python plant; runs "
                          "the FMU's native code: check untrusted FMUs in a sandbox")
     chk.add_argument("fmu", help="the .fmu file")
-    chk.add_argument("--t-final", type=_positive_float, default=1.0, help="length of the runs in s (default: 1)")
-    chk.add_argument("--cs-step", type=_positive_float, default=0.01,
-                     help="communication step of the Co-Simulation runs in s (default: 0.01)")
+    chk.add_argument("--t-final", type=_positive_float, default=None,
+                     help="length of the runs in s (default: 1, or the FMU's default stop time when earlier)")
+    chk.add_argument("--cs-step", type=_positive_float, default=None,
+                     help="communication step of the Co-Simulation runs in s (default: 0.01, or the FMU's default "
+                          "step size when it cannot vary its step, as a sampled controller)")
     chk.add_argument("--tolerance", type=_positive_float, default=1e-6,
                      help="largest allowed difference to the Python plant (default: 1e-6)")
     chk.add_argument("--me-cs-tolerance", type=_positive_float, default=1e-4,
@@ -456,6 +485,7 @@ def add_fmu_subcommands(subparsers) -> None:
                           "ur5 or a .urdf path (default: the FMU's own Table-1 values, or the arm its export "
                           "recorded in it)")
     chk.add_argument("--tool-frame", default=None, help="tool frame of a --arm URDF file")
-    chk.add_argument("--locked", default=None, help="comma-separated joints of a --arm URDF file to lock")
+    chk.add_argument("--locked", default=None,
+                     help="comma-separated joints of a --arm URDF file to lock, each held at 0 or NAME=VALUE (rad, m)")
     _add_budget(chk)
     chk.set_defaults(func=_cmd_check)

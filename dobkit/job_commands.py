@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable
+from pathlib import Path
 
 from blocks.budget import Budget, BudgetError, format_bytes
 from blocks.scenario import ScenarioError
@@ -61,6 +62,9 @@ def run_job(command: str, args: argparse.Namespace, body: Callable[[argparse.Nam
         print(f"dobkit {command}: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
+        if where in state and not Path(state[where]).exists():       # stopped before its log was made
+            print(f"dobkit {command}: interrupted before any {work} finished; nothing was written", file=sys.stderr)
+            return 130
         at = f" in {state[where]}" if where in state else ""
         print(f"dobkit {command}: interrupted; every finished {work} is kept{at}, and the same command resumes",
               file=sys.stderr)

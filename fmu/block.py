@@ -265,10 +265,15 @@ def _scenario_start_values(extracted, scenario) -> dict:
     """The scenario's true-plant parameters and start state, for an FMU with the plant's signals."""
     from blocks.scenario import Scenario, load_scenario  # the scenario machinery only when asked for
 
+    from .plant_check import check_scenario_arm
     from .scenario_values import plant_start_values
     s = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     md = described(extracted)
     joints = range(s.robot.joints.count)
     require_variables(md, [f"q[{i}]" for i in joints] + [f"dq[{i}]" for i in joints] + [f"tau[{i}]" for i in joints],
                       source=f"{extracted.source} (as the true plant of scenario {s.name!r})")
+    try:
+        check_scenario_arm(extracted, md, s)
+    except FMUError as err:
+        raise type(err)(f"{extracted.source} (as the true plant of scenario {s.name!r}): {err}") from None
     return plant_start_values(s, {v.name for v in md.modelVariables}, "scenario", stacklevel=4)

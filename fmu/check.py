@@ -381,7 +381,29 @@ def _reference(extracted, md, arm):
         return None, f"no Python plant to compare with: {err}", None
 
 
-def check_fmu(path, t_final: float = 1.0, tolerance: float = 1e-6, cs_step: float = 0.01,
+def _run_settings(md, t_final: float | None, cs_step: float | None) -> tuple[float, float]:
+    """The run length and Co-Simulation step not given: 1 s and 0.01 s; for an FMU that cannot vary its
+    communication step (a sampled controller, which refuses any other step and steps past its reference table),
+    its ``DefaultExperiment`` stepSize and, when earlier than 1 s, its stopTime."""
+    def declared(text) -> float | None:
+        try:
+            value = float(text)
+        except (TypeError, ValueError):
+            return None
+        return value if math.isfinite(value) and value > 0 else None
+    experiment = md.defaultExperiment
+    fixed = (experiment is not None and md.coSimulation is not None
+             and not md.coSimulation.canHandleVariableCommunicationStepSize)
+    stop = declared(experiment.stopTime) if fixed else None
+    size = declared(experiment.stepSize) if fixed else None
+    if t_final is None:
+        t_final = min(1.0, stop) if stop is not None else 1.0
+    if cs_step is None:
+        cs_step = size if size is not None else 0.01
+    return t_final, cs_step
+
+
+def check_fmu(path, t_final: float | None = None, tolerance: float = 1e-6, cs_step: float | None = None,
               cs_tolerance: float = 1e-6, me_cs_tolerance: float = 1e-4, budget: Budget | None = None,
               limits: ExtractionLimits | None = None, arm=None) -> dict:
     """Validate an FMU, load and run what it offers, and compare the plant FMU with the Python plant.
@@ -390,12 +412,16 @@ def check_fmu(path, t_final: float = 1.0, tolerance: float = 1e-6, cs_step: floa
     ----------
     path : str or pathlib.Path
         The ``.fmu`` file.
-    t_final : float
-        Length of the runs (s).
+    t_final : float, optional
+        Length of the runs (s); default 1 s, or for an FMU that cannot vary
+        its communication step its ``DefaultExperiment`` stopTime when earlier.
     tolerance : float
         Largest allowed Model Exchange difference to the Python plant (rad, m, rad/s, m/s, N m, N).
-    cs_step : float
-        Communication step (s) of the Co-Simulation runs.
+    cs_step : float, optional
+        Communication step (s) of the Co-Simulation runs; default 0.01 s, or
+        the FMU's ``DefaultExperiment`` stepSize when it cannot vary its
+        communication step (``canHandleVariableCommunicationStepSize="false"``,
+        a sampled controller).
     cs_tolerance : float
         Largest allowed Co-Simulation difference of the plant's states after ``t_final``.
     me_cs_tolerance : float
@@ -428,6 +454,8 @@ def check_fmu(path, t_final: float = 1.0, tolerance: float = 1e-6, cs_step: floa
         For a ``t_final`` or ``cs_step`` that is not a finite number > 0.
     """
     for name, value in (("t_final", t_final), ("cs_step", cs_step)):
+        if value is None:
+            continue
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
             raise ValueError(f"{name} must be a finite number > 0 s, got {value!r}")
     budget = Budget.from_env() if budget is None else budget
@@ -457,6 +485,7 @@ def check_fmu(path, t_final: float = 1.0, tolerance: float = 1e-6, cs_step: floa
         report["model_description"] = {"passed": True, "why": f"FMI {md.fmiVersion}, {len(md.modelVariables)} "
                                                                "variables"}
         report.update(fmi_version=md.fmiVersion, model=md.modelName, interfaces=offered_interfaces(md))
+        t_final, cs_step = _run_settings(md, t_final, cs_step)
         plant, plant_reason, mismatch = _reference(extracted, md, arm)
         if md.coSimulation is not None:     # estimates first: refuse before running anything
             budget.check_steps(_grid(t_final, cs_step)[0], "the Co-Simulation run of the check",

@@ -49,6 +49,7 @@ from .archive import ExtractionLimits, open_extracted
 from .cosim_sampled import cosimulate_sampled
 from .coupling import COUPLINGS
 from .description import described, require_variables
+from .errors import FMUError
 from .master import CoSimulationError, cosimulate_system, validated_step, validated_time
 from .scenario_values import plant_start_values
 
@@ -91,13 +92,19 @@ def controller_side(scenario: Scenario, observer: bool = True) -> ct.Interconnec
                            name="controller_side", check_unused=False)
 
 
-def _plant_variables(extracted, joints) -> set[str]:
-    """Names of the FMU's variables, after checking it has the plant's signals of ``joints`` (before instantiating)."""
+def _plant_variables(extracted, scenario: Scenario, parameters: str) -> set[str]:
+    """Names of the FMU's variables, after checking it has the plant's signals of the scenario's joints and, for a
+    dobkit plant FMU, that it is the scenario arm's plant (before instantiating)."""
+    from .plant_check import check_scenario_arm
     md = described(extracted)
     source = f"{extracted.source} (as the plant of the loop)"
-    names = joints.signal_names
+    names = scenario.robot.joints.signal_names
     require_variables(md, names("q") + names("dq") + names("tau_dis"), causality="output", source=source)
     require_variables(md, names("tau"), causality="input", source=source)
+    try:
+        check_scenario_arm(extracted, md, scenario, parameters)
+    except FMUError as err:
+        raise type(err)(f"{source}: {err}") from None
     return {v.name for v in md.modelVariables}
 
 
@@ -195,7 +202,7 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
                                     f"samples themselves, not {coupling!r}")
         extracted, owned = open_extracted(fmu_path, limits=limits, parent=extract_to)
         try:
-            start = plant_start_values(s, _plant_variables(extracted, s.robot.joints), parameters)
+            start = plant_start_values(s, _plant_variables(extracted, s, parameters), parameters)
             resp = cosimulate_sampled(extracted, s, step, t_end, observer=observer, start_values=start,
                                       output_step=s.simulation.output_step, budget=budget, progress=progress)
         finally:
@@ -210,7 +217,7 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
     side_x0 = initial_state(side, s)
     extracted, owned = open_extracted(fmu_path, limits=limits, parent=extract_to)
     try:
-        start = plant_start_values(s, _plant_variables(extracted, s.robot.joints), parameters)
+        start = plant_start_values(s, _plant_variables(extracted, s, parameters), parameters)
         run = dict(side_x0=side_x0, start_values=start, side_substeps=side_substeps, coupling=coupling,
                    budget=budget, bounds=lambda names: signal_bounds(names, s))
         raw = cosimulate_system(extracted, side, t_end, step, record_every=record_every, progress=progress, **run)

@@ -24,7 +24,6 @@ from blocks.divergence import signal_bounds
 from blocks.monitor import Monitor
 from blocks.sampled_blocks import sampled_initial_state, sampled_loop
 from blocks.scenario import Scenario
-from blocks.systems import signal_names
 
 from .errors import FMUMissingVariablesError
 from .instance import FMUInstance
@@ -125,6 +124,7 @@ def cosimulate_sampled(extracted, scenario: Scenario, step: float, t_final: floa
                            if n_split else ""))
     loop = sampled_loop(s, observer=observer)
     x = sampled_initial_state(loop, s)
+    signal_names = s.robot.joints.signal_names        # the scenario arm's joints (the paper's 4 by default)
     positions = _plant_state_positions(loop)
     q_pos = [positions[n] for n in signal_names("q")]
     dq_pos = [positions[n] for n in signal_names("dq")]

@@ -52,7 +52,8 @@ from .errors import FMUError
 from .instance import FMUInstance
 
 __all__ = ["check_torque", "arm_torque", "plant_from_description", "plant_reference", "PlantReference",
-           "check_arm_matches", "arm_name", "compare_model_exchange", "compare_co_simulation", "compare_end_stops",
+           "check_arm_matches", "check_scenario_arm", "arm_name", "compare_model_exchange", "compare_co_simulation",
+           "compare_end_stops",
            "CHECK_INITIAL_STATE", "worst", "stop_parameters"]
 
 # The paper's arm: a generic configuration away from the singular theta2 = 0, pi, already moving (rad, m; rad/s, m/s).
@@ -270,6 +271,47 @@ def check_arm_matches(model_description, arm, name: str) -> None:
         if (fmu_lo, fmu_hi) != (lo, hi) and not (v.min is None and v.max is None):
             raise FMUError(f"q[{i}] of the FMU ranges from {fmu_lo:g} to {fmu_hi:g} {unit}; joint {joints.names[i]} "
                            f"of {name} from {lo:g} to {hi:g} {unit}: the FMU is not this arm's plant")
+
+
+def check_scenario_arm(extracted, model_description, scenario, parameters: str = "scenario") -> None:
+    """Refuse a dobkit plant FMU exported for another arm than ``scenario``'s, before it is run as its plant.
+
+    A dobkit plant FMU (one with ``disturbance_paper``) is the paper's RRPR
+    (Table-1 parameters, no arm record) or the arm recorded in it
+    (:mod:`fmu.arm_record`).  Its joints must be the scenario arm's
+    (:func:`check_arm_matches`), its model the same kind, and, with
+    ``parameters="scenario"``, a recorded arm's bodies the scenario's: they
+    are constants of its C code, which no start value changes.  Another FMU
+    is taken at the user's word.
+
+    Raises
+    ------
+    FMUError
+        Naming the FMU's arm, the scenario's arm and what to do.
+    """
+    from .arm_record import ARM_RECORD, arm_from_record
+
+    names = {v.name for v in model_description.modelVariables}
+    if "disturbance_paper" not in names:
+        return
+    arm = scenario.robot
+    theirs = f"the arm of scenario {scenario.name!r}, {arm_name(arm)}"
+    check_arm_matches(model_description, arm, theirs)
+    record = extracted.root / ARM_RECORD
+    recorded = arm_from_record(record.read_text(encoding="utf-8")) if record.is_file() else None
+    export = f"export this scenario's plant (dobkit fmu export --scenario {scenario.name})"
+    if isinstance(arm, RobotParameters) != (recorded is None):
+        mine = "the paper's RRPR arm (Table-1 parameters)" if recorded is None else f"{arm_name(recorded)} " \
+               "(recorded in it)"
+        raise FMUError(f"the FMU is the plant of {mine}; {theirs}: it is not this scenario's plant; {export}")
+    chain = getattr(arm, "chain", None)          # an arm model of the user's own: its joints were the check
+    differ = [] if recorded is None or chain is None else [
+        f for f in type(chain).__dataclass_fields__ if getattr(chain, f) != getattr(recorded.chain, f)]  # eq=False
+    if differ and parameters == "scenario":
+        verb = "differs" if len(differ) == 1 else "differ"
+        raise FMUError(f"the FMU is the plant of {arm_name(recorded)} (recorded in it), whose {', '.join(differ)} "
+                       f"{verb} from {theirs}; an exported arm's bodies are constants of its code, which the "
+                       f"scenario's values cannot set: {export}, or keep the FMU's own arm (--parameters fmu)")
 
 
 def stop_parameters(model_description) -> dict:

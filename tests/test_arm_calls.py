@@ -50,7 +50,7 @@ def _generated(arm, kernel, count: int, calls: bool = True):
 
 def _tree_panda():
     """The Panda with its two fingers kept: a tree (the fingers' rows of M are zero against each other)."""
-    return load_urdf_arm(example_urdf("panda"), "panda_hand")
+    return load_urdf_arm(example_urdf("panda"), "panda_hand", mimic="independent")
 
 
 @pytest.fixture(scope="module", params=["scope4", "panda", "panda with fingers"])

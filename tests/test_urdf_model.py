@@ -182,7 +182,7 @@ def test_locked_joint_at_a_value_and_gravity_override(mixed_urdf):
 def test_panda_fingers_locked_and_kept():
     locked = example_arm("panda")
     assert locked.n == 7
-    tree = load_urdf_arm(example_urdf("panda"), "panda_hand")      # a tree: both fingers kept as joints
+    tree = load_urdf_arm(example_urdf("panda"), "panda_hand", mimic="independent")  # a tree: both fingers joints
     assert tree.n == 9 and "panda_finger_joint2" in tree.joints.names
     rng = np.random.default_rng(2)
     q, dq = np.concatenate([rng.uniform(-1, 1, 7), [0.02, 0.03]]), rng.uniform(-1, 1, 9)

@@ -63,7 +63,7 @@ def local_workers(address: str, error: type[Exception] = ValueError) -> int | No
     if address != LOCAL and not address.startswith(LOCAL + ":"):
         return None
     count = address[len(LOCAL) + 1:] if address != LOCAL else str(os.cpu_count() or 1)
-    if not (count.isdigit() and int(count) >= 1):
+    if not (count.isascii() and count.isdigit() and int(count) >= 1):     # '²' is a digit int() refuses
         raise error(f"--scheduler {address!r}: the number of local worker processes must be a whole number >= 1 "
                     "(local or local:N, e.g. local:2)")
     most = MAX_LOCAL_WORKERS_PER_CORE * (os.cpu_count() or 1)

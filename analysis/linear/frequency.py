@@ -259,7 +259,8 @@ def _response_sets(responses, exact, joints, omega) -> dict:
         lin = responses[observer]
         channels = [("tracking", "e", 0)] + ([("estimation", "e_d", n)] if observer else [])
         for name, output, offset in channels:
-            full = np.moveaxis(np.asarray(lin(1j * omega))[offset:offset + n, :, :], -1, 0)  # (n_omega, n, n)
+            # squeeze=False: a one-joint arm without the observer is SISO, whose response python-control squeezes
+            full = np.moveaxis(np.asarray(lin(1j * omega, squeeze=False))[offset:offset + n, :, :], -1, 0)
             ref = exact(observer, output)
             scale = np.maximum(np.abs(ref), np.abs(ref).max(axis=(1, 2), keepdims=True) * 1e-9)
             out[f"{name}_{key}"] = ResponseSet(

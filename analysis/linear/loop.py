@@ -607,8 +607,11 @@ def boundary_search(alpha, low: float = 0.02, high: float = 50.0, points: int = 
     for k in range(points - 1):
         if (values[k] < 0) == (values[k + 1] < 0):
             continue
-        root = brentq(lambda log_a: alpha(math.exp(log_a)), math.log(grid[k]), math.log(grid[k + 1]),
-                      xtol=rtol / 2.0, rtol=4 * np.finfo(float).eps)
+        # the bracket's ends keep their scanned values: alpha at exp(log(a)), one ulp off a, may take the other
+        # sign where it jumps (a loop without a resting position), and Brent's method would refuse the bracket
+        ends = {math.log(grid[k]): values[k], math.log(grid[k + 1]): values[k + 1]}
+        root = brentq(lambda log_a: ends[log_a] if log_a in ends else alpha(math.exp(log_a)), math.log(grid[k]),
+                      math.log(grid[k + 1]), xtol=rtol / 2.0, rtol=4 * np.finfo(float).eps)
         boundaries.append(StabilityBoundary(factor=math.exp(root), stable_side="below" if values[k] < 0 else "above"))
     return BoundarySearch(boundaries=boundaries, range=[float(low), float(high)],
                           scan=BoundaryScan(factors=grid.tolist(), spectral_abscissa=[float(v) for v in values]))

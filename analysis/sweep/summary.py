@@ -41,7 +41,6 @@ import math
 import os
 import re
 import shutil
-import tempfile
 from array import array
 from dataclasses import dataclass
 from pathlib import Path
@@ -55,6 +54,7 @@ from analysis.results import JsonResult, plain
 from analysis.sweep.runner import ResultsFile, read_header
 from analysis.sweep.spec import HEADER_PARTS, SweepError, SweepSpec, json_default
 from blocks.joints import RRPR_JOINTS, JointSpace
+from blocks.outputs import interrupts_held
 from blocks.parameters import RobotParameters
 
 __all__ = ["RunCounts", "ColumnStatistics", "WorstRun", "DivergedRun", "SweepFigure", "SweepSummary", "summarize",
@@ -706,8 +706,12 @@ def write_summary(results, out_dir, formats=("png", "svg"), spec: SweepSpec | No
     table, name = _load(results, spec)
     summary = _summary(table, name)
     out.parent.mkdir(parents=True, exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
+    # a name known before the folder exists: an interrupt right after it is made (inside mkdtemp, before its
+    # name came back) left it behind
+    stage = out.parent / f".{out.name}.partial-{os.getpid()}"
+    shutil.rmtree(stage, ignore_errors=True)           # a killed process's of the same number
     try:
+        stage.mkdir()
         drawn = _figures(table, summary, stage, formats)
         figures = [SweepFigure(file=next(p.name for p in paths if p.suffix == ".png"), caption=caption)
                    for paths, caption in drawn]
@@ -725,17 +729,17 @@ def write_summary(results, out_dir, formats=("png", "svg"), spec: SweepSpec | No
 def _into_place(stage: Path, out: Path) -> None:
     """Replace ``out`` by ``stage``: two renames, so ``out`` is the whole old or the whole new summary."""
     os.chmod(stage, 0o777 & ~_umask())
-    if not out.exists():
-        stage.rename(out)
-        return
-    old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
-    old.rmdir()
-    out.rename(old)
-    try:
-        stage.rename(out)
-    except BaseException:
-        old.rename(out)
-        raise
+    with interrupts_held():             # between the two renames there is no summary folder at all
+        if not out.exists():
+            stage.rename(out)
+            return
+        old = out.parent / f".{out.name}.old-{os.getpid()}"
+        out.rename(old)
+        try:
+            stage.rename(out)
+        except BaseException:
+            old.rename(out)
+            raise
     shutil.rmtree(old, ignore_errors=True)
 
 

@@ -59,6 +59,7 @@ import contextlib
 import dataclasses
 import math
 import os
+import shutil
 import time
 from pathlib import Path
 
@@ -85,6 +86,7 @@ from analysis.tune.spec import HEADER_PARTS, METRIC_WORDS, TuneError, TuneSpec, 
 from blocks.batch import simulate_batch
 from blocks.budget import Budget
 from blocks.joints import RRPR_JOINTS
+from blocks.outputs import interrupts_held
 from blocks.progress import ProgressCallback, StageProgress
 
 __all__ = ["run_tune", "TuneResult", "PointResult", "TuneHistory", "TuneFigure", "read_log", "LOG_NAME",
@@ -311,6 +313,11 @@ def run_tune(spec: TuneSpec | str | Path, out_dir: str | Path, workers: int | No
                         None)
             result = _finish(spec, evaluator, search, result, out, started, figures, report, problems, free,
                              searched if constraint_costs else None)
+    except BaseException:
+        if display is not None:         # an interrupted or failed stage says "stopped after", not "done"
+            display.close(failed=True)
+            display = None
+        raise
     finally:
         if display is not None:
             display.close()
@@ -494,16 +501,44 @@ def _finish(spec: TuneSpec, evaluator: Evaluator, search: _Search, best: Evaluat
         else "search", joints=list(spec.joints.names), force_units=list(spec.joints.force_units),
         constraint_costs=costs)
     report("tuning: writing results", 0.0)
-    write_lines_atomically(out / file_name, [scenario.to_toml()])
-    if figures:
-        designs = {label: evaluator.error_dynamics(point.gains) for label, point in
-                   (("base gains", base_point), ("tuned gains", tuned_point))}
-        made = write_figures(result, out / "figures", designs=designs, joints=spec.base.robot.joints)
-        result = _replace(result, figures=[TuneFigure(file=p, caption=c) for p, c in made])
-    result = _replace(result, seconds=round(time.perf_counter() - started, 3))
-    write_lines_atomically(out / RESULT_NAME, [result.to_json()])
+    # staged: an interrupt or failure leaves the previous results whole (or none), never a tuned file and some
+    # figures without tune.json, or new figures beside an old tune.json
+    for stale in out.glob(f"{_STAGE_PREFIX}*"):          # a killed run's (this tuning holds the log's lock)
+        shutil.rmtree(stale, ignore_errors=True)
+    stage = out / f"{_STAGE_PREFIX}{os.getpid()}"
+    try:
+        stage.mkdir()
+        write_lines_atomically(stage / file_name, [scenario.to_toml()])
+        if figures:
+            designs = {label: evaluator.error_dynamics(point.gains) for label, point in
+                       (("base gains", base_point), ("tuned gains", tuned_point))}
+            made = write_figures(result, stage / "figures", designs=designs, joints=spec.base.robot.joints)
+            result = _replace(result, figures=[TuneFigure(file=p, caption=c) for p, c in made])
+        result = _replace(result, seconds=round(time.perf_counter() - started, 3))
+        write_lines_atomically(stage / RESULT_NAME, [result.to_json()])
+        _results_into_place(stage, out, [file_name] + (["figures"] if figures else []) + [RESULT_NAME])
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
     report("tuning: writing results", 1.0)
     return result
+
+
+#: The hidden folder a tuning's results are written into before they are moved into the output folder.
+_STAGE_PREFIX = ".results-partial-"
+
+
+def _results_into_place(stage: Path, out: Path, names: list[str]) -> None:
+    """Move the staged results into ``out``, ``tune.json`` last, with Ctrl-C and SIGTERM held until all are in.
+
+    The old ``tune.json`` goes first, so that no moment shows it beside new files; the old figures folder goes
+    into the stage (removed with it)."""
+    with interrupts_held():
+        (out / RESULT_NAME).unlink(missing_ok=True)
+        for name in names:
+            target = out / name
+            if target.is_dir() and not target.is_symlink():
+                target.rename(stage / f"old-{name}")
+            os.replace(stage / name, target)
 
 
 def _replace(result: TuneResult, **changes) -> TuneResult:

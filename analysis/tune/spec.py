@@ -28,7 +28,7 @@ over a Monte Carlo set of mismatches and disturbances, and the constraints::
     sampled_margin = 0.2         # with a [controller]: Ts lambda_max(Y M^-1) at most (1 - margin) x the sampled
                                  # loop's limit (default 0.2 with a [controller]; 0: not constrained)
     sensor_noise = {q_std = [2e-4, 2e-4, 2e-5, 2e-4], dq_std = [5e-3, 5e-3, 5e-4, 5e-3], sample_period = 0.001}
-                                 # default: the scenario's [noise], else analysis.simulation.studies.DEFAULT_NOISE
+                                 # default: the scenario's [noise], else analysis.simulation.studies.default_noise of the arm
 
 Per-joint values (the bounds of a per-joint gain, ``torque_noise_rms``,
 ``torque_limit``, ``q_std``, ``dq_std``) have one entry per joint of the base
@@ -111,7 +111,7 @@ from typing import Any
 import numpy as np
 
 from analysis.jobs.keys import Key, failing, number, numbers, read_table, read_top, scenario_value, whole
-from analysis.simulation.studies import DEFAULT_NOISE
+from analysis.simulation.studies import default_noise
 from analysis.sweep.spec import SweepError, check_name, json_default, split_changes, sweep_from_dict
 from blocks.batch import BATCH_KEYS
 from blocks.budget import Budget
@@ -633,6 +633,12 @@ def _parameters(bounds: dict, base: Scenario, fail) -> list[Parameter]:
         if key not in TUNABLE:
             fail(f"{label} is not a tunable gain; tunable: {list(TUNABLE)} (a gain left out keeps the scenario's "
                  "value)")
+        bandwidth = base.data["gains"].get("observer_bandwidth")
+        if key == "gains.observer" and bandwidth is not None:
+            # every candidate would give both and be refused ("variant 0: ... both set the observer gain Y")
+            fail(f"{label} tunes Y, which the scenario {base.name!r} sets through 'gains.observer_bandwidth' "
+                 f"({bandwidth:g} rad/s, Y = bandwidth x M(q0)); remove that key from the scenario to tune Y "
+                 "directly, or leave gains.observer out of [search]")
         n = base.robot.joints.count
         per_joint = isinstance(value, list) and len(value) == n and all(isinstance(v, list) for v in value)
         if isinstance(value, list) and len(value) not in (2, n) and value and all(isinstance(v, list) for v in value):
@@ -658,7 +664,8 @@ def _parameters(bounds: dict, base: Scenario, fail) -> list[Parameter]:
 
 
 def _limits(table: dict, base: Scenario, fail) -> Limits:
-    noise = dict(base.data["noise"]) if base.noise is not None else dict(DEFAULT_NOISE)
+    # the default per joint of this arm (the paper's 4 values made a 6-joint arm's noise model 8 entries long)
+    noise = dict(base.data["noise"]) if base.noise is not None else default_noise(base.robot.joints)
     given = table["sensor_noise"]
     if given is not None:
         unknown = sorted(set(given) - set(_NOISE_KEYS))

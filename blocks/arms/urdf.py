@@ -9,14 +9,23 @@ Joint names, kinds and limits come from the URDF.
 
 Supported joints: ``revolute``, ``continuous`` (one angle to the user;
 pinocchio's ``(cos, sin)`` pair is converted), ``prismatic`` (axes in any
-direction, negative or unaligned) and ``fixed``.  ``floating`` and
-``planar`` joints are refused by name.  A tree is kept as it is: joints on
-branches off the tool's chain (a gripper's second finger) are joints of the
-model unless locked.
+direction, negative or unaligned) and ``fixed``.  ``floating``,
+``planar`` and ``spherical`` joints are refused by name, and so is a
+``<mimic>`` joint that is not locked (unless ``mimic="independent"``).  A
+tree is kept as it is: joints on branches off the tool's chain are joints of
+the model unless locked.  The file's own XML is checked first (one tree of
+uniquely named links, every number dobkit reads present and finite, axes
+non-zero, ``lower <= upper``): urdfdom drops an ``<inertial>`` it cannot
+read without failing, and says why it refuses a file only on stderr.
 """
 from __future__ import annotations
 
+import contextlib
 import math
+import os
+import sys
+import tempfile
+import threading
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -101,15 +110,96 @@ def _mat(m, snap: bool = False, snap_below: float = 0.0) -> tuple:
     return tuple(_vec(row, snap, snap_below) for row in np.asarray(m, dtype=float))
 
 
-def _read_urdf(path: Path) -> dict:
-    """Joint name -> (URDF type, lower, upper) from the file's XML, checking it is a robot description."""
+def _numbers(element, attribute: str, count: int, where: str, path: Path) -> tuple | None:
+    """The ``count`` finite numbers of ``element``'s ``attribute`` (None when absent); refused by name otherwise.
+
+    urdfdom drops an ``<inertial>`` whose numbers it cannot read, silently: the link would lose its mass.
+    """
+    if element is None or element.get(attribute) is None:
+        return None
+    text = element.get(attribute)
+    try:
+        values = tuple(float(v) for v in text.split())
+    except ValueError:
+        values = ()
+    if len(values) != count or not all(math.isfinite(v) for v in values):
+        raise UrdfParseError(f"URDF file {str(path)!r}: {where} {attribute}={text!r}; it must be {count} finite "
+                             f"number{'s' if count > 1 else ''} (SI units, separated by spaces)")
+    return values
+
+
+def _check_numbers(root, path: Path) -> None:
+    """Every number dobkit's dynamics read (inertials, origins, axes, limits) is present and finite."""
+    for link in root.findall("link"):
+        inertial = link.find("inertial")
+        if inertial is None:
+            continue
+        where = f"link {link.get('name')!r} <inertial>"
+        _numbers(inertial.find("origin"), "xyz", 3, f"{where} <origin>", path)
+        _numbers(inertial.find("origin"), "rpy", 3, f"{where} <origin>", path)
+        for tag, names in (("mass", ("value",)), ("inertia", ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"))):
+            element = inertial.find(tag)
+            for name in names:
+                if element is None or element.get(name) is None:
+                    raise UrdfParseError(f"URDF file {str(path)!r}: {where} has no <{tag} {name}=...>; an "
+                                         f"<inertial> needs <mass value> and <inertia ixx ixy ixz iyy iyz izz>")
+                _numbers(element, name, 1, f"{where} <{tag}>", path)
+    for joint in root.findall("joint"):
+        where = f"joint {joint.get('name')!r}"
+        _numbers(joint.find("origin"), "xyz", 3, f"{where} <origin>", path)
+        _numbers(joint.find("origin"), "rpy", 3, f"{where} <origin>", path)
+        axis = _numbers(joint.find("axis"), "xyz", 3, f"{where} <axis>", path)
+        if axis is not None and joint.get("type") != "fixed" and not any(axis):
+            raise UrdfParseError(f"URDF file {str(path)!r}: {where} <axis> xyz={joint.find('axis').get('xyz')!r} "
+                                 "has no direction; an axis must be a non-zero vector")
+        limit = joint.find("limit")
+        if limit is None and joint.get("type") in ("revolute", "prismatic"):
+            raise UrdfParseError(f"URDF file {str(path)!r}: {where} is {joint.get('type')} without <limit lower upper "
+                                 "effort velocity>, which URDF requires (a revolute joint without end is 'continuous')")
+        bounds = [_numbers(limit, name, 1, f"{where} <limit>", path) for name in ("lower", "upper")]
+        if None not in bounds and bounds[0][0] > bounds[1][0]:
+            raise UrdfParseError(f"URDF file {str(path)!r}: {where} <limit> lower={bounds[0][0]:g} is above "
+                                 f"upper={bounds[1][0]:g}; give lower <= upper")
+
+
+def _check_tree(root, path: Path) -> None:
+    """One tree of links: names unique, every joint between two links, each link the child of one joint at most."""
+    links = [link.get("name") for link in root.findall("link")]
+    joints = root.findall("joint")
+    for kind, names in (("link", links), ("joint", [j.get("name") for j in joints])):
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise UrdfParseError(f"URDF file {str(path)!r}: {kind} name(s) {twice} given more than once; each "
+                                 f"{kind} needs its own name")
+    parent_of: dict = {}
+    for joint in joints:
+        ends = [(tag, None if joint.find(tag) is None else joint.find(tag).get("link")) for tag in ("parent", "child")]
+        for tag, link in ends:
+            if link not in links:
+                raise UrdfParseError(f"URDF file {str(path)!r}: joint {joint.get('name')!r} has <{tag} link="
+                                     f"{link!r}>, which is not a link of the file")
+        child = ends[1][1]
+        if child in parent_of:
+            raise UrdfParseError(f"URDF file {str(path)!r}: link {child!r} is the child of joints "
+                                 f"{parent_of[child][0]!r} and {joint.get('name')!r}; a URDF is a tree (no closed "
+                                 "loops): each link hangs from one joint")
+        parent_of[child] = (joint.get("name"), ends[0][1])
+    roots = [name for name in links if name not in parent_of]
+    if len(roots) != 1:
+        raise UrdfParseError(f"URDF file {str(path)!r}: the links form {len(roots)} trees (root links {roots}); a "
+                             "URDF arm is one tree from one base link")
+
+
+def _read_urdf(path: Path) -> tuple[dict, dict]:
+    """Joint name -> (URDF type, lower, upper) from the file's XML, and mimic joint -> the joint it mimics,
+    checking it is a robot description whose numbers and tree pinocchio will read as written."""
     try:
         root = ET.parse(path).getroot()
     except ET.ParseError as exc:
         raise UrdfParseError(f"URDF file {str(path)!r} is not well-formed XML: {exc}") from exc
     if root.tag != "robot":
         raise UrdfParseError(f"URDF file {str(path)!r} has root element <{root.tag}>; a URDF's root is <robot>")
-    joints = {}
+    joints, mimics = {}, {}
     for j in root.iter("joint"):
         if j.get("name") is None or j.get("type") is None:
             continue                     # a transmission's <joint> reference, not a joint
@@ -118,13 +208,19 @@ def _read_urdf(path: Path) -> dict:
             raise UnsupportedJointError(
                 f"URDF file {str(path)!r}: joint {j.get('name')!r} is of type {kind!r}; dobkit models "
                 f"{sorted(_URDF_TYPES)} joints (lock or remove the others)")
+    _check_tree(root, path)
+    _check_numbers(root, path)
+    for j in root.findall("joint"):
+        kind = j.get("type")
         limit = j.find("limit")
         lower = float(limit.get("lower", "-inf")) if limit is not None and kind != "continuous" else -math.inf
         upper = float(limit.get("upper", "inf")) if limit is not None and kind != "continuous" else math.inf
         if not lower < upper:            # a URDF without a real range (lower = upper = 0): no limits
             lower, upper = -math.inf, math.inf
         joints[j.get("name")] = (kind, lower, upper)
-    return joints
+        if j.find("mimic") is not None and kind != "fixed":
+            mimics[j.get("name")] = j.find("mimic").get("joint")
+    return joints, mimics
 
 
 def _check_inertia(name: str, mass: float, inertia: np.ndarray) -> None:
@@ -198,7 +294,8 @@ def chain_from_pinocchio(model, tool_frame: str, gravity=None) -> tuple[ChainPar
     return chain, tuple(kinds), tuple(continuous)
 
 
-def load_urdf_arm(path, tool_frame: str, locked=(), locked_values=None, gravity=None) -> ChainArm:
+def load_urdf_arm(path, tool_frame: str, locked=(), locked_values=None, gravity=None, *,
+                  mimic: str = "refuse") -> ChainArm:
     """An arm model read from a URDF file.
 
     Parameters
@@ -215,6 +312,10 @@ def load_urdf_arm(path, tool_frame: str, locked=(), locked_values=None, gravity=
     gravity : sequence of 3 floats, optional
         Gravitational acceleration in the base frame (m/s^2); default the
         URDF world's ``(0, 0, -9.81)``.
+    mimic : {"refuse", "independent"}
+        A joint with ``<mimic>`` that is not locked: refused (default), or
+        read as a joint of its own, as pinocchio reads it (a gripper's second
+        finger driven on its own).
 
     Returns
     -------
@@ -241,11 +342,13 @@ def load_urdf_arm(path, tool_frame: str, locked=(), locked_values=None, gravity=
     path = Path(path)
     if not path.is_file():
         raise UrdfFileError(f"URDF file {str(path)!r} does not exist (or is not a file)")
-    xml_joints = _read_urdf(path)
-    try:
-        model = pin.buildModelFromUrdf(str(path))
-    except (RuntimeError, ValueError) as exc:
-        raise UrdfParseError(f"pinocchio cannot read URDF file {str(path)!r}: {exc}") from exc
+    xml_joints, mimics = _read_urdf(path)
+    with _stderr_kept() as said:       # urdfdom writes its reasons to the process's stderr, not to the exception
+        try:
+            model = pin.buildModelFromUrdf(str(path))
+        except (RuntimeError, ValueError) as exc:
+            reasons = "; ".join(said())
+            raise UrdfParseError(f"pinocchio cannot read URDF file {str(path)!r}: {reasons or exc}") from exc
 
     locked = [locked] if isinstance(locked, str) else list(locked)
     moving = [model.names[j] for j in range(1, model.njoints)]
@@ -254,6 +357,20 @@ def load_urdf_arm(path, tool_frame: str, locked=(), locked_values=None, gravity=
         if name not in moving:
             raise UnknownJointError(f"locked joint {name!r} is not a moving joint of {str(path)!r}; "
                                     f"its moving joints are {moving}")
+    twice = sorted({name for name in locked if locked.count(name) > 1})
+    if twice:
+        raise UnknownJointError(f"locked joint(s) {twice} named more than once in locked {locked}")
+    if moving and set(moving) <= set(locked):
+        raise UnknownJointError(f"locked {locked} holds every moving joint of {str(path)!r}: nothing is left to "
+                                "move; lock fewer joints")
+    if mimic not in ("refuse", "independent"):
+        raise UrdfError(f"mimic must be 'refuse' or 'independent', got {mimic!r}")
+    free_mimics = {name: of for name, of in mimics.items() if name not in locked}
+    if free_mimics and mimic == "refuse":
+        name, of = next(iter(free_mimics.items()))
+        raise UnsupportedJointError(f"joint {name!r} of {str(path)!r} mimics joint {of!r} (<mimic>): dobkit drives "
+                                    "every joint on its own and would move it freely; lock it with 'locked' (held at "
+                                    "its locked value) or remove the <mimic>")
     extra = sorted(set(locked_values) - set(locked))
     if extra:
         raise UnknownJointError(f"locked_values names {extra}, which are not in locked {locked}")
@@ -262,8 +379,11 @@ def load_urdf_arm(path, tool_frame: str, locked=(), locked_values=None, gravity=
         j = model.getJointId(name)
         value = float(locked_values.get(name, 0.0))
         _, lo, hi = xml_joints.get(name, (None, -math.inf, math.inf))
-        if name in locked_values and not (math.isfinite(value) and lo <= value <= hi):
-            raise UnknownJointError(f"locked joint {name!r} at {value!r} is outside its range {lo:g} to {hi:g}")
+        if not (math.isfinite(value) and lo <= value <= hi):
+            given = "" if name in locked_values else (" (the default; give its position: arm.locked_values, or "
+                                                      "--locked NAME=VALUE on the command line)")
+            raise UnknownJointError(f"locked joint {name!r} at {value!r}{given} is outside its range {lo:g} to "
+                                    f"{hi:g}")
         iq = model.joints[j].idx_q
         if model.joints[j].nq == 2:
             q_ref[iq:iq + 2] = (math.cos(value), math.sin(value))
@@ -285,6 +405,36 @@ def load_urdf_arm(path, tool_frame: str, locked=(), locked_values=None, gravity=
     arm.pin_model = model
     _check_positive_definite(arm)
     return arm
+
+
+@contextlib.contextmanager
+def _stderr_kept():
+    """Capture what native code writes to file descriptor 2 while the body runs; yields a function giving its
+    ``Error:`` lines (urdfdom's reasons for refusing a file), without the source locations."""
+    def said() -> list[str]:
+        kept.seek(0)
+        lines = kept.read().decode("utf-8", "replace").splitlines()
+        return [line.split("Error:", 1)[1].strip() for line in lines if line.lstrip().startswith("Error:")]
+
+    # descriptor 2 is the process's: one redirection at a time, and always restored (an interrupt included)
+    with _STDERR_LOCK, tempfile.TemporaryFile() as kept:
+        saved = None
+        try:
+            try:
+                if sys.stderr is not None:
+                    sys.stderr.flush()
+                saved = os.dup(2)
+                os.dup2(kept.fileno(), 2)
+            except (OSError, ValueError, AttributeError):   # no usable descriptor 2 (an embedded interpreter)
+                pass
+            yield said
+        finally:
+            if saved is not None:
+                os.dup2(saved, 2)
+                os.close(saved)
+
+
+_STDERR_LOCK = threading.Lock()
 
 
 def _check_positive_definite(arm: ChainArm) -> None:

@@ -247,8 +247,8 @@ def simulate_sampled_batch(scenario, seeds: Sequence[int] | None = None, variant
         If the loop cannot be compiled (numba missing, a solver other than RK45).
     """
     from ..sampled_blocks import sampled_initial_state, sampled_loop
-    from ..systems import signal_names
     s = scenario
+    signal_names = s.robot.joints.signal_names      # the arm's joints: the paper's 4 gave a 6-joint arm 4 errors
     if (seeds is None) == (variants is None):
         raise ValueError("give the members as either seeds (noise seeds) or variants (scenarios), not "
                          f"{'both' if seeds is not None else 'neither'}")
