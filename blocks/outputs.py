@@ -182,7 +182,7 @@ class staged_output:
                                  "was kept") from None
             return
         # a Ctrl-C or SIGTERM now waits for the last file: the folder then holds all results, not some
-        with _interrupts_held():
+        with interrupts_held():
             try:
                 for entry in sorted(self.stage.iterdir()):
                     os.replace(entry, self.target / entry.name)
@@ -198,8 +198,10 @@ class staged_output:
 
 
 @contextlib.contextmanager
-def _interrupts_held():
+def interrupts_held():
     """Hold SIGINT and SIGTERM back while the body runs, then deliver the first that came.
+
+    For writers that move whole results into place (an output folder, a tuning's files).
 
     The handlers are swapped for one that only records the signal; at the end
     the previous handlers come back and a recorded signal is raised again, so
@@ -219,10 +221,6 @@ def _interrupts_held():
             signal.signal(signum, handler)
         if received:
             signal.raise_signal(received[0])
-
-
-#: For other writers that move whole results into place (a tuning's files).
-interrupts_held = _interrupts_held
 
 
 def _inside(filename, folder: Path) -> bool:
