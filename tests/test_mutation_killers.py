@@ -50,13 +50,15 @@ def test_the_inner_reach_is_the_links_difference_whichever_is_longer():
         inverse_kinematics([0.25, 0.0, 0.0, 0.0], arm)
 
 
-def test_ik_with_no_singularity_margin_accepts_the_stretched_arm():
-    """kinpy-ik-margin-le: ``min_sin_theta2 = 0`` accepts the workspace boundary itself (theta2 = 0, r = a1 + a2)."""
+def test_ik_with_no_singularity_margin_accepts_the_folded_and_the_stretched_arm():
+    """kinpy-ik-margin-le: ``min_sin_theta2 = 0`` accepts the workspace boundary itself: r = |a1 - a2| (theta2 = pi)
+    and r = a1 + a2 (theta2 = 0; one ulp beyond 0.7 m, where cos(theta2) rounds to 1 and sin(theta2) to 0)."""
     from blocks.kinematics import inverse_kinematics
-    pose = np.array([L1 + L2, 0.0, D1 - 0.1 - D4, 0.2])
-    q = inverse_kinematics(pose, PAPER)
-    assert q[1] == pytest.approx(0.0, abs=1e-7)
-    np.testing.assert_allclose(reference_fk(q), pose, atol=1e-12)
+    for r, theta2 in ((L1 - L2, math.pi), (np.nextafter(L1 + L2, 1.0), 0.0)):
+        pose = np.array([r, 0.0, D1 - 0.1 - D4, 0.2])
+        q = inverse_kinematics(pose, PAPER)
+        assert q[1] == pytest.approx(theta2, abs=1e-12)
+        np.testing.assert_allclose(reference_fk(q), pose, atol=1e-12)
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -79,11 +81,16 @@ def test_a_full_observer_gain_multiplies_as_Y_times_the_vector():
 # --------------------------------------------------------------------------------------------------------------
 # The divergence rule and the monitor
 # --------------------------------------------------------------------------------------------------------------
-def test_a_value_exactly_at_its_bound_has_not_diverged():
-    """div-violated-lt: divergence is *beyond* the bound; at the bound, or at minus it, the run goes on."""
+def test_a_bound_holds_the_magnitude_inclusive_on_both_sides():
+    """div-violated-lt, div-violated-abs: divergence is a magnitude *beyond* the bound; at the bound, or at minus
+    it, the run goes on; a hair beyond either side, or a value far below minus the bound, has diverged."""
     b = StateBounds(np.array([2.0, 5.0]), ["a", "b"], ["m", "m/s"], ["given", "given"])
     assert b.violated([2.0, -5.0]).tolist() == [False, False]
     assert b.violated([np.nextafter(2.0, 3.0), -np.nextafter(5.0, 6.0)]).tolist() == [True, True]
+    assert b.violated([-1e9, 0.0]).tolist() == [True, False]
+    monitor = Monitor("run", b, np.zeros(2))
+    with pytest.raises(blocks.SimulationError, match="b reached -7 m/s, beyond its bound 5 m/s"):
+        monitor.check(0.5, [0.0, -7.0])
 
 
 def test_runaway_is_growth_beyond_the_factor_in_consecutive_steps():
@@ -141,6 +148,19 @@ def test_an_estimate_of_exactly_the_budget_fits_and_one_more_does_not():
     with pytest.raises(BudgetError) as err:
         budget.check(Estimate(memory=1001, steps=500), "job")
     assert err.value.limit == "memory"
+
+
+def test_the_step_estimate_bounds_the_steps_the_schedule_takes():
+    """bu-schedule-breaks: a noise sample between grid points is one more step; the estimate holds the schedule's
+    own count (its step end points, counted here) for breakpoints off the grid and at it."""
+    from blocks.batch import step_schedule
+    from blocks.budget import schedule_steps
+    breaks = list(np.arange(1, 40) * 0.0025 + 0.0011)          # 39 samples, none on the 0.01 s grid
+    for substeps in (1, 3):
+        times, _ = step_schedule(0.5, 0.01, substeps, breaks)
+        taken = len(times) - 1
+        assert taken == 50 * substeps + len(breaks)              # each sample splits the step it falls in
+        assert schedule_steps(0.5, 0.01, substeps, breakpoints=len(breaks)) >= taken
 
 
 def test_jobs_sharing_a_budget_each_get_their_part_of_the_memory():
@@ -220,6 +240,23 @@ def test_the_stops_are_set_from_the_smallest_effective_inertia_over_the_poses():
     assert np.all(got <= at_q0 * (1 + 1e-12))
     assert np.all(got >= eff.min(axis=0) * (1 - 1e-6))
     assert got[2] == pytest.approx(0.25)                       # the slide: k4 = m3 + m4 whatever the pose
+
+
+def test_a_joint_bounded_on_one_side_gets_a_stop_on_that_side():
+    """es-bounded-and: a slide with a floor and no ceiling (limits (0, inf)) has a stop at 0 m; its stiffness and
+    damping are those of its mass k4 = 0.25 kg at 200 rad/s, critically damped: 0.25 x 200^2 N/m, 2 x 0.25 x 200."""
+    from blocks.joints import JointSpace
+    from fmu.end_stops import end_stops
+
+    class OneSided:
+        joints = JointSpace(PAPER.joints.names, PAPER.joints.kinds,
+                            ((-math.inf, math.inf), (-math.inf, math.inf), (0.0, math.inf), (-math.inf, math.inf)))
+        n = 4
+        inertia = staticmethod(PAPER.inertia)
+
+    stops = end_stops(OneSided())
+    assert [(s.joint, s.lower, s.upper) for s in stops] == [(2, 0.0, math.inf)]
+    assert (stops[0].stiffness, stops[0].damping) == pytest.approx((0.25 * 200.0 ** 2, 2 * 0.25 * 200.0))
 
 
 # --------------------------------------------------------------------------------------------------------------
