@@ -366,3 +366,30 @@ def test_the_step_rate_of_a_urdf_arm_is_the_fast_pd_pole_times_the_mismatch():
     assert float(arm_rates(s, observer=False)["gains.kp"][0]) == pytest.approx(30.0 * 1.05, rel=1e-9)
 
 
+def test_the_step_rate_takes_the_largest_mismatch_of_a_nominal_model_given_in_python():
+    """rl-mismatch-min: a nominal scope4 whose first link (yaw, turning with joint 1 only) is three times heavier:
+    M^ - M is positive semidefinite of rank one, so lambda(M^-1 M^) are 1 (three times) and one value in (1, 3]
+    (M <= M^ <= 3 M).  The step rate is the fast PD pole times the largest, so strictly above 30 1/s, at most 90."""
+    pytest.importorskip("pinocchio")
+    import copy
+    import dataclasses
+
+    from blocks.run_limits import arm_rates
+    from blocks.scenario import scenario_from_dict
+    s = blocks.load_scenario("scope4")
+    arm, chain = s.robot, s.robot.chain
+    heavy = dataclasses.replace(chain, masses=(3.0 * chain.masses[0],) + tuple(chain.masses[1:]),
+                                com_inertias=(tuple(tuple(3.0 * x for x in row) for row in chain.com_inertias[0]),)
+                                + tuple(chain.com_inertias[1:]))
+    nominal = type(arm)(heavy, arm.joints, arm.tool_frame, continuous=arm.continuous, source=arm.source)
+    data = copy.deepcopy(dict(s.data))
+    data.pop("arm")
+    given = scenario_from_dict(data, arm=arm, nominal=nominal)
+    q = np.asarray(given.trajectory.evaluate(0.0)[0], dtype=float)
+    ratios = np.sort(np.linalg.eigvals(np.linalg.solve(arm.inertia(q), nominal.inertia(q))).real)
+    np.testing.assert_allclose(ratios[:3], 1.0, atol=1e-9)
+    assert 1.0 < ratios[3] <= 3.0
+    rate = float(arm_rates(given, observer=False)["gains.kp"][0])
+    assert 30.0 * ratios[3] * (1 - 1e-9) <= rate <= 90.0
+
+
