@@ -393,3 +393,18 @@ def test_the_step_rate_takes_the_largest_mismatch_of_a_nominal_model_given_in_py
     assert 30.0 * ratios[3] * (1 - 1e-9) <= rate <= 90.0
 
 
+def test_the_step_estimate_of_a_stiff_loop_is_scipys_step_count_on_its_fastest_mode():
+    """rl-span-times: with Y = 1e5 the observer's fastest mode is Y / k4 = 4e5 1/s (the slide, exact); scipy's
+    RK45 on x' = -4e5 x at the scenario's tolerances takes the steps its stability allows, about T lambda / 3.3.
+    The estimate is that count to within a factor 2 (a run over budget must be refused, a run within it not)."""
+    from scipy.integrate import solve_ivp
+
+    from blocks.run_limits import estimate_run
+    s = blocks.load_scenario("paper").with_changes({"gains.observer": 1e5, "simulation.t_final": 0.05})
+    lam = 1e5 / 0.25
+    run = solve_ivp(lambda t, x: -lam * x, (0.0, 0.05), [1.0], method="RK45", rtol=s.simulation.rtol,
+                    atol=s.simulation.atol)
+    taken = len(run.t) - 1
+    assert 0.5 <= estimate_run(s).steps / taken <= 2.0
+
+
