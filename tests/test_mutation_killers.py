@@ -359,3 +359,23 @@ def test_the_step_estimate_of_a_stiff_loop_is_scipys_step_count_on_its_fastest_m
     assert 0.5 <= estimate_run(s).steps / taken <= 2.0
 
 
+def test_the_observer_rate_bounds_the_slides_fastest_mode_when_the_true_arm_is_lighter():
+    """sched-obs-nominal-only: the nominal slide twice as heavy as the true one (m^ = 0.5 kg, m = 0.25 kg), Y = 1e5.
+
+    The slide is decoupled in M (Eq. 5), so its held loop is three states written here by hand, deviations from
+    rest: m v' = m^ (-Kp q - Kd v) - (Y v + z) and z' = -(Y / m^) (tau + d_hat) = Y (Kp q + Kd v).  Its fastest
+    mode is about Y / m = 4e5 1/s, the true mass's, twice the nominal's: the rate estimate must reach it."""
+    from blocks.batch.schedule import rates_by_source
+    from blocks.batch.variants import Variants
+    s = blocks.load_scenario("paper").with_changes({"gains.observer": 1e5, "nominal_scale.m3": 2.0,
+                                                     "nominal_scale.m4": 2.0})
+    m, m_hat, Y, kp, kd = 0.25, 0.5, 1e5, 180.0, 36.0
+    A = np.array([[0.0, 1.0, 0.0],
+                  [-m_hat * kp / m, -(m_hat * kd + Y) / m, -1.0 / m],
+                  [Y * kp, Y * kd, 0.0]])
+    fastest = np.abs(np.linalg.eigvals(A)).max()
+    assert fastest == pytest.approx(Y / m, rel=1e-3)
+    rate = float(rates_by_source(Variants(s, [{}]))["gains.observer"][0])
+    assert rate >= fastest * (1 - 1e-3)
+
+

@@ -94,6 +94,8 @@ RUNAWAY = ("tests/test_fmu_master_findings.py", "tests/test_one_monitor.py")
 RUN_LIMITS = ("tests/test_one_monitor.py::test_runs_beyond_the_budget_are_refused_before_they_start_naming_the_key",
               "tests/test_compiled_row_kernels.py::test_rates_equal_the_numpy_way_and_pinocchio",
               "tests/test_sweep_limits.py", "tests/test_one_monitor.py")
+SCHEDULE = ("tests/test_batch.py", "tests/test_sweep_limits.py",
+            "tests/test_one_monitor.py::test_runs_beyond_the_budget_are_refused_before_they_start_naming_the_key")
 DSTAB = ("tests/test_sampled_stability.py", "-k", "not nonlinear and not just_inside and not dobkit_simulate",
          "tests/test_digital_gravity.py", "tests/test_analysis_n_joints.py::test_euler_limit_is_ts_lambda_max_two")
 BUDGET = ("tests/test_budget.py",)
@@ -114,6 +116,7 @@ LAW, DK, CH, IKF = "blocks/kernels/laws.py", "blocks/kernels/disturbance.py", "b
 DIV, MON, RL, DS = "blocks/divergence.py", "blocks/monitor.py", "blocks/run_limits.py", "blocks/digital_stability.py"
 BU, ME, ES, PC = "blocks/budget.py", "blocks/metrics.py", "fmu/end_stops.py", "fmu/c/plant_model.c"
 AL, BW = "analysis/linear/arm_linear.py", "analysis/linear/bandwidth.py"
+SC = "blocks/batch/schedule.py"
 
 MUTANTS = [
     # ---- RRPR dynamics: M, N, G (Eq. 5-7) -------------------------------------------------------------------
@@ -262,6 +265,13 @@ MUTANTS = [
       "np.abs(np.linalg.eigvals(M_inv @ M_hat)).min()", RUN_LIMITS, "arm_rates: smallest mismatch"),
     M("rl-min-candidate", "run_limits", RL, "steps, key, reason = max(candidates)", "steps, key, reason = min(candidates)",
       RUN_LIMITS, "the smallest step count wins"),
+    M("sched-pd-slow-pole", "run_limits", SC, "0.5 * (kd + np.sqrt(np.abs(disc))), np.sqrt(kp)).max(axis=1)",
+      "0.5 * (kd - np.sqrt(np.abs(disc))), np.sqrt(kp)).max(axis=1)", SCHEDULE,
+      "rates_by_source (the RRPR's): the slow PD pole for the fast one"),
+    M("sched-friction-vs", "run_limits", SC, "damping = dist.coulomb / dist.friction_velocity + dist.viscous",
+      "damping = dist.coulomb * dist.friction_velocity + dist.viscous", SCHEDULE, "rates_by_source: F_c v_s for F_c / v_s"),
+    M("sched-obs-nominal-only", "run_limits", SC, "for inv in (M_inv, M_hat_inv)], axis=0)", "for inv in (M_hat_inv,)], axis=0)",
+      SCHEDULE, "rates_by_source: the observer's rate on the nominal inertia only (a lighter true arm is faster)"),
     # ---- sampled-loop stability ----------------------------------------------------------------------------------
     M("ds-held-integral-ts", "digital_stability", DS, "A * period, np.eye(n) * period", "A * period, np.eye(n)", DSTAB,
       "held integral without Ts"),
