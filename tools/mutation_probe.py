@@ -88,6 +88,7 @@ CHAIN = ("tests/test_urdf_model.py", "tests/test_urdf_ik.py",
          "tests/test_tissue_any_arm.py::test_tissue_force_of_a_urdf_arm_agrees_with_pinocchio",
          "tests/test_compiled_row_kernels.py::test_compiled_kernels_agree_with_pinocchio")
 IK = ("tests/test_urdf_ik.py", "tests/test_arm_model.py")
+TRACE = ("tests/test_arm_calls.py", "tests/test_urdf_trace.py", "tests/test_compiled_row_kernels.py")
 MONITOR = ("tests/test_one_monitor.py",)
 DIVERGENCE = ("tests/test_one_monitor.py", "tests/test_compiled_row_kernels.py::test_force_bound_equals_the_numpy_way_and_pinocchio")
 RUNAWAY = ("tests/test_fmu_master_findings.py", "tests/test_one_monitor.py")
@@ -221,6 +222,11 @@ MUTANTS = [
     M("chain-along-swap", "chain", CH, "return _dot(k.axes[i], n) if k.kinds[i] == \"revolute\" else _dot(k.axes[i], f)",
       "return _dot(k.axes[i], f) if k.kinds[i] == \"revolute\" else _dot(k.axes[i], n)", CHAIN,
       "joint force: moment for a prismatic joint, force for a revolute one"),
+    M("chain-trace-cos-sin", "chain", CH, "out += [np.cos(q[i]), np.sin(q[i])] if", "out += [np.sin(q[i]), np.cos(q[i])] if",
+      TRACE, "traced calls (codegen.ARM_CALLS, off by default): sin and cos of a revolute joint swapped"),
+    M("chain-trace-lower-order", "chain", CH, "        for j in range(i + 1):\n            M[i][j] = M[j][i] = next(values)",
+      "        for j in reversed(range(i + 1)):\n            M[i][j] = M[j][i] = next(values)", TRACE,
+      "traced calls (codegen.ARM_CALLS): a row of M's lower triangle read in reverse"),
     # ---- IK derivatives of a URDF arm's tool point -------------------------------------------------------------
     M("ik-jrate-factor", "ik", IKF, "return ((plus - minus) / 4.0).T", "return ((plus - minus) / 2.0).T", IK,
       "J' by polarisation: /2 for /4"),
