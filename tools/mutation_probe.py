@@ -5,7 +5,7 @@ Each mutant is one small wrong change to one product file (a sign, a factor, a t
 off-by-one, ``<`` for ``<=``, a dropped term, a swapped argument, a wrong unit): an exact original snippet,
 which must occur once in the file, and its replacement.  For each mutant the probe writes the change, runs
 the tests named for it (``python -m pytest -x -q -n 0``), records whether any test failed (the mutant is
-*killed*) or all passed (it *survived*), and puts the file back byte for byte -- also on Ctrl-C.
+*killed*) or all passed (it *survived*), and puts the file back byte for byte -- also on Ctrl-C or SIGTERM.
 
 Run it from the repository's top level::
 
@@ -29,6 +29,7 @@ import argparse
 import json
 import os
 import re
+import signal
 import subprocess
 import sys
 import time
@@ -451,6 +452,8 @@ def main(argv=None) -> int:
         print(f"{len(chosen)} mutants")
         return 0
     os.environ.setdefault("DOBKIT_CACHE_DIR", "/tmp/dobkit-cache-mutation-probe")
+    # a SIGTERM ends the probe as Ctrl-C does: through run_mutant's finally, which puts the file back
+    signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(f"stopped by signal {signum}"))
     outcomes = []
     for m in chosen:
         o = run_mutant(m, args.killers, args.timeout, args.killers_only)
