@@ -402,6 +402,9 @@ def run_mutant(m: Mutant, killers: bool, timeout: float = TIMEOUT, killers_only:
             except subprocess.TimeoutExpired:
                 killed, by, timed_out = True, f"timeout after {timeout:g} s", True
                 break
+            if done.returncode in (4, 5):      # a usage error or no tests collected: the probe's fault, not a kill
+                raise SystemExit(f"mutant {m.id}: pytest could not run {args} (exit {done.returncode}):\n"
+                                 + "\n".join(done.stdout.strip().splitlines()[-5:] + done.stderr.strip().splitlines()[-5:]))
             if done.returncode != 0:
                 killed = True
                 by = _first_failure(done.stdout) or f"pytest exit {done.returncode}"
