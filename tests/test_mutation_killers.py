@@ -1,4 +1,4 @@
-"""Tests that kill the wrong changes the rest of the suite let through (``tools/mutation_probe.py``).
+"""Tests that kill the wrong changes the rest of the suite let through (``tests/mutation_probe.py``).
 
 Each test names the mutant(s) it kills and checks the product against a derivation of its own: the paper
 notes' numbers, the geometry of the arm written out here (``tests/reference_arm.py``, ``conftest``),

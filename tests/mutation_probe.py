@@ -9,11 +9,11 @@ the tests named for it (``python -m pytest -x -q -n 0``), records whether any te
 
 Run it from the repository's top level::
 
-    python tools/mutation_probe.py                 # every mutant, the tests named with it
-    python tools/mutation_probe.py --killers       # and tests/test_mutation_killers.py after those
-    python tools/mutation_probe.py --only arm-m01-half chain-rnea-gravity-sign
-    python tools/mutation_probe.py --group dynamics --json /tmp/probe.json
-    python tools/mutation_probe.py --list          # the mutants, no runs
+    python tests/mutation_probe.py                 # every mutant, the tests named with it
+    python tests/mutation_probe.py --killers       # and tests/test_mutation_killers.py after those
+    python tests/mutation_probe.py --only arm-m01-half chain-rnea-gravity-sign
+    python tests/mutation_probe.py --group dynamics --json /tmp/probe.json
+    python tests/mutation_probe.py --list          # the mutants, no runs
 
 A mutant judged *equivalent* (no test can tell it from the original, or only on a measure-zero set the
 product does not promise) carries the reason in ``equivalent``; it is still run and reported.
