@@ -226,5 +226,6 @@ def export_controller(path, scenario, fmi_version: int = 2, cc: str | None = Non
     extra = {"sources/BUILD.txt": _build_txt(fmi_version, sources)}
     if fmi_version == 3:
         extra["sources/buildDescription.xml"] = build_description_xml(CONTROLLER_IDENTIFIER, sources)
-    package_fmu(path, xml_for(token), texts, sources, CONTROLLER_IDENTIFIER, fmi_version, extra_files=extra, cc=cc)
+    package_fmu(path, xml_for(token), texts, sources, CONTROLLER_IDENTIFIER, fmi_version, extra_files=extra, cc=cc,
+                replace=force)
     return path

@@ -229,5 +229,6 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
         extra[ARM_RECORD] = record        # the arm for ``dobkit fmu check`` (its numbers are constants in the C)
     if fmi_version == 3:
         extra["sources/buildDescription.xml"] = build_description_xml(MODEL_IDENTIFIER, sources)
-    package_fmu(path, xml, texts, sources, MODEL_IDENTIFIER, fmi_version, extra_files=extra, cc=cc)
+    package_fmu(path, xml, texts, sources, MODEL_IDENTIFIER, fmi_version, extra_files=extra, cc=cc,
+                replace=force)
     return path

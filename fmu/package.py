@@ -22,8 +22,13 @@ __all__ = ["package_fmu"]
 _ZIP_DATE = (1980, 1, 1, 0, 0, 0)
 
 
-def _write_zip(path: Path, files: dict[str, bytes]) -> None:
-    """Write atomically: a half-written FMU never appears under the final name."""
+def _write_zip(path: Path, files: dict[str, bytes], replace: bool = True) -> None:
+    """Write atomically: a half-written FMU never appears under the final name.
+
+    Without ``replace`` the archive is put in place by a hard link, which the
+    system refuses if ``path`` exists: of two exports to one path started at
+    once, the second is refused, not silently the one that stays.
+    """
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
         with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
@@ -32,10 +37,27 @@ def _write_zip(path: Path, files: dict[str, bytes]) -> None:
                 info.compress_type = zipfile.ZIP_DEFLATED
                 info.external_attr = (0o755 if name.startswith("binaries/") else 0o644) << 16
                 zf.writestr(info, data)
-        os.replace(tmp, path)
+        if replace:
+            os.replace(tmp, path)
+        else:
+            _put_new(tmp, path)
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+def _put_new(tmp: Path, path: Path) -> None:
+    """Move ``tmp`` to ``path``, which must not exist (checked by the system where it has hard links)."""
+    try:
+        os.link(tmp, path)
+    except FileExistsError:
+        raise FileExistsError(f"path {str(path)!r} was written by another export while this one compiled; "
+                              "refusing to overwrite it (pass force=True to replace it)") from None
+    except OSError:                  # a file system without hard links: checked, then replaced
+        if path.exists():
+            raise FileExistsError(f"path {str(path)!r} exists; refusing to overwrite it (pass force=True to "
+                                  "replace it)") from None
+        os.replace(tmp, path)
 
 
 def _as_bytes(content) -> bytes:
@@ -45,7 +67,8 @@ def _as_bytes(content) -> bytes:
 
 
 def package_fmu(path, model_description: str, sources: dict, compile_files: list[str], model_identifier: str,
-                fmi_version: int, extra_files: dict | None = None, cc: str | None = None) -> Path:
+                fmi_version: int, extra_files: dict | None = None, cc: str | None = None,
+                replace: bool = True) -> Path:
     """Build the shared library and write the FMU archive.
 
     Parameters
@@ -67,6 +90,9 @@ def package_fmu(path, model_description: str, sources: dict, compile_files: list
         Archive name -> content of further files (e.g. ``sources/BUILD.txt``).
     cc : str, optional
         C compiler command (default ``$CC``, else ``cc``/``gcc``/``clang``).
+    replace : bool
+        Replace a file at ``path`` (default); if false, a file that appeared there
+        meanwhile (another export) is kept and :class:`FileExistsError` raised.
 
     Returns
     -------
@@ -76,6 +102,8 @@ def package_fmu(path, model_description: str, sources: dict, compile_files: list
     ------
     FMUBuildError
         If no compiler is found or compilation fails.
+    FileExistsError
+        If ``replace`` is false and ``path`` exists when the archive is written.
     """
     if fmi_version not in (2, 3):
         raise ValueError(f"fmi_version must be 2 or 3, got {fmi_version!r}")
@@ -100,5 +128,5 @@ def package_fmu(path, model_description: str, sources: dict, compile_files: list
             files.setdefault(f"sources/{name}", (headers / name).read_bytes())
         for name, content in (extra_files or {}).items():
             files[name] = _as_bytes(content)
-        _write_zip(path, files)
+        _write_zip(path, files, replace)
     return path

@@ -250,6 +250,30 @@ def test_export_refuses_an_existing_file_before_compiling(tmp_path):
         export_plant(tmp_path)
 
 
+@pytest.mark.parametrize("force", [False, True])
+def test_a_file_another_export_wrote_while_this_one_compiled_is_kept_unless_forced(tmp_path, force):
+    """Two exports to one path at once: the check before compiling passes for both; without force the second to
+    finish is refused when it puts its archive in place (a real compiler, run by a script that first writes the
+    other export's file)."""
+    import zipfile
+
+    from fmu import export_plant
+    from fmu.build import find_compiler
+
+    target = tmp_path / "plant.fmu"
+    compiler = tmp_path / "cc-after-another-export"
+    compiler.write_text(f"#!/bin/sh\nprintf 'the other export' > '{target}'\nexec {find_compiler()[0]} \"$@\"\n")
+    compiler.chmod(0o755)
+    if force:
+        export_plant(target, cc=str(compiler), force=True)
+        assert zipfile.is_zipfile(target)                   # replaced, as asked
+    else:
+        with pytest.raises(FileExistsError, match="plant.fmu.*written by another export.*force=True"):
+            export_plant(target, cc=str(compiler))
+        assert target.read_bytes() == b"the other export"
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []    # no archive left half-named
+
+
 @pytest.mark.needs_cc
 def test_export_replaces_with_force_and_starts_in_a_regular_pose(tmp_path):
     import fmpy
