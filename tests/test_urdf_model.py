@@ -240,6 +240,20 @@ def test_massless_joint_and_bad_inertia(tmp_path):
         load_urdf_arm(path, "tip")
 
 
+@pytest.mark.parametrize("mass", [1e13, 1e300])
+def test_a_link_heavier_than_double_precision_can_set_beside_the_rest_is_said_so(tmp_path, mass):
+    """Link b at 1e13 kg (or 1e300) beside 0.3 kg: 'bend' does move mass, but M's entries differ by more than 1e12
+    and the check says that (it said 'moves no mass'); at 1e10 kg the arm loads."""
+    path = tmp_path / "heavy.urdf"
+    heavy = MIXED.replace(_link("b", m=0.8, c="0 0 -0.1"), _link("b", m=mass, c="0 0 -0.1"))
+    path.write_text(heavy)
+    with pytest.raises(InertiaError, match=r"'bend' .* moves 0\.0\d+ kg m\^2 .*largest diagonal entry is 1e\+(13|300)"
+                                           r": the arm's inertias differ by more than 1e12.*wrong unit"):
+        load_urdf_arm(path, "tip")
+    path.write_text(MIXED.replace(_link("b", m=0.8, c="0 0 -0.1"), _link("b", m=1e10, c="0 0 -0.1")))
+    assert load_urdf_arm(path, "tip").n == 3
+
+
 def test_bad_gravity_and_errors_are_value_errors(mixed_urdf):
     with pytest.raises(UrdfError, match="gravity"):
         load_urdf_arm(mixed_urdf, "tip", gravity=(0, 9.81))

@@ -443,6 +443,15 @@ def _check_positive_definite(arm: ChainArm) -> None:
     M = arm.inertia(q)
     scale = max(float(np.max(np.abs(np.diag(M)))), 1e-300)
     for i in range(arm.n):                # the leading minors: the first that fails names the joint
-        if np.linalg.eigvalsh(M[:i + 1, :i + 1])[0] <= 1e-12 * scale:
+        smallest = float(np.linalg.eigvalsh(M[:i + 1, :i + 1])[0])
+        if smallest > 1e-12 * scale:
+            continue
+        if M[i, i] > 1e-12 * scale or smallest <= 0.0 or not math.isfinite(scale):
             raise InertiaError(f"joint {arm.joints.names[i]!r} of {arm.source!r} moves no mass or inertia "
                                f"(M(q) is singular at q = {q.tolist()}); give its links <inertial> elements")
+        # it moves something, but so little next to the heaviest joint that M cannot be inverted in doubles
+        unit = "kg" if arm.joints.kinds[i] == "prismatic" else "kg m^2"
+        raise InertiaError(f"joint {arm.joints.names[i]!r} of {arm.source!r} moves {M[i, i]:.3g} {unit} at q = "
+                           f"{q.tolist()}, while M's largest diagonal entry is {scale:.3g}: the arm's inertias "
+                           "differ by more than 1e12, which double precision cannot invert; is a mass or an inertia "
+                           "in the wrong unit?")
