@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import math
 import sys
+import threading
+from collections import OrderedDict
 
 import numpy as np
 
@@ -29,7 +31,7 @@ from .budget import Budget, Estimate
 from .scenario import Scenario
 from .scenario_arm import is_rrpr
 
-__all__ = ["estimate_run", "check_run", "arm_rates", "EXPLICIT_METHODS", "STABILITY_SPAN"]
+__all__ = ["estimate_run", "check_run", "arm_rates", "forget_inertias", "EXPLICIT_METHODS", "STABILITY_SPAN"]
 
 #: Methods whose step is limited by the fastest rate (the others are implicit).
 EXPLICIT_METHODS = ("RK45", "RK23", "DOP853")
@@ -102,11 +104,10 @@ def arm_rates(s: Scenario, observer: bool = True, samples: int = 9) -> dict[str,
     """Upper estimates (1/s) of a run's fastest rates by the key that sets them, for any arm: the rules of
     :func:`blocks.batch.schedule.rates_by_source` (PD poles times the model mismatch ``lambda_max(M^-1 M^)``, the
     observer's ``Y M^-1``, the friction's ``M^-1 (F_c / v_s + F_v)``) with the inertia taken along the reference
-    (``samples`` times over the run) instead of the RRPR's ``cos(theta2) = -1, 0, 1``.  Each value has shape (1,)."""
-    q = np.asarray(s.trajectory.evaluate(np.linspace(0.0, s.simulation.t_final, samples))[0], dtype=float)
-    M, M_hat = _inertia_along(s.robot, q), _inertia_along(s.nominal, q)                    # (m, n, n)
-    M_inv, M_hat_inv = np.linalg.inv(M), np.linalg.inv(M_hat)
-    mismatch = np.abs(np.linalg.eigvals(M_inv @ M_hat)).max()
+    (``samples`` times over the run) instead of the RRPR's ``cos(theta2) = -1, 0, 1``.  Each value has shape (1,).
+    The inertias along the reference are kept for the latest 16 arms and paths (:func:`forget_inertias`)."""
+    M_inv, M_hat_inv, mismatch = _inverse_inertias_along(s.robot, s.nominal, s.trajectory, s.simulation.t_final,
+                                                         samples)
     kp, kd = np.diag(s.kp), np.diag(s.kd)
     disc = kd ** 2 - 4 * kp
     pd = np.where(disc >= 0, 0.5 * (kd + np.sqrt(np.abs(disc))), np.sqrt(kp)).max()
@@ -119,6 +120,48 @@ def arm_rates(s: Scenario, observer: bool = True, samples: int = 9) -> dict[str,
         damping = np.asarray(dist.coulomb) / dist.friction_velocity + np.asarray(dist.viscous)
         rates["disturbance.friction_velocity"] = np.array([np.abs(np.linalg.eigvals(M_inv * damping)).max()])
     return rates
+
+
+_inverses: OrderedDict = OrderedDict()
+_inverses_lock = threading.Lock()
+# Arms, paths and windows whose inverse inertias are kept: a sweep over gains, noise or disturbance sizes asks for
+# the same ones run after run (arms and trajectories are immutable and hashable)
+_KEPT_INVERSES = 16
+
+
+def _inverse_inertias_along(robot, nominal, trajectory, t_final: float, samples: int):
+    """``M^-1``, ``M^^-1`` (read-only, (m, n, n)) at ``samples`` reference points over ``[0, t_final]`` and the
+    largest ``|lambda(M^-1 M^)|``, kept for the latest arms and paths."""
+    key = (robot, nominal, trajectory, float(t_final), int(samples))
+    try:
+        hash(key)
+    except TypeError:               # a user's own arm or trajectory that cannot be a key: computed every time
+        key = None
+    with _inverses_lock:
+        found = _inverses.get(key) if key is not None else None
+        if found is not None:
+            _inverses.move_to_end(key)
+            return found
+    q = np.asarray(trajectory.evaluate(np.linspace(0.0, t_final, samples))[0], dtype=float)
+    M, M_hat = _inertia_along(robot, q), _inertia_along(nominal, q)                      # (m, n, n)
+    M_inv, M_hat_inv = np.linalg.inv(M), np.linalg.inv(M_hat)
+    mismatch = float(np.abs(np.linalg.eigvals(M_inv @ M_hat)).max())
+    M_inv.setflags(write=False)
+    M_hat_inv.setflags(write=False)
+    found = (M_inv, M_hat_inv, mismatch)
+    if key is None:
+        return found
+    with _inverses_lock:
+        _inverses[key] = found
+        while len(_inverses) > _KEPT_INVERSES:
+            _inverses.popitem(last=False)
+    return found
+
+
+def forget_inertias() -> None:
+    """Forget the inverse inertias kept by :func:`arm_rates` (the next run computes them again)."""
+    with _inverses_lock:
+        _inverses.clear()
 
 
 def _inertia_along(arm, q: np.ndarray) -> np.ndarray:

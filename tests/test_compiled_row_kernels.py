@@ -20,7 +20,7 @@ from blocks.compiled.row_kernels import CompiledRowKernels, row_kernels  # noqa:
 from blocks.divergence import FORCE_FACTOR, evaluation_kernels, force_bounds, reference_limits, state_bounds  # noqa: E402
 from blocks.kernels import disturbance_params  # noqa: E402
 from blocks.loop import closed_loop  # noqa: E402
-from blocks.run_limits import arm_rates  # noqa: E402
+from blocks.run_limits import arm_rates, forget_inertias  # noqa: E402
 
 ARMS = ("scope4", "panda")
 
@@ -46,9 +46,13 @@ def _pin_inertia(model, arm, q) -> np.ndarray:
 
 def _numpy_way(monkeypatch, fn, *args):
     """``fn(*args)`` as a process without numba loaded computes it (the numpy row kernels)."""
+    forget_inertias()                  # what the compiled kernels gave is not kept for the numpy way to find
     with monkeypatch.context() as m:
         m.delitem(sys.modules, "numba")
-        return fn(*args)
+        try:
+            return fn(*args)
+        finally:
+            forget_inertias()
 
 
 def test_compiled_kernels_equal_numpy_kernels(scenario):
@@ -89,6 +93,7 @@ def test_rates_equal_the_numpy_way_and_pinocchio(scenario, monkeypatch):
     s = scenario
     monkeypatch.setattr(compiled_row_kernels, "COMPILE_AFTER", 0)                     # compiled from the first request
     assert isinstance(evaluation_kernels(s.robot), CompiledRowKernels)     # numba is loaded in this process
+    forget_inertias()
     new = arm_rates(s)
     old = _numpy_way(monkeypatch, arm_rates, s)
     assert new.keys() == old.keys()
@@ -171,3 +176,35 @@ def test_rows_of_the_wrong_length_are_refused_by_name():
     fast = row_kernels(arm, compiled=True)
     with pytest.raises(ValueError, match=r"bias_forces: rows of shape \[\(3,\), \(4,\)\]; each must have 4 joint"):
         fast.bias_forces(arm.kernel_params(), np.zeros(3), np.zeros(4))
+
+
+def test_kept_inertias_serve_new_gains_and_never_another_path_window_or_arm():
+    """A new scenario of the same arm and path (gains, noise, disturbance) takes the inverse inertias kept from the
+    last; another path, window or nominal arm computes its own, and each equals the rates computed with nothing kept."""
+    from blocks.run_limits import _inverses
+    base = load_scenario("scope4")
+    forget_inertias()
+    arm_rates(base)
+    assert len(_inverses) == 1
+    assert (base.data["gains"]["kp"], base.data["gains"]["kd"]) == (180, 36)
+    changed = {"gains.kp": 360.0}
+    cases = [base.with_changes(changed),                                       # kept entry used
+             base.with_changes({"simulation.t_final": 0.5 * base.simulation.t_final}),
+             base.with_changes({"trajectory.amplitude": [0.05] * base.robot.n}),
+             base.with_changes({"arm.nominal_mass_scale": 1.3})]
+    sizes = []
+    for s in cases:
+        kept = arm_rates(s)
+        sizes.append(len(_inverses))
+        forget_inertias()
+        fresh = arm_rates(s)
+        for key in fresh:
+            np.testing.assert_array_equal(kept[key], fresh[key], err_msg=key)
+        forget_inertias()
+        arm_rates(base)                                                         # back to one entry: the base
+    assert sizes == [1, 2, 2, 2]                                               # gains shared; the rest their own
+    # gains still count: kp 180, kd 36 has real poles, the fast one 0.5 (36 + sqrt(36^2 - 4 180)) = 30 1/s; kp 360
+    # gives complex ones of modulus sqrt(360); both times the same model mismatch
+    mismatch = arm_rates(base)["gains.kp"][0] / 30.0
+    assert mismatch > 1.0
+    np.testing.assert_allclose(arm_rates(cases[0])["gains.kp"][0], np.sqrt(360.0) * mismatch, rtol=1e-12)
