@@ -285,3 +285,15 @@ def test_a_read_only_cache_is_read_and_what_is_new_stays_in_memory(monkeypatch, 
     assert len(notes) == 1 and str(_folder(root)) in notes[0] and "cannot write" in notes[0], notes
     engine = loop_module._prepared(SCENARIO, False).compiled_engine()
     assert sum(engine.module.dopri_run.stats.cache_hits.values()) == 1     # what was cached was still read
+
+
+def test_a_remembered_gather_text_is_the_arrays_repr_whatever_shares_its_bytes():
+    """The compiled cache key holds each block's input gather as its repr; remembered by dtype, shape and bytes,
+    arrays with the same bytes but another dtype or shape keep their own text (a shared text would share code)."""
+    from blocks.compiled.codegen import _gather_text
+    flat = np.arange(6, dtype=np.int64)
+    same_bytes = [flat, flat.reshape(2, 3), flat.view(np.float64), flat.astype(np.int32), flat[::-1].copy()]
+    for _ in range(2):                                         # computed, then remembered
+        assert [_gather_text(a) for a in same_bytes] == [repr(a) for a in same_bytes]
+    assert len({_gather_text(a) for a in same_bytes}) == len(same_bytes)
+    assert _gather_text(slice(2, 9)) == "slice(2, 9, None)"
