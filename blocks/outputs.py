@@ -133,33 +133,36 @@ class staged_output:
             lock.unlink(missing_ok=True)
         if target.exists() and any(target.iterdir()):
             raise FileExistsError(f"output folder '{target}' exists and is not empty; choose a new --out")
-        created = None
-        if not target.exists():
+        # a Ctrl-C or SIGTERM between making the folder or the lock and registering their removal would leave them
+        # behind: it waits until the reservation can be undone, then ends the run as it would have
+        with interrupts_held():
+            created = None
+            if not target.exists():
+                try:
+                    target.parent.mkdir(parents=True, exist_ok=True)
+                    target.mkdir()
+                except FileExistsError:
+                    raise FileExistsError(f"output folder '{target}' was just created by another run; choose another "
+                                          "--out") from None
+                except OSError as err:
+                    raise file_error(err, target, "output folder") from None
+                created = target
             try:
-                target.parent.mkdir(parents=True, exist_ok=True)
-                target.mkdir()
+                fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666)
             except FileExistsError:
-                raise FileExistsError(f"output folder '{target}' was just created by another run; choose another "
+                raise FileExistsError(f"output folder '{target}' is being written by another dobkit run; choose another "
                                       "--out") from None
             except OSError as err:
+                _release(lock, created)
                 raise file_error(err, target, "output folder") from None
-            created = target
-        try:
-            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666)
-        except FileExistsError:
-            raise FileExistsError(f"output folder '{target}' is being written by another dobkit run; choose another "
-                                  "--out") from None
-        except OSError as err:
-            _release(lock, created)
-            raise file_error(err, target, "output folder") from None
-        try:
-            with os.fdopen(fd, "w") as f:
-                f.write(str(os.getpid()))
-        except OSError as err:
-            _release(lock, created)
-            raise file_error(err, target, "output folder") from None
-        self._lock, self._created = lock, created
-        self._release = weakref.finalize(self, _release, lock, created)     # work that fails before `with`
+            try:
+                with os.fdopen(fd, "w") as f:
+                    f.write(str(os.getpid()))
+            except OSError as err:
+                _release(lock, created)
+                raise file_error(err, target, "output folder") from None
+            self._lock, self._created = lock, created
+            self._release = weakref.finalize(self, _release, lock, created)     # work that fails before `with`
 
     def __enter__(self) -> Path:
         try:

@@ -9,6 +9,7 @@ Use the ``reference_fmus`` fixture: ``reference_fmus(2, "BouncingBall")`` is the
 """
 from __future__ import annotations
 
+import hashlib
 import os
 import shutil
 import subprocess
@@ -36,7 +37,9 @@ def _source() -> tuple[Path | None, str]:
 
 def _revision(source: Path) -> str:
     if (source / "CMakeLists.txt").is_file():
-        return "checkout-" + str(abs(hash(str(source.resolve()))))
+        # a digest, not hash(): str hashes differ per process (PYTHONHASHSEED), so every run and xdist worker
+        # missed the cache and built again
+        return "checkout-" + hashlib.sha256(str(source.resolve()).encode()).hexdigest()[:16]
     out = subprocess.run(["git", f"--git-dir={source}", "rev-parse", "HEAD"], capture_output=True, text=True,
                          check=True)
     return out.stdout.strip()[:12]

@@ -218,8 +218,11 @@ def test_bad_observer_target_is_refused_while_parsing(tmp_path, value, capsys):
     assert not out.exists()
 
 
-def test_report_and_analyze_default_to_their_own_folders(capsys):
+def test_report_and_analyze_default_to_their_own_folders(capsys, monkeypatch):
     assert (analysis_cli.ANALYSIS_PREFIX, analysis_cli.REPORT_PREFIX) == ("dobkit-analysis", "dobkit-report")
+    # argparse wraps the help to the terminal's width and may break the name at a hyphen ("dobkit-analysis-" /
+    # "YYYYmmdd-HHMMSS"): it failed in a terminal of 70 or 100-120 columns. One width, wide enough for the name
+    monkeypatch.setenv("COLUMNS", "200")
     for command, prefix in (("analyze", "dobkit-analysis"), ("report", "dobkit-report")):
         with pytest.raises(SystemExit):
             main([command, "--help"])

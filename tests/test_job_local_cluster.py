@@ -129,8 +129,11 @@ def test_ctrl_c_on_a_sweep_on_a_local_cluster_says_one_line_and_ends_the_cluster
     says one line and closes the cluster; the workers, which ignore Ctrl-C, print nothing."""
     code, err, started, results = interrupted_sweep(tmp_path, "--scheduler", "local:2")
     assert code == 130, err
-    assert err.splitlines() == [f"dobkit sweep: interrupted; every finished run is kept in {results}, and the same "
-                                "command resumes"], err
+    # the workers' notes of a first numba compile come before when the cache does not hold the loop yet (a new
+    # cache, or no earlier test compiled it): the interrupt itself says one line
+    lines = [line for line in err.splitlines() if not line.startswith("dobkit: compil")]
+    assert lines == [f"dobkit sweep: interrupted; every finished run is kept in {results}, and the same "
+                     "command resumes"], err
     assert len(started) >= 2                          # the cluster's two worker processes at least
     gone, alive = psutil.wait_procs([p for p in started if p.is_running()], timeout=30)
     assert not alive, f"cluster processes left running: {[p.pid for p in alive]}"

@@ -6,6 +6,7 @@ each window is hit on purpose.
 """
 from __future__ import annotations
 
+import gc
 import os
 import signal
 import tempfile
@@ -18,6 +19,30 @@ from blocks.outputs import staged_output
 
 def _names(folder: Path) -> list[str]:
     return sorted(p.name for p in folder.iterdir())
+
+
+@pytest.mark.parametrize("new", [True, False], ids=["folder it makes", "user's empty folder"])
+def test_a_signal_while_the_folder_is_reserved_leaves_no_lock(tmp_path, monkeypatch, new):
+    # the lock was made and its removal not yet registered: a signal then left '.dobkit-writing' (and the folder)
+    target = tmp_path / "out"
+    if not new:
+        target.mkdir()
+    real_fdopen = os.fdopen
+
+    def fdopen(fd, *args, **kwargs):
+        os.kill(os.getpid(), signal.SIGINT)            # arrives with the lock made, before its pid is written
+        return real_fdopen(fd, *args, **kwargs)
+    monkeypatch.setattr(os, "fdopen", fdopen)
+    try:
+        staged_output(target)
+    except KeyboardInterrupt:
+        pass                                           # the unreturned reservation goes with the exception
+    else:
+        pytest.fail("the interrupt was lost")
+    monkeypatch.undo()
+    gc.collect()
+    assert (_names(target) == []) if not new else not target.exists()
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
 @pytest.mark.parametrize("made", ["folder made, name not yet returned", "folder made, permissions not yet set"])

@@ -318,12 +318,16 @@ def test_sweep_summary_gives_tiny_lengths_in_mm():
 # --------------------------------------------------------------------------------------------
 # The engine note: once per command, not once per sweep worker
 # --------------------------------------------------------------------------------------------
-def test_sweep_prints_the_engine_note_once_for_all_workers(tmp_path, capfd):
+def test_sweep_prints_the_engine_note_once_for_all_workers(tmp_path, capfd, monkeypatch):
     import warnings
 
     import blocks
+    import blocks.engine_choice
     from analysis.sweep.runner import run_sweep
     from blocks.loop import EngineFallbackWarning
+
+    # a fallback is noted once per reason and process: start as a new process would, whatever ran before here
+    monkeypatch.setattr(blocks.engine_choice, "_fallbacks_reported", set())
 
     # RK23 is a solver the compiled engine does not have: engine='auto' falls back to numpy in every worker
     short = blocks.load_scenario("paper").replace(simulation={"t_final": 0.05, "method": "RK23"},

@@ -113,17 +113,27 @@ def test_a_killed_sweep_resumes_without_redoing_or_losing_runs(tmp_path, scenari
 [batch]
 size = 1
 """)
-    results = tmp_path / "r.jsonl"
-    code = ("from analysis.sweep.runner import run_sweep; "
-            f"run_sweep({str(path)!r}, {str(results)!r}, workers=1, progress=False)")
+    results, marker = tmp_path / "r.jsonl", tmp_path / "three-rows-written"
+    # the sweep holds after its third row (it says so in the marker) until it is killed: the kill lands half way
+    # however loaded the machine (watching the file raced the last five runs, ~17 ms each)
+    code = ("import time; from pathlib import Path; from analysis.sweep.runner import run_sweep; seen = []\n"
+            "def held(rows):\n"
+            "    seen.extend(rows)\n"
+            "    if len(seen) >= 3:\n"
+            f"        Path({str(marker)!r}).write_text(str(len(seen))); time.sleep(3600)\n"
+            f"run_sweep({str(path)!r}, {str(results)!r}, workers=1, progress=False, on_rows=held)")
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     proc = subprocess.Popen([sys.executable, "-c", code], env=env)
     try:
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and len(read_results(results)[1]) < 3:
+        deadline = time.monotonic() + 1800                # guards a hung run only (a cold numba cache compiles)
+        while not marker.exists():
+            assert proc.poll() is None, "the sweep ended before it could be killed"
+            assert time.monotonic() < deadline, "the sweep wrote no third row"
             time.sleep(0.05)
         proc.send_signal(signal.SIGKILL)
     finally:
+        if proc.poll() is None:
+            proc.kill()
         proc.wait()
     before = read_results(results)[1]
     assert 3 <= len(before) < 8, "the sweep should have been killed half way"
