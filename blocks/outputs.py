@@ -1,6 +1,7 @@
 """Output folders: default names, and reserved staging so that a failed or concurrent run leaves nothing mixed."""
 from __future__ import annotations
 
+import atexit
 import contextlib
 import errno
 import os
@@ -46,13 +47,54 @@ def file_error(err: OSError, path, role: str, advice: str = "choose another --ou
     return new
 
 
+_unused_defaults: set[Path] = set()
+_unused_lock = threading.Lock()
+
+
 def default_out_dir(prefix: str = "dobkit-run") -> Path:
-    """A new folder name under the current one, ``prefix-YYYYmmdd-HHMMSS`` (suffixed if taken)."""
+    """A new folder under the current one, ``prefix-YYYYmmdd-HHMMSS`` (suffixed ``-1``, ``-2``, ... if taken).
+
+    The folder is made here, so that two runs started in the same second get
+    two folders (a name only checked would be the same for both, and the
+    second run would be refused for a folder it never asked for).  Output
+    staged into it (:class:`staged_output`) removes it if the run fails; one
+    never used is removed, if still empty, when the process exits.  Where it
+    cannot be made (a folder this user cannot write) the name is returned as
+    it is, for the writer to report.
+    """
     base = Path.cwd() / f"{prefix}-{datetime.now():%Y%m%d-%H%M%S}"
     path, k = base, 1
-    while path.exists():
-        path, k = Path(f"{base}-{k}"), k + 1
-    return path
+    while True:
+        try:
+            path.mkdir()
+        except FileExistsError:
+            path, k = Path(f"{base}-{k}"), k + 1
+            continue
+        except OSError:
+            return path
+        with _unused_lock:
+            _unused_defaults.add(path)
+        return path
+
+
+def _adopt_default(target: Path) -> bool:
+    """Whether ``target`` is a folder :func:`default_out_dir` made in this process and no writer has taken yet."""
+    with _unused_lock:
+        if target in _unused_defaults:
+            _unused_defaults.discard(target)
+            return True
+    return False
+
+
+@atexit.register
+def _remove_unused_defaults() -> None:
+    with _unused_lock:
+        for path in _unused_defaults:
+            try:
+                path.rmdir()                # only if empty: a user may have put something there
+            except OSError:
+                pass
+        _unused_defaults.clear()
 
 
 _LOCK = ".dobkit-writing"
@@ -136,7 +178,7 @@ class staged_output:
         # a Ctrl-C or SIGTERM between making the folder or the lock and registering their removal would leave them
         # behind: it waits until the reservation can be undone, then ends the run as it would have
         with interrupts_held():
-            created = None
+            created = target if _adopt_default(target) else None      # made empty by default_out_dir: this run's
             if not target.exists():
                 try:
                     target.parent.mkdir(parents=True, exist_ok=True)

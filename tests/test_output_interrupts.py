@@ -114,3 +114,40 @@ def test_without_a_signal_the_handlers_are_the_callers_after_the_move(tmp_path):
         (stage / "metrics.json").write_text("{}")
     assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == before
     assert _names(tmp_path / "out") == ["metrics.json"]
+
+
+# --- default folder names: two runs started in the same second ---------------------------------------------------
+class _FrozenClock:
+    """``datetime`` with ``now()`` held at one second: every default name of the test is asked in the same second."""
+
+    @staticmethod
+    def now():
+        import datetime
+        return datetime.datetime(2026, 12, 2, 8, 5, 7)
+
+
+def test_two_runs_in_the_same_second_get_two_default_folders_and_a_failed_one_leaves_none(tmp_path, monkeypatch):
+    import blocks.outputs as outputs
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(outputs, "datetime", _FrozenClock)
+    first, second = outputs.default_out_dir(), outputs.default_out_dir()
+    assert (first.name, second.name) == ("dobkit-run-20261202-080507", "dobkit-run-20261202-080507-1")
+    assert first.is_dir() and second.is_dir()             # made at once: the name is this run's
+    with staged_output(second) as stage:                   # the second run's results go into its own folder
+        (stage / "metrics.json").write_text("{}")
+    with pytest.raises(RuntimeError):
+        with staged_output(first):                         # the first fails: its folder goes with it
+            raise RuntimeError("diverged")
+    assert _names(tmp_path) == ["dobkit-run-20261202-080507-1"]
+    assert _names(second) == ["metrics.json"]
+
+
+def test_a_default_folder_no_run_used_is_removed_at_exit_unless_something_was_put_in_it(tmp_path):
+    import subprocess
+    import sys
+    code = ("from blocks.outputs import default_out_dir\n"
+            "unused, kept = default_out_dir('unused'), default_out_dir('kept')\n"
+            "(kept / 'notes.txt').write_text('the user put this here')\n")
+    done = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert [p.name.split("-")[0] for p in tmp_path.iterdir()] == ["kept"]
