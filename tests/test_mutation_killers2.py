@@ -116,8 +116,9 @@ def test_a_serialized_state_with_a_switch_of_two_or_without_its_magic_is_refused
             _restore(off, switch)
         magic = bytearray(a)
         magic[0] ^= 0xFF
-        with pytest.raises(FMICallException):
-            _restore(off, magic)
+        fm = off._fmu
+        with pytest.raises(FMICallException):                 # refused when deserialized, not only when set
+            fm.deSerializeFMUstate(bytes(magic)) if version == 2 else fm.deserializeFMUState(bytes(magic))
         _restore(off, b)                      # the friction state of the other instance, untouched: accepted
         off.do_step(0.0, 0.01)
 
@@ -242,6 +243,25 @@ def test_a_stop_time_past_the_reference_table_is_refused(controller_fmu):
         fmu.terminate()
     finally:
         fmu.freeInstance()
+
+
+# ==============================================================================================================
+# Start values (fmu/start_values.py)
+# ==============================================================================================================
+def test_the_largest_float32_is_a_float32_start_value_and_the_next_double_is_not():
+    """sv-float32-max.  IEEE 754 binary32's largest finite value (numpy's finfo) is in the type; a double just
+    above it is not."""
+    from types import SimpleNamespace
+
+    from fmu.errors import FMUStartValueError
+    from fmu.start_values import checked_start_value
+
+    var = SimpleNamespace(name="x", type="Float32")
+    top = float(np.finfo(np.float32).max)
+    assert checked_start_value(var, top, 3) == [top]
+    assert checked_start_value(var, -top, 3) == [-top]
+    with pytest.raises(FMUStartValueError, match="outside the Float32 range"):
+        checked_start_value(var, float(np.nextafter(top, np.inf)), 3)
 
 
 # ==============================================================================================================
