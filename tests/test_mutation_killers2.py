@@ -351,3 +351,27 @@ def test_the_first_step_is_scipys_initial_step():
             ref = RK45(f, 0.0, y0, 10.0, rtol=rtol, atol=atol)
             h = ns["initial_step"](0.0, y0, f(0.0, y0), 10.0, np.inf, rtol, atol, None, None, None, None, np.zeros(2))
             assert h == pytest.approx(ref.h_abs, rel=1e-12), (y0, rtol, atol)
+
+
+# ==============================================================================================================
+# The tool path of a URDF arm (blocks/tool_path.py)
+# ==============================================================================================================
+def test_the_tool_paths_velocity_and_acceleration_are_the_derivatives_of_its_position():
+    """tp-dds-T.  Segments of 1.5 s (not 1 s, where p''/T and p''/T^2 agree): p' and p'' against central
+    differences of p and p' (the smoothstep is C2, so inside a segment the differences converge as h^2)."""
+    pytest.importorskip("pinocchio")
+    from blocks.scenario import scenario_from_dict
+
+    s = scenario_from_dict({
+        "arm": {"urdf": "example:scope4", "tool_frame": "tool_tip"},
+        "trajectory": {"kind": "tool_path", "duration": 3.0, "sample_period": 0.05,
+                       "waypoints": [[-0.045, 0.0, -0.148], [-0.03, 0.02, -0.16], [-0.045, 0.0, -0.148]]},
+        "simulation": {"t_final": 3.0}})
+    path, h = s.trajectory, 1e-5
+    t = np.array([0.2, 0.71, 1.1, 1.9, 2.6])                    # inside the two segments of 1.5 s
+    p, dp, ddp = path.task_space(t)
+    p_plus, dp_plus, _ = path.task_space(t + h)
+    p_minus, dp_minus, _ = path.task_space(t - h)
+    np.testing.assert_allclose(dp, (p_plus - p_minus) / (2 * h), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(ddp, (dp_plus - dp_minus) / (2 * h), rtol=0, atol=1e-8)
+    assert np.max(np.abs(ddp)) > 1e-3                          # a path that accelerates: the check means something
