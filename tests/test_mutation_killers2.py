@@ -407,3 +407,33 @@ def test_sweep_statistics_worst_runs_and_influence_are_the_textbook_ones():
     expected = sorted(range(kp.size), key=lambda i: -metric[i])[:4]
     assert [w.value for w in summary.worst] == [metric[i] for i in expected]
     assert summary.influence["gains.kp"] == pytest.approx(spearmanr(kp, metric).statistic, rel=1e-12)
+
+
+# ==============================================================================================================
+# The redundant arm's resolved-rate law (blocks/arms/resolved_rate.py)
+# ==============================================================================================================
+def test_the_resolved_rate_acceleration_is_the_derivative_of_the_rate_along_the_motion_off_the_path():
+    """rr-dv-feedback.  ``q''`` of ``rates`` is d/dt F(t, q(t)) along q' = F: a central difference of ``rate``
+    at (t +- h, q +- h q').  Off the path (a task error of ~1 cm) the feedback's rate K_p (p' - J q') = -K_p^2 e
+    is a large part of it (on the path it vanishes, which is why the loop tests cannot see it)."""
+    pytest.importorskip("pinocchio")
+    from blocks.arms import example_arm
+    from blocks.arms.resolved_rate import ResolvedRate
+
+    arm = example_arm("panda")
+    q_rest = np.array([0.0, 0.0, 0.0, -1.6, 0.0, 1.6, 0.8])
+    law = ResolvedRate(arm, task_gain=10.0, posture_gain=1.0, rest=q_rest, min_sigma=1e-6)
+    centre, radius, w = arm.tool_position(q_rest) + np.array([0.0, -0.05, 0.0]), 0.05, 1.3
+
+    def path(t):
+        c, s = np.cos(w * t), np.sin(w * t)
+        return (centre + radius * np.array([s, c, 0.0]), radius * w * np.array([c, -s, 0.0]),
+                -radius * w * w * np.array([s, c, 0.0]))
+
+    q = q_rest + np.array([0.02, -0.03, 0.01, 0.02, -0.02, 0.01, 0.03])
+    t, h = 0.0, 1e-6
+    assert np.linalg.norm(path(t)[0] - arm.tool_position(q)) > 5e-3             # really off the path
+    dq, ddq = law.rates(q, *path(t))
+    np.testing.assert_allclose(dq, law.rate(q, *path(t)[:2]), rtol=1e-12, atol=1e-14)
+    ahead, behind = law.rate(q + h * dq, *path(t + h)[:2]), law.rate(q - h * dq, *path(t - h)[:2])
+    np.testing.assert_allclose(ddq, (ahead - behind) / (2 * h), rtol=0, atol=1e-6 * np.max(np.abs(ddq)))
