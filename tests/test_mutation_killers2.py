@@ -437,3 +437,26 @@ def test_the_resolved_rate_acceleration_is_the_derivative_of_the_rate_along_the_
     np.testing.assert_allclose(dq, law.rate(q, *path(t)[:2]), rtol=1e-12, atol=1e-14)
     ahead, behind = law.rate(q + h * dq, *path(t + h)[:2]), law.rate(q - h * dq, *path(t - h)[:2])
     np.testing.assert_allclose(ddq, (ahead - behind) / (2 * h), rtol=0, atol=1e-6 * np.max(np.abs(ddq)))
+
+
+# ==============================================================================================================
+# Tune margins (analysis/tune/evaluate.py)
+# ==============================================================================================================
+def test_the_damping_margin_is_that_of_the_least_damped_joint(tmp_path):
+    """ev-damping-max.  The error dynamics of joint i are s^2 + kd_i s + kp_i: zeta_i = kd_i / (2 sqrt(kp_i)).
+    The constraint is on every joint, so its margin is min zeta_i - zeta_min (here the stiffest joint's)."""
+    from test_tune import write_problem
+
+    from analysis.tune.evaluate import Evaluation, Evaluator
+    from analysis.tune.spec import load_tuning
+
+    search = {'"gains.kp"': [20, 2000], '"gains.kd"': [2, 80], "seed": 3, "population": 6, "max_evaluations": 60}
+    spec = load_tuning(write_problem(tmp_path, search=search))
+    limit = spec.limits.min_damping_ratio
+    assert limit is not None                                   # the default constraint
+    kp, kd = np.array([100.0, 150.0, 200.0, 250.0]), np.full(4, 20.0)
+    zeta = kd / (2.0 * np.sqrt(kp))                            # 1.0, 0.816, 0.707, 0.632
+    ev = Evaluation(gains={"gains.kp": kp, "gains.kd": kd}, torque_noise_rms=np.zeros(4), spectral_abscissa=-1.0,
+                    damping_ratio=zeta)
+    assert Evaluator(spec).margins(ev)["min_damping_ratio"] == pytest.approx(1.0 / np.sqrt(10.0) * 2 - limit,
+                                                                             rel=1e-12)
