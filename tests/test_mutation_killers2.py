@@ -460,3 +460,81 @@ def test_the_damping_margin_is_that_of_the_least_damped_joint(tmp_path):
                     damping_ratio=zeta)
     assert Evaluator(spec).margins(ev)["min_damping_ratio"] == pytest.approx(1.0 / np.sqrt(10.0) * 2 - limit,
                                                                              rel=1e-12)
+
+
+def test_the_tune_score_of_an_infeasible_candidate_is_worse_than_every_feasible_one(tmp_path):
+    """ev-energy-total.  The module's rule: an infeasible candidate scores INFEASIBLE (1 + total violation), above
+    every feasible objective however small its violation.  A simulated candidate with errors of 1-2 mm that
+    misses the damping constraint by a relative 1e-9 must still score above 1e9."""
+    from test_tune import write_problem
+
+    from analysis.tune.evaluate import INFEASIBLE, Evaluation, Evaluator
+    from analysis.tune.spec import load_tuning
+
+    search = {'"gains.kp"': [20, 2000], '"gains.kd"': [2, 80], "seed": 3, "population": 6, "max_evaluations": 60}
+    spec = load_tuning(write_problem(tmp_path, search=search))
+    zeta = np.full(4, spec.limits.min_damping_ratio * (1.0 - 1e-9))
+    ev = Evaluation(gains={"gains.kp": 100.0, "gains.kd": 20.0}, torque_noise_rms=np.zeros(4), spectral_abscissa=-1.0,
+                    damping_ratio=zeta, bandwidth_ratio=10.0, simulated=True, values=np.array([1.0, 2.0]),
+                    peak_torque=np.zeros(4))
+    judged = Evaluator(spec).judged(ev)
+    assert not judged.feasible and 0 < judged.violations["min_damping_ratio"] < 1e-8
+    assert judged.energy >= INFEASIBLE > 2.0
+
+
+# ==============================================================================================================
+# The compiled engine's trace (blocks/compiled/trace.py)
+# ==============================================================================================================
+def test_constant_folding_in_a_trace_is_the_arithmetic():
+    """tr-fold-minus.  Two constants combine into the constant the arithmetic gives: 5 - 2 = 3, 2 - 5 = -3,
+    5 / 2 = 2.5, 5 + 2 = 7, 5 * 2 = 10 (a traced kernel with a literal expression relies on it)."""
+    from blocks.compiled.trace import Graph
+
+    g = Graph()
+    five, two = g.const(5.0), g.const(2.0)
+    for expr, value in ((five - two, 3.0), (two - five, -3.0), (five / two, 2.5), (five + two, 7.0),
+                        (five * two, 10.0), (7.0 - two, 5.0), (two - 7.0, -5.0)):
+        assert expr.op == "const" and expr.args[0] == value
+
+
+# ==============================================================================================================
+# The report's numbers: observer gain design and frequency metrics (analysis/linear/gain_design.py, frequency.py)
+# ==============================================================================================================
+def test_the_designed_gain_meets_its_target_on_its_own_grid():
+    """gd-return-lo.  The design's promise is "at least target_rad_s on every configuration of the grid": the
+    slowest eigenvalue of Y M^-1(q), computed here with numpy on the design grid, is not below the target (to
+    the rounding of the eigenvalue, 1e-13, far inside the bisection's rtol of 1e-10)."""
+    from analysis.linear import gain_design
+
+    paper = blocks.load_scenario("paper")
+    grid = np.array([[0.0, t2, 0.24, 0.0] for t2 in np.linspace(0.3, 3.0, 13)])
+    for base in (None, 10.0 * np.eye(4)):
+        design = gain_design.design_observer_gain(paper.nominal, 10.0, grid, base=base)
+        rates = np.linalg.eigvals(design.Y @ np.linalg.inv(paper.nominal.inertia(grid))).real
+        assert rates.min() >= 10.0 * (1.0 - 1e-13), rates.min() / 10.0 - 1.0
+
+
+def test_a_low_pass_band_ends_at_its_first_crossing_of_the_level():
+    """fr-lowpass-edge.  G(s) = 1/(s + 1) + 0.8 (10 s) / (s^2 + 10 s + 100^2): low-pass (DC gain 1), below
+    1/sqrt(2) from ~1 rad/s, back above it around the resonance at 100 rad/s.  The -3 dB band of a low-pass is
+    [0, first crossing]: found here with scipy's freqresp and brentq."""
+    import control as ct
+    from scipy.optimize import brentq
+    from scipy.signal import TransferFunction, freqresp
+
+    from analysis.linear.frequency import siso_metrics
+
+    num = np.polyadd(np.polymul([1.0], [1.0, 10.0, 1e4]), np.polymul([8.0, 0.0], [1.0, 1.0]))
+    den = np.polymul([1.0, 1.0], [1.0, 10.0, 1e4])
+    ref = TransferFunction(num, den)
+
+    def gain(w):
+        return abs(freqresp(ref, [w])[1][0])
+
+    level = 1.0 / np.sqrt(2.0)
+    assert gain(100.0) > level                                   # it does come back above the level
+    first = brentq(lambda w: gain(w) - level, 0.1, 10.0)
+    metrics = siso_metrics(ct.ss(ct.tf(num, den)), 0, 0)
+    assert metrics.kind == "low-pass"
+    assert metrics.band_3db_rad_s[0] == 0.0
+    assert metrics.band_3db_rad_s[1] == pytest.approx(first, rel=1e-6)
