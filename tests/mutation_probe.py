@@ -10,7 +10,7 @@ the tests named for it (``python -m pytest -x -q -n 0``), records whether any te
 Run it from the repository's top level::
 
     python tests/mutation_probe.py                 # every mutant, the tests named with it
-    python tests/mutation_probe.py --killers       # and tests/test_mutation_killers.py after those
+    python tests/mutation_probe.py --killers       # and tests/test_mutation_killers.py, ..._killers2.py after those
     python tests/mutation_probe.py --only arm-m01-half chain-rnea-gravity-sign
     python tests/mutation_probe.py --group dynamics --json /tmp/probe.json
     python tests/mutation_probe.py --list          # the mutants, no runs
