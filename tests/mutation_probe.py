@@ -10,7 +10,7 @@ the tests named for it (``python -m pytest -x -q -n 0``), records whether any te
 Run it from the repository's top level::
 
     python tests/mutation_probe.py                 # every mutant, the tests named with it
-    python tests/mutation_probe.py --killers       # and tests/test_mutation_killers.py after those
+    python tests/mutation_probe.py --killers       # and tests/test_mutation_killers.py, ..._killers2.py after those
     python tests/mutation_probe.py --only arm-m01-half chain-rnea-gravity-sign
     python tests/mutation_probe.py --group dynamics --json /tmp/probe.json
     python tests/mutation_probe.py --list          # the mutants, no runs
@@ -25,6 +25,39 @@ linearization and bandwidth, the metrics, the end stops and the FMU's C plant): 
 85; 22 survived, of which 2 are equivalent (``dist-tissue-inside``, ``ds-bisect-mean``: see their
 ``equivalent``); ``tests/test_mutation_killers.py`` kills the other 20.  ``--killers`` must therefore
 report 105 killed and those 2 equivalent.
+
+Second pass, measured on 2026-12-02: 91 more mutants where the first did not go.  Per group: mutants, killed
+by the targeted tests, survivors, killed by ``tests/test_mutation_killers2.py`` (no survivor was judged
+equivalent):
+
+=============== ======= ====== ========= ============ =====================================================
+group           mutants killed survivors killed after survivors
+=============== ======= ====== ========= ============ =====================================================
+fmu_c2            15       3      12         12        instance (new input keeps its slope, h = 0, step from
+                                                       another time), saved states (switch of 2, no magic,
+                                                       buffer size), controller core (step 10 % off Ts, time
+                                                       in ticks, stopTime past the table), FMI 2/3 status
+                                                       and last successful time
+fmu_py            10       9       1          1        sv-float32-max
+digital            9       9       0          0
+compiled          17      12       5          5        dp-max-factor, dp-rejected-cap, dp-h1-order,
+                                                       dp-err-scale (step control only), tr-fold-minus
+noise              3       3       0          0
+task_path         10       9       1          1        tp-dds-T (the tests' segments were 1 s long)
+resolved_rate      7       6       1          1        rr-dv-feedback (zero on the path)
+sweep_tune        12       6       6          6        su-std-ddof, su-p95, su-ranks-ties, su-worst-order,
+                                                       ev-damping-max, ev-energy-total
+report_numbers     8       6       2          2        fr-lowpass-edge, gd-return-lo (1e-10 below target)
+total             91      63      28         28
+=============== ======= ====== ========= ============ =====================================================
+
+The FMU's C mutants reach the tests because nothing caches a built FMU: every test session exports the plant
+and controller FMUs afresh from ``fmu/c`` (module fixtures in a session folder; ``fmu.build`` compiles every
+time and keeps no objects), so a mutant is compiled in -- the C mutants the targeted tests kill show it.  A
+mutant of ``blocks/compiled/dopri.py`` changes the compiled loops' cache key (the key hashes that file's text),
+so numba compiles it instead of loading the cached original; the killer tests of the stepper run the file's
+text as plain Python beside scipy's RK45, no cache involved.  With both passes ``--killers`` must report 196
+killed and the first pass's 2 equivalents.
 
 The table printed at the end has one row per mutant: its id, the file, whether it was killed, by which
 test (the first failure) and the time the run took.  Set ``DOBKIT_CACHE_DIR`` to a folder of the probe's
@@ -45,7 +78,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-KILLERS = "tests/test_mutation_killers.py"
+KILLERS = ("tests/test_mutation_killers.py", "tests/test_mutation_killers2.py")
 TIMEOUT = 900          # s per mutant; a run past it counts as killed (a hang is a failure), and says so
 
 
@@ -363,6 +396,234 @@ MUTANTS = [
 
 
 # --------------------------------------------------------------------------------------------------------------
+# Second pass: the FMU's other C files and its Python side, the digital controller, the compiled engine, the
+# noise, the task-space paths, the redundant-arm IK, the sweep/tune maths and the report's numbers
+# --------------------------------------------------------------------------------------------------------------
+FMU_C2 = ("tests/test_fmu_safety.py", "tests/test_fmu_cosim.py", "tests/test_cosim_coupling.py",
+          "tests/test_fmu_export.py::test_co_simulation_follows_the_input_slope_and_gives_exact_output_derivatives")
+CTRL_C = ("tests/test_controller_fmu.py",)
+FMU_PY = ("tests/test_cosim_coupling.py", "tests/test_pinned_coupling.py", "tests/test_fmu_cosim.py")
+START = ("tests/test_fmu_start_values.py",)
+DIGITAL = ("tests/test_digital.py", "tests/test_pinned_delay.py", "tests/test_pinned_digital_observer.py")
+TICKS = ("tests/test_sampling_events.py", "tests/test_digital.py")
+DOPRI = ("tests/test_compiled.py::test_compiled_equals_numpy_engine",
+         "tests/test_compiled.py::test_compiled_equals_numpy_engine_on_random_variants",
+         "tests/test_compiled.py::test_compiled_batch_equals_numpy_batch_and_single_compiled_runs")
+TRACED = ("tests/test_fastpath.py::test_the_generated_float_right_hand_side_equals_the_numpy_plan_bit_for_bit",
+          "tests/test_compiled.py::test_generated_right_hand_side_and_outputs_equal_the_plan_executed_with_numpy",
+          "tests/test_urdf_trace.py")
+NOISE = ("tests/test_pinned_signals.py", "tests/test_loop.py::test_measurement_noise_is_reproducible_by_seed",
+         "tests/test_arm_digital.py::test_noise_of_n_joints_is_seeded_and_keeps_the_rrpr_draw",
+         "tests/test_analysis_digital.py::test_quantization_noise_is_predicted_within_20_percent")
+LACERATION = ("tests/test_trajectory.py",)
+TOOL_PATH = ("tests/test_arm_loop_path.py::test_reference_puts_pinocchios_tool_frame_on_the_path_between_samples",
+             "tests/test_arm_loop_path.py::test_reference_rates_are_the_derivatives_of_its_positions")
+REDUNDANT = ("tests/test_ik_redundant.py",)
+SUMMARY = ("tests/test_sweep_summary.py", "tests/test_sweep_results.py")
+COSTS = ("tests/test_tune_costs.py",)
+EVALUATE = ("tests/test_tune_constraints.py", "tests/test_tune_linear.py", "tests/test_tune_sampled.py")
+FREQ = ("tests/test_analysis_frequency.py",)
+DESIGN = ("tests/test_analysis_observer.py", "tests/test_analysis_n_joints.py::test_gain_design_for_the_cylindrical_arm_has_its_closed_form",
+          "tests/test_analysis_n_joints.py::test_certificate_and_critical_speed_for_the_cylindrical_arm")
+
+PI, PSt, CC = "fmu/c/plant_instance.c", "fmu/c/plant_state.c", "fmu/c/controller_core.c"
+F2, F3 = "fmu/c/fmi2_common.c", "fmu/c/fmi3_common.c"
+CPL, MST, SV = "fmu/coupling.py", "fmu/master.py", "fmu/start_values.py"
+DG, SMP, NZ, NZK = "blocks/digital.py", "blocks/sampling.py", "blocks/noise.py", "blocks/kernels/noise.py"
+DP, TR = "blocks/compiled/dopri.py", "blocks/compiled/trace.py"
+TJ, TP, RR = "blocks/trajectory.py", "blocks/tool_path.py", "blocks/arms/resolved_rate.py"
+SU, CO, EV = "analysis/sweep/summary.py", "analysis/tune/costs.py", "analysis/tune/evaluate.py"
+FR, GD = "analysis/linear/frequency.py", "analysis/linear/gain_design.py"
+
+MUTANTS += [
+    # ---- the FMU's C instance, saved states, controller core and FMI layers ------------------------------------
+    M("c-set-input-keeps-slope", "fmu_c2", PI, "inst->d.du[vr - VR_TAU] = 0.0;", "(void)0;", FMU_C2,
+      "a new input value keeps the old input derivative (FMI 2: a set value without a slope must be held)"),
+    M("c-dostep-zero-h", "fmu_c2", PI, "if (!(h > 0.0) || !isfinite(h)) {", "if (!(h >= 0.0) || !isfinite(h)) {", FMU_C2,
+      "doStep accepts h = 0"),
+    M("c-dostep-time-check", "fmu_c2", PI, "if (fabs(t - t0) > 1e-9 * (1.0 + fabs(t0))) {",
+      "if (fabs(t - t0) > 1e-1 * (1.0 + fabs(t0))) {", FMU_C2, "doStep from another time than the FMU's accepted"),
+    M("c-restore-switch-check", "fmu_c2", PI, "if (d->sw[i] != 0 && d->sw[i] != 1) {",
+      "if (d->sw[i] != 0 && d->sw[i] != 1 && 0) {", FMU_C2, "a restored state with a disturbance switch of 2 accepted"),
+    M("c-restore-mode-kind", "fmu_c2", PI, "if (inst->cosim ? (mode == MODE_EVENT || mode == MODE_CONTINUOUS) : mode == MODE_STEP) {",
+      "if (inst->cosim ? (mode == MODE_EVENT) : mode == MODE_STEP) {", FMU_C2,
+      "a Model Exchange continuous-time state restored into a Co-Simulation instance"),
+    M("c-state-size-lt", "fmu_c2", PSt, "if (!bytes || size != sizeof(SavedState)) {", "if (!bytes || size < sizeof(SavedState)) {",
+      FMU_C2, "serializing into a buffer larger than the state accepted"),
+    M("c-state-magic", "fmu_c2", PSt, "|| memcmp(bytes, PLANT_STATE_MAGIC, sizeof PLANT_STATE_MAGIC) != 0) {", ") {", FMU_C2,
+      "a serialized state without the FMU's magic accepted"),
+    M("c-ctrl-end-ge", "fmu_c2", CC, "if (c->k + 1 >= CTRL_NTICKS) {", "if (c->k + 1 > CTRL_NTICKS) {", CTRL_C,
+      "the controller steps one tick past its reference table"),
+    M("c-ctrl-step-period", "fmu_c2", CC, "if (!(fabs(h - CTRL_PERIOD) <= 1e-9 * CTRL_PERIOD)) {",
+      "if (!(fabs(h - CTRL_PERIOD) <= 1e-1 * CTRL_PERIOD)) {", CTRL_C, "a communication step 10 % off the sample period accepted"),
+    M("c-ctrl-time", "fmu_c2", CC, "*value = ctrl_time(c);", "*value = (double)c->k;", CTRL_C, "the controller's time in ticks, not s"),
+    M("c-ctrl-buffer-fill", "fmu_c2", CC, "c->x[CTRL_BUF_START + i + j] = c->out[2 * N + j];",
+      "c->x[CTRL_BUF_START + i + j] = 0.0;", CTRL_C, "the delay buffer starts empty, not with the first command"),
+    M("c-ctrl-stop-time", "fmu_c2", CC, "if (stop_defined && stop_time > CTRL_REFERENCE_END * (1.0 + 1e-12)) {",
+      "if (stop_defined && stop_time > 2.0 * CTRL_REFERENCE_END) {", CTRL_C, "a stopTime past the reference table accepted"),
+    M("c-fmi2-status", "fmu_c2", F2, "*value = fmi2_layer_failed(c) ? fmi2Error : fmi2OK;", "*value = fmi2OK;", FMU_C2,
+      "fmi2GetStatus says OK after a failed step"),
+    M("c-fmi2-last-time", "fmu_c2", F2, "*value = fmi2_layer_time(c);", "*value = 0.0;", FMU_C2,
+      "fmi2LastSuccessfulTime is 0"),
+    M("c-fmi3-last-time", "fmu_c2", F3, "if (lastSuccessfulTime) *lastSuccessfulTime = time;",
+      "if (lastSuccessfulTime) *lastSuccessfulTime = 0.0;", FMU_C2, "FMI 3 doStep's lastSuccessfulTime is 0"),
+    # ---- the FMU's Python side: coupling, master, start values -------------------------------------------------
+    M("cpl-hermite-h", "fmu_py", CPL, "(r3 - 2 * r2 + r) * h * d0", "(r3 - 2 * r2 + r) * d0", FMU_PY + ("tests/test_doctests.py",),
+      "cubic Hermite: the start slope without h"),
+    M("cpl-default-zoh", "fmu_py", CPL, "return \"linear\" if able else \"zoh\"", "return \"zoh\"", FMU_PY,
+      "the default coupling is always zoh"),
+    M("mst-rk4-mid-input", "fmu_py", MST, "(inputs_at(tj + 0.5 * dt),)", "(inputs_at(tj),)", FMU_PY,
+      "the Python side's RK4 reads its midpoint inputs at the stage start"),
+    M("mst-ended-held", "fmu_py", MST, "ended = cmd + h * dcmd if linear else cmd", "ended = cmd", FMU_PY,
+      "linear coupling: the applied torque at the step's end taken as held"),
+    M("mst-slope-state", "fmu_py", MST, "x_d = x + delta * rhs(t, x, u) if x.size else x", "x_d = x", FMU_PY,
+      "output slope: the Python side's state held"),
+    M("mst-applied-slope", "fmu_py", MST, "v[w.appl_pos] = applied0 + r * applied_slope", "v[w.appl_pos] = applied0", FMU_PY,
+      "linear coupling: the applied torque the observer reads held over the step"),
+    M("mst-slope-prev", "fmu_py", MST, "((y_m - y_m_prev) / h if y_m_prev", "((y_m - y_m_prev) * h if y_m_prev", FMU_PY,
+      "without FMU derivatives: the measured slope times h for over h"),
+    M("sv-int-high", "fmu_py", SV, "if not low <= number <= high:", "if not low <= number < high:", START,
+      "an integer start value at its type's maximum refused"),
+    M("sv-float32-max", "fmu_py", SV, "abs(number) > FLOAT32_MAX:", "abs(number) >= FLOAT32_MAX:", START,
+      "the largest Float32 refused"),
+    M("sv-fmi2-integer", "fmu_py", SV, "if type_name in (\"Integer\", \"Enumeration\") and fmi_version == 2:",
+      "if type_name == \"Enumeration\" and fmi_version == 2:", START, "an FMI 2 Integer not given Int32's range"),
+    # ---- the digital controller: encoder, filter, quantization, delay, observer discretizations ----------------
+    M("dg-filter-pole", "digital", DG, "math.exp(-2 * math.pi * self.velocity_cutoff * self.period)",
+      "math.exp(-math.pi * self.velocity_cutoff * self.period)", DIGITAL, "velocity filter pole at f_c / 2"),
+    M("dg-diff-gain", "digital", DG, "pole * x[n:] + (1.0 - pole) * (q_s - x[:n]) / period",
+      "pole * x[n:] + (q_s - x[:n]) / period", DIGITAL, "velocity filter without its (1 - a) input gain"),
+    M("dg-quant-floor", "digital", DG, "np.where(steps, np.rint(q / np.where(steps, resolution, 1.0)) * resolution, q)",
+      "np.where(steps, np.floor(q / np.where(steps, resolution, 1.0)) * resolution, q)", DIGITAL,
+      "encoder truncates instead of rounding"),
+    M("dg-sat-lower", "digital", DG, "np.minimum(np.maximum(command[i], -limit[i]), limit[i])",
+      "np.minimum(np.maximum(command[i], -0.5 * limit[i]), limit[i])", DIGITAL, "lower torque limit at half"),
+    M("dg-buffer-order", "digital", DG, "return np.concatenate((x[n:], u))", "return np.concatenate((u, x[n:]))", DIGITAL,
+      "delay buffer pushes at the front (delay >= 2 reorders)"),
+    M("dg-euler-half", "digital", DG, "return z + period * observer_rate(", "return z + 0.5 * period * observer_rate(", DIGITAL,
+      "Euler observer with Ts / 2"),
+    M("dg-zoh-c-ts", "digital", DG, "augmented[:n, n] = c * period", "augmented[:n, n] = c", DIGITAL,
+      "ZOH observer: the constant column without Ts"),
+    M("dg-estimate-q", "digital", DG, "return observer_estimate(gain, u[2 * n:3 * n], z)",
+      "return observer_estimate(gain, u[n:2 * n], z)", DIGITAL, "sampled d_hat = Y q + z for Y q' + z"),
+    M("smp-tick-round", "digital", SMP, "return int(math.floor(t_end / base_period * (1 + 1e-12)))",
+      "return int(math.floor(t_end / base_period))", TICKS, "the last tick lost to a rounding error"),
+    # ---- the compiled engine: Dormand-Prince tableau, step control, dense output, trace ------------------------
+    M("dp-a31", "compiled", DP, "[44 / 45, -56 / 15, 32 / 9, 0.0, 0.0]", "[44 / 45, -56 / 16, 32 / 9, 0.0, 0.0]", DOPRI,
+      "Dormand-Prince a_41 = -56/16"),
+    M("dp-c4", "compiled", DP, "DP_C = np.array([0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1.0])",
+      "DP_C = np.array([0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 10, 1.0])", DOPRI, "Dormand-Prince c_5 = 8/10"),
+    M("dp-b4-sign", "compiled", DP, "125 / 192, -2187 / 6784, 11 / 84])", "125 / 192, 2187 / 6784, 11 / 84])", DOPRI,
+      "Dormand-Prince b_5 sign"),
+    M("dp-e-typo", "compiled", DP, "17253 / 339200", "17253 / 33920", DOPRI, "error weights e_5 by 10 (step control only)"),
+    M("dp-p-sign", "compiled", DP, "[1.0, -8048581381 / 2820520608,", "[1.0, 8048581381 / 2820520608,", DOPRI,
+      "dense output P_01 sign"),
+    M("dp-safety", "compiled", DP, "SAFETY = 0.9", "SAFETY = 0.8", DOPRI, "step safety factor 0.8"),
+    M("dp-max-factor", "compiled", DP, "MAX_FACTOR = 10.0", "MAX_FACTOR = 5.0", DOPRI, "step growth at most 5"),
+    M("dp-rejected-cap", "compiled", DP, "factor = min(1.0, factor)", "factor = min(2.0, factor)", DOPRI,
+      "after a rejection the step may grow"),
+    M("dp-dense-p3", "compiled", DP, "    p3 = p2 * x\n    for i in range(y_old.shape[0]):\n        out[i, k]",
+      "    p3 = p2\n    for i in range(y_old.shape[0]):\n        out[i, k]", DOPRI, "dense output on the grid: x^3 for x^4"),
+    M("dp-h0-factor", "compiled", DP, "h0 = 0.01 * d0 / d1", "h0 = 0.1 * d0 / d1", DOPRI, "first-step guess 10 x"),
+    M("dp-h1-order", "compiled", DP, "h1 = (0.01 / max(d1, d2)) ** (1.0 / 5.0)", "h1 = (0.01 / max(d1, d2)) ** (1.0 / 4.0)",
+      DOPRI, "first-step guess with exponent 1/4"),
+    M("dp-err-scale", "compiled", DP, "scale = atol + max(abs(y[i]), abs(y_new[i])) * rtol", "scale = atol + abs(y[i]) * rtol",
+      DOPRI, "error scale from the step's start only"),
+    M("dp-rms-n", "compiled", DP, "return math.sqrt(total) / math.sqrt(v.shape[0])", "return math.sqrt(total)", DOPRI,
+      "error norm not divided by sqrt(n)"),
+    M("tr-fold-minus", "compiled", TR, "\"-\": x - y,", "\"-\": y - x,", TRACED, "constant folding of a - b as b - a"),
+    M("tr-rsub", "compiled", TR, "def __rsub__(self, o):\n        return _elementwise(o, self,",
+      "def __rsub__(self, o):\n        return _elementwise(self, o,", TRACED, "c - x traced as x - c"),
+    M("tr-zero-minus", "compiled", TR, "if op == \"-\" and _is_const(a, 0.0):\n            return self.graph.node(\"call\", (\"negative\", b))",
+      "if op == \"-\" and _is_const(a, 0.0):\n            return b", TRACED, "0 - x traced as x"),
+    M("tr-rtruediv", "compiled", TR, "def __rtruediv__(self, o):\n        return _elementwise(o, self,",
+      "def __rtruediv__(self, o):\n        return _elementwise(self, o,", TRACED, "c / x traced as x / c"),
+    # ---- measurement noise -------------------------------------------------------------------------------------
+    M("nz-weight-swap", "noise", NZK, "return (1.0 - weight) * table[:, index] + weight * table[:, index + 1]",
+      "return weight * table[:, index] + (1.0 - weight) * table[:, index + 1]", NOISE, "interpolation weights swapped"),
+    M("nz-std-swap", "noise", NZ, "np.array(self.q_std + self.dq_std)", "np.array(self.dq_std + self.q_std)", NOISE,
+      "position noise drawn with the velocity std"),
+    M("nz-count", "noise", NZ, "count = int(math.ceil(self.t_final / self.sample_period)) + 2",
+      "count = int(math.ceil(self.t_final / self.sample_period))", NOISE, "the samples end a period before t_final"),
+    # ---- task-space paths: the laceration (RRPR) and the tool path of any arm ----------------------------------
+    M("tj-smooth-d1", "task_path", TJ, "30 * tau ** 2 * (1 - tau) ** 2,", "30 * tau ** 2 * (1 - tau),", LACERATION,
+      "smoothstep5 derivative with (1 - tau) once"),
+    M("tj-bump-dd", "task_path", TJ, "384 * u * du ** 2 - 384 * u ** 2", "384 * u * du ** 2 - 192 * u ** 2", LACERATION,
+      "bump6 second derivative: 192 u^2"),
+    M("tj-dds-T", "task_path", TJ, "step * ddsig / T ** 2", "step * ddsig / T", LACERATION, "s'' over T for T^2"),
+    M("tj-bulge-ddw", "task_path", TJ, "4 * bulge * (1 - 2 * s), -8 * bulge", "4 * bulge * (1 - 2 * s), -4 * bulge", LACERATION,
+      "bulge curvature w'' = -4 b for -8 b"),
+    M("tj-bias-w12", "task_path", TJ, "bx = ax + a1 * c1 * w1 ** 2 + a2 * c12 * w12 ** 2", "bx = ax + a1 * c1 * w1 ** 2 + a2 * c12 * w2 ** 2",
+      LACERATION, "IK acceleration bias: w2^2 for (w1 + w2)^2 in x"),
+    M("tj-aphi-sign", "task_path", TJ, "e1 + e2 - aphi)", "e1 + e2 + aphi)", LACERATION, "theta4'' = e1 + e2 + phi''"),
+    M("tj-phase-cap", "task_path", TJ, "phase = min(max(math.floor(t / T), 0), 2 * stitches - 2)",
+      "phase = min(max(math.floor(t / T), 0), 2 * stitches - 1)", LACERATION, "a phase past the last stitch"),
+    M("tp-quintic-c4", "task_path", TP, "c4 = -15.0 * d + 7.0 * dv - da", "c4 = -15.0 * d + 7.0 * dv - 0.5 * da", TOOL_PATH,
+      "joint table quintic: c4 with da / 2"),
+    M("tp-quintic-ddq", "task_path", TP, "s * (12.0 * c4 + s * (20.0 * c5))", "s * (12.0 * c4 + s * (12.0 * c5))", TOOL_PATH,
+      "joint table quintic: q'' with 12 c5"),
+    M("tp-dds-T", "task_path", TP, "(dds / T ** 2)[..., None] * step", "(dds / T)[..., None] * step", TOOL_PATH,
+      "tool path p'' over T for T^2"),
+    # ---- the redundant arm's resolved-rate IK -------------------------------------------------------------------
+    M("rr-hermite-k4", "resolved_rate", RR, "k4 = -15.0 * d + 7.0 * db - dc", "k4 = -15.0 * d + 7.0 * db - 0.5 * dc", REDUNDANT,
+      "task-space quintic between samples: k4 with dc / 2"),
+    M("rr-hermite-rate", "resolved_rate", RR, "s * (4.0 * k4 + s * 5.0 * k5)", "s * (4.0 * k4 + s * 4.0 * k5)", REDUNDANT,
+      "task-space quintic's rate: 4 k5"),
+    M("rr-limit-push", "resolved_rate", RR, "(into_lo ** 2 - into_hi ** 2)", "(into_hi ** 2 - into_lo ** 2)", REDUNDANT,
+      "the limit term pushes a joint into its end"),
+    M("rr-limit-slope", "resolved_rate", RR, "slope = -self.kn - 2.0 * self.kl * (into_lo + into_hi)", "slope = -self.kn",
+      REDUNDANT, "dz/dq without the limit term's slope"),
+    M("rr-dpinv-first", "resolved_rate", RR, "dpinv = P @ np.linalg.solve(JJt, Jd).T - pinv @ Jd @ pinv",
+      "dpinv = - pinv @ Jd @ pinv", REDUNDANT, "d/dt J+ without P J'^T (J J^T)^-1"),
+    M("rr-dv-feedback", "resolved_rate", RR, "dv = ddp + self.kp * (dp - J @ dq)", "dv = ddp", REDUNDANT,
+      "v' without the task feedback's rate"),
+    M("rr-rate-null", "resolved_rate", RR, "return pinv @ v + z - pinv @ (J @ z)", "return pinv @ v + z", REDUNDANT,
+      "posture term not projected into the null space"),
+    # ---- sweep statistics, tune constraint costs and margins -----------------------------------------------------
+    M("su-std-ddof", "sweep_tune", SU, "np.std(w, ddof=1)", "np.std(w, ddof=0)", SUMMARY, "sample std over n, not n - 1"),
+    M("su-p95", "sweep_tune", SU, "_QUANTILES = (0.05, 0.5, 0.95)", "_QUANTILES = (0.05, 0.5, 0.9)", SUMMARY, "p95 at 0.9"),
+    M("su-ranks-ties", "sweep_tune", SU, "return sums[inverse] / counts[inverse]", "return ranks", SUMMARY,
+      "Spearman ranks without the mean rank of ties"),
+    M("su-mean-scale", "sweep_tune", SU, "mean, std = float(np.mean(w)) * top,", "mean, std = float(np.mean(w)),", SUMMARY,
+      "mean left in units of the largest value"),
+    M("su-worst-order", "sweep_tune", SU, "key=lambda item: (-item[0], -item[1]))]", "key=lambda item: (item[0], -item[1]))]",
+      SUMMARY, "worst runs listed best first"),
+    M("co-cost-sign", "sweep_tune", CO, "(reference - best.objective if binds else 0.0)", "(best.objective - reference if binds else 0.0)",
+      COSTS, "a binding constraint's cost negative"),
+    M("co-binds-le", "sweep_tune", CO, "and best.objective < reference", "and best.objective <= reference", COSTS,
+      "a constraint that changes nothing said to bind"),
+    M("co-search-count", "sweep_tune", CO, "return 1 + len(costed_constraints(spec.limits))", "return len(costed_constraints(spec.limits))",
+      COSTS, "the costed search count without the reference search"),
+    M("ev-damping-max", "sweep_tune", EV, "out[\"min_damping_ratio\"] = float(np.min(ev.damping_ratio) - limits.min_damping_ratio)",
+      "out[\"min_damping_ratio\"] = float(np.max(ev.damping_ratio) - limits.min_damping_ratio)", EVALUATE,
+      "damping margin of the best-damped joint"),
+    M("ev-noise-max", "sweep_tune", EV, "float(np.min(1.0 - ev.torque_noise_rms / limits.torque_noise_rms))",
+      "float(np.max(1.0 - ev.torque_noise_rms / limits.torque_noise_rms))", EVALUATE, "noise margin of the quietest joint"),
+    M("ev-ts-lambda-M", "sweep_tune", EV, "np.linalg.eigvals(Y @ np.linalg.inv(self._M_sampled))", "np.linalg.eigvals(Y @ self._M_sampled)",
+      EVALUATE, "sampled margin from Y M for Y M^-1"),
+    M("ev-energy-total", "sweep_tune", EV, "else INFEASIBLE * (1.0 + total)", "else INFEASIBLE * total", EVALUATE,
+      "an infeasible candidate with a tiny violation ranks below feasible ones"),
+    # ---- the report's numbers: frequency responses and the observer gain design -----------------------------------
+    M("fr-closed-s", "report_numbers", FR, "-s * pd_inv @ np.linalg.inv(s * M + Y)", "-pd_inv @ np.linalg.inv(s * M + Y)", FREQ,
+      "closed form E without the observer's zero at s = 0"),
+    M("fr-closed-ed", "report_numbers", FR, "out.append(s * M @ np.linalg.inv(s * M + Y) if observer",
+      "out.append(M @ np.linalg.inv(s * M + Y) if observer", FREQ, "closed form E_d without s"),
+    M("fr-dc-sign", "report_numbers", FR, "dc = float(np.real(D[out, inp] - C[out] @ np.linalg.solve(A, B[:, inp])))",
+      "dc = float(np.real(D[out, inp] + C[out] @ np.linalg.solve(A, B[:, inp])))", FREQ, "DC gain D + C A^-1 B"),
+    M("fr-lowpass-level", "report_numbers", FR, "kind, level = \"low-pass\", abs(dc) / math.sqrt(2.0)",
+      "kind, level = \"low-pass\", abs(dc) / 2.0", FREQ, "low-pass band edge at -6 dB"),
+    M("fr-lowpass-edge", "report_numbers", FR, "band = [0.0, crossing(change[0]) if change.size else None]",
+      "band = [0.0, crossing(change[-1]) if change.size else None]", FREQ, "low-pass band edge at the last crossing"),
+    M("gd-return-lo", "report_numbers", GD, "    Y = base + c_hi * M_ref\n", "    Y = base + c_lo * M_ref\n", DESIGN,
+      "designed gain from the bracket's low (too slow) end"),
+    M("gd-decay-mdot", "report_numbers", GD, "S = (Y + Y.T) / 2.0 - M_dot / 2.0", "S = (Y + Y.T) / 2.0 - M_dot", DESIGN,
+      "decay rate with M' for M'/2"),
+    M("gd-critical-half", "report_numbers", GD, "Ys_inv_half @ (M_dot / 2.0) @ Ys_inv_half", "Ys_inv_half @ M_dot @ Ys_inv_half",
+      DESIGN, "critical speed with M' for M'/2"),
+]
+
+
+# --------------------------------------------------------------------------------------------------------------
 def _apply(m: Mutant) -> str:
     """Write mutant ``m`` into its file; return the original text."""
     path = ROOT / m.file
@@ -384,7 +645,7 @@ def _first_failure(output: str) -> str:
 
 def run_mutant(m: Mutant, killers: bool, timeout: float = TIMEOUT, killers_only: bool = False) -> Outcome:
     """Apply ``m``, run its tests (and the killer tests), put the file back, say whether it was killed."""
-    tests = (KILLERS,) if killers_only else (m.tests + ((KILLERS,) if killers else ()))
+    tests = KILLERS if killers_only else (m.tests + (KILLERS if killers else ()))
     # a -k option applies to every file given; split the run where a mutant's list carries one
     runs, current = [], []
     items = list(tests)
@@ -441,8 +702,8 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--only", nargs="*", help="mutant ids to run")
     p.add_argument("--group", nargs="*", help="groups to run")
-    p.add_argument("--killers", action="store_true", help=f"also run {KILLERS} for each mutant")
-    p.add_argument("--killers-only", action="store_true", help=f"run only {KILLERS} for each mutant")
+    p.add_argument("--killers", action="store_true", help=f"also run {' and '.join(KILLERS)} for each mutant")
+    p.add_argument("--killers-only", action="store_true", help=f"run only {' and '.join(KILLERS)} for each mutant")
     p.add_argument("--list", action="store_true", help="list the mutants and stop")
     p.add_argument("--json", help="write the outcomes to this file as they come")
     p.add_argument("--timeout", type=float, default=TIMEOUT)
