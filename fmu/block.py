@@ -265,7 +265,7 @@ def _scenario_start_values(extracted, scenario) -> dict:
     """The scenario's true-plant parameters and start state, for an FMU with the plant's signals."""
     from blocks.scenario import Scenario, load_scenario  # the scenario machinery only when asked for
 
-    from .plant_check import check_scenario_arm
+    from .arm_match import check_scenario_arm
     from .scenario_values import plant_start_values
     s = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     md = described(extracted)

@@ -95,7 +95,7 @@ def controller_side(scenario: Scenario, observer: bool = True) -> ct.Interconnec
 def _plant_variables(extracted, scenario: Scenario, parameters: str) -> set[str]:
     """Names of the FMU's variables, after checking it has the plant's signals of the scenario's joints and, for a
     dobkit plant FMU, that it is the scenario arm's plant (before instantiating)."""
-    from .plant_check import check_scenario_arm
+    from .arm_match import check_scenario_arm
     md = described(extracted)
     source = f"{extracted.source} (as the plant of the loop)"
     names = scenario.robot.joints.signal_names

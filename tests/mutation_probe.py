@@ -156,6 +156,7 @@ def M(id, group, file, old, new, tests, what, equivalent=""):      # noqa: N802 
 
 ARM, DYNPY, KK, KINPY = "blocks/kernels/arm.py", "blocks/dynamics.py", "blocks/kernels/kinematics.py", "blocks/kinematics.py"
 LAW, DK, CH, IKF = "blocks/kernels/laws.py", "blocks/kernels/disturbance.py", "blocks/kernels/chain.py", "blocks/arms/ik.py"
+RR_FILE = "blocks/arms/resolved_rate.py"      # J' by polarisation lives beside the law that uses it
 DIV, MON, RL, DS = "blocks/divergence.py", "blocks/monitor.py", "blocks/run_limits.py", "blocks/digital_stability.py"
 BU, ME, ES, PC = "blocks/budget.py", "blocks/metrics.py", "fmu/end_stops.py", "fmu/c/plant_model.c"
 AL, BW = "analysis/linear/arm_linear.py", "analysis/linear/bandwidth.py"
@@ -270,7 +271,7 @@ MUTANTS = [
       "        for j in reversed(range(i + 1)):\n            M[i][j] = M[j][i] = next(values)", TRACE,
       "traced calls (codegen.ARM_CALLS): a row of M's lower triangle read in reverse"),
     # ---- IK derivatives of a URDF arm's tool point -------------------------------------------------------------
-    M("ik-jrate-factor", "ik", IKF, "return ((plus - minus) / 4.0).T", "return ((plus - minus) / 2.0).T", IK,
+    M("ik-jrate-factor", "ik", RR_FILE, "return ((plus - minus) / 4.0).T", "return ((plus - minus) / 2.0).T", IK,
       "J' by polarisation: /2 for /4"),
     M("ik-ddq-bias-sign", "ik", IKF, "pinv @ (ddp - Jdot @ dq)", "pinv @ (ddp + Jdot @ dq)", IK, "q'' = J+ (p'' + J' q')"),
     M("ik-ddq-nullspace", "ik", IKF, "+ (np.eye(arm.n) - pinv @ J) @ (Jdot.T", "+ 0.0 * (np.eye(arm.n) - pinv @ J) @ (Jdot.T",

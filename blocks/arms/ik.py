@@ -43,7 +43,7 @@ import numpy as np
 
 from ..arm import ArmModel
 from ..kinematics import UnreachableError
-from .resolved_rate import ResolvedRate, SingularJacobian, integrate_path, moving_joints
+from .resolved_rate import ResolvedRate, SingularJacobian, integrate_path, jacobian_rate, moving_joints
 
 __all__ = ["IKUnreachableError", "JointPath", "solve_ik", "joint_path", "jacobian_rate"]
 
@@ -153,15 +153,6 @@ def solve_ik(arm: ArmModel, point, q0=None, *, damping: float = 1e-3, tol: float
         raise IKUnreachableError(f"task-space point {where}{when} needs joint positions outside the arm's ranges: "
                                  f"{outside}")
     return q, res
-
-
-def jacobian_rate(arm: ArmModel, q, dq) -> np.ndarray:
-    """``J'(q, q')`` (3, n) by polarisation of ``c(v) = J'(q, v) v`` (exact: ``J'`` is symmetric in its directions)."""
-    n = arm.n
-    eye = np.eye(n)
-    plus = arm.tool_acceleration_bias(np.broadcast_to(q, (n, n)), dq + eye)
-    minus = arm.tool_acceleration_bias(np.broadcast_to(q, (n, n)), dq - eye)
-    return ((plus - minus) / 4.0).T
 
 
 def _derivatives(arm: ArmModel, q, dp, ddp, t, min_sigma: float) -> tuple[np.ndarray, np.ndarray]:

@@ -41,7 +41,7 @@ each sample ``q' = F(t, q)`` exactly and ``q''`` is its exact time derivative al
     dJ^+ = P J'^T (J J^T)^-1 - J^+ J' J^+,    dP = -(dJ^+ J + J^+ J'),
     v' = p'' + K_p (p' - J q'),               z' = (dz/dq) q'  (= -K_n q' away from the joints' ends),
 
-with ``J' = J'(q, q')`` (:func:`blocks.arms.ik.jacobian_rate`).  So ``q``, ``q'`` and ``q''`` are one
+with ``J' = J'(q, q')`` (:func:`jacobian_rate`).  So ``q``, ``q'`` and ``q''`` are one
 curve to the integrator's accuracy, and ``J q' = p'``, ``J q'' + J' q' = p''`` hold up to terms in ``e``.
 
 Joint positions (rad, m), velocities (rad/s, m/s), accelerations (rad/s^2, m/s^2); points in the arm's
@@ -53,10 +53,19 @@ import numpy as np
 
 from ..arm import ArmModel
 
-__all__ = ["ResolvedRate", "moving_joints", "integrate_path", "LIMIT_MARGIN"]
+__all__ = ["ResolvedRate", "moving_joints", "integrate_path", "jacobian_rate", "LIMIT_MARGIN"]
 
 #: The part of a joint's range at either end (a fraction of the range) where the null-space term pushes back.
 LIMIT_MARGIN = 0.1
+
+
+def jacobian_rate(arm: ArmModel, q, dq) -> np.ndarray:
+    """``J'(q, q')`` (3, n) by polarisation of ``c(v) = J'(q, v) v`` (exact: ``J'`` is symmetric in its directions)."""
+    n = arm.n
+    eye = np.eye(n)
+    plus = arm.tool_acceleration_bias(np.broadcast_to(q, (n, n)), dq + eye)
+    minus = arm.tool_acceleration_bias(np.broadcast_to(q, (n, n)), dq - eye)
+    return ((plus - minus) / 4.0).T
 
 
 class SingularJacobian(ArithmeticError):
@@ -155,8 +164,6 @@ class ResolvedRate:
 
     def rates(self, q, p, dp, ddp) -> tuple[np.ndarray, np.ndarray]:
         """``q'`` and its exact time derivative ``q''`` (rad/s^2, m/s^2) along the motion, at one sample."""
-        from .ik import jacobian_rate
-
         J, JJt, pinv = self._terms(q)
         P = np.eye(self.arm.n) - pinv @ J
         e = p - self.arm.tool_position(q)
