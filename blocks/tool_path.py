@@ -24,7 +24,7 @@ import numpy as np
 
 from .bound_kernels import Kernels
 from .kernels.noise import _sample_index
-from .trajectory import smoothstep5
+from .trajectory import quintic_hermite, smoothstep5
 
 __all__ = ["ToolPath", "tool_path_output", "MAX_PATH_SAMPLES"]
 
@@ -50,15 +50,7 @@ def tool_path_output(t, x, u, table, period):
     q0, q1 = table[:n, index], table[:n, index + 1]
     v0, v1 = table[n:2 * n, index] * h, table[n:2 * n, index + 1] * h
     a0, a1 = table[2 * n:, index] * (h * h), table[2 * n:, index + 1] * (h * h)
-    d = q1 - q0 - v0 - 0.5 * a0
-    dv = v1 - v0 - a0
-    da = a1 - a0
-    c3 = 10.0 * d - 4.0 * dv + 0.5 * da
-    c4 = -15.0 * d + 7.0 * dv - da
-    c5 = 6.0 * d - 3.0 * dv + 0.5 * da
-    q = q0 + s * (v0 + s * (0.5 * a0 + s * (c3 + s * (c4 + s * c5))))
-    dq = (v0 + s * (a0 + s * (3.0 * c3 + s * (4.0 * c4 + s * (5.0 * c5))))) / h
-    ddq = (a0 + s * (6.0 * c3 + s * (12.0 * c4 + s * (20.0 * c5)))) / (h * h)
+    q, dq, ddq = quintic_hermite(s, h, q0, v0, a0, q1, v1, a1)
     return np.concatenate((q, dq, ddq))
 
 

@@ -208,3 +208,18 @@ def test_kept_inertias_serve_new_gains_and_never_another_path_window_or_arm():
     mismatch = arm_rates(base)["gains.kp"][0] / 30.0
     assert mismatch > 1.0
     np.testing.assert_allclose(arm_rates(cases[0])["gains.kp"][0], np.sqrt(360.0) * mismatch, rtol=1e-12)
+
+
+def test_at_most_sixteen_arms_and_paths_keep_their_inertias_the_latest_first():
+    from blocks.run_limits import _KEPT_INVERSES, _inverses
+    assert _KEPT_INVERSES == 16
+    base = load_scenario("scope4")
+    forget_inertias()
+    windows = [base.with_changes({"simulation.t_final": 1.0 + 0.1 * k}) for k in range(17)]
+    for s in windows[:16]:
+        arm_rates(s)
+    assert len(_inverses) == 16
+    arm_rates(windows[0])                                       # used again: now the latest
+    arm_rates(windows[16])                                      # the 17th drops the least recently used
+    kept = {key[3] for key in _inverses}
+    assert len(_inverses) == 16 and 1.0 in kept and 1.1 not in kept and 2.6 in kept

@@ -52,6 +52,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..arm import ArmModel
+from ..trajectory import quintic_hermite
 
 __all__ = ["ResolvedRate", "moving_joints", "integrate_path", "jacobian_rate", "LIMIT_MARGIN"]
 
@@ -85,18 +86,11 @@ def moving_joints(arm: ArmModel, q) -> np.ndarray:
 def hermite5(h: float, s: float, y0, y1) -> tuple[np.ndarray, np.ndarray]:
     """Value and rate at ``s`` in [0, 1] of the quintic through ``y0 = (y, y', y'')`` and ``y1`` on ``h`` s.
 
-    ``y0`` and ``y1`` are triples of arrays (the value, its rate per s and per s^2 at each end).
+    ``y0`` and ``y1`` are triples of arrays (the value, its rate per s and per s^2 at each end); the quintic is
+    the tool path's own (:func:`blocks.trajectory.quintic_hermite`).
     """
     (a0, b0, c0), (a1, b1, c1) = y0, y1
-    b0, b1, c0, c1 = b0 * h, b1 * h, c0 * (h * h), c1 * (h * h)
-    d = a1 - a0 - b0 - 0.5 * c0
-    db = b1 - b0 - c0
-    dc = c1 - c0
-    k3 = 10.0 * d - 4.0 * db + 0.5 * dc
-    k4 = -15.0 * d + 7.0 * db - dc
-    k5 = 6.0 * d - 3.0 * db + 0.5 * dc
-    value = a0 + s * (b0 + s * (0.5 * c0 + s * (k3 + s * (k4 + s * k5))))
-    rate = (b0 + s * (c0 + s * (3.0 * k3 + s * (4.0 * k4 + s * 5.0 * k5)))) / h
+    value, rate, _ = quintic_hermite(s, h, a0, b0 * h, c0 * (h * h), a1, b1 * h, c1 * (h * h))
     return value, rate
 
 
