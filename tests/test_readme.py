@@ -1,18 +1,23 @@
-"""The README's examples run exactly as written, in the order written.
+"""The README runs as written: every block, shell and Python, in the order written, in one folder.
 
-Every ```python block of README.md is run, in order, in one namespace, in a
-fresh temporary folder (so files one block writes are there for the next).
-Every ```bash block is run, in order, with ``bash -e`` in another fresh
-temporary folder, with the installed ``dobkit`` command: what a new user
-following only the README types.  A block may be preceded by an HTML comment
-that says how to treat it:
+That is what a new user does after the quick start: types each ```bash block
+(with ``bash -e``, the installed ``dobkit`` command) and runs each ```python
+block (in one namespace, so names one block makes serve the next) in the same
+folder, from the top of the file to the bottom.  A file one block writes is
+there for every later block, so two blocks that write the same file fail here
+as they would for the user.  A block may be preceded by an HTML comment that
+says how to treat it:
 
 * ``<!-- readme-test: needs_cc -->``: needs a C compiler (skipped without one);
 * ``<!-- readme-test: skip (why) -->``: not run; the reason is required (for
   example the quick-start commands that make a virtual environment and install);
 * ``<!-- readme-test: file NAME -->`` before a ```toml block: the block is
-  written to the file NAME in the shell examples' folder, where the README says
-  to save it, before the shell block that follows it runs.
+  written to the file NAME in the folder, where the README says to save it;
+* ``<!-- readme-test: extra NAME -->`` before the ```bash block that installs
+  the optional extra NAME (``pip install ".[NAME]"``): not run (the test
+  environment is installed already), but the extra must exist in
+  ``pyproject.toml`` and every package it lists must be installed here, so a
+  section that needs an extra cannot run here without one.
 """
 from __future__ import annotations
 
@@ -28,8 +33,8 @@ import pytest
 README = Path(__file__).resolve().parents[1] / "README.md"
 _BLOCK = re.compile(r"(?:<!--\s*readme-test:\s*(?P<tag>[\w-]+)(?:\s+(?P<arg>[^\s()]+))?\s*(?:\((?P<why>[^)]*)\))?"
                     r"\s*-->\s*\n)?```(?P<lang>\w*)\n(?P<code>.*?)```", re.DOTALL)
-_TAGS = {"needs_cc", "skip", "file"}
-# Longest a shell block may run (s); the whole set of them takes about two minutes on 2 cores.
+_TAGS = {"needs_cc", "skip", "file", "extra"}
+# Longest a shell block may run (s); the whole README takes about three minutes on 2 cores.
 _BLOCK_TIMEOUT = 900
 
 
@@ -69,25 +74,42 @@ def test_every_readme_test_tag_is_known_and_a_skip_says_why():
             assert block["why"] and block["why"].strip(), f"README.md:{block['line']}: a skip needs a reason"
         if block["tag"] == "file":
             assert block["lang"] == "toml" and block["arg"], f"README.md:{block['line']}: 'file' needs a name"
+        if block["tag"] == "extra":
+            assert block["lang"] == "bash" and block["arg"], f"README.md:{block['line']}: 'extra' needs a name"
+            assert f'.[{block["arg"]}]' in block["code"], f"README.md:{block['line']}: installs another extra"
 
 
-def test_python_examples_run_as_written(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
-    namespace: dict = {"__name__": "__readme__"}
-    ran = 0
-    for block in readme_blocks("python"):
-        if _skipped(block):
+def test_every_toml_block_is_a_file_that_a_command_runs():
+    # a fragment a user cannot run is a fragment nobody checked
+    blocks = readme_blocks("bash", "toml")
+    for i, block in enumerate(blocks):
+        if block["lang"] != "toml":
             continue
+        assert block["tag"] == "file", f"README.md:{block['line']}: a toml block must be saved as a file and run"
+        later = "".join(b["code"] for b in blocks[i + 1:] if b["lang"] == "bash" and not b["tag"] == "skip")
+        assert block["arg"] in later, f"README.md:{block['line']}: no later command uses {block['arg']}"
+
+
+def _extra_installed(name: str) -> None:
+    """Fail unless the optional extra ``name`` exists and every distribution it lists is installed."""
+    import tomllib
+    from importlib import metadata
+
+    from packaging.requirements import Requirement
+
+    pyproject = tomllib.loads((README.parent / "pyproject.toml").read_text(encoding="utf-8"))
+    extras = pyproject["project"]["optional-dependencies"]
+    assert name in extras, f"the README installs the extra {name!r}, which pyproject.toml does not define"
+    for line in extras[name]:
+        requirement = Requirement(line)
         try:
-            exec(compile(block["code"], f"README.md:{block['line']}", "exec"), namespace)
-        except Exception as err:        # name the block in the failure
-            pytest.fail(f"README.md python block at line {block['line']} failed: {type(err).__name__}: {err}")
-        ran += 1
-    assert ran >= 1
+            metadata.version(requirement.name)
+        except metadata.PackageNotFoundError:
+            pytest.skip(f"the extra {name!r} is not installed here ({requirement.name} is missing)")
 
 
 def _dobkit_on_path() -> dict:
-    """The environment for the shell examples: this interpreter's scripts folder (with ``dobkit``) first."""
+    """The environment for the shell blocks: this interpreter's scripts folder (with ``dobkit``) first."""
     scripts = Path(sys.executable).parent
     if not (scripts / "dobkit").exists():
         pytest.skip(f"the dobkit command is not installed beside {sys.executable} (pip install the project)")
@@ -97,23 +119,43 @@ def _dobkit_on_path() -> dict:
     return env
 
 
+def _run_shell(block: dict, folder: Path, env: dict) -> None:
+    done = subprocess.run(["bash", "-e", "-o", "pipefail", "-c", block["code"]], cwd=folder, env=env,
+                          capture_output=True, text=True, timeout=_BLOCK_TIMEOUT, stdin=subprocess.DEVNULL)
+    if done.returncode != 0:
+        pytest.fail(f"README.md shell block at line {block['line']} failed with status {done.returncode}:\n"
+                    f"{block['code']}\n--- stderr (end) ---\n{done.stderr[-3000:]}")
+
+
+def _run_python(block: dict, namespace: dict) -> None:
+    try:
+        exec(compile(block["code"], f"README.md:{block['line']}", "exec"), namespace)
+    except Exception as err:        # name the block in the failure
+        pytest.fail(f"README.md python block at line {block['line']} failed: {type(err).__name__}: {err}")
+
+
 @pytest.mark.slow
-def test_shell_examples_run_as_written_in_order(tmp_path):
+def test_the_readme_runs_top_to_bottom_in_one_folder(tmp_path, monkeypatch):
     env = _dobkit_on_path()
-    ran = 0
-    for block in readme_blocks("bash", "toml"):
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {"__name__": "__readme__"}
+    ran = {"bash": 0, "python": 0}
+    for block in readme_blocks("bash", "toml", "python"):
         if block["tag"] == "file":
-            (tmp_path / block["arg"]).write_text(block["code"], encoding="utf-8")
+            target = tmp_path / block["arg"]
+            assert not target.exists(), f"README.md:{block['line']}: {block['arg']} was written by an earlier block"
+            target.write_text(block["code"], encoding="utf-8")
+        elif block["tag"] == "extra":
+            _extra_installed(block["arg"])
+        elif _skipped(block):
             continue
-        if block["lang"] != "bash" or _skipped(block):
-            continue
-        done = subprocess.run(["bash", "-e", "-o", "pipefail", "-c", block["code"]], cwd=tmp_path, env=env,
-                              capture_output=True, text=True, timeout=_BLOCK_TIMEOUT, stdin=subprocess.DEVNULL)
-        if done.returncode != 0:
-            pytest.fail(f"README.md shell block at line {block['line']} failed with status {done.returncode}:\n"
-                        f"{block['code']}\n--- stderr (end) ---\n{done.stderr[-3000:]}")
-        ran += 1
-    assert ran >= 3
+        elif block["lang"] == "bash":
+            _run_shell(block, tmp_path, env)
+            ran["bash"] += 1
+        elif block["lang"] == "python":
+            _run_python(block, namespace)
+            ran["python"] += 1
+    assert ran["bash"] >= 3 and ran["python"] >= 2
     # what the commands promise is there: the report, the quick preview (and that it says so), the sweep summary
     assert (tmp_path / "report-run" / "report.html").is_file()
     assert "quick preview" in (tmp_path / "preview" / "report.html").read_text(encoding="utf-8")
