@@ -136,6 +136,24 @@ def test_a_joint_the_value_cannot_reach_has_index_zero(tmp_path, short, method, 
         assert min(main["nominal_scale.m1"][j] for j in (0, 1, 3)) > 1e-6
 
 
+@pytest.mark.slow
+def test_the_fast_engine_runs_the_design_too_with_zeros_at_the_solver_s_tolerance(tmp_path, short):
+    """engine = "fast": one adaptive RK45 run per design row.  Its step sizes follow every joint's error, so joint 3's
+    numbers move with the planar joints' values by the solver's tolerance (atol 1e-8 m) rather than not at all."""
+    path = write_sweep(tmp_path, f'engine = "fast"\n[sensitivity]\nmethod = "morris"\nsamples = 3\nseed = 2\n'
+                                 f'{DISTRIBUTIONS}')
+    spec = load_sweep(path)
+    run_sweep(spec, tmp_path / "r.jsonl", workers=1, progress=False)
+    rows = [json.loads(line) for line in (tmp_path / "r.jsonl").read_text().splitlines()[1:]]
+    assert {r["engine"] for r in rows} == {"fast"} and len(rows) == 12
+    mu_star = summarize(tmp_path / "r.jsonl", spec=spec).morris["mu_star"]["rms_position_error"]
+    atol = spec.base.simulation.atol
+    assert max(mu_star["disturbance.f_r[2]"][j] for j in (0, 1, 3)) < atol
+    assert mu_star["nominal_scale.m1"][2] < atol
+    assert mu_star["disturbance.f_r[2]"][2] > 100 * atol and mu_star["nominal_scale.m3"][2] > 100 * atol
+    assert min(mu_star["nominal_scale.m1"][j] for j in (0, 1, 3)) > 100 * atol
+
+
 def test_summary_json_html_and_markdown_carry_the_indices(tmp_path, short):
     path = write_sweep(tmp_path, f'[sensitivity]\nmethod = "sobol"\nsamples = 8\nseed = 1\n{DISTRIBUTIONS}')
     spec = load_sweep(path)
