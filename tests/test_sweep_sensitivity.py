@@ -17,6 +17,11 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,7 +29,7 @@ from sweep_files import run_sweep_command, write_short_scenario, write_sweep
 
 from analysis.sweep.runner import run_sweep
 from analysis.sweep.sensitivity import Sensitivity, run_count
-from analysis.sweep.spec import SWEEP_RUN_BYTES, Distribution, SweepError, load_sweep
+from analysis.sweep.spec import SWEEP_RUN_BYTES, Distribution, SweepError, load_sweep, sweep_from_dict
 from analysis.sweep.summary import html_section, summarize, write_summary
 from blocks.budget import Budget, BudgetError
 
@@ -260,6 +265,18 @@ def test_a_key_the_scenario_lacks_and_an_empty_table_are_refused(tmp_path, short
         load_sweep(path)
 
 
+def test_without_salib_a_sensitivity_sweep_is_refused_saying_what_to_install(tmp_path, short):
+    path = write_sweep(tmp_path, f'[sensitivity]\nmethod = "sobol"\nsamples = 8\n{DISTRIBUTIONS}')
+    code = ("import sys; sys.modules['SALib'] = None\n"          # an interpreter where SALib cannot be imported
+            "from analysis.sweep.spec import SweepError, load_sweep\n"
+            f"try:\n    load_sweep({str(path)!r})\nexcept SweepError as err:\n    print(err)\n")
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")]))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert out.stdout.strip() == (f"{path}: a [sensitivity] sweep needs SALib: pip install 'dobkit[sensitivity]' "
+                                  "(or SALib>=1.4)"), out.stderr
+
+
 def test_grid_or_monte_carlo_beside_sensitivity_is_refused(tmp_path, short):
     for other in ('[grid]\n"gains.kp" = [100, 180]\n', '[monte_carlo]\nruns = 3\n[monte_carlo.distributions]\n'
                   '"gains.kp" = {kind = "uniform", low = 100, high = 200}\n'):
@@ -287,11 +304,8 @@ def test_the_run_count_is_checked_against_the_budget_before_the_design_is_made(t
 
 
 def test_the_example_sweep_file_is_valid_and_its_design_the_issue_s():
-    from pathlib import Path
     text = (Path(__file__).resolve().parents[1] / "examples" / "sensitivity.toml").read_text(encoding="utf-8")
-    import tomllib
     data = tomllib.loads(text)
-    from analysis.sweep.spec import sweep_from_dict
     # the file's table, at N = 8 (the full N = 4096 is benchmarks/bench_sensitivity.py)
     data["sensitivity"]["samples"] = 8
     spec = sweep_from_dict(data, source="sensitivity.toml")

@@ -87,7 +87,7 @@ import numpy as np
 
 from analysis.jobs.files import json_default
 from analysis.jobs.keys import Key, a_table, failing, read_table, read_top, text, whole
-from analysis.sweep.sensitivity import DEFAULT_LEVELS, KINDS, METHODS, Sensitivity, run_count, samples_problem
+from analysis.sweep.sensitivity import DEFAULT_LEVELS, KINDS, METHODS, Sensitivity, run_count, salib, samples_problem
 from blocks.batch import BATCH_KEYS, METRICS, Variants, auto_substeps, fastest_rate
 from blocks.batch.schedule import STEP_LAMBDA, STEPS_PER_PHASE, TISSUE_STEP
 from blocks.budget import Budget, BudgetError, Estimate, estimate_batch, format_bytes, schedule_steps
@@ -548,6 +548,10 @@ def _sensitivity(top: dict, base: Scenario, name: str, budget: Budget, fail) -> 
             f"{format_bytes(need)} of memory to run and summarise ({SWEEP_RUN_BYTES} bytes a run), over the memory "
             f"budget of {format_bytes(budget.memory)}; lower sensitivity.samples, or raise the budget with "
             "--max-memory or DOBKIT_MAX_MEMORY", estimate, "sensitivity.samples", "memory")
+    try:
+        salib()
+    except ImportError as err:
+        fail(str(err))
     return settings
 
 
