@@ -201,6 +201,14 @@ def test_no_indices_until_every_run_of_the_design_finished(tmp_path, short):
     assert "1 of the 20 runs of the design diverged" in html_section(tmp_path / "out")
 
 
+def test_another_design_is_another_sweep_definition(tmp_path, short):
+    path = write_sweep(tmp_path, f'[sensitivity]\nmethod = "sobol"\nsamples = 4\nseed = 1\n{DISTRIBUTIONS}')
+    run_sweep(load_sweep(path), tmp_path / "r.jsonl", workers=1, progress=False)
+    path = write_sweep(tmp_path, f'[sensitivity]\nmethod = "sobol"\nsamples = 4\nseed = 2\n{DISTRIBUTIONS}')
+    with pytest.raises(SweepError, match=r"\[sensitivity\] differ\(s\)"):
+        run_sweep(load_sweep(path), tmp_path / "r.jsonl", workers=1, progress=False)
+
+
 def test_check_prints_the_design(tmp_path, short, capsys):
     path = write_sweep(tmp_path, f'[sensitivity]\nmethod = "morris"\nsamples = 5\n{DISTRIBUTIONS}')
     assert run_sweep_command(["sweep", str(path), "--check", "--no-progress"]) == 0
