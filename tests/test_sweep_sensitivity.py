@@ -96,6 +96,21 @@ def test_morris_effects_of_a_linear_function_are_slope_times_range():
     assert sigma == pytest.approx({"x1": 0.0, "x2": 0.0, "x3": 0.0}, abs=1e-9)
 
 
+def test_design_values_follow_the_distributions_as_monte_carlo_reads_them():
+    """normal: mean and std; lognormal: exp of a normal of mean and sigma (numpy's lognormal); uniform: [low, high]."""
+    settings = Sensitivity("sobol", 2048, 7, {"a": Distribution("normal", {"mean": 2.0, "std": 0.5}),
+                                              "b": Distribution("lognormal", {"mean": -1.0, "sigma": 0.2}),
+                                              "c": Distribution("uniform", {"low": 3.0, "high": 4.0})})
+    x = settings.design()
+    assert x.shape == (2048 * 5, 3)
+    assert np.mean(x[:, 0]) == pytest.approx(2.0, abs=0.01) and np.std(x[:, 0]) == pytest.approx(0.5, rel=0.02)
+    logs = np.log(x[:, 1])
+    assert np.mean(logs) == pytest.approx(-1.0, abs=0.005) and np.std(logs) == pytest.approx(0.2, rel=0.02)
+    assert 3.0 <= x[:, 2].min() < 3.001 and 3.999 < x[:, 2].max() <= 4.0
+    assert np.mean(x[:, 2]) == pytest.approx(3.5, abs=0.005)
+    assert np.array_equal(settings.design(), x)          # the seed decides the design
+
+
 # --------------------------------------------------------------------------------------------
 # A sweep of the paper's arm: the decoupled prismatic joint
 # --------------------------------------------------------------------------------------------
