@@ -93,6 +93,12 @@ def _check_report(spec) -> str:
     """What ``--check`` prints: runs, how they are batched, and the largest run's estimate against the budget."""
     from blocks.budget import format_bytes as size
     lines = [f"sweep '{spec.name}': {len(spec.runs)} runs, valid (definition {spec.definition})"]
+    sa = spec.sensitivity
+    if sa is not None:
+        k = len(sa.distributions)
+        lines.append(f"  sensitivity: {sa.method}, " + (f"N = {sa.samples} x (k + 2)" if sa.method == "sobol" else
+                                                        f"r = {sa.samples} trajectories of {sa.levels} levels x (k + 1)")
+                     + f" = {sa.runs:,} runs for k = {k} values")
     if spec.engine == "batch":
         classes = ", ".join(f"{n} at {s} substep{'s' if s != 1 else ''}{' with noise' if noisy else ''}"
                             for (s, noisy), n in spec.plan.classes().items())

@@ -20,6 +20,13 @@ A sweep file (TOML) names a base scenario, the values to vary and what to keep::
     "robot.m3" = {kind = "lognormal", mean = -1.77, sigma = 0.1}        # exp(normal(mean, sigma))
     "noise.seed" = {kind = "choice", values = [1, 2, 3]}                # optional weights = [...]
 
+    [sensitivity]                 # instead of [grid] and [monte_carlo]: a Sobol or Morris design
+    method = "sobol"              # "sobol" (N x (k + 2) runs) or "morris" (r x (k + 1) runs)
+    samples = 1024                # Sobol: N, a power of 2; Morris: r trajectories
+    seed = 1
+    [sensitivity.distributions]   # as [monte_carlo.distributions]; no "choice"; Morris: "uniform" only
+    "disturbance.f_r[0]" = {kind = "uniform", low = 0.7, high = 2.1}
+
     [outputs]
     metrics = ["rms_position_error", "max_tool_position_error_mm"]      # default: all that apply
     worst_metric = "max_tool_position_error_mm"                         # ranks the worst cases
@@ -29,6 +36,10 @@ A sweep file (TOML) names a base scenario, the values to vary and what to keep::
     size = 250                    # members per batch at most (default 250; fewer when memory asks for it)
     substeps = "auto"             # RK4 steps per output interval (default "auto": each run's own)
 
+A ``[sensitivity]`` sweep's runs are its design, in design order; its
+summary has the indices of every kept metric column (see
+:mod:`analysis.sweep.sensitivity`).
+
 Keys are the scenario's dotted keys (``section.key``, see
 :mod:`blocks.scenario`).  Everything -- keys, grids, distributions and
 every drawn value -- is validated before the first run; errors name the key.
@@ -37,7 +48,8 @@ Budgets
     Before anything is built the sweep's size is checked against the memory
     budget (:class:`blocks.budget.Budget`: about :data:`SWEEP_RUN_BYTES` per
     run for its bookkeeping and summary), naming the grid key or
-    ``monte_carlo.runs`` that makes it large.  Then, with the batch engine,
+    ``monte_carlo.runs`` that makes it large (a sensitivity design's run
+    count, ``sensitivity.samples``, before the design is made).  Then, with the batch engine,
     each run's step count and a one-run batch's memory are estimated from its
     scenario and checked, naming the key that makes the step small or the
     schedule long (``gains.observer``, ``trajectory.stitches``,
@@ -75,6 +87,7 @@ import numpy as np
 
 from analysis.jobs.files import json_default
 from analysis.jobs.keys import Key, a_table, failing, read_table, read_top, text, whole
+from analysis.sweep.sensitivity import DEFAULT_LEVELS, KINDS, METHODS, Sensitivity, run_count, salib, samples_problem
 from blocks.batch import BATCH_KEYS, METRICS, Variants, auto_substeps, fastest_rate
 from blocks.batch.schedule import STEP_LAMBDA, STEPS_PER_PHASE, TISSUE_STEP
 from blocks.budget import Budget, BudgetError, Estimate, estimate_batch, format_bytes, schedule_steps
@@ -271,6 +284,8 @@ class SweepSpec:
         How each run is batched (group, substeps, noise).
     budget : Budget
         The budget the sweep was checked against.
+    sensitivity : Sensitivity or None
+        The ``[sensitivity]`` table, whose design the runs are (None without one).
     """
 
     name: str
@@ -292,6 +307,7 @@ class SweepSpec:
     definition: str = ""
     plan: RunPlan | None = None
     budget: Budget = field(default_factory=Budget)
+    sensitivity: Sensitivity | None = None
 
     def scenario(self, run: Run) -> Scenario:
         """The complete scenario of one run: the base with the run's values (:meth:`Scenario.with_changes`)."""
@@ -316,7 +332,8 @@ class SweepSpec:
                                                             for k, d in self.distributions.items()}},
                           "metrics": list(self.metrics), "worst_metric": self.worst_metric,
                           "worst_count": self.worst_count, "runs": len(self.runs),
-                          "joints": joints_record(self.base.robot.joints)}}
+                          "joints": joints_record(self.base.robot.joints)}
+                | ({"sensitivity": self.sensitivity.record()} if self.sensitivity is not None else {})}
 
 
 def joints_record(joints) -> dict:
@@ -330,7 +347,7 @@ def joints_record(joints) -> dict:
 #: The results-file header entries that decide runs and rows, in words (see :func:`analysis.jobs.files.differences`).
 HEADER_PARTS = {"scenario": "the base scenario", "scenario_values": "the base scenario's values",
                 "observer": "observer on/off", "engine": "the engine", "substeps": "batch.substeps", "grid": "[grid]",
-                "monte_carlo": "[monte_carlo]", "metrics": "outputs.metrics"}
+                "monte_carlo": "[monte_carlo]", "metrics": "outputs.metrics", "sensitivity": "[sensitivity]"}
 
 
 # --------------------------------------------------------------------------------------------
@@ -379,8 +396,13 @@ _KEYS: dict[str | None, dict[str, Key]] = {
            "observer": Key(lambda v: isinstance(v, bool), "true or false", True),
            "engine": Key(lambda v: v in ENGINES, f"one of {list(ENGINES)}", "batch"),
            "grid": Key(a_table, "a table ([grid])", {}), "monte_carlo": Key(a_table, "a table ([monte_carlo])", {}),
-           "outputs": Key(a_table, "a table ([outputs])", {}), "batch": Key(a_table, "a table ([batch])", {})},
+           "outputs": Key(a_table, "a table ([outputs])", {}), "batch": Key(a_table, "a table ([batch])", {}),
+           "sensitivity": Key(a_table, "a table ([sensitivity])", {})},
     "monte_carlo": {"runs": Key(whole(1), "a whole number >= 1"), "seed": Key(whole(0), "a whole number >= 0", 0),
+                    "distributions": Key(a_table, "a table of distributions by scenario key", {})},
+    "sensitivity": {"method": Key(lambda v: v in METHODS, f"one of {list(METHODS)}"),
+                    "samples": Key(whole(1), "a whole number >= 1"), "seed": Key(whole(0), "a whole number >= 0", 0),
+                    "levels": Key(whole(1), "a whole number >= 1 (Morris grid levels)"),
                     "distributions": Key(a_table, "a table of distributions by scenario key", {})},
     "outputs": {"metrics": Key(lambda v: isinstance(v, list) and bool(v) and all(map(text, v)),
                                 "a non-empty list of metric names"),
@@ -419,6 +441,7 @@ def sweep_from_dict(data: dict, source: str = "<dict>", folder: Path | None = No
         if not isinstance(values, list):
             fail(f"grid.\"{key}\" must be a list of values, got {values!r}")
     _check_size(name, top["grid"], mc["runs"] or 0, bool(mc["distributions"]), budget, fail)
+    sensitivity = _sensitivity(top, base, name, budget, fail) if top["sensitivity"] else None
     grid = _grid(top["grid"], base, fail)
     distributions = {}
     for key, spec in mc["distributions"].items():
@@ -430,16 +453,22 @@ def sweep_from_dict(data: dict, source: str = "<dict>", folder: Path | None = No
     outputs = _read(top["outputs"], "outputs", fail)
     metrics, worst_metric = _outputs(outputs, top["observer"], fail, base.robot.joints.count)
     batch = _read(top["batch"], "batch", fail)
-    if not grid and not distributions:
-        fail("the sweep varies nothing: give a [grid] or [monte_carlo.distributions]")
+    if not grid and not distributions and sensitivity is None:
+        fail("the sweep varies nothing: give a [grid], [monte_carlo.distributions] or [sensitivity]")
     spec = SweepSpec(name=name, source=source, base=base, observer=top["observer"], engine=top["engine"], grid=grid,
                      runs_per_point=mc["runs"] or 0, seed=mc["seed"], distributions=distributions,
                      metrics=tuple(metrics), worst_metric=worst_metric, worst_count=outputs["worst_count"],
                      batch_size=batch["size"], substeps=None if batch["substeps"] == "auto" else batch["substeps"],
-                     description=top["description"], budget=budget)
-    rng = np.random.default_rng(spec.seed)
-    draws = {k: d.draw(rng, spec.runs_per_point) for k, d in distributions.items()}
-    spec.runs = RunList(grid, draws, spec.runs_per_point, spec.identity())
+                     description=top["description"], budget=budget, sensitivity=sensitivity)
+    if sensitivity is None:
+        rng = np.random.default_rng(spec.seed)
+        draws = {k: d.draw(rng, spec.runs_per_point) for k, d in distributions.items()}
+        spec.runs = RunList(grid, draws, spec.runs_per_point, spec.identity())
+    else:                    # the design's rows are the runs, in design order (its draw numbers)
+        design = sensitivity.design()
+        draws = {k: design[:, j].tolist() for j, k in enumerate(sensitivity.keys)}
+        del design
+        spec.runs = RunList({}, draws, sensitivity.runs, spec.identity())
     spec.definition = _definition(spec)
     counter = count_progress(progress if len(spec.runs) >= CHECK_PROGRESS_RUNS else False, len(spec.runs),
                              label="checking")
@@ -476,6 +505,54 @@ def _check_size(name: str, grid: dict, runs_per_point: int, drawn: bool, budget:
             f"and summarise ({SWEEP_RUN_BYTES} bytes a run), over the memory budget of {format_bytes(budget.memory)}; "
             f"the largest factor is {key} ({factors[key]:,} values). Split the sweep, or raise the budget with "
             f"--max-memory or DOBKIT_MAX_MEMORY", estimate, key, "memory")
+
+
+def _sensitivity(top: dict, base: Scenario, name: str, budget: Budget, fail) -> Sensitivity:
+    """The ``[sensitivity]`` table validated, and its run count checked against the budget before its design is
+    made (see :mod:`analysis.sweep.sensitivity`)."""
+    table = _read(top["sensitivity"], "sensitivity", fail)
+    if top["grid"] or top["monte_carlo"]:
+        fail("a [sensitivity] sweep's runs are its design: it takes no [grid] or [monte_carlo] (give the values "
+             "that stay fixed in its scenario, and the uncertain ones in [sensitivity.distributions])")
+    method, samples = table["method"], table["samples"]
+    if method is None:
+        fail(f"'sensitivity.method' must be one of {list(METHODS)}, got nothing")
+    if samples is None:
+        fail("'sensitivity.samples' must be given: N of a Sobol design (a power of 2) or r, the Morris trajectories")
+    problem = samples_problem(method, samples, table["levels"])
+    if problem:
+        fail(problem)
+    if not table["distributions"]:
+        fail("'sensitivity.distributions' is empty: name at least one uncertain value")
+    distributions = {}
+    for key, spec in table["distributions"].items():
+        label = f"sensitivity.distributions.\"{key}\""
+        _check_key(key, base, label, fail)
+        if isinstance(spec, dict) and spec.get("kind") in DISTRIBUTIONS and spec["kind"] not in KINDS[method]:
+            why = "a Morris trajectory moves each value over levels that include both ends of a bounded range" \
+                if method == "morris" else "the indices apportion the variance of values on an ordered scale"
+            fail(f"{label}: kind '{spec['kind']}' cannot be used with method '{method}' ({why}); choose from "
+                 f"{list(KINDS[method])}")
+        distributions[key] = _distribution(spec, label, fail)
+    settings = Sensitivity(method=method, samples=samples, seed=table["seed"], distributions=distributions,
+                           levels=(table["levels"] or DEFAULT_LEVELS) if method == "morris" else 0)
+    runs = run_count(method, samples, len(distributions))
+    need = runs * SWEEP_RUN_BYTES
+    if need > budget.memory:
+        k = len(distributions)
+        shape = f"N = {samples:,} x (k + 2)" if method == "sobol" else f"r = {samples:,} x (k + 1)"
+        estimate = Estimate(memory=need, parts={"runs": need}, keys={"runs": "sensitivity.samples"},
+                            reasons={"runs": f"{runs:.3g} runs"})
+        raise BudgetError(
+            f"{name}: the {method} design has {runs:,} runs ({shape} with k = {k} values), which need about "
+            f"{format_bytes(need)} of memory to run and summarise ({SWEEP_RUN_BYTES} bytes a run), over the memory "
+            f"budget of {format_bytes(budget.memory)}; lower sensitivity.samples, or raise the budget with "
+            "--max-memory or DOBKIT_MAX_MEMORY", estimate, "sensitivity.samples", "memory")
+    try:
+        salib()
+    except ImportError as err:
+        fail(str(err))
+    return settings
 
 
 def _grid(grid: dict, base: Scenario, fail) -> dict:
@@ -593,7 +670,7 @@ def _plan(spec: SweepSpec, fail, counter) -> RunPlan:
     each (group, step, noise) class against the budget; a group's runs are taken a chunk at a time."""
     runs = spec.runs
     n = len(runs)
-    shared_keys = [k for k in list(spec.grid) + list(spec.distributions) if _list_key(k) not in BATCH_KEYS]
+    shared_keys = [k for k in list(spec.grid) + list(runs.draws) if _list_key(k) not in BATCH_KEYS]
     group = np.zeros(n, dtype=np.int32)
     shared_list: list[dict] = [{}]
     if shared_keys:

@@ -29,6 +29,11 @@ are named and given units from the sweep's base scenario's arm
 ``Joint 3 (insertion)`` for the built-in ``scope4``.  The arm's joints are kept
 in ``summary.json`` (:attr:`SweepSummary.joints`), so that the report labels
 them the same way.
+
+A sweep with a ``[sensitivity]`` table (:mod:`analysis.sweep.sensitivity`)
+gets its indices in ``summary.json`` (``"sobol"`` or ``"morris"``), a table
+of the values ranked by their index for each metric column, and one bar chart
+per metric with the 95 % confidence intervals.
 """
 from __future__ import annotations
 
@@ -50,8 +55,9 @@ import numpy as np
 from analysis.jobs.figures import JobFigure, new_figure, save_figure
 from analysis.jobs.files import differences
 from analysis.report.html import template_environment
-from analysis.results import JsonResult, plain
+from analysis.results import JsonResult, omitted_if_none, plain
 from analysis.sweep.runner import ResultsFile, read_header
+from analysis.sweep.sensitivity import from_runs
 from analysis.sweep.spec import HEADER_PARTS, SweepError, SweepSpec, json_default
 from blocks.joints import RRPR_JOINTS, JointSpace
 from blocks.outputs import interrupts_held
@@ -332,6 +338,12 @@ class SweepSummary(JsonResult):
     joints : dict
         The base scenario's arm's joints, ``{"names": [...], "kinds": [...]}`` (revolute or prismatic), which name
         the per-joint columns and give their units; empty in a summary written before it was kept (the RRPR).
+    sobol, morris : dict or None
+        A ``[sensitivity]`` sweep's indices (:func:`analysis.sweep.sensitivity.indices`): Sobol
+        ``{"first": {METRIC: {KEY: [per joint]}}, "total": ..., "first_conf": ..., "total_conf": ...}``, Morris
+        ``{"mu_star": ..., "sigma": ..., "mu_star_conf": ...}``; left out of the JSON when None.
+    sensitivity_note : str or None
+        Why a ``[sensitivity]`` sweep has no indices (or some column has none); left out when None.
     """
 
     sweep: dict
@@ -346,6 +358,9 @@ class SweepSummary(JsonResult):
     problems: list[str] = dataclasses.field(default_factory=list)
     figures: list[SweepFigure] = dataclasses.field(default_factory=list)
     joints: dict = dataclasses.field(default_factory=dict)
+    sobol: dict | None = omitted_if_none()
+    morris: dict | None = omitted_if_none()
+    sensitivity_note: str | None = omitted_if_none()
 
     @property
     def arm_joints(self) -> JointSpace:
@@ -356,7 +371,8 @@ class SweepSummary(JsonResult):
         """JSON-ready dict; each worst run holds its value under the worst metric's name."""
         worst = [{"run_id": w.run_id, "index": w.index, "values": plain(w.values),
                   str(self.worst_metric): plain(w.value)} for w in self.worst]
-        return {f.name: worst if f.name == "worst" else plain(getattr(self, f.name)) for f in dataclasses.fields(self)}
+        return {f.name: worst if f.name == "worst" else plain(getattr(self, f.name)) for f in dataclasses.fields(self)
+                if getattr(self, f.name) is not None or not f.metadata.get("omit_if_none")}
 
     @classmethod
     def from_dict(cls, data: dict, where: str | None = None) -> SweepSummary:
@@ -534,6 +550,11 @@ def _summary(table: _Table, name: str) -> SweepSummary:
                 if math.isfinite(r):
                     influence[key] = r
     finished = table.count + table.diverged
+    sensitivity, note = None, None
+    if isinstance(header.get("sensitivity"), dict):
+        sensitivity, note = from_runs(header["sensitivity"], np.frombuffer(table.index, dtype=np.int64),
+                                      {c: table.array(v) for c, v in table.columns.items()},
+                                      {k: table.array(v) for k, v in table.values.items()}, table.diverged)
     return SweepSummary(
         sweep=header,
         counts=RunCounts(runs=int(header.get("runs", finished)), finished=finished, ok=table.count,
@@ -543,7 +564,8 @@ def _summary(table: _Table, name: str) -> SweepSummary:
                             failed_at=r.get("failed_at") if isinstance(r.get("failed_at"), (int, float)) else None,
                             message=str(r.get("message", ""))) for r in table.failed],
         influence=influence, results=name, definition=str(header.get("definition", "")),
-        problems=list(table.problems), joints=_joints_record(table.joints))
+        problems=list(table.problems), joints=_joints_record(table.joints),
+        sobol=(sensitivity or {}).get("sobol"), morris=(sensitivity or {}).get("morris"), sensitivity_note=note or None)
 
 
 def _ranks(x: np.ndarray) -> np.ndarray:
@@ -614,6 +636,7 @@ def _figures(table: _Table, summary: SweepSummary, out: Path, formats) -> list[t
 
 def _draw_figures(table: _Table, summary: SweepSummary):
     """The summary's figures, one at a time: ``(figure, file stem, caption)``."""
+    yield from _sensitivity_figures(summary, table.joints)
     groups: dict[str, list[str]] = {}
     for column in table.columns:
         groups.setdefault(column.split("[")[0], []).append(column)
@@ -661,6 +684,75 @@ def _draw_figures(table: _Table, summary: SweepSummary):
         caption = (f"{_capital(column_label(wm, joints))} against the {key_name(key, joints)} ({key}), one point "
                    f"per finished run; red: the {int(mark.sum())} worst. Spearman rank correlation {r:+.2f}.")
         yield fig, f"worst_vs_{safe}", caption
+
+
+#: How each method's indices are drawn: (bars as (entry, its interval or None, legend), axis words).
+_SENSITIVITY_BARS = {
+    "sobol": ((("first", "first_conf", "first order S1 (alone)"), ("total", "total_conf", "total ST (with interactions)")),
+              "Sobol index"),
+    "morris": ((("mu_star", "mu_star_conf", "mu* (mean |effect|)"), ("sigma", None, "sigma (spread of the effects)")),
+               "effect over the whole range"),
+}
+
+
+def _per_joint(entry, joint: int | None) -> float:
+    """One column's number of a per-key entry (a list per joint, or one number), NaN for null."""
+    value = entry[joint] if joint is not None and isinstance(entry, list) and joint < len(entry) else entry
+    return math.nan if not isinstance(value, (int, float)) else float(value)
+
+
+def _sensitivity_figures(summary: SweepSummary, joints: JointSpace):
+    """One horizontal bar chart per metric of a sensitivity sweep (a panel per joint): each value's indices with
+    their 95 % confidence intervals."""
+    method = "sobol" if summary.sobol is not None else "morris" if summary.morris is not None else None
+    if method is None:
+        return
+    found = summary.sobol if method == "sobol" else summary.morris
+    bars, words = _SENSITIVITY_BARS[method]
+    record = summary.sweep.get("sensitivity") or {}
+    design = (f"N = {record.get('samples')}" if method == "sobol" else f"r = {record.get('samples')} trajectories, "
+              f"{record.get('levels')} levels") + f", {summary.counts.ok:,} runs"
+    for metric, by_key in found[bars[0][0]].items():
+        keys = list(by_key)
+        first = by_key[keys[0]] if keys else None
+        panels = [None] if not isinstance(first, list) else list(range(len(first)))
+        fig = new_figure((max(3.3 * len(panels), 5.0), 1.8 + 0.55 * len(keys)))
+        axes = fig.subplots(1, len(panels), squeeze=False, sharey=True)[0]
+        for ax, joint in zip(axes, panels):
+            column = metric if joint is None else f"{metric}[{joint}]"
+            names = [name for entry, conf, _ in bars for name in (entry, conf) if name]
+            numbers = {name: np.array([_per_joint(found[name][metric].get(k), joint) for k in keys]) for name in names}
+            if method == "sobol":
+                factor, shown = 1.0, "share of the variance"
+            else:
+                factor, shown = _display_scale(column_unit(column, joints),
+                                               np.concatenate([numbers[e] for e, _, _ in bars]))
+            y = np.arange(len(keys))
+            for b, (entry, conf, legend) in enumerate(bars):
+                width = numbers[entry] / factor
+                err = None if conf is None else np.nan_to_num(numbers[conf] / factor)
+                ax.barh(y + (b - 0.5) * 0.4, np.nan_to_num(width), height=0.38, xerr=err, capsize=3,
+                        color=("tab:blue", "tab:orange")[b], label=legend)
+            ax.set_yticks(y, labels=[_capital(key_name(k, joints)) for k in keys], fontsize=8)
+            ax.axvline(0.0, color="black", lw=0.6)
+            ax.set_xlabel(_with_unit(_capital(words), shown), fontsize=9)
+            joint_label = joints.labels[joint] if joint is not None and joint < joints.count else ""
+            ax.set_title(joint_label or _capital(metric_name(metric)), fontsize=9)
+            if method == "sobol":
+                ax.set_xlim(min(-0.05, float(np.nanmin(np.r_[numbers["first"] - numbers["first_conf"], 0]))),
+                            max(1.05, float(np.nanmax(np.r_[numbers["total"] + numbers["total_conf"], 0]))))
+        axes[0].invert_yaxis()                   # the first value on top (the axes share theirs)
+        handles, labels = axes[0].get_legend_handles_labels()
+        fig.legend(handles, labels, loc="outside lower center", ncols=2, fontsize=8)
+        fig.suptitle(_capital(f"{method.capitalize()} sensitivity of the {metric_name(metric)}"), fontsize=11)
+        caption = (f"{method.capitalize()} sensitivity of the {metric_name(metric)} to each uncertain value ({design})"
+                   + (", one panel per joint" if panels[0] is not None else "") + ": "
+                   + ("first-order index S1 (the share of its variance the value explains alone) and total index ST "
+                      "(with all its interactions)" if method == "sobol" else
+                      "mu* (the mean absolute change of the metric when the value moves across its whole range) and "
+                      "sigma (the spread of those changes: interactions and nonlinearity)")
+                   + "; error bars: 95 % bootstrap confidence intervals.")
+        yield fig, f"{method}_{metric}", caption
 
 
 def _capital(text: str) -> str:
@@ -824,7 +916,59 @@ def _view(summary: SweepSummary) -> dict:
         "influence_rows": [[key_name(k, joints), k, f"{v:+.2f}"]
                            for k, v in sorted(summary.influence.items(), key=lambda kv: -abs(kv[1]))],
         "problems": summary.problems[:20], "problems_more": max(0, len(summary.problems) - 20),
+        "sensitivity": _sensitivity_view(summary, joints),
     }
+
+
+def _sensitivity_view(summary: SweepSummary, joints: JointSpace) -> dict | None:
+    """A sensitivity sweep's design in words and its ranked table: per metric column, the values from the largest
+    total index (Sobol) or mu* (Morris) down, each number with its 95 % interval."""
+    record = summary.sweep.get("sensitivity")
+    if not isinstance(record, dict):
+        return None
+    method = str(record.get("method", "?"))
+    distributions = [(k, key_name(k, joints), str(d.get("kind", "?")), [(p, _fmt(v)) for p, v in d.items() if p != "kind"])
+                     for k, d in (record.get("distributions") or {}).items()]
+    k = len(distributions)
+    design = (f"Sobol design (Saltelli's scheme, scrambled Sobol sequence), N = {record.get('samples')} samples x "
+              f"(k + 2) = {record.get('runs')} runs for k = {k} values" if method == "sobol" else
+              f"Morris design, r = {record.get('samples')} trajectories of {record.get('levels')} levels x (k + 1) = "
+              f"{record.get('runs')} runs for k = {k} values") + f", seed {record.get('seed')}"
+    found = summary.sobol if method == "sobol" else summary.morris
+    rows = []
+    if found:
+        rank_by, shown = (("total", (("first", "first_conf"), ("total", "total_conf"))) if method == "sobol" else
+                          ("mu_star", (("mu_star", "mu_star_conf"), ("sigma", None))))
+        for metric, by_key in found[rank_by].items():
+            first = next(iter(by_key.values()), None)
+            for joint in ([None] if not isinstance(first, list) else range(len(first))):
+                column = metric if joint is None else f"{metric}[{joint}]"
+                factor, unit = (1.0, "") if method == "sobol" else _table_scale(column_unit(column, joints))
+                order = sorted(by_key, key=lambda key: -_finite_or(_per_joint(by_key[key], joint), -math.inf))
+                for rank, key in enumerate(order, 1):
+                    numbers = []
+                    for entry, conf in shown:
+                        v = _per_joint(found[entry][metric][key], joint) / factor
+                        c = _per_joint(found[conf][metric][key], joint) / factor if conf else None
+                        numbers.append("not computed" if not math.isfinite(v) else
+                                       f"{v:.3g}" + (f" ± {c:.2g}" if c is not None and math.isfinite(c) else ""))
+                    rows.append([_capital(column_label(column, joints))] + ([unit] if method == "morris" else [])
+                                + [rank, key_name(key, joints), key] + numbers)
+    header = (["metric", "rank", "value", "key", "first order S1 ± 95 %", "total ST ± 95 %"] if method == "sobol" else
+              ["metric", "unit", "rank", "value", "key", "mu* ± 95 %", "sigma"])
+    return {"method": method, "title": "Sobol indices" if method == "sobol" else "Morris screening",
+            "design": design, "distributions": distributions, "header": header, "rows": rows,
+            "note": summary.sensitivity_note or "",
+            "meaning": ("S1: the share of a metric's variance over the design that the value explains alone; ST: its "
+                        "share with all its interactions (ST - S1 is what it explains only together with others). "
+                        "An index near 0 says the value does not move that metric." if method == "sobol" else
+                        "mu*: the mean absolute change of a metric when the value moves across its whole range, in "
+                        "the metric's unit; sigma: the spread of those changes (interactions, nonlinearity). A mu* "
+                        "near 0 says the value does not move that metric.")}
+
+
+def _finite_or(value: float, other: float) -> float:
+    return value if math.isfinite(value) else other
 
 
 def _markdown(summary: SweepSummary) -> str:
