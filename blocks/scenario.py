@@ -73,12 +73,14 @@ from .scenario_arm import (
     arm_name,
     is_rrpr,
     joint_sine_defaults,
+    link_masses,
+    link_scaled_nominal,
     load_arm,
     observer_gain_from_bandwidth,
     scaled_nominal,
     skin_height_default,
 )
-from .tool_path import ToolPath
+from .tool_path import LACERATION_KEYS, ToolLaceration, ToolPath
 from .trajectory import TRAJECTORY_KINDS, JointSine, LacerationPath, check_joint_ranges
 from .validation import number_text, read_only_array
 
@@ -398,7 +400,8 @@ class Scenario:
         """
         section, name, index = parse_key(key)
         if name:
-            known = tuple(_SECTIONS[section].checks_for(self.data["trajectory"]["kind"]))
+            kind = self.data["trajectory"]["kind"]
+            known = tuple(_arm_checks(section, kind, self.robot) or _SECTIONS[section].checks_for(kind))
             if name not in known:
                 raise ScenarioError(f"'{key}' is not a scenario key; keys of [{section}]: {list(known)}")
         if index is not None:
@@ -537,6 +540,8 @@ class _ArmContext:
     given: tuple | None = None          # (robot, nominal) given in Python
     arm: Any = None                     # the true arm, when it is not the RRPR
     nominal: Any = None
+    urdf: dict | None = None            # the [arm] section's values as the arm was loaded (a URDF arm)
+    skin_given: bool = False            # whether [disturbance] sets skin_height
 
     @property
     def arm_label(self) -> str | None:
@@ -605,7 +610,7 @@ def _build_arm(given: dict, built: dict):
     if "urdf" in given and given["urdf"].startswith("example:"):
         name = given["urdf"].split(":", 1)[1]
     nominal = scaled_nominal(arm, given.get("nominal_mass_scale", 1.0), ScenarioError)
-    ctx.joints, ctx.name, ctx.arm, ctx.nominal = arm.joints, name, arm, nominal
+    ctx.joints, ctx.name, ctx.arm, ctx.nominal, ctx.urdf = arm.joints, name, arm, nominal, values
     data = {k: _plain(v) for k, v in given.items()}
     if not given["urdf"].startswith("example:"):
         data["urdf"] = resolved         # the written scenario (scenario.toml of a run) finds the file from anywhere
@@ -635,9 +640,17 @@ def _build_robot(given: dict, built: dict):
 
 
 def _build_nominal(given: dict, built: dict):
-    if _context().arm is not None:
+    ctx = _context()
+    if ctx.arm is not None and ctx.urdf is not None:
+        if not given:
+            return ctx.nominal, None
+        # per link of the URDF: each named link's mass and inertia times its factor, then every link's times
+        # arm.nominal_mass_scale
+        nominal = link_scaled_nominal(ctx.arm, ctx.urdf, ctx.base, given, ScenarioError)
+        return scaled_nominal(nominal, ctx.urdf.get("nominal_mass_scale", 1.0), ScenarioError), dict(given)
+    if ctx.arm is not None:
         _not_rrpr_section("nominal_scale", given)
-        return _context().nominal, None
+        return ctx.nominal, None
     try:
         nominal = built["robot"].scaled(**given)
     except ParameterError as err:
@@ -684,6 +697,7 @@ def _build_disturbance(given: dict, built: dict):
     ctx = _context()
     # Eq. 4's f_r is the RRPR's four numbers: another arm has no external disturbance unless it is given
     kinds = given.get("kind", ("paper",) if ctx.arm is None else ())
+    ctx.skin_given = "skin_height" in given
     lists = {}
     if ctx.arm is not None:             # the per-joint lists not given: zeros of the arm's n (the defaults are the RRPR's)
         lists = {k: (0.0,) * ctx.joints.count for k in ("f_r", "coulomb", "viscous") if k not in given}
@@ -716,8 +730,7 @@ def _build_trajectory(given: dict, built: dict):
     kw = {k: v for k, v in given.items() if k != "kind"}
     ctx = _context()
     if kind == "laceration" and ctx.arm is not None:
-        raise ScenarioError(f"'trajectory.kind' = 'laceration' is the paper's RRPR path (closed-form inverse "
-                            f"kinematics of its SCARA); the arm {ctx.name!r} takes kind = 'joint_sine'")
+        return _arm_laceration(kw, built, ctx)
     if kind == "joint_sine" and ctx.arm is not None:
         kw = joint_sine_defaults(ctx.arm) | kw
         n = ctx.joints.count
@@ -747,6 +760,31 @@ def _build_trajectory(given: dict, built: dict):
     # the skin plane is written once, under [disturbance]
     keys = [k for k in _SECTIONS["trajectory"].checks_for(kind) if k not in ("kind", "skin_height")]
     return trajectory, {"kind": kind} | {k: _plain(getattr(trajectory, k)) for k in keys}
+
+
+def _arm_laceration(kw: dict, built: dict, ctx) -> tuple:
+    """The laceration path of an arm other than the RRPR: the tool point's, by IK (:class:`ToolLaceration`).
+
+    Its ends and its skin plane have no default (the RRPR's would be out of the arm's reach): ``trajectory.start``,
+    ``trajectory.end`` and ``disturbance.skin_height`` (or ``trajectory.skin_height``, the same plane) are required.
+    """
+    missing = [f"'trajectory.{k}'" for k in ("start", "end") if k not in kw]
+    if missing:
+        raise ScenarioError(f"{' and '.join(missing)} required for kind = 'laceration' on the arm {ctx.name!r}: the "
+                            "laceration's ends (x, y) in the arm's base frame, m (the defaults are the paper's RRPR's)")
+    if ctx.skin_given:
+        kw["skin_height"] = _skin_height(kw, built["disturbance"])
+    elif "skin_height" not in kw:
+        raise ScenarioError(f"the laceration path of the arm {ctx.name!r} needs its skin plane: set "
+                            "'disturbance.skin_height' (m, the plane's height in the arm's base frame; the tissue "
+                            "contact pushes back from it)")
+    _check_phases(kw, built["simulation"])
+    try:
+        trajectory = ToolLaceration(built["robot"], **kw)
+    except (ValueError, TypeError) as err:          # UnreachableError, BudgetError are ValueErrors
+        raise ScenarioError(f"[trajectory] {err}") from None
+    keys = [k for k in LACERATION_KEYS if k != "skin_height"]
+    return trajectory, {"kind": "laceration"} | {k: _plain(getattr(trajectory, k)) for k in keys}
 
 
 def _check_sine_ranges(sine: JointSine, built: dict) -> None:
@@ -1124,7 +1162,7 @@ def _validated(data: Mapping, source: str) -> Scenario:
         table = tables[section]
         default_kind = "joint_sine" if section == "trajectory" and _context().arm is not None else spec.default_kind
         kind = spec.checks["kind"](table.get("kind", default_kind), f"{section}.kind") if spec.by_kind else None
-        checks = spec.checks_for(kind)
+        checks = _arm_checks(section, kind) or spec.checks_for(kind)
         _check_keys(table, checks, section, note=f" for kind = {kind!r}" if kind else "")
         given = {k: checks[k](v, f"{section}.{k}") for k, v in table.items()}
         built[section], out[section] = spec.build(given, built)
@@ -1133,7 +1171,12 @@ def _validated(data: Mapping, source: str) -> Scenario:
     gains = built["gains"]
     if "observer_bandwidth" in gains:
         gains["observer"] = _bandwidth_gain(gains["observer_bandwidth"], built)
-    if _context().arm is not None and "skin_height" not in tables["disturbance"] \
+    if isinstance(built["trajectory"], ToolLaceration):
+        # the laceration's skin plane is the tissue's, written once under [disturbance]
+        skin = built["trajectory"].skin_height
+        built["disturbance"] = dataclasses.replace(built["disturbance"], skin_height=skin)
+        out["disturbance"] = dict(out["disturbance"], skin_height=skin)
+    elif _context().arm is not None and "skin_height" not in tables["disturbance"] \
             and "tissue" in built["disturbance"].kinds:
         # the default plane is the RRPR's: another arm's skin goes through its tool point at the reference's start
         skin = skin_height_default(built["robot"], built["trajectory"].evaluate(0.0)[0])
@@ -1155,6 +1198,22 @@ def _bandwidth_gain(omega: float, built: dict) -> np.ndarray:
     ctx = _context()
     return validated_gain(observer_gain_from_bandwidth(built["nominal_scale"], omega, q0), "observer", ctx.joints,
                           ctx.arm_label)
+
+
+def _arm_checks(section: str, kind: str | None, arm=None) -> dict | None:
+    """The keys of a section that depend on the arm (None: the section's own): a laceration's on an arm other
+    than the RRPR (:data:`blocks.tool_path.LACERATION_KEYS`), a URDF arm's ``[nominal_scale]`` (its links)."""
+    ctx = _context()
+    arm = ctx.arm if arm is None else arm
+    if arm is None or is_rrpr(arm):
+        return None
+    if section == "trajectory" and kind == "laceration":
+        shared = _SECTIONS["trajectory"].checks_for("laceration")
+        return {"kind": shared["kind"]} | {k: shared.get(k, _finite(0.0, True)) for k in LACERATION_KEYS}
+    if section == "nominal_scale" and getattr(arm, "chain", None) is not None and (ctx.urdf is not None
+                                                                                  or ctx.arm is None):
+        return {k: _finite(0.0, strict=True) for k in link_masses(arm)}
+    return None
 
 
 def _table(data: Mapping, key: str) -> Mapping:
