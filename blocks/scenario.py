@@ -14,13 +14,14 @@ Sections and keys (units in brackets)::
                      tool_frame, locked, locked_values, gravity [m/s^2], nominal_mass_scale; absent: the RRPR
     [robot]          true plant, any of m1..m4 [kg], l1, l2 [m], I1..I4 [kg m^2], g [m/s^2],
                      a1, a2, d1, d4 [m]; Table 1 by default
-    [nominal_scale]  per-parameter factor nominal / true (Eq. 3 internal disturbance), same names, 1 by default
+    [nominal_scale]  per-parameter factor nominal / true (Eq. 3 internal disturbance), same names, 1 by default;
+                     for a URDF arm per link: link name = factor (that link's mass and inertia in the nominal model)
     [gains]          kp [1/s^2], kd [1/s]: scalar or n; observer [kg m^2/s]: scalar, n or n x n, or
                      observer_bandwidth [rad/s]: Y = omega M^(q0) (one of the two)
     [observer]       variant = "correct" | "paper-eq16"
-    [trajectory]     kind = "laceration" | "joint_sine" and that kind's keys (blocks.trajectory);
-                     a laceration lasts duration [s] (10 by default) whatever simulation.t_final is,
-                     and stitches the skin plane disturbance.skin_height [m]
+    [trajectory]     kind = "laceration" | "joint_sine" | "tool_path" and that kind's keys (blocks.trajectory,
+                     blocks.tool_path); a laceration lasts duration [s] (10 by default) whatever
+                     simulation.t_final is, and stitches the skin plane disturbance.skin_height [m]
     [disturbance]    kind = "paper" | "friction" | "tissue" | a list of them | "none", and their keys
     [noise]          q_std [rad, m], dq_std [rad/s, m/s] (a number or n each), seed, sample_period [s]
     [initial]        q, dq (n each; default: on the reference), d_hat (n; default 0)
@@ -33,9 +34,14 @@ Sections and keys (units in brackets)::
 Each section is read by one entry of the table ``_SECTIONS``: the keys it
 allows with the check of each value, and how its object is built from them.
 Per-joint lists have one entry per joint of the arm (n = 4 for the RRPR);
-``[robot]``, ``[nominal_scale]`` and the laceration path are the RRPR's and
-refused, by name, for another arm; the tissue model acts on any arm, and for
-another arm ``disturbance.skin_height`` defaults to the tool height at the
+``[robot]`` is the RRPR's and refused, by name, for another arm.  For a URDF
+arm ``[nominal_scale]`` scales links (``shaft_link = 1.2``; times
+``arm.nominal_mass_scale``), and a laceration is its tool point's path by IK
+(:class:`~blocks.tool_path.ToolLaceration`: ``start``, ``end`` and the skin
+plane required; ``sample_period`` as for ``tool_path``; the RRPR's
+``needle_roll``, ``roll_offset``, ``elbow`` and ``singularity_margin`` are
+not its keys).  The tissue model acts on any arm; for another arm without a
+laceration ``disturbance.skin_height`` defaults to the tool height at the
 reference's start (written into the scenario's data).
 
 A scenario is varied by dotted keys, validated like a file::

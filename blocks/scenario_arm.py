@@ -12,13 +12,18 @@ Without ``[arm]`` a scenario is the paper's RRPR (``[robot]``,
     nominal_mass_scale = 1.1      # optional: the controller's and observer's model has every link's mass and
                                   # inertia times this (Eq. 3's internal disturbance); default 1
 
-Everything per joint in the other sections then has the arm's ``n`` entries
+``[nominal_scale]`` then names URDF links, ``shaft_link = 1.2``: the nominal
+model is the URDF with each named link's mass and inertia times its factor
+(:func:`link_scaled_nominal`; a link on a fixed joint is merged into its
+parent's body as in the true arm), and ``nominal_mass_scale`` multiplies every
+link on top.  Everything per joint in the other sections then has the arm's ``n`` entries
 (``gains.kp``, ``trajectory.amplitude``, ``disturbance.f_r``, ``initial.q``,
 ...), and the messages name the key, ``n`` and the arm.  The tissue contact
 (``disturbance.kind = "tissue"``) works for any arm; its plane
 ``disturbance.skin_height`` defaults to the RRPR's, so for another arm a
 scenario that does not set it puts the skin through the tool point at the
-reference's start (:func:`skin_height_default`).  This module holds
+reference's start (:func:`skin_height_default`); a laceration path
+(:class:`~blocks.tool_path.ToolLaceration`) sets it.  This module holds
 the pieces that need the arm; :mod:`blocks.scenario` calls them.
 """
 from __future__ import annotations

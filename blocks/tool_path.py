@@ -56,6 +56,8 @@ MAX_PATH_SAMPLES = 20_000
 PROBE_SAMPLES = 12
 #: A path whose solve is estimated at most this long (s) is solved when it is made; a longer one when first needed.
 EAGER_SECONDS = 2.0
+#: Distinct corners solved when a path is made; the rest (a long list of waypoints) when the path is solved.
+CORNERS_AT_ONCE = 64
 # The sample tables (and probes) of the latest paths: a scenario varied many times solves its IK once.
 _KEPT = 16
 _tables: dict = {}
@@ -111,7 +113,7 @@ class _SampledIK:
         object.__setattr__(self, "_key", key)
         found = _tables.get(key)
         if found is None or found.arm is not self.arm:
-            self._check_corners()
+            self._check_corners(CORNERS_AT_ONCE)
             piece, count, word = self._pieces()
             if self.sample_period > piece * (1 + 1e-12):
                 raise ValueError(f"trajectory.sample_period ({self.sample_period:g} s) is longer than one {word} of the "
@@ -131,14 +133,23 @@ class _SampledIK:
         p, dp, ddp = self.task_space(t)
         return joint_path(self.arm, t, p, dp, ddp, q0=self.q0, on_sample=on_sample)
 
-    def _check_corners(self) -> None:
-        """IK of the path's corners (waypoints, a laceration's phase ends and stitch bottoms), from one to the next:
-        a corner out of reach is refused by time, point and residual, however far apart the samples are."""
-        from .arms.ik import solve_ik
+    def _corners(self) -> tuple[np.ndarray, np.ndarray]:
+        """The path's distinct corners (waypoints, a laceration's phase ends and stitch bottoms) and their first
+        times (a loop's repeated points once)."""
         times = np.asarray(self._corner_times(), dtype=float)
         points = self.task_space(times)[0]
+        _, first = np.unique(points, axis=0, return_index=True)
+        first = np.sort(first)
+        return times[first], points[first]
+
+    def _check_corners(self, most: int | None = None, skip: int = 0) -> None:
+        """IK of the path's distinct corners ``skip`` to ``skip + most``, each from the one before: a corner out of
+        reach is refused by time, point and residual, however far apart the samples are."""
+        from .arms.ik import solve_ik
+        times, points = self._corners()
+        end = None if most is None else skip + most
         q = self.q0
-        for t, point in zip(times, points):
+        for t, point in zip(times[skip:end], points[skip:end]):
             q, _ = solve_ik(self.arm, point, q, t=float(t))
 
     def _probe(self) -> _Record:
@@ -173,7 +184,12 @@ class _SampledIK:
     def solve_seconds(self) -> float:
         """Estimated wall time (s) of the solve still to do: 0 when solved, else the probe's per-sample cost times
         the samples."""
-        return 0.0 if self.solved else self._record.per_sample * self.samples
+        return 0.0 if self.solved else self._record.per_sample * (self.samples + self._corners_left())
+
+    def _corners_left(self) -> int:
+        """Distinct corners beyond :data:`CORNERS_AT_ONCE`, solved with the samples."""
+        count = len(np.asarray(self._corner_times()))
+        return 0 if count <= CORNERS_AT_ONCE else max(0, len(self._corners()[0]) - CORNERS_AT_ONCE)
 
     def solve_reason(self) -> str:
         """How :attr:`solve_seconds` comes about, in words (for a budget message)."""
@@ -230,6 +246,8 @@ class _SampledIK:
                                   "seconds")
 
         with shown:
+            if self._corners_left():
+                self._check_corners(skip=CORNERS_AT_ONCE)
             path = self._joint_path(t, on_sample)
         self._record.table = self._frozen(path)
         _keep(self._key, self._record)
