@@ -222,6 +222,12 @@ class Budget:
                 f"{what} needs about {format_bytes(estimate.memory)} of memory (mostly {estimate.memory_reason}{key}), "
                 f"over the memory budget of {format_bytes(self.memory)}; raise it with --max-memory or "
                 f"{ENVIRONMENT['memory']}", estimate, estimate.memory_key, "memory")
+        if self.seconds is not None and estimate.seconds > self.seconds:
+            key = f"; set by '{estimate.seconds_key}'" if estimate.seconds_key else ""
+            raise BudgetError(
+                f"{what} needs about {estimate.seconds:.3g} s of wall time before its run ({estimate.seconds_reason}"
+                f"{key}), over the wall-time budget of {self.seconds:g} s; raise it with --max-seconds or "
+                f"{ENVIRONMENT['seconds']}", estimate, estimate.seconds_key, "seconds")
 
 
 @dataclass(frozen=True)
@@ -240,6 +246,10 @@ class Estimate:
         The key that drives each part, and ``"steps"`` for the step count.
     reasons : dict of str to str
         How each part and the step count come about, in words.
+    seconds : float
+        Wall time (s) the job spends before its runs can start, known beforehand: a redundant arm's task-space
+        path solved by IK (:attr:`blocks.tool_path.ToolPath.solve_seconds`); 0 when there is none.  Its key and
+        reason are ``keys["seconds"]`` and ``reasons["seconds"]``.
     """
 
     memory: int
@@ -247,6 +257,7 @@ class Estimate:
     parts: dict = field(default_factory=dict)
     keys: dict = field(default_factory=dict)
     reasons: dict = field(default_factory=dict)
+    seconds: float = 0.0
 
     @property
     def memory_part(self) -> str:
@@ -270,6 +281,14 @@ class Estimate:
     @property
     def steps_reason(self) -> str:
         return self.reasons.get("steps", "")
+
+    @property
+    def seconds_key(self) -> str:
+        return self.keys.get("seconds", "")
+
+    @property
+    def seconds_reason(self) -> str:
+        return self.reasons.get("seconds", "")
 
 
 def schedule_steps(t_final: float, output_step: float, substeps: int, breakpoints: int = 0) -> int:

@@ -52,7 +52,7 @@ from .integrate import DivergenceError, SolverFailure, integrate_on_grid, loop_e
 from .kernels import lumped_disturbance as lumped_disturbance_rows
 from .kernels.bind import bound
 from .monitor import Monitor, SimulationError
-from .run_limits import estimate_run
+from .run_limits import estimate_run, prepare_reference
 from .scenario import Scenario, load_scenario
 from .structure import StructureCache, blocks_structure
 from .systems import controller, plant, sensor, signal_names, trajectory_block
@@ -313,9 +313,10 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
         return simulate_sampled(s, observer=observer, plant=plant, progress=progress, engine=engine)
     sim = s.simulation
     t_grid = sim.time_grid
+    budget = Budget.from_env()
+    budget = prepare_reference(s, budget)   # a task-space path's IK, within the budget, before the loop needs it
     run = _prepared(s, observer) if plant is None and engine != "python-control" else _Prepared(s, observer, plant)
     loop = run.loop
-    budget = Budget.from_env()
     budget.check(run.estimate(), f"scenario '{s.name}' ({sim.method})")
     if engine in ("auto", "compiled"):
         engine = select_engine(engine, run.auto_reason(sim.method) if engine == "auto"

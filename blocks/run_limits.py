@@ -20,18 +20,21 @@ right-hand-side evaluations) and the wall-time budget.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 import threading
+import time
 from collections import OrderedDict
 
 import numpy as np
 
-from .budget import Budget, Estimate
+from .budget import ENVIRONMENT, Budget, BudgetError, Estimate
 from .scenario import Scenario
 from .scenario_arm import is_rrpr
 
-__all__ = ["estimate_run", "check_run", "arm_rates", "forget_inertias", "EXPLICIT_METHODS", "STABILITY_SPAN"]
+__all__ = ["estimate_run", "check_run", "path_estimate", "prepare_reference", "arm_rates",
+           "forget_inertias", "EXPLICIT_METHODS", "STABILITY_SPAN"]
 
 #: Methods whose step is limited by the fastest rate (the others are implicit).
 EXPLICIT_METHODS = ("RK45", "RK23", "DOP853")
@@ -97,7 +100,45 @@ def estimate_run(scenario: Scenario, observer: bool = True) -> Estimate:
     # the step count as estimated, however large (the message's numbers must agree); the largest float when it is not
     # a number at all
     steps = int(min(steps, sys.float_info.max))
-    return Estimate(memory=sum(parts.values()), steps=steps, parts=parts, keys=keys, reasons=reasons)
+    seconds = 0.0
+    path = path_estimate(s)
+    if path is not None:            # a task-space path still to solve by IK: its table, and the time it takes
+        parts["the path's IK samples"] = path.memory
+        keys["the path's IK samples"] = keys["seconds"] = path.seconds_key
+        reasons["the path's IK samples"] = reasons["seconds"] = path.seconds_reason
+        seconds = path.seconds
+    return Estimate(memory=sum(parts.values()), steps=steps, parts=parts, keys=keys, reasons=reasons,
+                    seconds=seconds)
+
+
+def path_estimate(scenario: Scenario) -> Estimate | None:
+    """What solving the scenario's task-space path by IK still takes (:meth:`blocks.tool_path.ToolPath.estimate`:
+    the per-sample cost measured when the path was made, times its samples), or None when there is nothing to
+    solve."""
+    trajectory = scenario.trajectory
+    if getattr(trajectory, "solved", True):
+        return None
+    return trajectory.estimate()
+
+
+def prepare_reference(scenario: Scenario, budget: Budget, progress=None) -> Budget:
+    """Solve the scenario's task-space path (if still to do) before its run is built: refused over ``budget``'s
+    wall time with the estimate and the key, with progress, stopped when the budget runs out
+    (:meth:`blocks.tool_path.ToolPath.solve`).  Returns the budget left for the run (its wall time less the
+    solve's)."""
+    if path_estimate(scenario) is None:
+        return budget
+    budget.check(estimate_run(scenario), f"scenario '{scenario.name}'")
+    started = time.monotonic()
+    scenario.trajectory.solve(budget=budget, progress=progress)
+    if budget.seconds is None:
+        return budget
+    left = budget.seconds - (time.monotonic() - started)
+    if not left > 0:
+        raise BudgetError(f"scenario '{scenario.name}': the wall-time budget of {budget.seconds:g} s ran out solving "
+                          f"its path; raise it with --max-seconds or {ENVIRONMENT['seconds']}", None,
+                          "trajectory.sample_period", "seconds")
+    return dataclasses.replace(budget, seconds=left)
 
 
 def arm_rates(s: Scenario, observer: bool = True, samples: int = 9) -> dict[str, np.ndarray]:
@@ -142,7 +183,10 @@ def _inverse_inertias_along(robot, nominal, trajectory, t_final: float, samples:
         if found is not None:
             _inverses.move_to_end(key)
             return found
-    q = np.asarray(trajectory.evaluate(np.linspace(0.0, t_final, samples))[0], dtype=float)
+    times = np.linspace(0.0, t_final, samples)
+    # a task-space path not yet solved: the IK of its points (an estimate), not the solve the estimate is for
+    near = getattr(trajectory, "positions_near", None)
+    q = np.asarray(trajectory.evaluate(times)[0] if near is None else near(times), dtype=float)
     M, M_hat = _inertia_along(robot, q), _inertia_along(nominal, q)                      # (m, n, n)
     M_inv, M_hat_inv = np.linalg.inv(M), np.linalg.inv(M_hat)
     mismatch = float(np.abs(np.linalg.eigvals(M_inv @ M_hat)).max())

@@ -14,13 +14,14 @@ Sections and keys (units in brackets)::
                      tool_frame, locked, locked_values, gravity [m/s^2], nominal_mass_scale; absent: the RRPR
     [robot]          true plant, any of m1..m4 [kg], l1, l2 [m], I1..I4 [kg m^2], g [m/s^2],
                      a1, a2, d1, d4 [m]; Table 1 by default
-    [nominal_scale]  per-parameter factor nominal / true (Eq. 3 internal disturbance), same names, 1 by default
+    [nominal_scale]  per-parameter factor nominal / true (Eq. 3 internal disturbance), same names, 1 by default;
+                     for a URDF arm per link: link name = factor (that link's mass and inertia in the nominal model)
     [gains]          kp [1/s^2], kd [1/s]: scalar or n; observer [kg m^2/s]: scalar, n or n x n, or
                      observer_bandwidth [rad/s]: Y = omega M^(q0) (one of the two)
     [observer]       variant = "correct" | "paper-eq16"
-    [trajectory]     kind = "laceration" | "joint_sine" and that kind's keys (blocks.trajectory);
-                     a laceration lasts duration [s] (10 by default) whatever simulation.t_final is,
-                     and stitches the skin plane disturbance.skin_height [m]
+    [trajectory]     kind = "laceration" | "joint_sine" | "tool_path" and that kind's keys (blocks.trajectory,
+                     blocks.tool_path); a laceration lasts duration [s] (10 by default) whatever
+                     simulation.t_final is, and stitches the skin plane disturbance.skin_height [m]
     [disturbance]    kind = "paper" | "friction" | "tissue" | a list of them | "none", and their keys
     [noise]          q_std [rad, m], dq_std [rad/s, m/s] (a number or n each), seed, sample_period [s]
     [initial]        q, dq (n each; default: on the reference), d_hat (n; default 0)
@@ -33,9 +34,14 @@ Sections and keys (units in brackets)::
 Each section is read by one entry of the table ``_SECTIONS``: the keys it
 allows with the check of each value, and how its object is built from them.
 Per-joint lists have one entry per joint of the arm (n = 4 for the RRPR);
-``[robot]``, ``[nominal_scale]`` and the laceration path are the RRPR's and
-refused, by name, for another arm; the tissue model acts on any arm, and for
-another arm ``disturbance.skin_height`` defaults to the tool height at the
+``[robot]`` is the RRPR's and refused, by name, for another arm.  For a URDF
+arm ``[nominal_scale]`` scales links (``shaft_link = 1.2``; times
+``arm.nominal_mass_scale``), and a laceration is its tool point's path by IK
+(:class:`~blocks.tool_path.ToolLaceration`: ``start``, ``end`` and the skin
+plane required; ``sample_period`` as for ``tool_path``; the RRPR's
+``needle_roll``, ``roll_offset``, ``elbow`` and ``singularity_margin`` are
+not its keys).  The tissue model acts on any arm; for another arm without a
+laceration ``disturbance.skin_height`` defaults to the tool height at the
 reference's start (written into the scenario's data).
 
 A scenario is varied by dotted keys, validated like a file::
@@ -73,12 +79,14 @@ from .scenario_arm import (
     arm_name,
     is_rrpr,
     joint_sine_defaults,
+    link_masses,
+    link_scaled_nominal,
     load_arm,
     observer_gain_from_bandwidth,
     scaled_nominal,
     skin_height_default,
 )
-from .tool_path import ToolPath
+from .tool_path import LACERATION_KEYS, ToolLaceration, ToolPath
 from .trajectory import TRAJECTORY_KINDS, JointSine, LacerationPath, check_joint_ranges
 from .validation import number_text, read_only_array
 
@@ -398,7 +406,8 @@ class Scenario:
         """
         section, name, index = parse_key(key)
         if name:
-            known = tuple(_SECTIONS[section].checks_for(self.data["trajectory"]["kind"]))
+            kind = self.data["trajectory"]["kind"]
+            known = tuple(_arm_checks(section, kind, self.robot) or _SECTIONS[section].checks_for(kind))
             if name not in known:
                 raise ScenarioError(f"'{key}' is not a scenario key; keys of [{section}]: {list(known)}")
         if index is not None:
@@ -537,6 +546,8 @@ class _ArmContext:
     given: tuple | None = None          # (robot, nominal) given in Python
     arm: Any = None                     # the true arm, when it is not the RRPR
     nominal: Any = None
+    urdf: dict | None = None            # the [arm] section's values as the arm was loaded (a URDF arm)
+    skin_given: bool = False            # whether [disturbance] sets skin_height
 
     @property
     def arm_label(self) -> str | None:
@@ -605,7 +616,7 @@ def _build_arm(given: dict, built: dict):
     if "urdf" in given and given["urdf"].startswith("example:"):
         name = given["urdf"].split(":", 1)[1]
     nominal = scaled_nominal(arm, given.get("nominal_mass_scale", 1.0), ScenarioError)
-    ctx.joints, ctx.name, ctx.arm, ctx.nominal = arm.joints, name, arm, nominal
+    ctx.joints, ctx.name, ctx.arm, ctx.nominal, ctx.urdf = arm.joints, name, arm, nominal, values
     data = {k: _plain(v) for k, v in given.items()}
     if not given["urdf"].startswith("example:"):
         data["urdf"] = resolved         # the written scenario (scenario.toml of a run) finds the file from anywhere
@@ -635,9 +646,17 @@ def _build_robot(given: dict, built: dict):
 
 
 def _build_nominal(given: dict, built: dict):
-    if _context().arm is not None:
+    ctx = _context()
+    if ctx.arm is not None and ctx.urdf is not None:
+        if not given:
+            return ctx.nominal, None
+        # per link of the URDF: each named link's mass and inertia times its factor, then every link's times
+        # arm.nominal_mass_scale
+        nominal = link_scaled_nominal(ctx.arm, ctx.urdf, ctx.base, given, ScenarioError)
+        return scaled_nominal(nominal, ctx.urdf.get("nominal_mass_scale", 1.0), ScenarioError), dict(given)
+    if ctx.arm is not None:
         _not_rrpr_section("nominal_scale", given)
-        return _context().nominal, None
+        return ctx.nominal, None
     try:
         nominal = built["robot"].scaled(**given)
     except ParameterError as err:
@@ -684,6 +703,7 @@ def _build_disturbance(given: dict, built: dict):
     ctx = _context()
     # Eq. 4's f_r is the RRPR's four numbers: another arm has no external disturbance unless it is given
     kinds = given.get("kind", ("paper",) if ctx.arm is None else ())
+    ctx.skin_given = "skin_height" in given
     lists = {}
     if ctx.arm is not None:             # the per-joint lists not given: zeros of the arm's n (the defaults are the RRPR's)
         lists = {k: (0.0,) * ctx.joints.count for k in ("f_r", "coulomb", "viscous") if k not in given}
@@ -716,8 +736,7 @@ def _build_trajectory(given: dict, built: dict):
     kw = {k: v for k, v in given.items() if k != "kind"}
     ctx = _context()
     if kind == "laceration" and ctx.arm is not None:
-        raise ScenarioError(f"'trajectory.kind' = 'laceration' is the paper's RRPR path (closed-form inverse "
-                            f"kinematics of its SCARA); the arm {ctx.name!r} takes kind = 'joint_sine'")
+        return _arm_laceration(kw, built, ctx)
     if kind == "joint_sine" and ctx.arm is not None:
         kw = joint_sine_defaults(ctx.arm) | kw
         n = ctx.joints.count
@@ -747,6 +766,31 @@ def _build_trajectory(given: dict, built: dict):
     # the skin plane is written once, under [disturbance]
     keys = [k for k in _SECTIONS["trajectory"].checks_for(kind) if k not in ("kind", "skin_height")]
     return trajectory, {"kind": kind} | {k: _plain(getattr(trajectory, k)) for k in keys}
+
+
+def _arm_laceration(kw: dict, built: dict, ctx) -> tuple:
+    """The laceration path of an arm other than the RRPR: the tool point's, by IK (:class:`ToolLaceration`).
+
+    Its ends and its skin plane have no default (the RRPR's would be out of the arm's reach): ``trajectory.start``,
+    ``trajectory.end`` and ``disturbance.skin_height`` (or ``trajectory.skin_height``, the same plane) are required.
+    """
+    missing = [f"'trajectory.{k}'" for k in ("start", "end") if k not in kw]
+    if missing:
+        raise ScenarioError(f"{' and '.join(missing)} required for kind = 'laceration' on the arm {ctx.name!r}: the "
+                            "laceration's ends (x, y) in the arm's base frame, m (the defaults are the paper's RRPR's)")
+    if ctx.skin_given:
+        kw["skin_height"] = _skin_height(kw, built["disturbance"])
+    elif "skin_height" not in kw:
+        raise ScenarioError(f"the laceration path of the arm {ctx.name!r} needs its skin plane: set "
+                            "'disturbance.skin_height' (m, the plane's height in the arm's base frame; the tissue "
+                            "contact pushes back from it)")
+    _check_phases(kw, built["simulation"])
+    try:
+        trajectory = ToolLaceration(built["robot"], **kw)
+    except (ValueError, TypeError) as err:          # UnreachableError, BudgetError are ValueErrors
+        raise ScenarioError(f"[trajectory] {err}") from None
+    keys = [k for k in LACERATION_KEYS if k != "skin_height"]
+    return trajectory, {"kind": "laceration"} | {k: _plain(getattr(trajectory, k)) for k in keys}
 
 
 def _check_sine_ranges(sine: JointSine, built: dict) -> None:
@@ -1124,7 +1168,7 @@ def _validated(data: Mapping, source: str) -> Scenario:
         table = tables[section]
         default_kind = "joint_sine" if section == "trajectory" and _context().arm is not None else spec.default_kind
         kind = spec.checks["kind"](table.get("kind", default_kind), f"{section}.kind") if spec.by_kind else None
-        checks = spec.checks_for(kind)
+        checks = _arm_checks(section, kind) or spec.checks_for(kind)
         _check_keys(table, checks, section, note=f" for kind = {kind!r}" if kind else "")
         given = {k: checks[k](v, f"{section}.{k}") for k, v in table.items()}
         built[section], out[section] = spec.build(given, built)
@@ -1133,7 +1177,12 @@ def _validated(data: Mapping, source: str) -> Scenario:
     gains = built["gains"]
     if "observer_bandwidth" in gains:
         gains["observer"] = _bandwidth_gain(gains["observer_bandwidth"], built)
-    if _context().arm is not None and "skin_height" not in tables["disturbance"] \
+    if isinstance(built["trajectory"], ToolLaceration):
+        # the laceration's skin plane is the tissue's, written once under [disturbance]
+        skin = built["trajectory"].skin_height
+        built["disturbance"] = dataclasses.replace(built["disturbance"], skin_height=skin)
+        out["disturbance"] = dict(out["disturbance"], skin_height=skin)
+    elif _context().arm is not None and "skin_height" not in tables["disturbance"] \
             and "tissue" in built["disturbance"].kinds:
         # the default plane is the RRPR's: another arm's skin goes through its tool point at the reference's start
         skin = skin_height_default(built["robot"], built["trajectory"].evaluate(0.0)[0])
@@ -1155,6 +1204,22 @@ def _bandwidth_gain(omega: float, built: dict) -> np.ndarray:
     ctx = _context()
     return validated_gain(observer_gain_from_bandwidth(built["nominal_scale"], omega, q0), "observer", ctx.joints,
                           ctx.arm_label)
+
+
+def _arm_checks(section: str, kind: str | None, arm=None) -> dict | None:
+    """The keys of a section that depend on the arm (None: the section's own): a laceration's on an arm other
+    than the RRPR (:data:`blocks.tool_path.LACERATION_KEYS`), a URDF arm's ``[nominal_scale]`` (its links)."""
+    ctx = _context()
+    arm = ctx.arm if arm is None else arm
+    if arm is None or is_rrpr(arm):
+        return None
+    if section == "trajectory" and kind == "laceration":
+        shared = _SECTIONS["trajectory"].checks_for("laceration")
+        return {"kind": shared["kind"]} | {k: shared.get(k, _finite(0.0, True)) for k in LACERATION_KEYS}
+    if section == "nominal_scale" and getattr(arm, "chain", None) is not None and (ctx.urdf is not None
+                                                                                  or ctx.arm is None):
+        return {k: _finite(0.0, strict=True) for k in link_masses(arm)}
+    return None
 
 
 def _table(data: Mapping, key: str) -> Mapping:

@@ -12,13 +12,18 @@ Without ``[arm]`` a scenario is the paper's RRPR (``[robot]``,
     nominal_mass_scale = 1.1      # optional: the controller's and observer's model has every link's mass and
                                   # inertia times this (Eq. 3's internal disturbance); default 1
 
-Everything per joint in the other sections then has the arm's ``n`` entries
+``[nominal_scale]`` then names URDF links, ``shaft_link = 1.2``: the nominal
+model is the URDF with each named link's mass and inertia times its factor
+(:func:`link_scaled_nominal`; a link on a fixed joint is merged into its
+parent's body as in the true arm), and ``nominal_mass_scale`` multiplies every
+link on top.  Everything per joint in the other sections then has the arm's ``n`` entries
 (``gains.kp``, ``trajectory.amplitude``, ``disturbance.f_r``, ``initial.q``,
 ...), and the messages name the key, ``n`` and the arm.  The tissue contact
 (``disturbance.kind = "tissue"``) works for any arm; its plane
 ``disturbance.skin_height`` defaults to the RRPR's, so for another arm a
 scenario that does not set it puts the skin through the tool point at the
-reference's start (:func:`skin_height_default`).  This module holds
+reference's start (:func:`skin_height_default`); a laceration path
+(:class:`~blocks.tool_path.ToolLaceration`) sets it.  This module holds
 the pieces that need the arm; :mod:`blocks.scenario` calls them.
 """
 from __future__ import annotations
@@ -32,8 +37,8 @@ import numpy as np
 from .arm import ArmModel
 from .kernels.bind import closed_form
 
-__all__ = ["ARM_KEYS", "arm_name", "is_rrpr", "load_arm", "scaled_nominal", "joint_sine_defaults",
-           "observer_gain_from_bandwidth", "skin_height_default"]
+__all__ = ["ARM_KEYS", "arm_name", "is_rrpr", "load_arm", "scaled_nominal", "link_masses", "link_scaled_nominal",
+           "joint_sine_defaults", "observer_gain_from_bandwidth", "skin_height_default"]
 
 #: The keys of ``[arm]`` and what each takes.
 ARM_KEYS = {"urdf": "a path (text), relative to the scenario file", "tool_frame": "a frame name (text)",
@@ -138,6 +143,81 @@ def scaled_nominal(arm: ArmModel, scale: float, error) -> ArmModel:
     nominal = type(arm)(scaled, arm.joints, arm.tool_frame, continuous=arm.continuous, source=arm.source)
     nominal.pin_model = None            # the reference model is the true arm's
     _scaled[(id(arm), scale)] = (arm, nominal)
+    while len(_scaled) > _KEPT:
+        _scaled.pop(next(iter(_scaled)))
+    return nominal
+
+
+def link_masses(arm: ArmModel) -> dict[str, float]:
+    """The URDF links of ``arm`` whose mass enters its dynamics, with their masses (kg): those with an
+    ``<inertial>`` of positive mass that a joint of the model moves (a link fixed to the base, or to it through
+    locked joints only, moves with nothing).  Empty for an arm not read from a URDF."""
+    model, source = getattr(arm, "pin_model", None), getattr(arm, "source", None)
+    if model is None or not source:
+        return {}
+    moved = {f.name for f in model.frames if f.parentJoint > 0 and str(f.type).endswith("BODY")}
+    out = {}
+    for link in _urdf_root(source).findall("link"):
+        mass = link.find("inertial/mass")
+        value = float(mass.get("value", "0")) if mass is not None else 0.0
+        if link.get("name") in moved and value > 0:
+            out[link.get("name")] = value
+    return out
+
+
+def _urdf_root(source: str):
+    import xml.etree.ElementTree as ET
+    return ET.parse(source).getroot()
+
+
+def link_scaled_nominal(arm: ArmModel, given: dict, base: Path | None, scales: dict, error) -> ArmModel:
+    """The nominal model of a URDF arm with each named link's mass and inertia times its factor (``[nominal_scale]``,
+    link name -> factor > 0; centres of mass kept): the URDF so changed, read as the true arm was (``given``: the
+    ``[arm]`` values it was loaded with, the file relative to ``base``).
+
+    The merged bodies (a link on a fixed joint joins its parent's body) are pinocchio's, as for the true arm.
+    """
+    allowed = link_masses(arm)
+    bad = sorted(set(scales) - set(allowed))
+    if bad:
+        raise error(f"[nominal_scale] names {', '.join(repr(b) for b in bad)}, not a link of the arm whose mass moves "
+                    f"with a joint; its links: {', '.join(allowed)} (a factor > 0 scales that link's mass and inertia "
+                    "in the controller's and observer's model)")
+    key = (id(arm), tuple(sorted(scales.items())))
+    found = _scaled.get(key)
+    if found is not None and found[0] is arm:
+        return found[1]
+    import os
+    import tempfile
+    import xml.etree.ElementTree as ET
+    root = _urdf_root(arm.source)
+    for link in root.findall("link"):
+        factor = scales.get(link.get("name"))
+        if factor is None:
+            continue
+        mass, inertia = link.find("inertial/mass"), link.find("inertial/inertia")
+        mass.set("value", repr(float(mass.get("value")) * factor))
+        if inertia is not None:
+            for name in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"):
+                if inertia.get(name) is not None:
+                    inertia.set(name, repr(float(inertia.get(name)) * factor))
+    handle, path = tempfile.mkstemp(suffix=".urdf", prefix="dobkit-nominal-")
+    try:
+        with os.fdopen(handle, "wb") as f:
+            ET.ElementTree(root).write(f, encoding="utf-8", xml_declaration=True)
+        values = dict(given, urdf=path)
+        values.pop("nominal_mass_scale", None)
+        from .arms.urdf import load_urdf_arm
+        locked = list(values.get("locked", []))
+        nominal = load_urdf_arm(path, values["tool_frame"], locked=locked,
+                                locked_values=dict(zip(locked, values.get("locked_values", []))),
+                                gravity=_gravity(values["gravity"]) if "gravity" in values else None)
+    except (ValueError, OSError) as err:
+        raise error(f"[nominal_scale] {scales}: {err}") from None
+    finally:
+        os.unlink(path)
+    nominal.source, nominal.pin_model = arm.source, None        # the reference model is the true arm's
+    _scaled[key] = (arm, nominal)
     while len(_scaled) > _KEPT:
         _scaled.pop(next(iter(_scaled)))
     return nominal

@@ -2,7 +2,9 @@
 
 Both kinds expose ``evaluate(t) -> (q_ref, dq_ref, ddq_ref)`` for a scalar or
 an array of times (s); the arrays have shape ``(n,)`` or ``(len(t), n)`` for the arm's ``n``
-joints (the laceration path is the paper's RRPR's: ``n = 4``).
+joints (:class:`LacerationPath` is the paper's RRPR's, ``n = 4``, in closed form; the same
+path of any other arm's tool point is :class:`blocks.tool_path.ToolLaceration`, by IK, on
+the pose kernel :func:`laceration_pose`).
 
 The laceration path
 -------------------

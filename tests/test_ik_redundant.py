@@ -177,7 +177,9 @@ def test_closed_loop_on_the_new_references_tracks_better_and_keeps_its_posture()
     old = copy.copy(new)              # the same path object with the least-squares sample table
     table = np.ascontiguousarray(np.vstack([old_ref.q.T, old_ref.dq.T, old_ref.ddq.T]))
     table.setflags(write=False)
-    object.__setattr__(old, "table", table)
+    record = copy.copy(new._record)
+    record.table = table
+    object.__setattr__(old, "_record", record)
     runs = {}
     for label, path in (("new", new), ("old", old)):
         s = dataclasses.replace(scenario, trajectory=path, name=f"ur5-loop-{label}")

@@ -122,9 +122,12 @@ def test_disturbance_step_takes_n_values():
 
 
 @pytest.mark.parametrize("data, fragment", [
-    ({"trajectory": {"kind": "laceration"}}, "'laceration' is the paper's RRPR path"),
+    # a laceration on another arm is its tool point's (tests/test_suture_any_arm.py): its ends have no default
+    ({"trajectory": {"kind": "laceration"}}, "'trajectory.start' and 'trajectory.end' required for kind = "
+                                             "'laceration' on the arm 'scope4'"),
     ({"robot": {"m1": 5.0}}, r"\[robot\] \(robot.m1\) describes the paper's RRPR"),
-    ({"nominal_scale": {"m1": 1.1}}, "arm.nominal_mass_scale"),
+    # [nominal_scale] of a URDF arm is by link (tests/test_suture_any_arm.py)
+    ({"nominal_scale": {"m1": 1.1}}, r"nominal_scale.m1; allowed in \[nominal_scale\]: yaw_link, pitch_link"),
 ])
 def test_rrpr_only_sections_are_refused_for_another_arm_and_kept_for_the_rrpr(data, fragment):
     with pytest.raises(ScenarioError, match=fragment):

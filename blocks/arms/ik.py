@@ -77,6 +77,10 @@ class JointPath:
     method: str = "dls"
 
 
+#: Halvings of a damped least-squares step that does not lower the residual, before the point is taken as the closest.
+_HALVINGS = 20
+
+
 def _start(arm: ArmModel, q0) -> np.ndarray:
     if q0 is None:          # the middle of each finite range, else 0
         return np.array([0.5 * (lo + hi) if np.isfinite(lo) and np.isfinite(hi) else 0.0
@@ -138,6 +142,14 @@ def solve_ik(arm: ArmModel, point, q0=None, *, damping: float = 1e-3, tol: float
         q_new = np.clip(q + step, lo, hi)        # projected onto the joints' ranges
         err_new = point - arm.tool_position(q_new)
         res_new = float(np.linalg.norm(err_new))
+        halvings = 0
+        # a step that overshoots far from the point (a large move, a curved reach) is halved until it helps; on
+        # the point (res <= tol) no progress means the rounding is reached
+        while not res_new < res and res > tol and halvings < _HALVINGS:
+            step, halvings = 0.5 * step, halvings + 1
+            q_new = np.clip(q + step, lo, hi)
+            err_new = point - arm.tool_position(q_new)
+            res_new = float(np.linalg.norm(err_new))
         if not res_new < res:      # no more progress: the closest point (or rounding) is reached
             break
         q, err, res = q_new, err_new, res_new
@@ -200,7 +212,7 @@ def _where(point) -> str:
 def joint_path(arm: ArmModel, t, p, dp, ddp, q0=None, *, damping: float = 1e-3, tol: float = 1e-9,
                max_iter: int = 200, min_sigma: float = 1e-6, method: str = "auto", task_gain: float = 10.0,
                posture_gain: float = 1.0, rest=None, limit_gain: float = 10.0, rtol: float = 1e-9,
-               atol: float = 1e-11) -> JointPath:
+               atol: float = 1e-11, on_sample=None) -> JointPath:
     """Joint references ``q, q', q''`` of a sampled task-space path of the tool point.
 
     Parameters
@@ -236,6 +248,9 @@ def joint_path(arm: ArmModel, t, p, dp, ddp, q0=None, *, damping: float = 1e-3, 
         ``K_l`` times a tenth of the range per s at the end itself; 0 turns it off.
     rtol, atol : float
         Relative and absolute (rad, m) tolerances of the ``"resolved_rate"`` integrator (DOP853).
+    on_sample : callable, optional
+        ``on_sample(k)`` after sample ``k`` is solved (progress, a wall-time budget: an exception it raises
+        stops the solve).
 
     Returns
     -------
@@ -264,7 +279,7 @@ def joint_path(arm: ArmModel, t, p, dp, ddp, q0=None, *, damping: float = 1e-3, 
     if method == "resolved_rate":
         return _integrated(arm, t, arrays, first, damping=damping, tol=tol, max_iter=max_iter, min_sigma=min_sigma,
                            task_gain=task_gain, posture_gain=posture_gain, limit_gain=limit_gain, rest=rest,
-                           rtol=rtol, atol=atol)
+                           rtol=rtol, atol=atol, on_sample=on_sample)
     q, dq, ddq, res = np.empty((N, n)), np.empty((N, n)), np.empty((N, n)), np.empty(N)
     guess = q0
     for k in range(N):
@@ -272,11 +287,13 @@ def joint_path(arm: ArmModel, t, p, dp, ddp, q0=None, *, damping: float = 1e-3, 
                                                      max_iter=max_iter, t=t[k])
         dq[k], ddq[k] = _derivatives(arm, q[k], arrays["dp"][k], arrays["ddp"][k], t[k], min_sigma)
         guess = q[k]
+        if on_sample is not None:
+            on_sample(k)
     return JointPath(t=t, q=q, dq=dq, ddq=ddq, residual=res, method="dls")
 
 
 def _integrated(arm: ArmModel, t, arrays, first, *, damping, tol, max_iter, min_sigma, task_gain, posture_gain,
-                limit_gain, rest, rtol, atol) -> JointPath:
+                limit_gain, rest, rtol, atol, on_sample=None) -> JointPath:
     """``method="resolved_rate"`` of :func:`joint_path`: the integrated law, refusals by time, point and joint."""
     p, dp, ddp = arrays["p"], arrays["dp"], arrays["ddp"]
     law = ResolvedRate(arm, task_gain, posture_gain, first[0] if rest is None else rest, min_sigma, limit_gain)
@@ -296,6 +313,8 @@ def _integrated(arm: ArmModel, t, arrays, first, *, damping, tol, max_iter, min_
                                      f"outside the arm's ranges: {outside} (the null-space push back from the "
                                      "ends, limit_gain, could not hold it: another q0 or rest, or method='dls', "
                                      "may keep the joints in range)")
+        if on_sample is not None:
+            on_sample(k)
 
     try:
         q, dq, ddq = integrate_path(law, t, p, dp, ddp, first[0], rtol=rtol, atol=atol, check=check)
