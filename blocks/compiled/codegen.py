@@ -20,12 +20,12 @@ source of these functions:
     the called kernels' parameters with every table (a noise table) taken
     from row ``j`` of ``tables``, for a batch whose members have their own.
 
-With :data:`ARM_CALLS` set, an arm's ``M(q)`` and ``h(q, q')`` (a chain
+With :data:`ARM_CALLS` set (the default), an arm's ``M(q)`` and ``h(q, q')`` (a chain
 arm's: :mod:`blocks.kernels.chain`) are functions of the module,
 ``arm_inertia_<arm>(x)`` and ``arm_bias_<arm>(x)`` returning tuples, called
 by the functions below where they need them
 (:class:`~blocks.compiled.trace.Callee`): numba compiles each once instead
-of four inlined copies (less than half the compile time, runs 10-20 % slower).
+of four inlined copies (about half the compile time, runs 10-20 % slower).
 
 A block's kernels are traced (:mod:`blocks.compiled.trace`) into scalar
 statements when they can be: then the generated code has no array
@@ -86,11 +86,13 @@ __all__ = ["CompiledUnavailable", "LoopProgram", "loop_program", "program_for", 
 
 #: Generate a chain arm's ``M(q)`` and ``h(q, q')`` as functions of the module, called where needed, instead of
 #: inlining them in every function (see :class:`~blocks.compiled.trace.Callee`).  Measured on the 2-core machine
-#: (CPU s of a cold compile; best cached run): the Panda's loop 14,250 -> 7,670 lines, compile 58.6 -> 24.5 s,
-#: run 6.5 -> 7.6 ms (+15-20 %, in the Dormand-Prince steps and the grid pass); scope4 3,023 -> 1,981 lines,
-#: compile 11.9 -> 11.3 s, run +10-15 %; the numbers are the same to the last bit.  Off: a run must not get slower
-#: by more than a few percent; set it True before a loop is first traced to trade run time for compile time.
-ARM_CALLS = False
+#: (CPU s of a cold compile; best cached run): the Panda's loop 14,250 -> 7,670 lines, compile 23.1 -> 12.6 s,
+#: run 6.5 -> 7.6 ms (+15-20 %, in the Dormand-Prince steps and the grid pass); the UR5's 8,064 -> 5,114 lines,
+#: 13.6 -> 9.0 s; scope4 3,023 -> 1,981 lines, 7.1 -> 5.3 s, run +10-15 %; the numbers are the same to the last bit.
+#: On: a first run of a big arm is dominated by its compile (every example arm compiles within
+#: :data:`~blocks.compiled.compile_estimate.AUTO_COMPILE_SECONDS`).  The paper's RRPR has no chain kernels: its
+#: code is the same either way.  Set it False before a loop is first traced to inline them again.
+ARM_CALLS = True
 
 
 class CompiledUnavailable(RuntimeError):
@@ -489,8 +491,8 @@ def structure_of(plan, kernels: dict, labels: list, groups: tuple = ()) -> str:
     parts.append(f"{plan.copy_y!r}|{plan.copy_x!r}|{plan.out_index.tolist()}|{plan.direct}")
     parts.append(",".join(labels))
     parts.append(",".join(f"{g.name}:{g.rows.__module__}.{g.rows.__qualname__}" for g in groups))
-    if ARM_CALLS:                   # another text for the same loop (absent when off: the cache keys stay as they were)
-        parts.append("arm M and h called")
+    if not ARM_CALLS:               # another text for the same loop (absent by default: the RRPR's keys stay as they were)
+        parts.append("arm M and h inlined")
     return "\n".join(parts)
 
 
