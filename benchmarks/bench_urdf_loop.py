@@ -110,6 +110,7 @@ def lean_loop(scenario):
 
     def run():
         return solve_ivp(rhs, (0.0, sim.t_final), x0, method="RK45", t_eval=t_eval, rtol=sim.rtol, atol=sim.atol)
+    run.rhs, run.x0 = rhs, x0           # for a per-call comparison (bench_urdf_numpy.py)
     return run
 
 
