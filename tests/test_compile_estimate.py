@@ -75,3 +75,24 @@ def test_every_example_arm_is_within_the_budget():
         source = codegen.program_for(make_plan(loop), loop, loop_rows_of(loop))[0].source
         longest = max(longest, source.count("\n") + 1)
     assert 3000 < longest and estimate_compile_seconds(longest) <= AUTO_COMPILE_SECONDS
+
+
+@pytest.mark.slow
+def test_the_compiled_panda_with_called_dynamics_equals_the_numpy_engine():
+    """The one compile of a big arm here (about 13 s of CPU with a fresh cache): the Panda's loop, its M and h
+    generated once and called, run by numba, against the numpy engine (pinocchio's ABA, RNEA and CRBA for the same
+    kernels, itself checked against an independent pinocchio + scipy loop in tests/test_arm_loop.py)."""
+    pytest.importorskip("numba")
+    pytest.importorskip("pinocchio")
+    import numpy as np
+
+    import blocks
+    from blocks.metrics import signal
+
+    s = load_scenario("panda").with_changes({"simulation.t_final": 1.0, "simulation.rtol": 1e-10,
+                                             "simulation.atol": 1e-12})
+    compiled = blocks.simulate(s, engine="compiled")
+    fast = blocks.simulate(s, engine="fast")
+    assert compiled.engine == "compiled" and fast.engine == "fast"
+    np.testing.assert_allclose(signal(compiled, "q"), signal(fast, "q"), rtol=0, atol=1e-8)
+    assert np.ptp(signal(compiled, "q")) > 0.1                     # the arm moves
