@@ -96,3 +96,19 @@ def test_the_compiled_panda_with_called_dynamics_equals_the_numpy_engine():
     assert compiled.engine == "compiled" and fast.engine == "fast"
     np.testing.assert_allclose(signal(compiled, "q"), signal(fast, "q"), rtol=0, atol=1e-8)
     assert np.ptp(signal(compiled, "q")) > 0.1                     # the arm moves
+
+
+def test_a_called_function_whose_outputs_are_all_constants_is_valid_code():
+    """A one-joint arm's gravity about a vertical axis is exactly zero: its generated function returns nothing (an
+    empty tuple; the caller reads the constant), and the module's text compiles (it was ``return (,)``)."""
+    import types
+
+    from blocks.compiled.trace import Callee, Graph
+
+    graph = Graph(calls=True)
+    out = graph.call(Callee("arm_gravity_zero", 1, lambda x: [0.0 * 1.0]), [graph.leaf("x", 0)])
+    assert out == [0.0]
+    text = codegen._callee_functions(types.SimpleNamespace(graph=graph))
+    namespace = {}
+    exec(compile(text, "<callees>", "exec"), namespace)
+    assert namespace["arm_gravity_zero"]((0.3,)) == ()

@@ -546,7 +546,8 @@ def _callee_functions(b: _Builder) -> str:
         _, outputs = callee.traced
         fn = _Function(None, callee.name, "x")
         values = [fn.value(v) for v in outputs if Callee.constant(v) is None]
-        fn.emit(f"return ({', '.join(values)},)")
+        # every output a constant (a one-joint arm's gravity about a vertical axis): an empty tuple, never read
+        fn.emit(f"return ({', '.join(values)},)" if values else "return ()")
         texts.append(fn.text())
     return "".join(t + "\n" for t in texts)
 
