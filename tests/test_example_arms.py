@@ -137,3 +137,20 @@ def test_limits_are_read_as_written():
     kinova = example_arms()["kinova"]
     assert kinova.kinds[0] == "continuous" and kinova.limits[0] == (-math.inf, math.inf)
     assert kinova.limits[1] == pytest.approx((0.820304748437, 5.46288055874))
+
+
+def test_a_known_example_without_the_package_names_the_extra(monkeypatch):
+    """Without example-robot-data, example:panda says to install it (not that the name is unknown); z1 is unknown."""
+    from importlib import metadata
+
+    from blocks.scenario import ScenarioError, scenario_from_dict
+
+    def absent(name):
+        raise metadata.PackageNotFoundError(name)
+
+    monkeypatch.setattr(metadata, "distribution", absent)
+    with pytest.raises(ScenarioError, match=r"example:panda.*dobkit\[urdf\]"):
+        scenario_from_dict({"arm": {"urdf": "example:panda"}})
+    with pytest.raises(ScenarioError, match=r"example arm 'z1' is unknown; the example arms are scope4 .*dobkit\[urdf\]"):
+        scenario_from_dict({"arm": {"urdf": "example:z1"}})
+    assert scenario_from_dict({"arm": {"urdf": "example:scope4"}}).robot.n == 4

@@ -312,9 +312,13 @@ def example_defaults(name: str) -> ExampleArm:
     ------
     UnknownExampleError
         For a name that is no example arm.
+    ModuleNotFoundError
+        For ``ur5`` or ``panda`` when example-robot-data is not installed.
     """
     arms = example_arms()
     if name not in arms:
+        if name in EXAMPLES and _distribution() is None:
+            example_urdf(name)                  # raises: the package is missing (the message names the extra)
         raise _unknown(name)
     return arms[name]
 

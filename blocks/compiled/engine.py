@@ -111,8 +111,8 @@ class CompiledLoopEngine:
         """Run ``fn``; when this loop structure was never compiled here, say so and how long it took."""
         if not self._announce:
             return fn()
-        print(f"dobkit: compiling the loop with numba (once per loop structure; {self.module.CACHE_NOTE}) ...",
-              file=sys.stderr, flush=True)
+        print(f"dobkit: compiling the loop with numba (about {self.compile_estimate:.0f} s of CPU, once per loop "
+              f"structure; {self.module.CACHE_NOTE}) ...", file=sys.stderr, flush=True)
         t0 = time.perf_counter()
         out = fn()
         print(f"dobkit: compiled in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
