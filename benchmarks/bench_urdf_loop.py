@@ -33,9 +33,9 @@ Times are CPU times (``time.process_time``), as in the other benchmarks here.  T
 (target <= 0.05, issue 18); the two runs' positions on the output grid are compared
 (largest difference, rad or m) as a check that they are the same loop.  With ``--percall`` (default) the per-call rows of
 ``bench_urdf_kernels.py`` follow: M (CRBA) and h (RNEA) of dobkit's traced kernels in a numba loop beside
-pinocchio's own per-call time.  The Panda's loop is about 14,000 generated lines: its first compile takes about a
-minute of CPU, many minutes of wall time on a loaded small machine (with ``blocks.compiled.codegen.ARM_CALLS``
-about 7,700 lines and half the CPU, each arm's M and h one function called where needed).  No assertion: these
+pinocchio's own per-call time.  The Panda's loop is about 7,700 generated lines (each arm's M and h one function
+called where needed, ``blocks.compiled.codegen.ARM_CALLS``; 14,250 inlined): its first compile takes 13-14 s of CPU,
+a minute or more of wall time on a loaded small machine (``bench_urdf_compile.py``).  No assertion: these
 are timings.
 """
 from __future__ import annotations
@@ -110,6 +110,7 @@ def lean_loop(scenario):
 
     def run():
         return solve_ivp(rhs, (0.0, sim.t_final), x0, method="RK45", t_eval=t_eval, rtol=sim.rtol, atol=sim.atol)
+    run.rhs, run.x0 = rhs, x0           # for a per-call comparison (bench_urdf_numpy.py)
     return run
 
 

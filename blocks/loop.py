@@ -385,7 +385,8 @@ class _Prepared:
 
     def auto_reason(self, method: str) -> str | None:
         """Why ``engine="auto"`` runs numpy (None: compiled): the compiled engine cannot run the loop, or its
-        generated code is too long to compile now (:data:`blocks.compiled.engine.AUTO_COMPILE_LINES`)."""
+        generated code would take too long to compile now
+        (:data:`blocks.compiled.compile_estimate.AUTO_COMPILE_SECONDS`)."""
         reason = self.compiled_reason(method)
         return reason if reason is not None else self.compiled_engine().auto_reason()
 

@@ -590,10 +590,18 @@ def _gravity(value, key: str):
 
 
 def _example_urdf(urdf: str):
-    """``example:NAME``: the URDF of a built-in example arm (scope4, ur5, panda)."""
-    from .arms.examples import example_urdf, scope4_urdf
-    name = urdf.split(":", 1)[1]
-    return scope4_urdf() if name == "scope4" else example_urdf(name)
+    """``example:NAME``: the URDF of an example arm (scope4, or one of example-robot-data's: `dobkit arms`)."""
+    from .arms.examples import example_urdf
+    return example_urdf(urdf.split(":", 1)[1])
+
+
+def _example_defaults(values: dict) -> None:
+    """An example arm's tool frame and locked joints (its gripper's fingers) where ``[arm]`` gives none."""
+    from .arms.examples import example_defaults
+    info = example_defaults(values["urdf"].split(":", 1)[1])
+    values.setdefault("tool_frame", info.tool_frame)
+    if "locked" not in values and info.locked:
+        values["locked"] = list(info.locked)
 
 
 def _build_arm(given: dict, built: dict):
@@ -609,6 +617,7 @@ def _build_arm(given: dict, built: dict):
     values = dict(given)
     if values["urdf"].startswith("example:") if "urdf" in values else False:
         try:
+            _example_defaults(values)
             values["urdf"] = str(_example_urdf(values["urdf"]))
         except (ValueError, ModuleNotFoundError) as err:
             raise ScenarioError(f"'arm.urdf' = {given['urdf']!r}: {err}") from None

@@ -15,6 +15,7 @@ from blocks.progress import StageProgress
 
 from . import __version__
 from .analysis_commands import add_analysis_subcommands
+from .arms_commands import add_arms_subcommand
 from .fmu_commands import add_fmu_subcommands
 from .signals import run_with_signals
 from .sweep_commands import add_sweep_subcommand
@@ -105,6 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_sweep_subcommand(sub)
     add_tune_subcommand(sub)
     add_fmu_subcommands(sub)
+    add_arms_subcommand(sub)
     return parser
 
 

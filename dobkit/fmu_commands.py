@@ -148,9 +148,9 @@ def _arm_flags_alone(args, scenario: bool = False) -> None:
 def _export_arm(args):
     """The arm of ``fmu export --arm``: an example name or a URDF path with ``--tool-frame``."""
     from blocks.arms import example_arm, load_urdf_arm
-    from blocks.arms.examples import EXAMPLES
+    from blocks.arms.examples import example_names
 
-    names = ["scope4", *sorted(EXAMPLES)]
+    names = example_names()             # scope4 and every serial arm of example-robot-data (`dobkit arms`)
     if args.arm in names:
         if args.tool_frame or args.locked:
             raise ValueError(f"--arm {args.arm} is a built-in example with its own tool frame and locked joints; "

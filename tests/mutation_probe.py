@@ -266,7 +266,7 @@ MUTANTS = [
       "return _dot(k.axes[i], f) if k.kinds[i] == \"revolute\" else _dot(k.axes[i], n)", CHAIN,
       "joint force: moment for a prismatic joint, force for a revolute one"),
     M("chain-trace-cos-sin", "chain", CH, "out += [np.cos(q[i]), np.sin(q[i])] if", "out += [np.sin(q[i]), np.cos(q[i])] if",
-      TRACE, "traced calls (codegen.ARM_CALLS, off by default): sin and cos of a revolute joint swapped"),
+      TRACE, "traced calls (codegen.ARM_CALLS, on by default): sin and cos of a revolute joint swapped"),
     M("chain-trace-lower-order", "chain", CH, "        for j in range(i + 1):\n            M[i][j] = M[j][i] = next(values)",
       "        for j in reversed(range(i + 1)):\n            M[i][j] = M[j][i] = next(values)", TRACE,
       "traced calls (codegen.ARM_CALLS): a row of M's lower triangle read in reverse"),

@@ -178,20 +178,24 @@ def test_the_command_line_says_which_engine_in_one_note_line(tmp_path):
 
 @pytest.mark.skipif(not HAVE_NUMBA, reason="needs numba")
 def test_auto_compiles_a_loop_only_when_its_code_is_short_enough_or_already_cached(monkeypatch):
-    """The rule of ``AUTO_COMPILE_LINES``, at both sides of the limit, for a loop not yet compiled and a cached one."""
+    """The rule of ``AUTO_COMPILE_SECONDS`` (the estimated compile time of the generated lines), at both sides of
+    the limit, for a loop not yet compiled and a cached one."""
     import blocks.compiled.engine as engine_module
+    from blocks.compiled.compile_estimate import COMPILE_FIXED_S, COMPILE_PER_LINE_S
     from blocks.loop import _prepared
 
     s = SHORT.replace(name="auto-compile-limit")
     compiled = _prepared(s, True).compiled_engine()
     lines = compiled.generated_lines
     assert lines == compiled.program.source.count("\n") + 1 > 100
+    estimate = compiled.compile_estimate
+    assert estimate == COMPILE_FIXED_S + COMPILE_PER_LINE_S * lines
     monkeypatch.setattr(compiled, "_announce", True)                     # as if never compiled here
-    monkeypatch.setattr(engine_module, "AUTO_COMPILE_LINES", lines)
+    monkeypatch.setattr(engine_module, "AUTO_COMPILE_SECONDS", estimate)
     assert compiled.auto_reason() is None                                # at the limit: compiled
-    monkeypatch.setattr(engine_module, "AUTO_COMPILE_LINES", lines - 1)
+    monkeypatch.setattr(engine_module, "AUTO_COMPILE_SECONDS", estimate - 1e-9)
     reason = compiled.auto_reason()
-    assert f"{lines} lines" in reason and f"more than {lines - 1}" in reason and "--engine compiled" in reason
+    assert f"{lines} lines" in reason and f"about {estimate:.0f} s of CPU" in reason and "--engine compiled" in reason
     with pytest.warns(EngineFallbackWarning, match=f"{lines} lines"):
         auto = blocks.simulate(s)                                        # one line over: numpy, saying why
     np.testing.assert_array_equal(auto.states, blocks.simulate(s, engine="fast").states)

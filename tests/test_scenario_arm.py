@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import shutil
 from importlib import metadata
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -51,7 +52,8 @@ def test_urdf_path_is_relative_to_the_scenario_file(tmp_path):
 
 @pytest.mark.parametrize("arm, fragment", [
     ({"tool_frame": "tool_tip"}, "'arm.urdf' is required"),
-    ({"urdf": "example:scope4"}, "'arm.tool_frame' is required"),
+    # a URDF file needs its tool frame (an example arm by name has a default: tests/test_example_arms.py)
+    ({"urdf": str(Path(__file__).parent / "small_arms" / "two_joints.urdf")}, "'arm.tool_frame' is required"),
     (SCOPE4 | {"tool_frame": "no_such_frame"}, "no_such_frame"),
     (SCOPE4 | {"locked": ["no_such_joint"]}, "no_such_joint"),
     (SCOPE4 | {"locked": ["roll"], "locked_values": [0.1, 0.2]}, "'arm.locked_values' has 2 values for 1"),

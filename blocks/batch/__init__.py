@@ -69,7 +69,7 @@ observer gain from ``gains.observer_bandwidth`` is the single run's;
 groups of equal nominal arms; the compiled batch, whose generated code holds
 the arm's model as constants, runs one nominal arm and says so), the arm's
 other keys may not (:data:`SHARED_KEYS`).  ``engine="auto"`` compiles a batch
-by the rule of single runs (:data:`blocks.compiled.engine.AUTO_COMPILE_LINES`).
+by the rule of single runs (:data:`blocks.compiled.compile_estimate.AUTO_COMPILE_SECONDS`).
 The numpy batch of a URDF arm does its kernels' arithmetic in Python per
 element (seconds per member-independent 10 s run): prefer the compiled one.
 

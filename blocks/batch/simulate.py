@@ -186,7 +186,7 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
         sharing one generated code, so for a URDF arm one
         ``arm.nominal_mass_scale``) and the loop's generated code is short
         enough to compile now or already cached (the rule of single runs,
-        :data:`blocks.compiled.engine.AUTO_COMPILE_LINES`), and says once
+        :data:`blocks.compiled.compile_estimate.AUTO_COMPILE_SECONDS`), and says once
         why when it does not.  Both integrate the same RK4 schedule and
         agree to rounding (the compiled batch accumulates the metrics in its
         driver; members with their own noise read their own noise table).

@@ -136,8 +136,8 @@ def _noise_tables(v, engine) -> tuple[list, np.ndarray | None]:
 
 def auto_batch_reason(members) -> tuple[str | None, CompiledLoopEngine | None]:
     """Why ``engine="auto"`` runs a batch on numpy (None: compiled), by the rule of single runs: the loop's
-    generated code is longer than :data:`blocks.compiled.engine.AUTO_COMPILE_LINES` and not yet compiled; and the
-    engine made for the question (None when it could not be made)."""
+    compile is estimated longer than :data:`blocks.compiled.compile_estimate.AUTO_COMPILE_SECONDS` and it is not
+    cached yet; and the engine made for the question (None when it could not be made)."""
     try:
         engine = CompiledLoopEngine(members.loop)
     except CompiledUnavailable as err:

@@ -20,12 +20,12 @@ source of these functions:
     the called kernels' parameters with every table (a noise table) taken
     from row ``j`` of ``tables``, for a batch whose members have their own.
 
-With :data:`ARM_CALLS` set, an arm's ``M(q)`` and ``h(q, q')`` (a chain
+With :data:`ARM_CALLS` set (the default), an arm's ``M(q)`` and ``h(q, q')`` (a chain
 arm's: :mod:`blocks.kernels.chain`) are functions of the module,
 ``arm_inertia_<arm>(x)`` and ``arm_bias_<arm>(x)`` returning tuples, called
 by the functions below where they need them
 (:class:`~blocks.compiled.trace.Callee`): numba compiles each once instead
-of four inlined copies (less than half the compile time, runs 10-20 % slower).
+of four inlined copies (about half the compile time, runs 10-20 % slower).
 
 A block's kernels are traced (:mod:`blocks.compiled.trace`) into scalar
 statements when they can be: then the generated code has no array
@@ -86,11 +86,13 @@ __all__ = ["CompiledUnavailable", "LoopProgram", "loop_program", "program_for", 
 
 #: Generate a chain arm's ``M(q)`` and ``h(q, q')`` as functions of the module, called where needed, instead of
 #: inlining them in every function (see :class:`~blocks.compiled.trace.Callee`).  Measured on the 2-core machine
-#: (CPU s of a cold compile; best cached run): the Panda's loop 14,250 -> 7,670 lines, compile 58.6 -> 24.5 s,
-#: run 6.5 -> 7.6 ms (+15-20 %, in the Dormand-Prince steps and the grid pass); scope4 3,023 -> 1,981 lines,
-#: compile 11.9 -> 11.3 s, run +10-15 %; the numbers are the same to the last bit.  Off: a run must not get slower
-#: by more than a few percent; set it True before a loop is first traced to trade run time for compile time.
-ARM_CALLS = False
+#: (CPU s of a cold compile; best cached run): the Panda's loop 14,250 -> 7,670 lines, compile 23.1 -> 12.6 s,
+#: run 6.5 -> 7.6 ms (+15-20 %, in the Dormand-Prince steps and the grid pass); the UR5's 8,064 -> 5,114 lines,
+#: 13.6 -> 9.0 s; scope4 3,023 -> 1,981 lines, 7.1 -> 5.3 s, run +10-15 %; the numbers are the same to the last bit.
+#: On: a first run of a big arm is dominated by its compile (every example arm compiles within
+#: :data:`~blocks.compiled.compile_estimate.AUTO_COMPILE_SECONDS`).  The paper's RRPR has no chain kernels: its
+#: code is the same either way.  Set it False before a loop is first traced to inline them again.
+ARM_CALLS = True
 
 
 class CompiledUnavailable(RuntimeError):
@@ -136,6 +138,8 @@ class LoopProgram:
         Positions in ``ext`` of table parameters (see ``member_ext``).
     order : list of str
         Every block, in the order its numbers were read (see :meth:`numbers`).
+    callees : dict of str to Callee
+        The functions of the module the loop's functions call (an arm's M and h), by name.
     """
 
     source: str
@@ -156,6 +160,7 @@ class LoopProgram:
     n_aux: int = 0
     tables: tuple = ()
     order: list = field(default_factory=list)
+    callees: dict = field(default_factory=dict)
 
     @cached_property
     def key(self) -> str:
@@ -209,9 +214,11 @@ def block_kernels(plan, system) -> dict:
 class _Builder:
     """Traces the blocks of a plan and emits the statements of one generated function at a time."""
 
-    def __init__(self, plan, kernels: dict) -> None:
+    def __init__(self, plan, kernels: dict, calls=None) -> None:
         self.plan, self.kernels = plan, kernels
-        self.graph = Graph(calls=ARM_CALLS)   # an arm's M and h as functions called where needed (chain arms)
+        # an arm's M and h as functions called where needed (chain arms; ``calls`` overrides ARM_CALLS: the fast
+        # engine asks for each chain row kernel as a call, KERNEL_CALLS, to bind pinocchio's algorithms to them)
+        self.graph = Graph(calls=ARM_CALLS if calls is None else calls)
         self.theta: list[float] = []
         self.theta_slices: dict[str, slice] = {}
         self.sym_params: dict[str, tuple] = {}
@@ -477,9 +484,10 @@ def _gather_text(gather) -> str:
     return text
 
 
-def structure_of(plan, kernels: dict, labels: list, groups: tuple = ()) -> str:
+def structure_of(plan, kernels: dict, labels: list, groups: tuple = (), calls=None) -> str:
     """What a loop's generated text depends on: its blocks, their kernels and parameter layouts, the plan,
-    the output names and the row groups asked for."""
+    the output names, the row groups asked for and what the trace calls instead of inlining (``calls``: see
+    :class:`_Builder`)."""
     parts = []
     for s in plan.steps:
         k = kernels[s.name]
@@ -489,8 +497,10 @@ def structure_of(plan, kernels: dict, labels: list, groups: tuple = ()) -> str:
     parts.append(f"{plan.copy_y!r}|{plan.copy_x!r}|{plan.out_index.tolist()}|{plan.direct}")
     parts.append(",".join(labels))
     parts.append(",".join(f"{g.name}:{g.rows.__module__}.{g.rows.__qualname__}" for g in groups))
-    if ARM_CALLS:                   # another text for the same loop (absent when off: the cache keys stay as they were)
-        parts.append("arm M and h called")
+    if not ARM_CALLS and calls is None:     # another text for the same loop (absent by default: the RRPR's keys stay)
+        parts.append("arm M and h inlined")
+    if calls is not None:
+        parts.append(f"calls {calls!r}")
     return "\n".join(parts)
 
 
@@ -536,7 +546,8 @@ def _callee_functions(b: _Builder) -> str:
         _, outputs = callee.traced
         fn = _Function(None, callee.name, "x")
         values = [fn.value(v) for v in outputs if Callee.constant(v) is None]
-        fn.emit(f"return ({', '.join(values)},)")
+        # every output a constant (a one-joint arm's gravity about a vertical axis): an empty tuple, never read
+        fn.emit(f"return ({', '.join(values)},)" if values else "return ()")
         texts.append(fn.text())
     return "".join(t + "\n" for t in texts)
 
@@ -551,7 +562,7 @@ def _member_ext(b: _Builder) -> tuple[tuple, str]:
     return tables, f"def member_ext(ext, tables, j):\n    return ({', '.join(parts)},)\n\n\n"
 
 
-def loop_program(plan, system, groups: tuple = ()) -> LoopProgram:
+def loop_program(plan, system, groups: tuple = (), calls=None) -> LoopProgram:
     """Trace the blocks of ``plan`` (of the interconnection ``system``) and generate the loop's functions.
 
     Parameters
@@ -561,6 +572,9 @@ def loop_program(plan, system, groups: tuple = ()) -> LoopProgram:
     groups : tuple of RowGroup
         Row groups (:mod:`blocks.compiled.rows`) to generate where the loop
         has what they need.
+    calls : optional
+        What the trace records as calls of functions of the module instead of inlining: default
+        :data:`ARM_CALLS` (a chain arm's M and h); ``blocks.kernels.chain.KERNEL_CALLS``: every chain row kernel.
 
     Raises
     ------
@@ -573,7 +587,7 @@ def loop_program(plan, system, groups: tuple = ()) -> LoopProgram:
                                   "loop has external inputs), so the compiled engine cannot run it")
     kernels = block_kernels(plan, system)
     labels = list(system.output_labels)
-    b = _Builder(plan, kernels)
+    b = _Builder(plan, kernels, calls)
     g = b.graph
     groups = tuple(gr for gr in groups if gr.available(labels, b.traced))
     n_aux = max((gr.aux for gr in groups), default=0)
@@ -639,15 +653,15 @@ def loop_program(plan, system, groups: tuple = ()) -> LoopProgram:
     return LoopProgram(source=source, theta=np.array(b.theta, dtype=float), theta_slices=b.theta_slices,
                        ext=tuple(b.ext), ext_slices=b.ext_slices, traced=b.traced, called=b.called,
                        sources=[s.name for s in b.source_steps], n_src=b.n_src, n_work=max(b.work, 1), n_out=n_out,
-                       kernels=dict(b.kernel_names), structure=structure_of(plan, kernels, labels, groups),
+                       kernels=dict(b.kernel_names), structure=structure_of(plan, kernels, labels, groups, calls),
                        row_groups=row_groups, n_rows=offset, n_aux=n_aux, tables=tables,
-                       order=[s.name for s in plan.steps])
+                       order=[s.name for s in plan.steps], callees=dict(g.callees))
 
 
 _programs: dict[str, LoopProgram] = {}
 
 
-def program_for(plan, system, groups: tuple = ()) -> tuple[LoopProgram, dict]:
+def program_for(plan, system, groups: tuple = (), calls=None) -> tuple[LoopProgram, dict]:
     """The program of a loop's structure (traced once per process) and the loop's kernels by block.
 
     Raises
@@ -656,12 +670,12 @@ def program_for(plan, system, groups: tuple = ()) -> tuple[LoopProgram, dict]:
         As :func:`loop_program`.
     """
     if not plan.direct:
-        loop_program(plan, system, groups)          # raises with the reason
+        loop_program(plan, system, groups, calls)   # raises with the reason
     kernels = block_kernels(plan, system)
-    structure = structure_of(plan, kernels, list(system.output_labels), groups)
+    structure = structure_of(plan, kernels, list(system.output_labels), groups, calls)
     program = _programs.get(structure)
     if program is None:
-        program = loop_program(plan, system, groups)
+        program = loop_program(plan, system, groups, calls)
         _programs[structure] = program
     return program, kernels
 

@@ -12,10 +12,11 @@ from ..control_compat import subsystems
 from ..integrate import DivergenceError, SolverFailure, _crossing_time
 from ..plan import make_plan
 from .codegen import CompiledUnavailable, load_module, mark_compiled, program_for
+from .compile_estimate import AUTO_COMPILE_SECONDS, estimate_compile_seconds, generated_lines
 from .jit import numba_or_none
 from .rows import loop_rows_of
 
-__all__ = ["AUTO_COMPILE_LINES", "CompiledLoopEngine", "unavailable_reason", "METHODS"]
+__all__ = ["AUTO_COMPILE_SECONDS", "CompiledLoopEngine", "unavailable_reason", "METHODS"]
 
 #: The solver methods the compiled engine implements (with scipy's step control).
 METHODS = ("RK45",)
@@ -42,12 +43,6 @@ def unavailable_reason(system, method: str = "RK45") -> str | None:
     return None
 
 
-#: ``engine="auto"`` compiles a loop whose generated functions hold at most this many lines; a longer one runs on
-#: numpy until it has been compiled once (``engine="compiled"``) and is in the cache.  numba's compile time grows
-#: faster than the code: the paper's loop (about 1,100 lines) and the 4-joint URDF arm scope4 (about 3,000) compile
-#: in seconds of CPU, the 7-joint Panda (about 14,000 lines of straight-line dynamics) in about a minute of CPU, many
-#: minutes of wall time on a loaded small machine (half that with :data:`blocks.compiled.codegen.ARM_CALLS`).
-AUTO_COMPILE_LINES = 6000
 
 
 class CompiledLoopEngine:
@@ -93,24 +88,31 @@ class CompiledLoopEngine:
     @property
     def generated_lines(self) -> int:
         """Lines of the generated loop functions (what numba compiles for this loop)."""
-        return self.program.source.count("\n") + 1
+        return generated_lines(self.program.source)
+
+    @property
+    def compile_estimate(self) -> float:
+        """Estimated CPU seconds of this loop's first compile (:mod:`blocks.compiled.compile_estimate`)."""
+        return estimate_compile_seconds(self.generated_lines)
 
     def auto_reason(self) -> str | None:
-        """Why ``engine="auto"`` should not compile this loop now (None: it may): see :data:`AUTO_COMPILE_LINES`."""
-        lines = self.generated_lines
-        if self.cached or lines <= AUTO_COMPILE_LINES:
+        """Why ``engine="auto"`` should not compile this loop now (None: it may): its compile is estimated longer
+        than :data:`~blocks.compiled.compile_estimate.AUTO_COMPILE_SECONDS` and it is not cached yet."""
+        estimate = self.compile_estimate
+        if self.cached or estimate <= AUTO_COMPILE_SECONDS:
             return None
-        return (f"this loop's generated code has {lines} lines (more than {AUTO_COMPILE_LINES}, the most 'auto' "
-                f"compiles: numba would take minutes); run it once with engine='compiled' (--engine compiled) to "
-                f"compile and cache it, after which 'auto' uses it")
+        return (f"this loop's generated code has {self.generated_lines} lines: numba would take about "
+                f"{estimate:.0f} s of CPU to compile it (more than {AUTO_COMPILE_SECONDS:g} s, the most 'auto' "
+                f"spends); run it once with engine='compiled' (--engine compiled) to compile and cache it, after "
+                f"which 'auto' uses it")
 
     # -- compiling -------------------------------------------------------------------------------------
     def _first_call(self, fn: Callable[[], object]):
         """Run ``fn``; when this loop structure was never compiled here, say so and how long it took."""
         if not self._announce:
             return fn()
-        print(f"dobkit: compiling the loop with numba (once per loop structure; {self.module.CACHE_NOTE}) ...",
-              file=sys.stderr, flush=True)
+        print(f"dobkit: compiling the loop with numba (about {self.compile_estimate:.0f} s of CPU, once per loop "
+              f"structure; {self.module.CACHE_NOTE}) ...", file=sys.stderr, flush=True)
         t0 = time.perf_counter()
         out = fn()
         print(f"dobkit: compiled in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)

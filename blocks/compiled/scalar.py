@@ -86,6 +86,13 @@ class ScalarFunctions:
         namespace = {"np": SCALAR_MATH, "__name__": "dobkit_scalar_loop"}
         namespace.update({name: _called(fn) for name, fn in program.kernels.items()})
         exec(compile(program.source, "<dobkit generated loop>", "exec"), namespace)
+        #: the chain row kernels the functions call as pinocchio's algorithms (by name in the module)
+        self.pinocchio_calls = []
+        for name, callee in program.callees.items():        # a chain row kernel: pinocchio's algorithm for it
+            fast = _bound_callee(callee)
+            if fast is not None:
+                namespace[name] = fast
+                self.pinocchio_calls.append(name)
         self.sources, self.rhs = namespace["loop_sources"], namespace["loop_rhs"]
         self.outputs = namespace["loop_outputs"]
         self.program = program
@@ -96,6 +103,37 @@ class ScalarFunctions:
         if found is None or found.program is not program:
             found = cls._made[id(program)] = cls(program)
         return found
+
+
+def _bound_callee(callee):
+    """pinocchio's function for a chain row kernel recorded as a call (:mod:`blocks.arms.pin_kernels`), or None."""
+    if getattr(callee, "kernel", None) is None:
+        return None
+    from ..arms.pin_kernels import binding
+    return binding(callee)
+
+
+def _calls_for(plan, system):
+    """What the fast engine's trace calls: every chain row kernel when the loop has a chain arm and pinocchio is
+    installed (bound to pinocchio's algorithms), else what the compiled engine's trace calls (its program)."""
+    from ..contract import contract_of
+    from ..control_compat import subsystems
+    from ..kernels.chain import KERNEL_CALLS, ChainParams
+
+    def has_chain(value) -> bool:
+        if isinstance(value, ChainParams):
+            return True
+        return isinstance(value, tuple) and any(has_chain(v) for v in value)
+
+    for block in subsystems(system):
+        kernels = contract_of(block).kernels
+        if kernels is not None and has_chain(kernels.params):
+            try:
+                import pinocchio  # noqa: F401
+            except ImportError:
+                return None
+            return KERNEL_CALLS
+    return None
 
 
 def scalar_rhs(plan, system, fallback: Callable) -> Callable | None:
@@ -115,7 +153,7 @@ def scalar_rhs(plan, system, fallback: Callable) -> Callable | None:
     (:class:`~blocks.compiled.CompiledUnavailable`).
     """
     try:
-        program, kernels = program_for(plan, system, loop_rows_of(system))      # the compiled engine's program too
+        program, kernels = program_for(plan, system, loop_rows_of(system), _calls_for(plan, system))
     except CompiledUnavailable:
         return None
     fns = ScalarFunctions.of(program)

@@ -437,14 +437,54 @@ def _zeros(n: int) -> list:
 # compile).  Traced this way each is one function of the generated module, compiled once and called where needed;
 # the caller computes cos q_i and sin q_i once for the true and the nominal arm, and the Cholesky solve stays inline
 # (it is small, and it skips the exact zeros of a tree's M as before).  The numbers are the same operations.
-def _calls_graph(*rows):
-    """The trace's graph when it asks for calls, else None (numbers, or a trace that inlines)."""
+def _graph_of(*rows):
+    """The trace's graph (None for numbers)."""
     for r in rows:
         if isinstance(r, np.ndarray) and r.dtype == object:
             for v in r.ravel():
                 if isinstance(v, Sym):
-                    return v.graph if v.graph.calls else None
+                    return v.graph
     return None
+
+
+def _calls_graph(*rows):
+    """The trace's graph when it asks for calls, else None (numbers, or a trace that inlines)."""
+    graph = _graph_of(*rows)
+    return graph if graph is not None and graph.calls else None
+
+
+#: ``Graph.calls`` of a trace that records each row kernel below as one call (``KERNEL_CALLS``): the ``fast``
+#: engine's, whose generated Python then calls pinocchio's algorithms for them (:mod:`blocks.arms.pin_kernels`).
+KERNEL_CALLS = "kernels"
+
+
+def _kernel_call(kernel, k: ChainParams, *rows):
+    """Outputs of ``kernel(k, *rows)`` recorded as one call of a :class:`~blocks.compiled.trace.Callee` named for the
+    kernel and the arm, when the trace asks for kernel calls (:data:`KERNEL_CALLS`); else None.
+
+    The callee's inputs are the rows as they are (``q`` first); its body is the kernel traced inline, so the
+    generated function computes what the kernel computes.  ``callee.kernel = (name, k)`` says which it is, for a
+    binding to another implementation of the same maths (pinocchio's).
+    """
+    graph = _graph_of(*rows)
+    if graph is None or graph.calls != KERNEL_CALLS:
+        return None
+    sizes = [len(r) for r in rows]
+    key = (k.frozen_digest(), kernel.__name__, tuple(sizes))
+    callee = _callees.get(key)
+    if callee is None:
+        def body(x):
+            parts, at = [], 0
+            for size in sizes:
+                part = np.empty(size, dtype=object)
+                for i in range(size):
+                    part[i] = x[at + i]
+                parts.append(part)
+                at += size
+            return list(np.asarray(kernel(k, *parts), dtype=object).ravel())
+        callee = _callees[key] = Callee(f"arm_{kernel.__name__}_{key[0].partition('#')[2]}", sum(sizes), body)
+        callee.kernel = (kernel.__name__, k)
+    return graph.call(callee, [r[i] for r in rows for i in range(len(r))])
 
 
 def _joint_inputs(k: ChainParams, q) -> list:
@@ -528,31 +568,39 @@ def _gravity(k: ChainParams, q) -> list:
 
 def inertia_matrix(k: ChainParams, q) -> np.ndarray:
     """``M(q)`` (kg m^2, kg on prismatic joints), shape ``q.shape[1:] + (n, n)``, by the CRBA."""
-    M = _inertia(k, q)
+    called = _kernel_call(inertia_matrix, k, q)
+    M = _inertia(k, q) if called is None else [called[r * k.n:(r + 1) * k.n] for r in range(k.n)]
     out = _pack(M, (k.n, k.n), q)
     return out if out.ndim == 2 else np.moveaxis(out, (0, 1), (-2, -1))
 
 
 def mass_times(k: ChainParams, q, v) -> np.ndarray:
     """``M(q) v`` (N m, N) for joint rows ``v`` (rad/s^2, m/s^2); rows."""
+    called = _kernel_call(mass_times, k, q, v)
+    if called is not None:
+        return _pack(called, (k.n,), q, v)
     M = _inertia(k, q)
     return _pack([_dot(M[i], [v[j] for j in range(k.n)]) for i in range(k.n)], (k.n,), q, v)
 
 
 def mass_solve(k: ChainParams, q, r) -> np.ndarray:
     """``M(q)^-1 r`` for a generalised force ``r`` (N m, N): Cholesky of ``M`` and two triangular solves; rows."""
-    x = _cholesky_solve(_inertia(k, q), [r[i] for i in range(k.n)])
+    x = _kernel_call(mass_solve, k, q, r)
+    if x is None:
+        x = _cholesky_solve(_inertia(k, q), [r[i] for i in range(k.n)])
     return _pack(x, (k.n,), q, r)
 
 
 def bias_forces(k: ChainParams, q, dq) -> np.ndarray:
     """``h(q, q') = N(q, q') q' + G(q)`` (N m, N) by recursive Newton-Euler; rows."""
-    return _pack(_bias(k, q, dq), (k.n,), q, dq)
+    called = _kernel_call(bias_forces, k, q, dq)
+    return _pack(_bias(k, q, dq) if called is None else called, (k.n,), q, dq)
 
 
 def gravity_forces(k: ChainParams, q) -> np.ndarray:
     """``G(q)`` (N m, N): the forces that hold the arm still against gravity; rows."""
-    return _pack(_gravity(k, q), (k.n,), q)
+    called = _kernel_call(gravity_forces, k, q)
+    return _pack(_gravity(k, q) if called is None else called, (k.n,), q)
 
 
 def plant_acceleration(k: ChainParams, q, dq, force) -> np.ndarray:
@@ -566,6 +614,9 @@ def plant_acceleration(k: ChainParams, q, dq, force) -> np.ndarray:
     force : numpy.ndarray
         Total generalised force on the joints (N m, N), rows.
     """
+    called = _kernel_call(plant_acceleration, k, q, dq, force)
+    if called is not None:
+        return _pack(called, (k.n,), q, dq, force)
     if _calls_graph(q, dq, force) is not None:
         h, M = _bias(k, q, dq), _inertia(k, q)
     else:                                       # one set of placements for both

@@ -1,0 +1,117 @@
+"""The numpy engine (``engine="fast"``) on URDF arms against a lean pinocchio + numpy loop of the same closed loop.
+
+    PYTHONPATH=. python benchmarks/bench_urdf_numpy.py [--arms ur5 panda] [--rounds 5] [--calls 5000]
+
+The loop and the lean baseline are those of ``bench_urdf_loop.py`` (the DOB loop of Figure 2 on the arm's built-in
+scenario; the baseline an expert's ``solve_ivp`` over a right-hand side calling ``pin.crba``,
+``pin.nonLinearEffects`` and ``pin.aba``, numpy for the laws).  Two measures, both CPU time
+(``time.process_time``), fastest of ``--rounds``:
+
+* one right-hand-side call at a state near the trajectory: the numpy engine's (``CompiledLoop.point_rhs``: the
+  loop's generated Python, each chain row kernel one call of pinocchio's algorithm, :mod:`blocks.arms.pin_kernels`)
+  against the lean loop's, the mean of ``--calls`` calls;
+* the whole run: ``blocks.simulate(scenario, engine="fast")`` (outputs and the lumped disturbance on the grid
+  included) against the lean loop's ``solve_ivp`` run.  Both integrate with scipy's RK45 at the same tolerances;
+  scipy's own stepping (about 7 us of each call's share, measured on a right-hand side that returns zeros at the
+  same number of calls) is the same for both, so the whole-run ratio is closer to 1 than the per-call one.
+
+Target (issue 30): numpy engine / lean <= 0.5.  Also printed: the numpy engine running the compiled engine's
+program as Python (M and h its generated functions: the engine before pinocchio's algorithms were bound to the
+kernel calls), and the two runs' largest difference of ``q`` on the output grid (rad).  The machine's load is
+printed.  No assertion: these are timings.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from _timing import table  # noqa: E402
+from bench_urdf_loop import lean_loop  # noqa: E402
+
+
+def _clock() -> float:
+    return time.process_time()
+
+
+def _per_call(fn, calls: int, rounds: int) -> float:
+    fn()
+    best = np.inf
+    for _ in range(rounds):
+        t0 = _clock()
+        for _ in range(calls):
+            fn()
+        best = min(best, (_clock() - t0) / calls)
+    return best
+
+
+def _best(fn, rounds: int) -> tuple[float, object]:
+    out, best = fn(), np.inf
+    for _ in range(rounds):
+        t0 = _clock()
+        out = fn()
+        best = min(best, _clock() - t0)
+    return best, out
+
+
+def _without_pinocchio():
+    """Contexts in which the fast engine runs the compiled engine's program as Python (M and h its generated
+    functions, no pinocchio): the numpy engine as it was before the kernel calls."""
+    from unittest import mock
+
+    from blocks.compiled import scalar
+    return mock.patch.object(scalar, "_calls_for", lambda plan, system: None), \
+        mock.patch.object(scalar.ScalarFunctions, "_made", {})
+
+
+def bench_arm(name: str, rounds: int, calls: int) -> list:
+    from blocks import load_scenario, simulate
+    from blocks.fastsim import CompiledLoop
+    from blocks.loop import closed_loop
+    from blocks.metrics import signal
+
+    s = load_scenario(name)
+    lean = lean_loop(s)
+    x = np.asarray(lean.x0, dtype=float) + 0.01
+    lean_call = _per_call(lambda: lean.rhs(0.37, x), calls, rounds)
+    fast_rhs = CompiledLoop(closed_loop(s)).point_rhs
+    fast_call = _per_call(lambda: fast_rhs(0.37, x), calls, rounds)
+    patches = _without_pinocchio()
+    with patches[0], patches[1]:
+        python_rhs = CompiledLoop(closed_loop(s)).point_rhs
+        python_call = _per_call(lambda: python_rhs(0.37, x), max(calls // 10, 100), rounds)
+
+    lean_s, lean_res = _best(lean, rounds)
+    fast_s, fast_res = _best(lambda: simulate(s, engine="fast"), rounds)
+    diff = float(np.max(np.abs(lean_res.y[:s.robot.n] - signal(fast_res, "q"))))
+    return [name, str(s.robot.n), f"{lean_call * 1e6:.1f}", f"{fast_call * 1e6:.1f}", f"{python_call * 1e6:.1f}",
+            f"{fast_call / lean_call:.2f}", f"{lean_s:.3f}", f"{fast_s:.3f}", f"{fast_s / lean_s:.2f}",
+            f"{lean_res.nfev:,}", f"{diff:.1e}"]
+
+
+def _load(values) -> str:
+    return " ".join(f"{v:.2f}" for v in values)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--arms", nargs="+", default=["ur5", "panda"])
+    parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--calls", type=int, default=5000)
+    args = parser.parse_args(argv)
+    load_start = os.getloadavg()
+    rows = [bench_arm(name, args.rounds, args.calls) for name in args.arms]
+    print(f"load average (1, 5, 15 min) {_load(load_start)} at the start, {_load(os.getloadavg())} now, on "
+          f"{os.cpu_count()} cores")
+    print(table(["arm", "n", "lean rhs (us)", "numpy engine rhs (us)", "generated Python rhs (us)",
+                 "rhs: numpy / lean", "lean run (s)", "numpy engine run (s)", "run: numpy / lean", "rhs calls",
+                 "max q diff (rad)"], rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

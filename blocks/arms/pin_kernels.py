@@ -1,0 +1,145 @@
+"""A chain arm's row kernels by pinocchio's own algorithms, for the ``fast`` (numpy) engine's generated Python.
+
+The ``fast`` engine runs a loop's generated functions on Python floats
+(:mod:`blocks.compiled.scalar`).  Traced with
+:data:`blocks.kernels.chain.KERNEL_CALLS`, each chain row kernel the loop
+uses -- ``plant_acceleration``, ``mass_solve``, ``mass_times``,
+``bias_forces``, ``gravity_forces``, ``inertia_matrix`` -- is one call of a
+function of the generated module; :func:`binding` gives, for such a call, a
+function computing the same maths with pinocchio's C++ algorithms on a
+pinocchio model built from the arm's :class:`~blocks.kernels.chain.ChainParams`
+(:func:`model_of`: the same placements, axes, inertias and gravity, whatever
+the arm was read from, the nominal model's scaled masses included):
+
+==========================  ==========================================================
+``plant_acceleration``      ``aba(q, q', tau)``: ``M^-1 (tau - h)``
+``mass_solve(r)``           ``aba`` with gravity and ``q'`` zero: ``M^-1 r``
+``mass_times(v)``           ``rnea`` with gravity and ``q'`` zero: ``M v``
+``bias_forces``             ``nonLinearEffects(q, q')``: ``h``
+``gravity_forces``          ``computeGeneralizedGravity(q)``: ``G``
+``inertia_matrix``          ``crba(q)`` (upper triangle, mirrored)
+==========================  ==========================================================
+
+A Python statement costs tens of nanoseconds: the generated dynamics of a
+7-joint arm are thousands of them, one of these calls a microsecond or two.
+The numbers equal the chain kernels' to rounding (about 1e-15 relative; the
+operations are pinocchio's, in its order), not to the last bit as the
+generated statements do.
+"""
+from __future__ import annotations
+
+import weakref
+
+import numpy as np
+
+from ..compiled.trace import Callee
+
+__all__ = ["model_of", "binding"]
+
+_models: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _pinocchio():
+    try:
+        import pinocchio
+    except ImportError:
+        return None
+    return pinocchio
+
+
+def _joint_model(pin, kind: str, axis: tuple):
+    """pinocchio's joint for an axis: the axis-aligned joint where the axis is +x, +y or +z, else unaligned."""
+    named = {(1.0, 0.0, 0.0): "X", (0.0, 1.0, 0.0): "Y", (0.0, 0.0, 1.0): "Z"}.get(tuple(float(a) for a in axis))
+    if kind == "revolute":
+        return getattr(pin, f"JointModelR{named}")() if named else pin.JointModelRevoluteUnaligned(np.array(axis))
+    return getattr(pin, f"JointModelP{named}")() if named else pin.JointModelPrismaticUnaligned(np.array(axis))
+
+
+def model_of(k) -> tuple | None:
+    """``(model, data, still, still_data)``: pinocchio models of the arm ``k`` (a ``ChainParams``), with its
+    gravity and with none (``still``, for ``M v`` and ``M^-1 r``); None without pinocchio.  Made once per arm."""
+    found = _models.get(k)
+    if found is not None:
+        return found
+    pin = _pinocchio()
+    if pin is None:
+        return None
+    model = pin.Model()
+    ids = []
+    for i in range(k.n):
+        parent = 0 if k.parents[i] < 0 else ids[k.parents[i]]
+        placement = pin.SE3(np.array(k.rotations[i], dtype=float), np.array(k.translations[i], dtype=float))
+        joint = model.addJoint(parent, _joint_model(pin, k.kinds[i], k.axes[i]), placement, k.names[i])
+        model.appendBodyToJoint(joint, pin.Inertia(float(k.masses[i]), np.array(k.coms[i], dtype=float),
+                                                   np.array(k.com_inertias[i], dtype=float)), pin.SE3.Identity())
+        ids.append(joint)
+    model.gravity = pin.Motion(np.array(k.gravity, dtype=float), np.zeros(3))
+    still = model.copy()
+    still.gravity = pin.Motion.Zero()
+    found = _models[k] = (model, model.createData(), still, still.createData())
+    return found
+
+
+def binding(callee: Callee):
+    """A function ``f(x) -> sequence`` computing ``callee`` (a chain row kernel recorded as a call) with pinocchio,
+    returning its outputs that are not constants, in order; None when the callee is not such a call or pinocchio
+    is not installed."""
+    name, k = getattr(callee, "kernel", (None, None))
+    if name is None:
+        return None
+    models = model_of(k)
+    if models is None:
+        return None
+    model, data, still, still_data = models
+    pin = _pinocchio()
+    n = k.n
+    _, outputs = callee.traced
+    kept = np.array([i for i, v in enumerate(outputs) if Callee.constant(v) is None], dtype=int)
+    every = len(kept) == len(outputs)
+    zeros = np.zeros(n)
+    array = np.array
+
+    def picked(values: np.ndarray) -> list:
+        return values.tolist() if every else values[kept].tolist()
+
+    if name == "plant_acceleration":
+        aba = pin.aba
+
+        def fn(x):
+            a = array(x)
+            return picked(aba(model, data, a[:n], a[n:2 * n], a[2 * n:]))
+    elif name == "mass_solve":
+        aba = pin.aba
+
+        def fn(x):
+            a = array(x)
+            return picked(aba(still, still_data, a[:n], zeros, a[n:]))
+    elif name == "mass_times":
+        rnea = pin.rnea
+
+        def fn(x):
+            a = array(x)
+            return picked(rnea(still, still_data, a[:n], zeros, a[n:]))
+    elif name == "bias_forces":
+        nle = pin.nonLinearEffects
+
+        def fn(x):
+            a = array(x)
+            return picked(nle(model, data, a[:n], a[n:]))
+    elif name == "gravity_forces":
+        gravity = pin.computeGeneralizedGravity
+
+        def fn(x):
+            return picked(gravity(model, data, array(x)))
+    elif name == "inertia_matrix":
+        crba = pin.crba
+        upper = np.triu_indices(n)
+
+        def fn(x):
+            M = crba(model, data, array(x))
+            M[upper[::-1]] = M[upper]                 # pinocchio fills the upper triangle: mirror it
+            return picked(M.ravel())
+    else:
+        return None
+    fn.__name__ = callee.name
+    return fn
