@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -261,6 +262,8 @@ def _initial_state(X0, nstates: int) -> np.ndarray:
     if X0.size > nstates:
         raise ValueError(f"X0 has {X0.size} values for {nstates} states")
     if X0.size < nstates:
+        if X0.size and X0[-1] != 0:         # python-control's note
+            warnings.warn("X0 too short; padding with zeros", UserWarning, stacklevel=3)
         X0 = np.concatenate([X0, np.zeros(nstates - X0.size)])
     return X0
 

@@ -24,6 +24,13 @@ the plan's generated code runs (:mod:`blocks.compiled.codegen`):
 
 The blocks keep their order, so the lowered diagram's state is the
 original's, state for state.
+
+A traced function runs once, on symbols: what it reads from outside its
+arguments (a module constant, an object's attribute) is taken as a constant
+of the generated code, as with any tracing compiler; numbers that change
+between runs belong in ``params``.  The generated code is kept per content
+of the function (its code, the values it closes over, the module values it
+reads), so an edited function is traced again.
 """
 from __future__ import annotations
 
@@ -93,6 +100,9 @@ def function_key(fn) -> str:
             names.append(f"{name}={value!r}")
         elif isinstance(value, types.FunctionType):
             names.append(f"{name}={value.__module__}.{value.__qualname__}:{_digest(_code_text(value.__code__))}")
+        elif value is not None and not isinstance(value, (types.ModuleType, type)) and not callable(value):
+            # an object the function reads (a traced function takes its numbers as constants): its contents
+            names.append(f"{name}={getattr(value, '__dict__', value)!r}")
     return _digest(fn.__module__ or "", fn.__qualname__, _code_text(fn.__code__), *cells, *names,
                    repr(fn.__defaults__))
 
@@ -234,6 +244,18 @@ def _state_output(nstates: int, noutputs: int):
     return state_output
 
 
+# The user functions compiled by numba, by function and content (a function is compiled once per process)
+_JITTED: dict = {}
+
+
+def _jitted_user(numba, fn):
+    key = (fn, function_key(fn))
+    found = _JITTED.get(key)
+    if found is None:
+        found = _JITTED[key] = numba.njit(error_model="numpy")(fn)
+    return found
+
+
 def _njit_kernels(block, out, upd, params: dict, key: str) -> tuple[Kernels | None, str]:
     """The user's functions compiled by numba as they are, tried once on zeros; ``(kernels or None, why not)``."""
     from .compiled.jit import numba_or_none
@@ -252,7 +274,7 @@ def _njit_kernels(block, out, upd, params: dict, key: str) -> tuple[Kernels | No
             if fn is None or (what == "update" and not block.nstates):
                 fns.append(None)
                 continue
-            jitted = numba.njit(error_model="numpy")(fn)
+            jitted = _jitted_user(numba, fn)
             got = np.asarray(jitted(0.0, x, u, typed))
             if got.size != rows:
                 return None, f"its {what} function gave {got.size} values where {rows} were expected"
