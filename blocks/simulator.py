@@ -283,6 +283,45 @@ def _solver(method: str, kwargs: dict | None) -> Solver:
                   float(kwargs.get("max_step", math.inf)), kwargs.get("first_step"))
 
 
+# Prepared runs of the latest diagrams (lowered diagram and engine), by diagram, grid, inputs, parameters, solver
+_RUNS_KEPT = 8
+_runs: dict = {}
+
+
+def _run_key(sys, T, U, params, method: str, engine: str) -> tuple:
+    """What a prepared run depends on: the diagram object and the numbers its blocks read now."""
+    from .control_compat import subsystems
+    blocks = subsystems(sys) if isinstance(sys, ct.InterconnectedSystem) else [sys]
+    numbers = repr([(b.name, sorted((k, repr(v)) for k, v in dict(b.params).items())) for b in blocks]) + \
+        repr(sorted((k, repr(v)) for k, v in dict(getattr(sys, "params", {}) or {}).items()))
+    from .wired import function_key
+    # what the user's functions read from outside (a traced function takes it as constants)
+    functions = tuple(function_key(fn) for b in blocks for fn in (getattr(b, "updfcn", None), getattr(b, "outfcn", None))
+                      if fn is not None and getattr(getattr(b, "contract", None), "kernels", None) is None
+                      and not isinstance(b, ct.StateSpace))
+    return (id(sys), sys, T.tobytes(), U.shape, U.tobytes(), repr(sorted((params or {}).items())), numbers, functions,
+            method, engine)
+
+
+def _prepare(sys, T, U, params, method: str, engine: str) -> tuple:
+    """``(engine name, engine, why not compiled)`` for a diagram: lowered, the engine chosen and made."""
+    from .wired import lower
+    lowered = lower(sys, T, U, params)
+    reason = lowered.reason
+    if reason is None:
+        from .compiled import unavailable_reason
+        reason = unavailable_reason(lowered.system, method)
+    chosen = select_engine(engine, reason)
+    if chosen == "compiled":
+        return chosen, make_engine("compiled", lowered.system, method), reason
+    # blocks kept as they are (refused) get python-control's parameters
+    system_params = None
+    if lowered.refused:
+        system_params = dict(getattr(sys, "params", {}) or {})
+        system_params.update(params or {})
+    return chosen, NumpyEngine(lowered.system, method, system_params), reason
+
+
 def simulate_system(sys, T, X0=0, U=0, params: dict | None = None, engine: str = "auto", *,
                     solve_ivp_method: str = "RK45", solve_ivp_kwargs: dict | None = None, bounds=None,
                     budget: Budget | None = None, progress: Callable[[float], None] | None = None
@@ -348,7 +387,6 @@ def simulate_system(sys, T, X0=0, U=0, params: dict | None = None, engine: str =
     >>> round(float(resp.outputs[-1]), 4)
     0.9999
     """
-    from .wired import lower
     if engine not in ENGINES:
         raise ValueError(f"engine must be one of {list(ENGINES)}, got {engine!r}")
     if not isinstance(sys, ct.NonlinearIOSystem):
@@ -374,20 +412,15 @@ def simulate_system(sys, T, X0=0, U=0, params: dict | None = None, engine: str =
         run_engine = PythonControlEngine(sys, solver.method, U, params)
         chosen = engine
     else:
-        lowered = lower(sys, T, U, params)
-        reason = lowered.reason
-        if reason is None:
-            from .compiled import unavailable_reason
-            reason = unavailable_reason(lowered.system, solver.method)
-        chosen = select_engine(engine, reason)
-        if chosen == "compiled":
-            run_engine = make_engine("compiled", lowered.system, solver.method)
+        key = _run_key(sys, T, U, params, solver.method, engine)
+        found = _runs.get(key)
+        if found is None:
+            found = _runs[key] = _prepare(sys, T, U, params, solver.method, engine)
+            while len(_runs) > _RUNS_KEPT:
+                _runs.pop(next(iter(_runs)))
         else:
-            # blocks kept as they are (refused) get python-control's parameters
-            system_params = dict(getattr(sys, "params", {}) or {}) if lowered.refused else {}
-            if lowered.refused and params:
-                system_params.update(params)
-            run_engine = NumpyEngine(lowered.system, solver.method, system_params if lowered.refused else None)
+            select_engine(engine, found[2])          # the same verdict (a fallback is noted once anyway)
+        chosen, run_engine, _ = found
     if sys.nstates == 0:
         states = np.zeros((0, T.size))
         outputs = run_engine.outputs_on_grid(T, states) if chosen != "python-control" else \

@@ -182,3 +182,30 @@ def test_a_state_beyond_the_given_bound_stops_the_run_and_unbounded_growth_does_
     with pytest.raises(SimulationError) as err:
         blocks.simulate_system(grow, T, 1.0, engine="fast", bounds=10.0, solve_ivp_kwargs=TIGHT)
     assert err.value.time == pytest.approx(math.log(10.0), abs=1e-6)
+
+
+
+GAIN = 1.0
+
+
+def _gain_update(t, x, u, params):
+    return np.array([-GAIN * x[0] + u[0]])
+
+
+def test_a_prepared_run_is_not_reused_when_what_the_function_reads_changed():
+    """The run is prepared once per diagram, grid, inputs and parameters; a module number the user's function
+    reads is part of that key, so a changed one is traced again (python-control would use it too)."""
+    global GAIN
+    block = ct.nlsys(_gain_update, None, inputs="u", outputs="y", states="x", name="gain")
+    T = np.linspace(0.0, 2.0, 11)
+    first = blocks.simulate_system(block, T, 0, 1.0, engine="fast", solve_ivp_kwargs=TIGHT)
+    np.testing.assert_allclose(first.outputs, 1.0 - np.exp(-T), atol=1e-8)         # x' = -x + 1
+    try:
+        GAIN = 4.0
+        second = blocks.simulate_system(block, T, 0, 1.0, engine="fast", solve_ivp_kwargs=TIGHT)
+    finally:
+        GAIN = 1.0
+    np.testing.assert_allclose(second.outputs, (1.0 - np.exp(-4.0 * T)) / 4.0, atol=1e-8)
+    block.params["unused"] = 2.0        # a changed parameter prepares again too (and changes nothing here)
+    third = blocks.simulate_system(block, T, 0, 1.0, engine="fast", solve_ivp_kwargs=TIGHT)
+    np.testing.assert_allclose(third.outputs, first.outputs, atol=1e-12)
