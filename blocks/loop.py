@@ -8,8 +8,12 @@
                                                +----------------------(q, dq)-------+
 
 The interconnected system returned by :func:`closed_loop` is the single
-description of the loop.  :func:`simulate` integrates it with one of three
-engines, which give the same numbers to solver tolerance:
+description of the loop.  :func:`simulate` is the Figure-2 layer over the one
+simulator (:func:`blocks.simulator.advance`): it fills the run's
+:class:`~blocks.context.Context` from the scenario (start state, the states'
+physical bounds, the budget checked by :func:`blocks.run_limits.check_run`)
+and steps the loop with one of three engines, which give the same numbers to
+solver tolerance:
 
 ``compiled``
     the loop's plan and kernels generated into one numba-compiled module

@@ -38,7 +38,8 @@ def unavailable_reason(system, method: str = "RK45") -> str | None:
     for block in subsystems(system):
         if contract_of(block).kernels is None:
             return (f"block '{block.name}' has no kernels (a user's own python-control system or an FMU), "
-                    f"so the loop cannot be compiled")
+                    f"so the loop cannot be compiled (blocks.simulate_system gives a user's own ct.nlsys, ct.ss "
+                    f"and ct.tf blocks kernels)")
     return None
 
 
