@@ -209,3 +209,33 @@ def test_a_prepared_run_is_not_reused_when_what_the_function_reads_changed():
     block.params["unused"] = 2.0        # a changed parameter prepares again too (and changes nothing here)
     third = blocks.simulate_system(block, T, 0, 1.0, engine="fast", solve_ivp_kwargs=TIGHT)
     np.testing.assert_allclose(third.outputs, first.outputs, atol=1e-12)
+
+
+def _saturate(t, x, u, params):
+    """A static block (no states): a smooth saturation, traced (np.tanh)."""
+    return np.array([params["limit"] * np.tanh(u[0] / params["limit"])])
+
+
+def test_wiring_of_every_kind_is_lowered_to_the_same_dynamics():
+    """A MIMO ct.ss, a controller with a D term, a summing junction, a static nlsys, a scaled wire, outputs that are sums
+    and a block input as an output: the lowered diagram (junction and source blocks, direct wires) gives
+    python-control's numbers."""
+    plant = ct.ss([[0.0, 1.0], [-4.0, -0.8]], [[0.0], [1.0]], [[1.0, 0.0], [0.0, 1.0]], [[0.0], [0.0]],
+                  inputs="f", outputs=["p", "v"], states=["p", "v"], name="plant2")
+    sat = ct.nlsys(None, _saturate, inputs="w", outputs="f", name="sat", params={"limit": 0.8})
+    ctrl = ct.ss([[-2.0]], [[1.0, 0.0]], [[3.0]], [[5.0, -0.5]], inputs=["e", "ev"], outputs="w", states="i",
+                 name="pi")
+    err = ct.summing_junction(inputs=["r", "-p"], output="e", name="err")
+    sys = ct.interconnect([plant, sat, ctrl, err], connections=[["pi.ev", "-plant2.v"], ["sat.w", "pi.w"],
+                                                                 ["plant2.f", "sat.f"], ["pi.e", "err.e"],
+                                                                 ["err.p", "plant2.p"]],
+                          inplist=["err.r"], inputs="r", outlist=[["plant2.p", "plant2.v"], "sat.f", "-pi.e"],
+                          outputs=["pv", "f", "minus_e"])
+    low = lower(sys, np.array([0.0, 1.0]), np.zeros((1, 2)))
+    assert low.how == {"plant2": "linear", "sat": "traced", "pi": "linear", "err": "linear"}
+    T = np.linspace(0.0, 6.0, 61)
+    U = np.where(T < 2.0, 1.0, -0.5)
+    ref = ct.input_output_response(sys, T, U, [0.2, 0.0, 0.1], solve_ivp_kwargs=TIGHT)
+    resp = blocks.simulate_system(sys, T, [0.2, 0.0, 0.1], U, engine="fast", solve_ivp_kwargs=TIGHT)
+    np.testing.assert_allclose(resp.outputs, ref.outputs, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(resp.states, ref.states, rtol=0, atol=1e-9)
