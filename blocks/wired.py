@@ -63,14 +63,16 @@ def junction(t, x, u, G):
     return G @ u
 
 
-def linear_update(t, x, u, A, B, C, D):
+def linear_update(t, x, u, A, B, C, D, through):
     """A linear block's state derivative ``A x + B u``."""
     return A @ x + B @ u
 
 
-def linear_output(t, x, u, A, B, C, D):
-    """A linear block's outputs ``C x + D u``."""
-    return C @ x + D @ u
+def linear_output(t, x, u, A, B, C, D, through):
+    """A linear block's outputs ``C x + D u``, ``D`` given by its columns ``through`` (a tuple of input indices,
+    those with a nonzero column): the outputs read no other input, so the plan may evaluate the block before
+    the blocks that feed those (the trace sees D's numbers only as symbols)."""
+    return C @ x + D @ u[list(through)]
 
 
 # Exceptions a trial trace of a user function may raise when the trace cannot follow it (as the code generator's)
@@ -182,14 +184,40 @@ class Lowered:
         return "; ".join(f"block '{name}' {why}" for name, why in self.refused.items())
 
 
-def _linear_kernels(block) -> Kernels:
+def _linear_kernels(block) -> tuple[Kernels, tuple]:
+    """The kernels of a linear block and the indices of the inputs that reach its outputs (nonzero columns of D)."""
     A, B, C, D = (np.array(m, dtype=float) for m in (block.A, block.B, block.C, block.D))
-    return Kernels(params=(A, B, C, D), output=linear_output, update=linear_update if block.nstates else None,
-                   column_params=(A, B, C, D))
+    through = tuple(int(j) for j in np.flatnonzero(np.any(D != 0, axis=0)))
+    params = (A, B, C, np.ascontiguousarray(D[:, list(through)]), through)
+    return Kernels(params=params, output=linear_output, update=linear_update if block.nstates else None,
+                   column_params=params), through
 
 
-def _trial(kernels: Kernels, nstates: int, ninputs: int, noutputs: int) -> None:
-    """Run ``kernels`` on symbols as the code generator will (raises when the trace cannot follow them)."""
+def _inputs_read(rows) -> set:
+    """The input indices (leaves ``u``) that the traced expressions ``rows`` depend on."""
+    from .compiled.trace import Sym
+    seen, found, stack = set(), set(), [r for r in rows if isinstance(r, Sym)]
+    while stack:
+        node = stack.pop()
+        if node.id in seen:
+            continue
+        seen.add(node.id)
+        if node.op == "leaf":
+            kind, index = node.args
+            if kind == "u":
+                found.add(int(index))
+            continue
+        for a in node.args:
+            if isinstance(a, Sym):
+                stack.append(a)
+            elif isinstance(a, tuple):
+                stack.extend(v for v in a if isinstance(v, Sym))
+    return found
+
+
+def _trial(kernels: Kernels, nstates: int, ninputs: int, noutputs: int) -> set:
+    """Run ``kernels`` on symbols as the code generator will (raises when the trace cannot follow them); the
+    inputs the outputs read (the block's feedthrough)."""
     from .compiled.trace import Graph, result_rows, symbolic_params
     graph = Graph()
     sym = symbolic_params(graph, kernels.params, [], [])
@@ -200,17 +228,20 @@ def _trial(kernels: Kernels, nstates: int, ninputs: int, noutputs: int) -> None:
     for i in range(ninputs):
         u[i] = graph.leaf("u", i)
     t = graph.leaf("t", 0)
+    through = set()
     if kernels.output is not None:
-        result_rows(kernels.output(t, x, u, *sym), noutputs)
+        through = _inputs_read(result_rows(kernels.output(t, x, u, *sym), noutputs))
     if kernels.update is not None and nstates:
         result_rows(kernels.update(t, x, u, *sym), nstates)
+    return through
 
 
-def _nonlinear_kernels(block, params: dict) -> tuple[Kernels | None, str, str]:
-    """Kernels for a user's ``NonlinearIOSystem`` with its merged ``params``: ``(kernels, how, why refused)``."""
+def _nonlinear_kernels(block, params: dict) -> tuple[Kernels | None, str, str, frozenset | None]:
+    """Kernels for a user's ``NonlinearIOSystem`` with its merged ``params``: ``(kernels, how, why refused,
+    feedthrough)``, the feedthrough the inputs the traced outputs read (None: every input, untraced)."""
     upd, out = block.updfcn, block.outfcn
     if block.isdtime(strict=True):
-        return None, "refused", "is discrete-time (dt > 0), which the continuous engines do not step"
+        return None, "refused", "is discrete-time (dt > 0), which the continuous engines do not step", None
     if out is None:
         out = _state_output(block.nstates, block.noutputs)
     keys = tuple(k for k in sorted(params) if _is_number_param(params[k]))
@@ -222,17 +253,18 @@ def _nonlinear_kernels(block, params: dict) -> tuple[Kernels | None, str, str]:
                      update=None if upd is None or not block.nstates else _traced_kernel(upd, keys, fixed, key,
                                                                                            "update"))
     try:
-        _trial(traced, block.nstates, block.ninputs, block.noutputs)
-        return traced, "traced", ""
+        through = _trial(traced, block.nstates, block.ninputs, block.noutputs)
+        labels = list(block.input_labels)
+        return traced, "traced", "", frozenset(labels[i] for i in through)
     except _NOT_TRACED as err:
         why_trace = f"{type(err).__name__}: {err}"
     except Exception as err:            # a user's function may raise anything on symbols  # noqa: BLE001
         why_trace = f"{type(err).__name__}: {err}"
     compiled, why_jit = _njit_kernels(block, out, upd, params, key)
     if compiled is not None:
-        return compiled, "compiled", ""
+        return compiled, "compiled", "", None
     return None, "refused", (f"cannot be traced ({why_trace}) nor compiled by numba as it stands ({why_jit}), "
-                             "so the compiled engine cannot run it")
+                             "so the compiled engine cannot run it"), None
 
 
 def _state_output(nstates: int, noutputs: int):
@@ -285,15 +317,16 @@ def _njit_kernels(block, out, upd, params: dict, key: str) -> tuple[Kernels | No
     return Kernels(params=(typed,), output=fns[0], update=fns[1], column_params=(typed,)), ""
 
 
-def _kernel_block(block, kernels: Kernels, name: str | None = None) -> Block:
-    """A :class:`Block` with ``block``'s signals and ``kernels`` (its python-control functions call them)."""
+def _kernel_block(block, kernels: Kernels, feedthrough: frozenset | None = None) -> Block:
+    """A :class:`Block` with ``block``'s signals and ``kernels`` (its python-control functions call them) and the
+    inputs that reach its outputs (None: every one)."""
     params = kernels.params
     outfcn = (lambda t, x, u, _p: kernels.output(t, x, u, *params)) if kernels.output is not None else None
     updfcn = (lambda t, x, u, _p: kernels.update(t, x, u, *params)) if kernels.update is not None else None
-    signals = dict(name=name or block.name, inputs=list(block.input_labels), outputs=list(block.output_labels))
+    signals = dict(name=block.name, inputs=list(block.input_labels), outputs=list(block.output_labels))
     if block.nstates:
         signals["states"] = list(block.state_labels)
-    return Block(updfcn, outfcn, contract=BlockContract(kernels=kernels), **signals)
+    return Block(updfcn, outfcn, contract=BlockContract(feedthrough=feedthrough, kernels=kernels), **signals)
 
 
 def _static_block(name: str, kernels: Kernels, ninputs: int, noutputs: int) -> Block:
@@ -341,17 +374,19 @@ def lower(system, T=None, U=None, params: dict | None = None) -> Lowered:
                 lowered.refused[block.name] = "is discrete-time (dt > 0), which the continuous engines do not step"
                 new_blocks.append(block)
                 continue
-            new_blocks.append(_kernel_block(block, _linear_kernels(block)))
+            kernels, through = _linear_kernels(block)
+            labels = list(block.input_labels)
+            new_blocks.append(_kernel_block(block, kernels, frozenset(labels[j] for j in through)))
             lowered.how[block.name] = "linear"
             continue
         merged = merged_params(outer, block, params) if outer is not None else {**block.params, **(params or {})}
-        kernels, how, why = _nonlinear_kernels(block, merged)
+        kernels, how, why, through = _nonlinear_kernels(block, merged)
         lowered.how[block.name] = how
         if kernels is None:
             lowered.refused[block.name] = why
             new_blocks.append(block)
         else:
-            new_blocks.append(_kernel_block(block, kernels))
+            new_blocks.append(_kernel_block(block, kernels, through))
     lowered.system = _direct(system, new_blocks, C, B, O, T, U)
     return lowered
 

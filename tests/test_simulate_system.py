@@ -239,3 +239,24 @@ def test_wiring_of_every_kind_is_lowered_to_the_same_dynamics():
     resp = blocks.simulate_system(sys, T, [0.2, 0.0, 0.1], U, engine="fast", solve_ivp_kwargs=TIGHT)
     np.testing.assert_allclose(resp.outputs, ref.outputs, rtol=0, atol=1e-9)
     np.testing.assert_allclose(resp.states, ref.states, rtol=0, atol=1e-9)
+
+
+@pytest.mark.slow
+def test_a_ring_of_blocks_whose_feedthrough_is_unknown_runs_on_numpy_as_python_control_iterates_it():
+    """Two blocks compiled as they stand (their feedthrough unknown: every input) fed by each other cannot be
+    ordered: the compiled engine says so, and auto runs the numpy engine's fixed-point plan."""
+    from blocks.compiled import unavailable_reason
+    one = ct.nlsys(_branchy_update, None, inputs="e", outputs="s", states="xs", name="one", params={"k": 4.0})
+    two = ct.nlsys(_branchy_update, None, inputs="e2", outputs="s2", states="xs2", name="two", params={"k": 2.0})
+    sys = ct.interconnect([one, two], connections=[["two.e2", "one.s"], ["one.e", "two.s2"]], inplist=[],
+                          outlist=["one.s", "two.s2"], outputs=["a", "b"])
+    T = np.linspace(0.0, 2.0, 21)
+    low = lower(sys, T, np.zeros((0, 21)))
+    assert low.how == {"one": "compiled", "two": "compiled"}
+    assert "cannot be put in an order" in unavailable_reason(low.system)
+    ref = ct.input_output_response(sys, T, 0, [1.0, 0.2], solve_ivp_kwargs=TIGHT)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", EngineFallbackWarning)
+        resp = blocks.simulate_system(sys, T, [1.0, 0.2], solve_ivp_kwargs=TIGHT)
+    assert resp.engine == "fast"
+    np.testing.assert_allclose(resp.outputs, ref.outputs, rtol=0, atol=1e-9)

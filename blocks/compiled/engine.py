@@ -40,6 +40,15 @@ def unavailable_reason(system, method: str = "RK45") -> str | None:
             return (f"block '{block.name}' has no kernels (a user's own python-control system or an FMU), "
                     f"so the loop cannot be compiled (blocks.simulate_system gives a user's own ct.nlsys, ct.ss "
                     f"and ct.tf blocks kernels)")
+    from ..plan import AlgebraicLoopError
+    try:
+        plan = make_plan(system)
+    except AlgebraicLoopError as err:
+        return str(err)
+    if plan.fixed_point:
+        return (f"the blocks {plan.order} cannot be put in an order (a cycle through blocks whose feedthrough is "
+                "not declared), so the compiled engine cannot run them; the numpy engine iterates them as "
+                "python-control does")
     return None
 
 
