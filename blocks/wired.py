@@ -294,6 +294,9 @@ def _njit_kernels(block, out, upd, params: dict, key: str) -> tuple[Kernels | No
     numba = numba_or_none()
     if numba is None:
         return None, "numba is not installed"
+    plain = [fn for fn in (out, upd) if fn is not None and not isinstance(fn, types.FunctionType)]
+    if plain:
+        return None, f"its function {plain[0]!r:.60} is not a plain Python function"
     if not all(isinstance(v, numbers.Real) and not isinstance(v, bool) for v in params.values()):
         return None, "its parameters are not all numbers (numba gets them as a dict of floats)"
     try:
@@ -378,6 +381,11 @@ def lower(system, T=None, U=None, params: dict | None = None) -> Lowered:
             labels = list(block.input_labels)
             new_blocks.append(_kernel_block(block, kernels, frozenset(labels[j] for j in through)))
             lowered.how[block.name] = "linear"
+            continue
+        if getattr(block, "event_source", None) is not None:
+            lowered.how[block.name], lowered.refused[block.name] = "refused", (
+                "has events (an FMU's event indicators or time events), which only the numpy engine stops at")
+            new_blocks.append(block)
             continue
         merged = merged_params(outer, block, params) if outer is not None else {**block.params, **(params or {})}
         kernels, how, why, through = _nonlinear_kernels(block, merged)

@@ -260,3 +260,16 @@ def test_a_ring_of_blocks_whose_feedthrough_is_unknown_runs_on_numpy_as_python_c
         resp = blocks.simulate_system(sys, T, [1.0, 0.2], solve_ivp_kwargs=TIGHT)
     assert resp.engine == "fast"
     np.testing.assert_allclose(resp.outputs, ref.outputs, rtol=0, atol=1e-9)
+
+
+def test_a_block_with_events_is_refused_by_name_without_a_trace():
+    """A hybrid block (an FMU with events) stays on the numpy engine, which stops at its events."""
+    from blocks.integrate import EventSource
+
+    def never(t, x, u, params):
+        raise AssertionError("a block with events must not be traced or compiled")
+    block = ct.nlsys(never, None, inputs=0, outputs="x", states="x", name="hybrid")
+    block.event_source = EventSource()
+    low = lower(block)
+    assert low.how == {"hybrid": "refused"}
+    assert "block 'hybrid' has events" in low.reason
