@@ -38,6 +38,8 @@ _WHERE = {
     "parameters": ("PAPER_PARAMETERS", "ParameterError", "RobotParameters"),
     "plan": ("AlgebraicLoopError",),
     "scenario": ("Scenario", "ScenarioError", "builtin_scenarios", "load_scenario", "scenario_from_dict"),
+    "simulator": ("simulate_system",),
+    "context": ("Context",),
     "systems": ("controller", "observer", "plant", "sensor", "trajectory_block"),
     "trajectory": ("JointSine", "LacerationPath"),
 }
@@ -49,6 +51,7 @@ __all__ = [
     # the loop
     "load_scenario", "builtin_scenarios", "scenario_from_dict", "Scenario", "ScenarioError", "closed_loop",
     "build_blocks", "initial_state", "simulate", "SimulationError", "lumped_disturbance", "AlgebraicLoopError",
+    "simulate_system", "Context",
     # blocks and their contract
     "plant", "controller", "observer", "trajectory_block", "sensor", "Block", "BlockContract", "Kernels",
     "ContractError", "contract_of", "kernel_block", "GainError", "validated_gain",

@@ -18,7 +18,7 @@ from .derived import loop_response
 from .divergence import cached_state_bounds
 from .hybrid import HybridSystem
 from .monitor import Monitor, SimulationError
-from .run_limits import estimate_run
+from .run_limits import check_run
 from .sampled_blocks import SAMPLED_SIGNALS, sampled_initial_state, sampled_loop
 
 __all__ = ["sampled_loop", "sampled_initial_state", "simulate_sampled", "check_observer_rate",
@@ -141,9 +141,9 @@ def simulate_sampled(scenario, observer: bool = True, plant=None,
     """
     s = scenario
     sim = s.simulation
-    budget = Budget.from_env()
     # the estimate first: a huge delay or rate must be refused before anything is sized by it
-    budget.check(estimate_run(s, observer), f"scenario '{s.name}' (sampled at {s.controller.sample_rate:g} Hz)")
+    budget = check_run(s, observer, Budget.from_env(), what=f"scenario '{s.name}' (sampled at "
+                                                            f"{s.controller.sample_rate:g} Hz)")
     if observer:
         check_observer_rate(s)
     loop = sampled_loop(s, observer=observer, plant_system=plant)

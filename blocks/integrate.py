@@ -21,8 +21,10 @@ bisection on the step's dense output until the bracket is shorter than
 announced time event; there the blocks' event updates run, states they
 re-initialise are taken over, and a new solver starts from the state after the
 event.  A block that asks to end the simulation stops the run with
-:class:`SimulationTerminated`, carrying the grid filled so far.  Without
-``events`` nothing of this runs: the loop is the one above, step for step.
+:class:`SimulationTerminated`, carrying the grid filled so far.  Both are
+one loop (:func:`_integrate`): without ``events`` there is no event to stop
+at, one solver runs from the first grid time to the last, and the loop is
+the one above, step for step.
 
 The ticks of a sampled diagram are events of the same kind
 (:class:`blocks.sampling.TickSource`): a block whose time events are a fixed
@@ -149,38 +151,8 @@ def integrate_on_grid(fun: Callable[[float, np.ndarray], np.ndarray], x0, t_grid
     if not np.all(np.isfinite(x0)) or not np.all(np.abs(x0) <= bound):
         raise DivergenceError(t0, bound, x0)
     options = {} if first_step is None else {"first_step": min(first_step, t_end - t0, max_step)}
-    if events is not None:
-        return _integrate_with_events(fun, x0, t_grid, method, dict(rtol=rtol, atol=atol, max_step=max_step,
-                                                                    **options), bound, progress, monitor, events,
-                                      float(event_tolerance))
-    solver = SOLVERS[method](fun, t0, x0, t_end, vectorized=False, rtol=rtol, atol=atol,
-                             max_step=max_step, **options)
-    states = np.empty((solver.n, t_grid.size))
-    done = 0                                    # grid points filled (the first one too from the first step)
-    last_report = time.monotonic()
-    while solver.status == "running":
-        message = solver.step()
-        if solver.status == "failed":
-            raise SolverFailure(float(solver.t), str(message))
-        if not np.all(np.abs(solver.y) <= bound):
-            t_cross = _crossing_time(solver, bound)
-            raise DivergenceError(t_cross, bound, solver.dense_output()(t_cross) if np.all(np.isfinite(solver.y))
-                                  else solver.y.copy())
-        if monitor is not None:
-            monitor.check_evaluations(float(solver.t), solver.nfev)
-            monitor.check_time(float(solver.t))
-            monitor.report(float(solver.t))
-        # grid times up to and including the new time, interpolated as solve_ivp does
-        upto = int(np.searchsorted(t_grid, solver.t, side="right"))
-        if upto > done:
-            states[:, done:upto] = solver.dense_output()(t_grid[done:upto])
-            done = upto
-        if progress is not None and time.monotonic() - last_report > 0.2:
-            last_report = time.monotonic()
-            progress(min(1.0, (solver.t - t0) / (t_end - t0)))
-    if done != t_grid.size:                     # not expected: the solver ends exactly at t_end
-        raise SolverFailure(float(solver.t), "the output grid was not reached")
-    return states, solver.nfev
+    return _integrate(fun, x0, t_grid, method, dict(rtol=rtol, atol=atol, max_step=max_step, **options), bound,
+                      progress, monitor, events, float(event_tolerance))
 
 
 def _crossing_time(solver, bound: float) -> float:
@@ -422,39 +394,56 @@ def _before(t_grid_value: float, t: float, rtol: float = 1e-13) -> bool:
     return t_grid_value < t - rtol * max(1.0, abs(t))
 
 
-def _integrate_with_events(fun, x0, t_grid, method, options, bound, progress, monitor, events: LoopEvents,
-                           tol: float) -> tuple[np.ndarray, int]:
-    """:func:`integrate_on_grid` with the hybrid blocks' events; a new solver after each event.
+def _integrate(fun, x0, t_grid, method, options, bound, progress, monitor, events: LoopEvents | None,
+               tol: float) -> tuple[np.ndarray, int]:
+    """The one stepping loop of :func:`integrate_on_grid`; ``events`` None is a loop without events.
 
-    A grid point at an event's time gets the state (and outputs) after the event.
+    Every accepted step is checked (solver failure, the bound, the Monitor's
+    budgets, progress) and passes the grid points it covers.  With events a
+    new solver starts after each event, and a grid point at an event's time
+    gets the state (and outputs) after the event.  Without events the single
+    solver runs from the first grid time to the last, the grid points of a
+    step filled in one call of its dense output (as ``solve_ivp`` fills them).
     """
     t0, t_end = float(t_grid[0]), float(t_grid[-1])
     states = np.empty((x0.size, t_grid.size))
     t, x = t0, np.array(x0, dtype=float)
     done, nfev = 0, 0
     last_report = time.monotonic()
-    rtol = events.time_rtol
-    events.begin(t0)
+    hybrid = events is not None
+    rtol = events.time_rtol if hybrid else 0.0
+    if hybrid:
+        events.begin(t0)
 
     def keep(upto_time: float, state_at, inclusive: bool) -> None:
+        """Fill the grid points up to ``upto_time`` (before it, a difference within ``rtol`` counting as at it,
+        unless ``inclusive``) from ``state_at``."""
         nonlocal done
-        while done < t_grid.size and (t_grid[done] <= upto_time if inclusive else _before(t_grid[done], upto_time, rtol)):
-            s = float(t_grid[done])
-            states[:, done] = state_at(s)
-            events.record(s, states[:, done])
-            done += 1
+        upto = int(np.searchsorted(t_grid, upto_time, side="right")) if inclusive else \
+            int(np.searchsorted(t_grid, upto_time - rtol * max(1.0, abs(upto_time)), side="left"))
+        if upto <= done:
+            return
+        if not hybrid:                      # one call for the step's points, as solve_ivp
+            states[:, done:upto] = state_at(t_grid[done:upto])
+            done = upto
+            return
+        for k in range(done, upto):         # point by point: the blocks' outputs are recorded as the run passes
+            s = float(t_grid[k])
+            states[:, k] = state_at(s)
+            events.record(s, states[:, k])
+        done = upto
 
     while True:
-        upcoming = events.next_time()
+        upcoming = events.next_time() if hybrid else None
         if upcoming is not None and _before(upcoming, t - tol, rtol):
             raise SolverFailure(t, f"block(s) {events.names} announced a time event at t = {upcoming:.9g} s, before "
                                    f"the current time")
         stop = t_end if upcoming is None else min(t_end, upcoming)
-        above = events.indicators(t, x) > 0 if events.n_indicators else np.zeros(0, dtype=bool)
+        above = events.indicators(t, x) > 0 if hybrid and events.n_indicators else None
         kind, stopper = None, None
         if stop > t:
             interval = options
-            if "first_step" in options:       # at most the span to the next event (a tick's interval, say)
+            if hybrid and "first_step" in options:   # at most the span to the next event (a tick's interval, say)
                 interval = dict(options, first_step=min(options["first_step"], stop - t))
             solver = SOLVERS[method](fun, t, x, stop, vectorized=False, **interval)
             while solver.status == "running":
@@ -465,30 +454,38 @@ def _integrate_with_events(fun, x0, t_grid, method, options, bound, progress, mo
                     t_cross = _crossing_time(solver, bound)
                     raise DivergenceError(t_cross, bound, solver.dense_output()(t_cross)
                                           if np.all(np.isfinite(solver.y)) else solver.y.copy())
-                t_new, dense = float(solver.t), solver.dense_output()
-                if above.size and np.any((events.indicators(t_new, solver.y) > 0) != above):
-                    t_new = locate_crossing(lambda s: events.indicators(s, dense(s)), float(solver.t_old), t_new,
-                                            above, tol)
-                    kind = "state"
-                # a grid point at an event's time is kept after the event
-                keep(t_new, dense, inclusive=kind is None and (upcoming is None or _before(t_new, upcoming, rtol)))
-                t, x = t_new, (solver.y.copy() if kind is None else dense(t_new))
+                t_new = float(solver.t)
                 if monitor is not None:
-                    monitor.check_evaluations(t, nfev + solver.nfev)
-                    monitor.check_time(t)
-                    monitor.report(t)
+                    monitor.check_evaluations(t_new, nfev + solver.nfev)
+                    monitor.check_time(t_new)
+                    monitor.report(t_new)
+                if not hybrid:
+                    keep(t_new, _Dense(solver), inclusive=True)
+                else:
+                    dense = solver.dense_output()
+                    if above is not None and np.any((events.indicators(t_new, solver.y) > 0) != above):
+                        t_new = locate_crossing(lambda s: events.indicators(s, dense(s)), float(solver.t_old), t_new,
+                                                above, tol)
+                        kind = "state"
+                    # a grid point at an event's time is kept after the event
+                    keep(t_new, dense, inclusive=kind is None and (upcoming is None or _before(t_new, upcoming, rtol)))
+                    t, x = t_new, (solver.y.copy() if kind is None else dense(t_new))
+                    if kind is None:
+                        step_event, stopper = events.completed_step(t, x)
+                        if stopper is not None:
+                            break
+                        if step_event:
+                            kind = "step"
+                    if kind is not None:
+                        break
                 if progress is not None and time.monotonic() - last_report > 0.2:
                     last_report = time.monotonic()
-                    progress(min(1.0, (t - t0) / (t_end - t0)))
-                if kind is None:
-                    step_event, stopper = events.completed_step(t, x)
-                    if stopper is not None:
-                        break
-                    if step_event:
-                        kind = "step"
-                if kind is not None:
-                    break
+                    progress(min(1.0, (t_new - t0) / (t_end - t0)))
             nfev += solver.nfev
+            if not hybrid:
+                t = float(solver.t)
+        if not hybrid:
+            break
         if stopper is None and kind is None and upcoming is not None and not _before(t, upcoming, rtol):
             kind = "time"
         if stopper is None and kind is None:     # t_end reached
@@ -506,7 +503,20 @@ def _integrate_with_events(fun, x0, t_grid, method, options, bound, progress, mo
             events.terminated = t
             raise SimulationTerminated(t, f"block '{stopper}' asked to end the simulation (terminateSimulation) at "
                                           f"t = {t:.9g} s", states, done, x)
-    keep(t_end, lambda s: x, inclusive=True)
-    if done != t_grid.size:
+    if hybrid:
+        keep(t_end, lambda s: x, inclusive=True)
+    if done != t_grid.size:                     # not expected: the solver ends exactly at t_end
         raise SolverFailure(t, "the output grid was not reached")
     return states, nfev
+
+
+class _Dense:
+    """A step's dense output, made only when a grid point is filled from it (most steps fill none)."""
+
+    __slots__ = ("solver",)
+
+    def __init__(self, solver) -> None:
+        self.solver = solver
+
+    def __call__(self, t):
+        return self.solver.dense_output()(t)

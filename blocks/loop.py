@@ -8,8 +8,12 @@
                                                +----------------------(q, dq)-------+
 
 The interconnected system returned by :func:`closed_loop` is the single
-description of the loop.  :func:`simulate` integrates it with one of three
-engines, which give the same numbers to solver tolerance:
+description of the loop.  :func:`simulate` is the Figure-2 layer over the one
+simulator (:func:`blocks.simulator.advance`): it fills the run's
+:class:`~blocks.context.Context` from the scenario (start state, the states'
+physical bounds, the budget checked by :func:`blocks.run_limits.check_run`)
+and steps the loop with one of three engines, which give the same numbers to
+solver tolerance:
 
 ``compiled``
     the loop's plan and kernels generated into one numba-compiled module
@@ -44,16 +48,17 @@ import control as ct
 import numpy as np
 
 from .budget import Budget
+from .context import Context
 from .derived import loop_response
 from .divergence import state_bounds
 from .engine_choice import ENGINES, EngineFallbackWarning, select_engine
-from .fastsim import CompiledLoop
-from .integrate import DivergenceError, SolverFailure, integrate_on_grid, loop_events, refuse_hybrid
+from .integrate import refuse_hybrid
 from .kernels import lumped_disturbance as lumped_disturbance_rows
 from .kernels.bind import bound
-from .monitor import Monitor, SimulationError
-from .run_limits import estimate_run, prepare_reference
+from .monitor import SimulationError
+from .run_limits import check_run, estimate_run, prepare_reference
 from .scenario import Scenario, load_scenario
+from .simulator import NumpyEngine, PythonControlEngine, Solver, advance
 from .structure import StructureCache, blocks_structure
 from .systems import controller, plant, sensor, signal_names, trajectory_block
 from .systems import observer as observer_block
@@ -317,27 +322,21 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
     budget = prepare_reference(s, budget)   # a task-space path's IK, within the budget, before the loop needs it
     run = _prepared(s, observer) if plant is None and engine != "python-control" else _Prepared(s, observer, plant)
     loop = run.loop
-    budget.check(run.estimate(), f"scenario '{s.name}' ({sim.method})")
+    budget = check_run(s, observer, budget, estimate=run.estimate())
     if engine in ("auto", "compiled"):
         engine = select_engine(engine, run.auto_reason(sim.method) if engine == "auto"
                                else run.compiled_reason(sim.method))
-    monitor = Monitor(f"scenario '{s.name}'", run.bounds(), run.x0, budget, sim.t_final, progress, sim.method)
-    with_d = False
+    # the run's numbers: the scenario's start state, and the bounds of its states from the scenario (not from names)
+    context = Context(float(t_grid[0]), run.x0, bounds=run.bounds(), budget=budget)
     if engine == "compiled":
-        states, outputs, with_d = _integrate_with(run.compiled_engine(), loop, run.x0, t_grid, sim, monitor)
+        stepper = run.compiled_engine()
     elif engine == "fast":
-        states, outputs, with_d = _integrate_with(_NumpyEngine(loop, sim.method), loop, run.x0, t_grid, sim, monitor)
-    elif engine == "python-control":
-        resp = ct.input_output_response(loop, t_grid, 0, run.x0, solve_ivp_method=sim.method,
-                                        solve_ivp_kwargs=dict(rtol=sim.rtol, atol=sim.atol, max_step=sim.max_step),
-                                        return_states=True)
-        states, outputs = np.atleast_2d(resp.states), np.atleast_2d(resp.outputs)
-        if not resp.success:
-            # a solver that gave up on a diverging loop: name the signal where the states left their bounds
-            finite = np.all(np.isfinite(states), axis=0)
-            monitor.check_grid(t_grid[finite], states[:, finite])
-            raise SimulationError(f"scenario '{s.name}': solver failed: {resp.message}")
-        monitor.check_grid(t_grid, states)
+        stepper = _NumpyEngine(loop, sim.method)
+    else:
+        stepper = PythonControlEngine(loop, sim.method)
+    states, outputs, d_rows = advance(stepper, context, t_grid, Solver.of(sim), what=f"scenario '{s.name}'",
+                                      progress=progress, rows=("d",))
+    with_d = d_rows > 0
     d = None
     if with_d:                               # the compiled engine's grid pass gave d already, as the last rows
         n = s.robot.joints.count
@@ -438,38 +437,5 @@ def _prepared(s: Scenario, observer: bool) -> _Prepared:
     return run
 
 
-class _NumpyEngine:
-    """The numpy engine with the interface of :class:`blocks.compiled.CompiledLoopEngine`."""
-
-    def __init__(self, loop, method: str) -> None:
-        self.compiled, self.method = CompiledLoop(loop), method
-        # blocks with events (FMUs): the run stops at them and keeps the outputs as it passes the grid
-        self.events = loop_events(loop, self.compiled.rhs, self.compiled.output)
-
-    def integrate(self, x0, t_grid, rtol, atol, max_step, monitor: Monitor):
-        return integrate_on_grid(self.compiled.point_rhs, x0, t_grid, self.method, rtol=rtol, atol=atol,
-                                 max_step=max_step, bound=monitor.limits, monitor=monitor, events=self.events)
-
-    def outputs_on_grid(self, t_grid, X):
-        if self.events is not None:
-            return np.array(self.events.outputs).T
-        return self.compiled.outputs_on_grid(t_grid, X)
-
-
-def _integrate_with(engine, loop, x0, t_grid, sim, monitor: Monitor):
-    """States and outputs on the grid, and whether the outputs end with the lumped disturbance's rows (the compiled
-    engine computes them in its grid pass).  The engine stops where the :class:`~blocks.monitor.Monitor` says."""
-    name = loop.scenario.name
-    try:
-        states, _ = engine.integrate(x0, t_grid, sim.rtol, sim.atol, sim.max_step, monitor=monitor)
-    except DivergenceError as err:
-        raise monitor.diverged(err.time, err.state) from None
-    except SolverFailure as err:
-        raise SimulationError(f"scenario '{name}': the solver stopped at t = {err.time:.6g} s of "
-                              f"{t_grid[-1]:g} s: {err.reason}", time=err.time) from None
-    monitor.check_grid(t_grid, states)
-    with_d = "d" in getattr(engine, "row_groups", {})      # the compiled engine computes d in the same pass
-    outputs = engine.outputs_on_grid(t_grid, states, rows=("d",), stacked=True) if with_d else \
-        engine.outputs_on_grid(t_grid, states)
-    monitor.report(t_grid[-1], final=True)
-    return states, outputs, with_d
+#: The numpy engine (kept under its old name for callers of this module).
+_NumpyEngine = NumpyEngine

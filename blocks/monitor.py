@@ -79,6 +79,9 @@ class Monitor:
         Called with the fraction of simulated time done (0..1), at most every :data:`PROGRESS_PERIOD`.
     method : str
         The solver, for the step budget in right-hand-side evaluations.
+    growth : bool
+        Whether states without a finite bound are judged by growth (:meth:`StateBounds.with_growth`, the
+        Figure-2 loop's rule) or only by being finite (a user's own diagram, as python-control runs it).
     """
 
     @classmethod
@@ -89,7 +92,7 @@ class Monitor:
 
     def __init__(self, what: str, bounds: StateBounds | None, x0, budget: Budget | None = None,
                  t_final: float = math.inf, progress: Callable[[float], None] | None = None,
-                 method: str = "RK45") -> None:
+                 method: str = "RK45", growth: bool = True) -> None:
         if progress is not None and not callable(progress):
             raise TypeError(f"progress must be a callable taking the fraction done (0..1), got {progress!r}")
         x0 = np.asarray(x0, dtype=float)
@@ -97,7 +100,7 @@ class Monitor:
             n = x0.shape[0]
             bounds = StateBounds(np.full(n, np.inf), [f"state {k}" for k in range(n)], [""] * n, ["finite"] * n)
         self.what = what
-        self.bounds = bounds.with_growth(x0)
+        self.bounds = bounds.with_growth(x0) if growth else bounds
         self.budget = Budget.from_env() if budget is None else budget
         self.t_final = float(t_final)
         self.method = method

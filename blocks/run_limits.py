@@ -218,8 +218,12 @@ def _inertia_along(arm, q: np.ndarray) -> np.ndarray:
     return np.asarray(kernels.inertia_matrix(arm.kernel_params(), q.T))
 
 
-def check_run(scenario: Scenario, observer: bool = True, budget: Budget | None = None) -> Budget:
+def check_run(scenario: Scenario, observer: bool = True, budget: Budget | None = None,
+              estimate: Estimate | None = None, what: str | None = None) -> Budget:
     """Refuse a run whose estimate exceeds the budget; return the budget to enforce during the run.
+
+    ``estimate`` is :func:`estimate_run`'s (computed here when not given); ``what`` names the run in the
+    message (default ``scenario 'name' (method)``).
 
     Raises
     ------
@@ -227,5 +231,6 @@ def check_run(scenario: Scenario, observer: bool = True, budget: Budget | None =
         With the estimate, the key that causes it and how to raise the budget.
     """
     budget = Budget.from_env() if budget is None else budget
-    budget.check(estimate_run(scenario, observer), f"scenario '{scenario.name}' ({scenario.simulation.method})")
+    estimate = estimate_run(scenario, observer) if estimate is None else estimate
+    budget.check(estimate, what or f"scenario '{scenario.name}' ({scenario.simulation.method})")
     return budget

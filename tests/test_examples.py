@@ -9,6 +9,7 @@ not against the package.
 """
 from __future__ import annotations
 
+import importlib.util
 import os
 import re
 import subprocess
@@ -88,6 +89,12 @@ def _check_numbers(name: str, stdout: str) -> None:
         dq, dd = _floats(r"q\[2\] ([-\d.e+]+) m, d_hat\[2\] ([-\d.e+]+) N", stdout)
         # two engines on one interconnection, both at rtol 1e-6: the paths agree to solver tolerance
         assert dq < 1e-5 and dd < 1e-3, stdout
+        # the diagram with the user's own blocks: compiled when numba is installed, python-control's numbers
+        engine, diff, moved = re.search(r"with the actuator lag: engine (\w[\w-]*); largest difference from "
+                                        r"ct.input_output_response ([-\d.e+]+); the lag moves q\[2\] by up to "
+                                        r"([-\d.e+]+) mm", stdout).groups()
+        assert engine == ("compiled" if importlib.util.find_spec("numba") else "fast"), stdout
+        assert float(diff) < 1e-6 and 0.0 < float(moved) < 10.0, stdout
     elif name == "small_sweep":
         errors = [float(v) for v in re.findall(r"RMS tool-tip error ([\d.]+) mm", stdout)]
         assert len(errors) == 6 and all(a > b for a, b in zip(errors, errors[1:])), errors

@@ -39,7 +39,17 @@ def unavailable_reason(system, method: str = "RK45") -> str | None:
     for block in subsystems(system):
         if contract_of(block).kernels is None:
             return (f"block '{block.name}' has no kernels (a user's own python-control system or an FMU), "
-                    f"so the loop cannot be compiled")
+                    f"so the loop cannot be compiled (blocks.simulate_system gives a user's own ct.nlsys, ct.ss "
+                    f"and ct.tf blocks kernels)")
+    from ..plan import AlgebraicLoopError
+    try:
+        plan = make_plan(system)
+    except AlgebraicLoopError as err:
+        return str(err)
+    if plan.fixed_point:
+        return (f"the blocks {plan.order} cannot be put in an order (a cycle through blocks whose feedthrough is "
+                "not declared), so the compiled engine cannot run them; the numpy engine iterates them as "
+                "python-control does")
     return None
 
 
@@ -52,6 +62,9 @@ class CompiledLoopEngine:
     ----------
     system : control.InterconnectedSystem
         The loop; every block must carry kernels (see :mod:`blocks.contract`).
+    rows : tuple of RowGroup, optional
+        The row groups to generate beside the outputs (:mod:`blocks.compiled.rows`); default those of the
+        Figure-2 loop (:func:`~blocks.compiled.rows.loop_rows_of`), ``()`` for a diagram of other signals.
 
     Raises
     ------
@@ -62,13 +75,13 @@ class CompiledLoopEngine:
     #: It stops at the first step beyond any state's own bound.
     per_state_bounds = True
 
-    def __init__(self, system) -> None:
+    def __init__(self, system, rows: tuple | None = None) -> None:
         if numba_or_none() is None:
             raise CompiledUnavailable("engine='compiled' needs numba, the optional extra: "
                                       "pip install \"dobkit[fast]\"")
         self.system = system
         self.plan = make_plan(system)
-        self.program, self.kernels = program_for(self.plan, system, loop_rows_of(system))
+        self.program, self.kernels = program_for(self.plan, system, loop_rows_of(system) if rows is None else rows)
         # this loop's numbers: the traced blocks' into theta, the called kernels' parameters into ext
         self.theta, self.ext = self.program.numbers(self.kernels)
         self.module, cached = load_module(self.program)
@@ -123,7 +136,8 @@ class CompiledLoopEngine:
         """Compile (or load from the cache) every function a run calls, on a two-point grid."""
         x0, unbounded = np.zeros(self.nstates), np.full(self.nstates, np.inf)
         self._first_call(lambda: (self._integrate(x0, np.array([0.0, 1e-9]), 1e-3, 1e-6, np.inf, unbounded, None),
-                                  self.outputs_on_grid(np.array([0.0]), x0[:, None], rows=("d",))))
+                                  self.outputs_on_grid(np.array([0.0]), x0[:, None],
+                                                       rows=("d",) if "d" in self.row_groups else ())))
         mark_compiled(self.program)
 
     # -- a run -------------------------------------------------------------------------------------------

@@ -64,7 +64,11 @@ def _copy_module(name: str) -> types.ModuleType:
 
 
 def jit_kernel(fn):
-    """The numba-compiled copy of kernel ``fn`` (memoised; its kernel callees compiled the same way)."""
+    """The numba-compiled copy of kernel ``fn`` (memoised; its kernel callees compiled the same way); a kernel
+    that carries its own compiled form (``numba_kernel``: a user's function compiled as it stands) gives that."""
+    own = getattr(fn, "numba_kernel", None)
+    if own is not None:
+        return own
     found = _jitted.get(fn)
     if found is not None:
         return found
