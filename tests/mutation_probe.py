@@ -115,7 +115,7 @@ class Outcome:
 # Tests per target (targeted: the module's own tests and the independent references that cover it)
 # --------------------------------------------------------------------------------------------------------------
 DYN = ("tests/test_dynamics.py", "tests/test_arm_model.py", "tests/test_one_source.py")
-KIN = ("tests/test_kinematics.py", "tests/test_dynamics.py", "tests/test_arm_model.py", "tests/test_pinned_metrics.py")
+KIN = ("tests/test_kinematics.py", "tests/test_dynamics.py", "tests/test_arm_model.py", "tests/test_metrics.py")
 LAWS = ("tests/test_one_source.py", "tests/test_loop.py::test_lumped_disturbance_is_what_the_nominal_model_leaves_unexplained",
         "tests/test_loop.py::test_pd_error_dynamics_are_s_plus_6_times_s_plus_30",
         "tests/test_loop.py::test_observer_removes_constant_disturbance",
@@ -133,7 +133,7 @@ IK = ("tests/test_urdf_ik.py", "tests/test_arm_model.py")
 TRACE = ("tests/test_arm_calls.py", "tests/test_urdf_trace.py", "tests/test_compiled_row_kernels.py")
 MONITOR = ("tests/test_one_monitor.py",)
 DIVERGENCE = ("tests/test_one_monitor.py", "tests/test_compiled_row_kernels.py::test_force_bound_equals_the_numpy_way_and_pinocchio")
-RUNAWAY = ("tests/test_fmu_master_findings.py", "tests/test_one_monitor.py")
+RUNAWAY = ("tests/test_cosim_misbehaving_fmus.py", "tests/test_one_monitor.py")
 RUN_LIMITS = ("tests/test_one_monitor.py::test_runs_beyond_the_budget_are_refused_before_they_start_naming_the_key",
               "tests/test_compiled_row_kernels.py::test_rates_equal_the_numpy_way_and_pinocchio",
               "tests/test_sweep_limits.py", "tests/test_one_monitor.py")
@@ -142,9 +142,9 @@ SCHEDULE = ("tests/test_batch.py", "tests/test_sweep_limits.py",
 DSTAB = ("tests/test_sampled_stability.py", "-k", "not nonlinear and not just_inside and not dobkit_simulate",
          "tests/test_digital_gravity.py", "tests/test_analysis_n_joints.py::test_euler_limit_is_ts_lambda_max_two")
 BUDGET = ("tests/test_budget.py",)
-LINEAR = ("tests/test_analysis_linear.py", "tests/test_pinned_linear.py", "tests/test_analysis_observer.py",
+LINEAR = ("tests/test_analysis_linear.py", "tests/test_analysis_nominal_model.py", "tests/test_analysis_observer.py",
           "tests/test_analysis_n_joints.py")
-METRICS = ("tests/test_pinned_metrics.py", "tests/test_pinned_signals.py")
+METRICS = ("tests/test_metrics.py", "tests/test_derived_signals.py")
 FMU_C = ("tests/test_one_source.py::test_the_c_plant_matches_the_reference", "tests/test_fmu_end_stops.py",
          "tests/test_fmu_export.py::test_co_simulation_follows_the_input_slope_and_gives_exact_output_derivatives")
 END_STOPS = ("tests/test_fmu_end_stops.py",)
@@ -329,7 +329,7 @@ MUTANTS = [
     M("ds-A-order", "digital_stability", DS, "A = -Y @ Minv", "A = -Minv @ Y", DSTAB + ("tests/test_sampled_stability.py",),
       "A = -M^-1 Y for -Y M^-1 (a non-scalar gain)"),
     M("ds-delay-shift", "digital_stability", DS, "for j in range(delay - 1):", "for j in range(max(delay - 2, 0)):",
-      DSTAB + ("tests/test_pinned_delay.py",), "delay buffer: the last shift missing (delay >= 2)"),
+      DSTAB + ("tests/test_digital_delay.py",), "delay buffer: the last shift missing (delay >= 2)"),
     M("ds-bisect-mean", "digital_stability", DS, "mid = math.sqrt(lo * hi)", "mid = 0.5 * (lo + hi)", DSTAB,
       "bisection at the arithmetic mean",
       equivalent="the bracket still halves around the same crossing; the result lies within rtol of the limit either way"),
@@ -403,9 +403,9 @@ MUTANTS = [
 FMU_C2 = ("tests/test_fmu_safety.py", "tests/test_fmu_cosim.py", "tests/test_cosim_coupling.py",
           "tests/test_fmu_export.py::test_co_simulation_follows_the_input_slope_and_gives_exact_output_derivatives")
 CTRL_C = ("tests/test_controller_fmu.py",)
-FMU_PY = ("tests/test_cosim_coupling.py", "tests/test_pinned_coupling.py", "tests/test_fmu_cosim.py")
+FMU_PY = ("tests/test_cosim_coupling.py", "tests/test_cosim_coupling_input.py", "tests/test_fmu_cosim.py")
 START = ("tests/test_fmu_start_values.py",)
-DIGITAL = ("tests/test_digital.py", "tests/test_pinned_delay.py", "tests/test_pinned_digital_observer.py")
+DIGITAL = ("tests/test_digital.py", "tests/test_digital_delay.py", "tests/test_digital_observer.py")
 TICKS = ("tests/test_sampling_events.py", "tests/test_digital.py")
 DOPRI = ("tests/test_compiled.py::test_compiled_equals_numpy_engine",
          "tests/test_compiled.py::test_compiled_equals_numpy_engine_on_random_variants",
@@ -413,7 +413,7 @@ DOPRI = ("tests/test_compiled.py::test_compiled_equals_numpy_engine",
 TRACED = ("tests/test_fastpath.py::test_the_generated_float_right_hand_side_equals_the_numpy_plan_bit_for_bit",
           "tests/test_compiled.py::test_generated_right_hand_side_and_outputs_equal_the_plan_executed_with_numpy",
           "tests/test_urdf_trace.py")
-NOISE = ("tests/test_pinned_signals.py", "tests/test_loop.py::test_measurement_noise_is_reproducible_by_seed",
+NOISE = ("tests/test_derived_signals.py", "tests/test_loop.py::test_measurement_noise_is_reproducible_by_seed",
          "tests/test_arm_digital.py::test_noise_of_n_joints_is_seeded_and_keeps_the_rrpr_draw",
          "tests/test_analysis_digital.py::test_quantization_noise_is_predicted_within_20_percent")
 LACERATION = ("tests/test_trajectory.py",)
