@@ -1,0 +1,74 @@
+"""Output folders (blocks.outputs.staged_output): checked before the work, filled in place when empty, never
+mixed between two runs, nothing left by a failure (docs/hostile-inputs.md, "Output folders")."""
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from blocks.outputs import staged_output
+
+
+def _fill(target) -> None:
+    with staged_output(target) as stage:
+        (stage / "result.txt").write_text("done")
+
+
+def test_an_empty_folder_or_a_link_to_one_is_filled_in_place(tmp_path):
+    volume = tmp_path / "volume"                # like a container's mounted volume: it exists, empty, and stays
+    volume.mkdir()
+    _fill(volume)
+    assert sorted(p.name for p in volume.iterdir()) == ["result.txt"]
+    real = tmp_path / "real"
+    real.mkdir()
+    link = tmp_path / "link"
+    link.symlink_to(real)
+    _fill(link)
+    assert link.is_symlink() and (real / "result.txt").read_text() == "done"
+
+
+def test_unusable_folders_are_refused_before_the_work(tmp_path):
+    dangling = tmp_path / "dangling"
+    dangling.symlink_to(tmp_path / "nowhere")
+    with pytest.raises(FileNotFoundError, match="symbolic link.*which does not exist"):
+        staged_output(dangling)
+    full = tmp_path / "full"
+    full.mkdir()
+    (full / "old.txt").write_text("old")
+    with pytest.raises(FileExistsError, match="exists and is not empty"):
+        staged_output(full)
+    if os.geteuid() != 0:                        # root writes anywhere
+        locked = tmp_path / "locked"
+        locked.mkdir()
+        locked.chmod(0o500)
+        with pytest.raises(PermissionError, match="cannot be written"):
+            staged_output(locked)
+
+
+def test_a_second_run_for_the_same_folder_is_refused_at_once_and_a_killed_runs_lock_is_cleared(tmp_path):
+    target = tmp_path / "out"
+    first = staged_output(target)
+    with pytest.raises(FileExistsError, match=f"being written by another dobkit run \\(process {os.getpid()}\\)"):
+        staged_output(target)
+    del first                                    # the work failed before writing: the reservation goes
+    assert not target.exists()
+    target.mkdir()
+    (target / ".dobkit-writing").write_text("999999999")                   # no such process
+    (target / ".partial-left").mkdir()
+    _fill(target)
+    assert sorted(p.name for p in target.iterdir()) == ["result.txt"]
+
+
+def test_a_failure_leaves_nothing_and_the_umask_is_honoured(tmp_path):
+    target = tmp_path / "out"
+    with pytest.raises(RuntimeError):
+        with staged_output(target) as stage:
+            (stage / "half.txt").write_text("half")
+            raise RuntimeError("the run failed")
+    assert not target.exists()
+    old = os.umask(0o027)
+    try:
+        _fill(target)
+    finally:
+        os.umask(old)
+    assert (target.stat().st_mode & 0o777) == 0o750

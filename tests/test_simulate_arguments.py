@@ -1,0 +1,24 @@
+"""What ``blocks.simulate`` is given besides a scenario: anything else is named in a TypeError before the work
+(docs/hostile-inputs.md, "Single runs")."""
+from __future__ import annotations
+
+import pytest
+
+import blocks
+
+PAPER = blocks.load_scenario("paper")
+SHORT = {"simulation.t_final": 0.2, "trajectory.duration": 10.0}
+
+
+@pytest.mark.parametrize("given, words", [(None, "got NoneType"), (123, "got int 123"),
+                                          ({"gains": {"kp": 1}}, "scenario_from_dict")])
+def test_what_is_not_a_scenario_is_named(given, words):
+    with pytest.raises(TypeError, match=words):
+        blocks.simulate(given)
+
+
+def test_bad_arguments_to_simulate_are_named():
+    with pytest.raises(TypeError, match="plant must be a python-control NonlinearIOSystem.*str 'x'"):
+        blocks.simulate(PAPER.with_changes(SHORT), plant="x")
+    with pytest.raises(TypeError, match="observer must be True or False, got 'yes'"):
+        blocks.simulate(PAPER.with_changes(SHORT), observer="yes")
