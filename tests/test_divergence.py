@@ -3,10 +3,13 @@ signal and the bound; a stiff but stable loop is not called diverged (docs/hosti
 runs")."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
 import blocks
+from blocks.divergence import StateBounds
 from blocks.metrics import signal
 
 PAPER = blocks.load_scenario("paper")
@@ -31,3 +34,19 @@ def test_divergence_is_judged_on_physical_signals_and_named(engine):
                        match=r"diverged (at|by) t = .*plant dq\[\d\] reached .* beyond its bound .*reference's "
                              r"largest speed plus"):
         blocks.simulate(s, engine=engine)
+
+
+def test_a_value_beyond_its_bound_prints_beyond_it():
+    rng = np.random.default_rng(3)
+    for bound in list(rng.uniform(1.0, 1e4, 200)) + [100.2, 1000.0, 1e-3]:
+        for excess in (1e-15, 1e-12, 1e-9, 3e-5, 1e-3, 0.5):
+            value = bound * (1 + excess)
+            if value <= bound:
+                continue
+            bounds = StateBounds(np.array([bound]), ["plant dq[2]"], ["m/s"], ["a reason"])
+            text = bounds.describe(np.array([-value]))
+            shown, limit = re.fullmatch(r"plant dq\[2\] reached (-?\S+) m/s, beyond its bound (\S+) m/s "
+                                        r"\(a reason\)", text).groups()
+            assert abs(float(shown)) > float(limit), text
+    text = StateBounds(np.array([100.2]), ["plant dq[2]"], ["m/s"], ["r"]).describe(np.array([100.23]))
+    assert "reached 100.23 m/s, beyond its bound 100.2 m/s" in text

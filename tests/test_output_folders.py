@@ -2,11 +2,15 @@
 mixed between two runs, nothing left by a failure (docs/hostile-inputs.md, "Output folders")."""
 from __future__ import annotations
 
+import errno
 import os
+import shutil
+import subprocess
+import sys
 
 import pytest
 
-from blocks.outputs import staged_output
+from blocks.outputs import file_error, staged_output
 
 
 def _fill(target) -> None:
@@ -72,3 +76,50 @@ def test_a_failure_leaves_nothing_and_the_umask_is_honoured(tmp_path):
     finally:
         os.umask(old)
     assert (target.stat().st_mode & 0o777) == 0o750
+
+
+@pytest.mark.parametrize("code, words", [(errno.EROFS, "the file system is read-only"),
+                                         (errno.ENOSPC, "the disk is full"), (errno.EDQUOT, "quota")])
+@pytest.mark.parametrize("role", ["output folder", "results file", "cache folder"])
+def test_file_errors_name_the_path_and_the_role(code, words, role):
+    err = file_error(OSError(code, os.strerror(code)), "/data/run-1", role)
+    assert str(err) == f"{role} '/data/run-1' cannot be written: {DISK_WORDS[code]}; choose another --out"
+    assert words in str(err) and err.errno == code and "Errno" not in str(err)
+
+
+DISK_WORDS = {errno.EROFS: "the file system is read-only", errno.ENOSPC: "the disk is full (no space left)",
+              errno.EDQUOT: "the disk quota is used up"}
+
+
+def _can_mount() -> bool:
+    if shutil.which("unshare") is None or os.geteuid() != 0:
+        return False
+    return subprocess.run(["unshare", "-m", "sh", "-c", "mount -t tmpfs -o size=64k tmpfs /mnt"],
+                          capture_output=True).returncode == 0
+
+
+@pytest.mark.skipif(not _can_mount(), reason="needs root and mount namespaces (unshare -m) for a real small tmpfs")
+def test_a_read_only_or_full_file_system_is_named_with_the_output_folder(tmp_path):
+    mount = tmp_path / "mnt"
+    mount.mkdir()
+    script = tmp_path / "fill.py"
+    script.write_text(
+        "import sys\nfrom pathlib import Path\nfrom blocks.outputs import staged_output\n"
+        "target = Path(sys.argv[1])\n"
+        "try:\n"
+        "    with staged_output(target) as stage:\n"
+        "        (stage / 'timeseries.csv').write_bytes(b'0' * 200_000)\n"
+        "except OSError as err:\n"
+        "    print(err)\n"
+        "print(sorted(p.name for p in target.parent.rglob('*')))\n")
+    env = dict(os.environ, PYTHONPATH=os.getcwd())
+    shell = (f"mount -t tmpfs -o size=64k tmpfs {mount} && {sys.executable} {script} {mount}/full; "
+             f"mount -o remount,ro {mount} && {sys.executable} -m dobkit simulate --out {mount}/ro")
+    run = subprocess.run(["unshare", "-m", "sh", "-c", shell], capture_output=True, text=True, env=env, timeout=600)
+    full, left, *_ = run.stdout.splitlines()
+    assert full == (f"output folder '{mount}/full' cannot be written: the disk is full (no space left); free space "
+                    "or choose another --out; nothing was kept")
+    assert left == "[]"                          # no staging folder, lock or folder left on the full disk
+    assert run.returncode == 2
+    assert run.stderr.strip() == (f"dobkit simulate: error: output folder '{mount}/ro' cannot be written: the file "
+                                  "system is read-only; choose another --out")

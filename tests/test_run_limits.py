@@ -2,6 +2,8 @@
 a run beyond the step budget, naming the key that sets the rate (docs/hostile-inputs.md, "Single runs")."""
 from __future__ import annotations
 
+import re
+
 import pytest
 
 import blocks
@@ -21,3 +23,20 @@ def test_runs_that_would_never_finish_are_refused_before_they_start_with_the_key
     with pytest.raises(BudgetError, match=f"integrator steps per run .*set by '{key}'.*DOBKIT_MAX_STEPS") as err:
         blocks.simulate(PAPER.with_changes(changes), engine="fast")
     assert err.value.key == key
+
+
+NUMBER = r"([0-9.]+(?:e[+-]?\d+)?)"
+
+
+def test_the_step_refusal_of_kp_1e308_agrees_with_its_own_rate_and_step():
+    with pytest.raises(BudgetError) as err:
+        blocks.simulate(PAPER.with_changes({"gains.kp": 1e308}))
+    text = str(err.value)
+    steps, rate, step = (float(re.search(pattern, text).group(1)) for pattern in (
+        rf"needs about {NUMBER} integrator steps", rf"fastest rate, about {NUMBER} 1/s",
+        rf"step to {NUMBER} s"))
+    # kd^2 < 4 kp: the PD poles have modulus sqrt(kp) = 1e154 1/s (perfect model: no mismatch factor)
+    assert rate == pytest.approx(1e154, rel=1e-3)
+    assert step == pytest.approx(3.0 / 1e154, rel=1e-3)
+    assert steps == pytest.approx(10.0 / step, rel=1e-2)
+    assert "'gains.kp'" in text
