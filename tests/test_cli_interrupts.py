@@ -10,8 +10,11 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
+import pytest
 from conftest import SHORT_SCENARIO_TOML
+from two_joint_arm import needs_pinocchio
 
 from dobkit.signals import INTERRUPTED, TERMINATED, run_with_signals
 
@@ -79,3 +82,76 @@ def test_run_with_signals_turns_sigterm_into_the_ctrl_c_path_and_restores_the_ha
     assert run_with_signals(command, True) == TERMINATED
     assert run_with_signals(command, False) == 0
     assert signal.getsignal(signal.SIGTERM) is before
+
+
+def _processes_mentioning(text: str) -> list[str]:
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                line = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode("utf-8", "replace")
+            except OSError:
+                continue
+            if text in line:
+                found.append(line[:120])
+    return found
+
+
+@pytest.mark.skipif(not Path("/proc/self/cmdline").exists(), reason="needs /proc to see the compiler's processes")
+@needs_pinocchio
+def test_sigterm_while_the_fmu_is_compiled_leaves_no_compiler_process_or_temporary_file(tmp_path):
+    # the compiler's driver was killed, its cc1 ran on and left /tmp/cc*.s and cc*.o behind after "interrupted;
+    # nothing partial was written"
+    temp = tmp_path / "tmp"
+    temp.mkdir()
+    env = dict(os.environ, TMPDIR=str(temp))
+    proc = subprocess.Popen([sys.executable, "-m", "dobkit", "fmu", "export", "--arm", "scope4", "--out", "x.fmu"],
+                            cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 300
+    while not any("cc1" in p for p in _processes_mentioning(str(temp))):
+        assert proc.poll() is None and time.monotonic() < deadline, "the compiler never ran"
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143, err
+    assert err.strip().splitlines()[-1] == "dobkit fmu: interrupted; nothing partial was written"
+    time.sleep(1.0)                                    # what outlived the command has had time to write
+    assert _processes_mentioning(str(temp)) == []
+    assert sorted(p.name for p in temp.iterdir()) == []
+    assert not (tmp_path / "x.fmu").exists()
+
+
+def test_an_interrupt_while_a_module_makes_its_classes_is_not_reported_as_an_error(monkeypatch, capsys):
+    # SIGTERM during `import scipy...` ended `dobkit fmu export` with "error: Error calling __set_name__ on
+    # 'cached_property' instance 'nodes_and_weights' in 'GaussLegendreQuadrature'" and exit 2 (Python 3.11 wraps
+    # an exception of __set_name__ in RuntimeError)
+    import dobkit.cli
+
+    class Descriptor:
+        def __set_name__(self, owner, name):
+            raise KeyboardInterrupt("received signal SIGTERM")
+
+    def command(args):
+        type("Quadrature", (), {"nodes_and_weights": Descriptor()})     # what an import does when it makes a class
+        return 0
+    monkeypatch.setattr(dobkit.cli, "_cmd_simulate", command)
+    assert dobkit.cli.main(["simulate"]) == 130
+    assert capsys.readouterr().err.strip() == "dobkit simulate: interrupted; nothing partial was written"
+
+
+def test_an_interrupted_job_says_nothing_was_written_when_its_log_was_not_made(tmp_path, capsys):
+    # "every finished run is kept in s-results.jsonl, and the same command resumes" with no such file
+    import argparse
+
+    from dobkit.job_commands import run_job
+    args = argparse.Namespace(max_memory=None, max_steps=None, max_seconds=None)
+    results = tmp_path / "s-results.jsonl"
+
+    def body(args, budget, state):
+        state["results"] = results
+        raise KeyboardInterrupt
+    assert run_job("sweep", args, body, (), "run", "results") == 130
+    assert capsys.readouterr().err.strip() == "dobkit sweep: interrupted before any run finished; nothing was written"
+    results.write_text("{}\n")
+    assert run_job("sweep", args, body, (), "run", "results") == 130
+    assert f"every finished run is kept in {results}" in capsys.readouterr().err

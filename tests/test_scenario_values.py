@@ -9,6 +9,8 @@ import threading
 import numpy as np
 import pytest
 from dobkit_process import run_dobkit as _dobkit
+from two_joint_arm import TWO
+from two_joint_arm import write_urdf as _urdf
 
 import blocks
 from blocks.gains import GainError, validated_gain
@@ -139,3 +141,13 @@ def test_a_scenarios_arrays_cannot_be_made_writable_again():
             arr[...] = 0.0
         np.testing.assert_array_equal(arr, before, err_msg=name)
     assert s.kp[0, 0] == 180.0 and s.observer_gain[0, 0] == 40.0
+
+
+def test_a_urdf_given_as_the_scenario_says_where_a_urdf_goes(tmp_path):
+    # `dobkit simulate --scenario arm.urdf` said "not valid TOML: Invalid statement (at line 1, column 1)"
+    _urdf(tmp_path, TWO)
+    done = _dobkit("simulate", "--scenario", "arm.urdf", "--no-figures", cwd=tmp_path)
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert done.stderr.strip() == ("dobkit simulate: error: arm.urdf is an XML or URDF file, not a scenario (TOML); a "
+                                   "URDF arm is named in a scenario's [arm] section: urdf = \"...\", tool_frame = "
+                                   "\"...\"")

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -213,3 +215,40 @@ def test_an_ordinary_gain_grid_is_summarised(tmp_path, short_file):
     assert summary.counts.finished == 3
     assert [f.file for f in files["summary"].figures] == [
         "hist_rms_disturbance_error.png", "hist_max_tool_position_error_mm.png", "worst_vs_gains_kp.png"]
+
+
+def _files(folder: Path) -> dict:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+SUMMARY_HEADER = {"name": "h", "runs": 3, "worst_metric": "max_tool_position_error_mm", "worst_count": 3}
+
+
+SUMMARY_ROWS = [{"run_id": f"run{i:04d}", "index": i, "values": {"gains.kp": 100.0 + i}, "status": "ok",
+                 "metrics": {"max_tool_position_error_mm": 1.0 + i, "rms_position_error": [1e-4] * 4}}
+                for i in range(3)]
+
+
+@pytest.mark.parametrize("previous", [False, True], ids=["first summary", "over a previous summary"])
+def test_an_interrupt_as_the_summarys_staging_folder_is_made_leaves_nothing_of_it(tmp_path, monkeypatch, previous):
+    # Ctrl-C or SIGTERM after mkdtemp made '.NAME.partial-XXXX' and before its name came back: the folder stayed
+    from analysis.sweep.summary import write_summary
+    out = tmp_path / "s-summary"
+    if previous:
+        write_summary((SUMMARY_HEADER, SUMMARY_ROWS), out, formats=("png",))
+    before = _files(tmp_path)
+    real = os.mkdir
+
+    def made_then_interrupted(path, *args, **kwargs):
+        real(path, *args, **kwargs)
+        if ".partial-" in os.fspath(path):
+            raise KeyboardInterrupt("received signal SIGTERM")
+    monkeypatch.setattr(os, "mkdir", made_then_interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        write_summary((SUMMARY_HEADER, SUMMARY_ROWS), out, formats=("png",))
+    monkeypatch.setattr(os, "mkdir", real)
+    assert _files(tmp_path) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == (["s-summary"] if previous else [])
+    files = write_summary((SUMMARY_HEADER, SUMMARY_ROWS), out, formats=("png",))
+    assert files["json"] == out / "summary.json" and files["json"].is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s-summary"]
