@@ -78,7 +78,48 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-KILLERS = ("tests/test_mutation_killers.py", "tests/test_mutation_killers2.py")
+# The tests written for the mutants the targeted tests let through, each beside the tests of its subject, with the
+# mutants it kills (its docstring names them too).  ``--killers`` runs them after a mutant's targeted tests.
+KILLED_BY = {
+    "tests/test_kinematics.py::test_tool_velocity_is_the_time_derivative_of_the_pose": ("kin-vel-row3",),
+    "tests/test_kinematics.py::test_the_inner_reach_is_the_links_difference_whichever_is_longer": ("kinpy-reach-abs",),
+    "tests/test_kinematics.py::test_ik_with_no_singularity_margin_accepts_the_folded_and_the_stretched_arm": ("kinpy-ik-margin-le",),
+    "tests/test_divergence.py::test_a_bound_holds_the_magnitude_inclusive_on_both_sides": ("div-violated-lt", "div-violated-abs"),
+    "tests/test_divergence.py::test_runaway_is_growth_beyond_the_factor_in_consecutive_steps": ("div-runaway-factor", "div-runaway-reset"),
+    "tests/test_budget_limits.py::test_the_step_budget_allows_the_evaluations_scipy_makes_in_that_many_steps": ("mon-evals-factor", "mon-counted-ge"),
+    "tests/test_budget_limits.py::test_an_estimate_of_exactly_the_budget_fits_and_one_more_does_not": ("bu-check-ge",),
+    "tests/test_budget_limits.py::test_the_step_estimate_bounds_the_steps_the_schedule_takes": ("bu-schedule-breaks",),
+    "tests/test_budget_limits.py::test_jobs_sharing_a_budget_each_get_their_part_of_the_memory": ("bu-share",),
+    "tests/test_metrics.py::test_the_disturbance_error_is_against_the_lumped_disturbance_when_the_run_has_it": ("me-d-source",),
+    "tests/test_fmu_end_stops.py::test_the_stops_are_set_from_the_smallest_effective_inertia_over_the_poses": ("es-inertia-min",),
+    "tests/test_fmu_end_stops.py::test_a_joint_bounded_on_one_side_gets_a_stop_on_that_side": ("es-bounded-and",),
+    "tests/test_arm_paths.py::test_the_ik_singularity_margin_is_on_the_smallest_singular_value": ("ik-sigma-largest",),
+    "tests/test_sampled_stability.py::test_the_sampled_map_of_each_observer_variant_and_its_stable_limit": ("ds-variant-swap", "ds-eq16-sign", "ds-return-hi"),
+    "tests/test_divergence.py::test_the_bounds_of_a_held_arm_are_the_rules_numbers_by_hand": ("div-pos-abs", "div-force-no-external"),
+    "tests/test_run_limits.py::test_the_step_rate_takes_the_largest_mismatch_of_a_nominal_model_given_in_python": ("rl-mismatch-min",),
+    "tests/test_run_limits.py::test_the_step_estimate_of_a_stiff_loop_is_scipys_step_count_on_its_fastest_mode": ("rl-span-times",),
+    "tests/test_run_limits.py::test_the_observer_rate_bounds_the_slides_fastest_mode_when_the_true_arm_is_lighter": ("sched-obs-nominal-only",),
+    "tests/test_mutation_killers2.py::test_a_new_input_value_without_a_slope_is_held_over_the_step": ("c-set-input-keeps-slope",),
+    "tests/test_mutation_killers2.py::test_do_step_refuses_a_zero_step_and_a_step_from_another_time": ("c-dostep-zero-h", "c-dostep-time-check"),
+    "tests/test_mutation_killers2.py::test_a_serialized_state_with_a_switch_of_two_or_without_its_magic_is_refused": ("c-restore-switch-check", "c-state-magic"),
+    "tests/test_mutation_killers2.py::test_serializing_into_a_buffer_of_another_size_is_refused": ("c-state-size-lt",),
+    "tests/test_mutation_killers2.py::test_fmi2_status_reports_the_last_successful_time_and_a_failed_step": ("c-fmi2-last-time", "c-fmi2-status"),
+    "tests/test_mutation_killers2.py::test_fmi3_do_step_returns_the_time_it_reached": ("c-fmi3-last-time",),
+    "tests/test_mutation_killers2.py::test_the_controller_runs_only_at_its_sample_period_and_its_time_is_in_seconds": ("c-ctrl-step-period", "c-ctrl-time"),
+    "tests/test_mutation_killers2.py::test_a_stop_time_past_the_reference_table_is_refused": ("c-ctrl-stop-time",),
+    "tests/test_mutation_killers2.py::test_the_largest_float32_is_a_float32_start_value_and_the_next_double_is_not": ("sv-float32-max",),
+    "tests/test_mutation_killers2.py::test_dormand_prince_steps_are_scipys_rk45_steps": ("dp-a31", "dp-c4", "dp-b4-sign", "dp-e-typo", "dp-p-sign", "dp-safety", "dp-max-factor", "dp-rejected-cap", "dp-dense-p3", "dp-h0-factor", "dp-h1-order", "dp-err-scale", "dp-rms-n"),
+    "tests/test_mutation_killers2.py::test_the_first_step_is_scipys_initial_step": ("dp-h1-order", "dp-h0-factor"),
+    "tests/test_mutation_killers2.py::test_the_tool_paths_velocity_and_acceleration_are_the_derivatives_of_its_position": ("tp-dds-T",),
+    "tests/test_mutation_killers2.py::test_sweep_statistics_worst_runs_and_influence_are_the_textbook_ones": ("su-std-ddof", "su-p95", "su-ranks-ties", "su-mean-scale", "su-worst-order"),
+    "tests/test_mutation_killers2.py::test_the_resolved_rate_acceleration_is_the_derivative_of_the_rate_along_the_motion_off_the_path": ("rr-dv-feedback",),
+    "tests/test_mutation_killers2.py::test_the_damping_margin_is_that_of_the_least_damped_joint": ("ev-damping-max",),
+    "tests/test_mutation_killers2.py::test_the_tune_score_of_an_infeasible_candidate_is_worse_than_every_feasible_one": ("ev-energy-total",),
+    "tests/test_mutation_killers2.py::test_constant_folding_in_a_trace_is_the_arithmetic": ("tr-fold-minus",),
+    "tests/test_mutation_killers2.py::test_the_designed_gain_meets_its_target_on_its_own_grid": ("gd-return-lo",),
+    "tests/test_mutation_killers2.py::test_a_low_pass_band_ends_at_its_first_crossing_of_the_level": ("fr-lowpass-edge",),
+}
+KILLERS = tuple(KILLED_BY)
 TIMEOUT = 900          # s per mutant; a run past it counts as killed (a hang is a failure), and says so
 
 
@@ -703,8 +744,8 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--only", nargs="*", help="mutant ids to run")
     p.add_argument("--group", nargs="*", help="groups to run")
-    p.add_argument("--killers", action="store_true", help=f"also run {' and '.join(KILLERS)} for each mutant")
-    p.add_argument("--killers-only", action="store_true", help=f"run only {' and '.join(KILLERS)} for each mutant")
+    p.add_argument("--killers", action="store_true", help=f"also run the {len(KILLERS)} tests of KILLED_BY for each mutant")
+    p.add_argument("--killers-only", action="store_true", help=f"run only the {len(KILLERS)} tests of KILLED_BY for each mutant")
     p.add_argument("--list", action="store_true", help="list the mutants and stop")
     p.add_argument("--json", help="write the outcomes to this file as they come")
     p.add_argument("--timeout", type=float, default=TIMEOUT)
