@@ -10,7 +10,7 @@ the tests named for it (``python -m pytest -x -q -n 0``), records whether any te
 Run it from the repository's top level::
 
     python tests/mutation_probe.py                 # every mutant, the tests named with it
-    python tests/mutation_probe.py --killers       # and tests/test_mutation_killers.py, ..._killers2.py after those
+    python tests/mutation_probe.py --killers       # and the killer tests (KILLED_BY) after those
     python tests/mutation_probe.py --only arm-m01-half chain-rnea-gravity-sign
     python tests/mutation_probe.py --group dynamics --json /tmp/probe.json
     python tests/mutation_probe.py --list          # the mutants, no runs
@@ -23,11 +23,11 @@ laws, the disturbance models, the URDF chain kernels and their traced calls, the
 divergence rule, the monitor, the run limits and step rates, the sampled-loop stability, the budgets, the
 linearization and bandwidth, the metrics, the end stops and the FMU's C plant): the targeted tests killed
 85; 22 survived, of which 2 are equivalent (``dist-tissue-inside``, ``ds-bisect-mean``: see their
-``equivalent``); ``tests/test_mutation_killers.py`` kills the other 20.  ``--killers`` must therefore
+``equivalent``); the first pass's killer tests (``KILLED_BY``) kill the other 20.  ``--killers`` must therefore
 report 105 killed and those 2 equivalent.
 
 Second pass, measured on 2026-12-02: 91 more mutants where the first did not go.  Per group: mutants, killed
-by the targeted tests, survivors, killed by ``tests/test_mutation_killers2.py`` (no survivor was judged
+by the targeted tests, survivors, killed by the second pass's killer tests (no survivor was judged
 equivalent):
 
 =============== ======= ====== ========= ============ =====================================================
@@ -58,6 +58,9 @@ mutant of ``blocks/compiled/dopri.py`` changes the compiled loops' cache key (th
 so numba compiles it instead of loading the cached original; the killer tests of the stepper run the file's
 text as plain Python beside scipy's RK45, no cache involved.  With both passes ``--killers`` must report 196
 killed and the first pass's 2 equivalents.
+The killer tests live with the tests of their subjects (``KILLED_BY`` names each one and the mutants it
+kills); some sit in files a mutant's targeted list names, so a run without ``--killers`` now kills a few of
+the survivors counted above.
 
 The table printed at the end has one row per mutant: its id, the file, whether it was killed, by which
 test (the first failure) and the time the run took.  Set ``DOBKIT_CACHE_DIR`` to a folder of the probe's
@@ -99,25 +102,25 @@ KILLED_BY = {
     "tests/test_run_limits.py::test_the_step_rate_takes_the_largest_mismatch_of_a_nominal_model_given_in_python": ("rl-mismatch-min",),
     "tests/test_run_limits.py::test_the_step_estimate_of_a_stiff_loop_is_scipys_step_count_on_its_fastest_mode": ("rl-span-times",),
     "tests/test_run_limits.py::test_the_observer_rate_bounds_the_slides_fastest_mode_when_the_true_arm_is_lighter": ("sched-obs-nominal-only",),
-    "tests/test_mutation_killers2.py::test_a_new_input_value_without_a_slope_is_held_over_the_step": ("c-set-input-keeps-slope",),
-    "tests/test_mutation_killers2.py::test_do_step_refuses_a_zero_step_and_a_step_from_another_time": ("c-dostep-zero-h", "c-dostep-time-check"),
-    "tests/test_mutation_killers2.py::test_a_serialized_state_with_a_switch_of_two_or_without_its_magic_is_refused": ("c-restore-switch-check", "c-state-magic"),
-    "tests/test_mutation_killers2.py::test_serializing_into_a_buffer_of_another_size_is_refused": ("c-state-size-lt",),
-    "tests/test_mutation_killers2.py::test_fmi2_status_reports_the_last_successful_time_and_a_failed_step": ("c-fmi2-last-time", "c-fmi2-status"),
-    "tests/test_mutation_killers2.py::test_fmi3_do_step_returns_the_time_it_reached": ("c-fmi3-last-time",),
-    "tests/test_mutation_killers2.py::test_the_controller_runs_only_at_its_sample_period_and_its_time_is_in_seconds": ("c-ctrl-step-period", "c-ctrl-time"),
-    "tests/test_mutation_killers2.py::test_a_stop_time_past_the_reference_table_is_refused": ("c-ctrl-stop-time",),
-    "tests/test_mutation_killers2.py::test_the_largest_float32_is_a_float32_start_value_and_the_next_double_is_not": ("sv-float32-max",),
-    "tests/test_mutation_killers2.py::test_dormand_prince_steps_are_scipys_rk45_steps": ("dp-a31", "dp-c4", "dp-b4-sign", "dp-e-typo", "dp-p-sign", "dp-safety", "dp-max-factor", "dp-rejected-cap", "dp-dense-p3", "dp-h0-factor", "dp-h1-order", "dp-err-scale", "dp-rms-n"),
-    "tests/test_mutation_killers2.py::test_the_first_step_is_scipys_initial_step": ("dp-h1-order", "dp-h0-factor"),
-    "tests/test_mutation_killers2.py::test_the_tool_paths_velocity_and_acceleration_are_the_derivatives_of_its_position": ("tp-dds-T",),
-    "tests/test_mutation_killers2.py::test_sweep_statistics_worst_runs_and_influence_are_the_textbook_ones": ("su-std-ddof", "su-p95", "su-ranks-ties", "su-mean-scale", "su-worst-order"),
-    "tests/test_mutation_killers2.py::test_the_resolved_rate_acceleration_is_the_derivative_of_the_rate_along_the_motion_off_the_path": ("rr-dv-feedback",),
-    "tests/test_mutation_killers2.py::test_the_damping_margin_is_that_of_the_least_damped_joint": ("ev-damping-max",),
-    "tests/test_mutation_killers2.py::test_the_tune_score_of_an_infeasible_candidate_is_worse_than_every_feasible_one": ("ev-energy-total",),
-    "tests/test_mutation_killers2.py::test_constant_folding_in_a_trace_is_the_arithmetic": ("tr-fold-minus",),
-    "tests/test_mutation_killers2.py::test_the_designed_gain_meets_its_target_on_its_own_grid": ("gd-return-lo",),
-    "tests/test_mutation_killers2.py::test_a_low_pass_band_ends_at_its_first_crossing_of_the_level": ("fr-lowpass-edge",),
+    "tests/test_fmu_plant_instance.py::test_a_new_input_value_without_a_slope_is_held_over_the_step": ("c-set-input-keeps-slope",),
+    "tests/test_fmu_plant_instance.py::test_do_step_refuses_a_zero_step_and_a_step_from_another_time": ("c-dostep-zero-h", "c-dostep-time-check"),
+    "tests/test_fmu_plant_instance.py::test_a_serialized_state_with_a_switch_of_two_or_without_its_magic_is_refused": ("c-restore-switch-check", "c-state-magic"),
+    "tests/test_fmu_plant_instance.py::test_serializing_into_a_buffer_of_another_size_is_refused": ("c-state-size-lt",),
+    "tests/test_fmu_plant_instance.py::test_fmi2_status_reports_the_last_successful_time_and_a_failed_step": ("c-fmi2-last-time", "c-fmi2-status"),
+    "tests/test_fmu_plant_instance.py::test_fmi3_do_step_returns_the_time_it_reached": ("c-fmi3-last-time",),
+    "tests/test_controller_fmu_core.py::test_the_controller_runs_only_at_its_sample_period_and_its_time_is_in_seconds": ("c-ctrl-step-period", "c-ctrl-time"),
+    "tests/test_controller_fmu_core.py::test_a_stop_time_past_the_reference_table_is_refused": ("c-ctrl-stop-time",),
+    "tests/test_fmu_start_values.py::test_the_largest_float32_is_a_float32_start_value_and_the_next_double_is_not": ("sv-float32-max",),
+    "tests/test_dormand_prince_steps.py::test_dormand_prince_steps_are_scipys_rk45_steps": ("dp-a31", "dp-c4", "dp-b4-sign", "dp-e-typo", "dp-p-sign", "dp-safety", "dp-max-factor", "dp-rejected-cap", "dp-dense-p3", "dp-h0-factor", "dp-h1-order", "dp-err-scale", "dp-rms-n"),
+    "tests/test_dormand_prince_steps.py::test_the_first_step_is_scipys_initial_step": ("dp-h1-order", "dp-h0-factor"),
+    "tests/test_arm_paths.py::test_the_tool_paths_velocity_and_acceleration_are_the_derivatives_of_its_position": ("tp-dds-T",),
+    "tests/test_sweep_summary.py::test_sweep_statistics_worst_runs_and_influence_are_the_textbook_ones": ("su-std-ddof", "su-p95", "su-ranks-ties", "su-mean-scale", "su-worst-order"),
+    "tests/test_arm_paths.py::test_the_resolved_rate_acceleration_is_the_derivative_of_the_rate_along_the_motion_off_the_path": ("rr-dv-feedback",),
+    "tests/test_tune_constraints.py::test_the_damping_margin_is_that_of_the_least_damped_joint": ("ev-damping-max",),
+    "tests/test_tune_constraints.py::test_the_tune_score_of_an_infeasible_candidate_is_worse_than_every_feasible_one": ("ev-energy-total",),
+    "tests/test_urdf_trace.py::test_constant_folding_in_a_trace_is_the_arithmetic": ("tr-fold-minus",),
+    "tests/test_analysis_observer.py::test_the_designed_gain_meets_its_target_on_its_own_grid": ("gd-return-lo",),
+    "tests/test_analysis_frequency.py::test_a_low_pass_band_ends_at_its_first_crossing_of_the_level": ("fr-lowpass-edge",),
 }
 KILLERS = tuple(KILLED_BY)
 TIMEOUT = 900          # s per mutant; a run past it counts as killed (a hang is a failure), and says so

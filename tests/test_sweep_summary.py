@@ -252,3 +252,32 @@ def test_an_interrupt_as_the_summarys_staging_folder_is_made_leaves_nothing_of_i
     files = write_summary((SUMMARY_HEADER, SUMMARY_ROWS), out, formats=("png",))
     assert files["json"] == out / "summary.json" and files["json"].is_file()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s-summary"]
+
+
+def test_sweep_statistics_worst_runs_and_influence_are_the_textbook_ones():
+    """su-std-ddof, su-p95, su-ranks-ties, su-mean-scale, su-worst-order.  Against Python's statistics module
+    (mean, sample standard deviation, median, the 5 % and 95 % cut points of the inclusive -- linear -- method)
+    and scipy.stats.spearmanr (ties get their mean rank); the worst runs are the largest values, largest first."""
+    import statistics
+
+    from scipy.stats import spearmanr
+
+    from analysis.sweep.summary import summarize
+
+    rng = np.random.default_rng(5)
+    kp = np.repeat([100.0, 120.0, 140.0, 160.0, 180.0, 200.0, 220.0], 3)         # a swept key with ties
+    metric = np.round(30.0 + 0.05 * kp + rng.normal(0.0, 4.0, kp.size), 1)     # mm; rounded: ties here too
+    rows = [{"run_id": f"run{i:04d}", "index": i, "values": {"gains.kp": float(kp[i])}, "status": "ok",
+             "metrics": {"max_tool_position_error_mm": float(metric[i])}} for i in range(kp.size)]
+    header = {"name": "h", "runs": len(rows), "worst_metric": "max_tool_position_error_mm", "worst_count": 4}
+    summary = summarize((header, rows))
+    st = summary.statistics["max_tool_position_error_mm"]
+    data = metric.tolist()
+    cuts = statistics.quantiles(data, n=20, method="inclusive")
+    assert st.mean == pytest.approx(statistics.fmean(data), rel=1e-12)
+    assert st.std == pytest.approx(statistics.stdev(data), rel=1e-12)
+    assert st.median == pytest.approx(statistics.median(data), rel=1e-12)
+    assert st.p5 == pytest.approx(cuts[0], rel=1e-12) and st.p95 == pytest.approx(cuts[-1], rel=1e-12)
+    expected = sorted(range(kp.size), key=lambda i: -metric[i])[:4]
+    assert [w.value for w in summary.worst] == [metric[i] for i in expected]
+    assert summary.influence["gains.kp"] == pytest.approx(spearmanr(kp, metric).statistic, rel=1e-12)
