@@ -281,3 +281,31 @@ def test_sweep_statistics_worst_runs_and_influence_are_the_textbook_ones():
     expected = sorted(range(kp.size), key=lambda i: -metric[i])[:4]
     assert [w.value for w in summary.worst] == [metric[i] for i in expected]
     assert summary.influence["gains.kp"] == pytest.approx(spearmanr(kp, metric).statistic, rel=1e-12)
+
+
+def test_sweep_summary_gives_tiny_lengths_in_mm():
+    from analysis.sweep import summary as sweep_report
+
+    n = 12
+    # joint 3 (d3, m) rests 353.8 pm off: the issue's number
+    errors = [[1e-6, 2e-6, 3.538e-10 * (1 + 0.01 * i), 4e-6] for i in range(n)]
+    rows = [{"run_id": f"run{i:04d}", "index": i, "values": {"gains.kp": 100.0 + i}, "status": "ok",
+             "metrics": {"final_abs_position_error": errors[i], "max_tool_position_error_mm": 1e-6 * (1 + i)}}
+            for i in range(n)]
+    header = {"name": "h", "runs": n, "worst_metric": "max_tool_position_error_mm", "worst_count": 3}
+    table, _ = sweep_report._load((header, rows), None)
+    summary = sweep_report._summary(table, "")
+    view = sweep_report._view(summary)
+    by_label = {label: (unit, numbers) for label, unit, numbers, _, _ in view["statistics"]}
+    joint3 = next(v for k, v in by_label.items() if "d3" in k)
+    assert joint3[0] == "mm"
+    # min over the runs: 3.538e-10 m = 3.538e-07 mm, four significant digits
+    assert float(joint3[1][2]) == pytest.approx(3.538e-7, rel=1e-4)
+    assert joint3[1][2] == "3.538e-07"
+    assert all(unit in ("mm", "rad", "") for unit, _ in by_label.values())
+    # the worst runs' tool-tip error: mm as computed (1.2e-05 mm for the last run), not 12 nm
+    assert view["worst_unit"] == "mm" and view["worst"][0][2] == "1.2e-05"
+    for fig, stem, _ in sweep_report._draw_figures(table, summary):
+        for ax in fig.axes:
+            for label in (ax.get_xlabel(), ax.get_ylabel()):
+                assert "[pm]" not in label and "[nm]" not in label, (stem, label)
