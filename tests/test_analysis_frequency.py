@@ -132,6 +132,8 @@ def test_noise_is_refused_for_the_frequency_loop():
         frequency.disturbance_loop(s)
 
 
+# Written for wrong changes of tests/mutation_probe.py that the rest of the suite let through: each docstring
+# names the mutants the test kills (python tests/mutation_probe.py --only ID --killers shows it).
 def test_a_low_pass_band_ends_at_its_first_crossing_of_the_level():
     """fr-lowpass-edge.  G(s) = 1/(s + 1) + 0.8 (10 s) / (s^2 + 10 s + 100^2): low-pass (DC gain 1), below
     1/sqrt(2) from ~1 rad/s, back above it around the resonance at 100 rad/s.  The -3 dB band of a low-pass is

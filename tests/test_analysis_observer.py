@@ -128,6 +128,8 @@ def test_design_rejects_bad_target(paper, grid):
         gain_design.design_observer_gain(paper.nominal, 5.0, grid, base=np.triu(np.ones((4, 4))))
 
 
+# Written for wrong changes of tests/mutation_probe.py that the rest of the suite let through: each docstring
+# names the mutants the test kills (python tests/mutation_probe.py --only ID --killers shows it).
 def test_the_designed_gain_meets_its_target_on_its_own_grid():
     """gd-return-lo.  The design's promise is "at least target_rad_s on every configuration of the grid": the
     slowest eigenvalue of Y M^-1(q), computed here with numpy on the design grid, is not below the target (to

@@ -1,5 +1,6 @@
-"""A budget's limits: the step budget enforced during a run (blocks.monitor counts the right-hand-side
-evaluations it allows)."""
+"""A budget's limits (blocks.budget, blocks.monitor): what a job may use, inclusive; shared among jobs run at once;
+the step estimate bounding the steps the schedule takes; and the right-hand-side evaluations the monitor counts
+against the step budget during a run, checked with scipy's own count per step."""
 from __future__ import annotations
 
 import numpy as np
@@ -24,6 +25,8 @@ def test_the_step_budget_is_enforced_during_the_run(monkeypatch):
         blocks.simulate(PAPER.with_changes(SHORT), engine="fast")
 
 
+# Written for wrong changes of tests/mutation_probe.py that the rest of the suite let through: each docstring
+# names the mutants the test kills (python tests/mutation_probe.py --only ID --killers shows it).
 @pytest.mark.parametrize("method", ["RK45", "RK23", "DOP853"])
 def test_the_step_budget_allows_the_evaluations_scipy_makes_in_that_many_steps(method):
     """mon-evals-factor, mon-counted-ge: a budget of N steps allows the right-hand-side evaluations of N steps.

@@ -53,6 +53,8 @@ def _controller(path):
     return fmu, vr
 
 
+# Written for wrong changes of tests/mutation_probe.py that the rest of the suite let through: each docstring
+# names the mutants the test kills (python tests/mutation_probe.py --only ID --killers shows it).
 @pytest.mark.needs_cc
 def test_the_controller_runs_only_at_its_sample_period_and_its_time_is_in_seconds(controller_fmu):
     """c-ctrl-step-period, c-ctrl-time.  One doStep is one sample: h = Ts (to rounding), not 5 % more or less;

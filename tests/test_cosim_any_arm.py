@@ -3,6 +3,8 @@
 The Python side (trajectory, controller, observer) and the exported plant FMU exchange six joints' signals; the
 co-simulated positions must match the monolithic loop (blocks.simulate, tight tolerances) to within the coupling
 error the co-simulation estimates by step doubling, and every per-joint result carries the arm's own units.
+A two-joint arm with a digital controller is co-simulated against its plant FMU as well: the sampled
+co-simulation names its signals by the arm's joints.
 """
 from __future__ import annotations
 

@@ -1,6 +1,8 @@
 """The divergence rule (blocks.divergence): a state beyond its bound, or running away, stops the run naming the
-signal and the bound; a stiff but stable loop is not called diverged (docs/hostile-inputs.md, "Single
-runs")."""
+signal, the value it reached and the bound; a stiff but stable loop is not called diverged.
+
+The bounds are the rule's numbers worked by hand; a bound holds the magnitude inclusively on both sides; the
+printed value is always beyond the printed bound (docs/hostile-inputs.md, "Single runs" and "Round 3")."""
 from __future__ import annotations
 
 import re
@@ -53,6 +55,8 @@ def test_a_value_beyond_its_bound_prints_beyond_it():
     assert "reached 100.23 m/s, beyond its bound 100.2 m/s" in text
 
 
+# Written for wrong changes of tests/mutation_probe.py that the rest of the suite let through: each docstring
+# names the mutants the test kills (python tests/mutation_probe.py --only ID --killers shows it).
 def test_a_bound_holds_the_magnitude_inclusive_on_both_sides():
     """div-violated-lt, div-violated-abs: divergence is a magnitude *beyond* the bound; at the bound, or at minus
     it, the run goes on; a hair beyond either side, or a value far below minus the bound, has diverged."""

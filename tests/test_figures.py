@@ -1,5 +1,6 @@
-"""The figures a reader sees: what each draws and says, in the formats asked for.
-"""
+"""The figures a reader sees (analysis.simulation.figures, analysis.linear.figures): the formats asked for, Fig. 6 of
+a digital run drawn as the sampled steps it is, the gain study's all-zero panel said so, and the observer design's
+errors per unit (N m apart from N)."""
 from __future__ import annotations
 
 import numpy as np

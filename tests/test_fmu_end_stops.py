@@ -223,6 +223,8 @@ def test_the_stop_is_stable_for_rk4_sub_steps_up_to_2_785_over_its_frequency(tmp
 PAPER = RobotParameters()
 
 
+# Written for wrong changes of tests/mutation_probe.py that the rest of the suite let through: each docstring
+# names the mutants the test kills (python tests/mutation_probe.py --only ID --killers shows it).
 def test_the_stops_are_set_from_the_smallest_effective_inertia_over_the_poses():
     """es-inertia-min: joint i's effective inertia 1 / (M^-1)_ii is smallest where the stop rings fastest; with
     that pose given as q0 the value taken is the one there (Eq. 5's matrix from conftest), not a larger one."""

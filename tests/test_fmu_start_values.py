@@ -66,6 +66,8 @@ def test_a_discrete_input_is_refused_at_load_not_at_the_first_set(reference_fmus
         load(reference_fmus(3, "Feedthrough"))
 
 
+# Written for wrong changes of tests/mutation_probe.py that the rest of the suite let through: each docstring
+# names the mutants the test kills (python tests/mutation_probe.py --only ID --killers shows it).
 def test_the_largest_float32_is_a_float32_start_value_and_the_next_double_is_not():
     """sv-float32-max.  IEEE 754 binary32's largest finite value (numpy's finfo) is in the type; a double just
     above it is not."""

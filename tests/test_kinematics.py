@@ -158,6 +158,8 @@ def test_ik_rejects_bad_input():
 Q = np.array([0.4, 1.1, 0.2, 0.3])            # a pose away from every singularity (rad, rad, m, rad)
 
 
+# Written for wrong changes of tests/mutation_probe.py that the rest of the suite let through: each docstring
+# names the mutants the test kills (python tests/mutation_probe.py --only ID --killers shows it).
 def test_tool_velocity_is_the_time_derivative_of_the_pose():
     """kin-vel-row3: ``tool_velocity`` (exported kernel) is d/dt of Eq. 8 along q', by central differences."""
     from blocks.kernels import kinematic_lengths, tool_velocity

@@ -196,6 +196,8 @@ def test_the_influence_is_spearmans_rank_correlation_by_hand():
 Q = np.array([0.4, 1.1, 0.2, 0.3])            # a pose away from every singularity (rad, rad, m, rad)
 
 
+# Written for wrong changes of tests/mutation_probe.py that the rest of the suite let through: each docstring
+# names the mutants the test kills (python tests/mutation_probe.py --only ID --killers shows it).
 def test_the_disturbance_error_is_against_the_lumped_disturbance_when_the_run_has_it():
     """me-d-source (killed before only because the hand-made signals had no tau_dis to read): with model mismatch
     the observer estimates the lumped d (Eq. 2-3), not tau_dis alone; the RMS of d - d_hat over five hand-made

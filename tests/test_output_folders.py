@@ -1,5 +1,6 @@
-"""Output folders (blocks.outputs.staged_output): checked before the work, filled in place when empty, never
-mixed between two runs, nothing left by a failure (docs/hostile-inputs.md, "Output folders")."""
+"""Output folders (blocks.outputs): checked before the work, filled in place when empty, never mixed between two
+runs, nothing left by a failure; a file system that is read-only, full or over quota is named with the file's
+role and path (docs/hostile-inputs.md, "Output folders" and "Round 3")."""
 from __future__ import annotations
 
 import errno

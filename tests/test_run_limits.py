@@ -1,5 +1,9 @@
-"""A run's limits before it starts (blocks.run_limits): its fastest rate, its step estimate and the refusal of
-a run beyond the step budget, naming the key that sets the rate (docs/hostile-inputs.md, "Single runs")."""
+"""A run's limits before it starts (blocks.run_limits, blocks.batch.schedule): its fastest rate, its step estimate
+and the refusal of a run beyond the step budget, naming the key that sets the rate (docs/hostile-inputs.md,
+"Single runs" and "Round 3").
+
+Expected numbers are worked by hand: the PD loop's fastest rate with ``kd^2 < 4 kp`` is ``sqrt(kp)``, an explicit
+RK45 step is stable for ``h <= 3 / rate``; scipy's RK45 on the fastest mode gives the step count to compare with."""
 from __future__ import annotations
 
 import re
@@ -43,6 +47,8 @@ def test_the_step_refusal_of_kp_1e308_agrees_with_its_own_rate_and_step():
     assert "'gains.kp'" in text
 
 
+# Written for wrong changes of tests/mutation_probe.py that the rest of the suite let through: each docstring
+# names the mutants the test kills (python tests/mutation_probe.py --only ID --killers shows it).
 def test_the_step_rate_takes_the_largest_mismatch_of_a_nominal_model_given_in_python():
     """rl-mismatch-min: a nominal scope4 whose first link (yaw, turning with joint 1 only) is three times heavier:
     M^ - M is positive semidefinite of rank one, so lambda(M^-1 M^) are 1 (three times) and one value in (1, 3]

@@ -309,6 +309,8 @@ def _variant_radius(*args) -> float:
     return float(np.abs(np.linalg.eigvals(_euler_map(*args))).max())
 
 
+# Written for wrong changes of tests/mutation_probe.py that the rest of the suite let through: each docstring
+# names the mutants the test kills (python tests/mutation_probe.py --only ID --killers shows it).
 @pytest.mark.parametrize("variant, weight", [("correct", 0.0), ("paper-eq16", 1.0)])
 def test_the_sampled_map_of_each_observer_variant_and_its_stable_limit(variant, weight):
     """ds-variant-swap, ds-eq16-sign, ds-return-hi: the spectral radius of each variant equals that of the map

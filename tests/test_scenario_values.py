@@ -1,5 +1,7 @@
-"""Scenario values and files: what cannot give a run is refused by key when the scenario is read
-(docs/hostile-inputs.md, "Scenario files and values")."""
+"""Scenario values and files: what cannot give a run is refused by key when the scenario is read, bad input to the
+scenario's entry points gives only their documented errors, numbers too large for a float and arrays nested too
+deeply are named, what is not a scenario file (a folder, a device, a pipe, a URDF) is said so, and a scenario's
+arrays stay read-only (docs/hostile-inputs.md, "Scenario files and values" and "Round 3")."""
 from __future__ import annotations
 
 import math

@@ -1,5 +1,7 @@
-"""What ``blocks.simulate`` is given besides a scenario: anything else is named in a TypeError before the work
-(docs/hostile-inputs.md, "Single runs")."""
+"""What ``blocks.simulate`` and ``simulate_batch`` are given besides a scenario: anything else (not a scenario, a
+plant or observer flag of the wrong kind, a progress that cannot be called, variants that are not columns of
+values) is named in a TypeError or ScenarioError before the work (docs/hostile-inputs.md, "Single runs" and
+"Round 3")."""
 from __future__ import annotations
 
 import pytest

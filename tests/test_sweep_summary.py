@@ -254,6 +254,8 @@ def test_an_interrupt_as_the_summarys_staging_folder_is_made_leaves_nothing_of_i
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s-summary"]
 
 
+# Written for wrong changes of tests/mutation_probe.py that the rest of the suite let through: each docstring
+# names the mutants the test kills (python tests/mutation_probe.py --only ID --killers shows it).
 def test_sweep_statistics_worst_runs_and_influence_are_the_textbook_ones():
     """su-std-ddof, su-p95, su-ranks-ties, su-mean-scale, su-worst-order.  Against Python's statistics module
     (mean, sample standard deviation, median, the 5 % and 95 % cut points of the inclusive -- linear -- method)

@@ -178,6 +178,8 @@ def test_paper_tune_with_default_constraints_returns_damped_gains(tmp_path, caps
     assert "margins of the tuned gains:" in text
 
 
+# Written for wrong changes of tests/mutation_probe.py that the rest of the suite let through: each docstring
+# names the mutants the test kills (python tests/mutation_probe.py --only ID --killers shows it).
 def test_the_damping_margin_is_that_of_the_least_damped_joint(tmp_path):
     """ev-damping-max.  The error dynamics of joint i are s^2 + kd_i s + kp_i: zeta_i = kd_i / (2 sqrt(kp_i)).
     The constraint is on every joint, so its margin is min zeta_i - zeta_min (here the stiffest joint's)."""

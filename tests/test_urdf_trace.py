@@ -81,6 +81,8 @@ def test_traced_code_equals_the_numpy_kernel(name, kernel, rows):
         np.testing.assert_allclose(out, ref, rtol=1e-12, atol=1e-12)
 
 
+# Written for wrong changes of tests/mutation_probe.py that the rest of the suite let through: each docstring
+# names the mutants the test kills (python tests/mutation_probe.py --only ID --killers shows it).
 def test_constant_folding_in_a_trace_is_the_arithmetic():
     """tr-fold-minus.  Two constants combine into the constant the arithmetic gives: 5 - 2 = 3, 2 - 5 = -3,
     5 / 2 = 2.5, 5 + 2 = 7, 5 * 2 = 10 (a traced kernel with a literal expression relies on it)."""
