@@ -117,7 +117,7 @@ def test_the_command_line_refuses_a_urdf_with_an_unreadable_mass_in_one_line(tmp
 
 
 def test_the_file_checks_refuse_no_urdf_of_example_robot_data_that_pinocchio_reads():
-    # the checks added in this round (numbers, tree, limits, axes) must not refuse real arms' files
+    # the file's own checks (numbers, tree, limits, axes) must not refuse real arms' files
     from blocks.arms.examples import example_urdf
     from blocks.arms.urdf import UrdfError, _read_urdf
     robots = example_urdf("ur5").parents[2]                # .../example-robot-data/robots
