@@ -183,3 +183,11 @@ def load_benchmark(name: str):
     finally:
         sys.path.remove(str(path.parent))
     return module
+
+
+@pytest.fixture(scope="module")
+def short_toml(tmp_path_factory):
+    """``SHORT_SCENARIO_TOML`` written as a scenario file (1 s of a joint sine), for the commands that read one."""
+    path = tmp_path_factory.mktemp("short") / "short.toml"
+    path.write_text(SHORT_SCENARIO_TOML)
+    return path

@@ -10,7 +10,7 @@ the tests named for it (``python -m pytest -x -q -n 0``), records whether any te
 Run it from the repository's top level::
 
     python tests/mutation_probe.py                 # every mutant, the tests named with it
-    python tests/mutation_probe.py --killers       # and tests/test_mutation_killers.py, ..._killers2.py after those
+    python tests/mutation_probe.py --killers       # and the killer tests (KILLED_BY) after those
     python tests/mutation_probe.py --only arm-m01-half chain-rnea-gravity-sign
     python tests/mutation_probe.py --group dynamics --json /tmp/probe.json
     python tests/mutation_probe.py --list          # the mutants, no runs
@@ -23,11 +23,11 @@ laws, the disturbance models, the URDF chain kernels and their traced calls, the
 divergence rule, the monitor, the run limits and step rates, the sampled-loop stability, the budgets, the
 linearization and bandwidth, the metrics, the end stops and the FMU's C plant): the targeted tests killed
 85; 22 survived, of which 2 are equivalent (``dist-tissue-inside``, ``ds-bisect-mean``: see their
-``equivalent``); ``tests/test_mutation_killers.py`` kills the other 20.  ``--killers`` must therefore
+``equivalent``); the first pass's killer tests (``KILLED_BY``) kill the other 20.  ``--killers`` must therefore
 report 105 killed and those 2 equivalent.
 
 Second pass, measured on 2026-12-02: 91 more mutants where the first did not go.  Per group: mutants, killed
-by the targeted tests, survivors, killed by ``tests/test_mutation_killers2.py`` (no survivor was judged
+by the targeted tests, survivors, killed by the second pass's killer tests (no survivor was judged
 equivalent):
 
 =============== ======= ====== ========= ============ =====================================================
@@ -58,6 +58,9 @@ mutant of ``blocks/compiled/dopri.py`` changes the compiled loops' cache key (th
 so numba compiles it instead of loading the cached original; the killer tests of the stepper run the file's
 text as plain Python beside scipy's RK45, no cache involved.  With both passes ``--killers`` must report 196
 killed and the first pass's 2 equivalents.
+The killer tests live with the tests of their subjects (``KILLED_BY`` names each one and the mutants it
+kills); some sit in files a mutant's targeted list names, so a run without ``--killers`` now kills a few of
+the survivors counted above.
 
 The table printed at the end has one row per mutant: its id, the file, whether it was killed, by which
 test (the first failure) and the time the run took.  Set ``DOBKIT_CACHE_DIR`` to a folder of the probe's
@@ -78,7 +81,48 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-KILLERS = ("tests/test_mutation_killers.py", "tests/test_mutation_killers2.py")
+# The tests written for the mutants the targeted tests let through, each beside the tests of its subject, with the
+# mutants it kills (its docstring names them too).  ``--killers`` runs them after a mutant's targeted tests.
+KILLED_BY = {
+    "tests/test_kinematics.py::test_tool_velocity_is_the_time_derivative_of_the_pose": ("kin-vel-row3",),
+    "tests/test_kinematics.py::test_the_inner_reach_is_the_links_difference_whichever_is_longer": ("kinpy-reach-abs",),
+    "tests/test_kinematics.py::test_ik_with_no_singularity_margin_accepts_the_folded_and_the_stretched_arm": ("kinpy-ik-margin-le",),
+    "tests/test_divergence.py::test_a_bound_holds_the_magnitude_inclusive_on_both_sides": ("div-violated-lt", "div-violated-abs"),
+    "tests/test_divergence.py::test_runaway_is_growth_beyond_the_factor_in_consecutive_steps": ("div-runaway-factor", "div-runaway-reset"),
+    "tests/test_budget_limits.py::test_the_step_budget_allows_the_evaluations_scipy_makes_in_that_many_steps": ("mon-evals-factor", "mon-counted-ge"),
+    "tests/test_budget_limits.py::test_an_estimate_of_exactly_the_budget_fits_and_one_more_does_not": ("bu-check-ge",),
+    "tests/test_budget_limits.py::test_the_step_estimate_bounds_the_steps_the_schedule_takes": ("bu-schedule-breaks",),
+    "tests/test_budget_limits.py::test_jobs_sharing_a_budget_each_get_their_part_of_the_memory": ("bu-share",),
+    "tests/test_metrics.py::test_the_disturbance_error_is_against_the_lumped_disturbance_when_the_run_has_it": ("me-d-source",),
+    "tests/test_fmu_end_stops.py::test_the_stops_are_set_from_the_smallest_effective_inertia_over_the_poses": ("es-inertia-min",),
+    "tests/test_fmu_end_stops.py::test_a_joint_bounded_on_one_side_gets_a_stop_on_that_side": ("es-bounded-and",),
+    "tests/test_arm_paths.py::test_the_ik_singularity_margin_is_on_the_smallest_singular_value": ("ik-sigma-largest",),
+    "tests/test_sampled_stability.py::test_the_sampled_map_of_each_observer_variant_and_its_stable_limit": ("ds-variant-swap", "ds-eq16-sign", "ds-return-hi"),
+    "tests/test_divergence.py::test_the_bounds_of_a_held_arm_are_the_rules_numbers_by_hand": ("div-pos-abs", "div-force-no-external"),
+    "tests/test_run_limits.py::test_the_step_rate_takes_the_largest_mismatch_of_a_nominal_model_given_in_python": ("rl-mismatch-min",),
+    "tests/test_run_limits.py::test_the_step_estimate_of_a_stiff_loop_is_scipys_step_count_on_its_fastest_mode": ("rl-span-times",),
+    "tests/test_run_limits.py::test_the_observer_rate_bounds_the_slides_fastest_mode_when_the_true_arm_is_lighter": ("sched-obs-nominal-only",),
+    "tests/test_fmu_plant_instance.py::test_a_new_input_value_without_a_slope_is_held_over_the_step": ("c-set-input-keeps-slope",),
+    "tests/test_fmu_plant_instance.py::test_do_step_refuses_a_zero_step_and_a_step_from_another_time": ("c-dostep-zero-h", "c-dostep-time-check"),
+    "tests/test_fmu_plant_instance.py::test_a_serialized_state_with_a_switch_of_two_or_without_its_magic_is_refused": ("c-restore-switch-check", "c-state-magic"),
+    "tests/test_fmu_plant_instance.py::test_serializing_into_a_buffer_of_another_size_is_refused": ("c-state-size-lt",),
+    "tests/test_fmu_plant_instance.py::test_fmi2_status_reports_the_last_successful_time_and_a_failed_step": ("c-fmi2-last-time", "c-fmi2-status"),
+    "tests/test_fmu_plant_instance.py::test_fmi3_do_step_returns_the_time_it_reached": ("c-fmi3-last-time",),
+    "tests/test_controller_fmu_core.py::test_the_controller_runs_only_at_its_sample_period_and_its_time_is_in_seconds": ("c-ctrl-step-period", "c-ctrl-time"),
+    "tests/test_controller_fmu_core.py::test_a_stop_time_past_the_reference_table_is_refused": ("c-ctrl-stop-time",),
+    "tests/test_fmu_start_values.py::test_the_largest_float32_is_a_float32_start_value_and_the_next_double_is_not": ("sv-float32-max",),
+    "tests/test_dormand_prince_steps.py::test_dormand_prince_steps_are_scipys_rk45_steps": ("dp-a31", "dp-c4", "dp-b4-sign", "dp-e-typo", "dp-p-sign", "dp-safety", "dp-max-factor", "dp-rejected-cap", "dp-dense-p3", "dp-h0-factor", "dp-h1-order", "dp-err-scale", "dp-rms-n"),
+    "tests/test_dormand_prince_steps.py::test_the_first_step_is_scipys_initial_step": ("dp-h1-order", "dp-h0-factor"),
+    "tests/test_arm_paths.py::test_the_tool_paths_velocity_and_acceleration_are_the_derivatives_of_its_position": ("tp-dds-T",),
+    "tests/test_sweep_summary.py::test_sweep_statistics_worst_runs_and_influence_are_the_textbook_ones": ("su-std-ddof", "su-p95", "su-ranks-ties", "su-mean-scale", "su-worst-order"),
+    "tests/test_arm_paths.py::test_the_resolved_rate_acceleration_is_the_derivative_of_the_rate_along_the_motion_off_the_path": ("rr-dv-feedback",),
+    "tests/test_tune_constraints.py::test_the_damping_margin_is_that_of_the_least_damped_joint": ("ev-damping-max",),
+    "tests/test_tune_constraints.py::test_the_tune_score_of_an_infeasible_candidate_is_worse_than_every_feasible_one": ("ev-energy-total",),
+    "tests/test_urdf_trace.py::test_constant_folding_in_a_trace_is_the_arithmetic": ("tr-fold-minus",),
+    "tests/test_analysis_observer.py::test_the_designed_gain_meets_its_target_on_its_own_grid": ("gd-return-lo",),
+    "tests/test_analysis_frequency.py::test_a_low_pass_band_ends_at_its_first_crossing_of_the_level": ("fr-lowpass-edge",),
+}
+KILLERS = tuple(KILLED_BY)
 TIMEOUT = 900          # s per mutant; a run past it counts as killed (a hang is a failure), and says so
 
 
@@ -115,7 +159,7 @@ class Outcome:
 # Tests per target (targeted: the module's own tests and the independent references that cover it)
 # --------------------------------------------------------------------------------------------------------------
 DYN = ("tests/test_dynamics.py", "tests/test_arm_model.py", "tests/test_one_source.py")
-KIN = ("tests/test_kinematics.py", "tests/test_dynamics.py", "tests/test_arm_model.py", "tests/test_pinned_metrics.py")
+KIN = ("tests/test_kinematics.py", "tests/test_dynamics.py", "tests/test_arm_model.py", "tests/test_metrics.py")
 LAWS = ("tests/test_one_source.py", "tests/test_loop.py::test_lumped_disturbance_is_what_the_nominal_model_leaves_unexplained",
         "tests/test_loop.py::test_pd_error_dynamics_are_s_plus_6_times_s_plus_30",
         "tests/test_loop.py::test_observer_removes_constant_disturbance",
@@ -133,7 +177,7 @@ IK = ("tests/test_urdf_ik.py", "tests/test_arm_model.py")
 TRACE = ("tests/test_arm_calls.py", "tests/test_urdf_trace.py", "tests/test_compiled_row_kernels.py")
 MONITOR = ("tests/test_one_monitor.py",)
 DIVERGENCE = ("tests/test_one_monitor.py", "tests/test_compiled_row_kernels.py::test_force_bound_equals_the_numpy_way_and_pinocchio")
-RUNAWAY = ("tests/test_fmu_master_findings.py", "tests/test_one_monitor.py")
+RUNAWAY = ("tests/test_cosim_misbehaving_fmus.py", "tests/test_one_monitor.py")
 RUN_LIMITS = ("tests/test_one_monitor.py::test_runs_beyond_the_budget_are_refused_before_they_start_naming_the_key",
               "tests/test_compiled_row_kernels.py::test_rates_equal_the_numpy_way_and_pinocchio",
               "tests/test_sweep_limits.py", "tests/test_one_monitor.py")
@@ -142,9 +186,9 @@ SCHEDULE = ("tests/test_batch.py", "tests/test_sweep_limits.py",
 DSTAB = ("tests/test_sampled_stability.py", "-k", "not nonlinear and not just_inside and not dobkit_simulate",
          "tests/test_digital_gravity.py", "tests/test_analysis_n_joints.py::test_euler_limit_is_ts_lambda_max_two")
 BUDGET = ("tests/test_budget.py",)
-LINEAR = ("tests/test_analysis_linear.py", "tests/test_pinned_linear.py", "tests/test_analysis_observer.py",
+LINEAR = ("tests/test_analysis_linear.py", "tests/test_analysis_nominal_model.py", "tests/test_analysis_observer.py",
           "tests/test_analysis_n_joints.py")
-METRICS = ("tests/test_pinned_metrics.py", "tests/test_pinned_signals.py")
+METRICS = ("tests/test_metrics.py", "tests/test_derived_signals.py")
 FMU_C = ("tests/test_one_source.py::test_the_c_plant_matches_the_reference", "tests/test_fmu_end_stops.py",
          "tests/test_fmu_export.py::test_co_simulation_follows_the_input_slope_and_gives_exact_output_derivatives")
 END_STOPS = ("tests/test_fmu_end_stops.py",)
@@ -329,7 +373,7 @@ MUTANTS = [
     M("ds-A-order", "digital_stability", DS, "A = -Y @ Minv", "A = -Minv @ Y", DSTAB + ("tests/test_sampled_stability.py",),
       "A = -M^-1 Y for -Y M^-1 (a non-scalar gain)"),
     M("ds-delay-shift", "digital_stability", DS, "for j in range(delay - 1):", "for j in range(max(delay - 2, 0)):",
-      DSTAB + ("tests/test_pinned_delay.py",), "delay buffer: the last shift missing (delay >= 2)"),
+      DSTAB + ("tests/test_digital_delay.py",), "delay buffer: the last shift missing (delay >= 2)"),
     M("ds-bisect-mean", "digital_stability", DS, "mid = math.sqrt(lo * hi)", "mid = 0.5 * (lo + hi)", DSTAB,
       "bisection at the arithmetic mean",
       equivalent="the bracket still halves around the same crossing; the result lies within rtol of the limit either way"),
@@ -403,9 +447,9 @@ MUTANTS = [
 FMU_C2 = ("tests/test_fmu_safety.py", "tests/test_fmu_cosim.py", "tests/test_cosim_coupling.py",
           "tests/test_fmu_export.py::test_co_simulation_follows_the_input_slope_and_gives_exact_output_derivatives")
 CTRL_C = ("tests/test_controller_fmu.py",)
-FMU_PY = ("tests/test_cosim_coupling.py", "tests/test_pinned_coupling.py", "tests/test_fmu_cosim.py")
+FMU_PY = ("tests/test_cosim_coupling.py", "tests/test_cosim_coupling_input.py", "tests/test_fmu_cosim.py")
 START = ("tests/test_fmu_start_values.py",)
-DIGITAL = ("tests/test_digital.py", "tests/test_pinned_delay.py", "tests/test_pinned_digital_observer.py")
+DIGITAL = ("tests/test_digital.py", "tests/test_digital_delay.py", "tests/test_digital_observer.py")
 TICKS = ("tests/test_sampling_events.py", "tests/test_digital.py")
 DOPRI = ("tests/test_compiled.py::test_compiled_equals_numpy_engine",
          "tests/test_compiled.py::test_compiled_equals_numpy_engine_on_random_variants",
@@ -413,7 +457,7 @@ DOPRI = ("tests/test_compiled.py::test_compiled_equals_numpy_engine",
 TRACED = ("tests/test_fastpath.py::test_the_generated_float_right_hand_side_equals_the_numpy_plan_bit_for_bit",
           "tests/test_compiled.py::test_generated_right_hand_side_and_outputs_equal_the_plan_executed_with_numpy",
           "tests/test_urdf_trace.py")
-NOISE = ("tests/test_pinned_signals.py", "tests/test_loop.py::test_measurement_noise_is_reproducible_by_seed",
+NOISE = ("tests/test_derived_signals.py", "tests/test_loop.py::test_measurement_noise_is_reproducible_by_seed",
          "tests/test_arm_digital.py::test_noise_of_n_joints_is_seeded_and_keeps_the_rrpr_draw",
          "tests/test_analysis_digital.py::test_quantization_noise_is_predicted_within_20_percent")
 LACERATION = ("tests/test_trajectory.py",)
@@ -703,8 +747,8 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--only", nargs="*", help="mutant ids to run")
     p.add_argument("--group", nargs="*", help="groups to run")
-    p.add_argument("--killers", action="store_true", help=f"also run {' and '.join(KILLERS)} for each mutant")
-    p.add_argument("--killers-only", action="store_true", help=f"run only {' and '.join(KILLERS)} for each mutant")
+    p.add_argument("--killers", action="store_true", help=f"also run the {len(KILLERS)} tests of KILLED_BY for each mutant")
+    p.add_argument("--killers-only", action="store_true", help=f"run only the {len(KILLERS)} tests of KILLED_BY for each mutant")
     p.add_argument("--list", action="store_true", help="list the mutants and stop")
     p.add_argument("--json", help="write the outcomes to this file as they come")
     p.add_argument("--timeout", type=float, default=TIMEOUT)

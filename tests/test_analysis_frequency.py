@@ -130,3 +130,31 @@ def test_noise_is_refused_for_the_frequency_loop():
     s = make_scenario(noise={"q_std": [1e-4] * 4})
     with pytest.raises(ValueError, match="measurement noise"):
         frequency.disturbance_loop(s)
+
+
+# Written for wrong changes of tests/mutation_probe.py that the rest of the suite let through: each docstring
+# names the mutants the test kills (python tests/mutation_probe.py --only ID --killers shows it).
+def test_a_low_pass_band_ends_at_its_first_crossing_of_the_level():
+    """fr-lowpass-edge.  G(s) = 1/(s + 1) + 0.8 (10 s) / (s^2 + 10 s + 100^2): low-pass (DC gain 1), below
+    1/sqrt(2) from ~1 rad/s, back above it around the resonance at 100 rad/s.  The -3 dB band of a low-pass is
+    [0, first crossing]: found here with scipy's freqresp and brentq."""
+    import control as ct
+    from scipy.optimize import brentq
+    from scipy.signal import TransferFunction, freqresp
+
+    from analysis.linear.frequency import siso_metrics
+
+    num = np.polyadd(np.polymul([1.0], [1.0, 10.0, 1e4]), np.polymul([8.0, 0.0], [1.0, 1.0]))
+    den = np.polymul([1.0, 1.0], [1.0, 10.0, 1e4])
+    ref = TransferFunction(num, den)
+
+    def gain(w):
+        return abs(freqresp(ref, [w])[1][0])
+
+    level = 1.0 / np.sqrt(2.0)
+    assert gain(100.0) > level                                   # it does come back above the level
+    first = brentq(lambda w: gain(w) - level, 0.1, 10.0)
+    metrics = siso_metrics(ct.ss(ct.tf(num, den)), 0, 0)
+    assert metrics.kind == "low-pass"
+    assert metrics.band_3db_rad_s[0] == 0.0
+    assert metrics.band_3db_rad_s[1] == pytest.approx(first, rel=1e-6)

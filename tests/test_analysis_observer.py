@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from conftest import PAPER_K, make_scenario, reference_inertia
 
+import blocks
 from analysis.linear import bandwidth, gain_design
 
 
@@ -125,3 +126,19 @@ def test_design_rejects_bad_target(paper, grid):
         gain_design.design_observer_gain(paper.nominal, 0.0, grid)
     with pytest.raises(ValueError, match="symmetric positive semidefinite"):
         gain_design.design_observer_gain(paper.nominal, 5.0, grid, base=np.triu(np.ones((4, 4))))
+
+
+# Written for wrong changes of tests/mutation_probe.py that the rest of the suite let through: each docstring
+# names the mutants the test kills (python tests/mutation_probe.py --only ID --killers shows it).
+def test_the_designed_gain_meets_its_target_on_its_own_grid():
+    """gd-return-lo.  The design's promise is "at least target_rad_s on every configuration of the grid": the
+    slowest eigenvalue of Y M^-1(q), computed here with numpy on the design grid, is not below the target (to
+    the rounding of the eigenvalue, 1e-13, far inside the bisection's rtol of 1e-10)."""
+    from analysis.linear import gain_design
+
+    paper = blocks.load_scenario("paper")
+    grid = np.array([[0.0, t2, 0.24, 0.0] for t2 in np.linspace(0.3, 3.0, 13)])
+    for base in (None, 10.0 * np.eye(4)):
+        design = gain_design.design_observer_gain(paper.nominal, 10.0, grid, base=base)
+        rates = np.linalg.eigvals(design.Y @ np.linalg.inv(paper.nominal.inertia(grid))).real
+        assert rates.min() >= 10.0 * (1.0 - 1e-13), rates.min() / 10.0 - 1.0

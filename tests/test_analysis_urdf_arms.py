@@ -7,8 +7,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from two_joint_arm import TWO
+from two_joint_arm import write_urdf as _urdf
 
 pin = pytest.importorskip("pinocchio")
+
 
 from analysis.linear import bandwidth, gain_design  # noqa: E402
 from analysis.linear.arm_linear import arm_linearization  # noqa: E402
@@ -78,3 +81,39 @@ def test_linearized_poles_on_a_urdf_arm_are_the_analytic_split(case):
     for e in sorted(expected, key=lambda z: (z.real, z.imag)):
         j = int(np.argmin([abs(p - e) for p in poles]))
         assert abs(poles.pop(j) - e) <= 1e-7 * abs(e)
+
+
+def test_a_one_joint_arm_is_analysed(tmp_path):
+    # `dobkit analyze` of a one-joint arm: "error: f(a) and f(b) must have different signs" (the mismatch search
+    # re-evaluated its bracket's ends one ulp off, where a loop without a resting position jumps), then an
+    # IndexError traceback (python-control squeezes the SISO response of the loop without the observer)
+    import blocks
+    from analysis.report.build import run_analysis
+    one = TWO.replace('<joint name="slide"', '<joint name="slide_unused"').split('<joint name="slide_unused"')[0]
+    one += '<joint name="tip_joint" type="fixed"><parent link="arm"/><child link="tip"/><origin xyz="0.3 0 0"/>' \
+           '</joint><link name="tip"/></robot>\n'
+    _urdf(tmp_path, one)
+    s = blocks.scenario_from_dict({"arm": {"urdf": str(tmp_path / "arm.urdf"), "tool_frame": "tip",
+                                           "nominal_mass_scale": 1.05},
+                                   "gains": {"kp": 180, "kd": 36, "observer_bandwidth": 10.0},
+                                   "trajectory": {"kind": "joint_sine", "amplitude": [0.3], "omega": [1.0],
+                                                  "offset": [0.1]},
+                                   "disturbance": {"kind": "step", "f_r": [0.1]},
+                                   "simulation": {"t_final": 0.5, "output_step": 0.01}})
+    assert s.robot.n == 1
+    result = run_analysis(s)
+    f = result.frequency
+    # without the observer, w -> e is 1 / (M s^2 + M^ kd s + M^ kp + gravity's stiffness); at 1000 rad/s the
+    # gravity term (about 0.06 N m/rad) is 3e-6 of M w^2, so the magnitude there is pinocchio's M and the gains'
+    model = s.robot.pin_model
+    M = float(pin.crba(model, model.createData(), np.asarray(f.q0))[0, 0])
+    w = np.asarray(f.omega_rad_s)
+    expected = 1.0 / abs(-M * w ** 2 + 1j * 1.05 * M * 36.0 * w + 1.05 * M * 180.0)
+    assert w[-1] == 1000.0 and len(f.tracking_without_dob.magnitude) == 1
+    assert f.tracking_without_dob.magnitude[0][-1] == pytest.approx(expected[-1], rel=1e-4)
+    assert len(f.tracking_with_dob.magnitude) == 1 and len(f.estimation_with_dob.magnitude) == 1
+    without = result.mismatch.without_dob.boundaries
+    scan = without.scan
+    for boundary in without.boundaries:                     # each boundary lies between scan points of both signs
+        k = np.searchsorted(scan.factors, boundary.factor)
+        assert (scan.spectral_abscissa[k - 1] < 0) != (scan.spectral_abscissa[k] < 0)

@@ -30,6 +30,7 @@ HIDDEN = os.environ.get("DOBKIT_HIDE_NUMBA") == "1"
 if HIDDEN:
     sys.meta_path.insert(0, _NoNumba())
 
+
 import blocks  # noqa: E402
 from blocks.batch import simulate_batch  # noqa: E402
 from blocks.compiled import CompiledUnavailable, numba_or_none  # noqa: E402
@@ -201,3 +202,30 @@ def test_auto_compiles_a_loop_only_when_its_code_is_short_enough_or_already_cach
     np.testing.assert_array_equal(auto.states, blocks.simulate(s, engine="fast").states)
     monkeypatch.setattr(compiled, "_announce", False)                    # cached: compiled, whatever its length
     assert compiled.auto_reason() is None
+
+
+def test_sweep_prints_the_engine_note_once_for_all_workers(tmp_path, capfd, monkeypatch):
+    import warnings
+
+    import blocks
+    import blocks.engine_choice
+    from analysis.sweep.runner import run_sweep
+    from blocks.loop import EngineFallbackWarning
+
+    # a fallback is noted once per reason and process: start as a new process would, whatever ran before here
+    monkeypatch.setattr(blocks.engine_choice, "_fallbacks_reported", set())
+
+    # RK23 is a solver the compiled engine does not have: engine='auto' falls back to numpy in every worker
+    short = blocks.load_scenario("paper").replace(simulation={"t_final": 0.05, "method": "RK23"},
+                                                  trajectory={"duration": 10.0})
+    (tmp_path / "short.toml").write_text(short.to_toml(), encoding="utf-8")
+    (tmp_path / "s.toml").write_text('scenario = "short.toml"\nengine = "fast"\n[grid]\n"gains.kp" = [100, 120, 140, '
+                                     '160]\n[batch]\nsize = 1\n', encoding="utf-8")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        outcome = run_sweep(tmp_path / "s.toml", tmp_path / "r.jsonl", workers=2, progress=False)
+    assert outcome.ran == 4
+    notes = [w for w in caught if issubclass(w.category, EngineFallbackWarning)]
+    assert len(notes) == 1 and "RK23" in str(notes[0].message)
+    # and no worker printed its own copy on the shared stderr
+    assert "uses the numpy engine" not in capfd.readouterr().err

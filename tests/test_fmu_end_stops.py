@@ -12,10 +12,11 @@ import xml.etree.ElementTree as ET
 import fmpy
 import numpy as np
 import pytest
-from conftest import PAPER_G, PAPER_K
+from conftest import PAPER_G, PAPER_K, reference_inertia
 from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 
+from blocks.parameters import RobotParameters
 from fmu import FMUInstance, export_plant
 
 pytestmark = pytest.mark.needs_cc
@@ -217,3 +218,41 @@ def test_the_stop_is_stable_for_rk4_sub_steps_up_to_2_785_over_its_frequency(tmp
         assert late.max() < 1e-9
     else:
         assert late.max() > 1e-4          # rings at the size of the release, not settling
+
+
+PAPER = RobotParameters()
+
+
+# Written for wrong changes of tests/mutation_probe.py that the rest of the suite let through: each docstring
+# names the mutants the test kills (python tests/mutation_probe.py --only ID --killers shows it).
+def test_the_stops_are_set_from_the_smallest_effective_inertia_over_the_poses():
+    """es-inertia-min: joint i's effective inertia 1 / (M^-1)_ii is smallest where the stop rings fastest; with
+    that pose given as q0 the value taken is the one there (Eq. 5's matrix from conftest), not a larger one."""
+    from fmu.end_stops import effective_inertia
+    theta2 = np.linspace(-math.pi, math.pi, 20001)
+    eff = 1.0 / np.diagonal(np.linalg.inv(reference_inertia(theta2)), axis1=-2, axis2=-1)    # (T, 4)
+    worst = theta2[np.argmin(eff[:, 0])]
+    q0 = np.array([0.1, worst, 0.2, -0.3])
+    got = effective_inertia(PAPER, q0)
+    at_q0 = 1.0 / np.diag(np.linalg.inv(reference_inertia(worst)))
+    assert got[0] == pytest.approx(at_q0[0], rel=1e-12)
+    assert np.all(got <= at_q0 * (1 + 1e-12))
+    assert np.all(got >= eff.min(axis=0) * (1 - 1e-6))
+    assert got[2] == pytest.approx(0.25)                       # the slide: k4 = m3 + m4 whatever the pose
+
+
+def test_a_joint_bounded_on_one_side_gets_a_stop_on_that_side():
+    """es-bounded-and: a slide with a floor and no ceiling (limits (0, inf)) has a stop at 0 m; its stiffness and
+    damping are those of its mass k4 = 0.25 kg at 200 rad/s, critically damped: 0.25 x 200^2 N/m, 2 x 0.25 x 200."""
+    from blocks.joints import JointSpace
+    from fmu.end_stops import end_stops
+
+    class OneSided:
+        joints = JointSpace(PAPER.joints.names, PAPER.joints.kinds,
+                            ((-math.inf, math.inf), (-math.inf, math.inf), (0.0, math.inf), (-math.inf, math.inf)))
+        n = 4
+        inertia = staticmethod(PAPER.inertia)
+
+    stops = end_stops(OneSided())
+    assert [(s.joint, s.lower, s.upper) for s in stops] == [(2, 0.0, math.inf)]
+    assert (stops[0].stiffness, stops[0].damping) == pytest.approx((0.25 * 200.0 ** 2, 2 * 0.25 * 200.0))

@@ -64,3 +64,21 @@ def test_a_discrete_input_is_refused_at_load_not_at_the_first_set(reference_fmus
     with pytest.raises(FMUUnsupportedError, match=r"inputs of discrete variability, which may be set only at "
                                                   r"events: .*Float64_discrete_input"):
         load(reference_fmus(3, "Feedthrough"))
+
+
+# Written for wrong changes of tests/mutation_probe.py that the rest of the suite let through: each docstring
+# names the mutants the test kills (python tests/mutation_probe.py --only ID --killers shows it).
+def test_the_largest_float32_is_a_float32_start_value_and_the_next_double_is_not():
+    """sv-float32-max.  IEEE 754 binary32's largest finite value (numpy's finfo) is in the type; a double just
+    above it is not."""
+    from types import SimpleNamespace
+
+    from fmu.errors import FMUStartValueError
+    from fmu.start_values import checked_start_value
+
+    var = SimpleNamespace(name="x", type="Float32")
+    top = float(np.finfo(np.float32).max)
+    assert checked_start_value(var, top, 3) == [top]
+    assert checked_start_value(var, -top, 3) == [-top]
+    with pytest.raises(FMUStartValueError, match="outside the Float32 range"):
+        checked_start_value(var, float(np.nextafter(top, np.inf)), 3)

@@ -151,3 +151,12 @@ def test_a_local_cluster_larger_than_the_machine_is_refused_at_its_limit(monkeyp
         local_workers(f"local:{most + 1}", SweepError)
     with pytest.raises(SweepError, match=rf"at most {most} "):
         local_workers("local:100000", SweepError)
+
+
+@pytest.mark.parametrize("address", ["local:\u00b2", "local:\u0663"])
+def test_a_local_worker_count_in_other_digits_is_refused_naming_the_flag(address):
+    # 'local:²' passed str.isdigit and failed in int(): "invalid literal for int() with base 10: '²'"
+    from analysis.jobs.cluster import local_workers
+    with pytest.raises(ValueError, match=r"--scheduler 'local:.': the number of local worker processes must be a "
+                                         r"whole number >= 1"):
+        local_workers(address)

@@ -1,9 +1,11 @@
 """Forward, differential and inverse kinematics against docs/model.md ("Kinematics") and finite differences."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
-from conftest import fd_jacobian, reference_fk
+from conftest import D1, D4, L1, L2, fd_jacobian, reference_fk
 
 from blocks import RobotParameters, UnreachableError
 from blocks.kinematics import (
@@ -151,3 +153,44 @@ def test_ik_rejects_bad_input():
         inverse_kinematics([0.5, 0.0, 0.0], PAPER)
     with pytest.raises(ValueError, match="non-finite"):
         inverse_kinematics([np.nan, 0.0, 0.0, 0.0], PAPER)
+
+
+Q = np.array([0.4, 1.1, 0.2, 0.3])            # a pose away from every singularity (rad, rad, m, rad)
+
+
+# Written for wrong changes of tests/mutation_probe.py that the rest of the suite let through: each docstring
+# names the mutants the test kills (python tests/mutation_probe.py --only ID --killers shows it).
+def test_tool_velocity_is_the_time_derivative_of_the_pose():
+    """kin-vel-row3: ``tool_velocity`` (exported kernel) is d/dt of Eq. 8 along q', by central differences."""
+    from blocks.kernels import kinematic_lengths, tool_velocity
+    dq = np.array([0.7, -1.3, 0.05, 2.1])
+    h = 1e-6
+    want = (reference_fk(Q + h * dq) - reference_fk(Q - h * dq)) / (2 * h)
+    got = tool_velocity(kinematic_lengths(PAPER), Q, dq)
+    np.testing.assert_allclose(got, want, atol=1e-8)
+    assert got[3] == pytest.approx(dq[0] + dq[1] - dq[3])          # the corrected last row [1, 1, 0, -1]
+
+
+def test_the_inner_reach_is_the_links_difference_whichever_is_longer():
+    """kinpy-reach-abs: with a2 > a1 the annulus is |a1 - a2| to a1 + a2 (law of cosines at theta2 = pi, 0)."""
+    from blocks.kinematics import UnreachableError, inverse_kinematics, planar_reach
+    arm = RobotParameters(a1=0.2, a2=0.5)
+    inner, outer = planar_reach(arm)
+    assert (inner, outer) == pytest.approx((0.3, 0.7))
+    # theta2 = pi folds the arm: the tool is then |a1 - a2| from the axis
+    assert math.hypot(*reference_fk([0.0, math.pi, 0.0, 0.0], a1=0.2, a2=0.5)[:2]) == pytest.approx(inner)
+    q = inverse_kinematics([0.35, 0.0, 0.0, 0.0], arm)
+    np.testing.assert_allclose(reference_fk(q, a1=0.2, a2=0.5)[:2], [0.35, 0.0], atol=1e-12)
+    with pytest.raises(UnreachableError, match="radii 0.3 m to 0.7 m"):
+        inverse_kinematics([0.25, 0.0, 0.0, 0.0], arm)
+
+
+def test_ik_with_no_singularity_margin_accepts_the_folded_and_the_stretched_arm():
+    """kinpy-ik-margin-le: ``min_sin_theta2 = 0`` accepts the workspace boundary itself: r = |a1 - a2| (theta2 = pi)
+    and r = a1 + a2 (theta2 = 0; one ulp beyond 0.7 m, where cos(theta2) rounds to 1 and sin(theta2) to 0)."""
+    from blocks.kinematics import inverse_kinematics
+    for r, theta2 in ((L1 - L2, math.pi), (np.nextafter(L1 + L2, 1.0), 0.0)):
+        pose = np.array([r, 0.0, D1 - 0.1 - D4, 0.2])
+        q = inverse_kinematics(pose, PAPER)
+        assert q[1] == pytest.approx(theta2, abs=1e-12)
+        np.testing.assert_allclose(reference_fk(q), pose, atol=1e-12)

@@ -34,3 +34,9 @@ def test_every_mutant_names_a_snippet_found_once_and_a_real_change():
             path = test.split("::")[0]
             if path.startswith("tests/"):
                 assert (ROOT / path).is_file(), f"{m.id}: {path} does not exist"
+    # every killer test is where the probe says, and kills mutants of the list
+    ids = set(ids)
+    for node, killed in probe.KILLED_BY.items():
+        path, name = node.split("::")
+        assert f"\ndef {name}(" in (ROOT / path).read_text(), f"{node} does not exist"
+        assert killed and set(killed) <= ids, f"{node}: {set(killed) - ids} are not mutants"

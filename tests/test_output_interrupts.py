@@ -1,6 +1,6 @@
 """Ctrl-C or SIGTERM at each moment of writing an output folder: nothing partial is left, nothing whole is lost.
 
-The command-line test (tests/test_hostile_round3.py) sends SIGTERM once the
+The command-line test (tests/test_cli_interrupts.py) sends SIGTERM once the
 staging folder exists, which lands in one of these windows by chance; here
 each window is hit on purpose.
 """

@@ -28,6 +28,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 README = Path(__file__).resolve().parents[1] / "README.md"
@@ -160,3 +161,29 @@ def test_the_readme_runs_top_to_bottom_in_one_folder(tmp_path, monkeypatch):
     assert (tmp_path / "report-run" / "report.html").is_file()
     assert "quick preview" in (tmp_path / "preview" / "report.html").read_text(encoding="utf-8")
     assert (tmp_path / "mc-summary" / "summary.json").is_file()
+
+
+def test_readme_joint1_offset_is_the_rest_pose_the_report_computes():
+    """Without the observer, at rest ``Kp e = M(q)^-1 d`` (perfect model, computed torque): the rest pose is
+    the fixed point ``q = q0 + M(q)^-1 d / Kp``, solved here by iteration with the arm's inertia alone."""
+    from analysis.linear.loop import operating_point_analysis
+    from blocks import inertia
+    from blocks.scenario import load_scenario
+
+    scenario = load_scenario("paper")
+    q0 = np.asarray(scenario.trajectory.evaluate(0.0)[0], dtype=float)
+    point = operating_point_analysis(scenario, q0)
+    d = np.asarray(point.disturbance_at_rest)
+    kp = np.diag(scenario.kp)
+    q = q0.copy()
+    for _ in range(50):
+        q = q0 + np.linalg.solve(inertia(q, scenario.robot), d) / kp
+    offset = q[0] - q0[0]
+    # at the path's start (M(q0)) it would be 1.84e-5: the README's old 1.8e-5 was that other number
+    assert abs(np.linalg.solve(inertia(q0, scenario.robot), d)[0] / kp[0] - 1.84e-5) < 0.01e-5
+    assert point.q_equilibrium_without_dob[0] - q0[0] == pytest.approx(offset, rel=1e-6)
+    readme = re.sub(r"\s+", " ", (Path(__file__).parents[1] / "README.md").read_text(encoding="utf-8"))
+    stated = re.search(r"rests with joint 1 only ([0-9.e-]+) rad off", readme)
+    assert stated is not None
+    assert float(stated.group(1)) == pytest.approx(offset, rel=5e-3)
+    assert f"{offset:.3g}".replace("e-05", "e-5") == stated.group(1)

@@ -15,17 +15,20 @@
 """
 from __future__ import annotations
 
+import math
 import re
 from pathlib import Path
 
 import numpy as np
 import pytest
 import scipy.linalg
+from conftest import reference_inertia
 
 import blocks
 from blocks.digital import DigitalController
 from blocks.digital_stability import held_exponential, sampled_stability, scenario_stability, spectral_radius
 from blocks.metrics import signal
+from blocks.parameters import RobotParameters
 from blocks.sampled_blocks import sampled_initial_state, sampled_loop
 from blocks.scenario import ScenarioError
 from dobkit.cli import main
@@ -278,3 +281,50 @@ def test_the_issues_zoh_scenario_is_refused_by_dobkit_simulate(tmp_path, capsys)
     # Ts lambda_max = 48.75 / 0.25 / 100 = 1.95 against the computed 1.7899; 44.74 = 1.7899 / 1.95 x 48.75
     assert "Ts lambda_max(Y M^-1) = 1.95" in err and "< 1.789" in err and "scalar gain: 44.7" in err
     assert not out.exists() or not any(out.iterdir())
+
+
+PAPER = RobotParameters()
+
+
+Q = np.array([0.4, 1.1, 0.2, 0.3])            # a pose away from every singularity (rad, rad, m, rad)
+
+
+def _euler_map(M, kp, kd, Y, Ts, eq16_weight):
+    """One sample of the held loop, forward Euler, measured velocity, no delay, built column by column from the
+    [controller] definitions: tau = -M (Kp q + Kd v) - (Y v + z); the plant under held tau exactly (a double
+    integrator); z+ = z + Ts (-Y M^-1 (tau + Y v + z) - w16 Y v)."""
+    n = M.shape[0]
+    Minv = np.linalg.inv(M)
+
+    def tick(x):
+        q, v, z = x[:n], x[n:2 * n], x[2 * n:]
+        tau = -M @ (kp * q + kd * v) - (Y @ v + z)
+        a = Minv @ tau
+        z_next = z + Ts * (-Y @ Minv @ (tau + Y @ v + z) - eq16_weight * (Y @ v))
+        return np.concatenate([q + Ts * v + 0.5 * Ts ** 2 * a, v + Ts * a, z_next])
+    return np.column_stack([tick(e) for e in np.eye(3 * n)])
+
+
+def _variant_radius(*args) -> float:
+    return float(np.abs(np.linalg.eigvals(_euler_map(*args))).max())
+
+
+# Written for wrong changes of tests/mutation_probe.py that the rest of the suite let through: each docstring
+# names the mutants the test kills (python tests/mutation_probe.py --only ID --killers shows it).
+@pytest.mark.parametrize("variant, weight", [("correct", 0.0), ("paper-eq16", 1.0)])
+def test_the_sampled_map_of_each_observer_variant_and_its_stable_limit(variant, weight):
+    """ds-variant-swap, ds-eq16-sign, ds-return-hi: the spectral radius of each variant equals that of the map
+    built here; the largest stable scale is stable (radius at most 1, to rounding: for the correct law the limit
+    is exactly 2 / (Ts lambda_max), where the error mode sits at -1) and a hair above it is not."""
+    from blocks.digital import DigitalController
+    from blocks.digital_stability import sampled_stability
+    Ts = 0.01
+    M = reference_inertia(Q[1])
+    Y = np.diag([40.0, 30.0, 15.0, 20.0])
+    s = sampled_stability(PAPER, [Q], 180.0 * np.eye(4), 36.0 * np.eye(4), Y,
+                          DigitalController(sample_rate=1.0 / Ts), variant=variant)
+    assert s.spectral_radius == pytest.approx(_variant_radius(M, 180.0, 36.0, Y, Ts, weight), rel=1e-9)
+    c = s.largest_stable_scale
+    assert 0.0 < c < math.inf
+    assert _variant_radius(M, 180.0, 36.0, c * Y, Ts, weight) < 1.0 + 1e-12
+    assert _variant_radius(M, 180.0, 36.0, c * (1 + 1e-5) * Y, Ts, weight) >= 1.0

@@ -8,6 +8,8 @@ from importlib import resources
 import numpy as np
 import pytest
 from conftest import PAPER_FR, paper_toml_dict
+from two_joint_arm import TWO, needs_pinocchio
+from two_joint_arm import write_urdf as _urdf
 
 import blocks.scenario
 from analysis.simulation.experiment import run_experiment
@@ -263,3 +265,23 @@ def test_batch_element_keys_are_refused_out_of_range_and_outside_the_batch():
 
 def test_module_examples_run():
     assert doctest.testmod(blocks.scenario).failed == 0
+
+
+@needs_pinocchio
+def test_a_scenario_with_a_relative_urdf_path_changes_after_the_working_folder_does(tmp_path, monkeypatch):
+    # scenario_from_dict with urdf = "arm.urdf" read the file; after os.chdir, with_changes read the user's data
+    # again, relative to the new folder: "URDF file 'arm.urdf' does not exist"
+    import blocks
+    _urdf(tmp_path, TWO)
+    data = {"arm": {"urdf": "arm.urdf", "tool_frame": "rod"}, "gains": {"kp": 180, "kd": 36, "observer_bandwidth": 10.0},
+            "trajectory": {"kind": "joint_sine"}, "simulation": {"t_final": 0.1, "output_step": 0.01}}
+    monkeypatch.chdir(tmp_path)
+    s = blocks.scenario_from_dict(data)
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    changed = s.with_changes({"gains.kp": 100})
+    assert changed.robot is s.robot and float(changed.kp[0, 0]) == 100.0
+    assert changed.data["arm"]["urdf"] == str(tmp_path / "arm.urdf")
+    with pytest.raises(blocks.ScenarioError, match=r"URDF file .*other.urdf' does not exist"):
+        s.with_changes({"arm.urdf": "other.urdf"})      # a path given now is relative to the folder of now

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -213,3 +215,99 @@ def test_an_ordinary_gain_grid_is_summarised(tmp_path, short_file):
     assert summary.counts.finished == 3
     assert [f.file for f in files["summary"].figures] == [
         "hist_rms_disturbance_error.png", "hist_max_tool_position_error_mm.png", "worst_vs_gains_kp.png"]
+
+
+def _files(folder: Path) -> dict:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+SUMMARY_HEADER = {"name": "h", "runs": 3, "worst_metric": "max_tool_position_error_mm", "worst_count": 3}
+
+
+SUMMARY_ROWS = [{"run_id": f"run{i:04d}", "index": i, "values": {"gains.kp": 100.0 + i}, "status": "ok",
+                 "metrics": {"max_tool_position_error_mm": 1.0 + i, "rms_position_error": [1e-4] * 4}}
+                for i in range(3)]
+
+
+@pytest.mark.parametrize("previous", [False, True], ids=["first summary", "over a previous summary"])
+def test_an_interrupt_as_the_summarys_staging_folder_is_made_leaves_nothing_of_it(tmp_path, monkeypatch, previous):
+    # Ctrl-C or SIGTERM after mkdtemp made '.NAME.partial-XXXX' and before its name came back: the folder stayed
+    from analysis.sweep.summary import write_summary
+    out = tmp_path / "s-summary"
+    if previous:
+        write_summary((SUMMARY_HEADER, SUMMARY_ROWS), out, formats=("png",))
+    before = _files(tmp_path)
+    real = os.mkdir
+
+    def made_then_interrupted(path, *args, **kwargs):
+        real(path, *args, **kwargs)
+        if ".partial-" in os.fspath(path):
+            raise KeyboardInterrupt("received signal SIGTERM")
+    monkeypatch.setattr(os, "mkdir", made_then_interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        write_summary((SUMMARY_HEADER, SUMMARY_ROWS), out, formats=("png",))
+    monkeypatch.setattr(os, "mkdir", real)
+    assert _files(tmp_path) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == (["s-summary"] if previous else [])
+    files = write_summary((SUMMARY_HEADER, SUMMARY_ROWS), out, formats=("png",))
+    assert files["json"] == out / "summary.json" and files["json"].is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s-summary"]
+
+
+# Written for wrong changes of tests/mutation_probe.py that the rest of the suite let through: each docstring
+# names the mutants the test kills (python tests/mutation_probe.py --only ID --killers shows it).
+def test_sweep_statistics_worst_runs_and_influence_are_the_textbook_ones():
+    """su-std-ddof, su-p95, su-ranks-ties, su-mean-scale, su-worst-order.  Against Python's statistics module
+    (mean, sample standard deviation, median, the 5 % and 95 % cut points of the inclusive -- linear -- method)
+    and scipy.stats.spearmanr (ties get their mean rank); the worst runs are the largest values, largest first."""
+    import statistics
+
+    from scipy.stats import spearmanr
+
+    from analysis.sweep.summary import summarize
+
+    rng = np.random.default_rng(5)
+    kp = np.repeat([100.0, 120.0, 140.0, 160.0, 180.0, 200.0, 220.0], 3)         # a swept key with ties
+    metric = np.round(30.0 + 0.05 * kp + rng.normal(0.0, 4.0, kp.size), 1)     # mm; rounded: ties here too
+    rows = [{"run_id": f"run{i:04d}", "index": i, "values": {"gains.kp": float(kp[i])}, "status": "ok",
+             "metrics": {"max_tool_position_error_mm": float(metric[i])}} for i in range(kp.size)]
+    header = {"name": "h", "runs": len(rows), "worst_metric": "max_tool_position_error_mm", "worst_count": 4}
+    summary = summarize((header, rows))
+    st = summary.statistics["max_tool_position_error_mm"]
+    data = metric.tolist()
+    cuts = statistics.quantiles(data, n=20, method="inclusive")
+    assert st.mean == pytest.approx(statistics.fmean(data), rel=1e-12)
+    assert st.std == pytest.approx(statistics.stdev(data), rel=1e-12)
+    assert st.median == pytest.approx(statistics.median(data), rel=1e-12)
+    assert st.p5 == pytest.approx(cuts[0], rel=1e-12) and st.p95 == pytest.approx(cuts[-1], rel=1e-12)
+    expected = sorted(range(kp.size), key=lambda i: -metric[i])[:4]
+    assert [w.value for w in summary.worst] == [metric[i] for i in expected]
+    assert summary.influence["gains.kp"] == pytest.approx(spearmanr(kp, metric).statistic, rel=1e-12)
+
+
+def test_sweep_summary_gives_tiny_lengths_in_mm():
+    from analysis.sweep import summary as sweep_report
+
+    n = 12
+    # joint 3 (d3, m) rests 353.8 pm off: the issue's number
+    errors = [[1e-6, 2e-6, 3.538e-10 * (1 + 0.01 * i), 4e-6] for i in range(n)]
+    rows = [{"run_id": f"run{i:04d}", "index": i, "values": {"gains.kp": 100.0 + i}, "status": "ok",
+             "metrics": {"final_abs_position_error": errors[i], "max_tool_position_error_mm": 1e-6 * (1 + i)}}
+            for i in range(n)]
+    header = {"name": "h", "runs": n, "worst_metric": "max_tool_position_error_mm", "worst_count": 3}
+    table, _ = sweep_report._load((header, rows), None)
+    summary = sweep_report._summary(table, "")
+    view = sweep_report._view(summary)
+    by_label = {label: (unit, numbers) for label, unit, numbers, _, _ in view["statistics"]}
+    joint3 = next(v for k, v in by_label.items() if "d3" in k)
+    assert joint3[0] == "mm"
+    # min over the runs: 3.538e-10 m = 3.538e-07 mm, four significant digits
+    assert float(joint3[1][2]) == pytest.approx(3.538e-7, rel=1e-4)
+    assert joint3[1][2] == "3.538e-07"
+    assert all(unit in ("mm", "rad", "") for unit, _ in by_label.values())
+    # the worst runs' tool-tip error: mm as computed (1.2e-05 mm for the last run), not 12 nm
+    assert view["worst_unit"] == "mm" and view["worst"][0][2] == "1.2e-05"
+    for fig, stem, _ in sweep_report._draw_figures(table, summary):
+        for ax in fig.axes:
+            for label in (ax.get_xlabel(), ax.get_ylabel()):
+                assert "[pm]" not in label and "[nm]" not in label, (stem, label)

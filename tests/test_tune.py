@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from two_joint_arm import needs_pinocchio
 
 from analysis.jobs.files import row_line
 from analysis.tune.linear import torque_noise_rms
@@ -531,3 +532,22 @@ def test_paper_tuning_beats_the_paper_gains_under_the_same_torque_noise_budget(t
     with capsys.disabled():
         print(f"\npaper-tune: {seconds:.1f} s; worst RMS tool-tip error over 64 runs {result.tuned.worst:.4f} mm "
               f"(tuned {result.tuned.gains}) vs {result.base.worst:.4f} mm (paper gains)")
+
+
+DRAWS = '[monte_carlo.distributions]\n"disturbance.f_r[0]" = {kind = "uniform", low = 0.01, high = 0.1}\n'
+
+
+@needs_pinocchio
+def test_tuning_y_of_a_scenario_that_sets_the_observer_bandwidth_is_refused_when_the_file_is_read(tmp_path):
+    # scope4 gives Y as 'gains.observer_bandwidth': every candidate of a search over gains.observer was refused,
+    # the first as "variant 0: ... 'gains.observer' (50.0) and 'gains.observer_bandwidth' (10.0 rad/s) both set ..."
+    from analysis.tune.spec import TuneError, load_tuning
+    path = tmp_path / "t.toml"
+    path.write_text('scenario = "scope4"\n[search]\n"gains.kp" = [50, 400]\n"gains.observer" = [1, 50]\n'
+                    '[monte_carlo]\nruns = 2\n' + DRAWS, encoding="utf-8")
+    with pytest.raises(TuneError, match=r"search.\"gains.observer\" tunes Y, which the scenario 'scope4' sets through "
+                                        r"'gains.observer_bandwidth' \(10 rad/s"):
+        load_tuning(path)
+    path.write_text('scenario = "scope4"\n[search]\n"gains.kp" = [50, 400]\n[monte_carlo]\nruns = 2\n' + DRAWS,
+                    encoding="utf-8")
+    assert [p.key for p in load_tuning(path).parameters] == ["gains.kp"]

@@ -12,6 +12,7 @@ from importlib import resources
 
 import numpy as np
 import pytest
+from two_joint_arm import needs_pinocchio
 
 from analysis.sweep.runner import run_sweep
 from analysis.sweep.spec import load_sweep
@@ -245,3 +246,33 @@ def test_column_and_key_words_come_from_the_given_joints():
     # the paper's words by default, as they were
     assert column_label("rms_position_error[2]") == "RMS position error, Joint 3 (d3)"
     assert key_unit("disturbance.f_r") == "N m or N" and key_unit("noise.q_std") == "rad or m"
+
+
+DRAWS = '[monte_carlo.distributions]\n"disturbance.f_r[0]" = {kind = "uniform", low = 0.01, high = 0.1}\n'
+
+
+@needs_pinocchio
+def test_tuning_a_six_joint_arm_without_a_noise_section_takes_the_arms_own_default_noise(tmp_path):
+    # the paper's 4-joint default sensor noise was taken for any arm: tuning the UR5 (or the Panda) stopped with
+    # "matmul: Input operand 1 has a mismatch in its core dimension 0 ... (size 8 is different from 12)"
+    import blocks
+    from analysis.simulation.studies import default_noise
+    from analysis.tune.evaluate import Evaluator
+    from analysis.tune.linear import torque_noise_rms
+    from analysis.tune.runner import check_linear_feasibility
+    from analysis.tune.spec import load_tuning
+    ur5 = blocks.load_scenario("ur5").with_changes({"simulation.t_final": 0.2})
+    assert ur5.noise is None
+    (tmp_path / "ur5.toml").write_text(ur5.to_toml(), encoding="utf-8")
+    path = tmp_path / "t.toml"
+    path.write_text('scenario = "ur5.toml"\n[search]\n"gains.kp" = [50, 400]\n[monte_carlo]\nruns = 2\n' + DRAWS,
+                    encoding="utf-8")
+    spec = load_tuning(path)
+    expected = default_noise(ur5.robot.joints)            # six revolute joints: the revolute default six times
+    assert spec.limits.sensor_noise["q_std"] == expected["q_std"] and len(expected["q_std"]) == 6
+    assert len(set(expected["q_std"])) == 1 and len(set(expected["dq_std"])) == 1
+    check_linear_feasibility(spec, Evaluator(spec, workers=1, engine="fast"))      # the matmul error was here
+    q0 = np.asarray(ur5.trajectory.evaluate(0.0)[0])
+    M, M_hat = ur5.robot.inertia(q0), ur5.nominal.inertia(q0)
+    rms = torque_noise_rms(M, M_hat, ur5.kp, ur5.kd, ur5.observer_gain, expected["q_std"], expected["dq_std"], 0.001)
+    assert rms.shape == (6,) and np.all(np.isfinite(rms)) and np.all(rms > 0)

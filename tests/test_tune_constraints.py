@@ -176,3 +176,45 @@ def test_paper_tune_with_default_constraints_returns_damped_gains(tmp_path, caps
     assert zeta >= 0.7 and min(result["tuned"]["damping_ratio"]) >= 0.7
     assert "damping ratio of the error dynamics: tuned" in text and "at least 0.7 (the default)" in text
     assert "margins of the tuned gains:" in text
+
+
+# Written for wrong changes of tests/mutation_probe.py that the rest of the suite let through: each docstring
+# names the mutants the test kills (python tests/mutation_probe.py --only ID --killers shows it).
+def test_the_damping_margin_is_that_of_the_least_damped_joint(tmp_path):
+    """ev-damping-max.  The error dynamics of joint i are s^2 + kd_i s + kp_i: zeta_i = kd_i / (2 sqrt(kp_i)).
+    The constraint is on every joint, so its margin is min zeta_i - zeta_min (here the stiffest joint's)."""
+    from test_tune import write_problem
+
+    from analysis.tune.evaluate import Evaluation, Evaluator
+    from analysis.tune.spec import load_tuning
+
+    search = {'"gains.kp"': [20, 2000], '"gains.kd"': [2, 80], "seed": 3, "population": 6, "max_evaluations": 60}
+    spec = load_tuning(write_problem(tmp_path, search=search))
+    limit = spec.limits.min_damping_ratio
+    assert limit is not None                                   # the default constraint
+    kp, kd = np.array([100.0, 150.0, 200.0, 250.0]), np.full(4, 20.0)
+    zeta = kd / (2.0 * np.sqrt(kp))                            # 1.0, 0.816, 0.707, 0.632
+    ev = Evaluation(gains={"gains.kp": kp, "gains.kd": kd}, torque_noise_rms=np.zeros(4), spectral_abscissa=-1.0,
+                    damping_ratio=zeta)
+    assert Evaluator(spec).margins(ev)["min_damping_ratio"] == pytest.approx(1.0 / np.sqrt(10.0) * 2 - limit,
+                                                                             rel=1e-12)
+
+
+def test_the_tune_score_of_an_infeasible_candidate_is_worse_than_every_feasible_one(tmp_path):
+    """ev-energy-total.  The module's rule: an infeasible candidate scores INFEASIBLE (1 + total violation), above
+    every feasible objective however small its violation.  A simulated candidate with errors of 1-2 mm that
+    misses the damping constraint by a relative 1e-9 must still score above 1e9."""
+    from test_tune import write_problem
+
+    from analysis.tune.evaluate import INFEASIBLE, Evaluation, Evaluator
+    from analysis.tune.spec import load_tuning
+
+    search = {'"gains.kp"': [20, 2000], '"gains.kd"': [2, 80], "seed": 3, "population": 6, "max_evaluations": 60}
+    spec = load_tuning(write_problem(tmp_path, search=search))
+    zeta = np.full(4, spec.limits.min_damping_ratio * (1.0 - 1e-9))
+    ev = Evaluation(gains={"gains.kp": 100.0, "gains.kd": 20.0}, torque_noise_rms=np.zeros(4), spectral_abscissa=-1.0,
+                    damping_ratio=zeta, bandwidth_ratio=10.0, simulated=True, values=np.array([1.0, 2.0]),
+                    peak_torque=np.zeros(4))
+    judged = Evaluator(spec).judged(ev)
+    assert not judged.feasible and 0 < judged.violations["min_damping_ratio"] < 1e-8
+    assert judged.energy >= INFEASIBLE > 2.0

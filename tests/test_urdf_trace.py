@@ -6,6 +6,8 @@ import pytest
 
 pytest.importorskip("pinocchio")
 
+
+
 from blocks.arms import example_arm  # noqa: E402
 from blocks.arms.traced import trace_rows  # noqa: E402
 from blocks.compiled.trace import Frozen, Graph, param_structure, param_values, symbolic_params  # noqa: E402
@@ -77,3 +79,17 @@ def test_traced_code_equals_the_numpy_kernel(name, kernel, rows):
         out = np.empty(ref.size)
         fn(x, out)
         np.testing.assert_allclose(out, ref, rtol=1e-12, atol=1e-12)
+
+
+# Written for wrong changes of tests/mutation_probe.py that the rest of the suite let through: each docstring
+# names the mutants the test kills (python tests/mutation_probe.py --only ID --killers shows it).
+def test_constant_folding_in_a_trace_is_the_arithmetic():
+    """tr-fold-minus.  Two constants combine into the constant the arithmetic gives: 5 - 2 = 3, 2 - 5 = -3,
+    5 / 2 = 2.5, 5 + 2 = 7, 5 * 2 = 10 (a traced kernel with a literal expression relies on it)."""
+    from blocks.compiled.trace import Graph
+
+    g = Graph()
+    five, two = g.const(5.0), g.const(2.0)
+    for expr, value in ((five - two, 3.0), (two - five, -3.0), (five / two, 2.5), (five + two, 7.0),
+                        (five * two, 10.0), (7.0 - two, 5.0), (two - 7.0, -5.0)):
+        assert expr.op == "const" and expr.args[0] == value

@@ -191,3 +191,27 @@ def test_the_influence_is_spearmans_rank_correlation_by_hand():
     assert summary.influence["gains.kp"] == pytest.approx(1.0, rel=1e-14)
     assert summary.influence["observer.gain"] == pytest.approx(0.8, rel=1e-14)
     assert "noise.seed" not in summary.influence
+
+
+Q = np.array([0.4, 1.1, 0.2, 0.3])            # a pose away from every singularity (rad, rad, m, rad)
+
+
+# Written for wrong changes of tests/mutation_probe.py that the rest of the suite let through: each docstring
+# names the mutants the test kills (python tests/mutation_probe.py --only ID --killers shows it).
+def test_the_disturbance_error_is_against_the_lumped_disturbance_when_the_run_has_it():
+    """me-d-source (killed before only because the hand-made signals had no tau_dis to read): with model mismatch
+    the observer estimates the lumped d (Eq. 2-3), not tau_dis alone; the RMS of d - d_hat over five hand-made
+    points is that of the constant errors chosen here."""
+    import control as ct
+
+    from blocks.metrics import tracking_metrics
+    n = 5
+    q = np.tile(Q[:, None], (1, n))
+    d_error = np.array([1.0, 2.0, 0.5, 3.0])[:, None] * np.array([1.0, -1.0, 1.0, -1.0, 1.0])   # |.| constant
+    rows = {"q_ref": q, "q": q, "d": 4.0 + d_error, "d_hat": np.full((4, n), 4.0),
+            "tau_dis": np.full((4, n), 1.5)}                   # the mismatch makes d differ from tau_dis
+    labels = [f"{name}[{i}]" for name in rows for i in range(4)]
+    resp = ct.TimeResponseData(np.linspace(0.0, 0.4, n), np.vstack(list(rows.values())), output_labels=labels,
+                               issiso=False)
+    got = tracking_metrics(resp)["rms_disturbance_error"]
+    np.testing.assert_allclose(got, [1.0, 2.0, 0.5, 3.0], rtol=1e-14)
