@@ -142,6 +142,7 @@ def scaled_nominal(arm: ArmModel, scale: float, error) -> ArmModel:
     scaled = dataclasses.replace(chain, **{f: times(getattr(chain, f)) for f in fields})
     nominal = type(arm)(scaled, arm.joints, arm.tool_frame, continuous=arm.continuous, source=arm.source)
     nominal.pin_model = None            # the reference model is the true arm's
+    nominal.source_path = getattr(arm, "source_path", None)
     _scaled[(id(arm), scale)] = (arm, nominal)
     while len(_scaled) > _KEPT:
         _scaled.pop(next(iter(_scaled)))
@@ -152,7 +153,7 @@ def link_masses(arm: ArmModel) -> dict[str, float]:
     """The URDF links of ``arm`` whose mass enters its dynamics, with their masses (kg): those with an
     ``<inertial>`` of positive mass that a joint of the model moves (a link fixed to the base, or to it through
     locked joints only, moves with nothing).  Empty for an arm not read from a URDF."""
-    model, source = getattr(arm, "pin_model", None), getattr(arm, "source", None)
+    model, source = getattr(arm, "pin_model", None), getattr(arm, "source_path", None)
     if model is None or not source:
         return {}
     moved = {f.name for f in model.frames if f.parentJoint > 0 and str(f.type).endswith("BODY")}
@@ -190,7 +191,7 @@ def link_scaled_nominal(arm: ArmModel, given: dict, base: Path | None, scales: d
     import os
     import tempfile
     import xml.etree.ElementTree as ET
-    root = _urdf_root(arm.source)
+    root = _urdf_root(arm.source_path)
     for link in root.findall("link"):
         factor = scales.get(link.get("name"))
         if factor is None:
@@ -217,6 +218,7 @@ def link_scaled_nominal(arm: ArmModel, given: dict, base: Path | None, scales: d
     finally:
         os.unlink(path)
     nominal.source, nominal.pin_model = arm.source, None        # the reference model is the true arm's
+    nominal.source_path = arm.source_path
     _scaled[key] = (arm, nominal)
     while len(_scaled) > _KEPT:
         _scaled.pop(next(iter(_scaled)))

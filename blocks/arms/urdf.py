@@ -403,6 +403,8 @@ def load_urdf_arm(path, tool_frame: str, locked=(), locked_values=None, gravity=
     joints = JointSpace(names=chain.names, kinds=kinds, limits=limits)
     arm = ChainArm(chain, joints, tool_frame, continuous=continuous, source=str(path))
     arm.pin_model = model
+    # the file itself, wherever the working folder goes later (source is the name as given, for messages)
+    arm.source_path = str(Path(path).resolve())
     _check_positive_definite(arm)
     return arm
 
