@@ -186,7 +186,7 @@ def test_zoh_on_a_urdf_arm_compiled_equals_numpy_and_a_loop_written_with_pinocch
     p = Z1 if arm == "z1" else SCOPE4
     q_ref = np.array(p["offset"]) + np.array(p["amplitude"]) * np.sin(np.array(p["omega"]) * t[:, None])
     rms = np.sqrt(np.mean((hand["q"] - q_ref) ** 2, axis=0))
-    assert np.all(rms < 0.02) and np.all(np.isfinite(rms))
+    assert np.all(rms < 0.05) and np.all(np.isfinite(rms))
 
 
 @pytest.mark.needs_cc
