@@ -76,12 +76,16 @@ def estimate_sampled_time(loop, x0: np.ndarray, scenario) -> SampledTime | None:
 
     Runs the loop (:meth:`blocks.hybrid.HybridSystem.simulate`, the scenario's method and tolerances) over its
     first ticks: two to make the generated functions, then :data:`CALIBRATION_TICKS` timed.  A run that cannot
-    get through those ticks (it diverges at once) is not estimated: the run itself says why.
+    get through those ticks (it diverges at once) is not estimated: the run itself says why; nor is a loop with
+    a block without kernels (an FMU, whose instance a trial run would advance).
     """
+    from .contract import contract_of
     sim, Ts = scenario.simulation, loop.base_period
     ticks = int(math.floor(sim.t_final / Ts * (1 + 1e-12)))
     if ticks < _MIN_TICKS:
         return None
+    if any(contract_of(block).kernels is None for block in loop.syslist):
+        return None         # a block of its own (an FMU's instance) may keep state: only the run itself runs it
     opts = dict(rtol=sim.rtol, atol=sim.atol, max_step=sim.max_step)
     try:
         loop.simulate(x0, np.array([0.0, 2 * Ts]), sim.method, **opts)
