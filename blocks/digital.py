@@ -299,7 +299,8 @@ def observer_zoh_step(t, z, u, gain, period):
 def observer_held_output(t, z, u, gain, period):
     """``d_hat_k = Y dq_k + z_k`` (:func:`observer_sampled_output` without the model it does not read)."""
     n = z.shape[0]
-    return observer_estimate(gain, u[2 * n:3 * n], z)
+    dq = u[2 * n:3 * n]
+    return observer_estimate(gain, dq, z)
 
 
 def observer_sampled_output(t, z, u, k, gain, eq16_weight, period):
