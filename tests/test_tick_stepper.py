@@ -125,3 +125,23 @@ def test_other_methods_keep_the_restarted_solver():
     t = np.arange(0, 31) * (0.01 / 3)
     states, _ = loop.simulate(np.array([1.0]), t, "DOP853", rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(states[0], _zoh_reference(3.0, 40.0, 0.01, 1.0, t)[0], rtol=1e-10, atol=1e-13)
+
+
+def test_blocks_at_two_rates_give_the_restarted_solvers_run():
+    # a controller at Ts and a slower integrating one at 3 Ts (the plan with numpy; the generator takes one rate)
+    Ts = 0.01
+    plant = ct.nlsys(lambda t, x, u, p: np.array([-3.0 * x[0] + u[0] + u[1]]), lambda t, x, u, p: x,
+                     inputs=["u", "w"], outputs=["x"], states=["x"], name="plant")
+    fast = ct.nlsys(None, lambda t, x, u, p: np.array([-40.0 * u[0]]), inputs=["x"], outputs=["u"], name="fast",
+                    dt=Ts)
+    slow = ct.nlsys(lambda t, x, u, p: np.array([x[0] + u[0]]), lambda t, x, u, p: np.array([-2.0 * x[0]]),
+                    inputs=["x"], outputs=["w"], states=["s"], name="slow", dt=3 * Ts)
+    loop = HybridSystem([plant, fast, slow], outlist=["x", "u", "w"])
+    t = np.linspace(0.0, 1.0, 301)
+    states, out = loop.simulate(np.array([1.0, 0.0]), t, "RK45", rtol=1e-9, atol=1e-12)
+    ref_states, ref_out = _restarted(loop, np.array([1.0, 0.0]), t, "RK45", rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(states, ref_states, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(out, ref_out, rtol=0, atol=1e-13)
+    # the slow block's output changes only every third tick
+    w = out[2][np.searchsorted(t, np.arange(0, 31) * Ts - 1e-12)]
+    assert np.all(w[1:3] == w[0]) and w[3] != w[0]
