@@ -16,15 +16,8 @@ are those of the restarted solver to rounding (the dot products are summed
 in another order), and the grid points come from each step's interpolant
 (scipy's ``P`` matrix).
 
-The blocks are evaluated by the sampled program's generated functions
-(:func:`blocks.compiled.codegen.sampled_program`, the compiled sampled
-engine's text) run by CPython on Python floats, as :mod:`blocks.compiled.scalar`
-runs the continuous loop's: a tick and a right-hand side are a few hundred
-float operations, no array and no call per block.  A diagram the generator
-cannot take (a block without kernels, sampled blocks at several rates) runs
-the same loop on the diagram's plan with numpy; a call whose float
-arithmetic raises (a division by zero, an overflow) is repeated on the plan,
-so a diverging run diverges as it does there.
+The blocks run as functions on lists of floats (:mod:`blocks.sampled_functions`: the sampled program's
+generated functions, else the diagram's plan with numpy).
 
 Methods other than ``RK45`` and ``RK23`` (``DOP853``, the implicit ones)
 are left to the restarted scipy solver (:func:`tick_stepper_for` returns None).
@@ -39,6 +32,7 @@ import numpy as np
 import scipy.integrate
 
 from .integrate import DivergenceError, SolverFailure, _crossing_time
+from .sampled_functions import SampledFunctions
 
 __all__ = ["TickStepper", "tick_stepper_for", "STEPPED_METHODS"]
 
@@ -98,140 +92,6 @@ def _step_function(method: str) -> Callable:
     return found
 
 
-class _Blocks:
-    """A diagram's tick and right-hand side on lists of floats: the generated functions, else the numpy plan."""
-
-    def __init__(self, hybrid) -> None:
-        self.hybrid = hybrid
-        plan = hybrid.plan
-        self.n, self.nsignals = plan.nstates, plan.nsignals
-        # the continuous states (the others keep their value between ticks: their derivative is zero)
-        discrete = set(hybrid.multiples)
-        cont = []
-        for s in plan.updates:
-            if s.name not in discrete:
-                cont += list(range(s.x.start, s.x.stop))
-        self.cont = sorted(cont)
-        self.generated = False
-        try:
-            self._generated()
-            self.generated = True
-        except Exception as err:            # noqa: BLE001  any reason the generator gives: run the plan instead
-            from .compiled.codegen import CompiledUnavailable
-            from .compiled.trace import TraceError
-            if not isinstance(err, (CompiledUnavailable, TraceError)):
-                raise
-            self._planned()
-
-    # -- the generated functions, on floats -----------------------------------------------------------------
-    def _generated(self) -> None:
-        from .compiled.codegen import sampled_program_for
-        from .compiled.scalar import _called
-        program, kernels = sampled_program_for(self.hybrid)
-        found = _made.get(id(program))
-        if found is None or found[0] is not program:
-            namespace = {"np": _FLOAT_MATH, "__name__": "dobkit_scalar_sampled"}
-            namespace.update({name: _called(fn) for name, fn in program.kernels.items()})
-            exec(compile(program.source, "<dobkit generated sampled loop>", "exec"), namespace)
-            found = _made[id(program)] = (program, namespace)
-        ns = found[1]
-        theta_array, ext = program.numbers(kernels)
-        theta = tuple(theta_array.tolist())
-        sources, tick, rhs = ns["loop_sources"], ns["sampled_tick"], ns["sampled_rhs"]
-        src = [0.0] * program.n_src
-        work = np.zeros(program.n_work)
-        n, cont = self.n, self.cont
-        plan_tick, plan_rhs = self._planned_functions()
-
-        def tick_fn(k: int, t: float, x: list, held: list) -> tuple[list, list]:
-            xn, new = x[:], held[:]
-            try:
-                sources(t, theta, ext, work, src)
-                tick(t, x, theta, src, ext, work, held, new, xn)
-            except (ArithmeticError, ValueError):
-                return plan_tick(k, t, x, held)
-            return xn, new
-
-        def rhs_fn(t: float, x: list, held: list) -> list:
-            dx = [0.0] * n
-            try:
-                rhs(t, x, theta, src, ext, work, held, dx)
-            except (ArithmeticError, ValueError):
-                return plan_rhs(t, x, held)
-            return dx
-
-        self.tick, self.rhs_full = tick_fn, rhs_fn
-        self._bind_cont(cont)
-
-    # -- the plan with numpy ----------------------------------------------------------------------------------
-    def _planned_functions(self):
-        hybrid = self.hybrid
-        cache: dict = {}
-
-        def tick_fn(k: int, t: float, x: list, held: list) -> tuple[list, list]:
-            h = np.array(held, dtype=float)
-            xa = np.array(x, dtype=float)
-            y = hybrid.tick_outputs(k, xa, h)
-            return hybrid.tick_updates(k, xa, y).tolist(), h.tolist()
-
-        def rhs_fn(t: float, x: list, held: list) -> list:
-            key = tuple(held)
-            f = cache.get(key)
-            if f is None:
-                cache.clear()
-                f = cache[key] = hybrid.continuous_rhs(np.array(held, dtype=float))
-            return np.asarray(f(t, np.array(x, dtype=float)), dtype=float).tolist()
-
-        return tick_fn, rhs_fn
-
-    def _planned(self) -> None:
-        self.tick, self.rhs_full = self._planned_functions()
-        self._bind_cont(self.cont)
-
-    def _bind_cont(self, cont: list) -> None:
-        contiguous = cont == list(range(cont[0], cont[-1] + 1)) if cont else True
-        a, b = (cont[0], cont[-1] + 1) if cont else (0, 0)
-
-        if contiguous:
-            def scatter(base: list, values: list) -> list:
-                full = base[:]
-                full[a:b] = values
-                return full
-
-            def gather(full: list) -> list:
-                return full[a:b]
-        else:
-            def scatter(base: list, values: list) -> list:
-                full = base[:]
-                for i, v in zip(cont, values):
-                    full[i] = v
-                return full
-
-            def gather(full: list) -> list:
-                return [full[i] for i in cont]
-        self.scatter, self.gather = scatter, gather
-
-
-# the generated functions' namespaces, by program (kept with the program, as blocks.compiled.scalar does)
-_made: dict[int, tuple] = {}
-
-
-def _rint(v):
-    return float(round(v))         # round half to even, as numpy.rint; inf and nan raise (the plan takes over)
-
-
-class _FloatMath:
-    """``np`` for the generated text: the scalar functions of :mod:`blocks.compiled.scalar` and the encoder's rint."""
-
-    def __init__(self) -> None:
-        from .compiled.scalar import SCALAR_MATH
-        self.__dict__.update(vars(SCALAR_MATH))
-        self.rint = _rint
-
-
-_FLOAT_MATH = _FloatMath()
-
-
 class _Step:
     """A step that crossed a bound, as :func:`blocks.integrate._crossing_time` reads a solver."""
 
@@ -269,7 +129,7 @@ class TickStepper:
         if method not in STEPPED_METHODS:
             raise ValueError(f"the tick stepper takes {STEPPED_METHODS}, got {method!r}")
         self.hybrid, self.method = hybrid, method
-        self.blocks = _Blocks(hybrid)
+        self.blocks = SampledFunctions(hybrid)
         self.generated = self.blocks.generated
         cls = scipy.integrate.__dict__[method]
         self._step = _step_function(method)
