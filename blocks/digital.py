@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 
@@ -263,6 +264,45 @@ def observer_zoh_update(t, z, u, k, gain, eq16_weight, period):
     return np.ascontiguousarray(step[:n, :n]) @ z + step[:n, n]
 
 
+def observer_zoh_matrix(t, x, u, k, gain, eq16_weight, period):
+    """The first ``n`` rows of :func:`observer_zoh_update`'s augmented matrix ``[[A, c], [0, 0]] Ts``, row by row
+    (``n (n + 1)`` numbers): inputs ``[tau; q_s; dq_s]``.
+
+    The zoh update of a URDF arm split in two for the compiled sampled engine (:func:`zoh_split`): this part
+    evaluates the observer law on the arm's model, which the engine traces into its code; :func:`observer_zoh_step`
+    takes the exponential, which it calls.  The numbers are those of :func:`observer_zoh_update`.
+    """
+    n = u.shape[0] // 3
+    tau, q, dq = u[:n], u[n:2 * n], u[2 * n:3 * n]
+    c = observer_rate(k, gain, eq16_weight, q, dq, tau, np.zeros(n))
+    columns = []
+    for j in range(n):
+        basis = np.zeros(n)
+        basis[j] = 1.0
+        columns.append((observer_rate(k, gain, eq16_weight, q, dq, tau, basis) - c) * period)
+    columns.append(c * period)
+    return np.stack(columns, axis=1).ravel()
+
+
+def observer_zoh_step(t, z, u, gain, period):
+    """``z_{k+1} = e^{A Ts} z_k + (int_0^Ts e^{A s} ds) c`` from the augmented matrix's rows (:func:`observer_zoh_matrix`)
+    in the inputs ``[tau; q_s; dq_s; rows]``: the last lines of :func:`observer_zoh_update`."""
+    n = z.shape[0]
+    augmented = np.zeros((n + 1, n + 1))
+    for i in range(n):
+        for j in range(n + 1):
+            augmented[i, j] = u[3 * n + i * (n + 1) + j]
+    step = expm_small(augmented)
+    return np.ascontiguousarray(step[:n, :n]) @ z + step[:n, n]
+
+
+def observer_held_output(t, z, u, gain, period):
+    """``d_hat_k = Y dq_k + z_k`` (:func:`observer_sampled_output` without the model it does not read)."""
+    n = z.shape[0]
+    dq = u[2 * n:3 * n]
+    return observer_estimate(gain, dq, z)
+
+
 def observer_sampled_output(t, z, u, k, gain, eq16_weight, period):
     """``d_hat_k = Y dq_k + z_k``."""
     n = z.shape[0]
@@ -382,4 +422,39 @@ def digital_observer(nominal: ArmModel, gain, settings: DigitalController, varia
                          inputs=inputs, states=names("z"), outputs=names("d_hat"), feedthrough=names("dq_s"),
                          dt=settings.period)
     block.gain = Y
+    if settings.observer_discretization == "zoh":
+        block.zoh_split = partial(zoh_split, nominal, params, settings, name)
     return block
+
+
+def zoh_split(nominal: ArmModel, params: tuple, settings: DigitalController, name: str = "observer") -> list:
+    """The zoh observer as two sampled blocks with its numbers: the augmented matrix, then the update and estimate.
+
+    ``<name>_zoh`` (inputs ``tau``, ``q_s``, ``dq_s``; outputs ``<name>_a[i]``, the ``n (n + 1)`` entries of
+    :func:`observer_zoh_matrix`) evaluates the observer law on the nominal model; ``<name>`` (inputs ``tau``,
+    ``q_s``, ``dq_s`` and those entries, state ``z``, output ``d_hat``) takes the exponential
+    (:func:`observer_zoh_step`) and reads no model.  The compiled sampled engine runs this pair for an arm whose
+    model it must trace (a URDF arm's, which compiled code cannot take as a parameter): the first block is traced,
+    the second called with numbers only.  The states, outputs and numbers are those of the one block.
+
+    Parameters
+    ----------
+    nominal : ArmModel
+    params : tuple
+        The observer block's parameters ``(model, gain, eq16_weight, period)``.
+    settings : DigitalController
+    name : str
+        The observer block's name.
+    """
+    from .contract import kernel_block
+    names = nominal.joints.signal_names
+    n = nominal.joints.count
+    _, gain, _, period = params
+    inputs = names("tau") + names("q_s") + names("dq_s")
+    rows = [f"{name}_a[{i}]" for i in range(n * (n + 1))]
+    matrix = kernel_block(Kernels(params, bound(observer_zoh_matrix, nominal)), name=f"{name}_zoh", inputs=inputs,
+                          outputs=rows, feedthrough=inputs, dt=settings.period)
+    observer = kernel_block(Kernels((gain, period), observer_held_output, observer_zoh_step), name=name,
+                            inputs=inputs + rows, states=names("z"), outputs=names("d_hat"),
+                            feedthrough=names("dq_s"), dt=settings.period)
+    return [observer, matrix]

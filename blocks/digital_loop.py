@@ -20,6 +20,7 @@ from .hybrid import HybridSystem
 from .monitor import Monitor, SimulationError
 from .run_limits import check_run
 from .sampled_blocks import SAMPLED_SIGNALS, sampled_initial_state, sampled_loop
+from .sampled_cost import check_sampled_time
 
 __all__ = ["sampled_loop", "sampled_initial_state", "simulate_sampled", "check_observer_rate",
            "SAMPLED_SIGNALS"]
@@ -133,7 +134,9 @@ def simulate_sampled(scenario, observer: bool = True, plant=None,
         Before the run, if the observer is unstable at this rate (:func:`check_observer_rate`).
     blocks.budget.BudgetError
         Before the loop is built, if the run's estimate (ticks, the delay buffer, the output grid) exceeds the
-        budget; during the run, if the wall-time budget runs out.
+        budget; before the numpy engine's run, if its wall time (the cost of a tick, measured, times the ticks:
+        :func:`blocks.sampled_cost.check_sampled_time`) exceeds the wall-time budget (a run over a minute without
+        one is warned about); during the run, if the wall-time budget runs out.
     blocks.monitor.SimulationError
         If a physical signal leaves its bound (:mod:`blocks.divergence`): the signal, the bound and the time named.
     blocks.compiled.CompiledUnavailable
@@ -148,10 +151,16 @@ def simulate_sampled(scenario, observer: bool = True, plant=None,
         check_observer_rate(s)
     loop = sampled_loop(s, observer=observer, plant_system=plant)
     x0 = sampled_initial_state(loop, s)
+    chosen = _sampled_engine(loop, sim.method, engine)
+    if chosen != "compiled":
+        # its cost per tick, measured, times the ticks: refused over the wall-time budget, warned when long
+        from .compiled.sampled import sampled_unavailable_reason
+        check_sampled_time(loop, x0, s, budget, f"scenario '{s.name}' (sampled at {s.controller.sample_rate:g} Hz)",
+                           sampled_unavailable_reason(loop, sim.method))
     monitor = Monitor(f"scenario '{s.name}'", cached_state_bounds(loop, s), x0, budget, sim.t_final, progress,
                       sim.method)
     t_grid = sim.time_grid
-    if _sampled_engine(loop, sim.method, engine) == "compiled":
+    if chosen == "compiled":
         states, outputs = _simulate_compiled(loop, x0, s, monitor)
     else:
         states, outputs = loop.simulate(x0, t_grid, sim.method, rtol=sim.rtol, atol=sim.atol,

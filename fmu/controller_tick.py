@@ -44,7 +44,7 @@ from blocks.contract import contract_of
 from blocks.digital import observer_zoh_update, quantized
 from blocks.kernels import observer_rate
 
-__all__ = ["TickCode", "trace_tick"]
+__all__ = ["TickCode", "trace_tick", "is_zoh_update"]
 
 _BLOCKS = ("encoder", "observer", "controller", "actuator")
 
@@ -187,12 +187,13 @@ class _Tick:
         k, gain, eq16, period = self.params(graph, "observer")
         u = self.observer_inputs(sig)
         tau, q, dq = u[:n], u[n:2 * n], u[2 * n:3 * n]
-        c = _flat(observer_rate(k, gain, eq16, q, dq, tau, np.zeros(n)))
+        rate = _observer_rate(self.kernels["observer"].update)
+        c = _flat(rate(k, gain, eq16, q, dq, tau, np.zeros(n)))
         a = [[graph.const(0.0)] * (n + 1) for _ in range(n + 1)]
         for j in range(n):
             basis = np.zeros(n)
             basis[j] = 1.0
-            col = _flat(observer_rate(k, gain, eq16, q, dq, tau, basis))
+            col = _flat(rate(k, gain, eq16, q, dq, tau, basis))
             for i in range(n):
                 a[i][j] = (col[i] - c[i]) * period
         for i in range(n):
@@ -210,7 +211,7 @@ class _Tick:
             nxt[xs] = _flat(enc.update(t, x[xs], sig["u"], *self.params(graph, "encoder")))
         obs = self.kernels["observer"]
         xs = self.x_slices["observer"]
-        if obs.update is observer_zoh_update:
+        if is_zoh_update(obs.update):
             e = _leaves(graph, "e", (n + 1) * (n + 1))
             step = e.reshape(n + 1, n + 1)
             z = x[xs]
@@ -244,6 +245,17 @@ class _Tick:
             if gain.ndim == 2 else [gain[i] * dq0[i] for i in range(n)]
         x[self.x_slices["observer"]] = [float(d_hat0[i]) - y_dq[i] for i in range(n)]
         return x
+
+
+def is_zoh_update(update) -> bool:
+    """Whether an observer's update is :func:`blocks.digital.observer_zoh_update`: the paper arm's, or its copy
+    bound to another arm's kernels (:func:`blocks.kernels.bind.bound`: the same code, other globals)."""
+    return getattr(update, "__code__", None) is observer_zoh_update.__code__
+
+
+def _observer_rate(update):
+    """The observer law as the zoh update calls it: for a URDF arm its copy bound to the arm's kernels."""
+    return getattr(update, "__globals__", {}).get("observer_rate", observer_rate)
 
 
 def _renumber(graph: Graph, sym, start: int):
@@ -300,7 +312,7 @@ def trace_tick(loop, scenario) -> TickCode:
     outs = sig["tau"] + sig["d_hat"] + sig["tau_cmd"]
     parts.append(_function("ctrl_outputs", f"double t, {const}x, {const}in, {const}ref, {const}theta, double *out",
                            outs, "out"))
-    zoh = tick.kernels["observer"].update is observer_zoh_update
+    zoh = is_zoh_update(tick.kernels["observer"].update)
     if zoh:
         g = Graph()
         parts.append(_function("ctrl_zoh_matrix",

@@ -39,7 +39,8 @@ from .codegen import CompiledUnavailable, load_module, mark_compiled, sampled_pr
 from .engine import METHODS, _StepView
 from .jit import numba_or_none
 
-__all__ = ["SampledEngine", "sampled_unavailable_reason", "simulate_sampled_batch", "SampledBatchResult"]
+__all__ = ["SampledEngine", "sampled_unavailable_reason", "simulate_sampled_batch", "SampledBatchResult",
+           "compilable_loop"]
 
 # Status codes of sampled_ticks (blocks/compiled/dopri.py)
 _RUNNING, _FINISHED, _DIVERGED, _STEP_TOO_SMALL, _TICK_DIVERGED = 0, 1, 2, 3, 4
@@ -48,6 +49,41 @@ _S_T, _S_NFEV = 0, 2
 _PROGRESS_TICKS = 2000
 # Sample periods are whole multiples of the base period to this relative tolerance (as blocks.hybrid)
 _TICKS_RTOL = 1e-12
+
+
+def compilable_loop(hybrid):
+    """The diagram the compiled engine runs for ``hybrid``: the same, except a zoh observer whose model is structure.
+
+    A zoh observer's update takes a matrix exponential, which does not trace, so the engine calls it with the
+    block's parameters; a URDF arm's model (:class:`blocks.kernels.chain.ChainParams`) cannot be passed to
+    compiled code.  Such an observer is split into two blocks (:func:`blocks.digital.zoh_split`): the augmented
+    matrix from the arm's model, traced, and the update and estimate, called with numbers only.  The states and
+    the outputs keep their order, so the runs are the diagram's.
+    """
+    from ..compiled.trace import Frozen
+    blocks, split = [], False
+    for block in hybrid.blocks():
+        parts = getattr(block, "zoh_split", None)
+        kernels = contract_of(block).kernels
+        if parts is not None and kernels is not None and any(isinstance(p, Frozen) for p in kernels.params):
+            blocks += parts()
+            split = True
+        else:
+            blocks.append(block)
+    if not split:
+        return hybrid
+    found = getattr(hybrid, "_compilable", None)
+    if found is not None:
+        return found
+    from ..hybrid import HybridSystem
+    loop = HybridSystem(blocks, outlist=hybrid.output_labels, name=hybrid.name)
+    if loop.state_labels != hybrid.state_labels or loop.output_labels != hybrid.output_labels:
+        raise CompiledUnavailable("splitting the zoh observer changed the loop's states or outputs")
+    for attr in ("scenario", "with_observer"):
+        if hasattr(hybrid, attr):
+            setattr(loop, attr, getattr(hybrid, attr))
+    hybrid._compilable = loop
+    return loop
 
 
 def sampled_unavailable_reason(hybrid, method: str = "RK45") -> str | None:
@@ -89,6 +125,7 @@ class SampledEngine:
         reason = sampled_unavailable_reason(hybrid)
         if reason is not None:
             raise CompiledUnavailable(f"the compiled sampled engine cannot run: {reason}")
+        hybrid = compilable_loop(hybrid)
         self.hybrid = hybrid
         self.program, self.kernels = sampled_program_for(hybrid)
         self.theta, self.ext = self.program.numbers(self.kernels)
@@ -286,7 +323,7 @@ def simulate_sampled_batch(scenario, seeds: Sequence[int] | None = None, variant
             theta[m] = engine.theta
             tables.append(member.noise.table)
             continue
-        own_program, own_kernels = sampled_program_for(own)
+        own_program, own_kernels = sampled_program_for(compilable_loop(own))
         if own_program is not program or own.output_labels != loop.output_labels:
             raise ValueError(f"variants[{m}] ('{member.name}') differs from '{s.name}' in structure (blocks, "
                              "observer update, velocity source, delay, noise, which joints quantize): run it in "
