@@ -13,6 +13,7 @@ from ..scenario import Scenario, load_scenario
 from ..steppers import rk4_step
 from ..workers import worker_pool
 from .members import MemberLoop
+from .rows import member_rows
 from .schedule import auto_substeps, batch_schedule
 from .variants import Variants
 
@@ -58,7 +59,8 @@ class BatchResult:
     steps : int
         Number of steps taken: RK4's on the shared schedule, or with ``RK45`` the most any member took.
     substeps : int
-        RK4 steps per output interval (before breakpoints were added).
+        RK4 steps per output interval (before breakpoints were added); with ``RK45`` the ``substeps`` asked
+        for, 0 when none was (each member takes its own steps).
     method : str
         ``"RK45"`` (each member with its own step control) or ``"RK4"`` (the shared fixed-step schedule).
     evaluations : numpy.ndarray or None
@@ -245,29 +247,32 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
             raise ValueError("signal 'd_hat' needs the observer (observer=True)")
 
     s = v.base
-    substeps = auto_substeps(v, observer) if substeps is None else substeps
     members, compiled = None, None
     if engine != "fast":
         from ..compiled.batch import auto_batch_reason, batch_unavailable_reason, run_compiled_batch
         from ..engine_choice import select_engine
         reason = batch_unavailable_reason(v)
+        if reason is None:
+            # the members as rows of numbers (blocks.batch.rows), or each member's blocks where the trace fails
+            members = member_rows(v, observer)
         if reason is None and engine == "auto":
             # the rule of single runs: a loop whose generated code is too long to compile now runs on numpy
-            members = MemberLoop(v, observer)
             reason, compiled = auto_batch_reason(members)
         engine = select_engine(engine, reason)
     if engine == "compiled":
         method = "RK45" if method is None else method
         if method == "RK4":
+            substeps = auto_substeps(v, observer) if substeps is None else substeps
             times, grid_index = _schedule if _schedule is not None else batch_schedule(v, substeps, breakpoints)
         else:
             times, grid_index = s.simulation.time_grid, None
-        members = MemberLoop(v, observer) if members is None else members
         values, kept, failed_at, failures, counts = run_compiled_batch(
             v, members, observer, metrics, tuple(signals), times, grid_index, workers, compiled, method)
         return BatchResult(variants=v, observer=observer, time=s.simulation.time_grid, metrics=values, signals=kept,
-                           failed_at=failed_at, steps=int(counts[:, 0].max()), substeps=int(substeps),
-                           failures=failures, method=method, evaluations=counts[:, 1])
+                           failed_at=failed_at, steps=int(counts[:, 0].max()),
+                           substeps=int(substeps) if substeps is not None else 0, failures=failures, method=method,
+                           evaluations=counts[:, 1])
+    substeps = auto_substeps(v, observer) if substeps is None else substeps
     if method == "RK45":
         raise ValueError("method='RK45' (each member with its own step control) is the compiled batch's; the numpy "
                          "batch integrates fixed-step RK4 (method='RK4' or engine='compiled')")
@@ -277,7 +282,7 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
     if workers > 1 and len(v) > 1:
         return _simulate_in_processes(v, observer, metrics, tuple(signals), substeps, workers,
                                       batch_schedule(v, substeps, breakpoints))
-    loop = MemberLoop(v, observer) if members is None else members
+    loop = members if isinstance(members, MemberLoop) else MemberLoop(v, observer)
     sim = s.simulation
     times, grid_index = _schedule if _schedule is not None else batch_schedule(v, substeps, breakpoints)
     mids = 0.5 * (times[:-1] + times[1:])
