@@ -207,7 +207,8 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
         control and the scenario's ``rtol``, ``atol``, ``max_step`` -- so it
         equals that run to rounding.  ``RK4``: fixed-step RK4 on the shared
         schedule of ``substeps`` and ``breakpoints`` (the numpy batch's only
-        method, its default).
+        method, and the default when ``substeps`` or ``breakpoints`` are
+        given, as sweeps and tuning give them).
 
     Returns
     -------
@@ -260,7 +261,8 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
             reason, compiled = auto_batch_reason(members)
         engine = select_engine(engine, reason)
     if engine == "compiled":
-        method = "RK45" if method is None else method
+        if method is None:                  # a step schedule asked for is RK4's
+            method = "RK4" if substeps is not None or len(breakpoints) else "RK45"
         if method == "RK4":
             substeps = auto_substeps(v, observer) if substeps is None else substeps
             times, grid_index = _schedule if _schedule is not None else batch_schedule(v, substeps, breakpoints)
