@@ -337,12 +337,9 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
             monitor.check_grid(t_grid[finite], states[:, finite])
             raise SimulationError(f"scenario '{s.name}': solver failed: {resp.message}")
         monitor.check_grid(t_grid, states)
-    d = None
-    if with_d:                               # the compiled engine's grid pass gave d already, as the last rows
-        n = s.robot.joints.count
-        outputs, d = outputs[:-n], outputs[-n:]
+    # with_d: the compiled engine's grid pass gave d already, as the last rows
     resp = loop_response(t_grid, outputs, states, run.labels, run.state_labels, s, observer, run.title, loop.name,
-                         d=d)
+                         with_d=with_d)
     resp.engine = engine                # the engine that ran ("auto" resolved)
     return resp
 
