@@ -265,11 +265,11 @@ def run_compiled_batch(v, members, observer: bool, metrics: tuple, signals: tupl
     previous = numba.get_num_threads()
     numba.set_num_threads(threads)
     try:
+        src_at = np.empty((times.size, max(program.n_src, 1)))
+        module.source_table(times, engine.theta, engine.ext, src_at)     # shared: at the steps, or the grid
         if rk4:
             mids = 0.5 * (times[:-1] + times[1:])
-            src_at = np.empty((times.size, max(program.n_src, 1)))
             src_mid = np.empty((max(mids.size, 1), max(program.n_src, 1)))
-            module.source_table(times, engine.theta, engine.ext, src_at)
             module.source_table(mids, engine.theta, engine.ext, src_mid)
         for c0 in range(0, N, chunk):
             c1 = min(N, c0 + chunk)
@@ -283,7 +283,7 @@ def run_compiled_batch(v, members, observer: bool, metrics: tuple, signals: tupl
                                  table_row, flags, keep, keep_rows, n_grid - 1, bound[c0:c1], Y[c0:c1],
                                  sum_sq[c0:c1], max_abs[c0:c1], final[c0:c1], failed_at[c0:c1], failed_x[c0:c1])
             else:
-                module.dopri_batch(times, X0[c0:c1], theta[c0:c1], ext, tables, table_row, float(sim.rtol),
+                module.dopri_batch(times, src_at, X0[c0:c1], theta[c0:c1], ext, tables, table_row, float(sim.rtol),
                                    float(sim.atol), float(sim.max_step), aux, flags, keep, keep_rows, bound[c0:c1],
                                    Y[c0:c1], sum_sq[c0:c1], max_abs[c0:c1], final[c0:c1], status[c0:c1],
                                    failed_x[c0:c1], counts[c0:c1])

@@ -400,14 +400,13 @@ def rk4_batch(times, grid_index, src_at, src_mid, aux, X0, theta, ext, tables, t
                 x[i] = x[i] + (h / 6.0) * (k1[i] + 2.0 * (k2[i] + k3[i]) + k4[i])
 
 
-def batch_grid_point(m, g, t, x, theta, ext, aux, flags, keep, keep_rows, last_grid, src, work, yo, rows, Y,
+def batch_grid_point(m, g, t, x, theta, ext, aux, flags, keep, keep_rows, last_grid, src_grid, work, yo, rows, Y,
                      sum_sq, max_abs, final):
     """Member ``m``'s outputs and flagged rows at grid point ``g`` (time ``t``, states ``x``), as ``grid_outputs``
-    evaluates them for a single run: their squares added to ``sum_sq[m]``, their largest magnitude in
-    ``max_abs[m]``, their value at grid point ``last_grid`` in ``final[m]``, the outputs ``keep`` and rows
-    ``keep_rows`` stored in ``Y[m, g]``."""
-    loop_sources(t, theta, ext, work, src)
-    loop_outputs_rows(t, x, theta, src, ext, work, aux[g], flags, yo, rows)
+    evaluates them for a single run (the sources' outputs there, shared by all members, from ``src_grid[g]``):
+    their squares added to ``sum_sq[m]``, their largest magnitude in ``max_abs[m]``, their value at grid point
+    ``last_grid`` in ``final[m]``, the outputs ``keep`` and rows ``keep_rows`` stored in ``Y[m, g]``."""
+    loop_outputs_rows(t, x, theta, src_grid[g], ext, work, aux[g], flags, yo, rows)
     for r in range(sum_sq.shape[1]):
         v = rows[r]
         sum_sq[m, r] += v * v
@@ -423,8 +422,8 @@ def batch_grid_point(m, g, t, x, theta, ext, aux, flags, keep, keep_rows, last_g
         Y[m, g, n_keep + r] = rows[keep_rows[r]]
 
 
-def dopri_member(m, t_grid, X0, theta, ext, rtol, atol, max_step, aux, flags, keep, keep_rows, bound, Y, sum_sq,
-                 max_abs, final, failed_x, counts):
+def dopri_member(m, t_grid, src_grid, X0, theta, ext, rtol, atol, max_step, aux, flags, keep, keep_rows, bound, Y,
+                 sum_sq, max_abs, final, failed_x, counts):
     """Member ``m`` of ``dopri_batch``: its whole run, as ``dopri_run`` makes a single one; its status code.
 
     ``counts[m]`` gets ``[accepted steps, right-hand-side calls, time reached]``; on ``DIVERGED`` the state at
@@ -462,8 +461,8 @@ def dopri_member(m, t_grid, X0, theta, ext, rtol, atol, max_step, aux, flags, ke
     loop_derivative(t, y, theta, ext, src, work, f)
     h_abs = initial_step(t, y, f, t_bound, max_step, rtol, atol, theta, ext, src, work, f_new)
     state[S_NFEV] = 2.0
-    batch_grid_point(m, 0, t, y, theta, ext, aux, flags, keep, keep_rows, last_grid, src, work, yo, rows, Y, sum_sq,
-                     max_abs, final)
+    batch_grid_point(m, 0, t, y, theta, ext, aux, flags, keep, keep_rows, last_grid, src_grid, work, yo, rows, Y,
+                     sum_sq, max_abs, final)
     g = 1
     steps = 0
     code = FINISHED
@@ -485,8 +484,8 @@ def dopri_member(m, t_grid, X0, theta, ext, rtol, atol, max_step, aux, flags, ke
             break
         while g < n_grid and t_grid[g] <= t_new:
             dense_row(Q, y_old, h, t, t_grid[g], xg)
-            batch_grid_point(m, g, t_grid[g], xg, theta, ext, aux, flags, keep, keep_rows, last_grid, src, work,
-                             yo, rows, Y, sum_sq, max_abs, final)
+            batch_grid_point(m, g, t_grid[g], xg, theta, ext, aux, flags, keep, keep_rows, last_grid, src_grid,
+                             work, yo, rows, Y, sum_sq, max_abs, final)
             g += 1
         for i in range(n):
             y[i] = y_new[i]
@@ -499,11 +498,12 @@ def dopri_member(m, t_grid, X0, theta, ext, rtol, atol, max_step, aux, flags, ke
     return code
 
 
-def dopri_batch(t_grid, X0, theta, ext, tables, table_row, rtol, atol, max_step, aux, flags, keep, keep_rows, bound,
-                Y, sum_sq, max_abs, final, status, failed_x, counts):
+def dopri_batch(t_grid, src_grid, X0, theta, ext, tables, table_row, rtol, atol, max_step, aux, flags, keep, keep_rows,
+                bound, Y, sum_sq, max_abs, final, status, failed_x, counts):
     """Every member run on its own as ``dopri_run`` runs a single one, members in parallel.
 
-    ``X0`` (N, n) the start states, ``theta`` (N, p) the members' parameters,
+    ``src_grid`` holds the sources' outputs at the grid times (shared by all
+    members), ``X0`` (N, n) the start states, ``theta`` (N, p) the members' parameters,
     ``tables`` their tables (``member_ext``; member ``m`` reads row
     ``table_row[m]``), ``bound[m]`` member ``m``'s state bounds, ``aux`` the
     row groups' shared values at each grid point.  Each member takes its own
@@ -517,8 +517,8 @@ def dopri_batch(t_grid, X0, theta, ext, tables, table_row, rtol, atol, max_step,
     """
     for m in prange(X0.shape[0]):
         e = member_ext(ext, tables, table_row[m])
-        status[m] = dopri_member(m, t_grid, X0, theta[m], e, rtol, atol, max_step, aux, flags, keep, keep_rows,
-                                 bound, Y, sum_sq, max_abs, final, failed_x, counts)
+        status[m] = dopri_member(m, t_grid, src_grid, X0, theta[m], e, rtol, atol, max_step, aux, flags, keep,
+                                 keep_rows, bound, Y, sum_sq, max_abs, final, failed_x, counts)
 
 
 # ------------------------------------------------------------------------------------------------------------
