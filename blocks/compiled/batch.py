@@ -1,19 +1,27 @@
-"""The compiled batch: the base loop's generated module run for N members in parallel, fixed-step RK4.
+"""The compiled batch: the base loop's generated module run for N members in parallel.
 
 Every member runs the same generated right-hand side as a single compiled
 run (:mod:`blocks.compiled.codegen`), with its own parameter vector
-``theta``: the traced blocks' numbers read from each member's own block
+``theta``: the traced blocks' numbers, filled from the variants' columns
+(:class:`blocks.batch.rows.MemberRows`) or read from each member's own block
 parameters (:class:`blocks.batch.members.MemberLoop`: the member's blocks made
-as its single run makes them), the reference's from the shared loop.  The reference is evaluated once
-at every step time and mid point, shared by all members.  Members with
-their own measurement noise read their own noise table (``member_ext``).
-Members run in parallel over ``workers`` threads (numba ``prange``).
+as its single run makes them), the reference's from the shared loop.  Members
+with their own measurement noise read their own noise table (``member_ext``).
+Members run in parallel over ``workers`` threads (numba ``prange``; default
+every core).
+
+``method="RK45"`` (the default) runs each member as ``dopri_run`` runs a
+single one (``dopri_batch``: the same Dormand-Prince steps, its own step
+control), so a member equals its single compiled run to rounding.
+``method="RK4"`` integrates all members on one fixed step schedule
+(``rk4_batch``), with the reference evaluated once at every step time and
+mid point.
 
 The tracking metrics are accumulated inside the compiled driver: at each
-output grid point the step's first stage also evaluates the row groups of
-:mod:`blocks.compiled.rows` -- position error, tool-tip distance (against
-the reference's tool position, computed once per grid point), disturbance
-error ``d - d_hat`` with ``d`` traced from the lumped-disturbance kernel --
+output grid point the flagged row groups of :mod:`blocks.compiled.rows` --
+position error, tool-tip distance (against the reference's tool position,
+computed once per grid point), disturbance error ``d - d_hat`` with ``d``
+traced from the lumped-disturbance kernel -- are evaluated with the outputs,
 and the driver adds their squares, keeps their largest magnitude and their
 value at the last point.  :func:`_metrics` turns those sums into the metrics
 as :class:`blocks.metrics.TrackingAccumulator` defines them.  No signal is
