@@ -38,7 +38,7 @@ def lumped_disturbance_of(outputs: np.ndarray, labels: list, scenario) -> np.nda
 
 
 def loop_response(time, outputs, states, labels: list, state_labels: list | None, scenario, observer: bool,
-                  title: str, sysname: str, d=None) -> ct.TimeResponseData:
+                  title: str, sysname: str, d=None, with_d: bool = False) -> ct.TimeResponseData:
     """The response of a Figure-2 run: its outputs with ``d[i]`` appended, as python-control users expect.
 
     Parameters
@@ -54,6 +54,9 @@ def loop_response(time, outputs, states, labels: list, state_labels: list | None
     title, sysname : str
     d : numpy.ndarray, optional
         The lumped disturbance when the engine computed it already (the compiled engine does, in its grid pass).
+    with_d : bool
+        ``outputs`` ends with the lumped disturbance's n rows already (the compiled engine's grid pass writes
+        them there): the response takes the array as it is, without joining a copy.
 
     Returns
     -------
@@ -61,8 +64,10 @@ def loop_response(time, outputs, states, labels: list, state_labels: list | None
         With attributes ``scenario`` and ``with_observer``.
     """
     outputs = np.asarray(outputs, dtype=float)
-    d = lumped_disturbance_of(outputs, list(labels), scenario) if d is None else d
-    resp = ct.TimeResponseData(time, np.vstack([outputs, d]), states,
+    if not with_d:
+        d = lumped_disturbance_of(outputs, list(labels), scenario) if d is None else d
+        outputs = np.vstack([outputs, d])
+    resp = ct.TimeResponseData(time, outputs, states,
                                output_labels=list(labels) + signal_names("d", scenario.robot),
                                state_labels=state_labels if states is not None else None, title=title,
                                sysname=sysname, issiso=False, plot_inputs=False)

@@ -336,13 +336,9 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
         stepper = PythonControlEngine(loop, sim.method)
     states, outputs, d_rows = advance(stepper, context, t_grid, Solver.of(sim), what=f"scenario '{s.name}'",
                                       progress=progress, rows=("d",))
-    with_d = d_rows > 0
-    d = None
-    if with_d:                               # the compiled engine's grid pass gave d already, as the last rows
-        n = s.robot.joints.count
-        outputs, d = outputs[:-n], outputs[-n:]
+    with_d = d_rows > 0                      # the compiled engine's grid pass gave d already, as the last rows
     resp = loop_response(t_grid, outputs, states, run.labels, run.state_labels, s, observer, run.title, loop.name,
-                         d=d)
+                         with_d=with_d)
     resp.engine = engine                # the engine that ran ("auto" resolved)
     return resp
 

@@ -68,8 +68,8 @@ def test_noise_members_match_their_single_runs(short):
 def test_friction_members_match_their_single_runs(short):
     s = short.replace(disturbance={"kind": ["paper", "friction"]})
     records = [{"disturbance.coulomb": [0.5, 0.5, 0.5, 0.1]}, {"disturbance.friction_velocity": 0.05}]
-    result = simulate_batch(s, records, signals=("q",))
-    assert result.substeps > 1          # friction near zero speed is fast; the automatic step follows it
+    result = simulate_batch(s, records, signals=("q",), method="RK4")
+    assert result.substeps > 1          # friction near zero speed is fast; the automatic RK4 step follows it
     for i in range(len(records)):
         _assert_member_matches(result, i)
 
@@ -138,11 +138,11 @@ def test_a_member_result_does_not_depend_on_its_batch(short):
 def test_a_diverging_member_is_marked_and_the_others_finish(short):
     s = short.replace(simulation={"t_final": 0.5})
     # Kd = 5000 puts a pole near -5000 1/s: RK4 at a forced 5 ms step is unstable there.
-    result = simulate_batch(s, [{}, {"gains.kd": 5000.0}], substeps=1)
+    result = simulate_batch(s, [{}, {"gains.kd": 5000.0}], substeps=1, method="RK4")
     assert result.ok.tolist() == [True, False]
     assert 0 < result.failed_at[1] <= 0.5
     assert np.all(np.isnan(result.metrics["rms_position_error"][1]))
-    alone = simulate_batch(s, [{}], substeps=1)
+    alone = simulate_batch(s, [{}], substeps=1, method="RK4")
     np.testing.assert_allclose(result.metrics["rms_position_error"][0], alone.metrics["rms_position_error"][0],
                                rtol=1e-13)
 
@@ -221,11 +221,13 @@ def _monte_carlo_draws(n: int, seed: int) -> list[dict]:
 
 @pytest.mark.slow
 def test_full_paper_runs_match_single_runs_and_a_tight_reference():
-    """Over the paper's 10 s: within STATE_ATOL of the single run, and within STATE_ERROR of DOP853 at rtol 1e-11,
-    for the paper scenario and three seeded Monte Carlo draws."""
+    """Over the paper's 10 s, for the paper scenario and three seeded Monte Carlo draws: the RK4 batch within
+    STATE_ATOL of the single run and within STATE_ERROR of DOP853 at rtol 1e-11; the default (each member's own
+    Dormand-Prince steps) the single compiled run itself, within the single run's own error of DOP853."""
     s = blocks.load_scenario("paper")
     records = [{}] + _monte_carlo_draws(3, seed=2024)
-    result = simulate_batch(s, records, signals=("q",))
+    result = simulate_batch(s, records, signals=("q",), method="RK4")
+    adaptive = simulate_batch(s, records, signals=("q",))
     for i in range(len(records)):
         member = result.variants.scenario(i)
         single = signal(blocks.simulate(member), "q").T
@@ -233,6 +235,8 @@ def test_full_paper_runs_match_single_runs_and_a_tight_reference():
                                        engine="fast"), "q").T
         np.testing.assert_allclose(result.signals["q"][i], single, rtol=0, atol=batch.STATE_ATOL, err_msg=f"member {i}")
         np.testing.assert_allclose(result.signals["q"][i], tight, rtol=0, atol=batch.STATE_ERROR, err_msg=f"member {i}")
+        np.testing.assert_allclose(adaptive.signals["q"][i], single, rtol=0, atol=1e-12, err_msg=f"member {i}")
+        np.testing.assert_allclose(adaptive.signals["q"][i], tight, rtol=0, atol=batch.STATE_ATOL, err_msg=f"member {i}")
 
 
 def test_member_blocks_made_without_python_control_carry_the_blocks_numbers(short):

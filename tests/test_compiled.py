@@ -129,9 +129,10 @@ def _paper_variants(n, seed=3):
 def test_compiled_batch_equals_numpy_batch_and_single_compiled_runs():
     base = blocks.load_scenario("paper").replace(simulation={"t_final": 2.0})
     v = Variants(base, _paper_variants(5))
-    compiled = simulate_batch(base, v, engine="compiled", signals=("q", "d_hat", "d"), workers=2)
+    compiled = simulate_batch(base, v, engine="compiled", signals=("q", "d_hat", "d"), workers=2,
+                              method="RK4")
     numpy_batch = simulate_batch(base, v, engine="fast", signals=("q", "d_hat", "d"))
-    # the same RK4 schedule: equal to rounding
+    # the same RK4 schedule (method='RK4'): equal to rounding
     for name, value in numpy_batch.signals.items():
         np.testing.assert_allclose(compiled.signals[name], value, rtol=1e-9, atol=1e-10, err_msg=name)
     # and each member equals its own single compiled run within the batch's stated tolerance
@@ -164,12 +165,13 @@ def test_metrics_accumulated_in_the_compiled_driver_equal_the_numpy_batch(case):
                                              True),
     }[case]
     v = Variants(base, records)
-    compiled = simulate_batch(base, v, observer=observer, engine="compiled", workers=2)
+    compiled = simulate_batch(base, v, observer=observer, engine="compiled", workers=2, method="RK4")
     numpy_batch = simulate_batch(base, v, observer=observer, engine="fast")
     assert len(compiled.metrics) == len([m for m in METRICS if observer or m not in OBSERVER_METRICS])
     _assert_same_metrics(compiled, numpy_batch)
     # a subset is the same subset
-    only = simulate_batch(base, v, observer=observer, engine="compiled", metrics=("max_tool_position_error_mm",))
+    only = simulate_batch(base, v, observer=observer, engine="compiled", metrics=("max_tool_position_error_mm",),
+                          method="RK4")
     assert list(only.metrics) == ["max_tool_position_error_mm"]
     np.testing.assert_array_equal(only.metrics["max_tool_position_error_mm"],
                                   compiled.metrics["max_tool_position_error_mm"])
@@ -180,7 +182,7 @@ def test_per_member_noise_compiled_equals_numpy():
     base = blocks.load_scenario("paper").replace(simulation={"t_final": 0.5})
     records = [{"noise.q_std": [1e-4] * 4, "noise.dq_std": [1e-3] * 4, "noise.seed": 3},
                {"noise.q_std": [2e-4, 0, 0, 1e-4], "noise.seed": 5, "gains.kp": 150.0}, {}]
-    compiled = simulate_batch(base, records, engine="compiled", signals=("q", "q_meas"), workers=2)
+    compiled = simulate_batch(base, records, engine="compiled", signals=("q", "q_meas"), workers=2, method="RK4")
     numpy_batch = simulate_batch(base, records, engine="fast", signals=("q", "q_meas"))
     _assert_same_metrics(compiled, numpy_batch)
     for name in ("q", "q_meas"):

@@ -74,7 +74,7 @@ def test_rows_equal_a_direct_batch_and_the_single_runs(tmp_path, scenario_file):
     # the element key written out by hand: the whole Eq. 4 vector with its third entry drawn
     records = [{"gains.kp": r.values["gains.kp"], "nominal_scale.m1": r.values["nominal_scale.m1"],
                 "disturbance.f_r": [*PAPER_FR[:2], r.values["disturbance.f_r[2]"], PAPER_FR[3]]} for r in spec.runs]
-    direct = simulate_batch(spec.base, records, metrics=spec.metrics)
+    direct = simulate_batch(spec.base, records, metrics=spec.metrics, method="RK4")   # the sweep's RK4
     for i, row in enumerate(rows):
         assert row["status"] == "ok" and set(row["metrics"]) == set(spec.metrics)
         for name, value in row["metrics"].items():
@@ -160,7 +160,8 @@ metrics = ["rms_position_error"]
     run_sweep(spec, tmp_path / "r.jsonl", workers=1, progress=False)
     rows = {r["index"]: r for r in read_results(tmp_path / "r.jsonl")[1]}
     three = spec.base.replace(trajectory={"stitches": 3})
-    direct = simulate_batch(three, [{"gains.kp": 150}, {"gains.kp": 250}], metrics=("rms_position_error",))
+    direct = simulate_batch(three, [{"gains.kp": 150}, {"gains.kp": 250}], metrics=("rms_position_error",),
+                            method="RK4")
     np.testing.assert_allclose(rows[0]["metrics"]["rms_position_error"], direct.metrics["rms_position_error"][0],
                                rtol=1e-12)
     np.testing.assert_allclose(rows[1]["metrics"]["rms_position_error"], direct.metrics["rms_position_error"][1],

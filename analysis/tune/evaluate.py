@@ -455,7 +455,7 @@ def _simulate_payload(base, payload: dict) -> dict:
     t0 = time.perf_counter()
     result = simulate_batch(None, Variants(base, payload["records"]), observer=True, metrics=[payload["metric"]],
                             signals=("tau",), substeps=payload["substeps"], workers=payload["workers"],
-                            engine=payload["engine"])
+                            engine=payload["engine"], method="RK4")
     seconds = (time.perf_counter() - t0) / payload["candidates"]
     tau = result.signals["tau"]
     tau[~result.ok] = 0.0                  # a diverged run's torques are NaN; it counts as diverged

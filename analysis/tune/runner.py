@@ -428,7 +428,8 @@ def tuned_scenario(spec: TuneSpec, gains: dict, feasible: bool, objective: float
 
 def nominal_metric(scenario, metric: str, workers: int = 1, engine: str = "auto") -> float | None:
     """The metric of one scenario alone (batch RK4, the set's integration), mm."""
-    result = simulate_batch(scenario, [{}], observer=True, metrics=[metric], workers=workers, engine=engine)
+    result = simulate_batch(scenario, [{}], observer=True, metrics=[metric], workers=workers, engine=engine,
+                            method="RK4")
     value = float(result.metrics[metric][0])
     return value if math.isfinite(value) else None
 

@@ -1,4 +1,4 @@
-"""Batched simulation: N variants of one scenario integrated as one vectorised ODE.
+"""Batched simulation: N variants of one scenario, each member a row of numbers, members run in parallel.
 
 A batch is a base :class:`~blocks.scenario.Scenario` and N *variants*,
 each a mapping from dotted scenario keys (``"gains.kp"``, ``"nominal_scale.m1"``,
@@ -23,10 +23,20 @@ The reference is evaluated once for the whole batch.
 
 Accuracy
 --------
-The batch is integrated with the classic fixed-step Runge-Kutta method (RK4),
-not with the scenario's adaptive solver: an adaptive controller on the stacked
-state would size its steps by the RMS error over all members, which bounds no
-single member.  The step schedule is the output grid
+With the compiled engine (the default when numba is installed) each member
+is integrated exactly as its single compiled run is
+(:func:`blocks.simulate` with ``engine="compiled"``): Dormand-Prince 5(4)
+with its own step control and the scenario's ``rtol``, ``atol`` and
+``max_step``, its states on the output grid from each step's dense output,
+and its outputs and metrics there as the single run computes them.  Its
+numbers equal that run's to rounding (bit for bit on the paper scenario):
+a member's numbers do not depend on its batch, its slice or the workers.
+The members run in parallel on every core (``workers``).
+
+``method="RK4"`` (the numpy batch's only method, and the default when a
+step schedule is asked for with ``substeps`` or ``breakpoints``, as sweeps
+and tuning do) integrates every member with the classic fixed-step
+Runge-Kutta method on one shared step schedule: the output grid
 (``simulation.output_step``, divided by ``substeps``) joined with every time
 where the right-hand side is not smooth in time -- the phase boundaries of the
 laceration path, where the reference's third derivative jumps, and the sample
@@ -37,12 +47,12 @@ the paper scenario that is the output step itself (5 ms).
 
 Measured against DOP853 runs at ``rtol = 1e-11`` on 20 Monte Carlo variants
 of the paper scenario over its 10 s (masses and inertias +-10 %, Kp 120-250,
-Kd 30-45, Eq. 4 amplitudes x0.5-2), the batch's position error is at most
+Kd 30-45, Eq. 4 amplitudes x0.5-2), the RK4 batch's position error is at most
 1.1e-7 (:data:`STATE_ERROR`, 2e-7, is tested), while a single run with the
-paper's RK45 at ``rtol = 1e-6``, ``atol = 1e-8`` errs by up to 1.5e-6: a
+paper's RK45 at ``rtol = 1e-6``, ``atol = 1e-8`` errs by up to 1.5e-6: an RK4
 member's difference from its single run is mostly the single run's own error
 (over 140 such draws it reached 1.8e-6).
-Stated tolerance, tested member by member against
+Stated tolerance of the RK4 batch, tested member by member against
 :func:`~blocks.loop.simulate` on gain, model-mismatch, observer,
 disturbance (Eq. 4, friction), initial-state and noise variants: positions
 agree within :data:`STATE_ATOL` (3e-6 rad or m over 10 s; within 1e-6 on the
@@ -53,7 +63,7 @@ in the state (contact on and off), where RK4 loses its order: there the
 agreement is :data:`STATE_ATOL_CONTACT` (1e-5).  A larger ``substeps`` refines
 any run.
 
-All members share one step schedule, the finest any of them needs, so a
+With RK4 all members share one step schedule, the finest any of them needs, so a
 member's numbers depend on its batch only through that schedule: batches run
 with the same ``substeps`` and ``breakpoints`` (as the sweep runner does, and
 as ``workers > 1`` does for its slices) give every member identical numbers.
@@ -75,15 +85,20 @@ element (seconds per member-independent 10 s run): prefer the compiled one.
 
 Cost
 ----
-Before integrating, each member's blocks are made once, as its single run
+On the paper's arm, variants given as numbers of
+:data:`~blocks.batch.variants.COLUMN_KEYS` (model mismatch, Kp, Kd, the
+disturbance's numbers) are checked as whole columns and the compiled batch
+fills each member's parameter row from a trace made on a few probe members
+(:mod:`blocks.batch.rows`): 1000 members are set up in a few hundredths of
+a second.  Other variants make each member's blocks once, as its single run
 makes them but without python-control systems
-(:func:`blocks.contract.kernels_only`): about 0.2 ms of CPU per member.
+(:func:`blocks.contract.kernels_only`): about 0.5 ms of CPU per member.
 Only what is asked for is kept: metrics are accumulated at the output grid
-points while integrating (the first RK4 stage of a step that starts on the grid
-is exactly the loop at that grid point), and full signals are stored only when
-named in ``signals``.  Measurement noise is stored at every step time:
-about ``16 * 8 * t_final / sample_period`` bytes per member (1.3 MB for 10 s at
-1 kHz), so batches with noise should be simulated in chunks of a few hundred.
+points while integrating, and full signals are stored only when named in
+``signals``.  Measurement noise is stored at every sample time: about
+``16 * 8 * t_final / sample_period`` bytes per member (1.3 MB for 10 s at
+1 kHz), so batches with noise are integrated in chunks of
+:data:`blocks.compiled.batch.NOISE_CHUNK` members.
 """
 from __future__ import annotations
 
@@ -99,9 +114,9 @@ from .simulate import (
                        BatchResult,
                        simulate_batch,
 )
-from .variants import BATCH_KEYS, SHARED_KEYS, SHARED_SECTIONS, Variants, shared_reason
+from .variants import BATCH_KEYS, COLUMN_KEYS, SHARED_KEYS, SHARED_SECTIONS, Variants, shared_reason
 
-__all__ = ["BATCH_KEYS", "SHARED_KEYS", "SHARED_SECTIONS", "shared_reason",
+__all__ = ["BATCH_KEYS", "COLUMN_KEYS", "SHARED_KEYS", "SHARED_SECTIONS", "shared_reason",
            "METRICS", "SIGNALS", "STATE_ATOL", "STATE_ATOL_CONTACT", "STATE_ERROR", "METRIC_RTOL",
            "METRIC_ATOL",
            "Variants", "BatchResult", "simulate_batch", "step_schedule",

@@ -13,6 +13,7 @@ from ..scenario import Scenario, load_scenario
 from ..steppers import rk4_step
 from ..workers import worker_pool
 from .members import MemberLoop
+from .rows import member_rows
 from .schedule import auto_substeps, batch_schedule
 from .variants import Variants
 
@@ -56,9 +57,14 @@ class BatchResult:
         For each member that diverged, which signal left which bound (:mod:`blocks.divergence`, the rule of
         single runs), as a sentence.
     steps : int
-        Number of RK4 steps taken.
+        Number of steps taken: RK4's on the shared schedule, or with ``RK45`` the most any member took.
     substeps : int
-        RK4 steps per output interval (before breakpoints were added).
+        RK4 steps per output interval (before breakpoints were added); with ``RK45`` the ``substeps`` asked
+        for, 0 when none was (each member takes its own steps).
+    method : str
+        ``"RK45"`` (each member with its own step control) or ``"RK4"`` (the shared fixed-step schedule).
+    evaluations : numpy.ndarray or None
+        Right-hand-side calls of each member (N,) (compiled engine).
     """
 
     variants: Variants
@@ -70,6 +76,8 @@ class BatchResult:
     steps: int
     substeps: int
     failures: dict = field(default_factory=dict)
+    method: str = "RK4"
+    evaluations: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.variants)
@@ -148,8 +156,8 @@ class _Accumulator:
 
 def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = True,
                    metrics: Sequence[str] | None = None, signals: Sequence[str] = (),
-                   substeps: int | None = None, breakpoints: Sequence[float] = (), workers: int = 1,
-                   engine: str = "auto", _schedule=None) -> BatchResult:
+                   substeps: int | None = None, breakpoints: Sequence[float] = (), workers: int | None = None,
+                   engine: str = "auto", method: str | None = None, _schedule=None) -> BatchResult:
     """Simulate N variants of a scenario as one vectorised ODE (fixed-step RK4, see :mod:`blocks.batch`).
 
     Parameters
@@ -174,10 +182,12 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
         its batch only through the shared step schedule (``substeps``, and the
         noise sample times when any member has noise); batches given the same
         ``substeps`` and ``breakpoints`` give every member the same numbers.
-    workers : int
-        Cores to share the members among: processes for the numpy engine
-        (contiguous slices, one per process), threads for the compiled one;
-        each member's result does not depend on its slice.
+    workers : int, optional
+        Cores to share the members among: threads for the compiled engine
+        (default: every core this process may run on), processes for the
+        numpy one (contiguous slices, one per process; default one process,
+        since a process takes about a second to start); each member's result
+        does not depend on its slice.
     engine : {"auto", "compiled", "fast"}
         ``compiled`` runs the loop's generated module for every member in
         parallel (:mod:`blocks.compiled.batch`; needs ``dobkit[fast]``);
@@ -188,8 +198,17 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
         enough to compile now or already cached (the rule of single runs,
         :data:`blocks.compiled.compile_estimate.AUTO_COMPILE_SECONDS`), and says once
         why when it does not.  Both integrate the same RK4 schedule and
-        agree to rounding (the compiled batch accumulates the metrics in its
-        driver; members with their own noise read their own noise table).
+        agree to rounding with ``method="RK4"`` (the compiled batch
+        accumulates the metrics in its driver; members with their own noise
+        read their own noise table).
+    method : {"RK45", "RK4"}, optional
+        ``RK45`` (the compiled engine's default): each member integrated as
+        its single compiled run is -- Dormand-Prince 5(4) with its own step
+        control and the scenario's ``rtol``, ``atol``, ``max_step`` -- so it
+        equals that run to rounding.  ``RK4``: fixed-step RK4 on the shared
+        schedule of ``substeps`` and ``breakpoints`` (the numpy batch's only
+        method, and the default when ``substeps`` or ``breakpoints`` are
+        given, as sweeps and tuning give them).
 
     Returns
     -------
@@ -207,6 +226,8 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
     """
     if engine not in ("auto", "compiled", "fast"):
         raise ValueError(f"batch engine must be one of ['auto', 'compiled', 'fast'], got {engine!r}")
+    if method not in (None, "RK45", "RK4"):
+        raise ValueError(f"batch method must be one of ['RK45', 'RK4'], got {method!r}")
     if isinstance(variants, Variants):
         v = variants
         if scenario is not None and scenario is not v.base and \
@@ -227,28 +248,43 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
             raise ValueError("signal 'd_hat' needs the observer (observer=True)")
 
     s = v.base
-    substeps = auto_substeps(v, observer) if substeps is None else substeps
     members, compiled = None, None
     if engine != "fast":
         from ..compiled.batch import auto_batch_reason, batch_unavailable_reason, run_compiled_batch
         from ..engine_choice import select_engine
         reason = batch_unavailable_reason(v)
+        if reason is None:
+            # the members as rows of numbers (blocks.batch.rows), or each member's blocks where the trace fails
+            members = member_rows(v, observer)
         if reason is None and engine == "auto":
             # the rule of single runs: a loop whose generated code is too long to compile now runs on numpy
-            members = MemberLoop(v, observer)
             reason, compiled = auto_batch_reason(members)
         engine = select_engine(engine, reason)
     if engine == "compiled":
-        times, grid_index = _schedule if _schedule is not None else batch_schedule(v, substeps, breakpoints)
-        members = MemberLoop(v, observer) if members is None else members
-        values, kept, failed_at, failures = run_compiled_batch(v, members, observer, metrics, tuple(signals), times,
-                                                               grid_index, workers, compiled)
+        if method is None:                  # a step schedule asked for is RK4's
+            method = "RK4" if substeps is not None or len(breakpoints) else "RK45"
+        if method == "RK4":
+            substeps = auto_substeps(v, observer) if substeps is None else substeps
+            times, grid_index = _schedule if _schedule is not None else batch_schedule(v, substeps, breakpoints)
+        else:
+            times, grid_index = s.simulation.time_grid, None
+        values, kept, failed_at, failures, counts = run_compiled_batch(
+            v, members, observer, metrics, tuple(signals), times, grid_index, workers, compiled, method)
         return BatchResult(variants=v, observer=observer, time=s.simulation.time_grid, metrics=values, signals=kept,
-                           failed_at=failed_at, steps=times.size - 1, substeps=int(substeps), failures=failures)
+                           failed_at=failed_at, steps=int(counts[:, 0].max()),
+                           substeps=int(substeps) if substeps is not None else 0, failures=failures, method=method,
+                           evaluations=counts[:, 1])
+    substeps = auto_substeps(v, observer) if substeps is None else substeps
+    if method == "RK45":
+        raise ValueError("method='RK45' (each member with its own step control) is the compiled batch's; the numpy "
+                         "batch integrates fixed-step RK4 (method='RK4' or engine='compiled')")
+    workers = 1 if workers is None else int(workers)
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
     if workers > 1 and len(v) > 1:
         return _simulate_in_processes(v, observer, metrics, tuple(signals), substeps, workers,
                                       batch_schedule(v, substeps, breakpoints))
-    loop = MemberLoop(v, observer) if members is None else members
+    loop = members if isinstance(members, MemberLoop) else MemberLoop(v, observer)
     sim = s.simulation
     times, grid_index = _schedule if _schedule is not None else batch_schedule(v, substeps, breakpoints)
     mids = 0.5 * (times[:-1] + times[1:])

@@ -19,8 +19,9 @@ How a loop becomes compiled code
    :mod:`blocks.compiled.rows` beside them (lumped disturbance, tracking
    errors), plus the integrators of :mod:`blocks.compiled.dopri`
    (Dormand-Prince 5(4) with ``solve_ivp``'s step control and dense
-   output; fixed-step RK4 over a batch, members in parallel, metrics
-   accumulated in the driver).  It is compiled by numba and cached on disk,
+   output; a batch's members in parallel, each with its own Dormand-Prince
+   steps or all on one fixed-step RK4 schedule, metrics accumulated in the
+   driver).  It is compiled by numba and cached on disk,
    keyed by its text and the kernels' source; :mod:`blocks.compiled.cache`
    checks the cached files before numba reads them.
 

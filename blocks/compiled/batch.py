@@ -1,25 +1,35 @@
-"""The compiled batch: the base loop's generated module run for N members in parallel, fixed-step RK4.
+"""The compiled batch: the base loop's generated module run for N members in parallel.
 
 Every member runs the same generated right-hand side as a single compiled
 run (:mod:`blocks.compiled.codegen`), with its own parameter vector
-``theta``: the traced blocks' numbers read from each member's own block
+``theta``: the traced blocks' numbers, filled from the variants' columns
+(:class:`blocks.batch.rows.MemberRows`) or read from each member's own block
 parameters (:class:`blocks.batch.members.MemberLoop`: the member's blocks made
-as its single run makes them), the reference's from the shared loop.  The reference is evaluated once
-at every step time and mid point, shared by all members.  Members with
-their own measurement noise read their own noise table (``member_ext``).
-Members run in parallel over ``workers`` threads (numba ``prange``).
+as its single run makes them), the reference's from the shared loop.  Members
+with their own measurement noise read their own noise table (``member_ext``).
+Members run in parallel over ``workers`` threads (numba ``prange``; default
+every core).
+
+``method="RK45"`` (the default) runs each member as ``dopri_run`` runs a
+single one (``dopri_batch``: the same Dormand-Prince steps, its own step
+control), so a member equals its single compiled run to rounding.
+``method="RK4"`` integrates all members on one fixed step schedule
+(``rk4_batch``), with the reference evaluated once at every step time and
+mid point.
 
 The tracking metrics are accumulated inside the compiled driver: at each
-output grid point the step's first stage also evaluates the row groups of
-:mod:`blocks.compiled.rows` -- position error, tool-tip distance (against
-the reference's tool position, computed once per grid point), disturbance
-error ``d - d_hat`` with ``d`` traced from the lumped-disturbance kernel --
+output grid point the flagged row groups of :mod:`blocks.compiled.rows` --
+position error, tool-tip distance (against the reference's tool position,
+computed once per grid point), disturbance error ``d - d_hat`` with ``d``
+traced from the lumped-disturbance kernel -- are evaluated with the outputs,
 and the driver adds their squares, keeps their largest magnitude and their
 value at the last point.  :func:`_metrics` turns those sums into the metrics
 as :class:`blocks.metrics.TrackingAccumulator` defines them.  No signal is
 stored unless asked for, and nothing is allocated per step.
 """
 from __future__ import annotations
+
+import os
 
 import numpy as np
 
@@ -33,8 +43,13 @@ from .engine import CompiledLoopEngine
 from .jit import numba_or_none
 from .trace import Frozen, param_values
 
-__all__ = ["batch_unavailable_reason", "auto_batch_reason", "run_compiled_batch", "NOISE_CHUNK"]
+__all__ = ["batch_unavailable_reason", "auto_batch_reason", "run_compiled_batch", "NOISE_CHUNK", "BATCH_METHODS",
+           "batch_threads", "available_cores"]
 
+#: The compiled batch's integrators: each member as its single compiled run (``RK45``), or fixed-step RK4.
+BATCH_METHODS = ("RK45", "RK4")
+# Status codes of dopri_batch (blocks/compiled/dopri.py)
+_FINISHED, _DIVERGED, _STEP_TOO_SMALL = 1, 2, 3
 #: Members integrated in one call when members have their own noise tables (each about 0.6 MB per 10 s at 1 kHz).
 NOISE_CHUNK = 128
 
@@ -74,6 +89,13 @@ def _param_rows(params, n: int) -> np.ndarray:
         else:
             rows.append(np.full((1, n), float(value)))
     return np.vstack(rows) if rows else np.zeros((0, n))
+
+
+def member_theta(engine, members) -> np.ndarray:
+    """Every member's ``theta`` (N, p): the rows' own (:class:`blocks.batch.rows.MemberRows`), else
+    :func:`_member_theta`."""
+    own = getattr(members, "theta", None)
+    return own(engine) if own is not None else _member_theta(engine, members)
 
 
 def _member_theta(engine, members) -> np.ndarray:
@@ -146,24 +168,31 @@ def auto_batch_reason(members) -> tuple[str | None, CompiledLoopEngine | None]:
 
 
 def run_compiled_batch(v, members, observer: bool, metrics: tuple, signals: tuple, times, grid_index,
-                       workers: int = 1, engine: CompiledLoopEngine | None = None):
-    """Integrate the members of ``v`` compiled; return ``(metrics, signals, failed_at, failures)`` as the numpy
-    batch does (``failures``: member -> which signal left which bound, the rule of :mod:`blocks.divergence`).
+                       workers: int | None = None, engine: CompiledLoopEngine | None = None, method: str = "RK45"):
+    """Integrate the members of ``v`` compiled; return ``(metrics, signals, failed_at, failures, counts)`` as the
+    numpy batch does (``failures``: member -> which signal left which bound, the rule of
+    :mod:`blocks.divergence`; ``counts`` (N, 2): each member's steps and right-hand-side calls).
 
     Parameters
     ----------
     v : Variants
-    members : blocks.batch.members.MemberLoop
-        The shared loop, each member's block parameters and start states.
+    members : blocks.batch.members.MemberLoop or blocks.batch.rows.MemberRows
+        The shared loop, each member's parameters and start states.
     observer : bool
     metrics, signals : tuple of str
     times, grid_index : numpy.ndarray
-        The step schedule (see :func:`blocks.batch.step_schedule`).
-    workers : int
-        Threads to run members on.
+        With ``method="RK4"`` the step schedule (see :func:`blocks.batch.step_schedule`); with ``"RK45"``
+        ``times`` is the output grid and ``grid_index`` is not read.
+    workers : int, optional
+        Threads to run members on; default all the cores numba may use.
     engine : CompiledLoopEngine, optional
         The shared loop's engine, when already made (:func:`auto_batch_reason`).
+    method : {"RK45", "RK4"}
+        ``RK45``: each member integrated as its single compiled run is (Dormand-Prince 5(4), its own step
+        control, the scenario's ``rtol``, ``atol``, ``max_step``); ``RK4``: fixed-step RK4 on ``times``.
     """
+    if method not in BATCH_METHODS:
+        raise ValueError(f"batch method must be one of {list(BATCH_METHODS)}, got {method!r}")
     reason = batch_unavailable_reason(v)
     if reason is not None:
         raise CompiledUnavailable(f"engine='compiled' cannot run this batch: {reason}")
@@ -172,28 +201,25 @@ def run_compiled_batch(v, members, observer: bool, metrics: tuple, signals: tupl
     engine = CompiledLoopEngine(loop) if engine is None else engine
     if engine._announce:
         engine.warm()
-    program, module, plan = engine.program, engine.module, engine.plan
+    program, module = engine.program, engine.module
     n, N = members.joints, members.n
-    theta = _member_theta(engine, members)
-
-    # the shared reference at step times and mid points
+    theta = member_theta(engine, members)
     times = np.ascontiguousarray(times, dtype=float)
-    mids = 0.5 * (times[:-1] + times[1:])
-    src_at = np.empty((times.size, max(program.n_src, 1)))
-    src_mid = np.empty((max(mids.size, 1), max(program.n_src, 1)))
-    module.source_table(times, engine.theta, engine.ext, src_at)
-    module.source_table(mids, engine.theta, engine.ext, src_mid)
-    grid_index = np.ascontiguousarray(grid_index, dtype=np.int64)
-    on_grid = grid_index >= 0
-    n_grid = int(grid_index.max()) + 1
+    rk4 = method == "RK4"
+    if rk4:
+        grid_index = np.ascontiguousarray(grid_index, dtype=np.int64)
+        on_grid = grid_index >= 0
+        n_grid = int(grid_index.max()) + 1
+    else:
+        n_grid = times.size
 
     # start states in the loop's state order, as each member's single run starts
-    X0 = np.ascontiguousarray(members.initial_state().T)
+    X0 = np.ascontiguousarray(member_start_states(members))
     # each member's bounds in the loop's state order (the interconnection's: blocks in order, their own labels)
     labels = [(block.name, label) for block in loop.syslist for label in block.state_labels]
-    monitor = Monitor(f"batch of scenario '{v.base.name}'", batch_bounds(members, labels), X0.T)
+    monitor = Monitor(f"batch of scenario '{v.base.name}'", members_bounds(members, labels), X0.T)
     bound = np.ascontiguousarray(monitor.limits.T)                          # (N, nstates)
-    failed_x = np.zeros((N, plan.nstates))
+    failed_x = np.zeros((N, engine.nstates))
 
     # the row groups the metrics need, and the reference's tool position at each grid point (shared)
     groups = engine.row_groups
@@ -202,7 +228,12 @@ def run_compiled_batch(v, members, observer: bool, metrics: tuple, signals: tupl
         flags[groups[_GROUP_OF[name]][0]] = 1
     aux = np.zeros((n_grid, max(program.n_aux, 1)))
     if "tool_distance" in groups and any("tool" in m for m in metrics):
-        q_ref_grid = src_at[on_grid, :n].T                                  # (joints, n_grid)
+        if rk4:
+            src = np.empty((times.size, max(program.n_src, 1)))
+            module.source_table(times, engine.theta, engine.ext, src)
+            q_ref_grid = src[on_grid, :n].T                                 # (joints, n_grid)
+        else:
+            q_ref_grid = np.asarray(v.base.trajectory.evaluate(times)[0]).T
         if is_rrpr_kernels(members.arm):
             aux[:, :3] = tool_pose(members.kin[:, None], q_ref_grid)[:3].T
         else:
@@ -230,37 +261,92 @@ def run_compiled_batch(v, members, observer: bool, metrics: tuple, signals: tupl
     n_rows = max(program.n_rows, 1)
     sum_sq, max_abs, final = np.zeros((N, n_rows)), np.zeros((N, n_rows)), np.zeros((N, n_rows))
     failed_at = np.full(N, np.nan)
-    members, zero_table = _noise_tables(v, engine)
-    chunk = NOISE_CHUNK if members else N
+    status = np.full(N, _FINISHED, dtype=np.int64)
+    counts = np.zeros((N, 3))
+    tables_of, zero_table = _noise_tables(v, engine)
+    chunk = NOISE_CHUNK if tables_of else N
     # numba's parallel loops take no tuples of numbers among their arguments: such parameters (the laceration
-    # path's, used only by the sources, evaluated above) go in as arrays, which the kernels index alike
+    # path's, used only by the sources) go in as arrays, which the kernels index alike
     ext = tuple(np.array(p, dtype=float) if isinstance(p, tuple) else p for p in engine.ext)
-    threads = max(1, min(int(workers), numba.config.NUMBA_NUM_THREADS))
+    sim = v.base.simulation
+    threads = batch_threads(workers)
     previous = numba.get_num_threads()
     numba.set_num_threads(threads)
     try:
+        src_at = np.empty((times.size, max(program.n_src, 1)))
+        module.source_table(times, engine.theta, engine.ext, src_at)     # shared: at the steps, or the grid
+        if rk4:
+            mids = 0.5 * (times[:-1] + times[1:])
+            src_mid = np.empty((max(mids.size, 1), max(program.n_src, 1)))
+            module.source_table(mids, engine.theta, engine.ext, src_mid)
         for c0 in range(0, N, chunk):
             c1 = min(N, c0 + chunk)
-            if members:
-                tables = (np.stack([zero_table if t is None else t for t in members[c0:c1]]),)
+            if tables_of:
+                tables = (np.stack([zero_table if t is None else t for t in tables_of[c0:c1]]),)
                 table_row = np.arange(c1 - c0, dtype=np.int64)
             else:
                 tables, table_row = (), np.zeros(c1 - c0, dtype=np.int64)
-            module.rk4_batch(times, grid_index, src_at, src_mid, aux, X0[c0:c1], theta[c0:c1], ext, tables,
-                             table_row, flags, keep, keep_rows, n_grid - 1, bound[c0:c1], Y[c0:c1],
-                             sum_sq[c0:c1], max_abs[c0:c1], final[c0:c1], failed_at[c0:c1], failed_x[c0:c1])
+            if rk4:
+                module.rk4_batch(times, grid_index, src_at, src_mid, aux, X0[c0:c1], theta[c0:c1], ext, tables,
+                                 table_row, flags, keep, keep_rows, n_grid - 1, bound[c0:c1], Y[c0:c1],
+                                 sum_sq[c0:c1], max_abs[c0:c1], final[c0:c1], failed_at[c0:c1], failed_x[c0:c1])
+            else:
+                module.dopri_batch(times, src_at, X0[c0:c1], theta[c0:c1], ext, tables, table_row, float(sim.rtol),
+                                   float(sim.atol), float(sim.max_step), aux, flags, keep, keep_rows, bound[c0:c1],
+                                   Y[c0:c1], sum_sq[c0:c1], max_abs[c0:c1], final[c0:c1], status[c0:c1],
+                                   failed_x[c0:c1], counts[c0:c1])
     finally:
         numba.set_num_threads(previous)
+    failures = {}
+    if rk4:
+        counts[:, 0] = times.size - 1
+        counts[:, 1] = 4 * (times.size - 1)
+    else:
+        stopped = status != _FINISHED
+        failed_at[stopped] = counts[stopped, 2]
+        for m in np.flatnonzero(status == _STEP_TOO_SMALL):
+            failures[int(m)] = (f"t = {failed_at[m]:.6g} s: the solver's step became smaller than the spacing of "
+                                f"the numbers there (rtol {sim.rtol:g}, atol {sim.atol:g})")
     failed = ~np.isnan(failed_at)
-    failures = {int(m): f"t = {failed_at[m]:.6g} s: {monitor.member_reason(int(m), failed_x[m])}"
-                for m in np.flatnonzero(failed)}
+    for m in np.flatnonzero(failed):
+        failures.setdefault(int(m), f"t = {failed_at[m]:.6g} s: {monitor.member_reason(int(m), failed_x[m])}")
     values = _metrics(metrics, groups, n_grid, sum_sq, max_abs, final)
     for value in values.values():
         value[failed] = np.nan
     kept = {name: Y[:, :, at[name]].copy() for name in signals}
     for store in kept.values():
         store[failed] = np.nan
-    return values, kept, failed_at, failures
+    return values, kept, failed_at, failures, counts[:, :2].astype(np.int64)
+
+
+def batch_threads(workers: int | None) -> int:
+    """Threads a compiled batch runs on: ``workers`` (default all the cores this process may use), at most the
+    threads numba has."""
+    numba = numba_or_none()
+    wanted = available_cores() if workers is None else int(workers)
+    if wanted < 1:
+        raise ValueError(f"workers must be >= 1, got {workers!r}")
+    return max(1, min(wanted, numba.config.NUMBA_NUM_THREADS))
+
+
+def available_cores() -> int:
+    """Cores this process may run on (its CPU affinity where the system has one)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:                  # not on Linux
+        return os.cpu_count() or 1
+
+
+def member_start_states(members) -> np.ndarray:
+    """Every member's start state (N, nstates) in the loop's state order."""
+    own = getattr(members, "start_states", None)
+    return own() if own is not None else members.initial_state().T
+
+
+def members_bounds(members, labels):
+    """Every member's divergence bounds in the order of ``labels`` (:func:`blocks.divergence.batch_bounds`)."""
+    own = getattr(members, "bounds", None)
+    return own(labels) if own is not None else batch_bounds(members, labels)
 
 
 def _metrics(metrics: tuple, groups: dict, n_points: int, sum_sq, max_abs, final) -> dict:

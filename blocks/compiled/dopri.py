@@ -29,7 +29,7 @@ except ImportError:         # the text is compiled with numba only; this keeps t
     prange = range
 
 #: Functions compiled with ``parallel=True``.
-PARALLEL = ("rk4_batch",)
+PARALLEL = ("rk4_batch", "dopri_batch")
 # Functions compiled to release the GIL: threads run a batch's members side by side through them
 NOGIL = ("sampled_members",)
 
@@ -398,6 +398,127 @@ def rk4_batch(times, grid_index, src_at, src_mid, aux, X0, theta, ext, tables, t
             loop_rhs(times[k + 1], xs, th, src_at[k + 1], e, work, k4)
             for i in range(n):
                 x[i] = x[i] + (h / 6.0) * (k1[i] + 2.0 * (k2[i] + k3[i]) + k4[i])
+
+
+def batch_grid_point(m, g, t, x, theta, ext, aux, flags, keep, keep_rows, last_grid, src_grid, work, yo, rows, Y,
+                     sum_sq, max_abs, final):
+    """Member ``m``'s outputs and flagged rows at grid point ``g`` (time ``t``, states ``x``), as ``grid_outputs``
+    evaluates them for a single run (the sources' outputs there, shared by all members, from ``src_grid[g]``):
+    their squares added to ``sum_sq[m]``, their largest magnitude in ``max_abs[m]``, their value at grid point
+    ``last_grid`` in ``final[m]``, the outputs ``keep`` and rows ``keep_rows`` stored in ``Y[m, g]``."""
+    loop_outputs_rows(t, x, theta, src_grid[g], ext, work, aux[g], flags, yo, rows)
+    for r in range(sum_sq.shape[1]):
+        v = rows[r]
+        sum_sq[m, r] += v * v
+        a = abs(v)
+        if a > max_abs[m, r] or a != a:
+            max_abs[m, r] = a
+        if g == last_grid:
+            final[m, r] = v
+    n_keep = keep.shape[0]
+    for r in range(n_keep):
+        Y[m, g, r] = yo[keep[r]]
+    for r in range(keep_rows.shape[0]):
+        Y[m, g, n_keep + r] = rows[keep_rows[r]]
+
+
+def dopri_member(m, t_grid, src_grid, X0, theta, ext, rtol, atol, max_step, aux, flags, keep, keep_rows, bound, Y,
+                 sum_sq, max_abs, final, failed_x, counts):
+    """Member ``m`` of ``dopri_batch``: its whole run, as ``dopri_run`` makes a single one; its status code.
+
+    ``counts[m]`` gets ``[accepted steps, right-hand-side calls, time reached]``; on ``DIVERGED`` the state at
+    the end of the step that crossed the bound is in ``failed_x[m]``, on ``STEP_TOO_SMALL`` the state where the
+    step became too small.
+    """
+    n = X0.shape[1]
+    n_grid = t_grid.shape[0]
+    t_bound = t_grid[n_grid - 1]
+    src = np.empty(loop_source_count())
+    work = np.empty(loop_work_size())
+    y = X0[m].copy()
+    f = np.empty(n)
+    K = np.empty((7, n))
+    y_new = np.empty(n)
+    f_new = np.empty(n)
+    y_stage = np.empty(n)
+    err = np.empty(n)
+    y_old = np.empty(n)
+    Q = np.empty((n, 4))
+    xg = np.empty(n)
+    yo = np.empty(loop_output_count())
+    rows = np.zeros(loop_row_count())
+    held = np.empty(1)          # a continuous loop holds no sampled outputs
+    out = np.zeros(4)
+    state = np.zeros(6)
+    lim = bound[m]
+    last_grid = n_grid - 1
+    t = t_grid[0]
+    for i in range(n):
+        if not abs(y[i]) <= lim[i]:
+            failed_x[m, i] = y[i]
+            counts[m, 2] = t
+            return DIVERGED
+    loop_derivative(t, y, theta, ext, src, work, f)
+    h_abs = initial_step(t, y, f, t_bound, max_step, rtol, atol, theta, ext, src, work, f_new)
+    state[S_NFEV] = 2.0
+    batch_grid_point(m, 0, t, y, theta, ext, aux, flags, keep, keep_rows, last_grid, src_grid, work, yo, rows, Y,
+                     sum_sq, max_abs, final)
+    g = 1
+    steps = 0
+    code = FINISHED
+    while t < t_bound:
+        code = bounded_step(t, t_bound, h_abs, max_step, rtol, atol, y, f, theta, ext, held, src, work, K, y_new,
+                            f_new, y_stage, err, out, y_old, Q, lim, state)
+        if code == STEP_TOO_SMALL:
+            for i in range(n):
+                failed_x[m, i] = y[i]
+            break
+        t_new = out[0]
+        h_abs = out[1]
+        h = out[2]
+        steps += 1
+        if code == DIVERGED:
+            for i in range(n):
+                failed_x[m, i] = y_new[i]
+            t = t_new
+            break
+        while g < n_grid and t_grid[g] <= t_new:
+            dense_row(Q, y_old, h, t, t_grid[g], xg)
+            batch_grid_point(m, g, t_grid[g], xg, theta, ext, aux, flags, keep, keep_rows, last_grid, src_grid,
+                             work, yo, rows, Y, sum_sq, max_abs, final)
+            g += 1
+        for i in range(n):
+            y[i] = y_new[i]
+            f[i] = f_new[i]
+        t = t_new
+        code = FINISHED
+    counts[m, 0] = steps
+    counts[m, 1] = state[S_NFEV]
+    counts[m, 2] = t
+    return code
+
+
+def dopri_batch(t_grid, src_grid, X0, theta, ext, tables, table_row, rtol, atol, max_step, aux, flags, keep, keep_rows,
+                bound, Y, sum_sq, max_abs, final, status, failed_x, counts):
+    """Every member run on its own as ``dopri_run`` runs a single one, members in parallel.
+
+    ``src_grid`` holds the sources' outputs at the grid times (shared by all
+    members), ``X0`` (N, n) the start states, ``theta`` (N, p) the members' parameters,
+    ``tables`` their tables (``member_ext``; member ``m`` reads row
+    ``table_row[m]``), ``bound[m]`` member ``m``'s state bounds, ``aux`` the
+    row groups' shared values at each grid point.  Each member takes its own
+    Dormand-Prince steps (the step control of ``dp_step``), its states on the
+    output grid from each step's dense output, and there its outputs and the
+    flagged row groups as ``grid_outputs`` evaluates them: the sums
+    ``sum_sq``, ``max_abs``, ``final`` (N, rows) and the kept ``Y``, as
+    ``rk4_batch`` keeps them.  ``status[m]`` gets the member's code
+    (``FINISHED``, ``DIVERGED``, ``STEP_TOO_SMALL``), ``counts[m]`` its
+    accepted steps, right-hand-side calls and the time reached.
+    """
+    for m in prange(X0.shape[0]):
+        e = member_ext(ext, tables, table_row[m])
+        status[m] = dopri_member(m, t_grid, src_grid, X0, theta[m], e, rtol, atol, max_step, aux, flags, keep,
+                                 keep_rows, bound, Y, sum_sq, max_abs, final, failed_x, counts)
 
 
 # ------------------------------------------------------------------------------------------------------------
