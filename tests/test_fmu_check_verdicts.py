@@ -1,11 +1,12 @@
 """``fmu check``: every verdict follows its number, on URDF arms that dobkit's README does not name.
 
 * example-robot-data's double pendulum (upright at q = 0, a light second link: M has an eigenvalue of
-  3.3e-4 kg m^2, so its modes are fast) was failed by its own plant FMU: its Co-Simulation RK4 at 4 sub-steps of 2.5 ms is 1.6e-2 off the
-  exact zero-order-hold solution.  That is the integrator's error at the step, not a wrong model: the error falls
-  as the sub-step^4 (measured here at two sub-step counts), and the FMU equals a classical RK4 written in this
-  file on pinocchio's forward dynamics.  The verdict is now the FMU against that RK4; the distance from the
-  exact solution is a finding that names the sub-steps meeting the tolerance, and an export with them meets it.
+  3.3e-4 kg m^2, so its modes are fast) was failed by its own plant FMU: its Co-Simulation RK4 at 4
+  sub-steps of 2.5 ms is 1.6e-2 off the exact zero-order-hold solution.  That is the integrator's error at
+  the step, not a wrong model: the error falls as the sub-step^4 (measured here at two sub-step counts), and
+  the FMU equals a classical RK4 written in this file on pinocchio's forward dynamics.  The verdict is now
+  the FMU against that RK4; the distance from the exact solution is a finding that names the sub-steps
+  meeting the tolerance, and an export with them meets it.
 * A Model Exchange vs Co-Simulation difference beyond its tolerance is never printed as "passed".
 """
 from __future__ import annotations
