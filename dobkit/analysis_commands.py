@@ -60,6 +60,8 @@ def _cmd_analyze(args) -> int:
         found = result.mismatch.loop(observer).boundaries.factors
         print(f"inertia-mismatch stability boundary {label}: "
               + (", ".join(f"a = {a:.6g}" for a in found) if found else "none in the searched range"))
+    for line in result.not_done:                 # analyses this arm does not allow, each with its reason
+        print(f"not computed: {line}")
     figures = sorted({Path(name).stem for name in result.figures})
     print(f"analysis written to {out}: analysis.json and {len(figures)} figures, each as PNG and SVG")
     return 0
@@ -76,6 +78,9 @@ def _cmd_report(args) -> int:
     with StageProgress() as progress:
         path = write_report(scenario, out, _settings(args), progress=progress, sweep_summaries=args.sweep,
                             tunings=args.tune)
+    import json
+    for line in json.loads((Path(path).parent / "analysis.json").read_text()).get("not_done", []):
+        print(f"not computed: {line}")
     print(f"{'quick preview of the report' if args.quick else 'report'} written to {path}")
     return 0
 

@@ -207,4 +207,6 @@ def plain_summary(result, experiment: dict, scenario) -> list[str]:
     lines = [_tool_tip(experiment), worse_with_observer_short(experiment, joints), _held_offset(result, scenario),
              _speed(result, scenario), _design(result, joints), _noise(result, joints), _robustness(result, scenario),
              _gains(result)]
+    # what could not be computed for this arm, one line each, with the reason (the rest of the report stands)
+    lines += [f"Not computed for this arm: {line}" for line in getattr(result, "not_done", ())]
     return [line for line in lines if line]
