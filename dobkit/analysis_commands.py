@@ -43,10 +43,23 @@ def _settings(args):
     return replace(settings, **changes)
 
 
+def _refuse_used_out(out) -> None:
+    """An ``--out`` that is a file or a non-empty folder, refused in the first instant: before the scenario is
+    read (an arm's URDF brings pinocchio), not after it (the staged folder checks again, and everything else)."""
+    if out is None:
+        return
+    target = Path(out)
+    if target.exists() and not target.is_dir():
+        raise FileExistsError(f"output folder '{target}' is an existing file, not a folder; choose a new --out")
+    if target.is_dir() and any(target.iterdir()):
+        raise FileExistsError(f"output folder '{target}' exists and is not empty; choose a new --out")
+
+
 def _cmd_analyze(args) -> int:
     from blocks.outputs import default_out_dir
     from blocks.scenario import load_scenario
 
+    _refuse_used_out(args.out)
     scenario = load_scenario(args.scenario)      # a bad scenario is refused before the heavy imports below
     from analysis.report.build import analyze
 
@@ -71,6 +84,7 @@ def _cmd_report(args) -> int:
     from blocks.outputs import default_out_dir
     from blocks.scenario import load_scenario
 
+    _refuse_used_out(args.out)
     scenario = load_scenario(args.scenario)      # a bad scenario is refused before the heavy imports below
     from analysis.report.build import write_report
 

@@ -306,7 +306,7 @@ def substeps_for(error: float, tolerance: float, substeps: int) -> int:
     Examples
     --------
     >>> substeps_for(1.6e-2, 1e-6, 4)
-    46
+    45
     """
     if not (math.isfinite(error) and error > tolerance > 0):
         return int(substeps)

@@ -88,8 +88,8 @@ _KEY_NAMES = {
 # SI prefixes for axes: values are shown in a unit that puts the largest near 1..1000, never with an offset.
 _PREFIXED = {"m": "m", "rad": "rad", "N m": "N m", "N": "N", "mm": "m", "rad/s": "rad/s", "m/s": "m/s"}
 _PREFIXES = {6: "M", 3: "k", 0: "", -3: "m", -6: "µ", -9: "n", -12: "p"}
-# Lengths of a surgical arm read in m, mm or µm; smaller ones get a power of ten, not nm or pm.
-_LENGTH_POWERS = (0, -3, -6)
+# Lengths of a surgical arm read in m, mm, µm, nm or pm (an axis label "[1e-12 m]" is notation, "[pm]" a unit).
+_LENGTH_POWERS = (0, -3, -6, -9, -12)
 
 
 # --------------------------------------------------------------------------------------------

@@ -1,0 +1,87 @@
+"""Report wording and early refusals of ``dobkit analyze`` / ``report`` (issue "Any arm, every command", item 10).
+
+* A -3 dB band open at the top reads "above 2.639", not "2.639 to inf".
+* A Table-3 table is in one notation throughout (not 1.611e-04 beside 0.000233).
+* A histogram of picometre lengths is labelled in pm, not "[1e-12 m]".
+* A used ``--out`` or a missing URDF is refused before pinocchio and python-control are imported.
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from analysis.report.view.frequency import _band
+from analysis.report.view.simulation import _joint_rows, _table_3_layout
+from analysis.sweep.summary import _display_scale
+from blocks.joints import RRPR_JOINTS
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_an_open_band_reads_in_words():
+    assert _band(2.639, None) == "above 2.639"
+    assert _band(0.0, 3.2) == "below 3.2"
+    assert _band(2.1, 7.5) == "2.1 to 7.5"
+    assert "inf" not in _band(0.0, None)
+
+
+def _cells(table) -> list[str]:
+    return [cell.text for row in table.rows for cell in row[1:] if cell.numeric]
+
+
+def test_table_3_is_in_one_notation():
+    # the issue's numbers: joint 1 needs scientific notation (6.3e-05), joint 4 alone would not (0.000233)
+    numbers = [("RMS position error, with observer", [1.611e-4, 2.0e-3, 1.2e-4, 2.33e-4]),
+               ("RMS position error, without observer", [6.32e-5, 3.1e-2, 2.5e-3, 4.1e-3]),
+               ("largest position error, with observer", [4.0e-4, 5.0e-3, 3.0e-4, 6.0e-4]),
+               ("largest position error, without observer", [2.0e-3, 6.0e-2, 3.1e-2, 8.0e-3])]
+    for table in (_table_3_layout(numbers, RRPR_JOINTS), _joint_rows(numbers, RRPR_JOINTS)):
+        cells = _cells(table)
+        assert len(cells) == 16
+        assert all("e" in c for c in cells), cells          # old: '1.611e-04' beside '0.000233'
+        back = sorted(float(c) for c in cells)
+        np.testing.assert_allclose(back, sorted(v for _, values in numbers for v in values), rtol=1e-3)
+
+
+def test_picometres_are_labelled_as_a_unit():
+    factor, unit = _display_scale("m", np.array([2.0e-12, 7.5e-12]))
+    assert (factor, unit) == (1e-12, "pm")
+    assert _display_scale("m", np.array([3e-9]))[1] == "nm"
+    assert _display_scale("m", np.array([0.02]))[1] == "mm"
+
+
+def _run(args: list[str]) -> dict:
+    """``dobkit ARGS`` in a fresh interpreter: its exit status, error line and whether heavy modules came in."""
+    code = ("import sys, json\nfrom dobkit.cli import main\nrc = main(sys.argv[1:])\n"
+            "print(json.dumps({'rc': rc, 'heavy': [m for m in ('pinocchio', 'control', 'matplotlib') "
+            "if m in sys.modules]}))")
+    done = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, cwd=ROOT,
+                          env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"}, timeout=120)
+    out = json.loads(done.stdout.strip().splitlines()[-1])
+    out["stderr"] = done.stderr.strip()
+    return out
+
+
+def test_a_used_out_folder_is_refused_before_the_arm_is_read(tmp_path):
+    used = tmp_path / "used"
+    used.mkdir()
+    (used / "keep.txt").write_text("x")
+    for command in ("analyze", "report"):
+        got = _run([command, "--quick", "--scenario", "scope4", "--out", str(used)])
+        assert got["rc"] == 2 and got["stderr"].endswith("exists and is not empty; choose a new --out"), got
+        assert got["heavy"] == [], got            # old: refused after pinocchio and python-control were imported
+    assert [p.name for p in used.iterdir()] == ["keep.txt"]
+
+
+def test_a_missing_urdf_is_refused_before_pinocchio(tmp_path):
+    text = (ROOT / "blocks" / "scenarios" / "scope4.toml").read_text().replace('"example:scope4"', '"nothere.urdf"')
+    path = tmp_path / "missing.toml"
+    path.write_text(text)
+    got = _run(["analyze", "--quick", "--scenario", str(path), "--out", str(tmp_path / "out")])
+    assert got["rc"] == 2 and "nothere.urdf' does not exist (or is not a file)" in got["stderr"], got
+    assert "pinocchio" not in got["heavy"], got
+    assert not (tmp_path / "out").exists()
