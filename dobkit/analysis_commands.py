@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -87,11 +88,15 @@ def _cmd_report(args) -> int:
     _refuse_used_out(args.out)
     scenario = load_scenario(args.scenario)      # a bad scenario is refused before the heavy imports below
     from analysis.report.build import write_report
+    from blocks.budget import Budget
 
+    seconds = Budget.from_env(seconds=args.max_seconds).seconds
     out = args.out if args.out is not None else default_out_dir(REPORT_PREFIX)
     with StageProgress() as progress:
+        def notify(text):            # the estimate, once the scenario's own run has given the pace
+            print(f"dobkit report: estimated time of the studies: {text}", file=sys.stderr, flush=True)
         path = write_report(scenario, out, _settings(args), progress=progress, sweep_summaries=args.sweep,
-                            tunings=args.tune)
+                            tunings=args.tune, budget_seconds=seconds, notify=notify)
     import json
     for line in json.loads((Path(path).parent / "analysis.json").read_text()).get("not_done", []):
         print(f"not computed: {line}")
@@ -112,5 +117,9 @@ def add_analysis_subcommands(subparsers) -> None:
                    help="include the summary of a 'dobkit sweep' run (its summary folder); may be repeated")
     p.add_argument("--tune", action="append", default=[], metavar="FOLDER",
                    help="include a 'dobkit tune' result (its output folder); may be repeated")
+    p.add_argument("--max-seconds", metavar="S", default=None,
+                   help="wall-clock seconds for the report: the studies' time is estimated after the scenario's "
+                        "own run and a report that would take longer is refused then (default: no limit, or "
+                        "$DOBKIT_MAX_SECONDS)")
     p.set_defaults(func=_cmd_report)
 

@@ -85,3 +85,35 @@ def test_a_missing_urdf_is_refused_before_pinocchio(tmp_path):
     assert got["rc"] == 2 and "nothere.urdf' does not exist (or is not a file)" in got["stderr"], got
     assert "pinocchio" not in got["heavy"], got
     assert not (tmp_path / "out").exists()
+
+
+def test_tool_path_keys_are_documented_and_explained_by_the_key_checker(tmp_path):
+    import dataclasses
+    import re
+
+    import pytest
+
+    from blocks import load_scenario
+    from blocks.scenario import _SECTIONS, ScenarioError
+    from blocks.tool_path import ToolPath
+
+    allowed = [k for k in _SECTIONS["trajectory"].checks_for("tool_path") if k != "kind"]
+    doc = (ROOT / "docs" / "tool-path.md").read_text()
+    rows = dict(re.findall(r"^\| `(\w+)` \|.*\| ([^|]+) \|$", doc, flags=re.M))
+    assert set(rows) - {"kind"} == set(allowed)
+    defaults = {f.name: f.default for f in dataclasses.fields(ToolPath)}
+    for key in allowed:
+        if rows[key].strip() != "required":
+            assert float(rows[key]) == defaults[key], key
+    text = (ROOT / "blocks" / "scenarios" / "scope4-path.toml").read_text().replace(
+        "sample_period = 0.05 ", "sample_periodd = 0.05 ").replace('"example:scope4"',
+                                                                   f'"{ROOT}/blocks/arms/data/scope4.urdf"')
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(ScenarioError) as err:
+        load_scenario(path)
+    message = str(err.value)
+    assert "trajectory.sample_periodd" in message
+    for key in allowed:                       # old: only the names ("waypoints, duration, sample_period")
+        assert re.search(rf"\b{key} \(.+?\)", message), key
+    assert "(m, in the arm's base frame)" in message and "(s, > 0" in message

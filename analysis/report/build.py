@@ -535,12 +535,18 @@ def _depth_below_mm(q, skin_height: float, robot) -> float:
 
 
 def write_report(scenario: Scenario | str = "paper", out_dir=None, settings: AnalysisSettings = AnalysisSettings(),
-                 progress: Progress | None = None, sweep_summaries=(), tunings=()) -> Path:
+                 progress: Progress | None = None, sweep_summaries=(), tunings=(), budget_seconds: float | None = None,
+                 notify=None) -> Path:
     """Simulate, analyze and write ``out_dir/report.html`` (plus ``analysis.json``, ``metrics.json`` and figures).
 
     ``sweep_summaries`` are folders written by ``dobkit sweep`` (``summary.json`` and its figures), and
     ``tunings`` folders written by ``dobkit tune`` (``tune.json`` and its figures); each becomes a section
     of the report.
+
+    The time of the studies is estimated from the pace of the scenario's own run, simulated first
+    (:mod:`analysis.report.estimate`); ``notify(text)``, if given, is told the estimate, and with
+    ``budget_seconds`` (wall-clock s, None: no limit) a report that would run past it is refused then, with
+    the estimate and the keys that set it (:class:`~blocks.budget.BudgetError`), before the studies start.
 
     Returns
     -------
@@ -560,7 +566,17 @@ def write_report(scenario: Scenario | str = "paper", out_dir=None, settings: Ana
         read_result(folder)
     target = Path(out_dir)
     staging = staged_output(target)          # refuses a non-empty folder before any work is done
+    import time
+
+    from analysis.report.estimate import check_report_time, estimate_report
+    started = time.perf_counter()
     experiment = run_experiment(s, None, progress=progress, figures=False)
+    spent = time.perf_counter() - started
+    # both runs (with and without the observer) give the pace: wall s per simulated s
+    estimate = estimate_report(s, settings, spent, 2.0 * float(s.simulation.t_final))
+    if notify is not None:
+        notify(estimate.text())
+    check_report_time(estimate, budget_seconds, spent, f"report of scenario '{s.name}'")
     metrics = experiment_metrics(experiment)
     result = run_analysis(s, settings, progress)
     with staging as stage, _stage(progress, "writing figures and report") as step:
