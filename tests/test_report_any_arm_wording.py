@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from analysis.report.view.frequency import _band
 from analysis.report.view.simulation import _joint_rows, _table_3_layout
@@ -117,3 +118,21 @@ def test_tool_path_keys_are_documented_and_explained_by_the_key_checker(tmp_path
     for key in allowed:                       # old: only the names ("waypoints, duration, sample_period")
         assert re.search(rf"\b{key} \(.+?\)", message), key
     assert "(m, in the arm's base frame)" in message and "(s, > 0" in message
+
+
+def test_a_scenario_called_the_paper_scenario_has_its_path():
+    from blocks import load_scenario
+    from blocks.scenario import builtin_scenarios
+
+    paper = load_scenario("paper")
+    for name in builtin_scenarios():
+        s = load_scenario(name)
+        if "paper scenario" in s.data.get("description", "").lower() and name != "paper":
+            assert s.data["trajectory"] == paper.data["trajectory"], name
+    digital = load_scenario("paper-digital")
+    assert digital.data["trajectory"] != paper.data["trajectory"]
+    # its description says which path it takes, and that path is the one it has: straight, at x = 0.42 m
+    assert "default laceration path (straight, 8 cm at x = 0.42 m)" in digital.data["description"]
+    start, end = digital.data["trajectory"]["start"], digital.data["trajectory"]["end"]
+    assert start[0] == end[0] == 0.42 and abs(end[1] - start[1]) == pytest.approx(0.08)
+    assert digital.data["trajectory"]["bulge"] == 0
