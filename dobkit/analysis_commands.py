@@ -31,6 +31,8 @@ def _add_common(parser: argparse.ArgumentParser, prefix: str) -> None:
                         "under a minute; its numbers differ from the full analysis (the report lists how)")
     parser.add_argument("--jobs", type=whole_number("--jobs"), default=None, help="worker processes for the studies "
                         "(default: the number of CPUs; results do not depend on it)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress display and no stage lines on "
+                        "standard error (errors and the notes that change a result still appear)")
 
 
 def _settings(args):
@@ -65,7 +67,7 @@ def _cmd_analyze(args) -> int:
     from analysis.report.build import analyze
 
     out = args.out if args.out is not None else default_out_dir(ANALYSIS_PREFIX)
-    with StageProgress() as progress:
+    with StageProgress(enabled=not args.no_progress) as progress:
         result, files = analyze(scenario, out, _settings(args), progress=progress)
     slow = result.observer_bandwidth.slowest_rad_s
     print(f"scenario: {scenario.name} ({scenario.source})")
@@ -92,11 +94,11 @@ def _cmd_report(args) -> int:
 
     seconds = Budget.from_env(seconds=args.max_seconds).seconds
     out = args.out if args.out is not None else default_out_dir(REPORT_PREFIX)
-    with StageProgress() as progress:
+    with StageProgress(enabled=not args.no_progress) as progress:
         def notify(text):            # the estimate, once the scenario's own run has given the pace
             print(f"dobkit report: estimated time of the studies: {text}", file=sys.stderr, flush=True)
         path = write_report(scenario, out, _settings(args), progress=progress, sweep_summaries=args.sweep,
-                            tunings=args.tune, budget_seconds=seconds, notify=notify)
+                            tunings=args.tune, budget_seconds=seconds, notify=None if args.no_progress else notify)
     import json
     for line in json.loads((Path(path).parent / "analysis.json").read_text()).get("not_done", []):
         print(f"not computed: {line}")

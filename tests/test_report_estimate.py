@@ -49,3 +49,12 @@ def test_a_report_past_its_budget_is_refused_before_the_studies(tmp_path, capsys
     assert "estimated time of the studies: about" in err
     assert "error: report of scenario 'scope4': the studies need about" in err and "simulation.t_final" in err
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_no_progress_prints_no_stage_lines(tmp_path, capsys):
+    out = tmp_path / "report"
+    assert main(["report", "--quick", "--scenario", "scope4", "--out", str(out), "--max-seconds", "0.5",
+                 "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    # old: "simulating with observer: done, took ..." (report had no --no-progress; tune printed stage lines)
+    assert len(err) == 1 and err[0].startswith("dobkit report: error: report of scenario 'scope4'"), err
