@@ -44,7 +44,7 @@ def test_the_budget_is_held_at_both_sides():
 
 def test_a_report_past_its_budget_is_refused_before_the_studies(tmp_path, capsys):
     out = tmp_path / "report"
-    assert main(["report", "--quick", "--scenario", "scope4", "--out", str(out), "--max-seconds", "0.5"]) == 2
+    assert main(["report", "--quick", "--scenario", "scope4", "--out", str(out), "--max-seconds", "0.001"]) == 2
     err = capsys.readouterr().err
     assert "estimated time of the studies: about" in err
     assert "error: report of scenario 'scope4': the studies need about" in err and "simulation.t_final" in err
@@ -53,7 +53,7 @@ def test_a_report_past_its_budget_is_refused_before_the_studies(tmp_path, capsys
 
 def test_no_progress_prints_no_stage_lines(tmp_path, capsys):
     out = tmp_path / "report"
-    assert main(["report", "--quick", "--scenario", "scope4", "--out", str(out), "--max-seconds", "0.5",
+    assert main(["report", "--quick", "--scenario", "scope4", "--out", str(out), "--max-seconds", "0.001",
                  "--no-progress"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     # old: "simulating with observer: done, took ..." (report had no --no-progress; tune printed stage lines)
