@@ -136,3 +136,15 @@ def test_a_scenario_called_the_paper_scenario_has_its_path():
     start, end = digital.data["trajectory"]["start"], digital.data["trajectory"]["end"]
     assert start[0] == end[0] == 0.42 and abs(end[1] - start[1]) == pytest.approx(0.08)
     assert digital.data["trajectory"]["bulge"] == 0
+
+
+def test_the_sampled_check_says_it_is_conservative_on_a_path():
+    from blocks import load_scenario
+    from blocks.digital_loop import check_observer_rate
+    from blocks.scenario import ScenarioError
+
+    s = load_scenario("scope4-digital").replace(gains={"observer_bandwidth": 2500.0})   # Euler at 1 kHz: < 2000
+    with pytest.raises(ScenarioError) as err:
+        check_observer_rate(s)
+    message = str(err.value)
+    assert "takes the worst one" in message and "conservative" in message and "\n" not in message
