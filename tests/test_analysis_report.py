@@ -317,10 +317,19 @@ def test_summary_quotes_the_tool_tip_error_and_the_observer_speed(reported, repo
     assert _numbers(summary[0]) == [_shown(run[key], 3) for key in ("max_tool_position_error_mm",
                                                                     "rms_tool_position_error_mm") for run in (w, wo)]
     slow = result.observer_bandwidth.slowest_rad_s
-    speed = [s for s in summary if f"{slow.min:.3g} to {slow.max:.3g} rad/s" in s][0]
+    speed = [s for s in summary if f"{slow.min:.3g} to {slow.max:.3g} per second" in s][0]
     # slower than the slowest PD root by PD_SLOWEST / slowest mode (the observer limits the rejection speed)
     ratios = [PD_SLOWEST / slow.max, PD_SLOWEST / slow.min]
     assert [x for x in _numbers(speed) if x in (_shown(r, 3) for r in ratios)] == [_shown(r, 3) for r in ratios]
+
+
+def test_the_summary_for_the_surgical_team_is_in_plain_words(reported):
+    path, _, _ = reported
+    summary = _summary(path.read_text(encoding="utf-8"))
+    notation = ("s^2", "M^-1", "d_hat", "pole", "DC gain", " mode", "Kd s", "1/s^2", "eigen", "rad/s)")
+    for line in summary:
+        # old: "slowest pole of the PD error dynamics s^2 + Kd s + Kp: 6 rad/s", "(it is M^-1 d / Kp)"
+        assert not [w for w in notation if w in line], line
 
 
 def test_report_progress_reports_every_stage_done(reported):

@@ -48,11 +48,26 @@ def test_table_3_is_in_one_notation():
         np.testing.assert_allclose(back, sorted(v for _, values in numbers for v in values), rtol=1e-3)
 
 
-def test_picometres_are_labelled_as_a_unit():
-    factor, unit = _display_scale("m", np.array([2.0e-12, 7.5e-12]))
-    assert (factor, unit) == (1e-12, "pm")
-    assert _display_scale("m", np.array([3e-9]))[1] == "nm"
+def test_tiny_lengths_are_labelled_in_a_unit_not_a_power_of_ten():
+    # old: "[1e-12 m]" on the axis; now mm, as the tables give lengths, and the ticks carry their own digits
+    for unit, values in (("m", np.array([2.0e-12, 7.5e-12])), ("m", np.array([3e-9])), ("mm", np.array([4e-10]))):
+        factor, shown = _display_scale(unit, values)
+        assert shown == "mm" and "e" not in shown
+        np.testing.assert_allclose(values / factor, values * (1e3 if unit == "m" else 1.0))
     assert _display_scale("m", np.array([0.02]))[1] == "mm"
+    assert _display_scale("m", np.array([2e-6]))[1] == "µm"
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from analysis.sweep.summary import _histogram
+    fig, ax = plt.subplots()
+    _histogram(ax, np.array([2.0e-12, 3.0e-12, 7.5e-12, 5e-12]), "m", "final error")
+    fig.canvas.draw()
+    assert ax.get_xlabel().endswith("[mm]"), ax.get_xlabel()
+    ticks = [t.get_text() for t in ax.get_xticklabels() if t.get_text()]
+    assert ticks and all(float(t.replace("\u2212", "-")) < 1e-8 for t in ticks if t != "0"), ticks
+    plt.close(fig)
 
 
 def _run(args: list[str]) -> dict:
