@@ -147,3 +147,36 @@ def test_a_configuration_without_a_rest_is_left_out_with_its_reason(tmp_path):
     # the first point is the one the rest of the analysis stands on: without it, a one-line refusal
     with pytest.raises(ArmAnalysisError, match=r"^linearized loop at first: without the observer: no equilibrium"):
         operating_points_of(s, [("first", bad), ("second", good)])
+
+
+def test_why_kinovas_base_joint_learns_slowly_with_observer_bandwidth(tmp_path):
+    """``observer_bandwidth = 10`` is 10 per second at q0 only: along the path Kinova's base-joint inertia grows
+    and the slowest rate of ``Y M^-1(q)`` falls below 1 per second; the summary says so, with pinocchio's number."""
+    from types import SimpleNamespace
+
+    from analysis.linear.bandwidth import along_trajectory
+    from analysis.report.view.summary import _rate_along_path
+
+    s = load_scenario(scenario_file(tmp_path, "kinova", offset=(0.0, 3.0, 1.5, 0.0, 3.0, 0.0), amplitude=0.3))
+    at = along_trajectory(s)
+    model = pin.buildModelFromUrdf(str(_robot_file(ARMS["kinova"][0])))
+    data = model.createData()
+
+    def inertia(q):
+        out, k = [], 0
+        for j in range(1, model.njoints):
+            out += [np.cos(q[k]), np.sin(q[k])] if model.joints[j].nq == 2 else [q[k]]
+            k += 1
+        m = pin.crba(model, data, np.array(out))
+        return np.triu(m) + np.triu(m, 1).T
+
+    t = np.asarray(at.time)
+    q = np.asarray(s.trajectory.evaluate(t)[0])                 # (samples, joints)
+    Y = 10.0 * MASS_SCALE * inertia(q[0])                      # observer_bandwidth x M^(q0)
+    slow = [np.linalg.eigvals(Y @ np.linalg.inv(MASS_SCALE * inertia(qk))).real.min() for qk in q]
+    assert at.min == pytest.approx(min(slow), rel=1e-8) and at.min < 1.0
+    assert abs(at.direction_at_min[0]) > 0.9                  # the base joint
+    line = _rate_along_path(SimpleNamespace(observer_bandwidth=SimpleNamespace(along_trajectory=at)), s)
+    assert line is not None and f"falls to {at.min:.3g} per second" in line
+    assert "a disturbance on joint 1 alone" in line or "a disturbance on joints 1," in line
+    assert f"up to {4.0 / at.min:.2g} s" in line

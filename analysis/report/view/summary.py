@@ -111,6 +111,30 @@ def _speed(result, scenario) -> str:
     return text
 
 
+def _rate_along_path(result, scenario) -> str | None:
+    """Why a scenario's ``observer_bandwidth`` can learn a disturbance slowly on its path (plain words).
+
+    ``observer_bandwidth = w`` makes the gain ``Y = w M^(q0)``: every observer rate is ``w`` at the start of the
+    path and only there, since ``Y M^-1(q)`` changes with the arm's inertia.  Where the path takes the arm to
+    a configuration of larger inertia (a base joint with the arm stretched out), the slowest rate falls;
+    four time constants (98 %) of that rate is how long learning a disturbance takes there.
+    """
+    gains = getattr(scenario, "user_data", {}).get("gains", {})
+    at = getattr(result.observer_bandwidth, "along_trajectory", None)
+    if "observer_bandwidth" not in gains or at is None:
+        return None
+    w = float(gains["observer_bandwidth"])
+    if not at.min < 0.5 * w:
+        return None
+    k = int(np.argmin(at.slowest_rad_s))
+    return (f"The scenario's observer_bandwidth sets the observer's rate to {fmt(w, 3)} per second at the start of "
+            f"the path only (the gain is scaled to the arm's inertia there). Along the path the inertia changes and "
+            f"the slowest rate falls to {fmt(at.min, 3)} per second (t = {fmt(at.time[k], 3)} s, a disturbance on "
+            f"{mode_text(at.direction_at_min)}), so learning a disturbance there takes up to "
+            f"{fmt(4.0 / at.min, 2)} s; a gain designed over the whole workspace (section 5) keeps every rate at "
+            f"or above its target.")
+
+
 def _design(result, joints) -> str | None:
     design = result.observer_design
     sim = design.simulation
@@ -216,7 +240,8 @@ def plain_summary(result, experiment: dict, scenario) -> list[str]:
     """
     joints = arm_joints(scenario)
     lines = [_tool_tip(experiment), worse_with_observer_short(experiment, joints), _held_offset(result, scenario),
-             _speed(result, scenario), _design(result, joints), _noise(result, joints), _robustness(result, scenario),
+             _speed(result, scenario), _rate_along_path(result, scenario), _design(result, joints),
+             _noise(result, joints), _robustness(result, scenario),
              _gains(result)]
     # what could not be computed for this arm, one line each, with the reason (the rest of the report stands)
     lines += [f"Not computed for this arm: {line}" for line in getattr(result, "not_done", ())]
