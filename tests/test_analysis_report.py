@@ -332,6 +332,17 @@ def test_the_summary_for_the_surgical_team_is_in_plain_words(reported):
         assert not [w for w in notation if w in line], line
 
 
+def test_an_analysis_not_made_for_the_arm_is_one_line_and_the_rest_is_written(report_data, scenario_file):
+    from analysis.report.html import render_html
+    _, result, metrics = report_data
+    why = "frequency responses at the reference at t = 0: without the observer: no equilibrium found (a test)"
+    page = render_html(replace(result, frequency=None, not_done=[why]), metrics, load_scenario(scenario_file), {},
+                       ())
+    text = html.unescape(re.sub(r"<[^>]+>", " ", page))
+    assert text.count(f"Not computed for this arm: {why}") == 2        # the summary and section 6
+    assert "Per-joint disturbance responses" not in page and "Gain and noise studies" in page
+
+
 def test_report_progress_reports_every_stage_done(reported):
     _, _, calls = reported
     stages = list(dict.fromkeys(stage for stage, _ in calls))
