@@ -343,6 +343,19 @@ def test_an_analysis_not_made_for_the_arm_is_one_line_and_the_rest_is_written(re
     assert "Per-joint disturbance responses" not in page and "Gain and noise studies" in page
 
 
+def test_a_mismatch_factor_without_a_rest_is_a_row_that_says_so(report_data, scenario_file):
+    # an arm that sags away from q0 without the observer at some factor has no poles there (old: min() of an
+    # empty sequence in the mismatch table, the report lost after minutes of work)
+    from analysis.report.html import render_html
+    _, result, metrics = report_data
+    loop = result.mismatch.without_dob
+    sweep = replace(loop.sweep, poles=[[]] + loop.sweep.poles[1:],
+                    spectral_abscissa=[1e6] + loop.sweep.spectral_abscissa[1:])
+    mismatch = replace(result.mismatch, without_dob=replace(loop, sweep=sweep))
+    page = render_html(replace(result, mismatch=mismatch), metrics, load_scenario(scenario_file), {}, ())
+    assert "no rest near q0" in page
+
+
 def test_report_progress_reports_every_stage_done(reported):
     _, _, calls = reported
     stages = list(dict.fromkeys(stage for stage, _ in calls))
