@@ -59,7 +59,9 @@ def check_observer_rate(scenario, samples: int = 201) -> None:
     used += f", controller.delay = {settings.delay}"
     where = (f"{s.source}: at 'controller.sample_rate' = {settings.sample_rate:g} Hz ({used}) the sampled loop is "
              f"unstable: its linearized one-sample map has spectral radius {verdict.spectral_radius:.4g} > 1 at "
-             f"q = {np.round(verdict.q_worst, 4).tolist()}")
+             f"q = {np.round(verdict.q_worst, 4).tolist()} (the check freezes the arm at each configuration of "
+             f"the path and takes the worst one, so on a moving path it is conservative: a run may stay bounded a "
+             f"little past the limit)")
     scale = verdict.largest_stable_scale
     if not scale > 0:
         raise ScenarioError(f"{where} for any 'gains.observer': the controller alone is unstable at this rate; "

@@ -1178,7 +1178,7 @@ def _validated(data: Mapping, source: str) -> Scenario:
         default_kind = "joint_sine" if section == "trajectory" and _context().arm is not None else spec.default_kind
         kind = spec.checks["kind"](table.get("kind", default_kind), f"{section}.kind") if spec.by_kind else None
         checks = _arm_checks(section, kind) or spec.checks_for(kind)
-        _check_keys(table, checks, section, note=f" for kind = {kind!r}" if kind else "")
+        _check_keys(table, checks, section, note=f" for kind = {kind!r}" if kind else "", kind=kind)
         given = {k: checks[k](v, f"{section}.{k}") for k, v in table.items()}
         built[section], out[section] = spec.build(given, built)
         if out[section] is None:            # an optional section that is absent
@@ -1238,12 +1238,22 @@ def _table(data: Mapping, key: str) -> Mapping:
     return value
 
 
-def _check_keys(table: Mapping, allowed, section: str, note: str = "") -> None:
+#: What the keys of a task-space path mean (docs/tool-path.md), shown with the allowed keys when one is unknown.
+KEY_MEANINGS = {("trajectory", "tool_path"): {
+    "waypoints": "two or more [x, y, z] positions of the tool point (m, in the arm's base frame)",
+    "duration": "time from the first waypoint to the last (s, > 0; the last point is held after it)",
+    "sample_period": "time between inverse-kinematics samples (s, > 0; quintic Hermite between them)",
+}}
+
+
+def _check_keys(table: Mapping, allowed, section: str, note: str = "", kind: str | None = None) -> None:
     unknown = sorted(set(table) - set(allowed))
     if unknown:
         where = "at the top level" if section == "top level" else f"in [{section}]{note}"
         names = unknown if section == "top level" else [f"{section}.{k}" for k in unknown]
-        raise ScenarioError(f"unknown key(s) {', '.join(map(str, names))}; allowed {where}: {', '.join(allowed)}")
+        meanings = KEY_MEANINGS.get((section, kind), {})
+        listed = ", ".join(f"{k} ({meanings[k]})" if k in meanings else str(k) for k in allowed)
+        raise ScenarioError(f"unknown key(s) {', '.join(map(str, names))}; allowed {where}: {listed}")
 
 
 def to_toml(data: Mapping) -> str:

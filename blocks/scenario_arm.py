@@ -86,6 +86,8 @@ def load_arm(given: dict, base: Path | None, error):
     path = Path(given["urdf"])
     if not path.is_absolute() and base is not None:
         path = base / path
+    if not path.is_file():              # refused before pinocchio is imported (seconds on a busy machine)
+        raise error(f"[arm] urdf = {given['urdf']!r}: URDF file '{path}' does not exist (or is not a file)")
     try:
         from .arms.urdf import load_urdf_arm
     except ImportError as err:          # pinocchio is the extra dobkit[urdf]

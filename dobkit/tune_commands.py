@@ -95,14 +95,10 @@ def _tune(args: argparse.Namespace, budget: Budget, state: dict) -> int:
     print(f"tuning '{spec.name}': at most {spec.max_evaluations} evaluations, each {spec.runs} runs of at most "
           f"{estimate.steps:,} RK4 steps (about {format_bytes(estimate.memory)}); evaluation log "
           f"{out / LOG_NAME}", flush=True)
-    lines = StageLines() if args.no_progress else None
-    try:
-        result = run_tune(spec, out, workers=args.workers, progress=lines or True, restart=args.restart,
-                          budget=budget, compare_unconstrained=args.compare_unconstrained, scheduler=args.scheduler,
-                          constraint_costs=args.constraint_costs)
-    finally:
-        if lines is not None:
-            lines.close()
+    # --no-progress: no bars and no stage lines on standard error (the lines above and below on standard output stay)
+    result = run_tune(spec, out, workers=args.workers, progress=not args.no_progress, restart=args.restart,
+                      budget=budget, compare_unconstrained=args.compare_unconstrained, scheduler=args.scheduler,
+                      constraint_costs=args.constraint_costs)
     print(_summary(result, out))
     return 0 if result.feasible else EXIT_INFEASIBLE
 
@@ -150,29 +146,6 @@ def _duration(seconds: float) -> str:
     if seconds < 7200:
         return f"{seconds / 60:.0f} min"
     return f"{seconds / 3600:.1f} h"
-
-
-class StageLines:
-    """``--no-progress``: no bars, one line on standard error as each stage of the tuning ends (how long it took),
-    so that a long tuning is not silent."""
-
-    def __init__(self, stream=None) -> None:
-        import sys
-        self.stream = sys.stderr if stream is None else stream
-        self.stage, self.started = None, 0.0
-
-    def __call__(self, stage: str, fraction: float) -> None:
-        import time
-        if stage != self.stage:
-            self.close()
-            self.stage, self.started = stage, time.monotonic()
-
-    def close(self) -> None:
-        import time
-        if self.stage is not None:
-            self.stream.write(f"{self.stage}: done, took {time.monotonic() - self.started:.1f} s\n")
-            self.stream.flush()
-            self.stage = None
 
 
 def _gains_text(gains: dict) -> str:

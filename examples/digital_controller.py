@@ -1,7 +1,8 @@
 """The controller as a program running at 1 kHz against the continuous arm, beside the continuous controller.
 
-The built-in scenario ``paper-digital`` is the paper scenario with a
-``[controller]`` section: every 1 ms the controller reads 2^17-count encoders,
+The built-in scenario ``paper-digital`` is the paper's arm, gains and
+disturbance on the default laceration path (a straight cut; ``paper``'s path
+bulges) with a ``[controller]`` section: every 1 ms the controller reads 2^17-count encoders,
 estimates the velocity by a backward difference through a 200 Hz low-pass,
 updates the observer (forward Euler) and holds its torque until the next
 sample.  ``blocks.simulate`` then runs the controller and observer as

@@ -255,6 +255,7 @@ def _me_vs_cs(me: dict | None, cs: dict | None, ref: dict | None, tolerance: flo
             part["finding"] = (f"both interfaces are off the fine reference (Model Exchange by {me_off:.3g}, "
                                f"Co-Simulation by {cs_off:.3g})")
         part["passed"] = me_ok
+        part["within_tolerance"] = bool(largest <= tolerance * scale)
         return part
     part["passed"] = bool(largest <= tolerance * scale)
     return part

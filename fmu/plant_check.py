@@ -54,7 +54,7 @@ from .instance import FMUInstance
 
 __all__ = ["check_torque", "arm_torque", "plant_from_description", "plant_reference", "PlantReference",
            "check_arm_matches", "check_scenario_arm", "arm_name", "compare_model_exchange", "compare_co_simulation",
-           "compare_end_stops",
+           "compare_end_stops", "substeps_for",
            "CHECK_INITIAL_STATE", "worst", "stop_parameters"]
 
 # The paper's arm: a generic configuration away from the singular theta2 = 0, pi, already moving (rad, m; rad/s, m/s).
@@ -283,36 +283,95 @@ def compare_model_exchange(extracted, ref: PlantReference, t_final: float, toler
     return part
 
 
+def _rk4_twin(derivatives, t: float, x: np.ndarray, u: np.ndarray, h: float, substeps: int) -> np.ndarray:
+    """One communication step of the FMU's own integrator written again here: classical RK4, ``substeps`` equal
+    steps of ``h / substeps``, the input held (``fmu/c/plant_model.c``, ``plant_rk4``)."""
+    dt = h / substeps
+    for k in range(substeps):
+        tk = t + k * dt
+        k1 = derivatives(tk, x, u)
+        k2 = derivatives(tk + 0.5 * dt, x + 0.5 * dt * k1, u)
+        k3 = derivatives(tk + 0.5 * dt, x + 0.5 * dt * k2, u)
+        k4 = derivatives(tk + dt, x + dt * k3, u)
+        x = x + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    return x
+
+
+def substeps_for(error: float, tolerance: float, substeps: int) -> int:
+    """The RK4 sub-steps that bring an integration error ``error`` at ``substeps`` down to ``tolerance``.
+
+    RK4's global error falls as the fourth power of its step, so the step must shrink by
+    ``(error / tolerance)^(1/4)``; the answer is at least ``substeps``.
+
+    Examples
+    --------
+    >>> substeps_for(1.6e-2, 1e-6, 4)
+    45
+    """
+    if not (math.isfinite(error) and error > tolerance > 0):
+        return int(substeps)
+    return int(math.ceil(substeps * (error / tolerance) ** 0.25))
+
+
 def compare_co_simulation(extracted, ref: PlantReference, t_final: float, step: float, tolerance: float,
                           deadline: Monitor, model_description=None) -> dict:
-    """Co-Simulation FMU against the Python plant integrated exactly under the same held torque."""
+    """Co-Simulation FMU against its own integrator run here in Python, and both against the exact solution.
+
+    Each communication step holds the same torque (computed from the exact
+    solution's state) for three runs from the same start: the FMU, the same
+    classical RK4 with the FMU's ``n_substeps`` written here (:func:`_rk4_twin`),
+    and the Python plant integrated exactly (SciPy DOP853, rtol 1e-12).
+
+    * The verdict is the FMU against the RK4 twin (``max_abs_error``): both make
+      the same arithmetic, so a difference above ``tolerance`` is an error in
+      the FMU's model or its stepping.
+    * The exact solution measures the integrator's own error at the chosen
+      step (``exact_zoh_error``), which is a property of the step, not of the
+      FMU: a stiff arm (light links, joint damping: a fast mode of hundreds of
+      1/s) needs more sub-steps.  Above ``tolerance`` it is a finding with the
+      sub-steps that would meet it (RK4's error falls as the step^4,
+      :func:`substeps_for`), not a failure.
+    """
     x0, states, n = ref.x0, ref.states, ref.arm.n
     off = _stops_off(model_description) if model_description is not None else {}
     steps = max(1, int(round(t_final / step)))
     x_ref = x0.copy()
+    x_twin = x0.copy()
     with FMUInstance(extracted, kind="CoSimulation", start_values=dict(zip(states, x0)) | off) as fmu:
         in_vr = fmu.value_references([f"tau[{i}]" for i in range(n)])
         out_vr = fmu.value_references(states)
         substeps = fmu.get_integer("n_substeps")
+        twin_err = 0.0
         for k in range(steps):
             t = k * step
-            u = ref.torque(t, x_ref)
+            u = np.asarray(ref.torque(t, x_ref), dtype=float)
             fmu.set_real(in_vr, u)
             fmu.do_step(t, step)
+            x_twin = _rk4_twin(ref.derivatives, t, x_twin, u, step, substeps)
+            twin_err = max(twin_err, worst(fmu.get_real(out_vr) - x_twin)) if np.isfinite(twin_err) else twin_err
             sol = solve_ivp(lambda tt, x: ref.derivatives(tt, x, u), (t, t + step), x_ref, method="DOP853",
                             rtol=1e-12, atol=1e-13)
             x_ref = sol.y[:, -1]
             if k % 100 == 0:
                 deadline.check_time(where=f"Co-Simulation comparison at t = {t:.6g} s")
         x_fmu = fmu.get_real(out_vr)
-    err = worst(x_fmu - x_ref)
-    part = {"t_final": steps * step, "step": step, "n_substeps": substeps, "max_abs_error": err,
-            "tolerance": tolerance, "passed": bool(err <= tolerance),
-            "method": "torque held over each step; reference SciPy DOP853 rtol 1e-12 per step"
-                      + ("; the FMU's end stops off" if off else "")}
+    exact = worst(x_fmu - x_ref)
+    twin_err = max(twin_err, worst(x_fmu - x_twin)) if np.isfinite(twin_err) else twin_err
+    part = {"t_final": steps * step, "step": step, "n_substeps": substeps, "max_abs_error": twin_err,
+            "tolerance": tolerance, "passed": bool(twin_err <= tolerance), "exact_zoh_error": exact,
+            "exact_zoh_within_tolerance": bool(exact <= tolerance),
+            "method": "torque held over each step; verdict: the FMU against the same classical RK4 "
+                      f"({substeps} sub-steps) run in Python; its integration error: against SciPy DOP853 rtol "
+                      "1e-12 per step" + ("; the FMU's end stops off" if off else "")}
     if not part["passed"]:
-        part["why"] = (f"Co-Simulation differs from {ref.name} by {err:.3g} after {steps * step:g} s (tolerance "
-                       f"{tolerance:g})")
+        part["why"] = (f"Co-Simulation differs from the same RK4 on {ref.name} by {twin_err:.3g} (tolerance "
+                       f"{tolerance:g}): the FMU's model or stepping is not the Python plant's")
+    elif not part["exact_zoh_within_tolerance"]:
+        need = substeps_for(exact, tolerance, substeps)
+        part["finding"] = (f"its RK4 ({substeps} sub-steps of {step / substeps:.3g} s) is {exact:.3g} off the exact "
+                           f"solution (tolerance {tolerance:g}), the integrator's error at this step, not the model's: "
+                           f"the arm has modes too fast for it; export with --substeps {need} (the error falls as the "
+                           "sub-step^4) or check with a smaller --cs-step")
     return part
 
 

@@ -54,6 +54,7 @@ from analysis.results import JsonResult, omitted_if_none, strict_json
 from analysis.simulation.figures import joint_signals
 from analysis.simulation.studies import Studies, gain_grid_study, observer_gain_study
 from blocks import __version__, load_scenario
+from blocks.control_compat import PythonControlChanged
 from blocks.gains import validated_gain
 from blocks.joints import RRPR_JOINTS, JointSpace
 from blocks.outputs import staged_output
@@ -132,6 +133,12 @@ class AnalysisResult(JsonResult):
     figures : list of str
         The figure files written with the result (by :func:`analyze` or
         :func:`write_report`); empty from :func:`run_analysis`, which writes nothing.
+    not_done : list of str
+        One line per analysis that could not be made for a reason of the arm
+        (no resting position of the held arm near a configuration, ...): what,
+        where and why.  The rest of the result stands; ``frequency`` is None
+        when its analysis is one of them, and an operating point that failed
+        is left out of ``operating_points``.
     """
 
     dobkit_version: str
@@ -142,9 +149,10 @@ class AnalysisResult(JsonResult):
     operating_points: list[OperatingPoint]
     mismatch: MismatchStudy
     observer_design: ObserverDesign
-    frequency: FrequencyAnalysis
+    frequency: FrequencyAnalysis | None
     studies: Studies
     figures: list[str] = field(default_factory=list)
+    not_done: list[str] = field(default_factory=list)
     digital: DigitalAnalysis | None = omitted_if_none()
 
 
@@ -298,10 +306,7 @@ def run_analysis(scenario: Scenario | str = "paper", settings: AnalysisSettings 
                               ("slowest observer mode (workspace)", np.array(survey.slowest_rad_s.q_at_min)),
                               ("slowest observer mode at its fastest (workspace)",
                                np.array(survey.slowest_rad_s.q_at_max))]
-        operating_points = []
-        for label, q in points_of_interest:
-            operating_points.append(operating_point_analysis(s, q, label=label))
-            step(len(operating_points) / len(points_of_interest))
+        operating_points, not_done = operating_points_of(s, points_of_interest, step)
 
     with _stage(progress, "inertia mismatch") as step:
         if paper:
@@ -350,9 +355,11 @@ def run_analysis(scenario: Scenario | str = "paper", settings: AnalysisSettings 
     observer_design = ObserverDesign(**designed, simulation=simulation)
 
     with _stage(progress, "frequency responses"):
-        frequency = (frequency_analysis(s, q_start) if paper else
+        frequency = _for_the_arm(
+            lambda: (frequency_analysis(s, q_start) if paper else
                      arm_frequency_analysis(s.robot, s.kp, s.kd, s.observer_gain, q_start, d=_rest_disturbance(s),
-                                            nominal=s.nominal))
+                                            nominal=s.nominal)),
+            "frequency responses at the reference at t = 0", not_done)
 
     grids = {}
     for observer, key in ((True, "gains_with_dob"), (False, "gains_without_dob")):
@@ -378,7 +385,48 @@ def run_analysis(scenario: Scenario | str = "paper", settings: AnalysisSettings 
         dobkit_version=__version__, python_control_version=ct.__version__, scenario=info, settings=settings,
         observer_bandwidth=survey, operating_points=operating_points, mismatch=mismatch,
         observer_design=observer_design, frequency=frequency,
-        studies=Studies(**grids, observer=replace(obs, slowest_mode_rad_s=slowest)), digital=digital)
+        studies=Studies(**grids, observer=replace(obs, slowest_mode_rad_s=slowest)), digital=digital,
+        not_done=not_done)
+
+
+def operating_points_of(s: Scenario, points, step=None) -> tuple[list[OperatingPoint], list[str]]:
+    """:func:`~analysis.linear.loop.operating_point_analysis` at each ``(label, q)`` of ``points``.
+
+    A configuration where the held arm has no resting position (without the
+    observer an arm with a light, gravity-loaded joint may sag by radians, or
+    nowhere near) is left out with one line ``"linearized loop at LABEL: why"``
+    in the second list.  The first point is the one the mismatch and frequency
+    analyses and the summary rest on: when it fails, :class:`ArmAnalysisError`
+    says why.  ``step(fraction)`` is called after each point.
+    """
+    operating_points, not_done = [], []
+    for k, (label, q) in enumerate(points):
+        point = _for_the_arm(lambda: operating_point_analysis(s, q, label=label), f"linearized loop at {label}",
+                             not_done)
+        if point is None and k == 0:
+            raise ArmAnalysisError(not_done[0])
+        if point is not None:
+            operating_points.append(point)
+        if step is not None:
+            step((k + 1) / len(points))
+    return operating_points, not_done
+
+
+class ArmAnalysisError(RuntimeError):
+    """An analysis that cannot be made for a reason of the arm (the message says which and why, in one line)."""
+
+
+def _for_the_arm(analysis, what: str, not_done: list):
+    """``analysis()``, or None with one line ``"what: why"`` appended to ``not_done`` when it fails for a reason of
+    the arm: the held arm has no resting position near the configuration (RuntimeError of the equilibrium
+    search), or a matrix of the arm there is singular.  Budget and interrupts still stop the whole run."""
+    try:
+        return analysis()
+    except (RuntimeError, np.linalg.LinAlgError, ArithmeticError) as err:
+        if isinstance(err, PythonControlChanged):      # not the arm: the installed python-control
+            raise
+        not_done.append(f"{what}: " + " ".join(str(err).split()))
+        return None
 
 
 def _figure_writers(result: AnalysisResult, joints: JointSpace) -> list:
@@ -390,8 +438,10 @@ def _figure_writers(result: AnalysisResult, joints: JointSpace) -> list:
         lambda out: figs.bandwidth_figure(result.observer_bandwidth, design.bandwidth_designed,
                                           result.operating_points[0].pd_slowest_analytic_rad_s(), out, joints),
         lambda out: figs.design_figure(design.simulation, out, joints),
+    ] + ([] if result.frequency is None else [
         lambda out: figs.bode_figure(result.frequency, out, "tracking", joints),
         lambda out: figs.bode_figure(result.frequency, out, "estimation", joints),
+    ]) + [
         lambda out: figs.gain_study_figure(result.studies.gains_with_dob, result.studies.gains_without_dob, out),
         lambda out: figs.observer_study_figure(result.studies.observer, out, joints),
     ] + ([lambda out: digital_figures(result.digital, out, joints)] if result.digital is not None else [])
@@ -485,12 +535,18 @@ def _depth_below_mm(q, skin_height: float, robot) -> float:
 
 
 def write_report(scenario: Scenario | str = "paper", out_dir=None, settings: AnalysisSettings = AnalysisSettings(),
-                 progress: Progress | None = None, sweep_summaries=(), tunings=()) -> Path:
+                 progress: Progress | None = None, sweep_summaries=(), tunings=(), budget_seconds: float | None = None,
+                 notify=None) -> Path:
     """Simulate, analyze and write ``out_dir/report.html`` (plus ``analysis.json``, ``metrics.json`` and figures).
 
     ``sweep_summaries`` are folders written by ``dobkit sweep`` (``summary.json`` and its figures), and
     ``tunings`` folders written by ``dobkit tune`` (``tune.json`` and its figures); each becomes a section
     of the report.
+
+    The time of the studies is estimated from the pace of the scenario's own run, simulated first
+    (:mod:`analysis.report.estimate`); ``notify(text)``, if given, is told the estimate, and with
+    ``budget_seconds`` (wall-clock s, None: no limit) a report that would run past it is refused then, with
+    the estimate and the keys that set it (:class:`~blocks.budget.BudgetError`), before the studies start.
 
     Returns
     -------
@@ -510,7 +566,17 @@ def write_report(scenario: Scenario | str = "paper", out_dir=None, settings: Ana
         read_result(folder)
     target = Path(out_dir)
     staging = staged_output(target)          # refuses a non-empty folder before any work is done
+    import time
+
+    from analysis.report.estimate import check_report_time, estimate_report
+    started = time.perf_counter()
     experiment = run_experiment(s, None, progress=progress, figures=False)
+    spent = time.perf_counter() - started
+    # both runs (with and without the observer) give the pace: wall s per simulated s
+    estimate = estimate_report(s, settings, spent, 2.0 * float(s.simulation.t_final))
+    if notify is not None:
+        notify(estimate.text())
+    check_report_time(estimate, budget_seconds, spent, f"report of scenario '{s.name}'")
     metrics = experiment_metrics(experiment)
     result = run_analysis(s, settings, progress)
     with staging as stage, _stage(progress, "writing figures and report") as step:

@@ -94,7 +94,8 @@ _KEY_NAMES = {
 # SI prefixes for axes: values are shown in a unit that puts the largest near 1..1000, never with an offset.
 _PREFIXED = {"m": "m", "rad": "rad", "N m": "N m", "N": "N", "mm": "m", "rad/s": "rad/s", "m/s": "m/s"}
 _PREFIXES = {6: "M", 3: "k", 0: "", -3: "m", -6: "µ", -9: "n", -12: "p"}
-# Lengths of a surgical arm read in m, mm or µm; smaller ones get a power of ten, not nm or pm.
+# Lengths of a surgical arm read in m, mm or µm; smaller ones in mm (as the tables give them), not nm or pm, and
+# never as a power of ten in the unit ("[1e-12 m]").
 _LENGTH_POWERS = (0, -3, -6)
 
 
@@ -245,6 +246,8 @@ def _display_scale(unit: str, values: np.ndarray) -> tuple[float, str]:
     prefixed = power in (_LENGTH_POWERS if unit in ("m", "mm") else _PREFIXES)
     if unit in _PREFIXED and prefixed:
         return 10.0 ** power / base_factor, f"{_PREFIXES[power]}{_PREFIXED[unit]}"
+    if unit in ("m", "mm") and power < min(_LENGTH_POWERS):
+        return 1e-3 / base_factor, "mm"           # tiny lengths: mm with their own digits (3.5e-07)
     if -3 <= math.log10(largest) < 4:
         return 1.0, unit
     return 10.0 ** power / base_factor, f"1e{power} {_PREFIXED.get(unit, unit)}".strip()
@@ -624,9 +627,8 @@ def _plain_ticks(axis) -> None:
     are already in a unit that suits them, see :func:`_display_scale`)."""
     import matplotlib.ticker as mticker
     axis.set_major_locator(mticker.MaxNLocator(4))
-    formatter = mticker.ScalarFormatter(useOffset=False)
-    formatter.set_scientific(False)
-    axis.set_major_formatter(formatter)
+    # each label carries its own digits: 0.25, 1200, or 3.5e-07 for a tiny length in mm (no offset, no "1e-7" apart)
+    axis.set_major_formatter(mticker.FuncFormatter(lambda v, _: "0" if v == 0 else f"{v:.4g}"))
 
 
 def _figures(table: _Table, summary: SweepSummary, out: Path, formats) -> list[tuple[list[Path], str]]:

@@ -233,6 +233,25 @@ def _check_inertia(name: str, mass: float, inertia: np.ndarray) -> None:
                            f"{eig.tolist()} kg m^2; it must be positive semi-definite")
 
 
+def tool_frame_id(model, name: str) -> int:
+    """The index of the frame ``name`` in a pinocchio model; where a link and a joint share the name, the link's.
+
+    URDF places a link's frame at the joint that carries it, so the link (pinocchio ``BODY``) frame and the frame
+    of its parent joint of the same name are one place: the link's is taken, and the choice changes no number.
+    Any other ambiguity (two links of one name, or a name two joints share) raises :class:`UnknownFrameError`.
+    """
+    pin = _pinocchio()
+    matches = [k for k, f in enumerate(model.frames) if f.name == name]
+    if len(matches) == 1:
+        return matches[0]
+    links = [k for k in matches if model.frames[k].type == pin.FrameType.BODY]
+    if len(links) == 1:
+        return links[0]
+    kinds = ", ".join(str(model.frames[k].type).rsplit(".", 1)[-1].lower() for k in matches)
+    raise UnknownFrameError(f"tool frame {name!r} names {len(matches)} frames of the model ({kinds}) and not exactly "
+                            "one link: rename one in the URDF")
+
+
 def chain_from_pinocchio(model, tool_frame: str, gravity=None) -> tuple[ChainParams, tuple, tuple]:
     """The :class:`ChainParams` of a pinocchio model (fixed base, 1-DOF joints) with the tool at ``tool_frame``.
 
@@ -285,7 +304,7 @@ def chain_from_pinocchio(model, tool_frame: str, gravity=None) -> tuple[ChainPar
             raise UrdfError(f"gravity {gravity!r} must be a finite 3-vector in m/s^2 in the base frame "
                             "(default (0, 0, -9.81))")
         g = _vec(g)
-    frame = model.frames[model.getFrameId(tool_frame)]
+    frame = model.frames[tool_frame_id(model, tool_frame)]
     chain = ChainParams(names=tuple(names), kinds=tuple(kinds), parents=tuple(parents), rotations=tuple(rotations),
                         translations=tuple(translations), axes=tuple(axes), masses=tuple(masses),
                         coms=tuple(coms), com_inertias=tuple(inertias), gravity=g,

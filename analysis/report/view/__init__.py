@@ -69,10 +69,11 @@ class ReportView:
     linear: LinearSection
     bandwidth: BandwidthSection
     design: DesignSection
-    frequency: FrequencySection
+    frequency: FrequencySection | None
     studies: StudiesSection
     digital: DigitalSection | None = None
     extra_sections: list[str] = field(default_factory=list)
+    not_done_frequency: str = ""
 
 
 def regenerate_command(source: str, settings: AnalysisSettings, quick: bool | None = None) -> str:
@@ -142,4 +143,6 @@ def build_view(result, experiment: dict, scenario, figure_files: dict,
         frequency=frequency_section(result, scenario, figure_files),
         studies=studies_section(result, scenario, figure_files),
         digital=digital_section(result, figure_files, arm_joints(scenario)),
-        extra_sections=list(extra_sections))
+        extra_sections=list(extra_sections),
+        not_done_frequency=next((line for line in getattr(result, "not_done", ()) if line.startswith("frequency")),
+                                ""))

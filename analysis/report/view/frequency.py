@@ -50,8 +50,23 @@ def _frequency_reading(fr, stable: bool, arm: JointSpace = RRPR_JOINTS) -> str:
     return text
 
 
-def frequency_section(result, scenario, files: dict) -> FrequencySection:
+def _band(low: float, high: float | None) -> str:
+    """A -3 dB band in words: "below 3.2", "above 2.639", "2.1 to 7.5" or "every frequency" (rad/s).
+
+    Examples
+    --------
+    >>> _band(2.639, None), _band(0.0, 3.2), _band(2.1, 7.5), _band(0.0, None)
+    ('above 2.639', 'below 3.2', '2.1 to 7.5', 'every frequency')
+    """
+    if high is None:
+        return "every frequency" if low <= 0 else f"above {fmt(low, 4)}"
+    return f"below {fmt(high, 4)}" if low <= 0 else f"{fmt(low, 4)} to {fmt(high, 4)}"
+
+
+def frequency_section(result, scenario, files: dict) -> FrequencySection | None:
     fr = result.frequency
+    if fr is None:            # not computed for this arm: the summary says why
+        return None
     rows = []
     for key, title in (("tracking_with_dob", "e, with observer"), ("tracking_without_dob", "e, without observer"),
                        ("estimation_with_dob", "d - d_hat, with observer")):
@@ -62,7 +77,7 @@ def frequency_section(result, scenario, files: dict) -> FrequencySection:
             dc = m.dc_gain if abs(m.dc_gain) > 1e-9 * m.peak_gain else 0.0     # rounding noise shown as 0
             peak_at = "inf" if m.peak_rad_s is None else ("0 (DC)" if m.peak_rad_s == 0 else fmt(m.peak_rad_s, 4))
             rows.append([title, arm_joints(scenario).labels[i], fr.units[unit_key][i], fmt(dc, 4), fmt(m.peak_gain, 4), peak_at,
-                         m.kind, f"{fmt(band[0], 4)} to {'inf' if band[1] is None else fmt(band[1], 4)}"])
+                         m.kind, _band(band[0], band[1])])
         rows.append([title, "closed form", "", "", "", "", "largest relative difference",
                      fmt(data.closed_form_max_rel_error, 2)])
     stable = result.operating_points[0].largest_real_part(True) < 0

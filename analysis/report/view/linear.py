@@ -87,8 +87,8 @@ def _smallest_damping(poles) -> float:
 def _mismatch_reading(mm, perfect_model: bool) -> str:
     sw = mm.with_dob.sweep
     factors = sw.factors
-    slow = [min(_decays(poles)) for poles in sw.poles]
-    damp = [_smallest_damping(poles) for poles in sw.poles]
+    slow = [min(_decays(poles)) if poles else float("nan") for poles in sw.poles]
+    damp = [_smallest_damping(poles) if poles else float("nan") for poles in sw.poles]
     picks = sorted({0, len(factors) - 1} | ({factors.index(1.0)} if 1.0 in factors else set()),
                    key=lambda k: factors[k])
     text = ("With the observer, the slowest mode decays at "
@@ -135,6 +135,9 @@ def linear_section(result, scenario, files: dict) -> LinearSection:
     for observer, title in ((True, "with observer"), (False, "without observer")):
         sweep = mm.loop(observer).sweep
         for a, alpha, poles in zip(sweep.factors, sweep.spectral_abscissa, sweep.poles):
+            if not poles:       # the arm has no resting position near q0 at this factor: no poles to speak of
+                rows.append([title, fmt(a, 4), "no rest near q0", "", "", ""])
+                continue
             rows.append([title, fmt(a, 4), fmt(alpha, 5), fmt(min(_decays(poles)), 4), fmt(max(_decays(poles)), 4),
                          fmt(_smallest_damping(poles), 4)])
         stability.append(Paragraph(stability_text(mm.loop(observer).boundaries, "the held loop", perfect, prefix=""),

@@ -151,11 +151,29 @@ def figure8_caption(experiment: dict, scenario) -> str:
     return caption + "."
 
 
+def _one_notation(columns: list) -> list[list[str]]:
+    """Columns of numbers written in one notation for the whole table: scientific for every number when any one
+    needs it (a table of 1.611e-04 beside 0.000233 reads as two kinds of number), else fixed.
+
+    Examples
+    --------
+    >>> _one_notation([[0.0001611, 0.25], [0.0000233, 1.5]])
+    [['1.611e-04', '2.500e-01'], ['2.330e-05', '1.500e+00']]
+    >>> _one_notation([[0.339, 0.25], [1.5, None]])
+    [['0.339', '0.25'], ['1.5', '-']]
+    """
+    flat = column([v for values in columns for v in values])
+    out, k = [], 0
+    for values in columns:
+        out.append(flat[k:k + len(values)])
+        k += len(values)
+    return out
+
+
 def _table_3_layout(numbers: list, joints: JointSpace) -> Table:
     """The paper's Table 3 layout: one column per joint, a row of units under the position and the force rows."""
     n = joints.count
-    # one notation per joint column (a column of 1.613e-04 and 0.0001613 reads as two kinds of number)
-    columns = [column([values[j] for _, values in numbers]) for j in range(n)]
+    columns = _one_notation([[values[j] for _, values in numbers] for j in range(n)])
     text = [[name] + [columns[j][k] for j in range(n)] for k, (name, _) in enumerate(numbers)]
     rows = text[:4] + [["  units"] + [f"({u})" for u in joints.position_units]]
     if len(text) > 4:
@@ -166,7 +184,7 @@ def _table_3_layout(numbers: list, joints: JointSpace) -> Table:
 def _joint_rows(numbers: list, joints: JointSpace) -> Table:
     """Table 3 turned for any arm: one row per joint with its units, one column per metric."""
     n = joints.count
-    columns = [column(values) for _, values in numbers]          # one notation per metric column
+    columns = _one_notation([values for _, values in numbers])
     header = ["joint", "position unit"] + [name for name, _ in numbers[:4]]
     if len(numbers) > 4:
         header += ["force unit", numbers[4][0]]

@@ -1,8 +1,8 @@
 """The summary for the surgical team: short statements computed from the numbers.
 
 Each statement leads with plain words and millimetres (what the tool tip
-does, how long the observer takes); the notation (``M^-1 d / Kp``, ``d_hat``,
-poles) comes after, in parentheses or a second sentence.  A statement is only
+does, how long the observer takes) and per-second rates; control notation (poles, ``M^-1 d / Kp``,
+``d_hat``) stays in the numbered sections, a gain's name at most in parentheses.  A statement is only
 made where the numbers support it.
 """
 from __future__ import annotations
@@ -43,6 +43,15 @@ def _tool_tip(experiment: dict) -> str | None:
             f"{fmt(wo['rms_tool_position_error_mm'], 3)} mm).")
 
 
+def _growth(rate: float) -> str:
+    """How an unstable held arm's error grows, in words, from the largest pole real part ``rate`` (1/s, >= 0).
+
+    >>> _growth(0.5), _growth(0.0)
+    ('error grows by a factor e every 2 s', 'error does not die out')
+    """
+    return f"error grows by a factor e every {fmt(1 / rate, 3)} s" if rate > 0 else "error does not die out"
+
+
 def _held_offset(result, scenario) -> str:
     op = result.operating_points[0]
     d = np.asarray(op.disturbance_at_rest, dtype=float)
@@ -61,18 +70,19 @@ def _held_offset(result, scenario) -> str:
                  "axis)") if is_paper_arm(scenario) else ""
         text += (f"Held still at the start of the path against the disturbance, the tool tip without the observer "
                  f"settles {fmt(offset, 3)} mm from its target{depth} and stays there as long as the disturbance "
-                 "acts; a larger Kp shrinks that offset and Kd does not change it (it is M^-1 d / Kp).")
+                 "acts; a stiffer position control (larger Kp) shrinks that offset in proportion, more damping "
+                 "(Kd) does not change it.")
         scale = offset
     else:
-        text += (f"Held still at the start of the path, the loop without the observer is unstable (largest pole real "
-                 f"part {fmt(op.largest_real_part(False), 4)} rad/s).")
+        text += (f"Held still at the start of the path, the arm without the observer does not stay put: a small "
+                 f"{_growth(op.largest_real_part(False))} (section 3).")
         scale = 1.0
     if op.largest_real_part(True) >= 0:
-        return text + (f" With the observer the held loop is unstable there too (largest pole real part "
-                       f"{fmt(op.largest_real_part(True), 4)} rad/s).")
+        return text + (f" With the observer it does not stay put there either: a small "
+                       f"{_growth(op.largest_real_part(True))} (section 3).")
     offset_w = _tool_offset_mm(op.q_equilibrium_with_dob, op.q0, scenario.robot)
     if offset_w <= ZERO_REL * max(scale, 1e-3):
-        return text + " With the observer the tool tip comes back onto its target (section 6: zero DC gain)."
+        return text + " With the observer the tool tip comes back onto its target (section 6)."
     return text + f" With the observer it rests {fmt(offset_w, 3)} mm from its target."
 
 
@@ -80,25 +90,49 @@ def _speed(result, scenario) -> str:
     slow = result.observer_bandwidth.slowest_rad_s
     pd = result.operating_points[0].pd_slowest_analytic_rad_s()
     text = (f"The observer needs {span(1 / slow.max, 1 / slow.min)} s (its slowest time constant) to learn a new "
-            "disturbance; until then part of the disturbance still moves the tool. That is its slowest mode, "
-            f"{fmt(slow.min, 3)} to {fmt(slow.max, 3)} rad/s across the workspace, which moves "
-            f"{mode_text(slow.direction_at_min)}. ")
+            "disturbance; until then part of the disturbance still moves the tool. Its slowest rate is "
+            f"{fmt(slow.min, 3)} to {fmt(slow.max, 3)} per second across the workspace, slowest for a disturbance "
+            f"on {mode_text(slow.direction_at_min)}. ")
     if slow.max < pd:
-        text += (f"It is {fmt(pd / slow.max, 3)} to {fmt(pd / slow.min, 3)} times slower than the position loop "
-                 f"(slowest pole of the PD error dynamics s^2 + Kd s + Kp: {fmt(pd, 3)} rad/s): the observer, not Kp "
-                 "and Kd, limits how fast a disturbance is rejected.")
+        text += (f"It is {fmt(pd / slow.max, 3)} to {fmt(pd / slow.min, 3)} times slower than the position control "
+                 f"(which pulls the tool back at {fmt(pd, 3)} per second at the slowest): the observer, not the "
+                 "position control's stiffness, limits how fast a disturbance is rejected.")
     elif slow.min > pd:
-        text += (f"It is faster than the position loop everywhere (slowest pole of the PD error dynamics "
-                 f"s^2 + Kd s + Kp: {fmt(pd, 3)} rad/s): Kp and Kd, not the observer, limit how fast a disturbance "
-                 "is rejected.")
+        text += (f"It is faster than the position control everywhere (which pulls the tool back at {fmt(pd, 3)} "
+                 "per second at the slowest): the position control's stiffness, not the observer, limits how fast a "
+                 "disturbance is rejected.")
     else:
-        text += (f"The position loop's slowest pole (PD error dynamics s^2 + Kd s + Kp: {fmt(pd, 3)} rad/s) lies "
-                 "inside that range: in part of the workspace the observer is the slower of the two.")
+        text += (f"The position control pulls the tool back at {fmt(pd, 3)} per second at the slowest, inside "
+                 "that range: in part of the workspace the observer is the slower of the two.")
     caveats = split_caveats(result, scenario, observer=True)
     if caveats:
-        text += (f" Both are rates of the perfect-model analysis; here {and_words(caveats)}, so the linearized "
-                 "loop's modes differ (section 3).")
+        text += (f" Both rates assume the controller knows the arm exactly; here {and_words(caveats)}, so the "
+                 "actual rates differ somewhat (section 3).")
     return text
+
+
+def _rate_along_path(result, scenario) -> str | None:
+    """Why a scenario's ``observer_bandwidth`` can learn a disturbance slowly on its path (plain words).
+
+    ``observer_bandwidth = w`` makes the gain ``Y = w M^(q0)``: every observer rate is ``w`` at the start of the
+    path and only there, since ``Y M^-1(q)`` changes with the arm's inertia.  Where the path takes the arm to
+    a configuration of larger inertia (a base joint with the arm stretched out), the slowest rate falls;
+    four time constants (98 %) of that rate is how long learning a disturbance takes there.
+    """
+    gains = getattr(scenario, "user_data", {}).get("gains", {})
+    at = getattr(result.observer_bandwidth, "along_trajectory", None)
+    if "observer_bandwidth" not in gains or at is None:
+        return None
+    w = float(gains["observer_bandwidth"])
+    if not at.min < 0.5 * w:
+        return None
+    k = int(np.argmin(at.slowest_rad_s))
+    return (f"The scenario's observer_bandwidth sets the observer's rate to {fmt(w, 3)} per second at the start of "
+            f"the path only (the gain is scaled to the arm's inertia there). Along the path the inertia changes and "
+            f"the slowest rate falls to {fmt(at.min, 3)} per second (t = {fmt(at.time[k], 3)} s, a disturbance on "
+            f"{mode_text(at.direction_at_min)}), so learning a disturbance there takes up to "
+            f"{fmt(4.0 / at.min, 2)} s; a gain designed over the whole workspace (section 5) keeps every rate at "
+            f"or above its target.")
 
 
 def _design(result, joints) -> str | None:
@@ -121,14 +155,15 @@ def _design(result, joints) -> str | None:
                 f"{took(new)} to get within {pct} % of the disturbance, against {took(base)} with the scenario's "
                 "gain.")
     cert = design.certificate_designed
-    text += f" (The designed matrix gain's slowest mode is {fmt(design.slowest_rad_s, 3)} rad/s on the whole workspace grid"
+    text += (f" (With the designed gain the observer learns at {fmt(design.slowest_rad_s, 3)} per second or faster "
+             "anywhere in the workspace")
     if cert.holds:
-        text += (f"; on a perfect model and for slowly varying disturbances its estimation error is certified to "
-                 f"decay at {fmt(cert.beta_min_rad_s, 3)} rad/s or faster for joint speeds up to "
-                 f"{join(design.speed_bound, 3)} ({units_list(joints.velocity_units)}).)")
+        text += (f"; if the controller knew the arm exactly, and for disturbances that change slowly, its error is "
+                 f"guaranteed to shrink at {fmt(cert.beta_min_rad_s, 3)} per second or faster while the joints move "
+                 f"no faster than {join(design.speed_bound, 3)} ({units_list(joints.velocity_units)}).)")
     else:
-        text += (f"; no decay rate could be certified for joint speeds up to {join(design.speed_bound, 3)} "
-                 f"({units_list(joints.velocity_units)}): the condition fails at q = [{join(cert.q_at, 3)}].)")
+        text += (f"; no such guarantee holds for joint speeds up to {join(design.speed_bound, 3)} "
+                 f"({units_list(joints.velocity_units)}): it fails at the joint positions [{join(cert.q_at, 3)}].)")
     return text
 
 
@@ -189,8 +224,8 @@ def _gains(result) -> str | None:
         text += f"; with the observer it settles in {span(min(settled), max(settled))} s"
     if len(settled) < len(ok_w):
         text += f" ({len(ok_w) - len(settled)} of {len(ok_w)} gain pairs not settled within the run)"
-    return text + (f" (Kp = {join(g_w.kp)} 1/s^2, Kd = {join(g_w.kd)} 1/s, {fmt(g_w.t_final_s)} s runs; settling "
-                   "time as defined in section 7).")
+    return text + (f" (over the position-control stiffnesses and dampings of section 7, runs of "
+                   f"{fmt(g_w.t_final_s)} s; settling time as defined there).")
 
 
 def plain_summary(result, experiment: dict, scenario) -> list[str]:
@@ -205,6 +240,9 @@ def plain_summary(result, experiment: dict, scenario) -> list[str]:
     """
     joints = arm_joints(scenario)
     lines = [_tool_tip(experiment), worse_with_observer_short(experiment, joints), _held_offset(result, scenario),
-             _speed(result, scenario), _design(result, joints), _noise(result, joints), _robustness(result, scenario),
+             _speed(result, scenario), _rate_along_path(result, scenario), _design(result, joints),
+             _noise(result, joints), _robustness(result, scenario),
              _gains(result)]
+    # what could not be computed for this arm, one line each, with the reason (the rest of the report stands)
+    lines += [f"Not computed for this arm: {line}" for line in getattr(result, "not_done", ())]
     return [line for line in lines if line]
