@@ -14,6 +14,8 @@ drives it and the estimate.
 """
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from ..budget import BudgetError, Estimate, format_bytes
@@ -34,10 +36,15 @@ from ..systems import signal_names
 from .device import GPU_MEMORY_VARIABLE, cuda_or_none, cuda_unavailable_reason, device_free_bytes, device_name
 from .module import cuda_module, gpu_program_reason
 
-__all__ = ["run_cuda_batch", "estimate_gpu_batch", "gpu_batch_reason", "THREADS_PER_BLOCK"]
+__all__ = ["run_cuda_batch", "estimate_gpu_batch", "gpu_batch_reason", "THREADS_PER_BLOCK", "last_timings"]
 
 #: Threads of a block (members per block): the prototype's measured best on an H200 for the paper's loop.
 THREADS_PER_BLOCK = 128
+
+#: Wall seconds of the last :func:`run_cuda_batch` by phase (for benchmarks/bench_gpu.py): ``setup`` (the members'
+#: numbers, start states, bounds and the shared tables, on the CPU), ``device`` (transfers in, the kernel -- with its
+#: compile on a first launch --, transfers out), ``device_memory`` (bytes estimated on the device).
+last_timings: dict = {}
 
 
 def gpu_batch_reason(v, engine: CompiledLoopEngine | None = None) -> str | None:
@@ -103,6 +110,7 @@ def run_cuda_batch(v, members, observer: bool, metrics: tuple, signals: tuple, t
     reason = gpu_batch_reason(v)
     if reason is not None:
         raise CompiledUnavailable(f"engine='cuda' cannot run this batch: {reason}")
+    started = time.perf_counter()
     cuda = cuda_or_none()
     loop = members.loop
     engine = CompiledLoopEngine(loop) if engine is None else engine
@@ -168,6 +176,7 @@ def run_cuda_batch(v, members, observer: bool, metrics: tuple, signals: tuple, t
             estimate, estimate.memory_key, "memory")
 
     # members last on the device (coalesced reads and writes)
+    on_device = time.perf_counter()
     put = lambda a: cuda.to_device(np.ascontiguousarray(a))             # noqa: E731
     d_sum, d_max, d_final = (cuda.device_array((n_rows, N)) for _ in range(3))
     d_failed_at = put(np.full(N, np.nan))
@@ -183,6 +192,10 @@ def run_cuda_batch(v, members, observer: bool, metrics: tuple, signals: tuple, t
     sum_sq, max_abs, final = (d.copy_to_host().T for d in (d_sum, d_max, d_final))
     failed_at = d_failed_at.copy_to_host()
     failed_x = d_failed_x.copy_to_host().T
+    Y = np.moveaxis(d_Y.copy_to_host(), 2, 0) if n_keep else None             # (N, n_grid, n_keep)
+    last_timings.clear()
+    last_timings.update(setup=on_device - started, device=time.perf_counter() - on_device,
+                        device_memory=estimate.memory)
 
     counts = np.zeros((N, 2), dtype=np.int64)
     counts[:, 0] = times.size - 1
@@ -195,7 +208,6 @@ def run_cuda_batch(v, members, observer: bool, metrics: tuple, signals: tuple, t
         value[failed] = np.nan
     kept = {}
     if n_keep:
-        Y = np.moveaxis(d_Y.copy_to_host(), 2, 0)                           # (N, n_grid, n_keep)
         for name in signals:
             kept[name] = Y[:, :, at[name]].copy()
             kept[name][failed] = np.nan
