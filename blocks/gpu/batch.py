@@ -22,6 +22,7 @@ from ..budget import BudgetError, Estimate, format_bytes
 from ..compiled.batch import (
     _GROUP_OF,
     _metrics,
+    _noise_tables,
     batch_unavailable_reason,
     member_start_states,
     member_theta,
@@ -57,7 +58,7 @@ def gpu_batch_reason(v, engine: CompiledLoopEngine | None = None) -> str | None:
 
 
 def estimate_gpu_batch(members: int, steps: int, grid_points: int, kept: int, *, states: int, numbers: int,
-                       sources: int, rows: int, shared: int) -> Estimate:
+                       sources: int, rows: int, shared: int, table: int = 0, tables: int = 0) -> Estimate:
     """Device memory (bytes) of a GPU batch: every array :func:`run_cuda_batch` puts on the device.
 
     Parameters
@@ -73,12 +74,16 @@ def estimate_gpu_batch(members: int, steps: int, grid_points: int, kept: int, *,
     states, numbers, sources, rows, shared : int
         The loop's states, its ``theta`` numbers per member, its sources, its metric rows and its shared values
         per grid point (``aux``).
+    table, tables : int
+        Numbers of one noise table, and how many tables go to the device (one per member with its own noise, one
+        when all share the loop's, 0 without noise).
 
     Returns
     -------
     Estimate
         With parts ``the step schedule`` (key ``simulation.output_step``), ``the members' numbers`` (key
-        ``batch.size``) and ``the kept signals`` (key ``signals``).
+        ``batch.size``), ``the kept signals`` (key ``signals``) and ``the noise tables`` (key
+        ``noise.sample_period``).
     """
     members, times = int(members), int(steps) + 1
     parts = {
@@ -86,12 +91,14 @@ def estimate_gpu_batch(members: int, steps: int, grid_points: int, kept: int, *,
         + 8 * (64 + 4 * max(rows, 1)),
         "the members' numbers": 8 * members * (max(numbers, 1) + 3 * states + 1 + 3 * max(rows, 1)),
         "the kept signals": 8 * members * int(grid_points) * int(kept),
+        "the noise tables": 8 * (int(table) * int(tables) + members),
     }
     reasons = {"the step schedule": f"{times - 1:.3g} steps shared by every run",
                "the members' numbers": f"{members} runs of {numbers} numbers and {states} states",
-               "the kept signals": f"{kept} numbers at {grid_points:.3g} points for {members} runs"}
+               "the kept signals": f"{kept} numbers at {grid_points:.3g} points for {members} runs",
+               "the noise tables": f"{tables} tables of {table:.3g} numbers"}
     keys = {"the step schedule": "simulation.output_step", "the members' numbers": "batch.size",
-            "the kept signals": "signals"}
+            "the kept signals": "signals", "the noise tables": "noise.sample_period"}
     return Estimate(memory=int(sum(parts.values())), steps=int(steps), parts=parts, keys=keys, reasons=reasons)
 
 
@@ -165,8 +172,18 @@ def run_cuda_batch(v, members, observer: bool, metrics: tuple, signals: tuple, t
     n_keep = keep.size + keep_rows.size
     n_rows = max(program.n_rows, 1)
 
+    # the noise: each member's own table (member_ext reads row table_row[m]), or the loop's for all, or none
+    tables_of, zero_table = _noise_tables(v, engine)
+    if tables_of:
+        tables = np.stack([zero_table if t is None else t for t in tables_of])
+        table_row = np.arange(N, dtype=np.int64)
+    else:
+        tables = engine.ext[program.tables[0]][None] if program.tables else np.zeros((1, 1, 1))
+        table_row = np.zeros(N, dtype=np.int64)
     estimate = estimate_gpu_batch(N, times.size - 1, n_grid, n_keep, states=engine.nstates, numbers=theta.shape[1],
-                                  sources=n_src, rows=n_rows, shared=aux.shape[1])
+                                  sources=n_src, rows=n_rows, shared=aux.shape[1],
+                                  table=tables[0].size if program.tables else 0,
+                                  tables=tables.shape[0] if program.tables else 0)
     free = device_free_bytes()
     if estimate.memory > free:
         raise BudgetError(
@@ -182,11 +199,16 @@ def run_cuda_batch(v, members, observer: bool, metrics: tuple, signals: tuple, t
     d_failed_at = put(np.full(N, np.nan))
     d_failed_x = cuda.device_array((engine.nstates, N))
     d_Y = cuda.device_array((n_grid, n_keep, N) if n_keep else (1, 1, 1))
+    d_tables = put(tables)
+    # the called kernels' parameters are not read on the device (the sources are tabulated): a stand-in each, the
+    # table where the generated code reads one (member_ext puts each member's in its place)
+    dummy = put(np.zeros(1))
+    ext = tuple(d_tables[0] if e in program.tables else dummy for e in range(len(engine.ext))) or (dummy,)
     threads = min(THREADS_PER_BLOCK, N)
     blocks = (N + threads - 1) // threads
     module.rk4_members[blocks, threads](
-        put(times), put(grid_index), put(src_at), put(src_mid), put(aux), put(X0.T), put(theta.T), put(np.zeros(1)),
-        put(flags), put(keep), put(keep_rows), n_grid - 1, put(bound), d_Y, d_sum, d_max, d_final, d_failed_at,
+        put(times), put(grid_index), put(src_at), put(src_mid), put(aux), put(X0.T), put(theta.T), ext, (d_tables,),
+        put(table_row), put(flags), put(keep), put(keep_rows), n_grid - 1, put(bound), d_Y, d_sum, d_max, d_final, d_failed_at,
         d_failed_x)
     cuda.synchronize()
     sum_sq, max_abs, final = (d.copy_to_host().T for d in (d_sum, d_max, d_final))

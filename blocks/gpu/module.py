@@ -13,8 +13,8 @@ a kernel or to the interconnection reaches the GPU as it reaches the CPU.
 
 Only what the device can run is taken: every block the right-hand side
 evaluates must be traced into statements (a block called as its numba-compiled
-kernel runs on the CPU only), and no block may read a table (the members'
-noise tables stay on the CPU engines).  Source blocks may be called kernels:
+kernel runs on the CPU only); one table (the measurement noise, each member's
+own) goes to the device, read where the trace reads it.  Source blocks may be called kernels:
 the sources are tabulated on the CPU at the step times and mid points, once for
 all members, as the CPU batch does.
 """
@@ -46,9 +46,8 @@ def gpu_program_reason(program) -> str | None:
     if called:
         return (f"block(s) {', '.join(repr(c) for c in called)} could not be traced into statements (they are called "
                 f"as compiled CPU kernels), so the loop cannot run on the GPU; engine='compiled' runs it")
-    if program.tables:
-        return ("the loop reads a table (measurement noise): tables are not carried to the GPU; run noisy members "
-                "with engine='compiled'")
+    if len(program.tables) > 1:
+        return "the loop has more than one table parameter; the GPU batch carries one (the measurement noise)"
     return None
 
 

@@ -104,19 +104,22 @@ def d_rint(x):
     return f
 
 
-def rk4_members(times, grid_index, src_at, src_mid, aux, X0, theta, ext, flags, keep, keep_rows, last_grid, bound,
-                Y, sum_sq, max_abs, final, failed_at, failed_x):
+def rk4_members(times, grid_index, src_at, src_mid, aux, X0, theta, ext, tables, table_row, flags, keep, keep_rows,
+                last_grid, bound, Y, sum_sq, max_abs, final, failed_at, failed_x):
     """Fixed-step RK4 of member ``m = cuda.grid(1)`` on the shared schedule ``times``.
 
     As ``rk4_batch`` of :mod:`blocks.compiled.dopri`, with members last:
     ``X0``, ``bound``, ``failed_x`` (states, N), ``theta`` (numbers, N),
     ``sum_sq``, ``max_abs``, ``final`` (rows, N), ``Y`` (grid points, kept,
     N) and ``failed_at`` (N).  ``src_at``/``src_mid`` (step times / mid
-    points, sources) and ``aux`` (grid points, shared values) are shared.
+    points, sources) and ``aux`` (grid points, shared values) are shared;
+    member ``m`` reads its table (noise) from ``tables[0][table_row[m]]``
+    through the generated ``member_ext``.
     """
     m = cuda.grid(1)
     if m >= X0.shape[1]:
         return
+    e = member_ext(ext, tables, table_row[m])
     x = cuda.local.array(N_STATES, float64)
     k1 = cuda.local.array(N_STATES, float64)
     k2 = cuda.local.array(N_STATES, float64)
@@ -157,7 +160,7 @@ def rk4_members(times, grid_index, src_at, src_mid, aux, X0, theta, ext, flags, 
                 for i in range(N_STATES):
                     failed_x[i, m] = x[i]
                 break
-            loop_rhs_rows(t0, x, th, src_at[k], ext, work, aux[g], flags, k1, rows)
+            loop_rhs_rows(t0, x, th, src_at[k], e, work, aux[g], flags, k1, rows)
             for r in range(N_ROWS):
                 v = rows[r]
                 ss[r] += v * v
@@ -167,25 +170,25 @@ def rk4_members(times, grid_index, src_at, src_mid, aux, X0, theta, ext, flags, 
                 if g == last_grid:
                     fi[r] = v
             if n_keep > 0 or n_keep_rows > 0:
-                loop_outputs_rows(t0, x, th, src_at[k], ext, work, aux[g], flags, y, rows_kept)
+                loop_outputs_rows(t0, x, th, src_at[k], e, work, aux[g], flags, y, rows_kept)
                 for r in range(n_keep):
                     Y[g, r, m] = y[keep[r]]
                 for r in range(n_keep_rows):
                     Y[g, n_keep + r, m] = rows_kept[keep_rows[r]]
         elif k < last:
-            loop_rhs(t0, x, th, src_at[k], ext, work, k1)
+            loop_rhs(t0, x, th, src_at[k], e, work, k1)
         if k == last:
             break
         h = times[k + 1] - t0
         for i in range(N_STATES):
             xs[i] = x[i] + (0.5 * h) * k1[i]
-        loop_rhs(t0 + 0.5 * h, xs, th, src_mid[k], ext, work, k2)
+        loop_rhs(t0 + 0.5 * h, xs, th, src_mid[k], e, work, k2)
         for i in range(N_STATES):
             xs[i] = x[i] + (0.5 * h) * k2[i]
-        loop_rhs(t0 + 0.5 * h, xs, th, src_mid[k], ext, work, k3)
+        loop_rhs(t0 + 0.5 * h, xs, th, src_mid[k], e, work, k3)
         for i in range(N_STATES):
             xs[i] = x[i] + h * k3[i]
-        loop_rhs(times[k + 1], xs, th, src_at[k + 1], ext, work, k4)
+        loop_rhs(times[k + 1], xs, th, src_at[k + 1], e, work, k4)
         for i in range(N_STATES):
             x[i] = x[i] + (h / 6.0) * (k1[i] + 2.0 * (k2[i] + k3[i]) + k4[i])
     for r in range(N_ROWS):
