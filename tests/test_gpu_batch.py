@@ -181,3 +181,24 @@ def test_the_gpu_engine_takes_fixed_step_rk4_only():
     from blocks.batch import simulate_batch
     with pytest.raises(ValueError, match="engine='cuda' integrates fixed-step RK4"):
         simulate_batch("paper", [{}], engine="cuda", method="RK45")
+
+
+_TUNE = r"""
+import json
+import numpy as np
+from blocks import load_scenario
+from analysis.tune.evaluate import _simulate_payload
+base = load_scenario("paper").with_changes({"simulation.t_final": 0.05})
+payload = {"records": [{"gains.kp": 120.0}, {"gains.kp": 200.0, "gains.kd": 40.0}], "candidates": 2, "chunk": 0,
+           "metric": "rms_tool_position_error_mm", "substeps": 1, "workers": 1}
+gpu, cpu = (_simulate_payload(base, dict(payload, engine=engine)) for engine in ("cuda", "fast"))
+print(json.dumps({"values": [gpu["values"].tolist(), cpu["values"].tolist()],
+                  "peaks": [gpu["peaks"].tolist(), cpu["peaks"].tolist()]}))
+"""
+
+
+def test_a_tuning_set_runs_its_candidates_on_the_simulated_device_with_the_cpu_batchs_numbers():
+    out = _simulated(_TUNE)
+    (gv, cv), (gp, cp) = out["values"], out["peaks"]
+    assert gv == pytest.approx(cv, rel=RTOL) and min(cv) > 0.5                  # mm: the tool is off the path
+    assert sum(gp, []) == pytest.approx(sum(cp, []), rel=RTOL)                  # peak |tau| from the kept signal
