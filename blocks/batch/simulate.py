@@ -188,8 +188,10 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
         numpy one (contiguous slices, one per process; default one process,
         since a process takes about a second to start); each member's result
         does not depend on its slice.
-    engine : {"auto", "compiled", "fast"}
-        ``compiled`` runs the loop's generated module for every member in
+    engine : {"auto", "compiled", "fast", "cuda"}
+        ``cuda`` runs every member as one GPU thread (:mod:`blocks.gpu`; needs
+        ``dobkit[gpu]`` and a CUDA device; fixed-step RK4 only), never picked
+        by ``auto``.  ``compiled`` runs the loop's generated module for every member in
         parallel (:mod:`blocks.compiled.batch`; needs ``dobkit[fast]``);
         ``fast`` the numpy batch over a member axis; ``auto`` takes
         ``compiled`` when it can run the batch (numba installed; members
@@ -224,8 +226,8 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
         If ``engine="compiled"`` cannot run (numba missing: the message names
         the extra).
     """
-    if engine not in ("auto", "compiled", "fast"):
-        raise ValueError(f"batch engine must be one of ['auto', 'compiled', 'fast'], got {engine!r}")
+    if engine not in ("auto", "compiled", "fast", "cuda"):
+        raise ValueError(f"batch engine must be one of ['auto', 'compiled', 'fast', 'cuda'], got {engine!r}")
     if method not in (None, "RK45", "RK4"):
         raise ValueError(f"batch method must be one of ['RK45', 'RK4'], got {method!r}")
     if isinstance(variants, Variants):
@@ -248,6 +250,9 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
             raise ValueError("signal 'd_hat' needs the observer (observer=True)")
 
     s = v.base
+    if engine == "cuda":                # the GPU batch (blocks.gpu): fixed-step RK4, one thread per member
+        from ..gpu.batch import simulate_gpu_batch
+        return simulate_gpu_batch(v, observer, metrics, tuple(signals), substeps, breakpoints, method, _schedule)
     members, compiled = None, None
     if engine != "fast":
         from ..compiled.batch import auto_batch_reason, batch_unavailable_reason, run_compiled_batch
