@@ -9,11 +9,11 @@ case validating the variants and calling :func:`blocks.batch.simulate_batch`
 (all seven metrics, no signals):
 
 * ``default call``: ``simulate_batch(s, variants)`` -- the compiled engine,
-  each member integrated as its single compiled run (Dormand-Prince 5(4), its
-  own step control), on every core of the machine;
+  fixed-step RK4 on one schedule shared by every member, on every core of the machine;
 * ``workers=k`` for k = 1, 2, ... up to the cores the process may use: the
   scaling curve (speed-up = the one-worker wall time over k workers');
-* ``RK4``: the fixed-step option (``method="RK4"``) on every core;
+* ``RK45``: each member integrated as its single compiled run (``method="RK45"``:
+  Dormand-Prince 5(4), its own step control) on every core;
 * ``set-up``: the same 1000 members of a 0.01 s run (two output steps), so
   nearly all of it is checking the variants and filling the members' rows;
 * ``single compiled run``: ``blocks.simulate(s, engine="compiled")`` of the
@@ -76,13 +76,13 @@ def run(members: int = 1000, repeats: int = 5, scenario: str = "paper", numpy_ba
 
     load_before = os.getloadavg()
     first = batch()                                              # warm-up (loads or compiles); the steps used
-    batch(method="RK4")
+    batch(method="RK45")
     hand_fused(s)
     blocks.simulate(s, engine="compiled")
     cases = {"lean": lambda: hand_fused(s), "default call": batch}
     for k in range(1, cores + 1):
         cases[f"workers={k}"] = lambda k=k: batch(k)
-    cases["RK4"] = lambda: batch(method="RK4")
+    cases["RK45"] = lambda: batch(method="RK45")
     cases["set-up"] = lambda: batch(base=short)
     cases["single compiled run"] = lambda: blocks.simulate(s, engine="compiled")
     repeats_of = {"single compiled run": 5 * repeats}
@@ -117,9 +117,8 @@ def report(r: dict) -> str:
     single = r["lean_runs_cpu"]["single compiled run"]
     curve = ", ".join(f"{k}: {x:.2f}x" for k, x in r["speedup"].items())
     return "\n".join([
-        f"Scenario '{r['scenario']}', {r['members']} variants, each with its own Dormand-Prince steps (mean "
-        f"{r['evaluations_mean']:.0f} right-hand sides, at most {r['steps']} steps), {r['failed']} diverged; fastest "
-        f"of {r['repeats']}; {r['cores']} cores; {r['machine']}",
+        f"Scenario '{r['scenario']}', {r['members']} variants, default call: RK4 on one shared schedule "
+        f"({r['steps']} steps), {r['failed']} diverged; fastest of {r['repeats']}; {r['cores']} cores; {r['machine']}",
         table(["what", "wall min s", "lean runs (wall)", "CPU min s", "lean runs (CPU)"], rows),
         f"scaling (wall time of 1 worker / k workers): {curve}",
         f"default call: {wall:.2f} lean runs by wall time (target <= {t['lean_runs']:g}: {verdict(wall <= t['lean_runs'])}; "
