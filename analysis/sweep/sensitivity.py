@@ -182,7 +182,7 @@ class Sensitivity:
     @classmethod
     def from_record(cls, record: dict) -> Sensitivity:
         """The settings kept in a results header (see :meth:`record`)."""
-        from analysis.sweep.spec import Distribution  # spec reads [sensitivity] with this module
+        from analysis.sweep.distributions import Distribution
         distributions = {k: Distribution(kind=d["kind"], params={p: v for p, v in d.items() if p != "kind"})
                          for k, d in record["distributions"].items()}
         return cls(method=record["method"], samples=int(record["samples"]), seed=int(record["seed"]),

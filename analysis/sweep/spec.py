@@ -72,7 +72,6 @@ Dask, resuming): :mod:`analysis.sweep.runner`.  Summaries and plots:
 """
 from __future__ import annotations
 
-import copy
 import hashlib
 import json
 import math
@@ -87,6 +86,7 @@ import numpy as np
 
 from analysis.jobs.files import json_default
 from analysis.jobs.keys import Key, a_table, failing, read_table, read_top, text, whole
+from analysis.sweep.distributions import DISTRIBUTIONS, Distribution
 from analysis.sweep.sensitivity import DEFAULT_LEVELS, KINDS, METHODS, Sensitivity, run_count, salib, samples_problem
 from blocks.batch import BATCH_KEYS, METRICS, Variants, auto_substeps, fastest_rate
 from blocks.batch.schedule import STEP_LAMBDA, STEPS_PER_PHASE, TISSUE_STEP
@@ -101,9 +101,6 @@ __all__ = ["SweepError", "Distribution", "Run", "RunList", "RunPlan", "SweepSpec
            "PRESENTATION_KEYS"]
 
 ENGINES = ("batch", "fast")
-#: Distribution kinds and their parameters (required, optional).
-DISTRIBUTIONS = {"uniform": (("low", "high"), ()), "normal": (("mean", "std"), ()),
-                 "lognormal": (("mean", "sigma"), ()), "choice": (("values",), ("weights",))}
 #: Memory (bytes) a sweep holds per run while running and summarising: the run's plan entry, its id in
 #: the set of finished runs, its metric columns and swept values in the summary (measured: about 500).
 SWEEP_RUN_BYTES = 1024
@@ -135,27 +132,6 @@ def check_name(name: str, what: str = "'name'") -> str:
         raise SweepError(f"{what} must be a plain file name (letters, digits and _ . + -, starting with a letter "
                          f"or digit, at most 100 characters; no folders), got {name!r}")
     return name
-
-
-@dataclass(frozen=True)
-class Distribution:
-    """A distribution of one uncertain value (see :data:`DISTRIBUTIONS`)."""
-
-    kind: str
-    params: dict
-
-    def draw(self, rng: np.random.Generator, n: int) -> list:
-        """``n`` draws as plain Python values."""
-        p = self.params
-        if self.kind == "uniform":
-            return rng.uniform(p["low"], p["high"], n).tolist()
-        if self.kind == "normal":
-            return rng.normal(p["mean"], p["std"], n).tolist()
-        if self.kind == "lognormal":
-            return rng.lognormal(p["mean"], p["sigma"], n).tolist()
-        weights = p.get("weights")
-        prob = None if weights is None else np.asarray(weights, dtype=float) / np.sum(weights)
-        return [copy.deepcopy(p["values"][i]) for i in rng.choice(len(p["values"]), size=n, p=prob)]
 
 
 @dataclass(frozen=True)

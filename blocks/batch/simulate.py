@@ -257,8 +257,7 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
 
     s = v.base
     if engine == "cuda":                # the GPU batch (blocks.gpu): fixed-step RK4, one thread per member
-        from ..gpu.batch import simulate_gpu_batch
-        return simulate_gpu_batch(v, observer, metrics, tuple(signals), substeps, breakpoints, method, _schedule)
+        return _simulate_on_gpu(v, observer, metrics, tuple(signals), substeps, breakpoints, method, _schedule)
     members, compiled = None, None
     if engine != "fast":
         from ..compiled.batch import auto_batch_reason, batch_unavailable_reason, run_compiled_batch
@@ -334,6 +333,27 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
     values, kept = acc.result(~np.isnan(failed_at))
     return BatchResult(variants=v, observer=observer, time=sim.time_grid, metrics=values, signals=kept,
                        failed_at=failed_at, steps=times.size - 1, substeps=int(substeps), failures=failures)
+
+
+def _simulate_on_gpu(v: Variants, observer: bool, metrics: tuple, signals: tuple, substeps, breakpoints, method,
+                     schedule=None) -> BatchResult:
+    """The batch with ``engine="cuda"``: the members' rows and the shared RK4 schedule made here, the loop run by
+    :func:`blocks.gpu.batch.run_cuda_batch` (the GPU engine knows nothing of variants' checks or results)."""
+    from ..compiled.codegen import CompiledUnavailable
+    from ..gpu.batch import gpu_batch_reason, run_cuda_batch
+    if method not in (None, "RK4"):
+        raise ValueError(f"engine='cuda' integrates fixed-step RK4 on the shared schedule (method='RK4'), got "
+                         f"method={method!r}; each member with its own step control (RK45) runs on engine='compiled'")
+    reason = gpu_batch_reason(v)
+    if reason is not None:
+        raise CompiledUnavailable(f"engine='cuda' cannot run this batch: {reason}")
+    substeps = auto_substeps(v, observer) if substeps is None else substeps
+    times, grid_index = schedule if schedule is not None else batch_schedule(v, substeps, breakpoints)
+    values, kept, failed_at, failures, counts = run_cuda_batch(v, member_rows(v, observer), observer, metrics,
+                                                               signals, times, grid_index)
+    return BatchResult(variants=v, observer=observer, time=v.base.simulation.time_grid, metrics=values, signals=kept,
+                       failed_at=failed_at, steps=int(counts[:, 0].max()), substeps=int(substeps), failures=failures,
+                       method="RK4", evaluations=counts[:, 1])
 
 
 def _simulate_part(job: tuple) -> tuple:

@@ -234,24 +234,3 @@ def run_cuda_batch(v, members, observer: bool, metrics: tuple, signals: tuple, t
             kept[name] = Y[:, :, at[name]].copy()
             kept[name][failed] = np.nan
     return values, kept, failed_at, failures, counts
-
-
-def simulate_gpu_batch(v, observer: bool, metrics: tuple, signals: tuple, substeps, breakpoints, method,
-                       schedule=None):
-    """:func:`blocks.batch.simulate_batch` with ``engine="cuda"``: its checked arguments in, its result out."""
-    from ..batch.rows import member_rows
-    from ..batch.schedule import auto_substeps, batch_schedule
-    from ..batch.simulate import BatchResult
-    if method not in (None, "RK4"):
-        raise ValueError(f"engine='cuda' integrates fixed-step RK4 on the shared schedule (method='RK4'), got "
-                         f"method={method!r}; each member with its own step control (RK45) runs on engine='compiled'")
-    reason = gpu_batch_reason(v)
-    if reason is not None:
-        raise CompiledUnavailable(f"engine='cuda' cannot run this batch: {reason}")
-    substeps = auto_substeps(v, observer) if substeps is None else substeps
-    times, grid_index = schedule if schedule is not None else batch_schedule(v, substeps, breakpoints)
-    values, kept, failed_at, failures, counts = run_cuda_batch(v, member_rows(v, observer), observer, metrics,
-                                                               tuple(signals), times, grid_index)
-    return BatchResult(variants=v, observer=observer, time=v.base.simulation.time_grid, metrics=values, signals=kept,
-                       failed_at=failed_at, steps=int(counts[:, 0].max()), substeps=int(substeps), failures=failures,
-                       method="RK4", evaluations=counts[:, 1])
