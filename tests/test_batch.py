@@ -227,7 +227,7 @@ def test_full_paper_runs_match_single_runs_and_a_tight_reference():
     s = blocks.load_scenario("paper")
     records = [{}] + _monte_carlo_draws(3, seed=2024)
     result = simulate_batch(s, records, signals=("q",), method="RK4")
-    adaptive = simulate_batch(s, records, signals=("q",))
+    adaptive = simulate_batch(s, records, signals=("q",), method="RK45")
     for i in range(len(records)):
         member = result.variants.scenario(i)
         single = signal(blocks.simulate(member), "q").T
