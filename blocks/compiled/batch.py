@@ -6,7 +6,8 @@ run (:mod:`blocks.compiled.codegen`), with its own parameter vector
 (:class:`blocks.batch.rows.MemberRows`) or read from each member's own block
 parameters (:class:`blocks.batch.members.MemberLoop`: the member's blocks made
 as its single run makes them), the reference's from the shared loop.  Members
-with their own measurement noise read their own noise table (``member_ext``).
+with their own measurement noise read their own noise table (``member_ext``),
+the others the base's one table.
 Members run in parallel over ``workers`` threads (numba ``prange``; default
 every core).
 
