@@ -446,3 +446,17 @@ def test_a_cuda_sweep_in_the_cuda_simulator_gives_the_cpu_batch_rows(tmp_path):
     assert out["runs"] == 4 + 4 and out["engines"] == ["cuda"] and out["device"]     # the grid's, Morris' r (k + 1)
     assert out["moves"] > 0                     # the runs differ: the comparison is not of one run
     assert out["worst"] <= 1e-9
+
+
+@pytest.mark.skipif(importlib.util.find_spec("numba_cuda") is None or importlib.util.find_spec("pinocchio") is None,
+                    reason="numba-cuda and pinocchio are needed")
+def test_a_cuda_sweep_of_runs_the_gpu_cannot_batch_is_refused_while_planned():
+    # a URDF arm's nominal model is generated into the loop's code: members of other nominal mass scales cannot
+    # share one kernel, and the sweep says so while its runs are planned, before any run
+    code = ("import json\nfrom analysis.sweep.spec import SweepError, sweep_from_dict\n"
+            "try:\n    sweep_from_dict({'scenario': 'scope4', 'engine': 'cuda', "
+            "'grid': {'arm.nominal_mass_scale': [0.9, 1.1]}})\n"
+            "except SweepError as err:\n    print(json.dumps(str(err)))\n")
+    message = _python(code, env={"NUMBA_ENABLE_CUDASIM": "1"})
+    assert 'engine = "cuda" cannot run run 0' in message and "'arm.nominal_mass_scale' differs" in message
+    assert "\n" not in message

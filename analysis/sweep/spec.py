@@ -734,15 +734,16 @@ def _check_cuda(fail) -> None:
         fail(f"engine = \"cuda\" cannot run here: {reason}; use engine = \"batch\" on the CPU")
 
 
-def _cuda_group_reason(variants: Variants, observer: bool) -> str | None:
-    """Why the GPU cannot run a group's batches (:func:`blocks.gpu.batch.gpu_batch_reason`: one generated code
-    for all members, every block traced), or None; the loop's code is generated, not compiled."""
+def _cuda_group_reason(variants: Variants, observer: bool, program: bool) -> str | None:
+    """Why the GPU cannot run a chunk of a group's runs (:func:`blocks.gpu.batch.gpu_batch_reason`: one generated
+    code for all members; with ``program``, once per group, every block of the loop traced), or None; the loop's
+    code is generated, not compiled."""
     from blocks.batch.members import shared_loop
     from blocks.compiled.codegen import CompiledUnavailable
     from blocks.compiled.engine import CompiledLoopEngine
     from blocks.gpu.batch import gpu_batch_reason
     reason = gpu_batch_reason(variants)
-    if reason is None:
+    if reason is None and program:
         try:
             reason = gpu_batch_reason(variants, CompiledLoopEngine(shared_loop(variants, observer)))
         except CompiledUnavailable as err:
@@ -776,7 +777,7 @@ def _plan_group(spec: SweepSpec, base: Scenario, members: np.ndarray, plan: RunP
             fail(str(err))
         plan.noise[idx] = [nz is not None for nz in variants.noises]
         if spec.engine == "cuda":
-            reason = _cuda_group_reason(variants, spec.observer)
+            reason = _cuda_group_reason(variants, spec.observer, program=start == 0)
             if reason is not None:
                 fail(f"engine = \"cuda\" cannot run run {idx[0]} ({_describe(values[0])}) and its batch: {reason}")
         if spec.substeps is not None:
