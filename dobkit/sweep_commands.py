@@ -99,10 +99,10 @@ def _check_report(spec) -> str:
         lines.append(f"  sensitivity: {sa.method}, " + (f"N = {sa.samples} x (k + 2)" if sa.method == "sobol" else
                                                         f"r = {sa.samples} trajectories of {sa.levels} levels x (k + 1)")
                      + f" = {sa.runs:,} runs for k = {k} values")
-    if spec.engine == "batch":
+    if spec.engine in ("batch", "cuda"):
         classes = ", ".join(f"{n} at {s} substep{'s' if s != 1 else ''}{' with noise' if noisy else ''}"
                             for (s, noisy), n in spec.plan.classes().items())
-        lines.append(f"  batch engine: {len(spec.plan.shared)} shared scenario(s); runs by step: {classes}")
+        lines.append(f"  {spec.engine} engine: {len(spec.plan.shared)} shared scenario(s); runs by step: {classes}")
         largest = spec.plan.largest
         if largest is not None:
             lines.append(f"  largest run: {largest.steps:,} steps (budget {spec.budget.steps:,}); a batch of it alone "

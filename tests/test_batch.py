@@ -227,7 +227,7 @@ def test_full_paper_runs_match_single_runs_and_a_tight_reference():
     s = blocks.load_scenario("paper")
     records = [{}] + _monte_carlo_draws(3, seed=2024)
     result = simulate_batch(s, records, signals=("q",), method="RK4")
-    adaptive = simulate_batch(s, records, signals=("q",))
+    adaptive = simulate_batch(s, records, signals=("q",), method="RK45")
     for i in range(len(records)):
         member = result.variants.scenario(i)
         single = signal(blocks.simulate(member), "q").T
@@ -264,3 +264,85 @@ def _assert_same_params(x, y, where):
             _assert_same_params(a, b, f"{where}[{i}]")
     else:
         np.testing.assert_array_equal(x, y, err_msg=where)
+
+
+@pytest.mark.parametrize("engine", ["fast", "compiled"])
+@pytest.mark.parametrize("own_seed", [False, True])
+def test_members_sharing_the_base_noise_read_its_table(short, engine, own_seed):
+    # Members without a noise of their own read the base's one table (all of them, or beside a member with its
+    # own seed): each equals its single run, measured signals included, and the noise is there (q_meas - q of
+    # the order of q_std), the same for the two members that share it.
+    # a scenario of its own per engine: a loop made for the other engine's batch (cached) is not reused
+    q_std = {"fast": 1e-4, "compiled": 1.2e-4}[engine]
+    s = short.with_changes({"noise.q_std": [q_std] * 4, "simulation.t_final": 0.25})
+    records = [{}, {"gains.kp": 150}] + ([{"noise.seed": 7}] if own_seed else [])
+    result = simulate_batch(s, records, engine=engine, signals=("q", "q_meas"))
+    assert result.ok.all()
+    for i in range(len(records)):
+        _assert_member_matches(result, i)
+        single = blocks.simulate(result.variants.scenario(i))
+        np.testing.assert_allclose(result.signals["q_meas"][i], signal(single, "q_meas").T, rtol=0,
+                                   atol=SHORT_STATE_ATOL)
+    noise = result.signals["q_meas"] - result.signals["q"]
+    assert 2e-5 < np.std(noise[0]) < 5e-4
+    np.testing.assert_allclose(noise[1], noise[0], rtol=0, atol=1e-15)      # one table, read by both
+    if own_seed:
+        assert np.abs(noise[2] - noise[0]).max() > 1e-5                      # its own seed, its own table
+
+
+def test_compiled_noise_chunks_hold_the_tables_their_members_read(short, monkeypatch):
+    # Over NOISE_CHUNK distinct tables the members run in chunks, each with the tables it reads: the numbers do
+    # not depend on the chunking.
+    import blocks.compiled.batch as compiled_batch
+    s = short.with_changes({"noise.q_std": [1e-4] * 4, "simulation.t_final": 0.1})
+    records = [{}, {"noise.seed": 7}, {"gains.kp": 150}, {"noise.seed": 9, "gains.kp": 120}, {}]
+    whole = simulate_batch(s, records, engine="compiled", signals=("q_meas",))
+    monkeypatch.setattr(compiled_batch, "NOISE_CHUNK", 1)
+    chunked = simulate_batch(s, records, engine="compiled", signals=("q_meas",))
+    np.testing.assert_array_equal(chunked.signals["q_meas"], whole.signals["q_meas"])
+
+
+@pytest.fixture(scope="module")
+def bandwidth_base(short):
+    """The short paper scenario with ``gains.observer_bandwidth = 20`` rad/s in place of ``gains.observer``."""
+    from blocks.scenario import scenario_from_dict
+    data = short.user_data | {"gains": {k: v for k, v in short.user_data.get("gains", {}).items() if k != "observer"}}
+    data["gains"]["observer_bandwidth"] = 20.0
+    data["simulation"] = dict(data.get("simulation", {}), t_final=0.25)
+    return scenario_from_dict(data, source="bandwidth")
+
+
+def test_a_member_with_its_own_nominal_model_gets_its_own_bandwidth_gain(bandwidth_base):
+    # Y = omega M^(q0) (q0 the reference's start) of each member's own nominal model, as its single run makes it.
+    # m1 enters M only through k1 = ... + m1 l1^2 (Eq. 5), so scaling the nominal m1 changes Y[0, 0] alone, by
+    # omega (m1' - m1) l1^2.
+    from blocks import RobotParameters
+    b, omega = bandwidth_base, 20.0
+    v = Variants(b, [{}, {"nominal_scale.m1": 1.3}, {"gains.observer_bandwidth": 40.0}])
+    Y = v.y_full
+    q0 = np.asarray(b.trajectory.evaluate(0.0)[0])
+    robot = RobotParameters(**b.data["robot"])
+    nominal = robot.scaled(**(dict(b.data["nominal_scale"]) | {"m1": 1.3}))
+    np.testing.assert_allclose(Y[..., 1], omega * nominal.inertia(q0), rtol=1e-14, atol=1e-12)
+    change = np.zeros((4, 4))
+    change[0, 0] = omega * (nominal.m1 - b.nominal.m1) * robot.l1 ** 2
+    np.testing.assert_allclose(Y[..., 1] - Y[..., 0], change, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(Y[..., 2], 2.0 * Y[..., 0], rtol=1e-14)
+    for i in range(len(v)):
+        np.testing.assert_array_equal(Y[..., i], v.scenario(i).observer_gain)
+
+
+@pytest.mark.parametrize("engine", ["fast", "compiled"])
+def test_bandwidth_members_match_their_single_runs(bandwidth_base, engine):
+    # as records (each member's blocks) and as columns (the compiled batch's rows); the member starting off the
+    # reference (its own q0, so its own Y) is held to the stated STATE_ATOL: its single run's RK45 errs more
+    for records in ([{}, {"nominal_scale.m1": 1.3}, {"initial.q": [0.1, 0.2, 0.05, 0.1]}],
+                    {"nominal_scale.m1": [1.0, 1.3, 0.7, 1.1]}):
+        result = simulate_batch(bandwidth_base, records, engine=engine, signals=("q",))
+        for i in range(len(result)):
+            _assert_member_matches(result, i, state_atol=batch.STATE_ATOL)
+
+
+def test_a_member_setting_both_observer_gains_is_refused_as_its_single_run(bandwidth_base):
+    with pytest.raises(ScenarioError, match="variant 1: .*'gains.observer' .* both set the observer gain"):
+        Variants(bandwidth_base, [{}, {"gains.observer": [1, 2, 3, 4]}])

@@ -117,3 +117,28 @@ def test_the_numpy_batch_takes_no_adaptive_method(short):
         simulate_batch(short, [{}], engine="fast", method="RK45")
     with pytest.raises(ValueError, match="method"):
         simulate_batch(short, [{}], method="Euler")
+
+
+@needs_numba
+def test_rows_with_a_bandwidth_observer_gain_are_traced_and_each_member_is_its_single_run(short):
+    # With gains.observer_bandwidth each member's Y = omega M^(q0) is of its own nominal arm: the rows carry it
+    # (traced from Eq. 5's entries, bit for bit the members' own blocks), and each member equals its single run.
+    from blocks.compiled.batch import _member_theta, auto_batch_reason
+    from blocks.scenario import scenario_from_dict
+    data = short.user_data | {"gains": {k: v for k, v in short.user_data.get("gains", {}).items() if k != "observer"}}
+    data["gains"]["observer_bandwidth"] = 20.0
+    data["simulation"] = dict(data.get("simulation", {}), t_final=0.25)
+    base = scenario_from_dict(data, source="bandwidth")
+    cols = {k: v for k, v in _columns(6).items() if k.startswith("nominal_scale.")}
+    v = Variants(base, cols)
+    rows = member_rows(v, True)
+    assert isinstance(rows, MemberRows)
+    loop = MemberLoop(v, True)
+    _, engine = auto_batch_reason(loop)
+    np.testing.assert_array_equal(rows.theta(engine), _member_theta(engine, loop))
+    result = simulate_batch(base, cols, signals=("q", "d_hat"), method="RK45")
+    for i in (0, 5):
+        single = blocks.simulate(result.variants.scenario(i), engine="compiled")
+        for name in ("q", "d_hat"):
+            np.testing.assert_allclose(result.signals[name][i], signal(single, name).T, rtol=1e-12, atol=1e-12,
+                                       err_msg=f"member {i}, {name}")

@@ -83,6 +83,14 @@ def test_members_with_their_own_measurement_noise_read_their_own_table_on_the_si
 
 
 @needs_numba_cuda
+def test_members_sharing_the_base_noise_read_its_one_table_on_the_simulated_device():
+    # members without a seed of their own read the base's table (one copy on the device), beside one with its own
+    noise = {"noise.q_std": [1e-5, 1e-5, 1e-6, 1e-5], "noise.dq_std": [1e-4, 1e-4, 1e-5, 1e-4]}
+    records = [{}, {"gains.kp": 150.0}, {"noise.seed": 2}]
+    _check_agreement(_simulated(_COMPARE, "paper", 0.05, json.dumps(records), FLOOR, json.dumps(noise)))
+
+
+@needs_numba_cuda
 def test_urdf_arm_scope4_on_the_simulated_device_equals_the_cpu_batch():
     pytest.importorskip("pinocchio")
     records = [{"gains.kp": 120.0}, {"gains.kd": 30.0}]

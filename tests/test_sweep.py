@@ -1,6 +1,7 @@
 """Sweeps: validation before any run, resumable results, agreement of batch, single-run and Dask execution."""
 from __future__ import annotations
 
+import importlib.util
 import io
 import json
 import os
@@ -370,3 +371,92 @@ def test_each_run_is_the_base_file_edited_by_hand(engine):
         assert variants.scenario(0) == by_hand
         np.testing.assert_array_equal(variants.disturbance.f_r[0], by_hand.disturbance.f_r)
         np.testing.assert_array_equal(variants.kp[:, 0], np.diag(by_hand.kp))
+
+
+_CUDA_SWEEP = r"""
+import json, sys
+from pathlib import Path
+import numpy as np
+import blocks
+from analysis.sweep.runner import read_results, run_sweep
+from analysis.sweep.spec import load_sweep
+folder = Path(sys.argv[1])
+short = blocks.load_scenario("paper").replace(simulation={"t_final": 0.05}, trajectory={"duration": 10.0})
+(folder / "short.toml").write_text(short.to_toml(), encoding="utf-8")
+bodies = {"grid": '[grid]\n"gains.kp" = [120, 200]\n"nominal_scale.m1" = [0.9, 1.1]\n',
+          "morris": '[sensitivity]\nmethod = "morris"\nsamples = 2\nseed = 1\n[sensitivity.distributions]\n'
+                    '"gains.kp" = {kind = "uniform", low = 120, high = 200}\n'}
+worst, rows = 0.0, {}
+for kind, body in bodies.items():
+    for engine in ("cuda", "batch"):
+        path = folder / f"{kind}-{engine}.toml"
+        path.write_text(f'scenario = "short.toml"\nengine = "{engine}"\n' + body, encoding="utf-8")
+        run_sweep(load_sweep(path), folder / f"{kind}-{engine}.jsonl", workers=2, progress=False)
+        rows[engine] = rows.get(engine, []) + sorted(read_results(folder / f"{kind}-{engine}.jsonl")[1],
+                                                     key=lambda r: r["index"])
+for a, b in zip(rows["cuda"], rows["batch"]):
+    assert a["values"] == b["values"] and a["status"] == b["status"] == "ok"
+    for name, value in b["metrics"].items():
+        x, y = np.asarray(a["metrics"][name]), np.asarray(value)
+        worst = max(worst, float(np.max(np.abs(x - y) / np.maximum(np.abs(y), 1e-12))))
+from blocks.gpu.batch import last_timings       # filled by each GPU batch: the runs went through the device
+print(json.dumps({"worst": worst, "runs": len(rows["cuda"]), "engines": sorted({r["engine"] for r in rows["cuda"]}),
+                  "device": "device" in last_timings,
+                  "moves": float(np.ptp([r["metrics"]["rms_position_error"][0] for r in rows["cuda"]]))}))
+"""
+
+
+def _python(code: str, *args, env: dict | None = None) -> dict:
+    """``code`` in a fresh interpreter (numba's CUDA target reads its environment once, on import); its last stdout
+    line as JSON."""
+    done = subprocess.run([sys.executable, "-c", code, *map(str, args)], capture_output=True, text=True,
+                          env=dict(os.environ, PYTHONPATH=str(ROOT), **(env or {})), timeout=120, cwd=ROOT)
+    assert done.returncode == 0, done.stderr[-3000:]
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def test_a_cuda_sweep_where_it_cannot_run_is_refused_when_checked_naming_what_is_missing(tmp_path, scenario_file):
+    # before anything else of the file is checked, so before any run: the grid key here is bad too
+    from blocks.gpu.device import cuda_unavailable_reason
+    reason = cuda_unavailable_reason()
+    if reason is None:
+        pytest.skip("this machine can run engine = 'cuda'")
+    with pytest.raises(SweepError) as err:
+        load_sweep(_sweep(tmp_path, 'engine = "cuda"\n[grid]\n"gains.nonsense" = [1, 2]\n'))
+    message = str(err.value)
+    assert "\n" not in message and 'engine = "cuda" cannot run here' in message and reason in message
+    assert "numba-cuda" in message and 'engine = "batch"' in message
+
+
+def test_without_numba_cuda_a_cuda_sweep_is_refused_naming_the_extra():
+    code = ("import json, sys\nsys.modules['numba_cuda'] = None\n"      # numba-cuda hidden from the import system
+            "from analysis.sweep.spec import SweepError, sweep_from_dict\n"
+            "try:\n    sweep_from_dict({'engine': 'cuda', 'grid': {'gains.kp': [100, 200]}})\n"
+            "except SweepError as err:\n    print(json.dumps(str(err)))\n")
+    message = _python(code)
+    assert 'engine = "cuda" cannot run here: numba-cuda is not installed' in message and "dobkit[gpu]" in message
+
+
+@pytest.mark.skipif(importlib.util.find_spec("numba_cuda") is None, reason="numba-cuda is not installed")
+def test_a_cuda_sweep_in_the_cuda_simulator_gives_the_cpu_batch_rows(tmp_path):
+    # a grid sweep and a Morris sensitivity sweep, every run one thread of numba-cuda's simulator, in one process
+    # (workers = 2 asked, one device), against the CPU batch sweep of the same file: the same runs and rows, the
+    # numbers to rounding
+    out = _python(_CUDA_SWEEP, tmp_path, env={"NUMBA_ENABLE_CUDASIM": "1"})
+    assert out["runs"] == 4 + 4 and out["engines"] == ["cuda"] and out["device"]     # the grid's, Morris' r (k + 1)
+    assert out["moves"] > 0                     # the runs differ: the comparison is not of one run
+    assert out["worst"] <= 1e-9
+
+
+@pytest.mark.skipif(importlib.util.find_spec("numba_cuda") is None or importlib.util.find_spec("pinocchio") is None,
+                    reason="numba-cuda and pinocchio are needed")
+def test_a_cuda_sweep_of_runs_the_gpu_cannot_batch_is_refused_while_planned():
+    # a URDF arm's nominal model is generated into the loop's code: members of other nominal mass scales cannot
+    # share one kernel, and the sweep says so while its runs are planned, before any run
+    code = ("import json\nfrom analysis.sweep.spec import SweepError, sweep_from_dict\n"
+            "try:\n    sweep_from_dict({'scenario': 'scope4', 'engine': 'cuda', "
+            "'grid': {'arm.nominal_mass_scale': [0.9, 1.1]}})\n"
+            "except SweepError as err:\n    print(json.dumps(str(err)))\n")
+    message = _python(code, env={"NUMBA_ENABLE_CUDASIM": "1"})
+    assert 'engine = "cuda" cannot run run 0' in message and "'arm.nominal_mass_scale' differs" in message
+    assert "\n" not in message

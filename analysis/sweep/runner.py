@@ -54,7 +54,7 @@ import numpy as np
 from analysis.jobs.cluster import call_with_notes, dask_session, dask_threads, run_on_dask, take_with_notes
 from analysis.jobs.files import JobLog, LogKind
 from analysis.jobs.interrupts import sigint_held
-from analysis.sweep.spec import HEADER_PARTS, SweepError, SweepSpec, load_sweep, run_schedule, split_changes
+from analysis.sweep.spec import BATCH_ENGINES, HEADER_PARTS, SweepError, SweepSpec, load_sweep, run_schedule, split_changes
 from blocks.batch import Variants, simulate_batch
 from blocks.budget import Budget, BudgetError, largest_batch
 from blocks.progress import ProgressCallback, count_progress
@@ -199,14 +199,16 @@ def simulate_chunk(payload: dict) -> list[dict]:
     runs = payload["runs"]
     t0 = time.perf_counter()
     rows = []
-    if payload["engine"] == "batch":
+    if payload["engine"] in BATCH_ENGINES:
+        engine = "cuda" if payload["engine"] == "cuda" else "auto"
         result = simulate_batch(None, Variants(base, [r["member"] for r in runs]), observer=payload["observer"],
-                                metrics=payload["metrics"], substeps=payload["substeps"])
+                                metrics=payload["metrics"], substeps=payload["substeps"], engine=engine)
         seconds = (time.perf_counter() - t0) / len(runs)
         for i, r in enumerate(runs):
             ok = bool(result.ok[i])
             rows.append(_row(r, "ok" if ok else "diverged", result.member_metrics(i) if ok else {},
-                             None if ok else float(result.failed_at[i]), seconds, "batch", substeps=result.substeps))
+                             None if ok else float(result.failed_at[i]), seconds, payload["engine"],
+                             substeps=result.substeps))
         return rows
     from blocks.loop import SimulationError, simulate
     from blocks.metrics import tracking_metrics
@@ -255,7 +257,7 @@ def _payloads(spec: SweepSpec, pending: np.ndarray, workers: int, budget: Budget
     order = pending[np.lexsort((pending, plan.noise[pending], plan.substeps[pending], plan.group[pending]))]
     keys = np.stack([plan.group[order], plan.substeps[order], plan.noise[order].astype(np.int64)], axis=1)
     bounds = np.flatnonzero(np.any(np.diff(keys, axis=0) != 0, axis=1)) + 1 if order.size else []
-    size = spec.batch_size if spec.engine == "batch" else max(1, min(spec.batch_size, 8))
+    size = spec.batch_size if spec.engine in BATCH_ENGINES else max(1, min(spec.batch_size, 8))
     size = max(1, min(size, math.ceil(len(pending) / max(1, workers))))
     share = budget.share(workers)
     base_for: dict[int, Scenario] = {}
@@ -269,7 +271,7 @@ def _payloads(spec: SweepSpec, pending: np.ndarray, workers: int, budget: Budget
             base_for[g] = spec.base.with_changes(plan.shared[g])
         base = base_for[g]
         n = size
-        if spec.engine == "batch":
+        if spec.engine in BATCH_ENGINES:
             schedule = run_schedule(base, substeps, noisy)
             fits = largest_batch(share.memory, steps=schedule.steps, grid_points=schedule.grid_points, noise=noisy,
                                  noise_samples=schedule.noise_samples, joints=base.robot.n)
@@ -349,6 +351,8 @@ def run_sweep(spec: SweepSpec | str | Path, results: str | Path, scheduler: str 
     spec = spec if isinstance(spec, SweepSpec) else load_sweep(spec)
     budget = spec.budget if budget is None else budget
     workers = check_workers(workers)
+    if spec.engine == "cuda" and scheduler is None:
+        workers = 1             # one device: its batches run one after another here, the kernel compiled once
     results = Path(results)
     t0 = time.perf_counter()
     log = ResultsFile(results)

@@ -5,7 +5,8 @@ A sweep file (TOML) names a base scenario, the values to vary and what to keep::
     name = "robustness"           # optional (default: the file's name); a plain file name, used for files
     scenario = "paper"            # built-in name, or a scenario file (relative to the sweep file)
     observer = true               # optional (default true)
-    engine = "batch"              # "batch" (default: blocks.batch) or "fast" (one blocks.simulate per run)
+    engine = "batch"              # "batch" (default: blocks.batch), "cuda" (blocks.batch on the GPU) or "fast"
+                                  # (one blocks.simulate per run)
 
     [grid]                        # every combination is run
     "gains.kp" = [100, 180, 250]
@@ -35,6 +36,14 @@ A sweep file (TOML) names a base scenario, the values to vary and what to keep::
     [batch]
     size = 250                    # members per batch at most (default 250; fewer when memory asks for it)
     substeps = "auto"             # RK4 steps per output interval (default "auto": each run's own)
+
+With ``engine = "cuda"`` every batch runs as :func:`blocks.batch.simulate_batch`
+with ``engine="cuda"`` (one GPU thread per run, fixed-step RK4 on the
+batch's schedule, :mod:`blocks.gpu`): the same runs, batches and numbers
+as ``"batch"`` to rounding, one batch at a time on the one device (a
+larger ``batch.size`` fills it better).  A machine without numba-cuda, a
+CUDA driver or a device is refused when the sweep file is checked, with
+the reason, before any run.
 
 A ``[sensitivity]`` sweep's runs are its design, in design order; its
 summary has the indices of every kept metric column (see
@@ -97,10 +106,13 @@ from blocks.scenario import Scenario, ScenarioError, load_scenario, parse_key
 
 __all__ = ["SweepError", "Distribution", "Run", "RunList", "RunPlan", "SweepSpec", "load_sweep", "sweep_from_dict",
            "split_changes", "json_default", "check_name", "HEADER_PARTS", "run_schedule", "DISTRIBUTIONS", "ENGINES",
+           "BATCH_ENGINES",
            "SWEEP_RUN_BYTES", "CHECK_PROGRESS_RUNS",
            "PRESENTATION_KEYS"]
 
-ENGINES = ("batch", "fast")
+ENGINES = ("batch", "fast", "cuda")
+#: The engines that run batches of :func:`blocks.batch.simulate_batch` (on the CPU, or on the GPU).
+BATCH_ENGINES = ("batch", "cuda")
 #: Memory (bytes) a sweep holds per run while running and summarising: the run's plan entry, its id in
 #: the set of finished runs, its metric columns and swept values in the summary (measured: about 500).
 SWEEP_RUN_BYTES = 1024
@@ -292,7 +304,7 @@ class SweepSpec:
     def identity(self) -> dict:
         """What every run id hashes besides the run's values: base scenario, observer, engine, substeps."""
         return {"scenario": self.base.data, "observer": self.observer, "engine": self.engine,
-                "substeps": self.substeps if self.engine == "batch" else None}
+                "substeps": self.substeps if self.engine in BATCH_ENGINES else None}
 
     def header(self) -> dict:
         """What the results file records about the sweep (first line)."""
@@ -401,6 +413,8 @@ def sweep_from_dict(data: dict, source: str = "<dict>", folder: Path | None = No
     fail = failing(SweepError, source)
     budget = Budget.from_env() if budget is None else budget
     top = read_top(data, _KEYS, "sweep", fail)
+    if top["engine"] == "cuda":
+        _check_cuda(fail)
     name = top["name"]
     if name is None:
         name = Path(source).stem if source.endswith(".toml") else "sweep"
@@ -684,6 +698,35 @@ def _plan(spec: SweepSpec, fail, counter) -> RunPlan:
     return plan
 
 
+def _check_cuda(fail) -> None:
+    """Refuse ``engine = "cuda"`` where it cannot run (no numba-cuda, driver or device; no numba), with the
+    reason of :func:`blocks.gpu.device.cuda_unavailable_reason`, before anything else is checked or run."""
+    from blocks.compiled.jit import numba_or_none
+    from blocks.gpu.device import cuda_unavailable_reason
+    reason = cuda_unavailable_reason()
+    if reason is None and numba_or_none() is None:
+        reason = "numba is not installed (it comes with the optional extra: pip install \"dobkit[fast]\")"
+    if reason is not None:
+        fail(f"engine = \"cuda\" cannot run here: {reason}; use engine = \"batch\" on the CPU")
+
+
+def _cuda_group_reason(variants: Variants, observer: bool, program: bool) -> str | None:
+    """Why the GPU cannot run a chunk of a group's runs (:func:`blocks.gpu.batch.gpu_batch_reason`: one generated
+    code for all members; with ``program``, once per group, every block of the loop traced), or None; the loop's
+    code is generated, not compiled."""
+    from blocks.batch.members import shared_loop
+    from blocks.compiled.codegen import CompiledUnavailable
+    from blocks.compiled.engine import CompiledLoopEngine
+    from blocks.gpu.batch import gpu_batch_reason
+    reason = gpu_batch_reason(variants)
+    if reason is None and program:
+        try:
+            reason = gpu_batch_reason(variants, CompiledLoopEngine(shared_loop(variants, observer)))
+        except CompiledUnavailable as err:
+            reason = str(err)
+    return reason
+
+
 def _plan_group(spec: SweepSpec, base: Scenario, members: np.ndarray, plan: RunPlan, fail, counter) -> None:
     """Validate one shared-scenario group's runs in chunks (bounded memory), give each run its substeps and
     noise flag, and check every (substeps, noise) class of the group against the budget."""
@@ -709,6 +752,10 @@ def _plan_group(spec: SweepSpec, base: Scenario, members: np.ndarray, plan: RunP
                 fail(f"run {idx[k]} ({_describe(values[k])}): {found.group(2)}")
             fail(str(err))
         plan.noise[idx] = [nz is not None for nz in variants.noises]
+        if spec.engine == "cuda":
+            reason = _cuda_group_reason(variants, spec.observer, program=start == 0)
+            if reason is not None:
+                fail(f"engine = \"cuda\" cannot run run {idx[0]} ({_describe(values[0])}) and its batch: {reason}")
         if spec.substeps is not None:
             plan.substeps[idx] = spec.substeps
         elif auto_substeps(variants, spec.observer) == 1:      # the finest member needs 1: so do all

@@ -96,9 +96,19 @@ makes them but without python-control systems
 Only what is asked for is kept: metrics are accumulated at the output grid
 points while integrating, and full signals are stored only when named in
 ``signals``.  Measurement noise is stored at every sample time: about
-``16 * 8 * t_final / sample_period`` bytes per member (1.3 MB for 10 s at
-1 kHz), so batches with noise are integrated in chunks of
-:data:`blocks.compiled.batch.NOISE_CHUNK` members.
+``16 * 8 * t_final / sample_period`` bytes per noise table (1.3 MB for 10 s
+at 1 kHz), one table for every member without a ``noise`` key of its own
+(the base's) and one per member with its own; batches of more than
+:data:`blocks.compiled.batch.NOISE_CHUNK` tables are integrated in chunks of
+that many members.
+
+Observer gain
+-------------
+With ``gains.observer_bandwidth`` (``Y = omega M^(q0)``) each member's ``Y``
+is made as its single run makes it: from its own nominal arm (``robot.*``,
+``nominal_scale.*``), its own start ``initial.q`` and its own bandwidth; a
+member giving ``gains.observer`` beside a bandwidth is refused as its single
+run is.
 """
 from __future__ import annotations
 

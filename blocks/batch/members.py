@@ -21,6 +21,7 @@ import numbers
 import control as ct
 import numpy as np
 
+from ..compiled.trace import is_table
 from ..contract import contract_of, kernels_only
 from ..kernels import lumped_disturbance
 from ..kernels.bind import bound, is_rrpr_kernels
@@ -101,17 +102,19 @@ def _object_key(params) -> tuple:
     return (id(params),) if _is_object(params) else ()
 
 
-def _stacked(block: str, where: str, values: list, column_value, objects_first: bool = False):
+def _stacked(block: str, where: str, values: list, column_value, objects_first: bool = False,
+             source: bool = False):
     """The members' values of one parameter in the column layout: the block's own column value when all
-    members agree, else stacked on a trailing member axis.  With ``objects_first`` a structure object that
-    differs between members is taken from the first (for reading the numbers beside it)."""
+    members agree (its tables with a member axis of 1, :func:`_shared_tables`, unless the block is a ``source``
+    evaluated on rows of times), else stacked on a trailing member axis.  With ``objects_first`` a structure
+    object that differs between members is taken from the first (for reading the numbers beside it)."""
     first = values[0]
     if all(_same(first, other) for other in values[1:]):
-        return column_value
+        return column_value if source else _shared_tables(column_value)
     if isinstance(first, tuple):
         fields = getattr(first, "_fields", None)
         parts = [_stacked(block, f"{where}.{fields[j]}" if fields else f"{where}[{j}]", [v[j] for v in values],
-                          column_value[j], objects_first) for j in range(len(first))]
+                          column_value[j], objects_first, source) for j in range(len(first))]
         return type(first)(*parts) if fields else tuple(parts)
     if objects_first and _is_object(first):
         return column_value
@@ -124,6 +127,18 @@ def _stacked(block: str, where: str, values: list, column_value, objects_first: 
         raise ValueError(f"block '{block}': its parameter {where} has different shapes in different members "
                          f"{sorted(shapes)}; the members of one batch must share its shape")
     return np.stack([np.asarray(v, dtype=float) for v in values], axis=-1)
+
+
+def _shared_tables(column_value):
+    """A parameter all members share, in the column layout, with each table in it (noise samples, (rows,
+    samples)) given a member axis of 1: a table is indexed by time, not broadcast, so the one table every
+    member reads gives its samples at one time as a column (rows, 1), as stacked tables give (rows, N)."""
+    if isinstance(column_value, tuple):
+        parts = [_shared_tables(p) for p in column_value]
+        return type(column_value)(*parts) if hasattr(column_value, "_fields") else tuple(parts)
+    if is_table(column_value) and column_value.ndim == 2:
+        return column_value[..., None]
+    return column_value
 
 
 class MemberLoop:
@@ -220,7 +235,8 @@ class MemberLoop:
         found = self._columns.get(name)
         if found is None:
             found = self._columns[name] = _stacked(name, "params", self.member_params[name],
-                                                   self._kernels0[name].columns(), objects_first=name in self._groups)
+                                                   self._kernels0[name].columns(), objects_first=name in self._groups,
+                                                   source=any(s.name == name for s in self.sources))
         return found
 
     # -- what the divergence bounds read (blocks.divergence.batch_bounds) -------------------------------------

@@ -153,7 +153,19 @@ def _sources(base, columns: dict) -> dict[str, np.ndarray]:
     scales = {k.split(".", 1)[1]: c for k, c in columns.items() if k.startswith("nominal_scale.")}
     if scales:
         c = RobotParameters.constants.func(types.SimpleNamespace(**nominal_values(base, scales)))
-        out.update({f"nominal.k{i}": np.asarray(getattr(c, f"k{i}"), dtype=float) for i in range(1, 6)})
+        k = {i: np.asarray(getattr(c, f"k{i}"), dtype=float) for i in range(1, 6)}
+        out.update({f"nominal.k{i}": k[i] for i in range(1, 6)})
+        omega = base.data["gains"].get("observer_bandwidth")
+        if omega is not None:
+            # Y = omega M^(q0) of each member's nominal arm (blocks.scenario_arm.observer_gain_from_bandwidth):
+            # the distinct entries of Eq. 5 (blocks.kernels.arm.inertia_entries) in the same operations
+            q0 = base.initial["q"]
+            if q0 is None:
+                q0 = np.asarray(base.trajectory.evaluate(0.0)[0], dtype=float)
+            k2c2 = k[2] * np.cos(np.asarray(q0, dtype=float)[1])
+            entries = {"m00": k[1] + k2c2, "m01": k[3] + 0.5 * k2c2, "m11": k[3], "m22": k[4], "m33": k[5]}
+            out.update({f"observer.Y.{name}": float(omega) * m for name, m in entries.items()})
+            out["observer.Y.-m33"] = float(omega) * -k[5]
     return out
 
 

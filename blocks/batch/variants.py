@@ -34,7 +34,7 @@ from ..gains import GainError, validated_gain
 from ..noise import MeasurementNoise
 from ..parameters import _UNITS, ParameterError, RobotParameters
 from ..scenario import Scenario, ScenarioError, check_value, load_scenario, parse_key
-from ..scenario_arm import is_rrpr
+from ..scenario_arm import is_rrpr, observer_gain_from_bandwidth
 
 __all__ = ["BATCH_KEYS", "COLUMN_KEYS", "SHARED_KEYS", "SHARED_SECTIONS", "Variants", "column_values",
            "shared_reason"]
@@ -184,8 +184,8 @@ class Variants:
         for key, value in whole.items():
             section, name, _ = parse_key(key)
             try:
-                sections.setdefault(section, {})[name] = \
-                    validated_gain(value, name) if section == "gains" else check_value(key, value)
+                sections.setdefault(section, {})[name] = validated_gain(value, name) \
+                    if section == "gains" and name != "observer_bandwidth" else check_value(key, value)
             except (ScenarioError, GainError) as err:
                 raise ScenarioError(f"variant {i}: {err}") from None
         return sections
@@ -276,7 +276,7 @@ class Variants:
             gains = sec.get("gains", {})
             kp.append(np.diag(gains.get("kp", s.kp)))
             kd.append(np.diag(gains.get("kd", s.kd)))
-            ys.append(gains.get("observer", s.observer_gain))
+            ys.append(self._observer_gain(i, sec, nominal, memo))
             variant = sec.get("observer", {}).get("variant", s.observer_variant)
             extra.append(1.0 if variant == "paper-eq16" else 0.0)
             specs.append(self._spec(sec.get("disturbance"), i, memo))
@@ -286,6 +286,34 @@ class Variants:
                             "kd": gains.get("kd", s.kd), "observer_gain": ys[-1], "observer_variant": variant,
                             "disturbance": specs[-1], "noise": noises[-1], "initial": initial[-1]})
         self._stack(fields, ys, extra)
+
+    def _observer_gain(self, i: int, sec: dict, nominal: RobotParameters, memo: dict) -> np.ndarray:
+        """Member ``i``'s observer gain ``Y`` as its single run makes it: its own ``gains.observer``, else with
+        ``gains.observer_bandwidth`` (the member's or the base's) ``Y = omega M^(q0)`` of the member's nominal
+        arm at its start ``q0`` (``initial.q``, else the reference at t = 0), else the base's."""
+        s, gains = self.base, sec.get("gains", {})
+        given = dict(s.user_data.get("gains", {})) | gains        # the gains the member's scenario file holds
+        if "observer" in given and "observer_bandwidth" in given:
+            try:                                # the single run's refusal, in its words
+                self.scenario(i)
+            except ScenarioError as err:
+                raise ScenarioError(f"variant {i}: {err}") from None
+        if "observer" in gains:
+            return gains["observer"]
+        omega = given.get("observer_bandwidth")
+        q0 = sec.get("initial", {}).get("q", s.initial["q"])
+        if omega is None or (nominal is s.nominal and "observer_bandwidth" not in gains and q0 is s.initial["q"]):
+            return s.observer_gain
+        if q0 is None:
+            q0 = np.asarray(s.trajectory.evaluate(0.0)[0], dtype=float)
+        key = ("observer", id(nominal), float(omega), tuple(np.ravel(q0)))
+        if key not in memo:
+            try:
+                memo[key] = validated_gain(observer_gain_from_bandwidth(nominal, float(omega), q0), "observer")
+            except GainError as err:
+                raise ScenarioError(f"variant {i}: observer gain from 'gains.observer_bandwidth' = {omega!r}: "
+                                    f"{err}") from None
+        return memo[key]
 
     def _spec(self, overrides, i: int, memo: dict) -> DisturbanceSpec:
         base = self.base.disturbance

@@ -6,7 +6,8 @@ run (:mod:`blocks.compiled.codegen`), with its own parameter vector
 (:class:`blocks.batch.rows.MemberRows`) or read from each member's own block
 parameters (:class:`blocks.batch.members.MemberLoop`: the member's blocks made
 as its single run makes them), the reference's from the shared loop.  Members
-with their own measurement noise read their own noise table (``member_ext``).
+with their own measurement noise read their own noise table (``member_ext``),
+the others the base's one table.
 Members run in parallel over ``workers`` threads (numba ``prange``; default
 every core).
 
@@ -137,23 +138,40 @@ def _same_params(a, b) -> bool:
     return param_values(a, []) == param_values(b, [])
 
 
-def _noise_tables(v, engine) -> tuple[list, np.ndarray | None]:
-    """The members' noise tables when they differ from the loop's (``member_ext``), as a list (None for a member
-    without noise) and the zero table those read; ``([], None)`` when every member reads the loop's."""
+def _noise_tables(v, engine) -> tuple[list, np.ndarray]:
+    """The noise tables the members read (``member_ext``): the distinct tables, and each member's row among
+    them (N,).  Members that share a table (every member without a noise of its own reads the base's one)
+    share its row; a member without noise reads a zero table.  ``([], zeros)`` when the loop reads no table."""
     tables = engine.program.tables
+    row = np.zeros(len(v), dtype=np.int64)
     if not tables:
-        return [], None
+        return [], row
     if len(tables) != 1:
         raise CompiledUnavailable("the loop has more than one table parameter; the compiled batch varies one")
     loop_table = engine.ext[tables[0]]
-    members = [None if nz is None else nz.table for nz in v.noises]
-    if all(m is not None and m is loop_table for m in members):
-        return [], None
-    shapes = {m.shape for m in members if m is not None}
+    distinct: list = []
+    where: dict = {}
+    for m, nz in enumerate(v.noises):
+        table = None if nz is None else nz.table
+        key = id(table)
+        if key not in where:
+            where[key] = len(distinct)
+            distinct.append(table)
+        row[m] = where[key]
+    shapes = {t.shape for t in distinct if t is not None}
     if len(shapes) > 1 or (shapes and shapes != {loop_table.shape}):
         raise CompiledUnavailable(f"the members' noise tables differ in shape {sorted(shapes)}; they must share "
                                   f"the sample period and the run's length")
-    return members, np.zeros(loop_table.shape)
+    return [np.zeros(loop_table.shape) if t is None else t for t in distinct], row
+
+
+def _chunk_tables(distinct: list, row: np.ndarray) -> tuple[tuple, np.ndarray]:
+    """The tables members ``row`` (a chunk's rows of :func:`_noise_tables`) read, stacked, and each member's
+    row in that stack."""
+    if not distinct:
+        return (), np.zeros(row.size, dtype=np.int64)
+    used, at = np.unique(row, return_inverse=True)
+    return (np.stack([distinct[j] for j in used]),), at.astype(np.int64)
 
 
 def auto_batch_reason(members) -> tuple[str | None, CompiledLoopEngine | None]:
@@ -263,8 +281,9 @@ def run_compiled_batch(v, members, observer: bool, metrics: tuple, signals: tupl
     failed_at = np.full(N, np.nan)
     status = np.full(N, _FINISHED, dtype=np.int64)
     counts = np.zeros((N, 3))
-    tables_of, zero_table = _noise_tables(v, engine)
-    chunk = NOISE_CHUNK if tables_of else N
+    distinct, table_rows = _noise_tables(v, engine)
+    # a chunk of members holds the tables it reads: all at once when few are distinct (a shared one)
+    chunk = NOISE_CHUNK if len(distinct) > NOISE_CHUNK else N
     # numba's parallel loops take no tuples of numbers among their arguments: such parameters (the laceration
     # path's, used only by the sources) go in as arrays, which the kernels index alike
     ext = tuple(np.array(p, dtype=float) if isinstance(p, tuple) else p for p in engine.ext)
@@ -281,11 +300,7 @@ def run_compiled_batch(v, members, observer: bool, metrics: tuple, signals: tupl
             module.source_table(mids, engine.theta, engine.ext, src_mid)
         for c0 in range(0, N, chunk):
             c1 = min(N, c0 + chunk)
-            if tables_of:
-                tables = (np.stack([zero_table if t is None else t for t in tables_of[c0:c1]]),)
-                table_row = np.arange(c1 - c0, dtype=np.int64)
-            else:
-                tables, table_row = (), np.zeros(c1 - c0, dtype=np.int64)
+            tables, table_row = _chunk_tables(distinct, table_rows[c0:c1])
             if rk4:
                 module.rk4_batch(times, grid_index, src_at, src_mid, aux, X0[c0:c1], theta[c0:c1], ext, tables,
                                  table_row, flags, keep, keep_rows, n_grid - 1, bound[c0:c1], Y[c0:c1],

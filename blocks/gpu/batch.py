@@ -172,14 +172,10 @@ def run_cuda_batch(v, members, observer: bool, metrics: tuple, signals: tuple, t
     n_keep = keep.size + keep_rows.size
     n_rows = max(program.n_rows, 1)
 
-    # the noise: each member's own table (member_ext reads row table_row[m]), or the loop's for all, or none
-    tables_of, zero_table = _noise_tables(v, engine)
-    if tables_of:
-        tables = np.stack([zero_table if t is None else t for t in tables_of])
-        table_row = np.arange(N, dtype=np.int64)
-    else:
-        tables = engine.ext[program.tables[0]][None] if program.tables else np.zeros((1, 1, 1))
-        table_row = np.zeros(N, dtype=np.int64)
+    # the noise: the distinct tables once (member_ext reads row table_row[m]: a shared one for all that share
+    # it), or none
+    distinct, table_row = _noise_tables(v, engine)
+    tables = np.stack(distinct) if distinct else np.zeros((1, 1, 1))
     estimate = estimate_gpu_batch(N, times.size - 1, n_grid, n_keep, states=engine.nstates, numbers=theta.shape[1],
                                   sources=n_src, rows=n_rows, shared=aux.shape[1],
                                   table=tables[0].size if program.tables else 0,
