@@ -116,8 +116,8 @@ def identifier_problems(model_description) -> list[str]:
     Examples
     --------
     >>> from types import SimpleNamespace as N
-    >>> identifier_problems(N(modelExchange=N(modelIdentifier="../../x/evil"), coSimulation=None))
-    ["ModelExchange modelIdentifier='../../x/evil' is not a C identifier (letters, digits and '_', not starting with a digit), which FMI requires: it names the library binaries/<platform>/<modelIdentifier>.so"]
+    >>> [p[:50] for p in identifier_problems(N(modelExchange=N(modelIdentifier="../x"), coSimulation=None))]
+    ["ModelExchange modelIdentifier='../x' is not a C id"]
     """
     problems = []
     for kind in INTERFACES + ("ScheduledExecution",):

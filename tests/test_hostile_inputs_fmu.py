@@ -7,7 +7,6 @@ constructor leaves a marker file when anything loads it.
 """
 from __future__ import annotations
 
-import os
 import shutil
 import subprocess
 import sys

@@ -114,7 +114,7 @@ def probe_scheduler(address: str, timeout: float, error: type[Exception]) -> Non
     where = f"the Dask scheduler at {address!r}"
     try:
         answer = asyncio.run(_identity(distributed, address, timeout))
-    except (TimeoutError, asyncio.TimeoutError):
+    except TimeoutError:
         raise error(f"{where} did not answer within {timeout:g} s (the connection was "
                     "accepted, so something listens there: is it a Dask scheduler, and is it running?); nothing was "
                     "run or written") from None
