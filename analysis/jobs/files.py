@@ -44,6 +44,7 @@ import itertools
 import json
 import os
 import socket
+import stat
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from datetime import datetime
@@ -51,7 +52,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["exclusive_lock", "cut_partial_last_line", "write_lines_atomically", "move_aside", "json_default",
+__all__ = ["read_job_file", "check_regular", "MAX_JOB_FILE_BYTES",
+           "exclusive_lock", "cut_partial_last_line", "write_lines_atomically", "move_aside", "json_default",
            "row_checksum", "row_line", "differences", "LogKind", "JobLog", "LogWriter", "ROW_CHECKSUM"]
 
 #: How rows are checksummed (recorded in the header line of every log written with checksums).
@@ -94,6 +96,57 @@ def differences(old: Mapping, new: Mapping, parts: Mapping[str, str]) -> list[st
 # --------------------------------------------------------------------------------------------
 # Files: lock, torn lines, atomic rewrites, moving aside
 # --------------------------------------------------------------------------------------------
+#: The largest sweep or tuning file read (a job's definition is a short text file; scenario files stop at 1 MB).
+MAX_JOB_FILE_BYTES = 2 ** 20
+
+
+def check_regular(path: Path, error: type[Exception], what: str) -> None:
+    """Refuse ``path`` when it exists and is not a regular file (a folder, device, FIFO or socket); a missing
+    path passes (a job's log is made by the job).  Checked without opening it: a FIFO would wait for a writer,
+    and ``/dev/zero`` read line by line has no end (it filled memory)."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return
+    except OSError as err:
+        raise error(f"{what} '{path}' cannot be read ({err.strerror or err})") from None
+    if not stat.S_ISREG(mode):
+        kind = "a folder" if stat.S_ISDIR(mode) else "a device, pipe or socket"
+        raise error(f"{what} '{path}' is not a regular file ({kind}); give the path of a file")
+
+
+def read_job_file(path: Path, error: type[Exception], what: str, limit: int = MAX_JOB_FILE_BYTES) -> str:
+    """The UTF-8 text (a byte-order mark dropped) of a regular file of at most ``limit`` bytes.
+
+    Opened without blocking and checked on the open file, so that a FIFO or a device is refused, not read.
+
+    Raises
+    ------
+    error
+        Naming the file (``what`` is its role: ``"sweep file"``) and what is wrong: missing, not a regular file,
+        larger than ``limit``, not UTF-8.
+    """
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except FileNotFoundError:
+        raise error(f"{what} '{path}' does not exist") from None
+    except OSError as err:
+        raise error(f"{what} '{path}' cannot be read ({err.strerror or err})") from None
+    with os.fdopen(fd, "rb") as f:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            kind = "a folder" if stat.S_ISDIR(mode) else "a device, pipe or socket"
+            raise error(f"{what} '{path}' is not a regular file ({kind}); give the path of a .toml file")
+        raw = f.read(limit + 1)
+    if len(raw) > limit:
+        raise error(f"{what} '{path}' has more than {limit:,} bytes; a {what} is a short text file (at most "
+                    f"{limit:,} bytes)")
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as err:
+        raise error(f"{path}: not UTF-8 text: {err}") from None
+
+
 @contextlib.contextmanager
 def exclusive_lock(path: Path, error: type[Exception], what: str, job: str, elsewhere: str):
     """Hold ``<path>.lock`` (an exclusive ``flock``) while the block runs.
@@ -255,6 +308,9 @@ class JobLog:
     kind: LogKind
     problems: list = field(default_factory=list)
     repeated: int = 0
+
+    def __post_init__(self) -> None:
+        check_regular(self.path, self.kind.error, self.kind.what)     # before its lock is made beside it
 
     # -- reading ----------------------------------------------------------------------------------
     def _lines(self) -> Iterator[tuple[int, str]]:

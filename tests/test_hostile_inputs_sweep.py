@@ -1,0 +1,144 @@
+"""Hostile inputs to sweeps and the job files: only regular files read, scheduler connections that time out and
+say what answered, interrupts and kills that leave nothing behind, full disks named by file and role.
+
+docs/hostile-inputs.md, "Round 8", lists each case with its test.  The sweeps are real (the first 0.3 s of the
+paper scenario); the peers that are no Dask scheduler listen on 127.0.0.1 for the length of one test.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import socket
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from sweep_files import run_sweep_command, write_short_scenario, write_sweep
+
+from analysis.jobs.files import MAX_JOB_FILE_BYTES
+from analysis.sweep.runner import run_sweep
+from analysis.sweep.spec import SweepError, load_sweep
+from analysis.tune.spec import TuneError, load_tuning
+
+GRID = '[grid]\n"gains.kp" = [{}]\n[outputs]\nmetrics = ["rms_position_error", "max_tool_position_error_mm"]\n'
+
+
+@pytest.fixture()
+def short_file(tmp_path):
+    return write_short_scenario(tmp_path, t_final=0.3)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# every file a job reads is a regular file
+# ---------------------------------------------------------------------------------------------------------------
+def _fifo(path: Path) -> Path:
+    os.mkfifo(path)
+    return path
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs FIFOs")
+def test_a_device_or_a_fifo_as_results_file_is_refused_before_anything_runs(tmp_path, short_file, capsys):
+    # before: /dev/zero was read line by line until memory ran out ("out of memory within the memory budget ...
+    # finished runs are kept"); a FIFO blocked for ever
+    sweep = load_sweep(write_sweep(tmp_path, GRID.format("150")))
+    for results in (Path("/dev/zero"), _fifo(tmp_path / "r.jsonl")):
+        with pytest.raises(SweepError, match=rf"results file '{results}' is not a regular file \(a device, pipe or "
+                                             r"socket\); give the path of a file"):
+            run_sweep(sweep, results, workers=1, progress=False)
+    assert not Path("/dev/zero.lock").exists() and not (tmp_path / "r.jsonl.lock").exists()
+    folder = tmp_path / "folder.jsonl"
+    folder.mkdir()
+    assert run_sweep_command(["sweep", str(tmp_path / "s.toml"), "--results", str(folder), "--no-progress"]) == 2
+    assert "is not a regular file (a folder)" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs FIFOs")
+def test_a_device_a_fifo_or_a_huge_file_as_sweep_or_tuning_file_is_refused_without_reading_it(tmp_path, short_file):
+    for path in (Path("/dev/zero"), _fifo(tmp_path / "s.toml")):
+        with pytest.raises(SweepError, match=rf"sweep file '{path}' is not a regular file \(a device, pipe or socket"):
+            load_sweep(path)
+        with pytest.raises(TuneError, match=rf"tuning file '{path}' is not a regular file \(a device, pipe or socket"):
+            load_tuning(path)
+    # the size bound at both sides: a comment pads the file
+    text = 'scenario = "short.toml"\n' + GRID.format("150")
+    exact = tmp_path / "exact.toml"
+    exact.write_text(text + "#" * (MAX_JOB_FILE_BYTES - len(text) - 1) + "\n", encoding="utf-8")
+    assert exact.stat().st_size == MAX_JOB_FILE_BYTES and len(load_sweep(exact).runs) == 1
+    over = tmp_path / "over.toml"
+    over.write_text(text + "#" * (MAX_JOB_FILE_BYTES - len(text)) + "\n", encoding="utf-8")
+    with pytest.raises(SweepError, match=rf"sweep file '{over}' has more than {MAX_JOB_FILE_BYTES:,} bytes"):
+        load_sweep(over)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# scheduler connections: bounded in time, and what answered is said
+# ---------------------------------------------------------------------------------------------------------------
+@contextlib.contextmanager
+def _peer(reply: bytes | None):
+    """A server on 127.0.0.1 that accepts connections and then says nothing (``reply`` None) or ``reply``."""
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(4)
+    server.settimeout(0.2)
+    held, stop = [], threading.Event()
+
+    def serve():
+        while not stop.is_set():
+            try:
+                conn, _ = server.accept()
+            except (TimeoutError, OSError):
+                continue
+            held.append(conn)
+            if reply is not None:
+                with contextlib.suppress(OSError):
+                    conn.settimeout(2.0)
+                    conn.recv(4096)
+                    conn.sendall(reply)
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    try:
+        yield f"tcp://127.0.0.1:{server.getsockname()[1]}"
+    finally:
+        stop.set()
+        thread.join(5)
+        for conn in held:
+            conn.close()
+        server.close()
+
+
+def test_a_scheduler_that_accepts_and_never_answers_times_out_naming_the_address(tmp_path, short_file):
+    # before: dobkit sweep --scheduler waited without end, silently (Dask's handshake read has no time-out)
+    pytest.importorskip("distributed")
+    sweep = load_sweep(write_sweep(tmp_path, GRID.format("150")))
+    results = tmp_path / "r.jsonl"
+    with _peer(None) as address:
+        started = time.monotonic()
+        with pytest.raises(SweepError, match=rf"the Dask scheduler at '{address}' did not answer within 1 s \(the "
+                                             r"connection was accepted"):
+            run_sweep(sweep, results, scheduler=address, progress=False, scheduler_timeout=1.0)
+        assert time.monotonic() - started < 30
+    assert not results.exists()
+
+
+def test_a_peer_of_another_protocol_is_not_reported_as_out_of_memory(tmp_path, short_file):
+    # before: "out of memory within the memory budget of 4.0 GiB" (its reply's first bytes read as a frame length)
+    pytest.importorskip("distributed")
+    sweep = load_sweep(write_sweep(tmp_path, GRID.format("150")))
+    with _peer(b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\nConnection: close\r\n\r\n") as address:
+        with pytest.raises(SweepError, match=rf"the Dask scheduler at '{address}' answered with something other "
+                                             r"than Dask's protocol") as err:
+            run_sweep(sweep, tmp_path / "r.jsonl", scheduler=address, progress=False, scheduler_timeout=2.0)
+    assert "memory" not in str(err.value)
+
+
+@pytest.mark.parametrize("address", ["tls://127.0.0.1:8786", "ucx://127.0.0.1:8786", "inproc://x"])
+def test_schemes_other_than_tcp_are_refused_by_name(tmp_path, short_file, address):
+    # before: raw library errors (tls: no certificates; ucx: UCX not installed)
+    pytest.importorskip("distributed")
+    sweep = load_sweep(write_sweep(tmp_path, GRID.format("150")))
+    scheme = address.split("://")[0]
+    with pytest.raises(SweepError, match=rf"--scheduler '{address}': dobkit connects to a Dask scheduler over tcp:// "
+                                         rf"only \({scheme}://"):
+        run_sweep(sweep, tmp_path / "r.jsonl", scheduler=address, progress=False, scheduler_timeout=1.0)
