@@ -142,3 +142,59 @@ def test_schemes_other_than_tcp_are_refused_by_name(tmp_path, short_file, addres
     with pytest.raises(SweepError, match=rf"--scheduler '{address}': dobkit connects to a Dask scheduler over tcp:// "
                                          rf"only \({scheme}://"):
         run_sweep(sweep, tmp_path / "r.jsonl", scheduler=address, progress=False, scheduler_timeout=1.0)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# SIGTERM while a worker sends its batch's result
+# ---------------------------------------------------------------------------------------------------------------
+# A worker of the sweep's own pool writes what a worker terminated mid-send leaves in the result pipe (a message's
+# length and its first bytes) and stops there; the pool is then ended as an interrupted sweep ends it.
+_HALF_SENT = """
+import os, struct, sys, time
+from pathlib import Path
+from analysis.sweep.runner import _end_now
+from blocks.workers import worker_pool
+
+def half_sent(marker):
+    frame = sys._getframe()
+    while frame.f_code.co_name != "_process_worker":
+        frame = frame.f_back
+    writer = frame.f_locals["result_queue"]._writer
+    os.write(writer.fileno(), struct.pack("!i", 1 << 20) + b"\\x80\\x04" + b"x" * 30)
+    Path(marker).write_text("sent")
+    time.sleep(300)
+
+if __name__ == "__main__":
+    started = time.monotonic()
+    pool = worker_pool(2)
+    pool.submit(half_sent, sys.argv[1])
+    while not Path(sys.argv[1]).exists():
+        time.sleep(0.05)
+    time.sleep(0.3)                  # the pool's reader is now waiting for the rest of the message
+    sent = time.monotonic()
+    _end_now(pool)
+    print(f"ended: sent after {sent - started:.1f} s, ended in {time.monotonic() - sent:.1f} s", flush=True)
+"""
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="the worker function lives in the script (fork start method)")
+def test_ending_a_pool_whose_worker_died_mid_message_does_not_hang(tmp_path):
+    # before: pool.shutdown(wait=True) waited in result_reader.recv() for good (SIGTERM to dobkit sweep --workers 2
+    # while a worker sent its result: the command hung, its workers dead)
+    import subprocess
+    import sys
+    script = tmp_path / "half_sent.py"
+    script.write_text(_HALF_SENT, encoding="utf-8")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(Path(__file__).resolve().parents[1]),
+                                                       os.environ.get("PYTHONPATH", "")]))
+    log = tmp_path / "log"
+    with log.open("w") as out:          # a file, not a pipe: the test waits for the process, not for its pipe
+        child = subprocess.Popen([sys.executable, str(script), str(tmp_path / "sent")], stdout=out, stderr=out,
+                                 env=env)
+        try:
+            child.wait(timeout=120)
+        except subprocess.TimeoutExpired:
+            child.kill()
+            child.wait()
+            pytest.fail("ending the pool hung (waiting for the rest of a message its terminated worker never sent)")
+    assert child.returncode == 0 and "ended" in log.read_text(), log.read_text()[-2000:]
