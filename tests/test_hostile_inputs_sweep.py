@@ -9,6 +9,8 @@ from __future__ import annotations
 import contextlib
 import os
 import socket
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -19,6 +21,7 @@ from sweep_files import run_sweep_command, write_short_scenario, write_sweep
 from analysis.jobs.files import MAX_JOB_FILE_BYTES
 from analysis.sweep.runner import run_sweep
 from analysis.sweep.spec import SweepError, load_sweep
+from analysis.sweep.summary import _remove_stale_stages, write_summary
 from analysis.tune.spec import TuneError, load_tuning
 
 GRID = '[grid]\n"gains.kp" = [{}]\n[outputs]\nmetrics = ["rms_position_error", "max_tool_position_error_mm"]\n'
@@ -181,8 +184,6 @@ if __name__ == "__main__":
 def test_ending_a_pool_whose_worker_died_mid_message_does_not_hang(tmp_path):
     # before: pool.shutdown(wait=True) waited in result_reader.recv() for good (SIGTERM to dobkit sweep --workers 2
     # while a worker sent its result: the command hung, its workers dead)
-    import subprocess
-    import sys
     script = tmp_path / "half_sent.py"
     script.write_text(_HALF_SENT, encoding="utf-8")
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(Path(__file__).resolve().parents[1]),
@@ -198,3 +199,37 @@ def test_ending_a_pool_whose_worker_died_mid_message_does_not_hang(tmp_path):
             child.wait()
             pytest.fail("ending the pool hung (waiting for the rest of a message its terminated worker never sent)")
     assert child.returncode == 0 and "ended" in log.read_text(), log.read_text()[-2000:]
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# what kill -9 of a summary writer left behind
+# ---------------------------------------------------------------------------------------------------------------
+def _dead_pid() -> int:
+    child = subprocess.Popen([sys.executable, "-c", "pass"])
+    child.wait()
+    return child.pid
+
+
+@pytest.mark.slow              # a sweep and its summary's figures
+def test_a_summary_staging_folder_left_by_kill_9_is_removed_by_the_next_complete_run(tmp_path, short_file):
+    # before: .NAME-summary.partial-<pid> stayed beside the results for good (FMU extractions are swept once
+    # their process is gone; summaries were not)
+    sweep = load_sweep(write_sweep(tmp_path, GRID.format("150")))
+    results = tmp_path / "s-results.jsonl"
+    run_sweep(sweep, results, workers=1, progress=False)
+    out = tmp_path / "s-summary"
+    dead = tmp_path / f".s-summary.partial-{_dead_pid()}"
+    dead.mkdir()
+    (dead / "fig.png").write_bytes(b"half a figure")
+    alive = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        live = tmp_path / f".s-summary.partial-{alive.pid}"     # another writer at work: left alone
+        live.mkdir()
+        write_summary(results, out, spec=sweep)
+        assert (out / "summary.json").is_file() and not dead.exists() and live.is_dir()
+    finally:
+        alive.kill()
+        alive.wait()
+    # killed between the two renames: the previous summary waits as .NAME.old-<pid> and no summary is in place
+    out.rename(tmp_path / f".s-summary.old-{_dead_pid()}")
+    assert len(_remove_stale_stages(out)) == 2 and (out / "summary.json").is_file()     # put back; live gone now
