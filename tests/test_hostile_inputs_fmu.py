@@ -7,6 +7,7 @@ constructor leaves a marker file when anything loads it.
 """
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import sys
@@ -106,3 +107,25 @@ def test_a_good_identifier_still_loads_and_a_bad_co_simulation_one_is_refused(tm
     bad = package_fmu(tmp_path / "bad.fmu", text, {"lag.c": LAG_DIR / "lag.c"}, ["lag.c"], "lag", 2)
     with pytest.raises(FMUModelDescriptionError, match=r"CoSimulation modelIdentifier='lag/x' is not a C identifier"):
         load(bad)
+
+
+def _can_mount() -> bool:
+    if shutil.which("unshare") is None or not hasattr(os, "geteuid") or os.geteuid() != 0:
+        return False
+    return subprocess.run(["unshare", "-m", "sh", "-c", "mount -t tmpfs -o size=64k tmpfs /mnt"],
+                          capture_output=True).returncode == 0
+
+
+@pytest.mark.slow                      # compiles the plant
+@pytest.mark.skipif(not _can_mount(), reason="needs root and mount namespaces (unshare -m) for a real small tmpfs")
+def test_an_fmu_exported_to_a_full_disk_is_named_with_the_file(tmp_path):
+    # before: "dobkit fmu: error: [Errno 28] No space left on device"
+    mount = tmp_path / "mnt"
+    mount.mkdir()
+    shell = (f"mount -t tmpfs -o size=64k tmpfs {mount} && (dd if=/dev/zero of={mount}/fill bs=1k count=100 "
+             f"2>/dev/null; {sys.executable} -m dobkit fmu export --out {mount}/p.fmu; echo rc=$?; ls -A {mount})")
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    run = subprocess.run(["unshare", "-m", "sh", "-c", shell], capture_output=True, text=True, env=env, timeout=600)
+    assert run.stderr.strip() == (f"dobkit fmu: error: FMU file '{mount}/p.fmu' cannot be written: the disk is full "
+                                  "(no space left); free space or choose another --out; nothing was written")
+    assert run.stdout.split() == ["rc=2", "fill"]               # no FMU and no temporary archive left

@@ -233,3 +233,35 @@ def test_a_summary_staging_folder_left_by_kill_9_is_removed_by_the_next_complete
     # killed between the two renames: the previous summary waits as .NAME.old-<pid> and no summary is in place
     out.rename(tmp_path / f".s-summary.old-{_dead_pid()}")
     assert len(_remove_stale_stages(out)) == 2 and (out / "summary.json").is_file()     # put back; live gone now
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# a full disk, named with the file and its role
+# ---------------------------------------------------------------------------------------------------------------
+def _can_mount() -> bool:
+    import shutil
+    if shutil.which("unshare") is None or not hasattr(os, "geteuid") or os.geteuid() != 0:
+        return False
+    return subprocess.run(["unshare", "-m", "sh", "-c", "mount -t tmpfs -o size=64k tmpfs /mnt"],
+                          capture_output=True).returncode == 0
+
+
+@pytest.mark.slow                      # two sweeps in a mount namespace
+@pytest.mark.skipif(not _can_mount(), reason="needs root and mount namespaces (unshare -m) for a real small tmpfs")
+def test_a_full_disk_under_the_results_file_is_named_with_the_file_and_its_role(tmp_path, short_file):
+    # before: "dobkit sweep: error: [Errno 28] No space left on device" (no file, no role, no remedy)
+    write_sweep(tmp_path, GRID.format("150"))
+    mount = tmp_path / "mnt"
+    mount.mkdir()
+    sweep = f"{sys.executable} -m dobkit sweep s.toml --results {mount}/r.jsonl --no-progress --workers 1"
+    # a 64 KiB tmpfs filled up; then one page (4 KiB) left: the lock takes it and the first row finds none
+    shell = (f"mount -t tmpfs -o size=64k tmpfs {mount} && (dd if=/dev/zero of={mount}/fill bs=1k count=100 "
+             f"2>/dev/null; {sweep}; echo rc=$?; rm {mount}/fill; dd if=/dev/zero of={mount}/fill bs=1k count=60 "
+             f"2>/dev/null; {sweep}; echo rc=$?; ls -A {mount})")
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    run = subprocess.run(["unshare", "-m", "sh", "-c", shell], capture_output=True, text=True, env=env,
+                         timeout=600, cwd=tmp_path)
+    said = f"dobkit sweep: results file '{mount}/r.jsonl' cannot be written: the disk is full (no space left); " \
+           "free space, or give this one another --results file; "
+    assert run.stderr.splitlines() == [said + "nothing was run", said + "nothing was written"], run.stderr
+    assert run.stdout.split() == ["rc=2", "rc=2", "fill"]       # no results file, lock or staging file left

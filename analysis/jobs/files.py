@@ -171,9 +171,15 @@ def exclusive_lock(path: Path, error: type[Exception], what: str, job: str, else
         to end, or give this one {elsewhere}".
     """
     lock = path.with_name(path.name + ".lock")
-    lock.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        lock.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise _unwritable(err, path, error, what, elsewhere, "nothing was run") from None
     while True:
-        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+        except OSError as err:
+            raise _unwritable(err, path, error, what, elsewhere, "nothing was run") from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -189,14 +195,23 @@ def exclusive_lock(path: Path, error: type[Exception], what: str, job: str, else
             break
         os.close(fd)             # the previous holder removed the file between our open and our lock: again
     try:
-        os.ftruncate(fd, 0)
-        os.write(fd, f"pid {os.getpid()} on {socket.gethostname()}, since {datetime.now():%Y-%m-%d %H:%M:%S}\n"
-                 .encode())
+        try:
+            os.ftruncate(fd, 0)
+            os.write(fd, f"pid {os.getpid()} on {socket.gethostname()}, since {datetime.now():%Y-%m-%d %H:%M:%S}\n"
+                     .encode())
+        except OSError as err:      # a full disk: said now, naming the job's file, not as "[Errno 28]"
+            raise _unwritable(err, path, error, what, elsewhere, "nothing was run") from None
         yield lock
     finally:
         with contextlib.suppress(OSError):
             os.unlink(lock)
         os.close(fd)
+
+
+def _unwritable(err: OSError, path: Path, error: type[Exception], what: str, elsewhere: str, kept: str) -> Exception:
+    """``error`` saying that the job's file cannot be written, and why in words (``blocks.outputs.file_error``)."""
+    from blocks.outputs import file_error
+    return error(f"{file_error(err, path, what, f'free space, or give this one {elsewhere}')}; {kept}")
 
 
 def cut_partial_last_line(path: Path) -> None:
@@ -518,32 +533,45 @@ class JobLog:
 
     def writer(self, header: dict) -> LogWriter:
         """A :class:`LogWriter` that starts a new log with ``header`` (checksummed rows) or appends to this one."""
-        return LogWriter(self.path, {self.kind.header_key: header, "row_checksum": ROW_CHECKSUM})
+        return LogWriter(self.path, {self.kind.header_key: header, "row_checksum": ROW_CHECKSUM}, self.kind)
 
 
 class LogWriter:
     """Appends rows to a log, creating it (header line first) with the first rows: a job that fails before any
     work finishes leaves no file.  Every batch is written whole (checksummed lines), flushed and synced."""
 
-    def __init__(self, path: Path, header_line: dict) -> None:
-        self.path, self.header_line, self.fh = path, header_line, None
+    def __init__(self, path: Path, header_line: dict, kind: LogKind | None = None) -> None:
+        self.path, self.header_line, self.fh, self.kind = path, header_line, None, kind
 
     def write(self, rows: Iterable[Mapping]) -> None:
         text = "".join(row_line(r) for r in rows)
-        if self.fh is None:
-            cut_partial_last_line(self.path)
-            new = not self.path.exists() or self.path.stat().st_size == 0
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self.fh = self.path.open("a", encoding="utf-8")
-            if new:
-                text = json.dumps(self.header_line, default=json_default) + "\n" + text
-        self.fh.write(text)
-        self.fh.flush()
-        os.fsync(self.fh.fileno())
+        try:
+            if self.fh is None:
+                cut_partial_last_line(self.path)
+                new = not self.path.exists() or self.path.stat().st_size == 0
+                self.path.parent.mkdir(parents=True, exist_ok=True)
+                self.fh = self.path.open("a", encoding="utf-8")
+                if new:
+                    text = json.dumps(self.header_line, default=json_default) + "\n" + text
+            self.fh.write(text)
+            self.fh.flush()
+            os.fsync(self.fh.fileno())
+        except OSError as err:
+            if self.kind is None:
+                raise
+            self.close()              # the part of a line written is cut: the file holds whole rows only
+            k = self.kind
+            kept = "the rows written before are kept whole, and the same command goes on from them"
+            with contextlib.suppress(OSError):
+                if self.path.stat().st_size == 0:       # made now and nothing of it kept
+                    self.path.unlink()
+                    kept = "nothing was written"
+            raise _unwritable(err, self.path, k.error, k.what, k.elsewhere, kept) from None
 
     def close(self) -> None:
         if self.fh is not None:
-            self.fh.close()
+            with contextlib.suppress(OSError):      # a full disk: what was flushed stays, the rest is cut below
+                self.fh.close()
             self.fh = None
             cut_partial_last_line(self.path)          # an interrupted write may have left part of a line
 
