@@ -197,3 +197,17 @@ def test_good_files_load_as_before(tmp_path):
     q = np.array([0.3, 0.1])
     M = pin.crba(model, model.createData(), q)
     assert np.allclose(arm.inertia(q), np.triu(M) + np.triu(M, 1).T, atol=1e-12, rtol=0)
+
+
+@pytest.mark.parametrize("axis", ["0 1e-200 0", "0 1e200 1e200"])
+def test_an_axis_too_short_or_too_long_to_normalise_is_refused_naming_its_joint(tmp_path, axis):
+    # before: 0 1e-200 0 on the pitch joint was refused as "joint 'pitch'"'s neighbour: "joint 'yaw' ... moves no
+    # mass or inertia" (pinocchio's normalisation divided by a length whose square is 0)
+    path = _urdf(tmp_path, _changed('<axis xyz="0 1 0"/>', f'<axis xyz="{axis}"/>'))
+    with pytest.raises(UrdfParseError, match=rf"joint 'pitch' <axis> xyz='{axis}' cannot be normalised in double "
+                                             r"precision"):
+        load_urdf_arm(path, "rod")
+    for short in ("0 1e-150 0", "0 1e150 0"):        # still normalisable: the same arm as the unit axis
+        arm = load_urdf_arm(_urdf(tmp_path, _changed('<axis xyz="0 1 0"/>', f'<axis xyz="{short}"/>'), "ok.urdf"),
+                            "rod")
+        assert arm.chain.axes[0] == (0.0, 1.0, 0.0)

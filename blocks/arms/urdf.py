@@ -185,6 +185,12 @@ def _check_numbers(root, path: Path) -> None:
         if axis is not None and joint.get("type") != "fixed" and not any(axis):
             raise UrdfParseError(f"URDF file {str(path)!r}: {where} <axis> xyz={joint.find('axis').get('xyz')!r} "
                                  "has no direction; an axis must be a non-zero vector")
+        squared = math.fsum(v * v for v in axis) if axis is not None else 1.0
+        if joint.get("type") != "fixed" and not sys.float_info.min <= squared < math.inf:
+            # pinocchio divides by the length: 0 1e-200 0 squares to 0 (then 'yaw moves no mass' was said)
+            raise UrdfParseError(f"URDF file {str(path)!r}: {where} <axis> xyz={joint.find('axis').get('xyz')!r} "
+                                 f"cannot be normalised in double precision (its squared length is {squared:.3g}); "
+                                 "write the axis as a unit vector, e.g. '0 1 0'")
         limit = joint.find("limit")
         if limit is None and joint.get("type") in ("revolute", "prismatic"):
             raise UrdfParseError(f"URDF file {str(path)!r}: {where} is {joint.get('type')} without <limit lower upper "
