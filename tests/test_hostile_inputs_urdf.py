@@ -211,3 +211,70 @@ def test_an_axis_too_short_or_too_long_to_normalise_is_refused_naming_its_joint(
         arm = load_urdf_arm(_urdf(tmp_path, _changed('<axis xyz="0 1 0"/>', f'<axis xyz="{short}"/>'), "ok.urdf"),
                             "rod")
         assert arm.chain.axes[0] == (0.0, 1.0, 0.0)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# the nominal model and the observer bandwidth of a URDF arm: refused by the key the file sets
+# ---------------------------------------------------------------------------------------------------------------
+def test_a_nominal_scale_that_underflows_is_refused_by_its_key_not_as_a_singular_matrix():
+    # before: "dobkit simulate: error: Singular matrix" (numpy's words, no key) once the run began
+    import blocks
+    from blocks.scenario import ScenarioError
+    scope4 = blocks.load_scenario("scope4")
+    with pytest.raises(ScenarioError, match=r"the nominal model's inertia M\^\(q0\) at the start q0 = \[0.0, 0.1, 0.1, "
+                                            r"0.0\] .* cannot be inverted in double precision; it is set by "
+                                            r"'arm.nominal_mass_scale' = 1e-320"):
+        scope4.with_changes({"arm.nominal_mass_scale": 1e-320, "gains.observer_bandwidth": 1e-3})
+    # the smallest scale whose nominal inertia is still normal doubles loads (the roll's 4e-7 kg m^2 the smallest)
+    assert scope4.with_changes({"arm.nominal_mass_scale": 1e-290}).kp.shape == (4, 4)
+
+
+def test_an_observer_bandwidth_that_underflows_is_refused_naming_the_bandwidth():
+    # before: refused as a bad 'gains.observer', a key the file does not set
+    import blocks
+    from blocks.scenario import ScenarioError
+    with pytest.raises(ScenarioError, match=r"'gains.observer_bandwidth' = 5e-324 rad/s gives the observer gain Y = "
+                                            r"omega M\^\(q0\) that is not a usable gain \(Y must have a positive "
+                                            r"definite"):
+        blocks.load_scenario("scope4").with_changes({"gains.observer_bandwidth": 5e-324})
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# metrics that are not finite numbers: strict JSON, the same way in every writer
+# ---------------------------------------------------------------------------------------------------------------
+def _strict(text: str):
+    import json
+
+    def refuse(token):
+        raise ValueError(f"not JSON: {token}")
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_non_finite_metrics_are_written_as_null_with_their_places_listed():
+    # before: dobkit simulate's metrics.json held the bare token Infinity (report: null, unlisted)
+    from blocks.outputs import NON_FINITE_MEANING, metrics_json
+    text, paths = metrics_json({"with_dob": {"rms_disturbance_error": [0.1, float("inf"), np.float64("nan")]},
+                                "table": np.array([[1.0, -np.inf]]), "engine": "fast"})
+    data = _strict(text)
+    assert data["with_dob"]["rms_disturbance_error"] == [0.1, None, None] and data["table"] == [[1.0, None]]
+    assert paths == ["with_dob/rms_disturbance_error/1", "with_dob/rms_disturbance_error/2", "table/0/1"]
+    assert data["non_finite_values"] == {"meaning": NON_FINITE_MEANING, "paths": paths}
+    finite, none = metrics_json({"a": [1.0, 2.5]})
+    assert none == [] and "non_finite_values" not in _strict(finite)
+
+
+def test_every_metrics_writer_is_the_strict_one(tmp_path):
+    # dobkit simulate (run_experiment), dobkit report and fmu cosim write metrics.json through metrics_json
+    import inspect
+
+    import analysis.report.build as report
+    import analysis.simulation.experiment as experiment
+    from analysis.simulation.experiment import run_experiment
+    from blocks.outputs import metrics_json
+    from dobkit.fmu_commands import strict_json
+    short = __import__("blocks").load_scenario("paper").replace(simulation={"t_final": 0.05})
+    result = run_experiment(short, tmp_path / "o", figures=False, engine="fast")
+    assert (tmp_path / "o" / "metrics.json").read_text() == metrics_json(result.metrics)[0]
+    assert strict_json({"x": float("nan")}) == metrics_json({"x": float("nan")})[0]
+    for module in (report, experiment):
+        assert "metrics_json(metrics)" in inspect.getsource(module)
