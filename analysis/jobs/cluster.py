@@ -91,7 +91,9 @@ def _check_scheme(address: str, error: type[Exception]) -> None:
 
 
 async def _identity(distributed, address: str, timeout: float):
-    comm = await asyncio.wait_for(distributed.comm.connect(address, timeout=timeout), timeout)
+    # Dask's connect retries for up to `timeout`, then raises OSError (nothing reached); the handshake read after
+    # it has no time-out of its own: this one's second `timeout` is the peer's time to answer
+    comm = await asyncio.wait_for(distributed.comm.connect(address, timeout=timeout), 2 * timeout)
     try:
         await asyncio.wait_for(comm.write({"op": "identity"}), timeout)
         return await asyncio.wait_for(comm.read(), timeout)
@@ -115,9 +117,8 @@ def probe_scheduler(address: str, timeout: float, error: type[Exception]) -> Non
     try:
         answer = asyncio.run(_identity(distributed, address, timeout))
     except TimeoutError:
-        raise error(f"{where} did not answer within {timeout:g} s (the connection was "
-                    "accepted, so something listens there: is it a Dask scheduler, and is it running?); nothing was "
-                    "run or written") from None
+        raise error(f"{where} did not answer within {timeout:g} s of accepting the connection (something "
+                    "listens there: is it a Dask scheduler, and is it running?); nothing was run or written") from None
     except (OSError, ValueError) as err:
         raise error(f"cannot reach {where}: {err}; nothing was run or written") from None
     except (Exception, MemoryError) as err:   # noqa: BLE001 - what a peer of another protocol makes Dask's reader do
