@@ -4,6 +4,8 @@ from __future__ import annotations
 import atexit
 import contextlib
 import errno
+import json
+import math
 import os
 import shutil
 import signal
@@ -13,7 +15,8 @@ import weakref
 from datetime import datetime
 from pathlib import Path
 
-__all__ = ["default_out_dir", "staged_output", "file_error", "interrupts_held", "DISK_ERRORS"]
+__all__ = ["default_out_dir", "staged_output", "file_error", "interrupts_held", "DISK_ERRORS", "metrics_json",
+           "NON_FINITE_MEANING"]
 
 #: Why a write fails for reasons of the file system rather than of the file, in words.
 DISK_ERRORS = {errno.EROFS: "the file system is read-only", errno.ENOSPC: "the disk is full (no space left)",
@@ -45,6 +48,53 @@ def file_error(err: OSError, path, role: str, advice: str = "choose another --ou
     new = type(err)(f"{role} '{path}' cannot be written: {what}" + (f"; {advice}" if advice else ""))
     new.errno = err.errno           # kept for callers that test it; without strerror and filename str() is the text
     return new
+
+
+#: What ``null`` means in the JSON files dobkit writes (``metrics.json``, ``convergence.json``, ...).
+NON_FINITE_MEANING = ("null marks a value that was not a finite number (NaN or infinite); each place is listed "
+                      "as a path of keys and list indices")
+
+
+def metrics_json(data) -> tuple[str, list[str]]:
+    """``data`` as strict JSON text, and the paths of its values that were not finite numbers.
+
+    Every JSON file of results is written by this one function: a NaN or an
+    infinity (numpy's as well) becomes ``null`` and its place is listed under
+    ``non_finite_values`` (JSON has no such numbers: ``Infinity`` is a token
+    other readers refuse); numpy arrays and scalars become lists and numbers.
+
+    Returns
+    -------
+    text : str
+        Indented (2 spaces), ending in a newline.
+    paths : list of str
+        ``key/index/...`` of each non-finite value (empty when all are finite).
+
+    Examples
+    --------
+    >>> text, paths = metrics_json({"a": [1.0, float("inf")]})
+    >>> paths, json.loads(text)["a"]
+    (['a/1'], [1.0, None])
+    """
+    paths: list[str] = []
+
+    def clean(value, path: str):
+        if hasattr(value, "tolist") and not isinstance(value, (str, bytes)):      # numpy arrays and scalars
+            value = value.tolist()
+        if isinstance(value, float) and not math.isfinite(value):
+            paths.append(path or "/")
+            return None
+        if isinstance(value, dict):
+            return {k: clean(v, f"{path}/{k}" if path else str(k)) for k, v in value.items()}
+        if isinstance(value, (list, tuple)):
+            return [clean(v, f"{path}/{i}" if path else str(i)) for i, v in enumerate(value)]
+        return value
+
+    cleaned = clean(data, "")
+    if paths:
+        cleaned = dict(cleaned) if isinstance(cleaned, dict) else {"value": cleaned}
+        cleaned["non_finite_values"] = {"meaning": NON_FINITE_MEANING, "paths": paths}
+    return json.dumps(cleaned, indent=2, allow_nan=False) + "\n", paths
 
 
 _unused_defaults: set[Path] = set()

@@ -1184,6 +1184,7 @@ def _validated(data: Mapping, source: str) -> Scenario:
         if out[section] is None:            # an optional section that is absent
             del out[section]
     gains = built["gains"]
+    _check_nominal_invertible(built, data)
     if "observer_bandwidth" in gains:
         gains["observer"] = _bandwidth_gain(gains["observer_bandwidth"], built)
     if isinstance(built["trajectory"], ToolLaceration):
@@ -1205,14 +1206,53 @@ def _validated(data: Mapping, source: str) -> Scenario:
                     user_data=_plain(data))
 
 
+def _start(built: dict) -> np.ndarray:
+    """The start ``q0``: ``initial.q``, else the reference at t = 0."""
+    q0 = built["initial"]["q"]
+    return np.asarray(built["trajectory"].evaluate(0.0)[0] if q0 is None else q0, dtype=float)
+
+
+def _nominal_keys(data: Mapping) -> str:
+    arm, scale = data.get("arm"), data.get("nominal_scale")
+    keys = [f"'arm.nominal_mass_scale' = {arm['nominal_mass_scale']!r}"] \
+        if isinstance(arm, Mapping) and "nominal_mass_scale" in arm else []
+    if isinstance(scale, Mapping):
+        keys += [f"'nominal_scale.{k}' = {v!r}" for k, v in scale.items()]
+    return ", ".join(keys) or "the nominal model's defaults"
+
+
+def _check_nominal_invertible(built: dict, data: Mapping) -> None:
+    """The nominal inertia ``M^(q0)``, which the controller and observer invert, must be invertible in double
+    precision: a scale of 1e-320 takes every entry below the smallest normal double (numpy then said only
+    "Singular matrix" when the run began)."""
+    q0 = _start(built)
+    with np.errstate(all="ignore"):
+        M = np.asarray(built["nominal_scale"].inertia(q0), dtype=float)
+    diagonal = np.diag(M)
+    usable = bool(np.all(np.isfinite(M)) and np.all(diagonal >= np.finfo(float).tiny))
+    if usable:
+        try:
+            np.linalg.cholesky(0.5 * (M + M.T))
+        except np.linalg.LinAlgError:
+            usable = False
+    if not usable:
+        raise ScenarioError(f"the nominal model's inertia M^(q0) at the start q0 = {number_text(q0.tolist())} "
+                            f"(its diagonal {number_text(diagonal.tolist())}) cannot be inverted in double precision; "
+                            f"it is set by {_nominal_keys(data)}: give the nominal model's masses as real masses (a "
+                            "scale near 1: it is the controller's estimate of the arm)")
+
+
 def _bandwidth_gain(omega: float, built: dict) -> np.ndarray:
     """``Y = omega M^(q0)`` at the start ``q0`` (``initial.q``, else the reference at t = 0), checked as a gain."""
-    q0 = built["initial"]["q"]
-    if q0 is None:
-        q0 = np.asarray(built["trajectory"].evaluate(0.0)[0], dtype=float)
+    q0 = _start(built)
     ctx = _context()
-    return validated_gain(observer_gain_from_bandwidth(built["nominal_scale"], omega, q0), "observer", ctx.joints,
-                          ctx.arm_label)
+    try:
+        return validated_gain(observer_gain_from_bandwidth(built["nominal_scale"], omega, q0), "observer",
+                              ctx.joints, ctx.arm_label)
+    except GainError as err:    # Y is made from the bandwidth: the key the file sets is the one to name
+        raise ScenarioError(f"'gains.observer_bandwidth' = {omega!r} rad/s gives the observer gain Y = omega M^(q0) "
+                            f"that is not a usable gain (Y must {str(err).split(' must ', 1)[-1]}); give a bandwidth of a "
+                            "few rad/s to a few hundred rad/s") from None
 
 
 def _arm_checks(section: str, kind: str | None, arm=None) -> dict | None:

@@ -81,6 +81,11 @@ def _cmd_simulate(args) -> int:
     figures = "no figures (--no-figures)" if args.no_figures else \
         "Figures 4-8 as " + " and ".join(f.upper() for f in formats)
     print(f"results written to {result.out_dir}: metrics.json, timeseries.csv, scenario.toml, {figures}")
+    from blocks.outputs import metrics_json
+    non_finite = metrics_json(result.metrics)[1]
+    if non_finite:
+        print(f"note: {len(non_finite)} metric(s) are not finite numbers (written as null in metrics.json, listed "
+              f"under non_finite_values): {', '.join(non_finite[:4])}{' ...' if len(non_finite) > 4 else ''}")
     return 0
 
 

@@ -21,17 +21,12 @@ listed under ``non_finite_values``.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 from pathlib import Path
 
 from dobkit.arguments import positive_number, whole_number
 
 __all__ = ["add_fmu_subcommands", "strict_json"]
-
-_NON_FINITE_MEANING = ("null marks a value that was not a finite number (NaN or infinite); each place is listed "
-                       "as a path of keys and list indices")
-
 
 _positive_float = positive_number()
 _positive_int = whole_number("the value")
@@ -45,7 +40,8 @@ def _step_list(text: str) -> tuple[float, ...]:
 
 
 def strict_json(data) -> str:
-    """``data`` as strict JSON text: non-finite floats become ``null``, listed under ``non_finite_values``.
+    """``data`` as strict JSON text: non-finite floats become ``null``, listed under ``non_finite_values``
+    (:func:`blocks.outputs.metrics_json`, the one writer of every results file).
 
     Examples
     --------
@@ -54,23 +50,8 @@ def strict_json(data) -> str:
     >>> data["a"], data["non_finite_values"]["paths"]
     ([1.0, None], ['a/1'])
     """
-    paths: list[str] = []
-
-    def clean(value, path: str):
-        if isinstance(value, float) and not math.isfinite(value):
-            paths.append(path or "/")
-            return None
-        if isinstance(value, dict):
-            return {k: clean(v, f"{path}/{k}" if path else str(k)) for k, v in value.items()}
-        if isinstance(value, (list, tuple)):
-            return [clean(v, f"{path}/{i}" if path else str(i)) for i, v in enumerate(value)]
-        return value
-
-    cleaned = clean(data, "")
-    if paths:
-        cleaned = dict(cleaned) if isinstance(cleaned, dict) else {"value": cleaned}
-        cleaned["non_finite_values"] = {"meaning": _NON_FINITE_MEANING, "paths": paths}
-    return json.dumps(cleaned, indent=2, allow_nan=False) + "\n"
+    from blocks.outputs import metrics_json
+    return metrics_json(data)[0]
 
 
 def _budget(args):

@@ -12,7 +12,11 @@ Checks, each with its own error naming what is wrong:
   with fmpy's list of problems as ``problems``);
 * it stays within the subset of FMI that dobkit's importer handles
   (:func:`unsupported_features`);
-* it has a binary for this platform (:class:`FMUPlatformError`);
+* every interface's ``modelIdentifier`` is a C identifier, as FMI requires
+  (it names the shared library: ``../x`` would load one from outside the
+  archive), checked before anything is loaded (:class:`FMUModelDescriptionError`);
+* it has a binary for this platform, inside the extracted archive
+  (:class:`FMUPlatformError`);
 * it declares the variables a caller needs (:func:`require_variables`,
   :class:`FMUMissingVariablesError`).
 """
@@ -20,6 +24,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import os
 import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -28,7 +33,7 @@ from .build import platform_folder, shared_library_suffix
 from .errors import FMUMissingVariablesError, FMUModelDescriptionError, FMUPlatformError, FMUVersionError
 
 __all__ = ["read_description", "described", "intermediate_update_names", "offered_interfaces", "fmi_major",
-           "interface", "binary_path", "require_variables",
+           "interface", "binary_path", "require_variables", "identifier_problems",
            "INTERFACES", "real_variables", "unsupported_features", "SUPPORTED_FMI_VERSIONS", "array_shape",
            "element_names", "state_count", "event_indicator_count", "state_variables"]
 
@@ -100,6 +105,34 @@ def _root_element(xml: Path, source: str) -> tuple[str, dict]:
     return found[0]
 
 
+#: FMI 2.0.4 section 2.2.1 and FMI 3.0 section 2.4.1: a modelIdentifier is a C identifier (it names the library
+#: binaries/<platform>/<modelIdentifier>.so and prefixes the functions of a source FMU).
+_C_IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+def identifier_problems(model_description) -> list[str]:
+    """One phrase per interface whose ``modelIdentifier`` is not a C identifier (empty: all are).
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace as N
+    >>> [p[:50] for p in identifier_problems(N(modelExchange=N(modelIdentifier="../x"), coSimulation=None))]
+    ["ModelExchange modelIdentifier='../x' is not a C id"]
+    """
+    problems = []
+    for kind in INTERFACES + ("ScheduledExecution",):
+        attribute = {"ModelExchange": "modelExchange", "CoSimulation": "coSimulation"}.get(kind, "scheduledExecution")
+        element = getattr(model_description, attribute, None)
+        if element is None:
+            continue
+        name = getattr(element, "modelIdentifier", None)
+        if not isinstance(name, str) or not name.isascii() or not _C_IDENTIFIER.fullmatch(name):
+            problems.append(f"{kind} modelIdentifier={name!r} is not a C identifier (letters, digits and '_', not "
+                            "starting with a digit), which FMI requires: it names the library "
+                            "binaries/<platform>/<modelIdentifier>.so")
+    return problems
+
+
 def read_description(root: Path, source: str, validate: bool = True, limits=None):
     """Parse and validate ``modelDescription.xml`` of an extracted FMU.
 
@@ -144,7 +177,7 @@ def read_description(root: Path, source: str, validate: bool = True, limits=None
     from fmpy import read_model_description
     from fmpy.model_description import ValidationError
     try:
-        return read_model_description(str(root), validate=validate)
+        md = read_model_description(str(root), validate=validate)
     except ValidationError as err:
         problems = [str(p) for p in err.problems]
         listed = "; ".join(problems[:5]) + (f" (and {len(problems) - 5} more)" if len(problems) > 5 else "")
@@ -153,6 +186,11 @@ def read_description(root: Path, source: str, validate: bool = True, limits=None
     except Exception as err:  # fmpy raises bare Exceptions for unsupported content
         raise FMUModelDescriptionError(f"{source}: modelDescription.xml cannot be read: {err}",
                                        problems=[str(err)]) from None
+    bad = identifier_problems(md)       # before anything can load a library named by it
+    if bad:
+        raise FMUModelDescriptionError(f"{source}: modelDescription.xml is invalid: {'; '.join(bad)}; nothing was "
+                                       "loaded", problems=bad)
+    return md
 
 
 def intermediate_update_names(root: Path) -> frozenset[str]:
@@ -197,8 +235,17 @@ def offered_interfaces(model_description) -> list[str]:
 def binary_path(root: Path, model_description, kind: str, source: str) -> Path:
     """Path of the shared library for this platform; raises if the FMU has none."""
     identifier = interface(model_description, kind, source).modelIdentifier
+    bad = identifier_problems(model_description)
+    if bad:
+        raise FMUModelDescriptionError(f"{source}: modelDescription.xml is invalid: {'; '.join(bad)}; nothing was "
+                                       "loaded", problems=bad)
     folder = platform_folder(fmi_major(model_description))
     lib = Path(root) / "binaries" / folder / (identifier + shared_library_suffix())
+    # only a regular file inside the extraction is ever loaded (the archive checks refuse links; this holds even so)
+    inside = str(Path(root).resolve() / "binaries") + os.sep
+    if lib.is_file() and not os.path.realpath(lib).startswith(inside):
+        raise FMUPlatformError(f"{source}: the binary {lib} resolves to {os.path.realpath(lib)}, outside the "
+                               "extracted archive; refusing to load it")
     if not lib.is_file():
         bins = Path(root) / "binaries"
         present = sorted(p.name for p in bins.iterdir() if p.is_dir()) if bins.is_dir() else []

@@ -15,6 +15,8 @@ import tempfile
 import zipfile
 from pathlib import Path
 
+from blocks.outputs import DISK_ERRORS, file_error
+
 from .build import FMI_HEADERS, compile_shared_library, fmi_header_dir, platform_folder, shared_library_suffix
 
 __all__ = ["package_fmu"]
@@ -31,12 +33,19 @@ def _write_zip(path: Path, files: dict[str, bytes], replace: bool = True) -> Non
     """
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
-        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
-            for name, data in files.items():
-                info = zipfile.ZipInfo(name, date_time=_ZIP_DATE)
-                info.compress_type = zipfile.ZIP_DEFLATED
-                info.external_attr = (0o755 if name.startswith("binaries/") else 0o644) << 16
-                zf.writestr(info, data)
+        try:
+            with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+                for name, data in files.items():
+                    info = zipfile.ZipInfo(name, date_time=_ZIP_DATE)
+                    info.compress_type = zipfile.ZIP_DEFLATED
+                    info.external_attr = (0o755 if name.startswith("binaries/") else 0o644) << 16
+                    zf.writestr(info, data)
+        except OSError as err:
+            if err.errno not in DISK_ERRORS:
+                raise
+            # a full disk or a read-only one: named with the FMU's path, not "[Errno 28] No space left on device"
+            raise file_error(err, path, "FMU file", "free space or choose another --out; nothing was written") \
+                from None
         if replace:
             os.replace(tmp, path)
         else:

@@ -14,10 +14,14 @@ worker.
 
 The scheduler is an address (``tcp://host:8786``) or ``local[:N]``: a Dask
 ``LocalCluster`` of N worker processes (default: one per core) started on
-127.0.0.1 for the job and closed when it ends, however it ends.
+127.0.0.1 for the job and closed when it ends, however it ends.  An address is
+asked who it is before a client is made, within the time-out: Dask's client
+waits without end for a peer that accepts the connection and never answers,
+and reads a peer of another protocol as a frame of exabytes.
 """
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import functools
 import itertools
@@ -29,7 +33,7 @@ from collections.abc import Callable, Iterator
 from analysis.jobs.interrupts import sigint_held
 
 __all__ = ["dask_session", "local_workers", "dask_threads", "run_on_dask", "call_with_notes", "take_with_notes",
-           "LOCAL", "MAX_LOCAL_WORKERS_PER_CORE"]
+           "LOCAL", "MAX_LOCAL_WORKERS_PER_CORE", "probe_scheduler"]
 
 #: The scheduler "address" that starts a cluster on this machine for the job: ``local`` or ``local:N``.
 LOCAL = "local"
@@ -74,6 +78,59 @@ def local_workers(address: str, error: type[Exception] = ValueError) -> int | No
     return int(count)
 
 
+#: The address schemes dobkit connects to (a bare ``host:port`` is TCP to Dask as well).
+_SCHEMES = ("tcp",)
+
+
+def _check_scheme(address: str, error: type[Exception]) -> None:
+    scheme = address.split("://", 1)[0].lower() if "://" in address else "tcp"
+    if scheme not in _SCHEMES:
+        raise error(f"--scheduler {address!r}: dobkit connects to a Dask scheduler over tcp:// only ({scheme}:// "
+                    "needs settings dobkit does not take: certificates for tls://, UCX for ucx://); give "
+                    "tcp://HOST:PORT or local[:N]; nothing was run or written")
+
+
+async def _identity(distributed, address: str, timeout: float):
+    # Dask's connect retries for up to `timeout`, then raises OSError (nothing reached); the handshake read after
+    # it has no time-out of its own: this one's second `timeout` is the peer's time to answer
+    comm = await asyncio.wait_for(distributed.comm.connect(address, timeout=timeout), 2 * timeout)
+    try:
+        await asyncio.wait_for(comm.write({"op": "identity"}), timeout)
+        return await asyncio.wait_for(comm.read(), timeout)
+    finally:
+        comm.abort()
+
+
+def probe_scheduler(address: str, timeout: float, error: type[Exception]) -> None:
+    """Ask the scheduler at ``address`` who it is, all within ``timeout`` seconds.
+
+    Raises
+    ------
+    error
+        When nothing listens there, the peer does not answer in time (Dask's own client would wait for ever),
+        or it answers with something other than a Dask scheduler's identity (another protocol's bytes read as a
+        frame length were an allocation of exabytes, reported as out of memory).
+    """
+    distributed = _distributed(error, address)
+    _check_scheme(address, error)
+    where = f"the Dask scheduler at {address!r}"
+    try:
+        answer = asyncio.run(_identity(distributed, address, timeout))
+    except TimeoutError:
+        raise error(f"{where} did not answer within {timeout:g} s of accepting the connection (something "
+                    "listens there: is it a Dask scheduler, and is it running?); nothing was run or written") from None
+    except (OSError, ValueError) as err:
+        raise error(f"cannot reach {where}: {err}; nothing was run or written") from None
+    except (Exception, MemoryError) as err:   # noqa: BLE001 - what a peer of another protocol makes Dask's reader do
+        raise error(f"{where} answered with something other than Dask's protocol ({type(err).__name__} reading its "
+                    "reply); give a Dask scheduler's address (tcp://HOST:8786); nothing was run or written") \
+            from None
+    if not (isinstance(answer, dict) and answer.get("type") == "Scheduler"):
+        kind = answer.get("type") if isinstance(answer, dict) else type(answer).__name__
+        raise error(f"{where} is not a Dask scheduler (it says it is {kind!r}); give a scheduler's address; nothing "
+                    "was run or written")
+
+
 @contextlib.contextmanager
 def dask_session(address: str, timeout: float, error: type[Exception]):
     """A Dask client of the scheduler at ``address`` (``tcp://host:8786``), or of a ``LocalCluster`` started
@@ -83,8 +140,9 @@ def dask_session(address: str, timeout: float, error: type[Exception]):
     Raises
     ------
     error
-        When Dask is not installed (naming the ``cluster`` extra), ``local:N`` is not a whole number >= 1, or the
-        scheduler does not answer within ``timeout`` seconds.
+        When Dask is not installed (naming the ``cluster`` extra), ``local:N`` is not a whole number >= 1, the
+        address is not ``tcp://`` or the scheduler does not answer within ``timeout`` seconds
+        (:func:`probe_scheduler`).
     """
     workers = local_workers(address, error)
     distributed = _distributed(error, address)
@@ -100,6 +158,7 @@ def dask_session(address: str, timeout: float, error: type[Exception]):
             stack.callback(cluster.close)
             target = cluster
         else:
+            probe_scheduler(address, timeout, error)
             target = address
         try:
             client = distributed.Client(target, timeout=f"{timeout}s")

@@ -44,6 +44,7 @@ import itertools
 import json
 import os
 import socket
+import stat
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from datetime import datetime
@@ -51,7 +52,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["exclusive_lock", "cut_partial_last_line", "write_lines_atomically", "move_aside", "json_default",
+__all__ = ["read_job_file", "check_regular", "MAX_JOB_FILE_BYTES",
+           "exclusive_lock", "cut_partial_last_line", "write_lines_atomically", "move_aside", "json_default",
            "row_checksum", "row_line", "differences", "LogKind", "JobLog", "LogWriter", "ROW_CHECKSUM"]
 
 #: How rows are checksummed (recorded in the header line of every log written with checksums).
@@ -94,6 +96,57 @@ def differences(old: Mapping, new: Mapping, parts: Mapping[str, str]) -> list[st
 # --------------------------------------------------------------------------------------------
 # Files: lock, torn lines, atomic rewrites, moving aside
 # --------------------------------------------------------------------------------------------
+#: The largest sweep or tuning file read (a job's definition is a short text file; scenario files stop at 1 MB).
+MAX_JOB_FILE_BYTES = 2 ** 20
+
+
+def check_regular(path: Path, error: type[Exception], what: str) -> None:
+    """Refuse ``path`` when it exists and is not a regular file (a folder, device, FIFO or socket); a missing
+    path passes (a job's log is made by the job).  Checked without opening it: a FIFO would wait for a writer,
+    and ``/dev/zero`` read line by line has no end (it filled memory)."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return
+    except OSError as err:
+        raise error(f"{what} '{path}' cannot be read ({err.strerror or err})") from None
+    if not stat.S_ISREG(mode):
+        kind = "a folder" if stat.S_ISDIR(mode) else "a device, pipe or socket"
+        raise error(f"{what} '{path}' is not a regular file ({kind}); give the path of a file")
+
+
+def read_job_file(path: Path, error: type[Exception], what: str, limit: int = MAX_JOB_FILE_BYTES) -> str:
+    """The UTF-8 text (a byte-order mark dropped) of a regular file of at most ``limit`` bytes.
+
+    Opened without blocking and checked on the open file, so that a FIFO or a device is refused, not read.
+
+    Raises
+    ------
+    error
+        Naming the file (``what`` is its role: ``"sweep file"``) and what is wrong: missing, not a regular file,
+        larger than ``limit``, not UTF-8.
+    """
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except FileNotFoundError:
+        raise error(f"{what} '{path}' does not exist") from None
+    except OSError as err:
+        raise error(f"{what} '{path}' cannot be read ({err.strerror or err})") from None
+    with os.fdopen(fd, "rb") as f:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            kind = "a folder" if stat.S_ISDIR(mode) else "a device, pipe or socket"
+            raise error(f"{what} '{path}' is not a regular file ({kind}); give the path of a .toml file")
+        raw = f.read(limit + 1)
+    if len(raw) > limit:
+        raise error(f"{what} '{path}' has more than {limit:,} bytes; a {what} is a short text file (at most "
+                    f"{limit:,} bytes)")
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as err:
+        raise error(f"{path}: not UTF-8 text: {err}") from None
+
+
 @contextlib.contextmanager
 def exclusive_lock(path: Path, error: type[Exception], what: str, job: str, elsewhere: str):
     """Hold ``<path>.lock`` (an exclusive ``flock``) while the block runs.
@@ -118,9 +171,15 @@ def exclusive_lock(path: Path, error: type[Exception], what: str, job: str, else
         to end, or give this one {elsewhere}".
     """
     lock = path.with_name(path.name + ".lock")
-    lock.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        lock.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise _unwritable(err, path, error, what, elsewhere, "nothing was run") from None
     while True:
-        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+        except OSError as err:
+            raise _unwritable(err, path, error, what, elsewhere, "nothing was run") from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -136,14 +195,23 @@ def exclusive_lock(path: Path, error: type[Exception], what: str, job: str, else
             break
         os.close(fd)             # the previous holder removed the file between our open and our lock: again
     try:
-        os.ftruncate(fd, 0)
-        os.write(fd, f"pid {os.getpid()} on {socket.gethostname()}, since {datetime.now():%Y-%m-%d %H:%M:%S}\n"
-                 .encode())
+        try:
+            os.ftruncate(fd, 0)
+            os.write(fd, f"pid {os.getpid()} on {socket.gethostname()}, since {datetime.now():%Y-%m-%d %H:%M:%S}\n"
+                     .encode())
+        except OSError as err:      # a full disk: said now, naming the job's file, not as "[Errno 28]"
+            raise _unwritable(err, path, error, what, elsewhere, "nothing was run") from None
         yield lock
     finally:
         with contextlib.suppress(OSError):
             os.unlink(lock)
         os.close(fd)
+
+
+def _unwritable(err: OSError, path: Path, error: type[Exception], what: str, elsewhere: str, kept: str) -> Exception:
+    """``error`` saying that the job's file cannot be written, and why in words (``blocks.outputs.file_error``)."""
+    from blocks.outputs import file_error
+    return error(f"{file_error(err, path, what, f'free space, or give this one {elsewhere}')}; {kept}")
 
 
 def cut_partial_last_line(path: Path) -> None:
@@ -255,6 +323,9 @@ class JobLog:
     kind: LogKind
     problems: list = field(default_factory=list)
     repeated: int = 0
+
+    def __post_init__(self) -> None:
+        check_regular(self.path, self.kind.error, self.kind.what)     # before its lock is made beside it
 
     # -- reading ----------------------------------------------------------------------------------
     def _lines(self) -> Iterator[tuple[int, str]]:
@@ -462,32 +533,45 @@ class JobLog:
 
     def writer(self, header: dict) -> LogWriter:
         """A :class:`LogWriter` that starts a new log with ``header`` (checksummed rows) or appends to this one."""
-        return LogWriter(self.path, {self.kind.header_key: header, "row_checksum": ROW_CHECKSUM})
+        return LogWriter(self.path, {self.kind.header_key: header, "row_checksum": ROW_CHECKSUM}, self.kind)
 
 
 class LogWriter:
     """Appends rows to a log, creating it (header line first) with the first rows: a job that fails before any
     work finishes leaves no file.  Every batch is written whole (checksummed lines), flushed and synced."""
 
-    def __init__(self, path: Path, header_line: dict) -> None:
-        self.path, self.header_line, self.fh = path, header_line, None
+    def __init__(self, path: Path, header_line: dict, kind: LogKind | None = None) -> None:
+        self.path, self.header_line, self.fh, self.kind = path, header_line, None, kind
 
     def write(self, rows: Iterable[Mapping]) -> None:
         text = "".join(row_line(r) for r in rows)
-        if self.fh is None:
-            cut_partial_last_line(self.path)
-            new = not self.path.exists() or self.path.stat().st_size == 0
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self.fh = self.path.open("a", encoding="utf-8")
-            if new:
-                text = json.dumps(self.header_line, default=json_default) + "\n" + text
-        self.fh.write(text)
-        self.fh.flush()
-        os.fsync(self.fh.fileno())
+        try:
+            if self.fh is None:
+                cut_partial_last_line(self.path)
+                new = not self.path.exists() or self.path.stat().st_size == 0
+                self.path.parent.mkdir(parents=True, exist_ok=True)
+                self.fh = self.path.open("a", encoding="utf-8")
+                if new:
+                    text = json.dumps(self.header_line, default=json_default) + "\n" + text
+            self.fh.write(text)
+            self.fh.flush()
+            os.fsync(self.fh.fileno())
+        except OSError as err:
+            if self.kind is None:
+                raise
+            self.close()              # the part of a line written is cut: the file holds whole rows only
+            k = self.kind
+            kept = "the rows written before are kept whole, and the same command goes on from them"
+            with contextlib.suppress(OSError):
+                if self.path.stat().st_size == 0:       # made now and nothing of it kept
+                    self.path.unlink()
+                    kept = "nothing was written"
+            raise _unwritable(err, self.path, k.error, k.what, k.elsewhere, kept) from None
 
     def close(self) -> None:
         if self.fh is not None:
-            self.fh.close()
+            with contextlib.suppress(OSError):      # a full disk: what was flushed stays, the rest is cut below
+                self.fh.close()
             self.fh = None
             cut_partial_last_line(self.path)          # an interrupted write may have left part of a line
 

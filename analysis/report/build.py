@@ -57,7 +57,7 @@ from blocks import __version__, load_scenario
 from blocks.control_compat import PythonControlChanged
 from blocks.gains import validated_gain
 from blocks.joints import RRPR_JOINTS, JointSpace
-from blocks.outputs import staged_output
+from blocks.outputs import metrics_json, staged_output
 from blocks.parameters import RobotParameters
 from blocks.progress import ProgressCallback as Progress
 from blocks.scenario import Scenario, scenario_from_dict
@@ -588,7 +588,7 @@ def write_report(scenario: Scenario | str = "paper", out_dir=None, settings: Ana
                                joints=s.robot.joints)
         result = replace(result, figures=[f"figures/{p.name}" for p in files])
         (stage / "analysis.json").write_text(result.to_json())
-        (stage / "metrics.json").write_text(json_text(metrics))
+        (stage / "metrics.json").write_text(metrics_json(metrics)[0])      # as dobkit simulate and fmu cosim
         pngs = {p.stem: p for p in files if p.suffix == ".png"}
         from analysis.tune.report import html_section as tune_section
         sweeps = tuple(html_section(folder) for folder in sweep_summaries) + tuple(map(tune_section, tunings))

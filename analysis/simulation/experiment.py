@@ -14,7 +14,6 @@ output behind.
 from __future__ import annotations
 
 import csv
-import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,7 +23,7 @@ import numpy as np
 from blocks import Scenario, __version__, load_scenario, simulate
 from blocks.joints import RRPR_JOINTS, JointSpace
 from blocks.metrics import tracking_metrics
-from blocks.outputs import default_out_dir, staged_output
+from blocks.outputs import default_out_dir, metrics_json, staged_output
 
 __all__ = ["ExperimentResult", "run_experiment", "comparison_metrics", "format_rms_table", "default_out_dir",
            "staged_output"]
@@ -79,7 +78,8 @@ def run_experiment(scenario: Scenario | str = "paper", out_dir: Path | str | Non
     if out_dir is not None:
         target = Path(out_dir)
         with staging as stage:
-            (stage / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+            # strict JSON, as every results file: an infinite RMS error is null, its place listed (not 'Infinity')
+            (stage / "metrics.json").write_text(metrics_json(metrics)[0])
             (stage / "scenario.toml").write_text(s.to_toml())
             _write_timeseries(stage / "timeseries.csv", runs)
             if figures:

@@ -431,14 +431,34 @@ def _run_processes(payloads: Iterator[dict], workers: int, take) -> None:
     pool.shutdown(wait=True)
 
 
+#: Seconds to wait for each terminated worker and for the pool's thread when a pool is ended now.
+_END_WAIT = 5.0
+
+
 def _end_now(pool) -> None:
     """End an interrupted or failed pool now rather than wait for its batches: its workers terminated, then
     its threads joined, so that nothing is left for the interpreter's exit to wait on (where another Ctrl-C
     would print a concurrent.futures traceback)."""
-    for process in list((getattr(pool, "_processes", None) or {}).values()):
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    for process in processes:
         with contextlib.suppress(Exception):
             process.terminate()
+    for process in processes:
+        with contextlib.suppress(Exception):
+            process.join(_END_WAIT)
+    # taken before shutdown, which forgets them
+    manager = getattr(pool, "_executor_manager_thread", None)
+    writer = getattr(getattr(pool, "_result_queue", None), "_writer", None)
     try:
-        pool.shutdown(wait=True, cancel_futures=True)
+        pool.shutdown(wait=False, cancel_futures=True)
+        if manager is not None:
+            manager.join(1.0)            # it sees the workers' ends at once, unless it is stuck in a read
+            if manager.is_alive() and writer is not None:
+                # a worker terminated while it sent its batch's result leaves the pool's reader waiting for the rest
+                # of that message (it hung here for good, and at exit): this process's own copy of the pipe's
+                # writing end is all that keeps it open; closed, the read ends (EOF) and the pool ends as broken
+                with contextlib.suppress(Exception):
+                    writer.close()
+                manager.join(_END_WAIT)
     except BaseException:         # noqa: BLE001 -- a second Ctrl-C while the threads end: the first one is reported
         pool.shutdown(wait=False, cancel_futures=True)

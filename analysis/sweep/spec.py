@@ -362,14 +362,12 @@ def load_sweep(path: str | Path, budget: Budget | None = None, progress=False) -
         When the sweep or one of its runs would exceed the budget; the message names the key and the estimate.
     """
     path = Path(path)
-    if not path.is_file():
-        raise SweepError(f"sweep file '{path}' does not exist" + (" (it is a folder)" if path.is_dir() else ""))
+    from analysis.jobs.files import read_job_file
+    text = read_job_file(path, SweepError, "sweep file")   # a regular file of at most 1 MiB (not /dev/zero, a FIFO)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8-sig"))
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise SweepError(f"{path}: not valid TOML: {err}") from None
-    except UnicodeDecodeError as err:
-        raise SweepError(f"{path}: not UTF-8 text: {err}") from None
     return sweep_from_dict(data, source=str(path), folder=path.parent, budget=budget, progress=progress)
 
 

@@ -804,6 +804,7 @@ def write_summary(results, out_dir, formats=("png", "svg"), spec: SweepSpec | No
     # name came back) left it behind
     stage = out.parent / f".{out.name}.partial-{os.getpid()}"
     shutil.rmtree(stage, ignore_errors=True)           # a killed process's of the same number
+    _remove_stale_stages(out)
     try:
         stage.mkdir()
         drawn = _figures(table, summary, stage, formats)
@@ -818,6 +819,32 @@ def write_summary(results, out_dir, formats=("png", "svg"), spec: SweepSpec | No
         raise
     files = [out / p.name for paths, _ in drawn for p in paths]
     return {"figures": files, "json": out / "summary.json", "markdown": out / "summary.md", "summary": summary}
+
+
+def _remove_stale_stages(out: Path) -> list[Path]:
+    """Remove what ``kill -9`` of an earlier summary writer left beside ``out``: its staging folder
+    (``.NAME.partial-<pid>``, stayed for good), and its swapped-out previous summary (``.NAME.old-<pid>``,
+    put back when ``out`` itself is missing: the kill came between the two renames); only of processes that
+    no longer exist.  Returns the paths removed or put back."""
+    from blocks.outputs import _pid_alive
+    done = []
+    for kind in ("partial", "old"):
+        prefix = f".{out.name}.{kind}-"
+        try:
+            found = [p for p in out.parent.iterdir() if p.name.startswith(prefix)]
+        except OSError:
+            return done
+        for path in found:
+            pid = path.name[len(prefix):]
+            if not (pid.isascii() and pid.isdigit()) or int(pid) == os.getpid() or _pid_alive(int(pid)) \
+                    or path.is_symlink() or not path.is_dir():
+                continue
+            if kind == "old" and not out.exists():
+                path.rename(out)
+            else:
+                shutil.rmtree(path, ignore_errors=True)
+            done.append(path)
+    return done
 
 
 def _into_place(stage: Path, out: Path) -> None:

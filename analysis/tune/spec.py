@@ -443,12 +443,8 @@ def load_tuning(name_or_path: str | Path, budget: Budget | None = None) -> TuneS
         text = (resources.files("analysis.tune") / "tunings" / f"{name_or_path}.toml").read_text(encoding="utf-8")
         source, folder = str(name_or_path), None
     else:
-        if not path.is_file():
-            raise TuneError(f"tuning file '{path}' does not exist" + (" (it is a folder)" if path.is_dir() else ""))
-        try:
-            text = path.read_text(encoding="utf-8-sig")
-        except UnicodeDecodeError as err:
-            raise TuneError(f"{path}: not UTF-8 text: {err}") from None
+        from analysis.jobs.files import read_job_file
+        text = read_job_file(path, TuneError, "tuning file")  # a regular file of at most 1 MiB (not a FIFO)
         source, folder = str(path), path.parent
     try:
         data = tomllib.loads(text)

@@ -14,15 +14,23 @@ direction, negative or unaligned) and ``fixed``.  ``floating``,
 ``<mimic>`` joint that is not locked (unless ``mimic="independent"``).  A
 tree is kept as it is: joints on branches off the tool's chain are joints of
 the model unless locked.  The file's own XML is checked first (one tree of
-uniquely named links, every number dobkit reads present and finite, axes
-non-zero, ``lower <= upper``): urdfdom drops an ``<inertial>`` it cannot
-read without failing, and says why it refuses a file only on stderr.
+uniquely named links, every number dobkit reads present, finite and written
+as urdfdom reads it, axes non-zero, ``lower <= upper``, a ``lower`` or
+``upper`` not given read as 0 as URDF says): urdfdom drops an ``<inertial>``
+it cannot read without failing and says so only on stderr, so what it says
+there is a refusal too.  A file is read only when it is a regular file of at
+most :data:`MAX_URDF_BYTES` bytes, :data:`MAX_URDF_LINKS` links and
+:data:`MAX_URDF_DEPTH` links deep (pinocchio walks the tree recursively: 5000
+deep overflowed its stack, a segmentation fault).
 """
 from __future__ import annotations
 
+import collections
 import contextlib
 import math
 import os
+import re
+import stat
 import sys
 import tempfile
 import threading
@@ -42,6 +50,14 @@ __all__ = ["UrdfError", "UrdfFileError", "UrdfParseError", "UnknownFrameError", 
 #: The most moving joints an arm may have (serial arms have 4 to 9; beyond a few dozen the dynamics' cost per
 #: evaluation, which grows as n^2, and the length of the traced code make a run impractical).
 MAX_JOINTS = 32
+
+#: The largest URDF file read, in bytes (example-robot-data's largest, TIAGo dual, is 0.2 MB).
+MAX_URDF_BYTES = 4 * 2 ** 20
+#: The most links a URDF may have (TIAGo dual has 130): pinocchio's reading and dobkit's checks grow with them.
+MAX_URDF_LINKS = 2000
+#: The deepest chain of links from the base, the base counted (pinocchio walks the tree recursively, each level a
+#: few frames of C stack: 5000 deep ended the process with a segmentation fault; arms are tens deep).
+MAX_URDF_DEPTH = 256
 
 
 class UrdfError(ValueError):
@@ -110,21 +126,38 @@ def _mat(m, snap: bool = False, snap_below: float = 0.0) -> tuple:
     return tuple(_vec(row, snap, snap_below) for row in np.asarray(m, dtype=float))
 
 
+# what urdfdom's strToDouble reads (a C++ stream in the classic locale that must reach the end of the text): C
+# white space before, ASCII digits, an optional sign, point and exponent, nothing after; Python's float() also takes
+# "0_35", " 0.35 ", other scripts' digits, "nan" and "inf", which urdfdom refuses (and drops the element)
+_C_SPACE = " \t\n\v\f\r"
+_URDFDOM_NUMBER = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
+
+
+def _urdfdom_number(text: str) -> float | None:
+    """The number urdfdom reads from ``text``, or None where it reads none (or one beyond a double)."""
+    text = text.lstrip(_C_SPACE)
+    if not _URDFDOM_NUMBER.fullmatch(text):
+        return None
+    value = float(text)
+    return value if math.isfinite(value) else None
+
+
 def _numbers(element, attribute: str, count: int, where: str, path: Path) -> tuple | None:
-    """The ``count`` finite numbers of ``element``'s ``attribute`` (None when absent); refused by name otherwise.
+    """The ``count`` finite numbers of ``element``'s ``attribute`` (None when absent), read as urdfdom reads them
+    (one number; or ``count`` of them separated by spaces); refused by name otherwise.
 
     urdfdom drops an ``<inertial>`` whose numbers it cannot read, silently: the link would lose its mass.
     """
     if element is None or element.get(attribute) is None:
         return None
     text = element.get(attribute)
-    try:
-        values = tuple(float(v) for v in text.split())
-    except ValueError:
-        values = ()
-    if len(values) != count or not all(math.isfinite(v) for v in values):
+    pieces = [text] if count == 1 else [p for p in text.split(" ") if p]
+    values = tuple(_urdfdom_number(p) for p in pieces)
+    if len(values) != count or None in values:
         raise UrdfParseError(f"URDF file {str(path)!r}: {where} {attribute}={text!r}; it must be {count} finite "
-                             f"number{'s' if count > 1 else ''} (SI units, separated by spaces)")
+                             f"number{'s' if count > 1 else ''} (SI units, separated by spaces) as URDF readers "
+                             "take them: ASCII digits with an optional sign, point and exponent, nothing after the "
+                             "last (urdfdom drops an element it cannot read)")
     return values
 
 
@@ -152,30 +185,45 @@ def _check_numbers(root, path: Path) -> None:
         if axis is not None and joint.get("type") != "fixed" and not any(axis):
             raise UrdfParseError(f"URDF file {str(path)!r}: {where} <axis> xyz={joint.find('axis').get('xyz')!r} "
                                  "has no direction; an axis must be a non-zero vector")
+        squared = math.fsum(v * v for v in axis) if axis is not None else 1.0
+        if joint.get("type") != "fixed" and not sys.float_info.min <= squared < math.inf:
+            # pinocchio divides by the length: 0 1e-200 0 squares to 0 (then 'yaw moves no mass' was said)
+            raise UrdfParseError(f"URDF file {str(path)!r}: {where} <axis> xyz={joint.find('axis').get('xyz')!r} "
+                                 f"cannot be normalised in double precision (its squared length is {squared:.3g}); "
+                                 "write the axis as a unit vector, e.g. '0 1 0'")
         limit = joint.find("limit")
         if limit is None and joint.get("type") in ("revolute", "prismatic"):
             raise UrdfParseError(f"URDF file {str(path)!r}: {where} is {joint.get('type')} without <limit lower upper "
                                  "effort velocity>, which URDF requires (a revolute joint without end is 'continuous')")
         bounds = [_numbers(limit, name, 1, f"{where} <limit>", path) for name in ("lower", "upper")]
-        if None not in bounds and bounds[0][0] > bounds[1][0]:
-            raise UrdfParseError(f"URDF file {str(path)!r}: {where} <limit> lower={bounds[0][0]:g} is above "
-                                 f"upper={bounds[1][0]:g}; give lower <= upper")
+        if limit is not None and joint.get("type") in ("revolute", "prismatic"):
+            lower, upper = (0.0 if b is None else b[0] for b in bounds)      # URDF: an attribute not given is 0
+            if lower > upper:
+                unsaid = " and ".join(f"{n} is not given, which URDF reads as 0" for n, b in
+                                      zip(("lower", "upper"), bounds) if b is None)
+                raise UrdfParseError(f"URDF file {str(path)!r}: {where} <limit> lower={lower:g} is above "
+                                     f"upper={upper:g}{' (' + unsaid + ')' if unsaid else ''}; give lower <= upper")
 
 
 def _check_tree(root, path: Path) -> None:
     """One tree of links: names unique, every joint between two links, each link the child of one joint at most."""
     links = [link.get("name") for link in root.findall("link")]
+    if len(links) > MAX_URDF_LINKS:
+        raise UrdfParseError(f"URDF file {str(path)!r} has {len(links)} links; dobkit reads at most {MAX_URDF_LINKS} "
+                             "(MAX_URDF_LINKS; robots have tens to a few hundred)")
     joints = root.findall("joint")
     for kind, names in (("link", links), ("joint", [j.get("name") for j in joints])):
-        twice = sorted({n for n in names if names.count(n) > 1})
+        counts = collections.Counter(names)
+        twice = sorted((n for n, c in counts.items() if c > 1), key=str)
         if twice:
             raise UrdfParseError(f"URDF file {str(path)!r}: {kind} name(s) {twice} given more than once; each "
                                  f"{kind} needs its own name")
     parent_of: dict = {}
+    known = set(links)
     for joint in joints:
         ends = [(tag, None if joint.find(tag) is None else joint.find(tag).get("link")) for tag in ("parent", "child")]
         for tag, link in ends:
-            if link not in links:
+            if link not in known:
                 raise UrdfParseError(f"URDF file {str(path)!r}: joint {joint.get('name')!r} has <{tag} link="
                                      f"{link!r}>, which is not a link of the file")
         child = ends[1][1]
@@ -188,13 +236,40 @@ def _check_tree(root, path: Path) -> None:
     if len(roots) != 1:
         raise UrdfParseError(f"URDF file {str(path)!r}: the links form {len(roots)} trees (root links {roots}); a "
                              "URDF arm is one tree from one base link")
+    _check_depth(parent_of, links, path)
+
+
+def _check_depth(parent_of: dict, links: list, path: Path) -> None:
+    """No link deeper than :data:`MAX_URDF_DEPTH` below the base, and no loop apart from the tree; without
+    recursion (the walk that must not overflow the stack is pinocchio's)."""
+    depth: dict = {}
+    for start in links:
+        chain = []
+        link = start
+        while link not in depth and link in parent_of:
+            chain.append(link)
+            if len(chain) > len(links):
+                raise UrdfParseError(f"URDF file {str(path)!r}: link {start!r} hangs from a closed loop of joints, "
+                                     "not from the base; a URDF is a tree (no closed loops)")
+            link = parent_of[link][1]
+        level = depth.get(link, 1)
+        depth[link] = level
+        for name in reversed(chain):
+            level += 1
+            depth[name] = level
+            if level > MAX_URDF_DEPTH:
+                raise UrdfParseError(f"URDF file {str(path)!r}: link {name!r} is {level} links deep from the base "
+                                     f"(and the file has {len(links)}); dobkit reads trees at most {MAX_URDF_DEPTH} "
+                                     "deep (MAX_URDF_DEPTH: pinocchio walks the tree recursively, and a deep one "
+                                     "overflows its stack)")
 
 
 def _read_urdf(path: Path) -> tuple[dict, dict]:
     """Joint name -> (URDF type, lower, upper) from the file's XML, and mimic joint -> the joint it mimics,
     checking it is a robot description whose numbers and tree pinocchio will read as written."""
+    data = _read_bounded(path)
     try:
-        root = ET.parse(path).getroot()
+        root = ET.fromstring(data)
     except ET.ParseError as exc:
         raise UrdfParseError(f"URDF file {str(path)!r} is not well-formed XML: {exc}") from exc
     if root.tag != "robot":
@@ -213,14 +288,34 @@ def _read_urdf(path: Path) -> tuple[dict, dict]:
     for j in root.findall("joint"):
         kind = j.get("type")
         limit = j.find("limit")
-        lower = float(limit.get("lower", "-inf")) if limit is not None and kind != "continuous" else -math.inf
-        upper = float(limit.get("upper", "inf")) if limit is not None and kind != "continuous" else math.inf
+        # URDF (urdfdom, pinocchio): a lower or upper not given is 0
+        lower = _urdfdom_number(limit.get("lower", "0")) if limit is not None and kind != "continuous" else -math.inf
+        upper = _urdfdom_number(limit.get("upper", "0")) if limit is not None and kind != "continuous" else math.inf
         if not lower < upper:            # a URDF without a real range (lower = upper = 0): no limits
             lower, upper = -math.inf, math.inf
         joints[j.get("name")] = (kind, lower, upper)
         if j.find("mimic") is not None and kind != "fixed":
             mimics[j.get("name")] = j.find("mimic").get("joint")
     return joints, mimics
+
+
+def _read_bounded(path: Path) -> bytes:
+    """The bytes of a regular file of at most :data:`MAX_URDF_BYTES`, opened without blocking and checked on the
+    open file (a FIFO would wait for a writer, ``/dev/zero`` has no end)."""
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except OSError as err:
+        raise UrdfFileError(f"URDF file {str(path)!r} cannot be read ({err.strerror or err})") from None
+    with os.fdopen(fd, "rb") as f:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise UrdfFileError(f"URDF file {str(path)!r} is not a regular file (a folder, device, pipe or socket); "
+                                "give the path of a .urdf file")
+        data = f.read(MAX_URDF_BYTES + 1)
+    if len(data) > MAX_URDF_BYTES:
+        raise UrdfParseError(f"URDF file {str(path)!r} has more than {MAX_URDF_BYTES:,} bytes; dobkit reads URDF "
+                             f"files of at most {MAX_URDF_BYTES:,} (MAX_URDF_BYTES; a robot's is well under 1 MB: "
+                             "meshes are separate files)")
+    return data
 
 
 def _check_inertia(name: str, mass: float, inertia: np.ndarray) -> None:
@@ -359,7 +454,7 @@ def load_urdf_arm(path, tool_frame: str, locked=(), locked_values=None, gravity=
     """
     pin = _pinocchio()
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise UrdfFileError(f"URDF file {str(path)!r} does not exist (or is not a file)")
     xml_joints, mimics = _read_urdf(path)
     with _stderr_kept() as said:       # urdfdom writes its reasons to the process's stderr, not to the exception
@@ -368,6 +463,10 @@ def load_urdf_arm(path, tool_frame: str, locked=(), locked_values=None, gravity=
         except (RuntimeError, ValueError) as exc:
             reasons = "; ".join(said())
             raise UrdfParseError(f"pinocchio cannot read URDF file {str(path)!r}: {reasons or exc}") from exc
+        dropped = said()
+    if dropped:     # read, but without what urdfdom could not read (a link's <inertial>, say): refused, not dropped
+        raise UrdfParseError(f"URDF file {str(path)!r}: urdfdom (pinocchio's URDF reader) could not read all of it "
+                             f"and would go on without it: {'; '.join(dropped)}; write it as URDF requires")
 
     locked = [locked] if isinstance(locked, str) else list(locked)
     moving = [model.names[j] for j in range(1, model.njoints)]
