@@ -389,8 +389,11 @@ def simulate_system(sys, T, X0=0, U=0, params: dict | None = None, engine: str =
     """
     if engine not in ENGINES:
         raise ValueError(f"engine must be one of {list(ENGINES)}, got {engine!r}")
+    if isinstance(sys, ct.TransferFunction):
+        # python-control wires a tf into an interconnection as its state-space form; taken alone, the same
+        sys = ct.ss(sys, inputs=sys.input_labels, outputs=sys.output_labels, name=sys.name)
     if not isinstance(sys, ct.NonlinearIOSystem):
-        raise TypeError(f"sys must be a python-control system (ct.nlsys, ct.ss, ct.interconnect...), got "
+        raise TypeError(f"sys must be a python-control system (ct.nlsys, ct.ss, ct.tf, ct.interconnect...), got "
                         f"{type(sys).__name__}")
     if not sys.isctime():
         raise ValueError(f"system '{sys.name}' is discrete-time (dt = {sys.dt}); simulate_system runs continuous "

@@ -64,7 +64,9 @@ def test_each_binding_computes_its_kernel(arm, name):
     sizes = {"plant_acceleration": (n, n, n), "mass_solve": (n, n), "mass_times": (n, n), "bias_forces": (n, n),
              "gravity_forces": (n,), "inertia_matrix": (n,)}[name]
     callee = _called(kernel, k, sizes)
-    assert callee.kernel == (name, k) and callee.n_in == sum(sizes)
+    # callees are kept by the arm's digest (its numbers): an equal arm read earlier in the process is the same arm
+    assert callee.kernel[0] == name and callee.kernel[1].frozen_digest() == k.frozen_digest()
+    assert callee.n_in == sum(sizes)
     fast = pin_kernels.binding(callee)
     kept = [i for i, v in enumerate(callee.traced[1]) if Callee.constant(v) is None]
     rng = np.random.default_rng(5)
