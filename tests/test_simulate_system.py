@@ -185,6 +185,48 @@ def test_a_state_beyond_the_given_bound_stops_the_run_and_unbounded_growth_does_
 
 
 
+@pytest.mark.parametrize("engine", ["fast", "python-control"])
+def test_non_finite_start_or_inputs_are_refused_before_a_solver_sees_them(engine):
+    """A NaN in U stopped the solver at a tiny step ("Required step size is less than spacing ..."); a NaN start
+    was "the loop diverged at t = 0" (python-control: "y0 must be finite"): both are the caller's numbers."""
+    sys = _user_diagram()
+    T = np.linspace(0.0, 1.0, 11)
+    with pytest.raises(ValueError, match=r"U must be finite numbers, got nan \(the number given"):
+        blocks.simulate_system(sys, T, 0, np.nan, engine=engine)
+    with pytest.raises(ValueError, match=r"U must be finite numbers, got inf \(input 0 at t = 0.9 s\)"):
+        blocks.simulate_system(sys, T, 0, [np.r_[np.zeros(9), np.inf, 0.0]], engine=engine)
+    with pytest.raises(ValueError, match=r"X0 must be finite numbers, got inf \(state 1\)"):
+        blocks.simulate_system(sys, T, [0.0, np.inf], 0.0, engine=engine)
+    with pytest.raises(ValueError, match="X0 must be numbers .* got 'a'"):
+        blocks.simulate_system(sys, T, "a", 0.0, engine=engine)
+
+
+def test_bounds_that_are_not_positive_magnitudes_are_refused_by_value():
+    """A NaN or negative bound stopped every run at t = 0 ("reached 0, beyond its bound nan"); three bounds for
+    two states were numpy's broadcast error."""
+    sys = _user_diagram()
+    T = np.linspace(0.0, 1.0, 11)
+    for bad in (np.nan, -1.0, 0.0, [1.0, np.nan]):
+        with pytest.raises(ValueError, match="bounds must be positive magnitudes"):
+            blocks.simulate_system(sys, T, 0, 0.0, engine="fast", bounds=bad)
+    with pytest.raises(ValueError, match=r"bounds must be one number or 2 \(one per state\), got shape \(3,\)"):
+        blocks.simulate_system(sys, T, 0, 0.0, engine="fast", bounds=[1.0, 2.0, 3.0])
+    ok = blocks.simulate_system(sys, T, 0, 0.0, engine="fast", bounds=[np.inf, 1e3])
+    assert ok.states.shape == (2, 11)
+
+
+def test_a_grid_beyond_the_memory_budget_is_refused_before_it_is_allocated():
+    """Every time of T holds the states (twice), outputs and inputs as float64: 2 states x 2 + 2 outputs + 1 input
+    = 7 rows x 8 bytes = 56 bytes per time; a budget of 56 x 1000 bytes takes 1000 times and refuses 1001."""
+    from blocks.budget import Budget, BudgetError
+    sys = _user_diagram()
+    assert (sys.nstates, sys.noutputs, sys.ninputs) == (2, 2, 1)
+    budget = Budget(memory=56 * 1000)
+    blocks.simulate_system(sys, np.linspace(0.0, 1.0, 1000), 0, 0.0, engine="fast", budget=budget)
+    with pytest.raises(BudgetError, match=r"1,001 output times needs about .*set by 'T'.* over the memory budget"):
+        blocks.simulate_system(sys, np.linspace(0.0, 1.0, 1001), 0, 0.0, engine="fast", budget=budget)
+
+
 GAIN = 1.0
 
 
