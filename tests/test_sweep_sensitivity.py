@@ -235,6 +235,21 @@ def test_check_prints_the_design(tmp_path, short, capsys):
 # --------------------------------------------------------------------------------------------
 # Refused, naming the key
 # --------------------------------------------------------------------------------------------
+def test_the_morris_levels_bound_at_both_sides(tmp_path, short):
+    """SALib lays out levels / 2 grid values per design: levels = 10**9 passed the check and allocated 4 GB when
+    the design was drawn (2**62: numpy's "array is too big"); 1000 levels load, 1002 are refused by the key."""
+    from analysis.sweep.sensitivity import MAX_LEVELS
+    assert MAX_LEVELS == 1000
+    ok = load_sweep(write_sweep(tmp_path, f'[sensitivity]\nmethod = "morris"\nsamples = 2\nlevels = 1000\n'
+                                           f'{DISTRIBUTIONS}'))
+    assert ok.sensitivity.levels == 1000 and ok.sensitivity.design().shape[0] == ok.sensitivity.runs
+    for levels in (1002, 10**9, 2**62):
+        path = write_sweep(tmp_path, f'[sensitivity]\nmethod = "morris"\nsamples = 2\nlevels = {levels}\n'
+                                     f'{DISTRIBUTIONS}')
+        with pytest.raises(SweepError, match=rf"'sensitivity.levels' must be at most 1000 .*got {levels}"):
+            load_sweep(path)
+
+
 @pytest.mark.parametrize("text, message", [
     ('method = "sobol"\nsamples = 1000\n',
      "'sensitivity.samples' must be a power of 2 >= 2 for the Sobol method (N of the Saltelli design, which "
