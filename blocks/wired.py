@@ -310,7 +310,10 @@ def _njit_kernels(block, out, upd, params: dict, key: str) -> tuple[Kernels | No
                 fns.append(None)
                 continue
             jitted = _jitted_user(numba, fn)
-            got = np.asarray(jitted(0.0, x, u, typed))
+            raw = jitted(0.0, x, u, typed)
+            if np.ndim(raw) == 0:           # python-control takes a number; the compiled loop stores an array
+                return None, f"its {what} function returns a number, not an array (numba's loop needs np.array([...]))"
+            got = np.asarray(raw)
             if got.size != rows:
                 return None, f"its {what} function gave {got.size} values where {rows} were expected"
             fns.append(_njit_kernel(jitted, key, what))

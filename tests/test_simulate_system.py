@@ -227,6 +227,32 @@ def test_a_grid_beyond_the_memory_budget_is_refused_before_it_is_allocated():
         blocks.simulate_system(sys, np.linspace(0.0, 1.0, 1001), 0, 0.0, engine="fast", budget=budget)
 
 
+def _scalar_branchy_update(t, x, u, params):
+    """A number, not an array (python-control takes it), behind a branch the trace cannot follow."""
+    if x[0] > 0.5:
+        return 2.0 * (u[0] - x[0])
+    return u[0] - x[0]
+
+
+def test_a_function_returning_a_number_behind_a_branch_runs_as_python_control_runs_it():
+    """numba compiled it as it stands and the loop indexed its number: a TypingError on "auto" and "compiled", and
+    "'float' object is not subscriptable" on the numpy engine.  Now it is refused for the compiled engine (by the
+    block's name and why), and "auto" and "fast" run it: x' = 1 - x from 0.1 until x = 0.5 (t = ln(0.9/0.5) s),
+    then x' = 2 (1 - x), so x(1) = 1 - 0.5 exp(-2 (1 - ln 1.8))."""
+    block = ct.nlsys(_scalar_branchy_update, None, inputs=1, states=1, outputs=1, name="numberfn")
+    T = np.linspace(0.0, 1.0, 11)
+    exact = 1.0 - 0.5 * math.exp(-2.0 * (1.0 - math.log(1.8)))
+    for engine in ("auto", "fast"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", EngineFallbackWarning)
+            resp = blocks.simulate_system(block, T, 0.1, 1.0, engine=engine, solve_ivp_kwargs=TIGHT)
+        assert resp.engine == "fast"
+        assert np.ravel(resp.outputs)[-1] == pytest.approx(exact, rel=1e-5)
+    with pytest.raises(CompiledUnavailable, match="block 'numberfn' .*its update function returns a number, not an "
+                                                  "array"):
+        blocks.simulate_system(block, T, 0.1, 1.0, engine="compiled")
+
+
 GAIN = 1.0
 
 
