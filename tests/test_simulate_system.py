@@ -253,6 +253,23 @@ def test_a_function_returning_a_number_behind_a_branch_runs_as_python_control_ru
         blocks.simulate_system(block, T, 0.1, 1.0, engine="compiled")
 
 
+def _three_outputs(t, x, u, params):
+    """Three values for a block of one output, behind a branch (neither traced nor compiled by numba)."""
+    if x[0] > 0.5:
+        return np.zeros(3)
+    return np.array([x[0], 0.0, 0.0])
+
+
+@pytest.mark.parametrize("engine", ["auto", "compiled", "fast"])
+def test_a_function_giving_the_wrong_number_of_values_is_refused_by_its_block(engine):
+    """The numpy engine failed mid-run with numpy's "could not broadcast input array from shape (3,) into shape
+    (1,)", naming no block; now every engine names it before the run."""
+    block = ct.nlsys(lambda t, x, u, p: -x, _three_outputs, inputs=1, states=1, outputs=1, name="three")
+    with pytest.raises(ValueError, match="block 'three': its output function returns 3 values at the zero state "
+                                         "and input, where it has 1 outputs"):
+        blocks.simulate_system(block, np.linspace(0.0, 1.0, 11), 0.1, 1.0, engine=engine)
+
+
 GAIN = 1.0
 
 
