@@ -216,7 +216,10 @@ def link_scaled_nominal(arm: ArmModel, given: dict, base: Path | None, scales: d
                                 locked_values=dict(zip(locked, values.get("locked_values", []))),
                                 gravity=_gravity(values["gravity"]) if "gravity" in values else None)
     except (ValueError, OSError) as err:
-        raise error(f"[nominal_scale] {scales}: {err}") from None
+        # the copy's temporary name means nothing to the user, and the reader's advice is for a file's author
+        reason = str(err).replace(f"'{path}'", "the arm's URDF with these factors").replace(path, "the copy")
+        raise error(f"[nominal_scale] {scales} leaves no usable nominal model (the factors multiply the links' "
+                    f"masses and inertias; choose factors nearer 1): {reason}") from None
     finally:
         os.unlink(path)
     nominal.source, nominal.pin_model = arm.source, None        # the reference model is the true arm's

@@ -241,6 +241,8 @@ def _inputs(U, ninputs: int, T: np.ndarray) -> np.ndarray:
             parts.append(np.atleast_2d(u))
         U = np.vstack(parts) if parts else np.zeros((0, n))
     U = np.asarray(U, dtype=float)
+    _finite("U", U, lambda ij: f"input {ij[0]} at t = {T[ij[-1]]:g} s" if U.ndim == 2 else
+            (f"at t = {T[ij[0]]:g} s" if U.size == n else "the number given for every input and time"))
     if U.ndim == 0:
         return np.full((ninputs, n), float(U))
     if ninputs == 1 and U.shape == (n,):
@@ -251,11 +253,25 @@ def _inputs(U, ninputs: int, T: np.ndarray) -> np.ndarray:
     return U
 
 
+def _finite(name: str, values: np.ndarray, where) -> None:
+    """Refuse a NaN or infinite value of ``name`` before any solver sees it (it would stop it at a tiny step)."""
+    bad = np.argwhere(~np.isfinite(np.atleast_1d(values)))
+    if bad.size:
+        first = tuple(int(i) for i in bad[0])
+        raise ValueError(f"{name} must be finite numbers, got {np.atleast_1d(values)[first]} ({where(first)}); "
+                         f"{len(bad)} value(s) are not finite")
+
+
 def _initial_state(X0, nstates: int) -> np.ndarray:
     """``X0`` as python-control reads it: a number for every state, a list of pieces, zero-padded when short."""
-    if isinstance(X0, (tuple, list)):
-        X0 = np.concatenate([np.ravel(np.asarray(v, dtype=float)) for v in X0]) if X0 else np.zeros(0)
-    X0 = np.asarray(X0, dtype=float)
+    try:
+        if isinstance(X0, (tuple, list)):
+            X0 = np.concatenate([np.ravel(np.asarray(v, dtype=float)) for v in X0]) if X0 else np.zeros(0)
+        X0 = np.asarray(X0, dtype=float)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"X0 must be numbers (a number for every state, or an array), got {X0!r:.80}: {error}") \
+            from None
+    _finite("X0", X0, lambda ij: f"state {ij[0] if ij else 0}")
     if X0.ndim == 0:
         return np.full(nstates, float(X0))
     X0 = X0.ravel()
@@ -266,6 +282,29 @@ def _initial_state(X0, nstates: int) -> np.ndarray:
             warnings.warn("X0 too short; padding with zeros", UserWarning, stacklevel=3)
         X0 = np.concatenate([X0, np.zeros(nstates - X0.size)])
     return X0
+
+
+def _bounds(bounds, nstates: int) -> np.ndarray:
+    """``bounds`` as one positive magnitude per state (inf: no bound), from one number or ``nstates`` of them."""
+    b = np.asarray(bounds, dtype=float)
+    if b.ndim > 1 or (b.ndim == 1 and b.size not in (1, nstates)):
+        raise ValueError(f"bounds must be one number or {nstates} (one per state), got shape {b.shape}")
+    b = np.broadcast_to(b.reshape(-1) if b.ndim else b, (nstates,)).copy()
+    bad = np.flatnonzero(~(b > 0))          # NaN, 0 and negatives: every state would be out at once
+    if bad.size:
+        raise ValueError(f"bounds must be positive magnitudes (inf: no bound), got {b[bad[0]]} for state {bad[0]}")
+    return b
+
+
+def _check_grid_memory(sys, T: np.ndarray, budget: Budget | None) -> None:
+    """Refuse, before anything is allocated, a grid whose arrays (states twice: the solver's and the result's,
+    outputs, inputs; float64 at every time of ``T``) exceed the memory budget."""
+    from .budget import Estimate
+    rows = {"states": 2 * sys.nstates, "outputs": sys.noutputs, "inputs": sys.ninputs}
+    parts = {name: 8 * T.size * n for name, n in rows.items()}
+    reasons = {name: f"{rows[name]} rows x {T.size:,} times of T x 8 bytes" for name in rows}
+    (budget or Budget.from_env()).check(Estimate(sum(parts.values()), 0, parts, dict.fromkeys(parts, "T"), reasons),
+                                        f"system '{sys.name}' on {T.size:,} output times")
 
 
 def _solver(method: str, kwargs: dict | None) -> Solver:
@@ -401,13 +440,14 @@ def simulate_system(sys, T, X0=0, U=0, params: dict | None = None, engine: str =
     if params is not None and not isinstance(params, dict):
         raise TypeError(f"params must be a dict of parameter values, got {type(params).__name__}")
     T = _times(T)
+    _check_grid_memory(sys, T, budget)
     U = _inputs(U, sys.ninputs, T)
     x0 = _initial_state(X0, sys.nstates)
     solver = _solver(solve_ivp_method, solve_ivp_kwargs)
     state_bounds = None
     if bounds is not None:
         from .divergence import StateBounds
-        b = np.broadcast_to(np.asarray(bounds, dtype=float), (sys.nstates,)).copy()
+        b = _bounds(bounds, sys.nstates)
         state_bounds = StateBounds(b, list(sys.state_labels), [""] * sys.nstates, ["the bound given"] * sys.nstates)
     context = Context(float(T[0]), x0, bounds=state_bounds, growth=False, budget=budget,
                       labels=tuple(sys.state_labels))

@@ -263,8 +263,26 @@ def _nonlinear_kernels(block, params: dict) -> tuple[Kernels | None, str, str, f
     compiled, why_jit = _njit_kernels(block, out, upd, params, key)
     if compiled is not None:
         return compiled, "compiled", "", None
+    _check_sizes(block, out, upd, params)
     return None, "refused", (f"cannot be traced ({why_trace}) nor compiled by numba as it stands ({why_jit}), "
                              "so the compiled engine cannot run it"), None
+
+
+def _check_sizes(block, out, upd, params: dict) -> None:
+    """Refuse, by the block's name, a function that gives the wrong number of values at the zero state and input
+    (every engine would fail on it mid-run with numpy's broadcast error); one that raises there is left to run."""
+    x, u = np.zeros(block.nstates), np.zeros(block.ninputs)
+    for fn, rows, what in ((out, block.noutputs, "output"), (upd, block.nstates, "update")):
+        if fn is None or (what == "update" and not block.nstates):
+            continue
+        try:
+            with np.errstate(all="ignore"):
+                got = np.size(fn(0.0, x, u, params))
+        except Exception:               # a function may divide by its state; its run will say  # noqa: BLE001
+            continue
+        if got != rows:
+            raise ValueError(f"block '{block.name}': its {what} function returns {got} values at the zero state and "
+                             f"input, where it has {rows} {what}s ({what} functions return one value per {what})")
 
 
 def _state_output(nstates: int, noutputs: int):
@@ -310,7 +328,10 @@ def _njit_kernels(block, out, upd, params: dict, key: str) -> tuple[Kernels | No
                 fns.append(None)
                 continue
             jitted = _jitted_user(numba, fn)
-            got = np.asarray(jitted(0.0, x, u, typed))
+            raw = jitted(0.0, x, u, typed)
+            if np.ndim(raw) == 0:           # python-control takes a number; the compiled loop stores an array
+                return None, f"its {what} function returns a number, not an array (numba's loop needs np.array([...]))"
+            got = np.asarray(raw)
             if got.size != rows:
                 return None, f"its {what} function gave {got.size} values where {rows} were expected"
             fns.append(_njit_kernel(jitted, key, what))

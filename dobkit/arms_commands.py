@@ -62,7 +62,7 @@ def format_arm(arm) -> str:
 def _cmd_arms(args) -> int:
     from blocks.arms.examples import example_arms, example_defaults
 
-    if args.name:
+    if args.name is not None:                               # "" is a name too (none such), not "all of them"
         print(format_arm(example_defaults(args.name)))      # an unknown name: the error lists the names
         return 0
     print(format_arms(example_arms()))

@@ -103,6 +103,26 @@ def test_an_unknown_name_lists_the_choices():
     assert "'z2'" in message and "z1" in message and "panda" in message and "so101" in message
 
 
+def test_a_name_in_the_wrong_case_is_pointed_to_and_a_very_long_one_is_not_echoed_whole():
+    """`example:UR5` was "unknown" without a word of ur5; a 5,000-character name was echoed whole."""
+    with pytest.raises(UnknownExampleError, match=r"example arm 'UR5' is unknown \(did you mean 'ur5'\?\)"):
+        example_urdf("UR5")
+    with pytest.raises(UnknownExampleError) as err:
+        example_urdf("a" * 5000)
+    assert "(5,000 characters)" in str(err.value) and "a" * 61 not in str(err.value)
+    for name in ("", "../../etc/passwd", "scope4/../ur5"):
+        with pytest.raises(UnknownExampleError, match="the example arms are"):
+            example_urdf(name)
+
+
+def test_dobkit_arms_with_an_empty_name_is_an_unknown_name_not_the_whole_list(capsys):
+    from dobkit.cli import main
+
+    assert main(["arms", ""]) == 2
+    captured = capsys.readouterr()
+    assert "example arm '' is unknown" in captured.err and captured.out == ""
+
+
 def test_a_scenario_names_an_example_arm_and_takes_its_defaults():
     from blocks.scenario import ScenarioError, scenario_from_dict
 

@@ -165,6 +165,31 @@ def test_device_memory_estimate_covers_what_is_placed_and_is_refused_one_byte_ov
     assert "GPU memory" in out["refused"] and "'signals'" in out["refused"] and "DOBKIT_MAX_GPU_MEMORY" in out["refused"]
 
 
+_BAD_CAP = r"""
+import json, os
+from blocks.gpu import device
+out = {}
+for value in ("abc", "-1", "0", "nan", "1e400", "4G"):
+    os.environ["DOBKIT_MAX_GPU_MEMORY"] = value
+    try:
+        out[value] = device.device_free_bytes()
+    except ValueError as err:
+        out[value] = str(err)
+print(json.dumps(out))
+"""
+
+
+@needs_numba_cuda
+def test_a_gpu_memory_cap_that_is_not_a_size_is_refused_naming_the_variable():
+    out = _simulated(_BAD_CAP)
+    for value in ("abc", "-1", "nan"):
+        assert out[value] == ("DOBKIT_MAX_GPU_MEMORY: a memory size must be a number of bytes or like '4G', '512M', "
+                              f"got '{value}'")
+    for value in ("0", "1e400"):
+        assert out[value] == f"DOBKIT_MAX_GPU_MEMORY: a memory size must be positive and finite, got '{value}'"
+    assert out["4G"] == 4 * 2 ** 30
+
+
 _REFUSED = r"""
 import json, sys
 if sys.argv[1] == "hidden":

@@ -185,6 +185,91 @@ def test_a_state_beyond_the_given_bound_stops_the_run_and_unbounded_growth_does_
 
 
 
+@pytest.mark.parametrize("engine", ["fast", "python-control"])
+def test_non_finite_start_or_inputs_are_refused_before_a_solver_sees_them(engine):
+    """A NaN in U stopped the solver at a tiny step ("Required step size is less than spacing ..."); a NaN start
+    was "the loop diverged at t = 0" (python-control: "y0 must be finite"): both are the caller's numbers."""
+    sys = _user_diagram()
+    T = np.linspace(0.0, 1.0, 11)
+    with pytest.raises(ValueError, match=r"U must be finite numbers, got nan \(the number given"):
+        blocks.simulate_system(sys, T, 0, np.nan, engine=engine)
+    with pytest.raises(ValueError, match=r"U must be finite numbers, got inf \(input 0 at t = 0.9 s\)"):
+        blocks.simulate_system(sys, T, 0, [np.r_[np.zeros(9), np.inf, 0.0]], engine=engine)
+    with pytest.raises(ValueError, match=r"X0 must be finite numbers, got inf \(state 1\)"):
+        blocks.simulate_system(sys, T, [0.0, np.inf], 0.0, engine=engine)
+    with pytest.raises(ValueError, match="X0 must be numbers .* got 'a'"):
+        blocks.simulate_system(sys, T, "a", 0.0, engine=engine)
+
+
+def test_bounds_that_are_not_positive_magnitudes_are_refused_by_value():
+    """A NaN or negative bound stopped every run at t = 0 ("reached 0, beyond its bound nan"); three bounds for
+    two states were numpy's broadcast error."""
+    sys = _user_diagram()
+    T = np.linspace(0.0, 1.0, 11)
+    for bad in (np.nan, -1.0, 0.0, [1.0, np.nan]):
+        with pytest.raises(ValueError, match="bounds must be positive magnitudes"):
+            blocks.simulate_system(sys, T, 0, 0.0, engine="fast", bounds=bad)
+    with pytest.raises(ValueError, match=r"bounds must be one number or 2 \(one per state\), got shape \(3,\)"):
+        blocks.simulate_system(sys, T, 0, 0.0, engine="fast", bounds=[1.0, 2.0, 3.0])
+    ok = blocks.simulate_system(sys, T, 0, 0.0, engine="fast", bounds=[np.inf, 1e3])
+    assert ok.states.shape == (2, 11)
+
+
+def test_a_grid_beyond_the_memory_budget_is_refused_before_it_is_allocated():
+    """Every time of T holds the states (twice), outputs and inputs as float64: 2 states x 2 + 2 outputs + 1 input
+    = 7 rows x 8 bytes = 56 bytes per time; a budget of 56 x 1000 bytes takes 1000 times and refuses 1001."""
+    from blocks.budget import Budget, BudgetError
+    sys = _user_diagram()
+    assert (sys.nstates, sys.noutputs, sys.ninputs) == (2, 2, 1)
+    budget = Budget(memory=56 * 1000)
+    blocks.simulate_system(sys, np.linspace(0.0, 1.0, 1000), 0, 0.0, engine="fast", budget=budget)
+    with pytest.raises(BudgetError, match=r"1,001 output times needs about .*set by 'T'.* over the memory budget"):
+        blocks.simulate_system(sys, np.linspace(0.0, 1.0, 1001), 0, 0.0, engine="fast", budget=budget)
+
+
+def _scalar_branchy_update(t, x, u, params):
+    """A number, not an array (python-control takes it), behind a branch the trace cannot follow."""
+    if x[0] > 0.5:
+        return 2.0 * (u[0] - x[0])
+    return u[0] - x[0]
+
+
+def test_a_function_returning_a_number_behind_a_branch_runs_as_python_control_runs_it():
+    """numba compiled it as it stands and the loop indexed its number: a TypingError on "auto" and "compiled", and
+    "'float' object is not subscriptable" on the numpy engine.  Now it is refused for the compiled engine (by the
+    block's name and why), and "auto" and "fast" run it: x' = 1 - x from 0.1 until x = 0.5 (t = ln(0.9/0.5) s),
+    then x' = 2 (1 - x), so x(1) = 1 - 0.5 exp(-2 (1 - ln 1.8))."""
+    block = ct.nlsys(_scalar_branchy_update, None, inputs=1, states=1, outputs=1, name="numberfn")
+    T = np.linspace(0.0, 1.0, 11)
+    exact = 1.0 - 0.5 * math.exp(-2.0 * (1.0 - math.log(1.8)))
+    for engine in ("auto", "fast"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", EngineFallbackWarning)
+            resp = blocks.simulate_system(block, T, 0.1, 1.0, engine=engine, solve_ivp_kwargs=TIGHT)
+        assert resp.engine == "fast"
+        assert np.ravel(resp.outputs)[-1] == pytest.approx(exact, rel=1e-5)
+    with pytest.raises(CompiledUnavailable, match="block 'numberfn' .*its update function returns a number, not an "
+                                                  "array"):
+        blocks.simulate_system(block, T, 0.1, 1.0, engine="compiled")
+
+
+def _three_outputs(t, x, u, params):
+    """Three values for a block of one output, behind a branch (neither traced nor compiled by numba)."""
+    if x[0] > 0.5:
+        return np.zeros(3)
+    return np.array([x[0], 0.0, 0.0])
+
+
+@pytest.mark.parametrize("engine", ["auto", "compiled", "fast"])
+def test_a_function_giving_the_wrong_number_of_values_is_refused_by_its_block(engine):
+    """The numpy engine failed mid-run with numpy's "could not broadcast input array from shape (3,) into shape
+    (1,)", naming no block; now every engine names it before the run."""
+    block = ct.nlsys(lambda t, x, u, p: -x, _three_outputs, inputs=1, states=1, outputs=1, name="three")
+    with pytest.raises(ValueError, match="block 'three': its output function returns 3 values at the zero state "
+                                         "and input, where it has 1 outputs"):
+        blocks.simulate_system(block, np.linspace(0.0, 1.0, 11), 0.1, 1.0, engine=engine)
+
+
 GAIN = 1.0
 
 

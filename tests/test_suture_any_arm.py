@@ -10,6 +10,8 @@ model is held against pinocchio's own model with that link's inertia scaled.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -214,3 +216,20 @@ def test_per_link_nominal_scale_refuses_what_is_not_a_moving_link():
     assert s.check_key("nominal_scale.forearm_link") is None
     assert s.with_changes({"nominal_scale.forearm_link": 1.2}).data["nominal_scale"] == {
         "wrist_3_link": 1.5, "forearm_link": 1.2}
+
+
+def test_a_nominal_scale_that_leaves_no_usable_model_names_the_factors_not_a_temporary_file():
+    """shaft_link x 1e300 made M^(q) singular in double precision: the message named '/tmp/dobkit-nominal-....urdf'
+    and told the user to give its links <inertial> elements; bad factors are refused by their key as before."""
+    with pytest.raises(ScenarioError) as err:
+        scenario_from_dict({"arm": SCOPE4, "nominal_scale": {"shaft_link": 1e300}})
+    text = str(err.value)
+    assert "[nominal_scale] {'shaft_link': 1e+300} leaves no usable nominal model" in text, text
+    assert "choose factors nearer 1" in text and "dobkit-nominal-" not in text, text
+    for factor, message in ((0.0, "must be > 0.0"), (-1.0, "must be > 0.0"), (math.inf, "must be a finite number"),
+                            (math.nan, "must be a finite number")):
+        with pytest.raises(ScenarioError, match=rf"'nominal_scale.shaft_link' {message}"):
+            scenario_from_dict({"arm": SCOPE4, "nominal_scale": {"shaft_link": factor}})
+    with pytest.raises(ScenarioError, match=r"unknown key\(s\) nominal_scale.nosuch; allowed in \[nominal_scale\]: "
+                                            r"yaw_link"):
+        scenario_from_dict({"arm": SCOPE4, "nominal_scale": {"nosuch": 1.2}})

@@ -235,6 +235,33 @@ def test_check_prints_the_design(tmp_path, short, capsys):
 # --------------------------------------------------------------------------------------------
 # Refused, naming the key
 # --------------------------------------------------------------------------------------------
+def test_a_value_far_in_a_lognormal_tail_is_refused_by_the_step_budget_not_an_overflow(tmp_path, short):
+    """sigma = 50 puts nominal_scale.m3 at about 1e26 in some runs: its substeps (a power of two above the
+    stiffness) overflowed numpy's int64 ("OverflowError: Python int too large to convert to C long", a traceback);
+    now the run is named with its values and the step budget."""
+    table = ('[sensitivity]\nmethod = "sobol"\nsamples = 8\nseed = 1\n[sensitivity.distributions]\n'
+             '"nominal_scale.m3" = {kind = "lognormal", mean = 0.0, sigma = 50.0}\n'
+             '[outputs]\nmetrics = ["rms_position_error"]\n')
+    with pytest.raises(SweepError, match=r"run \d+ \(nominal_scale.m3 = [0-9.e+]+\) needs [0-9.e+]+ substeps per "
+                                         r"output step .*more integrator steps than the step budget of 2e\+06"):
+        load_sweep(write_sweep(tmp_path, table))
+
+
+def test_the_morris_levels_bound_at_both_sides(tmp_path, short):
+    """SALib lays out levels / 2 grid values per design: levels = 10**9 passed the check and allocated 4 GB when
+    the design was drawn (2**62: numpy's "array is too big"); 1000 levels load, 1002 are refused by the key."""
+    from analysis.sweep.sensitivity import MAX_LEVELS
+    assert MAX_LEVELS == 1000
+    ok = load_sweep(write_sweep(tmp_path, f'[sensitivity]\nmethod = "morris"\nsamples = 2\nlevels = 1000\n'
+                                           f'{DISTRIBUTIONS}'))
+    assert ok.sensitivity.levels == 1000 and ok.sensitivity.design().shape[0] == ok.sensitivity.runs
+    for levels in (1002, 10**9, 2**62):
+        path = write_sweep(tmp_path, f'[sensitivity]\nmethod = "morris"\nsamples = 2\nlevels = {levels}\n'
+                                     f'{DISTRIBUTIONS}')
+        with pytest.raises(SweepError, match=rf"'sensitivity.levels' must be at most 1000 .*got {levels}"):
+            load_sweep(path)
+
+
 @pytest.mark.parametrize("text, message", [
     ('method = "sobol"\nsamples = 1000\n',
      "'sensitivity.samples' must be a power of 2 >= 2 for the Sobol method (N of the Saltelli design, which "

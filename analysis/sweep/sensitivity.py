@@ -6,7 +6,7 @@ A sweep file's ``[sensitivity]`` table replaces ``[grid]`` and ``[monte_carlo]``
     method = "sobol"              # or "morris"
     samples = 4096                # Sobol: N, a power of 2 (N x (k + 2) runs); Morris: r trajectories (r x (k + 1))
     seed = 1
-    levels = 4                    # Morris only: grid levels of each value (even, >= 2; default 4)
+    levels = 4                    # Morris only: grid levels of each value (even, 2..1000; default 4)
     [sensitivity.distributions]   # as in [monte_carlo]: uniform, normal, lognormal (Morris: uniform only)
     "disturbance.f_r[0]" = {kind = "uniform", low = 0.7, high = 2.1}
 
@@ -46,6 +46,9 @@ METHODS = ("sobol", "morris")
 KINDS = {"sobol": ("uniform", "normal", "lognormal"), "morris": ("uniform",)}
 #: Morris grid levels when the file gives none (SALib's default).
 DEFAULT_LEVELS = 4
+#: The most Morris grid levels a file may ask for: SALib lays out levels / 2 grid values per design (a billion
+#: levels is 4 GB before a run starts), and past a few dozen levels the grid is as good as continuous.
+MAX_LEVELS = 1000
 #: Confidence level of the bootstrap intervals, and the number of bootstrap resamples.
 CONFIDENCE = 0.95
 RESAMPLES = 100
@@ -101,6 +104,9 @@ def samples_problem(method: str, samples, levels) -> str:
         return f"'sensitivity.samples' must be >= 2 Morris trajectories (sigma is their spread), got {samples}"
     if levels is not None and (levels < 2 or levels % 2):
         return f"'sensitivity.levels' must be an even whole number >= 2 (Morris grid levels), got {levels}"
+    if levels is not None and levels > MAX_LEVELS:
+        return (f"'sensitivity.levels' must be at most {MAX_LEVELS} (MAX_LEVELS: SALib lays out levels / 2 grid "
+                f"values, and past a few dozen levels the grid is as good as continuous), got {levels}")
     return ""
 
 

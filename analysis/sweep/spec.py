@@ -759,7 +759,14 @@ def _plan_group(spec: SweepSpec, base: Scenario, members: np.ndarray, plan: RunP
         elif auto_substeps(variants, spec.observer) == 1:      # the finest member needs 1: so do all
             plan.substeps[idx] = 1
         else:
-            plan.substeps[idx] = [_own_substeps(quiet, record, spec.observer, memo) for record in records]
+            own = [_own_substeps(quiet, record, spec.observer, memo) for record in records]
+            for k, substeps in enumerate(own):
+                if substeps > spec.budget.steps:    # steps = substeps x output steps: over budget on any grid
+                    fail(f"{spec.name}: run {idx[k]} ({_describe(values[k])}) needs {substeps:.3g} substeps per "
+                         f"output step (its fastest dynamics), so more integrator steps than the step budget of "
+                         f"{spec.budget.steps:.3g}; narrow its values or raise the budget with --max-steps or "
+                         f"DOBKIT_MAX_STEPS")
+            plan.substeps[idx] = own
         del variants
         counter.update(len(idx))
     classes = {}
@@ -781,7 +788,8 @@ def _own_substeps(quiet: Scenario, record: dict, observer: bool, memo: dict) -> 
     text = json.dumps(relevant, sort_keys=True, default=json_default)
     if text not in memo:
         need = auto_substeps(Variants(quiet, [relevant]), observer)
-        memo[text] = 1 << max(0, math.ceil(math.log2(need)))
+        # a value far out (a lognormal's tail) may need more than any budget: kept below 2**62, refused by the caller
+        memo[text] = 1 << max(0, math.ceil(math.log2(min(need, 2.0 ** 62))))
     return memo[text]
 
 

@@ -272,7 +272,10 @@ def example_names() -> list:
 def _unknown(name: str) -> UnknownExampleError:
     names = example_names()
     more = "" if _distribution() is not None else ' (more with example-robot-data: pip install "dobkit[urdf]")'
-    return UnknownExampleError(f"example arm {name!r} is unknown; the example arms are {', '.join(names)}{more} "
+    shown = repr(name) if len(name) <= 80 else f"{name[:60]!r}... ({len(name):,} characters)"
+    near = [n for n in names if n.casefold() == name.strip().casefold()]
+    hint = f" (did you mean {near[0]!r}?)" if near else ""
+    return UnknownExampleError(f"example arm {shown} is unknown{hint}; the example arms are {', '.join(names)}{more} "
                                "(`dobkit arms` lists them with their joints)")
 
 
