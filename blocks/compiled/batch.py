@@ -252,28 +252,9 @@ def run_compiled_batch(v, members, observer: bool, metrics: tuple, signals: tupl
             q_ref_grid = src[on_grid, :n].T                                 # (joints, n_grid)
         else:
             q_ref_grid = np.asarray(v.base.trajectory.evaluate(times)[0]).T
-        if is_rrpr_kernels(members.arm):
-            aux[:, :3] = tool_pose(members.kin[:, None], q_ref_grid)[:3].T
-        else:
-            aux[:, :3] = members.arm.tool_kernels.tool_position(members.kin, q_ref_grid).T
+        aux[:, :3] = reference_tool_positions(members, q_ref_grid)
 
-    # the outputs (and rows) to keep at the grid points; without a sensor the measured signals are the true ones
-    labels = list(loop.output_labels)
-    alias = {} if "q_meas[0]" in labels else {"q_meas": "q", "dq_meas": "dq"}
-    keep = np.array([labels.index(x) for name in signals if name != "d"
-                     for x in signal_names(alias.get(name, name), members.arm)], dtype=np.int64)
-    keep_rows = np.arange(groups["d"][1].start, groups["d"][1].stop, dtype=np.int64) if "d" in signals else \
-        np.zeros(0, dtype=np.int64)
-    if "d" in signals:
-        flags[groups["d"][0]] = 1
-    at, col = {}, 0
-    for name in signals:
-        if name != "d":
-            at[name] = slice(col, col + n)
-            col += n
-    if "d" in signals:
-        at["d"] = slice(col, col + n)
-    n_keep = keep.size + keep_rows.size
+    keep, keep_rows, at, n_keep = kept_signals(loop, members.arm, signals, groups, flags, n)
     Y = np.empty((N, n_grid if n_keep else 0, n_keep))
 
     n_rows = max(program.n_rows, 1)
@@ -332,6 +313,37 @@ def run_compiled_batch(v, members, observer: bool, metrics: tuple, signals: tupl
     for store in kept.values():
         store[failed] = np.nan
     return values, kept, failed_at, failures, counts[:, :2].astype(np.int64)
+
+
+def reference_tool_positions(members, q_ref_grid: np.ndarray) -> np.ndarray:
+    """The reference's tool point (m) at the grid points, (points, 3), from ``q_ref_grid`` (joints, points): computed
+    once for all members, for the tool-tip distance metrics."""
+    if is_rrpr_kernels(members.arm):
+        return tool_pose(members.kin[:, None], q_ref_grid)[:3].T
+    return members.arm.tool_kernels.tool_position(members.kin, q_ref_grid).T
+
+
+def kept_signals(loop, arm, signals: tuple, groups: dict, flags: np.ndarray, n: int) -> tuple:
+    """Where the kept ``signals`` come from and go: ``(keep, keep_rows, at, n_keep)`` -- the loop outputs and the
+    row-group rows (``d``) to copy at each grid point, each signal's columns in the kept array, and their count.
+    Sets the flag of the ``d`` row group when ``d`` is kept.  Without a sensor the measured signals are the true
+    ones."""
+    labels = list(loop.output_labels)
+    alias = {} if "q_meas[0]" in labels else {"q_meas": "q", "dq_meas": "dq"}
+    keep = np.array([labels.index(x) for name in signals if name != "d"
+                     for x in signal_names(alias.get(name, name), arm)], dtype=np.int64)
+    keep_rows = np.arange(groups["d"][1].start, groups["d"][1].stop, dtype=np.int64) if "d" in signals else \
+        np.zeros(0, dtype=np.int64)
+    if "d" in signals:
+        flags[groups["d"][0]] = 1
+    at, col = {}, 0
+    for name in signals:
+        if name != "d":
+            at[name] = slice(col, col + n)
+            col += n
+    if "d" in signals:
+        at["d"] = slice(col, col + n)
+    return keep, keep_rows, at, keep.size + keep_rows.size
 
 
 def batch_threads(workers: int | None) -> int:

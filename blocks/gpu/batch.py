@@ -24,16 +24,15 @@ from ..compiled.batch import (
     _metrics,
     _noise_tables,
     batch_unavailable_reason,
+    kept_signals,
     member_start_states,
     member_theta,
     members_bounds,
+    reference_tool_positions,
 )
 from ..compiled.codegen import CompiledUnavailable
 from ..compiled.engine import CompiledLoopEngine
-from ..kernels import tool_pose
-from ..kernels.bind import is_rrpr_kernels
 from ..monitor import Monitor
-from ..systems import signal_names
 from .device import GPU_MEMORY_VARIABLE, cuda_or_none, cuda_unavailable_reason, device_free_bytes, device_name
 from .module import cuda_module, gpu_program_reason
 
@@ -149,27 +148,9 @@ def run_cuda_batch(v, members, observer: bool, metrics: tuple, signals: tuple, t
     aux = np.zeros((n_grid, max(program.n_aux, 1)))
     if "tool_distance" in groups and any("tool" in m for m in metrics):
         q_ref_grid = src_at[on_grid, :n].T                                   # (joints, n_grid)
-        if is_rrpr_kernels(members.arm):
-            aux[:, :3] = tool_pose(members.kin[:, None], q_ref_grid)[:3].T
-        else:
-            aux[:, :3] = members.arm.tool_kernels.tool_position(members.kin, q_ref_grid).T
+        aux[:, :3] = reference_tool_positions(members, q_ref_grid)
 
-    out_labels = list(loop.output_labels)
-    alias = {} if "q_meas[0]" in out_labels else {"q_meas": "q", "dq_meas": "dq"}
-    keep = np.array([out_labels.index(x) for name in signals if name != "d"
-                     for x in signal_names(alias.get(name, name), members.arm)], dtype=np.int64)
-    keep_rows = np.arange(groups["d"][1].start, groups["d"][1].stop, dtype=np.int64) if "d" in signals else \
-        np.zeros(0, dtype=np.int64)
-    if "d" in signals:
-        flags[groups["d"][0]] = 1
-    at, col = {}, 0
-    for name in signals:
-        if name != "d":
-            at[name] = slice(col, col + n)
-            col += n
-    if "d" in signals:
-        at["d"] = slice(col, col + n)
-    n_keep = keep.size + keep_rows.size
+    keep, keep_rows, at, n_keep = kept_signals(loop, members.arm, signals, groups, flags, n)
     n_rows = max(program.n_rows, 1)
 
     # the noise: the distinct tables once (member_ext reads row table_row[m]: a shared one for all that share
