@@ -741,8 +741,10 @@ def _sensitivity_figures(summary: SweepSummary, joints: JointSpace):
             joint_label = joints.labels[joint] if joint is not None and joint < joints.count else ""
             ax.set_title(joint_label or _capital(metric_name(metric)), fontsize=9)
             if method == "sobol":
-                ax.set_xlim(min(-0.05, float(np.nanmin(np.r_[numbers["first"] - numbers["first_conf"], 0]))),
-                            max(1.05, float(np.nanmax(np.r_[numbers["total"] + numbers["total_conf"], 0]))))
+                # both indices' intervals inside the axes (a first-order interval can reach past the total's)
+                ends = np.r_[numbers["first"] - numbers["first_conf"], numbers["first"] + numbers["first_conf"],
+                             numbers["total"] - numbers["total_conf"], numbers["total"] + numbers["total_conf"], 0]
+                ax.set_xlim(min(-0.05, float(np.nanmin(ends))) - 0.02, max(1.05, float(np.nanmax(ends))) + 0.02)
         axes[0].invert_yaxis()                   # the first value on top (the axes share theirs)
         handles, labels = axes[0].get_legend_handles_labels()
         fig.legend(handles, labels, loc="outside lower center", ncols=2, fontsize=8)
