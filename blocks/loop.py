@@ -331,7 +331,7 @@ def simulate(scenario: Scenario | str = "paper", observer: bool = True, plant=No
     if engine == "compiled":
         stepper = run.compiled_engine()
     elif engine == "fast":
-        stepper = _NumpyEngine(loop, sim.method)
+        stepper = NumpyEngine(loop, sim.method)
     else:
         stepper = PythonControlEngine(loop, sim.method)
     states, outputs, d_rows = advance(stepper, context, t_grid, Solver.of(sim), what=f"scenario '{s.name}'",
@@ -432,6 +432,3 @@ def _prepared(s: Scenario, observer: bool) -> _Prepared:
     _last_prepared[0] = run
     return run
 
-
-#: The numpy engine (kept under its old name for callers of this module).
-_NumpyEngine = NumpyEngine

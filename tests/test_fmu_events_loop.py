@@ -249,15 +249,15 @@ def test_an_event_block_runs_once_and_from_its_start_time(fmus):
 
 
 def test_the_numpy_engine_of_blocks_simulate_stops_at_the_events(fmus):
-    """blocks.simulate's numpy engine (_NumpyEngine) takes the loop's event blocks: the stair's outputs are those
+    """blocks.simulate's numpy engine (simulator.NumpyEngine) takes the loop's event blocks: the stair's outputs are those
     recorded during the run, not a pass over the grid afterwards (which would read the last counter, 8)."""
-    from blocks.loop import _NumpyEngine
+    from blocks.simulator import NumpyEngine
     from blocks.monitor import Monitor
     with load(fmus["stair"], name="stair") as stair:
         lag = ct.nlsys(lambda t, x, u, p: [(u[0] - x[0]) / T_LAG], lambda t, x, u, p: x, inputs=["counter"],
                        outputs=["y"], states=["y"], name="lag")
         loop = ct.interconnect([stair, lag], inplist=[], outlist=["counter", "y"], check_unused=False)
-        engine = _NumpyEngine(loop, "RK45")
+        engine = NumpyEngine(loop, "RK45")
         grid = np.linspace(0.0, 5.0, 11)
         states, _ = engine.integrate(np.zeros(1), grid, 1e-10, 1e-12, np.inf, Monitor("loop", None, np.zeros(1)))
         outputs = engine.outputs_on_grid(grid, states)
