@@ -251,8 +251,8 @@ def test_an_event_block_runs_once_and_from_its_start_time(fmus):
 def test_the_numpy_engine_of_blocks_simulate_stops_at_the_events(fmus):
     """blocks.simulate's numpy engine (simulator.NumpyEngine) takes the loop's event blocks: the stair's outputs are those
     recorded during the run, not a pass over the grid afterwards (which would read the last counter, 8)."""
-    from blocks.simulator import NumpyEngine
     from blocks.monitor import Monitor
+    from blocks.simulator import NumpyEngine
     with load(fmus["stair"], name="stair") as stair:
         lag = ct.nlsys(lambda t, x, u, p: [(u[0] - x[0]) / T_LAG], lambda t, x, u, p: x, inputs=["counter"],
                        outputs=["y"], states=["y"], name="lag")
