@@ -12,7 +12,11 @@ does not record:
   grid in one call);
 * its maths as kernel functions (:mod:`blocks.kernels`) with their
   parameters, which an engine can call directly, vectorise over a batch or
-  compile.
+  compile;
+* which of its states are physical quantities of a joint (a position, a
+  velocity, a disturbance observer's state), so that the divergence rule
+  (:mod:`blocks.divergence`) bounds them by what they are, whatever the
+  block is called.
 
 :class:`BlockContract` holds these facts; :class:`Block` is a
 :class:`control.NonlinearIOSystem` made with one.  :func:`contract_of` gives
@@ -31,11 +35,24 @@ import control as ct
 
 from .bound_kernels import Kernels  # defined apart: a path or a scenario holds one without python-control
 
-__all__ = ["Kernels", "BlockContract", "Block", "ContractError", "contract_of", "kernel_block", "kernels_only"]
+__all__ = ["Kernels", "BlockContract", "STATE_QUANTITIES", "joint_states", "Block", "ContractError", "contract_of",
+           "kernel_block", "kernels_only"]
 
 
 class ContractError(ValueError):
     """A block's contract names signals it does not have, or promises what its functions do not keep."""
+
+
+#: The physical quantities a block may declare a state to be (see :func:`blocks.divergence.state_bounds`):
+#: a joint position (rad, m), a joint velocity (rad/s, m/s), the state ``z = d_hat - Y q'`` of a disturbance
+#: observer (N m, N).
+STATE_QUANTITIES = ("position", "velocity", "observer_state")
+
+
+def joint_states(labels, quantity: str) -> tuple:
+    """``(label, quantity, joint)`` triples declaring the states ``labels`` (joint 0, 1, ... in order) to be
+    ``quantity`` (one of :data:`STATE_QUANTITIES`), for :attr:`BlockContract.state_meanings`."""
+    return tuple((str(label), quantity, i) for i, label in enumerate(labels))
 
 
 @dataclass(frozen=True)
@@ -54,18 +71,37 @@ class BlockContract:
         :class:`Kernels`).  Blocks with kernels take columns through them.
     kernels : Kernels, optional
         The block's maths as kernels; None for a block written otherwise.
+    state_meanings : tuple of (str, str, int)
+        ``(state, quantity, joint)`` triples: the states that are a physical
+        quantity (:data:`STATE_QUANTITIES`) of joint ``joint``.  A state not
+        named here has no known physical bound (the divergence rule judges it
+        by growth).
     """
 
     feedthrough: frozenset | None = None
     state_outputs: tuple = ()
     columnwise: bool = False
     kernels: Kernels | None = None
+    state_meanings: tuple = ()
 
     def __post_init__(self) -> None:
         if self.feedthrough is not None:
             object.__setattr__(self, "feedthrough", frozenset(self.feedthrough))
         pairs = self.state_outputs.items() if isinstance(self.state_outputs, Mapping) else self.state_outputs
         object.__setattr__(self, "state_outputs", tuple((str(o), str(x)) for o, x in pairs))
+        meanings = tuple((str(x), str(quantity), int(joint)) for x, quantity, joint in self.state_meanings)
+        for state, quantity, joint in meanings:
+            if quantity not in STATE_QUANTITIES or joint < 0:
+                raise ContractError(f"state_meanings: state {state!r} is declared {quantity!r} of joint {joint}; "
+                                    f"a quantity is one of {STATE_QUANTITIES} of a joint 0, 1, ...")
+        object.__setattr__(self, "state_meanings", meanings)
+
+    def meaning_of(self, state: str) -> tuple | None:
+        """``(quantity, joint)`` of the state labelled ``state``, or None where the block declares none."""
+        for label, quantity, joint in self.state_meanings:
+            if label == state:
+                return quantity, joint
+        return None
 
     @property
     def takes_columns(self) -> bool:
@@ -85,6 +121,10 @@ class BlockContract:
             if out not in outputs or state not in states:
                 raise ContractError(f"block '{system.name}': state_outputs pair ({out!r}, {state!r}) names a "
                                     f"signal it does not have (outputs {outputs}, states {states})")
+        for state, quantity, _ in self.state_meanings:
+            if state not in states:
+                raise ContractError(f"block '{system.name}': state_meanings declares {state!r} a {quantity}, "
+                                    f"which is not one of its states {states}")
         k = self.kernels
         if k is not None and ((system.noutputs and k.output is None) or (system.nstates and k.update is None)):
             raise ContractError(f"block '{system.name}': its kernels lack an "
@@ -130,7 +170,7 @@ def contract_of(system) -> BlockContract:
 
 
 def kernel_block(kernels: Kernels, *, name: str, inputs, outputs, states=(), feedthrough=(),
-                 state_outputs=(), dt: float = 0) -> Block:
+                 state_outputs=(), dt: float = 0, state_meanings=()) -> Block:
     """A :class:`Block` whose python-control functions are its kernels bound to their parameters.
 
     Parameters
@@ -148,16 +188,18 @@ def kernel_block(kernels: Kernels, *, name: str, inputs, outputs, states=(), fee
     dt : float
         0 for a continuous block, or the sample period (s) of a discrete one,
         whose update gives the next state (python-control's convention).
+    state_meanings : iterable of (str, str, int)
+        States that are a joint's physical quantity (see :class:`BlockContract`; :func:`joint_states`).
     """
     if _KERNELS_ONLY.get():
         return KernelsOnly(name, BlockContract(feedthrough=frozenset(feedthrough), state_outputs=tuple(state_outputs),
-                                               columnwise=True, kernels=kernels))
+                                               columnwise=True, kernels=kernels, state_meanings=tuple(state_meanings)))
     params = kernels.params
     output, update = kernels.output, kernels.update
     outfcn = None if output is None else (lambda t, x, u, _p: output(t, x, u, *params))
     updfcn = None if update is None else (lambda t, x, u, _p: update(t, x, u, *params))
     contract = BlockContract(feedthrough=frozenset(feedthrough), state_outputs=tuple(state_outputs),
-                             columnwise=True, kernels=kernels)
+                             columnwise=True, kernels=kernels, state_meanings=tuple(state_meanings))
     signals = dict(name=name, inputs=list(inputs), outputs=list(outputs), dt=dt)
     if states:      # python-control refuses a state count of 0 without an update function
         signals["states"] = list(states)

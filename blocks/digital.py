@@ -317,7 +317,7 @@ def encoder(settings: DigitalController, measured: str = "", name: str = "encode
 
     The joints (n, names) are those of ``settings.joints``.
     """
-    from .contract import kernel_block
+    from .contract import joint_states, kernel_block
     names = settings.joints.signal_names
     res = np.array(settings.position_resolution)
     steps = tuple(bool(r > 0) for r in res)         # which joints quantize: structure, not numbers
@@ -329,7 +329,9 @@ def encoder(settings: DigitalController, measured: str = "", name: str = "encode
     params = (res, steps, settings.period, settings.filter_pole)
     return kernel_block(Kernels(params, encoder_difference_output, encoder_difference_update, column_params=params),
                         name=name, inputs=inputs, outputs=outputs, dt=settings.period,
-                        states=names("q_prev") + names("v_prev"), feedthrough=names("q" + measured))
+                        states=names("q_prev") + names("v_prev"), feedthrough=names("q" + measured),
+                        state_meanings=joint_states(names("q_prev"), "position")
+                        + joint_states(names("v_prev"), "velocity"))
 
 
 def _nominal_arm(nominal, settings: DigitalController) -> ArmModel:
@@ -408,7 +410,7 @@ def digital_observer(nominal: ArmModel, gain, settings: DigitalController, varia
     ValueError
         If the variant is unknown or ``settings`` were made for other joints than the arm's.
     """
-    from .contract import kernel_block
+    from .contract import joint_states, kernel_block
     if variant not in OBSERVER_VARIANTS:
         raise ValueError(f"observer variant {variant!r} is unknown; choose from {list(OBSERVER_VARIANTS)}")
     nominal = _nominal_arm(nominal, settings)
@@ -420,7 +422,7 @@ def digital_observer(nominal: ArmModel, gain, settings: DigitalController, varia
     inputs = names("tau") + names("q_s") + names("dq_s")
     block = kernel_block(Kernels(params, bound(observer_sampled_output, nominal), bound(update, nominal)), name=name,
                          inputs=inputs, states=names("z"), outputs=names("d_hat"), feedthrough=names("dq_s"),
-                         dt=settings.period)
+                         dt=settings.period, state_meanings=joint_states(names("z"), "observer_state"))
     block.gain = Y
     if settings.observer_discretization == "zoh":
         block.zoh_split = partial(zoh_split, nominal, params, settings, name)
@@ -446,7 +448,7 @@ def zoh_split(nominal: ArmModel, params: tuple, settings: DigitalController, nam
     name : str
         The observer block's name.
     """
-    from .contract import kernel_block
+    from .contract import joint_states, kernel_block
     names = nominal.joints.signal_names
     n = nominal.joints.count
     _, gain, _, period = params
@@ -456,5 +458,6 @@ def zoh_split(nominal: ArmModel, params: tuple, settings: DigitalController, nam
                           outputs=rows, feedthrough=inputs, dt=settings.period)
     observer = kernel_block(Kernels((gain, period), observer_held_output, observer_zoh_step), name=name,
                             inputs=inputs + rows, states=names("z"), outputs=names("d_hat"),
-                            feedthrough=names("dq_s"), dt=settings.period)
+                            feedthrough=names("dq_s"), dt=settings.period,
+                            state_meanings=joint_states(names("z"), "observer_state"))
     return [observer, matrix]

@@ -17,10 +17,14 @@ Bounds, per joint (units rad, m; rad/s, m/s; N m, N):
   scenario holds at the start (the external disturbance, gravity, the
   reference's torque), plus 1.
 
-The digital controller's states are physical too: the encoder's previous
-sample is a position, its filtered velocity a velocity.  A state with no
-physical meaning known here (an FMU's own states, a user's blocks, the
-actuator's command buffer) is judged by growth: beyond :data:`GROWTH_FACTOR`
+A state is bounded by what it is, never by the name of its block: each
+block declares in its contract which of its states are a joint's position,
+velocity or observer state (:attr:`blocks.contract.BlockContract.state_meanings`;
+the plant's ``q``, ``dq``, the observer's ``z``, and in the digital loop the
+encoder's previous sample and filtered velocity).  A user's block that
+declares the same is bounded the same.  A state with no declared meaning
+(an FMU's own states, a user's blocks, the actuator's command buffer) is
+judged by growth: beyond :data:`GROWTH_FACTOR`
 times its start magnitude plus :data:`GROWTH_FLOOR` (see
 :meth:`StateBounds.with_growth`).  Where an engine advances in fixed steps
 of its own and knows no bound at all (the outputs of a foreign FMU in
@@ -48,7 +52,8 @@ from .kernels import mass_times as _rrpr_mass_times
 from .kernels.bind import bound
 
 __all__ = ["StateBounds", "state_bounds", "cached_state_bounds", "signal_bounds", "ReferenceLimits",
-           "reference_limits", "force_bounds", "batch_bounds", "Runaway", "POSITION_MARGIN", "VELOCITY_MARGIN",
+           "reference_limits", "force_bounds", "batch_bounds", "state_meanings", "joint_signal_meaning", "Runaway",
+           "POSITION_MARGIN", "VELOCITY_MARGIN",
            "FORCE_FACTOR", "GROWTH_FACTOR", "GROWTH_FLOOR", "RUNAWAY_FACTOR", "RUNAWAY_STEPS"]
 
 #: Added to the reference's largest position (rad for revolute joints, m for prismatic ones).
@@ -227,30 +232,35 @@ def _external_disturbance(kernels, tool_kernels):
     return bound(external_disturbance, (kernels, tool_kernels))
 
 
-def _bound_of(block: str, label: str, ref: ReferenceLimits, force, gain):
-    """The bound of one state by its block and label: (bound, name, unit, reason); ``inf`` if not physical."""
-    n = ref.position.size
-    for i in range(n):
-        if (block == "plant" and label == f"q[{i}]") or (block == "encoder" and label == f"q_prev[{i}]"):
-            return (ref.position[i], f"{block} {label}", ref.position_units[i],
-                    f"the reference's largest |q[{i}]| plus {POSITION_MARGIN[ref.kinds[i]]:g} {ref.position_units[i]}")
-        if (block == "plant" and label == f"dq[{i}]") or (block == "encoder" and label == f"v_prev[{i}]"):
-            return (ref.velocity[i], f"{block} {label}", ref.velocity_units[i],
-                    f"the reference's largest speed plus {VELOCITY_MARGIN[ref.kinds[i]]:g} {ref.velocity_units[i]}")
-        if block == "observer" and label == f"z[{i}]":
-            y_row = np.abs(gain[i])                      # (n,) for one run, (n, N) for a batch
-            reach = (y_row * (ref.velocity if y_row.ndim == 1 else ref.velocity[:, None])).sum(axis=0)
-            return (force + reach, f"observer z[{i}] (= d_hat - Y dq)", ref.force_units[i],
-                    f"{FORCE_FACTOR:g} x the largest force at the start for d_hat, plus Y dq within the velocity "
-                    "bounds")
-    return np.inf, f"{block} {label}", "", "finite"
+def _bound_of(meaning, name: str, ref: ReferenceLimits, force, gain):
+    """The bound of one state by its physical meaning ``(quantity, joint)`` (None: none known): (bound, name,
+    unit, reason); ``inf`` where not physical.  ``name`` is how a message names the state."""
+    if meaning is None:
+        return np.inf, name, "", "finite"
+    quantity, i = meaning
+    if i >= ref.position.size:
+        raise ValueError(f"{name} is declared the {quantity} of joint {i}, but the arm has {ref.position.size} joints")
+    if quantity == "position":
+        return (ref.position[i], name, ref.position_units[i],
+                f"the reference's largest |q[{i}]| plus {POSITION_MARGIN[ref.kinds[i]]:g} {ref.position_units[i]}")
+    if quantity == "velocity":
+        return (ref.velocity[i], name, ref.velocity_units[i],
+                f"the reference's largest speed plus {VELOCITY_MARGIN[ref.kinds[i]]:g} {ref.velocity_units[i]}")
+    if quantity == "observer_state":
+        y_row = np.abs(gain[i])                      # (n,) for one run, (n, N) for a batch
+        reach = (y_row * (ref.velocity if y_row.ndim == 1 else ref.velocity[:, None])).sum(axis=0)
+        return (force + reach, f"{name} (= d_hat - Y dq)", ref.force_units[i],
+                f"{FORCE_FACTOR:g} x the largest force at the start for d_hat, plus Y dq within the velocity "
+                "bounds")
+    raise ValueError(f"{name} is declared a {quantity!r}; the quantities with a bound are position, velocity and "
+                     "observer_state")
 
 
-def _labelled_bounds(labels, ref: ReferenceLimits, force, gain) -> StateBounds:
-    """Bounds for states given as ``(block name, state label)`` pairs."""
+def _labelled_bounds(states, ref: ReferenceLimits, force, gain) -> StateBounds:
+    """Bounds for states given as ``(name, meaning)`` pairs (:func:`state_meanings`)."""
     bounds, names, units, reasons = [], [], [], []
-    for block, label in labels:
-        bound, name, unit, reason = _bound_of(block, label, ref, force, gain)
+    for state_name, meaning in states:
+        bound, name, unit, reason = _bound_of(meaning, state_name, ref, force, gain)
         bounds.append(bound)
         names.append(name)
         units.append(unit)
@@ -261,6 +271,30 @@ def _labelled_bounds(labels, ref: ReferenceLimits, force, gain) -> StateBounds:
     else:
         array = np.array([np.broadcast_to(b, (N,)) for b in bounds], dtype=float).reshape(len(bounds), N)
     return StateBounds(array, names, units, reasons)
+
+
+def state_meanings(blocks) -> list:
+    """``(name, meaning)`` of every state of ``blocks`` in order: ``name`` as ``"block state"``, ``meaning`` the
+    ``(quantity, joint)`` the block's contract declares (:attr:`blocks.contract.BlockContract.state_meanings`), or
+    None.  ``blocks`` is an interconnection (its ``syslist``) or a sequence of blocks."""
+    from .contract import contract_of  # python-control only where there are blocks
+    syslist = getattr(blocks, "syslist", blocks)
+    out = []
+    for block in syslist:
+        contract = contract_of(block)
+        out.extend((f"{block.name} {label}", contract.meaning_of(label)) for label in block.state_labels)
+    return out
+
+
+def joint_signal_meaning(name: str):
+    """The meaning of a loop signal by the loop's naming convention (``q[i]``: a position, ``dq[i]``: a velocity;
+    see ``DESIGN.md``), or None: for the outputs of a block that declares no states (a plant FMU's)."""
+    stem, bracket, rest = name.partition("[")
+    if bracket and rest.endswith("]") and rest[:-1].isdigit():
+        quantity = {"q": "position", "dq": "velocity"}.get(stem)
+        if quantity is not None:
+            return quantity, int(rest[:-1])
+    return None
 
 
 def state_bounds(loop, scenario, samples: int = 201) -> StateBounds:
@@ -274,8 +308,7 @@ def state_bounds(loop, scenario, samples: int = 201) -> StateBounds:
     spec = kernel_disturbance_params(s.disturbance, s.robot)
     force = float(force_bounds(s.robot.kernel_params(), spec, ref, s.robot.kernels, s.robot.tool_kernels,
                                evaluation_kernels(s.robot)))
-    labels = [(block.name, label) for block in loop.syslist for label in block.state_labels]
-    return _labelled_bounds(labels, ref, force, np.asarray(s.observer_gain, dtype=float))
+    return _labelled_bounds(state_meanings(loop), ref, force, np.asarray(s.observer_gain, dtype=float))
 
 
 _kept: OrderedDict = OrderedDict()
@@ -300,8 +333,9 @@ def cached_state_bounds(loop, scenario) -> StateBounds:
 def batch_bounds(batch_loop, labels=None) -> StateBounds:
     """Per-member bounds (nstates, N) of a batch (:class:`blocks.batch.members.MemberLoop`).
 
-    ``labels`` are ``(block, label)`` pairs in the engine's state order; by
-    default the numpy batch's rows ``q; dq; z``.
+    ``labels`` are ``(name, meaning)`` pairs in the engine's state order
+    (:func:`state_meanings` of the member loop); by default the numpy
+    batch's rows ``q; dq; z``.
     """
     b = batch_loop
     ref = reference_limits(b.v.base)
@@ -311,9 +345,10 @@ def batch_bounds(batch_loop, labels=None) -> StateBounds:
     else:                                       # another arm: the members share the true arm, not its numbers' layout
         force = _shared_arm_force_bounds(b.k_true, b.arm, b.disturbance, ref, b.n)
     if labels is None:
-        labels = [("plant", f"q[{i}]") for i in range(n)] + [("plant", f"dq[{i}]") for i in range(n)]
+        labels = [(f"plant q[{i}]", ("position", i)) for i in range(n)] \
+            + [(f"plant dq[{i}]", ("velocity", i)) for i in range(n)]
         if b.observer:
-            labels += [("observer", f"z[{i}]") for i in range(n)]
+            labels += [(f"observer z[{i}]", ("observer_state", i)) for i in range(n)]
     gain = np.asarray(b.gain, dtype=float)
     if gain.ndim == 2:                      # diagonal gains, rows (n, N): as full matrices (n, n, N)
         eye = np.eye(n)[:, :, None]
@@ -340,7 +375,8 @@ def signal_bounds(names, scenario, samples: int = 201) -> StateBounds:
     ref = reference_limits(s, samples)
     force = float(force_bounds(s.robot.kernel_params(), kernel_disturbance_params(s.disturbance, s.robot), ref,
                                s.robot.kernels, s.robot.tool_kernels, evaluation_kernels(s.robot)))
-    return _labelled_bounds([("plant", name) for name in names], ref, force, np.asarray(s.observer_gain, dtype=float))
+    return _labelled_bounds([(f"plant {name}", joint_signal_meaning(name)) for name in names], ref, force,
+                            np.asarray(s.observer_gain, dtype=float))
 
 
 class Runaway:

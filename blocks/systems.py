@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from .arm import ArmModel
-from .contract import Block, BlockContract, Kernels, kernel_block
+from .contract import Block, BlockContract, Kernels, joint_states, kernel_block
 from .disturbances import DisturbanceSpec
 from .gains import OBSERVER_VARIANTS, validated_gain
 from .kernels import (
@@ -138,7 +138,9 @@ def plant(params: ArmModel, disturbance: DisturbanceSpec | None = None, name: st
     block = kernel_block(Kernels((params.kernel_params(), disturbance_params(spec, params)),
                                  bound(plant_output, params), bound(plant_update, params)),
                          name=name, inputs=signal_names("tau", params), states=states,
-                         outputs=states + signal_names("tau_dis", params), state_outputs=zip(states, states))
+                         outputs=states + signal_names("tau_dis", params), state_outputs=zip(states, states),
+                         state_meanings=joint_states(signal_names("q", params), "position")
+                         + joint_states(signal_names("dq", params), "velocity"))
     block.robot_parameters = block.arm = params
     block.disturbance_spec = spec
     return block
@@ -228,7 +230,8 @@ def observer(nominal: ArmModel, gain, variant: str = "correct", measured: str = 
     kernels = Kernels((nominal.kernel_params(), y_param, 1.0 if variant == "paper-eq16" else 0.0),
                       bound(observer_output, nominal), bound(observer_update, nominal))
     block = kernel_block(kernels, name=name, inputs=inputs, states=signal_names("z", nominal),
-                         outputs=signal_names("d_hat", nominal), feedthrough=dq_in)
+                         outputs=signal_names("d_hat", nominal), feedthrough=dq_in,
+                         state_meanings=joint_states(signal_names("z", nominal), "observer_state"))
     block.gain = Y
     block.variant = variant
     return block

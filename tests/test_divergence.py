@@ -111,3 +111,55 @@ def test_the_bounds_of_a_held_arm_are_the_rules_numbers_by_hand():
     force = 1000.0 * (300.0 + 2 * g3 + 1.0)                     # the largest start force: the slide's
     assert bound["observer z[2] (= d_hat - Y dq)"] == pytest.approx(force + 10.0 * 100.0, rel=1e-9)
     assert bound["observer z[0] (= d_hat - Y dq)"] == pytest.approx(force + 10.0 * 1000.0, rel=1e-9)
+
+
+def _renamed(block, name, meanings):
+    """The same block under another name, its contract declaring ``meanings`` (or nothing)."""
+    from dataclasses import replace
+
+    from blocks.contract import Block
+    return Block(block.updfcn, block.outfcn, inputs=list(block.input_labels), outputs=list(block.output_labels),
+                 states=list(block.state_labels), name=name,
+                 contract=replace(block.contract, state_meanings=meanings))
+
+
+def test_a_state_is_bounded_by_what_its_block_declares_it_to_be_not_by_the_blocks_name():
+    """The paper's plant under another name keeps its physical bounds (its contract says what q and dq are); the
+    same block named "plant" but declaring nothing is judged by growth only; a user's block that declares its
+    state a velocity of joint 1 gets joint 1's velocity bound (a held reference: 0 + 1000 rad/s)."""
+    from conftest import hold_trajectory, make_scenario
+
+    from blocks.divergence import state_bounds, state_meanings
+    from blocks.loop import build_blocks
+    offset = (-0.5, -1.0, 0.2, -0.3)
+    s = make_scenario(trajectory=hold_trajectory(offset), simulation={"t_final": 0.1})
+    plant = build_blocks(s)["plant"]
+    assert state_meanings([plant])[:2] == [("plant q[0]", ("position", 0)), ("plant q[1]", ("position", 1))]
+
+    reference = state_bounds([plant], s)
+    actuator = _renamed(plant, "my_arm", plant.contract.state_meanings)
+    renamed = state_bounds([actuator], s)
+    np.testing.assert_array_equal(renamed.bounds, reference.bounds)
+    assert renamed.names[0] == "my_arm q[0]"
+    np.testing.assert_allclose(renamed.bounds, [100.5, 101.0, 10.2, 100.3, 1e3, 1e3, 1e2, 1e3], rtol=1e-12)
+
+    silent = state_bounds([_renamed(plant, "plant", ())], s)
+    assert np.isinf(silent.bounds).all()
+
+    import control as ct
+
+    from blocks.contract import Block, BlockContract
+    lag = Block(lambda t, x, u, p: -x + u, lambda t, x, u, p: x, inputs=["u"], outputs=["y"], states=["w"],
+                name="filter", contract=BlockContract(state_meanings=[("w", "velocity", 1)]))
+    assert isinstance(lag, ct.NonlinearIOSystem)
+    (w_bound,) = state_bounds([lag], s).bounds
+    assert w_bound == 1e3
+
+
+def test_a_contract_that_declares_an_unknown_state_or_quantity_is_refused():
+    from blocks.contract import Block, BlockContract, ContractError
+    with pytest.raises(ContractError, match=r"'v' a velocity, which is not one of its states \['w'\]"):
+        Block(lambda t, x, u, p: -x, None, inputs=[], outputs=[], states=["w"], name="f",
+              contract=BlockContract(state_meanings=[("v", "velocity", 0)]))
+    with pytest.raises(ContractError, match=r"'w' is declared 'torque' of joint 0"):
+        BlockContract(state_meanings=[("w", "torque", 0)])

@@ -23,6 +23,7 @@ import numpy as np
 
 from ..compiled.trace import is_table
 from ..contract import contract_of, kernels_only
+from ..divergence import state_meanings
 from ..kernels import lumped_disturbance
 from ..kernels.bind import bound, is_rrpr_kernels
 from ..loop import _prepared, build_blocks, closed_loop, initial_state
@@ -209,7 +210,7 @@ class MemberLoop:
         self.signal_rows = {}
         for label, row in zip(labels, plan.out_index):
             self.signal_rows.setdefault(label.split("[")[0], []).append(int(row))
-        self.state_labels = [(block.name, label) for block in self.loop.syslist for label in block.state_labels]
+        self.state_meanings = state_meanings(self.loop)
         arm = self.arm = v.base.robot
         if is_rrpr_kernels(arm):
             self.k_true = np.stack([r.kernel_params() for r in v.robots], axis=-1)            # (k, N)

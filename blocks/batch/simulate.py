@@ -304,7 +304,7 @@ def simulate_batch(scenario: Scenario | str | None, variants, observer: bool = T
     acc = _Accumulator(loop, metrics, signals, n_grid, ref_grid)
 
     x = loop.initial_state()
-    monitor = Monitor(f"batch of scenario '{s.name}'", batch_bounds(loop, loop.state_labels), x)
+    monitor = Monitor(f"batch of scenario '{s.name}'", batch_bounds(loop, loop.state_meanings), x)
     failed_at = np.full(loop.n, np.nan)
     failures: dict[int, str] = {}
 

@@ -34,7 +34,7 @@ import os
 
 import numpy as np
 
-from ..divergence import batch_bounds
+from ..divergence import batch_bounds, state_meanings
 from ..kernels import tool_pose
 from ..kernels.bind import is_rrpr_kernels
 from ..monitor import Monitor
@@ -234,7 +234,7 @@ def run_compiled_batch(v, members, observer: bool, metrics: tuple, signals: tupl
     # start states in the loop's state order, as each member's single run starts
     X0 = np.ascontiguousarray(member_start_states(members))
     # each member's bounds in the loop's state order (the interconnection's: blocks in order, their own labels)
-    labels = [(block.name, label) for block in loop.syslist for label in block.state_labels]
+    labels = state_meanings(loop)
     monitor = Monitor(f"batch of scenario '{v.base.name}'", members_bounds(members, labels), X0.T)
     bound = np.ascontiguousarray(monitor.limits.T)                          # (N, nstates)
     failed_x = np.zeros((N, engine.nstates))

@@ -32,6 +32,7 @@ from ..compiled.batch import (
 )
 from ..compiled.codegen import CompiledUnavailable
 from ..compiled.engine import CompiledLoopEngine
+from ..divergence import state_meanings
 from ..monitor import Monitor
 from .device import GPU_MEMORY_VARIABLE, cuda_or_none, cuda_unavailable_reason, device_free_bytes, device_name
 from .module import cuda_module, gpu_program_reason
@@ -130,7 +131,7 @@ def run_cuda_batch(v, members, observer: bool, metrics: tuple, signals: tuple, t
     n_grid = int(grid_index.max()) + 1
 
     X0 = np.ascontiguousarray(member_start_states(members))
-    labels = [(block.name, label) for block in loop.syslist for label in block.state_labels]
+    labels = state_meanings(loop)
     monitor = Monitor(f"batch of scenario '{v.base.name}'", members_bounds(members, labels), X0.T)
     bound = monitor.limits                                                   # (nstates, N)
 
