@@ -104,7 +104,10 @@ def test_batch_engine_matches_the_reference_member_by_member():
                 "disturbance.coulomb": [0.2, 0.1, 0.3, 0.0]}]
     v = Variants(base, records)
     loop = MemberLoop(v, observer=True)
-    assert [label for _, label in loop.state_labels] == [f"{s}[{i}]" for s in ("q", "dq", "z") for i in range(4)]
+    assert [name.split()[1] for name, _ in loop.state_meanings] == \
+        [f"{s}[{i}]" for s in ("q", "dq", "z") for i in range(4)]
+    assert [meaning for _, meaning in loop.state_meanings] == \
+        [(quantity, i) for quantity in ("position", "velocity", "observer_state") for i in range(4)]
     rng = np.random.default_rng(7)
     x = np.empty((12, len(v)))
     states = [_random_state(rng) for _ in range(len(v))]
