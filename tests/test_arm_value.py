@@ -133,7 +133,7 @@ def test_a_urdf_loop_binds_no_module_and_its_blocks_carry_the_arm_s_kernels(engi
     loop = blocks.closed_loop(s)
     resp = blocks.simulate(s, observer=True, engine=engine)
     assert np.isfinite(np.asarray(resp.outputs)).all()
-    assert not [m for m in sys.modules if ".bound_" in m or m.startswith("blocks.kernels.bound")]
+    assert not [m for m in sys.modules if m.startswith("blocks.kernels.bound_")]
     from blocks.contract import contract_of
     from blocks.control_compat import subsystems
     laws = {b.name: contract_of(b).kernels for b in subsystems(loop) if b.name in ("plant", "controller", "observer")}
@@ -198,7 +198,9 @@ def test_a_law_compiled_for_an_arm_is_loaded_from_numba_s_cache_in_another_proce
     """))
     script = textwrap.dedent("""
         import numpy as np, blocks, arm_law_cache_probe as probe
+        from blocks.compiled.jit import compiled_arm
         arm = blocks.PAPER_PARAMETERS
+        compiled_arm(arm.arm_kernels)      # as the engine does before it loads a loop that calls an arm's law
         k, q, v = arm.kernel_params(), np.array([0.3, -0.9, 0.04, 0.5]), np.array([1.0, 2.0, 3.0, 4.0])
         got = probe.law(arm.arm_kernels, k, q, v)
         expected = arm.kernels.mass_times(k, q, v) + arm.kernels.bias_forces(k, q, v)

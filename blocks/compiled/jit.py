@@ -21,7 +21,7 @@ import os
 import sys
 import types
 
-__all__ = ["numba_or_none", "jit_kernel", "kernel_sources"]
+__all__ = ["numba_or_none", "jit_kernel", "compiled_arm", "kernel_sources"]
 
 _UNSET = object()
 _numba = _UNSET
@@ -102,10 +102,20 @@ def jit_kernel(fn):
     return compiled
 
 
+def compiled_arm(model) -> list:
+    """The compiled copies of an arm's kernels (:class:`~blocks.kernels.model.ArmKernels`), made now.
+
+    numba resolves ``model.mass_times(...)`` to them when it types a law; a law loaded from numba's cache is not
+    typed again, yet its code refers to their module (``dobkit_jit_...``), which must exist before it loads.
+    """
+    return [jit_kernel(f) for f in model.functions()]
+
+
 def _jit_arm_law(numba, fn):
     """The compiled law of ``fn`` called with its arm's kernels: ``kernel(*args) = law(model, *args)``, the arm a
     constant of numba's type (:mod:`blocks.compiled.arm_type`)."""
     law, model = jit_kernel(fn.law), fn.model
+    compiled_arm(model)
 
     def kernel(*args):
         return law(model, *args)
