@@ -124,6 +124,20 @@ def test_the_arm_value_is_one_per_pair_of_kernel_modules_and_the_law_stays_one_f
     assert a.__module__ == b.__module__ == computed_torque.__module__ and a.__qualname__ != b.__qualname__
 
 
+def test_kernel_modules_of_the_same_name_are_two_arms_with_their_own_numbers():
+    """A module made again (a notebook cell run twice) is another arm: its name gets a suffix, its law its kernels."""
+    first, second = _diag_kernels(), _diag_kernels()
+    second.bias_forces = lambda k, q, dq: 2.0 * k[4:] + 0.0 * dq
+    a, b = arm_kernels((first, first)), arm_kernels((second, second))
+    assert a is not b and a.name != b.name and a is arm_kernels((first, first))
+    assert a.name.split("#")[0] == b.name.split("#")[0] == "diagonal_arm_kernels+diagonal_arm_kernels"
+    k, q, z = np.array([2.0, 3.0, 4.0, 5.0, 0.1, -0.2, 0.3, -0.4]), np.zeros(4), np.zeros(4)
+    # -Y M^-1 (tau + Y dq + z - h) at rest with Y = I: h / m, each arm's h
+    np.testing.assert_allclose(observer_rate(a, k, np.ones(4), 0.0, q, z, z, z), k[4:] / k[:4], rtol=1e-15)
+    np.testing.assert_allclose(observer_rate(b, k, np.ones(4), 0.0, q, z, z, z), 2.0 * k[4:] / k[:4], rtol=1e-15)
+    assert with_arm(observer_rate, a).__qualname__ != with_arm(observer_rate, b).__qualname__
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("engine", ["python-control", "fast", "compiled"])
 def test_a_urdf_loop_binds_no_module_and_its_blocks_carry_the_arm_s_kernels(engine):

@@ -21,6 +21,8 @@ import os
 import sys
 import types
 
+from ..kernels.model import ArmLaw
+
 __all__ = ["numba_or_none", "jit_kernel", "compiled_arm", "kernel_sources"]
 
 _UNSET = object()
@@ -52,7 +54,6 @@ def _is_kernel(value) -> bool:
 
 
 def _is_arm_law(fn) -> bool:
-    from ..kernels.model import ArmLaw  # here: blocks.kernels.model imports this package's trace
     return isinstance(fn, ArmLaw)
 
 

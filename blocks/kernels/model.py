@@ -55,8 +55,9 @@ class ArmKernels:
     Attributes
     ----------
     name : str
-        ``"<kernels module>+<tool kernels module>"``: what the compiled code is specialised on (the
-        structure keys, the cache keys and numba's type of the value carry it).
+        ``"<kernels module>+<tool kernels module>"`` (``#2``, ... added for other modules of the same names):
+        what the compiled code is specialised on (the structure keys, the cache keys and numba's type of the
+        value carry it); one value per name in a process.
     kernels, tool_kernels
         The two modules it was made from.
 
@@ -103,12 +104,13 @@ def arm_kernels(arm) -> ArmKernels:
     found = _by_modules.get(key)
     if found is None:
         found = ArmKernels(kernels, tool_kernels)
-        known = _by_name.get(found.name)
-        if known is not None and (known.kernels is not kernels or known.tool_kernels is not tool_kernels):
-            raise ValueError(f"two different kernel sets are both named {found.name!r}; the compiled code is keyed "
-                             "by that name: give their modules (or objects) distinct names")
-        _by_modules[key] = found
-        _by_name.setdefault(found.name, found)
+        # the compiled code is keyed by the name: other modules of the same names (a module made again in a
+        # notebook) get a name of their own
+        base, i = found.name, 1
+        while found.name in _by_name:
+            i += 1
+            found.name = f"{base}#{i}"
+        _by_modules[key] = _by_name[found.name] = found
     return found
 
 
