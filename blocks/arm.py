@@ -28,7 +28,8 @@ and a tool-kernel module::
     tool_jacobian(kin, q)              -> dp/dq, rows (3, n)
     tool_acceleration_bias(kin, q, dq) -> J' q', rows (3,)
 
-with ``k = arm.kernel_params()`` and ``kin = arm.tool_params()``.  The
+with ``k = arm.kernel_params()`` and ``kin = arm.tool_params()``; the laws
+take both as one value, ``arm.arm_kernels``.  The
 methods of this class present the same numbers joint-last (``(..., n)``),
 the layout analysis code and users expect.
 
@@ -77,6 +78,13 @@ class ArmModel(abc.ABC):
     @abc.abstractmethod
     def tool_params(self):
         """The parameters ``kin`` the tool row kernels take."""
+
+    @property
+    def arm_kernels(self):
+        """Both kernel modules as one value (:class:`~blocks.kernels.model.ArmKernels`), the ``model`` argument of
+        the laws and block kernels of :mod:`blocks.kernels`."""
+        from .kernels.model import arm_kernels
+        return arm_kernels(self)
 
     @property
     def n(self) -> int:

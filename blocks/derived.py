@@ -16,7 +16,6 @@ import control as ct
 import numpy as np
 
 from .kernels import lumped_disturbance as lumped_disturbance_rows
-from .kernels.bind import bound
 from .systems import signal_names
 
 __all__ = ["lumped_disturbance_of", "loop_response"]
@@ -34,7 +33,7 @@ def lumped_disturbance_of(outputs: np.ndarray, labels: list, scenario) -> np.nda
         rows = [outputs[[index[n] for n in signal_names(sig, arm)]] for sig in ("q", "dq", "tau", "tau_dis")]
     except KeyError as err:
         raise ValueError(f"the run has no output {err.args[0]!r}, which the lumped disturbance needs") from None
-    return bound(lumped_disturbance_rows, arm)(arm.kernel_params(), scenario.nominal.kernel_params(), *rows)
+    return lumped_disturbance_rows(arm.arm_kernels, arm.kernel_params(), scenario.nominal.kernel_params(), *rows)
 
 
 def loop_response(time, outputs, states, labels: list, state_labels: list | None, scenario, observer: bool,

@@ -37,8 +37,8 @@ Any arm: the settings carry the arm's joints (``DigitalController(...,
 joints=arm.joints)``; a scenario's ``[controller]`` takes them from its arm),
 so the per-joint settings are one number for every joint or one per joint,
 in the joints' units; the controller and observer blocks take the nominal
-arm and run the laws :func:`blocks.kernels.bind.bound` to its row kernels
-(for the paper's RRPR the laws themselves: its numbers do not change).
+arm and pass its row kernels to the laws as a value (the kernels below take
+``model`` first: :func:`blocks.kernels.model.with_arm`).
 
 The blocks are python-control discrete-time systems (``dt = Ts``) and run
 in a :class:`~blocks.hybrid.HybridSystem` with the continuous plant::
@@ -63,8 +63,8 @@ from .bound_kernels import Kernels
 from .gains import OBSERVER_VARIANTS, validated_gain
 from .joints import RRPR_JOINTS, JointSpace
 from .kernels import observer_estimate, observer_rate
-from .kernels.bind import bound
 from .kernels.expm import expm_small
+from .kernels.model import with_arm
 
 __all__ = ["DigitalController", "DISCRETIZATIONS", "VELOCITY_SOURCES", "encoder", "digital_controller", "actuator",
            "digital_observer"]
@@ -233,13 +233,13 @@ def actuator_update(t, x, u, limit, n):
     return np.concatenate((x[n:], u))
 
 
-def observer_euler_update(t, z, u, k, gain, eq16_weight, period):
+def observer_euler_update(model, t, z, u, k, gain, eq16_weight, period):
     """``z_{k+1} = z_k + Ts z'(q_k, dq_k, tau_k, z_k)``: inputs ``[tau; q_s; dq_s]``."""
     n = z.shape[0]
-    return z + period * observer_rate(k, gain, eq16_weight, u[n:2 * n], u[2 * n:3 * n], u[:n], z)
+    return z + period * observer_rate(model, k, gain, eq16_weight, u[n:2 * n], u[2 * n:3 * n], u[:n], z)
 
 
-def observer_zoh_update(t, z, u, k, gain, eq16_weight, period):
+def observer_zoh_update(model, t, z, u, k, gain, eq16_weight, period):
     """The exact solution of ``z' = A z + c`` over the sample, ``A = -Y M^(q_k)^-1`` and ``c`` frozen at ``t_k``.
 
     The observer's law (:func:`blocks.kernels.observer_rate`) is affine in
@@ -252,19 +252,19 @@ def observer_zoh_update(t, z, u, k, gain, eq16_weight, period):
     n = z.shape[0]
     tau, q, dq = u[:n], u[n:2 * n], u[2 * n:3 * n]
     # written with loops and no closures so that the compiled sampled engine calls this same kernel
-    c = observer_rate(k, gain, eq16_weight, q, dq, tau, np.zeros(n))
+    c = observer_rate(model, k, gain, eq16_weight, q, dq, tau, np.zeros(n))
     augmented = np.zeros((n + 1, n + 1))
     basis = np.zeros(n)
     for j in range(n):
         basis[:] = 0.0
         basis[j] = 1.0
-        augmented[:n, j] = (observer_rate(k, gain, eq16_weight, q, dq, tau, basis) - c) * period
+        augmented[:n, j] = (observer_rate(model, k, gain, eq16_weight, q, dq, tau, basis) - c) * period
     augmented[:n, n] = c * period
     step = expm_small(augmented)
     return np.ascontiguousarray(step[:n, :n]) @ z + step[:n, n]
 
 
-def observer_zoh_matrix(t, x, u, k, gain, eq16_weight, period):
+def observer_zoh_matrix(model, t, x, u, k, gain, eq16_weight, period):
     """The first ``n`` rows of :func:`observer_zoh_update`'s augmented matrix ``[[A, c], [0, 0]] Ts``, row by row
     (``n (n + 1)`` numbers): inputs ``[tau; q_s; dq_s]``.
 
@@ -274,12 +274,12 @@ def observer_zoh_matrix(t, x, u, k, gain, eq16_weight, period):
     """
     n = u.shape[0] // 3
     tau, q, dq = u[:n], u[n:2 * n], u[2 * n:3 * n]
-    c = observer_rate(k, gain, eq16_weight, q, dq, tau, np.zeros(n))
+    c = observer_rate(model, k, gain, eq16_weight, q, dq, tau, np.zeros(n))
     columns = []
     for j in range(n):
         basis = np.zeros(n)
         basis[j] = 1.0
-        columns.append((observer_rate(k, gain, eq16_weight, q, dq, tau, basis) - c) * period)
+        columns.append((observer_rate(model, k, gain, eq16_weight, q, dq, tau, basis) - c) * period)
     columns.append(c * period)
     return np.stack(columns, axis=1).ravel()
 
@@ -303,7 +303,7 @@ def observer_held_output(t, z, u, gain, period):
     return observer_estimate(gain, dq, z)
 
 
-def observer_sampled_output(t, z, u, k, gain, eq16_weight, period):
+def observer_sampled_output(model, t, z, u, k, gain, eq16_weight, period):
     """``d_hat_k = Y dq_k + z_k``."""
     n = z.shape[0]
     return observer_estimate(gain, u[2 * n:3 * n], z)
@@ -371,7 +371,7 @@ def digital_controller(nominal: ArmModel, kp, kd, settings: DigitalController, u
         inputs += names("d_hat")
     law = controller_output_with_estimate if use_observer else controller_output
     block = kernel_block(Kernels((nominal.kernel_params(), np.diag(Kp).copy(), np.diag(Kd).copy()),
-                                 bound(law, nominal)), name=name,
+                                 with_arm(law, nominal)), name=name,
                          inputs=inputs, outputs=names("tau_cmd"), feedthrough=inputs, dt=settings.period)
     block.gains = {"kp": Kp, "kd": Kd}
     return block
@@ -420,7 +420,7 @@ def digital_observer(nominal: ArmModel, gain, settings: DigitalController, varia
     update = observer_zoh_update if settings.observer_discretization == "zoh" else observer_euler_update
     params = (nominal.kernel_params(), y_param, 1.0 if variant == "paper-eq16" else 0.0, settings.period)
     inputs = names("tau") + names("q_s") + names("dq_s")
-    block = kernel_block(Kernels(params, bound(observer_sampled_output, nominal), bound(update, nominal)), name=name,
+    block = kernel_block(Kernels(params, with_arm(observer_sampled_output, nominal), with_arm(update, nominal)), name=name,
                          inputs=inputs, states=names("z"), outputs=names("d_hat"), feedthrough=names("dq_s"),
                          dt=settings.period, state_meanings=joint_states(names("z"), "observer_state"))
     block.gain = Y
@@ -454,7 +454,7 @@ def zoh_split(nominal: ArmModel, params: tuple, settings: DigitalController, nam
     _, gain, _, period = params
     inputs = names("tau") + names("q_s") + names("dq_s")
     rows = [f"{name}_a[{i}]" for i in range(n * (n + 1))]
-    matrix = kernel_block(Kernels(params, bound(observer_zoh_matrix, nominal)), name=f"{name}_zoh", inputs=inputs,
+    matrix = kernel_block(Kernels(params, with_arm(observer_zoh_matrix, nominal)), name=f"{name}_zoh", inputs=inputs,
                           outputs=rows, feedthrough=inputs, dt=settings.period)
     observer = kernel_block(Kernels((gain, period), observer_held_output, observer_zoh_step), name=name,
                             inputs=inputs + rows, states=names("z"), outputs=names("d_hat"),

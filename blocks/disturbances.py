@@ -48,7 +48,6 @@ import numpy as np
 
 from . import kernels
 from .arm import ArmModel
-from .kernels.bind import bound
 from .validation import arm_model, joint_arrays, real_array
 
 __all__ = ["DisturbanceSpec", "DISTURBANCE_KINDS", "KIND_ALIASES", "RRPR_ONLY_KINDS", "external_disturbance",
@@ -149,7 +148,7 @@ class DisturbanceSpec:
         ValueError
             Naming ``disturbance.<key>``, its length and the arm's joint count, or the model and the arm.
         """
-        from .kernels.bind import closed_form
+        from .kernels.model import closed_form
         label = f"the arm {name!r}" if name else "the arm"
         n = arm.joints.count
         for key in self.per_joint():
@@ -157,7 +156,7 @@ class DisturbanceSpec:
             if len(value) != n:
                 raise ValueError(f"'disturbance.{key}' has {len(value)} values; {label} has {n} joints "
                                  f"({', '.join(arm.joints.names)}): give one per joint")
-        if not closed_form(arm.kernels, arm.tool_kernels):
+        if not closed_form(arm):
             bad = [k for k in self.kinds if k in RRPR_ONLY_KINDS]
             if bad:
                 raise ValueError(f"disturbance kind {bad[0]!r} models the paper's RRPR only; it is not available "
@@ -198,9 +197,8 @@ def tissue_disturbance(q, dq, spec: DisturbanceSpec, params: ArmModel) -> np.nda
     arm = arm_model(params, "params")
     q, dq = joint_arrays({"q": q, "dq": dq}, arm.joints)
     q, dq = np.broadcast_arrays(q, dq)
-    kernel = bound(kernels.tissue_disturbance, arm)
-    rows = kernel(arm.tool_params(), _rows(q), _rows(dq), spec.skin_height, spec.tissue_stiffness,
-                  spec.tissue_damping, spec.tissue_drag)
+    rows = kernels.tissue_disturbance(arm.arm_kernels, arm.tool_params(), _rows(q), _rows(dq), spec.skin_height,
+                                      spec.tissue_stiffness, spec.tissue_damping, spec.tissue_drag)
     return np.moveaxis(np.asarray(rows, dtype=float), 0, -1)
 
 
@@ -233,5 +231,4 @@ def external_disturbance(t, q, dq, spec: DisturbanceSpec, params: ArmModel) -> n
     p = p._replace(f_r=p.f_r.reshape(p.f_r.shape + extra), coulomb=p.coulomb.reshape(p.coulomb.shape + extra),
                    viscous=p.viscous.reshape(p.viscous.shape + extra),
                    kin=p.kin.reshape(p.kin.shape + extra) if isinstance(p.kin, np.ndarray) else p.kin)
-    kernel = bound(kernels.external_disturbance, arm)
-    return np.moveaxis(kernel(np.broadcast_to(t, lead), _rows(q), _rows(dq), p), 0, -1)
+    return np.moveaxis(kernels.external_disturbance(arm.arm_kernels, np.broadcast_to(t, lead), _rows(q), _rows(dq), p), 0, -1)

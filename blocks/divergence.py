@@ -49,7 +49,7 @@ from .kernels import bias_forces as _rrpr_bias_forces
 from .kernels import disturbance_params as kernel_disturbance_params
 from .kernels import external_disturbance
 from .kernels import mass_times as _rrpr_mass_times
-from .kernels.bind import bound
+from .kernels.model import with_arm
 
 __all__ = ["StateBounds", "state_bounds", "cached_state_bounds", "signal_bounds", "ReferenceLimits",
            "reference_limits", "force_bounds", "batch_bounds", "state_meanings", "joint_signal_meaning", "Runaway",
@@ -224,12 +224,13 @@ def evaluation_kernels(arm):
 
 
 def _external_disturbance(kernels, tool_kernels):
-    """The disturbance kernel for the arm of these row-kernel modules (the RRPR's when not given)."""
+    """The disturbance kernel called with the kernels of the arm of these row-kernel modules (the RRPR's when not
+    given)."""
     if kernels is None:
-        return external_disturbance
+        from .kernels import arm as kernels
     if tool_kernels is None:
         from .kernels import kinematics as tool_kernels
-    return bound(external_disturbance, (kernels, tool_kernels))
+    return with_arm(external_disturbance, (kernels, tool_kernels))
 
 
 def _bound_of(meaning, name: str, ref: ReferenceLimits, force, gain):

@@ -54,7 +54,6 @@ from .divergence import state_bounds
 from .engine_choice import ENGINES, EngineFallbackWarning, select_engine
 from .integrate import refuse_hybrid
 from .kernels import lumped_disturbance as lumped_disturbance_rows
-from .kernels.bind import bound
 from .monitor import SimulationError
 from .run_limits import check_run, estimate_run, prepare_reference
 from .scenario import Scenario, load_scenario
@@ -257,7 +256,7 @@ def lumped_disturbance(q, dq, tau, tau_dis, scenario: Scenario) -> np.ndarray:
     arrays = joint_arrays({"q": q, "dq": dq, "tau": tau, "tau_dis": tau_dis}, scenario.robot.joints)
     rows = [np.moveaxis(a, -1, 0) for a in arrays]
     arm = scenario.robot
-    d = bound(lumped_disturbance_rows, arm)(arm.kernel_params(), scenario.nominal.kernel_params(), *rows)
+    d = lumped_disturbance_rows(arm.arm_kernels, arm.kernel_params(), scenario.nominal.kernel_params(), *rows)
     return np.moveaxis(d, 0, -1)
 
 

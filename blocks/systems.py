@@ -21,8 +21,9 @@ Any arm
 The factories take any :class:`~blocks.arm.ArmModel` (the paper's
 :class:`~blocks.parameters.RobotParameters` by default where one is
 optional): signal names and sizes come from ``arm.joints``, the numbers from
-``arm.kernel_params()``, and the block kernels are :func:`blocks.kernels.bind.bound`
-to the arm's row kernels (for the RRPR they are the functions below themselves).
+``arm.kernel_params()``, and the block kernels below take the arm's row
+kernels first (``model``, :class:`~blocks.kernels.model.ArmKernels`): a
+block calls them with its arm's (:func:`~blocks.kernels.model.with_arm`).
 """
 from __future__ import annotations
 
@@ -38,9 +39,8 @@ from .kernels import (
     external_disturbance,
     observer_estimate,
     observer_rate,
-    plant_acceleration,
 )
-from .kernels.bind import bound
+from .kernels.model import with_arm
 from .kernels.noise import sampled_noise
 from .noise import MeasurementNoise
 from .parameters import RobotParameters
@@ -63,41 +63,44 @@ def _arm(value, name: str) -> ArmModel:
 
 
 # --------------------------------------------------------------------------------------------------------------
-# Block kernels: (t, x, u, *params) -> rows, in the layout of blocks.kernels
+# Block kernels: (model, t, x, u, *params) -> rows, in the layout of blocks.kernels; a block passes its arm's
+# kernels as ``model`` (blocks.kernels.model.with_arm), the engines the rest
 # --------------------------------------------------------------------------------------------------------------
-def plant_update(t, x, u, k, disturbance):
+def plant_update(model, t, x, u, k, disturbance):
     """Plant states ``[q; dq]`` -> ``[dq; q'']`` under torque ``u`` plus the external disturbance (Eq. 1)."""
     n = x.shape[0] // 2
     q, dq = x[:n], x[n:]
-    return np.concatenate((dq, plant_acceleration(k, q, dq, u + external_disturbance(t, q, dq, disturbance))))
+    return np.concatenate((dq, model.plant_acceleration(k, q, dq,
+                                                        u + external_disturbance(model, t, q, dq, disturbance))))
 
 
-def plant_output(t, x, u, k, disturbance):
+def plant_output(model, t, x, u, k, disturbance):
     """Plant outputs ``[q; dq; tau_dis]``: the states and the external disturbance acting now."""
     n = x.shape[0] // 2
-    return np.concatenate((x, external_disturbance(t, x[:n], x[n:], disturbance)))
+    return np.concatenate((x, external_disturbance(model, t, x[:n], x[n:], disturbance)))
 
 
-def controller_output(t, x, u, k, kp, kd):
+def controller_output(model, t, x, u, k, kp, kd):
     """Eq. 11 without an estimate: inputs ``[q_ref; dq_ref; ddq_ref; q; dq]``."""
     n = kp.shape[0]
-    return computed_torque(k, kp, kd, u[3 * n:4 * n], u[4 * n:5 * n], u[:n], u[n:2 * n], u[2 * n:3 * n], 0.0)
+    return computed_torque(model, k, kp, kd, u[3 * n:4 * n], u[4 * n:5 * n], u[:n], u[n:2 * n], u[2 * n:3 * n],
+                           0.0)
 
 
-def controller_output_with_estimate(t, x, u, k, kp, kd):
+def controller_output_with_estimate(model, t, x, u, k, kp, kd):
     """Eq. 11: inputs ``[q_ref; dq_ref; ddq_ref; q; dq; d_hat]``."""
     n = kp.shape[0]
-    return computed_torque(k, kp, kd, u[3 * n:4 * n], u[4 * n:5 * n], u[:n], u[n:2 * n], u[2 * n:3 * n],
+    return computed_torque(model, k, kp, kd, u[3 * n:4 * n], u[4 * n:5 * n], u[:n], u[n:2 * n], u[2 * n:3 * n],
                            u[5 * n:6 * n])
 
 
-def observer_update(t, z, u, k, gain, eq16_weight):
+def observer_update(model, t, z, u, k, gain, eq16_weight):
     """Observer state derivative: inputs ``[tau; q; dq]``, state ``z``."""
     n = z.shape[0]
-    return observer_rate(k, gain, eq16_weight, u[n:2 * n], u[2 * n:3 * n], u[:n], z)
+    return observer_rate(model, k, gain, eq16_weight, u[n:2 * n], u[2 * n:3 * n], u[:n], z)
 
 
-def observer_output(t, z, u, k, gain, eq16_weight):
+def observer_output(model, t, z, u, k, gain, eq16_weight):
     """The estimate ``d_hat = Y dq + z``."""
     n = z.shape[0]
     return observer_estimate(gain, u[2 * n:3 * n], z)
@@ -136,7 +139,7 @@ def plant(params: ArmModel, disturbance: DisturbanceSpec | None = None, name: st
     spec.check_arm(params)
     states = signal_names("q", params) + signal_names("dq", params)
     block = kernel_block(Kernels((params.kernel_params(), disturbance_params(spec, params)),
-                                 bound(plant_output, params), bound(plant_update, params)),
+                                 with_arm(plant_output, params), with_arm(plant_update, params)),
                          name=name, inputs=signal_names("tau", params), states=states,
                          outputs=states + signal_names("tau_dis", params), state_outputs=zip(states, states),
                          state_meanings=joint_states(signal_names("q", params), "position")
@@ -179,7 +182,7 @@ def controller(nominal: ArmModel, kp, kd, use_observer: bool = True, measured: s
         inputs += signal_names("d_hat", nominal)
     law = controller_output_with_estimate if use_observer else controller_output
     block = kernel_block(Kernels((nominal.kernel_params(), np.diag(Kp).copy(), np.diag(Kd).copy()),
-                                 bound(law, nominal)),
+                                 with_arm(law, nominal)),
                          name=name, inputs=inputs, outputs=signal_names("tau", nominal), feedthrough=inputs)
     block.gains = {"kp": Kp, "kd": Kd}
     return block
@@ -228,7 +231,7 @@ def observer(nominal: ArmModel, gain, variant: str = "correct", measured: str = 
     dq_in = signal_names("dq" + measured, nominal)
     inputs = signal_names("tau", nominal) + signal_names("q" + measured, nominal) + dq_in
     kernels = Kernels((nominal.kernel_params(), y_param, 1.0 if variant == "paper-eq16" else 0.0),
-                      bound(observer_output, nominal), bound(observer_update, nominal))
+                      with_arm(observer_output, nominal), with_arm(observer_update, nominal))
     block = kernel_block(kernels, name=name, inputs=inputs, states=signal_names("z", nominal),
                          outputs=signal_names("d_hat", nominal), feedthrough=dq_in,
                          state_meanings=joint_states(signal_names("z", nominal), "observer_state"))

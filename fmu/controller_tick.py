@@ -35,6 +35,7 @@ kernels' parameters (the gains among them, so that they are tunable).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 
@@ -248,14 +249,15 @@ class _Tick:
 
 
 def is_zoh_update(update) -> bool:
-    """Whether an observer's update is :func:`blocks.digital.observer_zoh_update`: the paper arm's, or its copy
-    bound to another arm's kernels (:func:`blocks.kernels.bind.bound`: the same code, other globals)."""
-    return getattr(update, "__code__", None) is observer_zoh_update.__code__
+    """Whether an observer's update is :func:`blocks.digital.observer_zoh_update` (called with any arm's kernels:
+    :func:`blocks.kernels.model.with_arm`)."""
+    return getattr(update, "func", update) is observer_zoh_update
 
 
 def _observer_rate(update):
-    """The observer law as the zoh update calls it: for a URDF arm its copy bound to the arm's kernels."""
-    return getattr(update, "__globals__", {}).get("observer_rate", observer_rate)
+    """The observer law as the zoh update calls it: :func:`blocks.kernels.observer_rate` with the update's arm's
+    kernels (``update.model``)."""
+    return partial(observer_rate, update.model)
 
 
 def _renumber(graph: Graph, sym, start: int):

@@ -38,10 +38,11 @@ from blocks.compiled.c_backend import C_PRELUDE, CodegenError, emit_c_function, 
 from blocks.compiled.trace import Graph, Sym, param_values
 from blocks.contract import Kernels, contract_of
 from blocks.disturbances import DISTURBANCE_KINDS, RRPR_ONLY_KINDS, DisturbanceSpec
-from blocks.kernels.bind import bound
-from blocks.kernels.disturbance import DisturbanceParams, external_disturbance
+from blocks.kernels.disturbance import DisturbanceParams
+from blocks.kernels.model import with_arm
 from blocks.parameters import RobotParameters
 from blocks.systems import plant as plant_block
+from blocks.systems import plant_output, plant_update
 
 __all__ = ["GeneratedPlant", "plant_c", "plant_kernels", "arm_disturbance", "GENERATED_HEADER"]
 
@@ -130,28 +131,15 @@ def _disturbance_params(d, tissue_kin) -> DisturbanceParams:
 def plant_kernels(arm, d) -> Kernels:
     """The plant's kernels: ``update`` gives ``[dq; q'']`` of Eq. 1, ``output`` ``[q; dq; tau_dis]``.
 
-    The paper's arm uses the plant block's own kernels (:func:`blocks.systems.plant`); another arm its
-    row kernel ``plant_acceleration`` with the disturbance kernels of :mod:`blocks.kernels.disturbance`
-    bound to its tool kernels (the tissue contact's tool point), its geometry a frozen parameter (constants
-    in the generated code).
+    The paper's arm uses the plant block's own kernels (:func:`blocks.systems.plant`); another arm the same
+    block kernels called with its row kernels (``arm.arm_kernels``: its ``plant_acceleration`` and the tool
+    point of the tissue contact), its geometry a frozen parameter (constants in the generated code).
     """
     if isinstance(arm, RobotParameters):
         return contract_of(plant_block(arm, d)).kernels
-    rows = arm.kernels
-    external_disturbance_of_arm = bound(external_disturbance, arm)
-
-    def update(t, x, u, k, dist):
-        n = x.shape[0] // 2
-        q, dq = x[:n], x[n:]
-        return np.concatenate((dq, rows.plant_acceleration(k, q, dq,
-                                                           u + external_disturbance_of_arm(t, q, dq, dist))))
-
-    def output(t, x, u, k, dist):
-        n = x.shape[0] // 2
-        return np.concatenate((x, external_disturbance_of_arm(t, x[:n], x[n:], dist)))
-
     # the tool parameters are frozen (structure, like the dynamics'): the trace reads no number from them
-    return Kernels((arm.kernel_params(), _disturbance_params(d, arm.tool_params())), output, update)
+    return Kernels((arm.kernel_params(), _disturbance_params(d, arm.tool_params())), with_arm(plant_output, arm),
+                   with_arm(plant_update, arm))
 
 
 # --------------------------------------------------------------------------------------------------------------

@@ -224,7 +224,7 @@ def plant_reference(model_description, arm=None) -> PlantReference:
     n = arm.n
 
     def disturbance(t, x, u=None):
-        return external_disturbance(t, x[:n], x[n:], params)
+        return external_disturbance(arm.arm_kernels, t, x[:n], x[n:], params)
 
     def derivatives(t, x, u):
         return np.concatenate((x[n:], arm.forward_dynamics(x[:n], x[n:], np.asarray(u) + disturbance(t, x))))

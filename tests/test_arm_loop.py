@@ -20,8 +20,8 @@ from scipy.integrate import solve_ivp
 import blocks
 from blocks.arm import ArmModel
 from blocks.joints import JointSpace
-from blocks.kernels.bind import bound
 from blocks.kernels.laws import computed_torque
+from blocks.kernels.model import with_arm
 from blocks.metrics import tracking_metrics
 
 pin = pytest.importorskip("pinocchio")
@@ -297,13 +297,12 @@ def test_lumped_disturbance_of_another_arm_is_the_step_plus_the_mismatch(referen
         np.testing.assert_allclose(sig("d", j), expected, rtol=1e-9, atol=1e-9)
 
 
-def test_bound_law_is_a_copy_for_another_arm_and_the_original_for_the_rrpr():
-    law = bound(computed_torque, Planar2())
-    assert law is not computed_torque and law.__code__ is computed_torque.__code__
-    assert law.__module__.startswith("blocks.kernels.bound_") and law.__globals__["mass_times"] is mass_times
-    assert bound(computed_torque, blocks.PAPER_PARAMETERS) is computed_torque
-    # the copy computes Eq. 11 with the arm's M and h: M (ddq_ref + Kd e' + Kp e) + h at a point
+def test_one_law_takes_the_arm_s_kernels_as_a_value():
     arm = Planar2()
+    law = with_arm(computed_torque, arm)
+    assert law.law is computed_torque and law.model is arm.arm_kernels and law.__module__ == computed_torque.__module__
+    assert with_arm(computed_torque, blocks.PAPER_PARAMETERS).law is computed_torque
+    # called with the arm's kernels it computes Eq. 11 with the arm's M and h: M (ddq_ref + Kd e' + Kp e) + h
     q, dq = np.array([0.3, -0.7]), np.array([0.4, 1.1])
     v = np.array([0.5, -0.2]) + np.array(KD) * (0 - dq) + np.array(KP) * (np.array([0.1, 0.2]) - q)
     tau = law(arm.kernel_params(), np.array(KP), np.array(KD), q, dq, np.array([0.1, 0.2]), np.zeros(2),
@@ -407,7 +406,7 @@ def test_compiled_program_and_cache_key_differ_between_arms():
     for s in (blocks.load_scenario("joint-sine"), _scenario(), _urdf_scenario("scope4")):
         loop = blocks.closed_loop(s)
         rows = loop_rows_of(loop)
-        assert (rows is LOOP_ROWS) == isinstance(s.robot, blocks.RobotParameters)
+        assert (rows == LOOP_ROWS) == isinstance(s.robot, blocks.RobotParameters)
         program, _ = program_for(make_plan(loop), loop, rows)
         programs.append(program)
     assert len({p.structure for p in programs}) == 3

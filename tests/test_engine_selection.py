@@ -58,7 +58,9 @@ def _users_plant(s):
     """The plant as a user's own block: the same maths and no feedthrough declared, but no kernels."""
     k, dist = arm_constants(s.robot), disturbance_params(s.disturbance, s.robot)
     states = [f"q[{i}]" for i in range(4)] + [f"dq[{i}]" for i in range(4)]
-    return Block(lambda t, x, u, p: plant_update(t, x, u, k, dist), lambda t, x, u, p: plant_output(t, x, u, k, dist),
+    model = s.robot.arm_kernels
+    return Block(lambda t, x, u, p: plant_update(model, t, x, u, k, dist),
+                 lambda t, x, u, p: plant_output(model, t, x, u, k, dist),
                  contract=BlockContract(feedthrough=frozenset()), inputs=[f"tau[{i}]" for i in range(4)],
                  states=states, outputs=states + [f"tau_dis[{i}]" for i in range(4)], name="users_plant")
 

@@ -25,7 +25,7 @@ from ..compiled.trace import is_table
 from ..contract import contract_of, kernels_only
 from ..divergence import state_meanings
 from ..kernels import lumped_disturbance
-from ..kernels.bind import bound, is_rrpr_kernels
+from ..kernels.model import is_rrpr_kernels, with_arm
 from ..loop import _prepared, build_blocks, closed_loop, initial_state
 from ..noise import MeasurementNoise
 from ..plan import make_plan
@@ -226,7 +226,7 @@ class MemberLoop:
             for m, nominal in enumerate(v.nominals):
                 groups.setdefault(id(nominal), (nominal, []))[1].append(m)
             self._lumped = [(np.array(idx), nominal.kernel_params()) for nominal, idx in groups.values()]
-        self._lumped_rows = bound(lumped_disturbance, arm)
+        self._lumped_rows = with_arm(lumped_disturbance, arm)
         self.kin = arm.tool_params()                        # the tool point is the shared arm's
         self.nx = plan.nstates
 

@@ -6,7 +6,7 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from ..kernels.bind import is_rrpr_kernels
+from ..kernels.model import is_rrpr_kernels
 from ..scenario import Scenario
 from .variants import Variants
 

@@ -36,7 +36,7 @@ import numpy as np
 
 from ..divergence import batch_bounds, state_meanings
 from ..kernels import tool_pose
-from ..kernels.bind import is_rrpr_kernels
+from ..kernels.model import is_rrpr_kernels
 from ..monitor import Monitor
 from ..systems import signal_names
 from .codegen import CompiledUnavailable

@@ -5,6 +5,13 @@ kernel of :mod:`blocks.systems`, a path kernel of :mod:`blocks.trajectory`)
 as it is: a copy of the same function object whose global names for other
 kernels point at their compiled copies, handed to :func:`numba.njit`.  The
 numpy function itself is untouched, so the numpy engines keep calling it.
+
+A law bound to an arm (:class:`~blocks.kernels.model.ArmLaw`: the law with
+the arm's kernels as its first argument) compiles as the law, called with
+the arm's value, which numba types by the arm's name
+(:mod:`blocks.compiled.arm_type`): the arm is a constant of that
+specialisation, and its kernels are compiled copies resolved when numba types
+``model.mass_times(...)``.
 """
 from __future__ import annotations
 
@@ -14,7 +21,9 @@ import os
 import sys
 import types
 
-__all__ = ["numba_or_none", "jit_kernel", "kernel_sources"]
+from ..kernels.model import ArmLaw
+
+__all__ = ["numba_or_none", "jit_kernel", "compiled_arm", "kernel_sources"]
 
 _UNSET = object()
 _numba = _UNSET
@@ -34,6 +43,8 @@ def numba_or_none():
             # afterwards: GNU OpenMP's threads do not survive a fork, numba's own work queue does.
             if "NUMBA_THREADING_LAYER" not in os.environ:
                 _numba.config.THREADING_LAYER = "workqueue"
+            # numba's type of an arm's kernels, before anything is compiled (a law takes them as a value)
+            importlib.import_module("blocks.compiled.arm_type")
     return _numba
 
 
@@ -42,8 +53,14 @@ def _is_kernel(value) -> bool:
     return isinstance(value, types.FunctionType) and (value.__module__ or "").startswith("blocks.")
 
 
+def _is_arm_law(fn) -> bool:
+    return isinstance(fn, ArmLaw)
+
+
 def _callees(fn) -> list:
-    """The package functions ``fn`` names as globals."""
+    """The package functions ``fn`` names as globals; for a law bound to an arm, the law and the arm's kernels."""
+    if _is_arm_law(fn):
+        return [fn.law] + fn.model.functions()
     return [fn.__globals__[name] for name in fn.__code__.co_names
             if name in fn.__globals__ and _is_kernel(fn.__globals__[name])]
 
@@ -73,6 +90,9 @@ def jit_kernel(fn):
     if found is not None:
         return found
     numba = numba_or_none()
+    if _is_arm_law(fn):
+        _jitted[fn] = compiled = _jit_arm_law(numba, fn)
+        return compiled
     twin = _copy_module(fn.__module__)
     for callee in _callees(fn):
         twin.__dict__[callee.__name__] = jit_kernel(callee)
@@ -83,6 +103,27 @@ def jit_kernel(fn):
     return compiled
 
 
+def compiled_arm(model) -> list:
+    """The compiled copies of an arm's kernels (:class:`~blocks.kernels.model.ArmKernels`), made now.
+
+    numba resolves ``model.mass_times(...)`` to them when it types a law; a law loaded from numba's cache is not
+    typed again, yet its code refers to their module (``dobkit_jit_...``), which must exist before it loads.
+    """
+    return [jit_kernel(f) for f in model.functions()]
+
+
+def _jit_arm_law(numba, fn):
+    """The compiled law of ``fn`` called with its arm's kernels: ``kernel(*args) = law(model, *args)``, the arm a
+    constant of numba's type (:mod:`blocks.compiled.arm_type`)."""
+    law, model = jit_kernel(fn.law), fn.model
+    compiled_arm(model)
+
+    def kernel(*args):
+        return law(model, *args)
+    kernel.__qualname__ = fn.__qualname__
+    return numba.njit(error_model="numpy")(kernel)
+
+
 def kernel_sources(functions) -> str:
     """The source text of ``functions`` and every kernel they call, in a fixed order (for cache keys)."""
     seen, stack = {}, list(functions)
@@ -91,6 +132,7 @@ def kernel_sources(functions) -> str:
         key = f"{fn.__module__}.{fn.__qualname__}"
         if key in seen:
             continue
-        seen[key] = inspect.getsource(fn)
+        # a law bound to an arm: the arm's name (in its qualified name) and the sources of the law and kernels
+        seen[key] = key if _is_arm_law(fn) else inspect.getsource(fn)
         stack.extend(_callees(fn))
     return "\n".join(seen[k] for k in sorted(seen))

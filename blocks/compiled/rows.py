@@ -27,9 +27,11 @@ The groups of the Figure-2 loop, :data:`LOOP_ROWS`:
 The batch accumulates the last three into the tracking metrics inside the
 compiled driver (:mod:`blocks.compiled.batch`).
 
-The groups are written against the model names of :mod:`blocks.kernels.bind`;
-:func:`loop_rows` gives them for an arm (the RRPR's are :data:`LOOP_ROWS`), and
-:func:`loop_rows_of` for an interconnection, from the arm of its plant block.
+The group functions take the arm's kernels first (``model``,
+:class:`~blocks.kernels.model.ArmKernels`); :func:`loop_rows` gives the
+groups for an arm, with its kernels passed (:func:`~blocks.kernels.model.with_arm`),
+and :func:`loop_rows_of` for an interconnection, from the arm of its plant
+block.  :data:`LOOP_ROWS` are the paper arm's.
 """
 from __future__ import annotations
 
@@ -39,8 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..kernels import lumped_disturbance
-from ..kernels.bind import bound, closed_form
-from ..kernels.kinematics import tool_position
+from ..kernels.model import closed_form, with_arm
 
 __all__ = ["RowGroup", "LOOP_ROWS", "TOOL_AUX", "loop_rows", "loop_rows_of"]
 
@@ -57,7 +58,7 @@ class RowGroup:
     name : str
         The group's name.
     rows : callable
-        ``rows(signals, aux, params) -> sequence`` with ``signals`` the
+        ``rows(signals, aux, params) -> sequence`` (a group function with its arm's kernels passed) with ``signals`` the
         outputs by name (object arrays of rows), ``aux`` the shared values
         and ``params`` each traced block's parameters by block name.
     signals : tuple of str
@@ -80,30 +81,30 @@ class RowGroup:
         return set(self.signals) <= names and set(self.blocks) <= set(traced)
 
 
-def _lumped(signals, aux, params):
+def _lumped(model, signals, aux, params):
     # the plant's first parameter is the true arm's constants, the controller's the nominal model's
     # (blocks.systems.plant and .controller)
-    return lumped_disturbance(params["plant"][0], params["controller"][0], signals["q"], signals["dq"],
+    return lumped_disturbance(model, params["plant"][0], params["controller"][0], signals["q"], signals["dq"],
                               signals["tau"], signals["tau_dis"])
 
 
-def _position_error(signals, aux, params):
+def _position_error(model, signals, aux, params):
     return signals["q_ref"] - signals["q"]
 
 
-def _tool_distance(signals, aux, params):
+def _tool_distance(model, signals, aux, params):
     # the arm's tool parameters travel with the plant's disturbance parameters (blocks.kernels.disturbance_params)
-    pose = tool_position(params["plant"][1].kin, signals["q"])
+    pose = model.tool_position(params["plant"][1].kin, signals["q"])
     dx, dy, dz = aux[0] - pose[0], aux[1] - pose[1], aux[2] - pose[2]
     return [np.sqrt(dx * dx + dy * dy + dz * dz)]
 
 
-def _disturbance_error(signals, aux, params):
-    return _lumped(signals, aux, params) - signals["d_hat"]
+def _disturbance_error(model, signals, aux, params):
+    return _lumped(model, signals, aux, params) - signals["d_hat"]
 
 
-#: The row groups of the Figure-2 loop, in the order of their flags.
-LOOP_ROWS = (
+#: The group functions of the Figure-2 loop (``model`` first), in the order of their flags.
+_GROUPS = (
     RowGroup("d", _lumped, ("q", "dq", "tau", "tau_dis"), ("plant", "controller")),
     RowGroup("position_error", _position_error, ("q", "q_ref")),
     RowGroup("tool_distance", _tool_distance, ("q",), ("plant",), TOOL_AUX),
@@ -112,17 +113,27 @@ LOOP_ROWS = (
 
 
 def loop_rows(arm) -> tuple:
-    """The row groups of the Figure-2 loop for ``arm`` (an :class:`~blocks.arm.ArmModel` or its two kernel
-    modules): :data:`LOOP_ROWS` with their functions bound to the arm's kernels (:func:`blocks.kernels.bind.bound`)."""
-    return tuple(RowGroup(g.name, bound(g.rows, arm), g.signals, g.blocks, g.aux) for g in LOOP_ROWS)
+    """The row groups of the Figure-2 loop for ``arm`` (an :class:`~blocks.arm.ArmModel`, its
+    :class:`~blocks.kernels.model.ArmKernels` or its two kernel modules): each group's function called with the
+    arm's kernels (the same tuple for the same arm)."""
+    return tuple(RowGroup(g.name, with_arm(g.rows, arm), g.signals, g.blocks, g.aux) for g in _GROUPS)
+
+
+def _paper_rows() -> tuple:
+    from ..kernels import arm, kinematics
+    return loop_rows((arm, kinematics))
+
+
+#: The row groups of the paper's RRPR.
+LOOP_ROWS = _paper_rows()
 
 
 def loop_rows_of(system) -> tuple:
-    """The row groups for an interconnection: those of the arm of its block ``plant`` (:data:`LOOP_ROWS` when
-    that is the paper's RRPR or the loop has no Python plant)."""
+    """The row groups for an interconnection: those of the arm of its block ``plant`` (:data:`LOOP_ROWS`, the
+    paper arm's, when the loop has no Python plant)."""
     from ..control_compat import subsystems
     for block in subsystems(system):
         arm = getattr(block, "arm", None)
-        if block.name == "plant" and arm is not None and not closed_form(arm.kernels, arm.tool_kernels):
+        if block.name == "plant" and arm is not None and not closed_form(arm):
             return loop_rows(arm)
     return LOOP_ROWS

@@ -21,8 +21,10 @@ column, as in a batch).  :func:`column_params` adds the shared trailing axis.
 For the paper's RRPR the arm constants are the vector ``k = [k1, k2, k3,
 k4, k5, g]`` of :func:`arm_constants` and the kinematic lengths ``kin = [a1,
 a2, d1, d4]``; another arm gives its own ``k = arm.kernel_params()`` and
-``kin = arm.tool_params()``, and the laws and block kernels run on its row
-kernels through :func:`blocks.kernels.bind.bound` (one source for every arm).
+``kin = arm.tool_params()``.  The laws and block kernels take the arm's row
+kernels as a value, their first argument ``model``
+(:class:`blocks.kernels.model.ArmKernels`, ``arm.arm_kernels``), so one
+source serves every arm.
 
 The functions use only the part of numpy that numba compiles: no ``einsum``,
 no ellipsis indexing, no keyword-heavy calls.

@@ -7,19 +7,16 @@ tool up with ``F_z = max(0, k p - c z')`` (``p`` the depth) and drags it in
 the plane with ``-c_lat v_xy``; the joints feel ``J(q)^T F``.
 The models are described for users in :mod:`blocks.disturbances`.
 
-The tissue contact is written against the tool-point row kernels
-``tool_position`` and ``tool_jacobian`` (the names of
-:data:`blocks.kernels.bind.TOOL_NAMES`): here they are the paper's RRPR's,
-and :func:`blocks.kernels.bind.bound` gives a copy that calls another arm's
-(a URDF arm's chain kernels), so one source serves every arm.
+The tissue contact takes the arm's kernels first, ``model`` (an
+:class:`~blocks.kernels.model.ArmKernels`), and reads the tool point through
+``model.tool_position`` and ``model.tool_jacobian``: one source for every
+arm (the paper's RRPR in closed form, a URDF arm's chain kernels).
 """
 from __future__ import annotations
 
 from typing import NamedTuple
 
 import numpy as np
-
-from .kinematics import tool_jacobian, tool_position
 
 __all__ = ["DisturbanceParams", "disturbance_params", "paper_disturbance", "friction_disturbance",
            "tissue_disturbance", "external_disturbance"]
@@ -102,16 +99,16 @@ def _jacobian_times(J, x, r: int):
     return out
 
 
-def tissue_disturbance(kin, q, dq, skin_height, stiffness, damping, drag):
+def tissue_disturbance(model, kin, q, dq, skin_height, stiffness, damping, drag):
     """Joint forces ``J(q)^T F`` of the skin contact (see the module docstring); ``dq``'s shape.
 
-    ``J`` is the tool point's linear Jacobian (``tool_jacobian``), the depth
-    ``skin_height - z`` is read from ``tool_position``; ``F = (-c_lat v_x,
-    -c_lat v_y, max(0, k p - c v_z))`` with ``v = J q'`` while ``p > 0``,
-    zero above the skin.
+    ``J`` is the tool point's linear Jacobian (``model.tool_jacobian``), the
+    depth ``skin_height - z`` is read from ``model.tool_position``; ``F =
+    (-c_lat v_x, -c_lat v_y, max(0, k p - c v_z))`` with ``v = J q'`` while
+    ``p > 0``, zero above the skin.
     """
-    J = tool_jacobian(kin, q)
-    depth = skin_height - tool_position(kin, q)[2]
+    J = model.tool_jacobian(kin, q)
+    depth = skin_height - model.tool_position(kin, q)[2]
     inside = depth > 0.0
     vx, vy, vz = _jacobian_times(J, dq, 0), _jacobian_times(J, dq, 1), _jacobian_times(J, dq, 2)
     fz = np.maximum(0.0, stiffness * depth - damping * vz) * inside          # a spring-damper that cannot pull
@@ -127,14 +124,15 @@ def tissue_disturbance(kin, q, dq, skin_height, stiffness, damping, drag):
     return out
 
 
-def external_disturbance(t, q, dq, p: DisturbanceParams):
-    """Sum of the selected models' joint forces ``tau_dis`` (N m, N) at time ``t`` (s) and state ``q, dq``."""
+def external_disturbance(model, t, q, dq, p: DisturbanceParams):
+    """Sum of the selected models' joint forces ``tau_dis`` (N m, N) at time ``t`` (s) and state ``q, dq``
+    (``model``: the arm's kernels, for the tissue contact's tool point)."""
     out = np.zeros_like(dq)
     if p.paper:
         out = out + paper_disturbance(t, p.f_r)
     if p.friction:
         out = out + friction_disturbance(dq, p.coulomb, p.viscous, p.friction_velocity)
     if p.tissue:
-        out = out + tissue_disturbance(p.kin, q, dq, p.skin_height, p.tissue_stiffness, p.tissue_damping,
+        out = out + tissue_disturbance(model, p.kin, q, dq, p.skin_height, p.tissue_stiffness, p.tissue_damping,
                                        p.tissue_drag)
     return out

@@ -14,13 +14,13 @@ so that ``d_hat' = Y M^-1 (d - d_hat)`` on a perfect model.  The paper's
 printed Eq. 16 has an extra ``- Y q'`` in ``z'``; ``eq16_weight = 1`` adds
 it (to show its bias), ``0`` is the correct law.  See ``docs/model.md``.
 
-The laws are written against the model names ``mass_times``, ``mass_solve``,
-``bias_forces`` and ``plant_acceleration``, which here are the paper's RRPR
-kernels; :func:`blocks.kernels.bind.bound` gives copies for any other arm.
+Every law that needs the model takes the arm's kernels first, ``model``
+(an :class:`~blocks.kernels.model.ArmKernels`: ``model.mass_times``,
+``model.mass_solve``, ``model.bias_forces``, ``model.plant_acceleration``),
+then their parameters ``k``: one law for every arm, as pinocchio's
+algorithms take ``model, data``.
 """
 from __future__ import annotations
-
-from .arm import bias_forces, mass_solve, mass_times, plant_acceleration
 
 __all__ = ["gain_times", "computed_torque", "observer_estimate", "observer_rate", "lumped_disturbance"]
 
@@ -37,13 +37,15 @@ def gain_times(gain, v):
     return (gain * v).sum(axis=1)
 
 
-def computed_torque(k, kp, kd, q, dq, q_ref, dq_ref, ddq_ref, d_hat):
+def computed_torque(model, k, kp, kd, q, dq, q_ref, dq_ref, ddq_ref, d_hat):
     """Eq. 11: joint torques (N m; N on a prismatic joint) on the nominal model ``k``.
 
     Parameters
     ----------
-    k : numpy.ndarray
-        Nominal arm constants (see :func:`~blocks.kernels.arm.arm_constants`).
+    model : blocks.kernels.model.ArmKernels
+        The arm's row kernels.
+    k : numpy.ndarray or blocks.compiled.trace.Frozen
+        Nominal arm parameters (``arm.kernel_params()``).
     kp, kd : numpy.ndarray
         Diagonals of the proportional (1/s^2) and derivative (1/s) gains.
     q, dq : numpy.ndarray
@@ -54,7 +56,7 @@ def computed_torque(k, kp, kd, q, dq, q_ref, dq_ref, ddq_ref, d_hat):
         Disturbance estimate (N m, N); 0 without the observer.
     """
     v = ddq_ref + kd * (dq_ref - dq) + kp * (q_ref - q)
-    return mass_times(k, q, v) + bias_forces(k, q, dq) - d_hat
+    return model.mass_times(k, q, v) + model.bias_forces(k, q, dq) - d_hat
 
 
 def observer_estimate(gain, dq, z):
@@ -62,13 +64,15 @@ def observer_estimate(gain, dq, z):
     return gain_times(gain, dq) + z
 
 
-def observer_rate(k, gain, eq16_weight, q, dq, tau, z):
+def observer_rate(model, k, gain, eq16_weight, q, dq, tau, z):
     """The observer's state derivative ``z'`` (N m/s, N/s) on the nominal model ``k``.
 
     Parameters
     ----------
-    k : numpy.ndarray
-        Nominal arm constants.
+    model : blocks.kernels.model.ArmKernels
+        The arm's row kernels.
+    k : numpy.ndarray or blocks.compiled.trace.Frozen
+        Nominal arm parameters.
     gain : numpy.ndarray
         Observer gain ``Y`` (kg m^2/s; kg/s on joint 3), diagonal or full (see :func:`gain_times`).
     eq16_weight : float or numpy.ndarray
@@ -81,15 +85,17 @@ def observer_rate(k, gain, eq16_weight, q, dq, tau, z):
         Observer state.
     """
     y_dq = gain_times(gain, dq)
-    residual = tau + (y_dq + z) - bias_forces(k, q, dq)
-    return -gain_times(gain, mass_solve(k, q, residual)) - eq16_weight * y_dq
+    residual = tau + (y_dq + z) - model.bias_forces(k, q, dq)
+    return -gain_times(gain, model.mass_solve(k, q, residual)) - eq16_weight * y_dq
 
 
-def lumped_disturbance(k_true, k_nominal, q, dq, tau, tau_dis):
+def lumped_disturbance(model, k_true, k_nominal, q, dq, tau, tau_dis):
     """The total disturbance ``d`` the observer estimates (N m, N), Eq. 2-3.
 
     ``M^ q'' + N^ q' + G^ = tau + d`` with ``q''`` the true arm's acceleration
     under ``tau + tau_dis``; ``d = tau_dis`` when the nominal model is exact.
+    The true and the nominal arm share the row kernels ``model`` and differ in
+    their parameters ``k_true`` and ``k_nominal``.
     """
-    ddq = plant_acceleration(k_true, q, dq, tau + tau_dis)
-    return mass_times(k_nominal, q, ddq) + bias_forces(k_nominal, q, dq) - tau
+    ddq = model.plant_acceleration(k_true, q, dq, tau + tau_dis)
+    return model.mass_times(k_nominal, q, ddq) + model.bias_forces(k_nominal, q, dq) - tau
