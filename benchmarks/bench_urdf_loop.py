@@ -22,7 +22,7 @@ step, over the scenario's 10 s (built-in ``scope4`` and ``panda``).  Two ways to
   compiled run (one run varies by half on a shared machine).
 
 A second table times what each run does before it integrates that depends on the arm (the step estimate
-``blocks.run_limits.estimate_run`` and the loop's divergence bounds ``blocks.divergence.state_bounds``: M along the
+``blocks.run_limits.estimate_run`` and the loop's divergence bounds ``blocks.physical_bounds.state_bounds``: M along the
 reference for the true and the nominal arm, G and ``M q'' + h`` at its start) two ways: with the arm's numpy row
 kernels (what a one-off run, or a process without numba loaded, uses) and with its compiled row kernels
 (:mod:`blocks.compiled.row_kernels`, what the runs of a process that runs the arm again and again use, as in the
@@ -172,8 +172,8 @@ def bench_before_run(name: str, rounds: int) -> tuple[list, dict]:
     from unittest import mock
 
     from blocks import load_scenario
-    from blocks.divergence import state_bounds
     from blocks.loop import closed_loop
+    from blocks.physical_bounds import state_bounds
     from blocks.run_limits import estimate_run
 
     s = load_scenario(name)

@@ -3,7 +3,7 @@
 A diagram (the Figure-2 loop, or any interconnection a user wires) is built
 once; what one run of it needs besides is a :class:`Context`.  The engines
 take their bounds from here, never from block names: the Figure-2 layer
-fills them from the scenario (:func:`blocks.divergence.state_bounds`), a
+fills them from the scenario (:func:`blocks.physical_bounds.state_bounds`), a
 user's diagram from what the user gives (by default only non-finite states
 stop a run, as in python-control).
 

@@ -43,7 +43,7 @@ class ContractError(ValueError):
     """A block's contract names signals it does not have, or promises what its functions do not keep."""
 
 
-#: The physical quantities a block may declare a state to be (see :func:`blocks.divergence.state_bounds`):
+#: The physical quantities a block may declare a state to be (see :func:`blocks.physical_bounds.state_bounds`):
 #: a joint position (rad, m), a joint velocity (rad/s, m/s), the state ``z = d_hat - Y q'`` of a disturbance
 #: observer (N m, N).
 STATE_QUANTITIES = ("position", "velocity", "observer_state")

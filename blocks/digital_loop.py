@@ -15,9 +15,9 @@ import numpy as np
 
 from .budget import Budget
 from .derived import loop_response
-from .divergence import cached_state_bounds
 from .hybrid import HybridSystem
 from .monitor import Monitor, SimulationError
+from .physical_bounds import cached_state_bounds
 from .run_limits import check_run
 from .sampled_blocks import SAMPLED_SIGNALS, sampled_initial_state, sampled_loop
 from .sampled_cost import check_sampled_time

@@ -50,11 +50,11 @@ import numpy as np
 from .budget import Budget
 from .context import Context
 from .derived import loop_response
-from .divergence import state_bounds
 from .engine_choice import ENGINES, EngineFallbackWarning, select_engine
 from .integrate import refuse_hybrid
 from .kernels import lumped_disturbance as lumped_disturbance_rows
 from .monitor import SimulationError
+from .physical_bounds import state_bounds
 from .run_limits import check_run, estimate_run, prepare_reference
 from .scenario import Scenario, load_scenario
 from .simulator import NumpyEngine, PythonControlEngine, Solver, advance
@@ -365,7 +365,7 @@ class _Prepared:
         return self._estimate
 
     def bounds(self):
-        """The divergence bounds of the loop's states (:func:`blocks.divergence.state_bounds`)."""
+        """The divergence bounds of the loop's states (:func:`blocks.physical_bounds.state_bounds`)."""
         if self._bounds is None:
             self._bounds = state_bounds(self.loop, self.scenario)
         return self._bounds

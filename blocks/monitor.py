@@ -67,7 +67,7 @@ class Monitor:
     what : str
         The job, for messages (``"scenario 'paper'"``).
     bounds : StateBounds or None
-        Physical bounds of the states (:func:`blocks.divergence.state_bounds`), or None: every state judged by
+        Physical bounds of the states (:func:`blocks.physical_bounds.state_bounds`), or None: every state judged by
         growth alone.
     x0 : array_like
         The start state, (nstates,) or (nstates, N); sets the growth bounds.

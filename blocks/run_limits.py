@@ -210,8 +210,8 @@ def forget_inertias() -> None:
 
 def _inertia_along(arm, q: np.ndarray) -> np.ndarray:
     """``M`` of ``arm`` at the states ``q`` (m, n) in one call, shape (m, n, n): compiled for a chain arm where
-    that pays (:func:`blocks.divergence.evaluation_kernels`), else ``arm.inertia``."""
-    from .divergence import evaluation_kernels
+    that pays (:func:`blocks.physical_bounds.evaluation_kernels`), else ``arm.inertia``."""
+    from .physical_bounds import evaluation_kernels
     kernels = evaluation_kernels(arm)
     if kernels is arm.kernels:
         return arm.inertia(q)

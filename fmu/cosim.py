@@ -41,8 +41,8 @@ import numpy as np
 
 from blocks.budget import Budget
 from blocks.derived import loop_response
-from blocks.divergence import signal_bounds
 from blocks.loop import LOOP_SIGNALS, build_blocks, initial_state
+from blocks.physical_bounds import signal_bounds
 from blocks.scenario import Scenario, load_scenario
 
 from .archive import ExtractionLimits, open_extracted

@@ -20,8 +20,8 @@ import numpy as np
 
 from blocks.budget import Budget
 from blocks.derived import loop_response
-from blocks.divergence import signal_bounds
 from blocks.monitor import Monitor
+from blocks.physical_bounds import signal_bounds
 from blocks.sampled_blocks import sampled_initial_state, sampled_loop
 from blocks.scenario import Scenario
 

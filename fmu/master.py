@@ -204,7 +204,7 @@ def cosimulate_system(fmu_path, side: ct.NonlinearIOSystem, t_final: float, step
         Called with the fraction of time done (0..1), about every 2 % of the steps.
     bounds : callable, optional
         ``bounds(names) -> blocks.divergence.StateBounds`` for the FMU's outputs (for a plant FMU,
-        :func:`blocks.divergence.signal_bounds` of the scenario): the run's :class:`~blocks.monitor.Monitor`
+        :func:`blocks.physical_bounds.signal_bounds` of the scenario): the run's :class:`~blocks.monitor.Monitor`
         judges them after every step, as every engine judges its states.  Without it the outputs are judged
         for being finite and for runaway growth only.
 

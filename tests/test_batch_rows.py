@@ -72,7 +72,8 @@ def test_traced_rows_are_the_members_own_numbers_bit_for_bit(short):
     _, engine = auto_batch_reason(loop)
     np.testing.assert_array_equal(rows.theta(engine), _member_theta(engine, loop))
     np.testing.assert_array_equal(rows.start_states(), loop.initial_state().T)
-    from blocks.divergence import batch_bounds, state_meanings
+    from blocks.divergence import state_meanings
+    from blocks.physical_bounds import batch_bounds
     labels = state_meanings(loop.loop)
     np.testing.assert_array_equal(rows.bounds(labels).bounds, batch_bounds(loop, labels).bounds)
 

@@ -211,7 +211,7 @@ def test_the_compiled_sampled_batch_measures_every_joint_of_the_arm(tmp_path):
     # ("'q_ref[2]' is not in list"), a 6-joint arm's RMS errors held only its first 4 joints
     import blocks
     pytest.importorskip("numba")
-    from blocks.compiled import simulate_sampled_batch
+    from blocks.sampled_batch import simulate_sampled_batch
     _urdf(tmp_path, TWO)
     s = blocks.scenario_from_dict({"arm": {"urdf": str(tmp_path / "arm.urdf"), "tool_frame": "rod"},
                                    "gains": {"kp": 180, "kd": 36, "observer_bandwidth": 10.0},

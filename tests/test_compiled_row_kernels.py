@@ -17,9 +17,9 @@ numba = pytest.importorskip("numba")
 from blocks import load_scenario  # noqa: E402
 from blocks.compiled import row_kernels as compiled_row_kernels  # noqa: E402
 from blocks.compiled.row_kernels import CompiledRowKernels, row_kernels  # noqa: E402
-from blocks.divergence import FORCE_FACTOR, evaluation_kernels, force_bounds, reference_limits, state_bounds  # noqa: E402
 from blocks.kernels import disturbance_params  # noqa: E402
 from blocks.loop import closed_loop  # noqa: E402
+from blocks.physical_bounds import FORCE_FACTOR, evaluation_kernels, force_bounds, reference_limits, state_bounds  # noqa: E402
 from blocks.run_limits import arm_rates, forget_inertias  # noqa: E402
 
 ARMS = ("scope4", "panda")

@@ -26,7 +26,8 @@ from blocks.sampled_blocks import sampled_initial_state, sampled_loop
 
 pytestmark = pytest.mark.skipif(numba_or_none() is None, reason="the compiled engine needs numba")
 
-from blocks.compiled.sampled import SampledEngine, simulate_sampled_batch  # noqa: E402
+from blocks.compiled.sampled import SampledEngine  # noqa: E402
+from blocks.sampled_batch import simulate_sampled_batch  # noqa: E402
 
 # paper-digital's encoders: 2^17 counts per turn, 1 um on the prismatic joint
 RESOLUTION = [4.793689962142629e-05, 4.793689962142629e-05, 1e-6, 4.793689962142629e-05]

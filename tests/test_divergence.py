@@ -97,8 +97,8 @@ def test_the_bounds_of_a_held_arm_are_the_rules_numbers_by_hand():
     """
     from conftest import hold_trajectory, make_scenario
 
-    from blocks.divergence import state_bounds
     from blocks.loop import closed_loop
+    from blocks.physical_bounds import state_bounds
     offset = (-0.5, -1.0, 0.2, -0.3)
     s = make_scenario(trajectory=hold_trajectory(offset), disturbance={"kind": "paper", "f_r": [0.0, 0.0, 300.0, 0.0]},
                       simulation={"t_final": 0.1})
@@ -129,8 +129,9 @@ def test_a_state_is_bounded_by_what_its_block_declares_it_to_be_not_by_the_block
     state a velocity of joint 1 gets joint 1's velocity bound (a held reference: 0 + 1000 rad/s)."""
     from conftest import hold_trajectory, make_scenario
 
-    from blocks.divergence import state_bounds, state_meanings
+    from blocks.divergence import state_meanings
     from blocks.loop import build_blocks
+    from blocks.physical_bounds import state_bounds
     offset = (-0.5, -1.0, 0.2, -0.3)
     s = make_scenario(trajectory=hold_trajectory(offset), simulation={"t_final": 0.1})
     plant = build_blocks(s)["plant"]

@@ -15,7 +15,7 @@ import pytest
 import blocks
 from blocks.batch import simulate_batch
 from blocks.budget import BudgetError
-from blocks.divergence import VELOCITY_MARGIN
+from blocks.physical_bounds import VELOCITY_MARGIN
 
 PAPER = blocks.load_scenario("paper")
 SHORT = {"simulation.t_final": 0.02, "simulation.output_step": 0.001, "trajectory.duration": 10.0}
@@ -140,8 +140,8 @@ def test_a_diverging_batch_member_is_reported_alone_and_the_others_kept():
 def test_the_observer_state_is_judged_through_the_estimate_not_by_size():
     """At Y = 1e5 the observer's state z = d_hat - Y dq is of order Y |dq| (far beyond 1e6 on the path's start)
     and not divergence: its bound is the estimate's plus Y times the velocity bound."""
-    from blocks.divergence import state_bounds
     from blocks.loop import closed_loop
+    from blocks.physical_bounds import state_bounds
     bounds = state_bounds(closed_loop(STIFF), STIFF)
     z = [k for k, name in enumerate(bounds.names) if name.startswith("observer z")]
     assert np.all(bounds.bounds[z] > 1e5 * 100.0)
@@ -203,8 +203,8 @@ def test_each_batch_member_is_judged_on_its_own_bounds_as_its_single_run_would_b
     column equals the bounds of its own scenario run alone."""
     from blocks.batch.members import MemberLoop
     from blocks.batch.variants import Variants
-    from blocks.divergence import batch_bounds, state_bounds
     from blocks.loop import closed_loop
+    from blocks.physical_bounds import batch_bounds, state_bounds
     records = [{}, {"disturbance.f_r": [0.0, 0.0, 300.0, 0.0]}, {"gains.observer": 50.0}]
     v = Variants(PAPER.with_changes(SHORT), records)
     got = batch_bounds(MemberLoop(v, observer=True))

@@ -28,6 +28,7 @@ from ..kernels import lumped_disturbance
 from ..kernels.model import is_rrpr_kernels, with_arm
 from ..loop import _prepared, build_blocks, closed_loop, initial_state
 from ..noise import MeasurementNoise
+from ..physical_bounds import batch_bounds
 from ..plan import make_plan
 from ..systems import observer as observer_block
 
@@ -240,7 +241,12 @@ class MemberLoop:
                                                    source=any(s.name == name for s in self.sources))
         return found
 
-    # -- what the divergence bounds read (blocks.divergence.batch_bounds) -------------------------------------
+    def bounds(self, labels=None):
+        """Every member's divergence bounds (nstates, N) in the order of ``labels`` (default: this loop's states;
+        :func:`blocks.physical_bounds.batch_bounds`)."""
+        return batch_bounds(self, self.state_meanings if labels is None else labels)
+
+    # -- what the divergence bounds read (blocks.physical_bounds.batch_bounds) -------------------------------------
     @property
     def disturbance(self):
         """The external disturbance's parameters over the members (the plant's)."""

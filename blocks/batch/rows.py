@@ -21,7 +21,7 @@ the map's, entry by entry within :data:`TRACE_RTOL` of the entry's size; a
 batch that does not pass falls back to making every member's blocks.  The
 divergence bounds, which are not affine (largest force at the start), are
 computed from the filled rows over all members at once
-(:func:`blocks.divergence.batch_bounds`).
+(:func:`blocks.physical_bounds.batch_bounds`).
 """
 from __future__ import annotations
 
@@ -31,8 +31,8 @@ import types
 import numpy as np
 
 from ..compiled.trace import Frozen, is_table
-from ..divergence import batch_bounds
 from ..parameters import RobotParameters
+from ..physical_bounds import batch_bounds
 from .members import MemberLoop
 from .variants import Variants, nominal_values
 
@@ -124,7 +124,7 @@ class MemberRows:
         return self._x0
 
     def bounds(self, labels):
-        """Every member's divergence bounds in the order of ``labels`` (:func:`blocks.divergence.batch_bounds`),
+        """Every member's divergence bounds in the order of ``labels`` (:func:`blocks.physical_bounds.batch_bounds`),
         from the members' plant and observer numbers in the rows."""
         probes = self._probes
         plant = _filled(probes.member_params["plant"][0], self._theta[:, self._slices["plant"]])

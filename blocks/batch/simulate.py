@@ -6,9 +6,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..divergence import batch_bounds
 from ..metrics import METRICS, OBSERVER_METRICS, TrackingAccumulator
 from ..monitor import Monitor
+from ..physical_bounds import batch_bounds
 from ..scenario import Scenario, load_scenario
 from ..steppers import rk4_step
 from ..workers import worker_pool

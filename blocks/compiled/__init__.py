@@ -35,7 +35,7 @@ output, the sampled ones held, their updates), the plant's derivative with
 the sampled outputs held, the outputs between ticks -- and run by
 :class:`blocks.compiled.sampled.SampledEngine`: the numpy hybrid engine's
 semantics and numbers, Dormand-Prince restarted at every tick.
-:func:`blocks.compiled.sampled.simulate_sampled_batch` runs many members of it
+:func:`blocks.sampled_batch.simulate_sampled_batch` runs many members of it
 side by side.
 
 Nothing of the loop is written here by hand: a change to a kernel or to the
@@ -47,7 +47,7 @@ from .cache import CompiledCacheWarning
 from .codegen import CompiledUnavailable, cache_dir
 from .engine import METHODS, CompiledLoopEngine, unavailable_reason
 from .jit import numba_or_none
-from .sampled import SampledEngine, sampled_unavailable_reason, simulate_sampled_batch
+from .sampled import SampledEngine, sampled_unavailable_reason
 
 __all__ = ["CompiledLoopEngine", "CompiledUnavailable", "unavailable_reason", "numba_or_none", "cache_dir",
-           "CompiledCacheWarning", "METHODS", "SampledEngine", "sampled_unavailable_reason", "simulate_sampled_batch"]
+           "CompiledCacheWarning", "METHODS", "SampledEngine", "sampled_unavailable_reason"]

@@ -34,7 +34,7 @@ import os
 
 import numpy as np
 
-from ..divergence import batch_bounds, state_meanings
+from ..divergence import state_meanings
 from ..kernels import tool_pose
 from ..kernels.model import is_rrpr_kernels
 from ..monitor import Monitor
@@ -371,9 +371,10 @@ def member_start_states(members) -> np.ndarray:
 
 
 def members_bounds(members, labels):
-    """Every member's divergence bounds in the order of ``labels`` (:func:`blocks.divergence.batch_bounds`)."""
-    own = getattr(members, "bounds", None)
-    return own(labels) if own is not None else batch_bounds(members, labels)
+    """Every member's divergence bounds in the order of ``labels`` (``(name, meaning)`` pairs of
+    :func:`blocks.divergence.state_meanings`): the members give them (the Figure-2 layer's from their scenarios,
+    :func:`blocks.physical_bounds.batch_bounds`); this engine makes none."""
+    return members.bounds(labels)
 
 
 def _metrics(metrics: tuple, groups: dict, n_points: int, sum_sq, max_abs, final) -> dict:

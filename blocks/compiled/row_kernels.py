@@ -2,7 +2,7 @@
 
 Before a run starts, :func:`blocks.run_limits.arm_rates` takes the inertia
 of the true and the nominal arm along the reference (the step estimate) and
-:func:`blocks.divergence.force_bounds` takes ``G``, ``M q'' + h`` at the
+:func:`blocks.physical_bounds.force_bounds` takes ``G``, ``M q'' + h`` at the
 reference's start (the divergence bounds).  For an arm of the chain kernels
 (a URDF arm) the numpy row kernels do that with Python arithmetic per
 element, about 0.5-1 ms a call for the 7-joint Panda whatever the number of
