@@ -38,7 +38,6 @@ from ..divergence import state_meanings
 from ..kernels import tool_pose
 from ..kernels.model import is_rrpr_kernels
 from ..monitor import Monitor
-from ..systems import signal_names
 from .codegen import CompiledUnavailable
 from .engine import CompiledLoopEngine
 from .jit import numba_or_none
@@ -331,7 +330,7 @@ def kept_signals(loop, arm, signals: tuple, groups: dict, flags: np.ndarray, n: 
     labels = list(loop.output_labels)
     alias = {} if "q_meas[0]" in labels else {"q_meas": "q", "dq_meas": "dq"}
     keep = np.array([labels.index(x) for name in signals if name != "d"
-                     for x in signal_names(alias.get(name, name), arm)], dtype=np.int64)
+                     for x in arm.joints.signal_names(alias.get(name, name))], dtype=np.int64)
     keep_rows = np.arange(groups["d"][1].start, groups["d"][1].stop, dtype=np.int64) if "d" in signals else \
         np.zeros(0, dtype=np.int64)
     if "d" in signals:
