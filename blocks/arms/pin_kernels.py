@@ -80,10 +80,41 @@ def model_of(k) -> tuple | None:
     return found
 
 
+class _Last:
+    """One remembered value and what it was made from (replaced as one tuple, so a reader never sees half of it)."""
+
+    __slots__ = ("entry",)
+
+    def __init__(self) -> None:
+        self.entry = (None, None)
+
+
+#: The array of the last ``q`` and ``q'`` given to a binding.  The calls of one right-hand side pass the same
+#: joint positions (and rates) again and again -- to the plant's and the nominal model's algorithms, as tuples of
+#: the same floats -- so each is converted to an array once per right-hand side, not once per call.
+_last_q, _last_v = _Last(), _Last()
+
+
+def _factored(k) -> _Last:
+    """Where the nominal arm ``k``'s mass matrix factor was last made: ``(q as a tuple, data holding its factor)``."""
+    found = _factors.get(k)
+    if found is None:
+        found = _factors[k] = _Last()
+    return found
+
+
+_factors: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
 def binding(callee: Callee):
     """A function ``f(x) -> sequence`` computing ``callee`` (a chain row kernel recorded as a call) with pinocchio,
     returning its outputs that are not constants, in order; None when the callee is not such a call or pinocchio
-    is not installed."""
+    is not installed.
+
+    ``x`` is the tuple of floats the generated code passes (``q`` first).  ``q`` and ``q'`` become arrays once per
+    value (:data:`_last_q`, :data:`_last_v`), and ``M^-1 r`` reuses the Cholesky factor of ``M(q)`` made at the same
+    ``q`` (by ``crba`` and ``cholesky.decompose``, about half of an ``aba``): a controller and an observer on the
+    nominal model at the measured ``q`` pay for one factor per right-hand side."""
     name, k = getattr(callee, "kernel", (None, None))
     if name is None:
         return None
@@ -95,51 +126,86 @@ def binding(callee: Callee):
     n = k.n
     _, outputs = callee.traced
     kept = np.array([i for i, v in enumerate(outputs) if Callee.constant(v) is None], dtype=int)
-    every = len(kept) == len(outputs)
-    zeros = np.zeros(n)
     array = np.array
+    zeros = np.zeros(n)
+    last_q, last_v = _last_q, _last_v
+    if len(kept) == len(outputs):
+        listed = np.ndarray.tolist
+    else:
+        def listed(values: np.ndarray) -> list:
+            return values[kept].tolist()
 
-    def picked(values: np.ndarray) -> list:
-        return values.tolist() if every else values[kept].tolist()
-
+    # q and q' memoised inline (a function call per lookup costs about as much as the lookup)
     if name == "plant_acceleration":
         aba = pin.aba
 
-        def fn(x):
-            a = array(x)
-            return picked(aba(model, data, a[:n], a[n:2 * n], a[2 * n:]))
+        def values(x):
+            q, v = x[:n], x[n:2 * n]
+            key, qa = last_q.entry
+            if q != key:
+                qa = array(q)
+                last_q.entry = (q, qa)
+            key, va = last_v.entry
+            if v != key:
+                va = array(v)
+                last_v.entry = (v, va)
+            return listed(aba(model, data, qa, va, array(x[2 * n:])))
     elif name == "mass_solve":
-        aba = pin.aba
+        crba, decompose, solve = pin.crba, pin.cholesky.decompose, pin.cholesky.solve
+        factored = _factored(k)
 
-        def fn(x):
-            a = array(x)
-            return picked(aba(still, still_data, a[:n], zeros, a[n:]))
+        def values(x):
+            q = x[:n]
+            key, factor = factored.entry
+            if q != key:
+                key, qa = last_q.entry
+                if q != key:
+                    qa = array(q)
+                    last_q.entry = (q, qa)
+                factor = still.createData() if factor is None else factor
+                crba(still, factor, qa)
+                decompose(still, factor)
+                factored.entry = (q, factor)
+            return listed(solve(still, factor, array(x[n:])))
     elif name == "mass_times":
         rnea = pin.rnea
 
-        def fn(x):
-            a = array(x)
-            return picked(rnea(still, still_data, a[:n], zeros, a[n:]))
+        def values(x):
+            q = x[:n]
+            key, qa = last_q.entry
+            if q != key:
+                qa = array(q)
+                last_q.entry = (q, qa)
+            return listed(rnea(still, still_data, qa, zeros, array(x[n:])))
     elif name == "bias_forces":
         nle = pin.nonLinearEffects
 
-        def fn(x):
-            a = array(x)
-            return picked(nle(model, data, a[:n], a[n:]))
+        def values(x):
+            q, v = x[:n], x[n:2 * n]
+            key, qa = last_q.entry
+            if q != key:
+                qa = array(q)
+                last_q.entry = (q, qa)
+            key, va = last_v.entry
+            if v != key:
+                va = array(v)
+                last_v.entry = (v, va)
+            return listed(nle(model, data, qa, va))
     elif name == "gravity_forces":
         gravity = pin.computeGeneralizedGravity
 
-        def fn(x):
-            return picked(gravity(model, data, array(x)))
+        def values(x):
+            return listed(gravity(model, data, array(x)))
     elif name == "inertia_matrix":
         crba = pin.crba
         upper = np.triu_indices(n)
 
-        def fn(x):
+        def values(x):
             M = crba(model, data, array(x))
             M[upper[::-1]] = M[upper]                 # pinocchio fills the upper triangle: mirror it
-            return picked(M.ravel())
+            return listed(M.ravel())
     else:
         return None
-    fn.__name__ = callee.name
-    return fn
+    values.__name__ = callee.name
+    return values
+
