@@ -95,15 +95,42 @@ class _Last:
 _last_q, _last_v = _Last(), _Last()
 
 
-def _factored(k) -> _Last:
-    """Where the nominal arm ``k``'s mass matrix factor was last made: ``(q as a tuple, data holding its factor)``."""
-    found = _factors.get(k)
-    if found is None:
-        found = _factors[k] = _Last()
-    return found
+class _Factor:
+    """``M(q)`` of a nominal arm and its Cholesky factor, made once per ``q``: :attr:`entry` is ``(q as a tuple, M,
+    data holding the factor)`` of the last ``q``; calling it with another ``q`` makes them there."""
+
+    __slots__ = ("entry", "model", "data", "crba", "decompose", "mirror")
+
+    def __init__(self, model, pin) -> None:
+        self.model, self.data = model, model.createData()
+        self.crba, self.decompose = pin.crba, pin.cholesky.decompose
+        self.entry = (None, None, None)
+        # pinocchio's Python crba mirrors the upper triangle it computes; older releases returned it alone
+        M = self.crba(model, self.data, np.full(model.nq, 0.3))
+        self.mirror = not np.array_equal(M, M.T)
+
+    def __call__(self, q: tuple) -> tuple:
+        key, qa = _last_q.entry
+        if q != key:
+            qa = np.array(q)
+            _last_q.entry = (q, qa)
+        M = self.crba(self.model, self.data, qa)
+        if self.mirror:
+            M = np.triu(M) + np.triu(M, 1).T
+        self.decompose(self.model, self.data)
+        self.entry = (q, M, self.data)
+        return M, self.data
 
 
 _factors: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _factors_of(k, still, pin) -> _Factor:
+    """The :class:`_Factor` of the arm ``k`` (its model without gravity ``still``), shared by its bindings."""
+    found = _factors.get(k)
+    if found is None:
+        found = _factors[k] = _Factor(still, pin)
+    return found
 
 
 def binding(callee: Callee):
@@ -112,22 +139,22 @@ def binding(callee: Callee):
     is not installed.
 
     ``x`` is the tuple of floats the generated code passes (``q`` first).  ``q`` and ``q'`` become arrays once per
-    value (:data:`_last_q`, :data:`_last_v`), and ``M^-1 r`` reuses the Cholesky factor of ``M(q)`` made at the same
-    ``q`` (by ``crba`` and ``cholesky.decompose``, about half of an ``aba``): a controller and an observer on the
-    nominal model at the measured ``q`` pay for one factor per right-hand side."""
+    value (:data:`_last_q`, :data:`_last_v`), and ``M v`` and ``M^-1 r`` use ``M(q)`` and its Cholesky factor made
+    once per ``q`` (``crba`` and ``cholesky.decompose``, together about half of an ``aba``; then a matrix product
+    and ``cholesky.solve``, a third of an ``rnea`` each): a controller and an observer on the nominal model at the
+    measured ``q`` pay for one ``M`` per right-hand side."""
     name, k = getattr(callee, "kernel", (None, None))
     if name is None:
         return None
     models = model_of(k)
     if models is None:
         return None
-    model, data, still, still_data = models
+    model, data, still, _ = models
     pin = _pinocchio()
     n = k.n
     _, outputs = callee.traced
     kept = np.array([i for i, v in enumerate(outputs) if Callee.constant(v) is None], dtype=int)
     array = np.array
-    zeros = np.zeros(n)
     last_q, last_v = _last_q, _last_v
     if len(kept) == len(outputs):
         listed = np.ndarray.tolist
@@ -151,32 +178,24 @@ def binding(callee: Callee):
                 last_v.entry = (v, va)
             return listed(aba(model, data, qa, va, array(x[2 * n:])))
     elif name == "mass_solve":
-        crba, decompose, solve = pin.crba, pin.cholesky.decompose, pin.cholesky.solve
-        factored = _factored(k)
+        solve = pin.cholesky.solve
+        factor_at = _factors_of(k, still, pin)
 
         def values(x):
             q = x[:n]
-            key, factor = factored.entry
+            key, _, factor = factor_at.entry
             if q != key:
-                key, qa = last_q.entry
-                if q != key:
-                    qa = array(q)
-                    last_q.entry = (q, qa)
-                factor = still.createData() if factor is None else factor
-                crba(still, factor, qa)
-                decompose(still, factor)
-                factored.entry = (q, factor)
+                _, factor = factor_at(q)
             return listed(solve(still, factor, array(x[n:])))
     elif name == "mass_times":
-        rnea = pin.rnea
+        factor_at = _factors_of(k, still, pin)
 
         def values(x):
             q = x[:n]
-            key, qa = last_q.entry
+            key, M, _ = factor_at.entry
             if q != key:
-                qa = array(q)
-                last_q.entry = (q, qa)
-            return listed(rnea(still, still_data, qa, zeros, array(x[n:])))
+                M, _ = factor_at(q)
+            return listed(M.dot(array(x[n:])))
     elif name == "bias_forces":
         nle = pin.nonLinearEffects
 
