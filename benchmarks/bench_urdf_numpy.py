@@ -7,7 +7,8 @@ scenario; the baseline an expert's ``solve_ivp`` over a right-hand side calling 
 ``pin.nonLinearEffects`` and ``pin.aba``, numpy for the laws).  Two measures, both CPU time
 (``time.process_time``), fastest of ``--rounds``:
 
-* one right-hand-side call at a state near the trajectory: the numpy engine's (``CompiledLoop.point_rhs``: the
+* one right-hand-side call, at states and times near the trajectory (each call at another one, as in a run): the
+  numpy engine's (``CompiledLoop.point_rhs``: the
   loop's generated Python, each chain row kernel one call of pinocchio's algorithm, :mod:`blocks.arms.pin_kernels`)
   against the lean loop's, the mean of ``--calls`` calls;
 * the whole run: ``blocks.simulate(scenario, engine="fast")`` (outputs and the lumped disturbance on the grid
@@ -23,6 +24,7 @@ printed.  No assertion: these are timings.
 from __future__ import annotations
 
 import argparse
+import itertools
 import os
 import sys
 import time
@@ -58,6 +60,24 @@ def _best(fn, rounds: int) -> tuple[float, object]:
     return best, out
 
 
+def _points(x0, count: int = 97) -> list:
+    """``count`` distinct ``(t, x)`` near the start of the run, as a solver's calls are: every call at a new state
+    and time (a right-hand side may keep what it made for the last ``q``; the same state again would find it)."""
+    rng = np.random.default_rng(3)
+    x0 = np.asarray(x0, dtype=float)
+    return [(float(t), x0 + 0.05 * rng.standard_normal(x0.size)) for t in rng.uniform(0.0, 1.0, count)]
+
+
+def _calling(rhs, points):
+    """A function of no arguments calling ``rhs`` at the next of ``points`` (in turn)."""
+    turn = itertools.cycle(points)
+
+    def call():
+        t, x = next(turn)
+        return rhs(t, x)
+    return call
+
+
 def _without_pinocchio():
     """Contexts in which the fast engine runs the compiled engine's program as Python (M and h its generated
     functions, no pinocchio): the numpy engine as it was before the kernel calls."""
@@ -76,14 +96,14 @@ def bench_arm(name: str, rounds: int, calls: int) -> list:
 
     s = load_scenario(name)
     lean = lean_loop(s)
-    x = np.asarray(lean.x0, dtype=float) + 0.01
-    lean_call = _per_call(lambda: lean.rhs(0.37, x), calls, rounds)
+    points = _points(lean.x0)
+    lean_call = _per_call(_calling(lean.rhs, points), calls, rounds)
     fast_rhs = CompiledLoop(closed_loop(s)).point_rhs
-    fast_call = _per_call(lambda: fast_rhs(0.37, x), calls, rounds)
+    fast_call = _per_call(_calling(fast_rhs, points), calls, rounds)
     patches = _without_pinocchio()
     with patches[0], patches[1]:
         python_rhs = CompiledLoop(closed_loop(s)).point_rhs
-        python_call = _per_call(lambda: python_rhs(0.37, x), max(calls // 10, 100), rounds)
+        python_call = _per_call(_calling(python_rhs, points), max(calls // 10, 100), rounds)
 
     lean_s, lean_res = _best(lean, rounds)
     fast_s, fast_res = _best(lambda: simulate(s, engine="fast"), rounds)

@@ -28,6 +28,7 @@ from collections.abc import Callable
 import numpy as np
 
 from .codegen import CompiledUnavailable, LoopProgram, program_for
+from .fold import fold_single_use
 from .rows import loop_rows_of
 
 __all__ = ["SCALAR_MATH", "scalar_rhs", "ScalarFunctions"]
@@ -77,6 +78,10 @@ def _called(fn):
     return call
 
 
+#: The generated functions a run calls at every step, folded for CPython (:mod:`blocks.compiled.fold`).
+_FOLDED = ("loop_sources", "loop_rhs", "loop_outputs")
+
+
 class ScalarFunctions:
     """The generated functions of one program, executed by Python (once per loop structure and process)."""
 
@@ -85,7 +90,9 @@ class ScalarFunctions:
     def __init__(self, program: LoopProgram) -> None:
         namespace = {"np": SCALAR_MATH, "__name__": "dobkit_scalar_loop"}
         namespace.update({name: _called(fn) for name, fn in program.kernels.items()})
-        exec(compile(program.source, "<dobkit generated loop>", "exec"), namespace)
+        # the per-call functions with their single-use temporaries folded: the same floats, fewer statements
+        source = fold_single_use(program.source, _FOLDED)
+        exec(compile(source, "<dobkit generated loop>", "exec"), namespace)
         #: the chain row kernels the functions call as pinocchio's algorithms (by name in the module)
         self.pinocchio_calls = []
         for name, callee in program.callees.items():        # a chain row kernel: pinocchio's algorithm for it
