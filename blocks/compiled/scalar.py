@@ -90,16 +90,16 @@ class ScalarFunctions:
     def __init__(self, program: LoopProgram) -> None:
         namespace = {"np": SCALAR_MATH, "__name__": "dobkit_scalar_loop"}
         namespace.update({name: _called(fn) for name, fn in program.kernels.items()})
-        # the per-call functions with their single-use temporaries folded: the same floats, fewer statements
-        source = fold_single_use(program.source, _FOLDED)
-        exec(compile(source, "<dobkit generated loop>", "exec"), namespace)
         #: the chain row kernels the functions call as pinocchio's algorithms (by name in the module)
-        self.pinocchio_calls = []
-        for name, callee in program.callees.items():        # a chain row kernel: pinocchio's algorithm for it
-            fast = _bound_callee(callee)
-            if fast is not None:
-                namespace[name] = fast
-                self.pinocchio_calls.append(name)
+        bound = {name: fast for name, fast in ((name, _bound_callee(callee)) for name, callee in
+                                               program.callees.items()) if fast is not None}
+        self.pinocchio_calls = list(bound)
+        # the per-call functions (and the callees run as generated) with their single-use temporaries folded:
+        # the same floats, fewer statements
+        unbound = [name for name in program.callees if name not in bound]
+        source = fold_single_use(program.source, _FOLDED + tuple(unbound))
+        exec(compile(source, "<dobkit generated loop>", "exec"), namespace)
+        namespace.update(bound)
         self.sources, self.rhs = namespace["loop_sources"], namespace["loop_rhs"]
         self.outputs = namespace["loop_outputs"]
         self.program = program
