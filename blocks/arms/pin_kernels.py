@@ -13,12 +13,23 @@ the arm was read from, the nominal model's scaled masses included):
 
 ==========================  ==========================================================
 ``plant_acceleration``      ``aba(q, q', tau)``: ``M^-1 (tau - h)``
-``mass_solve(r)``           ``aba`` with gravity and ``q'`` zero: ``M^-1 r``
-``mass_times(v)``           ``rnea`` with gravity and ``q'`` zero: ``M v``
+``mass_solve(r)``           ``cholesky.solve`` with the factor of ``M(q)``: ``M^-1 r``
+``mass_times(v)``           ``M(q) v``, a matrix product
 ``bias_forces``             ``nonLinearEffects(q, q')``: ``h``
 ``gravity_forces``          ``computeGeneralizedGravity(q)``: ``G``
 ``inertia_matrix``          ``crba(q)`` (upper triangle, mirrored)
 ==========================  ==========================================================
+
+``M(q)`` (``crba``) and its Cholesky factor (``cholesky.decompose``) are made
+once per ``q`` and arm and shared by ``mass_times`` and ``mass_solve``: the
+controller and the observer act on the nominal arm at the same measured
+``q``, so a right-hand side makes one ``M`` (together about half an
+``aba``), where an ``rnea`` for ``M v`` and a second ``aba`` for ``M^-1 r``
+cost three times as much.  ``q`` and ``q'`` are made arrays once per value
+too (every call of a right-hand side passes them again).  What is kept is
+the last ``q``'s, compared by value, so any order of calls gets the numbers
+of its own ``q``; one program's calls share pinocchio ``Data``, as they
+did before, so one thread at a time runs it.
 
 A Python statement costs tens of nanoseconds: the generated dynamics of a
 7-joint arm are thousands of them, one of these calls a microsecond or two.
