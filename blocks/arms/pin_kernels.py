@@ -28,8 +28,9 @@ controller and the observer act on the nominal arm at the same measured
 cost three times as much.  ``q`` and ``q'`` are made arrays once per value
 too (every call of a right-hand side passes them again).  What is kept is
 the last ``q``'s, compared by value, so any order of calls gets the numbers
-of its own ``q``; one program's calls share pinocchio ``Data``, as they
-did before, so one thread at a time runs it.
+of its own ``q``.  The bindings of an arm share its pinocchio ``Data`` (as
+before) and these last values: one thread of a process runs them at a time
+(parallel runs are processes, :mod:`blocks.workers`).
 
 A Python statement costs tens of nanoseconds: the generated dynamics of a
 7-joint arm are thousands of them, one of these calls a microsecond or two.
