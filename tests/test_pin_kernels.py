@@ -3,6 +3,8 @@ to pinocchio's algorithm on a model built from the arm's ChainParams; the number
 pinocchio's on the URDF) to rounding, and the whole loop's derivative equals the numpy plan's."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -113,3 +115,60 @@ def test_without_pinocchio_the_generated_python_runs_bit_for_bit(monkeypatch):
     for _ in range(5):
         x = x0 + 0.05 * rng.standard_normal(x0.size)
         np.testing.assert_array_equal(compiled.point_rhs(0.4, x), compiled.rhs(0.4, x))
+
+
+def test_the_factor_and_the_arrays_follow_q(arm):
+    """``M v`` and ``M^-1 r`` share ``M(q)`` and its factor, made once per ``q``; called in any order at positions
+    that come and go (and with the plant's and the nominal arm's calls in between), each equals the chain kernel
+    at its own ``q``."""
+    k, n = arm.kernel_params(), arm.n
+    nominal = dataclasses.replace(k, masses=tuple(1.2 * m for m in k.masses))     # another arm, its own factor
+    kernels = {"mass_times": (chain.mass_times, nominal, (n, n)), "mass_solve": (chain.mass_solve, nominal, (n, n)),
+               "bias_forces": (chain.bias_forces, nominal, (n, n)),
+               "plant_acceleration": (chain.plant_acceleration, k, (n, n, n))}
+    fast = {name: pin_kernels.binding(_called(kernel, params, sizes)) for name, (kernel, params, sizes)
+            in kernels.items()}
+    rng = np.random.default_rng(8)
+    qs = [rng.uniform(-1.0, 1.0, n) for _ in range(3)]
+    for step in range(24):
+        q = qs[rng.integers(3)]
+        name = list(kernels)[rng.integers(4)]
+        kernel, params, sizes = kernels[name]
+        rest = rng.uniform(-1.0, 1.0, sum(sizes) - n)
+        rows = np.split(np.concatenate((q, rest)), np.cumsum(sizes)[:-1])
+        np.testing.assert_allclose(fast[name](tuple(np.concatenate((q, rest)).tolist())),
+                                   np.asarray(kernel(params, *rows)).ravel(), rtol=1e-11, atol=1e-11,
+                                   err_msg=f"{name} at step {step}")
+
+
+def test_one_mass_matrix_per_right_hand_side(monkeypatch):
+    """A right-hand side of a URDF arm's loop calls pinocchio for ``M(q)`` once (``crba`` and its Cholesky factor,
+    shared by the controller's ``M v`` and the observer's ``M^-1 r``), ``h`` once and the plant's ``aba`` once: no
+    second ``aba`` for ``M^-1 r`` and no ``rnea`` for ``M v``."""
+    counts: dict[str, int] = {}
+
+    def counted(module, name):
+        original = getattr(module, name)
+
+        def call(*args):
+            counts[name] = counts.get(name, 0) + 1
+            return original(*args)
+        monkeypatch.setattr(module, name, call)
+
+    for name in ("aba", "rnea", "crba", "nonLinearEffects", "computeMinverse"):
+        counted(pin, name)
+    for name in ("decompose", "solve"):
+        counted(pin.cholesky, name)
+    monkeypatch.setattr(pin_kernels, "_factors", type(pin_kernels._factors)())
+    monkeypatch.setattr(ScalarFunctions, "_made", {})
+    s = load_scenario("ur5")
+    loop = closed_loop(s)
+    compiled = CompiledLoop(loop)
+    x0 = initial_state(loop, s)
+    rhs = compiled.point_rhs
+    counts.clear()                                               # the bindings are made: count their calls
+    rng = np.random.default_rng(1)
+    for _ in range(3):
+        rhs(0.3, x0 + 0.05 * rng.standard_normal(x0.size))      # each at a new state
+    counts = {name: c for name, c in counts.items() if c}
+    assert counts == {"aba": 3, "crba": 3, "decompose": 3, "solve": 3, "nonLinearEffects": 3}

@@ -13,12 +13,24 @@ the arm was read from, the nominal model's scaled masses included):
 
 ==========================  ==========================================================
 ``plant_acceleration``      ``aba(q, q', tau)``: ``M^-1 (tau - h)``
-``mass_solve(r)``           ``aba`` with gravity and ``q'`` zero: ``M^-1 r``
-``mass_times(v)``           ``rnea`` with gravity and ``q'`` zero: ``M v``
+``mass_solve(r)``           ``cholesky.solve`` with the factor of ``M(q)``: ``M^-1 r``
+``mass_times(v)``           ``M(q) v``, a matrix product
 ``bias_forces``             ``nonLinearEffects(q, q')``: ``h``
 ``gravity_forces``          ``computeGeneralizedGravity(q)``: ``G``
 ``inertia_matrix``          ``crba(q)`` (upper triangle, mirrored)
 ==========================  ==========================================================
+
+``M(q)`` (``crba``) and its Cholesky factor (``cholesky.decompose``) are made
+once per ``q`` and arm and shared by ``mass_times`` and ``mass_solve``: the
+controller and the observer act on the nominal arm at the same measured
+``q``, so a right-hand side makes one ``M`` (together about half an
+``aba``), where an ``rnea`` for ``M v`` and a second ``aba`` for ``M^-1 r``
+cost three times as much.  ``q`` and ``q'`` are made arrays once per value
+too (every call of a right-hand side passes them again).  What is kept is
+the last ``q``'s, compared by value, so any order of calls gets the numbers
+of its own ``q``.  The bindings of an arm share its pinocchio ``Data`` (as
+before) and these last values: one thread of a process runs them at a time
+(parallel runs are processes, :mod:`blocks.workers`).
 
 A Python statement costs tens of nanoseconds: the generated dynamics of a
 7-joint arm are thousands of them, one of these calls a microsecond or two.
@@ -80,66 +92,151 @@ def model_of(k) -> tuple | None:
     return found
 
 
+class _Last:
+    """One remembered value and what it was made from (replaced as one tuple, so a reader never sees half of it)."""
+
+    __slots__ = ("entry",)
+
+    def __init__(self) -> None:
+        self.entry = (None, None)
+
+
+#: The array of the last ``q`` and ``q'`` given to a binding.  The calls of one right-hand side pass the same
+#: joint positions (and rates) again and again -- to the plant's and the nominal model's algorithms, as tuples of
+#: the same floats -- so each is converted to an array once per right-hand side, not once per call.
+_last_q, _last_v = _Last(), _Last()
+
+
+class _Factor:
+    """``M(q)`` of a nominal arm and its Cholesky factor, made once per ``q``: :attr:`entry` is ``(q as a tuple, M,
+    data holding the factor)`` of the last ``q``; calling it with another ``q`` makes them there."""
+
+    __slots__ = ("entry", "model", "data", "crba", "decompose", "mirror")
+
+    def __init__(self, model, pin) -> None:
+        self.model, self.data = model, model.createData()
+        self.crba, self.decompose = pin.crba, pin.cholesky.decompose
+        self.entry = (None, None, None)
+        # pinocchio's Python crba mirrors the upper triangle it computes; older releases returned it alone
+        M = self.crba(model, self.data, np.full(model.nq, 0.3))
+        self.mirror = not np.array_equal(M, M.T)
+
+    def __call__(self, q: tuple) -> tuple:
+        key, qa = _last_q.entry
+        if q != key:
+            qa = np.array(q)
+            _last_q.entry = (q, qa)
+        M = self.crba(self.model, self.data, qa)
+        if self.mirror:
+            M = np.triu(M) + np.triu(M, 1).T
+        self.decompose(self.model, self.data)
+        self.entry = (q, M, self.data)
+        return M, self.data
+
+
+_factors: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _factors_of(k, still, pin) -> _Factor:
+    """The :class:`_Factor` of the arm ``k`` (its model without gravity ``still``), shared by its bindings."""
+    found = _factors.get(k)
+    if found is None:
+        found = _factors[k] = _Factor(still, pin)
+    return found
+
+
 def binding(callee: Callee):
     """A function ``f(x) -> sequence`` computing ``callee`` (a chain row kernel recorded as a call) with pinocchio,
     returning its outputs that are not constants, in order; None when the callee is not such a call or pinocchio
-    is not installed."""
+    is not installed.
+
+    ``x`` is the tuple of floats the generated code passes (``q`` first).  ``q`` and ``q'`` become arrays once per
+    value (:data:`_last_q`, :data:`_last_v`), and ``M v`` and ``M^-1 r`` use ``M(q)`` and its Cholesky factor made
+    once per ``q`` (``crba`` and ``cholesky.decompose``, together about half of an ``aba``; then a matrix product
+    and ``cholesky.solve``, a third of an ``rnea`` each): a controller and an observer on the nominal model at the
+    measured ``q`` pay for one ``M`` per right-hand side."""
     name, k = getattr(callee, "kernel", (None, None))
     if name is None:
         return None
     models = model_of(k)
     if models is None:
         return None
-    model, data, still, still_data = models
+    model, data, still, _ = models
     pin = _pinocchio()
     n = k.n
     _, outputs = callee.traced
     kept = np.array([i for i, v in enumerate(outputs) if Callee.constant(v) is None], dtype=int)
-    every = len(kept) == len(outputs)
-    zeros = np.zeros(n)
     array = np.array
+    last_q, last_v = _last_q, _last_v
+    if len(kept) == len(outputs):
+        listed = np.ndarray.tolist
+    else:
+        def listed(values: np.ndarray) -> list:
+            return values[kept].tolist()
 
-    def picked(values: np.ndarray) -> list:
-        return values.tolist() if every else values[kept].tolist()
-
+    # q and q' memoised inline (a function call per lookup costs about as much as the lookup)
     if name == "plant_acceleration":
         aba = pin.aba
 
-        def fn(x):
-            a = array(x)
-            return picked(aba(model, data, a[:n], a[n:2 * n], a[2 * n:]))
+        def values(x):
+            q, v = x[:n], x[n:2 * n]
+            key, qa = last_q.entry
+            if q != key:
+                qa = array(q)
+                last_q.entry = (q, qa)
+            key, va = last_v.entry
+            if v != key:
+                va = array(v)
+                last_v.entry = (v, va)
+            return listed(aba(model, data, qa, va, array(x[2 * n:])))
     elif name == "mass_solve":
-        aba = pin.aba
+        solve = pin.cholesky.solve
+        factor_at = _factors_of(k, still, pin)
 
-        def fn(x):
-            a = array(x)
-            return picked(aba(still, still_data, a[:n], zeros, a[n:]))
+        def values(x):
+            q = x[:n]
+            key, _, factor = factor_at.entry
+            if q != key:
+                _, factor = factor_at(q)
+            return listed(solve(still, factor, array(x[n:])))
     elif name == "mass_times":
-        rnea = pin.rnea
+        factor_at = _factors_of(k, still, pin)
 
-        def fn(x):
-            a = array(x)
-            return picked(rnea(still, still_data, a[:n], zeros, a[n:]))
+        def values(x):
+            q = x[:n]
+            key, M, _ = factor_at.entry
+            if q != key:
+                M, _ = factor_at(q)
+            return listed(M.dot(array(x[n:])))
     elif name == "bias_forces":
         nle = pin.nonLinearEffects
 
-        def fn(x):
-            a = array(x)
-            return picked(nle(model, data, a[:n], a[n:]))
+        def values(x):
+            q, v = x[:n], x[n:2 * n]
+            key, qa = last_q.entry
+            if q != key:
+                qa = array(q)
+                last_q.entry = (q, qa)
+            key, va = last_v.entry
+            if v != key:
+                va = array(v)
+                last_v.entry = (v, va)
+            return listed(nle(model, data, qa, va))
     elif name == "gravity_forces":
         gravity = pin.computeGeneralizedGravity
 
-        def fn(x):
-            return picked(gravity(model, data, array(x)))
+        def values(x):
+            return listed(gravity(model, data, array(x)))
     elif name == "inertia_matrix":
         crba = pin.crba
         upper = np.triu_indices(n)
 
-        def fn(x):
+        def values(x):
             M = crba(model, data, array(x))
             M[upper[::-1]] = M[upper]                 # pinocchio fills the upper triangle: mirror it
-            return picked(M.ravel())
+            return listed(M.ravel())
     else:
         return None
-    fn.__name__ = callee.name
-    return fn
+    values.__name__ = callee.name
+    return values
+

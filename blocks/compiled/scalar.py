@@ -28,6 +28,7 @@ from collections.abc import Callable
 import numpy as np
 
 from .codegen import CompiledUnavailable, LoopProgram, program_for
+from .fold import fold_single_use
 from .rows import loop_rows_of
 
 __all__ = ["SCALAR_MATH", "scalar_rhs", "ScalarFunctions"]
@@ -77,6 +78,10 @@ def _called(fn):
     return call
 
 
+#: The generated functions a run calls at every step, folded for CPython (:mod:`blocks.compiled.fold`).
+_FOLDED = ("loop_sources", "loop_rhs", "loop_outputs")
+
+
 class ScalarFunctions:
     """The generated functions of one program, executed by Python (once per loop structure and process)."""
 
@@ -85,14 +90,16 @@ class ScalarFunctions:
     def __init__(self, program: LoopProgram) -> None:
         namespace = {"np": SCALAR_MATH, "__name__": "dobkit_scalar_loop"}
         namespace.update({name: _called(fn) for name, fn in program.kernels.items()})
-        exec(compile(program.source, "<dobkit generated loop>", "exec"), namespace)
         #: the chain row kernels the functions call as pinocchio's algorithms (by name in the module)
-        self.pinocchio_calls = []
-        for name, callee in program.callees.items():        # a chain row kernel: pinocchio's algorithm for it
-            fast = _bound_callee(callee)
-            if fast is not None:
-                namespace[name] = fast
-                self.pinocchio_calls.append(name)
+        bound = {name: fast for name, fast in ((name, _bound_callee(callee)) for name, callee in
+                                               program.callees.items()) if fast is not None}
+        self.pinocchio_calls = list(bound)
+        # the per-call functions (and the callees run as generated) with their single-use temporaries folded:
+        # the same floats, fewer statements
+        unbound = [name for name in program.callees if name not in bound]
+        source = fold_single_use(program.source, _FOLDED + tuple(unbound))
+        exec(compile(source, "<dobkit generated loop>", "exec"), namespace)
+        namespace.update(bound)
         self.sources, self.rhs = namespace["loop_sources"], namespace["loop_rhs"]
         self.outputs = namespace["loop_outputs"]
         self.program = program
