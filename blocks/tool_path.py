@@ -46,7 +46,8 @@ import numpy as np
 
 from .bound_kernels import Kernels
 from .kernels.noise import _sample_index
-from .trajectory import _finite, _scalar, laceration_pose, quintic_hermite, smoothstep5
+from .kernels.splines import quintic_hermite, smoothstep5
+from .trajectory import _finite, _scalar, laceration_pose
 
 __all__ = ["ToolPath", "ToolLaceration", "tool_path_output", "MAX_PATH_SAMPLES", "PROBE_SAMPLES", "EAGER_SECONDS"]
 

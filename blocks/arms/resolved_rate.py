@@ -52,7 +52,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..arm import ArmModel
-from ..trajectory import quintic_hermite
+from ..kernels.splines import quintic_hermite
 
 __all__ = ["ResolvedRate", "moving_joints", "integrate_path", "jacobian_rate", "LIMIT_MARGIN"]
 
@@ -87,7 +87,7 @@ def hermite5(h: float, s: float, y0, y1) -> tuple[np.ndarray, np.ndarray]:
     """Value and rate at ``s`` in [0, 1] of the quintic through ``y0 = (y, y', y'')`` and ``y1`` on ``h`` s.
 
     ``y0`` and ``y1`` are triples of arrays (the value, its rate per s and per s^2 at each end); the quintic is
-    the tool path's own (:func:`blocks.trajectory.quintic_hermite`).
+    the tool path's own (:func:`blocks.kernels.splines.quintic_hermite`).
     """
     (a0, b0, c0), (a1, b1, c1) = y0, y1
     value, rate, _ = quintic_hermite(s, h, a0, b0 * h, c0 * (h * h), a1, b1 * h, c1 * (h * h))
