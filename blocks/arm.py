@@ -32,7 +32,7 @@ with ``k = arm.kernel_params()`` and ``kin = arm.tool_params()``.  The
 methods of this class present the same numbers joint-last (``(..., n)``),
 the layout analysis code and users expect.
 
-The paper's RRPR (:class:`~blocks.parameters.RobotParameters`, Table 1,
+The paper's RRPR (:class:`~blocks.model.rrpr.parameters.RobotParameters`, Table 1,
 Eq. 5-8 in closed form) is the first model.
 """
 from __future__ import annotations
@@ -44,7 +44,12 @@ import numpy as np
 
 from .joints import JointSpace
 
-__all__ = ["ArmModel"]
+__all__ = ["ArmModel", "UnreachableError"]
+
+
+class UnreachableError(ValueError):
+    """A task-space point lies outside the arm's reachable workspace (or too near a singularity), or a reference
+    leaves a joint's range."""
 
 
 def _rows(x) -> np.ndarray:

@@ -61,10 +61,11 @@ import numpy as np
 from .arm import ArmModel
 from .bound_kernels import Kernels
 from .gains import OBSERVER_VARIANTS, validated_gain
-from .joints import RRPR_JOINTS, JointSpace
+from .joints import JointSpace
 from .kernels import observer_estimate, observer_rate
 from .kernels.bind import bound
 from .kernels.expm import expm_small
+from .model.rrpr.joints import RRPR_JOINTS
 
 __all__ = ["DigitalController", "DISCRETIZATIONS", "VELOCITY_SOURCES", "encoder", "digital_controller", "actuator",
            "digital_observer"]

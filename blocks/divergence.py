@@ -223,7 +223,7 @@ def _external_disturbance(kernels, tool_kernels):
     if kernels is None:
         return external_disturbance
     if tool_kernels is None:
-        from .kernels import kinematics as tool_kernels
+        from .model.rrpr import tool_kernels
     return bound(external_disturbance, (kernels, tool_kernels))
 
 

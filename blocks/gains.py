@@ -19,7 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .joints import RRPR_JOINTS, JointSpace
+from .joints import JointSpace
+from .model.rrpr.joints import RRPR_JOINTS
 from .validation import number_text, read_only_array
 
 __all__ = ["GainError", "GAIN_KEYS", "OBSERVER_VARIANTS", "validated_gain"]

@@ -1,19 +1,20 @@
 """The joints of an arm model: how many, their names, kinds and units.
 
 Everything that sizes a signal or labels a joint for a person reads it from
-here (through the arm's parameters, :attr:`RobotParameters.joints
-<blocks.parameters.RobotParameters.joints>`), so that the joint count is a
-property of the model rather than a number repeated in many modules.
+here (through the arm model, :attr:`ArmModel.joints <blocks.arm.ArmModel.joints>`),
+so that the joint count is a property of the model rather than a number
+repeated in many modules.
 
 Examples
 --------
->>> from blocks.joints import RRPR_JOINTS, signal_names
->>> RRPR_JOINTS.count
-4
->>> signal_names("tau")
-['tau[0]', 'tau[1]', 'tau[2]', 'tau[3]']
->>> RRPR_JOINTS.labels[2]
-'Joint 3 (d3)'
+>>> from blocks.joints import JointSpace, signal_names
+>>> slider = JointSpace(names=("q", "s"), kinds=("revolute", "prismatic"), limits=((-3.0, 3.0), (0.0, 0.5)))
+>>> slider.count
+2
+>>> signal_names("tau", slider)
+['tau[0]', 'tau[1]']
+>>> slider.labels[1]
+'Joint 2 (s)'
 """
 from __future__ import annotations
 
@@ -22,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["JointSpace", "RRPR_JOINTS", "D3_STROKE", "signal_names"]
+__all__ = ["JointSpace", "signal_names"]
 
 _UNITS = {
     # kind: (position, velocity, generalised force)
@@ -106,18 +107,6 @@ class JointSpace:
         return [f"{prefix}[{i}]" for i in range(self.count)]
 
 
-#: Stroke of the paper's prismatic joint d3 (m, positive downwards).  The paper gives no stroke; Table 1's
-#: d3 = 0.24 m is the stage's working extension (the tool at the skin), and the stroke is taken as 0 to twice that
-#: (docs/model.md, "Joint ranges").
-D3_STROKE = (0.0, 0.48)
-
-#: The paper's arm: ``[theta1 (rad), theta2 (rad), d3 (m, positive downwards), theta4 (rad)]``.  The revolute
-#: joints of a SCARA turn without end (the elbow's singularities are the path's concern); d3 has its stroke.
-RRPR_JOINTS = JointSpace(names=("theta1", "theta2", "d3", "theta4"),
-                         kinds=("revolute", "revolute", "prismatic", "revolute"),
-                         limits=((-math.inf, math.inf), (-math.inf, math.inf), D3_STROKE, (-math.inf, math.inf)))
-
-
-def signal_names(prefix: str, joints: JointSpace = RRPR_JOINTS) -> list[str]:
-    """The per-joint signal names ``prefix[i]`` of an arm (default: the paper's)."""
+def signal_names(prefix: str, joints: JointSpace) -> list[str]:
+    """The per-joint signal names ``prefix[i]`` of an arm's joints."""
     return joints.signal_names(prefix)

@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .joints import RRPR_JOINTS
-from .kernels import kinematics as _rrpr_tool
+from .model.rrpr import tool_kernels as _rrpr_tool
+from .model.rrpr.joints import RRPR_JOINTS
 
 __all__ = ["signal", "tracking_metrics", "rms", "TrackingAccumulator", "METRICS", "OBSERVER_METRICS", "JOINT_UNITS",
            "DISTURBANCE_UNITS", "JOINT_LABELS"]

@@ -16,8 +16,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .joints import RRPR_JOINTS, JointSpace
+from .joints import JointSpace
 from .kernels.noise import sampled_noise
+from .model.rrpr.joints import RRPR_JOINTS
 from .validation import read_only_array
 
 __all__ = ["MeasurementNoise"]

@@ -71,9 +71,10 @@ from .arm import ArmModel
 from .digital import DISCRETIZATIONS, VELOCITY_SOURCES, DigitalController
 from .disturbances import DISTURBANCE_KINDS, KIND_ALIASES, DisturbanceSpec
 from .gains import GAIN_KEYS, OBSERVER_VARIANTS, GainError, validated_gain
-from .joints import RRPR_JOINTS
+from .model.rrpr.joints import RRPR_JOINTS
+from .model.rrpr.laceration import LacerationPath
+from .model.rrpr.parameters import ParameterError, RobotParameters
 from .noise import MeasurementNoise
-from .parameters import ParameterError, RobotParameters
 from .scenario_arm import (
     ARM_KEYS,
     arm_name,
@@ -87,7 +88,7 @@ from .scenario_arm import (
     skin_height_default,
 )
 from .tool_path import LACERATION_KEYS, ToolLaceration, ToolPath
-from .trajectory import TRAJECTORY_KINDS, JointSine, LacerationPath, check_joint_ranges
+from .trajectory import TRAJECTORY_KINDS, JointSine, check_joint_ranges
 from .validation import number_text, read_only_array
 
 __all__ = ["Scenario", "ScenarioError", "SimulationSettings", "load_scenario", "builtin_scenarios",
@@ -227,7 +228,7 @@ class Scenario:
         The complete settings, defaults filled in; ``to_toml(data)`` writes a
         file that reproduces this run.
     robot, nominal : ArmModel
-        True plant and nominal model (:class:`~blocks.parameters.RobotParameters` for the paper's RRPR).
+        True plant and nominal model (:class:`~blocks.model.rrpr.parameters.RobotParameters` for the paper's RRPR).
     kp, kd : numpy.ndarray
         n x n diagonal controller gains (1/s^2, 1/s).
     observer_gain : numpy.ndarray

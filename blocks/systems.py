@@ -19,7 +19,7 @@ kernel block too when its path has kernels (the paths of
 Any arm
 -------
 The factories take any :class:`~blocks.arm.ArmModel` (the paper's
-:class:`~blocks.parameters.RobotParameters` by default where one is
+:class:`~blocks.model.rrpr.parameters.RobotParameters` by default where one is
 optional): signal names and sizes come from ``arm.joints``, the numbers from
 ``arm.kernel_params()``, and the block kernels are :func:`blocks.kernels.bind.bound`
 to the arm's row kernels (for the RRPR they are the functions below themselves).
@@ -42,8 +42,8 @@ from .kernels import (
 )
 from .kernels.bind import bound
 from .kernels.noise import sampled_noise
+from .model.rrpr.parameters import RobotParameters
 from .noise import MeasurementNoise
-from .parameters import RobotParameters
 
 __all__ = ["plant", "controller", "observer", "trajectory_block", "sensor", "signal_names", "OBSERVER_VARIANTS",
            "plant_update", "plant_output", "controller_output", "controller_output_with_estimate",
@@ -121,7 +121,7 @@ def plant(params: ArmModel, disturbance: DisturbanceSpec | None = None, name: st
     Parameters
     ----------
     params : ArmModel
-        The true arm (the paper's :class:`~blocks.parameters.RobotParameters` or any other model).
+        The true arm (the paper's :class:`~blocks.model.rrpr.parameters.RobotParameters` or any other model).
     disturbance : DisturbanceSpec, optional
         External disturbance models (default: the paper's Eq. 4, for the RRPR only; see
         :class:`~blocks.disturbances.DisturbanceSpec` for other arms).

@@ -23,8 +23,9 @@ from collections.abc import Callable, Mapping
 
 import numpy as np
 
-from .joints import RRPR_JOINTS, JointSpace
-from .parameters import RobotParameters
+from .joints import JointSpace
+from .model.rrpr.joints import RRPR_JOINTS
+from .model.rrpr.parameters import RobotParameters
 
 __all__ = ["joint_array", "joint_arrays", "robot_parameters", "real_array", "callable_or_none", "read_only_array",
            "number_text"]
@@ -131,7 +132,7 @@ def joint_arrays(names_values: Mapping[str, object], joints: JointSpace = RRPR_J
 
 
 def robot_parameters(value, name: str = "params") -> RobotParameters:
-    """``value`` when it is the arm's :class:`~blocks.parameters.RobotParameters`.
+    """``value`` when it is the arm's :class:`~blocks.model.rrpr.parameters.RobotParameters`.
 
     Raises
     ------

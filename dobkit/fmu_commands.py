@@ -371,7 +371,7 @@ def _cmd_check(args) -> int:
     _arm_flags_alone(args)
     arm = None
     if args.arm == "rrpr":
-        from blocks.parameters import RobotParameters
+        from blocks.model.rrpr.parameters import RobotParameters
         arm = RobotParameters()
     elif args.arm is not None:
         arm = _export_arm(args)

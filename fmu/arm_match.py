@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 
-from blocks.parameters import RobotParameters
+from blocks.model.rrpr.parameters import RobotParameters
 
 from .errors import FMUError
 

@@ -44,7 +44,7 @@ def arm_record(arm) -> str | None:
         For an arm model that is neither the paper's nor a chain arm (nothing to record it by).
     """
     from blocks.arms.chain_model import ChainArm
-    from blocks.parameters import RobotParameters
+    from blocks.model.rrpr.parameters import RobotParameters
 
     if isinstance(arm, RobotParameters):
         return None

@@ -124,7 +124,7 @@ def end_stops(arm, q0=None) -> list[EndStop]:
 
     Examples
     --------
-    >>> from blocks.parameters import RobotParameters
+    >>> from blocks.model.rrpr.parameters import RobotParameters
     >>> [(s.name, s.lower, s.upper, round(s.stiffness), round(s.damping)) for s in end_stops(RobotParameters())]
     [('d3', 0.0, 0.48, 10000, 100)]
     """

@@ -47,7 +47,7 @@ from importlib import resources
 from pathlib import Path
 
 from blocks.disturbances import DisturbanceSpec
-from blocks.parameters import RobotParameters
+from blocks.model.rrpr.parameters import RobotParameters
 
 from .arm_record import ARM_RECORD, arm_record
 from .build import instantiation_token, platform_folder, rebuild_command, shared_layer_files

@@ -40,7 +40,7 @@ from blocks.contract import Kernels, contract_of
 from blocks.disturbances import DISTURBANCE_KINDS, RRPR_ONLY_KINDS, DisturbanceSpec
 from blocks.kernels.bind import bound
 from blocks.kernels.disturbance import DisturbanceParams, external_disturbance
-from blocks.parameters import RobotParameters
+from blocks.model.rrpr.parameters import RobotParameters
 from blocks.systems import plant as plant_block
 
 __all__ = ["GeneratedPlant", "plant_c", "plant_kernels", "arm_disturbance", "GENERATED_HEADER"]

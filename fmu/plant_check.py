@@ -43,8 +43,8 @@ from blocks.budget import Budget
 from blocks.control_compat import fast_dynamics, fast_output
 from blocks.disturbances import DISTURBANCE_KINDS, DisturbanceSpec
 from blocks.kernels.disturbance import DisturbanceParams, external_disturbance
+from blocks.model.rrpr.parameters import RobotParameters
 from blocks.monitor import Monitor
-from blocks.parameters import RobotParameters
 from blocks.systems import plant as python_plant
 
 from .arm_match import arm_name, check_arm_matches, check_scenario_arm

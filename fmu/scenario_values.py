@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 import warnings
 
-from blocks.joints import RRPR_JOINTS
+from blocks.model.rrpr.joints import RRPR_JOINTS
 from blocks.scenario import Scenario
 
 from .variables import plant_parameter_values

@@ -26,8 +26,8 @@ import math
 from dataclasses import dataclass
 
 from blocks.disturbances import DisturbanceSpec
-from blocks.joints import RRPR_JOINTS
-from blocks.parameters import RobotParameters
+from blocks.model.rrpr.joints import RRPR_JOINTS
+from blocks.model.rrpr.parameters import RobotParameters
 
 __all__ = ["Variable", "UNITS", "plant_variables", "plant_parameter_values", "config_header", "JOINT_UNITS"]
 

@@ -23,8 +23,8 @@ from blocks.compiled import numba_or_none  # noqa: E402
 from blocks.digital import DigitalController, actuator, digital_controller, digital_observer, encoder  # noqa: E402
 from blocks.digital_loop import simulate_sampled  # noqa: E402
 from blocks.digital_stability import scenario_stability  # noqa: E402
+from blocks.model.rrpr.parameters import PAPER_PARAMETERS  # noqa: E402
 from blocks.noise import MeasurementNoise  # noqa: E402
-from blocks.parameters import PAPER_PARAMETERS  # noqa: E402
 from blocks.scenario import ScenarioError, load_scenario  # noqa: E402
 
 pytestmark = pytest.mark.slow

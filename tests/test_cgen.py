@@ -17,8 +17,8 @@ from blocks.compiled.c_backend import C_FLAGS, CodegenError, emit_c_function, sy
 from blocks.compiled.trace import Graph, param_values
 from blocks.contract import contract_of
 from blocks.disturbances import DisturbanceSpec
+from blocks.model.rrpr.parameters import RobotParameters
 from blocks.noise import MeasurementNoise
-from blocks.parameters import RobotParameters
 from blocks.systems import controller, observer, plant, sensor
 from fmu.build import find_compiler
 

@@ -25,7 +25,8 @@ from analysis.report.view.simulation import simulation_section, worse_with_obser
 from analysis.simulation import figures
 from analysis.simulation.experiment import format_rms_table
 from blocks.arm import ArmModel
-from blocks.joints import RRPR_JOINTS, JointSpace
+from blocks.joints import JointSpace
+from blocks.model.rrpr.joints import RRPR_JOINTS
 
 # ----------------------------------------------------------------------------------------------------------------
 # A small arm model of any joint count

@@ -52,7 +52,8 @@ def _reading(joints, at):
 
 
 def test_the_frequency_reading_speaks_of_the_arms_own_prismatic_joint():
-    from blocks.joints import RRPR_JOINTS, JointSpace
+    from blocks.joints import JointSpace
+    from blocks.model.rrpr.joints import RRPR_JOINTS
     # the paper's words, as before: its joint 3 (d3) sets the depth
     assert _reading(RRPR_JOINTS, 2).startswith("A constant force of 1 N on the prismatic joint leaves 2 mm of depth "
                                                "error without the observer and none with it. ")

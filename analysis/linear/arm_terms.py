@@ -16,7 +16,8 @@ import numpy as np
 
 from blocks.arm import ArmModel
 from blocks.arm_derivatives import FD_STEP, acceleration_jacobians, gravity_slopes, inertia_partials
-from blocks.joints import RRPR_JOINTS, JointSpace
+from blocks.joints import JointSpace
+from blocks.model.rrpr.joints import RRPR_JOINTS
 
 __all__ = ["FD_STEP", "RRPR_RANGES", "RRPR_POINTS", "arm_model", "joint_vector", "joint_matrix", "workspace_ranges",
            "default_points", "inertia_partials", "acceleration_jacobians", "gravity_slopes"]
@@ -34,7 +35,7 @@ _GRID_BUDGET = 20000
 def arm_model(model, name: str = "arm") -> ArmModel:
     """``model`` checked to be an arm model (:class:`blocks.arm.ArmModel`)."""
     if not isinstance(model, ArmModel):
-        raise TypeError(f"{name} must be a blocks.arm.ArmModel (for example blocks.parameters.RobotParameters), "
+        raise TypeError(f"{name} must be a blocks.arm.ArmModel (for example blocks.model.rrpr.parameters.RobotParameters), "
                         f"got {type(model).__name__}")
     return model
 

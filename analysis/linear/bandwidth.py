@@ -22,7 +22,7 @@ import numpy as np
 from analysis.linear.arm_terms import RRPR_POINTS, RRPR_RANGES, arm_model, default_points, joint_vector, workspace_ranges
 from analysis.results import JsonResult, omitted_if_none
 from blocks.arm import ArmModel
-from blocks.joints import RRPR_JOINTS
+from blocks.model.rrpr.joints import RRPR_JOINTS
 from blocks.scenario import Scenario
 
 __all__ = ["DEFAULT_RANGES", "SlowestMode", "FastestMode", "SurveyGrid", "PathModes", "BandwidthOverview",
@@ -80,7 +80,7 @@ def observer_modes(params: ArmModel, Y, q) -> tuple[np.ndarray, np.ndarray]:
     ----------
     params : ArmModel
         The model the observer uses (the nominal one), for example the paper's
-        :class:`~blocks.parameters.RobotParameters`.
+        :class:`~blocks.model.rrpr.parameters.RobotParameters`.
     Y : array_like, shape (n, n)
         Observer gain.
     q : array_like, shape (..., n)

@@ -44,9 +44,9 @@ from analysis.results import JsonResult
 from blocks.digital import DigitalController
 from blocks.digital_loop import sampled_initial_state, sampled_loop, simulate_sampled
 from blocks.digital_stability import sampled_stability
-from blocks.joints import RRPR_JOINTS
 from blocks.loop import closed_loop
 from blocks.metrics import signal
+from blocks.model.rrpr.joints import RRPR_JOINTS
 from blocks.scenario import Scenario
 
 __all__ = ["SampledMode", "SampledPoles", "GainLimitCurve", "GainLimitStudy", "QuantizationNoise",

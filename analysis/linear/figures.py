@@ -25,7 +25,8 @@ from analysis.linear.gain_design import SimulationCheck  # noqa: E402
 from analysis.linear.loop import MismatchStudy, OperatingPoint  # noqa: E402
 from analysis.simulation.figures import joint_grid_shape, save_figure  # noqa: E402
 from analysis.simulation.studies import GainGridStudy, ObserverGainStudy, settling_definition  # noqa: E402
-from blocks.joints import RRPR_JOINTS, JointSpace  # noqa: E402
+from blocks.joints import JointSpace  # noqa: E402
+from blocks.model.rrpr.joints import RRPR_JOINTS
 
 __all__ = ["pole_figure", "mismatch_figure", "bandwidth_figure", "design_figure", "bode_figure",
            "gain_study_figure", "gain_study_axes", "observer_study_figure", "ZERO_SHARE", "design_axes"]

@@ -21,7 +21,7 @@ Certificate
     function of it and its minimum over a box ``|q_j'| <= v_j`` is attained at a
     vertex: checking the ``2^n`` vertices at each configuration of a grid is exact
     for that grid.  For the paper's arm ``dM/dtheta2`` is the analytic
-    :func:`blocks.dynamics.inertia_derivative_theta2` and the other partials
+    :func:`blocks.model.rrpr.dynamics.inertia_derivative_theta2` and the other partials
     (exactly zero) central differences; any other :class:`~blocks.arm.ArmModel`
     gives its partials through :func:`analysis.linear.arm_terms.inertia_partials`
     (exact from the model, or central differences).
@@ -40,8 +40,8 @@ from analysis.linear import arm_terms
 from analysis.linear.bandwidth import BandwidthOverview, observer_modes
 from analysis.results import JsonResult
 from blocks.arm import ArmModel
-from blocks.dynamics import inertia_derivative_theta2
-from blocks.parameters import RobotParameters
+from blocks.model.rrpr.dynamics import inertia_derivative_theta2
+from blocks.model.rrpr.parameters import RobotParameters
 
 __all__ = ["GainDesign", "Certificate", "CriticalSpeed", "SimulationCheck", "ObserverDesign", "design_observer_gain",
            "inertia_partials", "decay_rates", "convergence_certificate", "critical_speed", "lyapunov_function",
@@ -302,7 +302,7 @@ def inertia_partials(params: ArmModel, q) -> np.ndarray:
     """``dM/dq_j`` at each configuration, shape (..., n, n, n) (last-but-two axis: j).
 
     For the paper's arm ``j = 1`` (theta2) is the analytic derivative
-    :func:`~blocks.dynamics.inertia_derivative_theta2` and the other joints
+    :func:`~blocks.model.rrpr.dynamics.inertia_derivative_theta2` and the other joints
     use central differences (exactly zero: its inertia depends on theta2
     only, but that is not assumed).  Any other model: :func:`analysis.linear.arm_terms.inertia_partials`.
     """

@@ -56,9 +56,10 @@ from analysis.simulation.studies import Studies, gain_grid_study, observer_gain_
 from blocks import __version__, load_scenario
 from blocks.control_compat import PythonControlChanged
 from blocks.gains import validated_gain
-from blocks.joints import RRPR_JOINTS, JointSpace
+from blocks.joints import JointSpace
+from blocks.model.rrpr.joints import RRPR_JOINTS
+from blocks.model.rrpr.parameters import RobotParameters
 from blocks.outputs import metrics_json, staged_output
-from blocks.parameters import RobotParameters
 from blocks.progress import ProgressCallback as Progress
 from blocks.scenario import Scenario, scenario_from_dict
 

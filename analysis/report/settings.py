@@ -155,7 +155,7 @@ def observer_study_gains(scenario) -> str:
     :data:`OBSERVER_STUDY_GAINS`): ``Y = v I`` on the paper's RRPR in closed form
     (:func:`analysis.report.build.observer_gains`), ``Y = v M^(q0)`` with ``v`` in rad/s on any other arm
     (:func:`analysis.report.build.bandwidth_gains`), the rule :func:`analysis.report.build.run_analysis` follows."""
-    from blocks.parameters import RobotParameters
+    from blocks.model.rrpr.parameters import RobotParameters
     paper = isinstance(scenario.robot, RobotParameters) and isinstance(scenario.nominal, RobotParameters)
     return OBSERVER_STUDY_GAINS[paper]
 

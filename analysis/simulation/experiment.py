@@ -21,8 +21,9 @@ from pathlib import Path
 import numpy as np
 
 from blocks import Scenario, __version__, load_scenario, simulate
-from blocks.joints import RRPR_JOINTS, JointSpace
+from blocks.joints import JointSpace
 from blocks.metrics import tracking_metrics
+from blocks.model.rrpr.joints import RRPR_JOINTS
 from blocks.outputs import default_out_dir, metrics_json, staged_output
 
 __all__ = ["ExperimentResult", "run_experiment", "comparison_metrics", "format_rms_table", "default_out_dir",

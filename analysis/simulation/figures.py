@@ -33,7 +33,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.ticker import ScalarFormatter  # noqa: E402
 
-from blocks.joints import RRPR_JOINTS, JointSpace  # noqa: E402
+from blocks.joints import JointSpace  # noqa: E402
+from blocks.model.rrpr.joints import RRPR_JOINTS
 
 __all__ = ["paper_figures", "sampling_words", "save_figure", "convergence_figure", "JOINT_TITLES", "joint_title",
            "REFERENCE_STYLE", "has_tissue_model", "FIGURE_FORMATS", "joint_grid_shape", "run_joints",

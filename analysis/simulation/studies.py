@@ -44,8 +44,9 @@ import numpy as np
 from analysis.linear.loop import equilibrium, hold_scenario
 from analysis.results import JsonResult, omitted_if_none
 from blocks import SimulationError, closed_loop, simulate
-from blocks.joints import RRPR_JOINTS, JointSpace
+from blocks.joints import JointSpace
 from blocks.metrics import signal
+from blocks.model.rrpr.joints import RRPR_JOINTS
 from blocks.scenario import Scenario, ScenarioError
 from blocks.workers import worker_pool
 

@@ -59,9 +59,10 @@ from analysis.results import JsonResult, omitted_if_none, plain
 from analysis.sweep.runner import ResultsFile, read_header
 from analysis.sweep.sensitivity import from_runs
 from analysis.sweep.spec import HEADER_PARTS, SweepError, SweepSpec, json_default
-from blocks.joints import RRPR_JOINTS, JointSpace
+from blocks.joints import JointSpace
+from blocks.model.rrpr.joints import RRPR_JOINTS
+from blocks.model.rrpr.parameters import RobotParameters
 from blocks.outputs import interrupts_held
-from blocks.parameters import RobotParameters
 
 __all__ = ["RunCounts", "ColumnStatistics", "WorstRun", "DivergedRun", "SweepFigure", "SweepSummary", "summarize",
            "write_summary", "html_section", "column_unit", "key_unit", "metric_name", "column_label", "key_name",

@@ -34,7 +34,7 @@ from analysis.jobs.figures import new_figure, save_figure
 from analysis.report.html import template_environment
 from analysis.tune.results import read_result
 from analysis.tune.spec import METRIC_WORDS, overshoots
-from blocks.joints import RRPR_JOINTS
+from blocks.model.rrpr.joints import RRPR_JOINTS
 
 __all__ = ["write_figures", "html_section", "read_result", "evaluation_counts", "evaluations_text", "FIGURES"]
 

@@ -13,7 +13,7 @@ from pathlib import Path
 from analysis.jobs.figures import JobFigure
 from analysis.results import JsonResult, omitted_if_none
 from analysis.tune.spec import TuneError
-from blocks.joints import RRPR_JOINTS
+from blocks.model.rrpr.joints import RRPR_JOINTS
 
 __all__ = ["RESULT_NAME", "PointResult", "TuneHistory", "TuneFigure", "ConstraintCost", "TuneResult", "read_result",
            "objective_text", "numbers_text", "excess_text"]

@@ -85,7 +85,7 @@ from analysis.tune.results import (
 from analysis.tune.spec import HEADER_PARTS, METRIC_WORDS, TuneError, TuneSpec, damping_for_overshoot, load_tuning
 from blocks.batch import simulate_batch
 from blocks.budget import Budget
-from blocks.joints import RRPR_JOINTS
+from blocks.model.rrpr.joints import RRPR_JOINTS
 from blocks.outputs import interrupts_held
 from blocks.progress import ProgressCallback, StageProgress
 

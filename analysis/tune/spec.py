@@ -115,7 +115,7 @@ from analysis.simulation.studies import default_noise
 from analysis.sweep.spec import SweepError, check_name, json_default, split_changes, sweep_from_dict
 from blocks.batch import BATCH_KEYS
 from blocks.budget import Budget
-from blocks.joints import RRPR_JOINTS
+from blocks.model.rrpr.joints import RRPR_JOINTS
 from blocks.scenario import Scenario, ScenarioError, load_scenario, parse_key
 
 __all__ = ["TuneError", "Parameter", "Limits", "TuneSpec", "load_tuning", "tuning_from_dict", "builtin_tunings",

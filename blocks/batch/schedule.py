@@ -90,7 +90,7 @@ def _inertia_configurations(variants: Variants) -> np.ndarray:
 
 def _inertia_of_each(q: np.ndarray, arms: list) -> np.ndarray:
     """``M(q)`` of every arm at the configurations ``q`` (m, n): (len(arms), m, n, n), the numbers of
-    :func:`blocks.dynamics.inertia`, computed once per distinct arm (members often share one) and for all at once."""
+    :func:`blocks.model.rrpr.dynamics.inertia`, computed once per distinct arm (members often share one) and for all at once."""
     unique: dict[int, object] = {}
     for arm in arms:
         unique.setdefault(id(arm), arm)

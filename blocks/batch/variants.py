@@ -31,8 +31,8 @@ import numpy as np
 
 from ..disturbances import DisturbanceSpec
 from ..gains import GainError, validated_gain
+from ..model.rrpr.parameters import _UNITS, ParameterError, RobotParameters
 from ..noise import MeasurementNoise
-from ..parameters import _UNITS, ParameterError, RobotParameters
 from ..scenario import Scenario, ScenarioError, check_value, load_scenario, parse_key
 from ..scenario_arm import is_rrpr, observer_gain_from_bandwidth
 
@@ -404,7 +404,7 @@ def nominal_values(base: Scenario, scales: dict) -> dict[str, np.ndarray]:
 def _nominal_positive_definite(base: Scenario, scales: dict) -> bool:
     """Whether every member's nominal arm -- the base's nominal scales with the member's ``scales`` (N,) --
     has positive, finite parameters and an inertia matrix positive definite for every joint angle, the checks of
-    :class:`~blocks.parameters.RobotParameters` over all members at once."""
+    :class:`~blocks.model.rrpr.parameters.RobotParameters` over all members at once."""
     values = nominal_values(base, scales)
     for name, v in values.items():
         if not np.all(np.isfinite(v)) or (_UNITS[name][1] and not np.all(v > 0)):

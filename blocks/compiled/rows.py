@@ -40,7 +40,7 @@ import numpy as np
 
 from ..kernels import lumped_disturbance
 from ..kernels.bind import bound, closed_form
-from ..kernels.kinematics import tool_position
+from ..model.rrpr.tool_kernels import tool_position
 
 __all__ = ["RowGroup", "LOOP_ROWS", "TOOL_AUX", "loop_rows", "loop_rows_of"]
 

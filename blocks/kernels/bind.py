@@ -5,8 +5,8 @@ and the compiled engine's row groups (:mod:`blocks.compiled.rows`) are written
 once, against the names of the model's row kernels (``mass_times``,
 ``mass_solve``, ``bias_forces``, ``plant_acceleration``, ...; and
 ``tool_position``, ... for the tool point).  In their own modules those names
-are the paper's RRPR kernels (:mod:`blocks.kernels.arm`,
-:mod:`blocks.kernels.kinematics`).
+are the paper's RRPR kernels (:mod:`blocks.model.rrpr.dynamics_kernels`,
+:mod:`blocks.model.rrpr.tool_kernels`).
 
 :func:`bound` gives, for another arm, a copy of such a function (same code
 object) whose globals are those of its module with the model names pointing
@@ -27,8 +27,8 @@ from __future__ import annotations
 import sys
 import types
 
-from . import arm as _rrpr
-from . import kinematics as _rrpr_tool
+from ..model.rrpr import dynamics_kernels as _rrpr
+from ..model.rrpr import tool_kernels as _rrpr_tool
 
 __all__ = ["MODEL_NAMES", "TOOL_NAMES", "bound", "closed_form", "is_rrpr_kernels"]
 

@@ -19,7 +19,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .kinematics import tool_jacobian, tool_position
+from ..model.rrpr.tool_kernels import tool_jacobian, tool_position
 
 __all__ = ["DisturbanceParams", "disturbance_params", "paper_disturbance", "friction_disturbance",
            "tissue_disturbance", "external_disturbance"]

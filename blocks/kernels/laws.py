@@ -20,7 +20,7 @@ kernels; :func:`blocks.kernels.bind.bound` gives copies for any other arm.
 """
 from __future__ import annotations
 
-from .arm import bias_forces, mass_solve, mass_times, plant_acceleration
+from ..model.rrpr.dynamics_kernels import bias_forces, mass_solve, mass_times, plant_acceleration
 
 __all__ = ["gain_times", "computed_torque", "observer_estimate", "observer_rate", "lumped_disturbance"]
 
@@ -43,7 +43,7 @@ def computed_torque(k, kp, kd, q, dq, q_ref, dq_ref, ddq_ref, d_hat):
     Parameters
     ----------
     k : numpy.ndarray
-        Nominal arm constants (see :func:`~blocks.kernels.arm.arm_constants`).
+        Nominal arm constants (see :func:`~blocks.model.rrpr.dynamics_kernels.arm_constants`).
     kp, kd : numpy.ndarray
         Diagonals of the proportional (1/s^2) and derivative (1/s) gains.
     q, dq : numpy.ndarray

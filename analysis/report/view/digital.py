@@ -5,7 +5,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from blocks.joints import RRPR_JOINTS, JointSpace
+from blocks.joints import JointSpace
+from blocks.model.rrpr.joints import RRPR_JOINTS
 
 from .text import Figure, Table, figures, fmt, mixed_units, pole, units_list
 

@@ -3,7 +3,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from blocks.joints import RRPR_JOINTS, JointSpace
+from blocks.joints import JointSpace
+from blocks.model.rrpr.joints import RRPR_JOINTS
 
 from .text import ZERO_REL, Figure, Table, and_words, arm_joints, figures, fmt, join, split_caveats
 

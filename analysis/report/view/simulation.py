@@ -15,7 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from analysis.simulation.figures import has_tissue_model
-from blocks.joints import RRPR_JOINTS, JointSpace
+from blocks.joints import JointSpace
+from blocks.model.rrpr.joints import RRPR_JOINTS
 
 from .text import Figure, Table, column, figures, fmt, is_paper_arm
 from .text import value as _value

@@ -17,11 +17,11 @@ from typing import ClassVar
 
 import numpy as np
 
-from . import kernels as _kernels
-from .arm import ArmModel
-from .joints import RRPR_JOINTS, JointSpace
-from .kernels import arm as _arm_kernels
-from .kernels import kinematics as _tool_kernels
+from ...arm import ArmModel
+from ...joints import JointSpace
+from . import dynamics_kernels as _arm_kernels
+from . import tool_kernels as _tool_kernels
+from .joints import RRPR_JOINTS
 
 __all__ = ["RobotParameters", "InertiaConstants", "PAPER_PARAMETERS", "ParameterError"]
 
@@ -160,12 +160,12 @@ class RobotParameters(ArmModel):
         return dataclasses.replace(self, **{k: getattr(self, k) * v for k, v in scales.items()})
 
     def kernel_params(self) -> np.ndarray:
-        """``k = [k1, k2, k3, k4, k5, g]`` for the closed-form row kernels of :mod:`blocks.kernels.arm`."""
-        return _kernels.arm_constants(self)
+        """``k = [k1, k2, k3, k4, k5, g]`` for the closed-form row kernels of :mod:`blocks.model.rrpr.dynamics_kernels`."""
+        return _arm_kernels.arm_constants(self)
 
     def tool_params(self) -> np.ndarray:
-        """``kin = [a1, a2, d1, d4]`` (m) for the tool row kernels of :mod:`blocks.kernels.kinematics`."""
-        return _kernels.kinematic_lengths(self)
+        """``kin = [a1, a2, d1, d4]`` (m) for the tool row kernels of :mod:`blocks.model.rrpr.tool_kernels`."""
+        return _tool_kernels.kinematic_lengths(self)
 
     def as_dict(self) -> dict[str, float]:
         """Parameters as a plain dictionary (name -> SI value)."""
