@@ -19,7 +19,7 @@ Examples
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -45,11 +45,19 @@ class JointSpace:
     limits : tuple of (low, high) pairs, optional
         The range each joint can reach, in its position unit (rad, m);
         ``(-inf, inf)`` for a joint that turns without end.  Default: no limits.
+    survey_ranges : tuple of (low, high) pairs, optional
+        Where the analyses sample each joint, where the arm's source fixed it (the paper's survey); default: from
+        the limits (:func:`analysis.linear.arm_terms.workspace_ranges`).  Not part of the joints' identity.
+    survey_points : tuple of int, optional
+        Points per joint of the analyses' default grid, where the arm's source fixed them; not part of the
+        joints' identity.
     """
 
     names: tuple[str, ...]
     kinds: tuple[str, ...]
     limits: tuple[tuple[float, float], ...] | None = None
+    survey_ranges: tuple[tuple[float, float], ...] | None = field(default=None, compare=False, repr=False)
+    survey_points: tuple[int, ...] | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if len(self.names) != len(self.kinds) or not self.names:

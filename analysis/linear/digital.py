@@ -46,7 +46,6 @@ from blocks.digital_loop import sampled_initial_state, sampled_loop, simulate_sa
 from blocks.digital_stability import sampled_stability
 from blocks.loop import closed_loop
 from blocks.metrics import signal
-from blocks.model.rrpr.joints import RRPR_JOINTS
 from blocks.scenario import Scenario
 
 __all__ = ["SampledMode", "SampledPoles", "GainLimitCurve", "GainLimitStudy", "QuantizationNoise",
@@ -373,8 +372,8 @@ _MOVED = 1
 def _moved_values(scenario: Scenario) -> tuple[float, ...]:
     """Values of joint ``_MOVED`` at which the gain-limit study holds the arm by default (rad or m)."""
     joints = scenario.nominal.joints
-    if joints == RRPR_JOINTS:
-        return (0.3, 1.57, 2.8)
+    if scenario.nominal.held_values is not None:
+        return scenario.nominal.held_values
     lo, hi = workspace_ranges(joints)[min(_MOVED, joints.count - 1)]
     return tuple(lo + f * (hi - lo) for f in (0.1, 0.5, 0.9))
 

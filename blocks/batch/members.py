@@ -42,7 +42,8 @@ def member_scenario(v, i: int, noisy: bool = False):
         settings = v.base.data["noise"]
         n = v.base.robot.joints.count
         zero = MeasurementNoise(q_std=(0.0,) * n, dq_std=(0.0,) * n, seed=int(settings["seed"]),
-                                sample_period=float(settings["sample_period"]), t_final=v.base.simulation.t_final)
+                                sample_period=float(settings["sample_period"]), t_final=v.base.simulation.t_final,
+                                joints=v.base.robot.joints)
         # zero samples at the batch's sample instants (a disabled noise keeps none): the members' tables align
         shape = next(nz.table.shape for nz in v.noises if nz is not None)
         object.__setattr__(zero, "_samples", np.zeros(shape))

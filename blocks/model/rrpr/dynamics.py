@@ -19,9 +19,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...validation import arm_model, joint_array, joint_arrays, robot_parameters
+from ...validation import arm_model, joint_array, joint_arrays
 from .dynamics_kernels import arm_constants, coriolis_forces
-from .parameters import RobotParameters
+from .parameters import RobotParameters, robot_parameters
 
 __all__ = [
     "inertia", "inertia_derivative_theta2", "coriolis_vector", "coriolis_matrix", "gravity",

@@ -20,8 +20,8 @@ from __future__ import annotations
 import numpy as np
 
 from ...arm import UnreachableError
-from ...validation import joint_array, joint_arrays, real_array, robot_parameters
-from .parameters import RobotParameters
+from ...validation import joint_array, joint_arrays, real_array
+from .parameters import RobotParameters, robot_parameters
 from .tool_kernels import jacobian_entries, kinematic_lengths, tool_pose
 
 __all__ = [
