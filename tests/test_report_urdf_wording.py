@@ -55,8 +55,9 @@ def test_the_frequency_reading_speaks_of_the_arms_own_prismatic_joint():
     from blocks.joints import JointSpace
     from blocks.model.rrpr.joints import RRPR_JOINTS
     # the paper's words, as before: its joint 3 (d3) sets the depth
-    assert _reading(RRPR_JOINTS, 2, paper=True).startswith("A constant force of 1 N on the prismatic joint leaves 2 mm of depth "
-                                               "error without the observer and none with it. ")
+    assert _reading(RRPR_JOINTS, 2, paper=True).startswith(
+        "A constant force of 1 N on the prismatic joint leaves 2 mm of depth error without the observer and none "
+        "with it. ")
     # an arm whose prismatic joint is its first: that joint's numbers, under its name
     slider = JointSpace(names=("slide", "yaw", "pitch"), kinds=("prismatic", "revolute", "revolute"))
     assert _reading(slider, 0).startswith("A constant force of 1 N on the prismatic joint Joint 1 (slide) leaves 2 mm "
