@@ -28,20 +28,23 @@ _WHERE = {
     "contract": ("Block", "BlockContract", "ContractError", "contract_of", "kernel_block"),
     "bound_kernels": ("Kernels",),
     "disturbances": ("DisturbanceSpec", "external_disturbance"),
-    "dynamics": ("coriolis_matrix", "coriolis_vector", "forward_dynamics", "gravity", "inertia", "inverse_dynamics",
+    "model.rrpr.dynamics": ("coriolis_matrix", "coriolis_vector", "forward_dynamics", "gravity", "inertia", "inverse_dynamics",
                  "kinetic_energy"),
     "gains": ("GainError", "validated_gain"),
-    "joints": ("RRPR_JOINTS", "JointSpace"),
-    "kinematics": ("UnreachableError", "forward_kinematics", "inverse_kinematics", "jacobian"),
+    "arm": ("ArmModel", "UnreachableError"),
+    "joints": ("JointSpace",),
+    "model.rrpr.joints": ("RRPR_JOINTS",),
+    "model.rrpr.kinematics": ("forward_kinematics", "inverse_kinematics", "jacobian"),
+    "model.rrpr.laceration": ("LacerationPath",),
     "loop": ("SimulationError", "build_blocks", "closed_loop", "initial_state", "lumped_disturbance", "simulate"),
     "noise": ("MeasurementNoise",),
-    "parameters": ("PAPER_PARAMETERS", "ParameterError", "RobotParameters"),
+    "model.rrpr.parameters": ("PAPER_PARAMETERS", "ParameterError", "RobotParameters"),
     "plan": ("AlgebraicLoopError",),
     "scenario": ("Scenario", "ScenarioError", "builtin_scenarios", "load_scenario", "scenario_from_dict"),
     "simulator": ("simulate_system",),
     "context": ("Context",),
     "systems": ("controller", "observer", "plant", "sensor", "trajectory_block"),
-    "trajectory": ("JointSine", "LacerationPath"),
+    "trajectory": ("JointSine",),
 }
 __getattr__, __dir__ = lazy_exports(__name__, _WHERE, globals())
 
@@ -56,7 +59,7 @@ __all__ = [
     "plant", "controller", "observer", "trajectory_block", "sensor", "Block", "BlockContract", "Kernels",
     "ContractError", "contract_of", "kernel_block", "GainError", "validated_gain",
     # the arm
-    "RobotParameters", "PAPER_PARAMETERS", "ParameterError", "JointSpace", "RRPR_JOINTS", "inertia",
+    "ArmModel", "RobotParameters", "PAPER_PARAMETERS", "ParameterError", "JointSpace", "RRPR_JOINTS", "inertia",
     "coriolis_vector", "coriolis_matrix", "gravity", "forward_dynamics", "inverse_dynamics", "kinetic_energy",
     "forward_kinematics", "inverse_kinematics", "jacobian", "UnreachableError",
     # disturbances, noise, paths

@@ -33,19 +33,32 @@ take both as one value, ``arm.arm_kernels``.  The
 methods of this class present the same numbers joint-last (``(..., n)``),
 the layout analysis code and users expect.
 
-The paper's RRPR (:class:`~blocks.parameters.RobotParameters`, Table 1,
-Eq. 5-8 in closed form) is the first model.
+What the layers above ask of an arm beyond its maths is asked here too, never by testing which arm it is:
+its name and one-line description, the pose it rests in, its named physical parameters (what a scenario's
+``[robot]`` section, a sweep or an FMU may set), whether its kernel constants stack per batch member, whether
+its gravity is the same in every configuration, whether it is the arm a publication's numbers are for (so that
+reports compare with them), and its own closed-form laceration path, if it has one.
+
+The paper's RRPR (:mod:`blocks.model.rrpr`, Table 1, Eq. 5-8 in closed form) is the first model; a URDF chain
+(:mod:`blocks.arms`) another.
 """
 from __future__ import annotations
 
 import abc
+import math
 import types
+from typing import ClassVar
 
 import numpy as np
 
 from .joints import JointSpace
 
-__all__ = ["ArmModel"]
+__all__ = ["ArmModel", "UnreachableError"]
+
+
+class UnreachableError(ValueError):
+    """A task-space point lies outside the arm's reachable workspace (or too near a singularity), or a reference
+    leaves a joint's range."""
 
 
 def _rows(x) -> np.ndarray:
@@ -70,6 +83,17 @@ class ArmModel(abc.ABC):
     kernels: types.ModuleType
     #: Module of the tool-point row kernels.
     tool_kernels: types.ModuleType
+    #: The publication whose arm this is, for reports that compare with its numbers; None for any other arm.
+    paper: ClassVar[str | None] = None
+    #: Whether ``k = kernel_params()`` is one flat float vector that a batch stacks per member (a closed form).
+    stacks_constants: ClassVar[bool] = False
+    #: Whether ``G(q)`` is the same in every configuration (then ``dG/dq = 0`` and the sampled maps lose a term).
+    constant_gravity: ClassVar[bool] = False
+    #: The joints ``M(q)`` depends on, where the model knows them in closed form (None: not known).
+    inertia_depends_on: ClassVar[tuple[int, ...] | None] = None
+    #: Values of the second joint at which the sampled loop's gain-limit study holds the arm, where the arm's
+    #: source chose them (None: within the joint's survey range).
+    held_values: ClassVar[tuple[float, ...] | None] = None
 
     @abc.abstractmethod
     def kernel_params(self):
@@ -90,6 +114,87 @@ class ArmModel(abc.ABC):
     def n(self) -> int:
         """Number of joints."""
         return self.joints.count
+
+    # -- what the layers above ask of an arm ------------------------------------------------------------
+    @property
+    def name(self) -> str:
+        """How messages and output files name the arm (a model may set its own)."""
+        return type(self).__name__
+
+    def description(self) -> str:
+        """One line for reports and exported models: joint count, names and the tool point."""
+        tool = getattr(self, "tool_frame", None)
+        return f"{self.n}-joint arm ({', '.join(self.joints.names)}" + (f"; tool {tool})" if tool else ")")
+
+    def in_words(self) -> str:
+        """How a sentence names the arm: ``the 6-joint arm ['shoulder_pan', ...] from <file>``."""
+        source = getattr(self, "source", None)
+        return f"the {self.n}-joint arm {list(self.joints.names)}" + (f" from {source}" if source else "")
+
+    def closed_form_inertia_partials(self, q):
+        """``dM/dq_j`` (shape (..., n, n, n), last-but-two axis j) where the model has them in closed form; None
+        when it has not (the analyses then differentiate ``M`` numerically)."""
+        return None
+
+    def rest_pose(self) -> list[float]:
+        """A pose to start in when none is given (rad, m): each joint at 0, or at the middle of its range when the
+        range excludes 0 (a range open on one side: its finite end)."""
+        def start(lo: float, hi: float) -> float:
+            if lo <= 0.0 <= hi:
+                return 0.0
+            if math.isfinite(lo) and math.isfinite(hi):
+                return 0.5 * (lo + hi)
+            return lo if math.isfinite(lo) else hi
+
+        return [start(lo, hi) for lo, hi in self.joints.limits]
+
+    def parameter_names(self) -> tuple[str, ...]:
+        """The arm's named physical parameters a scenario, a sweep or an FMU may set (none: its numbers are fixed)."""
+        return ()
+
+    def parameter_unit(self, name: str) -> str:
+        """SI unit of the named parameter (see :meth:`parameter_names`)."""
+        raise KeyError(f"{self.name} has no parameter {name!r}; it has {list(self.parameter_names()) or 'none'}")
+
+    def parameter_positive(self, name: str) -> bool:
+        """Whether the named parameter must be > 0 (a mass, a length), else any finite number (an offset)."""
+        self.parameter_unit(name)
+        return True
+
+    def parameter_description(self, name: str) -> str:
+        """What the named parameter is, in a few words (an exported FMU's variable description)."""
+        return name
+
+    def calculated_parameters(self) -> tuple[tuple[str, str, str], ...]:
+        """Constants the model computes from its parameters, as ``(name, SI unit, description)`` (an exported
+        FMU declares them as calculated parameters); none by default."""
+        return ()
+
+    def parameter_values(self) -> dict[str, float]:
+        """The named parameters' values (SI), in :meth:`parameter_names` order."""
+        return {name: float(getattr(self, name)) for name in self.parameter_names()}
+
+    def with_parameters(self, **values: float) -> ArmModel:
+        """A copy with named parameters replaced (SI values); refused for names the arm does not have."""
+        if values:
+            raise KeyError(f"{self.name} has no parameter(s) {sorted(values)}; it has "
+                           f"{list(self.parameter_names()) or 'none'}")
+        return self
+
+    def scaled(self, **factors: float) -> ArmModel:
+        """A copy with named parameters multiplied by the given factors (a scenario's ``[nominal_scale]``)."""
+        values = self.parameter_values()
+        return self.with_parameters(**{k: values[k] * f if k in values else f for k, f in factors.items()})
+
+    def parameters_valid(self, values: dict) -> bool:
+        """Whether every arm of a batch is valid, its named parameters given as arrays over the members (SI), all
+        checked at once: only a model whose constants stack per member (:attr:`stacks_constants`) answers."""
+        raise NotImplementedError(f"{self.name} does not check its parameters as columns")
+
+    def laceration_path(self, **keys):
+        """The arm's own closed-form joint references for the laceration path (the scenario's ``[trajectory]``
+        keys), or None: the tool point then follows the path by IK (:class:`blocks.tool_path.ToolLaceration`)."""
+        return None
 
     # -- dynamics, joint-last -------------------------------------------------------------------------
     def inertia(self, q) -> np.ndarray:

@@ -61,7 +61,7 @@ import numpy as np
 from .arm import ArmModel
 from .bound_kernels import Kernels
 from .gains import OBSERVER_VARIANTS, validated_gain
-from .joints import RRPR_JOINTS, JointSpace
+from .joints import JointSpace
 from .kernels import observer_estimate, observer_rate
 from .kernels.expm import expm_small
 from .kernels.model import with_arm
@@ -96,7 +96,8 @@ class DigitalController:
     torque_limit : float or n floats
         Saturation (N m; N on a prismatic joint), >= 0; 0 = none.  One number or one per joint.
     joints : JointSpace
-        The joints of the arm the controller runs (n, names, units); default the paper's RRPR.
+        The joints of the arm the controller runs (n, names, units); default those of the default scenario's arm
+        (:func:`blocks.scenario.default_arm`).
         Take it from the arm: ``DigitalController(1000.0, joints=arm.joints)``.
     """
 
@@ -107,9 +108,12 @@ class DigitalController:
     velocity_cutoff: float | None = None
     position_resolution: tuple | float = 0.0
     torque_limit: tuple | float = 0.0
-    joints: JointSpace = field(default=RRPR_JOINTS, repr=False)
+    joints: JointSpace | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
+        if self.joints is None:             # the default scenario's arm's joints
+            from .scenario import default_arm
+            object.__setattr__(self, "joints", default_arm().joints)
         if not isinstance(self.joints, JointSpace):
             raise TypeError(f"'joints' must be a blocks.joints.JointSpace (an arm's .joints), got {self.joints!r:.80}")
         rate = self.sample_rate
@@ -181,7 +185,7 @@ def _per_joint(value, name: str, joints: JointSpace, units) -> tuple[float, ...]
         arr = np.full(n, float(arr))
     if arr.shape != (n,) or not np.all(np.isfinite(arr)) or np.any(arr < 0) or \
             any(isinstance(v, (bool, np.bool_)) for v in flags):
-        joint_list = "" if joints == RRPR_JOINTS else f", one per joint of {list(joints.names)} or one for all"
+        joint_list = f", one per joint of {list(joints.names)} or one for all"
         raise ValueError(f"'controller.{name}' must be {n} finite numbers >= 0 ({', '.join(units)}){joint_list}, "
                          f"got {value!r}")
     return tuple(float(v) for v in arr)

@@ -148,7 +148,6 @@ class DisturbanceSpec:
         ValueError
             Naming ``disturbance.<key>``, its length and the arm's joint count, or the model and the arm.
         """
-        from .kernels.model import closed_form
         label = f"the arm {name!r}" if name else "the arm"
         n = arm.joints.count
         for key in self.per_joint():
@@ -156,7 +155,7 @@ class DisturbanceSpec:
             if len(value) != n:
                 raise ValueError(f"'disturbance.{key}' has {len(value)} values; {label} has {n} joints "
                                  f"({', '.join(arm.joints.names)}): give one per joint")
-        if not closed_form(arm):
+        if arm.paper is None:
             bad = [k for k in self.kinds if k in RRPR_ONLY_KINDS]
             if bad:
                 raise ValueError(f"disturbance kind {bad[0]!r} models the paper's RRPR only; it is not available "

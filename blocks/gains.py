@@ -8,9 +8,11 @@ none of the others refuses.
 Examples
 --------
 >>> from blocks.gains import validated_gain
->>> float(validated_gain(180, "kp")[1, 1])
+>>> from blocks.joints import JointSpace
+>>> arm = JointSpace(names=("theta", "s"), kinds=("revolute", "prismatic"))
+>>> float(validated_gain(180, "kp", arm)[1, 1])
 180.0
->>> validated_gain(-1, "kd")
+>>> validated_gain(-1, "kd", arm)
 Traceback (most recent call last):
     ...
 blocks.gains.GainError: 'gains.kd' must be > 0 on every joint, got -1
@@ -19,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .joints import RRPR_JOINTS, JointSpace
+from .joints import JointSpace
 from .validation import number_text, read_only_array
 
 __all__ = ["GainError", "GAIN_KEYS", "OBSERVER_VARIANTS", "validated_gain"]
@@ -35,7 +37,7 @@ class GainError(ValueError):
     """A gain is invalid; the message names ``gains.<key>``, the value and what is allowed."""
 
 
-def validated_gain(value, key: str, joints: JointSpace = RRPR_JOINTS, arm_name: str | None = None) -> np.ndarray:
+def validated_gain(value, key: str, joints: JointSpace, arm_name: str | None = None) -> np.ndarray:
     """A gain as the loop uses it: an n x n matrix (n joints), checked and read-only.
 
     Parameters
@@ -48,7 +50,7 @@ def validated_gain(value, key: str, joints: JointSpace = RRPR_JOINTS, arm_name: 
         Which gain: ``kp`` (1/s^2) and ``kd`` (1/s) of the computed-torque law,
         ``observer`` the observer gain ``Y`` (kg m^2/s, kg/s on a prismatic joint).
     joints : JointSpace
-        The arm's joints (default: the paper's four).
+        The arm's joints.
     arm_name : str, optional
         The arm's name, for the message on a gain of the wrong size.
 

@@ -1,28 +1,29 @@
 """The joints of an arm model: how many, their names, kinds and units.
 
 Everything that sizes a signal or labels a joint for a person reads it from
-here (through the arm's parameters, :attr:`RobotParameters.joints
-<blocks.parameters.RobotParameters.joints>`), so that the joint count is a
-property of the model rather than a number repeated in many modules.
+here (through the arm model, :attr:`ArmModel.joints <blocks.arm.ArmModel.joints>`),
+so that the joint count is a property of the model rather than a number
+repeated in many modules.
 
 Examples
 --------
->>> from blocks.joints import RRPR_JOINTS, signal_names
->>> RRPR_JOINTS.count
-4
->>> signal_names("tau")
-['tau[0]', 'tau[1]', 'tau[2]', 'tau[3]']
->>> RRPR_JOINTS.labels[2]
-'Joint 3 (d3)'
+>>> from blocks.joints import JointSpace, signal_names
+>>> slider = JointSpace(names=("q", "s"), kinds=("revolute", "prismatic"), limits=((-3.0, 3.0), (0.0, 0.5)))
+>>> slider.count
+2
+>>> signal_names("tau", slider)
+['tau[0]', 'tau[1]']
+>>> slider.labels[1]
+'Joint 2 (s)'
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["JointSpace", "RRPR_JOINTS", "D3_STROKE", "signal_names"]
+__all__ = ["JointSpace", "signal_names"]
 
 _UNITS = {
     # kind: (position, velocity, generalised force)
@@ -44,11 +45,19 @@ class JointSpace:
     limits : tuple of (low, high) pairs, optional
         The range each joint can reach, in its position unit (rad, m);
         ``(-inf, inf)`` for a joint that turns without end.  Default: no limits.
+    survey_ranges : tuple of (low, high) pairs, optional
+        Where the analyses sample each joint, where the arm's source fixed it (the paper's survey); default: from
+        the limits (:func:`analysis.linear.arm_terms.workspace_ranges`).  Not part of the joints' identity.
+    survey_points : tuple of int, optional
+        Points per joint of the analyses' default grid, where the arm's source fixed them; not part of the
+        joints' identity.
     """
 
     names: tuple[str, ...]
     kinds: tuple[str, ...]
     limits: tuple[tuple[float, float], ...] | None = None
+    survey_ranges: tuple[tuple[float, float], ...] | None = field(default=None, compare=False, repr=False)
+    survey_points: tuple[int, ...] | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if len(self.names) != len(self.kinds) or not self.names:
@@ -106,18 +115,6 @@ class JointSpace:
         return [f"{prefix}[{i}]" for i in range(self.count)]
 
 
-#: Stroke of the paper's prismatic joint d3 (m, positive downwards).  The paper gives no stroke; Table 1's
-#: d3 = 0.24 m is the stage's working extension (the tool at the skin), and the stroke is taken as 0 to twice that
-#: (docs/model.md, "Joint ranges").
-D3_STROKE = (0.0, 0.48)
-
-#: The paper's arm: ``[theta1 (rad), theta2 (rad), d3 (m, positive downwards), theta4 (rad)]``.  The revolute
-#: joints of a SCARA turn without end (the elbow's singularities are the path's concern); d3 has its stroke.
-RRPR_JOINTS = JointSpace(names=("theta1", "theta2", "d3", "theta4"),
-                         kinds=("revolute", "revolute", "prismatic", "revolute"),
-                         limits=((-math.inf, math.inf), (-math.inf, math.inf), D3_STROKE, (-math.inf, math.inf)))
-
-
-def signal_names(prefix: str, joints: JointSpace = RRPR_JOINTS) -> list[str]:
-    """The per-joint signal names ``prefix[i]`` of an arm (default: the paper's)."""
+def signal_names(prefix: str, joints: JointSpace) -> list[str]:
+    """The per-joint signal names ``prefix[i]`` of an arm's joints."""
     return joints.signal_names(prefix)

@@ -17,11 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .joints import RRPR_JOINTS
-from .kernels import kinematics as _rrpr_tool
-
-__all__ = ["signal", "tracking_metrics", "rms", "TrackingAccumulator", "METRICS", "OBSERVER_METRICS", "JOINT_UNITS",
-           "DISTURBANCE_UNITS", "JOINT_LABELS"]
+__all__ = ["signal", "tracking_metrics", "rms", "TrackingAccumulator", "METRICS", "OBSERVER_METRICS"]
 
 #: Every tracking metric, per joint in the joint's unit (rad, rad, m, rad; N m or N for the
 #: disturbance errors) or, for the tool tip, in mm.
@@ -31,16 +27,13 @@ METRICS = ("rms_position_error", "max_abs_position_error", "final_abs_position_e
 #: The metrics of the disturbance estimate, which need the observer.
 OBSERVER_METRICS = ("rms_disturbance_error",)
 
-JOINT_LABELS = RRPR_JOINTS.names
-JOINT_UNITS = RRPR_JOINTS.position_units
-DISTURBANCE_UNITS = RRPR_JOINTS.force_units
 
 
 def signal(response, prefix: str, n: int | None = None) -> np.ndarray:
     """The joint signals ``prefix[0..n-1]`` of a response, shape (n, len(time)).
 
-    ``n`` defaults to the joint count of the response's scenario's arm (the
-    paper's four without a scenario).
+    ``n`` defaults to the joint count of the response's scenario's arm (without a scenario: every
+    ``prefix[i]`` the response has, from 0 up).
 
     Raises
     ------
@@ -50,7 +43,8 @@ def signal(response, prefix: str, n: int | None = None) -> np.ndarray:
     labels = list(response.output_labels)
     if n is None:
         scenario = getattr(response, "scenario", None)
-        n = (scenario.robot.joints if scenario is not None else RRPR_JOINTS).count
+        n = scenario.robot.joints.count if scenario is not None else \
+            next(i for i in range(len(labels) + 1) if f"{prefix}[{i}]" not in labels) or len(labels) + 1
     try:
         rows = [labels.index(f"{prefix}[{i}]") for i in range(n)]
     except ValueError:
@@ -74,33 +68,37 @@ class TrackingAccumulator:
     Parameters
     ----------
     kin : numpy.ndarray or object
-        The arm's tool parameters (``arm.tool_params()``; the RRPR's kinematic lengths ``[a1, a2, d1, d4]``, m)
-        for the tool-tip errors.
+        The arm's tool parameters (``arm.tool_params()``) for the tool-tip errors; plain numbers get the member
+        axes.
     n_points : int
         Grid points in the whole run (the RMS divides by it).
     metrics : sequence of str
         Which of :data:`METRICS` to keep.
     members : tuple of int
         Shape of the member axes (``()`` for a single run).
-    n_joints : int, optional
-        Joints of the arm (default: the paper's four).
+    n_joints : int
+        Joints of the arm (a keyword).
     tool_position : callable, optional
-        The arm's ``tool_position(kin, q)`` row kernel (default: the RRPR's).
+        The arm's ``tool_position(kin, q)`` row kernel (``arm.tool_kernels.tool_position``); needed for the
+        tool metrics.
     """
 
-    def __init__(self, kin, n_points: int, metrics=METRICS, members: tuple = (), n_joints: int | None = None,
+    def __init__(self, kin, n_points: int, metrics=METRICS, members: tuple = (), *, n_joints: int,
                  tool_position=None) -> None:
-        if isinstance(kin, (np.ndarray, list)):       # numbers (the RRPR's lengths) get the member axes
+        if isinstance(kin, (np.ndarray, list)):       # plain numbers get the member axes
             kin = np.asarray(kin, dtype=float)
             kin = kin.reshape(kin.shape + (1,) * (1 + len(members)))
         self.kin = kin
-        self.tool_position = _rrpr_tool.tool_position if tool_position is None else tool_position
+        self.tool_position = tool_position
         self.n_points, self.metrics = n_points, tuple(metrics)
-        joints = (RRPR_JOINTS.count if n_joints is None else n_joints,) + tuple(members)
+        joints = (n_joints,) + tuple(members)
         self.sum_sq_e, self.max_e, self.final_e = np.zeros(joints), np.zeros(joints), np.zeros(joints)
         self.sum_sq_tool, self.max_tool = np.zeros(members), np.zeros(members)
         self.sum_sq_ed = np.zeros(joints)
         self.wants_tool = any("tool" in m for m in self.metrics)
+        if self.wants_tool and tool_position is None:
+            raise ValueError(f"tool metrics {[m for m in self.metrics if 'tool' in m]} need the arm's tool_position "
+                             "row kernel (arm.tool_kernels.tool_position)")
         self.wants_disturbance = any(m in OBSERVER_METRICS for m in self.metrics)
 
     def add(self, q_ref, q, d=None, d_hat=None, last: bool = False) -> None:

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .joints import RRPR_JOINTS, JointSpace
+from .joints import JointSpace
 from .kernels.noise import sampled_noise
 from .validation import read_only_array
 
@@ -42,7 +42,7 @@ class MeasurementNoise:
     t_final : float
         Last time the noise is needed (s); later times hold the last sample.
     joints : JointSpace
-        The measured arm's joints (n, units); default the paper's RRPR.  Take it from the arm:
+        The measured arm's joints (n, units), a keyword.  Take it from the arm:
         ``MeasurementNoise(q_std=1e-4, joints=arm.joints)``.
     """
 
@@ -51,7 +51,7 @@ class MeasurementNoise:
     seed: int = 0
     sample_period: float = 0.001
     t_final: float = 10.0
-    joints: JointSpace = field(default=RRPR_JOINTS, repr=False)
+    joints: JointSpace = field(repr=False, kw_only=True)
 
     def __post_init__(self) -> None:
         if not isinstance(self.joints, JointSpace):
@@ -66,8 +66,6 @@ class MeasurementNoise:
             if value.ndim == 0 and not isinstance(given, bool):
                 value = np.full(n, float(value))
             if value.shape != (n,) or not np.all(np.isfinite(value)) or np.any(value < 0):
-                if self.joints == RRPR_JOINTS:          # the paper's message, as before
-                    raise ValueError(f"noise.{name} must be 4 finite numbers >= 0, got {given!r}")
                 raise ValueError(f"noise.{name} must be a number or {n} finite numbers >= 0 ({', '.join(units)}), "
                                  f"one per joint of {list(self.joints.names)}, got {given!r}")
             object.__setattr__(self, name, tuple(float(v) for v in value))

@@ -32,10 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .divergence import StateBounds, joint_signal_meaning, state_meanings
-from .kernels import bias_forces as _rrpr_bias_forces
 from .kernels import disturbance_params as kernel_disturbance_params
 from .kernels import external_disturbance
-from .kernels import mass_times as _rrpr_mass_times
 from .kernels.model import with_arm
 
 __all__ = ["state_bounds", "cached_state_bounds", "signal_bounds", "ReferenceLimits", "reference_limits",
@@ -74,7 +72,7 @@ def reference_limits(scenario, samples: int = 201) -> ReferenceLimits:
                            tuple(joints.position_units), tuple(joints.velocity_units), tuple(joints.force_units))
 
 
-def force_bounds(k_true, disturbance, ref: ReferenceLimits, kernels=None, tool_kernels=None,
+def force_bounds(k_true, disturbance, ref: ReferenceLimits, kernels, tool_kernels,
                  terms=None) -> np.ndarray:
     """The disturbance estimate's bound per member: ``FORCE_FACTOR`` (largest start force + 1) (N m, N).
 
@@ -86,10 +84,10 @@ def force_bounds(k_true, disturbance, ref: ReferenceLimits, kernels=None, tool_k
     disturbance : blocks.kernels.DisturbanceParams
         The external disturbance in the same layout (rows, one column per member).
     ref : ReferenceLimits
-    kernels : module, optional
-        The true arm's row kernels (``arm.kernels``); default the paper's RRPR's.
-    tool_kernels : module, optional
-        The true arm's tool kernels (``arm.tool_kernels``, the tissue contact's tool point); default the RRPR's.
+    kernels : module
+        The true arm's row kernels (``arm.kernels``).
+    tool_kernels : module
+        The true arm's tool kernels (``arm.tool_kernels``, the tissue contact's tool point).
     terms : optional
         Row kernels that evaluate ``G`` and ``M q'' + h`` of the arm of ``kernels`` (default ``kernels``):
         :func:`evaluation_kernels`, the same numbers in microseconds where that pays.
@@ -99,11 +97,8 @@ def force_bounds(k_true, disturbance, ref: ReferenceLimits, kernels=None, tool_k
     numpy.ndarray
         Shape () for one arm, (N,) for N members.
     """
-    if terms is not None or kernels is not None:
-        terms = kernels if terms is None else terms
-        bias_forces, mass_times = terms.bias_forces, terms.mass_times
-    else:
-        bias_forces, mass_times = _rrpr_bias_forces, _rrpr_mass_times
+    terms = kernels if terms is None else terms
+    bias_forces, mass_times = terms.bias_forces, terms.mass_times
     batch = isinstance(k_true, np.ndarray) and np.ndim(k_true) == 2
     col = (lambda a: np.asarray(a, dtype=float)[:, None]) if batch else (lambda a: np.asarray(a, dtype=float))
     q0, dq0, ddq0 = col(ref.q0), col(ref.dq0), col(ref.ddq0)
@@ -127,12 +122,7 @@ def evaluation_kernels(arm):
 
 
 def _external_disturbance(kernels, tool_kernels):
-    """The disturbance kernel called with the kernels of the arm of these row-kernel modules (the RRPR's when not
-    given)."""
-    if kernels is None:
-        from .kernels import arm as kernels
-    if tool_kernels is None:
-        from .kernels import kinematics as tool_kernels
+    """The disturbance kernel called with the kernels of the arm of these row-kernel modules."""
     return with_arm(external_disturbance, (kernels, tool_kernels))
 
 
@@ -221,7 +211,7 @@ def batch_bounds(batch_loop, labels=None) -> StateBounds:
     ref = reference_limits(b.v.base)
     n = b.joints
     if isinstance(b.k_true, np.ndarray):        # the RRPR's constants, one column per member
-        force = force_bounds(b.k_true, b.disturbance, ref)                               # (N,)
+        force = force_bounds(b.k_true, b.disturbance, ref, b.arm.kernels, b.arm.tool_kernels)       # (N,)
     else:                                       # another arm: the members share the true arm, not its numbers' layout
         force = _shared_arm_force_bounds(b.k_true, b.arm, b.disturbance, ref, b.n)
     if labels is None:

@@ -31,7 +31,6 @@ import numpy as np
 
 from .budget import ENVIRONMENT, Budget, BudgetError, Estimate
 from .scenario import Scenario
-from .scenario_arm import is_rrpr
 
 __all__ = ["estimate_run", "check_run", "path_estimate", "prepare_reference", "arm_rates",
            "forget_inertias", "EXPLICIT_METHODS", "STABILITY_SPAN"]
@@ -63,7 +62,7 @@ def estimate_run(scenario: Scenario, observer: bool = True) -> Estimate:
                            f"one integrator step at least per controller tick: {t_final:g} s at {rate:g} Hz"))
     elif s.simulation.method in EXPLICIT_METHODS:
         with np.errstate(over="ignore", invalid="ignore"):     # gains near 1e308: the rate is inf, said below
-            by_source = rates_by_source(Variants(s, [{}]), observer) if is_rrpr(s.robot) else \
+            by_source = rates_by_source(Variants(s, [{}]), observer) if s.robot.stacks_constants else \
                 arm_rates(s, observer)
         for key, rates in by_source.items():
             rate = float(rates.max())

@@ -71,9 +71,10 @@ from .arm import ArmModel
 from .digital import DISCRETIZATIONS, VELOCITY_SOURCES, DigitalController
 from .disturbances import DISTURBANCE_KINDS, KIND_ALIASES, DisturbanceSpec
 from .gains import GAIN_KEYS, OBSERVER_VARIANTS, GainError, validated_gain
-from .joints import RRPR_JOINTS
+from .model.rrpr.joints import RRPR_JOINTS
+from .model.rrpr.laceration import LacerationPath
+from .model.rrpr.parameters import PAPER_PARAMETERS, ParameterError, RobotParameters
 from .noise import MeasurementNoise
-from .parameters import ParameterError, RobotParameters
 from .scenario_arm import (
     ARM_KEYS,
     arm_name,
@@ -87,11 +88,22 @@ from .scenario_arm import (
     skin_height_default,
 )
 from .tool_path import LACERATION_KEYS, ToolLaceration, ToolPath
-from .trajectory import TRAJECTORY_KINDS, JointSine, LacerationPath, check_joint_ranges
+from .trajectory import TRAJECTORY_KINDS, JointSine, check_joint_ranges
 from .validation import number_text, read_only_array
 
 __all__ = ["Scenario", "ScenarioError", "SimulationSettings", "load_scenario", "builtin_scenarios",
-           "scenario_from_dict", "to_toml", "parse_key", "check_value"]
+           "scenario_from_dict", "to_toml", "parse_key", "check_value", "default_arm"]
+
+
+
+def default_arm() -> ArmModel:
+    """The true arm of the default (paper) scenario: the paper's RRPR with Table 1's values.
+
+    What a function given no arm works on (``fmu.export_plant(path)``, the default joint layout of a report);
+    the same arm as ``load_scenario("paper").robot`` without reading the file.
+    """
+    return PAPER_PARAMETERS
+
 
 SOLVER_METHODS = ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA")
 # Largest grids a scenario may ask for: beyond these a run would exhaust memory rather than finish.
@@ -227,7 +239,7 @@ class Scenario:
         The complete settings, defaults filled in; ``to_toml(data)`` writes a
         file that reproduces this run.
     robot, nominal : ArmModel
-        True plant and nominal model (:class:`~blocks.parameters.RobotParameters` for the paper's RRPR).
+        True plant and nominal model (:class:`~blocks.model.rrpr.parameters.RobotParameters` for the paper's RRPR).
     kp, kd : numpy.ndarray
         n x n diagonal controller gains (1/s^2, 1/s).
     observer_gain : numpy.ndarray
@@ -761,7 +773,7 @@ def _build_trajectory(given: dict, built: dict):
         _check_phases(kw, built["simulation"])
     try:
         if kind == "laceration":
-            trajectory = LacerationPath(params=built["robot"], **kw)
+            trajectory = built["robot"].laceration_path(**kw)       # the arm's own closed form
         elif kind == "tool_path":
             if "waypoints" not in kw:
                 raise ScenarioError("'trajectory.waypoints' is required for kind = 'tool_path' (two or more points "

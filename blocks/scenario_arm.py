@@ -35,7 +35,8 @@ from pathlib import Path
 import numpy as np
 
 from .arm import ArmModel
-from .kernels.model import closed_form
+from .model.rrpr import dynamics_kernels as _rrpr_dynamics
+from .model.rrpr import tool_kernels as _rrpr_tool
 
 __all__ = ["ARM_KEYS", "arm_name", "is_rrpr", "load_arm", "scaled_nominal", "link_masses", "link_scaled_nominal",
            "joint_sine_defaults", "observer_gain_from_bandwidth", "skin_height_default"]
@@ -48,7 +49,7 @@ ARM_KEYS = {"urdf": "a path (text), relative to the scenario file", "tool_frame"
 
 def is_rrpr(arm: ArmModel) -> bool:
     """Whether ``arm`` is the paper's RRPR in closed form (its own sections and paths apply)."""
-    return closed_form(arm)
+    return arm.kernels is _rrpr_dynamics and arm.tool_kernels in (None, _rrpr_tool)
 
 
 def arm_name(arm: ArmModel, urdf: str | None = None) -> str:

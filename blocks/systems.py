@@ -18,9 +18,7 @@ kernel block too when its path has kernels (the paths of
 
 Any arm
 -------
-The factories take any :class:`~blocks.arm.ArmModel` (the paper's
-:class:`~blocks.parameters.RobotParameters` by default where one is
-optional): signal names and sizes come from ``arm.joints``, the numbers from
+The factories take any :class:`~blocks.arm.ArmModel`: signal names and sizes come from ``arm.joints``, the numbers from
 ``arm.kernel_params()``, and the block kernels below take the arm's row
 kernels first (``model``, :class:`~blocks.kernels.model.ArmKernels`): a
 block calls them with its arm's (:func:`~blocks.kernels.model.with_arm`).
@@ -43,16 +41,15 @@ from .kernels import (
 from .kernels.model import with_arm
 from .kernels.noise import sampled_noise
 from .noise import MeasurementNoise
-from .parameters import RobotParameters
 
 __all__ = ["plant", "controller", "observer", "trajectory_block", "sensor", "signal_names", "OBSERVER_VARIANTS",
            "plant_update", "plant_output", "controller_output", "controller_output_with_estimate",
            "observer_update", "observer_output", "sensor_output"]
 
 
-def signal_names(prefix: str, params: ArmModel | None = None) -> list[str]:
-    """The per-joint signal names ``prefix[0]`` .. ``prefix[n-1]`` of an arm (default: the paper's)."""
-    return (params or RobotParameters).joints.signal_names(prefix)
+def signal_names(prefix: str, params: ArmModel) -> list[str]:
+    """The per-joint signal names ``prefix[0]`` .. ``prefix[n-1]`` of the arm ``params``."""
+    return params.joints.signal_names(prefix)
 
 
 def _arm(value, name: str) -> ArmModel:
@@ -124,7 +121,7 @@ def plant(params: ArmModel, disturbance: DisturbanceSpec | None = None, name: st
     Parameters
     ----------
     params : ArmModel
-        The true arm (the paper's :class:`~blocks.parameters.RobotParameters` or any other model).
+        The true arm (any :class:`~blocks.arm.ArmModel`).
     disturbance : DisturbanceSpec, optional
         External disturbance models (default: the paper's Eq. 4, for the RRPR only; see
         :class:`~blocks.disturbances.DisturbanceSpec` for other arms).

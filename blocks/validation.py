@@ -9,13 +9,15 @@ kernels underneath trust what they are given.
 
 Examples
 --------
+>>> from blocks.joints import JointSpace
 >>> from blocks.validation import joint_array
->>> joint_array([0.0, 1.0, 0.2, 0.0], "q").shape
-(4,)
->>> joint_array([0.0, 1.0, 0.2], "q")
+>>> slider = JointSpace(names=("theta", "s"), kinds=("revolute", "prismatic"))
+>>> joint_array([0.0, 0.2], "q", slider).shape
+(2,)
+>>> joint_array([0.0, 1.0, 0.2], "q", slider)
 Traceback (most recent call last):
     ...
-ValueError: q must have shape (..., 4), a last axis of length 4 (joints theta1, theta2, d3, theta4), got shape (3,)
+ValueError: q must have shape (..., 2), a last axis of length 2 (joints theta, s), got shape (3,)
 """
 from __future__ import annotations
 
@@ -23,10 +25,9 @@ from collections.abc import Callable, Mapping
 
 import numpy as np
 
-from .joints import RRPR_JOINTS, JointSpace
-from .parameters import RobotParameters
+from .joints import JointSpace
 
-__all__ = ["joint_array", "joint_arrays", "robot_parameters", "real_array", "callable_or_none", "read_only_array",
+__all__ = ["joint_array", "joint_arrays", "real_array", "callable_or_none", "read_only_array",
            "number_text"]
 
 
@@ -88,7 +89,7 @@ def _not_finite(arr: np.ndarray, name: str):
                      f"{f'at index {where} ' if where else ''}(shape {arr.shape})")
 
 
-def joint_array(value, name: str, joints: JointSpace = RRPR_JOINTS) -> np.ndarray:
+def joint_array(value, name: str, joints: JointSpace) -> np.ndarray:
     """``value`` as a float array of shape ``(..., n)``: one entry per joint on the last axis.
 
     Parameters
@@ -98,7 +99,7 @@ def joint_array(value, name: str, joints: JointSpace = RRPR_JOINTS) -> np.ndarra
     name : str
         The argument's name, for the message (``"q"``, ``"dq"``).
     joints : JointSpace
-        The arm's joints (default: the paper's four).
+        The arm's joints.
 
     Raises
     ------
@@ -113,7 +114,7 @@ def joint_array(value, name: str, joints: JointSpace = RRPR_JOINTS) -> np.ndarra
     return arr
 
 
-def joint_arrays(names_values: Mapping[str, object], joints: JointSpace = RRPR_JOINTS) -> list[np.ndarray]:
+def joint_arrays(names_values: Mapping[str, object], joints: JointSpace) -> list[np.ndarray]:
     """Several joint arrays (``{"q": q, "dq": dq}``), checked and broadcast against each other.
 
     Raises
@@ -130,22 +131,8 @@ def joint_arrays(names_values: Mapping[str, object], joints: JointSpace = RRPR_J
             from None
 
 
-def robot_parameters(value, name: str = "params") -> RobotParameters:
-    """``value`` when it is the arm's :class:`~blocks.parameters.RobotParameters`.
-
-    Raises
-    ------
-    TypeError
-        Naming the argument and what it got (``blocks.PAPER_PARAMETERS`` is the paper's arm).
-    """
-    if not isinstance(value, RobotParameters):
-        raise TypeError(f"{name} must be the paper's arm, RobotParameters (blocks.PAPER_PARAMETERS is the paper's arm, "
-                        f"scenario.robot a scenario's), got {_kind(value)} {value!r:.80}")
-    return value
-
-
 def arm_model(value, name: str = "arm"):
-    """``value`` when it is an arm model (:class:`~blocks.arm.ArmModel`: the paper's RRPR or a URDF arm).
+    """``value`` when it is an arm model (:class:`~blocks.arm.ArmModel`: the paper's arm or a URDF arm).
 
     Raises
     ------

@@ -77,7 +77,7 @@ def _cmd_simulate(args) -> int:
         velocity = c.velocity if c.velocity_cutoff is None else f"{c.velocity} through a {c.velocity_cutoff:g} Hz low-pass"
         print(f"controller: sampled at {c.sample_rate:g} Hz, {c.observer_discretization} observer update, delay "
               f"{c.delay}, velocity {velocity}, encoders {encoders}")
-    print(format_rms_table(result.metrics, joints))
+    print(format_rms_table(result.metrics, scenario.robot))
     figures = "no figures (--no-figures)" if args.no_figures else \
         "Figures 4-8 as " + " and ".join(f.upper() for f in formats)
     print(f"results written to {result.out_dir}: metrics.json, timeseries.csv, scenario.toml, {figures}")

@@ -236,7 +236,7 @@ def _cmd_convergence(args) -> int:
         (stage / "convergence.json").write_text(strict_json(study))
         (stage / "scenario.toml").write_text(s.to_toml())
         if not args.no_figures:
-            convergence_figure(study, stage)
+            convergence_figure(study, stage, s.robot.joints)
             figures_note = "figure: convergence.png, convergence.svg"
     print(f"co-simulation of {args.fmu} (FMI {study['fmi_version']}, {study['coupling']} coupling) against the "
           f"monolithic loop, scenario {s.name}, t_final = {study['t_final']:g} s")
@@ -370,9 +370,9 @@ def _cmd_check(args) -> int:
 
     _arm_flags_alone(args)
     arm = None
-    if args.arm == "rrpr":
-        from blocks.parameters import RobotParameters
-        arm = RobotParameters()
+    if args.arm == "rrpr":                 # the default scenario's arm, by its name
+        from blocks.scenario import default_arm
+        arm = default_arm()
     elif args.arm is not None:
         arm = _export_arm(args)
     report = check_fmu(args.fmu, t_final=args.t_final, tolerance=args.tolerance, cs_step=args.cs_step,

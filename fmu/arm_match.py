@@ -8,8 +8,6 @@ from __future__ import annotations
 
 import math
 
-from blocks.parameters import RobotParameters
-
 from .errors import FMUError
 
 __all__ = ["arm_name", "check_arm_matches", "check_scenario_arm", "joint_count"]
@@ -21,11 +19,9 @@ def joint_count(model_description) -> int:
 
 
 def arm_name(arm) -> str:
-    """How a report names an arm: ``the paper's RRPR arm`` or ``the 4-joint arm ['yaw', ...] from <file>``."""
-    if isinstance(arm, RobotParameters):
-        return "the paper's RRPR arm"
-    source = getattr(arm, "source", None)
-    return f"the {arm.n}-joint arm {list(arm.joints.names)}" + (f" from {source}" if source else "")
+    """How a report names an arm (:meth:`blocks.arm.ArmModel.in_words`): ``the 4-joint arm ['yaw', ...] from
+    <file>``."""
+    return arm.in_words()
 
 
 def check_arm_matches(model_description, arm, name: str) -> None:
@@ -85,7 +81,8 @@ def check_scenario_arm(extracted, model_description, scenario, parameters: str =
     record = extracted.root / ARM_RECORD
     recorded = arm_from_record(record.read_text(encoding="utf-8")) if record.is_file() else None
     export = f"export this scenario's plant (dobkit fmu export --scenario {scenario.name})"
-    if isinstance(arm, RobotParameters) != (recorded is None):
+    # an FMU without an arm record is the arm of the paper, exported with its named parameters
+    if (arm.paper is not None) != (recorded is None):
         mine = "the paper's RRPR arm (Table-1 parameters)" if recorded is None else f"{arm_name(recorded)} " \
                "(recorded in it)"
         raise FMUError(f"the FMU is the plant of {mine}; {theirs}: it is not this scenario's plant; {export}")

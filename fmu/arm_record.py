@@ -44,9 +44,8 @@ def arm_record(arm) -> str | None:
         For an arm model that is neither the paper's nor a chain arm (nothing to record it by).
     """
     from blocks.arms.chain_model import ChainArm
-    from blocks.parameters import RobotParameters
 
-    if isinstance(arm, RobotParameters):
+    if arm.paper is not None:            # the paper's arm: its named parameters are in the FMU, nothing to record
         return None
     if not isinstance(arm, ChainArm):
         raise TypeError(f"cannot record an arm of type {type(arm).__name__} in the FMU; "

@@ -124,8 +124,8 @@ def end_stops(arm, q0=None) -> list[EndStop]:
 
     Examples
     --------
-    >>> from blocks.parameters import RobotParameters
-    >>> [(s.name, s.lower, s.upper, round(s.stiffness), round(s.damping)) for s in end_stops(RobotParameters())]
+    >>> from blocks.scenario import default_arm
+    >>> [(s.name, s.lower, s.upper, round(s.stiffness), round(s.damping)) for s in end_stops(default_arm())]
     [('d3', 0.0, 0.48, 10000, 100)]
     """
     bounded = [i for i, (lo, hi) in enumerate(arm.joints.limits) if math.isfinite(lo) or math.isfinite(hi)]

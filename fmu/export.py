@@ -46,8 +46,9 @@ import math
 from importlib import resources
 from pathlib import Path
 
+from blocks.arm import ArmModel
 from blocks.disturbances import DisturbanceSpec
-from blocks.parameters import RobotParameters
+from blocks.scenario import default_arm
 
 from .arm_record import ARM_RECORD, arm_record
 from .build import instantiation_token, platform_folder, rebuild_command, shared_layer_files
@@ -55,7 +56,6 @@ from .end_stops import end_stops as arm_end_stops
 from .generated import GENERATED_HEADER, arm_disturbance, plant_c
 from .modeldescription import build_description_xml, model_description_xml
 from .package import package_fmu
-from .scenario_values import DEFAULT_START_Q, default_start_q
 from .variables import config_header, plant_variables
 
 __all__ = ["export_plant", "MODEL_IDENTIFIER", "plant_source_files"]
@@ -107,7 +107,7 @@ def _build_txt(fmi_version: int, sources: list[str]) -> str:
             "The fmi*.h headers are the standard FMI headers (2-clause BSD, Modelica Association Project FMI).\n")
 
 
-def export_plant(path, params: RobotParameters | None = None, disturbance: DisturbanceSpec | None = None,
+def export_plant(path, params: ArmModel | None = None, disturbance: DisturbanceSpec | None = None,
                  fmi_version: int = 2, substeps: int = 4, cc: str | None = None, q0=None, dq0=None,
                  force: bool = False, end_stops: bool = True) -> Path:
     """Export the plant as an FMU (Model Exchange and Co-Simulation in one archive).
@@ -118,11 +118,10 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
         Where to write the ``.fmu`` file (its folder must exist).  An existing
         file is refused unless ``force`` is true.
     params : blocks.arm.ArmModel, optional
-        The true arm: the paper's RRPR by default (:class:`RobotParameters`,
-        Table 1), whose values become the FMU's parameters ``m1`` ... ``d4``
-        with ``k1..k5`` derived from them, so changing a Table-1 parameter at
-        simulation time works; or another arm (a URDF arm of
-        :func:`blocks.arms.load_urdf_arm`), whose geometry is fixed in the C.
+        The true arm: the default scenario's by default (:func:`blocks.scenario.default_arm`, the paper's arm
+        with Table 1), whose named parameters become the FMU's parameters (``m1`` ... ``d4``, with ``k1..k5``
+        derived from them), so changing one at simulation time works; an arm without named parameters (a
+        URDF arm of :func:`blocks.arms.load_urdf_arm`) has its geometry fixed in the C.
     disturbance : DisturbanceSpec, optional
         Disturbance models switched on (``disturbance_paper``,
         ``disturbance_friction``, ``disturbance_tissue``) and their parameters;
@@ -138,11 +137,9 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
         C compiler command; default ``$CC``, else ``cc``/``gcc``/``clang``.
     q0, dq0 : n floats, optional
         Start values of the joint positions (rad, m) and velocities (rad/s, m/s).
-        By default the paper's arm starts at rest in the regular pose
-        :data:`fmu.scenario_values.DEFAULT_START_Q` (``theta2 = pi/2``, ``d3 = 0.24 m``),
-        not at the singular ``theta2 = 0``; another arm at rest at ``q = 0``, or, for
-        a joint whose range excludes 0, at the middle of its range
-        (:func:`fmu.scenario_values.default_start_q`).  Every ``q0`` must lie in
+        By default the arm starts at rest in its :meth:`~blocks.arm.ArmModel.rest_pose`: the paper's arm in
+        the regular pose ``theta2 = pi/2``, ``d3 = 0.24 m`` (not at the singular ``theta2 = 0``), a chain at
+        ``q = 0`` or, for a joint whose range excludes 0, at the middle of its range.  Every ``q0`` must lie in
         the joint ranges.
     force : bool
         Replace an existing file at ``path`` (as ``dobkit fmu export --force``).
@@ -183,11 +180,11 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
     >>> plant.fmu.close()
     """
     _check_args(fmi_version, substeps)
-    params = RobotParameters() if params is None else params
+    params = default_arm() if params is None else params
     n = params.joints.count
     q0, dq0 = _joint_vector(q0, "q0", n), _joint_vector(dq0, "dq0", n)
     if q0 is None:
-        q0 = list(DEFAULT_START_Q) if isinstance(params, RobotParameters) else default_start_q(params)
+        q0 = params.rest_pose()
     outside = params.joints.outside_limits(q0)
     if outside:
         raise ValueError(f"q0 = {q0}: {outside}; give a start pose inside the joint ranges")
@@ -206,12 +203,7 @@ def export_plant(path, params: RobotParameters | None = None, disturbance: Distu
     reals = [v for v in variables if v.c_name is not None]
     generated = plant_c(params, disturbance, [v.name for v in reals], {v.name: v.start for v in reals})
     c_texts[GENERATED_HEADER] = generated.text
-    if isinstance(params, RobotParameters):
-        description = ("4-DOF RRPR surgical arm (Verma, Chauhan & Gupta 2019, Eq. 1, 5-7) with external "
-                       "disturbance models; exported by dobkit")
-    else:
-        description = (f"{n}-joint arm ({', '.join(params.joints.names)}; tool {getattr(params, 'tool_frame', '?')}) "
-                       "with external disturbance models; exported by dobkit")
+    description = f"{params.description()} with external disturbance models; exported by dobkit"
     tool = "fmu.export"
 
     def xml_for(token: str) -> str:

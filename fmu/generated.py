@@ -40,7 +40,7 @@ from blocks.contract import Kernels, contract_of
 from blocks.disturbances import DISTURBANCE_KINDS, RRPR_ONLY_KINDS, DisturbanceSpec
 from blocks.kernels.disturbance import DisturbanceParams
 from blocks.kernels.model import with_arm
-from blocks.parameters import RobotParameters
+from blocks.model.rrpr.parameters import RobotParameters
 from blocks.systems import plant as plant_block
 from blocks.systems import plant_output, plant_update
 

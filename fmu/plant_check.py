@@ -39,12 +39,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate import solve_ivp
 
+from blocks.arm import ArmModel
 from blocks.budget import Budget
 from blocks.control_compat import fast_dynamics, fast_output
 from blocks.disturbances import DISTURBANCE_KINDS, DisturbanceSpec
 from blocks.kernels.disturbance import DisturbanceParams, external_disturbance
 from blocks.monitor import Monitor
-from blocks.parameters import RobotParameters
+from blocks.scenario import default_arm
 from blocks.systems import plant as python_plant
 
 from .arm_match import arm_name, check_arm_matches, check_scenario_arm
@@ -72,8 +73,9 @@ def worst(*arrays) -> float:
     return float(np.max(values)) if values.size else 0.0
 
 
-def check_torque(t, params: RobotParameters) -> np.ndarray:
-    """The paper arm's test input (N m, N m, N, N m): sines plus gravity compensation on joint 3."""
+def check_torque(t, params: ArmModel) -> np.ndarray:
+    """The paper arm's test input (N m, N m, N, N m): sines plus gravity compensation on joint 3 (its masses
+    ``m3 + m4`` times ``g``)."""
     return np.array([2.0 * np.sin(3.0 * t), 1.5 * np.cos(2.0 * t),
                      -(params.m3 + params.m4) * params.g + 0.5 * np.sin(5.0 * t), 0.3 * np.sin(t)])
 
@@ -170,8 +172,8 @@ def _spec_from(start: dict, n: int) -> DisturbanceSpec:
                                                            "tissue_damping", "tissue_drag")})
 
 
-def plant_from_description(model_description) -> tuple[RobotParameters, DisturbanceSpec]:
-    """The paper arm's Python parameter objects matching the FMU's parameter start values.
+def plant_from_description(model_description) -> tuple[ArmModel, DisturbanceSpec]:
+    """The default scenario's arm (the paper's) with the FMU's parameter start values, and its disturbance.
 
     Raises
     ------
@@ -179,7 +181,8 @@ def plant_from_description(model_description) -> tuple[RobotParameters, Disturba
         If the FMU lacks one of the plant's parameters.
     """
     start = _start_values(model_description)
-    robot = RobotParameters(**{name: float(start[name]) for name in RobotParameters.names()})
+    arm = default_arm()
+    robot = arm.with_parameters(**{name: float(start[name]) for name in arm.parameter_names()})
     return robot, _spec_from(start, robot.joints.count)
 
 
@@ -190,10 +193,10 @@ def plant_reference(model_description, arm=None) -> PlantReference:
     ----------
     model_description : fmpy.model_description.ModelDescription
     arm : blocks.arm.ArmModel, optional
-        The arm to hold the FMU against.  Default: the paper's arm with the
-        FMU's Table-1 start values (an FMU without them: KeyError).  A
-        :class:`RobotParameters` given here is compared with its own values,
-        not the FMU's.
+        The arm to hold the FMU against.  Default: the default scenario's arm
+        (the paper's) with the FMU's start values of its parameters (an FMU
+        without them: KeyError).  The paper's arm given here is compared with
+        its own values, not the FMU's.
 
     Raises
     ------
@@ -206,7 +209,7 @@ def plant_reference(model_description, arm=None) -> PlantReference:
         arm, spec = plant_from_description(model_description)
     else:
         spec = _spec_from(start, arm.n)
-    if isinstance(arm, RobotParameters):
+    if arm.paper is not None:            # the paper's arm: its own test input and start (its FMU has no record)
         py = python_plant(arm, spec)
         rhs, out, n = fast_dynamics(py), fast_output(py), arm.n
         return PlantReference(arm=arm, spec=spec, name=arm_name(arm) + (" (Table 1 values of the FMU)" if from_fmu

@@ -6,36 +6,28 @@ block and a co-simulated FMU get the same values.
 """
 from __future__ import annotations
 
-import math
 import warnings
 
-from blocks.joints import RRPR_JOINTS
-from blocks.scenario import Scenario
+from blocks.scenario import Scenario, default_arm
 
 from .variables import plant_parameter_values
 
 __all__ = ["plant_start_values", "JOINTS", "DEFAULT_START_Q", "default_start_q"]
 
-JOINTS = RRPR_JOINTS.count
+#: Joint count of the default scenario's arm.
+JOINTS = default_arm().n
 
-#: Start pose of a plant FMU exported without one (rad, rad, m, rad): the elbow at a right angle
-#: (theta2 = pi/2, as far as it gets from the singular theta2 = 0 and pi, where the planar Jacobian's
-#: determinant a1 a2 sin(theta2) vanishes) and the tool slide at Table 1's d3 = 0.24 m.  An export from a
-#: scenario (``dobkit fmu export``) starts where the scenario does.
-DEFAULT_START_Q = (0.0, math.pi / 2, 0.24, 0.0)
+#: Start pose of the default scenario's arm's plant FMU exported without one (rad, rad, m, rad; the arm's
+#: :meth:`~blocks.arm.ArmModel.rest_pose`: the paper's elbow at a right angle, the tool slide at d3 = 0.24 m).
+#: An export from a scenario (``dobkit fmu export``) starts where the scenario does.
+DEFAULT_START_Q = tuple(default_arm().rest_pose())
 
 
 def default_start_q(arm) -> list[float]:
-    """Start pose of another arm's plant FMU exported without one (rad, m): each joint at 0, or at the middle
-    of its range when the range excludes 0 (the Panda's elbow, -3.07 to -0.07 rad, starts at -1.57 rad)."""
-    def start(lo: float, hi: float) -> float:
-        if lo <= 0.0 <= hi:
-            return 0.0
-        if math.isfinite(lo) and math.isfinite(hi):
-            return 0.5 * (lo + hi)
-        return lo if math.isfinite(lo) else hi       # a range open on one side: its finite end
-
-    return [start(lo, hi) for lo, hi in arm.joints.limits]
+    """Start pose of an arm's plant FMU exported without one (rad, m): the arm's own rest pose
+    (:meth:`blocks.arm.ArmModel.rest_pose`; for a chain each joint at 0, or at the middle of its range when the
+    range excludes 0: the Panda's elbow, -3.07 to -0.07 rad, starts at -1.57 rad)."""
+    return arm.rest_pose()
 
 
 def plant_start_values(scenario: Scenario, fmu_variables: set[str] | None, parameters: str = "scenario",

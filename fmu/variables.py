@@ -25,13 +25,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from blocks.arm import ArmModel
 from blocks.disturbances import DisturbanceSpec
-from blocks.joints import RRPR_JOINTS
-from blocks.parameters import RobotParameters
 
 __all__ = ["Variable", "UNITS", "plant_variables", "plant_parameter_values", "config_header", "JOINT_UNITS"]
-
-JOINTS = RRPR_JOINTS.count      # the paper's arm (kept for importers; the table takes n from the arm)
 
 # FMI unit name -> exponents of the SI base units (and rad)
 UNITS: dict[str, dict[str, int]] = {
@@ -58,17 +55,8 @@ JOINT_UNITS = {
     "force": ("N.m", "N"), "viscous": ("N.m.s/rad", "N.s/m"), "stiffness": ("N.m/rad", "N/m"),
 }
 
+#: FMI unit names of an arm parameter's SI unit
 _ROBOT_UNITS = {"kg": "kg", "m": "m", "kg m^2": "kg.m2", "m/s^2": "m/s2"}
-
-_ROBOT_DESCRIPTIONS = {
-    "m1": "mass of link 1", "m2": "mass of link 2", "m3": "mass of link 3", "m4": "mass of link 4",
-    "l1": "centre-of-mass distance of link 1 (Eq. 5)", "l2": "centre-of-mass distance of link 2 (Eq. 5)",
-    "I1": "inertia of link 1", "I2": "inertia of link 2", "I3": "inertia of link 3", "I4": "inertia of link 4",
-    "g": "gravitational acceleration", "a1": "kinematic length of link 1 (Eq. 8)",
-    "a2": "kinematic length of link 2 (Eq. 8)", "d1": "height of the joint-2 plane above the base",
-    "d4": "tool length below the prismatic stage",
-}
-
 
 @dataclass(frozen=True)
 class Variable:
@@ -118,23 +106,24 @@ class Variable:
     max: float | None = None
 
 
-def _joint_unit(kind: str, i: int, joints=RRPR_JOINTS) -> str:
+def _joint_unit(kind: str, i: int, joints) -> str:
     """The unit of a per-joint quantity on joint ``i``, by the joint's kind (revolute or prismatic)."""
     revolute, prismatic = JOINT_UNITS[kind]
     return prismatic if joints.kinds[i] == "prismatic" else revolute
 
 
-def plant_variables(params: RobotParameters, disturbance: DisturbanceSpec, substeps: int,
+def plant_variables(params: ArmModel, disturbance: DisturbanceSpec, substeps: int,
                     q0=None, dq0=None, stops=()) -> list[Variable]:
     """The variable table of the plant FMU, ordered by value reference.
 
     Parameters
     ----------
     params : blocks.arm.ArmModel
-        The true arm.  For the paper's arm (RobotParameters) its Table-1 values
-        become tunable parameters with k1..k5 calculated from them; another
-        arm's geometry is frozen in the generated C and only its joint count
-        and kinds shape the table.
+        The true arm.  Its named parameters (:meth:`~blocks.arm.ArmModel.parameter_names`, the paper's
+        Table 1) become tunable parameters, with the constants it calculates from them
+        (:meth:`~blocks.arm.ArmModel.calculated_parameters`, the paper's k1..k5); an arm without named
+        parameters has its geometry frozen in the generated C, and only its joint count and kinds shape
+        the table.
     disturbance : DisturbanceSpec or namespace
         Selected disturbance models and their parameters (start values), one
         entry per joint (see :func:`fmu.generated.arm_disturbance`).
@@ -178,17 +167,14 @@ def plant_variables(params: RobotParameters, disturbance: DisturbanceSpec, subst
         add(name=f"tau_dis[{i}]", type="Real", causality="output", variability="continuous",
             initial="calculated", start=None, unit=_joint_unit("force", i, joints),
             description=f"external disturbance on joint {i + 1} (sum of the selected models)")
-    rrpr = isinstance(params, RobotParameters)       # another arm's geometry is frozen in the generated C
-    for name, unit in ((("k1", "kg.m2"), ("k2", "kg.m2"), ("k3", "kg.m2"), ("k4", "kg"), ("k5", "kg.m2"))
-                       if rrpr else ()):
+    for name, unit, text in params.calculated_parameters():
         add(name=name, type="Real", causality="calculatedParameter", variability="fixed", initial="calculated",
-            start=None, unit=unit, description=f"inertia constant {name} of Eq. 5-7, from Table 1")
+            start=None, unit=_ROBOT_UNITS[unit], description=text)
 
-    for name in RobotParameters.names() if rrpr else ():
-        unit = RobotParameters.unit(name)
+    for name, value in params.parameter_values().items():
         add(name=name, type="Real", causality="parameter", variability="fixed", initial="exact",
-            start=float(getattr(params, name)), unit=_ROBOT_UNITS[unit], description=_ROBOT_DESCRIPTIONS[name],
-            c_name=name, positive=name not in ("g", "d1", "d4"))
+            start=value, unit=_ROBOT_UNITS[params.parameter_unit(name)],
+            description=params.parameter_description(name), c_name=name, positive=params.parameter_positive(name))
     d = disturbance
     for base, values, kind, text, nonneg in (
             ("f_r", d.f_r, "force", "Eq. 4 step amplitude", False),
@@ -228,18 +214,18 @@ def plant_variables(params: RobotParameters, disturbance: DisturbanceSpec, subst
     return rows
 
 
-def plant_parameter_values(params: RobotParameters, disturbance: DisturbanceSpec) -> dict:
+def plant_parameter_values(params: ArmModel, disturbance: DisturbanceSpec) -> dict:
     """FMU parameter name -> value for a Python parameter set (the plant FMU's naming).
 
     Examples
     --------
-    >>> values = plant_parameter_values(RobotParameters(), DisturbanceSpec(kinds=("friction",)))
+    >>> from blocks import load_scenario
+    >>> values = plant_parameter_values(load_scenario("paper").robot, DisturbanceSpec(kinds=("friction",)))
     >>> values["m1"], values["coulomb[2]"], values["disturbance_friction"], values["disturbance_paper"]
     (5.58, 0.5, True, False)
     """
-    # another arm's geometry is constants in the C: only the paper's arm has Table-1 parameters
-    names = RobotParameters.names() if isinstance(params, RobotParameters) else ()
-    values: dict = {name: float(getattr(params, name)) for name in names}
+    # an arm without named parameters has its geometry as constants in the C
+    values: dict = params.parameter_values()
     for base in ("f_r", "coulomb", "viscous"):
         for i, v in enumerate(getattr(disturbance, base)):
             values[f"{base}[{i}]"] = float(v)

@@ -198,7 +198,8 @@ def M(id, group, file, old, new, tests, what, equivalent=""):      # noqa: N802 
     return Mutant(id, group, file, old, new, tuple(tests), what, equivalent)
 
 
-ARM, DYNPY, KK, KINPY = "blocks/kernels/arm.py", "blocks/dynamics.py", "blocks/kernels/kinematics.py", "blocks/kinematics.py"
+ARM, DYNPY, KK, KINPY = ("blocks/model/rrpr/dynamics_kernels.py", "blocks/model/rrpr/dynamics.py",
+                         "blocks/model/rrpr/tool_kernels.py", "blocks/model/rrpr/kinematics.py")
 LAW, DK, CH, IKF = "blocks/kernels/laws.py", "blocks/kernels/disturbance.py", "blocks/kernels/chain.py", "blocks/arms/ik.py"
 RR_FILE = "blocks/arms/resolved_rate.py"      # J' by polarisation lives beside the law that uses it
 DIV, MON, RL, DS = "blocks/divergence.py", "blocks/monitor.py", "blocks/run_limits.py", "blocks/digital_stability.py"
@@ -477,6 +478,7 @@ CPL, MST, SV = "fmu/coupling.py", "fmu/master.py", "fmu/start_values.py"
 DG, SMP, NZ, NZK = "blocks/digital.py", "blocks/sampling.py", "blocks/noise.py", "blocks/kernels/noise.py"
 DP, TR = "blocks/compiled/dopri.py", "blocks/compiled/trace.py"
 TJ, TP, RR = "blocks/trajectory.py", "blocks/tool_path.py", "blocks/arms/resolved_rate.py"
+LAC = "blocks/model/rrpr/laceration.py"      # the RRPR's closed-form IK of the laceration path
 SU, CO, EV = "analysis/sweep/summary.py", "analysis/tune/costs.py", "analysis/tune/evaluate.py"
 FR, GD = "analysis/linear/frequency.py", "analysis/linear/gain_design.py"
 
@@ -598,9 +600,9 @@ MUTANTS += [
     M("tj-dds-T", "task_path", TJ, "step * ddsig / T ** 2", "step * ddsig / T", LACERATION, "s'' over T for T^2"),
     M("tj-bulge-ddw", "task_path", TJ, "4 * bulge * (1 - 2 * s), -8 * bulge", "4 * bulge * (1 - 2 * s), -4 * bulge", LACERATION,
       "bulge curvature w'' = -4 b for -8 b"),
-    M("tj-bias-w12", "task_path", TJ, "bx = ax + a1 * c1 * w1 ** 2 + a2 * c12 * w12 ** 2", "bx = ax + a1 * c1 * w1 ** 2 + a2 * c12 * w2 ** 2",
+    M("tj-bias-w12", "task_path", LAC, "bx = ax + a1 * c1 * w1 ** 2 + a2 * c12 * w12 ** 2", "bx = ax + a1 * c1 * w1 ** 2 + a2 * c12 * w2 ** 2",
       LACERATION, "IK acceleration bias: w2^2 for (w1 + w2)^2 in x"),
-    M("tj-aphi-sign", "task_path", TJ, "e1 + e2 - aphi)", "e1 + e2 + aphi)", LACERATION, "theta4'' = e1 + e2 + phi''"),
+    M("tj-aphi-sign", "task_path", LAC, "e1 + e2 - aphi)", "e1 + e2 + aphi)", LACERATION, "theta4'' = e1 + e2 + phi''"),
     M("tj-phase-cap", "task_path", TJ, "phase = min(max(math.floor(t / T), 0), 2 * stitches - 2)",
       "phase = min(max(math.floor(t / T), 0), 2 * stitches - 1)", LACERATION, "a phase past the last stitch"),
     M("tp-quintic-c4", "task_path", TJ, "c4 = -15.0 * d + 7.0 * dv - da", "c4 = -15.0 * d + 7.0 * dv - 0.5 * da", TOOL_PATH,

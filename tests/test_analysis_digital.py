@@ -134,7 +134,7 @@ def test_digital_analysis_answers_in_numbers_and_draws(tmp_path):
     assert f"Ts lambda_max(Y M^-1) < {result.ts_lambda_limit:.4g}" in result.answer
     assert result.quantization is None                   # exact encoders: nothing to add
     assert type(result).from_json(result.to_json()).largest_stable_scale == result.largest_stable_scale
-    paths = digital_figures(result, tmp_path)
+    paths = digital_figures(result, tmp_path, blocks.RRPR_JOINTS)
     assert {p.name for p in paths} == {"digital_poles.png", "digital_poles.svg", "digital_gain_limit.png",
                                        "digital_gain_limit.svg"}
     with pytest.raises(ValueError, match="no \\[controller\\] section"):

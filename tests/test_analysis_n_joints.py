@@ -31,7 +31,7 @@ from analysis.linear.arm_linear import arm_linearization
 from analysis.linear.frequency import arm_frequency_analysis
 from blocks.digital import DigitalController
 from blocks.digital_stability import largest_stable_scale, sampled_stability
-from blocks.parameters import RobotParameters
+from blocks.model.rrpr.parameters import RobotParameters
 
 PLANAR = PlanarTwoLink()
 CYL = Cylindrical()

@@ -576,12 +576,12 @@ def test_long_steps_report_how_far_they_have_got(reported):
 
 def test_figures_name_the_joints_as_a_person_reads_them(tmp_path):
     from analysis.simulation.figures import convergence_figure
-    from blocks.joints import RRPR_JOINTS
+    from blocks.model.rrpr.joints import RRPR_JOINTS
     h = [0.004, 0.002, 0.001]
     study = {"steps": h, "errors": {f"q[{i}]": [(i + 1) * x for x in h] for i in range(4)},
              "units": {"q[0]": "rad", "q[1]": "rad", "q[2]": "m", "q[3]": "rad"}, "order": 1.0, "scenario": "s",
              "fmi_version": 2, "t_final": 1.0}
-    svg = next(p for p in convergence_figure(study, tmp_path) if p.suffix == ".svg").read_text()
+    svg = next(p for p in convergence_figure(study, tmp_path, RRPR_JOINTS) if p.suffix == ".svg").read_text()
     for label in RRPR_JOINTS.labels:
         assert label in svg
     assert "q[0] (rad)" not in svg

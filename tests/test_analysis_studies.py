@@ -20,7 +20,7 @@ import scipy.signal
 from conftest import PAPER_FR, PAPER_K, hold_trajectory, make_scenario
 
 from analysis.simulation import studies
-from blocks import MeasurementNoise
+from blocks import RRPR_JOINTS, MeasurementNoise
 
 
 def test_signal_metrics_on_known_signals():
@@ -96,7 +96,8 @@ def test_torque_noise_grows_with_the_observer_gain_as_predicted():
     study = studies.observer_gain_study(s, [("Y = 30 I", 30.0)], noise=noise)
     assert study.labels == ["none", "Y = 30 I"]
     # the realisation of the noise on the output grid (grid points fall on the noise samples)
-    n = MeasurementNoise(dq_std=(0.0, 0.0, 5e-4, 0.0), seed=3, sample_period=0.001, t_final=0.5)
+    n = MeasurementNoise(dq_std=(0.0, 0.0, 5e-4, 0.0), seed=3, sample_period=0.001, t_final=0.5,
+                         joints=RRPR_JOINTS)
     rms = float(np.sqrt(np.mean(n.sample(np.linspace(0.0, 0.5, 501))[1][:, 2] ** 2)))
     none, fast = (r.torque_noise_rms for r in study.runs)
     assert none[2] == pytest.approx(0.25 * 36.0 * rms, rel=0.05)

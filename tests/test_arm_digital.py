@@ -23,8 +23,8 @@ from blocks.compiled import numba_or_none  # noqa: E402
 from blocks.digital import DigitalController, actuator, digital_controller, digital_observer, encoder  # noqa: E402
 from blocks.digital_loop import simulate_sampled  # noqa: E402
 from blocks.digital_stability import scenario_stability  # noqa: E402
+from blocks.model.rrpr.parameters import PAPER_PARAMETERS  # noqa: E402
 from blocks.noise import MeasurementNoise  # noqa: E402
-from blocks.parameters import PAPER_PARAMETERS  # noqa: E402
 from blocks.scenario import ScenarioError, load_scenario  # noqa: E402
 
 pytestmark = pytest.mark.slow
@@ -258,8 +258,9 @@ def test_noise_of_n_joints_is_seeded_and_keeps_the_rrpr_draw():
     n_q, n_dq = noise.sample(0.015)
     np.testing.assert_allclose(n_q, 0.5 * (draws[1, :3] + draws[2, :3]), rtol=1e-12, atol=0)
     np.testing.assert_allclose(n_dq, 0.5 * (draws[1, 3:] + draws[2, 3:]), rtol=1e-12, atol=0)
-    rrpr = MeasurementNoise(q_std=(1e-4, 1e-4, 1e-5, 1e-4), seed=2, t_final=0.5)
+    rrpr = MeasurementNoise(q_std=(1e-4, 1e-4, 1e-5, 1e-4), seed=2, t_final=0.5, joints=PAPER_PARAMETERS.joints)
     expected = np.random.default_rng(2).standard_normal((502, 8)) * np.array([1e-4, 1e-4, 1e-5, 1e-4, 0, 0, 0, 0])
     np.testing.assert_array_equal(rrpr.table, expected.T)
-    with pytest.raises(ValueError, match=r"^noise.q_std must be 4 finite numbers >= 0, got \(1, 2, 3\)$"):
-        MeasurementNoise(q_std=(1, 2, 3))
+    with pytest.raises(ValueError, match=r"^noise.q_std must be a number or 4 finite numbers >= 0 \(rad, rad, m, rad\), "
+                                         r"one per joint of \['theta1', 'theta2', 'd3', 'theta4'\], got \(1, 2, 3\)$"):
+        MeasurementNoise(q_std=(1, 2, 3), joints=PAPER_PARAMETERS.joints)

@@ -4,7 +4,7 @@ import pytest
 from reference_arm import mass_matrix
 
 from blocks.arm import ArmModel
-from blocks.parameters import RobotParameters
+from blocks.model.rrpr.parameters import RobotParameters
 
 
 @pytest.fixture(scope="module")

@@ -17,8 +17,8 @@ from blocks.compiled.c_backend import C_FLAGS, CodegenError, emit_c_function, sy
 from blocks.compiled.trace import Graph, param_values
 from blocks.contract import contract_of
 from blocks.disturbances import DisturbanceSpec
+from blocks.model.rrpr.parameters import RobotParameters
 from blocks.noise import MeasurementNoise
-from blocks.parameters import RobotParameters
 from blocks.systems import controller, observer, plant, sensor
 from fmu.build import find_compiler
 
@@ -150,7 +150,8 @@ def test_shared_terms_are_written_once(tmp_path):
 
 
 def test_tables_and_unknown_leaves_are_refused():
-    noisy = sensor(MeasurementNoise(q_std=(1e-3,) * 4, seed=1, sample_period=0.01, t_final=2.0))
+    noisy = sensor(MeasurementNoise(q_std=(1e-3,) * 4, seed=1, sample_period=0.01, t_final=2.0,
+                                    joints=RobotParameters.joints))
     with pytest.raises(CodegenError, match="cannot be written as C numbers"):
         system_c(noisy)
     g = Graph()

@@ -24,7 +24,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 from analysis.simulation.experiment import _write_timeseries  # noqa: E402
 from analysis.simulation.figures import joint_axes  # noqa: E402
 from blocks import simulate  # noqa: E402
-from blocks.joints import RRPR_JOINTS  # noqa: E402
+from blocks.model.rrpr.joints import RRPR_JOINTS  # noqa: E402
 from dobkit.cli import build_parser, main  # noqa: E402
 
 

@@ -57,7 +57,8 @@ def test_the_table_holds_independent_samples_of_the_stated_spread(noisy):
     assert table.shape[0] == 8 and table.shape[1] >= 0.2 / PERIOD + 1
     assert len({float(v) for v in table.ravel()}) == table.size         # no sample repeats another
     # a bigger table of the same definition: the spread at the sample instants is the stated one (within 3 %)
-    big = blocks.MeasurementNoise(q_std=(1e-3,) * 4, dq_std=(2e-2,) * 4, seed=7, sample_period=PERIOD, t_final=100.0)
+    big = blocks.MeasurementNoise(q_std=(1e-3,) * 4, dq_std=(2e-2,) * 4, seed=7, sample_period=PERIOD, t_final=100.0,
+                                  joints=blocks.RRPR_JOINTS)
     std = big.table.std(axis=1)
     np.testing.assert_allclose(std, [1e-3] * 4 + [2e-2] * 4, rtol=0.03)
 
@@ -76,7 +77,8 @@ def test_each_batch_member_reads_its_own_table(noisy, engine):
     seeds = [7, 11]
     for i, seed in enumerate(seeds):
         table = blocks.MeasurementNoise(q_std=tuple(NOISE["noise.q_std"]), dq_std=tuple(NOISE["noise.dq_std"]),
-                                        seed=seed, sample_period=PERIOD, t_final=0.2).table
+                                        seed=seed, sample_period=PERIOD, t_final=0.2,
+                                        joints=blocks.RRPR_JOINTS).table
         q_noise = (result.signals["q_meas"][i] - result.signals["q"][i]).T
         dq_noise = (result.signals["dq_meas"][i] - result.signals["dq"][i]).T
         _check_noise(q_noise, dq_noise, table)

@@ -320,7 +320,7 @@ def test_scope4_digital_section_shows_those_numbers(scope4_digital):
     from analysis.report.view.digital import digital_section
     from analysis.report.view.text import fmt
     s, result = scope4_digital
-    section = digital_section(SimpleNamespace(digital=result), {}, s.robot.joints)
+    section = digital_section(SimpleNamespace(digital=result), {}, s.robot)
     assert f"max |z| = {fmt(result.poles.spectral_radius, 6)}" in section.poles.caption
     assert f"Ts lambda_max(Y M^-1) < {fmt(result.ts_lambda_limit, 5)}" in section.rule_text
     assert "dG/dq" in section.rule_text

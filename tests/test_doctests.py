@@ -50,7 +50,7 @@ CASES = _cases()
 
 def test_modules_with_examples_are_found():
     found = {case.values[0] for case in CASES}
-    assert {"blocks.parameters", "fmu.export", "fmu.block", "fmu.variables"} <= found, sorted(found)
+    assert {"blocks.model.rrpr.parameters", "fmu.export", "fmu.block", "fmu.variables"} <= found, sorted(found)
 
 
 @pytest.mark.parametrize("name", CASES)

@@ -18,7 +18,7 @@ from scipy.integrate import solve_ivp
 
 from blocks import DisturbanceSpec, ParameterError, RobotParameters, plant
 from blocks.disturbances import external_disturbance, friction_disturbance, tissue_disturbance
-from blocks.dynamics import (
+from blocks.model.rrpr.dynamics import (
     coriolis_matrix,
     coriolis_vector,
     forward_dynamics,

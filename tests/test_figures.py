@@ -112,7 +112,7 @@ def test_design_figure_separates_torques_and_forces():
     runs = confirm_by_simulation(scenario, [("scenario gain", scenario.observer_gain)], t_final=0.3,
                                  disturbance={"kind": "paper"})
     run = runs["scenario gain"]
-    fig = design_axes(runs)
+    fig = design_axes(runs, scenario.robot.joints)
     try:
         labels = [ax.get_ylabel() for ax in fig.axes]
         assert "|d - d_hat|, joints 1, 2, 4 (N m)" in labels and "|d - d_hat|, joint 3 (N)" in labels

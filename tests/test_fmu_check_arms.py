@@ -102,7 +102,7 @@ def test_the_command_line_checks_urdf_and_paper_fmus_against_an_arm(tmp_path, ca
     assert dobkit_main(["fmu", "check", str(path), "--t-final", "0.2", "--arm", "panda"]) == 1
     assert "the FMU has 4 joints" in capsys.readouterr().out
     # a paper-arm FMU whose m2 start value is not Table 1's: consistent with itself, not with Table 1
-    from blocks.parameters import RobotParameters
+    from blocks.model.rrpr.parameters import RobotParameters
     changed = export_plant(tmp_path / "m2.fmu", params=RobotParameters(m2=1.2))
     assert dobkit_main(["fmu", "check", str(changed), "--t-final", "0.2"]) == 0
     capsys.readouterr()

@@ -16,7 +16,7 @@ from conftest import PAPER_G, PAPER_K, reference_inertia
 from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 
-from blocks.parameters import RobotParameters
+from blocks.model.rrpr.parameters import RobotParameters
 from fmu import FMUInstance, export_plant
 
 pytestmark = pytest.mark.needs_cc

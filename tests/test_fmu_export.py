@@ -22,7 +22,7 @@ from fmpy.validation import validate_fmu
 from scipy.integrate import solve_ivp
 
 from blocks.disturbances import DisturbanceSpec
-from blocks.parameters import RobotParameters
+from blocks.model.rrpr.parameters import RobotParameters
 from blocks.systems import plant as python_plant
 from fmu import FMUBuildError, FMUInstance, FMUStepError, check_fmu, export_plant, load
 

@@ -16,7 +16,7 @@ import pytest
 
 from blocks.contract import contract_of
 from blocks.disturbances import DISTURBANCE_KINDS, DisturbanceSpec
-from blocks.parameters import RobotParameters
+from blocks.model.rrpr.parameters import RobotParameters
 from blocks.systems import plant
 from fmu import FMUInstance, export_plant
 from fmu.build import COMPILE_FLAGS, find_compiler

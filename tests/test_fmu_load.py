@@ -16,7 +16,7 @@ from conftest import make_scenario
 import blocks
 from blocks.contract import contract_of
 from blocks.disturbances import DisturbanceSpec
-from blocks.parameters import RobotParameters
+from blocks.model.rrpr.parameters import RobotParameters
 from blocks.systems import plant as python_plant
 from fmu import FMUMissingVariablesError, check_fmu, export_plant, load
 from fmu.package import package_fmu

@@ -18,7 +18,7 @@ from fmpy.fmi1 import FMICallException
 from scipy.integrate import solve_ivp
 
 from blocks.disturbances import DisturbanceSpec
-from blocks.parameters import RobotParameters
+from blocks.model.rrpr.parameters import RobotParameters
 from blocks.systems import plant as python_plant
 
 STATES = [f"q[{i}]" for i in range(4)] + [f"dq[{i}]" for i in range(4)]

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import blocks.gains
-from blocks import ScenarioError, load_scenario, scenario_from_dict
+from blocks import RRPR_JOINTS, ScenarioError, load_scenario, scenario_from_dict
 from blocks.batch import Variants
 from blocks.gains import GainError, validated_gain
 
@@ -49,7 +49,7 @@ BAD = {
 
 @pytest.mark.parametrize("key, value, expected", GOOD)
 def test_good_gains_become_read_only_matrices(key, value, expected):
-    matrix = validated_gain(value, key)
+    matrix = validated_gain(value, key, RRPR_JOINTS)
     np.testing.assert_array_equal(matrix, expected)
     assert matrix.dtype == float and not matrix.flags.writeable
     with pytest.raises(ValueError):
@@ -58,7 +58,7 @@ def test_good_gains_become_read_only_matrices(key, value, expected):
 
 def test_the_callers_array_is_copied():
     given = np.diag([1.0, 2.0, 3.0, 4.0])
-    matrix = validated_gain(given, "kp")
+    matrix = validated_gain(given, "kp", RRPR_JOINTS)
     given[0, 0] = 99.0                            # the caller keeps a writable array ...
     assert matrix[0, 0] == 1.0                    # ... that does not reach the validated gain
     assert given.flags.writeable
@@ -68,7 +68,7 @@ def test_the_callers_array_is_copied():
 def test_bad_gains_name_the_key_the_value_and_what_is_allowed(case):
     key, value, fragments = BAD[case]
     with pytest.raises(GainError) as err:
-        validated_gain(value, key)
+        validated_gain(value, key, RRPR_JOINTS)
     assert isinstance(err.value, ValueError)
     for fragment in fragments:
         assert fragment in str(err.value), (fragment, str(err.value))
@@ -76,7 +76,7 @@ def test_bad_gains_name_the_key_the_value_and_what_is_allowed(case):
 
 def test_unknown_gain_name():
     with pytest.raises(GainError, match="gains.ki"):
-        validated_gain(1.0, "ki")
+        validated_gain(1.0, "ki", RRPR_JOINTS)
 
 
 @pytest.fixture(scope="module")
@@ -88,7 +88,7 @@ def paper():
 def test_scenario_and_batch_refuse_exactly_what_validated_gain_refuses(case, paper):
     key, value, _ = BAD[case]
     with pytest.raises(GainError) as direct:
-        validated_gain(value, key)
+        validated_gain(value, key, RRPR_JOINTS)
     with pytest.raises(ScenarioError) as from_file:
         scenario_from_dict({"gains": {key: value}}, source="g.toml")
     with pytest.raises(ScenarioError) as from_batch:

@@ -8,7 +8,7 @@ import pytest
 from conftest import D1, D4, L1, L2, fd_jacobian, reference_fk
 
 from blocks import RobotParameters, UnreachableError
-from blocks.kinematics import (
+from blocks.model.rrpr.kinematics import (
     forward_kinematics,
     inverse_kinematics,
     jacobian,
@@ -173,7 +173,7 @@ def test_tool_velocity_is_the_time_derivative_of_the_pose():
 
 def test_the_inner_reach_is_the_links_difference_whichever_is_longer():
     """kinpy-reach-abs: with a2 > a1 the annulus is |a1 - a2| to a1 + a2 (law of cosines at theta2 = pi, 0)."""
-    from blocks.kinematics import UnreachableError, inverse_kinematics, planar_reach
+    from blocks.model.rrpr.kinematics import UnreachableError, inverse_kinematics, planar_reach
     arm = RobotParameters(a1=0.2, a2=0.5)
     inner, outer = planar_reach(arm)
     assert (inner, outer) == pytest.approx((0.3, 0.7))
@@ -188,7 +188,7 @@ def test_the_inner_reach_is_the_links_difference_whichever_is_longer():
 def test_ik_with_no_singularity_margin_accepts_the_folded_and_the_stretched_arm():
     """kinpy-ik-margin-le: ``min_sin_theta2 = 0`` accepts the workspace boundary itself: r = |a1 - a2| (theta2 = pi)
     and r = a1 + a2 (theta2 = 0; one ulp beyond 0.7 m, where cos(theta2) rounds to 1 and sin(theta2) to 0)."""
-    from blocks.kinematics import inverse_kinematics
+    from blocks.model.rrpr.kinematics import inverse_kinematics
     for r, theta2 in ((L1 - L2, math.pi), (np.nextafter(L1 + L2, 1.0), 0.0)):
         pose = np.array([r, 0.0, D1 - 0.1 - D4, 0.2])
         q = inverse_kinematics(pose, PAPER)

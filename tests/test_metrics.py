@@ -25,6 +25,7 @@ import blocks
 from analysis.sweep.summary import summarize
 from blocks.batch import simulate_batch
 from blocks.metrics import METRICS, TrackingAccumulator, tracking_metrics
+from blocks.model.rrpr import tool_kernels as RRPR_TOOL
 
 # --------------------------------------------------------------------------------------------------------------
 # Hand-made signals: five grid points, one kind of error at each
@@ -107,7 +108,7 @@ def test_the_accumulator_over_chunks_and_members_gives_the_hand_values():
     d = np.ones((4, 5, 2))
     d[:, :, 0] += D_ERROR
     kin = [L1, L2, 0.12, 0.271]
-    acc = TrackingAccumulator(kin, 5, METRICS, members=(2,))
+    acc = TrackingAccumulator(kin, 5, METRICS, members=(2,), n_joints=4, tool_position=RRPR_TOOL.tool_position)
     for a, b in ((0, 2), (2, 4), (4, 5)):
         acc.add(q_ref[:, a:b], q[:, a:b], d[:, a:b], np.ones((4, b - a, 2)), last=b == 5)
     r = acc.result()

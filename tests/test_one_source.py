@@ -15,7 +15,7 @@ from blocks import kernels
 from blocks.batch import Variants
 from blocks.batch.members import MemberLoop
 from blocks.disturbances import DisturbanceSpec
-from blocks.parameters import PAPER_PARAMETERS, RobotParameters
+from blocks.model.rrpr.parameters import PAPER_PARAMETERS, RobotParameters
 from blocks.systems import controller, observer, plant
 
 RNG = np.random.default_rng(20261201)

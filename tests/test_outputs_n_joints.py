@@ -25,7 +25,9 @@ from analysis.report.view.simulation import simulation_section, worse_with_obser
 from analysis.simulation import figures
 from analysis.simulation.experiment import format_rms_table
 from blocks.arm import ArmModel
-from blocks.joints import RRPR_JOINTS, JointSpace
+from blocks.joints import JointSpace
+from blocks.model.rrpr.joints import RRPR_JOINTS
+from blocks.model.rrpr.parameters import RobotParameters
 
 # ----------------------------------------------------------------------------------------------------------------
 # A small arm model of any joint count
@@ -267,7 +269,7 @@ def _metrics(arm: Chain) -> dict:
 def test_printed_table_has_one_row_per_joint_with_its_units(n):
     arm = ARMS[n]
     metrics = _metrics(arm)
-    lines = format_rms_table(metrics, arm.joints).splitlines()
+    lines = format_rms_table(metrics, arm).splitlines()
     rows = [line for line in lines if line.startswith("Joint ")]
     assert len(rows) == n
     for i, row in enumerate(rows):
@@ -286,12 +288,12 @@ def test_printed_table_has_one_row_per_joint_with_its_units(n):
 
 def test_the_papers_arm_keeps_the_papers_table_layout():
     metrics = _metrics(types.SimpleNamespace(n=4, joints=RRPR_JOINTS))
-    text = format_rms_table(metrics, RRPR_JOINTS)
+    text = format_rms_table(metrics, RobotParameters())
     assert text == format_rms_table(metrics)
     head = text.splitlines()[0].split()
     assert head[-4:] == ["Joint", "3", "Joint", "4"]
     with pytest.raises(ValueError, match="metrics hold 7 joints, the arm has 2"):
-        format_rms_table(_metrics(ARMS[7]), ARMS[2].joints)
+        format_rms_table(_metrics(ARMS[7]), ARMS[2])
 
 
 # ----------------------------------------------------------------------------------------------------------------

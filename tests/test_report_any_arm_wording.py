@@ -18,7 +18,7 @@ import pytest
 from analysis.report.view.frequency import _band
 from analysis.report.view.simulation import _joint_rows, _table_3_layout
 from analysis.sweep.summary import _display_scale
-from blocks.joints import RRPR_JOINTS
+from blocks.model.rrpr.joints import RRPR_JOINTS
 
 ROOT = Path(__file__).resolve().parents[1]
 

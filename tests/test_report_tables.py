@@ -27,7 +27,7 @@ def test_quick_digital_report_says_the_noise_was_not_simulated():
     analysis = digital_analysis(scenario, rates_hz=(1000.0,), configurations=[np.array(q0)], simulate_noise=False)
     assert analysis.quantization is not None and analysis.quantization.simulated_rms is None
     result = SimpleNamespace(digital=analysis, settings=QUICK_SETTINGS)      # the two fields the views read
-    table = digital_section(result, {}).quantization
+    table = digital_section(result, {}, scenario.robot).quantization
     assert table.header == ["joint", "resolution", "torque noise, linear model"]
     assert all(cell.text != "-" for row in table.rows for cell in row)
     assert "does not simulate" in table.caption

@@ -40,7 +40,7 @@ def _metrics(dc_with, dc_without, n):
     return [joint(j, dc_with) for j in range(n["count"])], [joint(j, dc_without) for j in range(n["count"])]
 
 
-def _reading(joints, at):
+def _reading(joints, at, paper=False):
     from types import SimpleNamespace
 
     from analysis.report.view.frequency import _frequency_reading
@@ -48,14 +48,16 @@ def _reading(joints, at):
     high = SimpleNamespace(kind="high-pass", peak_rad_s=None, peak_gain=1.0, dc_gain=0.0, band_3db_rad_s=(10.0, None))
     fr = SimpleNamespace(tracking_without_dob=SimpleNamespace(metrics=wo), tracking_with_dob=SimpleNamespace(metrics=w),
                          estimation_with_dob=SimpleNamespace(metrics=[high] * joints.count))
-    return _frequency_reading(fr, True, joints)
+    return _frequency_reading(fr, True, joints, paper)
 
 
 def test_the_frequency_reading_speaks_of_the_arms_own_prismatic_joint():
-    from blocks.joints import RRPR_JOINTS, JointSpace
+    from blocks.joints import JointSpace
+    from blocks.model.rrpr.joints import RRPR_JOINTS
     # the paper's words, as before: its joint 3 (d3) sets the depth
-    assert _reading(RRPR_JOINTS, 2).startswith("A constant force of 1 N on the prismatic joint leaves 2 mm of depth "
-                                               "error without the observer and none with it. ")
+    assert _reading(RRPR_JOINTS, 2, paper=True).startswith(
+        "A constant force of 1 N on the prismatic joint leaves 2 mm of depth error without the observer and none "
+        "with it. ")
     # an arm whose prismatic joint is its first: that joint's numbers, under its name
     slider = JointSpace(names=("slide", "yaw", "pitch"), kinds=("prismatic", "revolute", "revolute"))
     assert _reading(slider, 0).startswith("A constant force of 1 N on the prismatic joint Joint 1 (slide) leaves 2 mm "

@@ -28,7 +28,7 @@ import blocks
 from blocks.digital import DigitalController
 from blocks.digital_stability import held_exponential, sampled_stability, scenario_stability, spectral_radius
 from blocks.metrics import signal
-from blocks.parameters import RobotParameters
+from blocks.model.rrpr.parameters import RobotParameters
 from blocks.sampled_blocks import sampled_initial_state, sampled_loop
 from blocks.scenario import ScenarioError
 from dobkit.cli import main

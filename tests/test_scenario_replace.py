@@ -70,14 +70,15 @@ def test_grids_too_large_for_memory_are_refused_by_name():
 
 
 def test_noise_off_allocates_nothing_and_is_zero():
-    quiet = MeasurementNoise(t_final=1e6)                # a long run without noise costs no memory
+    quiet = MeasurementNoise(t_final=1e6, joints=blocks.RRPR_JOINTS)                # a long run without noise costs no memory
     assert not quiet.enabled and quiet._samples is None
     n_q, n_dq = quiet.sample(np.array([0.0, 5.0]))
     assert n_q.shape == (2, 4) and not n_q.any() and not n_dq.any()
 
 
 def test_noise_rms_matches_linear_interpolation_of_white_samples():
-    noise = MeasurementNoise(q_std=(1.0, 1.0, 1.0, 1.0), seed=3, sample_period=0.01, t_final=2000.0)
+    noise = MeasurementNoise(q_std=(1.0, 1.0, 1.0, 1.0), seed=3, sample_period=0.01, t_final=2000.0,
+                             joints=blocks.RRPR_JOINTS)
     n_q, _ = noise.sample(np.linspace(0.0, 2000.0, 1_000_001))
     # E[((1-w) a + w b)^2] averaged over w in [0, 1] = 2/3 for independent unit samples
     assert np.sqrt(np.mean(n_q ** 2)) == pytest.approx(np.sqrt(2 / 3), rel=0.01)

@@ -16,6 +16,7 @@ from two_joint_arm import write_urdf as _urdf
 
 import blocks
 from blocks.gains import GainError, validated_gain
+from blocks.model.rrpr.joints import RRPR_JOINTS
 from blocks.scenario import ScenarioError
 
 PAPER = blocks.load_scenario("paper")
@@ -77,7 +78,7 @@ def test_entry_points_answer_bad_input_with_their_documented_errors(tmp_path):
             PAPER.with_changes(given)
     for value in [None, "x", 10 ** 400, [math.nan] * 4, deep[:1], {"a": 1}, 0.0, [[1.0] * 4] * 4]:
         with pytest.raises(GainError):
-            validated_gain(value, "observer")
+            validated_gain(value, "observer", RRPR_JOINTS)
     for name, value in [("observer", None), ("observer", 1), ("engine", 5), ("engine", "turbo"), ("progress", 5),
                         ("progress", "x"), ("plant", "x"), ("plant", 5)]:
         with pytest.raises((TypeError, ValueError), match=name):
@@ -133,7 +134,7 @@ def test_devices_and_pipes_are_not_scenario_files(tmp_path):
 def test_a_scenarios_arrays_cannot_be_made_writable_again():
     s = blocks.load_scenario("surgical").with_changes({"initial.q": [0.1, 1.0, 0.2, 0.0]})
     arrays = {"kp": s.kp, "kd": s.kd, "observer_gain": s.observer_gain, "initial q": s.initial["q"],
-              "noise table": s.noise.table, "a validated gain": validated_gain(180, "kp")}
+              "noise table": s.noise.table, "a validated gain": validated_gain(180, "kp", RRPR_JOINTS)}
     for name, arr in arrays.items():
         before = arr.copy()
         for target in (arr, arr.base):

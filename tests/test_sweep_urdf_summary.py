@@ -115,7 +115,7 @@ def test_urdf_scenario_keys_have_units():
 
 def test_the_paper_arm_read_back_from_a_header_keeps_its_robot_units():
     from analysis.sweep.spec import joints_record
-    from blocks.joints import RRPR_JOINTS
+    from blocks.model.rrpr.joints import RRPR_JOINTS
     joints = summarize.__globals__["_joints_of_header"]({"joints": joints_record(RRPR_JOINTS), "scenario": "x.toml"})
     assert joints is RRPR_JOINTS
     assert key_unit("robot.m3", joints) == "kg" and key_unit("gains.observer", joints) == "kg m^2/s"

@@ -21,7 +21,7 @@ import blocks  # noqa: E402
 from blocks.arms import example_arm  # noqa: E402
 from blocks.compiled import numba_or_none  # noqa: E402
 from blocks.disturbances import DisturbanceSpec, external_disturbance, tissue_disturbance  # noqa: E402
-from blocks.parameters import RobotParameters  # noqa: E402
+from blocks.model.rrpr.parameters import RobotParameters  # noqa: E402
 from blocks.scenario import scenario_from_dict  # noqa: E402
 from blocks.systems import plant  # noqa: E402
 

@@ -243,9 +243,11 @@ def test_column_and_key_words_come_from_the_given_joints():
     assert column_unit("rms_disturbance_error[1]", joints) == "N m"
     assert key_name("disturbance.f_r[0]", joints) == "Eq. 4 amplitude f_r, Joint 1 (a)"
     assert key_unit("disturbance.f_r[0]", joints) == "N" and key_unit("initial.q[1]", joints) == "rad"
-    # the paper's words by default, as they were
-    assert column_label("rms_position_error[2]") == "RMS position error, Joint 3 (d3)"
-    assert key_unit("disturbance.f_r") == "N m or N" and key_unit("noise.q_std") == "rad or m"
+    # the paper's words on the paper's arm, as they were
+    paper = load_scenario("paper").robot.joints
+    assert column_label("rms_position_error[2]", paper) == "RMS position error, Joint 3 (d3)"
+    assert key_unit("disturbance.f_r", paper) == "N m or N" and key_unit("noise.q_std", paper) == "rad or m"
+    assert key_unit("robot.I2", paper) == "kg m^2" and key_unit("gains.observer", paper) == "kg m^2/s"
 
 
 DRAWS = '[monte_carlo.distributions]\n"disturbance.f_r[0]" = {kind = "uniform", low = 0.01, high = 0.1}\n'

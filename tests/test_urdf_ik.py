@@ -6,9 +6,9 @@ import pytest
 
 pytest.importorskip("pinocchio")
 
+from blocks.arm import UnreachableError  # noqa: E402
 from blocks.arms import IKUnreachableError, example_arm, joint_path, solve_ik  # noqa: E402
 from blocks.arms.ik import jacobian_rate  # noqa: E402
-from blocks.kinematics import UnreachableError  # noqa: E402
 
 W = 2.0
 

@@ -60,6 +60,9 @@ class ScaledArm(ArmModel):
             raise ValueError(f"inertia scale factor must be a finite number > 0, got {factor!r}")
         self.base, self.factor = arm_model(base, "base"), float(factor)
         self.joints, self.kernels, self.tool_kernels = base.joints, base.kernels, base.tool_kernels
+        # what scaling M and h keeps of the base's answers: the joints M depends on, a constant G, the held poses
+        self.inertia_depends_on, self.constant_gravity = base.inertia_depends_on, base.constant_gravity
+        self.held_values = base.held_values
 
     def kernel_params(self):
         return self.base.kernel_params()

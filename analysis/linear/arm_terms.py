@@ -16,16 +16,11 @@ import numpy as np
 
 from blocks.arm import ArmModel
 from blocks.arm_derivatives import FD_STEP, acceleration_jacobians, gravity_slopes, inertia_partials
-from blocks.joints import RRPR_JOINTS, JointSpace
+from blocks.joints import JointSpace
 
-__all__ = ["FD_STEP", "RRPR_RANGES", "RRPR_POINTS", "arm_model", "joint_vector", "joint_matrix", "workspace_ranges",
+__all__ = ["FD_STEP", "arm_model", "joint_vector", "joint_matrix", "workspace_ranges",
            "default_points", "inertia_partials", "acceleration_jacobians", "gravity_slopes"]
 
-#: The paper arm's survey ranges (rad, rad, m, rad): within its joint limits, the prismatic range spanning the
-#: laceration path's depths (about 0.24 m) with a wide margin; revolute joints cover a full turn.
-RRPR_RANGES = ((-np.pi, np.pi), (-np.pi, np.pi), (0.10, 0.35), (-np.pi, np.pi))
-#: The paper arm's survey grid: fine along theta2, the only joint its inertia depends on.
-RRPR_POINTS = (5, 73, 3, 5)
 
 # Full-factorial grids of other arms hold at most about this many configurations.
 _GRID_BUDGET = 20000
@@ -34,7 +29,8 @@ _GRID_BUDGET = 20000
 def arm_model(model, name: str = "arm") -> ArmModel:
     """``model`` checked to be an arm model (:class:`blocks.arm.ArmModel`)."""
     if not isinstance(model, ArmModel):
-        raise TypeError(f"{name} must be a blocks.arm.ArmModel (for example blocks.parameters.RobotParameters), "
+        raise TypeError(f"{name} must be a blocks.arm.ArmModel (for example the default scenario's arm, "
+                        "blocks.PAPER_PARAMETERS), "
                         f"got {type(model).__name__}")
     return model
 
@@ -64,7 +60,8 @@ def joint_matrix(value, name: str, n: int) -> np.ndarray:
 def workspace_ranges(joints: JointSpace) -> tuple[tuple[float, float], ...]:
     """Where the analyses sample each joint: within its limits; a full turn for an unlimited revolute joint.
 
-    The paper's arm keeps its survey ranges (:data:`RRPR_RANGES`).  A revolute
+    An arm whose joints carry survey ranges (:attr:`blocks.joints.JointSpace.survey_ranges`, the paper's) keeps
+    them.  A revolute
     joint limited on one side only turns a full turn from that side.
 
     Raises
@@ -72,8 +69,8 @@ def workspace_ranges(joints: JointSpace) -> tuple[tuple[float, float], ...]:
     ValueError
         For a prismatic joint without finite limits (no range to sample), naming it.
     """
-    if joints == RRPR_JOINTS:
-        return RRPR_RANGES
+    if joints.survey_ranges is not None:
+        return joints.survey_ranges
     out = []
     for name, kind, (lo, hi) in zip(joints.names, joints.kinds, joints.limits):
         if math.isfinite(lo) and math.isfinite(hi):
@@ -88,9 +85,10 @@ def workspace_ranges(joints: JointSpace) -> tuple[tuple[float, float], ...]:
 
 
 def default_points(joints: JointSpace) -> tuple[int, ...]:
-    """Points per joint of the default survey grid: :data:`RRPR_POINTS` for the paper's arm, else the same count
-    on every joint with at most about 20000 configurations in all (3 to 73 per joint)."""
-    if joints == RRPR_JOINTS:
-        return RRPR_POINTS
+    """Points per joint of the default survey grid: :attr:`~blocks.joints.JointSpace.survey_points` where the
+    arm's joints carry them (the paper's), else the same count on every joint with at most about 20000
+    configurations in all (3 to 73 per joint)."""
+    if joints.survey_points is not None:
+        return joints.survey_points
     per = int(math.floor(_GRID_BUDGET ** (1.0 / joints.count) + 1e-9))
     return (min(73, max(3, per)),) * joints.count

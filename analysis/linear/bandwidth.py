@@ -19,11 +19,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from analysis.linear.arm_terms import RRPR_POINTS, RRPR_RANGES, arm_model, default_points, joint_vector, workspace_ranges
+from analysis.linear.arm_terms import arm_model, default_points, joint_vector, workspace_ranges
 from analysis.results import JsonResult, omitted_if_none
 from blocks.arm import ArmModel
-from blocks.joints import RRPR_JOINTS
-from blocks.scenario import Scenario
+from blocks.scenario import Scenario, default_arm
 
 __all__ = ["DEFAULT_RANGES", "SlowestMode", "FastestMode", "SurveyGrid", "PathModes", "BandwidthOverview",
            "BandwidthSurvey", "workspace_grid", "observer_modes", "bandwidth_survey", "along_trajectory"]
@@ -31,8 +30,9 @@ __all__ = ["DEFAULT_RANGES", "SlowestMode", "FastestMode", "SurveyGrid", "PathMo
 # Joint ranges and point counts of the paper arm's survey grid (rad, rad, m, rad); also the default workspace
 # grid of the analyses (analysis.report.build.AnalysisSettings.workspace_points).  Other arms: default_points and
 # workspace_ranges of analysis.linear.arm_terms (within the joint limits).
-DEFAULT_RANGES = RRPR_RANGES
-DEFAULT_POINTS = RRPR_POINTS
+# the default scenario's arm's survey (the paper's)
+DEFAULT_RANGES = default_arm().joints.survey_ranges
+DEFAULT_POINTS = default_arm().joints.survey_points
 
 
 def workspace_grid(points=None, ranges=None, arm: ArmModel | None = None) -> tuple[np.ndarray, list[np.ndarray]]:
@@ -47,7 +47,7 @@ def workspace_grid(points=None, ranges=None, arm: ArmModel | None = None) -> tup
         ``(low, high)`` per joint (rad or m), both ends included.  Default:
         :func:`~analysis.linear.arm_terms.workspace_ranges` of the arm (within its limits).
     arm : ArmModel, optional
-        The arm whose defaults are used; without it, the paper's arm.
+        The arm whose defaults are used; without it, the default scenario's arm.
 
     Returns
     -------
@@ -79,8 +79,7 @@ def observer_modes(params: ArmModel, Y, q) -> tuple[np.ndarray, np.ndarray]:
     Parameters
     ----------
     params : ArmModel
-        The model the observer uses (the nominal one), for example the paper's
-        :class:`~blocks.parameters.RobotParameters`.
+        The model the observer uses (the nominal one).
     Y : array_like, shape (n, n)
         Observer gain.
     q : array_like, shape (..., n)
@@ -289,9 +288,13 @@ def bandwidth_survey(scenario: Scenario, Y=None, points=None, ranges=None, q_sli
     sensitivity = [float(np.max(np.ptp(shaped, axis=j))) for j in range(n)]
 
     if slice_joint is None:
-        # the paper's arm: theta2, its inertia's only variable; a grid too coarse to tell: the second joint
-        flat = model.joints == RRPR_JOINTS or max(sensitivity) <= 0.0
-        slice_joint = min(1, n - 1) if flat else int(np.argmax(sensitivity))
+        # the joint the model's inertia depends on, where it knows (the paper's theta2); else the most sensitive,
+        # and on a grid too coarse to tell, the second joint
+        known = model.inertia_depends_on
+        if known:
+            slice_joint = known[0]
+        else:
+            slice_joint = min(1, n - 1) if max(sensitivity) <= 0.0 else int(np.argmax(sensitivity))
     if not (isinstance(slice_joint, (int, np.integer)) and 0 <= slice_joint < n):
         raise ValueError(f"slice_joint must be a joint index 0..{n - 1} ({list(names)}), got {slice_joint!r}")
     if q_slice is None:

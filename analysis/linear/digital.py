@@ -44,7 +44,6 @@ from analysis.results import JsonResult
 from blocks.digital import DigitalController
 from blocks.digital_loop import sampled_initial_state, sampled_loop, simulate_sampled
 from blocks.digital_stability import sampled_stability
-from blocks.joints import RRPR_JOINTS
 from blocks.loop import closed_loop
 from blocks.metrics import signal
 from blocks.scenario import Scenario
@@ -373,8 +372,8 @@ _MOVED = 1
 def _moved_values(scenario: Scenario) -> tuple[float, ...]:
     """Values of joint ``_MOVED`` at which the gain-limit study holds the arm by default (rad or m)."""
     joints = scenario.nominal.joints
-    if joints == RRPR_JOINTS:
-        return (0.3, 1.57, 2.8)
+    if scenario.nominal.held_values is not None:
+        return scenario.nominal.held_values
     lo, hi = workspace_ranges(joints)[min(_MOVED, joints.count - 1)]
     return tuple(lo + f * (hi - lo) for f in (0.1, 0.5, 0.9))
 
@@ -401,7 +400,8 @@ def observer_gain_limit(scenario: Scenario, rates_hz=DEFAULT_RATES_HZ, configura
         configurations = [q_start] + [np.where(np.arange(len(q_start)) == min(_MOVED, len(q_start) - 1), v, q_start)
                                       for v in _moved_values(scenario)]
     configurations = [np.asarray(q, dtype=float) for q in configurations]
-    base = scenario.controller if scenario.controller is not None else DigitalController(sample_rate=1.0)
+    base = scenario.controller if scenario.controller is not None else \
+        DigitalController(sample_rate=1.0, joints=scenario.robot.joints)
     curves = []
     for method in discretizations:
         for delay in delays:

@@ -12,17 +12,17 @@ import numpy as np  # noqa: E402
 
 from analysis.linear.digital import DigitalAnalysis  # noqa: E402
 from analysis.simulation.figures import save_figure  # noqa: E402
-from blocks.joints import RRPR_JOINTS, JointSpace  # noqa: E402
+from blocks.joints import JointSpace  # noqa: E402
 
 __all__ = ["digital_figures"]
 
 _BLOCK_COLORS = {"plant": "tab:blue", "observer": "tab:orange", "encoder": "tab:green", "actuator": "tab:red"}
 
 
-def digital_figures(result: DigitalAnalysis, out_dir, joints: JointSpace = RRPR_JOINTS) -> list[Path]:
+def digital_figures(result: DigitalAnalysis, out_dir, joints: JointSpace) -> list[Path]:
     """Write ``digital_poles``, ``digital_gain_limit`` and (with encoders) ``digital_quantization``.
 
-    ``joints`` (default: the paper's) names the joints and their force units on the quantization figure.
+    ``joints`` (the arm's) names the joints and their force units on the quantization figure.
     """
     out_dir = Path(out_dir)
     paths = []

@@ -5,8 +5,8 @@ Each function takes the typed result of one analysis (see
 ``stem.png`` and ``stem.svg`` into a folder with
 :func:`analysis.simulation.figures.save_figure` (no dates or tool stamps, fixed SVG
 ids: the same numbers give the same bytes), returning the paths.  Per-joint
-figures take the arm's joints (``joints``, a :class:`blocks.joints.JointSpace`;
-default the paper's) for their panels, names and units.
+figures take the arm's joints (``joints``, a :class:`blocks.joints.JointSpace`)
+for their panels, names and units.
 """
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ from analysis.linear.gain_design import SimulationCheck  # noqa: E402
 from analysis.linear.loop import MismatchStudy, OperatingPoint  # noqa: E402
 from analysis.simulation.figures import joint_grid_shape, save_figure  # noqa: E402
 from analysis.simulation.studies import GainGridStudy, ObserverGainStudy, settling_definition  # noqa: E402
-from blocks.joints import RRPR_JOINTS, JointSpace  # noqa: E402
+from blocks.joints import JointSpace  # noqa: E402
 
 __all__ = ["pole_figure", "mismatch_figure", "bandwidth_figure", "design_figure", "bode_figure",
            "gain_study_figure", "gain_study_axes", "observer_study_figure", "ZERO_SHARE", "design_axes"]
@@ -120,7 +120,7 @@ def mismatch_figure(mismatch: MismatchStudy, out_dir) -> list[Path]:
 
 
 def bandwidth_figure(survey: BandwidthSurvey, designed: BandwidthOverview | None, pd_slowest: float,
-                     out_dir, joints: JointSpace = RRPR_JOINTS) -> list[Path]:
+                     out_dir, joints: JointSpace) -> list[Path]:
     """Eigenvalues of ``Y M^-1`` along the survey's slice joint (log scale) and the slowest mode's direction.
 
     The slice joint (theta2 for the paper's arm) is named, with its unit, from ``joints``.
@@ -158,7 +158,7 @@ def bandwidth_figure(survey: BandwidthSurvey, designed: BandwidthOverview | None
     return save_figure(fig, out_dir, "observer_bandwidth")
 
 
-def _error_groups(run: SimulationCheck, joints: JointSpace = RRPR_JOINTS) -> list[tuple[str, str, np.ndarray]]:
+def _error_groups(run: SimulationCheck, joints: JointSpace) -> list[tuple[str, str, np.ndarray]]:
     """``|d - d_hat|`` of a run per unit: (joints in words, unit, norm over those joints per output time).
 
     Torques (N m) and forces (N) are never summed into one number; results written before the per-joint error
@@ -176,13 +176,13 @@ def _error_groups(run: SimulationCheck, joints: JointSpace = RRPR_JOINTS) -> lis
     return groups
 
 
-def design_figure(confirm: dict[str, SimulationCheck], out_dir, joints: JointSpace = RRPR_JOINTS) -> list[Path]:
+def design_figure(confirm: dict[str, SimulationCheck], out_dir, joints: JointSpace) -> list[Path]:
     """Simulated estimation error (per unit: the revolute joints in N m, prismatic ones in N) and the
     Lyapunov certificate, paper gain against the designed gain."""
     return save_figure(design_axes(confirm, joints), out_dir, "observer_design")
 
 
-def design_axes(confirm: dict[str, SimulationCheck], joints: JointSpace = RRPR_JOINTS):
+def design_axes(confirm: dict[str, SimulationCheck], joints: JointSpace):
     """The figure of :func:`design_figure`, not yet written (matplotlib Figure)."""
     first = next(iter(confirm.values()))
     rows = len(_error_groups(first, joints))
@@ -222,8 +222,7 @@ def design_axes(confirm: dict[str, SimulationCheck], joints: JointSpace = RRPR_J
     return fig
 
 
-def bode_figure(freq: FrequencyAnalysis, out_dir, kind: str = "tracking",
-                joints: JointSpace = RRPR_JOINTS) -> list[Path]:
+def bode_figure(freq: FrequencyAnalysis, out_dir, kind: str, joints: JointSpace) -> list[Path]:
     """Bode magnitude per joint of ``w[i] -> e[i]`` (``kind="tracking"``) or ``w[i] -> e_d[i]`` (``"estimation"``),
     one panel per joint (a 2 x 2 grid for four)."""
     omega = np.array(freq.omega_rad_s)
@@ -345,7 +344,7 @@ def gain_study_figure(with_dob: GainGridStudy, without_dob: GainGridStudy, out_d
     return save_figure(gain_study_axes(with_dob, without_dob), out_dir, "study_gains")
 
 
-def observer_study_figure(study: ObserverGainStudy, out_dir, joints: JointSpace = RRPR_JOINTS) -> list[Path]:
+def observer_study_figure(study: ObserverGainStudy, out_dir, joints: JointSpace) -> list[Path]:
     """Trade-off of the observer gain: tool-tip error and torque noise against the slowest observer mode."""
     labels, runs, slowest = study.labels, study.runs, study.slowest_mode_rad_s
     ok = [k for k, r in enumerate(runs) if r.ok and slowest[k] is not None]

@@ -21,7 +21,7 @@ Certificate
     function of it and its minimum over a box ``|q_j'| <= v_j`` is attained at a
     vertex: checking the ``2^n`` vertices at each configuration of a grid is exact
     for that grid.  For the paper's arm ``dM/dtheta2`` is the analytic
-    :func:`blocks.dynamics.inertia_derivative_theta2` and the other partials
+    :func:`blocks.model.rrpr.dynamics.inertia_derivative_theta2` and the other partials
     (exactly zero) central differences; any other :class:`~blocks.arm.ArmModel`
     gives its partials through :func:`analysis.linear.arm_terms.inertia_partials`
     (exact from the model, or central differences).
@@ -40,14 +40,11 @@ from analysis.linear import arm_terms
 from analysis.linear.bandwidth import BandwidthOverview, observer_modes
 from analysis.results import JsonResult
 from blocks.arm import ArmModel
-from blocks.dynamics import inertia_derivative_theta2
-from blocks.parameters import RobotParameters
 
 __all__ = ["GainDesign", "Certificate", "CriticalSpeed", "SimulationCheck", "ObserverDesign", "design_observer_gain",
            "inertia_partials", "decay_rates", "convergence_certificate", "critical_speed", "lyapunov_function",
            "confirm_by_simulation"]
 
-_FD_STEP = 1e-6   # m or rad; the paper arm's joints other than theta2 (M does not depend on them)
 
 
 @dataclass(frozen=True, eq=False)
@@ -301,23 +298,12 @@ def _vertices(bound: np.ndarray) -> np.ndarray:
 def inertia_partials(params: ArmModel, q) -> np.ndarray:
     """``dM/dq_j`` at each configuration, shape (..., n, n, n) (last-but-two axis: j).
 
-    For the paper's arm ``j = 1`` (theta2) is the analytic derivative
-    :func:`~blocks.dynamics.inertia_derivative_theta2` and the other joints
-    use central differences (exactly zero: its inertia depends on theta2
-    only, but that is not assumed).  Any other model: :func:`analysis.linear.arm_terms.inertia_partials`.
+    The model's own closed form where it has one (:meth:`~blocks.arm.ArmModel.closed_form_inertia_partials`:
+    the paper's arm's analytic ``dM/dtheta2``); any other model: :func:`analysis.linear.arm_terms.inertia_partials`.
     """
     q = np.asarray(q, dtype=float)
-    if not isinstance(params, RobotParameters):
-        return arm_terms.inertia_partials(arm_terms.arm_model(params, "params"), q)
-    parts = []
-    for j in range(params.n):
-        if j == 1:
-            parts.append(inertia_derivative_theta2(q, params))
-            continue
-        dq = np.zeros(params.n)
-        dq[j] = _FD_STEP
-        parts.append((params.inertia(q + dq) - params.inertia(q - dq)) / (2 * _FD_STEP))
-    return np.stack(parts, axis=-3)
+    exact = arm_terms.arm_model(params, "params").closed_form_inertia_partials(q)
+    return arm_terms.inertia_partials(params, q) if exact is None else exact
 
 
 def decay_rates(params: ArmModel, Y, q, dq) -> np.ndarray:

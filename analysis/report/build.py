@@ -56,9 +56,8 @@ from analysis.simulation.studies import Studies, gain_grid_study, observer_gain_
 from blocks import __version__, load_scenario
 from blocks.control_compat import PythonControlChanged
 from blocks.gains import validated_gain
-from blocks.joints import RRPR_JOINTS, JointSpace
+from blocks.joints import JointSpace
 from blocks.outputs import metrics_json, staged_output
-from blocks.parameters import RobotParameters
 from blocks.progress import ProgressCallback as Progress
 from blocks.scenario import Scenario, scenario_from_dict
 
@@ -217,8 +216,9 @@ def bandwidth_gains(scenario_gain, values, designed, M0) -> list[tuple[str, np.n
 
 
 def _is_paper_arm(s: Scenario) -> bool:
-    """Whether the scenario's arm is the paper's RRPR in closed form (its own mismatch and frequency routes)."""
-    return isinstance(s.robot, RobotParameters) and isinstance(s.nominal, RobotParameters)
+    """Whether the scenario's true and nominal arms are the paper's (:attr:`blocks.arm.ArmModel.paper`: its own
+    survey grid, observer-study gains and routes, as the paper made them)."""
+    return s.robot.paper is not None and s.nominal.paper is not None
 
 
 def _explicit_observer_gain(s: Scenario) -> Scenario:
@@ -451,11 +451,11 @@ def _figure_writers(result: AnalysisResult, joints: JointSpace) -> list:
 ANALYSIS_FIGURE_COUNT = 8
 
 
-def write_figures(result: AnalysisResult, out_dir, progress=None, joints: JointSpace = RRPR_JOINTS) -> list[Path]:
+def write_figures(result: AnalysisResult, out_dir, joints: JointSpace, progress=None) -> list[Path]:
     """Write every analysis figure of a :func:`run_analysis` result into ``out_dir`` (PNG and SVG).
 
     ``progress(fraction)``, if given, is called after each figure with the fraction written; ``joints`` are the
-    arm's joints (default: the paper's), which name the per-joint panels.
+    arm's joints, which name the per-joint panels.
     """
     writers = _figure_writers(result, joints)
     files = []
@@ -496,7 +496,7 @@ def analyze(scenario: Scenario | str = "paper", out_dir=None, settings: Analysis
     result = run_analysis(s, settings, progress)
     with staging as stage:
         with _stage(progress, "writing figures") as step:
-            result = replace(result, figures=[p.name for p in write_figures(result, stage, step, s.robot.joints)])
+            result = replace(result, figures=[p.name for p in write_figures(result, stage, s.robot.joints, step)])
         (stage / "analysis.json").write_text(result.to_json())
     return result, sorted(target.iterdir())
 

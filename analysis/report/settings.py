@@ -152,11 +152,10 @@ OBSERVER_STUDY_GAINS = {True: "Y = v I", False: "Y = v M^(q0)"}
 
 def observer_study_gains(scenario) -> str:
     """How the observer study of ``scenario`` makes its gains from the values ``v`` (the words of
-    :data:`OBSERVER_STUDY_GAINS`): ``Y = v I`` on the paper's RRPR in closed form
+    :data:`OBSERVER_STUDY_GAINS`): ``Y = v I`` on the paper's arm
     (:func:`analysis.report.build.observer_gains`), ``Y = v M^(q0)`` with ``v`` in rad/s on any other arm
     (:func:`analysis.report.build.bandwidth_gains`), the rule :func:`analysis.report.build.run_analysis` follows."""
-    from blocks.parameters import RobotParameters
-    paper = isinstance(scenario.robot, RobotParameters) and isinstance(scenario.nominal, RobotParameters)
+    paper = scenario.robot.paper is not None and scenario.nominal.paper is not None
     return OBSERVER_STUDY_GAINS[paper]
 
 

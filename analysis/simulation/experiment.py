@@ -21,7 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from blocks import Scenario, __version__, load_scenario, simulate
-from blocks.joints import RRPR_JOINTS, JointSpace
+from blocks.arm import ArmModel
+from blocks.joints import JointSpace
 from blocks.metrics import tracking_metrics
 from blocks.outputs import default_out_dir, metrics_json, staged_output
 
@@ -130,19 +131,20 @@ def _write_timeseries(path: Path, runs: dict) -> None:
         fh.write("".join(",".join(map(repr, row)) + "\r\n" for row in np.column_stack(columns).tolist()))
 
 
-def format_rms_table(metrics: dict, joints: JointSpace | None = None) -> str:
+def format_rms_table(metrics: dict, arm: ArmModel | None = None) -> str:
     """Table 3 (the RMS errors of both runs, every joint, with units) as plain text.
 
     Parameters
     ----------
     metrics : dict
         What :func:`comparison_metrics` returns (``units`` and the two runs).
-    joints : blocks.joints.JointSpace, optional
-        The arm's joints.  None or the paper's arm: the paper's layout, one column per joint.  Any other
-        arm: one row per joint, ``Joint i (name)`` with the joint's units, so that any number of joints fits.
+    arm : blocks.arm.ArmModel, optional
+        The arm.  None or the paper's arm (:attr:`~blocks.arm.ArmModel.paper`): the paper's layout, one column
+        per joint.  Any other arm: one row per joint, ``Joint i (name)`` with the joint's units, so that any
+        number of joints fits.
     """
-    if joints is not None and joints != RRPR_JOINTS:
-        return _rms_rows(metrics, joints)
+    if arm is not None and arm.paper is None:
+        return _rms_rows(metrics, arm.joints)
     units = metrics["units"]
     width = 37                  # the longest label, "Disturbance tracking, with observer", and two spaces
     head = f"{'RMS error':<{width}}" + "".join(f"{f'Joint {i + 1}':>14}" for i in range(len(units["position"])))

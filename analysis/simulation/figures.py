@@ -33,27 +33,26 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.ticker import ScalarFormatter  # noqa: E402
 
-from blocks.joints import RRPR_JOINTS, JointSpace  # noqa: E402
+from blocks.joints import JointSpace  # noqa: E402
+from blocks.scenario import default_arm  # noqa: E402
 
-__all__ = ["paper_figures", "sampling_words", "save_figure", "convergence_figure", "JOINT_TITLES", "joint_title",
+__all__ = ["paper_figures", "sampling_words", "save_figure", "convergence_figure", "joint_title",
            "REFERENCE_STYLE", "has_tissue_model", "FIGURE_FORMATS", "joint_grid_shape", "run_joints",
            "joint_signals", "joint_axes", "position_scale"]
 
 #: The formats a figure may be written in.
 FIGURE_FORMATS = ("png", "svg")
 
-#: How every figure names the joints (the names a person reads everywhere: ``Joint 1 (theta1)``, ...).
-JOINT_TITLES = RRPR_JOINTS.labels
 _COLORS = {"with": "tab:blue", "without": "tab:red", "d_hat": "tab:blue"}
 #: The reference (or the true value) as a wide light band drawn first: a line that follows it exactly stays
 #: visible on top of it, and the band stays visible around that line.
 REFERENCE_STYLE = {"color": "0.72", "lw": 5.0, "solid_capstyle": "butt", "zorder": 1}
 
 
-def joint_title(name: str, joints: JointSpace = RRPR_JOINTS) -> str:
+def joint_title(name: str, joints: JointSpace) -> str:
     """The person's name of a joint signal: ``"q[2]"`` -> ``"Joint 3 (d3)"``; other names unchanged.
 
-    ``joints`` names the arm's joints (default: the paper's).
+    ``joints`` names the arm's joints (:attr:`blocks.arm.ArmModel.joints`).
     """
     if name.endswith("]") and "[" in name:
         index = name[name.index("[") + 1:-1]
@@ -63,10 +62,10 @@ def joint_title(name: str, joints: JointSpace = RRPR_JOINTS) -> str:
 
 
 def run_joints(resp) -> JointSpace:
-    """The joints of the arm a response ran on (its scenario's ``robot``); the paper's without a scenario."""
+    """The joints of the arm a response ran on (its scenario's ``robot``); the default scenario's without one."""
     robot = getattr(getattr(resp, "scenario", None), "robot", None)
     joints = getattr(robot, "joints", None)
-    return joints if isinstance(joints, JointSpace) else RRPR_JOINTS
+    return joints if isinstance(joints, JointSpace) else default_arm().joints
 
 
 def joint_signals(resp, prefix: str, n: int) -> np.ndarray:
@@ -183,7 +182,7 @@ def joint_grid_shape(n: int) -> tuple[int, int]:
     return int(np.ceil(n / cols)), cols
 
 
-def joint_axes(title: str, joints: JointSpace = RRPR_JOINTS):
+def joint_axes(title: str, joints: JointSpace):
     """A figure with one panel per joint (titled ``Joint i (name)``, shared time axis), and its panels in order.
 
     Unused cells of the grid are removed; the panel at the foot of each column carries the time axis label.
@@ -369,7 +368,7 @@ def _task_space_figure(with_dob, q_ref, q_w, q_wo, out_dir: Path, formats) -> li
     return save_figure(fig, out_dir, "fig8_task_space", formats)
 
 
-def convergence_figure(study: dict, out_dir, stem: str = "convergence") -> list[Path]:
+def convergence_figure(study: dict, out_dir, joints: JointSpace, stem: str = "convergence") -> list[Path]:
     """Log-log plot of the errors per joint against ``h`` with the fitted slope; PNG and SVG.
 
     Parameters
@@ -378,6 +377,8 @@ def convergence_figure(study: dict, out_dir, stem: str = "convergence") -> list[
         The result of :func:`cosim_convergence`.
     out_dir : str or pathlib.Path
         Folder to write ``<stem>.png`` and ``<stem>.svg`` in.
+    joints : blocks.joints.JointSpace
+        The arm's joints, which name the curves.
 
     Returns
     -------
@@ -390,7 +391,7 @@ def convergence_figure(study: dict, out_dir, stem: str = "convergence") -> list[
         ok = errs > 0
         unit = study["units"][name]
         # the data as markers only, the fit as a line through them: a line that fits well stays visible
-        points = ax.loglog(h[ok] * 1e3, errs[ok], "o", ms=7, label=f"{joint_title(name)} ({unit})")[0]
+        points = ax.loglog(h[ok] * 1e3, errs[ok], "o", ms=7, label=f"{joint_title(name, joints)} ({unit})")[0]
         if ok.sum() >= 2 and np.isfinite(study["order"]):
             # the common fitted slope through this joint's points (its own intercept)
             c = np.mean(np.log(errs[ok]) - study["order"] * np.log(h[ok]))

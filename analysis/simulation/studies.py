@@ -44,9 +44,9 @@ import numpy as np
 from analysis.linear.loop import equilibrium, hold_scenario
 from analysis.results import JsonResult, omitted_if_none
 from blocks import SimulationError, closed_loop, simulate
-from blocks.joints import RRPR_JOINTS, JointSpace
+from blocks.joints import JointSpace
 from blocks.metrics import signal
-from blocks.scenario import Scenario, ScenarioError
+from blocks.scenario import Scenario, ScenarioError, default_arm
 from blocks.workers import worker_pool
 
 __all__ = ["DEFAULT_NOISE", "SETTLE_FRACTION", "FINAL_WINDOW", "SignalMetrics", "RunMetrics", "StudyRun",
@@ -64,8 +64,8 @@ def default_noise(joints: JointSpace) -> dict:
             "dq_std": [_NOISE_BY_KIND[k][1] for k in joints.kinds], "seed": 1, "sample_period": 0.001}
 
 
-#: :func:`default_noise` of the paper's arm.
-DEFAULT_NOISE = default_noise(RRPR_JOINTS)
+#: :func:`default_noise` of the default scenario's arm.
+DEFAULT_NOISE = default_noise(default_arm().joints)
 
 SETTLE_FRACTION = 0.02     # settling band: this fraction of the largest deviation from the final value
 FINAL_WINDOW = 0.1         # "settled" needs the signal inside the band over this last fraction of the run

@@ -59,9 +59,9 @@ from analysis.results import JsonResult, omitted_if_none, plain
 from analysis.sweep.runner import ResultsFile, read_header
 from analysis.sweep.sensitivity import from_runs
 from analysis.sweep.spec import HEADER_PARTS, SweepError, SweepSpec, json_default
-from blocks.joints import RRPR_JOINTS, JointSpace
+from blocks.joints import JointSpace
 from blocks.outputs import interrupts_held
-from blocks.parameters import RobotParameters
+from blocks.scenario import default_arm
 
 __all__ = ["RunCounts", "ColumnStatistics", "WorstRun", "DivergedRun", "SweepFigure", "SweepSummary", "summarize",
            "write_summary", "html_section", "column_unit", "key_unit", "metric_name", "column_label", "key_name",
@@ -112,10 +112,10 @@ def _joint(column: str) -> int | None:
     return int(found.group(1)) if found else None
 
 
-def column_label(column: str, joints: JointSpace = RRPR_JOINTS) -> str:
+def column_label(column: str, joints: JointSpace) -> str:
     """A metric column for people: ``RMS position error, Joint 3 (d3)``, ``peak tool-tip error``.
 
-    ``joints``: the arm whose joints the column's index counts (default: the paper's RRPR).
+    ``joints``: the arm whose joints the column's index counts.
     """
     j = _joint(column)
     name = metric_name(column.split("[")[0])
@@ -125,7 +125,7 @@ def column_label(column: str, joints: JointSpace = RRPR_JOINTS) -> str:
     return f"{name}, {joint}"
 
 
-def column_unit(column: str, joints: JointSpace = RRPR_JOINTS) -> str:
+def column_unit(column: str, joints: JointSpace) -> str:
     """Unit of a metric column: the joint's position unit (rad, m), its force unit (N m, N) for disturbances, mm
     for the tool; ``joints`` as in :func:`column_label`."""
     if column.endswith("_mm"):
@@ -136,7 +136,7 @@ def column_unit(column: str, joints: JointSpace = RRPR_JOINTS) -> str:
     return ""
 
 
-def key_name(key: str, joints: JointSpace = RRPR_JOINTS) -> str:
+def key_name(key: str, joints: JointSpace) -> str:
     """A swept scenario key for people: ``disturbance.f_r[2]`` -> ``Eq. 4 amplitude f_r, Joint 3 (d3)``;
     ``joints`` as in :func:`column_label`."""
     section, _, rest = key.partition(".")
@@ -157,8 +157,17 @@ def key_name(key: str, joints: JointSpace = RRPR_JOINTS) -> str:
     return text
 
 
-def key_unit(key: str, joints: JointSpace = RRPR_JOINTS) -> str:
+def _default_arm_of(joints: JointSpace):
+    """The default scenario's arm when ``joints`` are its joints (a summary keeps the joints, not the arm), else
+    None: its named parameters (``robot.*``) and wording apply."""
+    arm = default_arm()
+    return arm if joints == arm.joints else None
+
+
+def key_unit(key: str, joints: JointSpace) -> str:
     """Unit of a swept scenario value, for axis labels; ``joints`` as in :func:`column_label`."""
+    arm = _default_arm_of(joints)
+    paper = arm is not None and arm.paper is not None
     section, _, name = key.partition(".")
     name, _, index = name.partition("[")
     j = int(index.rstrip("]")) if index else None
@@ -166,17 +175,17 @@ def key_unit(key: str, joints: JointSpace = RRPR_JOINTS) -> str:
         return joints.force_units[j]
     if j is not None and j < joints.count and f"{section}.{name}" in ("noise.q_std", "initial.q"):
         return joints.position_units[j]
-    if section == "robot" and joints == RRPR_JOINTS and name in RobotParameters.names():
-        return RobotParameters.unit(name)
+    if section == "robot" and arm is not None and name in arm.parameter_names():
+        return arm.parameter_unit(name)
     # Y's unit per joint kind (kg m^2/s on a revolute joint, kg/s on a prismatic one); the paper's arm keeps its
     # one word
     gain_units = tuple("kg m^2/s" if u == "rad" else "kg/s" for u in joints.position_units)
-    if j is not None and j < joints.count and f"{section}.{name}" == "gains.observer" and joints != RRPR_JOINTS:
+    if j is not None and j < joints.count and f"{section}.{name}" == "gains.observer" and not paper:
         return gain_units[j]
     force, position, velocity, gain = (" or ".join(dict.fromkeys(u)) for u in
                                        (joints.force_units, joints.position_units, joints.velocity_units, gain_units))
     units = {"nominal_scale": "factor", "gains.kp": "1/s^2", "gains.kd": "1/s",
-             "gains.observer": "kg m^2/s" if joints == RRPR_JOINTS else gain,
+             "gains.observer": "kg m^2/s" if paper else gain,
              "gains.observer_bandwidth": "rad/s", "arm.nominal_mass_scale": "factor", "arm.gravity": "m/s^2",
              "disturbance.f_r": force, "disturbance.coulomb": force, "noise.q_std": position,
              "noise.dq_std": velocity, "trajectory.duration": "s", "simulation.t_final": "s",
@@ -185,12 +194,13 @@ def key_unit(key: str, joints: JointSpace = RRPR_JOINTS) -> str:
 
 
 def _arm_joints(record: dict | None) -> JointSpace:
-    """The joints kept in a summary (:attr:`SweepSummary.joints`); the paper's RRPR when it keeps none."""
+    """The joints kept in a summary (:attr:`SweepSummary.joints`); the default scenario's arm's when it keeps none."""
+    own = default_arm().joints
     if not record:
-        return RRPR_JOINTS
+        return own
     joints = JointSpace(names=tuple(record["names"]), kinds=tuple(record["kinds"]))
-    # the paper's arm keeps its own joint space (with d3's stroke), which decides its robot.* units
-    return RRPR_JOINTS if (joints.names, joints.kinds) == (RRPR_JOINTS.names, RRPR_JOINTS.kinds) else joints
+    # the default arm keeps its own joint space (with its ranges), which decides its robot.* units
+    return own if (joints.names, joints.kinds) == (own.names, own.kinds) else joints
 
 
 def _joints_record(joints: JointSpace) -> dict:
@@ -201,7 +211,7 @@ def _joints_of_header(header: dict) -> JointSpace:
     """The arm of a results file's sweep read without its sweep file: the joints its header keeps
     (:func:`analysis.sweep.spec.joints_record`); for a file written before the header kept them, the built-in
     scenario the header names when its values are the ones the sweep ran (the hash in the header), else the
-    paper's RRPR."""
+    default scenario's arm's."""
     import hashlib
     import json
 
@@ -214,13 +224,13 @@ def _joints_of_header(header: dict) -> JointSpace:
             pass
     name = header.get("scenario")
     if not isinstance(name, str) or name not in builtin_scenarios():
-        return RRPR_JOINTS
+        return default_arm().joints
     try:
         base = load_scenario(name)
     except (ScenarioError, OSError, ImportError):
-        return RRPR_JOINTS
+        return default_arm().joints
     digest = hashlib.sha256(json.dumps(base.data, sort_keys=True, default=json_default).encode()).hexdigest()[:16]
-    return base.robot.joints if digest == header.get("scenario_values") else RRPR_JOINTS
+    return base.robot.joints if digest == header.get("scenario_values") else default_arm().joints
 
 
 def _with_unit(text: str, unit: str) -> str:
@@ -367,7 +377,7 @@ class SweepSummary(JsonResult):
 
     @property
     def arm_joints(self) -> JointSpace:
-        """:attr:`joints` as a :class:`blocks.joints.JointSpace` (the paper's RRPR when none is kept)."""
+        """:attr:`joints` as a :class:`blocks.joints.JointSpace` (the default scenario's arm's when none is kept)."""
         return _arm_joints(self.joints)
 
     def as_dict(self) -> dict:
@@ -395,7 +405,7 @@ class _Table:
     """The usable rows of the current runs as columns: metric values and swept scalar values per ok run."""
 
     header: dict
-    joints: JointSpace = RRPR_JOINTS                 # the base scenario's arm
+    joints: JointSpace = dataclasses.field(default_factory=lambda: default_arm().joints)   # the base scenario's arm
     count: int = 0                                   # ok runs
     index: array = dataclasses.field(default_factory=lambda: array("q"))
     columns: dict = dataclasses.field(default_factory=dict)      # column -> array('d')

@@ -34,7 +34,6 @@ from analysis.jobs.figures import new_figure, save_figure
 from analysis.report.html import template_environment
 from analysis.tune.results import read_result
 from analysis.tune.spec import METRIC_WORDS, overshoots
-from blocks.joints import RRPR_JOINTS
 
 __all__ = ["write_figures", "html_section", "read_result", "evaluation_counts", "evaluations_text", "FIGURES"]
 
@@ -108,7 +107,7 @@ def write_figures(result, folder, designs: dict | None = None, joints=None) -> l
         ``{"base gains": (sys, (kp, kd)), "tuned gains": ...}``: each design's linearized error dynamics
         (:func:`analysis.tune.response.error_dynamics`) and PD gains; with it the step and Bode figures are drawn.
     joints : blocks.joints.JointSpace, optional
-        The arm's joints, for those figures' labels (default: the paper's RRPR).
+        The arm's joints, for those figures' labels; required with ``designs``.
     """
     folder = Path(folder)
     words = METRIC_WORDS.get(result.metric, result.metric)
@@ -117,7 +116,8 @@ def write_figures(result, folder, designs: dict | None = None, joints=None) -> l
     out.append(_robustness(result, folder, words))
     out.append(_constraints(result, folder))
     if designs:
-        joints = RRPR_JOINTS if joints is None else joints
+        if joints is None:
+            raise ValueError("write_figures: the step and Bode figures of 'designs' need the arm's joints")
         out.append(_step(designs, folder, joints))
         out.append(_bode(designs, folder, joints))
     return out

@@ -13,7 +13,7 @@ from pathlib import Path
 from analysis.jobs.figures import JobFigure
 from analysis.results import JsonResult, omitted_if_none
 from analysis.tune.spec import TuneError
-from blocks.joints import RRPR_JOINTS
+from blocks.scenario import default_arm
 
 __all__ = ["RESULT_NAME", "PointResult", "TuneHistory", "TuneFigure", "ConstraintCost", "TuneResult", "read_result",
            "objective_text", "numbers_text", "excess_text"]
@@ -224,8 +224,9 @@ class TuneResult(JsonResult):
     unconstrained: PointResult | None = None
     damping_cost: float | None = None
     unconstrained_from: str | None = None
-    joints: list[str] = field(default_factory=lambda: list(RRPR_JOINTS.names))
-    force_units: list[str] = field(default_factory=lambda: list(RRPR_JOINTS.force_units))
+    # a result written before the joints were kept is the default scenario's arm's
+    joints: list[str] = field(default_factory=lambda: list(default_arm().joints.names))
+    force_units: list[str] = field(default_factory=lambda: list(default_arm().joints.force_units))
     constraint_costs: list[ConstraintCost] | None = omitted_if_none()
 
 

@@ -85,7 +85,6 @@ from analysis.tune.results import (
 from analysis.tune.spec import HEADER_PARTS, METRIC_WORDS, TuneError, TuneSpec, damping_for_overshoot, load_tuning
 from blocks.batch import simulate_batch
 from blocks.budget import Budget
-from blocks.joints import RRPR_JOINTS
 from blocks.outputs import interrupts_held
 from blocks.progress import ProgressCallback, StageProgress
 
@@ -180,9 +179,9 @@ def check_linear_feasibility(spec: TuneSpec, evaluator: Evaluator) -> None:
     misses = []
     if limits.torque_noise_rms is not None and np.any(noise > limits.torque_noise_rms):
         j = int(np.argmax(noise / limits.torque_noise_rms))
-        rrpr = spec.joints == RRPR_JOINTS       # the paper's message as it was; any other arm's units and names
-        unit = "N m" if rrpr else f"({', '.join(spec.joints.force_units)})"
-        joint = f"joint {j + 1}" if rrpr else f"joint {j + 1}, {spec.joints.names[j]},"
+        paper = spec.base.robot.paper is not None   # the paper's message as it was; any other arm's units and names
+        unit = "N m" if paper else f"({', '.join(spec.joints.force_units)})"
+        joint = f"joint {j + 1}" if paper else f"joint {j + 1}, {spec.joints.names[j]},"
         misses.append(f"torque noise {numbers_text(noise)} against the budget "
                       f"{numbers_text(limits.torque_noise_rms, unit)} ({joint} "
                       f"{excess_text(noise[j], limits.torque_noise_rms[j])})")

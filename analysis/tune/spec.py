@@ -115,8 +115,7 @@ from analysis.simulation.studies import default_noise
 from analysis.sweep.spec import SweepError, check_name, json_default, split_changes, sweep_from_dict
 from blocks.batch import BATCH_KEYS
 from blocks.budget import Budget
-from blocks.joints import RRPR_JOINTS
-from blocks.scenario import Scenario, ScenarioError, load_scenario, parse_key
+from blocks.scenario import Scenario, ScenarioError, default_arm, load_scenario, parse_key
 
 __all__ = ["TuneError", "Parameter", "Limits", "TuneSpec", "load_tuning", "tuning_from_dict", "builtin_tunings",
            "with_evaluations", "HEADER_PARTS",
@@ -249,11 +248,11 @@ def damping_ratios(kp, kd, n: int | None = None) -> np.ndarray:
     """``zeta = kd / (2 sqrt(kp))`` per joint of ``e'' + kd e' + kp e = 0`` (kp 1/s^2, kd 1/s).
 
     ``kp`` and ``kd`` are scalars or one value per joint; ``n`` (the arm's joint count) sizes the result when both
-    are scalars (default: the length of whichever is a vector, else 4, the paper's RRPR).
+    are scalars (default: the length of whichever is a vector, else the default scenario's arm's joint count).
     """
     kp, kd = np.asarray(kp, dtype=float), np.asarray(kd, dtype=float)
     if n is None:
-        n = max(kp.size if kp.ndim else 0, kd.size if kd.ndim else 0) or RRPR_JOINTS.count
+        n = max(kp.size if kp.ndim else 0, kd.size if kd.ndim else 0) or default_arm().n
     return np.broadcast_to(kd, (n,)) / (2.0 * np.sqrt(np.broadcast_to(kp, (n,))))
 
 
@@ -491,19 +490,18 @@ _NOISE_KEYS = ("q_std", "dq_std", "sample_period")
 
 def _one_per_joint(base: Scenario, what: str = "numbers > 0", units: tuple[str, ...] | None = None) -> str:
     """How a message asks for one value per joint of the base scenario's arm: ``"4 numbers > 0 (N m, N m, N, N m)"``
-    for the paper's RRPR (its messages as they were), with the arm's name and joints for any other arm."""
+    for the paper's arm (its messages as they were), with the arm's name and joints for any other arm."""
     joints = base.robot.joints
     units = joints.force_units if units is None else units
     words = f"{joints.count} {what} ({', '.join(units)})"
-    if joints == RRPR_JOINTS:
+    if base.robot.paper is not None:
         return words
     return f"{words}, one per joint of the arm {base.arm_name!r} ({', '.join(joints.names)})"
 
 
 def _force_units(base: Scenario) -> str:
-    """The base arm's force units for a message: ``"N m"`` for the paper's RRPR (as it was), else one per joint."""
-    joints = base.robot.joints
-    return "N m" if joints == RRPR_JOINTS else ", ".join(joints.force_units)
+    """The base arm's force units for a message: ``"N m"`` for the paper's arm (as it was), else one per joint."""
+    return "N m" if base.robot.paper is not None else ", ".join(base.robot.joints.force_units)
 
 
 def _constraint_keys(base: Scenario) -> dict:
@@ -669,15 +667,15 @@ def _limits(table: dict, base: Scenario, fail) -> Limits:
             fail(f"unknown key(s) {[f'constraints.sensor_noise.{k}' for k in unknown]}; allowed: "
                  f"{', '.join(_NOISE_KEYS)}")
         joints = base.robot.joints
-        rrpr = joints == RRPR_JOINTS
+        paper = base.robot.paper is not None          # the paper's arm: its messages as they were
         for k in _NOISE_KEYS:           # the scenario's [noise] values, by its own validator, then the sign
             # (out of a scenario the validator sizes per-joint lists for the RRPR: another arm's are checked below)
-            if k in given and (rrpr or k == "sample_period"):
+            if k in given and (paper or k == "sample_period"):
                 scenario_value(f"noise.{k}", given[k], f"constraints.sensor_noise.{k}", fail)
         for k in ("q_std", "dq_std"):
             if k in given and not (numbers(given[k], joints.count) and min(given[k]) >= 0):
                 units = joints.position_units if k == "q_std" else joints.velocity_units
-                allowed = "4 numbers >= 0" if rrpr else _one_per_joint(base, "numbers >= 0", units)
+                allowed = "4 numbers >= 0" if paper else _one_per_joint(base, "numbers >= 0", units)
                 fail(f"'constraints.sensor_noise.{k}' must be {allowed}, got {given[k]!r}")
         if "sample_period" in given and not given["sample_period"] > 0:
             fail(f"'constraints.sensor_noise.sample_period' must be a number > 0 (s), got {given['sample_period']!r}")

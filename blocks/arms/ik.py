@@ -41,8 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..arm import ArmModel
-from ..kinematics import UnreachableError
+from ..arm import ArmModel, UnreachableError
 from .resolved_rate import ResolvedRate, SingularJacobian, integrate_path, jacobian_rate, moving_joints
 
 __all__ = ["IKUnreachableError", "JointPath", "solve_ik", "joint_path", "jacobian_rate"]

@@ -25,7 +25,7 @@ from ..compiled.trace import is_table
 from ..contract import contract_of, kernels_only
 from ..divergence import state_meanings
 from ..kernels import lumped_disturbance
-from ..kernels.model import is_rrpr_kernels, with_arm
+from ..kernels.model import with_arm
 from ..loop import _prepared, build_blocks, closed_loop, initial_state
 from ..noise import MeasurementNoise
 from ..physical_bounds import batch_bounds
@@ -44,7 +44,8 @@ def member_scenario(v, i: int, noisy: bool = False):
         settings = v.base.data["noise"]
         n = v.base.robot.joints.count
         zero = MeasurementNoise(q_std=(0.0,) * n, dq_std=(0.0,) * n, seed=int(settings["seed"]),
-                                sample_period=float(settings["sample_period"]), t_final=v.base.simulation.t_final)
+                                sample_period=float(settings["sample_period"]), t_final=v.base.simulation.t_final,
+                                joints=v.base.robot.joints)
         # zero samples at the batch's sample instants (a disabled noise keeps none): the members' tables align
         shape = next(nz.table.shape for nz in v.noises if nz is not None)
         object.__setattr__(zero, "_samples", np.zeros(shape))
@@ -213,7 +214,7 @@ class MemberLoop:
             self.signal_rows.setdefault(label.split("[")[0], []).append(int(row))
         self.state_meanings = state_meanings(self.loop)
         arm = self.arm = v.base.robot
-        if is_rrpr_kernels(arm):
+        if arm.stacks_constants:
             self.k_true = np.stack([r.kernel_params() for r in v.robots], axis=-1)            # (k, N)
             self.k_nominal = np.stack([r.kernel_params() for r in v.nominals], axis=-1)
             self._lumped = [(slice(None), self.k_nominal)]

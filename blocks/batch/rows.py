@@ -31,7 +31,7 @@ import types
 import numpy as np
 
 from ..compiled.trace import Frozen, is_table
-from ..parameters import RobotParameters
+from ..model.rrpr.parameters import RobotParameters
 from ..physical_bounds import batch_bounds
 from .members import MemberLoop
 from .variants import Variants, nominal_values
@@ -142,7 +142,7 @@ def _record(values: dict) -> dict:
 def _sources(base, columns: dict) -> dict[str, np.ndarray]:
     """The numbers a member's row entries may be, by name, each (N,): every element of every varied key, and
     when the nominal arm's scales vary its constants ``k1 .. k5`` (Eq. 5-7) made as the member's
-    :class:`~blocks.parameters.RobotParameters` makes them, the same operations on all members at once."""
+    :class:`~blocks.model.rrpr.parameters.RobotParameters` makes them, the same operations on all members at once."""
     out = {}
     for key, col in columns.items():
         flat = col.reshape(len(col), -1)
@@ -158,7 +158,7 @@ def _sources(base, columns: dict) -> dict[str, np.ndarray]:
         omega = base.data["gains"].get("observer_bandwidth")
         if omega is not None:
             # Y = omega M^(q0) of each member's nominal arm (blocks.scenario_arm.observer_gain_from_bandwidth):
-            # the distinct entries of Eq. 5 (blocks.kernels.arm.inertia_entries) in the same operations
+            # the distinct entries of Eq. 5 (blocks.model.rrpr.dynamics_kernels.inertia_entries) in the same operations
             q0 = base.initial["q"]
             if q0 is None:
                 q0 = np.asarray(base.trajectory.evaluate(0.0)[0], dtype=float)

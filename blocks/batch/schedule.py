@@ -6,7 +6,6 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from ..kernels.model import is_rrpr_kernels
 from ..scenario import Scenario
 from .variants import Variants
 
@@ -79,7 +78,7 @@ INERTIA_SAMPLES = 9
 def _inertia_configurations(variants: Variants) -> np.ndarray:
     """Joint positions (m, n) where the step-size rule takes the inertia."""
     s = variants.base
-    if is_rrpr_kernels(s.robot):
+    if s.robot.stacks_constants:
         c2 = np.array([-1.0, 0.0, 1.0])
         q = np.zeros((3, s.robot.joints.count))
         q[:, 1] = np.arccos(c2)
@@ -90,14 +89,16 @@ def _inertia_configurations(variants: Variants) -> np.ndarray:
 
 def _inertia_of_each(q: np.ndarray, arms: list) -> np.ndarray:
     """``M(q)`` of every arm at the configurations ``q`` (m, n): (len(arms), m, n, n), the numbers of
-    :func:`blocks.dynamics.inertia`, computed once per distinct arm (members often share one) and for all at once."""
+    the arm's ``M(q)``, computed once per distinct arm (members often share one) and, for arms of one closed form,
+    for all at once."""
     unique: dict[int, object] = {}
     for arm in arms:
         unique.setdefault(id(arm), arm)
-    if all(is_rrpr_kernels(a) for a in unique.values()):
-        from ..kernels import arm_constants, inertia_matrix
-        k = np.stack([arm_constants(a) for a in unique.values()], axis=1)[:, :, None]      # (6, U, 1)
-        M = inertia_matrix(k, q.T[:, None, :])                                   # (U, m, n, n)
+    kernels = {id(a.kernels): a.kernels for a in unique.values()}
+    if len(kernels) == 1 and all(a.stacks_constants for a in unique.values()):
+        # one closed form: the members' constant vectors side by side, one call
+        k = np.stack([a.kernel_params() for a in unique.values()], axis=1)[:, :, None]      # (p, U, 1)
+        M = next(iter(kernels.values())).inertia_matrix(k, q.T[:, None, :])                 # (U, m, n, n)
     else:                       # any arm through its own row kernel, joint-first rows (n, m)
         M = np.stack([a.kernels.inertia_matrix(a.kernel_params(), q.T) for a in unique.values()])
     index = {key: i for i, key in enumerate(unique)}

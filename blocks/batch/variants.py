@@ -23,18 +23,17 @@ checks, which name the member, the key and the value.
 from __future__ import annotations
 
 import dataclasses
-import types
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
+from ..arm import ArmModel
 from ..disturbances import DisturbanceSpec
 from ..gains import GainError, validated_gain
 from ..noise import MeasurementNoise
-from ..parameters import _UNITS, ParameterError, RobotParameters
-from ..scenario import Scenario, ScenarioError, check_value, load_scenario, parse_key
-from ..scenario_arm import is_rrpr, observer_gain_from_bandwidth
+from ..scenario import Scenario, ScenarioError, check_value, default_arm, load_scenario, parse_key
+from ..scenario_arm import observer_gain_from_bandwidth
 
 __all__ = ["BATCH_KEYS", "COLUMN_KEYS", "SHARED_KEYS", "SHARED_SECTIONS", "Variants", "column_values",
            "shared_reason"]
@@ -69,10 +68,11 @@ def shared_reason(key: str) -> str | None:
     return SHARED_KEYS.get(f"{section}.{name}")
 
 
-#: Keys checked as whole columns on the paper's arm (see "Numbers as columns"): key -> (values per member, lower
-#: bound, strict): ``"one"`` a number, ``"joints"`` n numbers, ``"one or joints"`` either.
+#: Keys checked as whole columns on an arm whose constants stack per member (the default scenario's; see "Numbers
+#: as columns"): key -> (values per member, lower bound, strict): ``"one"`` a number, ``"joints"`` n numbers,
+#: ``"one or joints"`` either.
 COLUMN_KEYS = {
-    **{f"nominal_scale.{k}": ("one", 0.0, True) for k in RobotParameters.names()},
+    **{f"nominal_scale.{k}": ("one", 0.0, True) for k in default_arm().parameter_names()},
     "gains.kp": ("one or joints", 0.0, True), "gains.kd": ("one or joints", 0.0, True),
     "disturbance.f_r": ("joints", None, False), "disturbance.coulomb": ("joints", 0.0, False),
     "disturbance.viscous": ("joints", 0.0, False), "disturbance.friction_velocity": ("one", 0.0, True),
@@ -135,7 +135,8 @@ class Variants:
 
     def __init__(self, base: Scenario | str, records) -> None:
         self.base = base if isinstance(base, Scenario) else load_scenario(base)
-        self.columns = column_values(self.base, records) if is_rrpr(self.base.robot) else None
+        # an arm whose constants stack per member is checked as columns (no model object per member)
+        self.columns = column_values(self.base, records) if self.base.robot.stacks_constants else None
         if self.columns is not None:
             self._n = len(next(iter(self.columns.values())))
             return                              # checked as columns; the model objects are made when asked for
@@ -143,7 +144,7 @@ class Variants:
         self._n = len(self.records)
         if not self.records:
             raise ScenarioError("a batch needs at least one variant, got none")
-        if is_rrpr(self.base.robot):
+        if self.base.robot.stacks_constants:
             self._build([self._checked(i, rec) for i, rec in enumerate(self.records)])
         else:
             self._build_from_scenarios()
@@ -184,7 +185,7 @@ class Variants:
         for key, value in whole.items():
             section, name, _ = parse_key(key)
             try:
-                sections.setdefault(section, {})[name] = validated_gain(value, name) \
+                sections.setdefault(section, {})[name] = validated_gain(value, name, self.base.robot.joints) \
                     if section == "gains" and name != "observer_bandwidth" else check_value(key, value)
             except (ScenarioError, GainError) as err:
                 raise ScenarioError(f"variant {i}: {err}") from None
@@ -263,10 +264,10 @@ class Variants:
             key = ("robot", _freeze(sec.get("robot")), _freeze(sec.get("nominal_scale")))
             if key not in memo:
                 try:
-                    robot = s.robot if "robot" not in sec else RobotParameters(**(base_robot | sec["robot"]))
+                    robot = s.robot if "robot" not in sec else s.robot.with_parameters(**(base_robot | sec["robot"]))
                     nominal = s.nominal if not (set(sec) & {"robot", "nominal_scale"}) else \
                         robot.scaled(**(base_scale | sec.get("nominal_scale", {})))
-                except ParameterError as err:
+                except ValueError as err:          # the arm's own refusal of its parameters
                     raise ScenarioError(f"variant {i}: {err} "
                                         f"(values {_show(self.records[i], ('robot.', 'nominal_scale.'))})") from None
                 memo[key] = (robot, nominal)
@@ -287,7 +288,7 @@ class Variants:
                             "disturbance": specs[-1], "noise": noises[-1], "initial": initial[-1]})
         self._stack(fields, ys, extra)
 
-    def _observer_gain(self, i: int, sec: dict, nominal: RobotParameters, memo: dict) -> np.ndarray:
+    def _observer_gain(self, i: int, sec: dict, nominal: ArmModel, memo: dict) -> np.ndarray:
         """Member ``i``'s observer gain ``Y`` as its single run makes it: its own ``gains.observer``, else with
         ``gains.observer_bandwidth`` (the member's or the base's) ``Y = omega M^(q0)`` of the member's nominal
         arm at its start ``q0`` (``initial.q``, else the reference at t = 0), else the base's."""
@@ -309,7 +310,8 @@ class Variants:
         key = ("observer", id(nominal), float(omega), tuple(np.ravel(q0)))
         if key not in memo:
             try:
-                memo[key] = validated_gain(observer_gain_from_bandwidth(nominal, float(omega), q0), "observer")
+                memo[key] = validated_gain(observer_gain_from_bandwidth(nominal, float(omega), q0), "observer",
+                                             nominal.joints)
             except GainError as err:
                 raise ScenarioError(f"variant {i}: observer gain from 'gains.observer_bandwidth' = {omega!r}: "
                                     f"{err}") from None
@@ -391,10 +393,10 @@ def column_values(base: Scenario, records) -> dict[str, np.ndarray] | None:
 
 def nominal_values(base: Scenario, scales: dict) -> dict[str, np.ndarray]:
     """Every member's nominal arm parameters (SI): the true arm's times the member's ``scales`` (N,) where given,
-    else the base's nominal scale, as :meth:`RobotParameters.scaled` multiplies them."""
+    else the base's nominal scale, as :meth:`~blocks.arm.ArmModel.scaled` multiplies them."""
     robot, given = base.robot, dict(base.data.get("nominal_scale", {}))
     values = {}
-    for name in RobotParameters.names():
+    for name in robot.parameter_names():
         factor = scales.get(name, given.get(name))
         value = getattr(robot, name)
         values[name] = np.full(len(next(iter(scales.values()))), value) if factor is None else value * factor
@@ -404,14 +406,8 @@ def nominal_values(base: Scenario, scales: dict) -> dict[str, np.ndarray]:
 def _nominal_positive_definite(base: Scenario, scales: dict) -> bool:
     """Whether every member's nominal arm -- the base's nominal scales with the member's ``scales`` (N,) --
     has positive, finite parameters and an inertia matrix positive definite for every joint angle, the checks of
-    :class:`~blocks.parameters.RobotParameters` over all members at once."""
-    values = nominal_values(base, scales)
-    for name, v in values.items():
-        if not np.all(np.isfinite(v)) or (_UNITS[name][1] and not np.all(v > 0)):
-            return False
-    c = RobotParameters.constants.func(types.SimpleNamespace(**values))       # Eq. 5-7 over the members
-    margin = (c.k1 - c.k3) * (c.k3 - c.k5) - c.k2 ** 2 / 4.0
-    return bool(np.all(c.k3 > c.k5) and np.all(c.k1 > c.k3) and np.all(margin > 0))
+    arm's own checks over all members at once (:meth:`~blocks.arm.ArmModel.parameters_valid`)."""
+    return base.robot.parameters_valid(nominal_values(base, scales))
 
 
 def _as_records(records) -> list[dict]:

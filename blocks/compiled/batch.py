@@ -36,7 +36,6 @@ import numpy as np
 
 from ..divergence import state_meanings
 from ..kernels import tool_pose
-from ..kernels.model import is_rrpr_kernels
 from ..monitor import Monitor
 from .codegen import CompiledUnavailable
 from .engine import CompiledLoopEngine
@@ -64,7 +63,7 @@ def batch_unavailable_reason(v) -> str | None:
     """Why the compiled batch cannot run these variants, or None when it can."""
     if numba_or_none() is None:
         return "numba is not installed (it comes with the optional extra: pip install \"dobkit[fast]\")"
-    if not is_rrpr_kernels(v.base.robot) and len({id(n) for n in v.nominals}) > 1:
+    if not v.base.robot.stacks_constants and len({id(n) for n in v.nominals}) > 1:
         scales = sorted({float(v.scenario(i).data["arm"]["nominal_mass_scale"]) for i in range(len(v))})
         return (f"'arm.nominal_mass_scale' differs between members ({', '.join(f'{x:g}' for x in scales[:4])}): a "
                 f"URDF arm's model is generated into the loop's code as constants, so each nominal arm is a loop "
@@ -317,7 +316,7 @@ def run_compiled_batch(v, members, observer: bool, metrics: tuple, signals: tupl
 def reference_tool_positions(members, q_ref_grid: np.ndarray) -> np.ndarray:
     """The reference's tool point (m) at the grid points, (points, 3), from ``q_ref_grid`` (joints, points): computed
     once for all members, for the tool-tip distance metrics."""
-    if is_rrpr_kernels(members.arm):
+    if members.arm.stacks_constants:
         return tool_pose(members.kin[:, None], q_ref_grid)[:3].T
     return members.arm.tool_kernels.tool_position(members.kin, q_ref_grid).T
 

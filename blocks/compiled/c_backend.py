@@ -341,7 +341,7 @@ def block_c(kernels, n_x: int, n_u: int, names: dict, param_names=None, static: 
 
     Examples
     --------
-    >>> from blocks.parameters import RobotParameters
+    >>> from blocks.model.rrpr.parameters import RobotParameters
     >>> from blocks.contract import contract_of
     >>> from blocks.systems import plant
     >>> block = plant(RobotParameters())

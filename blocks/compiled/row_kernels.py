@@ -176,7 +176,6 @@ def row_kernels(arm, compiled: bool | None = None):
         With ``inertia_matrix``, ``mass_times``, ``bias_forces`` and ``gravity_forces`` taking
         ``arm.kernel_params()`` first.
     """
-    from ..kernels.model import closed_form
     from .trace import Frozen
 
     kernels, k = arm.kernels, arm.kernel_params()
@@ -184,7 +183,7 @@ def row_kernels(arm, compiled: bool | None = None):
     found = _made.get(key)
     if compiled is None:
         compiled = found is not None or ("numba" in sys.modules and _requests(key, k) > COMPILE_AFTER)
-    if not compiled or closed_form((kernels, None)) or not isinstance(k, Frozen) or numba_or_none() is None \
+    if not compiled or not isinstance(k, Frozen) or numba_or_none() is None \
             or any(not hasattr(kernels, name) for name in COMPILED_NAMES):
         return kernels
     if found is None:

@@ -8,7 +8,7 @@ it beside the right-hand side and beside the outputs, so that it shares
 their terms (the true arm's acceleration, the nominal model's inertia) and
 costs only what it adds.
 
-The groups of the Figure-2 loop, :data:`LOOP_ROWS`:
+The groups of the Figure-2 loop:
 
 ``d``
     the lumped disturbance the observer estimates,
@@ -31,7 +31,7 @@ The group functions take the arm's kernels first (``model``,
 :class:`~blocks.kernels.model.ArmKernels`); :func:`loop_rows` gives the
 groups for an arm, with its kernels passed (:func:`~blocks.kernels.model.with_arm`),
 and :func:`loop_rows_of` for an interconnection, from the arm of its plant
-block.  :data:`LOOP_ROWS` are the paper arm's.
+block (every arm's, the paper's too).
 """
 from __future__ import annotations
 
@@ -41,9 +41,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..kernels import lumped_disturbance
-from ..kernels.model import closed_form, with_arm
+from ..kernels.model import with_arm
 
-__all__ = ["RowGroup", "LOOP_ROWS", "TOOL_AUX", "loop_rows", "loop_rows_of"]
+__all__ = ["RowGroup", "TOOL_AUX", "loop_rows", "loop_rows_of"]
 
 #: Shared values the tool-distance rows read: the reference's tool position x, y, z (m).
 TOOL_AUX = 3
@@ -89,6 +89,10 @@ def _lumped(model, signals, aux, params):
 
 
 def _position_error(model, signals, aux, params):
+    return _reference_minus_measured(signals, aux, params)
+
+
+def _reference_minus_measured(signals, aux, params):
     return signals["q_ref"] - signals["q"]
 
 
@@ -119,21 +123,17 @@ def loop_rows(arm) -> tuple:
     return tuple(RowGroup(g.name, with_arm(g.rows, arm), g.signals, g.blocks, g.aux) for g in _GROUPS)
 
 
-def _paper_rows() -> tuple:
-    from ..kernels import arm, kinematics
-    return loop_rows((arm, kinematics))
-
-
-#: The row groups of the paper's RRPR.
-LOOP_ROWS = _paper_rows()
+def _armless_rows() -> tuple:
+    """The groups that read no arm (``position_error``), for a loop without a Python plant."""
+    return (RowGroup("position_error", _reference_minus_measured, ("q", "q_ref")),)
 
 
 def loop_rows_of(system) -> tuple:
-    """The row groups for an interconnection: those of the arm of its block ``plant`` (:data:`LOOP_ROWS`, the
-    paper arm's, when the loop has no Python plant)."""
+    """The row groups for an interconnection: those of the arm of its block ``plant``; without a Python plant
+    (an FMU's) only those that read no arm."""
     from ..control_compat import subsystems
     for block in subsystems(system):
         arm = getattr(block, "arm", None)
-        if block.name == "plant" and arm is not None and not closed_form(arm):
+        if block.name == "plant" and arm is not None:
             return loop_rows(arm)
-    return LOOP_ROWS
+    return _armless_rows()

@@ -2,7 +2,7 @@
 
 Every formula of the Figure-2 loop lives here and nowhere else in Python: the
 python-control blocks (:mod:`blocks.systems`), the public model functions
-(:mod:`blocks.dynamics`, :mod:`blocks.kinematics`, :mod:`blocks.disturbances`),
+(:mod:`blocks.model.rrpr.dynamics`, :mod:`blocks.model.rrpr.kinematics`, :mod:`blocks.disturbances`),
 the batch engine (:mod:`blocks.batch`) and any later engine call these
 functions.  The exported C plant (:mod:`fmu`) is the one other implementation,
 and the tests check it against an independent reference, as they check these.
@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .arm import (
+from ..model.rrpr.dynamics_kernels import (
     arm_constants,
     bias_forces,
     coriolis_forces,
@@ -43,6 +43,7 @@ from .arm import (
     mass_times,
     plant_acceleration,
 )
+from ..model.rrpr.tool_kernels import jacobian_entries, kinematic_lengths, tool_pose, tool_velocity
 from .disturbance import (
     DisturbanceParams,
     disturbance_params,
@@ -51,7 +52,6 @@ from .disturbance import (
     paper_disturbance,
     tissue_disturbance,
 )
-from .kinematics import jacobian_entries, kinematic_lengths, tool_pose, tool_velocity
 from .laws import computed_torque, gain_times, lumped_disturbance, observer_estimate, observer_rate
 
 __all__ = [

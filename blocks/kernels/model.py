@@ -30,8 +30,7 @@ import functools
 import importlib
 import types
 
-__all__ = ["MODEL_NAMES", "TOOL_NAMES", "ArmKernels", "ArmLaw", "arm_kernels", "with_arm", "closed_form",
-           "is_rrpr_kernels", "by_name"]
+__all__ = ["MODEL_NAMES", "TOOL_NAMES", "ArmKernels", "ArmLaw", "arm_kernels", "with_arm", "by_name"]
 
 #: Names of the dynamics row kernels a law may call (see :mod:`blocks.arm`).
 MODEL_NAMES = ("inertia_matrix", "mass_times", "mass_solve", "bias_forces", "gravity_forces", "plant_acceleration")
@@ -164,18 +163,3 @@ def with_arm(fn, arm) -> ArmLaw:
     return found
 
 
-def closed_form(arm) -> bool:
-    """Whether ``arm`` (an arm, its :class:`ArmKernels` or its two kernel modules) computes with the paper's RRPR
-    closed-form kernels (:mod:`blocks.kernels.arm`, :mod:`blocks.kernels.kinematics`)."""
-    from . import arm as _rrpr
-    from . import kinematics as _rrpr_tool
-    if isinstance(arm, ArmKernels):
-        kernels, tool_kernels = arm.kernels, arm.tool_kernels
-    else:
-        kernels, tool_kernels = arm if isinstance(arm, tuple) else (arm.kernels, arm.tool_kernels)
-    return kernels is _rrpr and tool_kernels in (None, _rrpr_tool)
-
-
-def is_rrpr_kernels(arm) -> bool:
-    """Whether ``arm`` computes with the paper's RRPR closed-form kernels (its constants stack per member)."""
-    return closed_form(arm)

@@ -28,7 +28,7 @@ from .scenario import ScenarioSection, scenario_section
 from .simulation import SimulationSection, simulation_section, worse_with_observer
 from .studies import StudiesSection, studies_section
 from .summary import plain_summary
-from .text import Figure, Paragraph, Table, arm_joints, fmt, is_paper_arm, split_caveats, stability_text
+from .text import Figure, Paragraph, Table, arm_joints, arm_of, fmt, is_paper_arm, split_caveats, stability_text
 
 __all__ = ["ReportView", "Header", "Table", "Figure", "Paragraph", "build_view", "plain_summary", "worse_with_observer",
            "stability_text", "split_caveats", "fmt", "regenerate_command", "SECTIONS"]
@@ -142,7 +142,7 @@ def build_view(result, experiment: dict, scenario, figure_files: dict,
         design=design_section(result, scenario, figure_files),
         frequency=frequency_section(result, scenario, figure_files),
         studies=studies_section(result, scenario, figure_files),
-        digital=digital_section(result, figure_files, arm_joints(scenario)),
+        digital=digital_section(result, figure_files, arm_of(scenario)),
         extra_sections=list(extra_sections),
         not_done_frequency=next((line for line in getattr(result, "not_done", ()) if line.startswith("frequency")),
                                 ""))

@@ -22,7 +22,7 @@ class BandwidthSection:
 
 
 def bandwidth_section(result, files: dict, scenario=None) -> BandwidthSection:
-    """The section's tables and statements; the joints named as the scenario's arm names them (default the paper's)."""
+    """The section's tables and statements; the joints named as the scenario's arm names them."""
     bw = result.observer_bandwidth
     joints = arm_joints(scenario)
     s = bw.slowest_rad_s

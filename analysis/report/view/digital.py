@@ -5,7 +5,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from blocks.joints import RRPR_JOINTS, JointSpace
+from blocks.arm import ArmModel
+from blocks.joints import JointSpace
 
 from .text import Figure, Table, figures, fmt, mixed_units, pole, units_list
 
@@ -26,8 +27,10 @@ class DigitalSection:
     figures: list[Figure]
 
 
-def digital_section(result, files: dict, joints: JointSpace = RRPR_JOINTS) -> DigitalSection | None:
+def digital_section(result, files: dict, arm: ArmModel) -> DigitalSection | None:
+    """Section 8 for the scenario's arm ``arm`` (its joints' names and units, whether its gravity is constant)."""
     d = result.digital
+    joints = arm.joints
     if d is None:
         return None
     shown = {"sample_rate": "sample rate (Hz)", "delay": "delay (samples)",
@@ -75,13 +78,13 @@ def digital_section(result, files: dict, joints: JointSpace = RRPR_JOINTS) -> Di
                   fmt(q.simulated_rms[i], 3)] for i in rows],
                 f"RMS torque noise from encoder quantization ({noise_units})")
     return DigitalSection(settings=settings, answer=d.answer, poles=poles, gain_limit=gain_limit, rule=rule,
-                          rule_text=_rule_text(d, joints), quantization=quantization,
+                          rule_text=_rule_text(d, joints, arm.constant_gravity), quantization=quantization,
                           figures=figures(files, ("digital_poles", "Poles of the sampled loop"),
                                           ("digital_gain_limit", "How fast the observer may be at each sample rate"),
                                           ("digital_quantization", "Torque noise from encoder quantization")))
 
 
-def _rule_text(d, joints: JointSpace = RRPR_JOINTS) -> str:
+def _rule_text(d, joints: JointSpace, constant_gravity: bool) -> str:
     """How the limits were computed, with the scenario's own numbers (none of them written by hand)."""
     c = d.settings
     own = f"{c.get('observer_discretization', 'euler')} update, {c.get('velocity', 'measured')} velocity"
@@ -96,7 +99,7 @@ def _rule_text(d, joints: JointSpace = RRPR_JOINTS) -> str:
             f"velocity has the closed form 2 (the column 2 / (Ts lambda_max)): its estimate's error obeys "
             f"e[k+1] = (I - Ts Y M^-1) e[k] whatever the torque, delayed or not; zoh and a velocity estimate "
             f"couple the estimate with the tracking and lower the limit, and a delay lowers theirs further."
-            + ("" if joints == RRPR_JOINTS else
+            + ("" if constant_gravity else
                " On this arm gravity varies with the configuration: its slope dG/dq, felt by the arm through the "
                "sample but seen by the controller and the observer at the sampled position, enters the map at each "
                "configuration; it couples Euler's estimate with the motion too, so its limit may differ slightly "

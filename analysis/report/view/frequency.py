@@ -3,9 +3,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from blocks.joints import RRPR_JOINTS, JointSpace
+from blocks.joints import JointSpace
 
-from .text import ZERO_REL, Figure, Table, and_words, arm_joints, figures, fmt, join, split_caveats
+from .text import ZERO_REL, Figure, Table, and_words, arm_joints, figures, fmt, is_paper_arm, join, split_caveats
 
 __all__ = ["FrequencySection", "frequency_section"]
 
@@ -21,7 +21,8 @@ class FrequencySection:
     figures: list[Figure]
 
 
-def _frequency_reading(fr, stable: bool, arm: JointSpace = RRPR_JOINTS) -> str:
+def _frequency_reading(fr, stable: bool, arm: JointSpace, paper: bool = False) -> str:
+    """The reading of the frequency responses; ``paper``: in the paper's words (its d3 sets the tool's depth)."""
     wo, w, est = (fr.tracking_without_dob.metrics, fr.tracking_with_dob.metrics, fr.estimation_with_dob.metrics)
     joints = f"joints 1-{len(w)}"
     text = ""
@@ -29,7 +30,7 @@ def _frequency_reading(fr, stable: bool, arm: JointSpace = RRPR_JOINTS) -> str:
         j = arm.kinds.index("prismatic")
         dc_w = abs(w[j].dc_gain)
         zero = stable and dc_w <= ZERO_REL * w[j].peak_gain
-        where = ("the prismatic joint", "depth error") if arm == RRPR_JOINTS else \
+        where = ("the prismatic joint", "depth error") if paper else \
             (f"the prismatic joint {arm.labels[j]}", "error on it")
         text = (f"A constant force of 1 N on {where[0]} leaves {fmt(-1e3 * wo[j].dc_gain, 4)} mm of {where[1]} "
                 "without the observer and " + ("none with it. " if zero else f"{fmt(1e3 * dc_w, 4)} mm with it. "))
@@ -96,7 +97,7 @@ def frequency_section(result, scenario, files: dict) -> FrequencySection | None:
         q0=join(fr.q0, 5),
         responses=Table.of(["response", "joint", "unit", "DC gain", "peak gain", "peak at (rad/s)", "kind",
                             "-3 dB band (rad/s)"], rows, "Per-joint disturbance responses"),
-        closed_forms=closed_forms, reading=_frequency_reading(fr, stable, arm_joints(scenario)),
+        closed_forms=closed_forms, reading=_frequency_reading(fr, stable, arm_joints(scenario), is_paper_arm(scenario)),
         figures=figures(files, ("frequency_tracking", "Disturbance to tracking error, per joint"),
                          ("frequency_estimation", "Disturbance to estimation error, per joint")))
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from analysis.simulation.figures import has_tissue_model
-from blocks.joints import RRPR_JOINTS, JointSpace
+from blocks.joints import JointSpace
 
 from .text import Figure, Table, column, figures, fmt, is_paper_arm
 from .text import value as _value
@@ -104,10 +104,10 @@ def worse_with_observer(result, experiment: dict, scenario) -> list[str]:
     return lines
 
 
-def worse_with_observer_short(experiment: dict, joints: JointSpace = RRPR_JOINTS) -> str | None:
+def worse_with_observer_short(experiment: dict, joints: JointSpace) -> str | None:
     """The summary's sentence on the joints the observer makes worse along the path (None if there are none).
 
-    ``joints`` are the arm's (default: the paper's): their names and position units.
+    ``joints`` are the arm's: their names and position units.
     """
     worse = _worse_joints(experiment)
     if not worse:

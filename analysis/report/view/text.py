@@ -13,15 +13,15 @@ from pathlib import Path
 
 import numpy as np
 
-from blocks.joints import RRPR_JOINTS, JointSpace
+from blocks.joints import JointSpace
+from blocks.scenario import default_arm
 
 __all__ = ["fmt", "join", "span", "settling", "pole", "Cell", "Table", "Figure", "Paragraph", "figures",
            "joints_text", "mode_text", "value", "kinds", "and_words", "split_caveats", "stable_ranges",
-           "stability_text", "gain_text", "matrix_rows", "per_joint", "column", "JOINT_TITLES", "MODE_SHARE",
-           "ZERO_REL", "is_paper_arm", "units_list", "mixed_units", "gain_units", "arm_joints"]
+           "stability_text", "gain_text", "matrix_rows", "per_joint", "column", "MODE_SHARE",
+           "ZERO_REL", "is_paper_arm", "units_list", "mixed_units", "gain_units", "arm_joints", "arm_of"]
 
 #: How the report names the joints in tables and captions (the same names as the figures).
-JOINT_TITLES = RRPR_JOINTS.labels
 # A component of a unit mode direction at least this large counts as "the mode moves this joint".
 MODE_SHARE = 0.1
 # Relative size below which a computed DC gain or offset is called zero.
@@ -196,15 +196,20 @@ def mode_text(direction) -> str:
     return f"{joints_text(idx)} alone" if len(idx) == 1 else f"{joints_text(idx)} together"
 
 
-def value(x, j: int, digits: int = 3, joints: JointSpace = RRPR_JOINTS) -> str:
-    """A position of joint ``j`` with its unit (of ``joints``, default the paper's arm)."""
+def value(x, j: int, joints: JointSpace, digits: int = 3) -> str:
+    """A position of joint ``j`` of ``joints`` with its unit."""
     return f"{fmt(x, digits)} {joints.position_units[j]}"
 
 
+def arm_of(scenario):
+    """A scenario's true arm (:class:`blocks.arm.ArmModel`; the default scenario's when it has none)."""
+    arm = getattr(scenario, "robot", None)
+    return arm if isinstance(getattr(arm, "joints", None), JointSpace) else default_arm()
+
+
 def arm_joints(scenario) -> JointSpace:
-    """The joints of a scenario's arm (the paper's when the scenario has none)."""
-    joints = getattr(getattr(scenario, "robot", None), "joints", None)
-    return joints if isinstance(joints, JointSpace) else RRPR_JOINTS
+    """The joints of a scenario's arm (the default scenario's when it has none)."""
+    return arm_of(scenario).joints
 
 
 def units_list(units) -> str:
@@ -217,7 +222,7 @@ def mixed_units(units, word: str = "joint") -> str:
 
     Examples
     --------
-    >>> mixed_units(RRPR_JOINTS.force_units), mixed_units(("N m",) * 6)
+    >>> mixed_units(("N m", "N m", "N", "N m")), mixed_units(("N m",) * 6)
     ('N m; N on joint 3', 'N m')
     """
     units = tuple(units)
@@ -235,8 +240,9 @@ def gain_units(joints: JointSpace) -> str:
 
 
 def is_paper_arm(scenario) -> bool:
-    """Whether a scenario's arm is the paper's RRPR (then the report's comparisons with the paper apply)."""
-    return getattr(scenario.robot, "joints", None) == RRPR_JOINTS
+    """Whether a scenario's arm is the paper's (:attr:`blocks.arm.ArmModel.paper`: the report's comparisons with the
+    paper apply)."""
+    return getattr(scenario.robot, "paper", None) is not None
 
 
 def kinds(kind) -> list[str]:

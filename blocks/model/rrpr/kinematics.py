@@ -19,9 +19,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kernels.kinematics import jacobian_entries, kinematic_lengths, tool_pose
-from .parameters import RobotParameters
-from .validation import joint_array, joint_arrays, real_array, robot_parameters
+from ...arm import UnreachableError
+from ...validation import joint_array, joint_arrays, real_array
+from .parameters import RobotParameters, robot_parameters
+from .tool_kernels import jacobian_entries, kinematic_lengths, tool_pose
 
 __all__ = [
     "UnreachableError", "forward_kinematics", "jacobian", "jacobian_derivative_times_dq",
@@ -29,10 +30,6 @@ __all__ = [
 ]
 
 ELBOWS = {"positive": 1.0, "negative": -1.0}
-
-
-class UnreachableError(ValueError):
-    """A task-space point lies outside the arm's reachable workspace (or too near a singularity)."""
 
 
 def forward_kinematics(q, params: RobotParameters) -> np.ndarray:

@@ -16,7 +16,7 @@ __all__ = ["arm_constants", "inertia_entries", "inertia_matrix", "mass_times", "
 
 
 def arm_constants(params) -> np.ndarray:
-    """``k = [k1, k2, k3, k4, k5, g]`` of a :class:`~blocks.parameters.RobotParameters` (kg m^2, kg, m/s^2)."""
+    """``k = [k1, k2, k3, k4, k5, g]`` of a :class:`~blocks.model.rrpr.parameters.RobotParameters` (kg m^2, kg, m/s^2)."""
     c = params.constants
     return np.array([c.k1, c.k2, c.k3, c.k4, c.k5, c.g], dtype=float)
 

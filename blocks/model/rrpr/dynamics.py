@@ -9,7 +9,7 @@ RRPR (n = 4) the joint order is
 :class:`~blocks.arm.ArmModel` (its row kernels); the others are the RRPR's
 closed form (Eq. 6's matrix, ``dM/dtheta2``, its potential energy).
 
-The formulas are those of :mod:`blocks.kernels` (joint rows first); these
+The formulas are those of :mod:`blocks.model.rrpr.dynamics_kernels` (joint rows first); these
 functions present them in the joint-last layout that analysis code and users
 expect.  Each checks its arguments once (:mod:`blocks.validation`): a wrong
 type raises TypeError, a wrong shape or a non-finite entry ValueError, naming
@@ -19,9 +19,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kernels import arm_constants, coriolis_forces
-from .parameters import RobotParameters
-from .validation import arm_model, joint_array, joint_arrays, robot_parameters
+from ...validation import arm_model, joint_array, joint_arrays
+from .dynamics_kernels import arm_constants, coriolis_forces
+from .parameters import RobotParameters, robot_parameters
 
 __all__ = [
     "inertia", "inertia_derivative_theta2", "coriolis_vector", "coriolis_matrix", "gravity",

@@ -15,7 +15,7 @@ __all__ = ["kinematic_lengths", "tool_pose", "jacobian_entries", "tool_velocity"
 
 
 def kinematic_lengths(params) -> np.ndarray:
-    """``kin = [a1, a2, d1, d4]`` (m) of a :class:`~blocks.parameters.RobotParameters`."""
+    """``kin = [a1, a2, d1, d4]`` (m) of a :class:`~blocks.model.rrpr.parameters.RobotParameters`."""
     return np.array([params.a1, params.a2, params.d1, params.d4], dtype=float)
 
 
