@@ -35,8 +35,9 @@ import blocks  # noqa: E402
 from blocks.batch import simulate_batch  # noqa: E402
 from blocks.compiled import CompiledUnavailable, numba_or_none  # noqa: E402
 from blocks.contract import Block, BlockContract  # noqa: E402
-from blocks.kernels import arm_constants, disturbance_params  # noqa: E402
+from blocks.kernels import disturbance_params  # noqa: E402
 from blocks.loop import EngineFallbackWarning, select_engine  # noqa: E402
+from blocks.model.rrpr.dynamics_kernels import arm_constants  # noqa: E402
 from blocks.systems import plant_output, plant_update  # noqa: E402
 
 HAVE_NUMBA = numba_or_none() is not None

@@ -162,7 +162,7 @@ Q = np.array([0.4, 1.1, 0.2, 0.3])            # a pose away from every singulari
 # names the mutants the test kills (python tests/mutation_probe.py --only ID --killers shows it).
 def test_tool_velocity_is_the_time_derivative_of_the_pose():
     """kin-vel-row3: ``tool_velocity`` (exported kernel) is d/dt of Eq. 8 along q', by central differences."""
-    from blocks.kernels import kinematic_lengths, tool_velocity
+    from blocks.model.rrpr.tool_kernels import kinematic_lengths, tool_velocity
     dq = np.array([0.7, -1.3, 0.05, 2.1])
     h = 1e-6
     want = (reference_fk(Q + h * dq) - reference_fk(Q - h * dq)) / (2 * h)

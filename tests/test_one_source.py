@@ -15,6 +15,7 @@ from blocks import kernels
 from blocks.batch import Variants
 from blocks.batch.members import MemberLoop
 from blocks.disturbances import DisturbanceSpec
+from blocks.model.rrpr import dynamics_kernels
 from blocks.model.rrpr.parameters import PAPER_PARAMETERS, RobotParameters
 from blocks.systems import controller, observer, plant
 
@@ -132,14 +133,14 @@ def test_kernels_give_the_same_numbers_for_one_point_a_grid_and_a_batch():
     """The row layout: one point (4,), columns sharing parameters (4, K), columns with their own (4, K)."""
     rng = np.random.default_rng(3)
     members = [_random_arm(rng) for _ in range(5)]
-    k = np.stack([kernels.arm_constants(p) for p in members], axis=1)
+    k = np.stack([dynamics_kernels.arm_constants(p) for p in members], axis=1)
     q, dq, v = rng.uniform(-2, 2, (3, 4, 5))
-    per_member = kernels.mass_solve(k, q, v)
-    shared = kernels.mass_solve(kernels.column_params((k[:, 0],))[0], q, v)
+    per_member = dynamics_kernels.mass_solve(k, q, v)
+    shared = dynamics_kernels.mass_solve(kernels.column_params((k[:, 0],))[0], q, v)
     for i in range(5):
-        one = kernels.mass_solve(k[:, i], q[:, i], v[:, i])
+        one = dynamics_kernels.mass_solve(k[:, i], q[:, i], v[:, i])
         np.testing.assert_array_equal(per_member[:, i], one)
-        np.testing.assert_array_equal(shared[:, 0], kernels.mass_solve(k[:, 0], q[:, 0], v[:, 0]))
+        np.testing.assert_array_equal(shared[:, 0], dynamics_kernels.mass_solve(k[:, 0], q[:, 0], v[:, 0]))
         np.testing.assert_allclose(np.linalg.solve(ref.mass_matrix(q[:, i], members[i]), v[:, i]), one, rtol=1e-7)
 
 

@@ -35,7 +35,6 @@ import os
 import numpy as np
 
 from ..divergence import state_meanings
-from ..kernels import tool_pose
 from ..monitor import Monitor
 from .codegen import CompiledUnavailable
 from .engine import CompiledLoopEngine
@@ -316,9 +315,8 @@ def run_compiled_batch(v, members, observer: bool, metrics: tuple, signals: tupl
 def reference_tool_positions(members, q_ref_grid: np.ndarray) -> np.ndarray:
     """The reference's tool point (m) at the grid points, (points, 3), from ``q_ref_grid`` (joints, points): computed
     once for all members, for the tool-tip distance metrics."""
-    if members.arm.stacks_constants:
-        return tool_pose(members.kin[:, None], q_ref_grid)[:3].T
-    return members.arm.tool_kernels.tool_position(members.kin, q_ref_grid).T
+    kin = members.kin[:, None] if members.arm.stacks_constants else members.kin     # a closed form's numbers: a column
+    return members.arm.tool_kernels.tool_position(kin, q_ref_grid).T
 
 
 def kept_signals(loop, arm, signals: tuple, groups: dict, flags: np.ndarray, n: int) -> tuple:

@@ -11,17 +11,18 @@ Layout
 ------
 Signals are *rows*: a joint vector is an array whose first axis is the joint,
 shape ``(n,)`` for one point or ``(n, K)`` for ``K`` columns (grid times or
-batch members); n is the arm's (4 for the paper's RRPR).  A row ``q[1]`` is then a scalar or a ``(K,)`` array and the
+batch members); n is the arm's.  A row ``q[1]`` is then a scalar or a ``(K,)`` array and the
 same formula serves both.
 
 Parameters follow the signals: an array parameter is indexed by its first
 axes (``k[1]``, ``kp[i]``, ``Y[i, j]``) and, for column signals, carries a
 trailing axis of length 1 (shared by every column) or ``K`` (one value per
 column, as in a batch).  :func:`column_params` adds the shared trailing axis.
-For the paper's RRPR the arm constants are the vector ``k = [k1, k2, k3,
-k4, k5, g]`` of :func:`arm_constants` and the kinematic lengths ``kin = [a1,
-a2, d1, d4]``; another arm gives its own ``k = arm.kernel_params()`` and
-``kin = arm.tool_params()``.  The laws and block kernels take the arm's row
+An arm gives its numbers as ``k = arm.kernel_params()`` and ``kin =
+arm.tool_params()`` and its row kernels (``mass_times``, ``bias_forces``,
+``tool_position``, ...) in its own package (the paper's RRPR in
+:mod:`blocks.model.rrpr`, a URDF chain's in :mod:`blocks.kernels.chain`);
+nothing here is any one arm's.  The laws and block kernels take the arm's row
 kernels as a value, their first argument ``model``
 (:class:`blocks.kernels.model.ArmKernels`, ``arm.arm_kernels``), so one
 source serves every arm.
@@ -33,17 +34,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..model.rrpr.dynamics_kernels import (
-    arm_constants,
-    bias_forces,
-    coriolis_forces,
-    inertia_entries,
-    inertia_matrix,
-    mass_solve,
-    mass_times,
-    plant_acceleration,
-)
-from ..model.rrpr.tool_kernels import jacobian_entries, kinematic_lengths, tool_pose, tool_velocity
 from .disturbance import (
     DisturbanceParams,
     disturbance_params,
@@ -55,8 +45,6 @@ from .disturbance import (
 from .laws import computed_torque, gain_times, lumped_disturbance, observer_estimate, observer_rate
 
 __all__ = [
-    "arm_constants", "inertia_entries", "inertia_matrix", "mass_times", "mass_solve", "coriolis_forces", "bias_forces",
-    "plant_acceleration", "kinematic_lengths", "tool_pose", "tool_velocity", "jacobian_entries",
     "DisturbanceParams", "disturbance_params", "paper_disturbance", "friction_disturbance", "tissue_disturbance",
     "external_disturbance", "computed_torque", "observer_estimate", "observer_rate", "gain_times",
     "lumped_disturbance", "column_params",
