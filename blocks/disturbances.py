@@ -50,14 +50,12 @@ from . import kernels
 from .arm import ArmModel
 from .validation import arm_model, joint_arrays, real_array
 
-__all__ = ["DisturbanceSpec", "DISTURBANCE_KINDS", "KIND_ALIASES", "RRPR_ONLY_KINDS", "external_disturbance",
+__all__ = ["DisturbanceSpec", "DISTURBANCE_KINDS", "KIND_ALIASES", "external_disturbance",
            "paper_disturbance", "friction_disturbance", "tissue_disturbance"]
 
 DISTURBANCE_KINDS = ("paper", "friction", "tissue")
 #: Other names of a model: ``step`` is Eq. 4 under the name it has for any arm.
 KIND_ALIASES = {"step": "paper"}
-#: Models written for the paper's RRPR only: none (the tissue contact works through any arm's tool kernels).
-RRPR_ONLY_KINDS: tuple[str, ...] = ()
 
 _Vec4 = tuple[float, ...]
 
@@ -140,8 +138,8 @@ class DisturbanceSpec:
         return out + (("coulomb", "viscous") if "friction" in self.kinds else ())
 
     def check_arm(self, arm, name: str | None = None) -> None:
-        """Refuse a spec that does not fit ``arm``: a per-joint list of the wrong length, an RRPR-only model
-        (:data:`RRPR_ONLY_KINDS`, none today).
+        """Refuse a spec that does not fit ``arm``: a per-joint list of the wrong length (every model works on any
+        arm: the tissue contact through the arm's tool kernels).
 
         Raises
         ------
@@ -155,12 +153,6 @@ class DisturbanceSpec:
             if len(value) != n:
                 raise ValueError(f"'disturbance.{key}' has {len(value)} values; {label} has {n} joints "
                                  f"({', '.join(arm.joints.names)}): give one per joint")
-        if arm.paper is None:
-            bad = [k for k in self.kinds if k in RRPR_ONLY_KINDS]
-            if bad:
-                raise ValueError(f"disturbance kind {bad[0]!r} models the paper's RRPR only; it is not available "
-                                 f"for {label} ({n} joints): choose from "
-                                 f"{[k for k in DISTURBANCE_KINDS if k not in RRPR_ONLY_KINDS]}")
 
 
 def _rows(x) -> np.ndarray:

@@ -37,7 +37,7 @@ import numpy as np
 from blocks.compiled.c_backend import C_PRELUDE, CodegenError, emit_c_function, trace_block
 from blocks.compiled.trace import Graph, Sym, param_values
 from blocks.contract import Kernels, contract_of
-from blocks.disturbances import DISTURBANCE_KINDS, RRPR_ONLY_KINDS, DisturbanceSpec
+from blocks.disturbances import DISTURBANCE_KINDS, DisturbanceSpec
 from blocks.kernels.disturbance import DisturbanceParams
 from blocks.kernels.model import with_arm
 from blocks.model.rrpr.parameters import RobotParameters
@@ -108,10 +108,6 @@ def arm_disturbance(arm, disturbance: DisturbanceSpec | None, q0=None):
                                friction_velocity=base.friction_velocity, skin_height=skin,
                                tissue_stiffness=base.tissue_stiffness, tissue_damping=base.tissue_damping,
                                tissue_drag=base.tissue_drag)
-    bad = [k for k in disturbance.kinds if k in RRPR_ONLY_KINDS]
-    if bad:
-        raise ValueError(f"disturbance models {bad} need the paper's arm; the arm {arm!r} is another "
-                         f"(choose from {[k for k in DISTURBANCE_KINDS if k not in RRPR_ONLY_KINDS]})")
     for name in ("f_r", "coulomb", "viscous"):
         if len(getattr(disturbance, name)) != n:
             raise ValueError(f"disturbance.{name} has {len(getattr(disturbance, name))} entries; the arm has {n} "
@@ -273,7 +269,6 @@ def plant_c(arm, spec: DisturbanceSpec, param_order: list[str], start: dict) -> 
                                  "const double *p, double *out", static=True) if calculated else
                  "static void plant_calculated(const double *p, double *out)\n{\n    (void)p;\n    (void)out;\n}\n")
     functions = 2
-    rrpr = isinstance(arm, RobotParameters)
     # the dynamics once: the disturbance enters only through the force u + tau_dis (Eq. 1), so the plant with
     # models on is this function of u + tau_dis, operation for operation
     dynamics = trace_block(plant_kernels(arm, _with_kinds(spec, ())), nx, nu, ("update",), ("k", "disturbance"))
@@ -284,8 +279,6 @@ def plant_c(arm, spec: DisturbanceSpec, param_order: list[str], start: dict) -> 
     parts.append(emit_c_function("plant_dynamics", dynamics.rows["update"], args=_KERNEL_ARGS, static=True))
     functions += 1
     for mask, kinds in enumerate(_combinations()):
-        if not rrpr and any(k in RRPR_ONLY_KINDS for k in kinds):
-            continue            # refused at initialization (plant_arm_valid); its slot takes the mask without it
         trace = trace_block(plant_kernels(arm, _with_kinds(spec, kinds)), nx, nu, ("output",),
                             ("k", "disturbance"))
         if list(trace.theta) != expected:
@@ -294,7 +287,7 @@ def plant_c(arm, spec: DisturbanceSpec, param_order: list[str], start: dict) -> 
         parts.append(emit_c_function(f"plant_tau_dis_{mask}", trace.rows["output"][nx:], args=_KERNEL_ARGS,
                                      static=True))
         functions += 1
-    combos = [m if rrpr else _without_rrpr_only(m) for m in range(2 ** len(DISTURBANCE_KINDS))]
+    combos = list(range(2 ** len(DISTURBANCE_KINDS)))
     parts += ["typedef void (*PlantKernel)(double, const double *, const double *, const double *, double *);",
               "static const PlantKernel PLANT_TAU_DIS[N_MODEL_COMBOS] = {"
               + ", ".join(f"plant_tau_dis_{m}" for m in combos) + "};", "",
@@ -321,13 +314,6 @@ def _with_kinds(spec, kinds: tuple):
     if isinstance(spec, DisturbanceSpec):
         return replace(spec, kinds=kinds)
     return SimpleNamespace(**(vars(spec) | {"kinds": kinds}))
-
-
-def _without_rrpr_only(mask: int) -> int:
-    for j, kind in enumerate(DISTURBANCE_KINDS):
-        if kind in RRPR_ONLY_KINDS:
-            mask &= ~(1 << j)
-    return mask
 
 
 def _combinations() -> list[tuple]:

@@ -26,12 +26,12 @@ RRPR_SYMBOLS = frozenset({
 #: Where the RRPR may be named: its package, the top-level API and the scenario defaults.
 ALLOWED = ("blocks/model/rrpr/", "blocks/__init__.py", "blocks/scenario.py", "blocks/scenario_arm.py")
 
-#: Modules that still name the RRPR: the disturbance kinds of
-#: the paper's arm only, the batch's nominal-scale columns (Eq. 5-7 over the members) and the plant FMU's parameter
+#: Modules that still name the RRPR:
+#: the batch's nominal-scale columns (Eq. 5-7 over the members) and the plant FMU's parameter
 #: map (Table 1 -> k1..k5 as traced expressions, with its C validity check); each entry goes when that module stops
 #: naming it (the test fails on an entry that is no longer needed).
 PENDING = frozenset({
-    "blocks/disturbances.py", "blocks/batch/rows.py", "fmu/generated.py",
+    "blocks/batch/rows.py", "fmu/generated.py",
 })
 
 
