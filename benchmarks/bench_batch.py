@@ -32,6 +32,8 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import threading
+import time
 
 import numpy as np
 
@@ -64,6 +66,65 @@ def paper_variants(n: int, seed: int = 2024) -> dict:
     return cols
 
 
+def thread_cpu() -> dict[int, float]:
+    """CPU seconds (user + system) of every thread of this process by thread id, from /proc (empty elsewhere)."""
+    ticks = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+    out = {}
+    try:
+        tids = os.listdir("/proc/self/task")
+    except OSError:
+        return out
+    for tid in tids:
+        try:
+            with open(f"/proc/self/task/{tid}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        out[int(tid)] = (int(fields[11]) + int(fields[12])) / ticks      # utime, stime (fields 14, 15)
+    return out
+
+
+def per_thread(fn, rounds: int = 3) -> dict:
+    """Where one call's CPU goes: the fastest of ``rounds`` calls of ``fn`` by wall time, with the CPU seconds of
+    each thread that ran (main thread first; /proc's clock ticks of 10 ms), and the part of the wall time spent
+    outside the compiled batch driver (``rk4_batch`` / ``dopri_batch``: the serial part, timed around the
+    driver's call)."""
+    from blocks.compiled import codegen
+    inside = [0.0]
+    wrapped = []
+    for module, _ in list(codegen._modules.values()):
+        for name in ("rk4_batch", "dopri_batch"):
+            driver = getattr(module, name, None)
+            if driver is None:
+                continue
+
+            def timed(*args, driver=driver):
+                t0 = time.perf_counter()
+                try:
+                    return driver(*args)
+                finally:
+                    inside[0] += time.perf_counter() - t0
+            setattr(module, name, timed)
+            wrapped.append((module, name, driver))
+    best = None
+    try:
+        for _ in range(rounds):
+            inside[0] = 0.0
+            before, t0 = thread_cpu(), time.perf_counter()
+            fn()
+            wall, after = time.perf_counter() - t0, thread_cpu()
+            if best is None or wall < best["wall_s"]:
+                main = threading.get_native_id()
+                cpu = {tid: after[tid] - before.get(tid, 0.0) for tid in after}
+                busy = [cpu.pop(main, 0.0)] + sorted((c for c in cpu.values() if c > 0), reverse=True)
+                best = {"wall_s": wall, "driver_wall_s": inside[0], "serial_wall_s": wall - inside[0],
+                        "thread_cpu_s": busy}
+    finally:
+        for module, name, driver in wrapped:
+            setattr(module, name, driver)
+    return best
+
+
 def run(members: int = 1000, repeats: int = 5, scenario: str = "paper", numpy_batch: bool = False) -> dict:
     s = blocks.load_scenario(scenario)
     short = s.with_changes({"simulation.t_final": 2 * s.simulation.output_step})
@@ -93,17 +154,25 @@ def run(members: int = 1000, repeats: int = 5, scenario: str = "paper", numpy_ba
     best = {name: (min(w for w, _ in ts), min(c for _, c in ts)) for name, ts in times.items()}
     lean_wall, lean_cpu = best["lean"]
     one = best["workers=1"][0]
+    threads = {k: per_thread(lambda k=k: batch(k)) for k in range(1, cores + 1)}
     memory = peak_memory(batch)
     return {"scenario": scenario, "members": members, "machine": machine(), "repeats": repeats, "cores": cores,
             "seconds": {name: {"wall_min": w, "cpu_min": c} for name, (w, c) in best.items()},
             "lean_runs_wall": {name: w / lean_wall for name, (w, c) in best.items()},
             "lean_runs_cpu": {name: c / lean_cpu for name, (w, c) in best.items()},
             "speedup": {k: one / best[f"workers={k}"][0] for k in range(1, cores + 1)},
+            "serial_fraction": {k: serial_fraction(k, one / best[f"workers={k}"][0]) for k in range(2, cores + 1)},
+            "threads": threads,
             "load_before": load_before, "load_average": os.getloadavg(), "steps": first.steps,
             "evaluations_mean": float(np.mean(first.evaluations)), "failed": int((~first.ok).sum()),
             "peak_python_heap_mb": memory, "max_rss_mb": max_rss_mb(),
             "targets": {"lean_runs": TARGET_LEAN_RUNS, "stretch": STRETCH_LEAN_RUNS, "two_workers": TARGET_TWO_WORKERS,
                         "setup_s": TARGET_SETUP_S, "single": TARGET_SINGLE}}
+
+
+def serial_fraction(k: int, speedup: float) -> float:
+    """Amdahl's serial fraction ``s`` that a speed-up on ``k`` workers implies: ``speedup = 1 / (s + (1 - s) / k)``."""
+    return (k / speedup - 1.0) / (k - 1.0)
 
 
 def report(r: dict) -> str:
@@ -120,7 +189,11 @@ def report(r: dict) -> str:
         f"Scenario '{r['scenario']}', {r['members']} variants, default call: RK4 on one shared schedule "
         f"({r['steps']} steps), {r['failed']} diverged; fastest of {r['repeats']}; {r['cores']} cores; {r['machine']}",
         table(["what", "wall min s", "lean runs (wall)", "CPU min s", "lean runs (CPU)"], rows),
-        f"scaling (wall time of 1 worker / k workers): {curve}",
+        f"scaling (wall time of 1 worker / k workers): {curve}; Amdahl's serial fraction implied: "
+        + (", ".join(f"{k} workers {x:.2f}" for k, x in r["serial_fraction"].items()) or "-"),
+        *(f"workers={k}: wall {t['wall_s']:.3f} s, of which {t['serial_wall_s']:.3f} s outside the parallel "
+          f"driver ({t['serial_wall_s'] / t['wall_s']:.0%}); CPU s per thread (main first): "
+          + ", ".join(f"{c:.2f}" for c in t["thread_cpu_s"]) for k, t in r["threads"].items()),
         f"default call: {wall:.2f} lean runs by wall time (target <= {t['lean_runs']:g}: {verdict(wall <= t['lean_runs'])}; "
         f"stretch {t['stretch']:g}: {verdict(wall <= t['stretch'])})",
         (f"two workers {two:.2f}x one (target >= {t['two_workers']:g}: {verdict(two >= t['two_workers'])})"

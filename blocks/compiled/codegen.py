@@ -732,6 +732,7 @@ def load_module(program: LoopProgram) -> tuple[types.ModuleType, bool]:
         setattr(module, kname, jit_kernel(fn))
     parallel = set(getattr(module, "PARALLEL", ()))
     nogil = set(getattr(module, "NOGIL", ()))
+    inline = set(getattr(module, "INLINE", ()))
     for attr, value in list(vars(module).items()):
         if isinstance(value, types.FunctionType) and value.__module__ == name:
             options = dict(error_model="numpy")
@@ -739,6 +740,8 @@ def load_module(program: LoopProgram) -> tuple[types.ModuleType, bool]:
                 options["parallel"] = True
             if attr in nogil:
                 options["nogil"] = True
+            if attr in inline:
+                options["inline"] = "always"
             dispatcher = numba.njit(**options)(value)
             guard_dispatcher(dispatcher, store)
             setattr(module, attr, dispatcher)
