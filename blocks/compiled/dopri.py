@@ -63,6 +63,9 @@ MIN_FACTOR = 0.2
 MAX_FACTOR = 10.0
 ERROR_EXPONENT = -1.0 / 5.0
 
+# What a called kernel gets for its states or inputs when it has none (numba takes a global array as a constant)
+NO_ARRAY = np.empty(0)
+
 # Status codes of dopri_run
 RUNNING, FINISHED, DIVERGED, STEP_TOO_SMALL = 0, 1, 2, 3
 # Slots of dopri_run's state vector

@@ -269,7 +269,10 @@ class CompiledLoopEngine:
                 order, np.arange(order.size)) else order)
         flags, order = found
         n_out = self.program.n_out
-        out = np.empty((n_out + (self.program.n_rows if rows else 0), t_grid.size))
+        # rows asked that are the first rows of the row groups: only those are written (the driver copies the first
+        # R.shape[0] rows), else all of them
+        n_rows = 0 if not rows else (order.stop - n_out if stacked and isinstance(order, slice) else self.program.n_rows)
+        out = np.empty((n_out + n_rows, t_grid.size))
         aux = np.zeros((1, max(self.program.n_aux, 1)))
         self.module.grid_outputs(t_grid, X, self.theta, self.ext, aux, flags, out[:n_out], out[n_out:])
         if not rows:

@@ -63,29 +63,23 @@ def _copy_module(name: str) -> types.ModuleType:
     return twin
 
 
-def jit_kernel(fn, inline: bool = False):
+def jit_kernel(fn):
     """The numba-compiled copy of kernel ``fn`` (memoised; its kernel callees compiled the same way); a kernel
-    that carries its own compiled form (``numba_kernel``: a user's function compiled as it stands) gives that.
-
-    A kernel's callees are inlined into it (``inline``): a call between compiled functions is not inlined by
-    LLVM and passes every argument as it goes, about a third of a laceration path's 160 ns; the kernel itself
-    stays one function that the loop's code calls (inlined at every call site it would multiply the compile).
-    """
+    that carries its own compiled form (``numba_kernel``: a user's function compiled as it stands) gives that."""
     own = getattr(fn, "numba_kernel", None)
     if own is not None:
         return own
-    found = _jitted.get((fn, inline))
+    found = _jitted.get(fn)
     if found is not None:
         return found
     numba = numba_or_none()
-    # the twin's names are the inlined copies (what a kernel calls); an entry point is a copy of its own
     twin = _copy_module(fn.__module__)
     for callee in _callees(fn):
-        twin.__dict__[callee.__name__] = jit_kernel(callee, inline=True)
+        twin.__dict__[callee.__name__] = jit_kernel(callee)
     copy = types.FunctionType(fn.__code__, twin.__dict__, fn.__name__, fn.__defaults__, fn.__closure__)
     copy.__qualname__, copy.__module__, copy.__doc__ = fn.__qualname__, twin.__name__, fn.__doc__
-    compiled = numba.njit(error_model="numpy", inline="always" if inline else "never")(copy)
-    _jitted[(fn, inline)] = compiled
+    compiled = numba.njit(error_model="numpy")(copy)
+    _jitted[fn] = compiled
     return compiled
 
 
