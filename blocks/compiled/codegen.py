@@ -731,8 +731,10 @@ def load_module(program: LoopProgram) -> tuple[types.ModuleType, bool]:
     module.__file__ = str(module_path(program))
     sys.modules[name] = module          # numba's cache finds a function's module by name when it loads it
     exec(compile(text, module.__file__, "exec"), module.__dict__)
+    # the reference (a source: called at every right-hand side and grid point) with its helpers inlined
+    sources = {f"K_{name}_output" for name in program.sources}
     for kname, fn in program.kernels.items():
-        setattr(module, kname, jit_kernel(fn))
+        setattr(module, kname, jit_kernel(fn, inline_callees=kname in sources))
     parallel = set(getattr(module, "PARALLEL", ()))
     nogil = set(getattr(module, "NOGIL", ()))
     inline = set(getattr(module, "INLINE", ()))
