@@ -191,6 +191,12 @@ class ArmModel(abc.ABC):
         checked at once: only a model whose constants stack per member (:attr:`stacks_constants`) answers."""
         raise NotImplementedError(f"{self.name} does not check its parameters as columns")
 
+    def stacked_kernel_params(self, values: dict) -> np.ndarray:
+        """:meth:`kernel_params` of the arms whose named parameters are ``values`` (SI; numbers or arrays over the
+        members of a batch), one column per member, in the model's own operations (the same floats as each
+        member's arm gives): only a model whose constants stack per member (:attr:`stacks_constants`) answers."""
+        raise NotImplementedError(f"{self.name} does not stack its constants per member")
+
     def laceration_path(self, **keys):
         """The arm's own closed-form joint references for the laceration path (the scenario's ``[trajectory]``
         keys), or None: the tool point then follows the path by IK (:class:`blocks.tool_path.ToolLaceration`)."""

@@ -92,7 +92,7 @@ class SampledFunctions:
         program, kernels = sampled_program_for(self.hybrid)
         found = _made.get(id(program))
         if found is None or found[0] is not program:
-            namespace = {"np": _math(), "__name__": "dobkit_scalar_sampled"}
+            namespace = {"np": _math(), "__name__": "dobkit_scalar_sampled", "NO_ARRAY": np.empty(0)}
             namespace.update({name: _called(fn) for name, fn in program.kernels.items()})
             exec(compile(program.source, "<dobkit generated sampled loop>", "exec"), namespace)
             found = _made[id(program)] = (program, namespace)

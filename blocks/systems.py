@@ -47,8 +47,12 @@ __all__ = ["plant", "controller", "observer", "trajectory_block", "sensor", "sig
            "observer_update", "observer_output", "sensor_output"]
 
 
-def signal_names(prefix: str, params: ArmModel) -> list[str]:
-    """The per-joint signal names ``prefix[0]`` .. ``prefix[n-1]`` of the arm ``params``."""
+def signal_names(prefix: str, params: ArmModel | None = None) -> list[str]:
+    """The per-joint signal names ``prefix[0]`` .. ``prefix[n-1]`` of the arm ``params`` (default: the default
+    scenario's arm, :func:`blocks.scenario.default_arm`)."""
+    if params is None:
+        from .scenario import default_arm
+        params = default_arm()
     return params.joints.signal_names(prefix)
 
 
@@ -251,7 +255,7 @@ def trajectory_block(trajectory, name: str = "trajectory", arm: ArmModel | None 
         for a scalar or a (T,) array of times, that is used instead and the
         block takes columns.
     arm : ArmModel, optional
-        The arm whose joints the reference drives (names, n); default the paper's.
+        The arm whose joints the reference drives (names, n); default the default scenario's.
     """
     outputs = signal_names("q_ref", arm) + signal_names("dq_ref", arm) + signal_names("ddq_ref", arm)
     make_kernels = getattr(trajectory, "kernels", None)

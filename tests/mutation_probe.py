@@ -203,6 +203,8 @@ ARM, DYNPY, KK, KINPY = ("blocks/model/rrpr/dynamics_kernels.py", "blocks/model/
 LAW, DK, CH, IKF = "blocks/kernels/laws.py", "blocks/kernels/disturbance.py", "blocks/kernels/chain.py", "blocks/arms/ik.py"
 RR_FILE = "blocks/arms/resolved_rate.py"      # J' by polarisation lives beside the law that uses it
 DIV, MON, RL, DS = "blocks/divergence.py", "blocks/monitor.py", "blocks/run_limits.py", "blocks/digital_stability.py"
+BOUNDS = "blocks/physical_bounds.py"          # the scenario's physical bounds the divergence rule is given
+SPLINES = "blocks/kernels/splines.py"        # the paths' polynomial pieces
 BU, ME, ES, PC = "blocks/budget.py", "blocks/metrics.py", "fmu/end_stops.py", "fmu/c/plant_model.c"
 AL, BW = "analysis/linear/arm_linear.py", "analysis/linear/bandwidth.py"
 SC = "blocks/batch/schedule.py"
@@ -254,7 +256,7 @@ MUTANTS = [
     M("law-ct-dhat-sign", "laws", LAW, "bias_forces(k, q, dq) - d_hat", "bias_forces(k, q, dq) + d_hat", LAWS,
       "computed torque: + d_hat"),
     M("law-ct-no-ff", "laws", LAW, "v = ddq_ref + kd", "v = 0.0 * ddq_ref + kd", LAWS, "computed torque: no q_ref''"),
-    M("law-obs-bias-sign", "laws", LAW, "(y_dq + z) - bias_forces(k, q, dq)", "(y_dq + z) + bias_forces(k, q, dq)", LAWS,
+    M("law-obs-bias-sign", "laws", LAW, "(y_dq + z) - model.bias_forces(k, q, dq)", "(y_dq + z) + model.bias_forces(k, q, dq)", LAWS,
       "observer: + h in the residual"),
     M("law-obs-eq16-sign", "laws", LAW, "- eq16_weight * y_dq", "+ eq16_weight * y_dq", LAWS,
       "printed Eq. 16 variant: + Y q'"),
@@ -262,7 +264,7 @@ MUTANTS = [
       "d_hat = Y q' - z"),
     M("law-gain-transpose", "laws", LAW, "return (gain * v).sum(axis=1)", "return (gain * v).sum(axis=0)", LAWS,
       "full gain: Y^T v for Y v"),
-    M("law-lumped-true", "laws", LAW, "return mass_times(k_nominal, q, ddq)", "return mass_times(k_true, q, ddq)", LAWS,
+    M("law-lumped-true", "laws", LAW, "return model.mass_times(k_nominal, q, ddq)", "return model.mass_times(k_true, q, ddq)", LAWS,
       "lumped d: M (true) q'' for M^ q''"),
     # ---- disturbance models (Eq. 4 and beside it) --------------------------------------------------------------
     M("dist-eq4-sign", "disturbances", DK, "np.sign(2.0 * t + 1.0)", "np.sign(2.0 * t - 1.0)", DIST,
@@ -277,8 +279,8 @@ MUTANTS = [
                  "a set of measure zero that no integrator lands on, and the docstring's p > 0 is a choice there"),
     M("dist-tissue-fx", "disturbances", DK, "fx = -drag * vx * inside", "fx = -drag * vy * inside", DIST,
       "tissue drag: v_y in F_x"),
-    M("dist-tissue-depth", "disturbances", DK, "depth = skin_height - tool_position(kin, q)[2]",
-      "depth = tool_position(kin, q)[2] - skin_height", DIST, "tissue depth with the wrong sign"),
+    M("dist-tissue-depth", "disturbances", DK, "depth = skin_height - model.tool_position(kin, q)[2]",
+      "depth = model.tool_position(kin, q)[2] - skin_height", DIST, "tissue depth with the wrong sign"),
     M("dist-friction-args", "disturbances", DK, "friction_disturbance(dq, p.coulomb, p.viscous, p.friction_velocity)",
       "friction_disturbance(dq, p.viscous, p.coulomb, p.friction_velocity)", DIST + ("tests/test_loop.py",),
       "external_disturbance: Coulomb and viscous swapped"),
@@ -324,17 +326,17 @@ MUTANTS = [
     M("ik-sigma-largest", "ik", IKF, "np.linalg.eigvalsh(JJt)[0]", "np.linalg.eigvalsh(JJt)[-1]", IK,
       "singularity check on the largest singular value"),
     # ---- divergence rule ---------------------------------------------------------------------------------------
-    M("div-pos-abs", "divergence", DIV, "pos = np.abs(q_ref).max(axis=0)", "pos = q_ref.max(axis=0)", DIVERGENCE,
+    M("div-pos-abs", "divergence", BOUNDS, "pos = np.abs(q_ref).max(axis=0)", "pos = q_ref.max(axis=0)", DIVERGENCE,
       "position bound from max q_ref, not max |q_ref|"),
     M("div-violated-abs", "divergence", DIV, "return ~(np.abs(np.asarray(x, dtype=float)) <= self.bounds)",
       "return ~(np.asarray(x, dtype=float) <= self.bounds)", DIVERGENCE, "a large negative value never diverges"),
     M("div-violated-lt", "divergence", DIV, "return ~(np.abs(np.asarray(x, dtype=float)) <= self.bounds)",
       "return ~(np.abs(np.asarray(x, dtype=float)) < self.bounds)", DIVERGENCE, "a value at its bound diverges"),
-    M("div-force-no-external", "divergence", DIV,
+    M("div-force-no-external", "divergence", BOUNDS,
       "external = _external_disturbance(kernels, tool_kernels)\n    forces = np.abs(external(0.0, q0, dq0, disturbance)) + ",
       "external = _external_disturbance(kernels, tool_kernels)\n    forces = 0.0 * np.abs(external(0.0, q0, dq0, disturbance)) + ",
       DIVERGENCE, "force bound without the external disturbance"),
-    M("div-z-no-reach", "divergence", DIV, "return (force + reach, f\"observer z[{i}]", "return (force, f\"observer z[{i}]",
+    M("div-z-no-reach", "divergence", BOUNDS, "return (force + reach, f\"{name} (= d_hat", "return (force, f\"{name} (= d_hat",
       DIVERGENCE, "observer state bound without Y q'"),
     M("div-runaway-factor", "divergence", DIV, "grew = np.abs(y_next) > RUNAWAY_FACTOR * np.abs(y)",
       "grew = np.abs(y_next) > np.abs(y)", RUNAWAY, "runaway: any growth counts"),
@@ -593,9 +595,9 @@ MUTANTS += [
     M("nz-count", "noise", NZ, "count = int(math.ceil(self.t_final / self.sample_period)) + 2",
       "count = int(math.ceil(self.t_final / self.sample_period))", NOISE, "the samples end a period before t_final"),
     # ---- task-space paths: the laceration (RRPR) and the tool path of any arm ----------------------------------
-    M("tj-smooth-d1", "task_path", TJ, "30 * tau ** 2 * (1 - tau) ** 2,", "30 * tau ** 2 * (1 - tau),", LACERATION,
+    M("tj-smooth-d1", "task_path", SPLINES, "30 * tau ** 2 * (1 - tau) ** 2,", "30 * tau ** 2 * (1 - tau),", LACERATION,
       "smoothstep5 derivative with (1 - tau) once"),
-    M("tj-bump-dd", "task_path", TJ, "384 * u * du ** 2 - 384 * u ** 2", "384 * u * du ** 2 - 192 * u ** 2", LACERATION,
+    M("tj-bump-dd", "task_path", SPLINES, "384 * u * du ** 2 - 384 * u ** 2", "384 * u * du ** 2 - 192 * u ** 2", LACERATION,
       "bump6 second derivative: 192 u^2"),
     M("tj-dds-T", "task_path", TJ, "step * ddsig / T ** 2", "step * ddsig / T", LACERATION, "s'' over T for T^2"),
     M("tj-bulge-ddw", "task_path", TJ, "4 * bulge * (1 - 2 * s), -8 * bulge", "4 * bulge * (1 - 2 * s), -4 * bulge", LACERATION,
@@ -605,9 +607,9 @@ MUTANTS += [
     M("tj-aphi-sign", "task_path", LAC, "e1 + e2 - aphi)", "e1 + e2 + aphi)", LACERATION, "theta4'' = e1 + e2 + phi''"),
     M("tj-phase-cap", "task_path", TJ, "phase = min(max(math.floor(t / T), 0), 2 * stitches - 2)",
       "phase = min(max(math.floor(t / T), 0), 2 * stitches - 1)", LACERATION, "a phase past the last stitch"),
-    M("tp-quintic-c4", "task_path", TJ, "c4 = -15.0 * d + 7.0 * dv - da", "c4 = -15.0 * d + 7.0 * dv - 0.5 * da", TOOL_PATH,
+    M("tp-quintic-c4", "task_path", SPLINES, "c4 = -15.0 * d + 7.0 * dv - da", "c4 = -15.0 * d + 7.0 * dv - 0.5 * da", TOOL_PATH,
       "joint table quintic: c4 with da / 2"),
-    M("tp-quintic-ddq", "task_path", TJ, "s * (12.0 * c4 + s * (20.0 * c5))", "s * (12.0 * c4 + s * (12.0 * c5))", TOOL_PATH,
+    M("tp-quintic-ddq", "task_path", SPLINES, "s * (12.0 * c4 + s * (20.0 * c5))", "s * (12.0 * c4 + s * (12.0 * c5))", TOOL_PATH,
       "joint table quintic: q'' with 12 c5"),
     M("tp-dds-T", "task_path", TP, "(dds / T ** 2)[..., None] * step", "(dds / T)[..., None] * step", TOOL_PATH,
       "tool path p'' over T for T^2"),

@@ -186,11 +186,14 @@ def test_controller_setting_is_a_number_or_one_per_joint(scope4, key, units):
         assert "['yaw', 'pitch', 'insertion', 'roll']" in text and repr(bad) in text
 
 
-def test_the_rrpr_controller_keeps_its_message_and_defaults():
+def test_the_default_controller_is_the_default_arms_and_names_its_joints():
+    """Without joints the settings are the default scenario's arm's (the paper's RRPR: 4 joints, a slide third);
+    a bad per-joint value names the joints, as for any arm."""
     c = DigitalController(1000.0)
     assert c.position_resolution == (0.0,) * 4 and c.torque_limit == (0.0,) * 4 and c.n == 4
     with pytest.raises(ValueError, match=r"^'controller.torque_limit' must be 4 finite numbers >= 0 "
-                                         r"\(N m, N m, N, N m\), got \[1, 1, -1, 1\]$"):
+                                         r"\(N m, N m, N, N m\), one per joint of \['theta1', 'theta2', 'd3', "
+                                         r"'theta4'\] or one for all, got \[1, 1, -1, 1\]$"):
         DigitalController(1000.0, torque_limit=[1, 1, -1, 1])
 
 

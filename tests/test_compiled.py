@@ -242,6 +242,23 @@ def test_compiled_progress_reports_fractions_of_simulated_time(monkeypatch):
     assert seen == [1.0]
 
 
+def test_a_repeated_run_takes_the_compiled_driver_in_one_call(monkeypatch):
+    """The monitored run returns to Python every ``CHUNK_SECONDS``: its first call is sized from the engine's
+    previous pace, so a run much shorter than that is one call of ``dopri_run`` (the first run starts with a few
+    steps and measures the pace), with the states of the run in many calls."""
+    from blocks.loop import _prepared
+    s = blocks.load_scenario("paper").replace(simulation={"t_final": 1.0})
+    first = blocks.simulate(s, engine="compiled")
+    module = _prepared(s, True).compiled_engine().module
+    calls = []
+    driver = module.dopri_run
+    monkeypatch.setattr(module, "dopri_run", lambda *args: calls.append(args[7]) or driver(*args))
+    again = blocks.simulate(s, engine="compiled")
+    assert len(calls) == 1 and calls[0] > 100          # about 90 accepted steps in this run
+    np.testing.assert_array_equal(again.states, first.states)
+    np.testing.assert_array_equal(again.outputs, first.outputs)
+
+
 def test_no_allocation_per_step_in_the_compiled_right_hand_side(tmp_path):
     """numba's allocation count of a run does not grow with the number of steps (paper loop, with and without
     measurement noise; the batch)."""

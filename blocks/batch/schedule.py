@@ -45,25 +45,95 @@ def rates_by_source(variants: Variants, observer: bool = True) -> dict[str, np.n
     another arm.  Each value has shape (N,).
     """
     q = _inertia_configurations(variants)
-    M = _inertia_of_each(q, variants.robots)                        # (N, m, n, n)
-    M_hat = _inertia_of_each(q, variants.nominals)
-    M_inv, M_hat_inv = np.linalg.inv(M), np.linalg.inv(M_hat)
-    mismatch = np.abs(np.linalg.eigvals(M_inv @ M_hat)).max(axis=(1, 2))                  # (N,)
-    kp, kd = variants.kp.T, variants.kd.T                                                   # (N, n)
+    numbers = _column_numbers(variants, q, observer)
+    if numbers is None:
+        numbers = _member_numbers(variants, q, observer)
+    M, M_hat, kp, kd, Y, damping = numbers
+    M_inv, M_hat_inv = _each_distinct(np.linalg.inv, M), _each_distinct(np.linalg.inv, M_hat)
+    mismatch = np.abs(_each_distinct(np.linalg.eigvals, M_inv @ M_hat)).max(axis=(1, 2))   # (N,)
     disc = kd ** 2 - 4 * kp
     pd = np.where(disc >= 0, 0.5 * (kd + np.sqrt(np.abs(disc))), np.sqrt(kp)).max(axis=1)
     rates = {"gains.kp": pd * np.maximum(mismatch, 1.0)}
     if observer:
+        rates["gains.observer"] = np.max([np.abs(_each_distinct(np.linalg.eigvals, Y[:, None] @ inv)).max(axis=(1, 2))
+                                          for inv in (M_inv, M_hat_inv)], axis=0)
+    if damping is not None:
+        D = np.apply_along_axis(np.diag, 1, damping)
+        rates["disturbance.friction_velocity"] = np.abs(_each_distinct(np.linalg.eigvals, M_inv @ D[:, None])).max(
+            axis=(1, 2))
+    return rates
+
+
+def _each_distinct(fn, A: np.ndarray) -> np.ndarray:
+    """``fn`` (a stacked linear-algebra function: ``np.linalg.inv``, ``np.linalg.eigvals``) of every matrix of
+    ``A`` (N, ..., n, n), computed once when every member has the same matrices (the true arm, the base's gains):
+    3,000 small eigenvalue problems are most of a 1000-member batch's step rule."""
+    if A.shape[0] > 1 and np.array_equal(A, np.broadcast_to(A[:1], A.shape)):
+        one = fn(A[:1])
+        return np.broadcast_to(one, A.shape[:1] + one.shape[1:])
+    return fn(A)
+
+
+def _member_numbers(variants: Variants, q: np.ndarray, observer: bool) -> tuple:
+    """What the rates are made of, from each member's model objects: ``(M, M_hat, kp, kd, Y, damping)`` --
+    the true and nominal inertia at ``q`` (N, m, n, n), Kp and Kd (N, n), the observer gain (N, n, n) or None
+    without the observer, the friction's ``F_c / v_s + F_v`` (N, n) or None without friction."""
+    M = _inertia_of_each(q, variants.robots)                        # (N, m, n, n)
+    M_hat = _inertia_of_each(q, variants.nominals)
+    Y = None
+    if observer:
         Y = variants.y_full.transpose(2, 0, 1) if variants.y_full is not None else \
             np.apply_along_axis(np.diag, 1, variants.y_diag.T)                             # (N, n, n)
-        rates["gains.observer"] = np.max([np.abs(np.linalg.eigvals(Y[:, None] @ inv)).max(axis=(1, 2))
-                                          for inv in (M_inv, M_hat_inv)], axis=0)
+    damping = None
     if "friction" in variants.base.disturbance.kinds:
         dist = variants.disturbance
         damping = dist.coulomb / dist.friction_velocity + dist.viscous                      # (N, n)
-        D = np.apply_along_axis(np.diag, 1, damping)
-        rates["disturbance.friction_velocity"] = np.abs(np.linalg.eigvals(M_inv @ D[:, None])).max(axis=(1, 2))
-    return rates
+    return M, M_hat, variants.kp.T, variants.kd.T, Y, damping
+
+
+def _column_numbers(variants: Variants, q: np.ndarray, observer: bool) -> tuple | None:
+    """:func:`_member_numbers` from the variants' checked columns (:attr:`Variants.columns`) without making each
+    member's model objects (about 0.1 ms per member: 0.1 s of a 1000-member batch's set-up, which no worker
+    shares); None where the columns do not give them (no columns, or an observer gain from a bandwidth that the
+    nominal arm's scales move).
+
+    The same numbers as the objects give: the nominal arm's constants of Eq. 5-7 in
+    the model's own operations over all members at once (:meth:`blocks.arm.ArmModel.stacked_kernel_params`, as
+    :mod:`blocks.batch.rows` fills ``theta``), gains as their diagonals, the base's values where no column is
+    given.
+    """
+    columns = getattr(variants, "columns", None)
+    s = variants.base
+    if columns is None or not s.robot.stacks_constants:
+        return None
+    N, n = len(variants), s.robot.joints.count
+    scales = {k.split(".", 1)[1]: c for k, c in columns.items() if k.startswith("nominal_scale.")}
+    if scales and observer and s.data["gains"].get("observer_bandwidth") is not None:
+        return None                                 # each member's Y = omega M^(q0) of its own nominal arm
+    inertia_matrix = s.robot.kernels.inertia_matrix
+    c2 = q.T[:, None, :]
+    M = np.broadcast_to(inertia_matrix(s.robot.kernel_params()[:, None, None], c2), (N,) + (q.shape[0], n, n))
+    if scales:
+        from .variants import nominal_values
+        k = s.nominal.stacked_kernel_params(nominal_values(s, scales))
+        k = np.broadcast_to(k.reshape(k.shape[0], -1), (k.shape[0], N))                   # (p, N): a column each
+        M_hat = inertia_matrix(k[:, :, None], c2)                                          # (N, m, n, n)
+    else:
+        M_hat = np.broadcast_to(inertia_matrix(s.nominal.kernel_params()[:, None, None], c2), M.shape)
+
+    def per_joint(key: str, base_value) -> np.ndarray:       # (N, n): a column, else the base's for every member
+        col = columns.get(key)
+        if col is None:
+            return np.broadcast_to(np.asarray(base_value, dtype=float), (N, n))
+        return np.broadcast_to(col[:, None] if col.ndim == 1 else col, (N, n))
+    kp, kd = per_joint("gains.kp", np.diag(s.kp)), per_joint("gains.kd", np.diag(s.kd))
+    Y = np.broadcast_to(np.asarray(s.observer_gain, dtype=float), (N, n, n)) if observer else None
+    damping = None
+    if "friction" in s.disturbance.kinds:
+        d = s.disturbance
+        v_s = columns.get("disturbance.friction_velocity", np.full(N, d.friction_velocity))[:, None]
+        damping = per_joint("disturbance.coulomb", d.coulomb) / v_s + per_joint("disturbance.viscous", d.viscous)
+    return M, M_hat, kp, kd, Y, damping
 
 
 def fastest_rate(variants: Variants, observer: bool = True) -> float:

@@ -411,9 +411,12 @@ class _Function:
         self.calls += 1
         c = self.calls
         stateful = step.x.stop > step.x.start and "x" in self.args.split(", ")
-        x = f"x[{step.x.start}:{step.x.stop}]" if stateful else "work[0:0]"
+        # no states or no inputs: the module's one empty array (a slice made at each call costs two atomic
+        # reference counts, about a tenth of a laceration path's call)
+        x = f"x[{step.x.start}:{step.x.stop}]" if stateful else "NO_ARRAY"
+        u = f"work[{w0}:{w0 + len(inputs)}]" if inputs else "NO_ARRAY"
         params = "".join(f", ext[{e}]" for e in range(*ext_slice))
-        self.emit(f"r{c} = {kernel}(t, {x}, work[{w0}:{w0 + len(inputs)}]{params})")
+        self.emit(f"r{c} = {kernel}(t, {x}, {u}{params})")
         return c
 
     def assign(self, target: str, v) -> None:
@@ -728,10 +731,13 @@ def load_module(program: LoopProgram) -> tuple[types.ModuleType, bool]:
     module.__file__ = str(module_path(program))
     sys.modules[name] = module          # numba's cache finds a function's module by name when it loads it
     exec(compile(text, module.__file__, "exec"), module.__dict__)
+    # the reference (a source: called at every right-hand side and grid point) with its helpers inlined
+    sources = {f"K_{name}_output" for name in program.sources}
     for kname, fn in program.kernels.items():
-        setattr(module, kname, jit_kernel(fn))
+        setattr(module, kname, jit_kernel(fn, inline_callees=kname in sources))
     parallel = set(getattr(module, "PARALLEL", ()))
     nogil = set(getattr(module, "NOGIL", ()))
+    inline = set(getattr(module, "INLINE", ()))
     for attr, value in list(vars(module).items()):
         if isinstance(value, types.FunctionType) and value.__module__ == name:
             options = dict(error_model="numpy")
@@ -739,6 +745,8 @@ def load_module(program: LoopProgram) -> tuple[types.ModuleType, bool]:
                 options["parallel"] = True
             if attr in nogil:
                 options["nogil"] = True
+            if attr in inline:
+                options["inline"] = "always"
             dispatcher = numba.njit(**options)(value)
             guard_dispatcher(dispatcher, store)
             setattr(module, attr, dispatcher)

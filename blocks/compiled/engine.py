@@ -87,6 +87,8 @@ class CompiledLoopEngine:
         self.module, cached = load_module(self.program)
         self._announce = not cached
         self.nstates = self.plan.nstates
+        self._pace: float | None = None             # accepted steps per second of a monitored run, once measured
+        self._output_flags: dict = {}               # row groups asked -> (flags, rows in the order asked)
 
     @property
     def row_groups(self) -> dict:
@@ -111,8 +113,10 @@ class CompiledLoopEngine:
     def auto_reason(self) -> str | None:
         """Why ``engine="auto"`` should not compile this loop now (None: it may): its compile is estimated longer
         than :data:`~blocks.compiled.compile_estimate.AUTO_COMPILE_SECONDS` and it is not cached yet."""
+        if self.cached:
+            return None
         estimate = self.compile_estimate
-        if self.cached or estimate <= AUTO_COMPILE_SECONDS:
+        if estimate <= AUTO_COMPILE_SECONDS:
             return None
         return (f"this loop's generated code has {self.generated_lines} lines: numba would take about "
                 f"{estimate:.0f} s of CPU to compile it (more than {AUTO_COMPILE_SECONDS:g} s, the most 'auto' "
@@ -201,7 +205,8 @@ class CompiledLoopEngine:
         """``dopri_run`` in calls of as many steps as take about :data:`~blocks.monitor.CHUNK_SECONDS`, the
         Monitor judging the step budget and the wall time and taking the progress between calls."""
         from ..monitor import CHUNK_SECONDS
-        steps = _FIRST_STEPS
+        # the first call as long as the previous run's pace allows (a short run is one call), else a few steps
+        steps = _FIRST_STEPS if self._pace is None else max(1, int(self._pace * CHUNK_SECONDS))
         while True:
             started = time.monotonic()
             status = run(t_grid, self.theta, self.ext, rtol, atol, max_step, bound, steps, state, *arrays)
@@ -212,6 +217,7 @@ class CompiledLoopEngine:
             monitor.check_time(t)
             monitor.report(t)
             took = time.monotonic() - started
+            self._pace = steps / max(took, 1e-6)              # accepted steps per second
             # size the next call from this one's pace, within a factor of 8 of it
             steps = max(1, int(min(8 * steps, max(steps / 8, steps * CHUNK_SECONDS / max(took, 1e-6)))))
 
@@ -246,23 +252,33 @@ class CompiledLoopEngine:
         if X.shape != (self.nstates, t_grid.size):
             raise ValueError(f"states must have shape ({self.nstates}, {t_grid.size}), got {X.shape}")
         groups = self.program.row_groups
-        unknown = [name for name in rows if name not in groups]
-        if unknown:
-            raise ValueError(f"this loop has no row group {unknown}; it has {sorted(groups)}")
-        flags = np.zeros(max(len(groups), 1), dtype=np.int64)
-        for name in rows:
-            flags[groups[name][0]] = 1
+        rows = tuple(rows)
+        found = self._output_flags.get(rows)
+        if found is None:
+            unknown = [name for name in rows if name not in groups]
+            if unknown:
+                raise ValueError(f"this loop has no row group {unknown}; it has {sorted(groups)}")
+            flags = np.zeros(max(len(groups), 1), dtype=np.int64)
+            for name in rows:
+                flags[groups[name][0]] = 1
+            n_out = self.program.n_out
+            order = np.concatenate([np.arange(n_out)] + [n_out + np.arange(groups[name][1].start,
+                                                                           groups[name][1].stop) for name in rows])
+            # the stacked rows as a slice where they are the first rows in order (no copy), else an index
+            found = self._output_flags[rows] = (flags, slice(0, order.size) if np.array_equal(
+                order, np.arange(order.size)) else order)
+        flags, order = found
         n_out = self.program.n_out
-        out = np.empty((n_out + (self.program.n_rows if rows else 0), t_grid.size))
+        # rows asked that are the first rows of the row groups: only those are written (the driver copies the first
+        # R.shape[0] rows), else all of them
+        n_rows = 0 if not rows else (order.stop - n_out if stacked and isinstance(order, slice) else self.program.n_rows)
+        out = np.empty((n_out + n_rows, t_grid.size))
         aux = np.zeros((1, max(self.program.n_aux, 1)))
         self.module.grid_outputs(t_grid, X, self.theta, self.ext, aux, flags, out[:n_out], out[n_out:])
         if not rows:
             return out
         if stacked:
-            picked = [np.arange(n_out)] + [n_out + np.arange(groups[name][1].start, groups[name][1].stop)
-                                           for name in rows]
-            order = np.concatenate(picked)
-            return out[:order.size] if np.array_equal(order, np.arange(order.size)) else out[order]
+            return out[order]
         return out[:n_out], {name: out[n_out + groups[name][1].start:n_out + groups[name][1].stop] for name in rows}
 
     def rhs(self, t: float, x) -> np.ndarray:

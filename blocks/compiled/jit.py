@@ -65,13 +65,13 @@ def _callees(fn) -> list:
             if name in fn.__globals__ and _is_kernel(fn.__globals__[name])]
 
 
-def _copy_module(name: str) -> types.ModuleType:
+def _copy_module(name: str, suffix: str = "") -> types.ModuleType:
     """The importable twin of module ``name`` whose kernel names point at compiled copies.
 
     numba's on-disk cache finds a compiled function's globals by importing its
     module by name, so the copies live in a real module (``dobkit_jit_...``).
     """
-    twin_name = "dobkit_jit_" + name.replace(".", "_")
+    twin_name = "dobkit_jit_" + name.replace(".", "_") + suffix
     twin = sys.modules.get(twin_name)
     if twin is None:
         twin = types.ModuleType(twin_name)
@@ -80,27 +80,61 @@ def _copy_module(name: str) -> types.ModuleType:
     return twin
 
 
-def jit_kernel(fn):
+#: Names whose use in a helper means it branches on its arguments' types (``isinstance``, ``x.ndim``): numba's
+#: inlining of untyped code cannot prune such a branch, so those helpers stay calls.
+_TYPE_BRANCHES = frozenset({"isinstance", "ndim", "shape", "size", "dtype", "len", "type"})
+
+
+def _inlinable(fn) -> bool:
+    """Whether helper ``fn`` and everything it calls can be inlined into a caller (no branch on types)."""
+    return not (set(fn.__code__.co_names) & _TYPE_BRANCHES) and all(_inlinable(c) for c in _callees(fn))
+
+
+def jit_kernel(fn, inline_callees: bool = False):
     """The numba-compiled copy of kernel ``fn`` (memoised; its kernel callees compiled the same way); a kernel
-    that carries its own compiled form (``numba_kernel``: a user's function compiled as it stands) gives that."""
+    that carries its own compiled form (``numba_kernel``: a user's function compiled as it stands) gives that.
+
+    With ``inline_callees`` the helpers ``fn`` calls are inlined into it where they branch on no type
+    (:func:`_inlinable`): a call between compiled functions passes every argument (a path's 20 numbers) and
+    is not inlined by LLVM; the loop's reference kernel is called at every right-hand side and grid point.
+    """
     own = getattr(fn, "numba_kernel", None)
     if own is not None:
         return own
-    found = _jitted.get(fn)
+    found = _jitted.get((fn, inline_callees))
     if found is not None:
         return found
     numba = numba_or_none()
     if _is_arm_law(fn):
-        _jitted[fn] = compiled = _jit_arm_law(numba, fn)
+        _jitted[(fn, inline_callees)] = compiled = _jit_arm_law(numba, fn)
         return compiled
-    twin = _copy_module(fn.__module__)
+    twin = _copy_module(fn.__module__, "_inlined" if inline_callees else "")
     for callee in _callees(fn):
-        twin.__dict__[callee.__name__] = jit_kernel(callee)
+        twin.__dict__[callee.__name__] = _inlined_copy(callee) if inline_callees and _inlinable(callee) else \
+            jit_kernel(callee)
+    compiled = numba.njit(error_model="numpy")(_copy(fn, twin))
+    _jitted[(fn, inline_callees)] = compiled
+    return compiled
+
+
+def _inlined_copy(fn):
+    """Helper ``fn`` compiled to be inlined into its callers, with its own helpers inlined (memoised)."""
+    found = _jitted.get((fn, "inline"))
+    if found is not None:
+        return found
+    twin = _copy_module(fn.__module__, "_inlined")
+    for callee in _callees(fn):
+        twin.__dict__[callee.__name__] = _inlined_copy(callee)
+    compiled = numba_or_none().njit(error_model="numpy", inline="always")(_copy(fn, twin))
+    _jitted[(fn, "inline")] = compiled
+    return compiled
+
+
+def _copy(fn, twin: types.ModuleType):
+    """``fn`` as a function of the twin module (its globals the twin's compiled copies)."""
     copy = types.FunctionType(fn.__code__, twin.__dict__, fn.__name__, fn.__defaults__, fn.__closure__)
     copy.__qualname__, copy.__module__, copy.__doc__ = fn.__qualname__, twin.__name__, fn.__doc__
-    compiled = numba.njit(error_model="numpy")(copy)
-    _jitted[fn] = compiled
-    return compiled
+    return copy
 
 
 def compiled_arm(model) -> list:

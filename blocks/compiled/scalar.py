@@ -88,7 +88,7 @@ class ScalarFunctions:
     _made: dict[int, ScalarFunctions] = {}
 
     def __init__(self, program: LoopProgram) -> None:
-        namespace = {"np": SCALAR_MATH, "__name__": "dobkit_scalar_loop"}
+        namespace = {"np": SCALAR_MATH, "__name__": "dobkit_scalar_loop", "NO_ARRAY": np.empty(0)}
         namespace.update({name: _called(fn) for name, fn in program.kernels.items()})
         #: the chain row kernels the functions call as pinocchio's algorithms (by name in the module)
         bound = {name: fast for name, fast in ((name, _bound_callee(callee)) for name, callee in

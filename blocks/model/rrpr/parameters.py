@@ -261,6 +261,12 @@ class RobotParameters(ArmModel):
             raise ParameterError(f"unknown robot parameter(s) {unknown}; known: {sorted(_UNITS)}")
         return dataclasses.replace(self, **values)
 
+    def stacked_kernel_params(self, values: dict) -> np.ndarray:
+        """``[k1, k2, k3, k4, k5, g]`` of Eq. 5-7 (rows) for Table 1 values given as numbers or arrays over the
+        members (SI), by :attr:`constants`' own operations; shape (6, N)."""
+        c = RobotParameters.constants.func(types.SimpleNamespace(**values))
+        return np.array(np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in (c.k1, c.k2, c.k3, c.k4, c.k5, c.g))))
+
     def parameters_valid(self, values: dict) -> bool:
         """Whether every member's Table 1 (arrays over the members, SI) is finite, positive where it must be, and
         gives an inertia matrix positive definite for every theta2: the checks of :meth:`__post_init__` over all
