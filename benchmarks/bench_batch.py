@@ -5,7 +5,7 @@
 The variants are a Monte Carlo draw (fixed seed) of the kind a robustness study
 uses: every nominal-model mass and inertia scaled by U(0.9, 1.1), Kp ~ U(120, 250),
 Kd ~ U(30, 45) and the Eq. 4 amplitudes scaled by U(0.5, 2).  Timed, each
-case validating the variants and calling :func:`blocks.batch.simulate_batch`
+case validating the variants and calling :func:`blocks.figure2.batch.simulate_batch`
 (all seven metrics, no signals):
 
 * ``default call``: ``simulate_batch(s, variants)`` -- the compiled engine,
@@ -46,8 +46,8 @@ import time
 import numpy as np
 
 import blocks
-from blocks.batch import Variants, simulate_batch
-from blocks.compiled.batch import available_cores
+from blocks.engines.compiled.batch import available_cores
+from blocks.figure2.batch import Variants, simulate_batch
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))     # _timing, run from anywhere
 from _timing import machine, max_rss_mb, peak_memory, print_and_save, table, time_interleaved  # noqa: E402
@@ -99,7 +99,7 @@ def per_thread(fn, rounds: int = 3) -> dict:
     each thread that ran (main thread first; /proc's clock ticks of 10 ms), and the part of the wall time spent
     outside the compiled batch driver (``rk4_batch`` / ``dopri_batch``: the serial part, timed around the
     driver's call)."""
-    from blocks.compiled import codegen
+    from blocks.engines.compiled import codegen
     inside = [0.0]
     wrapped = []
     for module, _ in list(codegen._modules.values()):

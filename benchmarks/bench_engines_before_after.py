@@ -29,7 +29,7 @@ _CHILD = r"""
 import json, os, sys, time
 sys.path.insert(0, os.path.join(os.environ["TREE"], "benchmarks"))
 import blocks
-from blocks.batch import Variants, simulate_batch
+from blocks.figure2.batch import Variants, simulate_batch
 from bench_batch import paper_variants
 from bench_fastpath import hand_fused
 s = blocks.load_scenario("paper")

@@ -124,7 +124,7 @@ def hand_fused(s: blocks.Scenario) -> dict:
 
 def _model_functions():
     """The package's vectorised model functions, for the baseline's signals on the grid after the solver."""
-    from blocks.disturbances import external_disturbance
+    from blocks.model.disturbances import external_disturbance
     from blocks.model.rrpr.dynamics import coriolis_vector, gravity, inertia
     return inertia, coriolis_vector, gravity, external_disturbance
 

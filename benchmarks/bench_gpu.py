@@ -34,7 +34,7 @@ PYTHONPATH, and these wheels (built for CPython 3.12, manylinux x86-64) go with 
   and ``example-robot-data`` (the Panda's URDF).  Without pinocchio the Panda is skipped with a note and the paper
   arm still runs.
 
-numba-cuda there needs ``numpy.row_stack`` (removed in numpy 2.5): :mod:`blocks.gpu.device` sets it to
+numba-cuda there needs ``numpy.row_stack`` (removed in numpy 2.5): :mod:`blocks.engines.gpu.device` sets it to
 ``numpy.vstack`` before importing numba's CUDA target.  Device time budget: the paper's kernel compiles in about
 10 s; the Panda's generated loop (about 14,000 lines) took 340 s of NVVM time to PTX on a loaded 2-core machine,
 and its CPU batch compiles in about a minute -- use ``--cpu-members 0`` to skip the CPU batch when time is short.
@@ -53,7 +53,7 @@ import time
 import numpy as np
 
 import blocks
-from blocks.batch import Variants, simulate_batch
+from blocks.figure2.batch import Variants, simulate_batch
 
 #: Issue 29's targets: seconds for (arm, members) on one H200, 10 s runs.
 TARGETS = {("paper", 1_000_000): 0.5, ("panda", 100_000): 5.0}
@@ -77,8 +77,8 @@ def subset(cols: dict, n: int) -> dict:
 
 
 def gpu_run(s, cols: dict) -> tuple[float, dict, object]:
-    """One GPU batch: its wall seconds, its phases (blocks.gpu.batch.last_timings) and the result."""
-    from blocks.gpu import batch as gpu_batch
+    """One GPU batch: its wall seconds, its phases (blocks.engines.gpu.batch.last_timings) and the result."""
+    from blocks.engines.gpu import batch as gpu_batch
     t0 = time.perf_counter()
     result = simulate_batch(s, Variants(s, cols), engine="cuda")
     wall = time.perf_counter() - t0
@@ -151,8 +151,8 @@ def main(argv=None) -> int:
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
-    from blocks.gpu import cuda_unavailable_reason
-    from blocks.gpu.device import device_name
+    from blocks.engines.gpu import cuda_unavailable_reason
+    from blocks.engines.gpu.device import device_name
     reason = cuda_unavailable_reason()
     if reason is not None:
         print(f"bench_gpu: cannot run: {reason}", file=sys.stderr)

@@ -11,7 +11,7 @@ Rows:
 
 * ``lean hand-fused right-hand side``: the baseline of ``bench_fastpath.py``;
 * ``CompiledLoop.point_rhs``: what the ``fast`` engine integrates, the loop's
-  generated right-hand side run by Python on floats (:mod:`blocks.compiled.scalar`);
+  generated right-hand side run by Python on floats (:mod:`blocks.engines.compiled.scalar`);
 * ``CompiledLoop.rhs``: the plan executed with numpy, one kernel call per block;
 * ``block ...``: each block's kernel on its own, as the numpy plan calls it
   (trajectory, controller, observer; the plant's update), on the inputs it
@@ -33,7 +33,7 @@ from _timing import table  # noqa: E402
 from bench_fastpath import hand_fused_rhs  # noqa: E402
 
 import blocks  # noqa: E402
-from blocks.fastsim import CompiledLoop  # noqa: E402
+from blocks.engines.fastsim import CompiledLoop  # noqa: E402
 
 
 def _cycling(fn, args: list):
@@ -79,7 +79,7 @@ def run(rounds: int = 40, calls: int = 300) -> dict[str, float]:
         args = [(tk, xk[step.x], y[step.gather]) + tuple(step.update_args) for (tk, xk), y in zip(points, signals)]
         cases[f"block {step.name}: update"] = _cycling(step.update, args)
     try:
-        from blocks.compiled import CompiledLoopEngine
+        from blocks.engines.compiled import CompiledLoopEngine
         engine = CompiledLoopEngine(loop)
         engine.warm()
         cases["compiled loop_derivative (called from Python)"] = _cycling(engine.rhs, points)

@@ -14,8 +14,8 @@ Cases, timed in turn (interleaved) in one run, CPU time and wall time:
 * ``compiled sampled``: ``blocks.simulate(s, engine="compiled")``, the whole call (the loop's set-up,
   the run, the lumped disturbance and the response);
 * ``numpy sampled``: ``blocks.simulate(s, engine="fast")``, the numpy hybrid engine (one embedded
-  Dormand-Prince step per tick, :mod:`blocks.tick_stepper`), the whole call;
-* ``compiled sampled batch``: :func:`blocks.compiled.sampled.simulate_sampled_batch` over
+  Dormand-Prince step per tick, :mod:`blocks.engines.tick_stepper`), the whole call;
+* ``compiled sampled batch``: :func:`blocks.engines.compiled.sampled.simulate_sampled_batch` over
   ``--members`` measurement-noise seeds (the scenario with position and velocity noise), members on
   both cores; its ratio is per member and by wall time as well.
 
@@ -123,7 +123,7 @@ def hand_sampled(s: blocks.Scenario) -> dict:
 
 def run(scenario: str = "paper-digital", repeats: int = 9, numpy_repeats: int = 3, members: int = 200) -> dict:
     """Time the cases and return the figures (seconds, ratios, agreement)."""
-    from blocks.compiled.sampled import simulate_sampled_batch
+    from blocks.engines.compiled.sampled import simulate_sampled_batch
     s = blocks.load_scenario(scenario)
     noisy = s.with_changes(NOISE)
     seeds = list(range(members))

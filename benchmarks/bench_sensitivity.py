@@ -10,7 +10,7 @@ design made, every run validated and estimated), run
 the results file) and summarised (:func:`analysis.sweep.summary.summarize`:
 the rows read back, SALib's estimators on every metric column).  Then the lean
 baseline, written here without the sweep: the same design simulated with
-:func:`blocks.batch.simulate_batch` (threads for the compiled batch, batches of
+:func:`blocks.figure2.batch.simulate_batch` (threads for the compiled batch, batches of
 2,048 members) and :func:`SALib.analyze.sobol.analyze` on the metric arrays.
 The ratio sweep / lean is what validation, the results file, resuming and the
 summary cost on top of the simulations themselves.
@@ -37,7 +37,7 @@ import numpy as np
 from analysis.sweep.runner import run_sweep
 from analysis.sweep.spec import split_changes, sweep_from_dict
 from analysis.sweep.summary import summarize
-from blocks.batch import Variants, simulate_batch
+from blocks.figure2.batch import Variants, simulate_batch
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))     # _timing, run from anywhere
 from _timing import machine, print_and_save, table  # noqa: E402

@@ -7,7 +7,7 @@ mismatched runs of the paper's 10 s scenario per evaluation, differential
 evolution and the polish, every constraint, the evaluation log; no figures)
 in a fresh folder.  Then the lean baseline, written here without the tuner:
 the very candidates the tuning simulated (read from its evaluation log), each
-set simulated once with :func:`blocks.batch.simulate_batch` at the substeps the
+set simulated once with :func:`blocks.figure2.batch.simulate_batch` at the substeps the
 log records, grouped by substeps and at most 16 candidates per batch as the
 tuner batches them, keeping the metric and the torque the tuner keeps.  The
 ratio tuning / lean is what the search, the linear constraints, the log and
@@ -30,7 +30,7 @@ from pathlib import Path
 
 from analysis.tune.runner import LOG_NAME, run_tune
 from analysis.tune.spec import load_tuning, with_evaluations
-from blocks.batch import Variants, simulate_batch
+from blocks.figure2.batch import Variants, simulate_batch
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))     # _timing, run from anywhere
 from _timing import machine, print_and_save, table  # noqa: E402

@@ -6,9 +6,9 @@ Each arm's built-in scenario (``panda``, ``ur5``, ``scope4``, ``paper``; or ``ex
 its default scenario) runs once with ``engine="compiled"`` in a new Python process whose ``DOBKIT_CACHE_DIR`` is an
 empty folder, so the run compiles every function it calls; its CPU time (``time.process_time`` of the child, almost
 all numba: the run itself takes milliseconds) is printed beside the generated lines, the estimate of
-:func:`blocks.compiled.compile_estimate.estimate_compile_seconds` and the budget ``engine="auto"`` compiles within
-(:data:`~blocks.compiled.compile_estimate.AUTO_COMPILE_SECONDS`).  With ``--inlined`` each arm runs a second time
-with ``blocks.compiled.codegen.ARM_CALLS`` off (M and h inlined into every function, as before): the baseline the
+:func:`blocks.engines.compiled.compile_estimate.estimate_compile_seconds` and the budget ``engine="auto"`` compiles within
+(:data:`~blocks.engines.compiled.compile_estimate.AUTO_COMPILE_SECONDS`).  With ``--inlined`` each arm runs a second time
+with ``blocks.engines.compiled.codegen.ARM_CALLS`` off (M and h inlined into every function, as before): the baseline the
 called functions are measured against (ratio called / inlined).  Targets (issue 30): the Panda <= 15 s of CPU
 (stretch 8), and the estimate holding (measured <= estimate) for it.  The machine's load is printed: on a shared
 machine the wall time is much longer than the CPU time.  No assertion: these are timings.
@@ -29,14 +29,14 @@ _CHILD = r"""
 import json, re, sys, time
 t_start = time.process_time()
 from blocks import load_scenario, simulate
-from blocks.compiled import codegen
+from blocks.engines.compiled import codegen
 codegen.ARM_CALLS = sys.argv[2] == "1"
-from blocks.compiled.compile_estimate import estimate_compile_seconds
-from blocks.compiled.engine import CompiledLoopEngine
-from blocks.loop import _prepared
+from blocks.engines.compiled.compile_estimate import estimate_compile_seconds
+from blocks.engines.compiled.engine import CompiledLoopEngine
+from blocks.figure2.loop import _prepared
 name = sys.argv[1]
 if name.startswith("example:"):
-    from blocks.scenario import scenario_from_dict
+    from blocks.scenarios.scenario import scenario_from_dict
     s = scenario_from_dict({"arm": {"urdf": name}})
 else:
     s = load_scenario(name)
@@ -69,7 +69,7 @@ def _load(values) -> str:
 
 
 def main(argv=None) -> int:
-    from blocks.compiled.compile_estimate import AUTO_COMPILE_SECONDS
+    from blocks.engines.compiled.compile_estimate import AUTO_COMPILE_SECONDS
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--arms", nargs="+", default=["panda", "ur5"],

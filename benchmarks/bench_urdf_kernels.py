@@ -4,7 +4,7 @@
 
 For each arm (scope4, the bundled 4-joint surgical arm; Panda with its fingers locked) the kernels
 ``inertia_matrix`` (CRBA) and ``bias_forces`` (RNEA) of :mod:`blocks.kernels.chain` are traced into
-straight-line code (:mod:`blocks.arms.traced`) and compiled by numba.  Rows (nanoseconds per call,
+straight-line code (:mod:`blocks.engines.compiled.arm_trace`) and compiled by numba.  Rows (nanoseconds per call,
 fastest of ``--rounds`` rounds of ``--calls`` calls, each call at another state):
 
 * ``dobkit numba, in a numba loop``: the compiled function called from a numba loop: what a compiled
@@ -55,9 +55,9 @@ def _best_ns(run, calls: int, rounds: int) -> float:
 def bench_arm(name: str, calls: int, rounds: int) -> tuple[list, dict]:
     import pinocchio as pin
 
-    from blocks.arms import example_arm
-    from blocks.arms.traced import trace_rows
+    from blocks.engines.compiled.arm_trace import trace_rows
     from blocks.kernels import chain
+    from blocks.model.urdf import example_arm
 
     arm = example_arm(name)
     n, k = arm.n, arm.kernel_params()

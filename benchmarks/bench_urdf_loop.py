@@ -12,7 +12,7 @@ step, over the scenario's 10 s (built-in ``scope4`` and ``panda``).  Two ways to
   fastest run of a scenario not run before (Kp changed by 1e-9 relative: its loop is prepared anew, the
   compiled code reused), which is what each run of a sweep pays, two ways: with the loop's wiring and plan
   reused from the scenario of the same structure run just before (what a process does), and with nothing kept
-  (``blocks.loop.WIRINGS`` and ``blocks.plan.PLANS`` cleared first: ``control.interconnect`` and ``make_plan``
+  (``blocks.figure2.loop.WIRINGS`` and ``blocks.diagram.plan.PLANS`` cleared first: ``control.interconnect`` and ``make_plan``
   run again, as before they were kept);
 * ``lean pinocchio + numpy``: written here as an expert would write it without dobkit: ``scipy`` ``solve_ivp``
   (RK45, the same tolerances and output grid) on a right-hand side that calls ``pin.crba`` and
@@ -22,10 +22,11 @@ step, over the scenario's 10 s (built-in ``scope4`` and ``panda``).  Two ways to
   compiled run (one run varies by half on a shared machine).
 
 A second table times what each run does before it integrates that depends on the arm (the step estimate
-``blocks.run_limits.estimate_run`` and the loop's divergence bounds ``blocks.physical_bounds.state_bounds``: M along the
+``blocks.figure2.run_limits.estimate_run`` and the loop's divergence bounds
+``blocks.figure2.physical_bounds.state_bounds``: M along the
 reference for the true and the nominal arm, G and ``M q'' + h`` at its start) two ways: with the arm's numpy row
 kernels (what a one-off run, or a process without numba loaded, uses) and with its compiled row kernels
-(:mod:`blocks.compiled.row_kernels`, what the runs of a process that runs the arm again and again use, as in the
+(:mod:`blocks.engines.compiled.row_kernels`, what the runs of a process that runs the arm again and again use, as in the
 "new scenario" column); the mean of ``--rounds`` x 10 calls after one call (here they are compiled or loaded
 already: the runs above asked for them).
 
@@ -34,7 +35,7 @@ Times are CPU times (``time.process_time``), as in the other benchmarks here.  T
 (largest difference, rad or m) as a check that they are the same loop.  With ``--percall`` (default) the per-call rows of
 ``bench_urdf_kernels.py`` follow: M (CRBA) and h (RNEA) of dobkit's traced kernels in a numba loop beside
 pinocchio's own per-call time.  The Panda's loop is about 7,700 generated lines (each arm's M and h one function
-called where needed, ``blocks.compiled.codegen.ARM_CALLS``; 14,250 inlined): its first compile takes 13-14 s of CPU,
+called where needed, ``blocks.engines.compiled.codegen.ARM_CALLS``; 14,250 inlined): its first compile takes 13-14 s of CPU,
 a minute or more of wall time on a loaded small machine (``bench_urdf_compile.py``).  No assertion: these
 are timings.
 """
@@ -116,10 +117,10 @@ def lean_loop(scenario):
 
 def bench_arm(name: str, rounds: int) -> tuple[list, dict]:
     from blocks import load_scenario, simulate
-    from blocks.compiled.engine import CompiledLoopEngine
-    from blocks.loop import WIRINGS, _prepared
-    from blocks.metrics import signal
-    from blocks.plan import PLANS
+    from blocks.diagram.plan import PLANS
+    from blocks.engines.compiled.engine import CompiledLoopEngine
+    from blocks.figure2.loop import WIRINGS, _prepared
+    from blocks.figure2.metrics import signal
 
     s = load_scenario(name)
     engine = CompiledLoopEngine(_prepared(s, True).loop)
@@ -172,9 +173,9 @@ def bench_before_run(name: str, rounds: int) -> tuple[list, dict]:
     from unittest import mock
 
     from blocks import load_scenario
-    from blocks.loop import closed_loop
-    from blocks.physical_bounds import state_bounds
-    from blocks.run_limits import estimate_run
+    from blocks.figure2.loop import closed_loop
+    from blocks.figure2.physical_bounds import state_bounds
+    from blocks.figure2.run_limits import estimate_run
 
     s = load_scenario(name)
     loop = closed_loop(s)
@@ -193,7 +194,7 @@ def bench_before_run(name: str, rounds: int) -> tuple[list, dict]:
 
     import numba  # noqa: F401  (loaded: the compiled row kernels are used)
 
-    from blocks.compiled import row_kernels as compiled_row_kernels
+    from blocks.engines.compiled import row_kernels as compiled_row_kernels
 
     # a scenario loaded here is a new arm object: without this, its first COMPILE_AFTER requests would take the
     # numpy kernels and the compile (or cache load) would land inside the timed calls

@@ -9,7 +9,7 @@ scenario; the baseline an expert's ``solve_ivp`` over a right-hand side calling 
 
 * one right-hand-side call, at states and times near the trajectory (each call at another one, as in a run): the
   numpy engine's (``CompiledLoop.point_rhs``: the
-  loop's generated Python, each chain row kernel one call of pinocchio's algorithm, :mod:`blocks.arms.pin_kernels`)
+  loop's generated Python, each chain row kernel one call of pinocchio's algorithm, :mod:`blocks.model.urdf.pin_kernels`)
   against the lean loop's, the mean of ``--calls`` calls;
 * the whole run: ``blocks.simulate(scenario, engine="fast")`` (outputs and the lumped disturbance on the grid
   included) against the lean loop's ``solve_ivp`` run.  Both integrate with scipy's RK45 at the same tolerances;
@@ -139,16 +139,16 @@ def _without_pinocchio():
     functions, no pinocchio): the numpy engine as it was before the kernel calls."""
     from unittest import mock
 
-    from blocks.compiled import scalar
+    from blocks.engines.compiled import scalar
     return mock.patch.object(scalar, "_calls_for", lambda plan, system: None), \
         mock.patch.object(scalar.ScalarFunctions, "_made", {})
 
 
 def bench_arm(name: str, rounds: int, calls: int) -> list:
     from blocks import load_scenario, simulate
-    from blocks.fastsim import CompiledLoop
-    from blocks.loop import closed_loop
-    from blocks.metrics import signal
+    from blocks.engines.fastsim import CompiledLoop
+    from blocks.figure2.loop import closed_loop
+    from blocks.figure2.metrics import signal
 
     s = load_scenario(name)
     lean, leaner = lean_loop(s), leaner_loop(s)

@@ -4,7 +4,7 @@
 
 The CUDA simulator (the tests' check of the numbers) runs the kernel as Python, so it cannot tell whether numba-cuda
 compiles it (a numpy function without a device version, a type the device lacks).  This compiles the kernel of
-:mod:`blocks.gpu.module` for one compute capability with NVVM, as a first launch on a device would, and prints the
+:mod:`blocks.engines.gpu.module` for one compute capability with NVVM, as a first launch on a device would, and prints the
 PTX size and the compile time.  It needs NVVM and NVRTC (``pip install "nvidia-cuda-nvcc>=13,<14"
 "nvidia-cuda-nvrtc>=13,<14"``) but no driver: numba-cuda asks the current device for its compute capability while
 compiling the device functions, so the script answers that question with ``--cc``.
@@ -29,7 +29,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     cc = tuple(int(x) for x in args.cc.split("."))
 
-    from blocks.gpu.device import cuda_or_none
+    from blocks.engines.gpu.device import cuda_or_none
     cuda = cuda_or_none()
     if cuda is None:
         print("gpu_ptx: numba-cuda is not installed", file=sys.stderr)
@@ -38,10 +38,10 @@ def main(argv=None) -> int:
     from numba import types
 
     from blocks import load_scenario
-    from blocks.batch import Variants
-    from blocks.batch.rows import member_rows
-    from blocks.compiled.engine import CompiledLoopEngine
-    from blocks.gpu.module import cuda_module
+    from blocks.engines.compiled.engine import CompiledLoopEngine
+    from blocks.engines.gpu.module import cuda_module
+    from blocks.figure2.batch import Variants
+    from blocks.figure2.batch.rows import member_rows
 
     dispatcher.get_current_device = lambda: pytypes.SimpleNamespace(compute_capability=cc)   # no driver here
     base = load_scenario(args.scenario).with_changes(json.loads(args.changes))
@@ -51,7 +51,7 @@ def main(argv=None) -> int:
     module = cuda_module(program, engine.nstates)
     A = lambda nd, dt=types.float64: types.Array(dt, nd, "C")             # noqa: E731
     ext = types.Tuple(tuple(A(2) if i in program.tables else A(1) for i in range(len(engine.ext))) or (A(1),))
-    # the argument types of blocks.gpu.batch.run_cuda_batch's launch
+    # the argument types of blocks.engines.gpu.batch.run_cuda_batch's launch
     signature = (A(1), A(1, types.int64), A(2), A(2), A(2), A(2), A(2), ext, types.UniTuple(A(3), 1),
                  A(1, types.int64), A(1, types.int64), A(1, types.int64), A(1, types.int64), types.int64, A(2), A(3),
                  A(2), A(2), A(2), A(1), A(2))

@@ -8,13 +8,13 @@ The public API in a few names::
     response = blocks.simulate(scenario)                # a control.TimeResponseData
 
 Subpackages and modules a user may also want: :mod:`blocks.kernels` (the
-maths as array functions), :mod:`blocks.batch` (many variants at once),
-:mod:`blocks.metrics` (tracking metrics), :mod:`blocks.contract` (what a
+maths as array functions), :mod:`blocks.figure2.batch` (many variants at once),
+:mod:`blocks.figure2.metrics` (tracking metrics), :mod:`blocks.diagram.contract` (what a
 block promises the engines).
 """
 from importlib.metadata import PackageNotFoundError, version
 
-from .lazy import lazy_exports
+from blocks.lazy import lazy_exports
 
 try:
     __version__ = version("dobkit")
@@ -22,29 +22,29 @@ except PackageNotFoundError:       # a source tree that was never installed
     __version__ = "0+unknown"
 
 # Each public name and the module that defines it.  They are imported on first use (PEP 562), so that
-# ``import blocks.scenario`` or the command line's ``--version`` do not load python-control, scipy and
+# ``import blocks.scenarios.scenario`` or the command line's ``--version`` do not load python-control, scipy and
 # matplotlib; ``from blocks import simulate`` works as before.
 _WHERE = {
-    "contract": ("Block", "BlockContract", "ContractError", "contract_of", "kernel_block"),
-    "bound_kernels": ("Kernels",),
-    "disturbances": ("DisturbanceSpec", "external_disturbance"),
+    "diagram.contract": ("Block", "BlockContract", "ContractError", "contract_of", "kernel_block"),
+    "diagram.bound_kernels": ("Kernels",),
+    "model.disturbances": ("DisturbanceSpec", "external_disturbance"),
     "model.rrpr.dynamics": ("coriolis_matrix", "coriolis_vector", "forward_dynamics", "gravity", "inertia", "inverse_dynamics",
                  "kinetic_energy"),
-    "gains": ("GainError", "validated_gain"),
-    "arm": ("ArmModel", "UnreachableError"),
-    "joints": ("JointSpace",),
+    "diagram.gains": ("GainError", "validated_gain"),
+    "model.arm": ("ArmModel", "UnreachableError"),
+    "model.joints": ("JointSpace",),
     "model.rrpr.joints": ("RRPR_JOINTS",),
     "model.rrpr.kinematics": ("forward_kinematics", "inverse_kinematics", "jacobian"),
     "model.rrpr.laceration": ("LacerationPath",),
-    "loop": ("SimulationError", "build_blocks", "closed_loop", "initial_state", "lumped_disturbance", "simulate"),
-    "noise": ("MeasurementNoise",),
+    "figure2.loop": ("SimulationError", "build_blocks", "closed_loop", "initial_state", "lumped_disturbance", "simulate"),
+    "model.noise": ("MeasurementNoise",),
     "model.rrpr.parameters": ("PAPER_PARAMETERS", "ParameterError", "RobotParameters"),
-    "plan": ("AlgebraicLoopError",),
-    "scenario": ("Scenario", "ScenarioError", "builtin_scenarios", "load_scenario", "scenario_from_dict"),
-    "simulator": ("simulate_system",),
-    "context": ("Context",),
-    "systems": ("controller", "observer", "plant", "sensor", "trajectory_block"),
-    "trajectory": ("JointSine",),
+    "diagram.plan": ("AlgebraicLoopError",),
+    "scenarios.scenario": ("Scenario", "ScenarioError", "builtin_scenarios", "load_scenario", "scenario_from_dict"),
+    "engines.simulator": ("simulate_system",),
+    "engines.context": ("Context",),
+    "diagram.systems": ("controller", "observer", "plant", "sensor", "trajectory_block"),
+    "diagram.trajectory": ("JointSine",),
 }
 __getattr__, __dir__ = lazy_exports(__name__, _WHERE, globals())
 

@@ -30,7 +30,7 @@ def lazy_exports(package: str, where: Mapping[str, tuple], namespace: dict) -> t
         module = module_of.get(name)
         if module is None:
             if not name.startswith("_") and find_spec(f"{package}.{name}") is not None:
-                return import_module(f".{name}", package)          # a submodule, as ``blocks.metrics``
+                return import_module(f".{name}", package)          # a submodule, as ``blocks.figure2.metrics``
             raise AttributeError(f"module {package!r} has no attribute {name!r}")
         value = getattr(import_module(f".{module}", package), name)
         namespace[name] = value

@@ -10,7 +10,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from blocks.progress import StageProgress
+from blocks.plumbing.progress import StageProgress
 from dobkit.arguments import positive_number, whole_number
 
 __all__ = ["add_analysis_subcommands", "ANALYSIS_PREFIX", "REPORT_PREFIX"]
@@ -59,8 +59,8 @@ def _refuse_used_out(out) -> None:
 
 
 def _cmd_analyze(args) -> int:
-    from blocks.outputs import default_out_dir
-    from blocks.scenario import load_scenario
+    from blocks.plumbing.outputs import default_out_dir
+    from blocks.scenarios.scenario import load_scenario
 
     _refuse_used_out(args.out)
     scenario = load_scenario(args.scenario)      # a bad scenario is refused before the heavy imports below
@@ -84,13 +84,13 @@ def _cmd_analyze(args) -> int:
 
 
 def _cmd_report(args) -> int:
-    from blocks.outputs import default_out_dir
-    from blocks.scenario import load_scenario
+    from blocks.plumbing.outputs import default_out_dir
+    from blocks.scenarios.scenario import load_scenario
 
     _refuse_used_out(args.out)
     scenario = load_scenario(args.scenario)      # a bad scenario is refused before the heavy imports below
     from analysis.report.build import write_report
-    from blocks.budget import Budget
+    from blocks.engines.budget import Budget
 
     seconds = Budget.from_env(seconds=args.max_seconds).seconds
     out = args.out if args.out is not None else default_out_dir(REPORT_PREFIX)

@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import math
 
-from blocks.budget import DEFAULT_MEMORY, DEFAULT_STEPS, ENVIRONMENT, format_bytes
+from blocks.engines.budget import DEFAULT_MEMORY, DEFAULT_STEPS, ENVIRONMENT, format_bytes
 
 __all__ = ["whole_number", "positive_number", "add_budget_flags"]
 
@@ -38,7 +38,7 @@ def positive_number(unit: str = ""):
 
 
 def add_budget_flags(parser: argparse.ArgumentParser, seconds_help: str) -> None:
-    """``--max-memory``, ``--max-steps`` and ``--max-seconds`` (see :class:`blocks.budget.Budget`)."""
+    """``--max-memory``, ``--max-steps`` and ``--max-seconds`` (see :class:`blocks.engines.budget.Budget`)."""
     parser.add_argument("--max-memory", metavar="SIZE",
                         help=f"memory budget such as 8G (default {format_bytes(DEFAULT_MEMORY)}, or "
                              f"${ENVIRONMENT['memory']})")

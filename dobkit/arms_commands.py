@@ -2,7 +2,7 @@
 
 One row per arm: its name, its joint count and kinds, each joint's range and
 the default tool frame (and the gripper joints locked by default).  The rows
-come from the URDF files' XML (:func:`blocks.arms.examples.example_arms`):
+come from the URDF files' XML (:func:`blocks.model.urdf.examples.example_arms`):
 no arm is loaded with pinocchio, so the listing takes a tenth of a second.
 """
 from __future__ import annotations
@@ -60,7 +60,7 @@ def format_arm(arm) -> str:
 
 
 def _cmd_arms(args) -> int:
-    from blocks.arms.examples import example_arms, example_defaults
+    from blocks.model.urdf.examples import example_arms, example_defaults
 
     if args.name is not None:                               # "" is a name too (none such), not "all of them"
         print(format_arm(example_defaults(args.name)))      # an unknown name: the error lists the names

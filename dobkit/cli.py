@@ -11,7 +11,7 @@ import gc
 import sys
 import warnings
 
-from blocks.progress import StageProgress
+from blocks.plumbing.progress import StageProgress
 
 from . import __version__
 from .analysis_commands import add_analysis_subcommands
@@ -24,7 +24,7 @@ from .tune_commands import add_tune_subcommand
 __all__ = ["main"]
 
 
-#: The engines of ``dobkit simulate --engine`` (:data:`blocks.loop.ENGINES`, written here so that the parser
+#: The engines of ``dobkit simulate --engine`` (:data:`blocks.figure2.loop.ENGINES`, written here so that the parser
 #: does not import python-control; a test keeps the two equal).
 SIMULATE_ENGINES = ("auto", "compiled", "fast", "python-control")
 
@@ -57,7 +57,7 @@ def _no_cycle_collection():
 
 @_no_cycle_collection()
 def _cmd_simulate(args) -> int:
-    from blocks.scenario import load_scenario
+    from blocks.scenarios.scenario import load_scenario
 
     scenario = load_scenario(args.scenario)      # a bad scenario is refused before the heavy imports below
     from analysis.simulation.experiment import default_out_dir, format_rms_table, run_experiment
@@ -81,7 +81,7 @@ def _cmd_simulate(args) -> int:
     figures = "no figures (--no-figures)" if args.no_figures else \
         "Figures 4-8 as " + " and ".join(f.upper() for f in formats)
     print(f"results written to {result.out_dir}: metrics.json, timeseries.csv, scenario.toml, {figures}")
-    from blocks.outputs import metrics_json
+    from blocks.plumbing.outputs import metrics_json
     non_finite = metrics_json(result.metrics)[1]
     if non_finite:
         print(f"note: {len(non_finite)} metric(s) are not finite numbers (written as null in metrics.json, listed "

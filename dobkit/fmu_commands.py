@@ -13,7 +13,7 @@ Each is a thin layer over :func:`fmu.export_plant`,
 :func:`fmu.cosimulate`, :func:`fmu.cosim_convergence` and
 :func:`fmu.check_fmu`.  Each command extracts the FMU once.  The
 long-running ones take ``--max-steps`` and ``--max-seconds``
-(:class:`blocks.budget.Budget`): they estimate their steps first and refuse
+(:class:`blocks.engines.budget.Budget`): they estimate their steps first and refuse
 beyond the budget.  Every JSON file or listing they write is strict JSON:
 a value that is not a finite number is written as ``null`` and its place is
 listed under ``non_finite_values``.
@@ -41,7 +41,7 @@ def _step_list(text: str) -> tuple[float, ...]:
 
 def strict_json(data) -> str:
     """``data`` as strict JSON text: non-finite floats become ``null``, listed under ``non_finite_values``
-    (:func:`blocks.outputs.metrics_json`, the one writer of every results file).
+    (:func:`blocks.plumbing.outputs.metrics_json`, the one writer of every results file).
 
     Examples
     --------
@@ -50,17 +50,17 @@ def strict_json(data) -> str:
     >>> data["a"], data["non_finite_values"]["paths"]
     ([1.0, None], ['a/1'])
     """
-    from blocks.outputs import metrics_json
+    from blocks.plumbing.outputs import metrics_json
     return metrics_json(data)[0]
 
 
 def _budget(args):
-    from blocks.budget import Budget
+    from blocks.engines.budget import Budget
     return Budget.from_env(memory=args.max_memory, steps=args.max_steps, seconds=args.max_seconds)
 
 
 def _cmd_export(args) -> int:
-    from blocks.scenario import load_scenario
+    from blocks.scenarios.scenario import load_scenario
 
     out = Path(args.out)
     if out.is_dir():
@@ -96,7 +96,7 @@ def _stops_phrase(joints) -> str:
 
 
 def _cmd_export_controller(args) -> int:
-    from blocks.scenario import load_scenario
+    from blocks.scenarios.scenario import load_scenario
 
     out = Path(args.out)
     if out.is_dir():
@@ -128,8 +128,8 @@ def _arm_flags_alone(args, scenario: bool = False) -> None:
 
 def _export_arm(args):
     """The arm of ``fmu export --arm``: an example name or a URDF path with ``--tool-frame``."""
-    from blocks.arms import example_arm, load_urdf_arm
-    from blocks.arms.examples import example_names
+    from blocks.model.urdf import example_arm, load_urdf_arm
+    from blocks.model.urdf.examples import example_names
 
     names = example_names()             # scope4 and every serial arm of example-robot-data (`dobkit arms`)
     if args.arm in names:
@@ -172,7 +172,7 @@ def _estimate_line(estimate: dict) -> str:
 def _cmd_cosim(args) -> int:
     from analysis.simulation.experiment import comparison_metrics, default_out_dir, format_rms_table, staged_output
     from blocks import load_scenario
-    from blocks.progress import StageProgress
+    from blocks.plumbing.progress import StageProgress
     from fmu.archive import extract_fmu
     from fmu.cosim import cosimulate
 
@@ -371,7 +371,7 @@ def _cmd_check(args) -> int:
     _arm_flags_alone(args)
     arm = None
     if args.arm == "rrpr":                 # the default scenario's arm, by its name
-        from blocks.scenario import default_arm
+        from blocks.scenarios.scenario import default_arm
         arm = default_arm()
     elif args.arm is not None:
         arm = _export_arm(args)

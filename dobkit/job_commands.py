@@ -8,8 +8,8 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from blocks.budget import Budget, BudgetError, format_bytes
-from blocks.scenario import ScenarioError
+from blocks.engines.budget import Budget, BudgetError, format_bytes
+from blocks.scenarios.scenario import ScenarioError
 from dobkit.arguments import add_budget_flags, whole_number
 
 __all__ = ["add_job_parser", "add_job_flags", "run_job"]

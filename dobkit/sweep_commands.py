@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from blocks.budget import Budget
+from blocks.engines.budget import Budget
 from dobkit.job_commands import add_job_flags, add_job_parser, run_job
 
 __all__ = ["add_sweep_subcommand", "sweep_command", "default_summary_dir"]
@@ -91,7 +91,7 @@ def _sweep(args: argparse.Namespace, budget: Budget, state: dict) -> int:
 
 def _check_report(spec) -> str:
     """What ``--check`` prints: runs, how they are batched, and the largest run's estimate against the budget."""
-    from blocks.budget import format_bytes as size
+    from blocks.engines.budget import format_bytes as size
     lines = [f"sweep '{spec.name}': {len(spec.runs)} runs, valid (definition {spec.definition})"]
     sa = spec.sensitivity
     if sa is not None:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from blocks.budget import Budget, format_bytes
+from blocks.engines.budget import Budget, format_bytes
 from dobkit.arguments import whole_number
 from dobkit.job_commands import add_job_flags, add_job_parser, run_job
 

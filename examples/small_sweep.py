@@ -1,6 +1,6 @@
 """Sweep the observer gain with one batch simulation and plot a metric against it.
 
-``blocks.batch.simulate_batch`` integrates many variants of a scenario as one
+``blocks.figure2.batch.simulate_batch`` integrates many variants of a scenario as one
 vectorised ODE (fixed-step RK4 with a leading member axis).  A variant is a
 set of values by dotted scenario key, here ``gains.observer`` (the observer
 gain ``Y = g I``, kg m^2/s).  The metric is the RMS tool-tip error (mm) over the
@@ -21,7 +21,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 import blocks  # noqa: E402
-from blocks.batch import simulate_batch  # noqa: E402
+from blocks.figure2.batch import simulate_batch  # noqa: E402
 
 out_dir = Path(os.environ.get("DOBKIT_EXAMPLES_OUT", "."))
 out_dir.mkdir(parents=True, exist_ok=True)

@@ -1,7 +1,7 @@
 """A URDF arm in the Figure-2 loop: dobkit's 4-joint surgical arm, read from its URDF through pinocchio.
 
 ``blocks.load_scenario("scope4")`` loads the built-in scenario whose ``[arm]``
-section names ``blocks/arms/data/scope4.urdf`` (yaw and pitch about a remote
+section names ``blocks/model/urdf/data/scope4.urdf`` (yaw and pitch about a remote
 centre, insertion through it, roll about the shaft).  The arm is an
 ``ArmModel`` like the paper's: joints with names and units, ``M(q)``, the bias
 forces and a tool point; the laws, the blocks and the engines take the joint

@@ -19,7 +19,7 @@ def joint_count(model_description) -> int:
 
 
 def arm_name(arm) -> str:
-    """How a report names an arm (:meth:`blocks.arm.ArmModel.in_words`): ``the 4-joint arm ['yaw', ...] from
+    """How a report names an arm (:meth:`blocks.model.arm.ArmModel.in_words`): ``the 4-joint arm ['yaw', ...] from
     <file>``."""
     return arm.in_words()
 

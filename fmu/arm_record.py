@@ -6,7 +6,7 @@ arm's geometry and inertias are constants in the generated C; the export
 writes them to ``resources/dobkit_arm.json`` -- the joints (names, kinds,
 ranges) and every number of its :class:`~blocks.kernels.chain.ChainParams`,
 floats written exactly (JSON keeps the 17 significant digits of ``repr``) --
-and :func:`arm_from_record` builds the same :class:`~blocks.arms.ChainArm`
+and :func:`arm_from_record` builds the same :class:`~blocks.model.urdf.ChainArm`
 from it, without the URDF file or pinocchio.
 """
 from __future__ import annotations
@@ -43,7 +43,7 @@ def arm_record(arm) -> str | None:
     TypeError
         For an arm model that is neither the paper's nor a chain arm (nothing to record it by).
     """
-    from blocks.arms.chain_model import ChainArm
+    from blocks.model.urdf.chain_model import ChainArm
 
     if arm.paper is not None:            # the paper's arm: its named parameters are in the FMU, nothing to record
         return None
@@ -61,16 +61,16 @@ def arm_record(arm) -> str | None:
 
 
 def arm_from_record(text: str):
-    """The :class:`~blocks.arms.ChainArm` of a record written by :func:`arm_record`.
+    """The :class:`~blocks.model.urdf.ChainArm` of a record written by :func:`arm_record`.
 
     Raises
     ------
     ValueError
         If the text is not such a record (its format, model or fields), naming what is wrong.
     """
-    from blocks.arms.chain_model import ChainArm
-    from blocks.joints import JointSpace
     from blocks.kernels.chain import ChainParams
+    from blocks.model.joints import JointSpace
+    from blocks.model.urdf.chain_model import ChainArm
 
     try:
         record = json.loads(text)

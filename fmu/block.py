@@ -13,7 +13,7 @@ The returned system is a drop-in block for :func:`control.interconnect`:
 Which inputs an output needs comes from the model structure (FMI 2
 ``ModelStructure/Outputs`` dependencies, FMI 3 ``Output`` dependencies; an
 output without the attribute needs every input).  Engines -- python-control's
-own evaluation of an interconnection and :class:`blocks.fastsim.CompiledLoop`
+own evaluation of an interconnection and :class:`blocks.engines.fastsim.CompiledLoop`
 -- evaluate outputs before every input is known, with zeros or stale values
 in its place; an FMU whose equations divide by an input (a mass, a length)
 would return an error status if that input were set to zero, although no
@@ -24,7 +24,7 @@ initialization carries ``event_source`` (:class:`fmu.events.FMUEventSource`):
 the numpy engine stops at its events and runs its event iteration
 (:mod:`fmu.events`); ``event_source`` is None for an FMU without events.
 
-The system is a :class:`blocks.contract.Block`: its contract declares
+The system is a :class:`blocks.diagram.contract.Block`: its contract declares
 exactly those needed inputs as its feedthrough, and ``close()`` (or a
 ``with`` statement) releases the FMU.  An FMU without continuous states
 (a gain, an adder, a table) is a static block.  Attributes:
@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from blocks.contract import Block, BlockContract
+from blocks.diagram.contract import Block, BlockContract
 
 from .archive import ExtractionLimits, open_extracted
 from .description import described, interface, real_variables, require_variables, state_variables, unsupported_features
@@ -263,7 +263,7 @@ def load(path, name: str = "plant", start_values: dict | None = None, start_time
 
 def _scenario_start_values(extracted, scenario) -> dict:
     """The scenario's true-plant parameters and start state, for an FMU with the plant's signals."""
-    from blocks.scenario import Scenario, load_scenario  # the scenario machinery only when asked for
+    from blocks.scenarios.scenario import Scenario, load_scenario  # the scenario machinery only when asked for
 
     from .arm_match import check_scenario_arm
     from .scenario_values import plant_start_values

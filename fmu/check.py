@@ -43,7 +43,7 @@ part that it offers works with dobkit.  A NaN anywhere fails the part it is in. 
 model description that fails the schema validation is reported (its
 problems listed, nothing run); so is a missing or malformed one, or an
 unsupported FMI version.  Sizes are checked against a
-:class:`~blocks.budget.Budget` before anything runs.  The archive is extracted
+:class:`~blocks.engines.budget.Budget` before anything runs.  The archive is extracted
 once.  Checking runs the FMU's native code in this process: check an
 untrusted FMU in a sandbox.
 """
@@ -54,9 +54,9 @@ import math
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from blocks.budget import Budget
-from blocks.control_compat import fast_dynamics, fast_output
-from blocks.monitor import Monitor
+from blocks.diagram.control_compat import fast_dynamics, fast_output
+from blocks.engines.budget import Budget
+from blocks.engines.monitor import Monitor
 
 from .archive import ExtractionLimits, extract_fmu
 from .block import load
@@ -429,10 +429,10 @@ def check_fmu(path, t_final: float | None = None, tolerance: float = 1e-6, cs_st
         Largest allowed difference of either interface to the fine reference, relative to ``max(1, max |y|)``.
     budget : Budget, optional
         Limits on steps, right-hand-side evaluations and wall time
-        (:meth:`blocks.budget.Budget.from_env`); the step counts are estimated first.
+        (:meth:`blocks.engines.budget.Budget.from_env`); the step counts are estimated first.
     limits : ExtractionLimits, optional
         Archive size limits.
-    arm : blocks.arm.ArmModel, optional
+    arm : blocks.model.arm.ArmModel, optional
         The arm to hold a dobkit plant FMU against (its joint count, names,
         units, ranges and dynamics).  Default: the paper's arm with the FMU's
         Table-1 values, or the arm the export recorded in the FMU.

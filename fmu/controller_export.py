@@ -13,7 +13,7 @@ couple to a plant:
   are computed from the inputs set at ``t_k`` and declared as depending on
   them, so a Gauss-Seidel master (set ``q``, ``dq``; read ``tau``; step the
   plant with it) reproduces the monolithic sampled run of
-  :func:`blocks.digital_loop.simulate_sampled`;
+  :func:`blocks.figure2.digital_loop.simulate_sampled`;
 * one ``doStep`` is one sample: any communication step other than the
   sample period is refused, naming it;
 * ``kp[i]``, ``kd[i]`` and ``Y[i]`` (``Y[i,j]`` for a full observer gain)
@@ -66,10 +66,10 @@ def reference_table(loop, scenario) -> np.ndarray:
     """The reference at every tick, shape (ticks, 3 n): rows ``[q_ref; dq_ref; ddq_ref]`` at ``t_k = k Ts``.
 
     The ticks run from ``t = 0`` to the scenario's ``simulation.t_final``
-    (as :meth:`blocks.hybrid.HybridSystem.simulate` counts them); the rows come
+    (as :meth:`blocks.engines.hybrid.HybridSystem.simulate` counts them); the rows come
     from the loop's ``trajectory`` block, evaluated as the monolithic run does.
     """
-    from blocks.contract import contract_of
+    from blocks.diagram.contract import contract_of
     block = {b.name: b for b in loop.syslist}["trajectory"]
     kernels = contract_of(block).kernels
     joints = scenario.robot.joints
@@ -135,7 +135,7 @@ def _build_txt(fmi_version: int, sources: list[str]) -> str:
 
 
 def _check_scenario(s) -> None:
-    from blocks.digital import DigitalController
+    from blocks.diagram.digital import DigitalController
     if not isinstance(s.controller, DigitalController):
         raise ValueError(f"scenario '{s.name}' has no [controller] section: the controller FMU holds a sampled "
                          "(digital) controller; add [controller] with sample_rate (Hz), or use a scenario such as "
@@ -152,7 +152,7 @@ def export_controller(path, scenario, fmi_version: int = 2, cc: str | None = Non
     ----------
     path : str or pathlib.Path
         The ``.fmu`` file to write (its folder must exist); an existing file is refused unless ``force``.
-    scenario : str, pathlib.Path or blocks.scenario.Scenario
+    scenario : str, pathlib.Path or blocks.scenarios.scenario.Scenario
         A scenario with a ``[controller]`` section (built-in name, file or object), e.g. ``"paper-digital"``.
     fmi_version : {2, 3}
         FMI 2.0 or 3.0 (Co-Simulation in both).
@@ -183,8 +183,8 @@ def export_controller(path, scenario, fmi_version: int = 2, cc: str | None = Non
     >>> export_controller("controller.fmu", s).name     # inputs q[i], dq[i]; outputs tau[i], d_hat[i]
     'controller.fmu'
     """
-    from blocks.sampled_blocks import sampled_loop
-    from blocks.scenario import Scenario, load_scenario
+    from blocks.figure2.sampled_blocks import sampled_loop
+    from blocks.scenarios.scenario import Scenario, load_scenario
     if isinstance(fmi_version, bool) or fmi_version not in (2, 3):
         raise ValueError(f"fmi_version must be 2 or 3, got {fmi_version!r}")
     s = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)

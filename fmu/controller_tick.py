@@ -1,32 +1,32 @@
 """One tick of a scenario's digital controller as C, traced from the sampled-controller kernels.
 
 The controller FMU (:mod:`fmu.controller_export`) runs the blocks the
-monolithic sampled loop runs (:func:`blocks.digital_loop.sampled_loop`):
+monolithic sampled loop runs (:func:`blocks.figure2.digital_loop.sampled_loop`):
 ``encoder``, ``observer``, ``controller`` and ``actuator``.  Their kernels
-(:mod:`blocks.digital`) are called once on the traced symbols of
-:mod:`blocks.compiled.trace` -- the same trace the compiled numba engine
-uses -- and :mod:`blocks.compiled.c_backend` writes what they compute as C
+(:mod:`blocks.diagram.digital`) are called once on the traced symbols of
+:mod:`blocks.kernels.trace` -- the same trace the compiled numba engine
+uses -- and :mod:`blocks.engines.compiled.c_backend` writes what they compute as C
 statements, one per traced expression.  Four functions are generated:
 
 ``ctrl_start(in, theta, x)``
     the controller's state at the first tick from the first inputs, as
-    :func:`blocks.digital_loop.sampled_initial_state` sets it (the encoder's
+    :func:`blocks.figure2.digital_loop.sampled_initial_state` sets it (the encoder's
     previous sample consistent with the start velocity, ``z`` so that
     ``d_hat(0)`` is the scenario's start estimate; the delay buffer is
     filled by the caller with the first command);
 ``ctrl_outputs(t, x, in, ref, theta, out)``
     ``out = [tau; d_hat; tau_cmd]`` at a tick, as
-    :meth:`blocks.hybrid.HybridSystem.tick_outputs` evaluates them
+    :meth:`blocks.engines.hybrid.HybridSystem.tick_outputs` evaluates them
     (encoder, observer, controller, actuator);
 ``ctrl_zoh_matrix(t, x, in, ref, theta, a)``
     only for ``observer_discretization = "zoh"``: the augmented matrix
-    ``[[A, c], [0, 0]] Ts`` of :func:`blocks.digital.observer_zoh_update`,
+    ``[[A, c], [0, 0]] Ts`` of :func:`blocks.diagram.digital.observer_zoh_update`,
     built with the observer law itself; its exponential is taken by the
     runtime routine ``dk_expm`` (``fmu/c/controller_expm.c``, the Pade
     scaling-and-squaring method of :func:`blocks.kernels.expm.expm_small`),
     because that routine branches on values and does not trace;
 ``ctrl_update(t, x, in, ref, theta, e, xn)``
-    the states after the tick (:meth:`~blocks.hybrid.HybridSystem.tick_updates`).
+    the states after the tick (:meth:`~blocks.engines.hybrid.HybridSystem.tick_updates`).
 
 ``in`` holds ``[q; dq]`` (the plant's outputs at the tick), ``ref`` the row
 ``[q_ref; dq_ref; ddq_ref]`` of the tick, ``theta`` every number of the
@@ -39,11 +39,11 @@ from functools import partial
 
 import numpy as np
 
-from blocks.compiled.c_backend import C_PRELUDE, emit_c_function
-from blocks.compiled.trace import Graph, Sym, symbolic_params
-from blocks.contract import contract_of
-from blocks.digital import observer_zoh_update, quantized
+from blocks.diagram.contract import contract_of
+from blocks.diagram.digital import observer_zoh_update, quantized
+from blocks.engines.compiled.c_backend import C_PRELUDE, emit_c_function
 from blocks.kernels import observer_rate
+from blocks.kernels.trace import Graph, Sym, symbolic_params
 
 __all__ = ["TickCode", "trace_tick", "is_zoh_update"]
 
@@ -182,7 +182,7 @@ class _Tick:
         return _objects(sig["tau"] + sig["q_s"] + sig["dq_s"])
 
     def zoh_matrix(self, graph: Graph) -> list:
-        """The augmented matrix of :func:`blocks.digital.observer_zoh_update`, row by row."""
+        """The augmented matrix of :func:`blocks.diagram.digital.observer_zoh_update`, row by row."""
         sig = self.outputs(graph)
         n = self.n
         k, gain, eq16, period = self.params(graph, "observer")
@@ -249,7 +249,7 @@ class _Tick:
 
 
 def is_zoh_update(update) -> bool:
-    """Whether an observer's update is :func:`blocks.digital.observer_zoh_update` (called with any arm's kernels:
+    """Whether an observer's update is :func:`blocks.diagram.digital.observer_zoh_update` (called with any arm's kernels:
     :func:`blocks.kernels.model.with_arm`)."""
     return getattr(update, "func", update) is observer_zoh_update
 
@@ -290,16 +290,16 @@ def trace_tick(loop, scenario) -> TickCode:
 
     Parameters
     ----------
-    loop : blocks.hybrid.HybridSystem
-        :func:`blocks.digital_loop.sampled_loop` of the scenario, with the observer.
-    scenario : blocks.scenario.Scenario
+    loop : blocks.engines.hybrid.HybridSystem
+        :func:`blocks.figure2.digital_loop.sampled_loop` of the scenario, with the observer.
+    scenario : blocks.scenarios.scenario.Scenario
         The scenario (its start estimate ``initial.d_hat``).
 
     Raises
     ------
-    blocks.compiled.trace.TraceError
+    blocks.kernels.trace.TraceError
         If a kernel cannot be traced (a branch on a value); its subclass
-        :class:`blocks.compiled.c_backend.CodegenError` if the trace holds what C cannot (a table).
+        :class:`blocks.engines.compiled.c_backend.CodegenError` if the trace holds what C cannot (a table).
     """
     tick = _Tick(loop, scenario)
     n = tick.n

@@ -21,9 +21,9 @@ from collections.abc import Callable
 
 import numpy as np
 
-from blocks.budget import Budget
-from blocks.monitor import Monitor
-from blocks.scenario import Scenario, load_scenario
+from blocks.engines.budget import Budget
+from blocks.engines.monitor import Monitor
+from blocks.scenarios.scenario import Scenario, load_scenario
 
 from .archive import ExtractionLimits, open_extracted
 from .master import CoSimulationError, validated_time
@@ -134,7 +134,7 @@ def cosim_convergence(fmu_path, scenario: Scenario | str = "paper", steps=DEFAUL
     CoSimulationError
         If fewer than two steps are given or the steps do not share a grid.
     """
-    from blocks.loop import simulate
+    from blocks.figure2.loop import simulate
 
     from .cosim import cosimulate
 

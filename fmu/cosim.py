@@ -29,7 +29,7 @@ measures the error against the monolithic loop itself.
 The result has the same named outputs as :func:`blocks.simulate`
 (``q``, ``dq``, ``q_ref``, ``dq_ref``, ``ddq_ref``, ``tau``, ``tau_dis``,
 ``d_hat`` with the observer, ``q_meas``/``dq_meas`` with noise, and the
-lumped disturbance ``d``), so :func:`blocks.metrics.tracking_metrics`
+lumped disturbance ``d``), so :func:`blocks.figure2.metrics.tracking_metrics`
 and the figures work on it unchanged.
 """
 from __future__ import annotations
@@ -39,11 +39,11 @@ from collections.abc import Callable
 import control as ct
 import numpy as np
 
-from blocks.budget import Budget
-from blocks.derived import loop_response
-from blocks.loop import LOOP_SIGNALS, build_blocks, initial_state
-from blocks.physical_bounds import signal_bounds
-from blocks.scenario import Scenario, load_scenario
+from blocks.engines.budget import Budget
+from blocks.figure2.derived import loop_response
+from blocks.figure2.loop import LOOP_SIGNALS, build_blocks, initial_state
+from blocks.figure2.physical_bounds import signal_bounds
+from blocks.scenarios.scenario import Scenario, load_scenario
 
 from .archive import ExtractionLimits, open_extracted
 from .cosim_sampled import cosimulate_sampled
@@ -165,7 +165,7 @@ def cosimulate(fmu_path, scenario: Scenario | str = "paper", step: float = 1e-3,
         Estimate the coupling error by step doubling over the first
         ``min(1 s, t_final)`` (two short extra runs, at ``h`` and ``2 h``).
     budget : Budget, optional
-        Limits on steps and wall time (:meth:`blocks.budget.Budget.from_env`).
+        Limits on steps and wall time (:meth:`blocks.engines.budget.Budget.from_env`).
     limits, extract_to :
         Archive size limits and extraction parent folder.
     progress : callable, optional

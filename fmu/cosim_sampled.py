@@ -1,13 +1,13 @@
 """Co-simulation of a scenario's digital controller against a plant FMU, one communication step per sample.
 
 A scenario with a ``[controller]`` section describes a controller that runs
-every ``Ts`` seconds and holds its torque in between (:mod:`blocks.digital`).
+every ``Ts`` seconds and holds its torque in between (:mod:`blocks.diagram.digital`).
 With the communication step ``h = Ts`` a co-simulation is then the same
 sampled-data system as the monolithic hybrid run
-(:func:`blocks.digital_loop.simulate_sampled`): at each sample the FMU's
+(:func:`blocks.figure2.digital_loop.simulate_sampled`): at each sample the FMU's
 ``q``, ``dq`` are read, the encoder, observer, controller and actuator of the
 scenario's digital loop are evaluated and updated exactly as in the
-monolithic run (:class:`blocks.hybrid.HybridSystem`'s tick), and the torque
+monolithic run (:class:`blocks.engines.hybrid.HybridSystem`'s tick), and the torque
 is held over the FMU's step.  No coupling error arises: the two differ only
 by the FMU's own integration error over each step (its RK4 sub-steps).
 """
@@ -18,12 +18,12 @@ from collections.abc import Callable
 import control as ct
 import numpy as np
 
-from blocks.budget import Budget
-from blocks.derived import loop_response
-from blocks.monitor import Monitor
-from blocks.physical_bounds import signal_bounds
-from blocks.sampled_blocks import sampled_initial_state, sampled_loop
-from blocks.scenario import Scenario
+from blocks.engines.budget import Budget
+from blocks.engines.monitor import Monitor
+from blocks.figure2.derived import loop_response
+from blocks.figure2.physical_bounds import signal_bounds
+from blocks.figure2.sampled_blocks import sampled_initial_state, sampled_loop
+from blocks.scenarios.scenario import Scenario
 
 from .errors import FMUMissingVariablesError
 from .instance import FMUInstance
@@ -143,7 +143,7 @@ def cosimulate_sampled(extracted, scenario: Scenario, step: float, t_final: floa
             raise FMUMissingVariablesError(f"{fmu.source}: the plant FMU lacks {err}") from None
         n = len(q_pos)
         first = fmu.get_real(out_vr)
-        # the plant's outputs judged as every engine judges its states (blocks.divergence, blocks.monitor)
+        # the plant's outputs judged as every engine judges its states (blocks.engines.divergence, blocks.engines.monitor)
         deadline = Monitor(f"co-simulation of {fmu.source}", signal_bounds(measured_names, s), first, budget,
                            t_final)
 

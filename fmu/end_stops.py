@@ -1,6 +1,6 @@
 """End stops of the plant FMU: where an arm's joint ranges end, and how hard the stop pushes back.
 
-A joint with a limit (a finite side of :attr:`blocks.joints.JointSpace.limits`:
+A joint with a limit (a finite side of :attr:`blocks.model.joints.JointSpace.limits`:
 the RRPR's slide ``d3`` from 0 to 0.48 m, a URDF joint's ``<limit lower upper>``)
 gets a spring-damper at each finite end, as a rubber-buffered mechanical stop::
 
@@ -101,7 +101,7 @@ def effective_inertia(arm, q0=None, poses: int = POSES, seed: int = 0) -> np.nda
 
     Parameters
     ----------
-    arm : blocks.arm.ArmModel
+    arm : blocks.model.arm.ArmModel
     q0 : n floats, optional
         A pose to include (the FMU's start pose).
     poses : int
@@ -124,7 +124,7 @@ def end_stops(arm, q0=None) -> list[EndStop]:
 
     Examples
     --------
-    >>> from blocks.scenario import default_arm
+    >>> from blocks.scenarios.scenario import default_arm
     >>> [(s.name, s.lower, s.upper, round(s.stiffness), round(s.damping)) for s in end_stops(default_arm())]
     [('d3', 0.0, 0.48, 10000, 100)]
     """

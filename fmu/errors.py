@@ -1,5 +1,5 @@
 """The exceptions of :mod:`fmu`: one hierarchy under :class:`FMUError` (and the one budget error of the project,
-:class:`blocks.budget.BudgetError`, re-exported here).
+:class:`blocks.engines.budget.BudgetError`, re-exported here).
 
 Every message names what is wrong (the archive entry, the variable, the
 platform, the simulation time and status) so that it can be acted on without
@@ -7,8 +7,8 @@ a debugger.
 """
 from __future__ import annotations
 
-# the project's one budget and its error (blocks.budget), re-exported as fmu.Budget and fmu.BudgetError
-from blocks.budget import Budget, BudgetError  # noqa: F401
+# the project's one budget and its error (blocks.engines.budget), re-exported as fmu.Budget and fmu.BudgetError
+from blocks.engines.budget import Budget, BudgetError  # noqa: F401
 
 __all__ = [
     "FMUError", "FMUArchiveError", "FMUModelDescriptionError", "FMUVersionError", "FMUUnsupportedError",

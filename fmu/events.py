@@ -4,12 +4,12 @@
 iterates ``fmi2NewDiscreteStates`` / ``fmi3UpdateDiscreteStates`` and goes
 back to Continuous-Time Mode; :func:`fmu.simulate_fmu` (an FMU on its own)
 and :class:`FMUEventSource` (an FMU block in a loop) both use it, and both
-locate state events with :func:`blocks.integrate.locate_crossing`.
+locate state events with :func:`blocks.engines.integrate.locate_crossing`.
 
 An FMU block (:func:`fmu.load`) with event indicators or a time event
 announced at initialization carries an :class:`FMUEventSource` as its
-``event_source``; the numpy engine (:func:`blocks.integrate.integrate_on_grid`
-with :func:`blocks.integrate.loop_events`) then stops at its events, runs
+``event_source``; the numpy engine (:func:`blocks.engines.integrate.integrate_on_grid`
+with :func:`blocks.engines.integrate.loop_events`) then stops at its events, runs
 the event iteration, takes over the states the FMU re-initialised and starts
 a new solver.  :func:`simulate_loop` runs any interconnection that way.  The
 compiled and batch engines cannot run such a loop (the compiled engine names
@@ -25,7 +25,7 @@ import math
 import control as ct
 import numpy as np
 
-from blocks.integrate import SOLVERS, DivergenceError, EventSource, SimulationTerminated, integrate_on_grid, loop_events
+from blocks.engines.integrate import SOLVERS, DivergenceError, EventSource, SimulationTerminated, integrate_on_grid, loop_events
 
 from .errors import FMUError
 from .instance import FMUInstance
@@ -57,7 +57,7 @@ def has_events(inst: FMUInstance) -> bool:
 
 
 class FMUEventSource(EventSource):
-    """A Model Exchange FMU block's events, for :class:`blocks.integrate.LoopEvents`.
+    """A Model Exchange FMU block's events, for :class:`blocks.engines.integrate.LoopEvents`.
 
     The loop's right-hand side has just set the FMU's inputs (and time and
     states) when a method is called; each method sets time and states again
@@ -127,7 +127,7 @@ def simulate_loop(system, t_grid, x0=None, *, method: str = "RK45", rtol: float 
         Loop state at ``t_grid[0]``; by default each block's ``initial_state``
         (an FMU block's is its state after initialization) or zeros.
     method : str
-        A SciPy solver (:data:`blocks.integrate.SOLVERS`).
+        A SciPy solver (:data:`blocks.engines.integrate.SOLVERS`).
     rtol, atol, max_step : float
         Solver options (``max_step`` in s; an indicator that crosses zero
         twice within one step goes unseen, so keep it below the shortest flight).
@@ -151,7 +151,7 @@ def simulate_loop(system, t_grid, x0=None, *, method: str = "RK45", rtol: float 
     FMUError
         If the solver fails or a state becomes non-finite; the message says when.
     """
-    from blocks.fastsim import CompiledLoop  # the numpy engine: built on first use only
+    from blocks.engines.fastsim import CompiledLoop  # the numpy engine: built on first use only
 
     if method not in SOLVERS:
         raise ValueError(f"method must be one of {list(SOLVERS)}, got {method!r}")

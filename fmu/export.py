@@ -30,7 +30,7 @@ outputs' first derivatives are available (see :mod:`fmu.coupling`).
 
 Joint ranges: each joint position ``q[i]`` carries its joint's range as the
 FMI ``min`` / ``max`` attributes (rad, m; from the arm's
-:class:`~blocks.joints.JointSpace`: the RRPR's slide ``d3`` 0 to 0.48 m, a URDF
+:class:`~blocks.model.joints.JointSpace`: the RRPR's slide ``d3`` 0 to 0.48 m, a URDF
 joint's ``<limit lower upper>``, none for a continuous joint), and the model
 enforces them with an end stop at each finite end: a critically damped
 spring-damper (``stop_stiffness[i]``, ``stop_damping[i]``, start values from
@@ -46,9 +46,9 @@ import math
 from importlib import resources
 from pathlib import Path
 
-from blocks.arm import ArmModel
-from blocks.disturbances import DisturbanceSpec
-from blocks.scenario import default_arm
+from blocks.model.arm import ArmModel
+from blocks.model.disturbances import DisturbanceSpec
+from blocks.scenarios.scenario import default_arm
 
 from .arm_record import ARM_RECORD, arm_record
 from .build import instantiation_token, platform_folder, rebuild_command, shared_layer_files
@@ -117,11 +117,11 @@ def export_plant(path, params: ArmModel | None = None, disturbance: DisturbanceS
     path : str or pathlib.Path
         Where to write the ``.fmu`` file (its folder must exist).  An existing
         file is refused unless ``force`` is true.
-    params : blocks.arm.ArmModel, optional
-        The true arm: the default scenario's by default (:func:`blocks.scenario.default_arm`, the paper's arm
+    params : blocks.model.arm.ArmModel, optional
+        The true arm: the default scenario's by default (:func:`blocks.scenarios.scenario.default_arm`, the paper's arm
         with Table 1), whose named parameters become the FMU's parameters (``m1`` ... ``d4``, with ``k1..k5``
         derived from them), so changing one at simulation time works; an arm without named parameters (a
-        URDF arm of :func:`blocks.arms.load_urdf_arm`) has its geometry fixed in the C.
+        URDF arm of :func:`blocks.model.urdf.load_urdf_arm`) has its geometry fixed in the C.
     disturbance : DisturbanceSpec, optional
         Disturbance models switched on (``disturbance_paper``,
         ``disturbance_friction``, ``disturbance_tissue``) and their parameters;
@@ -137,7 +137,7 @@ def export_plant(path, params: ArmModel | None = None, disturbance: DisturbanceS
         C compiler command; default ``$CC``, else ``cc``/``gcc``/``clang``.
     q0, dq0 : n floats, optional
         Start values of the joint positions (rad, m) and velocities (rad/s, m/s).
-        By default the arm starts at rest in its :meth:`~blocks.arm.ArmModel.rest_pose`: the paper's arm in
+        By default the arm starts at rest in its :meth:`~blocks.model.arm.ArmModel.rest_pose`: the paper's arm in
         the regular pose ``theta2 = pi/2``, ``d3 = 0.24 m`` (not at the singular ``theta2 = 0``), a chain at
         ``q = 0`` or, for a joint whose range excludes 0, at the middle of its range.  Every ``q0`` must lie in
         the joint ranges.

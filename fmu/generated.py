@@ -1,6 +1,6 @@
-"""The plant FMU's maths, generated from the plant block's kernels (:mod:`blocks.compiled.c_backend`).
+"""The plant FMU's maths, generated from the plant block's kernels (:mod:`blocks.engines.compiled.c_backend`).
 
-:func:`plant_c` traces the plant block of :func:`blocks.systems.plant` --
+:func:`plant_c` traces the plant block of :func:`blocks.diagram.systems.plant` --
 the arm's ``plant_acceleration`` and the external disturbance models -- and
 writes ``plant_generated.h``: the state derivative and ``tau_dis`` as C, the
 same operations as the numpy kernels and the compiled engine's numba code.
@@ -34,15 +34,15 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from blocks.compiled.c_backend import C_PRELUDE, CodegenError, emit_c_function, trace_block
-from blocks.compiled.trace import Graph, Sym, param_values
-from blocks.contract import Kernels, contract_of
-from blocks.disturbances import DISTURBANCE_KINDS, DisturbanceSpec
+from blocks.diagram.contract import Kernels, contract_of
+from blocks.diagram.systems import plant as plant_block
+from blocks.diagram.systems import plant_output, plant_update
+from blocks.engines.compiled.c_backend import C_PRELUDE, CodegenError, emit_c_function, trace_block
 from blocks.kernels.disturbance import DisturbanceParams
 from blocks.kernels.model import with_arm
+from blocks.kernels.trace import Graph, Sym, param_values
+from blocks.model.disturbances import DISTURBANCE_KINDS, DisturbanceSpec
 from blocks.model.rrpr.parameters import RobotParameters
-from blocks.systems import plant as plant_block
-from blocks.systems import plant_output, plant_update
 
 __all__ = ["GeneratedPlant", "plant_c", "plant_kernels", "arm_disturbance", "GENERATED_HEADER"]
 
@@ -85,7 +85,7 @@ class GeneratedPlant:
 def arm_disturbance(arm, disturbance: DisturbanceSpec | None, q0=None):
     """The disturbance settings of a plant export, per joint of ``arm``.
 
-    For the paper's arm: the :class:`~blocks.disturbances.DisturbanceSpec`
+    For the paper's arm: the :class:`~blocks.model.disturbances.DisturbanceSpec`
     itself (default: Eq. 4).  For another arm: its per-joint vectors must have
     one entry per joint; without one, every model is off and the amplitudes
     are zero (start values the user sets on the FMU), and the skin plane of
@@ -127,7 +127,7 @@ def _disturbance_params(d, tissue_kin) -> DisturbanceParams:
 def plant_kernels(arm, d) -> Kernels:
     """The plant's kernels: ``update`` gives ``[dq; q'']`` of Eq. 1, ``output`` ``[q; dq; tau_dis]``.
 
-    The paper's arm uses the plant block's own kernels (:func:`blocks.systems.plant`); another arm the same
+    The paper's arm uses the plant block's own kernels (:func:`blocks.diagram.systems.plant`); another arm the same
     block kernels called with its row kernels (``arm.arm_kernels``: its ``plant_acceleration`` and the tool
     point of the tissue contact), its geometry a frozen parameter (constants in the generated code).
     """
@@ -226,7 +226,7 @@ def plant_c(arm, spec: DisturbanceSpec, param_order: list[str], start: dict) -> 
 
     Parameters
     ----------
-    arm : blocks.arm.ArmModel
+    arm : blocks.model.arm.ArmModel
         The true arm (its joint count sizes everything).
     spec : DisturbanceSpec
         Disturbance parameters; every combination of the models is generated.

@@ -23,7 +23,7 @@ within the step).  With communication step ``h`` and ``t_k = k h``:
 The zero-order hold is first order in ``h``; the linear coupling second
 order when no algebraic path runs through both sides (measured in the
 README).  The Python side is evaluated through
-:class:`blocks.fastsim.CompiledLoop` when it is an interconnection.
+:class:`blocks.engines.fastsim.CompiledLoop` when it is an interconnection.
 
 Every step checks the exchanged signals, the FMU outputs and the Python
 state: the first non-finite value stops the run with a
@@ -37,7 +37,7 @@ FMUs declare them and return NaN with status OK) switch the ``linear``
 coupling to ``zoh`` for the rest of the run, with one
 :class:`~fmu.coupling.CouplingFallbackWarning` naming the FMU and why.  No partial result
 is returned.  The number of steps is checked against a
-:class:`~blocks.budget.Budget` before the run, the wall time during it.
+:class:`~blocks.engines.budget.Budget` before the run, the wall time during it.
 """
 from __future__ import annotations
 
@@ -48,12 +48,12 @@ from collections.abc import Callable
 import control as ct
 import numpy as np
 
-from blocks.budget import Budget
-from blocks.control_compat import fast_dynamics, fast_output
-from blocks.divergence import RUNAWAY_FACTOR, RUNAWAY_STEPS, Runaway
-from blocks.fastsim import CompiledLoop
-from blocks.monitor import Monitor
-from blocks.steppers import rk4_step
+from blocks.diagram.control_compat import fast_dynamics, fast_output
+from blocks.engines.budget import Budget
+from blocks.engines.divergence import RUNAWAY_FACTOR, RUNAWAY_STEPS, Runaway
+from blocks.engines.fastsim import CompiledLoop
+from blocks.engines.monitor import Monitor
+from blocks.engines.steppers import rk4_step
 
 from .archive import ExtractionLimits
 from .block import output_feedthrough
@@ -122,7 +122,7 @@ def _stop(what: str, bad: str, t: float) -> CoSimulationError:
 
 
 def _rk4(rhs, t: float, x: np.ndarray, inputs_at, h: float, m: int) -> np.ndarray:
-    """``m`` classical RK4 steps (:func:`blocks.steppers.rk4_step`) over ``[t, t + h]``, the inputs
+    """``m`` classical RK4 steps (:func:`blocks.engines.steppers.rk4_step`) over ``[t, t + h]``, the inputs
     ``inputs_at(s)`` at each stage time ``s``."""
     dt = h / m
     u_start = inputs_at(t)
@@ -197,14 +197,15 @@ def cosimulate_system(fmu_path, side: ct.NonlinearIOSystem, t_final: float, step
         See :mod:`fmu.coupling`; default the best the FMU supports
         (``linear`` when its inputs can follow a slope over a step).
     budget : Budget, optional
-        Limits on steps and wall time (:meth:`blocks.budget.Budget.from_env`).
+        Limits on steps and wall time (:meth:`blocks.engines.budget.Budget.from_env`).
     limits, extract_to :
         Passed to :class:`~fmu.instance.FMUInstance`.
     progress : callable, optional
         Called with the fraction of time done (0..1), about every 2 % of the steps.
     bounds : callable, optional
-        ``bounds(names) -> blocks.divergence.StateBounds`` for the FMU's outputs (for a plant FMU,
-        :func:`blocks.physical_bounds.signal_bounds` of the scenario): the run's :class:`~blocks.monitor.Monitor`
+        ``bounds(names) -> blocks.engines.divergence.StateBounds`` for the FMU's outputs (for a plant FMU,
+        :func:`blocks.figure2.physical_bounds.signal_bounds` of the scenario): the run's
+        :class:`~blocks.engines.monitor.Monitor`
         judges them after every step, as every engine judges its states.  Without it the outputs are judged
         for being finite and for runaway growth only.
 
@@ -223,7 +224,7 @@ def cosimulate_system(fmu_path, side: ct.NonlinearIOSystem, t_final: float, step
         If the FMU returns an error status (the message names the time and status).
     CoSimulationError
         On a bad step or coupling, or when a signal or the Python state becomes non-finite or runs away.
-    blocks.monitor.SimulationError
+    blocks.engines.monitor.SimulationError
         With ``bounds``: when an FMU output leaves its bound (the signal, the bound and the time named).
     BudgetError
         If the run would exceed the budget's steps, or exceeds its wall time.
@@ -373,7 +374,7 @@ def _fall_back(fmu: FMUInstance, w: _Wiring, values: np.ndarray, t: float, slope
 
 
 class _Growth:
-    """Stops a run whose FMU outputs run away (:class:`blocks.divergence.Runaway`), saying what that means here."""
+    """Stops a run whose FMU outputs run away (:class:`blocks.engines.divergence.Runaway`), saying what that means here."""
 
     def __init__(self, source: str, names: list[str]):
         self.source, self.names = source, names

@@ -15,7 +15,7 @@ import tempfile
 import zipfile
 from pathlib import Path
 
-from blocks.outputs import DISK_ERRORS, file_error
+from blocks.plumbing.outputs import DISK_ERRORS, file_error
 
 from .build import FMI_HEADERS, compile_shared_library, fmi_header_dir, platform_folder, shared_library_suffix
 

@@ -9,7 +9,7 @@ kinds or joint ranges is refused by name before anything runs.
 * Model Exchange: the FMU loaded with :func:`fmu.load` and the Python plant
   integrated side by side with SciPy (DOP853, tight tolerances) under the
   same torque from the same initial state; the largest differences of states
-  and ``tau_dis``.  The reference is the plant block :func:`blocks.systems.plant`
+  and ``tau_dis``.  The reference is the plant block :func:`blocks.diagram.systems.plant`
   for the paper's arm and, for another arm, its own ``forward_dynamics``
   under ``tau + tau_dis`` (the disturbance models of
   :func:`blocks.kernels.disturbance.external_disturbance`).
@@ -39,14 +39,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from blocks.arm import ArmModel
-from blocks.budget import Budget
-from blocks.control_compat import fast_dynamics, fast_output
-from blocks.disturbances import DISTURBANCE_KINDS, DisturbanceSpec
+from blocks.diagram.control_compat import fast_dynamics, fast_output
+from blocks.diagram.systems import plant as python_plant
+from blocks.engines.budget import Budget
+from blocks.engines.monitor import Monitor
 from blocks.kernels.disturbance import DisturbanceParams, external_disturbance
-from blocks.monitor import Monitor
-from blocks.scenario import default_arm
-from blocks.systems import plant as python_plant
+from blocks.model.arm import ArmModel
+from blocks.model.disturbances import DISTURBANCE_KINDS, DisturbanceSpec
+from blocks.scenarios.scenario import default_arm
 
 from .arm_match import arm_name, check_arm_matches, check_scenario_arm
 from .block import load
@@ -126,7 +126,7 @@ class PlantReference:
 
     Attributes
     ----------
-    arm : blocks.arm.ArmModel
+    arm : blocks.model.arm.ArmModel
     spec : DisturbanceSpec or namespace
         The disturbance models and their parameters (the FMU's start values).
     name : str
@@ -192,7 +192,7 @@ def plant_reference(model_description, arm=None) -> PlantReference:
     Parameters
     ----------
     model_description : fmpy.model_description.ModelDescription
-    arm : blocks.arm.ArmModel, optional
+    arm : blocks.model.arm.ArmModel, optional
         The arm to hold the FMU against.  Default: the default scenario's arm
         (the paper's) with the FMU's start values of its parameters (an FMU
         without them: KeyError).  The paper's arm given here is compared with

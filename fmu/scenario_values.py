@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import warnings
 
-from blocks.scenario import Scenario, default_arm
+from blocks.scenarios.scenario import Scenario, default_arm
 
 from .variables import plant_parameter_values
 
@@ -18,14 +18,14 @@ __all__ = ["plant_start_values", "JOINTS", "DEFAULT_START_Q", "default_start_q"]
 JOINTS = default_arm().n
 
 #: Start pose of the default scenario's arm's plant FMU exported without one (rad, rad, m, rad; the arm's
-#: :meth:`~blocks.arm.ArmModel.rest_pose`: the paper's elbow at a right angle, the tool slide at d3 = 0.24 m).
+#: :meth:`~blocks.model.arm.ArmModel.rest_pose`: the paper's elbow at a right angle, the tool slide at d3 = 0.24 m).
 #: An export from a scenario (``dobkit fmu export``) starts where the scenario does.
 DEFAULT_START_Q = tuple(default_arm().rest_pose())
 
 
 def default_start_q(arm) -> list[float]:
     """Start pose of an arm's plant FMU exported without one (rad, m): the arm's own rest pose
-    (:meth:`blocks.arm.ArmModel.rest_pose`; for a chain each joint at 0, or at the middle of its range when the
+    (:meth:`blocks.model.arm.ArmModel.rest_pose`; for a chain each joint at 0, or at the middle of its range when the
     range excludes 0: the Panda's elbow, -3.07 to -0.07 rad, starts at -1.57 rad)."""
     return arm.rest_pose()
 

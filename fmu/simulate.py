@@ -1,7 +1,7 @@
 """Simulate a Model Exchange FMU on its own, events included: :func:`simulate_fmu`.
 
 The FMU runs as the one hybrid block of a loop, through the event loop of
-:func:`blocks.integrate.integrate_on_grid` that also runs FMU blocks with
+:func:`blocks.engines.integrate.integrate_on_grid` that also runs FMU blocks with
 events in a loop of the numpy engine (:mod:`fmu.events`).  Its continuous
 states are integrated by a SciPy solver (DOP853 by default) step by step.
 After every accepted step:
@@ -38,9 +38,9 @@ import control as ct
 import numpy as np
 from scipy.integrate import BDF, DOP853, LSODA, RK45, Radau
 
-from blocks.budget import Budget
-from blocks.integrate import DivergenceError, LoopEvents, SimulationTerminated, SolverFailure, integrate_on_grid
-from blocks.monitor import Monitor
+from blocks.engines.budget import Budget
+from blocks.engines.integrate import DivergenceError, LoopEvents, SimulationTerminated, SolverFailure, integrate_on_grid
+from blocks.engines.monitor import Monitor
 
 from .archive import ExtractionLimits
 from .description import array_shape, element_names, state_variables
@@ -189,7 +189,7 @@ def simulate_fmu(path, t_final: float, output_step: float, inputs: dict | None =
     budget : Budget, optional
         The recorded points are checked against its ``steps``, the
         right-hand-side evaluations against ``steps`` x 6, and the wall time
-        against ``seconds`` (default :meth:`blocks.budget.Budget.from_env`).
+        against ``seconds`` (default :meth:`blocks.engines.budget.Budget.from_env`).
     limits, extract_to :
         Passed to :class:`~fmu.instance.FMUInstance`.
 
@@ -269,7 +269,7 @@ def simulate_fmu(path, t_final: float, output_step: float, inputs: dict | None =
             model.at(t, x)
             return np.concatenate([inst.read(outputs), ins.at(t)])
 
-        # the FMU as the one hybrid block of a loop: blocks.integrate's event loop, as for FMU blocks in a loop
+        # the FMU as the one hybrid block of a loop: blocks.engines.integrate's event loop, as for FMU blocks in a loop
         events = LoopEvents([(FMUEventSource(inst, inst.model_identifier, start_time), slice(0, x0.size))],
                             lambda t, x: model.at(t, x), observed)
         terminated, end_state = (start_time, x0) if inst.terminate_requested else (None, None)

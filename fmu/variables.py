@@ -25,8 +25,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from blocks.arm import ArmModel
-from blocks.disturbances import DisturbanceSpec
+from blocks.model.arm import ArmModel
+from blocks.model.disturbances import DisturbanceSpec
 
 __all__ = ["Variable", "UNITS", "plant_variables", "plant_parameter_values", "config_header", "JOINT_UNITS"]
 
@@ -118,10 +118,10 @@ def plant_variables(params: ArmModel, disturbance: DisturbanceSpec, substeps: in
 
     Parameters
     ----------
-    params : blocks.arm.ArmModel
-        The true arm.  Its named parameters (:meth:`~blocks.arm.ArmModel.parameter_names`, the paper's
+    params : blocks.model.arm.ArmModel
+        The true arm.  Its named parameters (:meth:`~blocks.model.arm.ArmModel.parameter_names`, the paper's
         Table 1) become tunable parameters, with the constants it calculates from them
-        (:meth:`~blocks.arm.ArmModel.calculated_parameters`, the paper's k1..k5); an arm without named
+        (:meth:`~blocks.model.arm.ArmModel.calculated_parameters`, the paper's k1..k5); an arm without named
         parameters has its geometry frozen in the generated C, and only its joint count and kinds shape
         the table.
     disturbance : DisturbanceSpec or namespace

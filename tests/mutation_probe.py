@@ -54,7 +54,7 @@ total             91      63      28         28
 The FMU's C mutants reach the tests because nothing caches a built FMU: every test session exports the plant
 and controller FMUs afresh from ``fmu/c`` (module fixtures in a session folder; ``fmu.build`` compiles every
 time and keeps no objects), so a mutant is compiled in -- the C mutants the targeted tests kill show it.  A
-mutant of ``blocks/compiled/dopri.py`` changes the compiled loops' cache key (the key hashes that file's text),
+mutant of ``blocks/engines/compiled/dopri.py`` changes the compiled loops' cache key (the key hashes that file's text),
 so numba compiles it instead of loading the cached original; the killer tests of the stepper run the file's
 text as plain Python beside scipy's RK45, no cache involved.  With both passes ``--killers`` must report 196
 killed and the first pass's 2 equivalents.
@@ -200,14 +200,14 @@ def M(id, group, file, old, new, tests, what, equivalent=""):      # noqa: N802 
 
 ARM, DYNPY, KK, KINPY = ("blocks/model/rrpr/dynamics_kernels.py", "blocks/model/rrpr/dynamics.py",
                          "blocks/model/rrpr/tool_kernels.py", "blocks/model/rrpr/kinematics.py")
-LAW, DK, CH, IKF = "blocks/kernels/laws.py", "blocks/kernels/disturbance.py", "blocks/kernels/chain.py", "blocks/arms/ik.py"
-RR_FILE = "blocks/arms/resolved_rate.py"      # J' by polarisation lives beside the law that uses it
-DIV, MON, RL, DS = "blocks/divergence.py", "blocks/monitor.py", "blocks/run_limits.py", "blocks/digital_stability.py"
-BOUNDS = "blocks/physical_bounds.py"          # the scenario's physical bounds the divergence rule is given
+LAW, DK, CH, IKF = "blocks/kernels/laws.py", "blocks/kernels/disturbance.py", "blocks/kernels/chain.py", "blocks/model/urdf/ik.py"
+RR_FILE = "blocks/model/urdf/resolved_rate.py"      # J' by polarisation lives beside the law that uses it
+DIV, MON, RL, DS = "blocks/engines/divergence.py", "blocks/engines/monitor.py", "blocks/figure2/run_limits.py", "blocks/figure2/digital_stability.py"
+BOUNDS = "blocks/figure2/physical_bounds.py"          # the scenario's physical bounds the divergence rule is given
 SPLINES = "blocks/kernels/splines.py"        # the paths' polynomial pieces
-BU, ME, ES, PC = "blocks/budget.py", "blocks/metrics.py", "fmu/end_stops.py", "fmu/c/plant_model.c"
+BU, ME, ES, PC = "blocks/engines/budget.py", "blocks/figure2/metrics.py", "fmu/end_stops.py", "fmu/c/plant_model.c"
 AL, BW = "analysis/linear/arm_linear.py", "analysis/linear/bandwidth.py"
-SC = "blocks/batch/schedule.py"
+SC = "blocks/figure2/batch/schedule.py"
 
 MUTANTS = [
     # ---- RRPR dynamics: M, N, G (Eq. 5-7) -------------------------------------------------------------------
@@ -477,9 +477,9 @@ DESIGN = ("tests/test_analysis_observer.py", "tests/test_analysis_n_joints.py::t
 PI, PSt, CC = "fmu/c/plant_instance.c", "fmu/c/plant_state.c", "fmu/c/controller_core.c"
 F2, F3 = "fmu/c/fmi2_common.c", "fmu/c/fmi3_common.c"
 CPL, MST, SV = "fmu/coupling.py", "fmu/master.py", "fmu/start_values.py"
-DG, SMP, NZ, NZK = "blocks/digital.py", "blocks/sampling.py", "blocks/noise.py", "blocks/kernels/noise.py"
-DP, TR = "blocks/compiled/dopri.py", "blocks/compiled/trace.py"
-TJ, TP, RR = "blocks/trajectory.py", "blocks/tool_path.py", "blocks/arms/resolved_rate.py"
+DG, SMP, NZ, NZK = "blocks/diagram/digital.py", "blocks/engines/sampling.py", "blocks/model/noise.py", "blocks/kernels/noise.py"
+DP, TR = "blocks/engines/compiled/dopri.py", "blocks/kernels/trace.py"
+TJ, TP, RR = "blocks/diagram/trajectory.py", "blocks/scenarios/tool_path.py", "blocks/model/urdf/resolved_rate.py"
 LAC = "blocks/model/rrpr/laceration.py"      # the RRPR's closed-form IK of the laceration path
 SU, CO, EV = "analysis/sweep/summary.py", "analysis/tune/costs.py", "analysis/tune/evaluate.py"
 FR, GD = "analysis/linear/frequency.py", "analysis/linear/gain_design.py"

@@ -1,6 +1,6 @@
 """The linearized sampled loop against independent derivations: the continuous poles as the rate grows, the
 forward-Euler observer bound 2 / (Ts lambda_max(Y M^-1)) with measured velocity (docs/model.md, "Digital
-observer"), the stability computation (blocks.digital_stability) against this module's linearization of the
+observer"), the stability computation (blocks.figure2.digital_stability) against this module's linearization of the
 blocks themselves, and the encoder quantization noise against simulation."""
 from __future__ import annotations
 
@@ -64,12 +64,12 @@ def test_the_euler_gain_limit_is_the_frozen_inertia_bound_and_zoh_is_below():
     {"controller.delay": 1, "controller.velocity": "difference", "controller.velocity_cutoff": 20.0},
 ])
 def test_the_stability_computation_is_the_linearization_of_the_blocks(changes):
-    """blocks.digital_stability writes the linearized one-sample map out; linear_sampled_loop linearizes the
+    """blocks.figure2.digital_stability writes the linearized one-sample map out; linear_sampled_loop linearizes the
     hybrid loop's own blocks numerically (control.linearize, control's ZOH of the plant): same moduli of the
     eigenvalues at 100 Hz with the gain 4 Y (near the limits)."""
     from analysis.linear.digital import _held, _operating_state
-    from blocks.digital_stability import sampled_loop_map
-    from blocks.sampled_blocks import sampled_loop
+    from blocks.figure2.digital_stability import sampled_loop_map
+    from blocks.figure2.sampled_blocks import sampled_loop
     s = _paper(HELD | {"controller.sample_rate": 100.0, "gains.observer": 40.0} | changes)
     held = _held(s, Q0)
     loop = sampled_loop(held)
@@ -82,7 +82,7 @@ def test_the_stability_computation_is_the_linearization_of_the_blocks(changes):
 
 def test_the_gain_limit_agrees_with_simulation():
     """Just below the limit the sampled loop settles; just above it grows (Y = c 10 I at 1 kHz, c_max ~ 50)."""
-    from blocks.sampled_blocks import sampled_initial_state, sampled_loop
+    from blocks.figure2.sampled_blocks import sampled_initial_state, sampled_loop
     limit = observer_gain_limit(_paper(HELD | {"controller.sample_rate": 1000.0}), rates_hz=(1000.0,),
                                 configurations=[Q0], discretizations=("euler",), delays=(0,)).curves[0]
     c = limit.largest_scale[0]
@@ -103,7 +103,7 @@ def test_the_linear_map_holds_the_plant_discretized_exactly():
     import scipy.linalg
     s = _paper(HELD | {"controller.sample_rate": 500.0, "disturbance.kind": "none"})
     from analysis.linear.digital import _held, _operating_state
-    from blocks.sampled_blocks import sampled_loop
+    from blocks.figure2.sampled_blocks import sampled_loop
     held = _held(s, Q0)
     loop = sampled_loop(held, observer=False)
     A, _, _ = linear_sampled_loop(loop, _operating_state(held, loop))

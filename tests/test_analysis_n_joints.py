@@ -29,8 +29,8 @@ from small_arms import Cylindrical, PlanarTwoLink
 from analysis.linear import arm_terms, bandwidth, gain_design
 from analysis.linear.arm_linear import arm_linearization
 from analysis.linear.frequency import arm_frequency_analysis
-from blocks.digital import DigitalController
-from blocks.digital_stability import largest_stable_scale, sampled_stability
+from blocks.diagram.digital import DigitalController
+from blocks.figure2.digital_stability import largest_stable_scale, sampled_stability
 from blocks.model.rrpr.parameters import RobotParameters
 
 PLANAR = PlanarTwoLink()
@@ -123,7 +123,7 @@ def test_central_difference_partials_of_the_planar_arm_and_the_models_exact_hook
 def test_defaults_follow_the_joints():
     from analysis.report.settings import AnalysisSettings
     from analysis.simulation.studies import DEFAULT_NOISE, default_noise
-    from blocks.joints import JointSpace
+    from blocks.model.joints import JointSpace
 
     settings = AnalysisSettings()
     assert settings.workspace_points_for(CYL.joints) == (27, 27, 27)
@@ -196,7 +196,7 @@ def test_bad_arguments_are_refused_by_name():
         arm_linearization(PLANAR, 1.0, 1.0, 1.0, [0.1, 0.2, 0.3])
     with pytest.raises(ValueError, match="kd must be a finite scalar, 3 numbers or an 3 x 3"):
         arm_linearization(CYL, 1.0, [1.0, 2.0], 1.0, [0.1, 0.2, 0.3])
-    with pytest.raises(TypeError, match="arm must be a blocks.arm.ArmModel"):
+    with pytest.raises(TypeError, match="arm must be a blocks.model.arm.ArmModel"):
         arm_linearization("panda", 1.0, 1.0, 1.0, [0.1])
     with pytest.raises(ValueError, match="'z' is prismatic"):
         arm_terms.workspace_ranges(type(CYL.joints)(names=("theta", "z"), kinds=("revolute", "prismatic")))

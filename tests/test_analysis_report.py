@@ -235,8 +235,8 @@ def test_every_builtin_scenario_goes_through_every_analysis(name, monkeypatch):
     if s.robot.n > 4:
         # the analyses, not the compile (tests/test_compile_estimate.py): a 6- or 7-joint loop's few short runs
         # cost less on the numpy engine than compiling its structures on a cold cache
-        import blocks.compiled.engine
-        monkeypatch.setattr(blocks.compiled.engine, "AUTO_COMPILE_SECONDS", 0.0)
+        import blocks.engines.compiled.engine
+        monkeypatch.setattr(blocks.engines.compiled.engine, "AUTO_COMPILE_SECONDS", 0.0)
     n = s.robot.n
     # one value per joint but five along the second: the same small grid for any joint count
     result = run_analysis(s, replace(MINIMAL, workspace_points=(1, 5) + (1,) * (n - 2)))

@@ -15,7 +15,7 @@ pin = pytest.importorskip("pinocchio")
 
 from analysis.linear import bandwidth, gain_design  # noqa: E402
 from analysis.linear.arm_linear import arm_linearization  # noqa: E402
-from blocks.arms import example_arm  # noqa: E402
+from blocks.model.urdf import example_arm  # noqa: E402
 
 #: Grid points per joint (small enough for a test; the default grids hold about 15000 configurations).
 GRIDS = {"scope4": (5, 5, 5, 5), "panda": (3,) * 7}

@@ -14,10 +14,10 @@ import pytest
 
 pytest.importorskip("pinocchio")
 
-from blocks.arms import example_arm, example_urdf, load_urdf_arm  # noqa: E402
-from blocks.compiled.codegen import _callee_functions, _Function  # noqa: E402
-from blocks.compiled.trace import Graph  # noqa: E402
+from blocks.engines.compiled.codegen import _callee_functions, _Function  # noqa: E402
 from blocks.kernels import chain  # noqa: E402
+from blocks.kernels.trace import Graph  # noqa: E402
+from blocks.model.urdf import example_arm, example_urdf, load_urdf_arm  # noqa: E402
 
 
 def _rows(graph, n, count):
@@ -112,11 +112,11 @@ def test_a_loop_with_called_dynamics_computes_the_same_derivative(name, monkeypa
     functions), run by Python on floats (the ``fast`` engine's right-hand side): the derivative of the inlined loop,
     bit for bit, at random states; and half the generated lines or less."""
     from blocks import load_scenario
-    from blocks.compiled import codegen
-    from blocks.compiled.rows import loop_rows_of
-    from blocks.compiled.scalar import scalar_rhs
-    from blocks.loop import closed_loop
-    from blocks.plan import make_plan
+    from blocks.diagram.plan import make_plan
+    from blocks.engines.compiled import codegen
+    from blocks.engines.compiled.rows import loop_rows_of
+    from blocks.engines.compiled.scalar import scalar_rhs
+    from blocks.figure2.loop import closed_loop
 
     s = load_scenario(name)
     loop = closed_loop(s)

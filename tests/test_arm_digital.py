@@ -18,14 +18,14 @@ pin = pytest.importorskip("pinocchio")
 
 from scipy.integrate import solve_ivp  # noqa: E402
 
-from blocks.arms.examples import scope4_urdf  # noqa: E402
-from blocks.compiled import numba_or_none  # noqa: E402
-from blocks.digital import DigitalController, actuator, digital_controller, digital_observer, encoder  # noqa: E402
-from blocks.digital_loop import simulate_sampled  # noqa: E402
-from blocks.digital_stability import scenario_stability  # noqa: E402
+from blocks.diagram.digital import DigitalController, actuator, digital_controller, digital_observer, encoder  # noqa: E402
+from blocks.engines.compiled import numba_or_none  # noqa: E402
+from blocks.figure2.digital_loop import simulate_sampled  # noqa: E402
+from blocks.figure2.digital_stability import scenario_stability  # noqa: E402
+from blocks.model.noise import MeasurementNoise  # noqa: E402
 from blocks.model.rrpr.parameters import PAPER_PARAMETERS  # noqa: E402
-from blocks.noise import MeasurementNoise  # noqa: E402
-from blocks.scenario import ScenarioError, load_scenario  # noqa: E402
+from blocks.model.urdf.examples import scope4_urdf  # noqa: E402
+from blocks.scenarios.scenario import ScenarioError, load_scenario  # noqa: E402
 
 pytestmark = pytest.mark.slow
 
@@ -250,7 +250,7 @@ def test_settings_for_other_joints_are_refused_by_the_blocks(scope4):
 
 
 def test_noise_of_n_joints_is_seeded_and_keeps_the_rrpr_draw():
-    from blocks.joints import JointSpace
+    from blocks.model.joints import JointSpace
     three = JointSpace(("a", "b", "c"), ("revolute", "prismatic", "revolute"))
     noise = MeasurementNoise(q_std=[1e-3, 2e-3, 0.0], dq_std=0.5, seed=11, sample_period=0.01, t_final=1.0,
                              joints=three)

@@ -18,11 +18,11 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import blocks
-from blocks.arm import ArmModel
-from blocks.joints import JointSpace
+from blocks.figure2.metrics import tracking_metrics
 from blocks.kernels.laws import computed_torque
 from blocks.kernels.model import with_arm
-from blocks.metrics import tracking_metrics
+from blocks.model.arm import ArmModel
+from blocks.model.joints import JointSpace
 
 pin = pytest.importorskip("pinocchio")
 
@@ -329,7 +329,7 @@ def test_metrics_of_another_arm_are_per_joint_with_its_tool_point(reference):
     assert m["rms_tool_position_error_mm"] == pytest.approx(1e3 * np.sqrt(np.mean(dist ** 2)), rel=1e-9)
 
 
-# --- a URDF arm (blocks.arms.load_urdf_arm) against the same independent loop on its pinocchio model -----------
+# --- a URDF arm (blocks.model.urdf.load_urdf_arm) against the same independent loop on its pinocchio model -----------
 def _urdf_loop_reference(s, observer: bool):
     """Eq. 1, Eq. 11 and the observer on pinocchio's crba / nonLinearEffects of the arm's own pinocchio model, the
     nominal model being the true one with every mass and inertia x arm.nominal_mass_scale."""
@@ -398,9 +398,9 @@ def test_compiled_program_and_cache_key_differ_between_arms():
     """The compiled engine's structure (program cache) and its on-disk key follow the arm: the RRPR's joint-sine loop,
     the 2-link arm and scope4 get three programs."""
     pytest.importorskip("numba")
-    from blocks.compiled.codegen import program_for
-    from blocks.compiled.rows import loop_rows, loop_rows_of
-    from blocks.plan import make_plan
+    from blocks.diagram.plan import make_plan
+    from blocks.engines.compiled.codegen import program_for
+    from blocks.engines.compiled.rows import loop_rows, loop_rows_of
 
     programs = []
     for s in (blocks.load_scenario("joint-sine"), _scenario(), _urdf_scenario("scope4")):

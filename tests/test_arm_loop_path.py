@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import blocks
-from blocks.scenario import ScenarioError, scenario_from_dict
+from blocks.scenarios.scenario import ScenarioError, scenario_from_dict
 
 pin = pytest.importorskip("pinocchio")
 
@@ -72,7 +72,7 @@ def test_loop_on_a_tool_path_tracks_it_and_the_observer_helps(scenario, engine):
     with_obs = blocks.simulate(scenario, observer=True, engine=engine)
     without = blocks.simulate(scenario, observer=False, engine=engine)
     assert with_obs.engine == engine
-    from blocks.metrics import tracking_metrics
+    from blocks.figure2.metrics import tracking_metrics
     m, m0 = tracking_metrics(with_obs), tracking_metrics(without)
     assert m["max_tool_position_error_mm"] < 0.5 * m0["max_tool_position_error_mm"]
     # the tool-tip metric is pinocchio's tool frame distance

@@ -1,9 +1,9 @@
-"""The arm-model interface (blocks.arm.ArmModel) on the paper's RRPR, held against independent derivations."""
+"""The arm-model interface (blocks.model.arm.ArmModel) on the paper's RRPR, held against independent derivations."""
 import numpy as np
 import pytest
 from reference_arm import mass_matrix
 
-from blocks.arm import ArmModel
+from blocks.model.arm import ArmModel
 from blocks.model.rrpr.parameters import RobotParameters
 
 

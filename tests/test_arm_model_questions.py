@@ -1,4 +1,4 @@
-"""What the layers above an arm ask of it (blocks.arm.ArmModel), answered by the paper's RRPR and a URDF chain.
+"""What the layers above an arm ask of it (blocks.model.arm.ArmModel), answered by the paper's RRPR and a URDF chain.
 
 The answers are checked against numbers worked out here from the paper's Table 1 and the arms' joint ranges,
 and the RRPR's closed-form dM/dq against central differences of its own M(q).
@@ -13,7 +13,7 @@ import pytest
 from blocks import load_scenario
 from blocks.model.rrpr.laceration import LacerationPath
 from blocks.model.rrpr.parameters import ParameterError, RobotParameters
-from blocks.scenario import default_arm
+from blocks.scenarios.scenario import default_arm
 
 TABLE_1 = ("m1", "m2", "m3", "m4", "l1", "l2", "I1", "I2", "I3", "I4", "g", "a1", "a2", "d1", "d4")
 
@@ -89,7 +89,7 @@ def test_a_chain_answers_for_itself(chain):
 
 
 def test_the_fmu_variables_follow_the_arms_answers(chain):
-    from blocks.disturbances import DisturbanceSpec
+    from blocks.model.disturbances import DisturbanceSpec
     from fmu.variables import plant_parameter_values, plant_variables
 
     spec = DisturbanceSpec(kinds=("friction",))

@@ -1,5 +1,5 @@
-"""The paths of a URDF arm's tool point and the joint paths made from them (blocks/tool_path.py,
-blocks/arms/ik.py, blocks/arms/resolved_rate.py): derivatives that are the derivatives of the positions, and a
+"""The paths of a URDF arm's tool point and the joint paths made from them (blocks/scenarios/tool_path.py,
+blocks/model/urdf/ik.py, blocks/model/urdf/resolved_rate.py): derivatives that are the derivatives of the positions, and a
 singularity margin on the Jacobian's smallest singular value.
 
 Each test checks a number against a derivation of its own (finite differences, numpy's SVD); each was written
@@ -15,7 +15,7 @@ def test_the_ik_singularity_margin_is_on_the_smallest_singular_value():
     """ik-sigma-largest: a margin between the Jacobian's smallest and largest singular values (numpy's SVD) along
     the path is a singularity the path's velocity cannot pass; a margin below the smallest passes."""
     pytest.importorskip("pinocchio")
-    from blocks.arms import IKUnreachableError, example_arm, joint_path
+    from blocks.model.urdf import IKUnreachableError, example_arm, joint_path
     arm = example_arm("scope4")
     t = np.linspace(0.0, 0.5, 6)
     p = np.stack([-0.08 + 0.03 * np.sin(t), 0.04 * np.sin(2 * t), -0.12 + 0.01 * np.cos(t)], -1)
@@ -34,7 +34,7 @@ def test_the_tool_paths_velocity_and_acceleration_are_the_derivatives_of_its_pos
     """tp-dds-T.  Segments of 1.5 s (not 1 s, where p''/T and p''/T^2 agree): p' and p'' against central
     differences of p and p' (the smoothstep is C2, so inside a segment the differences converge as h^2)."""
     pytest.importorskip("pinocchio")
-    from blocks.scenario import scenario_from_dict
+    from blocks.scenarios.scenario import scenario_from_dict
 
     s = scenario_from_dict({
         "arm": {"urdf": "example:scope4", "tool_frame": "tool_tip"},
@@ -56,8 +56,8 @@ def test_the_resolved_rate_acceleration_is_the_derivative_of_the_rate_along_the_
     at (t +- h, q +- h q').  Off the path (a task error of ~1 cm) the feedback's rate K_p (p' - J q') = -K_p^2 e
     is a large part of it (on the path it vanishes, which is why the loop tests cannot see it)."""
     pytest.importorskip("pinocchio")
-    from blocks.arms import example_arm
-    from blocks.arms.resolved_rate import ResolvedRate
+    from blocks.model.urdf import example_arm
+    from blocks.model.urdf.resolved_rate import ResolvedRate
 
     arm = example_arm("panda")
     q_rest = np.array([0.0, 0.0, 0.0, -1.6, 0.0, 1.6, 0.8])

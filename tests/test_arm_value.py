@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import blocks
-from blocks.digital import observer_euler_update
+from blocks.diagram.digital import observer_euler_update
 from blocks.kernels import computed_torque, lumped_disturbance, observer_rate, tissue_disturbance
 from blocks.kernels.model import ArmLaw, arm_kernels, with_arm
 
@@ -57,7 +57,7 @@ def _scope4():
 
 def _pinocchio_terms(arm):
     """M, h, tool position and linear Jacobian of the URDF arm by pinocchio, from the URDF file itself."""
-    from blocks.arms.examples import scope4_urdf
+    from blocks.model.urdf.examples import scope4_urdf
     model = pin.buildModelFromUrdf(str(scope4_urdf()))
     assert model.nq == model.nv == arm.n            # no continuous joint: q is pinocchio's configuration
     data = model.createData()
@@ -148,8 +148,8 @@ def test_a_urdf_loop_binds_no_module_and_its_blocks_carry_the_arm_s_kernels(engi
     resp = blocks.simulate(s, observer=True, engine=engine)
     assert np.isfinite(np.asarray(resp.outputs)).all()
     assert not [m for m in sys.modules if m.startswith("blocks.kernels.bound_")]
-    from blocks.contract import contract_of
-    from blocks.control_compat import subsystems
+    from blocks.diagram.contract import contract_of
+    from blocks.diagram.control_compat import subsystems
     laws = {b.name: contract_of(b).kernels for b in subsystems(loop) if b.name in ("plant", "controller", "observer")}
     for name, kernels in laws.items():
         assert isinstance(kernels.output, ArmLaw) and kernels.output.model is s.robot.arm_kernels, name
@@ -173,7 +173,7 @@ def _diag_kernels():
 
 def test_two_arms_in_one_process_get_two_compiled_laws_with_their_own_numbers():
     pytest.importorskip("numba")
-    from blocks.compiled.jit import jit_kernel
+    from blocks.engines.compiled.jit import jit_kernel
     rrpr = blocks.PAPER_PARAMETERS
     diag = _diag_kernels()
     diag_model = arm_kernels((diag, diag))
@@ -203,8 +203,8 @@ def test_a_law_compiled_for_an_arm_is_loaded_from_numba_s_cache_in_another_proce
     pytest.importorskip("numba")
     (tmp_path / "arm_law_cache_probe.py").write_text(textwrap.dedent("""
         import numba
-        import blocks.compiled.jit            # registers numba's type of an arm's kernels
-        blocks.compiled.jit.numba_or_none()
+        import blocks.engines.compiled.jit            # registers numba's type of an arm's kernels
+        blocks.engines.compiled.jit.numba_or_none()
 
         @numba.njit(cache=True)
         def law(model, k, q, v):
@@ -212,7 +212,7 @@ def test_a_law_compiled_for_an_arm_is_loaded_from_numba_s_cache_in_another_proce
     """))
     script = textwrap.dedent("""
         import numpy as np, blocks, arm_law_cache_probe as probe
-        from blocks.compiled.jit import compiled_arm
+        from blocks.engines.compiled.jit import compiled_arm
         arm = blocks.PAPER_PARAMETERS
         compiled_arm(arm.arm_kernels)      # as the engine does before it loads a loop that calls an arm's law
         k, q, v = arm.kernel_params(), np.array([0.3, -0.9, 0.04, 0.5]), np.array([1.0, 2.0, 3.0, 4.0])

@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 
 import blocks
-from blocks import batch
-from blocks.batch import Variants, simulate_batch, step_schedule
-from blocks.metrics import signal, tracking_metrics
-from blocks.scenario import ScenarioError
+from blocks.figure2 import batch
+from blocks.figure2.batch import Variants, simulate_batch, step_schedule
+from blocks.figure2.metrics import signal, tracking_metrics
+from blocks.scenarios.scenario import ScenarioError
 
 # The paper scenario cut at 2 s: the first fifth of the paper's 10 s path, at its speed.
 T_FINAL = 2.0
@@ -242,8 +242,8 @@ def test_full_paper_runs_match_single_runs_and_a_tight_reference():
 def test_member_blocks_made_without_python_control_carry_the_blocks_numbers(short):
     # The batch makes each member's blocks inside kernels_only (no python-control system each): the same
     # kernels and parameters as the real blocks of that member's single run.
-    from blocks.contract import contract_of, kernels_only
-    from blocks.loop import build_blocks
+    from blocks.diagram.contract import contract_of, kernels_only
+    from blocks.figure2.loop import build_blocks
     s = short.with_changes({"gains.kp": 150.0, "noise.q_std": [1e-4] * 4, "observer.variant": "paper-eq16"})
     real = build_blocks(s)
     with kernels_only():
@@ -293,7 +293,7 @@ def test_members_sharing_the_base_noise_read_its_table(short, engine, own_seed):
 def test_compiled_noise_chunks_hold_the_tables_their_members_read(short, monkeypatch):
     # Over NOISE_CHUNK distinct tables the members run in chunks, each with the tables it reads: the numbers do
     # not depend on the chunking.
-    import blocks.compiled.batch as compiled_batch
+    import blocks.engines.compiled.batch as compiled_batch
     s = short.with_changes({"noise.q_std": [1e-4] * 4, "simulation.t_final": 0.1})
     records = [{}, {"noise.seed": 7}, {"gains.kp": 150}, {"noise.seed": 9, "gains.kp": 120}, {}]
     whole = simulate_batch(s, records, engine="compiled", signals=("q_meas",))
@@ -305,7 +305,7 @@ def test_compiled_noise_chunks_hold_the_tables_their_members_read(short, monkeyp
 @pytest.fixture(scope="module")
 def bandwidth_base(short):
     """The short paper scenario with ``gains.observer_bandwidth = 20`` rad/s in place of ``gains.observer``."""
-    from blocks.scenario import scenario_from_dict
+    from blocks.scenarios.scenario import scenario_from_dict
     data = short.user_data | {"gains": {k: v for k, v in short.user_data.get("gains", {}).items() if k != "observer"}}
     data["gains"]["observer_bandwidth"] = 20.0
     data["simulation"] = dict(data.get("simulation", {}), t_final=0.25)

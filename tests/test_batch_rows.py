@@ -5,14 +5,14 @@ import numpy as np
 import pytest
 
 import blocks
-from blocks import batch
-from blocks.batch import Variants, simulate_batch
-from blocks.batch.members import MemberLoop
-from blocks.batch.rows import MemberRows, member_rows
-from blocks.batch.variants import column_values
-from blocks.compiled.jit import numba_or_none
-from blocks.metrics import signal, tracking_metrics
-from blocks.scenario import ScenarioError
+from blocks.engines.compiled.jit import numba_or_none
+from blocks.figure2 import batch
+from blocks.figure2.batch import Variants, simulate_batch
+from blocks.figure2.batch.members import MemberLoop
+from blocks.figure2.batch.rows import MemberRows, member_rows
+from blocks.figure2.batch.variants import column_values
+from blocks.figure2.metrics import signal, tracking_metrics
+from blocks.scenarios.scenario import ScenarioError
 
 needs_numba = pytest.mark.skipif(numba_or_none() is None, reason="the compiled batch needs numba")
 
@@ -64,7 +64,7 @@ def test_checked_columns_make_the_members_model_objects_when_asked(short):
 
 @needs_numba
 def test_traced_rows_are_the_members_own_numbers_bit_for_bit(short):
-    from blocks.compiled.batch import _member_theta, auto_batch_reason
+    from blocks.engines.compiled.batch import _member_theta, auto_batch_reason
     v = Variants(short, _columns(12))
     rows = member_rows(v, True)
     assert isinstance(rows, MemberRows)
@@ -72,8 +72,8 @@ def test_traced_rows_are_the_members_own_numbers_bit_for_bit(short):
     _, engine = auto_batch_reason(loop)
     np.testing.assert_array_equal(rows.theta(engine), _member_theta(engine, loop))
     np.testing.assert_array_equal(rows.start_states(), loop.initial_state().T)
-    from blocks.divergence import state_meanings
-    from blocks.physical_bounds import batch_bounds
+    from blocks.engines.divergence import state_meanings
+    from blocks.figure2.physical_bounds import batch_bounds
     labels = state_meanings(loop.loop)
     np.testing.assert_array_equal(rows.bounds(labels).bounds, batch_bounds(loop, labels).bounds)
 
@@ -100,7 +100,7 @@ def test_each_member_is_its_single_compiled_run(short):
 
 @needs_numba
 def test_workers_default_to_every_core_and_give_the_same_numbers(short):
-    from blocks.compiled.batch import available_cores, batch_threads
+    from blocks.engines.compiled.batch import available_cores, batch_threads
     numba = numba_or_none()
     assert batch_threads(None) == min(available_cores(), numba.config.NUMBA_NUM_THREADS)
     assert batch_threads(1) == 1
@@ -124,8 +124,8 @@ def test_the_numpy_batch_takes_no_adaptive_method(short):
 def test_rows_with_a_bandwidth_observer_gain_are_traced_and_each_member_is_its_single_run(short):
     # With gains.observer_bandwidth each member's Y = omega M^(q0) is of its own nominal arm: the rows carry it
     # (traced from Eq. 5's entries, bit for bit the members' own blocks), and each member equals its single run.
-    from blocks.compiled.batch import _member_theta, auto_batch_reason
-    from blocks.scenario import scenario_from_dict
+    from blocks.engines.compiled.batch import _member_theta, auto_batch_reason
+    from blocks.scenarios.scenario import scenario_from_dict
     data = short.user_data | {"gains": {k: v for k, v in short.user_data.get("gains", {}).items() if k != "observer"}}
     data["gains"]["observer_bandwidth"] = 20.0
     data["simulation"] = dict(data.get("simulation", {}), t_final=0.25)

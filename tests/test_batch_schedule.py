@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import blocks
-from blocks.batch import Variants, schedule
+from blocks.figure2.batch import Variants, schedule
 
 
 def _column_sets(s, n_members: int = 40) -> list[dict]:

@@ -15,11 +15,11 @@ pin = pytest.importorskip("pinocchio")
 
 
 from blocks import load_scenario, simulate  # noqa: E402
-from blocks.batch import Variants, simulate_batch  # noqa: E402
-from blocks.batch.schedule import _inertia_configurations, _inertia_of_each  # noqa: E402
-from blocks.compiled import numba_or_none  # noqa: E402
-from blocks.metrics import signal, tracking_metrics  # noqa: E402
-from blocks.scenario import ScenarioError  # noqa: E402
+from blocks.engines.compiled import numba_or_none  # noqa: E402
+from blocks.figure2.batch import Variants, simulate_batch  # noqa: E402
+from blocks.figure2.batch.schedule import _inertia_configurations, _inertia_of_each  # noqa: E402
+from blocks.figure2.metrics import signal, tracking_metrics  # noqa: E402
+from blocks.scenarios.scenario import ScenarioError  # noqa: E402
 
 #: Stated agreement of a member with its single run (rad, m): the single run's RK45 at rtol 1e-6 errs by less.
 MEMBER_ATOL = 1e-6
@@ -152,7 +152,7 @@ def test_compiled_batch_equals_the_numpy_batch(two):
 
 @pytest.mark.skipif(numba_or_none() is None, reason="the compiled batch needs numba")
 def test_members_with_different_nominal_arms_are_not_compiled_together(two):
-    from blocks.compiled import CompiledUnavailable
+    from blocks.engines.compiled import CompiledUnavailable
     records = [{"arm.nominal_mass_scale": 1.0}, {"arm.nominal_mass_scale": 1.2}]
     with pytest.raises(CompiledUnavailable, match=r"'arm.nominal_mass_scale' differs between members \(1, 1.2\)"):
         simulate_batch(two, records, engine="compiled")
@@ -211,7 +211,7 @@ def test_the_compiled_sampled_batch_measures_every_joint_of_the_arm(tmp_path):
     # ("'q_ref[2]' is not in list"), a 6-joint arm's RMS errors held only its first 4 joints
     import blocks
     pytest.importorskip("numba")
-    from blocks.sampled_batch import simulate_sampled_batch
+    from blocks.figure2.sampled_batch import simulate_sampled_batch
     _urdf(tmp_path, TWO)
     s = blocks.scenario_from_dict({"arm": {"urdf": str(tmp_path / "arm.urdf"), "tool_frame": "rod"},
                                    "gains": {"kp": 180, "kd": 36, "observer_bandwidth": 10.0},

@@ -8,8 +8,7 @@ import numpy as np
 import pytest
 
 import blocks
-from blocks.batch import Variants, simulate_batch, step_schedule
-from blocks.budget import (
+from blocks.engines.budget import (
     DEFAULT_MEMORY,
     DEFAULT_STEPS,
     NOISE_SAMPLE_BYTES_PER_JOINT,
@@ -22,6 +21,7 @@ from blocks.budget import (
     parse_size,
     schedule_steps,
 )
+from blocks.figure2.batch import Variants, simulate_batch, step_schedule
 
 
 @pytest.mark.parametrize("text, size", [("4G", 4 * 1024 ** 3), ("4GiB", 4 * 1024 ** 3), ("512M", 512 * 1024 ** 2),

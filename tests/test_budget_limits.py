@@ -1,4 +1,5 @@
-"""A budget's limits (blocks.budget, blocks.monitor): what a job may use, inclusive; shared among jobs run at once;
+"""A budget's limits (blocks.engines.budget, blocks.engines.monitor): what a job may use, inclusive; shared among jobs
+run at once;
 the step estimate bounding the steps the schedule takes; and the right-hand-side evaluations the monitor counts
 against the step budget during a run, checked with scipy's own count per step."""
 from __future__ import annotations
@@ -7,8 +8,8 @@ import numpy as np
 import pytest
 
 import blocks
-from blocks.budget import Budget, BudgetError, Estimate
-from blocks.monitor import Monitor
+from blocks.engines.budget import Budget, BudgetError, Estimate
+from blocks.engines.monitor import Monitor
 
 PAPER = blocks.load_scenario("paper")
 SHORT = {"simulation.t_final": 0.2, "trajectory.duration": 10.0}
@@ -66,8 +67,8 @@ def test_an_estimate_of_exactly_the_budget_fits_and_one_more_does_not():
 def test_the_step_estimate_bounds_the_steps_the_schedule_takes():
     """bu-schedule-breaks: a noise sample between grid points splits a step, one step more; the estimate holds
     the schedule's own count (its step end points, counted here) with one or three sub-steps per grid interval."""
-    from blocks.batch import step_schedule
-    from blocks.budget import schedule_steps
+    from blocks.engines.budget import schedule_steps
+    from blocks.figure2.batch import step_schedule
     breaks = list(np.arange(1, 40) * 0.0025 + 0.0011)          # 39 samples, none on the 0.01 s grid
     for substeps in (1, 3):
         times, _ = step_schedule(0.5, 0.01, substeps, breaks)

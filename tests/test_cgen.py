@@ -13,13 +13,13 @@ import numpy as np
 import pytest
 import reference_arm as ref
 
-from blocks.compiled.c_backend import C_FLAGS, CodegenError, emit_c_function, system_c, theta_names
-from blocks.compiled.trace import Graph, param_values
-from blocks.contract import contract_of
-from blocks.disturbances import DisturbanceSpec
+from blocks.diagram.contract import contract_of
+from blocks.diagram.systems import controller, observer, plant, sensor
+from blocks.engines.compiled.c_backend import C_FLAGS, CodegenError, emit_c_function, system_c, theta_names
+from blocks.kernels.trace import Graph, param_values
+from blocks.model.disturbances import DisturbanceSpec
+from blocks.model.noise import MeasurementNoise
 from blocks.model.rrpr.parameters import RobotParameters
-from blocks.noise import MeasurementNoise
-from blocks.systems import controller, observer, plant, sensor
 from fmu.build import find_compiler
 
 pytestmark = pytest.mark.needs_cc
@@ -167,7 +167,7 @@ def test_theta_names():
 
 
 def _sampled_blocks():
-    from blocks.digital import DigitalController, actuator, digital_observer, encoder
+    from blocks.diagram.digital import DigitalController, actuator, digital_observer, encoder
     settings = DigitalController(sample_rate=500.0, delay=2, observer_discretization="zoh", velocity="difference",
                                  velocity_cutoff=80.0, position_resolution=(1e-3, 0.0, 2e-4, 1e-3),
                                  torque_limit=(5.0, 0.0, 20.0, 2.0))
@@ -197,8 +197,8 @@ def test_a_traced_result_of_the_wrong_length_or_with_an_unset_row_is_refused_by_
     """Both back ends read a kernel's traced rows through one function; it names what returned them."""
     import numpy as np
 
-    from blocks.compiled.c_backend import CodegenError
-    from blocks.compiled.trace import TraceError, result_rows
+    from blocks.engines.compiled.c_backend import CodegenError
+    from blocks.kernels.trace import TraceError, result_rows
 
     assert result_rows(np.array([1.0, 2.0]), 2) == [1.0, 2.0]
     assert result_rows(np.array([[1.0], [2.0], [3.0]]), None) == [1.0, 2.0, 3.0]

@@ -10,7 +10,8 @@ from conftest import SHORT_SCENARIO_TOML as SHORT
 
 from analysis.sweep.runner import run_sweep
 from analysis.sweep.spec import load_sweep
-from blocks import load_scenario, progress
+from blocks import load_scenario
+from blocks.plumbing import progress
 from dobkit import cli
 from dobkit.cli import main
 

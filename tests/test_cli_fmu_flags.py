@@ -10,7 +10,7 @@ from two_joint_arm import write_urdf as _urdf
 
 pin = pytest.importorskip("pinocchio")
 
-from blocks.arms.urdf import load_urdf_arm  # noqa: E402
+from blocks.model.urdf.urdf import load_urdf_arm  # noqa: E402
 
 
 @pytest.mark.parametrize("argv, says", [

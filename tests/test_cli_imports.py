@@ -21,7 +21,7 @@ def _fresh_python(code: str, cwd) -> subprocess.CompletedProcess:
 
 
 def test_the_command_line_imports_no_heavy_library(tmp_path):
-    run = _fresh_python("import sys, dobkit.cli, blocks, analysis, fmu, blocks.scenario\n"
+    run = _fresh_python("import sys, dobkit.cli, blocks, analysis, fmu, blocks.scenarios.scenario\n"
                         f"print(sorted(m for m in {HEAVY!r} if m in sys.modules))", tmp_path)
     assert run.returncode == 0, run.stderr
     assert run.stdout.strip() == "[]"

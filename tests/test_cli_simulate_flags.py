@@ -9,7 +9,7 @@ import pytest
 
 import blocks
 from blocks import load_scenario
-from blocks.metrics import tracking_metrics
+from blocks.figure2.metrics import tracking_metrics
 from dobkit.cli import SIMULATE_ENGINES, main
 
 # --- dobkit simulate --no-figures, --svg and --engine -----------------------------------------------------------
@@ -60,7 +60,7 @@ def test_the_engine_flag_picks_the_engine(short_toml, tmp_path):
 
 
 def test_the_engine_choices_are_the_simulators(capsys):
-    from blocks.loop import ENGINES
+    from blocks.figure2.loop import ENGINES
 
     assert SIMULATE_ENGINES == ENGINES
     with pytest.raises(SystemExit):

@@ -6,16 +6,16 @@ from __future__ import annotations
 import pytest
 
 from blocks import load_scenario
-from blocks.compiled import codegen
-from blocks.compiled.compile_estimate import (
+from blocks.diagram.plan import make_plan
+from blocks.engines.compiled import codegen
+from blocks.engines.compiled.compile_estimate import (
     AUTO_COMPILE_SECONDS,
     COMPILE_FIXED_S,
     COMPILE_PER_LINE_S,
     estimate_compile_seconds,
 )
-from blocks.compiled.rows import loop_rows_of
-from blocks.loop import closed_loop
-from blocks.plan import make_plan
+from blocks.engines.compiled.rows import loop_rows_of
+from blocks.figure2.loop import closed_loop
 
 
 def _source(name: str, calls: bool, monkeypatch) -> str:
@@ -66,8 +66,8 @@ def test_every_built_in_scenario_is_within_the_budget(name, monkeypatch):
 def test_every_example_arm_is_within_the_budget():
     """`dobkit arms`' arms in their default scenario: 'auto' compiles each (the 7-joint arms are the longest)."""
     pytest.importorskip("pinocchio")
-    from blocks.arms.examples import example_names
-    from blocks.scenario import scenario_from_dict
+    from blocks.model.urdf.examples import example_names
+    from blocks.scenarios.scenario import scenario_from_dict
 
     longest = 0
     for name in example_names():
@@ -87,7 +87,7 @@ def test_the_compiled_panda_with_called_dynamics_equals_the_numpy_engine():
     import numpy as np
 
     import blocks
-    from blocks.metrics import signal
+    from blocks.figure2.metrics import signal
 
     s = load_scenario("panda").with_changes({"simulation.t_final": 1.0, "simulation.rtol": 1e-10,
                                              "simulation.atol": 1e-12})
@@ -103,7 +103,7 @@ def test_a_called_function_whose_outputs_are_all_constants_is_valid_code():
     empty tuple; the caller reads the constant), and the module's text compiles (it was ``return (,)``)."""
     import types
 
-    from blocks.compiled.trace import Callee, Graph
+    from blocks.kernels.trace import Callee, Graph
 
     graph = Graph(calls=True)
     out = graph.call(Callee("arm_gravity_zero", 1, lambda x: [0.0 * 1.0]), [graph.leaf("x", 0)])

@@ -1,4 +1,5 @@
-"""The compiled engine (blocks.compiled) gives the numpy engine's numbers: states to solver tolerance, metrics to 1e-6."""
+"""The compiled engine (blocks.engines.compiled) gives the numpy engine's numbers: states to solver tolerance, metrics to
+1e-6."""
 from __future__ import annotations
 
 import ast
@@ -12,13 +13,13 @@ import pytest
 from conftest import hold_trajectory, make_scenario
 
 import blocks
-from blocks.batch import STATE_ATOL, Variants, simulate_batch
-from blocks.fastsim import CompiledLoop
-from blocks.metrics import METRICS, OBSERVER_METRICS, tracking_metrics
+from blocks.engines.fastsim import CompiledLoop
+from blocks.figure2.batch import STATE_ATOL, Variants, simulate_batch
+from blocks.figure2.metrics import METRICS, OBSERVER_METRICS, tracking_metrics
 
 numba = pytest.importorskip("numba", reason="the compiled engine needs the extra dobkit[fast]")
 
-from blocks.compiled import CompiledLoopEngine  # noqa: E402
+from blocks.engines.compiled import CompiledLoopEngine  # noqa: E402
 
 METRIC_RTOL = 1e-6
 
@@ -193,7 +194,7 @@ def test_per_member_noise_compiled_equals_numpy():
 
 
 def test_repeated_runs_reuse_the_prepared_loop_and_another_scenario_does_not():
-    from blocks.loop import _prepared
+    from blocks.figure2.loop import _prepared
     s = blocks.load_scenario("paper").replace(simulation={"t_final": 0.5})
     first = blocks.simulate(s, engine="compiled")
     run = _prepared(s, True)
@@ -225,11 +226,11 @@ def test_compiled_lumped_disturbance_is_the_kernels_on_the_outputs():
 
 
 def test_compiled_progress_reports_fractions_of_simulated_time(monkeypatch):
-    import blocks.compiled.engine as engine_module
+    import blocks.engines.compiled.engine as engine_module
     s = blocks.load_scenario("paper").replace(simulation={"t_final": 1.0})
     blocks.simulate(s, engine="compiled")
     seen = []
-    import blocks.monitor as monitor_module
+    import blocks.engines.monitor as monitor_module
     monkeypatch.setattr(monitor_module, "PROGRESS_PERIOD", 0.0)     # report after every call of the compiled loop
     monkeypatch.setattr(monitor_module, "CHUNK_SECONDS", 0.0)       # and return to the Monitor after few steps
     monkeypatch.setattr(engine_module, "_FIRST_STEPS", 4)
@@ -246,7 +247,7 @@ def test_a_repeated_run_takes_the_compiled_driver_in_one_call(monkeypatch):
     """The monitored run returns to Python every ``CHUNK_SECONDS``: its first call is sized from the engine's
     previous pace, so a run much shorter than that is one call of ``dopri_run`` (the first run starts with a few
     steps and measures the pace), with the states of the run in many calls."""
-    from blocks.loop import _prepared
+    from blocks.figure2.loop import _prepared
     s = blocks.load_scenario("paper").replace(simulation={"t_final": 1.0})
     first = blocks.simulate(s, engine="compiled")
     module = _prepared(s, True).compiled_engine().module
@@ -265,8 +266,8 @@ def test_no_allocation_per_step_in_the_compiled_right_hand_side(tmp_path):
     script = textwrap.dedent("""
         import numpy as np
         import blocks
-        from blocks.batch import simulate_batch
-        from blocks.loop import _prepared
+        from blocks.figure2.batch import simulate_batch
+        from blocks.figure2.loop import _prepared
         from numba.core.runtime import rtsys
         s = blocks.load_scenario("paper")
         counts = []
@@ -313,7 +314,7 @@ def test_a_second_process_loads_the_compiled_code_from_the_cache(tmp_path):
     """Two processes on one cache folder: the first compiles, the second only loads (numba's cache hits)."""
     script = textwrap.dedent("""
         import blocks
-        from blocks.compiled import CompiledLoopEngine
+        from blocks.engines.compiled import CompiledLoopEngine
         s = blocks.load_scenario("paper").replace(simulation={"t_final": 0.2})
         engine = CompiledLoopEngine(blocks.closed_loop(s))
         r = blocks.simulate(s, engine="compiled")

@@ -24,9 +24,9 @@ import blocks
 
 numba = pytest.importorskip("numba", reason="the compiled engine needs the extra dobkit[fast]")
 
-import blocks.loop as loop_module  # noqa: E402
-from blocks.compiled import cache, codegen  # noqa: E402
-from blocks.compiled.cache import CompiledCacheWarning  # noqa: E402
+import blocks.figure2.loop as loop_module  # noqa: E402
+from blocks.engines.compiled import cache, codegen  # noqa: E402
+from blocks.engines.compiled.cache import CompiledCacheWarning  # noqa: E402
 
 pytestmark = pytest.mark.slow          # each case compiles a loop's functions once or more
 
@@ -290,7 +290,7 @@ def test_a_read_only_cache_is_read_and_what_is_new_stays_in_memory(monkeypatch, 
 def test_a_remembered_gather_text_is_the_arrays_repr_whatever_shares_its_bytes():
     """The compiled cache key holds each block's input gather as its repr; remembered by dtype, shape and bytes,
     arrays with the same bytes but another dtype or shape keep their own text (a shared text would share code)."""
-    from blocks.compiled.codegen import _gather_text
+    from blocks.engines.compiled.codegen import _gather_text
     flat = np.arange(6, dtype=np.int64)
     same_bytes = [flat, flat.reshape(2, 3), flat.view(np.float64), flat.astype(np.int32), flat[::-1].copy()]
     for _ in range(2):                                         # computed, then remembered

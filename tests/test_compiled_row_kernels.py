@@ -1,4 +1,4 @@
-"""A URDF arm's M and h before a run, compiled (blocks.compiled.row_kernels): the step estimate and the force bounds.
+"""A URDF arm's M and h before a run, compiled (blocks.engines.compiled.row_kernels): the step estimate and the force bounds.
 
 The compiled row kernels must give the numpy kernels' numbers (to 1e-12), the step estimate's rates and the
 divergence bounds must be those of the numpy kernels, and all of them must agree with pinocchio (``pin.crba``,
@@ -15,12 +15,12 @@ pin = pytest.importorskip("pinocchio")
 numba = pytest.importorskip("numba")
 
 from blocks import load_scenario  # noqa: E402
-from blocks.compiled import row_kernels as compiled_row_kernels  # noqa: E402
-from blocks.compiled.row_kernels import CompiledRowKernels, row_kernels  # noqa: E402
+from blocks.engines.compiled import row_kernels as compiled_row_kernels  # noqa: E402
+from blocks.engines.compiled.row_kernels import CompiledRowKernels, row_kernels  # noqa: E402
+from blocks.figure2.loop import closed_loop  # noqa: E402
+from blocks.figure2.physical_bounds import FORCE_FACTOR, evaluation_kernels, force_bounds, reference_limits, state_bounds  # noqa: E402
+from blocks.figure2.run_limits import arm_rates, forget_inertias  # noqa: E402
 from blocks.kernels import disturbance_params  # noqa: E402
-from blocks.loop import closed_loop  # noqa: E402
-from blocks.physical_bounds import FORCE_FACTOR, evaluation_kernels, force_bounds, reference_limits, state_bounds  # noqa: E402
-from blocks.run_limits import arm_rates, forget_inertias  # noqa: E402
 
 ARMS = ("scope4", "panda")
 
@@ -181,7 +181,7 @@ def test_rows_of_the_wrong_length_are_refused_by_name():
 def test_kept_inertias_serve_new_gains_and_never_another_path_window_or_arm():
     """A new scenario of the same arm and path (gains, noise, disturbance) takes the inverse inertias kept from the
     last; another path, window or nominal arm computes its own, and each equals the rates computed with nothing kept."""
-    from blocks.run_limits import _inverses
+    from blocks.figure2.run_limits import _inverses
     base = load_scenario("scope4")
     forget_inertias()
     arm_rates(base)
@@ -211,7 +211,7 @@ def test_kept_inertias_serve_new_gains_and_never_another_path_window_or_arm():
 
 
 def test_at_most_sixteen_arms_and_paths_keep_their_inertias_the_latest_first():
-    from blocks.run_limits import _KEPT_INVERSES, _inverses
+    from blocks.figure2.run_limits import _KEPT_INVERSES, _inverses
     assert _KEPT_INVERSES == 16
     base = load_scenario("scope4")
     forget_inertias()

@@ -1,4 +1,4 @@
-"""The compiled sampled engine (blocks.compiled.sampled) against the numpy hybrid engine and a closed form.
+"""The compiled sampled engine (blocks.engines.compiled.sampled) against the numpy hybrid engine and a closed form.
 
 * a double integrator under a sampled PD controller and an Euler observer, built from kernel blocks: the
   exact discrete-time solution of the loop (the plant's input held over each sample);
@@ -16,18 +16,18 @@ import numpy as np
 import pytest
 
 import blocks
-from blocks.compiled import CompiledUnavailable, numba_or_none
-from blocks.contract import Kernels, kernel_block
-from blocks.hybrid import HybridSystem
-from blocks.integrate import DivergenceError
-from blocks.loop import EngineFallbackWarning, SimulationError
-from blocks.metrics import signal
-from blocks.sampled_blocks import sampled_initial_state, sampled_loop
+from blocks.diagram.contract import Kernels, kernel_block
+from blocks.engines.compiled import CompiledUnavailable, numba_or_none
+from blocks.engines.hybrid import HybridSystem
+from blocks.engines.integrate import DivergenceError
+from blocks.figure2.loop import EngineFallbackWarning, SimulationError
+from blocks.figure2.metrics import signal
+from blocks.figure2.sampled_blocks import sampled_initial_state, sampled_loop
 
 pytestmark = pytest.mark.skipif(numba_or_none() is None, reason="the compiled engine needs numba")
 
-from blocks.compiled.sampled import SampledEngine  # noqa: E402
-from blocks.sampled_batch import simulate_sampled_batch  # noqa: E402
+from blocks.engines.compiled.sampled import SampledEngine  # noqa: E402
+from blocks.figure2.sampled_batch import simulate_sampled_batch  # noqa: E402
 
 # paper-digital's encoders: 2^17 counts per turn, 1 um on the prismatic joint
 RESOLUTION = [4.793689962142629e-05, 4.793689962142629e-05, 1e-6, 4.793689962142629e-05]
@@ -67,7 +67,7 @@ def _both(s: blocks.Scenario):
 def test_expm_small_against_closed_forms_and_scipy():
     import scipy.linalg
 
-    from blocks.compiled.jit import jit_kernel
+    from blocks.engines.compiled.jit import jit_kernel
     from blocks.kernels.expm import expm_small
     compiled = jit_kernel(expm_small)
     for w in (0.3, 2.0, 40.0):          # a rotation generator: exp = [[cos, -sin], [sin, cos]]; 40 needs squarings
@@ -206,13 +206,13 @@ def test_a_sampled_state_beyond_its_bound_stops_at_the_tick():
 def test_diverging_zoh_controller_is_stopped_with_the_state_named(monkeypatch):
     """The issue's case: 100 Hz, zoh observer, measured velocity, Ts lambda_max(Y M^-1) = 1.95.  The pre-run check
     refuses it (tests/test_sampled_stability.py); with the check bypassed the compiled engine's Monitor stops it."""
-    import blocks.digital_loop
+    import blocks.figure2.digital_loop
     s = blocks.load_scenario("paper").with_changes(
         {"gains.observer": 48.75, "simulation.t_final": 4.0}
         | _digital(sample_rate=100, observer_discretization="zoh", velocity="measured"))
-    with pytest.raises(blocks.scenario.ScenarioError, match="the sampled loop is unstable"):
+    with pytest.raises(blocks.scenarios.scenario.ScenarioError, match="the sampled loop is unstable"):
         blocks.simulate(s, engine="compiled")
-    monkeypatch.setattr(blocks.digital_loop, "check_observer_rate", lambda scenario: None)
+    monkeypatch.setattr(blocks.figure2.digital_loop, "check_observer_rate", lambda scenario: None)
     with pytest.raises(SimulationError, match=r"diverged at t = [0-9.]+ s: (plant|observer|encoder) .*beyond its "
                                               r"bound"):
         blocks.simulate(s, engine="compiled")
@@ -242,8 +242,8 @@ def test_fast_runs_the_numpy_hybrid_engine(monkeypatch):
 
 
 def test_a_solver_the_compiled_engine_lacks_is_named(monkeypatch):
-    import blocks.engine_choice
-    monkeypatch.setattr(blocks.engine_choice, "_fallbacks_reported", set())
+    import blocks.engines.engine_choice
+    monkeypatch.setattr(blocks.engines.engine_choice, "_fallbacks_reported", set())
     s = CASES["euler-difference-delay0"].with_changes({"simulation.method": "RK23", "simulation.t_final": 0.02,
                                                       "trajectory.duration": 10.0})
     with pytest.raises(CompiledUnavailable, match="'RK23'"):

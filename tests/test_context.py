@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from blocks.context import Context, finite_bounds
-from blocks.divergence import StateBounds
+from blocks.engines.context import Context, finite_bounds
+from blocks.engines.divergence import StateBounds
 
 
 def test_member_takes_its_column_and_its_rows():

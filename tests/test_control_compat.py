@@ -1,11 +1,11 @@
-"""python-control still keeps what dobkit's engines read (blocks.control_compat)."""
+"""python-control still keeps what dobkit's engines read (blocks.diagram.control_compat)."""
 from __future__ import annotations
 
 import control as ct
 import numpy as np
 import pytest
 
-from blocks.control_compat import PythonControlChanged, check_python_control, connection_maps, merged_params
+from blocks.diagram.control_compat import PythonControlChanged, check_python_control, connection_maps, merged_params
 
 
 def test_the_installed_python_control_keeps_what_the_engines_read():
@@ -21,7 +21,7 @@ def test_a_changed_release_is_reported_by_name(monkeypatch):
         del system.connect_map
         return system
     monkeypatch.setattr(ct, "interconnect", changed)
-    with pytest.raises(PythonControlChanged, match=r"python-control .*connect_map.*blocks.control_compat"):
+    with pytest.raises(PythonControlChanged, match=r"python-control .*connect_map.*blocks.diagram.control_compat"):
         check_python_control()
 
 

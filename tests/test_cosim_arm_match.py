@@ -15,7 +15,7 @@ pin = pytest.importorskip("pinocchio")
 @pytest.fixture(scope="module")
 def plant_fmus(tmp_path_factory):
     """The paper's RRPR plant and scope4's, exported as they are by ``dobkit fmu export`` and ``--arm scope4``."""
-    from blocks.arms import example_arm
+    from blocks.model.urdf import example_arm
     from fmu import export_plant
     folder = tmp_path_factory.mktemp("plants")
     return {"rrpr": export_plant(folder / "rrpr.fmu"), "scope4": export_plant(folder / "scope4.fmu",

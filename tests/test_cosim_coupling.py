@@ -15,7 +15,7 @@ import pytest
 from conftest import make_scenario
 from fmu_models import build
 
-from blocks.fastsim import CompiledLoop
+from blocks.engines.fastsim import CompiledLoop
 from fmu import Budget, BudgetError, CoSimulationError, controller_side, cosimulate, cosimulate_system, export_plant
 
 pytestmark = pytest.mark.needs_cc

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import blocks
-from blocks.metrics import tracking_metrics
+from blocks.figure2.metrics import tracking_metrics
 from fmu import cosim_convergence, cosimulate, export_plant
 
 pytestmark = [pytest.mark.needs_cc, pytest.mark.slow]

@@ -6,7 +6,7 @@ import pytest
 
 import blocks
 import fmu
-from blocks.metrics import signal
+from blocks.figure2.metrics import signal
 
 pytestmark = pytest.mark.needs_cc
 

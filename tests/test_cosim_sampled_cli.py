@@ -14,7 +14,7 @@ import pytest
 
 import blocks
 import fmu
-from blocks.metrics import signal, tracking_metrics
+from blocks.figure2.metrics import signal, tracking_metrics
 from dobkit.cli import main as dobkit_main
 
 pytestmark = pytest.mark.needs_cc

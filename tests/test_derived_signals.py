@@ -1,7 +1,7 @@
 """Two derived signals pinned in every engine: the measurement noise and the tool-tip error.
 
 * The noise is the scenario's table of samples, interpolated linearly
-  (blocks/noise.py): at ``t = k * period`` it is sample ``k`` itself, at a
+  (blocks/model/noise.py): at ``t = k * period`` it is sample ``k`` itself, at a
   quarter of the way to the next one ``3/4`` of sample ``k`` plus ``1/4`` of
   sample ``k + 1``.  Read from each engine's recorded ``q_meas - q`` (and the
   sampled controller's encoder readings), never from another engine.
@@ -21,8 +21,8 @@ from conftest import reference_fk
 
 import blocks
 from analysis.simulation.studies import run_metrics
-from blocks.batch import simulate_batch
-from blocks.metrics import signal, tracking_metrics
+from blocks.figure2.batch import simulate_batch
+from blocks.figure2.metrics import signal, tracking_metrics
 
 PERIOD = 0.01            # s between noise samples
 NOISE = {"noise.q_std": [1e-3, 2e-3, 1e-4, 3e-3], "noise.dq_std": [1e-2, 2e-2, 1e-3, 3e-2], "noise.seed": 7,

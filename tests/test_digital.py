@@ -18,12 +18,12 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import blocks
-from blocks.digital import DigitalController
-from blocks.digital_loop import sampled_initial_state, sampled_loop, simulate_sampled
-from blocks.digital_stability import sampled_stability
-from blocks.hybrid import HybridError, HybridSystem
-from blocks.metrics import signal
-from blocks.scenario import ScenarioError
+from blocks.diagram.digital import DigitalController
+from blocks.engines.hybrid import HybridError, HybridSystem
+from blocks.figure2.digital_loop import sampled_initial_state, sampled_loop, simulate_sampled
+from blocks.figure2.digital_stability import sampled_stability
+from blocks.figure2.metrics import signal
+from blocks.scenarios.scenario import ScenarioError
 
 HELD = {"trajectory.kind": "joint_sine", "trajectory.amplitude": [0.0, 0.0, 0.0, 0.0],
         "trajectory.offset": [0.3, 1.2, 0.1, 0.2]}
@@ -92,7 +92,7 @@ def test_periods_that_are_not_whole_multiples_are_refused():
 # The arm's digital loop against the [controller] section's definition
 # --------------------------------------------------------------------------------------------------------------
 def _reference_sampled_run(s, n_samples: int) -> np.ndarray:
-    """q at the sample instants, from the definition of [controller] (docs in blocks/digital.py), written here."""
+    """q at the sample instants, from the definition of [controller] (docs in blocks/diagram/digital.py), written here."""
     c = s.controller
     Ts, n = c.period, 4
     res, limit = np.array(c.position_resolution), np.array([v if v > 0 else np.inf for v in c.torque_limit])
@@ -207,7 +207,7 @@ def _estimate_error(changes: dict, t_final: float, feedback: bool = True) -> flo
                           "initial.d_hat": [0.0, 0.0, 0.0, 0.0]} | changes)
     loop = sampled_loop(s)
     if not feedback:
-        from blocks.digital import digital_observer
+        from blocks.diagram.digital import digital_observer
         plain = sampled_loop(s, observer=False)
         observer = digital_observer(s.nominal, s.observer_gain, s.controller)
         loop = HybridSystem(plain.blocks() + [observer], outlist=plain.output_labels + [f"d_hat[{i}]" for i in range(4)])

@@ -1,7 +1,7 @@
 """The controller's delay line, pinned against its definition: at tick k the applied torque is the command of tick k - n.
 
 ``[controller] delay = n`` means the torque computed at ``t_k`` is applied from
-``t_{k+n}`` (blocks/digital.py).  The expected values here are written from that
+``t_{k+n}`` (blocks/diagram/digital.py).  The expected values here are written from that
 sentence alone: a sequence of distinct commands, shifted by ``n`` ticks, with the
 buffer's initial contents (oldest first) filling the first ``n`` ticks.  Every
 delay from 0 to 5 is checked, so that a buffer read from the wrong end (which
@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from test_digital import SINE, TIGHT, _reference_sampled_run, _scenario
 
-from blocks.digital import DigitalController, actuator
-from blocks.digital_loop import simulate_sampled
-from blocks.metrics import signal
+from blocks.diagram.digital import DigitalController, actuator
+from blocks.figure2.digital_loop import simulate_sampled
+from blocks.figure2.metrics import signal
 
 RATE = 500.0                    # Hz: Ts = 2 ms
 TICKS = 12

@@ -9,7 +9,7 @@ and the nonlinear plant ``M q'' + h = tau + d`` integrated over the period
 under the held torque by scipy's ``solve_ivp`` (DOP853, rtol 1e-12).  Its
 Jacobian at the held rest state, by central differences of that one-sample
 map, gives the spectral radius the package's
-:func:`blocks.digital_stability.sampled_stability` must predict, and the
+:func:`blocks.figure2.digital_stability.sampled_stability` must predict, and the
 package's largest stable observer-gain scale ``c`` must sit between a
 reference radius below 1 (at ``0.999 c``) and above 1 (at ``1.001 c``).
 
@@ -32,11 +32,11 @@ pin = pytest.importorskip("pinocchio")
 
 from scipy.integrate import solve_ivp  # noqa: E402
 
-from blocks.arm_derivatives import gravity_slopes  # noqa: E402
-from blocks.arms import load_urdf_arm  # noqa: E402
-from blocks.arms.examples import scope4_urdf  # noqa: E402
-from blocks.digital import DigitalController  # noqa: E402
-from blocks.digital_stability import largest_stable_scale, sampled_loop_map, sampled_stability  # noqa: E402
+from blocks.diagram.digital import DigitalController  # noqa: E402
+from blocks.figure2.digital_stability import largest_stable_scale, sampled_loop_map, sampled_stability  # noqa: E402
+from blocks.model.arm_derivatives import gravity_slopes  # noqa: E402
+from blocks.model.urdf import load_urdf_arm  # noqa: E402
+from blocks.model.urdf.examples import scope4_urdf  # noqa: E402
 
 pytestmark = pytest.mark.slow
 
@@ -274,7 +274,7 @@ def test_scope4_pitch_joint_radius_and_limit_match_the_reference():
 @pytest.fixture(scope="module")
 def scope4_digital():
     from analysis.linear.digital import digital_analysis
-    from blocks.scenario import load_scenario
+    from blocks.scenarios.scenario import load_scenario
     s = load_scenario("scope4-digital")
     return s, digital_analysis(s, rates_hz=(S4_RATE,), simulate_noise=False)
 

@@ -16,7 +16,7 @@ from conftest import PAPER_G, PAPER_K, reference_inertia
 from scipy.integrate import solve_ivp
 
 from blocks import RobotParameters
-from blocks.digital import DigitalController, digital_observer
+from blocks.diagram.digital import DigitalController, digital_observer
 
 TS = 0.002
 Y_FULL = np.array([[10.0, 2.0, 0.0, 1.0],       # Y + Y^T positive definite, off-diagonal terms on three joints

@@ -1,4 +1,4 @@
-"""The divergence rule (blocks.divergence): a state beyond its bound, or running away, stops the run naming the
+"""The divergence rule (blocks.engines.divergence): a state beyond its bound, or running away, stops the run naming the
 signal, the value it reached and the bound; a stiff but stable loop is not called diverged.
 
 The bounds are the rule's numbers worked by hand; a bound holds the magnitude inclusively on both sides; the
@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 import blocks
-from blocks.divergence import RUNAWAY_FACTOR, RUNAWAY_STEPS, Runaway, StateBounds
-from blocks.metrics import signal
-from blocks.monitor import Monitor
+from blocks.engines.divergence import RUNAWAY_FACTOR, RUNAWAY_STEPS, Runaway, StateBounds
+from blocks.engines.monitor import Monitor
+from blocks.figure2.metrics import signal
 
 PAPER = blocks.load_scenario("paper")
 SHORT = {"simulation.t_final": 0.2, "trajectory.duration": 10.0}
@@ -97,8 +97,8 @@ def test_the_bounds_of_a_held_arm_are_the_rules_numbers_by_hand():
     """
     from conftest import hold_trajectory, make_scenario
 
-    from blocks.loop import closed_loop
-    from blocks.physical_bounds import state_bounds
+    from blocks.figure2.loop import closed_loop
+    from blocks.figure2.physical_bounds import state_bounds
     offset = (-0.5, -1.0, 0.2, -0.3)
     s = make_scenario(trajectory=hold_trajectory(offset), disturbance={"kind": "paper", "f_r": [0.0, 0.0, 300.0, 0.0]},
                       simulation={"t_final": 0.1})
@@ -117,7 +117,7 @@ def _renamed(block, name, meanings):
     """The same block under another name, its contract declaring ``meanings`` (or nothing)."""
     from dataclasses import replace
 
-    from blocks.contract import Block
+    from blocks.diagram.contract import Block
     return Block(block.updfcn, block.outfcn, inputs=list(block.input_labels), outputs=list(block.output_labels),
                  states=list(block.state_labels), name=name,
                  contract=replace(block.contract, state_meanings=meanings))
@@ -129,9 +129,9 @@ def test_a_state_is_bounded_by_what_its_block_declares_it_to_be_not_by_the_block
     state a velocity of joint 1 gets joint 1's velocity bound (a held reference: 0 + 1000 rad/s)."""
     from conftest import hold_trajectory, make_scenario
 
-    from blocks.divergence import state_meanings
-    from blocks.loop import build_blocks
-    from blocks.physical_bounds import state_bounds
+    from blocks.engines.divergence import state_meanings
+    from blocks.figure2.loop import build_blocks
+    from blocks.figure2.physical_bounds import state_bounds
     offset = (-0.5, -1.0, 0.2, -0.3)
     s = make_scenario(trajectory=hold_trajectory(offset), simulation={"t_final": 0.1})
     plant = build_blocks(s)["plant"]
@@ -149,7 +149,7 @@ def test_a_state_is_bounded_by_what_its_block_declares_it_to_be_not_by_the_block
 
     import control as ct
 
-    from blocks.contract import Block, BlockContract
+    from blocks.diagram.contract import Block, BlockContract
     lag = Block(lambda t, x, u, p: -x + u, lambda t, x, u, p: x, inputs=["u"], outputs=["y"], states=["w"],
                 name="filter", contract=BlockContract(state_meanings=[("w", "velocity", 1)]))
     assert isinstance(lag, ct.NonlinearIOSystem)
@@ -158,7 +158,7 @@ def test_a_state_is_bounded_by_what_its_block_declares_it_to_be_not_by_the_block
 
 
 def test_a_contract_that_declares_an_unknown_state_or_quantity_is_refused():
-    from blocks.contract import Block, BlockContract, ContractError
+    from blocks.diagram.contract import Block, BlockContract, ContractError
     with pytest.raises(ContractError, match=r"'v' a velocity, which is not one of its states \['w'\]"):
         Block(lambda t, x, u, p: -x, None, inputs=[], outputs=[], states=["w"], name="f",
               contract=BlockContract(state_meanings=[("v", "velocity", 0)]))

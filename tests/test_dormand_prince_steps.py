@@ -1,4 +1,4 @@
-"""The compiled engine's Dormand-Prince stepper (blocks/compiled/dopri.py), step by step against scipy's RK45: its
+"""The compiled engine's Dormand-Prince stepper (blocks/engines/compiled/dopri.py), step by step against scipy's RK45: its
 tableau, error norm, step control, dense output and initial step.
 
 Each test checks a number against a derivation of its own; each was written for a wrong change of
@@ -20,7 +20,7 @@ def _van_der_pol(mu: float):
 
 def _dopri_text_as_python(f):
     """The stepper's source as the code generator reads it, run as plain Python on the right-hand side ``f``."""
-    from blocks.compiled.codegen import _template_text
+    from blocks.engines.compiled.codegen import _template_text
 
     space: dict = {}
     exec(compile(_template_text(), "dopri.py", "exec"), space)        # the file on disk, as every loop module gets it

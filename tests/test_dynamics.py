@@ -17,7 +17,7 @@ from conftest import (
 from scipy.integrate import solve_ivp
 
 from blocks import DisturbanceSpec, ParameterError, RobotParameters, plant
-from blocks.disturbances import external_disturbance, friction_disturbance, tissue_disturbance
+from blocks.model.disturbances import external_disturbance, friction_disturbance, tissue_disturbance
 from blocks.model.rrpr.dynamics import (
     coriolis_matrix,
     coriolis_vector,

@@ -32,13 +32,13 @@ if HIDDEN:
 
 
 import blocks  # noqa: E402
-from blocks.batch import simulate_batch  # noqa: E402
-from blocks.compiled import CompiledUnavailable, numba_or_none  # noqa: E402
-from blocks.contract import Block, BlockContract  # noqa: E402
+from blocks.diagram.contract import Block, BlockContract  # noqa: E402
+from blocks.diagram.systems import plant_output, plant_update  # noqa: E402
+from blocks.engines.compiled import CompiledUnavailable, numba_or_none  # noqa: E402
+from blocks.figure2.batch import simulate_batch  # noqa: E402
+from blocks.figure2.loop import EngineFallbackWarning, select_engine  # noqa: E402
 from blocks.kernels import disturbance_params  # noqa: E402
-from blocks.loop import EngineFallbackWarning, select_engine  # noqa: E402
 from blocks.model.rrpr.dynamics_kernels import arm_constants  # noqa: E402
-from blocks.systems import plant_output, plant_update  # noqa: E402
 
 HAVE_NUMBA = numba_or_none() is not None
 SHORT = blocks.load_scenario("paper").replace(simulation={"t_final": 0.2})
@@ -47,7 +47,7 @@ SHORT = blocks.load_scenario("paper").replace(simulation={"t_final": 0.2})
 @pytest.fixture(autouse=True)
 def fresh_fallback_reports(monkeypatch):
     """Each test starts as a new process would: no fallback reported yet (they are reported once per process)."""
-    monkeypatch.setattr("blocks.engine_choice._fallbacks_reported", set())
+    monkeypatch.setattr("blocks.engines.engine_choice._fallbacks_reported", set())
 
 
 def test_numba_is_hidden_when_asked():
@@ -139,7 +139,7 @@ def test_a_process_without_numba_runs_everything_on_numpy():
                     raise ImportError("hidden")
         sys.meta_path.insert(0, NoNumba())
         import blocks
-        from blocks.compiled import CompiledUnavailable
+        from blocks.engines.compiled import CompiledUnavailable
         s = blocks.load_scenario("paper").replace(simulation={"t_final": 0.1})
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
@@ -184,9 +184,9 @@ def test_the_command_line_says_which_engine_in_one_note_line(tmp_path):
 def test_auto_compiles_a_loop_only_when_its_code_is_short_enough_or_already_cached(monkeypatch):
     """The rule of ``AUTO_COMPILE_SECONDS`` (the estimated compile time of the generated lines), at both sides of
     the limit, for a loop not yet compiled and a cached one."""
-    import blocks.compiled.engine as engine_module
-    from blocks.compiled.compile_estimate import COMPILE_FIXED_S, COMPILE_PER_LINE_S
-    from blocks.loop import _prepared
+    import blocks.engines.compiled.engine as engine_module
+    from blocks.engines.compiled.compile_estimate import COMPILE_FIXED_S, COMPILE_PER_LINE_S
+    from blocks.figure2.loop import _prepared
 
     s = SHORT.replace(name="auto-compile-limit")
     compiled = _prepared(s, True).compiled_engine()
@@ -211,12 +211,12 @@ def test_sweep_prints_the_engine_note_once_for_all_workers(tmp_path, capfd, monk
     import warnings
 
     import blocks
-    import blocks.engine_choice
+    import blocks.engines.engine_choice
     from analysis.sweep.runner import run_sweep
-    from blocks.loop import EngineFallbackWarning
+    from blocks.figure2.loop import EngineFallbackWarning
 
     # a fallback is noted once per reason and process: start as a new process would, whatever ran before here
-    monkeypatch.setattr(blocks.engine_choice, "_fallbacks_reported", set())
+    monkeypatch.setattr(blocks.engines.engine_choice, "_fallbacks_reported", set())
 
     # RK23 is a solver the compiled engine does not have: engine='auto' falls back to numpy in every worker
     short = blocks.load_scenario("paper").replace(simulation={"t_final": 0.05, "method": "RK23"},

@@ -8,8 +8,8 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 
-from blocks.arms import examples
-from blocks.arms.examples import UnknownExampleError, example_arms, example_urdf, serial_chain
+from blocks.model.urdf import examples
+from blocks.model.urdf.examples import UnknownExampleError, example_arms, example_urdf, serial_chain
 
 pin = pytest.importorskip("pinocchio")
 if examples._distribution() is None:
@@ -124,7 +124,7 @@ def test_dobkit_arms_with_an_empty_name_is_an_unknown_name_not_the_whole_list(ca
 
 
 def test_a_scenario_names_an_example_arm_and_takes_its_defaults():
-    from blocks.scenario import ScenarioError, scenario_from_dict
+    from blocks.scenarios.scenario import ScenarioError, scenario_from_dict
 
     s = scenario_from_dict({"arm": {"urdf": "example:z1"}})
     assert s.robot.n == 7 and s.robot.tool_frame == "gripperMover"
@@ -163,7 +163,7 @@ def test_a_known_example_without_the_package_names_the_extra(monkeypatch):
     """Without example-robot-data, example:panda says to install it (not that the name is unknown); z1 is unknown."""
     from importlib import metadata
 
-    from blocks.scenario import ScenarioError, scenario_from_dict
+    from blocks.scenarios.scenario import ScenarioError, scenario_from_dict
 
     def absent(name):
         raise metadata.PackageNotFoundError(name)

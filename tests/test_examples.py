@@ -104,7 +104,7 @@ def _check_urdf_arm(stdout: str) -> None:
     """scope4's observer gain against pinocchio's own inertia of the URDF (Y = 10 rad/s x 1.05 M(q0)), and the
     observer removing the constant disturbance's offset on every joint."""
     pin = pytest.importorskip("pinocchio")
-    from blocks.arms import scope4_urdf
+    from blocks.model.urdf import scope4_urdf
 
     model = pin.buildModelFromUrdf(str(scope4_urdf()))
     q0 = np.array(_floats(r"q0: \[\s*([-\d.e+]+)\s+([-\d.e+]+)\s+([-\d.e+]+)\s+([-\d.e+]+)\s*\]", stdout))

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 import blocks
-from blocks.contract import Block, BlockContract, ContractError, contract_of
-from blocks.fastsim import AlgebraicLoopError, CompiledLoop
+from blocks.diagram.contract import Block, BlockContract, ContractError, contract_of
+from blocks.engines.fastsim import AlgebraicLoopError, CompiledLoop
 
 SHORT = {"t_final": 1.0}
 

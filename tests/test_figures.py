@@ -24,7 +24,7 @@ def test_gain_study_zero_panel_says_zero_to_rounding():
 
     from analysis.linear.figures import gain_study_axes
     from analysis.simulation.studies import gain_grid_study
-    from blocks.scenario import load_scenario
+    from blocks.scenarios.scenario import load_scenario
 
     scenario = load_scenario("paper")
     kp, kd = [100.0, 400.0], [40.0]
@@ -68,9 +68,9 @@ def _figure6(monkeypatch, tmp_path, with_dob, without_dob) -> dict:
 
 
 def test_digital_figure6_draws_the_sampled_estimate_as_steps(monkeypatch, tmp_path):
-    from blocks.digital_loop import simulate_sampled
-    from blocks.metrics import signal
-    from blocks.scenario import load_scenario
+    from blocks.figure2.digital_loop import simulate_sampled
+    from blocks.figure2.metrics import signal
+    from blocks.scenarios.scenario import load_scenario
 
     scenario = load_scenario("paper-digital").with_changes({"simulation.t_final": 0.2})
     with_dob, without = simulate_sampled(scenario), simulate_sampled(scenario, observer=False)
@@ -90,7 +90,7 @@ def test_digital_figure6_draws_the_sampled_estimate_as_steps(monkeypatch, tmp_pa
 
 def test_continuous_figure6_keeps_its_curve_and_title(monkeypatch, tmp_path):
     import blocks
-    from blocks.scenario import load_scenario
+    from blocks.scenarios.scenario import load_scenario
 
     scenario = load_scenario("paper").with_changes({"simulation.t_final": 0.2})
     with_dob, without = blocks.simulate(scenario), blocks.simulate(scenario, observer=False)
@@ -105,8 +105,8 @@ def test_design_figure_separates_torques_and_forces():
 
     from analysis.linear.figures import design_axes
     from analysis.linear.gain_design import confirm_by_simulation
-    from blocks.metrics import signal
-    from blocks.scenario import load_scenario
+    from blocks.figure2.metrics import signal
+    from blocks.scenarios.scenario import load_scenario
 
     scenario = load_scenario("paper")
     runs = confirm_by_simulation(scenario, [("scenario gain", scenario.observer_gain)], t_final=0.3,

@@ -19,8 +19,8 @@ from fmu import check_fmu, export_plant
 pytestmark = pytest.mark.needs_cc
 pin = pytest.importorskip("pinocchio")
 
-from blocks.arms import example_arm  # noqa: E402
-from blocks.arms.chain_model import ChainArm  # noqa: E402
+from blocks.model.urdf import example_arm  # noqa: E402
+from blocks.model.urdf.chain_model import ChainArm  # noqa: E402
 from dobkit.cli import main as dobkit_main  # noqa: E402
 
 
@@ -127,7 +127,7 @@ def test_a_scope4_fmu_is_the_true_plant_of_the_scope4_scenario(scope4):
     """``fmu.load(path, scenario=...)`` takes the joint count from the scenario's arm and sets Table-1 parameters
     only on the paper's arm (a URDF arm's FMU failed with an AttributeError on m1); the loop equals Python's."""
     import blocks
-    from blocks.scenario import load_scenario
+    from blocks.scenarios.scenario import load_scenario
     from fmu import load
     _, path = scope4
     s = load_scenario("scope4").with_changes({"simulation.t_final": 0.3})

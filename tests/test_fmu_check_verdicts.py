@@ -20,7 +20,7 @@ import pytest
 pytestmark = pytest.mark.needs_cc
 pin = pytest.importorskip("pinocchio")
 
-from blocks.arms.urdf import load_urdf_arm  # noqa: E402
+from blocks.model.urdf.urdf import load_urdf_arm  # noqa: E402
 from dobkit.cli import main as dobkit_main  # noqa: E402
 from fmu import check_fmu, export_plant  # noqa: E402
 from fmu.instance import FMUInstance  # noqa: E402

@@ -17,7 +17,7 @@ import pytest
 from conftest import make_scenario
 
 import blocks
-from blocks.metrics import tracking_metrics
+from blocks.figure2.metrics import tracking_metrics
 from dobkit.cli import main as dobkit_main
 from fmu import cosim_convergence, cosimulate, cosimulate_system, export_plant
 from fmu.convergence import fit_order

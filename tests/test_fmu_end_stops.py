@@ -35,7 +35,7 @@ def rrpr(tmp_path_factory):
 @pytest.fixture(scope="module")
 def scope4(tmp_path_factory):
     pytest.importorskip("pinocchio")
-    from blocks.arms import example_arm
+    from blocks.model.urdf import example_arm
     folder = tmp_path_factory.mktemp("stops_scope4")
     arm = example_arm("scope4")
     return arm, {"fmi2": export_plant(folder / "scope4.fmu", params=arm),
@@ -82,7 +82,7 @@ def test_rrpr_ranges_are_min_max_of_the_joint_positions(rrpr, key):
 
 @pytest.mark.parametrize("key", ["fmi2", "fmi3"])
 def test_scope4_ranges_are_the_urdf_limits(scope4, key):
-    from blocks.arms import scope4_urdf
+    from blocks.model.urdf import scope4_urdf
     arm, fmus = scope4
     assert validate_fmu(str(fmus[key])) == []
     v = _variables(fmus[key])
@@ -100,7 +100,7 @@ def test_a_start_pose_outside_the_ranges_is_refused(tmp_path):
 
 def test_the_panda_starts_inside_its_ranges(tmp_path):
     pytest.importorskip("pinocchio")
-    from blocks.arms import example_arm
+    from blocks.model.urdf import example_arm
     from fmu.scenario_values import default_start_q
     arm = example_arm("panda")
     q0 = default_start_q(arm)
@@ -244,7 +244,7 @@ def test_the_stops_are_set_from_the_smallest_effective_inertia_over_the_poses():
 def test_a_joint_bounded_on_one_side_gets_a_stop_on_that_side():
     """es-bounded-and: a slide with a floor and no ceiling (limits (0, inf)) has a stop at 0 m; its stiffness and
     damping are those of its mass k4 = 0.25 kg at 200 rad/s, critically damped: 0.25 x 200^2 N/m, 2 x 0.25 x 200."""
-    from blocks.joints import JointSpace
+    from blocks.model.joints import JointSpace
     from fmu.end_stops import end_stops
 
     class OneSided:

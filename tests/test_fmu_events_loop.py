@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from fmu_models import build
 
-from blocks.integrate import SimulationTerminated, SolverFailure, integrate_on_grid, loop_events
+from blocks.engines.integrate import SimulationTerminated, SolverFailure, integrate_on_grid, loop_events
 from fmu import FMUError, load, simulate_loop
 
 pytestmark = pytest.mark.needs_cc
@@ -173,7 +173,7 @@ def test_terminate_stops_the_engine_with_a_message_naming_the_block(fmus):
         lag = ct.nlsys(lambda t, x, u, p: [(u[0] - x[0]) / T_LAG], None, inputs=["counter"], outputs=["y"],
                        states=["y"], name="lag")
         loop = ct.interconnect([stair, lag], inplist=[], outlist=["y"], check_unused=False)
-        from blocks.fastsim import CompiledLoop
+        from blocks.engines.fastsim import CompiledLoop
         compiled = CompiledLoop(loop)
         events = loop_events(loop, compiled.rhs)
         with pytest.raises(SimulationTerminated,
@@ -213,7 +213,7 @@ def test_a_loop_without_event_blocks_runs_as_before(fmus):
 
 
 def test_other_engines_refuse_the_loop_naming_the_block(fmus):
-    from blocks.compiled import unavailable_reason
+    from blocks.engines.compiled import unavailable_reason
     with load(fmus["ball"], name="ball") as ball:
         loop = ct.interconnect([ball, area_block()], inplist=[], outlist=["h", "A"], check_unused=False)
         assert "block 'ball' has no kernels" in unavailable_reason(loop)
@@ -251,8 +251,8 @@ def test_an_event_block_runs_once_and_from_its_start_time(fmus):
 def test_the_numpy_engine_of_blocks_simulate_stops_at_the_events(fmus):
     """blocks.simulate's numpy engine (simulator.NumpyEngine) takes the loop's event blocks: the stair's outputs are those
     recorded during the run, not a pass over the grid afterwards (which would read the last counter, 8)."""
-    from blocks.monitor import Monitor
-    from blocks.simulator import NumpyEngine
+    from blocks.engines.monitor import Monitor
+    from blocks.engines.simulator import NumpyEngine
     with load(fmus["stair"], name="stair") as stair:
         lag = ct.nlsys(lambda t, x, u, p: [(u[0] - x[0]) / T_LAG], lambda t, x, u, p: x, inputs=["counter"],
                        outputs=["y"], states=["y"], name="lag")

@@ -21,9 +21,9 @@ from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 from scipy.integrate import solve_ivp
 
-from blocks.disturbances import DisturbanceSpec
+from blocks.diagram.systems import plant as python_plant
+from blocks.model.disturbances import DisturbanceSpec
 from blocks.model.rrpr.parameters import RobotParameters
-from blocks.systems import plant as python_plant
 from fmu import FMUBuildError, FMUInstance, FMUStepError, check_fmu, export_plant, load
 
 STATES = [f"q[{i}]" for i in range(4)] + [f"dq[{i}]" for i in range(4)]

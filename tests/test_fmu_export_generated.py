@@ -14,10 +14,10 @@ import zipfile
 import numpy as np
 import pytest
 
-from blocks.contract import contract_of
-from blocks.disturbances import DISTURBANCE_KINDS, DisturbanceSpec
+from blocks.diagram.contract import contract_of
+from blocks.diagram.systems import plant
+from blocks.model.disturbances import DISTURBANCE_KINDS, DisturbanceSpec
 from blocks.model.rrpr.parameters import RobotParameters
-from blocks.systems import plant
 from fmu import FMUInstance, export_plant
 from fmu.build import COMPILE_FLAGS, find_compiler
 from fmu.generated import plant_c

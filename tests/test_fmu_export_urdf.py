@@ -15,7 +15,7 @@ pin = pytest.importorskip("pinocchio")
 from fmpy.validation import validate_fmu  # noqa: E402
 from scipy.integrate import solve_ivp  # noqa: E402
 
-from blocks.arms import example_arm  # noqa: E402
+from blocks.model.urdf import example_arm  # noqa: E402
 from fmu import FMUInstance, export_plant  # noqa: E402
 
 pytestmark = pytest.mark.needs_cc
@@ -135,7 +135,7 @@ def test_the_tissue_model_is_taken_for_a_urdf_arm_and_bad_starts_are_refused(exp
 
 
 def test_the_command_line_exports_a_urdf_arm(tmp_path, capsys):
-    from blocks.arms import scope4_urdf
+    from blocks.model.urdf import scope4_urdf
     from dobkit.cli import main
     out = tmp_path / "scope4.fmu"
     assert main(["fmu", "export", "--arm", str(scope4_urdf()), "--tool-frame", "tool_tip", "--out", str(out)]) == 0

@@ -19,7 +19,7 @@ import pytest
 from fmu_models import build
 from scipy.integrate import solve_ivp
 
-from blocks.fastsim import CompiledLoop
+from blocks.engines.fastsim import CompiledLoop
 from dobkit.cli import main as dobkit_main
 from fmu import (
     BudgetError,

@@ -14,10 +14,10 @@ import pytest
 from conftest import make_scenario
 
 import blocks
-from blocks.contract import contract_of
-from blocks.disturbances import DisturbanceSpec
+from blocks.diagram.contract import contract_of
+from blocks.diagram.systems import plant as python_plant
+from blocks.model.disturbances import DisturbanceSpec
 from blocks.model.rrpr.parameters import RobotParameters
-from blocks.systems import plant as python_plant
 from fmu import FMUMissingVariablesError, check_fmu, export_plant, load
 from fmu.package import package_fmu
 

@@ -17,9 +17,9 @@ import pytest
 from fmpy.fmi1 import FMICallException
 from scipy.integrate import solve_ivp
 
-from blocks.disturbances import DisturbanceSpec
+from blocks.diagram.systems import plant as python_plant
+from blocks.model.disturbances import DisturbanceSpec
 from blocks.model.rrpr.parameters import RobotParameters
-from blocks.systems import plant as python_plant
 
 STATES = [f"q[{i}]" for i in range(4)] + [f"dq[{i}]" for i in range(4)]
 

@@ -1,4 +1,4 @@
-"""Folding single-use temporaries of generated straight-line code (blocks.compiled.fold): the same floats to the last
+"""Folding single-use temporaries of generated straight-line code (blocks.engines.compiled.fold): the same floats to the last
 bit, fewer statements; calls, subscripts, names read twice and code with blocks are left where they are."""
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import struct
 import numpy as np
 import pytest
 
-from blocks.compiled.fold import MAX_DEPTH, fold_single_use
+from blocks.engines.compiled.fold import MAX_DEPTH, fold_single_use
 
 # generated-style code whose grouping matters in floating point: subtraction and division are not associative,
 # a unary minus binds tighter than ** on its right, and a temporary is read by a later call's tuple
@@ -127,11 +127,11 @@ def test_the_fast_engines_folded_functions_equal_the_generated_ones_bit_for_bit(
     if name == "ur5":
         pytest.importorskip("pinocchio")
     from blocks import initial_state, load_scenario
-    from blocks.compiled import scalar
-    from blocks.compiled.codegen import program_for
-    from blocks.compiled.rows import loop_rows_of
-    from blocks.fastsim import CompiledLoop
-    from blocks.loop import closed_loop
+    from blocks.engines.compiled import scalar
+    from blocks.engines.compiled.codegen import program_for
+    from blocks.engines.compiled.rows import loop_rows_of
+    from blocks.engines.fastsim import CompiledLoop
+    from blocks.figure2.loop import closed_loop
 
     s = load_scenario(name)
     loop = closed_loop(s)

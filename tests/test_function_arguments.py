@@ -1,4 +1,4 @@
-"""The public model functions check their arguments once, in one place (blocks/validation.py): every function of
+"""The public model functions check their arguments once, in one place (blocks/model/validation.py): every function of
 ``blocks`` that takes arrays raises TypeError for a wrong type and ValueError for a wrong shape or a non-finite
 entry, naming the argument, what it got and what is expected; good batches still give the numbers of
 docs/model.md, worked by hand here.
@@ -22,7 +22,8 @@ PAPER = blocks.load_scenario("paper")
     (lambda: blocks.forward_kinematics(np.zeros(3), P), ValueError, r"q must have shape \(\.\.\., 4\).*\(3,\)"),
     (lambda: blocks.inertia(np.full(4, np.nan), P), ValueError, r"q must be finite.*nan"),
     (lambda: blocks.jacobian(None, P), TypeError, r"q must be an array of real numbers, got NoneType"),
-    (lambda: blocks.gravity(np.zeros(4), "x"), TypeError, r"params must be an arm model \(blocks.arm.ArmModel.*got str 'x'"),
+    (lambda: blocks.gravity(np.zeros(4), "x"), TypeError,
+     r"params must be an arm model \(blocks.model.arm.ArmModel.*got str 'x'"),
     (lambda: blocks.forward_dynamics(np.zeros(4), np.zeros((2, 4)), np.zeros((3, 4)), P), ValueError,
      r"q, dq, tau must have shapes that broadcast together, got q \(4,\), dq \(2, 4\), tau \(3, 4\)"),
     (lambda: blocks.inverse_kinematics([0.5, 0.0, 0.0], P), ValueError, r"pose must have shape \(\.\.\., 4\)"),

@@ -1,4 +1,4 @@
-"""Gains: one check (blocks.gains.validated_gain) that a scenario file and a batch variant both apply."""
+"""Gains: one check (blocks.diagram.gains.validated_gain) that a scenario file and a batch variant both apply."""
 from __future__ import annotations
 
 import doctest
@@ -6,10 +6,10 @@ import doctest
 import numpy as np
 import pytest
 
-import blocks.gains
+import blocks.diagram.gains
 from blocks import RRPR_JOINTS, ScenarioError, load_scenario, scenario_from_dict
-from blocks.batch import Variants
-from blocks.gains import GainError, validated_gain
+from blocks.diagram.gains import GainError, validated_gain
+from blocks.figure2.batch import Variants
 
 # An observer gain whose eigenvalues are both 1 (positive) but whose symmetric part [[2, 4], [4, 2]]
 # (in the first two joints) has the eigenvalue 2 - 4 = -2: the error energy e^T M e can grow.
@@ -117,4 +117,4 @@ def test_scenario_and_batch_accept_the_same_gains_as_validated_gain(key, value, 
 
 
 def test_module_examples_run():
-    assert doctest.testmod(blocks.gains).failed == 0
+    assert doctest.testmod(blocks.diagram.gains).failed == 0

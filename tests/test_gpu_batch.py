@@ -1,4 +1,4 @@
-"""The GPU batch (``simulate_batch(..., engine="cuda")``, :mod:`blocks.gpu`) without a GPU.
+"""The GPU batch (``simulate_batch(..., engine="cuda")``, :mod:`blocks.engines.gpu`) without a GPU.
 
 The kernels run in numba-cuda's CUDA simulator (``NUMBA_ENABLE_CUDASIM=1``, which must be set before numba's CUDA
 target is first imported, hence a fresh process per check) on a few members and a short run, against the numpy
@@ -29,7 +29,7 @@ _COMPARE = r"""
 import json, sys
 import numpy as np
 from blocks import load_scenario
-from blocks.batch import simulate_batch
+from blocks.figure2.batch import simulate_batch
 name, t_final, records, FLOOR = sys.argv[1], float(sys.argv[2]), json.loads(sys.argv[3]), float(sys.argv[4])
 changes = json.loads(sys.argv[5]) if len(sys.argv) > 5 else {}
 base = load_scenario(name).with_changes({"simulation.t_final": t_final, **changes})
@@ -101,7 +101,7 @@ _DIVERGE = r"""
 import json
 import numpy as np
 from blocks import load_scenario
-from blocks.batch import simulate_batch
+from blocks.figure2.batch import simulate_batch
 base = load_scenario("paper").with_changes({"simulation.t_final": 0.05})
 records = [{}, {"gains.kp": 1e6, "gains.kd": 1e3}]
 gpu = simulate_batch(base, records, engine="cuda", substeps=1)
@@ -129,9 +129,9 @@ import json, os
 import numpy as np
 from numba import cuda
 from blocks import load_scenario
-from blocks.batch import simulate_batch
-from blocks.budget import BudgetError
-import blocks.gpu.batch as gb
+from blocks.figure2.batch import simulate_batch
+from blocks.engines.budget import BudgetError
+import blocks.engines.gpu.batch as gb
 base = load_scenario("paper").with_changes({"simulation.t_final": 0.05})
 records = [{}, {"gains.kp": 150.0}]
 signals = ("q", "dq", "tau", "d_hat", "d")
@@ -167,7 +167,7 @@ def test_device_memory_estimate_covers_what_is_placed_and_is_refused_one_byte_ov
 
 _BAD_CAP = r"""
 import json, os
-from blocks.gpu import device
+from blocks.engines.gpu import device
 out = {}
 for value in ("abc", "-1", "0", "nan", "1e400", "4G"):
     os.environ["DOBKIT_MAX_GPU_MEMORY"] = value
@@ -194,8 +194,8 @@ _REFUSED = r"""
 import json, sys
 if sys.argv[1] == "hidden":
     sys.modules["numba_cuda"] = None            # as if numba-cuda were not installed
-from blocks.batch import simulate_batch
-from blocks.compiled import CompiledUnavailable
+from blocks.figure2.batch import simulate_batch
+from blocks.engines.compiled import CompiledUnavailable
 try:
     simulate_batch("paper", [{}], engine="cuda")
 except CompiledUnavailable as err:
@@ -220,7 +220,7 @@ def test_without_a_driver_or_device_the_gpu_engine_is_refused_naming_what_is_mis
 
 
 def test_the_gpu_engine_takes_fixed_step_rk4_only():
-    from blocks.batch import simulate_batch
+    from blocks.figure2.batch import simulate_batch
     with pytest.raises(ValueError, match="engine='cuda' integrates fixed-step RK4"):
         simulate_batch("paper", [{}], engine="cuda", method="RK45")
 

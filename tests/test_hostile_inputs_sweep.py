@@ -156,7 +156,7 @@ _HALF_SENT = """
 import os, struct, sys, time
 from pathlib import Path
 from analysis.sweep.runner import _end_now
-from blocks.workers import worker_pool
+from blocks.plumbing.workers import worker_pool
 
 def half_sent(marker):
     frame = sys._getframe()

@@ -18,8 +18,8 @@ import pytest
 
 pin = pytest.importorskip("pinocchio")
 
-from blocks.arms import urdf as urdf_module  # noqa: E402
-from blocks.arms.urdf import MAX_URDF_BYTES, MAX_URDF_DEPTH, MAX_URDF_LINKS, UrdfFileError, UrdfParseError, load_urdf_arm  # noqa: E402
+from blocks.model.urdf import urdf as urdf_module  # noqa: E402
+from blocks.model.urdf.urdf import MAX_URDF_BYTES, MAX_URDF_DEPTH, MAX_URDF_LINKS, UrdfFileError, UrdfParseError, load_urdf_arm  # noqa: E402
 
 TWO = (Path(__file__).parent / "small_arms" / "two_joints.urdf").read_text(encoding="utf-8")
 ARM_MASS = '<mass value="1.2"/>'
@@ -142,7 +142,7 @@ def test_a_urdf_5000_links_deep_is_refused_not_a_segmentation_fault(tmp_path):
     path = _urdf(tmp_path, _chain(5000))
     script = textwrap.dedent("""
         import sys
-        from blocks.arms.urdf import UrdfParseError, load_urdf_arm
+        from blocks.model.urdf.urdf import UrdfParseError, load_urdf_arm
         try:
             load_urdf_arm(sys.argv[1], "l1")
         except UrdfParseError as err:
@@ -219,7 +219,7 @@ def test_an_axis_too_short_or_too_long_to_normalise_is_refused_naming_its_joint(
 def test_a_nominal_scale_that_underflows_is_refused_by_its_key_not_as_a_singular_matrix():
     # before: "dobkit simulate: error: Singular matrix" (numpy's words, no key) once the run began
     import blocks
-    from blocks.scenario import ScenarioError
+    from blocks.scenarios.scenario import ScenarioError
     scope4 = blocks.load_scenario("scope4")
     with pytest.raises(ScenarioError, match=r"the nominal model's inertia M\^\(q0\) at the start q0 = \[0.0, 0.1, 0.1, "
                                             r"0.0\] .* cannot be inverted in double precision; it is set by "
@@ -232,7 +232,7 @@ def test_a_nominal_scale_that_underflows_is_refused_by_its_key_not_as_a_singular
 def test_an_observer_bandwidth_that_underflows_is_refused_naming_the_bandwidth():
     # before: refused as a bad 'gains.observer', a key the file does not set
     import blocks
-    from blocks.scenario import ScenarioError
+    from blocks.scenarios.scenario import ScenarioError
     with pytest.raises(ScenarioError, match=r"'gains.observer_bandwidth' = 5e-324 rad/s gives the observer gain Y = "
                                             r"omega M\^\(q0\) that is not a usable gain \(Y must have a positive "
                                             r"definite"):
@@ -252,7 +252,7 @@ def _strict(text: str):
 
 def test_non_finite_metrics_are_written_as_null_with_their_places_listed():
     # before: dobkit simulate's metrics.json held the bare token Infinity (report: null, unlisted)
-    from blocks.outputs import NON_FINITE_MEANING, metrics_json
+    from blocks.plumbing.outputs import NON_FINITE_MEANING, metrics_json
     text, paths = metrics_json({"with_dob": {"rms_disturbance_error": [0.1, float("inf"), np.float64("nan")]},
                                 "table": np.array([[1.0, -np.inf]]), "engine": "fast"})
     data = _strict(text)
@@ -270,7 +270,7 @@ def test_every_metrics_writer_is_the_strict_one(tmp_path):
     import analysis.report.build as report
     import analysis.simulation.experiment as experiment
     from analysis.simulation.experiment import run_experiment
-    from blocks.outputs import metrics_json
+    from blocks.plumbing.outputs import metrics_json
     from dobkit.fmu_commands import strict_json
     short = __import__("blocks").load_scenario("paper").replace(simulation={"t_final": 0.05})
     result = run_experiment(short, tmp_path / "o", figures=False, engine="fast")

@@ -1,6 +1,6 @@
 """Task-space paths of redundant arms (UR5, Panda: a 3-D tool point, 5 and 6 joints that move it).
 
-The references come from the integrated resolved-rate law of :mod:`blocks.arms.resolved_rate`.  Checked against
+The references come from the integrated resolved-rate law of :mod:`blocks.model.urdf.resolved_rate`.  Checked against
 pinocchio's forward kinematics and Jacobian, against central differences of densely sampled references, and
 against the damped least-squares references of ``method="dls"`` (the method before), which drift in the null space
 and are not one curve: the checks below fail on them.
@@ -16,9 +16,9 @@ import pytest
 pin = pytest.importorskip("pinocchio")
 
 import blocks  # noqa: E402
-from blocks.arms import IKUnreachableError, example_arm, joint_path  # noqa: E402
-from blocks.arms.resolved_rate import moving_joints  # noqa: E402
-from blocks.scenario import scenario_from_dict  # noqa: E402
+from blocks.model.urdf import IKUnreachableError, example_arm, joint_path  # noqa: E402
+from blocks.model.urdf.resolved_rate import moving_joints  # noqa: E402
+from blocks.scenarios.scenario import scenario_from_dict  # noqa: E402
 
 # a posture of each arm well away from singularities and joint limits (rad), and its tool frame
 ARMS = {"ur5": ([0.3, -1.0, 1.2, -0.5, 1.2, 0.3], "tool0"),

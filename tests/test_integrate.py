@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from blocks.integrate import SOLVERS, DivergenceError, SolverFailure, _crossing_time, integrate_on_grid
+from blocks.engines.integrate import SOLVERS, DivergenceError, SolverFailure, _crossing_time, integrate_on_grid
 
 
 def _oscillator(t, x):

@@ -5,7 +5,7 @@ import pytest
 from test_tune import write_problem
 
 from analysis.tune.spec import TuneError, load_tuning
-from blocks.scenario import ScenarioError, scenario_from_dict
+from blocks.scenarios.scenario import ScenarioError, scenario_from_dict
 
 
 @pytest.mark.parametrize("key, value", [("q_std", "x"), ("dq_std", [True, 1, 2, 3]), ("sample_period", [0.001])])

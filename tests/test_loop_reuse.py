@@ -1,6 +1,6 @@
 """A new scenario of a loop structure built before reuses its wiring and plan, and computes with its own numbers.
 
-The reference of every comparison is the same scenario built with nothing kept (:func:`blocks.loop.clear_reuse`,
+The reference of every comparison is the same scenario built with nothing kept (:func:`blocks.figure2.loop.clear_reuse`,
 and once in a fresh process): a reused structure must give the same numbers to the last bit, and numbers that
 differ from the scenario it was first built for (a reused object holding the old numbers would fail here).
 """
@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 
 import blocks
-from blocks import loop as loop_module
-from blocks.control_compat import connection_maps
-from blocks.loop import WIRINGS, clear_reuse, closed_loop
-from blocks.plan import PLANS, make_plan, plan_key
-from blocks.structure import StructureCache, block_structure, blocks_structure
+from blocks.diagram.control_compat import connection_maps
+from blocks.diagram.plan import PLANS, make_plan, plan_key
+from blocks.diagram.structure import StructureCache, block_structure, blocks_structure
+from blocks.figure2 import loop as loop_module
+from blocks.figure2.loop import WIRINGS, clear_reuse, closed_loop
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -184,7 +184,7 @@ def test_a_reused_plan_calls_the_new_blocks_kernels_with_their_parameters():
     assert (reused.direct, reused.nstates, reused.nsignals, reused.fixed_point) == \
         (fresh.direct, fresh.nstates, fresh.nsignals, fresh.fixed_point)
     x = loop_module.initial_state(loop, loop.scenario)
-    from blocks.fastsim import CompiledLoop
+    from blocks.engines.fastsim import CompiledLoop
     numpy_loop = CompiledLoop(loop)
     assert numpy_loop.plan is not fresh
     assert np.array_equal(numpy_loop.rhs(0.3, x), loop.dynamics(0.3, x, []))
@@ -242,7 +242,7 @@ def test_a_fresh_process_gives_the_reused_numbers(tmp_path):
 # ----------------------------------------------------------------------------------------------------------------
 def _user_plant(s):
     """The scenario's plant as a user's own python-control system (no kernels, no contract)."""
-    from blocks.systems import plant, signal_names
+    from blocks.diagram.systems import plant, signal_names
     inner = plant(s.robot, s.disturbance)
     arm = s.robot
     return ct.nlsys(inner.updfcn, inner.outfcn, inputs=signal_names("tau", arm),
@@ -386,7 +386,7 @@ def test_remembered_layouts_do_not_keep_blocks_alive():
     """The parameter layouts remembered per block go with their blocks (a sweep leaves nothing behind)."""
     import gc
 
-    from blocks import structure
+    from blocks.diagram import structure
     base = _paper()
     gc.collect()
     before = len(structure._layouts)

@@ -1,6 +1,6 @@
 """Every metric the project reports, against values computed here without the package.
 
-* The tracking metrics (blocks/metrics.py) on hand-made signals: per-joint
+* The tracking metrics (blocks/figure2/metrics.py) on hand-made signals: per-joint
   errors with a known RMS, maximum and final value; tool-tip errors whose
   distance is known in closed form (a d3 error moves the tip by itself; a roll
   error does not move it; a theta1 error moves it along a chord of the circle
@@ -23,8 +23,8 @@ from conftest import L1, L2
 
 import blocks
 from analysis.sweep.summary import summarize
-from blocks.batch import simulate_batch
-from blocks.metrics import METRICS, TrackingAccumulator, tracking_metrics
+from blocks.figure2.batch import simulate_batch
+from blocks.figure2.metrics import METRICS, TrackingAccumulator, tracking_metrics
 from blocks.model.rrpr import tool_kernels as RRPR_TOOL
 
 # --------------------------------------------------------------------------------------------------------------
@@ -205,7 +205,7 @@ def test_the_disturbance_error_is_against_the_lumped_disturbance_when_the_run_ha
     points is that of the constant errors chosen here."""
     import control as ct
 
-    from blocks.metrics import tracking_metrics
+    from blocks.figure2.metrics import tracking_metrics
     n = 5
     q = np.tile(Q[:, None], (1, n))
     d_error = np.array([1.0, 2.0, 0.5, 3.0])[:, None] * np.array([1.0, -1.0, 1.0, -1.0, 1.0])   # |.| constant

@@ -1,4 +1,4 @@
-"""One divergence rule and one budget for every engine (blocks.monitor, blocks.divergence).
+"""One divergence rule and one budget for every engine (blocks.engines.monitor, blocks.engines.divergence).
 
 Every engine is run on one diverging scenario and one stiff-but-stable one (Y = 1e5) and must give the same
 verdict: the diverging one stopped with the same signal, the same bound and a time no later than the first
@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 import blocks
-from blocks.batch import simulate_batch
-from blocks.budget import BudgetError
-from blocks.physical_bounds import VELOCITY_MARGIN
+from blocks.engines.budget import BudgetError
+from blocks.figure2.batch import simulate_batch
+from blocks.figure2.physical_bounds import VELOCITY_MARGIN
 
 PAPER = blocks.load_scenario("paper")
 SHORT = {"simulation.t_final": 0.02, "simulation.output_step": 0.001, "trajectory.duration": 10.0}
@@ -140,15 +140,15 @@ def test_a_diverging_batch_member_is_reported_alone_and_the_others_kept():
 def test_the_observer_state_is_judged_through_the_estimate_not_by_size():
     """At Y = 1e5 the observer's state z = d_hat - Y dq is of order Y |dq| (far beyond 1e6 on the path's start)
     and not divergence: its bound is the estimate's plus Y times the velocity bound."""
-    from blocks.loop import closed_loop
-    from blocks.physical_bounds import state_bounds
+    from blocks.figure2.loop import closed_loop
+    from blocks.figure2.physical_bounds import state_bounds
     bounds = state_bounds(closed_loop(STIFF), STIFF)
     z = [k for k, name in enumerate(bounds.names) if name.startswith("observer z")]
     assert np.all(bounds.bounds[z] > 1e5 * 100.0)
 
 
 def test_a_state_without_a_physical_bound_is_judged_by_growth():
-    from blocks.divergence import GROWTH_FACTOR, StateBounds
+    from blocks.engines.divergence import GROWTH_FACTOR, StateBounds
     b = StateBounds(np.array([1.0, np.inf]), ["a", "b"], ["m", ""], ["given", "finite"]).with_growth([0.5, -3.0])
     assert b.bounds.tolist() == [1.0, GROWTH_FACTOR * 4.0]
     assert "no physical bound" in b.reasons[1]
@@ -156,7 +156,7 @@ def test_a_state_without_a_physical_bound_is_judged_by_growth():
 
 
 def test_a_value_beyond_its_bound_prints_beyond_it():
-    from blocks.divergence import StateBounds
+    from blocks.engines.divergence import StateBounds
     b = StateBounds(np.array([100.2]), ["plant dq[2]"], ["m/s"], ["given"])
     text = b.describe(np.array([100.20000001]))
     value, bound = re.search(r"reached ([0-9.]+) m/s, beyond its bound ([0-9.]+)", text).groups()
@@ -193,7 +193,7 @@ def test_the_wall_time_budget_stops_every_engine(engine, monkeypatch):
 def test_the_wall_time_budget_stops_a_sampled_run(monkeypatch):
     monkeypatch.setenv("DOBKIT_MAX_SECONDS", "0.3")
     s = PAPER.with_changes({"controller.sample_rate": 1000})
-    # refused before it starts when its measured estimate is over the budget (blocks.sampled_cost), else stopped
+    # refused before it starts when its measured estimate is over the budget (blocks.engines.sampled_cost), else stopped
     with pytest.raises(BudgetError, match=r"wall-time budget of 0\.3 s( ran out at t = .* of 10 s|; )"):
         blocks.simulate(s, engine="fast")
 
@@ -201,10 +201,10 @@ def test_the_wall_time_budget_stops_a_sampled_run(monkeypatch):
 def test_each_batch_member_is_judged_on_its_own_bounds_as_its_single_run_would_be():
     """Members differ in their disturbance and gain, so their disturbance-estimate bounds differ: each member's
     column equals the bounds of its own scenario run alone."""
-    from blocks.batch.members import MemberLoop
-    from blocks.batch.variants import Variants
-    from blocks.loop import closed_loop
-    from blocks.physical_bounds import batch_bounds, state_bounds
+    from blocks.figure2.batch.members import MemberLoop
+    from blocks.figure2.batch.variants import Variants
+    from blocks.figure2.loop import closed_loop
+    from blocks.figure2.physical_bounds import batch_bounds, state_bounds
     records = [{}, {"disturbance.f_r": [0.0, 0.0, 300.0, 0.0]}, {"gains.observer": 50.0}]
     v = Variants(PAPER.with_changes(SHORT), records)
     got = batch_bounds(MemberLoop(v, observer=True))
@@ -215,8 +215,8 @@ def test_each_batch_member_is_judged_on_its_own_bounds_as_its_single_run_would_b
 
 
 def test_a_member_that_failed_keeps_its_first_failure_time():
-    from blocks.divergence import StateBounds
-    from blocks.monitor import Monitor
+    from blocks.engines.divergence import StateBounds
+    from blocks.engines.monitor import Monitor
     monitor = Monitor("batch", StateBounds(np.array([1.0]), ["a"], ["m"], ["given"]), np.zeros((1, 2)))
     failed = monitor.check_members(0.1, np.array([[2.0, 0.0]]), np.full(2, np.nan))
     failed = monitor.check_members(0.2, np.array([[3.0, 5.0]]), failed)

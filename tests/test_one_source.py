@@ -12,12 +12,12 @@ import reference_arm as ref
 
 import blocks
 from blocks import kernels
-from blocks.batch import Variants
-from blocks.batch.members import MemberLoop
-from blocks.disturbances import DisturbanceSpec
+from blocks.diagram.systems import controller, observer, plant
+from blocks.figure2.batch import Variants
+from blocks.figure2.batch.members import MemberLoop
+from blocks.model.disturbances import DisturbanceSpec
 from blocks.model.rrpr import dynamics_kernels
 from blocks.model.rrpr.parameters import PAPER_PARAMETERS, RobotParameters
-from blocks.systems import controller, observer, plant
 
 RNG = np.random.default_rng(20261201)
 ALL_KINDS = DisturbanceSpec(kinds=("paper", "friction", "tissue"), skin_height=-0.25)

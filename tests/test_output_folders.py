@@ -1,4 +1,4 @@
-"""Output folders (blocks.outputs): checked before the work, filled in place when empty, never mixed between two
+"""Output folders (blocks.plumbing.outputs): checked before the work, filled in place when empty, never mixed between two
 runs, nothing left by a failure; a file system that is read-only, full or over quota is named with the file's
 role and path (docs/hostile-inputs.md, "Output folders" and "Round 3")."""
 from __future__ import annotations
@@ -11,7 +11,7 @@ import sys
 
 import pytest
 
-from blocks.outputs import file_error, staged_output
+from blocks.plumbing.outputs import file_error, staged_output
 
 
 def _fill(target) -> None:
@@ -105,7 +105,7 @@ def test_a_read_only_or_full_file_system_is_named_with_the_output_folder(tmp_pat
     mount.mkdir()
     script = tmp_path / "fill.py"
     script.write_text(
-        "import sys\nfrom pathlib import Path\nfrom blocks.outputs import staged_output\n"
+        "import sys\nfrom pathlib import Path\nfrom blocks.plumbing.outputs import staged_output\n"
         "target = Path(sys.argv[1])\n"
         "try:\n"
         "    with staged_output(target) as stage:\n"

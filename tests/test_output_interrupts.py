@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from blocks.outputs import staged_output
+from blocks.plumbing.outputs import staged_output
 
 
 def _names(folder: Path) -> list[str]:
@@ -127,7 +127,7 @@ class _FrozenClock:
 
 
 def test_two_runs_in_the_same_second_get_two_default_folders_and_a_failed_one_leaves_none(tmp_path, monkeypatch):
-    import blocks.outputs as outputs
+    import blocks.plumbing.outputs as outputs
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(outputs, "datetime", _FrozenClock)
     first, second = outputs.default_out_dir(), outputs.default_out_dir()
@@ -145,7 +145,7 @@ def test_two_runs_in_the_same_second_get_two_default_folders_and_a_failed_one_le
 def test_a_default_folder_no_run_used_is_removed_at_exit_unless_something_was_put_in_it(tmp_path):
     import subprocess
     import sys
-    code = ("from blocks.outputs import default_out_dir\n"
+    code = ("from blocks.plumbing.outputs import default_out_dir\n"
             "unused, kept = default_out_dir('unused'), default_out_dir('kept')\n"
             "(kept / 'notes.txt').write_text('the user put this here')\n")
     done = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=120)

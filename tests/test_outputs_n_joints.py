@@ -1,7 +1,7 @@
 """What a user sees for an arm of any joint count: Figures 4-8, Table 3 and the report's simulation section.
 
 The arm here is a small model written in this file (:class:`Chain`, a
-:class:`blocks.arm.ArmModel`): a planar chain of revolute joints about the
+:class:`blocks.model.arm.ArmModel`): a planar chain of revolute joints about the
 vertical axis (links of known lengths) with prismatic joints that lower the
 tool, decoupled unit inertias and no gravity.  Its tool point has a closed form
 (:func:`chain_tool`), written separately from the kernels the figures use,
@@ -24,8 +24,8 @@ import pytest
 from analysis.report.view.simulation import simulation_section, worse_with_observer_short
 from analysis.simulation import figures
 from analysis.simulation.experiment import format_rms_table
-from blocks.arm import ArmModel
-from blocks.joints import JointSpace
+from blocks.model.arm import ArmModel
+from blocks.model.joints import JointSpace
 from blocks.model.rrpr.joints import RRPR_JOINTS
 from blocks.model.rrpr.parameters import RobotParameters
 

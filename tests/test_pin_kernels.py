@@ -11,14 +11,14 @@ import pytest
 pin = pytest.importorskip("pinocchio")
 
 from blocks import initial_state, load_scenario  # noqa: E402
-from blocks.arms import example_arm, pin_kernels  # noqa: E402
-from blocks.compiled import codegen, scalar  # noqa: E402
-from blocks.compiled.rows import loop_rows_of  # noqa: E402
-from blocks.compiled.scalar import ScalarFunctions  # noqa: E402
-from blocks.compiled.trace import Callee, Graph  # noqa: E402
-from blocks.fastsim import CompiledLoop  # noqa: E402
+from blocks.engines.compiled import codegen, scalar  # noqa: E402
+from blocks.engines.compiled.rows import loop_rows_of  # noqa: E402
+from blocks.engines.compiled.scalar import ScalarFunctions  # noqa: E402
+from blocks.engines.fastsim import CompiledLoop  # noqa: E402
+from blocks.figure2.loop import closed_loop  # noqa: E402
 from blocks.kernels import chain  # noqa: E402
-from blocks.loop import closed_loop  # noqa: E402
+from blocks.kernels.trace import Callee, Graph  # noqa: E402
+from blocks.model.urdf import example_arm, pin_kernels  # noqa: E402
 
 ARMS = ["scope4", "ur5", "panda"]
 

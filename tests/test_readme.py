@@ -168,7 +168,7 @@ def test_readme_joint1_offset_is_the_rest_pose_the_report_computes():
     the fixed point ``q = q0 + M(q)^-1 d / Kp``, solved here by iteration with the arm's inertia alone."""
     from analysis.linear.loop import operating_point_analysis
     from blocks import inertia
-    from blocks.scenario import load_scenario
+    from blocks.scenarios.scenario import load_scenario
 
     scenario = load_scenario("paper")
     q0 = np.asarray(scenario.trajectory.evaluate(0.0)[0], dtype=float)

@@ -110,8 +110,8 @@ def test_tool_path_keys_are_documented_and_explained_by_the_key_checker(tmp_path
     import pytest
 
     from blocks import load_scenario
-    from blocks.scenario import _SECTIONS, ScenarioError
-    from blocks.tool_path import ToolPath
+    from blocks.scenarios.scenario import _SECTIONS, ScenarioError
+    from blocks.scenarios.tool_path import ToolPath
 
     allowed = [k for k in _SECTIONS["trajectory"].checks_for("tool_path") if k != "kind"]
     doc = (ROOT / "docs" / "tool-path.md").read_text()
@@ -137,7 +137,7 @@ def test_tool_path_keys_are_documented_and_explained_by_the_key_checker(tmp_path
 
 def test_a_scenario_called_the_paper_scenario_has_its_path():
     from blocks import load_scenario
-    from blocks.scenario import builtin_scenarios
+    from blocks.scenarios.scenario import builtin_scenarios
 
     paper = load_scenario("paper")
     for name in builtin_scenarios():
@@ -155,8 +155,8 @@ def test_a_scenario_called_the_paper_scenario_has_its_path():
 
 def test_the_sampled_check_says_it_is_conservative_on_a_path():
     from blocks import load_scenario
-    from blocks.digital_loop import check_observer_rate
-    from blocks.scenario import ScenarioError
+    from blocks.figure2.digital_loop import check_observer_rate
+    from blocks.scenarios.scenario import ScenarioError
 
     s = load_scenario("scope4-digital").replace(gains={"observer_bandwidth": 2500.0})   # Euler at 1 kHz: < 2000
     with pytest.raises(ScenarioError) as err:

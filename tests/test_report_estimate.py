@@ -9,7 +9,7 @@ import pytest
 from analysis.report.estimate import check_report_time, estimate_report, study_runs
 from analysis.report.settings import QUICK_SETTINGS, AnalysisSettings
 from blocks import load_scenario
-from blocks.budget import BudgetError
+from blocks.engines.budget import BudgetError
 from dobkit.cli import main
 
 

@@ -7,7 +7,7 @@ import pytest
 
 
 def _quantized_paper():
-    from blocks.scenario import load_scenario
+    from blocks.scenarios.scenario import load_scenario
     q0 = [0.3, 1.2, 0.1, 0.2]
     return load_scenario("paper").with_changes({
         "trajectory.kind": "joint_sine", "trajectory.amplitude": [0.0] * 4, "trajectory.offset": q0,
@@ -37,7 +37,7 @@ def test_quick_digital_report_says_the_noise_was_not_simulated():
 
 def test_table3_uses_one_notation_per_joint_column():
     from analysis.report.view.simulation import simulation_section
-    from blocks.scenario import load_scenario
+    from blocks.scenarios.scenario import load_scenario
 
     # the README's Table 3 magnitudes (every joint better with the observer, so no explanation is asked for)
     w = {"rms_position_error": [6.32e-5, 2.33e-4, 3.78e-4, 3.54e-4],

@@ -1,7 +1,7 @@
 """``dobkit analyze`` on a URDF arm: its analysis.json checked against pinocchio, read straight from the URDF file.
 
 The reference inertia is pinocchio's ``crba`` on a model built here from
-``blocks/arms/data/scope4.urdf`` (not dobkit's arm), scaled by the scenario's
+``blocks/model/urdf/data/scope4.urdf`` (not dobkit's arm), scaled by the scenario's
 ``nominal_mass_scale`` (every mass and inertia times 1.05 scales ``M`` by
 1.05); the observer gain of ``observer_bandwidth = 10`` is ``Y = 10 M^(q0)``.
 """

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from analysis.report.settings import QUICK_SETTINGS, observer_study_gains, preview_differences
-from blocks.scenario import load_scenario
+from blocks.scenarios.scenario import load_scenario
 
 
 def _observer_phrase(phrases) -> str:
@@ -52,7 +52,7 @@ def _reading(joints, at, paper=False):
 
 
 def test_the_frequency_reading_speaks_of_the_arms_own_prismatic_joint():
-    from blocks.joints import JointSpace
+    from blocks.model.joints import JointSpace
     from blocks.model.rrpr.joints import RRPR_JOINTS
     # the paper's words, as before: its joint 3 (d3) sets the depth
     assert _reading(RRPR_JOINTS, 2, paper=True).startswith(

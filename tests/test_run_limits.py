@@ -1,4 +1,5 @@
-"""A run's limits before it starts (blocks.run_limits, blocks.batch.schedule): its fastest rate, its step estimate
+"""A run's limits before it starts (blocks.figure2.run_limits, blocks.figure2.batch.schedule): its fastest rate, its step
+estimate
 and the refusal of a run beyond the step budget, naming the key that sets the rate (docs/hostile-inputs.md,
 "Single runs" and "Round 3").
 
@@ -12,7 +13,7 @@ import numpy as np
 import pytest
 
 import blocks
-from blocks.budget import BudgetError
+from blocks.engines.budget import BudgetError
 
 PAPER = blocks.load_scenario("paper")
 
@@ -57,8 +58,8 @@ def test_the_step_rate_takes_the_largest_mismatch_of_a_nominal_model_given_in_py
     import copy
     import dataclasses
 
-    from blocks.run_limits import arm_rates
-    from blocks.scenario import scenario_from_dict
+    from blocks.figure2.run_limits import arm_rates
+    from blocks.scenarios.scenario import scenario_from_dict
     s = blocks.load_scenario("scope4")
     arm, chain = s.robot, s.robot.chain
     heavy = dataclasses.replace(chain, masses=(3.0 * chain.masses[0],) + tuple(chain.masses[1:]),
@@ -82,7 +83,7 @@ def test_the_step_estimate_of_a_stiff_loop_is_scipys_step_count_on_its_fastest_m
     The estimate is that count to within a factor 2 (a run over budget must be refused, a run within it not)."""
     from scipy.integrate import solve_ivp
 
-    from blocks.run_limits import estimate_run
+    from blocks.figure2.run_limits import estimate_run
     s = blocks.load_scenario("paper").with_changes({"gains.observer": 1e5, "simulation.t_final": 0.05})
     lam = 1e5 / 0.25
     run = solve_ivp(lambda t, x: -lam * x, (0.0, 0.05), [1.0], method="RK45", rtol=s.simulation.rtol,
@@ -97,8 +98,8 @@ def test_the_observer_rate_bounds_the_slides_fastest_mode_when_the_true_arm_is_l
     The slide is decoupled in M (Eq. 5), so its held loop is three states written here by hand, deviations from
     rest: m v' = m^ (-Kp q - Kd v) - (Y v + z) and z' = -(Y / m^) (tau + d_hat) = Y (Kp q + Kd v).  Its fastest
     mode is about Y / m = 4e5 1/s, the true mass's, twice the nominal's: the rate estimate must reach it."""
-    from blocks.batch.schedule import rates_by_source
-    from blocks.batch.variants import Variants
+    from blocks.figure2.batch.schedule import rates_by_source
+    from blocks.figure2.batch.variants import Variants
     s = blocks.load_scenario("paper").with_changes({"gains.observer": 1e5, "nominal_scale.m3": 2.0,
                                                      "nominal_scale.m4": 2.0})
     m, m_hat, Y, kp, kd = 0.25, 0.5, 1e5, 180.0, 36.0

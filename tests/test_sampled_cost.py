@@ -15,10 +15,10 @@ import warnings
 import pytest
 
 import blocks
-from blocks.budget import Budget, BudgetError
-from blocks.digital_loop import simulate_sampled
-from blocks.sampled_blocks import sampled_initial_state, sampled_loop
-from blocks.sampled_cost import SlowSampledRunWarning, check_sampled_time, estimate_sampled_time
+from blocks.engines.budget import Budget, BudgetError
+from blocks.engines.sampled_cost import SlowSampledRunWarning, check_sampled_time, estimate_sampled_time
+from blocks.figure2.digital_loop import simulate_sampled
+from blocks.figure2.sampled_blocks import sampled_initial_state, sampled_loop
 
 SCOPE4 = {"simulation.t_final": 2.0}
 
@@ -33,10 +33,10 @@ def test_without_numba_a_urdf_run_over_the_wall_time_budget_is_refused_before_it
         sys.meta_path.insert(0, NoNumba())
         import warnings
         import blocks
-        from blocks.budget import BudgetError
-        from blocks.digital_loop import simulate_sampled
-        from blocks.sampled_blocks import sampled_initial_state, sampled_loop
-        from blocks.sampled_cost import estimate_sampled_time
+        from blocks.engines.budget import BudgetError
+        from blocks.figure2.digital_loop import simulate_sampled
+        from blocks.figure2.sampled_blocks import sampled_initial_state, sampled_loop
+        from blocks.engines.sampled_cost import estimate_sampled_time
         s = blocks.load_scenario("scope4-digital").with_changes({SCOPE4!r})
         loop = sampled_loop(s)
         estimate = estimate_sampled_time(loop, sampled_initial_state(loop, s), s)
@@ -76,15 +76,15 @@ def test_a_long_run_without_a_budget_is_warned_about_and_a_short_one_is_not(monk
     x0 = sampled_initial_state(loop, s)
     estimate = estimate_sampled_time(loop, x0, s)
     what = "scope4"
-    monkeypatch.setattr("blocks.sampled_cost.WARN_SECONDS", estimate.seconds / 100)
+    monkeypatch.setattr("blocks.engines.sampled_cost.WARN_SECONDS", estimate.seconds / 100)
     with pytest.warns(SlowSampledRunWarning, match=r"scope4 will take about .* with the numpy sampled engine"):
         check_sampled_time(loop, x0, s, Budget(), what)
-    monkeypatch.setattr("blocks.sampled_cost.WARN_SECONDS", estimate.seconds * 100 + 5.0)
+    monkeypatch.setattr("blocks.engines.sampled_cost.WARN_SECONDS", estimate.seconds * 100 + 5.0)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         check_sampled_time(loop, x0, s, Budget(), what)
     # with a budget it is the budget that judges: no warning under it
-    monkeypatch.setattr("blocks.sampled_cost.WARN_SECONDS", estimate.seconds / 100)
+    monkeypatch.setattr("blocks.engines.sampled_cost.WARN_SECONDS", estimate.seconds / 100)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         check_sampled_time(loop, x0, s, Budget(seconds=estimate.seconds * 100 + 5.0), what)

@@ -1,4 +1,4 @@
-"""The sampled loop's stability rule (blocks.digital_stability) against independent derivations.
+"""The sampled loop's stability rule (blocks.figure2.digital_stability) against independent derivations.
 
 * the one-sample map built here another way -- the tick applied to each unit state, the plant, the held torque
   and the zoh observer propagated together by scipy.linalg.expm of one block matrix -- has the package's
@@ -25,12 +25,12 @@ import scipy.linalg
 from conftest import reference_inertia
 
 import blocks
-from blocks.digital import DigitalController
-from blocks.digital_stability import held_exponential, sampled_stability, scenario_stability, spectral_radius
-from blocks.metrics import signal
+from blocks.diagram.digital import DigitalController
+from blocks.figure2.digital_stability import held_exponential, sampled_stability, scenario_stability, spectral_radius
+from blocks.figure2.metrics import signal
+from blocks.figure2.sampled_blocks import sampled_initial_state, sampled_loop
 from blocks.model.rrpr.parameters import RobotParameters
-from blocks.sampled_blocks import sampled_initial_state, sampled_loop
-from blocks.scenario import ScenarioError
+from blocks.scenarios.scenario import ScenarioError
 from dobkit.cli import main
 
 Q0 = np.array([0.3, 1.2, 0.1, 0.2])
@@ -316,8 +316,8 @@ def test_the_sampled_map_of_each_observer_variant_and_its_stable_limit(variant, 
     """ds-variant-swap, ds-eq16-sign, ds-return-hi: the spectral radius of each variant equals that of the map
     built here; the largest stable scale is stable (radius at most 1, to rounding: for the correct law the limit
     is exactly 2 / (Ts lambda_max), where the error mode sits at -1) and a hair above it is not."""
-    from blocks.digital import DigitalController
-    from blocks.digital_stability import sampled_stability
+    from blocks.diagram.digital import DigitalController
+    from blocks.figure2.digital_stability import sampled_stability
     Ts = 0.01
     M = reference_inertia(Q[1])
     Y = np.diag([40.0, 30.0, 15.0, 20.0])

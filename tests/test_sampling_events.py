@@ -11,10 +11,10 @@ import control as ct
 import numpy as np
 import pytest
 
-from blocks import integrate
-from blocks.hybrid import HybridSystem
-from blocks.integrate import DivergenceError, EventSource, LoopEvents, integrate_on_grid
-from blocks.sampling import TickSource, tick_count
+from blocks.engines import integrate
+from blocks.engines.hybrid import HybridSystem
+from blocks.engines.integrate import DivergenceError, EventSource, LoopEvents, integrate_on_grid
+from blocks.engines.sampling import TickSource, tick_count
 
 
 def _first_order_loop(a: float, K: float, Ts: float) -> HybridSystem:

@@ -17,7 +17,7 @@ from blocks import (
     load_scenario,
     scenario_from_dict,
 )
-from blocks.digital import DigitalController
+from blocks.diagram.digital import DigitalController
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from blocks.scenario import ScenarioError, load_scenario, scenario_from_dict, to_toml
+from blocks.scenarios.scenario import ScenarioError, load_scenario, scenario_from_dict, to_toml
 
 pytest.importorskip("pinocchio")
 
@@ -39,7 +39,7 @@ def test_an_arm_section_loads_the_urdf_with_its_joints_and_defaults():
 
 
 def test_urdf_path_is_relative_to_the_scenario_file(tmp_path):
-    from blocks.arms import scope4_urdf
+    from blocks.model.urdf import scope4_urdf
     (tmp_path / "arms").mkdir()
     shutil.copy(scope4_urdf(), tmp_path / "arms" / "mine.urdf")
     path = tmp_path / "s.toml"

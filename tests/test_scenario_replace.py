@@ -11,11 +11,11 @@ from conftest import PAPER_FR, paper_toml_dict
 from two_joint_arm import TWO, needs_pinocchio
 from two_joint_arm import write_urdf as _urdf
 
-import blocks.scenario
+import blocks.scenarios.scenario
 from analysis.simulation.experiment import run_experiment
 from blocks import ScenarioError, load_scenario, scenario_from_dict
-from blocks.batch import Variants
-from blocks.noise import MeasurementNoise
+from blocks.figure2.batch import Variants
+from blocks.model.noise import MeasurementNoise
 
 
 def test_derived_defaults_follow_a_replaced_key():
@@ -102,7 +102,7 @@ def test_output_folder_is_checked_before_any_simulation(tmp_path):
 ROTATING_Y = [[10.0, 2.0, 0.0, 0.0], [-2.0, 10.0, 0.0, 0.0], [0.0, 0.0, 10.0, 0.0], [0.0, 0.0, 0.0, 10.0]]
 
 
-def _file(edit, raw=None) -> blocks.scenario.Scenario:
+def _file(edit, raw=None) -> blocks.scenarios.scenario.Scenario:
     """The paper scenario file (or ``raw``), edited by hand as a person would edit the TOML, then loaded."""
     data = copy.deepcopy(paper_toml_dict() if raw is None else raw)
     edit(data)
@@ -265,7 +265,7 @@ def test_batch_element_keys_are_refused_out_of_range_and_outside_the_batch():
 
 
 def test_module_examples_run():
-    assert doctest.testmod(blocks.scenario).failed == 0
+    assert doctest.testmod(blocks.scenarios.scenario).failed == 0
 
 
 @needs_pinocchio

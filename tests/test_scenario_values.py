@@ -15,9 +15,9 @@ from two_joint_arm import TWO
 from two_joint_arm import write_urdf as _urdf
 
 import blocks
-from blocks.gains import GainError, validated_gain
+from blocks.diagram.gains import GainError, validated_gain
 from blocks.model.rrpr.joints import RRPR_JOINTS
-from blocks.scenario import ScenarioError
+from blocks.scenarios.scenario import ScenarioError
 
 PAPER = blocks.load_scenario("paper")
 

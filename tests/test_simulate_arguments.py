@@ -28,7 +28,7 @@ def test_bad_arguments_to_simulate_are_named():
 
 
 def test_a_nested_mapping_of_variants_asks_for_dotted_keys():
-    from blocks.batch import simulate_batch
+    from blocks.figure2.batch import simulate_batch
     with pytest.raises(ScenarioError, match=r"variant column 'gains' must be a list.*write dotted keys, "
                                             r"\{'gains\.kp': \[\.\.\.\]\}"):
         simulate_batch(PAPER, {"gains": {"kp": 100}})

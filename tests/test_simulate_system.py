@@ -14,10 +14,10 @@ import pytest
 import scipy.special
 
 import blocks
-from blocks.compiled import CompiledUnavailable
-from blocks.engine_choice import EngineFallbackWarning
-from blocks.monitor import SimulationError
-from blocks.wired import lower
+from blocks.engines.compiled import CompiledUnavailable
+from blocks.engines.engine_choice import EngineFallbackWarning
+from blocks.engines.monitor import SimulationError
+from blocks.engines.wired import lower
 
 TIGHT = dict(rtol=1e-9, atol=1e-11)
 
@@ -218,7 +218,7 @@ def test_bounds_that_are_not_positive_magnitudes_are_refused_by_value():
 def test_a_grid_beyond_the_memory_budget_is_refused_before_it_is_allocated():
     """Every time of T holds the states (twice), outputs and inputs as float64: 2 states x 2 + 2 outputs + 1 input
     = 7 rows x 8 bytes = 56 bytes per time; a budget of 56 x 1000 bytes takes 1000 times and refuses 1001."""
-    from blocks.budget import Budget, BudgetError
+    from blocks.engines.budget import Budget, BudgetError
     sys = _user_diagram()
     assert (sys.nstates, sys.noutputs, sys.ninputs) == (2, 2, 1)
     budget = Budget(memory=56 * 1000)
@@ -330,7 +330,7 @@ def test_wiring_of_every_kind_is_lowered_to_the_same_dynamics():
 def test_a_ring_of_blocks_whose_feedthrough_is_unknown_runs_on_numpy_as_python_control_iterates_it():
     """Two blocks compiled as they stand (their feedthrough unknown: every input) fed by each other cannot be
     ordered: the compiled engine says so, and auto runs the numpy engine's fixed-point plan."""
-    from blocks.compiled import unavailable_reason
+    from blocks.engines.compiled import unavailable_reason
     one = ct.nlsys(_branchy_update, None, inputs="e", outputs="s", states="xs", name="one", params={"k": 4.0})
     two = ct.nlsys(_branchy_update, None, inputs="e2", outputs="s2", states="xs2", name="two", params={"k": 2.0})
     sys = ct.interconnect([one, two], connections=[["two.e2", "one.s"], ["one.e", "two.s2"]], inplist=[],
@@ -349,7 +349,7 @@ def test_a_ring_of_blocks_whose_feedthrough_is_unknown_runs_on_numpy_as_python_c
 
 def test_a_block_with_events_is_refused_by_name_without_a_trace():
     """A hybrid block (an FMU with events) stays on the numpy engine, which stops at its events."""
-    from blocks.integrate import EventSource
+    from blocks.engines.integrate import EventSource
 
     def never(t, x, u, params):
         raise AssertionError("a block with events must not be traced or compiled")

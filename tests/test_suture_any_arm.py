@@ -18,8 +18,8 @@ import pytest
 pin = pytest.importorskip("pinocchio")
 
 import blocks  # noqa: E402
-from blocks.arms import example_arm  # noqa: E402
-from blocks.scenario import ScenarioError, load_scenario, scenario_from_dict  # noqa: E402
+from blocks.model.urdf import example_arm  # noqa: E402
+from blocks.scenarios.scenario import ScenarioError, load_scenario, scenario_from_dict  # noqa: E402
 
 SCOPE4 = {"urdf": "example:scope4", "tool_frame": "tool_tip"}
 UR5 = {"urdf": "example:ur5", "tool_frame": "tool0"}

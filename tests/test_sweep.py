@@ -20,8 +20,8 @@ from analysis.sweep import spec as sweep
 from analysis.sweep.runner import read_results, run_sweep
 from analysis.sweep.spec import SweepError, load_sweep, sweep_from_dict
 from analysis.sweep.summary import html_section, summarize, write_summary
-from blocks.batch import METRIC_ATOL, METRIC_RTOL, simulate_batch
-from blocks.progress import CountProgress
+from blocks.figure2.batch import METRIC_ATOL, METRIC_RTOL, simulate_batch
+from blocks.plumbing.progress import CountProgress
 from dobkit.sweep_commands import add_sweep_subcommand
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -351,7 +351,7 @@ def _paper_file(**sections) -> blocks.Scenario:
 
 @pytest.mark.parametrize("engine", ["batch", "fast"])
 def test_each_run_is_the_base_file_edited_by_hand(engine):
-    from blocks.batch import Variants
+    from blocks.figure2.batch import Variants
     spec = sweep_from_dict({"scenario": "paper", "engine": engine,
                             "grid": {"disturbance.f_r[2]": [1.0, 2.0], "trajectory.stitches": [3],
                                      "gains.kp": [150]}})
@@ -399,7 +399,7 @@ for a, b in zip(rows["cuda"], rows["batch"]):
     for name, value in b["metrics"].items():
         x, y = np.asarray(a["metrics"][name]), np.asarray(value)
         worst = max(worst, float(np.max(np.abs(x - y) / np.maximum(np.abs(y), 1e-12))))
-from blocks.gpu.batch import last_timings       # filled by each GPU batch: the runs went through the device
+from blocks.engines.gpu.batch import last_timings       # filled by each GPU batch: the runs went through the device
 print(json.dumps({"worst": worst, "runs": len(rows["cuda"]), "engines": sorted({r["engine"] for r in rows["cuda"]}),
                   "device": "device" in last_timings,
                   "moves": float(np.ptp([r["metrics"]["rms_position_error"][0] for r in rows["cuda"]]))}))
@@ -417,7 +417,7 @@ def _python(code: str, *args, env: dict | None = None) -> dict:
 
 def test_a_cuda_sweep_where_it_cannot_run_is_refused_when_checked_naming_what_is_missing(tmp_path, scenario_file):
     # before anything else of the file is checked, so before any run: the grid key here is bad too
-    from blocks.gpu.device import cuda_unavailable_reason
+    from blocks.engines.gpu.device import cuda_unavailable_reason
     reason = cuda_unavailable_reason()
     if reason is None:
         pytest.skip("this machine can run engine = 'cuda'")

@@ -19,8 +19,8 @@ from sweep_files import run_sweep_command, write_short_scenario, write_sweep
 import blocks
 from analysis.sweep.runner import read_results, run_sweep
 from analysis.sweep.spec import RunList, SweepError, load_sweep, sweep_from_dict
-from blocks.batch import simulate_batch
-from blocks.budget import Budget, BudgetError, estimate_batch
+from blocks.engines.budget import Budget, BudgetError, estimate_batch
+from blocks.figure2.batch import simulate_batch
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -233,7 +233,7 @@ def test_a_run_costs_the_sweep_less_than_its_stated_bookkeeping(tmp_path):
     from analysis.sweep.runner import ResultsFile, read_header
     from analysis.sweep.spec import SWEEP_RUN_BYTES
     from analysis.sweep.summary import summarize
-    from blocks.batch import METRICS
+    from blocks.figure2.batch import METRICS
     rng = np.random.default_rng(0)
     peaks = {}
     for n in (1000, 4000):

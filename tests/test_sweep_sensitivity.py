@@ -31,7 +31,7 @@ from analysis.sweep.runner import run_sweep
 from analysis.sweep.sensitivity import Sensitivity, run_count
 from analysis.sweep.spec import SWEEP_RUN_BYTES, Distribution, SweepError, load_sweep, sweep_from_dict
 from analysis.sweep.summary import html_section, summarize, write_summary
-from blocks.budget import Budget, BudgetError
+from blocks.engines.budget import Budget, BudgetError
 
 pytest.importorskip("SALib")
 

@@ -18,11 +18,11 @@ pytest.importorskip("pinocchio")
 from analysis.sweep.runner import read_header, read_results, run_sweep  # noqa: E402
 from analysis.sweep.spec import load_sweep  # noqa: E402
 from analysis.sweep.summary import column_label, column_unit, key_name, key_unit, summarize, write_summary  # noqa: E402
-from blocks.arms.examples import scope4_urdf  # noqa: E402
+from blocks.model.urdf.examples import scope4_urdf  # noqa: E402
 
 pytestmark = pytest.mark.slow
 
-# scope4's joints, written again here (blocks/arms/data/scope4.urdf)
+# scope4's joints, written again here (blocks/model/urdf/data/scope4.urdf)
 NAMES = ["yaw", "pitch", "insertion", "roll"]
 POSITION_UNITS = ["rad", "rad", "m", "rad"]
 FORCE_UNITS = ["N m", "N m", "N", "N m"]

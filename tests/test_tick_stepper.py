@@ -1,4 +1,4 @@
-"""The numpy sampled engine's own steps (blocks.tick_stepper): one embedded Runge-Kutta step per tick.
+"""The numpy sampled engine's own steps (blocks.engines.tick_stepper): one embedded Runge-Kutta step per tick.
 
 References: the zero-order-hold closed form of a first-order sampled loop (written here from the
 sampled-data equations) and scipy's solver restarted at every tick (the engine's previous loop, still run
@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 
 import blocks
-from blocks import integrate
-from blocks.hybrid import HybridSystem
-from blocks.integrate import DivergenceError
-from blocks.sampled_blocks import sampled_initial_state, sampled_loop
-from blocks.tick_stepper import TickStepper, tick_stepper_for
+from blocks.engines import integrate
+from blocks.engines.hybrid import HybridSystem
+from blocks.engines.integrate import DivergenceError
+from blocks.engines.tick_stepper import TickStepper, tick_stepper_for
+from blocks.figure2.sampled_blocks import sampled_initial_state, sampled_loop
 
 
 def _first_order_loop(a: float, K: float, Ts: float) -> HybridSystem:

@@ -18,12 +18,12 @@ import pytest
 pin = pytest.importorskip("pinocchio")
 
 import blocks  # noqa: E402
-from blocks.arms import example_arm  # noqa: E402
-from blocks.compiled import numba_or_none  # noqa: E402
-from blocks.disturbances import DisturbanceSpec, external_disturbance, tissue_disturbance  # noqa: E402
+from blocks.diagram.systems import plant  # noqa: E402
+from blocks.engines.compiled import numba_or_none  # noqa: E402
+from blocks.model.disturbances import DisturbanceSpec, external_disturbance, tissue_disturbance  # noqa: E402
 from blocks.model.rrpr.parameters import RobotParameters  # noqa: E402
-from blocks.scenario import scenario_from_dict  # noqa: E402
-from blocks.systems import plant  # noqa: E402
+from blocks.model.urdf import example_arm  # noqa: E402
+from blocks.scenarios.scenario import scenario_from_dict  # noqa: E402
 
 TOL = 1e-12
 K_TISSUE, C_TISSUE, DRAG = 800.0, 10.0, 20.0
@@ -250,7 +250,7 @@ def test_scope4_closed_loop_with_tissue_agrees_across_engines(scope4_tissue, sin
 
 @needs_numba
 def test_scope4_batch_with_tissue_agrees_with_the_single_run(scope4_tissue, single_runs):
-    from blocks.batch.simulate import simulate_batch
+    from blocks.figure2.batch.simulate import simulate_batch
 
     n = scope4_tissue.robot.n
     single = _signal(single_runs["fast"], "q", n)
@@ -268,7 +268,7 @@ def test_scope4_batch_with_tissue_agrees_with_the_single_run(scope4_tissue, sing
 
 @needs_numba
 def test_scope4_sampled_loop_with_tissue_agrees_across_engines():
-    from blocks.digital_loop import simulate_sampled
+    from blocks.figure2.digital_loop import simulate_sampled
 
     s = blocks.load_scenario("scope4-digital").replace(disturbance={"kind": ["step", "tissue"]},
                                                        simulation={"t_final": 0.3})

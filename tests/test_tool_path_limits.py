@@ -22,10 +22,10 @@ import pytest
 pytest.importorskip("pinocchio")
 
 import blocks  # noqa: E402
-from blocks.arms import example_arm  # noqa: E402
-from blocks.budget import Budget, BudgetError  # noqa: E402
-from blocks.run_limits import estimate_run  # noqa: E402
-from blocks.scenario import ScenarioError, scenario_from_dict  # noqa: E402
+from blocks.engines.budget import Budget, BudgetError  # noqa: E402
+from blocks.figure2.run_limits import estimate_run  # noqa: E402
+from blocks.model.urdf import example_arm  # noqa: E402
+from blocks.scenarios.scenario import ScenarioError, scenario_from_dict  # noqa: E402
 
 SCOPE4 = {"urdf": "example:scope4", "tool_frame": "tool_tip"}
 UR5 = {"urdf": "example:ur5", "tool_frame": "tool0"}

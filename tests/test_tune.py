@@ -28,9 +28,9 @@ from analysis.tune.report import html_section
 from analysis.tune.runner import LOG_NAME, RESULT_NAME, TuneResult, read_log, run_tune
 from analysis.tune.spec import TuneError, load_tuning, tuning_from_dict
 from blocks import inertia, load_scenario, simulate
-from blocks.batch import METRIC_ATOL, METRIC_RTOL, simulate_batch
-from blocks.budget import Budget, BudgetError
-from blocks.metrics import tracking_metrics
+from blocks.engines.budget import Budget, BudgetError
+from blocks.figure2.batch import METRIC_ATOL, METRIC_RTOL, simulate_batch
+from blocks.figure2.metrics import tracking_metrics
 
 BASE_TOML = """
 name = "short-base"

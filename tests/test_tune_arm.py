@@ -21,9 +21,9 @@ from analysis.tune.report import html_section
 from analysis.tune.runner import RESULT_NAME, run_tune
 from analysis.tune.spec import TuneError, damping_ratios, tuning_from_dict
 from blocks import load_scenario, simulate
-from blocks.batch import METRIC_ATOL, METRIC_RTOL
-from blocks.joints import JointSpace
-from blocks.metrics import tracking_metrics
+from blocks.figure2.batch import METRIC_ATOL, METRIC_RTOL
+from blocks.figure2.metrics import tracking_metrics
+from blocks.model.joints import JointSpace
 from dobkit.tune_commands import constraint_lines
 
 SCOPE4_NAMES = ["yaw", "pitch", "insertion", "roll"]

@@ -15,7 +15,7 @@ from analysis.tune.report import html_section
 from analysis.tune.runner import RESULT_NAME, run_tune
 from analysis.tune.spec import DEFAULT_MIN_DAMPING, TuneError, damping_for_overshoot, damping_ratios, load_tuning, overshoots
 from blocks import inertia, load_scenario
-from blocks.batch import simulate_batch
+from blocks.figure2.batch import simulate_batch
 from dobkit.cli import main
 
 KP_KD = {'"gains.kp"': [20, 2000], '"gains.kd"': [2, 80], "seed": 3, "population": 6, "max_evaluations": 60,

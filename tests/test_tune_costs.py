@@ -25,7 +25,7 @@ from analysis.tune.report import html_section
 from analysis.tune.runner import RESULT_NAME, run_tune
 from analysis.tune.spec import load_tuning
 from blocks import inertia
-from blocks.batch import simulate_batch
+from blocks.figure2.batch import simulate_batch
 from dobkit.cli import main
 from dobkit.tune_commands import cost_lines
 

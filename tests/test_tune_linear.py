@@ -5,7 +5,7 @@
 * Model mismatch: the poles equal those of the python-control linearization of the real nonlinear loop
   (:func:`analysis.linear.loop.spectral_abscissa`), which knows nothing of the hand derivation.
 * Torque noise: the stationary value equals ``rms(tau_noisy - tau_clean)`` of nonlinear simulations of the held
-  arm with the measurement noise of :class:`blocks.noise.MeasurementNoise`, sampled at the noise's sample instants.
+  arm with the measurement noise of :class:`blocks.model.noise.MeasurementNoise`, sampled at the noise's sample instants.
 """
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from analysis.linear import loop as linear
 from analysis.simulation.studies import step_scenario
 from analysis.tune.linear import held_loop_matrices, loop_poles, spectral_abscissas, torque_noise_rms
 from blocks import inertia, load_scenario, simulate
-from blocks.metrics import signal
+from blocks.figure2.metrics import signal
 
 Q0 = np.array([0.3, 2.0, 0.24, 0.1])
 NOISE = {"q_std": [2e-4, 2e-4, 2e-5, 2e-4], "dq_std": [5e-3, 5e-3, 5e-4, 5e-3], "sample_period": 0.001}

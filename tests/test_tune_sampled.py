@@ -1,6 +1,6 @@
 """The sampled loop's stability margin as a tuning constraint (scenarios with a [controller]).
 
-The closed form it is checked against (blocks.digital_stability): with forward Euler and a measured velocity the
+The closed form it is checked against (blocks.figure2.digital_stability): with forward Euler and a measured velocity the
 observer's estimate error obeys ``e+ = (I - Ts Y M^-1) e``, so the sampled loop is stable exactly while
 ``Ts lambda_max(Y M^-1) < 2``.  With ``Y = y I`` and the paper's arm, ``lambda_max(M^-1) = 1 / 0.25`` (the
 prismatic joint's mass, exact at every pose), so at 100 Hz the limit is ``y = 50`` and a margin of 0.2 allows

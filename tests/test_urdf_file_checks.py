@@ -1,4 +1,4 @@
-"""A URDF file's own XML is checked before pinocchio reads it (blocks/arms/urdf.py): one tree of uniquely named
+"""A URDF file's own XML is checked before pinocchio reads it (blocks/model/urdf/urdf.py): one tree of uniquely named
 links, every number dobkit reads present and finite, axes non-zero, ``lower <= upper``, a ``<limit>`` on
 revolute and prismatic joints, mimic and locked joints named; what pinocchio still refuses is said in the
 error (urdfdom writes its reasons to the process's stderr), and no file of example-robot-data that pinocchio
@@ -17,7 +17,7 @@ from two_joint_arm import write_urdf as _urdf
 
 pin = pytest.importorskip("pinocchio")
 
-from blocks.arms.urdf import UnknownJointError, UnsupportedJointError, UrdfParseError, load_urdf_arm  # noqa: E402
+from blocks.model.urdf.urdf import UnknownJointError, UnsupportedJointError, UrdfParseError, load_urdf_arm  # noqa: E402
 
 
 @pytest.mark.parametrize("value", ["nan", "heavy", "inf", "1e400"])
@@ -118,8 +118,8 @@ def test_the_command_line_refuses_a_urdf_with_an_unreadable_mass_in_one_line(tmp
 
 def test_the_file_checks_refuse_no_urdf_of_example_robot_data_that_pinocchio_reads():
     # the file's own checks (numbers, tree, limits, axes) must not refuse real arms' files
-    from blocks.arms.examples import example_urdf
-    from blocks.arms.urdf import UrdfError, _read_urdf
+    from blocks.model.urdf.examples import example_urdf
+    from blocks.model.urdf.urdf import UrdfError, _read_urdf
     robots = example_urdf("ur5").parents[2]                # .../example-robot-data/robots
     files = sorted(robots.rglob("*.urdf"))
     assert len(files) > 20

@@ -6,9 +6,9 @@ import pytest
 
 pytest.importorskip("pinocchio")
 
-from blocks.arm import UnreachableError  # noqa: E402
-from blocks.arms import IKUnreachableError, example_arm, joint_path, solve_ik  # noqa: E402
-from blocks.arms.ik import jacobian_rate  # noqa: E402
+from blocks.model.arm import UnreachableError  # noqa: E402
+from blocks.model.urdf import IKUnreachableError, example_arm, joint_path, solve_ik  # noqa: E402
+from blocks.model.urdf.ik import jacobian_rate  # noqa: E402
 
 W = 2.0
 
@@ -84,7 +84,7 @@ def test_redundant_arm_acceleration_is_the_derivative_of_the_velocity():
         return (p0 + 0.05 * np.array([np.sin(t), np.cos(t) - 1, 0.0]), 0.05 * np.array([np.cos(t), -np.sin(t), 0.0]),
                 0.05 * np.array([-np.sin(t), -np.cos(t), 0.0]))
 
-    from blocks.arms.ik import _derivatives
+    from blocks.model.urdf.ik import _derivatives
     t, h = 0.4, 1e-5
     _, dp, ddp = point(t)
     dq, ddq = _derivatives(arm, q0, dp, ddp, t, 1e-6)

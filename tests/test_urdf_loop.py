@@ -9,7 +9,7 @@ import pytest
 
 pin = pytest.importorskip("pinocchio")
 
-from blocks.compiled import numba_or_none  # noqa: E402
+from blocks.engines.compiled import numba_or_none  # noqa: E402
 
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(numba_or_none() is None, reason="the compiled engine needs numba")]
@@ -17,10 +17,10 @@ pytestmark = [pytest.mark.slow,
 import control as ct  # noqa: E402
 from scipy.integrate import solve_ivp  # noqa: E402
 
-from blocks.arms import load_urdf_arm  # noqa: E402
-from blocks.compiled.engine import CompiledLoopEngine  # noqa: E402
-from blocks.contract import Kernels, kernel_block  # noqa: E402
+from blocks.diagram.contract import Kernels, kernel_block  # noqa: E402
+from blocks.engines.compiled.engine import CompiledLoopEngine  # noqa: E402
 from blocks.kernels import chain  # noqa: E402
+from blocks.model.urdf import load_urdf_arm  # noqa: E402
 
 KP, KD = 60.0, 12.0
 

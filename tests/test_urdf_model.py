@@ -8,7 +8,7 @@ import pytest
 
 pin = pytest.importorskip("pinocchio")
 
-from blocks.arms import (  # noqa: E402
+from blocks.model.urdf import (  # noqa: E402
     ChainArm,
     InertiaError,
     UnknownFrameError,
@@ -21,7 +21,7 @@ from blocks.arms import (  # noqa: E402
     load_urdf_arm,
     scope4_urdf,
 )
-from blocks.arms.examples import example_urdf  # noqa: E402
+from blocks.model.urdf.examples import example_urdf  # noqa: E402
 
 TOL = 1e-10
 
@@ -293,7 +293,7 @@ def _chain_urdf(path, n: int) -> str:
 
 
 def test_the_joint_count_limit_at_both_sides_and_locking_brings_an_arm_under_it(tmp_path):
-    from blocks.arms.urdf import MAX_JOINTS, UnsupportedJointError
+    from blocks.model.urdf.urdf import MAX_JOINTS, UnsupportedJointError
 
     at_limit = load_urdf_arm(_chain_urdf(tmp_path / "at.urdf", MAX_JOINTS), f"l{MAX_JOINTS - 1}")
     assert at_limit.n == MAX_JOINTS

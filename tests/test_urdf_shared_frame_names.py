@@ -13,7 +13,7 @@ import pytest
 
 pin = pytest.importorskip("pinocchio")
 
-from blocks.arms.urdf import UnknownFrameError, load_urdf_arm, tool_frame_id  # noqa: E402
+from blocks.model.urdf.urdf import UnknownFrameError, load_urdf_arm, tool_frame_id  # noqa: E402
 
 
 def _robot_file(relative: str) -> Path:

@@ -8,10 +8,10 @@ pytest.importorskip("pinocchio")
 
 
 
-from blocks.arms import example_arm  # noqa: E402
-from blocks.arms.traced import trace_rows  # noqa: E402
-from blocks.compiled.trace import Frozen, Graph, param_structure, param_values, symbolic_params  # noqa: E402
+from blocks.engines.compiled.arm_trace import trace_rows  # noqa: E402
 from blocks.kernels import chain  # noqa: E402
+from blocks.kernels.trace import Frozen, Graph, param_structure, param_values, symbolic_params  # noqa: E402
+from blocks.model.urdf import example_arm  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -86,7 +86,7 @@ def test_traced_code_equals_the_numpy_kernel(name, kernel, rows):
 def test_constant_folding_in_a_trace_is_the_arithmetic():
     """tr-fold-minus.  Two constants combine into the constant the arithmetic gives: 5 - 2 = 3, 2 - 5 = -3,
     5 / 2 = 2.5, 5 + 2 = 7, 5 * 2 = 10 (a traced kernel with a literal expression relies on it)."""
-    from blocks.compiled.trace import Graph
+    from blocks.kernels.trace import Graph
 
     g = Graph()
     five, two = g.const(5.0), g.const(2.0)

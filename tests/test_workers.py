@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from blocks.workers import worker_pool
+from blocks.plumbing.workers import worker_pool
 
 
 def _alive(pid: int) -> bool:
@@ -47,7 +47,7 @@ def test_workers_exit_when_their_parent_is_killed(tmp_path):
     pid_file = tmp_path / "pids"
     parent = subprocess.Popen([sys.executable, "-c", textwrap.dedent(f"""
         import os, time
-        from blocks.workers import worker_pool
+        from blocks.plumbing.workers import worker_pool
         def pid_after(delay):
             time.sleep(delay)
             return os.getpid()

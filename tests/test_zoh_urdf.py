@@ -18,10 +18,10 @@ pin = pytest.importorskip("pinocchio")
 from scipy.integrate import solve_ivp  # noqa: E402
 from scipy.linalg import expm  # noqa: E402
 
-from blocks.arms.examples import scope4_urdf  # noqa: E402
-from blocks.compiled import numba_or_none  # noqa: E402
-from blocks.digital_loop import simulate_sampled  # noqa: E402
-from blocks.scenario import load_scenario  # noqa: E402
+from blocks.engines.compiled import numba_or_none  # noqa: E402
+from blocks.figure2.digital_loop import simulate_sampled  # noqa: E402
+from blocks.model.urdf.examples import scope4_urdf  # noqa: E402
+from blocks.scenarios.scenario import load_scenario  # noqa: E402
 
 pytestmark = pytest.mark.slow
 

@@ -8,7 +8,7 @@ lost mid-batch (killed, out of memory) is Dask's to handle: the scheduler
 runs that batch again on another worker, and since results are only taken
 once a batch has finished, no row is lost or written twice.
 
-Engine notes (:class:`blocks.loop.EngineFallbackWarning`) raised on a worker
+Engine notes (:class:`blocks.figure2.loop.EngineFallbackWarning`) raised on a worker
 come back with the result and are printed once per command, not once per
 worker.
 
@@ -177,7 +177,7 @@ def dask_threads(client) -> int:
 def call_with_notes(function: Callable, payload) -> tuple[object, list[str]]:
     """``function(payload)`` and the engine notes it would have printed, for the command to print once.
     Other warnings pass as they are."""
-    from blocks.loop import EngineFallbackWarning
+    from blocks.figure2.loop import EngineFallbackWarning
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", EngineFallbackWarning)
         result = function(payload)
@@ -196,7 +196,7 @@ _notes_shown: set[str] = set()
 
 def take_with_notes(outcome: tuple[object, list[str]], take: Callable) -> None:
     """Print a worker's engine notes that this command has not printed yet, then ``take`` its result."""
-    from blocks.loop import EngineFallbackWarning
+    from blocks.figure2.loop import EngineFallbackWarning
     result, notes = outcome
     for note in notes:
         if note not in _notes_shown:

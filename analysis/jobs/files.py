@@ -209,8 +209,8 @@ def exclusive_lock(path: Path, error: type[Exception], what: str, job: str, else
 
 
 def _unwritable(err: OSError, path: Path, error: type[Exception], what: str, elsewhere: str, kept: str) -> Exception:
-    """``error`` saying that the job's file cannot be written, and why in words (``blocks.outputs.file_error``)."""
-    from blocks.outputs import file_error
+    """``error`` saying that the job's file cannot be written, and why in words (``blocks.plumbing.outputs.file_error``)."""
+    from blocks.plumbing.outputs import file_error
     return error(f"{file_error(err, path, what, f'free space, or give this one {elsewhere}')}; {kept}")
 
 

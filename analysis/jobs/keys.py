@@ -10,7 +10,7 @@ Messages name the key as the file spells it (``'search.seed'``), the value given
 raises the job's own error (:class:`analysis.sweep.spec.SweepError`, :class:`analysis.tune.spec.TuneError`).
 
 A job key that holds a scenario value (a tuning's ``constraints.sensor_noise.q_std`` is a ``noise.q_std``) is
-checked by the scenario's own validator (:func:`scenario_value`, through :func:`blocks.scenario.check_value`), so
+checked by the scenario's own validator (:func:`scenario_value`, through :func:`blocks.scenarios.scenario.check_value`), so
 that the two files cannot disagree on what the value may be.
 """
 from __future__ import annotations
@@ -90,14 +90,14 @@ def read_table(table: Mapping, keys: Mapping[str | None, Mapping[str, Key]], sec
 
 
 def scenario_value(scenario_key: str, value, label: str, fail):
-    """``value`` checked as a scenario file checks ``scenario_key`` (:func:`blocks.scenario.check_value`), the
+    """``value`` checked as a scenario file checks ``scenario_key`` (:func:`blocks.scenarios.scenario.check_value`), the
     message naming the job file's ``label`` for it; returns the value as the model takes it.
 
     Examples
     --------
     ``scenario_value("noise.q_std", [2e-4] * 4, "constraints.sensor_noise.q_std", fail)``
     """
-    from blocks.scenario import ScenarioError, check_value
+    from blocks.scenarios.scenario import ScenarioError, check_value
     try:
         return check_value(scenario_key, value)
     except ScenarioError as err:

@@ -2,7 +2,7 @@
 
 :mod:`analysis.linear.loop` linearizes the interconnected python-control loop a
 scenario builds.  This module gives the same linearization straight from an
-:class:`~blocks.arm.ArmModel` (true plant) and a nominal model, for any joint
+:class:`~blocks.model.arm.ArmModel` (true plant) and a nominal model, for any joint
 count, without a scenario: the computed-torque law and the observer written
 as in the paper (Eq. 9-16, correct Eq. 16) and the chain rule on the forward
 dynamics ``a(q, q', tau) = M^-1(q) (tau - h(q, q'))``.
@@ -39,7 +39,7 @@ import control as ct
 import numpy as np
 
 from analysis.linear.arm_terms import FD_STEP, acceleration_jacobians, arm_model, joint_matrix, joint_vector
-from blocks.arm import ArmModel
+from blocks.model.arm import ArmModel
 
 __all__ = ["ArmLoop", "ScaledArm", "arm_equilibrium", "arm_linearization", "arm_analytic_poles"]
 

@@ -1,11 +1,11 @@
 """What the analyses read of an arm model: joint vectors, workspace ranges, and derivatives of its dynamics.
 
 Every analysis takes the joint count, names, units and limits from the
-model (:class:`blocks.arm.ArmModel`), never from a constant.  The
+model (:class:`blocks.model.arm.ArmModel`), never from a constant.  The
 derivatives the linearization and the observer certificate need
 (:func:`inertia_partials`, :func:`acceleration_jacobians`, with the step
-:data:`FD_STEP`) live in :mod:`blocks.arm_derivatives`, where the sampled
-loop's stability check (:mod:`blocks.digital_stability`) takes the gravity
+:data:`FD_STEP`) live in :mod:`blocks.model.arm_derivatives`, where the sampled
+loop's stability check (:mod:`blocks.figure2.digital_stability`) takes the gravity
 slope from the same source; they are re-exported here.
 """
 from __future__ import annotations
@@ -14,9 +14,9 @@ import math
 
 import numpy as np
 
-from blocks.arm import ArmModel
-from blocks.arm_derivatives import FD_STEP, acceleration_jacobians, gravity_slopes, inertia_partials
-from blocks.joints import JointSpace
+from blocks.model.arm import ArmModel
+from blocks.model.arm_derivatives import FD_STEP, acceleration_jacobians, gravity_slopes, inertia_partials
+from blocks.model.joints import JointSpace
 
 __all__ = ["FD_STEP", "arm_model", "joint_vector", "joint_matrix", "workspace_ranges",
            "default_points", "inertia_partials", "acceleration_jacobians", "gravity_slopes"]
@@ -27,9 +27,9 @@ _GRID_BUDGET = 20000
 
 
 def arm_model(model, name: str = "arm") -> ArmModel:
-    """``model`` checked to be an arm model (:class:`blocks.arm.ArmModel`)."""
+    """``model`` checked to be an arm model (:class:`blocks.model.arm.ArmModel`)."""
     if not isinstance(model, ArmModel):
-        raise TypeError(f"{name} must be a blocks.arm.ArmModel (for example the default scenario's arm, "
+        raise TypeError(f"{name} must be a blocks.model.arm.ArmModel (for example the default scenario's arm, "
                         "blocks.PAPER_PARAMETERS), "
                         f"got {type(model).__name__}")
     return model
@@ -60,7 +60,7 @@ def joint_matrix(value, name: str, n: int) -> np.ndarray:
 def workspace_ranges(joints: JointSpace) -> tuple[tuple[float, float], ...]:
     """Where the analyses sample each joint: within its limits; a full turn for an unlimited revolute joint.
 
-    An arm whose joints carry survey ranges (:attr:`blocks.joints.JointSpace.survey_ranges`, the paper's) keeps
+    An arm whose joints carry survey ranges (:attr:`blocks.model.joints.JointSpace.survey_ranges`, the paper's) keeps
     them.  A revolute
     joint limited on one side only turns a full turn from that side.
 
@@ -85,7 +85,7 @@ def workspace_ranges(joints: JointSpace) -> tuple[tuple[float, float], ...]:
 
 
 def default_points(joints: JointSpace) -> tuple[int, ...]:
-    """Points per joint of the default survey grid: :attr:`~blocks.joints.JointSpace.survey_points` where the
+    """Points per joint of the default survey grid: :attr:`~blocks.model.joints.JointSpace.survey_points` where the
     arm's joints carry them (the paper's), else the same count on every joint with at most about 20000
     configurations in all (3 to 73 per joint)."""
     if joints.survey_points is not None:

@@ -7,7 +7,7 @@ disturbance space, N m / N).  The paper's gain ``Y = 10 I`` does not give
 "10 rad/s": for this arm one whole-arm mode is below 1 rad/s.
 
 Nothing here assumes the joint count or which joints ``M`` depends on: the
-survey evaluates the nominal inertia (any :class:`~blocks.arm.ArmModel`) on a
+survey evaluates the nominal inertia (any :class:`~blocks.model.arm.ArmModel`) on a
 grid over all ``n`` joints, sampled within the joint limits
 (:func:`~analysis.linear.arm_terms.workspace_ranges`), and reports how much the
 eigenvalues change along each joint axis.  Its slice runs along the joint
@@ -21,8 +21,8 @@ import numpy as np
 
 from analysis.linear.arm_terms import arm_model, default_points, joint_vector, workspace_ranges
 from analysis.results import JsonResult, omitted_if_none
-from blocks.arm import ArmModel
-from blocks.scenario import Scenario, default_arm
+from blocks.model.arm import ArmModel
+from blocks.scenarios.scenario import Scenario, default_arm
 
 __all__ = ["DEFAULT_RANGES", "SlowestMode", "FastestMode", "SurveyGrid", "PathModes", "BandwidthOverview",
            "BandwidthSurvey", "workspace_grid", "observer_modes", "bandwidth_survey", "along_trajectory"]

@@ -1,12 +1,12 @@
 """The sampled loop, linearized: z-plane poles, how fast the observer may be at a rate, and encoder torque noise.
 
-The digital loop of :mod:`blocks.digital_loop` is linearized at a held
+The digital loop of :mod:`blocks.figure2.digital_loop` is linearized at a held
 configuration (the arm at rest at ``q0`` under the scenario's constant
 disturbance, the observer at ``d_hat = d``).  Each block is linearized with
 :func:`control.linearize`; the continuous plant, whose torque input is held
 over each sample, is discretized exactly with :func:`control.c2d` (zero-order
 hold); the blocks are then closed in the order and with the connections of
-the hybrid diagram's own evaluation plan (:mod:`blocks.plan`), which gives
+the hybrid diagram's own evaluation plan (:mod:`blocks.diagram.plan`), which gives
 the loop's one-sample map ``x_{k+1} = A x_k + B w_k``.
 
 * :func:`sampled_poles`: eigenvalues ``z`` of ``A`` with their continuous
@@ -15,7 +15,7 @@ the loop's one-sample map ``x_{k+1} = A x_k + B w_k``.
 * :func:`observer_gain_limit`: the largest factor ``c`` for which the loop with
   observer gain ``c Y`` is stable, against the sample rate, for both
   discretizations and delays 0 and 1, the smallest over a set of
-  configurations.  It is computed by :mod:`blocks.digital_stability`, the
+  configurations.  It is computed by :mod:`blocks.figure2.digital_stability`, the
   one computation the pre-run check also uses (its one-sample map is the
   same linearization written out, gravity's slope ``dG/dq`` included; a
   test checks the two agree).  Only forward Euler with measured velocity
@@ -41,12 +41,12 @@ import scipy.linalg
 from analysis.linear.arm_terms import workspace_ranges
 from analysis.linear.loop import equilibrium, hold_scenario
 from analysis.results import JsonResult
-from blocks.digital import DigitalController
-from blocks.digital_loop import sampled_initial_state, sampled_loop, simulate_sampled
-from blocks.digital_stability import sampled_stability
-from blocks.loop import closed_loop
-from blocks.metrics import signal
-from blocks.scenario import Scenario
+from blocks.diagram.digital import DigitalController
+from blocks.figure2.digital_loop import sampled_initial_state, sampled_loop, simulate_sampled
+from blocks.figure2.digital_stability import sampled_stability
+from blocks.figure2.loop import closed_loop
+from blocks.figure2.metrics import signal
+from blocks.scenarios.scenario import Scenario
 
 __all__ = ["SampledMode", "SampledPoles", "GainLimitCurve", "GainLimitStudy", "QuantizationNoise",
            "linear_sampled_loop", "sampled_poles", "observer_gain_limit", "quantization_torque_noise",
@@ -235,7 +235,7 @@ def linear_sampled_loop(loop, x_op: np.ndarray, noise_at: str | None = None, rep
 
     Parameters
     ----------
-    loop : blocks.hybrid.HybridSystem
+    loop : blocks.engines.hybrid.HybridSystem
         One discrete rate; continuous blocks may take inputs only from discrete blocks (held) or be static.
     x_op : numpy.ndarray
         Operating state (the loop at rest).

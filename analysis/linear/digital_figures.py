@@ -12,7 +12,7 @@ import numpy as np  # noqa: E402
 
 from analysis.linear.digital import DigitalAnalysis  # noqa: E402
 from analysis.simulation.figures import save_figure  # noqa: E402
-from blocks.joints import JointSpace  # noqa: E402
+from blocks.model.joints import JointSpace  # noqa: E402
 
 __all__ = ["digital_figures"]
 

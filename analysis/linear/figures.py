@@ -5,7 +5,7 @@ Each function takes the typed result of one analysis (see
 ``stem.png`` and ``stem.svg`` into a folder with
 :func:`analysis.simulation.figures.save_figure` (no dates or tool stamps, fixed SVG
 ids: the same numbers give the same bytes), returning the paths.  Per-joint
-figures take the arm's joints (``joints``, a :class:`blocks.joints.JointSpace`)
+figures take the arm's joints (``joints``, a :class:`blocks.model.joints.JointSpace`)
 for their panels, names and units.
 """
 from __future__ import annotations
@@ -25,7 +25,7 @@ from analysis.linear.gain_design import SimulationCheck  # noqa: E402
 from analysis.linear.loop import MismatchStudy, OperatingPoint  # noqa: E402
 from analysis.simulation.figures import joint_grid_shape, save_figure  # noqa: E402
 from analysis.simulation.studies import GainGridStudy, ObserverGainStudy, settling_definition  # noqa: E402
-from blocks.joints import JointSpace  # noqa: E402
+from blocks.model.joints import JointSpace  # noqa: E402
 
 __all__ = ["pole_figure", "mismatch_figure", "bandwidth_figure", "design_figure", "bode_figure",
            "gain_study_figure", "gain_study_axes", "observer_study_figure", "ZERO_SHARE", "design_axes"]

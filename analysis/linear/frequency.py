@@ -9,7 +9,7 @@ lumped disturbance minus its estimate).  The loop is linearized at its
 equilibrium with the arm held at ``q0`` (see :mod:`analysis.linear.loop`).
 
 :func:`arm_frequency_analysis` gives the same responses for any arm model
-(:class:`~blocks.arm.ArmModel`, n joints) from :func:`analysis.linear.arm_linear.arm_linearization`.
+(:class:`~blocks.model.arm.ArmModel`, n joints) from :func:`analysis.linear.arm_linear.arm_linearization`.
 
 Closed forms on a perfect model (docs/model.md, "Frozen-configuration transfer
 functions"), for ``W`` the disturbance:
@@ -31,8 +31,8 @@ from analysis.linear.arm_linear import ArmLoop, arm_linearization
 from analysis.linear.loop import equilibrium, hold_scenario, linearize_loop
 from analysis.results import JsonResult
 from blocks import build_blocks
-from blocks.arm import ArmModel
-from blocks.scenario import Scenario
+from blocks.model.arm import ArmModel
+from blocks.scenarios.scenario import Scenario
 
 __all__ = ["DEFAULT_OMEGA", "ChannelMetrics", "ResponseSet", "FrequencyAnalysis", "disturbance_loop",
            "frozen_response", "closed_form", "closed_form_matrices", "siso_metrics", "frequency_analysis",

@@ -22,7 +22,7 @@ Certificate
     vertex: checking the ``2^n`` vertices at each configuration of a grid is exact
     for that grid.  For the paper's arm ``dM/dtheta2`` is the analytic
     :func:`blocks.model.rrpr.dynamics.inertia_derivative_theta2` and the other partials
-    (exactly zero) central differences; any other :class:`~blocks.arm.ArmModel`
+    (exactly zero) central differences; any other :class:`~blocks.model.arm.ArmModel`
     gives its partials through :func:`analysis.linear.arm_terms.inertia_partials`
     (exact from the model, or central differences).
 
@@ -39,7 +39,7 @@ import numpy as np
 from analysis.linear import arm_terms
 from analysis.linear.bandwidth import BandwidthOverview, observer_modes
 from analysis.results import JsonResult
-from blocks.arm import ArmModel
+from blocks.model.arm import ArmModel
 
 __all__ = ["GainDesign", "Certificate", "CriticalSpeed", "SimulationCheck", "ObserverDesign", "design_observer_gain",
            "inertia_partials", "decay_rates", "convergence_certificate", "critical_speed", "lyapunov_function",
@@ -298,7 +298,7 @@ def _vertices(bound: np.ndarray) -> np.ndarray:
 def inertia_partials(params: ArmModel, q) -> np.ndarray:
     """``dM/dq_j`` at each configuration, shape (..., n, n, n) (last-but-two axis: j).
 
-    The model's own closed form where it has one (:meth:`~blocks.arm.ArmModel.closed_form_inertia_partials`:
+    The model's own closed form where it has one (:meth:`~blocks.model.arm.ArmModel.closed_form_inertia_partials`:
     the paper's arm's analytic ``dM/dtheta2``); any other model: :func:`analysis.linear.arm_terms.inertia_partials`.
     """
     q = np.asarray(q, dtype=float)
@@ -437,7 +437,7 @@ def confirm_by_simulation(scenario, gains, t_final: float | None = None, thresho
     """
     from analysis.linear.loop import first_seconds
     from blocks import simulate
-    from blocks.metrics import signal
+    from blocks.figure2.metrics import signal
 
     out = {}
     n = scenario.nominal.n

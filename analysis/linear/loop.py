@@ -15,7 +15,7 @@ with the observer, the eigenvalues of ``-Y M^-1(q0)`` (the observer error
 dynamics ``e_d' = -Y M^-1 e_d``).
 
 The joint count, names and units come from the scenario's arm model
-(``scenario.nominal``, a :class:`~blocks.arm.ArmModel`).  For an arm model
+(``scenario.nominal``, a :class:`~blocks.model.arm.ArmModel`).  For an arm model
 without a scenario, :mod:`analysis.linear.arm_linear` linearizes the same loop from the
 model's own derivatives (it agrees with this module on the paper's arm to 1e-10).
 
@@ -38,7 +38,7 @@ from analysis.linear.arm_linear import arm_analytic_poles
 from analysis.linear.arm_terms import joint_vector
 from analysis.results import JsonResult
 from blocks import closed_loop, external_disturbance
-from blocks.scenario import Scenario
+from blocks.scenarios.scenario import Scenario
 
 __all__ = [
     "INERTIA_PARAMETERS", "EQUILIBRIUM_RTOL", "Mode", "ModeResult", "OperatingPoint", "MismatchSweep",

@@ -54,12 +54,12 @@ from analysis.results import JsonResult, omitted_if_none, strict_json
 from analysis.simulation.figures import joint_signals
 from analysis.simulation.studies import Studies, gain_grid_study, observer_gain_study
 from blocks import __version__, load_scenario
-from blocks.control_compat import PythonControlChanged
-from blocks.gains import validated_gain
-from blocks.joints import JointSpace
-from blocks.outputs import metrics_json, staged_output
-from blocks.progress import ProgressCallback as Progress
-from blocks.scenario import Scenario, scenario_from_dict
+from blocks.diagram.control_compat import PythonControlChanged
+from blocks.diagram.gains import validated_gain
+from blocks.model.joints import JointSpace
+from blocks.plumbing.outputs import metrics_json, staged_output
+from blocks.plumbing.progress import ProgressCallback as Progress
+from blocks.scenarios.scenario import Scenario, scenario_from_dict
 
 __all__ = ["AnalysisSettings", "QUICK_SETTINGS", "ScenarioInfo", "AnalysisResult", "run_analysis", "write_figures",
            "gain_label", "observer_gains", "bandwidth_gains", "ANALYSIS_FIGURE_COUNT",
@@ -216,7 +216,7 @@ def bandwidth_gains(scenario_gain, values, designed, M0) -> list[tuple[str, np.n
 
 
 def _is_paper_arm(s: Scenario) -> bool:
-    """Whether the scenario's true and nominal arms are the paper's (:attr:`blocks.arm.ArmModel.paper`: its own
+    """Whether the scenario's true and nominal arms are the paper's (:attr:`blocks.model.arm.ArmModel.paper`: its own
     survey grid, observer-study gains and routes, as the paper made them)."""
     return s.robot.paper is not None and s.nominal.paper is not None
 
@@ -546,7 +546,7 @@ def write_report(scenario: Scenario | str = "paper", out_dir=None, settings: Ana
     The time of the studies is estimated from the pace of the scenario's own run, simulated first
     (:mod:`analysis.report.estimate`); ``notify(text)``, if given, is told the estimate, and with
     ``budget_seconds`` (wall-clock s, None: no limit) a report that would run past it is refused then, with
-    the estimate and the keys that set it (:class:`~blocks.budget.BudgetError`), before the studies start.
+    the estimate and the keys that set it (:class:`~blocks.engines.budget.BudgetError`), before the studies start.
 
     Returns
     -------

@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from blocks.budget import ENVIRONMENT, BudgetError
+from blocks.engines.budget import ENVIRONMENT, BudgetError
 
 __all__ = ["StudyRuns", "study_runs", "ReportEstimate", "estimate_report", "check_report_time"]
 

@@ -15,7 +15,7 @@ import functools
 import jinja2
 
 from analysis.report.view import build_view
-from blocks.scenario import Scenario
+from blocks.scenarios.scenario import Scenario
 
 __all__ = ["render_html", "template_environment"]
 
@@ -40,7 +40,7 @@ def render_html(result, experiment: dict, scenario: Scenario, figure_files: dict
         From :func:`analysis.report.build.run_analysis`.
     experiment : dict
         The experiment's metrics (``with_dob``/``without_dob`` of
-        :func:`blocks.metrics.tracking_metrics`); optionally
+        :func:`blocks.figure2.metrics.tracking_metrics`); optionally
         ``duration_s`` and, per run, ``time_of_max_abs_position_error``.
     scenario : Scenario
     figure_files : dict

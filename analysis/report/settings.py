@@ -86,7 +86,7 @@ class AnalysisSettings:
                 raise ValueError(f"{name} must be a finite number > 0 s, got {v!r}")
 
     def workspace_points_for(self, joints) -> tuple[int, ...]:
-        """The grid's points per joint for an arm with these joints (:class:`blocks.joints.JointSpace`).
+        """The grid's points per joint for an arm with these joints (:class:`blocks.model.joints.JointSpace`).
 
         The settings' own counts when there is one per joint; otherwise the arm's
         :func:`~analysis.linear.arm_terms.default_points`, or in a quick preview
@@ -163,7 +163,7 @@ def preview_differences(settings: AnalysisSettings, full: AnalysisSettings | Non
                         joints=None, observer_gains: str = OBSERVER_STUDY_GAINS[True]) -> list[str]:
     """How ``settings`` differ from the full analysis, one phrase per setting: "what: this (full: that)".
 
-    With ``joints`` (:class:`blocks.joints.JointSpace`) the workspace grid is the one used on that arm
+    With ``joints`` (:class:`blocks.model.joints.JointSpace`) the workspace grid is the one used on that arm
     (:meth:`AnalysisSettings.workspace_points_for`); ``observer_gains`` says how the observer study makes its
     gains (:func:`observer_study_gains` of the scenario).
 

@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 
 from blocks import Scenario, __version__, load_scenario, simulate
-from blocks.arm import ArmModel
-from blocks.joints import JointSpace
-from blocks.metrics import tracking_metrics
-from blocks.outputs import default_out_dir, metrics_json, staged_output
+from blocks.figure2.metrics import tracking_metrics
+from blocks.model.arm import ArmModel
+from blocks.model.joints import JointSpace
+from blocks.plumbing.outputs import default_out_dir, metrics_json, staged_output
 
 __all__ = ["ExperimentResult", "run_experiment", "comparison_metrics", "format_rms_table", "default_out_dir",
            "staged_output"]
@@ -101,7 +101,7 @@ def comparison_metrics(scenario: Scenario, with_dob, without_dob) -> dict:
     -------
     dict
         ``scenario``, ``dobkit_version``, ``units`` (per joint of the scenario's arm), ``definitions`` and the
-        :func:`~blocks.metrics.tracking_metrics` of each run under
+        :func:`~blocks.figure2.metrics.tracking_metrics` of each run under
         ``with_dob`` and ``without_dob``.
     """
     joints = scenario.robot.joints
@@ -138,8 +138,8 @@ def format_rms_table(metrics: dict, arm: ArmModel | None = None) -> str:
     ----------
     metrics : dict
         What :func:`comparison_metrics` returns (``units`` and the two runs).
-    arm : blocks.arm.ArmModel, optional
-        The arm.  None or the paper's arm (:attr:`~blocks.arm.ArmModel.paper`): the paper's layout, one column
+    arm : blocks.model.arm.ArmModel, optional
+        The arm.  None or the paper's arm (:attr:`~blocks.model.arm.ArmModel.paper`): the paper's layout, one column
         per joint.  Any other arm: one row per joint, ``Joint i (name)`` with the joint's units, so that any
         number of joints fits.
     """

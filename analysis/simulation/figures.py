@@ -9,7 +9,7 @@ Each figure is written as PNG (and SVG on request), with labelled axes and units
 * ``fig8_task_space``: the tool-tip path in task space (x, y, z) and its error.
 
 The joints (how many, their names and units) come from the arm of the run's
-scenario (:attr:`blocks.arm.ArmModel.joints`): Figures 4-7 have one panel per
+scenario (:attr:`blocks.model.arm.ArmModel.joints`): Figures 4-7 have one panel per
 joint, in a grid sized by :func:`joint_grid_shape` (2 x 2 for the paper's four
 joints), each titled ``Joint i (name)`` with the joint's unit on its axis.
 
@@ -33,8 +33,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.ticker import ScalarFormatter  # noqa: E402
 
-from blocks.joints import JointSpace  # noqa: E402
-from blocks.scenario import default_arm  # noqa: E402
+from blocks.model.joints import JointSpace  # noqa: E402
+from blocks.scenarios.scenario import default_arm  # noqa: E402
 
 __all__ = ["paper_figures", "sampling_words", "save_figure", "convergence_figure", "joint_title",
            "REFERENCE_STYLE", "has_tissue_model", "FIGURE_FORMATS", "joint_grid_shape", "run_joints",
@@ -52,7 +52,7 @@ REFERENCE_STYLE = {"color": "0.72", "lw": 5.0, "solid_capstyle": "butt", "zorder
 def joint_title(name: str, joints: JointSpace) -> str:
     """The person's name of a joint signal: ``"q[2]"`` -> ``"Joint 3 (d3)"``; other names unchanged.
 
-    ``joints`` names the arm's joints (:attr:`blocks.arm.ArmModel.joints`).
+    ``joints`` names the arm's joints (:attr:`blocks.model.arm.ArmModel.joints`).
     """
     if name.endswith("]") and "[" in name:
         index = name[name.index("[") + 1:-1]
@@ -217,7 +217,7 @@ def joint_axes(title: str, joints: JointSpace):
 def sampling_words(resp) -> str | None:
     """How a sampled run's estimate was made ("sampled at 1000 Hz, quantized encoders, ..."), None when continuous.
 
-    Read from the response's scenario (:func:`blocks.derived.loop_response` keeps it): its ``[controller]``
+    Read from the response's scenario (:func:`blocks.figure2.derived.loop_response` keeps it): its ``[controller]``
     section makes the controller a program sampled at ``sample_rate``.
     """
     controller = getattr(getattr(resp, "scenario", None), "controller", None)
@@ -248,7 +248,7 @@ def paper_figures(with_dob, without_dob, out_dir, progress=None, formats=FIGURE_
         ``progress(fraction)`` after each figure (fraction of the five written).
     formats : sequence of {"png", "svg"}
         The formats of each figure (default both; ``dobkit simulate`` writes PNG unless ``--svg``).
-    joints : blocks.joints.JointSpace, optional
+    joints : blocks.model.joints.JointSpace, optional
         The arm's joints (count, names, units); default: those of the runs' scenario (:func:`run_joints`).
 
     Returns
@@ -377,7 +377,7 @@ def convergence_figure(study: dict, out_dir, joints: JointSpace, stem: str = "co
         The result of :func:`cosim_convergence`.
     out_dir : str or pathlib.Path
         Folder to write ``<stem>.png`` and ``<stem>.svg`` in.
-    joints : blocks.joints.JointSpace
+    joints : blocks.model.joints.JointSpace
         The arm's joints, which name the curves.
 
     Returns

@@ -44,10 +44,10 @@ import numpy as np
 from analysis.linear.loop import equilibrium, hold_scenario
 from analysis.results import JsonResult, omitted_if_none
 from blocks import SimulationError, closed_loop, simulate
-from blocks.joints import JointSpace
-from blocks.metrics import signal
-from blocks.scenario import Scenario, ScenarioError, default_arm
-from blocks.workers import worker_pool
+from blocks.figure2.metrics import signal
+from blocks.model.joints import JointSpace
+from blocks.plumbing.workers import worker_pool
+from blocks.scenarios.scenario import Scenario, ScenarioError, default_arm
 
 __all__ = ["DEFAULT_NOISE", "SETTLE_FRACTION", "FINAL_WINDOW", "SignalMetrics", "RunMetrics", "StudyRun",
            "GainGridStudy", "ObserverGainStudy", "Studies", "default_noise", "step_scenario", "run_metrics", "signal_metrics",

@@ -55,11 +55,11 @@ from analysis.jobs.cluster import call_with_notes, dask_session, dask_threads, r
 from analysis.jobs.files import JobLog, LogKind
 from analysis.jobs.interrupts import sigint_held
 from analysis.sweep.spec import BATCH_ENGINES, HEADER_PARTS, SweepError, SweepSpec, load_sweep, run_schedule, split_changes
-from blocks.batch import Variants, simulate_batch
-from blocks.budget import Budget, BudgetError, largest_batch
-from blocks.progress import ProgressCallback, count_progress
-from blocks.scenario import Scenario, scenario_from_dict
-from blocks.workers import worker_pool
+from blocks.engines.budget import Budget, BudgetError, largest_batch
+from blocks.figure2.batch import Variants, simulate_batch
+from blocks.plumbing.progress import ProgressCallback, count_progress
+from blocks.plumbing.workers import worker_pool
+from blocks.scenarios.scenario import Scenario, scenario_from_dict
 
 __all__ = ["run_sweep", "read_results", "read_header", "ResultsFile", "SweepOutcome", "simulate_chunk",
            "results_lock", "ROW_STATUSES", "RESULTS_LOG"]
@@ -210,8 +210,8 @@ def simulate_chunk(payload: dict) -> list[dict]:
                              None if ok else float(result.failed_at[i]), seconds, payload["engine"],
                              substeps=result.substeps))
         return rows
-    from blocks.loop import SimulationError, simulate
-    from blocks.metrics import tracking_metrics
+    from blocks.figure2.loop import SimulationError, simulate
+    from blocks.figure2.metrics import tracking_metrics
     for r in runs:
         t1 = time.perf_counter()
         try:
@@ -324,7 +324,7 @@ def run_sweep(spec: SweepSpec | str | Path, results: str | Path, scheduler: str 
         Local worker processes (default: all cores); 1 runs in this process.
     progress : bool or callable
         True: show the finished runs on standard error (see
-        :class:`blocks.progress.CountProgress`); a callable is called as
+        :class:`blocks.plumbing.progress.CountProgress`); a callable is called as
         ``progress("sweep", finished / total)`` at the start and after every batch.
     on_rows : callable, optional
         Called with each batch's rows after they are written.

@@ -5,12 +5,12 @@ A sweep file (TOML) names a base scenario, the values to vary and what to keep::
     name = "robustness"           # optional (default: the file's name); a plain file name, used for files
     scenario = "paper"            # built-in name, or a scenario file (relative to the sweep file)
     observer = true               # optional (default true)
-    engine = "batch"              # "batch" (default: blocks.batch), "cuda" (blocks.batch on the GPU) or "fast"
+    engine = "batch"              # "batch" (default: blocks.figure2.batch), "cuda" (blocks.figure2.batch on the GPU) or "fast"
                                   # (one blocks.simulate per run)
 
     [grid]                        # every combination is run
     "gains.kp" = [100, 180, 250]
-    "trajectory.stitches" = [3, 5]     # keys outside blocks.batch.BATCH_KEYS split the sweep into batches
+    "trajectory.stitches" = [3, 5]     # keys outside blocks.figure2.batch.BATCH_KEYS split the sweep into batches
 
     [monte_carlo]                 # `runs` draws, for every grid point (the same draws for each)
     runs = 200
@@ -37,9 +37,9 @@ A sweep file (TOML) names a base scenario, the values to vary and what to keep::
     size = 250                    # members per batch at most (default 250; fewer when memory asks for it)
     substeps = "auto"             # RK4 steps per output interval (default "auto": each run's own)
 
-With ``engine = "cuda"`` every batch runs as :func:`blocks.batch.simulate_batch`
+With ``engine = "cuda"`` every batch runs as :func:`blocks.figure2.batch.simulate_batch`
 with ``engine="cuda"`` (one GPU thread per run, fixed-step RK4 on the
-batch's schedule, :mod:`blocks.gpu`): the same runs, batches and numbers
+batch's schedule, :mod:`blocks.engines.gpu`): the same runs, batches and numbers
 as ``"batch"`` to rounding, one batch at a time on the one device (a
 larger ``batch.size`` fills it better).  A machine without numba-cuda, a
 CUDA driver or a device is refused when the sweep file is checked, with
@@ -50,12 +50,12 @@ summary has the indices of every kept metric column (see
 :mod:`analysis.sweep.sensitivity`).
 
 Keys are the scenario's dotted keys (``section.key``, see
-:mod:`blocks.scenario`).  Everything -- keys, grids, distributions and
+:mod:`blocks.scenarios.scenario`).  Everything -- keys, grids, distributions and
 every drawn value -- is validated before the first run; errors name the key.
 
 Budgets
     Before anything is built the sweep's size is checked against the memory
-    budget (:class:`blocks.budget.Budget`: about :data:`SWEEP_RUN_BYTES` per
+    budget (:class:`blocks.engines.budget.Budget`: about :data:`SWEEP_RUN_BYTES` per
     run for its bookkeeping and summary), naming the grid key or
     ``monte_carlo.runs`` that makes it large (a sensitivity design's run
     count, ``sensitivity.samples``, before the design is made).  Then, with the batch engine,
@@ -66,7 +66,7 @@ Budgets
 
 Step sizes
     With ``substeps = "auto"`` every run gets the step its own values need
-    (:func:`blocks.batch.auto_substeps` of that run alone, rounded up to a
+    (:func:`blocks.figure2.batch.auto_substeps` of that run alone, rounded up to a
     power of two), and runs are batched only with runs of the same step and
     the same noise setting: a stiff run never imposes its step on mild ones,
     and a run's numbers do not depend on which runs share its batch.
@@ -97,12 +97,12 @@ from analysis.jobs.files import json_default
 from analysis.jobs.keys import Key, a_table, failing, read_table, read_top, text, whole
 from analysis.sweep.distributions import DISTRIBUTIONS, Distribution
 from analysis.sweep.sensitivity import DEFAULT_LEVELS, KINDS, METHODS, Sensitivity, run_count, salib, samples_problem
-from blocks.batch import BATCH_KEYS, METRICS, Variants, auto_substeps, fastest_rate
-from blocks.batch.schedule import STEP_LAMBDA, STEPS_PER_PHASE, TISSUE_STEP
-from blocks.budget import Budget, BudgetError, Estimate, estimate_batch, format_bytes, schedule_steps
-from blocks.metrics import OBSERVER_METRICS
-from blocks.progress import count_progress
-from blocks.scenario import Scenario, ScenarioError, load_scenario, parse_key
+from blocks.engines.budget import Budget, BudgetError, Estimate, estimate_batch, format_bytes, schedule_steps
+from blocks.figure2.batch import BATCH_KEYS, METRICS, Variants, auto_substeps, fastest_rate
+from blocks.figure2.batch.schedule import STEP_LAMBDA, STEPS_PER_PHASE, TISSUE_STEP
+from blocks.figure2.metrics import OBSERVER_METRICS
+from blocks.plumbing.progress import count_progress
+from blocks.scenarios.scenario import Scenario, ScenarioError, load_scenario, parse_key
 
 __all__ = ["SweepError", "Distribution", "Run", "RunList", "RunPlan", "SweepSpec", "load_sweep", "sweep_from_dict",
            "split_changes", "json_default", "check_name", "HEADER_PARTS", "run_schedule", "DISTRIBUTIONS", "ENGINES",
@@ -111,7 +111,7 @@ __all__ = ["SweepError", "Distribution", "Run", "RunList", "RunPlan", "SweepSpec
            "PRESENTATION_KEYS"]
 
 ENGINES = ("batch", "fast", "cuda")
-#: The engines that run batches of :func:`blocks.batch.simulate_batch` (on the CPU, or on the GPU).
+#: The engines that run batches of :func:`blocks.figure2.batch.simulate_batch` (on the CPU, or on the GPU).
 BATCH_ENGINES = ("batch", "cuda")
 #: Memory (bytes) a sweep holds per run while running and summarising: the run's plan entry, its id in
 #: the set of finished runs, its metric columns and swept values in the summary (measured: about 500).
@@ -122,7 +122,7 @@ CHECK_PROGRESS_RUNS = 20_000
 PRESENTATION_KEYS = ("name", "source", "description", "worst_metric", "worst_count", "runs")
 _OBSERVER_METRICS = OBSERVER_METRICS
 _PER_JOINT = tuple(m for m in METRICS if "tool" not in m)        # the tool-tip metrics are one number a run
-# Member keys that do not change how fast the loop is (so not its step): see blocks.batch.fastest_rate.
+# Member keys that do not change how fast the loop is (so not its step): see blocks.figure2.batch.fastest_rate.
 _RATE_FREE = ("noise.", "initial.", "disturbance.f_r", "observer.variant")
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]{0,99}")
 
@@ -229,7 +229,7 @@ class RunPlan:
     noise : numpy.ndarray of bool
         Per run, whether it has measurement noise.
     shared : list of dict
-        The shared changes of each group (keys outside :data:`~blocks.batch.BATCH_KEYS`).
+        The shared changes of each group (keys outside :data:`~blocks.figure2.batch.BATCH_KEYS`).
     largest : Estimate or None
         The largest one-run estimate over the sweep's runs (steps and memory).
     """
@@ -326,7 +326,7 @@ class SweepSpec:
 
 def joints_record(joints) -> dict:
     """The base scenario's arm's joints as the results header keeps them: names and kinds (which rebuild the
-    :class:`~blocks.joints.JointSpace` that names the per-joint columns), and their units, for a person reading
+    :class:`~blocks.model.joints.JointSpace` that names the per-joint columns), and their units, for a person reading
     the file.  A presentation entry: it is not part of the definition (the base scenario's values are)."""
     return {"names": list(joints.names), "kinds": list(joints.kinds), "position_units": list(joints.position_units),
             "force_units": list(joints.force_units)}
@@ -352,7 +352,7 @@ def load_sweep(path: str | Path, budget: Budget | None = None, progress=False) -
         Memory and step budget (default: :meth:`Budget.from_env`).
     progress : bool or callable
         Show the validation of a large sweep (:data:`CHECK_PROGRESS_RUNS` runs or more) as
-        :func:`blocks.progress.count_progress` does.
+        :func:`blocks.plumbing.progress.count_progress` does.
 
     Raises
     ------
@@ -640,7 +640,7 @@ def _distribution(spec, label: str, fail) -> Distribution:
 
 def split_changes(values: Mapping[str, Any]) -> tuple[dict, dict]:
     """Split a run's values into the part its batch shares and the per-member part: keys in
-    :data:`~blocks.batch.BATCH_KEYS` and their elements (``"disturbance.f_r[2]"``) vary within a batch."""
+    :data:`~blocks.figure2.batch.BATCH_KEYS` and their elements (``"disturbance.f_r[2]"``) vary within a batch."""
     member = {k: v for k, v in values.items() if _list_key(k) in BATCH_KEYS}
     return {k: v for k, v in values.items() if k not in member}, member
 
@@ -698,9 +698,9 @@ def _plan(spec: SweepSpec, fail, counter) -> RunPlan:
 
 def _check_cuda(fail) -> None:
     """Refuse ``engine = "cuda"`` where it cannot run (no numba-cuda, driver or device; no numba), with the
-    reason of :func:`blocks.gpu.device.cuda_unavailable_reason`, before anything else is checked or run."""
-    from blocks.compiled.jit import numba_or_none
-    from blocks.gpu.device import cuda_unavailable_reason
+    reason of :func:`blocks.engines.gpu.device.cuda_unavailable_reason`, before anything else is checked or run."""
+    from blocks.engines.compiled.jit import numba_or_none
+    from blocks.engines.gpu.device import cuda_unavailable_reason
     reason = cuda_unavailable_reason()
     if reason is None and numba_or_none() is None:
         reason = "numba is not installed (it comes with the optional extra: pip install \"dobkit[fast]\")"
@@ -709,13 +709,13 @@ def _check_cuda(fail) -> None:
 
 
 def _cuda_group_reason(variants: Variants, observer: bool, program: bool) -> str | None:
-    """Why the GPU cannot run a chunk of a group's runs (:func:`blocks.gpu.batch.gpu_batch_reason`: one generated
+    """Why the GPU cannot run a chunk of a group's runs (:func:`blocks.engines.gpu.batch.gpu_batch_reason`: one generated
     code for all members; with ``program``, once per group, every block of the loop traced), or None; the loop's
     code is generated, not compiled."""
-    from blocks.batch.members import shared_loop
-    from blocks.compiled.codegen import CompiledUnavailable
-    from blocks.compiled.engine import CompiledLoopEngine
-    from blocks.gpu.batch import gpu_batch_reason
+    from blocks.engines.compiled.codegen import CompiledUnavailable
+    from blocks.engines.compiled.engine import CompiledLoopEngine
+    from blocks.engines.gpu.batch import gpu_batch_reason
+    from blocks.figure2.batch.members import shared_loop
     reason = gpu_batch_reason(variants)
     if reason is None and program:
         try:
@@ -782,7 +782,7 @@ def _plan_group(spec: SweepSpec, base: Scenario, members: np.ndarray, plan: RunP
 
 
 def _own_substeps(quiet: Scenario, record: dict, observer: bool, memo: dict) -> int:
-    """The substeps one run needs alone (:func:`~blocks.batch.auto_substeps`), rounded up to a power of two
+    """The substeps one run needs alone (:func:`~blocks.figure2.batch.auto_substeps`), rounded up to a power of two
     so that runs of similar stiffness share batches; noise and other rate-free keys do not count."""
     relevant = {k: v for k, v in record.items() if not k.startswith(_RATE_FREE)}
     text = json.dumps(relevant, sort_keys=True, default=json_default)
@@ -823,7 +823,7 @@ class Schedule:
 def run_schedule(base: Scenario, substeps: int, noisy: bool) -> Schedule:
     """Steps of a batch run of ``base`` (shared scenario) at ``substeps`` per output interval, with or without
     noise: the output grid divided by ``substeps``, plus the path's phase boundaries and, with noise, the noise
-    sample times (as :func:`blocks.batch.schedule.batch_schedule` builds them; an upper bound)."""
+    sample times (as :func:`blocks.figure2.batch.schedule.batch_schedule` builds them; an upper bound)."""
     sim = base.simulation
     grid_steps = schedule_steps(sim.t_final, sim.output_step, substeps)
     path = _path_breakpoints(base)
@@ -872,7 +872,7 @@ def _run_estimate(spec: SweepSpec, base: Scenario, quiet: Scenario, record: dict
 
 def _step_cause(quiet: Scenario, record: dict, observer: bool, n_grid: int, substeps: int) -> tuple[str, str]:
     """What makes a run's automatic step small: the loop's fastest rate (observer or PD gains), the path's
-    phases, or tissue contact -- whichever bounds :func:`blocks.batch.auto_substeps`."""
+    phases, or tissue contact -- whichever bounds :func:`blocks.figure2.batch.auto_substeps`."""
     relevant = {k: v for k, v in record.items() if not k.startswith(_RATE_FREE)}
     variants = Variants(quiet, [relevant])
     rate = fastest_rate(variants, observer)

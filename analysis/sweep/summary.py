@@ -59,9 +59,9 @@ from analysis.results import JsonResult, omitted_if_none, plain
 from analysis.sweep.runner import ResultsFile, read_header
 from analysis.sweep.sensitivity import from_runs
 from analysis.sweep.spec import HEADER_PARTS, SweepError, SweepSpec, json_default
-from blocks.joints import JointSpace
-from blocks.outputs import interrupts_held
-from blocks.scenario import default_arm
+from blocks.model.joints import JointSpace
+from blocks.plumbing.outputs import interrupts_held
+from blocks.scenarios.scenario import default_arm
 
 __all__ = ["RunCounts", "ColumnStatistics", "WorstRun", "DivergedRun", "SweepFigure", "SweepSummary", "summarize",
            "write_summary", "html_section", "column_unit", "key_unit", "metric_name", "column_label", "key_name",
@@ -215,7 +215,7 @@ def _joints_of_header(header: dict) -> JointSpace:
     import hashlib
     import json
 
-    from blocks.scenario import ScenarioError, builtin_scenarios, load_scenario
+    from blocks.scenarios.scenario import ScenarioError, builtin_scenarios, load_scenario
     kept = header.get("joints")
     if isinstance(kept, dict):
         try:
@@ -377,7 +377,7 @@ class SweepSummary(JsonResult):
 
     @property
     def arm_joints(self) -> JointSpace:
-        """:attr:`joints` as a :class:`blocks.joints.JointSpace` (the default scenario's arm's when none is kept)."""
+        """:attr:`joints` as a :class:`blocks.model.joints.JointSpace` (the default scenario's arm's when none is kept)."""
         return _arm_joints(self.joints)
 
     def as_dict(self) -> dict:
@@ -838,7 +838,7 @@ def _remove_stale_stages(out: Path) -> list[Path]:
     (``.NAME.partial-<pid>``, stayed for good), and its swapped-out previous summary (``.NAME.old-<pid>``,
     put back when ``out`` itself is missing: the kill came between the two renames); only of processes that
     no longer exist.  Returns the paths removed or put back."""
-    from blocks.outputs import _pid_alive
+    from blocks.plumbing.outputs import _pid_alive
     done = []
     for kind in ("partial", "old"):
         prefix = f".{out.name}.{kind}-"

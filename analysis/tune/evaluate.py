@@ -2,7 +2,7 @@
 
 An *evaluation* of a candidate (a set of gains) is one batch of the tuning's
 set (:attr:`analysis.tune.spec.TuneSpec.records`, every run with the candidate's
-gains) through :func:`blocks.batch.simulate_batch`; the objective is the worst
+gains) through :func:`blocks.figure2.batch.simulate_batch`; the objective is the worst
 or the mean of the metric over the runs, and the peak ``|tau|`` per joint over
 every run's output grid is kept for the torque limit.  Before that, the linear
 constraints (torque noise, stability margin; :mod:`analysis.tune.linear`) are
@@ -14,7 +14,7 @@ search found without that constraint, and the result can say what it costs.
 
 Step sizes
     Each candidate's runs are integrated with the RK4 step its own gains need
-    (:func:`blocks.batch.auto_substeps` over its runs, rounded up to a power of
+    (:func:`blocks.figure2.batch.auto_substeps` over its runs, rounded up to a power of
     two), and candidates are batched together only when they need the same
     step, so a candidate's numbers do not depend on which others shared its
     batch: evaluating the tuned scenario file again gives the same numbers.
@@ -52,10 +52,10 @@ from analysis.tune.linear import inertia_pairs, spectral_abscissas, torque_noise
 from analysis.tune.response import as_gain_matrix, error_dynamics
 from analysis.tune.spec import TuneError, TuneSpec, damping_ratios, overshoots
 from blocks import inertia
-from blocks.batch import Variants, auto_substeps, simulate_batch
-from blocks.batch.schedule import rates_by_source
-from blocks.budget import Budget, BudgetError, Estimate, estimate_batch, largest_batch
-from blocks.digital_stability import largest_stable_scale, spectral_radius
+from blocks.engines.budget import Budget, BudgetError, Estimate, estimate_batch, largest_batch
+from blocks.figure2.batch import Variants, auto_substeps, simulate_batch
+from blocks.figure2.batch.schedule import rates_by_source
+from blocks.figure2.digital_stability import largest_stable_scale, spectral_radius
 
 __all__ = ["Evaluation", "Evaluator", "evaluation_estimate", "measure_evaluation", "time_estimate",
            "simulate_candidates", "gains_key", "INFEASIBLE",
@@ -174,7 +174,7 @@ class Evaluator:
     after_batch : callable, optional
         Called with the number of candidates simulated, after every batch (progress, wall-time budget).
     engine : str
-        :func:`blocks.batch.simulate_batch`'s engine.
+        :func:`blocks.figure2.batch.simulate_batch`'s engine.
     client : distributed.Client, optional
         Simulate on this Dask cluster (:mod:`analysis.jobs.cluster`), each batch on one worker thread.
     """
@@ -235,7 +235,7 @@ class Evaluator:
 
     def sampled_loop(self, gains: dict) -> dict | None:
         """``Ts lambda_max(Y M^-1)`` of a candidate along the path and the sampled loop's limit on it for its
-        ``Kp``, ``Kd`` (:func:`blocks.digital_stability.largest_stable_scale`: a bisection); None without a
+        ``Kp``, ``Kd`` (:func:`blocks.figure2.digital_stability.largest_stable_scale`: a bisection); None without a
         sampled-loop constraint."""
         if self.spec.limits.sampled_margin is None:
             return None
@@ -447,7 +447,7 @@ def simulate_candidates(payload: dict) -> dict:
     Returns ``chunk``, ``values`` (the metric per run, mm), ``ok`` (per run), ``peaks`` (peak ``|tau|`` per run
     and joint), ``substeps`` and ``seconds`` (per candidate).
     """
-    from blocks.scenario import scenario_from_dict
+    from blocks.scenarios.scenario import scenario_from_dict
     return _simulate_payload(scenario_from_dict(payload["scenario"], source=payload["source"]), payload)
 
 
@@ -483,7 +483,7 @@ def evaluation_estimate(spec: TuneSpec) -> tuple[Estimate, int]:
 
     Raises
     ------
-    blocks.budget.BudgetError
+    blocks.engines.budget.BudgetError
         Naming the ``[search]`` gain whose high bound makes the step small, or ``monte_carlo.runs``.
     """
     corner = spec.gains(np.ones(len(spec.parameters)))
@@ -532,7 +532,7 @@ def time_bound(spec: TuneSpec, measured: Evaluation, searches: int, corner_subst
 
 
 def check_seconds(budget: Budget, started: float, what: str) -> None:
-    """Raise :class:`~blocks.budget.BudgetError` when the wall-time budget has run out."""
+    """Raise :class:`~blocks.engines.budget.BudgetError` when the wall-time budget has run out."""
     if budget.seconds is not None and time.perf_counter() - started > budget.seconds:
         raise BudgetError(f"{what}: the wall-time budget of {budget.seconds:g} s ran out; every finished "
                           "evaluation is kept in the evaluation log: run the same command again to go on, or raise "

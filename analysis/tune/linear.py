@@ -23,7 +23,7 @@ python-control linearization of the real loop) and the torque noise with
 nonlinear simulations.
 
 Torque noise
-    The measurement noise of :class:`blocks.noise.MeasurementNoise`: white
+    The measurement noise of :class:`blocks.model.noise.MeasurementNoise`: white
     Gaussian samples every ``sample_period`` seconds, linearly interpolated in
     between.  Over one sample interval the input is therefore a first-order
     hold, and the sampled state obeys ``x[k+1] = Phi x[k] + G0 n[k] + G1 n[k+1]``
@@ -41,7 +41,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg
 
-from blocks.arm import ArmModel
+from blocks.model.arm import ArmModel
 
 __all__ = ["held_loop_matrices", "loop_poles", "spectral_abscissas", "torque_noise_rms", "inertia_pairs"]
 

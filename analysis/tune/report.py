@@ -106,7 +106,7 @@ def write_figures(result, folder, designs: dict | None = None, joints=None) -> l
     designs : dict, optional
         ``{"base gains": (sys, (kp, kd)), "tuned gains": ...}``: each design's linearized error dynamics
         (:func:`analysis.tune.response.error_dynamics`) and PD gains; with it the step and Bode figures are drawn.
-    joints : blocks.joints.JointSpace, optional
+    joints : blocks.model.joints.JointSpace, optional
         The arm's joints, for those figures' labels; required with ``designs``.
     """
     folder = Path(folder)

@@ -13,7 +13,7 @@ from pathlib import Path
 from analysis.jobs.figures import JobFigure
 from analysis.results import JsonResult, omitted_if_none
 from analysis.tune.spec import TuneError
-from blocks.scenario import default_arm
+from blocks.scenarios.scenario import default_arm
 
 __all__ = ["RESULT_NAME", "PointResult", "TuneHistory", "TuneFigure", "ConstraintCost", "TuneResult", "read_result",
            "objective_text", "numbers_text", "excess_text"]
@@ -56,7 +56,7 @@ class PointResult(JsonResult):
         Per constraint, by how much it is met (< 0: missed; :mod:`analysis.tune.evaluate` says in what unit).
     sampled_loop : dict or None
         With a sampled-loop constraint: ``ts_lambda_max``, ``Ts lambda_max(Y M^-1)`` along the path, and
-        ``ts_lambda_limit``, the sampled loop's limit on it for these gains (:mod:`blocks.digital_stability`).
+        ``ts_lambda_limit``, the sampled loop's limit on it for these gains (:mod:`blocks.figure2.digital_stability`).
     """
 
     gains: dict

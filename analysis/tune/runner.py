@@ -83,10 +83,10 @@ from analysis.tune.results import (
     objective_text,
 )
 from analysis.tune.spec import HEADER_PARTS, METRIC_WORDS, TuneError, TuneSpec, damping_for_overshoot, load_tuning
-from blocks.batch import simulate_batch
-from blocks.budget import Budget
-from blocks.outputs import interrupts_held
-from blocks.progress import ProgressCallback, StageProgress
+from blocks.engines.budget import Budget
+from blocks.figure2.batch import simulate_batch
+from blocks.plumbing.outputs import interrupts_held
+from blocks.plumbing.progress import ProgressCallback, StageProgress
 
 __all__ = ["run_tune", "TuneResult", "PointResult", "TuneHistory", "TuneFigure", "read_log", "LOG_NAME",
            "RESULT_NAME", "FEASIBILITY_SAMPLES", "DE_TOL", "EVALUATION_LOG"]
@@ -231,15 +231,15 @@ def run_tune(spec: TuneSpec | str | Path, out_dir: str | Path, workers: int | No
     workers : int, optional
         Threads (compiled engine) or processes of each batch; default: all cores.
     progress : bool or callable
-        True: a :class:`blocks.progress.StageProgress` on standard error; a callable is called as
+        True: a :class:`blocks.plumbing.progress.StageProgress` on standard error; a callable is called as
         ``progress(stage, fraction)``.
     restart : bool
         Move an evaluation log of another definition aside instead of refusing it.
     budget : Budget, optional
         Memory, steps and wall time (default: the tuning's).  When the wall time runs out the finished
-        evaluations are kept and :class:`~blocks.budget.BudgetError` is raised: run again to go on.
+        evaluations are kept and :class:`~blocks.engines.budget.BudgetError` is raised: run again to go on.
     engine : str
-        :func:`blocks.batch.simulate_batch`'s engine.
+        :func:`blocks.figure2.batch.simulate_batch`'s engine.
     figures : bool
         Write the figures.
     compare_unconstrained : bool
@@ -271,7 +271,7 @@ def run_tune(spec: TuneSpec | str | Path, out_dir: str | Path, workers: int | No
     ------
     TuneError
         On a log of another definition, or constraints that no gains within the bounds meet (before anything runs).
-    blocks.budget.BudgetError
+    blocks.engines.budget.BudgetError
         When an evaluation exceeds the memory or step budget (before anything runs) or the wall time runs out.
     """
     spec = spec if isinstance(spec, TuneSpec) else load_tuning(spec)

@@ -44,7 +44,7 @@ a URDF arm.
     "disturbance.f_r[2]" = {kind = "uniform", low = 0.7, high = 2.1}
 
 Without ``[monte_carlo]`` the set is the base scenario alone.  The set's
-keys must be ones that vary within a batch (:data:`blocks.batch.BATCH_KEYS`),
+keys must be ones that vary within a batch (:data:`blocks.figure2.batch.BATCH_KEYS`),
 and not the tuned gains.
 
 The search runs over ``log10`` of each gain (gains span decades), each gain
@@ -81,7 +81,7 @@ Constraints (:mod:`analysis.tune.linear` for the linear ones)
     *Sampled loop* (a scenario with a ``[controller]``): the digital loop's
     stability rule ``Ts lambda_max(Y M^-1) < limit``, the limit computed for the
     candidate's ``Kp``, ``Kd`` and the controller's settings along the path by
-    :mod:`blocks.digital_stability` (2 for Euler with measured velocity, less
+    :mod:`blocks.figure2.digital_stability` (2 for Euler with measured velocity, less
     with ``"zoh"``, a velocity difference or a delay); the candidate keeps
     ``Ts lambda_max`` at most ``(1 - sampled_margin)`` times it (default
     :data:`DEFAULT_SAMPLED_MARGIN`).  Checked as the sampled map's spectral
@@ -113,9 +113,9 @@ import numpy as np
 from analysis.jobs.keys import Key, failing, number, numbers, read_table, read_top, scenario_value, whole
 from analysis.simulation.studies import default_noise
 from analysis.sweep.spec import SweepError, check_name, json_default, split_changes, sweep_from_dict
-from blocks.batch import BATCH_KEYS
-from blocks.budget import Budget
-from blocks.scenario import Scenario, ScenarioError, default_arm, load_scenario, parse_key
+from blocks.engines.budget import Budget
+from blocks.figure2.batch import BATCH_KEYS
+from blocks.scenarios.scenario import Scenario, ScenarioError, default_arm, load_scenario, parse_key
 
 __all__ = ["TuneError", "Parameter", "Limits", "TuneSpec", "load_tuning", "tuning_from_dict", "builtin_tunings",
            "with_evaluations", "HEADER_PARTS",
@@ -314,7 +314,7 @@ class TuneSpec:
 
     @property
     def joints(self):
-        """The base scenario's arm's joints (:class:`blocks.joints.JointSpace`): names, kinds, units."""
+        """The base scenario's arm's joints (:class:`blocks.model.joints.JointSpace`): names, kinds, units."""
         return self.base.robot.joints
 
     @property
@@ -431,7 +431,7 @@ def load_tuning(name_or_path: str | Path, budget: Budget | None = None) -> TuneS
     ------
     TuneError
         On any problem, before anything runs; the message names the key.
-    blocks.budget.BudgetError
+    blocks.engines.budget.BudgetError
         When one evaluation would exceed the memory or step budget.
     """
     path = Path(name_or_path)

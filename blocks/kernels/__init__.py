@@ -1,9 +1,9 @@
 """The loop's maths, written once: model terms, disturbances and control laws as plain array functions.
 
 Every formula of the Figure-2 loop lives here and nowhere else in Python: the
-python-control blocks (:mod:`blocks.systems`), the public model functions
-(:mod:`blocks.model.rrpr.dynamics`, :mod:`blocks.model.rrpr.kinematics`, :mod:`blocks.disturbances`),
-the batch engine (:mod:`blocks.batch`) and any later engine call these
+python-control blocks (:mod:`blocks.diagram.systems`), the public model functions
+(:mod:`blocks.model.rrpr.dynamics`, :mod:`blocks.model.rrpr.kinematics`, :mod:`blocks.model.disturbances`),
+the batch engine (:mod:`blocks.figure2.batch`) and any later engine call these
 functions.  The exported C plant (:mod:`fmu`) is the one other implementation,
 and the tests check it against an independent reference, as they check these.
 
@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .disturbance import (
+from blocks.kernels.disturbance import (
     DisturbanceParams,
     disturbance_params,
     external_disturbance,
@@ -42,7 +42,7 @@ from .disturbance import (
     paper_disturbance,
     tissue_disturbance,
 )
-from .laws import computed_torque, gain_times, lumped_disturbance, observer_estimate, observer_rate
+from blocks.kernels.laws import computed_torque, gain_times, lumped_disturbance, observer_estimate, observer_rate
 
 __all__ = [
     "DisturbanceParams", "disturbance_params", "paper_disturbance", "friction_disturbance", "tissue_disturbance",

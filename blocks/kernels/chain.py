@@ -3,8 +3,8 @@
 The arm is a :class:`ChainParams`: for every moving joint its parent, the
 placement of its frame in the parent's frame, its axis and the inertia of
 the body it moves (fixed links merged in), all as plain Python floats.
-:class:`ChainParams` is a :class:`~blocks.compiled.trace.Frozen` parameter,
-so when :mod:`blocks.compiled.trace` runs these kernels on symbols the
+:class:`ChainParams` is a :class:`~blocks.kernels.trace.Frozen` parameter,
+so when :mod:`blocks.kernels.trace` runs these kernels on symbols the
 geometry stays constants: products with exact zeros (axis-aligned joints,
 identity rotations) and sums with them are skipped here, at Python level,
 and the traced straight-line code holds only what the arm needs.  Loops run
@@ -32,9 +32,9 @@ Rows are joint-first: ``q[i]`` is a number, an array of a batch or a traced
 symbol.  Units: rad, m, kg, kg m^2, N m, N; gravity in m/s^2.
 
 Traced on a graph that asks for calls (the compiled engine's,
-:class:`blocks.compiled.trace.Graph` with ``calls``), ``M(q)``, ``h(q, q')``
+:class:`blocks.kernels.trace.Graph` with ``calls``), ``M(q)``, ``h(q, q')``
 and ``G(q)`` are recorded as calls of one generated function per arm and
-term (:class:`~blocks.compiled.trace.Callee`) instead of their statements,
+term (:class:`~blocks.kernels.trace.Callee`) instead of their statements,
 so a loop that needs them in several functions compiles them once.
 """
 from __future__ import annotations
@@ -43,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..compiled.trace import Callee, Frozen, Sym
+from blocks.kernels.trace import Callee, Frozen, Sym
 
 __all__ = ["ChainParams", "inertia_matrix", "mass_times", "mass_solve", "bias_forces", "gravity_forces",
            "plant_acceleration", "tool_position", "tool_jacobian", "tool_acceleration_bias"]
@@ -430,7 +430,7 @@ def _zeros(n: int) -> list:
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# Traced on a graph that asks for calls (blocks.compiled.trace.Graph.calls): M, h and G as functions
+# Traced on a graph that asks for calls (blocks.kernels.trace.Graph.calls): M, h and G as functions
 # ---------------------------------------------------------------------------------------------------------------
 # A loop's generated code needs the same arm's M(q) and h(q, q') in several functions (right-hand side, outputs and
 # their row versions); inlined, the Panda's dynamics are written out four times (about 15,000 lines for numba to
@@ -454,12 +454,12 @@ def _calls_graph(*rows):
 
 
 #: ``Graph.calls`` of a trace that records each row kernel below as one call (``KERNEL_CALLS``): the ``fast``
-#: engine's, whose generated Python then calls pinocchio's algorithms for them (:mod:`blocks.arms.pin_kernels`).
+#: engine's, whose generated Python then calls pinocchio's algorithms for them (:mod:`blocks.model.urdf.pin_kernels`).
 KERNEL_CALLS = "kernels"
 
 
 def _kernel_call(kernel, k: ChainParams, *rows):
-    """Outputs of ``kernel(k, *rows)`` recorded as one call of a :class:`~blocks.compiled.trace.Callee` named for the
+    """Outputs of ``kernel(k, *rows)`` recorded as one call of a :class:`~blocks.kernels.trace.Callee` named for the
     kernel and the arm, when the trace asks for kernel calls (:data:`KERNEL_CALLS`); else None.
 
     The callee's inputs are the rows as they are (``q`` first); its body is the kernel traced inline, so the

@@ -5,7 +5,7 @@
 ``tissue``: below the skin plane ``z = skin_height`` the tissue pushes the
 tool up with ``F_z = max(0, k p - c z')`` (``p`` the depth) and drags it in
 the plane with ``-c_lat v_xy``; the joints feel ``J(q)^T F``.
-The models are described for users in :mod:`blocks.disturbances`.
+The models are described for users in :mod:`blocks.model.disturbances`.
 
 The tissue contact takes the arm's kernels first, ``model`` (an
 :class:`~blocks.kernels.model.ArmKernels`), and reads the tool point through
@@ -48,7 +48,7 @@ class DisturbanceParams(NamedTuple):
 
 
 def disturbance_params(spec, params) -> DisturbanceParams:
-    """The :class:`DisturbanceParams` of a :class:`~blocks.disturbances.DisturbanceSpec` on an arm.
+    """The :class:`DisturbanceParams` of a :class:`~blocks.model.disturbances.DisturbanceSpec` on an arm.
 
     ``kin`` is the arm's tool parameters (``params.tool_params()``; the RRPR's
     kinematic lengths), read by the tissue contact and by the tool-tip rows

@@ -6,7 +6,7 @@ matrix exponential revisited", SIAM J. Matrix Anal. Appl. 26(4): the matrix
 is scaled by ``2^-s`` until its 1-norm is at most ``theta_13 = 5.37``, where
 the [13/13] approximant is exact to double precision, and the result is
 squared ``s`` times.  It serves the sampled observer's zero-order-hold update
-(:func:`blocks.digital.observer_zoh_update`), a 5x5 matrix per sample, in
+(:func:`blocks.diagram.digital.observer_zoh_update`), a 5x5 matrix per sample, in
 the numpy blocks and in the compiled sampled engine alike.
 """
 from __future__ import annotations

@@ -44,7 +44,7 @@ def computed_torque(model, k, kp, kd, q, dq, q_ref, dq_ref, ddq_ref, d_hat):
     ----------
     model : blocks.kernels.model.ArmKernels
         The arm's row kernels.
-    k : numpy.ndarray or blocks.compiled.trace.Frozen
+    k : numpy.ndarray or blocks.kernels.trace.Frozen
         Nominal arm parameters (``arm.kernel_params()``).
     kp, kd : numpy.ndarray
         Diagonals of the proportional (1/s^2) and derivative (1/s) gains.
@@ -71,7 +71,7 @@ def observer_rate(model, k, gain, eq16_weight, q, dq, tau, z):
     ----------
     model : blocks.kernels.model.ArmKernels
         The arm's row kernels.
-    k : numpy.ndarray or blocks.compiled.trace.Frozen
+    k : numpy.ndarray or blocks.kernels.trace.Frozen
         Nominal arm parameters.
     gain : numpy.ndarray
         Observer gain ``Y`` (kg m^2/s; kg/s on joint 3), diagonal or full (see :func:`gain_times`).

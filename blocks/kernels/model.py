@@ -1,8 +1,8 @@
 """An arm's row kernels as one value, passed to the laws (as pinocchio passes ``model, data``).
 
 The laws (:mod:`blocks.kernels.laws`, :mod:`blocks.kernels.disturbance`),
-the block kernels (:mod:`blocks.systems`, :mod:`blocks.digital`) and the
-compiled engine's row groups (:mod:`blocks.compiled.rows`) are written once
+the block kernels (:mod:`blocks.diagram.systems`, :mod:`blocks.diagram.digital`) and the
+compiled engine's row groups (:mod:`blocks.engines.compiled.rows`) are written once
 and take the arm's kernels as their first argument ``model``, an
 :class:`ArmKernels`: ``model.mass_times(k, q, v)``,
 ``model.tool_position(kin, q)``, ...  One law serves every arm; which arm it
@@ -17,9 +17,9 @@ How each engine gets the value
   becomes a symbol) and the generated code is the kernels' straight-line
   statements, as before.  The callable's qualified name carries the arm's
   :attr:`ArmKernels.name`, so the structure and cache keys of two arms differ.
-* A kernel numba compiles as it stands (:func:`blocks.compiled.jit.jit_kernel`,
+* A kernel numba compiles as it stands (:func:`blocks.engines.compiled.jit.jit_kernel`,
   where a trace fails) gets the value as an argument of a numba type keyed
-  by the arm's :attr:`ArmKernels.name` (:mod:`blocks.compiled.arm_type`):
+  by the arm's :attr:`ArmKernels.name` (:mod:`blocks.engines.compiled.arm_type`):
   ``model.mass_times(...)`` resolves, when numba types the law, to the
   compiled copy of that arm's kernel.  The type is a name, so numba's
   on-disk cache keeps working, and two arms are two specialisations.
@@ -32,7 +32,7 @@ import types
 
 __all__ = ["MODEL_NAMES", "TOOL_NAMES", "ArmKernels", "ArmLaw", "arm_kernels", "with_arm", "by_name"]
 
-#: Names of the dynamics row kernels a law may call (see :mod:`blocks.arm`).
+#: Names of the dynamics row kernels a law may call (see :mod:`blocks.model.arm`).
 MODEL_NAMES = ("inertia_matrix", "mass_times", "mass_solve", "bias_forces", "gravity_forces", "plant_acceleration")
 #: Names of the tool-point row kernels.
 TOOL_NAMES = ("tool_position", "tool_jacobian", "tool_acceleration_bias")
@@ -96,7 +96,7 @@ def _from_modules(kernels: str, tool_kernels: str) -> ArmKernels:
 
 
 def arm_kernels(arm) -> ArmKernels:
-    """The :class:`ArmKernels` of an arm (an :class:`~blocks.arm.ArmModel`) or of its two kernel modules
+    """The :class:`ArmKernels` of an arm (an :class:`~blocks.model.arm.ArmModel`) or of its two kernel modules
     ``(kernels, tool_kernels)``; the same object for the same modules."""
     kernels, tool_kernels = arm if isinstance(arm, tuple) else (arm.kernels, arm.tool_kernels)
     key = (id(kernels), id(tool_kernels))
@@ -150,7 +150,7 @@ def with_arm(fn, arm) -> ArmLaw:
     ----------
     fn : function
         A law, block kernel or row function taking ``model`` first.
-    arm : blocks.arm.ArmModel, ArmKernels or (kernels, tool_kernels)
+    arm : blocks.model.arm.ArmModel, ArmKernels or (kernels, tool_kernels)
     """
     model = arm if isinstance(arm, ArmKernels) else arm_kernels(arm)
     key = (fn, model.name)

@@ -1,4 +1,4 @@
-"""Measurement noise: seeded white samples on a uniform grid, interpolated linearly (see :mod:`blocks.noise`)."""
+"""Measurement noise: seeded white samples on a uniform grid, interpolated linearly (see :mod:`blocks.model.noise`)."""
 from __future__ import annotations
 
 import numpy as np

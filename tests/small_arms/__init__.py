@@ -1,6 +1,6 @@
 """Two small arms written for the tests (closed form, by hand): a 2-link planar arm and a 3-joint cylindrical arm.
 
-They subclass :class:`blocks.arm.ArmModel` with their own row-kernel modules, so the
+They subclass :class:`blocks.model.arm.ArmModel` with their own row-kernel modules, so the
 analyses can be held against textbook derivations for a joint count other than four.
 """
 from __future__ import annotations
@@ -9,8 +9,8 @@ import math
 
 import numpy as np
 
-from blocks.arm import ArmModel
-from blocks.joints import JointSpace
+from blocks.model.arm import ArmModel
+from blocks.model.joints import JointSpace
 
 from . import cylinder3_kernels, planar2_kernels
 

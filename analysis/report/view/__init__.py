@@ -117,7 +117,7 @@ def build_view(result, experiment: dict, scenario, figure_files: dict,
     result : analysis.report.build.AnalysisResult
     experiment : dict
         The experiment's metrics (``with_dob``/``without_dob`` of
-        :func:`blocks.metrics.tracking_metrics`); optionally
+        :func:`blocks.figure2.metrics.tracking_metrics`); optionally
         ``duration_s``, per run ``time_of_max_abs_position_error``, and
         ``max_depth_below_skin_mm`` (see :func:`analysis.report.build.experiment_metrics`).
     scenario : Scenario

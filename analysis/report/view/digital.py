@@ -5,8 +5,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from blocks.arm import ArmModel
-from blocks.joints import JointSpace
+from blocks.model.arm import ArmModel
+from blocks.model.joints import JointSpace
 
 from .text import Figure, Table, figures, fmt, mixed_units, pole, units_list
 
@@ -93,7 +93,7 @@ def _rule_text(d, joints: JointSpace, constant_gravity: bool) -> str:
     return (f"The limits are computed, not assumed: at each configuration checked the loop is linearized at rest "
             f"(the plant under the held torque, discretized exactly; the controller; the observer's update; the "
             f"velocity estimate; the delay) and a gain is stable while the one-sample map's spectral radius is "
-            f"below 1 (blocks.digital_stability, the same computation that refuses an unstable scenario before it "
+            f"below 1 (blocks.figure2.digital_stability, the same computation that refuses an unstable scenario before it "
             f"runs). For the scenario ({own}, delay {c.get('delay', 0)}) at {fmt(d.sample_rate_hz, 5)} Hz the "
             f"rule is Ts lambda_max(Y M^-1) < {fmt(d.ts_lambda_limit, 5)}. Only forward Euler with measured "
             f"velocity has the closed form 2 (the column 2 / (Ts lambda_max)): its estimate's error obeys "

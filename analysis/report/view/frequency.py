@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from blocks.joints import JointSpace
+from blocks.model.joints import JointSpace
 
 from .text import ZERO_REL, Figure, Table, and_words, arm_joints, figures, fmt, is_paper_arm, join, split_caveats
 

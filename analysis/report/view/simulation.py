@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from analysis.simulation.figures import has_tissue_model
-from blocks.joints import JointSpace
+from blocks.model.joints import JointSpace
 
 from .text import Figure, Table, column, figures, fmt, is_paper_arm
 from .text import value as _value

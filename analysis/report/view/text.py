@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from blocks.joints import JointSpace
-from blocks.scenario import default_arm
+from blocks.model.joints import JointSpace
+from blocks.scenarios.scenario import default_arm
 
 __all__ = ["fmt", "join", "span", "settling", "pole", "Cell", "Table", "Figure", "Paragraph", "figures",
            "joints_text", "mode_text", "value", "kinds", "and_words", "split_caveats", "stable_ranges",
@@ -202,7 +202,7 @@ def value(x, j: int, joints: JointSpace, digits: int = 3) -> str:
 
 
 def arm_of(scenario):
-    """A scenario's true arm (:class:`blocks.arm.ArmModel`; the default scenario's when it has none)."""
+    """A scenario's true arm (:class:`blocks.model.arm.ArmModel`; the default scenario's when it has none)."""
     arm = getattr(scenario, "robot", None)
     return arm if isinstance(getattr(arm, "joints", None), JointSpace) else default_arm()
 
@@ -240,7 +240,7 @@ def gain_units(joints: JointSpace) -> str:
 
 
 def is_paper_arm(scenario) -> bool:
-    """Whether a scenario's arm is the paper's (:attr:`blocks.arm.ArmModel.paper`: the report's comparisons with the
+    """Whether a scenario's arm is the paper's (:attr:`blocks.model.arm.ArmModel.paper`: the report's comparisons with the
     paper apply)."""
     return getattr(scenario.robot, "paper", None) is not None
 

@@ -3,7 +3,7 @@
 Modules
 -------
 :mod:`~blocks.model.rrpr.parameters`
-    :class:`RobotParameters` (Table 1, the inertia constants k1..k5; an :class:`~blocks.arm.ArmModel`).
+    :class:`RobotParameters` (Table 1, the inertia constants k1..k5; an :class:`~blocks.model.arm.ArmModel`).
 :mod:`~blocks.model.rrpr.joints`
     :data:`RRPR_JOINTS` (theta1, theta2, d3, theta4) and the prismatic stroke :data:`D3_STROKE`.
 :mod:`~blocks.model.rrpr.dynamics_kernels`, :mod:`~blocks.model.rrpr.tool_kernels`
@@ -16,7 +16,7 @@ Modules
 Nothing outside this package names the RRPR except the paper scenario (the default scenario) and the top-level
 API's re-exports (``blocks.RobotParameters``, ...).
 """
-from ...lazy import lazy_exports
+from blocks.lazy import lazy_exports
 
 _WHERE = {
     "parameters": ("RobotParameters", "InertiaConstants", "PAPER_PARAMETERS", "ParameterError"),

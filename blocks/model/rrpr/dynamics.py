@@ -6,12 +6,12 @@ RRPR (n = 4) the joint order is
 ``[theta1 (rad), theta2 (rad), d3 (m, positive downwards), theta4 (rad)]``.
 :func:`inertia`, :func:`gravity`, :func:`forward_dynamics`,
 :func:`inverse_dynamics` and :func:`kinetic_energy` take any
-:class:`~blocks.arm.ArmModel` (its row kernels); the others are the RRPR's
+:class:`~blocks.model.arm.ArmModel` (its row kernels); the others are the RRPR's
 closed form (Eq. 6's matrix, ``dM/dtheta2``, its potential energy).
 
 The formulas are those of :mod:`blocks.model.rrpr.dynamics_kernels` (joint rows first); these
 functions present them in the joint-last layout that analysis code and users
-expect.  Each checks its arguments once (:mod:`blocks.validation`): a wrong
+expect.  Each checks its arguments once (:mod:`blocks.model.validation`): a wrong
 type raises TypeError, a wrong shape or a non-finite entry ValueError, naming
 the argument.
 """
@@ -19,9 +19,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...validation import arm_model, joint_array, joint_arrays
-from .dynamics_kernels import arm_constants, coriolis_forces
-from .parameters import RobotParameters, robot_parameters
+from blocks.model.rrpr.dynamics_kernels import arm_constants, coriolis_forces
+from blocks.model.rrpr.parameters import RobotParameters, robot_parameters
+from blocks.model.validation import arm_model, joint_array, joint_arrays
 
 __all__ = [
     "inertia", "inertia_derivative_theta2", "coriolis_vector", "coriolis_matrix", "gravity",
@@ -30,7 +30,7 @@ __all__ = [
 
 
 def _checked(params, any_arm: bool = False, **arrays) -> list[np.ndarray]:
-    """The arguments of a public function checked once (:mod:`blocks.validation`): the joint arrays, broadcast."""
+    """The arguments of a public function checked once (:mod:`blocks.model.validation`): the joint arrays, broadcast."""
     joints = (arm_model(params, "params") if any_arm else robot_parameters(params)).joints
     if len(arrays) == 1:
         (name, value), = arrays.items()

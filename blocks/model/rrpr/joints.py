@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 
-from ...joints import JointSpace
+from blocks.model.joints import JointSpace
 
 __all__ = ["RRPR_JOINTS", "D3_STROKE"]
 

@@ -11,7 +11,7 @@ frame (m) and tool roll angle (rad).  With the paper's conventions
 The paper's printed Jacobian has two errors (``J[0, 1]`` printed as
 ``-l2 cos`` and the last row printed ``[1, 1, 0, 1]``); the Jacobian here is
 the exact derivative of the map above.  All functions accept a leading batch
-shape ``(..., 4)`` and check their arguments once (:mod:`blocks.validation`):
+shape ``(..., 4)`` and check their arguments once (:mod:`blocks.model.validation`):
 a wrong type raises TypeError, a wrong shape or a non-finite entry ValueError,
 naming the argument.
 """
@@ -19,10 +19,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...arm import UnreachableError
-from ...validation import joint_array, joint_arrays, real_array
-from .parameters import RobotParameters, robot_parameters
-from .tool_kernels import jacobian_entries, kinematic_lengths, tool_pose
+from blocks.model.arm import UnreachableError
+from blocks.model.rrpr.parameters import RobotParameters, robot_parameters
+from blocks.model.rrpr.tool_kernels import jacobian_entries, kinematic_lengths, tool_pose
+from blocks.model.validation import joint_array, joint_arrays, real_array
 
 __all__ = [
     "UnreachableError", "forward_kinematics", "jacobian", "jacobian_derivative_times_dq",

@@ -1,9 +1,9 @@
 """The paper's RRPR on the suturing path: the laceration's joint references by closed-form inverse kinematics.
 
-The task-space path (stitches along a laceration on the skin, :func:`blocks.trajectory.laceration_pose`) is any
+The task-space path (stitches along a laceration on the skin, :func:`blocks.diagram.trajectory.laceration_pose`) is any
 arm's; this module turns it into the RRPR's joint references in closed form: ``q = IK(p)``, ``q' = J^-1 p'``,
 ``q'' = J^-1 (p'' - J' q')``, no finite differences.  Another arm's tool point follows the same path by numerical
-IK (:class:`blocks.tool_path.ToolLaceration`).
+IK (:class:`blocks.scenarios.tool_path.ToolLaceration`).
 """
 from __future__ import annotations
 
@@ -12,11 +12,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ...arm import UnreachableError
-from ...bound_kernels import Kernels
-from ...trajectory import _finite, _scalar, check_joint_ranges, laceration_pose
-from .kinematics import ELBOWS, inverse_kinematics, jacobian, jacobian_derivative_times_dq
-from .parameters import RobotParameters
+from blocks.diagram.bound_kernels import Kernels
+from blocks.diagram.trajectory import _finite, _scalar, check_joint_ranges, laceration_pose
+from blocks.model.arm import UnreachableError
+from blocks.model.rrpr.kinematics import ELBOWS, inverse_kinematics, jacobian, jacobian_derivative_times_dq
+from blocks.model.rrpr.parameters import RobotParameters
 
 __all__ = ["LacerationPath", "laceration_rows", "laceration_reference", "laceration_output"]
 

@@ -18,12 +18,12 @@ from typing import ClassVar
 
 import numpy as np
 
-from ...arm import ArmModel
-from ...joints import JointSpace
-from ...validation import _kind
-from . import dynamics_kernels as _arm_kernels
-from . import tool_kernels as _tool_kernels
-from .joints import RRPR_JOINTS
+from blocks.model.arm import ArmModel
+from blocks.model.joints import JointSpace
+from blocks.model.rrpr import dynamics_kernels as _arm_kernels
+from blocks.model.rrpr import tool_kernels as _tool_kernels
+from blocks.model.rrpr.joints import RRPR_JOINTS
+from blocks.model.validation import _kind
 
 __all__ = ["RobotParameters", "InertiaConstants", "PAPER_PARAMETERS", "ParameterError"]
 
@@ -189,7 +189,7 @@ class RobotParameters(ArmModel):
         """``kin = [a1, a2, d1, d4]`` (m) for the tool row kernels of :mod:`blocks.model.rrpr.tool_kernels`."""
         return _tool_kernels.kinematic_lengths(self)
 
-    # -- the arm-model interface's questions (blocks.arm.ArmModel) -------------------------------------------------
+    # -- the arm-model interface's questions (blocks.model.arm.ArmModel) -------------------------------------------------
     @property
     def name(self) -> str:
         """``rrpr``: how messages and output files name the paper's arm."""
@@ -210,7 +210,7 @@ class RobotParameters(ArmModel):
         the other joints use central differences (exactly zero: the inertia depends on theta2 only, but that is
         not assumed).
         """
-        from .dynamics import inertia_derivative_theta2
+        from blocks.model.rrpr.dynamics import inertia_derivative_theta2
 
         q = np.asarray(q, dtype=float)
         parts = []
@@ -281,7 +281,7 @@ class RobotParameters(ArmModel):
     def laceration_path(self, **keys):
         """The laceration path's joint references by closed-form IK (:class:`~blocks.model.rrpr.laceration.
         LacerationPath`)."""
-        from .laceration import LacerationPath
+        from blocks.model.rrpr.laceration import LacerationPath
         return LacerationPath(params=self, **keys)
 
     def as_dict(self) -> dict[str, float]:

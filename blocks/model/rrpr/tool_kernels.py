@@ -50,7 +50,7 @@ def tool_velocity(kin, q, dq):
 
 
 # --------------------------------------------------------------------------------------------------------------
-# The arm-model interface (blocks.arm.ArmModel): the tool point in the base frame, for any arm the same rows
+# The arm-model interface (blocks.model.arm.ArmModel): the tool point in the base frame, for any arm the same rows
 # --------------------------------------------------------------------------------------------------------------
 def tool_position(kin, q):
     """Tool-tip position rows ``[x, y, z]`` (m) in the base frame; shape ``(3,) + q.shape[1:]``."""
