@@ -123,7 +123,7 @@ def test_tool_path_keys_are_documented_and_explained_by_the_key_checker(tmp_path
             assert float(rows[key]) == defaults[key], key
     text = (ROOT / "blocks" / "scenarios" / "scope4-path.toml").read_text().replace(
         "sample_period = 0.05 ", "sample_periodd = 0.05 ").replace('"example:scope4"',
-                                                                   f'"{ROOT}/blocks/arms/data/scope4.urdf"')
+                                                                   f'"{ROOT}/blocks/model/urdf/data/scope4.urdf"')
     path = tmp_path / "bad.toml"
     path.write_text(text)
     with pytest.raises(ScenarioError) as err:

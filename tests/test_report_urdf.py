@@ -18,7 +18,7 @@ pin = pytest.importorskip("pinocchio")
 from blocks import load_scenario  # noqa: E402
 from dobkit.cli import main  # noqa: E402
 
-URDF = Path(__file__).resolve().parents[1] / "blocks" / "arms" / "data" / "scope4.urdf"
+URDF = Path(__file__).resolve().parents[1] / "blocks" / "model" / "urdf" / "data" / "scope4.urdf"
 MASS_SCALE = 1.05          # scope4.toml: nominal_mass_scale
 BANDWIDTH = 10.0           # scope4.toml: observer_bandwidth (rad/s)
 
