@@ -22,7 +22,7 @@ import numpy as np
 from blocks.engines.budget import Budget
 from blocks.engines.divergence import StateBounds
 
-__all__ = ["Context", "finite_bounds"]
+__all__ = ["Context", "finite_bounds", "kernels_with_params"]
 
 
 def finite_bounds(labels) -> StateBounds:
@@ -45,6 +45,9 @@ class Context:
         Each block's kernel parameters by block name (the layout of
         :class:`blocks.diagram.contract.Kernels`); None: the blocks' own.  With
         ``members`` an array may carry a leading axis of N, one row per member.
+        A single run reads them in :func:`blocks.engines.simulator.advance`
+        (the numpy and the compiled engine, :func:`kernels_with_params`): the
+        same diagram runs with other numbers of the same structure.
     bounds : StateBounds, optional
         The largest magnitude of every state (one column per member for a
         batch); None: the physical bounds are unknown, the growth rule of
@@ -101,6 +104,42 @@ class Context:
         params = None if self.params is None else {name: _row(p, m, self.members) for name, p in self.params.items()}
         bounds = None if self.bounds is None else self.bounds.member(m)
         return replace(self, x0=self.x0[:, m], params=params, bounds=bounds, members=None)
+
+
+def kernels_with_params(kernels_by_block: Mapping, params: Mapping) -> dict:
+    """The blocks' kernels with the numbers of ``params`` (a :attr:`Context.params`) in place of their own.
+
+    Parameters
+    ----------
+    kernels_by_block : mapping of str to Kernels
+        The diagram's blocks' kernels by block name.
+    params : mapping of str to tuple
+        New kernel parameters by block name, in the layout of each block's own (``Kernels.params``).
+
+    Raises
+    ------
+    ValueError
+        Naming the block, when ``params`` names a block without kernels in the diagram, or when its numbers have
+        another structure than the block's own (another length, shape, a diagonal gain for a full one, a flag):
+        the engine was made for that structure, so the diagram must be built with them.
+    """
+    from blocks.kernels.trace import param_structure
+    out = dict(kernels_by_block)
+    for name, new in params.items():
+        kernels = out.get(name)
+        if kernels is None:
+            raise ValueError(f"Context.params names block {name!r}, which is not a block with kernels of this "
+                             f"diagram (those are {sorted(kernels_by_block)})")
+        new = tuple(new)
+        if param_structure(new) != param_structure(tuple(kernels.params)):
+            raise ValueError(f"Context.params[{name!r}] has another structure than block {name!r}'s own numbers "
+                             f"({param_structure(new)} against {param_structure(tuple(kernels.params))}): the "
+                             "engine was made for that structure; build the block with these numbers instead")
+        if kernels.column_params is not None and kernels.column_params is not kernels.params:
+            raise ValueError(f"Context.params[{name!r}]: block {name!r} keeps column parameters of its own, which "
+                             "the context cannot follow; build the block with these numbers instead")
+        out[name] = replace(kernels, params=new, column_params=None if kernels.column_params is None else new)
+    return out
 
 
 def _row(value, m: int, members: int):

@@ -25,6 +25,8 @@ This is an engine for :func:`blocks.simulate`, not part of the public API.
 """
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
 from blocks.diagram.plan import AlgebraicLoopError, LoopPlan, make_plan, settle, with_params
@@ -65,6 +67,17 @@ class CompiledLoop:
         self.rhs_order = self.plan.rhs_order
         self._other: tuple[dict, LoopPlan] | None = None
         self._point_rhs = self._plan_rhs_function = None
+
+    def with_kernels(self, kernels_by_block: dict) -> CompiledLoop:
+        """The same loop evaluated with these kernels (their parameters) for the blocks named; its right-hand side
+        is the plan's (the generated one carries the blocks' own numbers)."""
+        from blocks.diagram.plan import _kernel_step, _map_steps
+        twin = copy.copy(self)
+        twin.plan = _map_steps(self.plan, lambda s: _kernel_step(s.name, s.x, s.y, s.gather, kernels_by_block[s.name])
+                               if s.name in kernels_by_block else s)
+        twin._other = None
+        twin._plan_rhs_function = twin._point_rhs = twin._plan_rhs
+        return twin
 
     @property
     def point_rhs(self):

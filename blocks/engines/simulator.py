@@ -28,6 +28,7 @@ engine is :func:`blocks.engines.engine_choice.select_engine`'s.
 """
 from __future__ import annotations
 
+import copy
 import math
 import numbers
 import warnings
@@ -84,6 +85,19 @@ class NumpyEngine:
         # blocks with events (FMUs): the run stops at them and keeps the outputs as it passes the grid
         self.events = loop_events(system, self.compiled.rhs, self.compiled.output)
 
+    def with_params(self, params) -> NumpyEngine:
+        """This engine running its diagram with the kernel parameters ``params`` (block name -> tuple, a
+        :attr:`blocks.engines.context.Context.params`) in place of the blocks' own: the same plan with those
+        blocks' kernels given the numbers, evaluated step by step (the generated right-hand side carries the
+        blocks' own numbers)."""
+        from blocks.engines.compiled.codegen import block_kernels
+        from blocks.engines.context import kernels_with_params
+        kernels = kernels_with_params(block_kernels(self.compiled.plan, self.compiled.system), params)
+        twin = copy.copy(self)
+        twin.compiled = self.compiled.with_kernels(kernels)
+        twin.events = loop_events(twin.compiled.system, twin.compiled.rhs, twin.compiled.output)
+        return twin
+
     def integrate(self, x0, t_grid, rtol, atol, max_step, monitor: Monitor, first_step=None):
         rhs = self.compiled.point_rhs if self.compiled.params is None else self.compiled.rhs
         return integrate_on_grid(rhs, x0, t_grid, self.method, rtol=rtol, atol=atol, max_step=max_step,
@@ -122,6 +136,11 @@ class PythonControlEngine:
 
     def outputs_on_grid(self, t_grid, X):
         return self._outputs
+
+    def with_params(self, params):
+        """Refused: python-control calls the blocks' own functions with their own numbers."""
+        raise ValueError("Context.params: the python-control engine runs the blocks' own functions with their own "
+                         "numbers; use engine='fast' or 'compiled', or build the blocks with these numbers")
 
 
 def make_engine(engine: str, system, method: str, *, U=0, params: dict | None = None):
@@ -183,6 +202,8 @@ def advance(engine, context: Context, t_grid, solver: Solver, *, what: str = "th
     """
     if context.members is not None:
         raise ValueError("advance runs one member; a batch runs in blocks.figure2.batch")
+    if context.params is not None:
+        engine = engine.with_params(context.params)
     t_grid = np.asarray(t_grid, dtype=float)
     if t_grid.size and t_grid[0] != context.t0:
         raise ValueError(f"the output grid must start at the context's t0 = {context.t0:g} s, not {t_grid[0]:g} s")

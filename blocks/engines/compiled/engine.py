@@ -1,6 +1,7 @@
 """The compiled engine for one interconnection: its generated module, its numbers, and a run on a grid."""
 from __future__ import annotations
 
+import copy
 import sys
 import time
 from collections.abc import Callable
@@ -89,6 +90,18 @@ class CompiledLoopEngine:
         self.nstates = self.plan.nstates
         self._pace: float | None = None             # accepted steps per second of a monitored run, once measured
         self._output_flags: dict = {}               # row groups asked -> (flags, rows in the order asked)
+
+    def with_params(self, params) -> CompiledLoopEngine:
+        """This engine running its loop with the kernel parameters ``params`` (block name -> tuple, a
+        :attr:`blocks.engines.context.Context.params`) in place of the blocks' own: the same compiled code, other
+        numbers (``theta``, ``ext``); a structure other than the traced one is refused
+        (:func:`blocks.engines.context.kernels_with_params`)."""
+        from blocks.engines.context import kernels_with_params
+        twin = copy.copy(self)
+        twin.kernels = kernels_with_params(self.kernels, params)
+        twin.theta, twin.ext = self.program.numbers(twin.kernels)
+        twin._output_flags = {}
+        return twin
 
     @property
     def row_groups(self) -> dict:
