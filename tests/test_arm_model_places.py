@@ -27,12 +27,10 @@ RRPR_SYMBOLS = frozenset({
 ALLOWED = ("blocks/model/rrpr/", "blocks/__init__.py", "blocks/model/default.py", "blocks/scenarios/scenario.py",
            "blocks/scenarios/scenario_arm.py")
 
-#: Modules that still name the RRPR:
-#: the batch's nominal-scale columns (Eq. 5-7 over the members) and the plant FMU's parameter
-#: map (Table 1 -> k1..k5 as traced expressions, with its C validity check); each entry goes when that module stops
-#: naming it (the test fails on an entry that is no longer needed).
+#: Modules that still name the RRPR: the plant FMU's parameter map (Table 1 -> k1..k5 as traced expressions, with its
+#: C validity check); each entry goes when that module stops naming it (the test fails on an entry no longer needed).
 PENDING = frozenset({
-    "blocks/figure2/batch/rows.py", "fmu/generated.py",
+    "fmu/generated.py",
 })
 
 

@@ -34,7 +34,6 @@ from blocks.figure2.batch.members import MemberLoop
 from blocks.figure2.batch.variants import Variants, nominal_values
 from blocks.figure2.physical_bounds import batch_bounds
 from blocks.kernels.trace import Frozen, is_table
-from blocks.model.rrpr.parameters import RobotParameters
 
 __all__ = ["MemberRows", "member_rows"]
 
@@ -141,8 +140,8 @@ def _record(values: dict) -> dict:
 
 def _sources(base, columns: dict) -> dict[str, np.ndarray]:
     """The numbers a member's row entries may be, by name, each (N,): every element of every varied key, and
-    when the nominal arm's scales vary its constants ``k1 .. k5`` (Eq. 5-7) made as the member's
-    :class:`~blocks.model.rrpr.parameters.RobotParameters` makes them, the same operations on all members at once."""
+    when the nominal arm's scales vary its kernel constants made as each member's arm makes them, the same
+    operations on all members at once (and the observer gain from a bandwidth through the arm's inertia kernel)."""
     out = {}
     for key, col in columns.items():
         flat = col.reshape(len(col), -1)
@@ -152,20 +151,24 @@ def _sources(base, columns: dict) -> dict[str, np.ndarray]:
             out[key] = col
     scales = {k.split(".", 1)[1]: c for k, c in columns.items() if k.startswith("nominal_scale.")}
     if scales:
-        c = RobotParameters.constants.func(types.SimpleNamespace(**nominal_values(base, scales)))
-        k = {i: np.asarray(getattr(c, f"k{i}"), dtype=float) for i in range(1, 6)}
-        out.update({f"nominal.k{i}": k[i] for i in range(1, 6)})
+        # the nominal arms' constants in the model's own operations over all members (as each member's arm makes
+        # them: blocks.model.arm.ArmModel.stacked_kernel_params), one source per constant
+        k = base.nominal.stacked_kernel_params(nominal_values(base, scales))             # (p, N)
+        N = k.shape[1]
+        out.update({f"nominal.k[{j}]": k[j] for j in range(k.shape[0])})
         omega = base.data["gains"].get("observer_bandwidth")
         if omega is not None:
             # Y = omega M^(q0) of each member's nominal arm (blocks.scenarios.scenario_arm.observer_gain_from_bandwidth):
-            # the distinct entries of Eq. 5 (blocks.model.rrpr.dynamics_kernels.inertia_entries) in the same operations
+            # the arm's own inertia kernel over the members' columns, each entry and its negative
             q0 = base.initial["q"]
             if q0 is None:
                 q0 = np.asarray(base.trajectory.evaluate(0.0)[0], dtype=float)
-            k2c2 = k[2] * np.cos(np.asarray(q0, dtype=float)[1])
-            entries = {"m00": k[1] + k2c2, "m01": k[3] + 0.5 * k2c2, "m11": k[3], "m22": k[4], "m33": k[5]}
-            out.update({f"observer.Y.{name}": float(omega) * m for name, m in entries.items()})
-            out["observer.Y.-m33"] = float(omega) * -k[5]
+            q0 = np.repeat(np.asarray(q0, dtype=float)[:, None], N, axis=1)
+            M = np.asarray(base.nominal.kernels.inertia_matrix(k, q0), dtype=float)      # (N, n, n)
+            for i in range(M.shape[1]):
+                for j in range(M.shape[2]):
+                    out[f"observer.Y[{i},{j}]"] = float(omega) * M[:, i, j]
+                    out[f"observer.Y[{i},{j}].negative"] = float(omega) * -M[:, i, j]
     return out
 
 
