@@ -42,7 +42,6 @@ from blocks.kernels.disturbance import DisturbanceParams
 from blocks.kernels.model import with_arm
 from blocks.kernels.trace import Graph, Sym, param_values
 from blocks.model.disturbances import DISTURBANCE_KINDS, DisturbanceSpec
-from blocks.model.rrpr.parameters import RobotParameters
 
 __all__ = ["GeneratedPlant", "plant_c", "plant_kernels", "arm_disturbance", "GENERATED_HEADER"]
 
@@ -97,7 +96,7 @@ def arm_disturbance(arm, disturbance: DisturbanceSpec | None, q0=None):
     ValueError
         On vectors of the wrong length or a model of the paper's arm only (none today) on another arm.
     """
-    if isinstance(arm, RobotParameters):
+    if arm.paper is not None:                 # the paper's arm: its Eq. 4 by default
         return DisturbanceSpec() if disturbance is None else disturbance
     n = arm.joints.count
     base = DisturbanceSpec()
@@ -131,7 +130,7 @@ def plant_kernels(arm, d) -> Kernels:
     block kernels called with its row kernels (``arm.arm_kernels``: its ``plant_acceleration`` and the tool
     point of the tissue contact), its geometry a frozen parameter (constants in the generated code).
     """
-    if isinstance(arm, RobotParameters):
+    if arm.stacks_constants:                  # its numbers are the FMU's parameters: the plant block's own kernels
         return contract_of(plant_block(arm, d)).kernels
     # the tool parameters are frozen (structure, like the dynamics'): the trace reads no number from them
     return Kernels((arm.kernel_params(), _disturbance_params(d, arm.tool_params())), with_arm(plant_output, arm),
@@ -141,52 +140,52 @@ def plant_kernels(arm, d) -> Kernels:
 # --------------------------------------------------------------------------------------------------------------
 # The arm's parameter map: theta (what the trace lifted) as expressions of the FMU's real parameters
 # --------------------------------------------------------------------------------------------------------------
-class _Namespace:
-    def __init__(self, **values) -> None:
-        self.__dict__.update(values)
+#: SI units of calculated constants as the FMU's unit definitions write them
+_FMU_UNITS = {"kg m^2": "kg.m2", "kg": "kg"}
 
-
-def _rrpr_map(graph: Graph, p: dict) -> tuple[list, list, list, str]:
-    """The paper's arm: k1..k5 of Eq. 5-7 traced from Table 1 (the Python property, run on symbols)."""
-    names = RobotParameters.names()
-    c = RobotParameters.constants.func(_Namespace(**{n: p[n] for n in names}))
-    arm = [c.k1, c.k2, c.k3, c.k4, c.k5, c.g]
-    kin = [p["a1"], p["a2"], p["d1"], p["d4"]]
-    units = {"k1": "kg.m2", "k2": "kg.m2", "k3": "kg.m2", "k4": "kg", "k5": "kg.m2"}
-    calculated = [(n, units[n], f"inertia constant {n} of Eq. 5-7, from Table 1", getattr(c, n))
-                  for n in ("k1", "k2", "k3", "k4", "k5")]
-    # M(q) positive definite for every theta2 (docs/model.md, "Inertia matrix")
-    valid = r"""    double k[N_CALCULATED];
-    double margin;
-    (void)sw;
-    plant_calculated(p, k);
-    margin = (k[0] - k[2]) * (k[2] - k[4]) - 0.25 * k[1] * k[1];
-    if (!(k[0] > k[2] && k[2] > k[4] && margin > 0.0)) {
-        snprintf(msg, msg_size,
-                 "parameters give an inertia matrix that is not positive definite for every theta2 "
-                 "(k1=%g, k2=%g, k3=%g, k5=%g kg m^2; need k1 > k3 > k5 and (k1-k3)(k3-k5) > k2^2/4)",
-                 k[0], k[1], k[2], k[4]);
-        return 0;
-    }
-    return 1;
-"""
-    return arm, kin, calculated, valid
-
-
-def _theta_expressions(arm, spec: DisturbanceSpec, params, p: dict, graph: Graph) -> tuple[list, list, str]:
-    """theta as expressions of ``p`` in the order the plant block's trace reads them; calculated; validity."""
-    if isinstance(arm, RobotParameters):
-        arm_theta, kin, calculated, valid = _rrpr_map(graph, p)
-    else:
-        # geometry, inertias and the tool point are frozen (literals in the code): only the disturbance numbers
-        # are tunable
-        arm_theta, kin, calculated = [], [], []
-        valid = """    (void)p;
+#: plant_arm_valid of an arm whose numbers are fixed (nothing to check)
+_NOTHING_TO_CHECK = """    (void)p;
     (void)sw;
     (void)msg;
     (void)msg_size;
     return 1;
 """
+
+
+def _c_text(text: str) -> str:
+    return text.replace("\\", "\\\\").replace('"', '\\"')
+
+
+def _validity_check(margins: list) -> str:
+    """The body of ``plant_arm_valid`` for the arm's validity margins (``plant_margins``: each > 0 on a valid arm)."""
+    texts = ", ".join(f'"{_c_text(text)}"' for _, text in margins)
+    return f"""    static const char *const CONDITION[{len(margins)}] = {{{texts}}};
+    double margin[{len(margins)}];
+    int i;
+    (void)sw;
+    plant_margins(p, margin);
+    for (i = 0; i < {len(margins)}; i++) {{
+        if (!(margin[i] > 0.0)) {{
+            snprintf(msg, msg_size, "parameters break the arm's condition %s (its margin is %g, must be > 0)",
+                     CONDITION[i], margin[i]);
+            return 0;
+        }}
+    }}
+    return 1;
+"""
+
+
+def _theta_expressions(arm, spec: DisturbanceSpec, params, p: dict, graph: Graph) -> tuple[list, list, list]:
+    """theta as expressions of ``p`` in the order the plant block's trace reads them; the calculated constants; the
+    arm's validity margins (:meth:`blocks.model.arm.ArmModel.exported_parameter_map`)."""
+    mapped = arm.exported_parameter_map({name: p[name] for name in arm.parameter_names()})
+    if mapped is not None:
+        arm_theta, kin, calculated, margins = mapped
+        calculated = [(name, _FMU_UNITS.get(unit, unit), text, expr) for name, unit, text, expr in calculated]
+    else:
+        # geometry, inertias and the tool point are frozen (literals in the code): only the disturbance numbers
+        # are tunable
+        arm_theta, kin, calculated, margins = [], [], [], []
     theta = list(arm_theta)
     dist = params[1]
     for name in DisturbanceParams._fields:
@@ -199,7 +198,7 @@ def _theta_expressions(arm, spec: DisturbanceSpec, params, p: dict, graph: Graph
             theta += [p[f"{name}[{i}]"] for i in range(value.size)]
         else:
             theta.append(p[name])
-    return theta, calculated, valid
+    return theta, calculated, margins
 
 
 def _evaluate(expr, values: dict) -> float:
@@ -246,7 +245,7 @@ def plant_c(arm, spec: DisturbanceSpec, param_order: list[str], start: dict) -> 
     graph = Graph()
     p = {name: graph.leaf("p", j) for j, name in enumerate(param_order)}
     base = plant_kernels(arm, spec)
-    theta_exprs, calculated, valid = _theta_expressions(arm, spec, base.params, p, graph)
+    theta_exprs, calculated, margins = _theta_expressions(arm, spec, base.params, p, graph)
     expected = param_values(base.params, [])
     if len(theta_exprs) != len(expected):
         raise CodegenError(f"the parameter map gives {len(theta_exprs)} numbers, the plant's trace reads "
@@ -268,6 +267,9 @@ def plant_c(arm, spec: DisturbanceSpec, param_order: list[str], start: dict) -> 
     parts.append(emit_c_function("plant_calculated", [c[3] for c in calculated] or [], leaves,
                                  "const double *p, double *out", static=True) if calculated else
                  "static void plant_calculated(const double *p, double *out)\n{\n    (void)p;\n    (void)out;\n}\n")
+    if margins:
+        parts.append(emit_c_function("plant_margins", [m for m, _ in margins], leaves, "const double *p, double *out",
+                                     static=True))
     functions = 2
     # the dynamics once: the disturbance enters only through the force u + tau_dis (Eq. 1), so the plant with
     # models on is this function of u + tau_dis, operation for operation
@@ -301,7 +303,7 @@ def plant_c(arm, spec: DisturbanceSpec, param_order: list[str], start: dict) -> 
               "    plant_dynamics(t, x, force, theta, dx);\n}\n",
               "/* the arm's own check of its parameters (beyond the ranges of each one) */",
               "static int plant_arm_valid(const double *p, const int *sw, char *msg, unsigned long msg_size)\n{\n"
-              + valid + "}\n",
+              + (_validity_check(margins) if margins else _NOTHING_TO_CHECK) + "}\n",
               "#endif", ""]
     functions += 1
     functions += 1

@@ -27,11 +27,8 @@ RRPR_SYMBOLS = frozenset({
 ALLOWED = ("blocks/model/rrpr/", "blocks/__init__.py", "blocks/model/default.py", "blocks/scenarios/scenario.py",
            "blocks/scenarios/scenario_arm.py")
 
-#: Modules that still name the RRPR: the plant FMU's parameter map (Table 1 -> k1..k5 as traced expressions, with its
-#: C validity check); each entry goes when that module stops naming it (the test fails on an entry no longer needed).
-PENDING = frozenset({
-    "fmu/generated.py",
-})
+#: Modules allowed to name the RRPR for a while (none now); an entry is a debt: the test fails on one no longer needed.
+PENDING: frozenset = frozenset()
 
 
 def rrpr_mentions(source: str) -> list[tuple[int, str]]:

@@ -102,3 +102,29 @@ def test_the_fmu_variables_follow_the_arms_answers(chain):
                                  viscous=(0.0,) * chain.n)
     names = {v.name for v in plant_variables(chain, spec_chain, 4)}
     assert not names & (set(TABLE_1) | {"k1", "k2", "k3", "k4", "k5"})
+
+
+def test_the_rrpr_exported_map_gives_its_constants_and_the_margins_of_a_positive_definite_inertia():
+    """The plant FMU's map of the paper's arm, run on numbers: [k1..k5, g] of Eq. 5-7 (the arm's own kernel
+    parameters), the tool lengths, and the margins k1 - k3, k3 - k5, (k1-k3)(k3-k5) - k2^2/4 -- positive for Table 1
+    (M(q) positive definite for every theta2: its eigenvalues at theta2 = 0 and pi, by numpy, are > 0) and
+    negative for sets whose M(q) is not (a negative I1 breaks k1 > k3, a negative I2 k3 > k5); a URDF arm has no map."""
+    arm = default_arm()
+    values = arm.parameter_values()
+    kernel, tool, calculated, margins = arm.exported_parameter_map(values)
+    np.testing.assert_array_equal(np.array(kernel, dtype=float), arm.kernel_params())
+    np.testing.assert_array_equal(np.array(tool, dtype=float), arm.tool_params())
+    k1, k2, k3, k4, k5 = (float(c[3]) for c in calculated)
+    assert [m for _, m in margins] == ["k1 > k3", "k3 > k5", "(k1-k3)(k3-k5) > k2^2/4"]
+    np.testing.assert_allclose([float(m) for m, _ in margins],
+                               [k1 - k3, k3 - k5, (k1 - k3) * (k3 - k5) - k2 * k2 / 4.0], rtol=1e-12)
+    assert all(float(m) > 0 for m, _ in margins)
+    for theta2 in (0.0, math.pi):
+        assert np.linalg.eigvalsh(arm.inertia(np.array([0.0, theta2, 0.1, 0.0]))).min() > 0
+    for name, broken in (("I1", 0), ("I2", 1)):
+        bad = dict(values, **{name: -10.0 * values[name]})
+        assert float(arm.exported_parameter_map(bad)[3][broken][0]) < 0
+
+
+def test_a_chain_has_no_exported_map(chain):
+    assert chain.exported_parameter_map({}) is None

@@ -197,6 +197,25 @@ class ArmModel(abc.ABC):
         member's arm gives): only a model whose constants stack per member (:attr:`stacks_constants`) answers."""
         raise NotImplementedError(f"{self.name} does not stack its constants per member")
 
+    def exported_parameter_map(self, values: dict):
+        """What a plant FMU whose real parameters are this arm's named parameters computes from them, or None.
+
+        Parameters
+        ----------
+        values : dict
+            The named parameters (:meth:`parameter_names`) as numbers or as traced symbols (their arithmetic
+            only: the map is traced into the FMU's C).
+
+        Returns
+        -------
+        tuple or None
+            ``(kernel_params, tool_params, calculated, margins)``: :meth:`kernel_params` and :meth:`tool_params` as
+            lists of expressions of ``values``; the calculated constants as ``(name, SI unit, description,
+            expression)``; the validity margins as ``(expression, condition in words)``, each > 0 on a valid arm.
+            None (the default): the arm's numbers are fixed, structure in the generated code.
+        """
+        return None
+
     def laceration_path(self, **keys):
         """The arm's own closed-form joint references for the laceration path (the scenario's ``[trajectory]``
         keys), or None: the tool point then follows the path by IK (:class:`blocks.scenarios.tool_path.ToolLaceration`)."""

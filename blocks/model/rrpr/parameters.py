@@ -267,6 +267,18 @@ class RobotParameters(ArmModel):
         c = RobotParameters.constants.func(types.SimpleNamespace(**values))
         return np.array(np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in (c.k1, c.k2, c.k3, c.k4, c.k5, c.g))))
 
+    def exported_parameter_map(self, values: dict):
+        """Table 1 -> ``[k1..k5, g]`` of Eq. 5-7 (:attr:`constants` run on ``values``), the tool lengths
+        ``[a1, a2, d1, d4]``, k1..k5 as calculated constants and the margins of ``M(q)`` positive definite for every
+        theta2 (docs/model.md, "Inertia matrix"): k1 > k3, k3 > k5, (k1-k3)(k3-k5) > k2^2/4."""
+        c = RobotParameters.constants.func(types.SimpleNamespace(**values))
+        kernel = [c.k1, c.k2, c.k3, c.k4, c.k5, c.g]
+        tool = [values["a1"], values["a2"], values["d1"], values["d4"]]
+        calculated = [(name, unit, text, getattr(c, name)) for name, unit, text in self.calculated_parameters()]
+        margins = [(c.k1 - c.k3, "k1 > k3"), (c.k3 - c.k5, "k3 > k5"),
+                   ((c.k1 - c.k3) * (c.k3 - c.k5) - 0.25 * c.k2 * c.k2, "(k1-k3)(k3-k5) > k2^2/4")]
+        return kernel, tool, calculated, margins
+
     def parameters_valid(self, values: dict) -> bool:
         """Whether every member's Table 1 (arrays over the members, SI) is finite, positive where it must be, and
         gives an inertia matrix positive definite for every theta2: the checks of :meth:`__post_init__` over all
