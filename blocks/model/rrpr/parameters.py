@@ -79,6 +79,15 @@ class InertiaConstants:
     g: float
 
 
+
+
+def inertia_margins(c) -> list:
+    """``M(q)`` positive definite for every theta2 (docs/model.md, "Inertia matrix"), as margins that must all be
+    > 0: ``k1 - k3``, ``k3 - k5`` and ``(k1-k3)(k3-k5) - k2^2/4`` (det M > 0 at cos(theta2) = +-1; with k4, k5 > 0
+    M is then positive definite everywhere), each with its condition in words.  ``c`` holds k1..k5 as numbers,
+    arrays over members or traced symbols."""
+    return [(c.k1 - c.k3, "k1 > k3"), (c.k3 - c.k5, "k3 > k5"),
+            ((c.k1 - c.k3) * (c.k3 - c.k5) - c.k2 * c.k2 / 4.0, "(k1-k3)(k3-k5) > k2^2/4")]
 @dataclass(frozen=True)
 class RobotParameters(ArmModel):
     """Masses, lengths and inertias of the arm (paper Table 1), SI units.
@@ -143,11 +152,7 @@ class RobotParameters(ArmModel):
                 raise ParameterError(f"robot parameter '{f.name}' must be > 0 {unit}, got {value!r}")
             object.__setattr__(self, f.name, float(value))
         c = self.constants
-        # det M > 0 for every theta2 (docs/model.md, "Inertia matrix"):
-        # (k1-k3)(k3-k5) - k2^2/4 > 0 at cos(theta2) = +-1
-        # together with k4 > 0 and k5 > 0; equivalently M is positive definite everywhere.
-        margin = (c.k1 - c.k3) * (c.k3 - c.k5) - c.k2 ** 2 / 4.0
-        if c.k3 <= c.k5 or c.k1 <= c.k3 or margin <= 0:
+        if any(not margin > 0 for margin, _ in inertia_margins(c)):
             raise ParameterError(
                 "robot parameters give an inertia matrix that is not positive definite for every theta2 "
                 f"(k1={c.k1:.6g}, k3={c.k3:.6g}, k5={c.k5:.6g} kg m^2, k2={c.k2:.6g} kg m^2; need "
@@ -264,8 +269,8 @@ class RobotParameters(ArmModel):
     def stacked_kernel_params(self, values: dict) -> np.ndarray:
         """``[k1, k2, k3, k4, k5, g]`` of Eq. 5-7 (rows) for Table 1 values given as numbers or arrays over the
         members (SI), by :attr:`constants`' own operations; shape (6, N)."""
-        c = RobotParameters.constants.func(types.SimpleNamespace(**values))
-        return np.array(np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in (c.k1, c.k2, c.k3, c.k4, c.k5, c.g))))
+        kernel = self.exported_parameter_map(values)[0]
+        return np.array(np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in kernel)))
 
     def exported_parameter_map(self, values: dict):
         """Table 1 -> ``[k1..k5, g]`` of Eq. 5-7 (:attr:`constants` run on ``values``), the tool lengths
@@ -275,9 +280,7 @@ class RobotParameters(ArmModel):
         kernel = [c.k1, c.k2, c.k3, c.k4, c.k5, c.g]
         tool = [values["a1"], values["a2"], values["d1"], values["d4"]]
         calculated = [(name, unit, text, getattr(c, name)) for name, unit, text in self.calculated_parameters()]
-        margins = [(c.k1 - c.k3, "k1 > k3"), (c.k3 - c.k5, "k3 > k5"),
-                   ((c.k1 - c.k3) * (c.k3 - c.k5) - 0.25 * c.k2 * c.k2, "(k1-k3)(k3-k5) > k2^2/4")]
-        return kernel, tool, calculated, margins
+        return kernel, tool, calculated, inertia_margins(c)
 
     def parameters_valid(self, values: dict) -> bool:
         """Whether every member's Table 1 (arrays over the members, SI) is finite, positive where it must be, and
@@ -287,8 +290,7 @@ class RobotParameters(ArmModel):
             if not np.all(np.isfinite(v)) or (_UNITS[name][1] and not np.all(v > 0)):
                 return False
         c = RobotParameters.constants.func(types.SimpleNamespace(**values))       # Eq. 5-7 over the members
-        margin = (c.k1 - c.k3) * (c.k3 - c.k5) - c.k2 ** 2 / 4.0
-        return bool(np.all(c.k3 > c.k5) and np.all(c.k1 > c.k3) and np.all(margin > 0))
+        return all(bool(np.all(margin > 0)) for margin, _ in inertia_margins(c))
 
     def laceration_path(self, **keys):
         """The laceration path's joint references by closed-form IK (:class:`~blocks.model.rrpr.laceration.
