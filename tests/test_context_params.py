@@ -58,6 +58,9 @@ def test_what_the_engine_cannot_follow_is_refused_by_name():
     full_gain = (controller[0], np.diag(controller[1]), controller[2])          # a matrix where a diagonal was
     with pytest.raises(ValueError, match=r"Context.params\['controller'\] has another structure"):
         advance(make_engine("fast", loop, "RK45"), Context(0.0, x0, params={"controller": full_gain}), t, Solver())
+    nan_gain = (controller[0], np.full_like(controller[1], np.nan), controller[2])
+    with pytest.raises(ValueError, match=r"Context.params\['controller'\] holds 4 number\(s\) that are not finite"):
+        advance(make_engine("fast", loop, "RK45"), Context(0.0, x0, params={"controller": nan_gain}), t, Solver())
     with pytest.raises(ValueError, match="python-control engine runs the blocks' own functions"):
         advance(make_engine("python-control", loop, "RK45"), Context(0.0, x0, params={"controller": controller}),
                 t, Solver())

@@ -119,11 +119,12 @@ def kernels_with_params(kernels_by_block: Mapping, params: Mapping) -> dict:
     Raises
     ------
     ValueError
-        Naming the block, when ``params`` names a block without kernels in the diagram, or when its numbers have
+        Naming the block, when ``params`` names a block without kernels in the diagram, holds a number that is not
+        finite, or when its numbers have
         another structure than the block's own (another length, shape, a diagonal gain for a full one, a flag):
         the engine was made for that structure, so the diagram must be built with them.
     """
-    from blocks.kernels.trace import param_structure
+    from blocks.kernels.trace import param_structure, param_values
     out = dict(kernels_by_block)
     for name, new in params.items():
         kernels = out.get(name)
@@ -135,6 +136,10 @@ def kernels_with_params(kernels_by_block: Mapping, params: Mapping) -> dict:
             raise ValueError(f"Context.params[{name!r}] has another structure than block {name!r}'s own numbers "
                              f"({param_structure(new)} against {param_structure(tuple(kernels.params))}): the "
                              "engine was made for that structure; build the block with these numbers instead")
+        numbers = np.asarray(param_values(new, []), dtype=float)
+        if not np.all(np.isfinite(numbers)):
+            raise ValueError(f"Context.params[{name!r}] holds {int(np.sum(~np.isfinite(numbers)))} number(s) that are "
+                             "not finite (NaN or infinite): a block's numbers must be finite")
         if kernels.column_params is not None and kernels.column_params is not kernels.params:
             raise ValueError(f"Context.params[{name!r}]: block {name!r} keeps column parameters of its own, which "
                              "the context cannot follow; build the block with these numbers instead")
