@@ -4,25 +4,29 @@
 
 The loop and the lean baseline are those of ``bench_urdf_loop.py`` (the DOB loop of Figure 2 on the arm's built-in
 scenario; the baseline an expert's ``solve_ivp`` over a right-hand side calling ``pin.crba``,
-``pin.nonLinearEffects`` and ``pin.aba``, numpy for the laws).  Two measures, both CPU time
+``pin.nonLinearEffects`` and ``pin.aba``, numpy for the laws).  Beside it a leaner one (:func:`leaner_loop`): the
+same loop as an expert who knows pinocchio 3 would trim it (pinocchio's Cholesky factor for ``M^-1 r`` instead of
+``numpy.linalg.solve``, ``crba``'s full ``M`` used as it is, the configuration map decided once): the lean loop
+spends about half its call on those three.  The leaner loop is the honest baseline; the lean one is kept for the
+numbers measured against it before.
+
+The numpy engine is measured three ways: as it runs where a C compiler is found (the loop's generated right-hand
+side compiled to C, :mod:`blocks.engines.compiled.c_loop`, and scipy's RK45 stepped by
+:class:`blocks.engines.lean_rk45.LeanRK45`), with the C switched off (``DOBKIT_FAST_C=0``: the generated Python with
+each chain row kernel bound to pinocchio's algorithm, :mod:`blocks.model.urdf.pin_kernels`), and -- per call only --
+as the generated Python with neither pinocchio nor C (M and h its generated functions).  Two measures, both CPU time
 (``time.process_time``), fastest of ``--rounds``:
 
 * one right-hand-side call, at states and times near the trajectory (each call at another one, as in a run): the
-  numpy engine's (``CompiledLoop.point_rhs``: the
-  loop's generated Python, each chain row kernel one call of pinocchio's algorithm, :mod:`blocks.model.urdf.pin_kernels`)
-  against the lean loop's, the mean of ``--calls`` calls;
+  numpy engine's (``CompiledLoop.point_rhs``) against the loops', the mean of ``--calls`` calls;
 * the whole run: ``blocks.simulate(scenario, engine="fast")`` (outputs and the lumped disturbance on the grid
-  included) against the lean loop's ``solve_ivp`` run.  Both integrate with scipy's RK45 at the same tolerances;
-  scipy's own stepping (about 7 us of each call's share, measured on a right-hand side that returns zeros at the
-  same number of calls) is the same for both, so the whole-run ratio is closer to 1 than the per-call one.
+  included) against the loops' ``solve_ivp`` runs.  All integrate with RK45 at the same tolerances and take the
+  same steps.
 
-Target (issue 30): numpy engine / lean <= 0.5.  Beside the lean loop a leaner one (:func:`leaner_loop`): the
-same loop as an expert who knows pinocchio 3 would trim it (pinocchio's Cholesky factor for ``M^-1 r`` instead of
-``numpy.linalg.solve``, ``crba``'s full ``M`` used as it is, the configuration map decided once): the lean loop
-spends about half its call on those three.  Also printed: the numpy engine running the compiled engine's
-program as Python (M and h its generated functions: the engine before pinocchio's algorithms were bound to the
-kernel calls), and the largest difference of ``q`` on the output grid between the numpy engine's run and the
-two loops' runs (rad).  The machine's load is printed.  No assertion: these are timings.
+Also printed: the C library's compile time in a fresh cache folder (wall time: the compiler is a child process; once
+per loop structure, then it is loaded from the cache), the largest difference of ``q`` on the output grid between
+the numpy engine's run and the two loops' runs (rad), and the machine's load.  Target (issue 30): numpy engine /
+lean pinocchio loop <= 0.5 per run.  No assertion: these are timings.
 """
 from __future__ import annotations
 
@@ -134,14 +138,42 @@ def _calling(rhs, points):
     return call
 
 
+def _without_c():
+    """A context in which the fast engine keeps its Python text (``DOBKIT_FAST_C=0``)."""
+    from unittest import mock
+    return mock.patch.dict(os.environ, {"DOBKIT_FAST_C": "0"})
+
+
 def _without_pinocchio():
     """Contexts in which the fast engine runs the compiled engine's program as Python (M and h its generated
-    functions, no pinocchio): the numpy engine as it was before the kernel calls."""
+    functions, no pinocchio, no C): the numpy engine as it was before the kernel calls."""
     from unittest import mock
 
     from blocks.engines.compiled import scalar
-    return mock.patch.object(scalar, "_calls_for", lambda plan, system: None), \
-        mock.patch.object(scalar.ScalarFunctions, "_made", {})
+    return (mock.patch.object(scalar, "_calls_for", lambda plan, system: None),
+            mock.patch.object(scalar.ScalarFunctions, "_made", {}), _without_c())
+
+
+def _c_compile_seconds(scenario) -> float:
+    """Wall time of compiling the loop's C into a fresh cache folder (s); nan when no compiler is found."""
+    import tempfile
+    from unittest import mock
+
+    from blocks.engines.compiled import c_loop
+    from blocks.engines.compiled.codegen import program_for
+    from blocks.engines.compiled.rows import loop_rows_of
+    from blocks.engines.fastsim import CompiledLoop
+    from blocks.figure2.loop import closed_loop
+
+    if c_loop.c_compiler() is None:
+        return float("nan")
+    loop = closed_loop(scenario)
+    program = program_for(CompiledLoop(loop).plan, loop, loop_rows_of(loop))[0]
+    with tempfile.TemporaryDirectory() as folder, mock.patch.dict(os.environ, {"DOBKIT_CACHE_DIR": folder}), \
+            mock.patch.object(c_loop, "_libraries", {}):
+        start = time.perf_counter()
+        c_loop.loop_library(program)
+        return time.perf_counter() - start
 
 
 def bench_arm(name: str, rounds: int, calls: int) -> list:
@@ -155,21 +187,26 @@ def bench_arm(name: str, rounds: int, calls: int) -> list:
     points = _points(lean.x0)
     lean_call = _per_call(_calling(lean.rhs, points), calls, rounds)
     leaner_call = _per_call(_calling(leaner.rhs, points), calls, rounds)
-    fast_rhs = CompiledLoop(closed_loop(s)).point_rhs
-    fast_call = _per_call(_calling(fast_rhs, points), calls, rounds)
+    c_call = _per_call(_calling(CompiledLoop(closed_loop(s)).point_rhs, points), calls, rounds)
+    with _without_c():
+        pin_call = _per_call(_calling(CompiledLoop(closed_loop(s)).point_rhs, points), calls, rounds)
     patches = _without_pinocchio()
-    with patches[0], patches[1]:
+    with patches[0], patches[1], patches[2]:
         python_rhs = CompiledLoop(closed_loop(s)).point_rhs
         python_call = _per_call(_calling(python_rhs, points), max(calls // 10, 100), rounds)
 
     lean_s, lean_res = _best(lean, rounds)
     leaner_s, leaner_res = _best(leaner, rounds)
-    fast_s, fast_res = _best(lambda: simulate(s, engine="fast"), rounds)
-    q = signal(fast_res, "q")
+    c_s, c_res = _best(lambda: simulate(s, engine="fast"), rounds)
+    with _without_c():
+        pin_s, _ = _best(lambda: simulate(s, engine="fast"), rounds)
+    q = signal(c_res, "q")
     diff = max(float(np.max(np.abs(res.y[:s.robot.n] - q))) for res in (lean_res, leaner_res))
-    return [name, str(s.robot.n), f"{lean_call * 1e6:.1f}", f"{leaner_call * 1e6:.1f}", f"{fast_call * 1e6:.1f}",
-            f"{python_call * 1e6:.1f}", f"{fast_call / lean_call:.2f}", f"{fast_call / leaner_call:.2f}",
-            f"{lean_s:.3f}", f"{leaner_s:.3f}", f"{fast_s:.3f}", f"{fast_s / lean_s:.2f}", f"{fast_s / leaner_s:.2f}",
+    return [name, str(s.robot.n), f"{lean_call * 1e6:.1f}", f"{leaner_call * 1e6:.1f}", f"{c_call * 1e6:.1f}",
+            f"{pin_call * 1e6:.1f}", f"{python_call * 1e6:.1f}", f"{c_call / lean_call:.2f}",
+            f"{c_call / leaner_call:.2f}", f"{pin_call / leaner_call:.2f}",
+            f"{lean_s:.3f}", f"{leaner_s:.3f}", f"{c_s:.3f}", f"{pin_s:.3f}", f"{c_s / lean_s:.2f}",
+            f"{c_s / leaner_s:.2f}", f"{pin_s / leaner_s:.2f}", f"{_c_compile_seconds(s):.2f}",
             f"{lean_res.nfev:,}", f"{diff:.1e}"]
 
 
@@ -187,9 +224,11 @@ def main(argv=None) -> int:
     rows = [bench_arm(name, args.rounds, args.calls) for name in args.arms]
     print(f"load average (1, 5, 15 min) {_load(load_start)} at the start, {_load(os.getloadavg())} now, on "
           f"{os.cpu_count()} cores")
-    print(table(["arm", "n", "lean rhs (us)", "leaner rhs (us)", "numpy engine rhs (us)", "generated Python rhs (us)",
-                 "rhs: numpy / lean", "rhs: numpy / leaner", "lean run (s)", "leaner run (s)", "numpy engine run (s)",
-                 "run: numpy / lean", "run: numpy / leaner", "rhs calls", "max q diff (rad)"], rows))
+    print(table(["arm", "n", "lean rhs (us)", "leaner rhs (us)", "numpy engine rhs (us)", "without C (us)",
+                 "generated Python rhs (us)", "rhs: numpy / lean", "rhs: numpy / leaner", "rhs: without C / leaner",
+                 "lean run (s)", "leaner run (s)", "numpy engine run (s)", "without C run (s)", "run: numpy / lean",
+                 "run: numpy / leaner", "run: without C / leaner", "C compile, cold (s)", "rhs calls",
+                 "max q diff (rad)"], rows))
     return 0
 
 

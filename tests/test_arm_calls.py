@@ -125,6 +125,7 @@ def test_a_loop_with_called_dynamics_computes_the_same_derivative(name, monkeypa
     def unused(t, x):
         raise AssertionError("float arithmetic raised")
 
+    monkeypatch.setenv("DOBKIT_FAST_C", "0")                           # the Python text, not its C
     monkeypatch.setattr(codegen, "ARM_CALLS", False)                     # the default is True: inlined first
     inlined = scalar_rhs(plan, loop, unused)
     lines_inlined = codegen.program_for(plan, loop, loop_rows_of(loop))[0].source.count("\n")

@@ -23,6 +23,13 @@ from blocks.model.urdf import example_arm, pin_kernels  # noqa: E402
 ARMS = ["scope4", "ur5", "panda"]
 
 
+@pytest.fixture(autouse=True)
+def python_right_hand_side(monkeypatch):
+    """These tests are of the fast engine's Python text with pinocchio bound to its calls: the C right-hand side
+    (:mod:`blocks.engines.compiled.c_loop`, tested in tests/test_c_loop.py) is switched off."""
+    monkeypatch.setenv("DOBKIT_FAST_C", "0")
+
+
 @pytest.fixture(scope="module", params=ARMS)
 def arm(request):
     return example_arm(request.param)

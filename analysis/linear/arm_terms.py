@@ -30,7 +30,7 @@ def arm_model(model, name: str = "arm") -> ArmModel:
     """``model`` checked to be an arm model (:class:`blocks.model.arm.ArmModel`)."""
     if not isinstance(model, ArmModel):
         raise TypeError(f"{name} must be a blocks.model.arm.ArmModel (for example the default scenario's arm, "
-                        "blocks.PAPER_PARAMETERS), "
+                        "blocks.model.default.default_arm()), "
                         f"got {type(model).__name__}")
     return model
 

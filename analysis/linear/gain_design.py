@@ -20,8 +20,8 @@ Certificate
     linear in the joint velocity, so the smallest eigenvalue is a concave
     function of it and its minimum over a box ``|q_j'| <= v_j`` is attained at a
     vertex: checking the ``2^n`` vertices at each configuration of a grid is exact
-    for that grid.  For the paper's arm ``dM/dtheta2`` is the analytic
-    :func:`blocks.model.rrpr.dynamics.inertia_derivative_theta2` and the other partials
+    for that grid.  For the paper's arm ``dM/dtheta2`` is the analytic one its
+    model gives (``closed_form_inertia_partials``) and the other partials
     (exactly zero) central differences; any other :class:`~blocks.model.arm.ArmModel`
     gives its partials through :func:`analysis.linear.arm_terms.inertia_partials`
     (exact from the model, or central differences).

@@ -341,8 +341,8 @@ def encoder(settings: DigitalController, measured: str = "", name: str = "encode
 
 def _nominal_arm(nominal, settings: DigitalController) -> ArmModel:
     if not isinstance(nominal, ArmModel):
-        raise TypeError(f"nominal must be an arm model (blocks.model.arm.ArmModel, e.g. blocks.PAPER_PARAMETERS or a URDF "
-                        f"arm), got {type(nominal).__name__} {nominal!r:.80}")
+        raise TypeError(f"nominal must be an arm model (blocks.model.arm.ArmModel, e.g. scenario.robot or "
+                        f"blocks.model.default.default_arm()), got {type(nominal).__name__} {nominal!r:.80}")
     settings.check_arm(nominal)
     return nominal
 

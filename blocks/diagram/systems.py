@@ -58,8 +58,8 @@ def signal_names(prefix: str, params: ArmModel | None = None) -> list[str]:
 
 def _arm(value, name: str) -> ArmModel:
     if not isinstance(value, ArmModel):
-        raise TypeError(f"{name} must be an arm model (blocks.model.arm.ArmModel, e.g. blocks.PAPER_PARAMETERS or a URDF "
-                        f"arm), got {type(value).__name__} {value!r:.80}")
+        raise TypeError(f"{name} must be an arm model (blocks.model.arm.ArmModel, e.g. scenario.robot or "
+                        f"blocks.model.default.default_arm()), got {type(value).__name__} {value!r:.80}")
     return value
 
 

@@ -3,7 +3,7 @@
 Both kinds expose ``evaluate(t) -> (q_ref, dq_ref, ddq_ref)`` for a scalar or
 an array of times (s); the arrays have shape ``(n,)`` or ``(len(t), n)`` for the arm's ``n``
 joints.  The laceration path is a task-space path (:func:`laceration_pose`); an arm model turns
-it into joint references (the paper's RRPR in closed form, :class:`blocks.model.rrpr.laceration.LacerationPath`;
+it into joint references (the paper's arm in closed form, the path its model's ``laceration_path`` makes;
 any other arm's tool point by IK, :class:`blocks.scenarios.tool_path.ToolLaceration`).
 
 The laceration path
@@ -56,9 +56,9 @@ TRAJECTORY_KINDS = ("laceration", "joint_sine", "tool_path")
 
 # --------------------------------------------------------------------------------------------------------------
 # Reference kernels: plain functions of a time and a parameter tuple, in the subset of Python numba compiles.
-# The path objects below call them, and their blocks carry them (see LacerationPath.kernels).
+# The path objects below call them, and their blocks carry them (see the paper arm's laceration path's ``kernels``).
 # --------------------------------------------------------------------------------------------------------------
-#: Layout of a laceration path's parameter tuple (:meth:`LacerationPath._geometry`).
+#: Layout of a laceration path's parameter tuple (the paper arm's laceration path's ``_geometry``).
 LACERATION_FIELDS = ("phase_duration", "stitches", "duration", "x0", "y0", "x1", "y1", "bulge", "skin_height",
                      "hover", "depth", "needle_roll", "roll_offset", "a1", "a2", "d1", "d4", "elbow", "q_near1",
                      "q_near4")

@@ -92,6 +92,16 @@ class CompiledLoop:
         return self._point_rhs
 
     @property
+    def c_loop(self):
+        """The loop's C library (:class:`blocks.engines.compiled.c_loop.CLoop`) when :attr:`point_rhs` runs it
+        (a chain arm's loop where a C compiler is found), else None."""
+        owner = getattr(self.point_rhs, "__self__", None)
+        if owner is None:
+            return None
+        from blocks.engines.compiled.c_loop import CLoop
+        return owner if isinstance(owner, CLoop) else None
+
+    @property
     def generated(self) -> bool:
         """Whether :attr:`point_rhs` runs the plan's generated code (else the numpy plan)."""
         return self.point_rhs is not self._plan_rhs_function

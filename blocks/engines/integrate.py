@@ -44,11 +44,15 @@ import numpy as np
 import scipy.integrate
 import scipy.optimize
 
+from blocks.engines.lean_rk45 import LeanRK45
+
 __all__ = ["SOLVERS", "integrate_on_grid", "DivergenceError", "SolverFailure", "SimulationTerminated", "MAX_EVENTS",
            "EventSource", "LoopEvents", "loop_events", "hybrid_blocks", "refuse_hybrid", "locate_crossing"]
 
 #: The :func:`scipy.integrate.solve_ivp` methods, by name.
 SOLVERS = {name: getattr(scipy.integrate, name) for name in ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA")}
+# The classes that step: scipy's, but RK45 as LeanRK45 (the same steps and floats, less Python per step).
+_STEPPERS = dict(SOLVERS, RK45=LeanRK45)
 
 
 # Points of a step's dense output searched for the first crossing of the bound (only when a step crossed it).
@@ -445,7 +449,7 @@ def _integrate(fun, x0, t_grid, method, options, bound, progress, monitor, event
             interval = options
             if hybrid and "first_step" in options:   # at most the span to the next event (a tick's interval, say)
                 interval = dict(options, first_step=min(options["first_step"], stop - t))
-            solver = SOLVERS[method](fun, t, x, stop, vectorized=False, **interval)
+            solver = _STEPPERS[method](fun, t, x, stop, vectorized=False, **interval)
             while solver.status == "running":
                 message = solver.step()
                 if solver.status == "failed":

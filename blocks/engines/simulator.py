@@ -103,10 +103,31 @@ class NumpyEngine:
         return integrate_on_grid(rhs, x0, t_grid, self.method, rtol=rtol, atol=atol, max_step=max_step,
                                  bound=monitor.limits, monitor=monitor, events=self.events, first_step=first_step)
 
-    def outputs_on_grid(self, t_grid, X):
+    def _c_loop(self):
+        """The loop's C library when the run's right-hand side is it (no events, the blocks' own numbers)."""
+        if self.events is not None or self.compiled.params is not None:
+            return None
+        return self.compiled.c_loop
+
+    @property
+    def row_groups(self) -> dict:
+        """Row groups computed beside the outputs (:mod:`blocks.engines.compiled.rows`): those of the loop's C
+        library's grid pass when it runs the loop (the lumped disturbance ``d`` ...), else none."""
+        c = self._c_loop()
+        return c.row_groups if c is not None else {}
+
+    def outputs_on_grid(self, t_grid, X, rows: tuple = (), stacked: bool = False):
+        """The outputs at the grid times (and, with ``rows``, the named row groups' rows: ``(outputs, {name:
+        rows})``, or with ``stacked`` one array, the outputs and then the rows in the order asked)."""
         if self.events is not None:
             return np.array(self.events.outputs).T
-        return self.compiled.outputs_on_grid(t_grid, X)
+        c = self._c_loop()
+        if c is None:
+            return self.compiled.outputs_on_grid(t_grid, X)
+        outputs, by_name = c.outputs_on_grid(t_grid, X, tuple(rows))
+        if not rows:
+            return outputs
+        return np.vstack([outputs] + [by_name[name] for name in rows]) if stacked else (outputs, by_name)
 
 
 class PythonControlEngine:

@@ -48,11 +48,11 @@ stability at ``Ts lambda_max = 1.9795`` at 1 kHz and ``1.7899`` at 100 Hz
 Examples
 --------
 >>> import numpy as np
->>> from blocks import PAPER_PARAMETERS
+>>> from blocks.model.default import default_arm
 >>> from blocks.diagram.digital import DigitalController
 >>> from blocks.figure2.digital_stability import sampled_stability
 >>> q = np.array([[0.3, 1.2, 0.1, 0.2]])
->>> s = sampled_stability(PAPER_PARAMETERS, q, 180.0 * np.eye(4), 36.0 * np.eye(4), 10.0 * np.eye(4),
+>>> s = sampled_stability(default_arm(), q, 180.0 * np.eye(4), 36.0 * np.eye(4), 10.0 * np.eye(4),
 ...                       DigitalController(sample_rate=100.0, observer_discretization="zoh"))
 >>> round(s.ts_lambda_limit, 3)      # Ts lambda_max(Y M^-1) at the limit, below Euler's 2
 1.79

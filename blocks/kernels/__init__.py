@@ -2,7 +2,7 @@
 
 Every formula of the Figure-2 loop lives here and nowhere else in Python: the
 python-control blocks (:mod:`blocks.diagram.systems`), the public model functions
-(:mod:`blocks.model.rrpr.dynamics`, :mod:`blocks.model.rrpr.kinematics`, :mod:`blocks.model.disturbances`),
+(each arm model's package, :mod:`blocks.model.disturbances`),
 the batch engine (:mod:`blocks.figure2.batch`) and any later engine call these
 functions.  The exported C plant (:mod:`fmu`) is the one other implementation,
 and the tests check it against an independent reference, as they check these.
@@ -20,8 +20,8 @@ trailing axis of length 1 (shared by every column) or ``K`` (one value per
 column, as in a batch).  :func:`column_params` adds the shared trailing axis.
 An arm gives its numbers as ``k = arm.kernel_params()`` and ``kin =
 arm.tool_params()`` and its row kernels (``mass_times``, ``bias_forces``,
-``tool_position``, ...) in its own package (the paper's RRPR in
-:mod:`blocks.model.rrpr`, a URDF chain's in :mod:`blocks.kernels.chain`);
+``tool_position``, ...) (the paper's RRPR in
+its own package under :mod:`blocks.model`, a URDF chain's in :mod:`blocks.kernels.chain`);
 nothing here is any one arm's.  The laws and block kernels take the arm's row
 kernels as a value, their first argument ``model``
 (:class:`blocks.kernels.model.ArmKernels`, ``arm.arm_kernels``), so one

@@ -16,7 +16,7 @@ Step of the central differences
     one unit (rad, or m for prismatic joints whose inertia terms are
     polynomial in the extension).  :data:`FD_STEP` = 6e-6 gives a relative
     error near 1e-10 for trigonometric dependences; the tests hold it against
-    the paper arm's exact ``dM/dtheta2`` (:func:`blocks.model.rrpr.dynamics.inertia_derivative_theta2`).
+    the paper arm's exact ``dM/dtheta2`` (its model's ``closed_form_inertia_partials``).
     A constant term (the paper arm's gravity) has the exact slope 0.
 """
 from __future__ import annotations

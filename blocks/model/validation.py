@@ -141,8 +141,8 @@ def arm_model(value, name: str = "arm"):
     """
     from blocks.model.arm import ArmModel
     if not isinstance(value, ArmModel):
-        raise TypeError(f"{name} must be an arm model (blocks.model.arm.ArmModel: blocks.PAPER_PARAMETERS is the paper's "
-                        f"arm, scenario.robot a scenario's), got {_kind(value)} {value!r:.80}")
+        raise TypeError(f"{name} must be an arm model (blocks.model.arm.ArmModel: blocks.model.default.default_arm() is "
+                        f"the default scenario's, scenario.robot a scenario's), got {_kind(value)} {value!r:.80}")
     return value
 
 

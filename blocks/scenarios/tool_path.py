@@ -385,7 +385,7 @@ LACERATION_KEYS = ("start", "end", "bulge", "stitches", "skin_height", "hover", 
 
 @dataclass(frozen=True)
 class ToolLaceration(_SampledIK):
-    """The suturing path of :class:`blocks.model.rrpr.laceration.LacerationPath` for the tool point of any arm, by IK.
+    """The suturing path of the paper's arm (its model's ``laceration_path``) for the tool point of any arm, by IK.
 
     The tool point places ``stitches`` stitches along a laceration from ``start`` to ``end`` (a line, or an arc
     ``bulge`` to its left) on the skin plane ``z = skin_height``: at each it rests ``hover`` above the skin,
@@ -401,7 +401,7 @@ class ToolLaceration(_SampledIK):
     skin_height : float
         The skin plane's height (m, base frame): the tissue contact's ``disturbance.skin_height``.
     bulge, stitches, hover, depth, duration
-        As :class:`~blocks.model.rrpr.laceration.LacerationPath` takes them.
+        As the paper arm's laceration path takes them.
     sample_period : float
         Spacing of the IK samples (s), > 0 and at most one phase.
     q0 : sequence of n floats, optional

@@ -341,10 +341,10 @@ def block_c(kernels, n_x: int, n_u: int, names: dict, param_names=None, static: 
 
     Examples
     --------
-    >>> from blocks.model.rrpr.parameters import RobotParameters
+    >>> from blocks.model.default import default_arm
     >>> from blocks.diagram.contract import contract_of
     >>> from blocks.diagram.systems import plant
-    >>> block = plant(RobotParameters())
+    >>> block = plant(default_arm())
     >>> prog = block_c(contract_of(block).kernels, 8, 4, {"update": "f"}, ("k", "disturbance"))
     >>> prog.sizes["f"], prog.theta_names[:2]
     (8, ['k[0]', 'k[1]'])
