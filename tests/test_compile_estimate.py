@@ -112,3 +112,21 @@ def test_a_called_function_whose_outputs_are_all_constants_is_valid_code():
     namespace = {}
     exec(compile(text, "<callees>", "exec"), namespace)
     assert namespace["arm_gravity_zero"]((0.3,)) == ()
+
+
+@pytest.mark.parametrize("name, inlined", [("paper", True), ("ur5", False)])
+def test_a_small_programs_sources_and_outputs_are_inlined_into_the_drivers_a_big_ones_are_called(name, inlined):
+    """``SMALL_PROGRAM_LINES`` on both sides: the paper's loop (1,132 lines) has its sources and outputs inlined into
+    the integrators' drivers (its short run pays for the calls); the UR5's (5,114) calls them (inlined they cost its
+    compile in proportion to their size); the integrators' own helpers are inlined in both."""
+    pytest.importorskip("numba")
+    if name == "ur5":
+        pytest.importorskip("pinocchio")
+    loop = closed_loop(load_scenario(name))
+    program = codegen.program_for(make_plan(loop), loop, loop_rows_of(loop))[0]
+    lines = program.source.count("\n")
+    assert (lines <= codegen.SMALL_PROGRAM_LINES) == inlined
+    module, _ = codegen.load_module(program)
+    for fn in module.INLINE_WHEN_SMALL:
+        assert (getattr(module, fn).targetoptions.get("inline") == "always") == inlined, fn
+    assert module.dp_step.targetoptions.get("inline") == "always"

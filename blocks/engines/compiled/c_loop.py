@@ -10,7 +10,9 @@ hand.  Here the same functions are written as C99 (:func:`loop_c_source`: every
 statement the same operation on the same operands, comparisons as 0/1, numpy's
 ``sign``/``maximum``/``minimum`` as :data:`~blocks.engines.compiled.c_backend.C_PRELUDE`
 defines them) and compiled with ``-ffp-contract=off`` and without fast-math, so
-a C call returns the floats the Python text returns, bit for bit (tested).
+a C call returns the floats the Python text returns, bit for bit (tested).  ``tanh`` and
+``exp`` are the C library's, as in numba's code (the Python text calls numpy's,
+which may differ in the last bit); the example arms' loops use neither.
 
 What cannot be C is refused (:class:`CUnavailable`, with the reason): a block
 whose kernels are called rather than traced (the laceration path, a noise
@@ -21,10 +23,12 @@ The shared library is kept in the compiled-code cache folder
 (:func:`blocks.engines.compiled.cache.cache_dir`) under a name hashing its C
 text, the compiler and the flags; it is written to a temporary name and
 renamed into place, so a second process or a killed compile never leaves a
-half-written library under the real name.  Compiling takes about a second for a
-six-joint arm (:func:`estimate_c_compile_seconds`, fitted to the example arms);
-a compiler that does not finish within :data:`COMPILE_TIMEOUT` is stopped and
-the Python text is used.
+half-written library under the real name; its SHA-256 is written beside it and
+checked before it is loaded.  Compiling takes 0.2-0.4 s for the UR5's and the
+Panda's loops (:func:`estimate_c_compile_seconds`); a loop estimated over
+:data:`C_COMPILE_LIMIT` is not compiled, and a compiler that does not finish
+within :data:`COMPILE_TIMEOUT` is stopped (with its whole process group); the
+Python text runs then.
 """
 from __future__ import annotations
 
@@ -34,6 +38,7 @@ import hashlib
 import os
 import shlex
 import shutil
+import signal
 import subprocess
 import tempfile
 import warnings
@@ -49,7 +54,7 @@ __all__ = ["CUnavailable", "CTooLong", "loop_c_source", "c_compiler", "loop_libr
            "COMPILE_TIMEOUT", "C_COMPILE_LIMIT", "estimate_c_compile_seconds"]
 
 #: Flags of the loop's library: the generated maths must round as the Python text does (no fused multiply-adds,
-#: no fast-math); -O1 compiles a 10,000-statement function in about a third of -O2's time and runs as fast here.
+#: no fast-math); -O1 compiles the Panda's loop in two thirds of -O2's time (0.32 against 0.47 s) and runs within 10 %.
 C_LOOP_FLAGS = ("-std=c99", "-O1", "-ffp-contract=off", "-fno-fast-math", "-shared", "-fPIC")
 #: Seconds a compile may take before it is stopped (the Python text is used then).
 COMPILE_TIMEOUT = 120.0
@@ -331,15 +336,21 @@ def _compile(argv: list[str], c_text: str, output: Path) -> None:
         source.write_text(c_text, encoding="utf-8")
         built = Path(tmp) / "loop.so"
         cmd = argv + list(C_LOOP_FLAGS) + [str(source), "-o", str(built), "-lm"]
-        try:
-            said = subprocess.run(cmd, capture_output=True, text=True, timeout=COMPILE_TIMEOUT,
-                                  env=dict(os.environ, TMPDIR=tmp))
-        except subprocess.TimeoutExpired:
-            raise CUnavailable(f"the C compiler did not finish within {COMPILE_TIMEOUT:g} s") from None
+        try:       # its own process group: a timeout or an interrupt ends the whole compiler (cc1, as, ld)
+            proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                    env=dict(os.environ, TMPDIR=tmp), start_new_session=True)
         except OSError as err:
             raise CUnavailable(f"could not run the C compiler {argv[0]!r}: {err}") from None
-        if said.returncode != 0 or not built.is_file():
-            raise CUnavailable(f"compiling the loop's C failed (exit code {said.returncode}): {said.stderr.strip()[:400]}")
+        try:
+            _, said = proc.communicate(timeout=COMPILE_TIMEOUT)
+        except subprocess.TimeoutExpired:
+            _end(proc)
+            raise CUnavailable(f"the C compiler did not finish within {COMPILE_TIMEOUT:g} s") from None
+        except BaseException:
+            _end(proc)
+            raise
+        if proc.returncode != 0 or not built.is_file():
+            raise CUnavailable(f"compiling the loop's C failed (exit code {proc.returncode}): {said.strip()[:400]}")
         data = built.read_bytes()
     tmp_out = output.with_name(f"{output.name}.tmp.{os.getpid()}")
     try:
@@ -353,6 +364,15 @@ def _compile(argv: list[str], c_text: str, output: Path) -> None:
     tmp_digest = digest.with_name(f"{digest.name}.tmp.{os.getpid()}")
     tmp_digest.write_text(hashlib.sha256(data).hexdigest())
     os.replace(tmp_digest, digest)
+
+
+def _end(proc: subprocess.Popen) -> None:
+    """Stop a compiler and everything it started."""
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except (ProcessLookupError, PermissionError, AttributeError):      # gone, or no process groups
+        proc.kill()
+    proc.wait()
 
 
 def _checked(path: Path) -> bool:

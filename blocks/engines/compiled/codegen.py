@@ -696,6 +696,12 @@ def _template_text() -> str:
     return (Path(__file__).parent / "dopri.py").read_text(encoding="utf-8")
 
 
+#: A program of more generated lines than this keeps ``INLINE_WHEN_SMALL`` (its sources and outputs) as calls: inlined
+#: into the drivers they pay in the paper's short run (1,132 lines; dopri.INLINE) and cost compile time in proportion
+#: to their size: the Panda's first run 15.6 s of CPU with them inlined, 12.9 s without (7,670 lines), its cached
+#: run 5.8 and 5.6 ms (benchmarks/bench_urdf_compile.py, load 1.0).
+SMALL_PROGRAM_LINES = 2_000
+
 _modules: dict[str, tuple[types.ModuleType, bool]] = {}
 _stores: dict[str, ModuleCache] = {}
 
@@ -738,6 +744,8 @@ def load_module(program: LoopProgram) -> tuple[types.ModuleType, bool]:
     parallel = set(getattr(module, "PARALLEL", ()))
     nogil = set(getattr(module, "NOGIL", ()))
     inline = set(getattr(module, "INLINE", ()))
+    if program.source.count("\n") > SMALL_PROGRAM_LINES:   # a big loop: its sources and outputs stay calls
+        inline -= set(getattr(module, "INLINE_WHEN_SMALL", ()))
     for attr, value in list(vars(module).items()):
         if isinstance(value, types.FunctionType) and value.__module__ == name:
             options = dict(error_model="numpy")

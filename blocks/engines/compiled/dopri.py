@@ -38,6 +38,8 @@ NOGIL = ("sampled_members",)
 # double the compile time)
 INLINE = ("loop_derivative", "step_rhs", "loop_sources", "rms_norm", "dense_into", "dense_coefficients",
           "bounded_step", "dp_step", "loop_outputs_rows")
+# Of those, the loop's own functions, inlined only into a small program's drivers (codegen.SMALL_PROGRAM_LINES)
+INLINE_WHEN_SMALL = ("loop_sources", "loop_outputs_rows")
 
 # Dormand-Prince 5(4), as scipy.integrate.RK45
 DP_C = np.array([0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1.0])
