@@ -11,12 +11,11 @@ import hashlib
 import os
 import shlex
 import shutil
-import signal
-import subprocess
 import sys
-import time
 import uuid
 from pathlib import Path
+
+from blocks.plumbing.compiler import CompilerTimeout, run_compiler
 
 from .errors import FMUBuildError
 
@@ -115,22 +114,6 @@ def shared_library_suffix() -> str:
     return {"win32": ".dll", "darwin": ".dylib"}.get(sys.platform, ".so")
 
 
-def _end_compiler(proc: subprocess.Popen, wait: float = 5.0) -> None:
-    """Kill the compiler's process group and wait until none of it is left (so nothing writes after)."""
-    try:
-        os.killpg(proc.pid, signal.SIGKILL)
-    except (ProcessLookupError, PermissionError, AttributeError):     # gone, or no process groups (Windows)
-        proc.kill()
-    proc.wait()
-    deadline = time.monotonic() + wait
-    while time.monotonic() < deadline:
-        try:
-            os.killpg(proc.pid, 0)
-        except (ProcessLookupError, PermissionError, AttributeError):
-            return
-        time.sleep(0.01)
-
-
 def compile_shared_library(sources: list[Path], include_dirs: list[Path], output: Path,
                            cc: str | None = None, timeout: float = 120.0) -> list[str]:
     """Compile and link C sources into ``output``.
@@ -150,21 +133,13 @@ def compile_shared_library(sources: list[Path], include_dirs: list[Path], output
         + ["-o", str(output), "-lm"]
     # Its temporaries (cc*.s, cc*.o) go to the build folder, which is removed with them; its own process group
     # lets an interrupt end the whole compiler (cc1, as, ld), not only its driver.
-    env = dict(os.environ, TMPDIR=str(Path(output).parent))
     try:
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-                                start_new_session=True)
+        returncode, said = run_compiler(cmd, timeout, str(Path(output).parent))
     except OSError as err:
         raise FMUBuildError(f"could not run the C compiler {argv[0]!r}: {err}") from None
-    try:
-        _, said = proc.communicate(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        _end_compiler(proc)
+    except CompilerTimeout:
         raise FMUBuildError(f"the C compiler did not finish within {timeout:g} s: {shlex.join(cmd)}") from None
-    except BaseException:               # Ctrl-C or SIGTERM: no compiler process outlives the command
-        _end_compiler(proc)
-        raise
-    if proc.returncode != 0 or not output.is_file():
-        raise FMUBuildError(f"compiling the FMU failed (exit code {proc.returncode}):\n$ {shlex.join(cmd)}\n"
+    if returncode != 0 or not output.is_file():
+        raise FMUBuildError(f"compiling the FMU failed (exit code {returncode}):\n$ {shlex.join(cmd)}\n"
                             f"{said.strip()}")
     return cmd

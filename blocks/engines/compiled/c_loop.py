@@ -38,7 +38,6 @@ import hashlib
 import os
 import shlex
 import shutil
-import signal
 import subprocess
 import tempfile
 import warnings
@@ -49,6 +48,7 @@ import numpy as np
 from blocks.engines.compiled.c_backend import C_PRELUDE
 from blocks.engines.compiled.cache import CompiledCacheWarning, cache_dir
 from blocks.engines.compiled.codegen import CompiledUnavailable, LoopProgram
+from blocks.plumbing.compiler import CompilerTimeout, run_compiler
 
 __all__ = ["CUnavailable", "CTooLong", "loop_c_source", "c_compiler", "loop_library", "CLoop", "c_rhs", "C_LOOP_FLAGS",
            "COMPILE_TIMEOUT", "C_COMPILE_LIMIT", "estimate_c_compile_seconds"]
@@ -336,21 +336,14 @@ def _compile(argv: list[str], c_text: str, output: Path) -> None:
         source.write_text(c_text, encoding="utf-8")
         built = Path(tmp) / "loop.so"
         cmd = argv + list(C_LOOP_FLAGS) + [str(source), "-o", str(built), "-lm"]
-        try:       # its own process group: a timeout or an interrupt ends the whole compiler (cc1, as, ld)
-            proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                    env=dict(os.environ, TMPDIR=tmp), start_new_session=True)
+        try:       # in its own process group: a time-out or an interrupt ends the whole compiler
+            returncode, said = run_compiler(cmd, COMPILE_TIMEOUT, tmp)
+        except CompilerTimeout as err:
+            raise CUnavailable(str(err)) from None
         except OSError as err:
             raise CUnavailable(f"could not run the C compiler {argv[0]!r}: {err}") from None
-        try:
-            _, said = proc.communicate(timeout=COMPILE_TIMEOUT)
-        except subprocess.TimeoutExpired:
-            _end(proc)
-            raise CUnavailable(f"the C compiler did not finish within {COMPILE_TIMEOUT:g} s") from None
-        except BaseException:
-            _end(proc)
-            raise
-        if proc.returncode != 0 or not built.is_file():
-            raise CUnavailable(f"compiling the loop's C failed (exit code {proc.returncode}): {said.strip()[:400]}")
+        if returncode != 0 or not built.is_file():
+            raise CUnavailable(f"compiling the loop's C failed (exit code {returncode}): {said.strip()[:400]}")
         data = built.read_bytes()
     tmp_out = output.with_name(f"{output.name}.tmp.{os.getpid()}")
     try:
@@ -364,15 +357,6 @@ def _compile(argv: list[str], c_text: str, output: Path) -> None:
     tmp_digest = digest.with_name(f"{digest.name}.tmp.{os.getpid()}")
     tmp_digest.write_text(hashlib.sha256(data).hexdigest())
     os.replace(tmp_digest, digest)
-
-
-def _end(proc: subprocess.Popen) -> None:
-    """Stop a compiler and everything it started."""
-    try:
-        os.killpg(proc.pid, signal.SIGKILL)
-    except (ProcessLookupError, PermissionError, AttributeError):      # gone, or no process groups
-        proc.kill()
-    proc.wait()
 
 
 def _checked(path: Path) -> bool:
