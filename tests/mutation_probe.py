@@ -480,6 +480,7 @@ CPL, MST, SV = "fmu/coupling.py", "fmu/master.py", "fmu/start_values.py"
 DG, SMP, NZ, NZK = "blocks/diagram/digital.py", "blocks/engines/sampling.py", "blocks/model/noise.py", "blocks/kernels/noise.py"
 DP, TR = "blocks/engines/compiled/dopri.py", "blocks/kernels/trace.py"
 TJ, TP, RR = "blocks/diagram/trajectory.py", "blocks/scenarios/tool_path.py", "blocks/model/urdf/resolved_rate.py"
+TK = "blocks/model/task_path.py"
 LAC = "blocks/model/rrpr/laceration.py"      # the RRPR's closed-form IK of the laceration path
 SU, CO, EV = "analysis/sweep/summary.py", "analysis/tune/costs.py", "analysis/tune/evaluate.py"
 FR, GD = "analysis/linear/frequency.py", "analysis/linear/gain_design.py"
@@ -599,13 +600,13 @@ MUTANTS += [
       "smoothstep5 derivative with (1 - tau) once"),
     M("tj-bump-dd", "task_path", SPLINES, "384 * u * du ** 2 - 384 * u ** 2", "384 * u * du ** 2 - 192 * u ** 2", LACERATION,
       "bump6 second derivative: 192 u^2"),
-    M("tj-dds-T", "task_path", TJ, "step * ddsig / T ** 2", "step * ddsig / T", LACERATION, "s'' over T for T^2"),
-    M("tj-bulge-ddw", "task_path", TJ, "4 * bulge * (1 - 2 * s), -8 * bulge", "4 * bulge * (1 - 2 * s), -4 * bulge", LACERATION,
+    M("tj-dds-T", "task_path", TK, "step * ddsig / T ** 2", "step * ddsig / T", LACERATION, "s'' over T for T^2"),
+    M("tj-bulge-ddw", "task_path", TK, "4 * bulge * (1 - 2 * s), -8 * bulge", "4 * bulge * (1 - 2 * s), -4 * bulge", LACERATION,
       "bulge curvature w'' = -4 b for -8 b"),
     M("tj-bias-w12", "task_path", LAC, "bx = ax + a1 * c1 * w1 ** 2 + a2 * c12 * w12 ** 2", "bx = ax + a1 * c1 * w1 ** 2 + a2 * c12 * w2 ** 2",
       LACERATION, "IK acceleration bias: w2^2 for (w1 + w2)^2 in x"),
     M("tj-aphi-sign", "task_path", LAC, "e1 + e2 - aphi)", "e1 + e2 + aphi)", LACERATION, "theta4'' = e1 + e2 + phi''"),
-    M("tj-phase-cap", "task_path", TJ, "phase = min(max(math.floor(t / T), 0), 2 * stitches - 2)",
+    M("tj-phase-cap", "task_path", TK, "phase = min(max(math.floor(t / T), 0), 2 * stitches - 2)",
       "phase = min(max(math.floor(t / T), 0), 2 * stitches - 1)", LACERATION, "a phase past the last stitch"),
     M("tp-quintic-c4", "task_path", SPLINES, "c4 = -15.0 * d + 7.0 * dv - da", "c4 = -15.0 * d + 7.0 * dv - 0.5 * da", TOOL_PATH,
       "joint table quintic: c4 with da / 2"),

@@ -37,14 +37,14 @@ reference is checked against the joint ranges by the scenario that runs it
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from blocks.diagram.bound_kernels import Kernels
-from blocks.kernels.splines import bump6, smoothstep5
-from blocks.model.arm import UnreachableError
+from blocks.kernels.splines import bump6, smoothstep5  # noqa: F401  (names this module has given)
+from blocks.model.task_path import LACERATION_FIELDS, check_joint_ranges, laceration_pose  # noqa: F401
+from blocks.model.task_path import finite_values as _finite
 
 __all__ = ["JointSine", "TRAJECTORY_KINDS", "check_joint_ranges", "smoothstep5", "bump6", "laceration_pose",
            "joint_sine_output"]
@@ -52,47 +52,6 @@ __all__ = ["JointSine", "TRAJECTORY_KINDS", "check_joint_ranges", "smoothstep5",
 #: The kinds of reference: the laceration path, joint sines (any arm), a tool-point path (any arm,
 #: :mod:`blocks.scenarios.tool_path`).
 TRAJECTORY_KINDS = ("laceration", "joint_sine", "tool_path")
-
-
-# --------------------------------------------------------------------------------------------------------------
-# Reference kernels: plain functions of a time and a parameter tuple, in the subset of Python numba compiles.
-# The path objects below call them, and their blocks carry them (see the paper arm's laceration path's ``kernels``).
-# --------------------------------------------------------------------------------------------------------------
-#: Layout of a laceration path's parameter tuple (the paper arm's laceration path's ``_geometry``).
-LACERATION_FIELDS = ("phase_duration", "stitches", "duration", "x0", "y0", "x1", "y1", "bulge", "skin_height",
-                     "hover", "depth", "needle_roll", "roll_offset", "a1", "a2", "d1", "d4", "elbow", "q_near1",
-                     "q_near4")
-
-
-def laceration_pose(t, g):
-    """Task-space pose ``[x, y, z, phi]`` of a laceration path at time ``t`` (s) and its two rates, as 12 floats.
-
-    ``g`` holds the path's numbers in the order of :data:`LACERATION_FIELDS`.
-    """
-    T, stitches, duration = g[0], int(g[1]), g[2]
-    phase = min(max(math.floor(t / T), 0), 2 * stitches - 2)
-    tau = 1.0 if t >= duration else min(max(t / T - phase, 0.0), 1.0)
-    step = 1.0 / (stitches - 1)
-    # arc parameter s along the laceration advances in travel phases; the dip b acts in stitch phases
-    s, ds, dds, b, db, ddb = step * (phase // 2), 0.0, 0.0, 0.0, 0.0, 0.0
-    if phase % 2 == 1:
-        sig, dsig, ddsig = smoothstep5(tau)
-        s, ds, dds = s + step * sig, step * dsig / T, step * ddsig / T ** 2
-    else:
-        b, db, ddb = bump6(tau)
-        db, ddb = db / T, ddb / T ** 2
-    # the laceration: start + s (end - start) + a parabolic sideways offset of 'bulge' at its middle
-    x0, y0, x1, y1, bulge = g[3], g[4], g[5], g[6], g[7]
-    skin_height, hover, depth, needle_roll, roll_offset = g[8], g[9], g[10], g[11], g[12]
-    dx, dy = x1 - x0, y1 - y0
-    length = math.hypot(dx, dy)
-    nx, ny = -dy / length, dx / length
-    w, dw, ddw = 4 * bulge * s * (1 - s), 4 * bulge * (1 - 2 * s), -8 * bulge
-    tx, ty = dx + dw * nx, dy + dw * ny
-    reach = hover + depth
-    return (x0 + s * dx + w * nx, y0 + s * dy + w * ny, skin_height + hover - reach * b, roll_offset + needle_roll * b,
-            tx * ds, ty * ds, -reach * db, needle_roll * db,
-            ddw * nx * ds ** 2 + tx * dds, ddw * ny * ds ** 2 + ty * dds, -reach * ddb, needle_roll * ddb)
 
 
 def joint_sine_output(t, x, u, amplitude, omega, offset):
@@ -103,38 +62,6 @@ def joint_sine_output(t, x, u, amplitude, omega, offset):
     phase = omega * t
     return np.concatenate((offset + amplitude * np.sin(phase), amplitude * omega * np.cos(phase),
                            -amplitude * omega ** 2 * np.sin(phase)))
-
-
-def _finite(value, name: str):
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise ValueError(f"trajectory.{name} must be a number or a list of numbers, got {value!r}") from None
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"trajectory.{name} must be finite, got {value!r}")
-    return arr
-
-
-def _scalar(value, name: str, unit: str) -> float:
-    arr = _finite(value, name)
-    if arr.ndim != 0:
-        raise ValueError(f"trajectory.{name} must be one number in {unit}, got {value!r}")
-    return float(arr)
-
-
-def check_joint_ranges(q, joints, what: str, why: str = "") -> None:
-    """Refuse joint references ``q`` (shape (..., n)) that leave a joint's range (:attr:`JointSpace.limits
-    <blocks.model.joints.JointSpace.limits>`).
-
-    Raises
-    ------
-    UnreachableError
-        Naming ``what`` (the reference), the joint, the value it reaches, its range and ``why`` (the keys that
-        set the reference).
-    """
-    problem = joints.outside_limits(q)
-    if problem is not None:
-        raise UnreachableError(f"{what}: {problem}" + (f" ({why})" if why else ""))
 
 
 @dataclass(frozen=True)

@@ -45,9 +45,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from blocks.diagram.bound_kernels import Kernels
-from blocks.diagram.trajectory import _finite, _scalar, laceration_pose
 from blocks.kernels.noise import _sample_index
 from blocks.kernels.splines import quintic_hermite, smoothstep5
+from blocks.model.task_path import finite_values as _finite
+from blocks.model.task_path import laceration_pose
+from blocks.model.task_path import one_number as _scalar
 
 __all__ = ["ToolPath", "ToolLaceration", "tool_path_output", "MAX_PATH_SAMPLES", "PROBE_SAMPLES", "EAGER_SECONDS"]
 
@@ -440,7 +442,7 @@ class ToolLaceration(_SampledIK):
         if np.allclose(self.start, self.end):
             raise ValueError("trajectory.start and trajectory.end must differ")
         _check_times(self)
-        # the pose kernel's numbers (blocks.diagram.trajectory.LACERATION_FIELDS); the RRPR's roll and IK branch are unused
+        # the pose kernel's numbers (blocks.model.task_path.LACERATION_FIELDS); the RRPR's roll and IK branch are unused
         g = (self.phase_duration, self.stitches, self.duration, *self.start, *self.end, self.bulge, self.skin_height,
              self.hover, self.depth, 0.0, 0.0) + (0.0,) * 7
         object.__setattr__(self, "_geometry", tuple(float(v) for v in g))

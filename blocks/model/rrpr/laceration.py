@@ -1,6 +1,6 @@
 """The paper's RRPR on the suturing path: the laceration's joint references by closed-form inverse kinematics.
 
-The task-space path (stitches along a laceration on the skin, :func:`blocks.diagram.trajectory.laceration_pose`) is any
+The task-space path (stitches along a laceration on the skin, :func:`blocks.model.task_path.laceration_pose`) is any
 arm's; this module turns it into the RRPR's joint references in closed form: ``q = IK(p)``, ``q' = J^-1 p'``,
 ``q'' = J^-1 (p'' - J' q')``, no finite differences.  Another arm's tool point follows the same path by numerical
 IK (:class:`blocks.scenarios.tool_path.ToolLaceration`).
@@ -12,11 +12,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from blocks.diagram.bound_kernels import Kernels
-from blocks.diagram.trajectory import _finite, _scalar, check_joint_ranges, laceration_pose
+from blocks.kernels.bound import Kernels
 from blocks.model.arm import UnreachableError
 from blocks.model.rrpr.kinematics import ELBOWS, inverse_kinematics, jacobian, jacobian_derivative_times_dq
 from blocks.model.rrpr.parameters import RobotParameters
+from blocks.model.task_path import check_joint_ranges, laceration_pose
+from blocks.model.task_path import finite_values as _finite
+from blocks.model.task_path import one_number as _scalar
 
 __all__ = ["LacerationPath", "laceration_rows", "laceration_reference", "laceration_output"]
 
