@@ -216,8 +216,10 @@ def loop_c_source(program: LoopProgram) -> str:
 
 
 def _loop_c_text(program: LoopProgram) -> str:
-    """The C text of a loop program's module functions, ``loop_sources``, ``loop_rhs`` and ``loop_outputs``, and two
-    entry points: ``dk_rhs(t, x, theta, dx)`` and ``dk_outputs(t, x, theta, y)`` (the sources evaluated first).
+    """The C text of a loop program's module functions (an arm's M and h, ``loop_sources``, ``loop_rhs``,
+    ``loop_outputs``, ``loop_outputs_rows``) and three entry points: ``dk_rhs(t, x, theta, dx)``,
+    ``dk_outputs(t, x, theta, y)`` (the sources evaluated first) and ``dk_outputs_grid`` (the outputs and the flagged
+    row groups at every time of a grid, in one call).
 
     Raises
     ------
