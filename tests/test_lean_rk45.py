@@ -79,3 +79,11 @@ def test_integrate_on_grid_is_solve_ivp_bit_for_bit():
 def test_a_vectorized_right_hand_side_is_refused():
     with pytest.raises(ValueError, match="one state at a time"):
         LeanRK45(forced_pendulum, 0.0, [1.0, 0.0, 0.0], 1.0, vectorized=True)
+
+
+def test_the_integrator_steps_rk45_with_it_where_this_scipy_is_the_one_it_restates():
+    from blocks.engines import integrate
+    from blocks.engines.lean_rk45 import lean_rk45_usable
+    assert lean_rk45_usable()
+    assert integrate._STEPPERS["RK45"] is LeanRK45
+    assert all(integrate._STEPPERS[name] is cls for name, cls in integrate.SOLVERS.items() if name != "RK45")

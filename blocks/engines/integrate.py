@@ -44,15 +44,16 @@ import numpy as np
 import scipy.integrate
 import scipy.optimize
 
-from blocks.engines.lean_rk45 import LeanRK45
+from blocks.engines.lean_rk45 import LeanRK45, lean_rk45_usable
 
 __all__ = ["SOLVERS", "integrate_on_grid", "DivergenceError", "SolverFailure", "SimulationTerminated", "MAX_EVENTS",
            "EventSource", "LoopEvents", "loop_events", "hybrid_blocks", "refuse_hybrid", "locate_crossing"]
 
 #: The :func:`scipy.integrate.solve_ivp` methods, by name.
 SOLVERS = {name: getattr(scipy.integrate, name) for name in ("RK45", "RK23", "DOP853", "Radau", "BDF", "LSODA")}
-# The classes that step: scipy's, but RK45 as LeanRK45 (the same steps and floats, less Python per step).
-_STEPPERS = dict(SOLVERS, RK45=LeanRK45)
+# The classes that step: scipy's, but RK45 as LeanRK45 (the same steps and floats, less Python per step) where this
+# scipy's RK45 is the one LeanRK45 restates.
+_STEPPERS = dict(SOLVERS, RK45=LeanRK45) if lean_rk45_usable() else dict(SOLVERS)
 
 
 # Points of a step's dense output searched for the first crossing of the bound (only when a step crossed it).

@@ -19,9 +19,20 @@ import math
 
 import numpy as np
 from scipy.integrate import RK45
-from scipy.integrate._ivp.rk import MAX_FACTOR, MIN_FACTOR, SAFETY
 
-__all__ = ["LeanRK45"]
+try:            # scipy's step-size constants, where its RK45 keeps them
+    from scipy.integrate._ivp.rk import MAX_FACTOR, MIN_FACTOR, SAFETY
+except ImportError:     # pragma: no cover - a scipy that moved them: its own class steps (see stepper_classes)
+    MAX_FACTOR = MIN_FACTOR = SAFETY = None
+
+__all__ = ["LeanRK45", "lean_rk45_usable"]
+
+
+def lean_rk45_usable() -> bool:
+    """Whether this scipy's RK45 has what :class:`LeanRK45` restates (its step-size constants, its tableau and the
+    step method it replaces); when not, scipy's own class should step (the tests compare the two step by step)."""
+    return MAX_FACTOR is not None and all(hasattr(RK45, name) for name in
+                                          ("A", "B", "C", "E", "P", "n_stages", "_step_impl", "_dense_output_impl"))
 
 
 class LeanRK45(RK45):
