@@ -150,7 +150,7 @@ def _without_pinocchio():
     from unittest import mock
 
     from blocks.engines.compiled import scalar
-    return (mock.patch.object(scalar, "_calls_for", lambda plan, system: None),
+    return (mock.patch.object(scalar, "_calls", lambda chain_arm: None),
             mock.patch.object(scalar.ScalarFunctions, "_made", {}), _without_c())
 
 

@@ -16,7 +16,8 @@ import numpy as np
 from blocks.kernels.splines import bump6, smoothstep5
 from blocks.model.arm import UnreachableError
 
-__all__ = ["LACERATION_FIELDS", "laceration_pose", "finite_values", "one_number", "check_joint_ranges"]
+__all__ = ["LACERATION_FIELDS", "laceration_pose", "finite_values", "one_number", "check_joint_ranges",
+           "settle_laceration_shape"]
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -92,3 +93,32 @@ def check_joint_ranges(q, joints, what: str, why: str = "") -> None:
     problem = joints.outside_limits(q)
     if problem is not None:
         raise UnreachableError(f"{what}: {problem}" + (f" ({why})" if why else ""))
+
+
+def settle_laceration_shape(path) -> None:
+    """Check the laceration's shape every path of it shares and store it normalised on ``path`` (a frozen
+    dataclass): ``start`` and ``end`` as 2 floats each (m, distinct), ``bulge``, ``skin_height``, ``hover`` (>= 0) and
+    ``depth`` (> 0) as floats (m), ``stitches`` as a whole number >= 2.
+
+    Raises
+    ------
+    ValueError
+        Naming the ``trajectory.<key>`` that is wrong and what it got.
+    """
+    for name in ("start", "end"):
+        value = finite_values(getattr(path, name), name)
+        if value.shape != (2,):
+            raise ValueError(f"trajectory.{name} must be 2 numbers (x, y) in m, got {getattr(path, name)!r}")
+        object.__setattr__(path, name, tuple(float(v) for v in value))
+    for name in ("bulge", "skin_height", "hover", "depth"):
+        object.__setattr__(path, name, one_number(getattr(path, name), name, "m"))
+    stitches = path.stitches
+    if not isinstance(stitches, (int, np.integer)) or isinstance(stitches, bool) or stitches < 2:
+        raise ValueError(f"trajectory.stitches must be a whole number >= 2, got {stitches!r}")
+    object.__setattr__(path, "stitches", int(stitches))
+    if path.hover < 0:
+        raise ValueError(f"trajectory.hover must be >= 0 m, got {path.hover}")
+    if path.depth <= 0:
+        raise ValueError(f"trajectory.depth must be > 0 m, got {path.depth}")
+    if np.allclose(path.start, path.end):
+        raise ValueError("trajectory.start and trajectory.end must differ")

@@ -47,9 +47,7 @@ import numpy as np
 from blocks.diagram.bound_kernels import Kernels
 from blocks.kernels.noise import _sample_index
 from blocks.kernels.splines import quintic_hermite, smoothstep5
-from blocks.model.task_path import finite_values as _finite
-from blocks.model.task_path import laceration_pose
-from blocks.model.task_path import one_number as _scalar
+from blocks.model.task_path import laceration_pose, settle_laceration_shape
 
 __all__ = ["ToolPath", "ToolLaceration", "tool_path_output", "MAX_PATH_SAMPLES", "PROBE_SAMPLES", "EAGER_SECONDS"]
 
@@ -425,22 +423,7 @@ class ToolLaceration(_SampledIK):
     _what = "laceration path"
 
     def __post_init__(self) -> None:
-        for name in ("start", "end"):
-            value = _finite(getattr(self, name), name)
-            if value.shape != (2,):
-                raise ValueError(f"trajectory.{name} must be 2 numbers (x, y) in m, got {getattr(self, name)!r}")
-            object.__setattr__(self, name, tuple(float(v) for v in value))
-        for name in ("skin_height", "bulge", "hover", "depth"):
-            object.__setattr__(self, name, _scalar(getattr(self, name), name, "m"))
-        if not isinstance(self.stitches, (int, np.integer)) or isinstance(self.stitches, bool) or self.stitches < 2:
-            raise ValueError(f"trajectory.stitches must be a whole number >= 2, got {self.stitches!r}")
-        object.__setattr__(self, "stitches", int(self.stitches))
-        if self.hover < 0:
-            raise ValueError(f"trajectory.hover must be >= 0 m, got {self.hover}")
-        if self.depth <= 0:
-            raise ValueError(f"trajectory.depth must be > 0 m, got {self.depth}")
-        if np.allclose(self.start, self.end):
-            raise ValueError("trajectory.start and trajectory.end must differ")
+        settle_laceration_shape(self)
         _check_times(self)
         # the pose kernel's numbers (blocks.model.task_path.LACERATION_FIELDS); the RRPR's roll and IK branch are unused
         g = (self.phase_duration, self.stitches, self.duration, *self.start, *self.end, self.bulge, self.skin_height,

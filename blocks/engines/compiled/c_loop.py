@@ -190,13 +190,13 @@ def _functions(source: str) -> dict:
     return {node.name: node for node in ast.parse(source).body if isinstance(node, ast.FunctionDef)}
 
 
-_c_texts: dict[str, str | CUnavailable] = {}
-# program key -> the flags of the row groups that read aux (found while writing loop_outputs_rows)
-_aux_flags: dict[str, frozenset] = {}
+# program key -> (its C text, the flags of the row groups that read aux), or why it has none
+_c_texts: dict[str, tuple[str, frozenset] | CUnavailable] = {}
 
 
-def loop_c_source(program: LoopProgram) -> str:
-    """The C text of ``program`` (written once per program and process: parsing the text costs tens of ms).
+def _written(program: LoopProgram) -> tuple[str, frozenset]:
+    """``(C text, flags of the row groups that read aux)`` of ``program``, written once per program and process
+    (parsing the text costs tens of ms).
 
     Raises
     ------
@@ -215,11 +215,23 @@ def loop_c_source(program: LoopProgram) -> str:
     return found
 
 
-def _loop_c_text(program: LoopProgram) -> str:
+def loop_c_source(program: LoopProgram) -> str:
+    """The C text of ``program`` (see :func:`_loop_c_text`).
+
+    Raises
+    ------
+    CUnavailable
+        If the program calls a kernel (a block that is not traced) or reads a table.
+    """
+    return _written(program)[0]
+
+
+def _loop_c_text(program: LoopProgram) -> tuple[str, frozenset]:
     """The C text of a loop program's module functions (an arm's M and h, ``loop_sources``, ``loop_rhs``,
     ``loop_outputs``, ``loop_outputs_rows``) and three entry points: ``dk_rhs(t, x, theta, dx)``,
     ``dk_outputs(t, x, theta, y)`` (the sources evaluated first) and ``dk_outputs_grid`` (the outputs and the flagged
-    row groups at every time of a grid, in one call).
+    row groups at every time of a grid, in one call); beside it the flags of the row groups whose statements read
+    ``aux`` (which the grid pass does not have).
 
     Raises
     ------
@@ -251,7 +263,7 @@ def _loop_c_text(program: LoopProgram) -> str:
         text = [w.statement(stmt) for stmt in fn.body]
         parts.append(f"static void {name}({args})\n{{\n" + _body(text) + "}\n")
         if name == "loop_outputs_rows":
-            _aux_flags[program.key] = frozenset(w.aux_flags)
+            aux_flags = frozenset(w.aux_flags)
     n_src, n_aux, n_y = max(program.n_src, 1), max(program.n_aux, 1), max(program.n_out, 1)
     n_out, n_rows_used = program.n_out, program.n_rows
     n_rows = max(n_rows_used, 1)
@@ -285,7 +297,7 @@ void dk_outputs_grid(long T, const double *ts, long n_x, const double *X, const 
     }}
 }}
 """)
-    return "\n".join(parts)
+    return "\n".join(parts), aux_flags
 
 
 def _body(lines: list) -> str:
@@ -468,8 +480,7 @@ class CLoop:
     def row_groups(self) -> dict:
         """The row groups the grid pass offers (name -> (flag, rows)): those that read no shared values
         (``aux``: the reference's tool pose, which this pass does not have)."""
-        loop_c_source(self.program)                    # (written already: it notes which groups read aux)
-        reading = _aux_flags.get(self.program.key, frozenset())
+        reading = _written(self.program)[1]
         return {name: spec for name, spec in self.program.row_groups.items() if spec[0] not in reading}
 
     def outputs_on_grid(self, t_grid, X, rows: tuple = ()) -> tuple[np.ndarray, dict]:

@@ -141,9 +141,13 @@ def _chain_arm(system) -> bool:
 def _calls_for(plan, system):
     """What the fast engine's trace calls: every chain row kernel when the loop has a chain arm and pinocchio is
     installed (bound to pinocchio's algorithms), else what the compiled engine's trace calls (its program)."""
+    return _calls(_chain_arm(system))
+
+
+def _calls(chain_arm: bool):
     from blocks.kernels.chain import KERNEL_CALLS
 
-    if _chain_arm(system):
+    if chain_arm:
         try:
             import pinocchio  # noqa: F401
         except ImportError:
@@ -168,7 +172,8 @@ def scalar_rhs(plan, system, fallback: Callable) -> Callable | None:
     Returns None when a block has no kernels or the plan is not direct
     (:class:`~blocks.engines.compiled.CompiledUnavailable`).
     """
-    if _chain_arm(system):
+    chain_arm = _chain_arm(system)
+    if chain_arm:
         # a chain arm's loop through C when a compiler builds it: the same floats as the text below with the
         # arm's M and h generated, about a tenth of its time (blocks.engines.compiled.c_loop)
         from blocks.engines.compiled.c_loop import c_rhs
@@ -176,7 +181,7 @@ def scalar_rhs(plan, system, fallback: Callable) -> Callable | None:
         if found is not None:
             return found
     try:
-        program, kernels = program_for(plan, system, loop_rows_of(system), _calls_for(plan, system))
+        program, kernels = program_for(plan, system, loop_rows_of(system), _calls(chain_arm))
     except CompiledUnavailable:
         return None
     fns = ScalarFunctions.of(program)

@@ -16,8 +16,7 @@ from blocks.kernels.bound import Kernels
 from blocks.model.arm import UnreachableError
 from blocks.model.rrpr.kinematics import ELBOWS, inverse_kinematics, jacobian, jacobian_derivative_times_dq
 from blocks.model.rrpr.parameters import RobotParameters
-from blocks.model.task_path import check_joint_ranges, laceration_pose
-from blocks.model.task_path import finite_values as _finite
+from blocks.model.task_path import check_joint_ranges, laceration_pose, settle_laceration_shape
 from blocks.model.task_path import one_number as _scalar
 
 __all__ = ["LacerationPath", "laceration_rows", "laceration_reference", "laceration_output"]
@@ -126,30 +125,16 @@ class LacerationPath:
     singularity_margin: float = 0.2
 
     def __post_init__(self) -> None:
-        for name in ("start", "end"):
-            value = _finite(getattr(self, name), name)
-            if value.shape != (2,):
-                raise ValueError(f"trajectory.{name} must be 2 numbers (x, y) in m, got {getattr(self, name)!r}")
-            object.__setattr__(self, name, tuple(float(v) for v in value))
-        for name, unit in (("bulge", "m"), ("skin_height", "m"), ("hover", "m"), ("depth", "m"),
-                           ("needle_roll", "rad"), ("roll_offset", "rad"), ("duration", "s"),
+        settle_laceration_shape(self)
+        for name, unit in (("needle_roll", "rad"), ("roll_offset", "rad"), ("duration", "s"),
                            ("singularity_margin", "rad")):
             object.__setattr__(self, name, _scalar(getattr(self, name), name, unit))
-        if not isinstance(self.stitches, (int, np.integer)) or isinstance(self.stitches, bool) or self.stitches < 2:
-            raise ValueError(f"trajectory.stitches must be a whole number >= 2, got {self.stitches!r}")
-        object.__setattr__(self, "stitches", int(self.stitches))
-        if self.hover < 0:
-            raise ValueError(f"trajectory.hover must be >= 0 m, got {self.hover}")
-        if self.depth <= 0:
-            raise ValueError(f"trajectory.depth must be > 0 m, got {self.depth}")
         if self.duration <= 0:
             raise ValueError(f"trajectory.duration must be > 0 s, got {self.duration}")
         if not 0 <= self.singularity_margin < math.pi / 2:
             raise ValueError(f"trajectory.singularity_margin must be in [0, pi/2) rad, got {self.singularity_margin}")
         if self.elbow not in ELBOWS:
             raise ValueError(f"trajectory.elbow must be one of {sorted(ELBOWS)}, got {self.elbow!r}")
-        if np.allclose(self.start, self.end):
-            raise ValueError("trajectory.start and trajectory.end must differ")
         # The branch reference for theta1/theta4 continuity is the rest pose at the start.
         object.__setattr__(self, "_q_near", None)
         object.__setattr__(self, "_table", self._geometry())      # the pose does not depend on the branch
