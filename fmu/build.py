@@ -10,12 +10,11 @@ from __future__ import annotations
 import hashlib
 import os
 import shlex
-import shutil
 import sys
 import uuid
 from pathlib import Path
 
-from blocks.plumbing.compiler import CompilerTimeout, run_compiler
+from blocks.plumbing.compiler import CANDIDATES, CompilerTimeout, compiler_command, run_compiler
 
 from .errors import FMUBuildError
 
@@ -32,8 +31,6 @@ FMI_HEADERS = {
 # -ffp-contract=off: no fused multiply-adds, so the generated maths rounds as the numpy kernels do.
 COMPILE_FLAGS = ("-shared", "-fPIC", "-O2", "-std=c99", "-ffp-contract=off", "-D_POSIX_C_SOURCE=200809L",
                  "-fvisibility=hidden", "-Wall", "-Wextra")
-
-_CANDIDATES = ("cc", "gcc", "clang")
 
 # C files under fmu/c shared by the plant and the controller FMU layers of each FMI version: (sources, headers).
 _SHARED_LAYER_FILES = {
@@ -81,17 +78,14 @@ def find_compiler(cc: str | None = None) -> list[str]:
         If no compiler is found; the message says what was tried.
     """
     spec = cc if cc is not None else os.environ.get("CC")
-    if spec:
-        argv = shlex.split(spec)
-        if not argv or shutil.which(argv[0]) is None:
-            source = "cc argument" if cc is not None else "CC environment variable"
-            raise FMUBuildError(f"C compiler {spec!r} (from the {source}) was not found on PATH; "
-                                "install a C compiler or point CC at one")
+    argv = compiler_command(spec)
+    if argv is not None:
         return argv
-    for name in _CANDIDATES:
-        if shutil.which(name):
-            return [name]
-    raise FMUBuildError(f"no C compiler found (tried the CC environment variable and {', '.join(_CANDIDATES)} on "
+    if spec:
+        source = "cc argument" if cc is not None else "CC environment variable"
+        raise FMUBuildError(f"C compiler {spec!r} (from the {source}) was not found on PATH; "
+                            "install a C compiler or point CC at one")
+    raise FMUBuildError(f"no C compiler found (tried the CC environment variable and {', '.join(CANDIDATES)} on "
                         "PATH); exporting an FMU compiles its C sources: install gcc or clang, or set CC")
 
 

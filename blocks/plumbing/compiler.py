@@ -8,11 +8,28 @@ the whole group is killed and waited for.
 from __future__ import annotations
 
 import os
+import shlex
+import shutil
 import signal
 import subprocess
 import time
 
-__all__ = ["CompilerTimeout", "run_compiler", "end_process_group"]
+__all__ = ["CANDIDATES", "CompilerTimeout", "compiler_command", "run_compiler", "end_process_group"]
+
+#: The compilers looked for on PATH, in order, when none is named.
+CANDIDATES = ("cc", "gcc", "clang")
+
+
+def compiler_command(spec: str | None) -> list[str] | None:
+    """The compiler's command as an argument list: ``spec`` (a command line, as ``$CC`` holds one) when its program
+    is on PATH, else -- with no ``spec`` -- the first of :data:`CANDIDATES` found; None when there is none."""
+    if spec:
+        argv = shlex.split(spec)
+        return argv if argv and shutil.which(argv[0]) is not None else None
+    for name in CANDIDATES:
+        if shutil.which(name):
+            return [name]
+    return None
 
 
 class CompilerTimeout(RuntimeError):

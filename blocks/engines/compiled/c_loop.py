@@ -36,8 +36,6 @@ import ast
 import ctypes
 import hashlib
 import os
-import shlex
-import shutil
 import subprocess
 import tempfile
 import warnings
@@ -46,9 +44,9 @@ from pathlib import Path
 import numpy as np
 
 from blocks.engines.compiled.c_backend import C_PRELUDE
-from blocks.engines.compiled.cache import CompiledCacheWarning, cache_dir
+from blocks.engines.compiled.cache import CompiledCacheWarning, _sha256, _write_atomic, cache_dir
 from blocks.engines.compiled.codegen import CompiledUnavailable, LoopProgram
-from blocks.plumbing.compiler import CompilerTimeout, run_compiler
+from blocks.plumbing.compiler import CompilerTimeout, compiler_command, run_compiler
 
 __all__ = ["CUnavailable", "CTooLong", "loop_c_source", "c_compiler", "loop_library", "CLoop", "c_rhs", "C_LOOP_FLAGS",
            "COMPILE_TIMEOUT", "C_COMPILE_LIMIT", "estimate_c_compile_seconds"]
@@ -61,8 +59,6 @@ COMPILE_TIMEOUT = 120.0
 #: A loop whose C is estimated to compile longer than this (s, :func:`estimate_c_compile_seconds`) is not compiled:
 #: the fast engine's promise is no compile to wait for, and the largest example arm's loop takes about 0.3 s.
 C_COMPILE_LIMIT = 10.0
-# The C compiler's candidates when $CC is not set (as the FMU export looks for one).
-_CANDIDATES = ("cc", "gcc", "clang")
 # The generated functions the fast engine calls, by their Python name -> their C arguments.
 _ARGS = {"loop_sources": "double t, const double *theta, double *src",
          "loop_rhs": "double t, const double *x, const double *theta, const double *src, double *dx",
@@ -308,18 +304,11 @@ def _body(lines: list) -> str:
 # Building and loading the library
 # --------------------------------------------------------------------------------------------------------------
 def c_compiler() -> list[str] | None:
-    """The C compiler's command (``$CC``, else ``cc``, ``gcc`` or ``clang`` on PATH), or None when there is none
-    (or ``DOBKIT_FAST_C=0`` turns the C right-hand side off)."""
+    """The C compiler's command (``$CC``, else ``cc``, ``gcc`` or ``clang`` on PATH, as the FMU export finds it), or
+    None when there is none (or ``DOBKIT_FAST_C=0`` turns the C right-hand side off)."""
     if os.environ.get("DOBKIT_FAST_C", "1").strip() == "0":
         return None
-    spec = os.environ.get("CC")
-    if spec:
-        argv = shlex.split(spec)
-        return argv if argv and shutil.which(argv[0]) else None
-    for name in _CANDIDATES:
-        if shutil.which(name):
-            return [name]
-    return None
+    return compiler_command(os.environ.get("CC"))
 
 
 def estimate_c_compile_seconds(c_lines: int) -> float:
@@ -359,27 +348,19 @@ def _compile(argv: list[str], c_text: str, output: Path) -> None:
         if returncode != 0 or not built.is_file():
             raise CUnavailable(f"compiling the loop's C failed (exit code {returncode}): {said.strip()[:400]}")
         data = built.read_bytes()
-    tmp_out = output.with_name(f"{output.name}.tmp.{os.getpid()}")
-    try:
-        tmp_out.write_bytes(data)
-        os.replace(tmp_out, output)
-    finally:
-        if tmp_out.exists():
-            tmp_out.unlink()
+    _write_atomic(output, data)
     # the library's digest beside it: a library changed or cut short after it was written is not loaded
-    digest = output.with_name(output.name + ".sha256")
-    tmp_digest = digest.with_name(f"{digest.name}.tmp.{os.getpid()}")
-    tmp_digest.write_text(hashlib.sha256(data).hexdigest())
-    os.replace(tmp_digest, digest)
+    _write_atomic(output.with_name(output.name + ".sha256"), hashlib.sha256(data).hexdigest().encode())
 
 
 def _checked(path: Path) -> bool:
     """Whether ``path`` is a library whose bytes match the digest written beside it."""
+    found = _sha256(path)
     try:
-        data, digest = path.read_bytes(), path.with_name(path.name + ".sha256").read_text().strip()
+        digest = path.with_name(path.name + ".sha256").read_text().strip()
     except OSError:
         return False
-    return hashlib.sha256(data).hexdigest() == digest
+    return found is not None and found[1] == digest
 
 
 _libraries: dict[tuple, ctypes.CDLL] = {}
