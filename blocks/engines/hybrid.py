@@ -274,32 +274,25 @@ class HybridSystem:
         if monitor is not None:
             bound = monitor.limits
         stepper = tick_stepper_for(self, method) if self.tick_stepping else None
-        if stepper is not None:
-            # one embedded step per tick (substeps where the tolerances ask), no solver restarted per tick
-            try:
-                states, held = stepper.simulate(x0, t_grid, rtol, atol, max_step, bound, progress, monitor)
-            except DivergenceError as err:
-                if monitor is None:
-                    raise
-                raise monitor.diverged(err.time, err.state) from None
-            if progress is not None:
-                progress(1.0)
-            return states, self.outputs_between_ticks(t_grid, states, held)
-        ticks = TickSource(self, float(t_grid[-1]))
-        # the held outputs are kept at every grid point; the diagram's outputs follow from them after the run
-        events = LoopEvents([(ticks, slice(0, self.nstates))], ticks.rhs, ticks.snapshot)
         try:
-            # a tick's interval is tried in one step first, as the solver's first step after every tick
-            states, _ = integrate_on_grid(ticks.rhs, x0, t_grid, method, rtol=rtol, atol=atol, max_step=max_step,
-                                          bound=bound, progress=progress, first_step=math.inf, monitor=monitor,
-                                          events=events)
+            if stepper is not None:
+                # one embedded step per tick (substeps where the tolerances ask), no solver restarted per tick
+                states, held = stepper.simulate(x0, t_grid, rtol, atol, max_step, bound, progress, monitor)
+            else:
+                ticks = TickSource(self, float(t_grid[-1]))
+                # the held outputs are kept at every grid point; the diagram's outputs follow from them after the run
+                events = LoopEvents([(ticks, slice(0, self.nstates))], ticks.rhs, ticks.snapshot)
+                # a tick's interval is tried in one step first, as the solver's first step after every tick
+                states, _ = integrate_on_grid(ticks.rhs, x0, t_grid, method, rtol=rtol, atol=atol, max_step=max_step,
+                                              bound=bound, progress=progress, first_step=math.inf, monitor=monitor,
+                                              events=events)
+                held = np.array(events.outputs).T
         except DivergenceError as err:
             if monitor is None:
                 raise
             raise monitor.diverged(err.time, err.state) from None
         if progress is not None:
             progress(1.0)
-        held = np.array(events.outputs).T
         return states, self.outputs_between_ticks(t_grid, states, held)
 
 

@@ -37,7 +37,7 @@ NOGIL = ("sampled_members",)
 # its 0.6 ms of outputs on the grid; the right-hand sides stay calls (called from many places, inlined they would
 # double the compile time)
 INLINE = ("loop_derivative", "step_rhs", "loop_sources", "rms_norm", "dense_into", "dense_coefficients",
-          "bounded_step", "dp_step", "loop_outputs_rows")
+          "bounded_step", "dp_step", "loop_outputs_rows", "accumulate_rows")
 # Of those, the loop's own functions, inlined only into a small program's drivers (codegen.SMALL_PROGRAM_LINES)
 INLINE_WHEN_SMALL = ("loop_sources", "loop_outputs_rows")
 
@@ -328,6 +328,19 @@ def source_table(times, theta, ext, table):
         loop_sources(times[k], theta, ext, work, table[k])
 
 
+def accumulate_rows(m, g, last_grid, rows, sum_sq, max_abs, final):
+    """Member ``m``'s rows at grid point ``g`` into its metrics: squares added to ``sum_sq[m]``, the largest
+    magnitude (nan wins) in ``max_abs[m]``, the value at grid point ``last_grid`` in ``final[m]``."""
+    for r in range(sum_sq.shape[1]):
+        v = rows[r]
+        sum_sq[m, r] += v * v
+        a = abs(v)
+        if a > max_abs[m, r] or a != a:
+            max_abs[m, r] = a
+        if g == last_grid:
+            final[m, r] = v
+
+
 def rk4_batch(times, grid_index, src_at, src_mid, aux, X0, theta, ext, tables, table_row, flags, keep, keep_rows,
               last_grid, bound, Y, sum_sq, max_abs, final, failed_at, failed_x):
     """Fixed-step RK4 of every member on the shared schedule ``times``, members in parallel.
@@ -348,7 +361,6 @@ def rk4_batch(times, grid_index, src_at, src_mid, aux, X0, theta, ext, tables, t
     """
     n_members, n = X0.shape
     n_out = loop_output_count()
-    n_rows = sum_sq.shape[1]
     n_keep = keep.shape[0]
     n_keep_rows = keep_rows.shape[0]
     for m in prange(n_members):
@@ -379,14 +391,7 @@ def rk4_batch(times, grid_index, src_at, src_mid, aux, X0, theta, ext, tables, t
                         failed_x[m, i] = x[i]
                     break
                 loop_rhs_rows(t0, x, th, src_at[k], e, work, aux[g], flags, k1, rows)
-                for r in range(n_rows):
-                    v = rows[r]
-                    sum_sq[m, r] += v * v
-                    a = abs(v)
-                    if a > max_abs[m, r] or a != a:
-                        max_abs[m, r] = a
-                    if g == last_grid:
-                        final[m, r] = v
+                accumulate_rows(m, g, last_grid, rows, sum_sq, max_abs, final)
                 if n_keep > 0 or n_keep_rows > 0:
                     loop_outputs_rows(t0, x, th, src_at[k], e, work, aux[g], flags, y, rows_kept)
                     for r in range(n_keep):
@@ -418,14 +423,7 @@ def batch_grid_point(m, g, t, x, theta, ext, aux, flags, keep, keep_rows, last_g
     their squares added to ``sum_sq[m]``, their largest magnitude in ``max_abs[m]``, their value at grid point
     ``last_grid`` in ``final[m]``, the outputs ``keep`` and rows ``keep_rows`` stored in ``Y[m, g]``."""
     loop_outputs_rows(t, x, theta, src_grid[g], ext, work, aux[g], flags, yo, rows)
-    for r in range(sum_sq.shape[1]):
-        v = rows[r]
-        sum_sq[m, r] += v * v
-        a = abs(v)
-        if a > max_abs[m, r] or a != a:
-            max_abs[m, r] = a
-        if g == last_grid:
-            final[m, r] = v
+    accumulate_rows(m, g, last_grid, rows, sum_sq, max_abs, final)
     n_keep = keep.shape[0]
     for r in range(n_keep):
         Y[m, g, r] = yo[keep[r]]
